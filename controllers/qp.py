@@ -1,0 +1,316 @@
+"""The CBF filter's quadratic program (SPEC §5), solved thousands of times a second.
+
+    u* = argmin_u ‖u − u_nom‖²   s.t.   A u ≤ b,   lb ≤ u ≤ ub (optional box)
+
+u, u_nom, lb, ub: (N,) in hPa; A: (m, N), b: (m,) general rows (the CBF rows
+L_gB_i u ≤ γ_i/B_i − L_fB_i; a row's units are whatever B's are, per hPa). Sized for
+N = 1..4 and m = 1..6 (any size works; the native solver's cost grows like (m + 2N) N²).
+
+Preprocessing, the same for every backend:
+- Each general row is scaled to unit norm: â_i = a_i/‖a_i‖ (dimensionless),
+  b̂_i = b_i/‖a_i‖ (hPa, the signed distance of the row's boundary from u = 0). L_gB is
+  ≈ 1e-5…1e-4 per hPa; unscaled, solvers with absolute tolerances mis-solve the row.
+- A row with ‖a_i‖ ≤ `zero_row_tol` (default 1e-12, in A's units) reads 0 ≤ b_i: it is
+  dropped if b_i ≥ 0 and makes the problem infeasible if b_i < 0. Such rows are never
+  reported active.
+- If u_nom satisfies every row and the box within the feasibility tolerance it is the
+  answer (iterations = 0) and no backend runs.
+
+Tolerances, relative to s = 1 + max(|u_nom|, |lb|, |ub|) (hPa; b̂ is left out because a far,
+inactive row — b̂ → ±∞ as L_gB → 0 — must not loosen the other rows' tolerance):
+- FEASIBILITY_RTOL·s = 1e-9·s: the native solver's and the shortcut's feasibility test.
+- ACCEPT_RTOL·s = 1e-6·s: a backend's answer counts as feasible only if it violates no row
+  or bound by more than this; the same threshold marks a general row active
+  (b̂_i − â_i u ≤ ACCEPT_RTOL·s).
+
+Backends (`available_backends()`):
+- "native": a Goldfarb–Idnani dual active-set method specialised to the identity Hessian,
+  in plain Python floats (faster than numpy for N ≤ 4). It starts from the unconstrained
+  optimum u_nom and adds the most violated row each time; with working set W
+  (linearly independent unit rows, Q R = [â_k]_{k∈W}, Q orthonormal) and added row p:
+      z = (I − QQᵀ) â_p (primal step), r = R⁻¹ Qᵀ â_p (dual step), u ← u − t z,
+      λ_W ← λ_W − t r, λ_p ← λ_p + t,
+  with t = min(full step (â_p·u − b̂_p)/‖z‖², largest t keeping λ_W ≥ 0). A row that
+  blocks the dual step leaves W. When z = 0 and no multiplier blocks, â_p = Σ r_k â_k with
+  r ≤ 0, a certificate that the rows are inconsistent: "infeasible". Exact to rounding;
+  parallel, duplicate and degenerate rows are handled by the dual steps. `iterations`
+  counts the steps (row additions and removals); more than 200 gives "iteration_limit".
+- "daqp": DAQP's own C API (daqp.solve), the box passed as simple bounds.
+- "qpsolvers:<name>": the same problem through qpsolvers for name in daqp, quadprog, osqp,
+  proxqp, piqp (those installed), with tolerances tightened to ≈ 1e-10; `iterations` is
+  None and a failure reads "infeasible or failed" (qpsolvers does not tell them apart).
+  quadprog has no feasibility tolerance and may call a degenerate problem (a dependent
+  row violated by rounding at a vertex with more tight rows than N) infeasible.
+`tools/bench_qp.py` measures them; DEFAULT_BACKEND is the fastest exact one there.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+import warnings
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
+
+import daqp
+import numpy as np
+import qpsolvers
+from numpy.typing import ArrayLike
+
+FEASIBILITY_RTOL = 1e-9
+ACCEPT_RTOL = 1e-6
+ZERO_ROW_TOL = 1e-12
+_DEPENDENT_TOL = 1e-12
+"""‖z‖ below which an added unit row counts as a combination of the working set's rows."""
+_MAX_ITERATIONS = 200
+_DAQP_INF = 1e30
+
+_QPSOLVERS_SETTINGS: dict[str, dict[str, float | bool]] = {
+    "daqp": {"primal_tol": 1e-10},
+    "quadprog": {},
+    "osqp": {"eps_abs": 1e-10, "eps_rel": 1e-10, "polishing": True, "max_iter": 100000},
+    "proxqp": {"eps_abs": 1e-10, "eps_rel": 0.0},
+    "piqp": {"eps_abs": 1e-10, "eps_rel": 1e-10},
+}
+
+@dataclass(frozen=True, eq=False)
+class QPSolution:
+    """`u` (N,) hPa, None when infeasible; `active` (m,) bool over the general rows as given;
+    `status` "optimal" iff feasible, otherwise why not; `iterations` when the backend says."""
+
+    u: np.ndarray | None
+    feasible: bool
+    active: np.ndarray
+    status: str
+    iterations: int | None
+
+
+def _dot(a: list[float], b: list[float]) -> float:
+    return sum(map(operator.mul, a, b))
+
+
+def _split(Q: list[list[float]], a: list[float]) -> tuple[list[float], list[float]]:
+    """a = Q d + z with z ⊥ span(Q): classical Gram–Schmidt applied twice (stable for ≤ 4 vectors)."""
+    d = [0.0] * len(Q)
+    z = list(a)
+    for _ in range(2):
+        for k, q in enumerate(Q):
+            c = _dot(q, z)
+            d[k] += c
+            z = [zi - c * qi for zi, qi in zip(z, q)]
+    return d, z
+
+
+def _append(Q: list[list[float]], R: list[list[float]], d: list[float], z: list[float]) -> None:
+    """Extend Q R by a column whose split is (d, z); R is kept as its columns (column j has j+1 entries)."""
+    norm = math.sqrt(_dot(z, z))
+    Q.append([zi / norm for zi in z])
+    R.append(d + [norm])
+
+
+def _back_substitute(R: list[list[float]], d: list[float]) -> list[float]:
+    r = [0.0] * len(d)
+    for i in range(len(d) - 1, -1, -1):
+        r[i] = (d[i] - sum(R[j][i] * r[j] for j in range(i + 1, len(d)))) / R[i][i]
+    return r
+
+
+def _dual_active_set(x: list[float], rows: list[list[float]], rhs: list[float],
+                     tol: float) -> tuple[list[float] | None, str, int]:
+    """Goldfarb–Idnani for min ½‖u − x‖² s.t. rows·u ≤ rhs (unit rows), from u = x (module docstring)."""
+    working: list[int] = []
+    lam: list[float] = []
+    Q: list[list[float]] = []
+    R: list[list[float]] = []
+    iterations = 0
+    while True:
+        p, worst = -1, tol
+        for k, (a, c) in enumerate(zip(rows, rhs)):
+            if k not in working:
+                violation = _dot(a, x) - c
+                if violation > worst:
+                    p, worst = k, violation
+        if p < 0:
+            return x, "optimal", iterations
+        a, lam_p = rows[p], 0.0
+        while True:
+            iterations += 1
+            if iterations > _MAX_ITERATIONS:
+                return None, "iteration_limit", iterations
+            d, z = _split(Q, a)
+            zz = _dot(z, z)
+            r = _back_substitute(R, d)
+            t_dual, block = math.inf, -1
+            for k, (rk, lk) in enumerate(zip(r, lam)):
+                if rk > 0.0 and lk < t_dual * rk:
+                    t_dual, block = lk / rk, k
+            t_full = (_dot(a, x) - rhs[p]) / zz if zz > _DEPENDENT_TOL**2 else math.inf
+            t = min(t_dual, t_full)
+            if t == math.inf:
+                return None, "infeasible", iterations
+            lam = [lk - t * rk for lk, rk in zip(lam, r)]
+            lam_p += t
+            if t_full < math.inf:
+                x = [xi - t * zi for xi, zi in zip(x, z)]
+            if t_full <= t_dual:
+                working.append(p)
+                lam.append(lam_p)
+                _append(Q, R, d, z)
+                break
+            del working[block], lam[block]
+            Q, R = [], []
+            for k in working:
+                _append(Q, R, *_split(Q, rows[k]))
+
+
+class _Problem(NamedTuple):
+    """The normalised problem as Python floats: general rows (â, b̂), the box, and all rows as (row, rhs)."""
+
+    u0: list[float]
+    A_hat: list[list[float]]
+    b_hat: list[float]
+    lb: list[float] | None
+    ub: list[float] | None
+    rows: list[list[float]]
+    rhs: list[float]
+    tol: float
+
+    def violation(self, u: list[float]) -> float:
+        return max((_dot(a, u) - c for a, c in zip(self.rows, self.rhs)), default=0.0)
+
+
+BackendResult = tuple["list[float] | np.ndarray | None", str, "int | None"]
+
+
+def _solve_native(problem: _Problem) -> BackendResult:
+    return _dual_active_set(problem.u0, problem.rows, problem.rhs, problem.tol)
+
+
+_DAQP_STATUS = {1: "optimal", 2: "optimal", -1: "infeasible", -2: "cycling", -3: "unbounded",
+                -4: "iteration_limit", -5: "nonconvex", -6: "overdetermined initial active set"}
+
+
+def _solve_daqp(problem: _Problem) -> BackendResult:
+    n, m = len(problem.u0), len(problem.b_hat)
+    upper, lower = problem.b_hat, [-_DAQP_INF] * m
+    if problem.lb is not None or problem.ub is not None:
+        upper = (problem.ub or [_DAQP_INF] * n) + upper
+        lower = (problem.lb or [-_DAQP_INF] * n) + lower
+    x, _, flag, info = daqp.solve(np.eye(n), -np.array(problem.u0), np.array(problem.A_hat).reshape(m, n),
+                                  np.array(upper), np.array(lower), np.zeros(len(upper), dtype=np.int32),
+                                  primal_tol=problem.tol)
+    status = _DAQP_STATUS.get(flag, f"daqp exitflag {flag}")
+    return (x if status == "optimal" else None), status, int(info["iterations"])
+
+
+def _qpsolvers_backend(solver: str) -> Callable[[_Problem], BackendResult]:
+    settings = _QPSOLVERS_SETTINGS[solver]
+
+    def solve(problem: _Problem) -> BackendResult:
+        n, has_rows = len(problem.u0), len(problem.b_hat) > 0
+        qp = qpsolvers.Problem(
+            np.eye(n), -np.array(problem.u0),
+            np.array(problem.A_hat) if has_rows else None, np.array(problem.b_hat) if has_rows else None,
+            lb=None if problem.lb is None else np.array(problem.lb),
+            ub=None if problem.ub is None else np.array(problem.ub))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # qpsolvers' dense→sparse conversion notice for osqp
+            try:
+                solution = qpsolvers.solve_problem(qp, solver=solver, **settings)
+            except (qpsolvers.SolverError, ValueError) as exc:
+                return None, f"{solver} failed: {exc}", None
+        if not solution.found or solution.x is None:
+            return None, "infeasible or failed", None
+        return solution.x, "optimal", None
+
+    return solve
+
+
+_BACKENDS: dict[str, Callable[[_Problem], BackendResult]] = {"native": _solve_native, "daqp": _solve_daqp}
+_BACKENDS.update({f"qpsolvers:{name}": _qpsolvers_backend(name)
+                  for name in _QPSOLVERS_SETTINGS if name in qpsolvers.available_solvers})
+
+DEFAULT_BACKEND = "native"
+
+
+def available_backends() -> list[str]:
+    """Backend names accepted by `solve_qp`, the installed qpsolvers solvers included."""
+    return list(_BACKENDS)
+
+
+def _finite_list(name: str, value: ArrayLike, shape: tuple[int, ...] | None) -> list:
+    arr = np.asarray(value, dtype=float)
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    values = arr.tolist()
+    flat = values if arr.ndim == 1 else [x for row in values for x in row]
+    if not all(map(math.isfinite, flat)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    return values
+
+
+def solve_qp(u_nom: ArrayLike, A: ArrayLike, b: ArrayLike, lb: ArrayLike | None = None,
+             ub: ArrayLike | None = None, backend: str = DEFAULT_BACKEND,
+             zero_row_tol: float = ZERO_ROW_TOL) -> QPSolution:
+    """Solve min ‖u − u_nom‖² s.t. A u ≤ b, lb ≤ u ≤ ub; see the module docstring.
+
+    Raises ValueError for malformed input (shapes, non-finite values, lb > ub, unknown
+    backend); an infeasible problem is not an error but a QPSolution with feasible=False.
+    """
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend must be one of {available_backends()}, got {backend!r}")
+    u_nom = np.asarray(u_nom, dtype=float)
+    if u_nom.ndim != 1 or u_nom.size < 1:
+        raise ValueError(f"u_nom must have shape (N,) with N >= 1, got {u_nom.shape}")
+    n = u_nom.size
+    u0 = _finite_list("u_nom", u_nom, None)
+    A = np.asarray(A, dtype=float)
+    if A.ndim != 2 or A.shape[1] != n:
+        raise ValueError(f"A must have shape (m, {n}), got {A.shape}")
+    m = A.shape[0]
+    rows = _finite_list("A", A, None)
+    b_list = _finite_list("b", b, (m,))
+    lb_list = None if lb is None else _finite_list("lb", lb, (n,))
+    ub_list = None if ub is None else _finite_list("ub", ub, (n,))
+    if lb_list is not None and ub_list is not None:
+        for j, (lo, hi) in enumerate(zip(lb_list, ub_list)):
+            if lo > hi:
+                raise ValueError(f"lb[{j}] = {lo} exceeds ub[{j}] = {hi}")
+
+    def failure(status: str, iterations: int | None) -> QPSolution:
+        return QPSolution(None, False, np.zeros(m, dtype=bool), status, iterations)
+
+    A_hat: list[list[float]] = []
+    b_hat: list[float] = []
+    kept: list[int] = []
+    for i, (a, bi) in enumerate(zip(rows, b_list)):
+        norm = math.sqrt(_dot(a, a))
+        if norm > zero_row_tol:
+            A_hat.append([x / norm for x in a])
+            b_hat.append(bi / norm)
+            kept.append(i)
+        elif bi < 0.0:
+            return failure(f"infeasible: row {i} is zero (|a| = {norm:.1e}) and b = {bi:.3g} < 0", 0)
+    box_rows: list[list[float]] = []
+    box_rhs: list[float] = []
+    for sign, bound in ((1.0, ub_list), (-1.0, lb_list)):
+        for j, value in enumerate(bound or ()):
+            box_rows.append([sign if k == j else 0.0 for k in range(n)])
+            box_rhs.append(sign * value)
+    scale = 1.0 + max(map(abs, u0 + (lb_list or []) + (ub_list or [])))
+    problem = _Problem(u0, A_hat, b_hat, lb_list, ub_list, A_hat + box_rows, b_hat + box_rhs, FEASIBILITY_RTOL * scale)
+
+    if problem.violation(u0) <= problem.tol:
+        u, status, iterations = u0, "optimal", 0
+    else:
+        x, status, iterations = _BACKENDS[backend](problem)
+        if x is None:
+            return failure(status, iterations)
+        u = [float(v) for v in x]
+        excess = problem.violation(u)
+        if not excess <= ACCEPT_RTOL * scale:
+            return failure(f"{status} but violates a constraint by {excess:.3g} hPa", iterations)
+    active = np.zeros(m, dtype=bool)
+    for i, a, c in zip(kept, A_hat, b_hat):
+        active[i] = c - _dot(a, u) <= ACCEPT_RTOL * scale
+    return QPSolution(np.array(u), True, active, status, iterations)
