@@ -1,0 +1,457 @@
+"""MJCF of the discretised PCC arm and its compliant plates, generated with MjSpec (SPEC §7).
+
+Arm. Segment i of the PCC arm (length L_i, mass m_i, inertia I_i, stiffness k_i,
+damping d_i, gain λ_i; `controllers.params.RobotParams`) becomes n rigid links joined
+by n hinges about z, placed at the centres of n equal cells of length c_i = L_i / n:
+
+    s = 0 ─ c/2 ─ hinge 1 ─ c ─ hinge 2 ─ … ─ hinge n ─ c/2 ─ s = L_i
+
+so both ends of a segment are half-length links (the half links of adjacent segments
+form one body; the first half link of segment 1 is part of the fixed `base`). With all n
+hinges bent by q_i/n the segment end lies within ≈ L q²/(12 n²) of the PCC arc, and
+the segment's generalised forces are exactly PCC's:
+
+- hinge stiffness n·k_i and damping n·d_i (N·m/rad, N·m·s/rad) give −k_i q_i − d_i q̇_i
+  on q_i = Σ_j θ_ij (the fixed tendon `seg{i}_bend`, coefficient 1 on each hinge, has
+  length q_i);
+- the pressure actuator `seg{i}_pressure` (command u_i in hPa, ctrlrange
+  [u_min_i, u_max_i]) drives that tendon with gear λ_i (N·m/hPa), i.e. the torque
+  λ_i u_i acts on EVERY hinge of the segment (equal bending moment along the segment),
+  through first-order pressure dynamics  ṗ = (u − p)/τ_p  (`filterexact`), or no
+  dynamics (p = u) when τ_p = 0;
+- the mass is spread uniformly along the segment (density m_i / L_i, each link's share
+  at its centre with its own rod inertia m ℓ²/12), so the straight segment's inertia
+  about its centre is m_i L_i²/12; the difference I_i − m_i L_i²/12 from `RobotParams`
+  is spread over the links in proportion to length (refused if a link's inertia would
+  become ≤ 0). Only I_zz acts (every joint is a hinge about z); I_xx = I_yy = I_zz
+  keeps the inertia valid.
+
+Sites `seg{i}_end` mark the segment ends p_i; the collision sphere `tip` (radius
+`tip_radius`, m) is centred on the tip point r = p_N. Collision capsules of the same
+radius run along the links, so contact starts when the arm's centreline comes within
+`tip_radius` of a plate. Arm geoms have contype 1 / conaffinity 0 and plates 0 / 1:
+the arm touches only the plates, never itself; the plates never touch each other.
+
+Plates. Facet k of the free space N = {r | H r ≤ h} (H: (P, 2), h: (P,) in m) gets a
+rigid plate `plate{k}` on the slide joint `plate{k}_slide` along the outward normal
+n̂_k = H_kᵀ/‖H_k‖ (m), with spring stiffness `plate_stiffness` (N/m), mass `plate_mass`
+(kg) and damping 2 ζ √(k m) (N·s/m). Its surface at rest lies on the facet line shifted
+by `tip_radius` along n̂_k, so the tip sphere touches it exactly when H_k r = h_k. The
+plate is centred on the foot of the perpendicular from the base and is wide enough to
+cover every point of the facet line within the arm's reach Σ L_i. Contacts are
+frictionless (condim 1: normal force only, as in the paper's model) and stiff
+(solref = (`contact_timeconst`, 1)).
+
+Options: `implicitfast` (joint damping integrated implicitly), dense Jacobian (MuJoCo
+4.0.0 sparse-solver bug), gravity off (the arm lies on a table). The defaults n = 10
+and physics step 0.1 ms come from `tools/convergence_study.py` (models/softcbf_arm/README.md).
+
+Units: SI (m, kg, s, rad, N); pressure in hPa.
+Every number goes into the spec rounded to 6 significant digits, the precision MuJoCo's
+XML writer keeps, so the model compiled from the spec and from the written files are
+identical.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from controllers.params import RobotParams, per_segment, reference_robot
+
+ARM_FILE = "softcbf_arm.xml"
+SCENE_FILE = "scene.xml"
+SCENE_MODEL_NAME = "softcbf_arm scene"
+
+PAPER_H = ((0.36, 1.0),)  # SPEC §4: the paper's single facet, H r ≤ h
+PAPER_h = (0.15,)  # m
+PAPER_PLATE_STIFFNESS = 11.16  # N/m, paper
+
+DEFAULT_LINKS_PER_SEGMENT = 10  # chosen by tools/convergence_study.py (model README)
+DEFAULT_PHYSICS_DT = 1e-4  # s, chosen by tools/convergence_study.py (model README)
+DEFAULT_TAU_P = 0.05  # s, SPEC §7
+
+# Appearance and scene geometry (no effect on the physics).
+_VISUAL_RADIUS = 0.01  # m, drawn arm radius
+_PLATE_THICKNESS = 0.005  # m
+_PLATE_HALF_HEIGHT = 0.02  # m, along z
+_PLATE_EDGE_MARGIN = 0.02  # m, beyond the reachable chord at each side
+CAMERA_FOVY_DEG = 45.0
+CAMERA_RESOLUTION = (1280, 720)  # px, width × height
+_CAMERA_FIELD_MARGIN = 1.1  # the image height covers ±1.1 Σ L around the workspace centre
+
+_ARM_COLOR = (0.55, 0.35, 0.75, 1.0)
+_PLATE_COLOR = (0.15, 0.15, 0.15, 1.0)
+
+
+def _r6(x: float) -> float:
+    """x rounded to 6 significant digits (MuJoCo's XML precision)."""
+    return float(f"{float(x):.6g}")
+
+
+def _r6v(values: Any) -> list[float]:
+    return [_r6(v) for v in values]
+
+
+@dataclass(frozen=True)
+class ArmModelConfig:
+    """Everything the generated model depends on (units in the module docstring).
+
+    | field               | default                  | unit  | source                    |
+    |---------------------|--------------------------|-------|---------------------------|
+    | robot               | reference_robot()        | —     | SPEC §3                   |
+    | H, h                | [[0.36, 1.0]], [0.15]    | —, m  | paper (SPEC §4)           |
+    | plate_stiffness     | 11.16 (per facet)        | N/m   | paper                     |
+    | links_per_segment   | 10                       | —     | convergence study         |
+    | tau_p               | 0.05                     | s     | chosen (SPEC §7)          |
+    | physics_dt          | 1e-4                     | s     | convergence study         |
+    | integrator          | "implicitfast"           | —     | SPEC §7 (see model README)|
+    | tip_radius          | 0.004                    | m     | chosen                    |
+    | plate_mass          | 0.01                     | kg    | chosen                    |
+    | plate_damping_ratio | 0.2                      | —     | chosen (light damping)    |
+    | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)    |
+
+    An empty facet set (H of shape (0, 2)) gives the arm alone.
+    """
+
+    robot: RobotParams = field(default_factory=reference_robot)
+    H: tuple[tuple[float, float], ...] = PAPER_H
+    h: tuple[float, ...] = PAPER_h
+    plate_stiffness: tuple[float, ...] | float = PAPER_PLATE_STIFFNESS
+    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT
+    tau_p: float = DEFAULT_TAU_P
+    physics_dt: float = DEFAULT_PHYSICS_DT
+    integrator: str = "implicitfast"
+    tip_radius: float = 0.004
+    plate_mass: float = 0.01
+    plate_damping_ratio: float = 0.2
+    contact_timeconst: float = 0.002
+
+    def __post_init__(self) -> None:
+        H = np.atleast_2d(np.asarray(self.H, dtype=float)) if np.size(self.H) else np.zeros((0, 2))
+        h = np.atleast_1d(np.asarray(self.h, dtype=float)) if np.size(self.h) else np.zeros(0)
+        if H.ndim != 2 or H.shape[1] != 2:
+            raise ValueError(f"H must have shape (P, 2), got {H.shape}")
+        if h.ndim != 1 or H.shape[0] != h.shape[0]:
+            raise ValueError(f"H and h must have one row per facet, got H {H.shape} and h {h.shape}")
+        if not (np.all(np.isfinite(H)) and np.all(np.isfinite(h))):
+            raise ValueError(f"H and h must be finite, got H={H.tolist()}, h={h.tolist()}")
+        for k, (row, hk) in enumerate(zip(H, h)):
+            if not np.linalg.norm(row) > 0:
+                raise ValueError(f"H[{k}] must be non-zero, got {row.tolist()}")
+            if not hk > 0:
+                raise ValueError(f"h[{k}] must be > 0 (the base must lie inside free space H r <= h), got {hk}")
+        object.__setattr__(self, "H", tuple(tuple(float(v) for v in row) for row in H))
+        object.__setattr__(self, "h", tuple(float(v) for v in h))
+        stiffness = per_segment(self.plate_stiffness, len(self.h), "plate_stiffness") if self.h else np.zeros(0)
+        if np.any(~(stiffness > 0)) or not np.all(np.isfinite(stiffness)):
+            raise ValueError(f"plate_stiffness must be finite and > 0, got {stiffness.tolist()}")
+        object.__setattr__(self, "plate_stiffness", tuple(float(v) for v in stiffness))
+        if int(self.links_per_segment) != self.links_per_segment or self.links_per_segment < 1:
+            raise ValueError(f"links_per_segment must be an integer >= 1, got {self.links_per_segment}")
+        object.__setattr__(self, "links_per_segment", int(self.links_per_segment))
+        if not (math.isfinite(self.tau_p) and self.tau_p >= 0):
+            raise ValueError(f"tau_p must be >= 0 (0: ideal actuator), got {self.tau_p}")
+        for name in ("physics_dt", "tip_radius", "plate_mass", "contact_timeconst"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be > 0, got {value}")
+        if f"mjINT_{self.integrator.upper()}" not in mujoco.mjtIntegrator.__members__:
+            valid = ", ".join(k.removeprefix("mjINT_").lower() for k in mujoco.mjtIntegrator.__members__)
+            raise ValueError(f"integrator must be one of {valid}, got {self.integrator!r}")
+        if not (math.isfinite(self.plate_damping_ratio) and self.plate_damping_ratio >= 0):
+            raise ValueError(f"plate_damping_ratio must be >= 0, got {self.plate_damping_ratio}")
+        if self.contact_timeconst < 2 * self.physics_dt:
+            raise ValueError(
+                f"contact_timeconst ({self.contact_timeconst:g} s) must be >= 2 physics_dt "
+                f"({2 * self.physics_dt:g} s), or MuJoCo silently stiffens it to 2 physics_dt; "
+                "raise contact_timeconst or lower physics_dt"
+            )
+
+    @property
+    def n_facets(self) -> int:
+        return len(self.h)
+
+    def facet_normals(self) -> np.ndarray:
+        """Unit outward normals n̂_k = H_kᵀ/‖H_k‖, shape (P, 2)."""
+        H = np.array(self.H, dtype=float).reshape(-1, 2)
+        return H / np.linalg.norm(H, axis=1, keepdims=True)
+
+    def plate_damping(self) -> np.ndarray:
+        """Plate slide damping 2 ζ √(k m), N·s/m, shape (P,)."""
+        return 2.0 * self.plate_damping_ratio * np.sqrt(np.array(self.plate_stiffness) * self.plate_mass)
+
+
+@dataclass(frozen=True)
+class _Piece:
+    """A straight stretch of one segment inside a body: from `start` (m, body x) of length `length`."""
+
+    segment: int
+    start: float
+    length: float
+
+
+def _body_inertial(config: ArmModelConfig, pieces: list[_Piece]) -> tuple[float, float, float]:
+    """Mass (kg), centre of mass on the body x axis (m) and I_zz about it (kg·m²) of uniform pieces."""
+    robot = config.robot
+    masses, centres, own = [], [], []
+    for p in pieces:
+        L = robot.lengths[p.segment]
+        mass = robot.masses[p.segment] * p.length / L
+        excess = robot.inertias[p.segment] - robot.masses[p.segment] * L * L / 12.0
+        masses.append(mass)
+        centres.append(p.start + p.length / 2)
+        own.append(mass * p.length**2 / 12.0 + excess * p.length / L)
+    total = sum(masses)
+    com = sum(m * c for m, c in zip(masses, centres)) / total
+    izz = sum(i + m * (c - com) ** 2 for m, c, i in zip(masses, centres, own))
+    if not izz > 0:
+        seg = pieces[0].segment
+        raise ValueError(
+            f"inertias[{seg}] = {robot.inertias[seg]:g} kg·m² is too small to spread over "
+            f"{config.links_per_segment} links (a link's inertia became {izz:g}); raise it towards "
+            f"m L²/12 = {robot.masses[seg] * robot.lengths[seg] ** 2 / 12:g} or use fewer links"
+        )
+    return total, com, izz
+
+
+def _add_defaults(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
+    main = spec.add_default("softcbf_arm", spec.default)
+    visual = spec.add_default("visual", main)
+    visual.geom.contype = 0
+    visual.geom.conaffinity = 0
+    visual.geom.group = 2
+    visual.geom.rgba = list(_ARM_COLOR)
+    contact = dict(condim=1, solref=[_r6(config.contact_timeconst), 1.0])
+    collision = spec.add_default("collision", main)
+    collision.geom.contype = 1
+    collision.geom.conaffinity = 0
+    collision.geom.group = 3
+    for key, value in contact.items():
+        setattr(collision.geom, key, value)
+    plate = spec.add_default("plate", main)
+    plate.geom.contype = 0
+    plate.geom.conaffinity = 1
+    plate.geom.group = 1
+    plate.geom.rgba = list(_PLATE_COLOR)
+    for key, value in contact.items():
+        setattr(plate.geom, key, value)
+
+
+_Z_TO_X = [_r6(math.sqrt(0.5)), 0.0, _r6(math.sqrt(0.5)), 0.0]  # quat turning a capsule's z axis onto x
+
+
+def _capsule(body: mujoco.MjsBody, default: mujoco.MjsDefault, x0: float, x1: float, radius: float) -> None:
+    """A capsule of `radius` along the body x axis from x0 to x1 (m)."""
+    body.add_geom(
+        default=default,
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        pos=_r6v([(x0 + x1) / 2, 0, 0]),
+        quat=_Z_TO_X,
+        size=[_r6(radius), _r6((x1 - x0) / 2), 0],
+    )
+
+
+def _add_arm(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
+    robot, n, r = config.robot, config.links_per_segment, config.tip_radius
+    visual, collision = spec.find_default("visual"), spec.find_default("collision")
+    cells = [L / n for L in robot.lengths]
+    n_seg = robot.n_segments
+
+    base = spec.worldbody.add_body(name="base")
+    base.add_site(name="base", pos=[0, 0, 0], size=[_r6(r), 0, 0])
+    base.add_geom(default=visual, type=mujoco.mjtGeom.mjGEOM_BOX, pos=_r6v([-0.015, 0, 0]), size=[0.015, 0.025, 0.012])
+    _capsule(base, visual, 0.0, cells[0] / 2, _VISUAL_RADIUS)
+    _capsule(base, collision, 0.0, cells[0] / 2, r)
+
+    parent, offset = base, cells[0] / 2
+    for i in range(n_seg):
+        c = cells[i]
+        for j in range(1, n + 1):
+            body = parent.add_body(name=f"seg{i + 1}_link{j}", pos=_r6v([offset, 0, 0]))
+            body.add_joint(
+                name=f"seg{i + 1}_j{j}",
+                type=mujoco.mjtJoint.mjJNT_HINGE,
+                axis=[0.0, 0.0, 1.0],
+                stiffness=[_r6(n * robot.stiffness[i]), 0, 0],
+                damping=[_r6(n * robot.damping[i]), 0, 0],
+            )
+            if j < n:
+                pieces = [_Piece(i, 0.0, c)]
+                length = c
+            elif i < n_seg - 1:
+                pieces = [_Piece(i, 0.0, c / 2), _Piece(i + 1, c / 2, cells[i + 1] / 2)]
+                length = c / 2 + cells[i + 1] / 2
+            else:
+                pieces = [_Piece(i, 0.0, c / 2)]
+                length = c / 2
+            mass, com, izz = _body_inertial(config, pieces)
+            body.explicitinertial = True
+            body.mass = _r6(mass)
+            body.ipos = _r6v([com, 0, 0])
+            body.inertia = [_r6(izz)] * 3
+            _capsule(body, visual, 0.0, length, _VISUAL_RADIUS)
+            if j == n:
+                body.add_site(name=f"seg{i + 1}_end", pos=_r6v([c / 2, 0, 0]), size=[_r6(r), 0, 0])
+            if i == n_seg - 1 and j == n:
+                # The tip sphere is the last half cell's collision volume; a capsule ending r
+                # before the tip keeps the axis covered without a second contact at the tip.
+                body.add_geom(
+                    default=collision, name="tip", type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                    pos=_r6v([c / 2, 0, 0]), size=[_r6(r), 0, 0], rgba=[0.9, 0.3, 0.1, 1],
+                )
+                if c / 2 > r:
+                    _capsule(body, collision, 0.0, c / 2 - r, r)
+            else:
+                _capsule(body, collision, 0.0, length, r)
+            parent, offset = body, length if j == n else c
+
+    for i in range(n_seg):
+        tendon = spec.add_tendon(name=f"seg{i + 1}_bend")
+        for j in range(1, n + 1):
+            tendon.wrap_joint(f"seg{i + 1}_j{j}", 1.0)
+        actuator = spec.add_actuator(
+            name=f"seg{i + 1}_pressure",
+            trntype=mujoco.mjtTrn.mjTRN_TENDON,
+            target=f"seg{i + 1}_bend",
+            gear=[_r6(robot.gains[i]), 0, 0, 0, 0, 0],
+            ctrllimited=True,
+            ctrlrange=_r6v([robot.u_min[i], robot.u_max[i]]),
+        )
+        if config.tau_p > 0:
+            actuator.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+            actuator.dynprm = [_r6(config.tau_p)] + [0.0] * 9
+
+
+def _add_plates(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
+    plate = spec.find_default("plate")
+    reach = sum(config.robot.lengths)
+    damping = config.plate_damping()
+    for k, (normal, hk, stiffness) in enumerate(zip(config.facet_normals(), config.h, config.plate_stiffness)):
+        norm_H = float(np.linalg.norm(config.H[k]))
+        distance = hk / norm_H  # from the base to the facet line, m
+        surface = normal * (distance + config.tip_radius)
+        half_width = math.sqrt(max(reach**2 - distance**2, 0.0)) + _PLATE_EDGE_MARGIN
+        angle = math.atan2(normal[1], normal[0])
+        body = spec.worldbody.add_body(
+            name=f"plate{k + 1}",
+            pos=_r6v([surface[0], surface[1], 0.0]),
+            quat=_r6v([math.cos(angle / 2), 0, 0, math.sin(angle / 2)]),
+        )
+        body.add_joint(
+            name=f"plate{k + 1}_slide",
+            type=mujoco.mjtJoint.mjJNT_SLIDE,
+            axis=[1.0, 0.0, 0.0],
+            stiffness=[_r6(stiffness), 0, 0],
+            damping=[_r6(damping[k]), 0, 0],
+        )
+        half = np.array([_PLATE_THICKNESS / 2, half_width, _PLATE_HALF_HEIGHT])
+        body.explicitinertial = True
+        body.mass = _r6(config.plate_mass)
+        body.ipos = _r6v([half[0], 0, 0])
+        box_inertia = config.plate_mass / 3.0 * np.array([half[1] ** 2 + half[2] ** 2, half[0] ** 2 + half[2] ** 2, half[0] ** 2 + half[1] ** 2])
+        body.inertia = _r6v(box_inertia)
+        body.add_geom(default=plate, name=f"plate{k + 1}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=_r6v([half[0], 0, 0]), size=_r6v(half))
+        body.add_site(name=f"plate{k + 1}_surface", pos=[0, 0, 0], size=[_r6(config.tip_radius), 0, 0])
+
+
+def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
+    """The robot file's spec: options, defaults, arm, plates, tendons, actuators and the `home` key."""
+    config = config or ArmModelConfig()
+    spec = mujoco.MjSpec()
+    spec.modelname = "softcbf_arm"
+    spec.compiler.degree = False
+    spec.compiler.autolimits = True
+    spec.option.timestep = _r6(config.physics_dt)
+    spec.option.integrator = mujoco.mjtIntegrator.__members__[f"mjINT_{config.integrator.upper()}"]
+    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # SPEC §7: MuJoCo 4.0.0 sparse-solver bug
+    spec.option.gravity = [0.0, 0.0, 0.0]
+    _add_defaults(spec, config)
+    _add_arm(spec, config)
+    _add_plates(spec, config)
+    n_q = config.robot.n_segments * config.links_per_segment + config.n_facets
+    n_act = config.robot.n_segments if config.tau_p > 0 else 0
+    spec.add_key(name="home", qpos=[0.0] * n_q, act=[0.0] * n_act, ctrl=[0.0] * config.robot.n_segments)
+    return spec
+
+
+def overhead_camera_pose(config: ArmModelConfig) -> tuple[tuple[float, float, float], float]:
+    """Position (m) of the overhead camera and its focal length fx = fy (px).
+
+    The camera looks down −z with image right = +x and image up = +y; it sits above
+    (Σ L / 2, 0) at the height where the image height spans ±1.1 Σ L. Intrinsics:
+    fx = fy = (H_px / 2) / tan(fovy / 2), principal point at the image centre.
+    """
+    reach = sum(config.robot.lengths)
+    half_fov = math.radians(CAMERA_FOVY_DEG) / 2
+    height = _r6(round(_CAMERA_FIELD_MARGIN * reach / math.tan(half_fov), 2))
+    focal = (CAMERA_RESOLUTION[1] / 2) / math.tan(half_fov)
+    return (_r6(reach / 2), 0.0, height), focal
+
+
+def _add_scene(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
+    """Table, lights, overhead camera and render settings: the scene file's content."""
+    spec.visual.global_.offwidth = CAMERA_RESOLUTION[0]
+    spec.visual.global_.offheight = CAMERA_RESOLUTION[1]
+    spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
+    spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
+    spec.add_texture(
+        name="table", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+        rgb1=[0.82, 0.8, 0.76], rgb2=[0.74, 0.72, 0.68], width=300, height=300,
+    )
+    spec.add_material(name="table", textures=["", "table"], texrepeat=[20, 20], reflectance=0.0)
+    spec.worldbody.add_light(name="top", pos=[0.12, 0.0, 1.5], dir=[0.0, 0.0, -1.0])
+    spec.worldbody.add_geom(
+        name="table", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], material="table",
+        pos=[0.0, 0.0, -_VISUAL_RADIUS], contype=0, conaffinity=0,
+    )
+    pos, _ = overhead_camera_pose(config)
+    spec.worldbody.add_camera(
+        name="overhead", pos=list(pos), fovy=CAMERA_FOVY_DEG, resolution=list(CAMERA_RESOLUTION)
+    )
+
+
+def build_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
+    """The whole scene (what `scene.xml` loads) as one spec, for building variants at run time."""
+    config = config or ArmModelConfig()
+    spec = build_arm_spec(config)
+    spec.modelname = SCENE_MODEL_NAME
+    _add_scene(spec, config)
+    return spec
+
+
+def build_model(config: ArmModelConfig | None = None) -> mujoco.MjModel:
+    """Compile the scene of `config`."""
+    return build_spec(config).compile()
+
+
+def arm_xml(config: ArmModelConfig | None = None) -> str:
+    """Text of `softcbf_arm.xml`."""
+    return build_arm_spec(config).to_xml()
+
+
+def scene_xml(config: ArmModelConfig | None = None) -> str:
+    """Text of `scene.xml`: an include of the arm file plus table, lights and the overhead camera."""
+    config = config or ArmModelConfig()
+    spec = mujoco.MjSpec()
+    spec.modelname = SCENE_MODEL_NAME
+    _add_scene(spec, config)
+    head, sep, body = spec.to_xml().partition("\n")
+    if not head.startswith("<mujoco"):
+        raise RuntimeError(f"unexpected MJCF header from MjSpec.to_xml: {head!r}")
+    return f'{head}{sep}  <include file="{ARM_FILE}"/>\n\n{body}'
+
+
+def write_model_files(directory: str | Path, config: ArmModelConfig | None = None) -> list[Path]:
+    """Write `softcbf_arm.xml` and `scene.xml` into `directory`; return their paths."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = [directory / ARM_FILE, directory / SCENE_FILE]
+    for path, text in zip(paths, (arm_xml(config), scene_xml(config))):
+        path.write_text(text, encoding="utf-8")
+    return paths

@@ -1,0 +1,224 @@
+"""The MuJoCo ground truth as a `Plant` (SPEC §7; model in `softcbf_mj.model_builder`).
+
+Each control period (control_dt, s) holds the pressure command u (hPa, shape (N,)) and
+advances the physics by control_dt / physics_dt steps of MuJoCo's `implicitfast`
+integrator, then reports, at the end of the period (after `mj_forward`, so every
+derived quantity belongs to the reported state):
+
+- q_i = Σ_j θ_ij, q̇_i = Σ_j θ̇_ij (rad, rad/s): the length and velocity of the fixed
+  tendon `seg{i}_bend` over segment i's hinges;
+- segment_ends (N+1, 2) (m): the `base` site, the `seg{i}_end` sites; the last row is
+  the tip r, the centre of the `tip` sphere (placed on `seg{N}_end`);
+- contact_forces (P,) (N): per facet, the plate's spring force max(0, k_k Δ_k) with Δ_k
+  the plate's displacement along its outward normal (the ground truth);
+- u_applied (N,) (hPa): the pressure acting, the actuator force in actuator space
+  (the gear carries λ_i, so this is τ_i / λ_i), after the ctrlrange clamp and the
+  first-order pressure dynamics;
+- extras: `plate_displacement_m` (P,) (m); `force_solver_N` (P,) (N), the normal
+  contact force MuJoCo's solver applies between the arm and each plate (mj_contactForce,
+  summed over contacts); and `warning_<name>` counts for every MuJoCo warning raised.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import platform
+import re
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+import softcbf_mj
+from softcbf_mj.model_builder import ArmModelConfig, build_model
+from softcbf_mj.plant import PlantState, steps_per_control
+
+MUJOCO_VERSION: str = mujoco.__version__
+# Short names of MuJoCo's warnings (inertia, contactfull, …, badctrl) by index into data.warning.
+WARNINGS: dict[int, str] = {
+    int(value): name.removeprefix("mjWARN_").lower()
+    for name, value in mujoco.mjtWarning.__members__.items()
+    if name.startswith("mjWARN_")
+}
+
+_ACTUATOR = re.compile(r"seg(\d+)_pressure")
+_PLATE_JOINT = re.compile(r"plate(\d+)_slide")
+
+
+def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
+    return [mujoco.mj_id2name(model, obj, i) or "" for i in range(count)]
+
+
+def _numbered(names: list[str], pattern: re.Pattern[str], what: str) -> int:
+    """How many of `names` match pattern with numbers 1..K; raises if the numbering has gaps."""
+    numbers = sorted(int(m.group(1)) for m in map(pattern.fullmatch, names) if m)
+    if numbers != list(range(1, len(numbers) + 1)):
+        raise ValueError(f"the model's {what} must be numbered 1..K without gaps, got {numbers}")
+    return len(numbers)
+
+
+class MujocoPlant:
+    """The discretised arm and its compliant plates in MuJoCo, stepped at a fixed control rate.
+
+    Build it from parameters with `from_config` (an `ArmModelConfig` and/or its fields as
+    keywords), from an MJCF file with `from_xml`, or from a compiled model. Attributes
+    read from the model: `u_min`, `u_max` (hPa, the ctrlrange), `gains` (λ, N·m/hPa, the
+    actuator gears), `plate_stiffness` (N/m), `n_segments`, `n_facets`.
+    The model is read by name: actuators `seg{i}_pressure`, tendons `seg{i}_bend`, hinges
+    `seg{i}_j{j}`, sites `base` and `seg{i}_end`, geom `tip`, joints `plate{k}_slide`,
+    geoms `plate{k}`.
+    """
+
+    def __init__(self, model: mujoco.MjModel, control_dt: float = 1e-3) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.control_dt = float(control_dt)
+        self.physics_dt = float(model.opt.timestep)
+        self.steps_per_control = steps_per_control(self.control_dt, self.physics_dt)
+
+        n = _numbered(_names(model, mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu), _ACTUATOR, "actuators seg{i}_pressure")
+        if n == 0:
+            raise ValueError("the model has no actuators named seg{i}_pressure")
+        self.n_segments = n
+        self._actuators = [model.actuator(f"seg{i}_pressure").id for i in range(1, n + 1)]
+        self._tendons = [model.tendon(f"seg{i}_bend").id for i in range(1, n + 1)]
+        self._hinge_qpos: list[np.ndarray] = []  # per segment: qpos addresses of its hinges
+        self._hinge_dof: list[np.ndarray] = []  # per segment: their dof addresses
+        for i in range(1, n + 1):
+            hinges, j = [], 1
+            while mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"seg{i}_j{j}") >= 0:
+                hinges.append(model.joint(f"seg{i}_j{j}"))
+                j += 1
+            if not hinges:
+                raise ValueError(f"the model has no hinges seg{i}_j1, seg{i}_j2, …")
+            self._hinge_qpos.append(np.array([h.qposadr[0] for h in hinges]))
+            self._hinge_dof.append(np.array([h.dofadr[0] for h in hinges]))
+        self._sites = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
+        self._tip = model.geom("tip").id
+
+        p = _numbered(_names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt), _PLATE_JOINT, "plate joints plate{k}_slide")
+        self.n_facets = p
+        plate_joints = [model.joint(f"plate{k}_slide") for k in range(1, p + 1)]
+        self._plate_qpos = np.array([jnt.qposadr[0] for jnt in plate_joints], dtype=int)
+        self.plate_stiffness = np.array([model.jnt_stiffness[jnt.id] for jnt in plate_joints])
+        self._plate_of_geom = {model.geom(f"plate{k}").id: k - 1 for k in range(1, p + 1)}
+        self._base = model.body("base").id
+
+        self.u_min = model.actuator_ctrlrange[self._actuators, 0].copy()
+        self.u_max = model.actuator_ctrlrange[self._actuators, 1].copy()
+        self.gains = model.actuator_gear[self._actuators, 0].copy()
+        self._act_adr = model.actuator_actadr[self._actuators].copy()  # -1: no pressure dynamics
+        self._contact_force = np.zeros(6)
+        self.reset(np.zeros(n))
+
+    # -- construction -------------------------------------------------------------
+
+    @classmethod
+    def from_config(
+        cls, config: ArmModelConfig | None = None, control_dt: float = 1e-3, **changes: Any
+    ) -> "MujocoPlant":
+        """Build the model of `config` with `changes` applied to its fields.
+
+        E.g. `MujocoPlant.from_config(robot=my_robot, H=H, h=h, plate_stiffness=11.16,
+        links_per_segment=10, tau_p=0.05, physics_dt=1e-4)`; omitted fields keep the
+        defaults of `ArmModelConfig` (the reference robot and the paper's plate).
+        """
+        config = dataclasses.replace(config or ArmModelConfig(), **changes)
+        steps_per_control(control_dt, config.physics_dt)  # fail before compiling
+        return cls(build_model(config), control_dt)
+
+    @classmethod
+    def from_xml(cls, path: str | Path, control_dt: float = 1e-3) -> "MujocoPlant":
+        """Load an MJCF file (e.g. models/softcbf_arm/scene.xml); its timestep is the physics step."""
+        return cls(mujoco.MjModel.from_xml_path(str(path)), control_dt)
+
+    @staticmethod
+    def versions() -> dict[str, str]:
+        """Versions that change this plant's behaviour (for run records)."""
+        return {"softcbf_mj": softcbf_mj.__version__, "mujoco": MUJOCO_VERSION, "python": platform.python_version()}
+
+    # -- Plant protocol -----------------------------------------------------------
+
+    def reset(self, q0: np.ndarray, qd0: np.ndarray | None = None, u0: np.ndarray | None = None) -> PlantState:
+        """Rest at bending angles q0 (rad, (N,)), each spread equally over its segment's hinges.
+
+        qd0 (rad/s) is spread likewise (default 0). The plates start undeflected and at
+        rest. The pressures start at u0 (hPa, default 0): the actuator states and the
+        command are both set to it. Time restarts at 0.
+        """
+        q0 = self._vector(q0, "q0")
+        qd0 = np.zeros(self.n_segments) if qd0 is None else self._vector(qd0, "qd0")
+        u0 = np.zeros(self.n_segments) if u0 is None else self._vector(u0, "u0")
+        outside = (u0 < self.u_min) | (u0 > self.u_max)
+        if np.any(outside):
+            raise ValueError(
+                f"u0 must lie within the ctrlrange [{self.u_min.tolist()}, {self.u_max.tolist()}] hPa, got {u0.tolist()}"
+            )
+        mujoco.mj_resetData(self.model, self.data)
+        for i in range(self.n_segments):
+            self.data.qpos[self._hinge_qpos[i]] = q0[i] / len(self._hinge_qpos[i])
+            self.data.qvel[self._hinge_dof[i]] = qd0[i] / len(self._hinge_dof[i])
+        self.data.ctrl[self._actuators] = u0
+        dynamic = self._act_adr >= 0
+        self.data.act[self._act_adr[dynamic]] = u0[dynamic]
+        mujoco.mj_forward(self.model, self.data)
+        return self.state()
+
+    def step(self, u: np.ndarray) -> PlantState:
+        """Hold u (hPa, (N,), finite) for one control period and return the state at its end.
+
+        u is NOT clipped here: MuJoCo clamps it to each actuator's ctrlrange (the
+        pressure limits of `RobotParams`), and `u_applied` reports what acted.
+        """
+        self.data.ctrl[self._actuators] = self._vector(u, "u")
+        mujoco.mj_step(self.model, self.data, nstep=self.steps_per_control)
+        mujoco.mj_forward(self.model, self.data)
+        return self.state()
+
+    def state(self) -> PlantState:
+        """The state of the current data (after `mj_forward`, if you edited it)."""
+        data = self.data
+        ends = np.empty((self.n_segments + 1, 2))
+        ends[:-1] = data.site_xpos[self._sites, :2]
+        ends[-1] = data.geom_xpos[self._tip, :2]
+        displacement = data.qpos[self._plate_qpos].copy()
+        extras: dict[str, float | np.ndarray] = {
+            "plate_displacement_m": displacement,
+            "force_solver_N": self._solver_forces(),
+        }
+        counts = data.warning.number
+        for index in np.flatnonzero(counts):
+            extras[f"warning_{WARNINGS[index]}"] = float(counts[index])
+        return PlantState(
+            t=float(data.time),
+            q=data.ten_length[self._tendons].copy(),
+            qd=data.ten_velocity[self._tendons].copy(),
+            segment_ends=ends,
+            contact_forces=np.maximum(0.0, self.plate_stiffness * displacement),
+            u_applied=data.actuator_force[self._actuators].copy(),
+            extras=extras,
+        )
+
+    # -- internals ----------------------------------------------------------------
+
+    def _vector(self, value: np.ndarray, name: str) -> np.ndarray:
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (self.n_segments,):
+            raise ValueError(f"{name} must have shape ({self.n_segments},), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+        return arr
+
+    def _solver_forces(self) -> np.ndarray:
+        """Normal contact force (N) between the arm and each plate, from MuJoCo's solver."""
+        forces = np.zeros(self.n_facets)
+        model, data = self.model, self.data
+        for c in range(data.ncon):
+            geoms = (data.contact[c].geom1, data.contact[c].geom2)
+            for plate_geom, other in (geoms, geoms[::-1]):
+                k = self._plate_of_geom.get(plate_geom)
+                if k is not None and model.body_rootid[model.geom_bodyid[other]] == self._base:
+                    mujoco.mj_contactForce(model, data, c, self._contact_force)
+                    forces[k] += self._contact_force[0]
+        return forces
