@@ -1,0 +1,164 @@
+"""Control barrier function of the force-safe set (SPEC §5, paper eqns 9–10).
+
+For each row i of the force-safe set P = {r | H' r ≤ h'} (H' shape (P, 2), h' shape
+(P,), in the caller's row scaling, so b is in "row-scaled metres"):
+
+    b_i  = h'_i − H'_i r(q)                      (> 0 inside P)
+    ḃ_i  = −H'_i J_r q̇,   b̈_i = −H'_i (J_r q̈ + J̇_r q̇)
+    B_i  = −ln(b_i / (1 + b_i)) + a_E b_E ḃ_i² / (1 + b_E ḃ_i²)     (defined for b_i > 0)
+    ∂B/∂b = −1 / (b (1 + b)),   ∂B/∂ḃ = 2 a_E b_E ḃ / (1 + b_E ḃ²)²
+    ∂B/∂q = ∂B/∂b (−H' J_r) + ∂B/∂ḃ (−H' J̇_r),   ∂B/∂q̇ = ∂B/∂ḃ (−H' J_r)
+
+(∂ḃ/∂q = −H' J̇_r: ∂(J_r q̇)/∂q_m = Σ_j ∂²r/∂q_j∂q_m q̇_j = J̇_r[:, m], the Hessian being symmetric.)
+With q̈ = q̈₀ + M⁻¹Λ u (q̈₀ the drift), the Lie derivatives collapse to tip terms:
+
+    L_f B = ∇_x B · f = ∂B/∂b ḃ + ∂B/∂ḃ b̈₀   (1/s)
+    L_g B = (∂B/∂q̇) M⁻¹ Λ = ∂B/∂ḃ (−H' J_r M⁻¹ Λ)   (1/(s·hPa))
+
+and the filter's constraint is L_f B + L_g B u − γ / B ≤ 0. −ln(b/(1+b)) is evaluated
+as log1p(1/b), accurate for large b. Rows with b ≤ `B_MIN` (outside P, or so close
+to its boundary that 1/b² would overflow) are reported as not `defined` with B = +inf
+and zero L_f B, L_g B: recovery there is the filter's decision, not this module's.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import sys
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import NamedTuple
+
+import numpy as np
+
+from controllers.dynamics import DynamicsEval
+from controllers.errors import ControllerInputError, NonFiniteCommandError, as_vector
+
+B_MIN = math.sqrt(sys.float_info.min)  # ≈ 1.5e-154: smallest b treated as inside P
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """Barrier tuning (a_E, b_E, γ), all finite and ≥ 0.
+
+    a_E, b_E shape the velocity term of B; γ is the class-κ gain of the constraint.
+    a_E = b_E = γ = 0 is the paper's "None": the filter is disabled (u* = u_nom).
+    """
+
+    name: str
+    a_E: float
+    b_E: float
+    gamma: float
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ValueError(f"name must be a non-empty string, got {self.name!r}")
+        for field in ("a_E", "b_E", "gamma"):
+            value = getattr(self, field)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise ValueError(f"{field} must be a number >= 0, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"{field} must be finite and >= 0, got {value!r}")
+            if value < 0:
+                raise ValueError(f"{field} must be >= 0, got {value!r}")
+            object.__setattr__(self, field, float(value))
+
+    @property
+    def disabled(self) -> bool:
+        """True for a_E = b_E = γ = 0, the paper's unfiltered "None" tuning."""
+        return self.a_E == 0.0 and self.b_E == 0.0 and self.gamma == 0.0
+
+
+TUNINGS = MappingProxyType(
+    {
+        t.name: t
+        for t in (
+            Tuning("None", 0.0, 0.0, 0.0),  # paper Table I: filter disabled
+            Tuning("Low", 2.0, 2.0, 2.0),  # paper Table I (simulation)
+            Tuning("High", 0.2, 0.2, 0.2),  # paper Table I (simulation)
+            Tuning("HW-Low", 100.0, 100.0, 100.0),  # paper Table II (hardware)
+            Tuning("HW-High", 10.0, 10.0, 10.0),  # paper Table II (hardware)
+        )
+    }
+)
+
+
+def get_tuning(name: str) -> Tuning:
+    """The paper's tuning called `name` (case-insensitive): None, Low, High, HW-Low, HW-High."""
+    key = name.strip().lower() if isinstance(name, str) else None
+    for tuning_name, tuning in TUNINGS.items():
+        if tuning_name.lower() == key:
+            return tuning
+    raise ValueError(f"unknown tuning {name!r}; valid: {', '.join(TUNINGS)} (or a custom Tuning(name, a_E, b_E, gamma))")
+
+
+class BarrierTerms(NamedTuple):
+    """Per-row barrier quantities at one state; P rows, N inputs."""
+
+    b: np.ndarray  # (P,) row-scaled m
+    bdot: np.ndarray  # (P,) row-scaled m/s
+    B: np.ndarray  # (P,) +inf where not defined
+    LfB: np.ndarray  # (P,) 1/s; 0 where not defined
+    LgB: np.ndarray  # (P, N) 1/(s·hPa); 0 where not defined
+    defined: np.ndarray  # (P,) bool: b > B_MIN
+    gamma: float
+
+    def constraint(self, u) -> np.ndarray:
+        """L_f B + L_g B u − γ/B per row (≤ 0 is safe); +inf where B is not defined."""
+        u = as_vector("u", u, self.LgB.shape[1], NonFiniteCommandError)
+        return np.where(self.defined, self.LfB + self.LgB @ u - self.gamma / self.B, np.inf)
+
+
+def _rows(H, h) -> tuple[list[list[float]], list[float]]:
+    """H' (P, 2) and h' (P,) as Python lists, checked for shape and finiteness."""
+    H = np.asarray(H, dtype=float)
+    if H.ndim != 2 or H.shape[1] != 2:
+        raise ControllerInputError(f"H must have shape (P, 2), got {H.shape}")
+    h = as_vector("h", h, H.shape[0], ControllerInputError)
+    rows = H.tolist()
+    if not math.isfinite(sum(map(sum, rows))) and not np.isfinite(H).all():
+        raise ControllerInputError(f"H must be finite, got {rows}")
+    return rows, h.tolist()
+
+
+def _barrier(b: float, bdot: float, tuning: Tuning) -> tuple[float, float, float]:
+    """(B, ∂B/∂b, ∂B/∂ḃ) of one row with b > 0."""
+    ab = tuning.a_E * tuning.b_E
+    den = 1.0 + tuning.b_E * bdot * bdot
+    return math.log1p(1.0 / b) + ab * bdot * bdot / den, -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
+
+
+def barrier_terms(ev: DynamicsEval, H, h, tuning: Tuning) -> BarrierTerms:
+    """b, ḃ, B, L_f B, L_g B of every row of (H', h') at the state `ev` was evaluated at."""
+    rows, hs = _rows(H, h)
+    r, r_dot, r_acc0, *r_acc_u = ev.tip
+    table, defined = [], []  # per row: b, ḃ, B, L_f B, L_g B (N); b > B_MIN
+    for (hx, hy), h_i in zip(rows, hs):
+        b = h_i - (hx * r.real + hy * r.imag)
+        bdot = -(hx * r_dot.real + hy * r_dot.imag)
+        ok = b > B_MIN
+        defined.append(ok)
+        if ok:
+            value, db, dbdot = _barrier(b, bdot, tuning)
+            lfb = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
+            table.append([b, bdot, value, lfb, *[-dbdot * (hx * a.real + hy * a.imag) for a in r_acc_u]])
+        else:
+            table.append([b, bdot, math.inf, 0.0, *[0.0] * len(r_acc_u)])
+    out = np.array(table, dtype=float) if table else np.empty((0, 4 + len(r_acc_u)))
+    return BarrierTerms(out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4:], np.array(defined, dtype=bool), tuning.gamma)
+
+
+def barrier_gradients(ev: DynamicsEval, H, h, tuning: Tuning) -> tuple[np.ndarray, np.ndarray]:
+    """(∂B/∂q, ∂B/∂q̇), each (P, N) (per rad, per rad/s); zero rows where B is not defined."""
+    terms = barrier_terms(ev, H, h, tuning)
+    H = np.asarray(H, dtype=float)
+    h_conj = (H[:, 0] - 1j * H[:, 1])[:, None]  # H'_i · w = Re(conj(H'_i) w) for w = x + i·y
+    db_dq = -(h_conj * ev.tip_jac).real  # ∂b/∂q = ∂ḃ/∂q̇ = −H' J_r
+    dbdot_dq = -(h_conj * ev.tip_jac_dot).real  # −H' J̇_r
+    dB_dq, dB_dqd = np.zeros_like(db_dq), np.zeros_like(db_dq)
+    for i in np.flatnonzero(terms.defined):
+        _, db, dbdot = _barrier(terms.b[i], terms.bdot[i], tuning)
+        dB_dq[i] = db * db_dq[i] + dbdot * dbdot_dq[i]
+        dB_dqd[i] = dbdot * db_dq[i]
+    return dB_dq, dB_dqd

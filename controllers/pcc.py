@@ -1,0 +1,273 @@
+"""Kinematics of N planar piecewise-constant-curvature (PCC) segments (SPEC §2).
+
+Angles in rad, lengths in m. For segment i = 1..N with length L_i and bending
+angle q_i (positive: counter-clockwise seen from +z, the tip moves towards +y):
+
+    ℓ_i = 2 L_i sin(q_i/2) / q_i        chord length (→ L_i as q_i → 0)
+    φ_i = θ_{i-1} + q_i/2               chord direction, θ_i = θ_{i-1} + q_i, θ_0 = 0
+    p_i = p_{i-1} + ℓ_i e^{iφ_i},  p_0 = 0,   tip r = p_N
+    c_i = p_{i-1} + ½ ℓ_i e^{iφ_i}      chord midpoint: the body of the RPPR model (SPEC §3)
+
+Points of the plane are complex numbers x + i·y inside this module and the
+dynamics; the public wrappers return real arrays with an (x, y) axis.
+
+Every point used here is P = Σ_k W_k g_k with constant weights W and chord vectors
+g_k = ℓ_k(q_k) e^{iφ_k}, where φ = A q with A[k, j] = 1 (j < k), ½ (j = k), 0 (j > k).
+So all its derivatives follow from one product rule: each ∂/∂q_j hits either ℓ_k
+(giving ℓ_k' δ_kj) or e^{iφ_k} (giving i A_kj), hence
+
+    ∂ⁿg_k/∂q_{j1}…∂q_{jn} = e^{iφ_k} Σ_{S ⊆ {1..n}} ℓ_k^{(|S|)} i^{n-|S|} Π_{m∈S} δ_{k jm} Π_{m∉S} A_{k jm}.
+
+The sums over S are constant tensors; `kinematics` contracts them with the
+coefficients ℓ_k^{(a)} e^{iφ_k} in one matrix product that yields the positions,
+Jacobians (n = 1), Hessians (n = 2) and third derivatives (n = 3) of the N chord
+midpoints and the tip together.
+
+ℓ and its derivatives come from s(q) = sinc(q/2) = ℓ/L: a Taylor series in q for
+|q| < 2, where the closed forms cancel catastrophically, and the closed forms
+(well-conditioned there) for |q| ≥ 2. Every derivative is then smooth, finite through
+q = 0 and accurate to a few ulp (the tests compare with exact rational sums).
+
+Two evaluation paths share these formulas: `kinematics` (numpy tensors, any order ≤ 3,
+for derivatives, the plant's Jacobian and the public wrappers) and `_step_kinematics`
+(Python scalars, first order plus the q̇-terms, for the filter's 1 kHz step, where
+numpy's per-call overhead would dominate at N ≈ 2). Tests check one against the other.
+"""
+
+from __future__ import annotations
+
+import cmath
+import itertools
+import math
+from functools import lru_cache
+from typing import NamedTuple
+
+import numpy as np
+
+from controllers.errors import ControllerInputError, NonFiniteStateError, as_vector
+
+_SERIES_SWITCH = 2.0  # |q| below which the Taylor series is used (|x| = |q/2| < 1)
+_SERIES_DEGREE = 19  # powers q^0..q^19; first omitted term < 1e-21 relative at |q| = 2
+_POWERS = np.arange(_SERIES_DEGREE + 1.0)
+_HALF_POWERS = np.array([1.0, 0.5, 0.25, 0.125])  # d^a/dq^a = 2^{-a} d^a/dx^a
+MAX_ORDER = 3
+
+
+def _series_matrix(degree: int) -> np.ndarray:
+    """S (degree+1, 4): Σ_p S[p, a] q^p = d^a/dq^a sinc(q/2), truncated at q^degree.
+
+    From sinc(q/2) = Σ_k d_k q^{2k}, d_k = (-1)^k / ((2k+1)! 4^k).
+    """
+    s = np.zeros((degree + 1, 4))
+    for k in range(degree // 2 + 3):
+        d_k = (-1.0) ** k / (math.factorial(2 * k + 1) * 4.0**k)
+        for a in range(4):
+            p = 2 * k - a
+            if 0 <= p <= degree:
+                s[p, a] = d_k * math.perm(2 * k, a)
+    return s
+
+
+_SERIES = _series_matrix(_SERIES_DEGREE)
+
+
+def _sinc_derivatives(q: np.ndarray) -> np.ndarray:
+    """s^{(a)}(q_i) for s(q) = sinc(q/2) = ℓ(q)/L and a = 0..3: shape (N, 4). No input checks."""
+    large = max(map(abs, q.tolist()), default=0.0) >= _SERIES_SWITCH
+    # Where |q| is large the series value is discarded; clipping keeps it from overflowing.
+    clipped = np.clip(q, -_SERIES_SWITCH, _SERIES_SWITCH) if large else q
+    out = (clipped[:, None] ** _POWERS).dot(_SERIES)  # .dot: less call overhead than @
+    if large:
+        big = np.abs(q) >= _SERIES_SWITCH
+        x = 0.5 * q[big]
+        sin, cos = np.sin(x), np.cos(x)
+        # x s0 = sin x, differentiated thrice: s0 + x s1 = cos x, 2 s1 + x s2 = -sin x, 3 s2 + x s3 = -cos x.
+        s0 = sin / x
+        s1 = (cos - s0) / x
+        s2 = -s0 - 2.0 * s1 / x
+        s3 = -(cos + 3.0 * s2) / x
+        out[big] = np.column_stack((s0, s1, s2, s3)) * _HALF_POWERS
+    return out
+
+
+@lru_cache(maxsize=None)
+def _structure(n: int, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Constants for N = n segments up to derivative `order`.
+
+    Returns iA = i·A (n, n) with A[k, j] = ∂φ_k/∂q_j, and the complex map D of shape
+    (n·(order+1), (n+1)·width), width = Σ_{d ≤ order} n^d, such that
+    (coef.ravel() @ D).reshape(n+1, width) holds, per point (c_1..c_N, r), its
+    position, Jacobian, Hessian, … flattened, where coef[k, a] = ℓ_k^{(a)} e^{iφ_k}.
+    """
+    a = np.tril(np.ones((n, n)), -1) + 0.5 * np.eye(n)
+    eye = np.eye(n)
+    weights = np.vstack((a, np.ones((1, n))))  # c_i = Σ_k A_ik g_k, r = Σ_k g_k
+    blocks = []
+    for degree in range(order + 1):
+        block = np.zeros((n, order + 1) + (n,) * degree, dtype=complex)
+        for hits_chord in itertools.product((False, True), repeat=degree):
+            term = np.ones(n)
+            for m, hit in enumerate(hits_chord):
+                term = term[..., None] * (eye if hit else a).reshape((n,) + (1,) * m + (n,))
+            count = sum(hits_chord)
+            block[:, count] += 1j ** (degree - count) * term
+        blocks.append(block.reshape(n, order + 1, -1))
+    basis = np.concatenate(blocks, axis=2)
+    dmap = np.einsum("pk,kaw->kapw", weights, basis).reshape(n * (order + 1), -1)
+    ia = 1j * a
+    ia.setflags(write=False)
+    dmap.setflags(write=False)
+    return ia, dmap
+
+
+class PCCKinematics(NamedTuple):
+    """Kinematics of one configuration q (points as complex x + i·y, in m).
+
+    Points are indexed p = 0..N: the chord midpoints c_1..c_N, then the tip r.
+    Derivative arrays have one trailing axis per ∂/∂q_j (per rad); `hess` and
+    `third` are None below the requested order.
+    """
+
+    segments: np.ndarray  # (N,) chord vectors g_i = p_i - p_{i-1} = ℓ_i e^{iφ_i}
+    points: np.ndarray  # (N+1,) c_1..c_N, r
+    jac: np.ndarray  # (N+1, N) ∂P/∂q
+    hess: np.ndarray | None  # (N+1, N, N) ∂²P/∂q∂q
+    third: np.ndarray | None  # (N+1, N, N, N) ∂³P/∂q³
+
+
+def _kinematics(q: np.ndarray, lengths: np.ndarray, order: int) -> PCCKinematics:
+    """`kinematics` without input checks (for callers that checked already)."""
+    n = q.shape[0]
+    ia, dmap = _structure(n, order)
+    weight = lengths * np.exp(ia.dot(q))  # L_k e^{iφ_k}
+    coef = _sinc_derivatives(q)[:, : order + 1] * weight[:, None]
+    table = coef.ravel().dot(dmap).reshape(n + 1, -1)
+    jac_end = n + 1
+    hess = table[:, jac_end : jac_end + n * n].reshape(n + 1, n, n) if order >= 2 else None
+    third = table[:, jac_end + n * n :].reshape(n + 1, n, n, n) if order >= 3 else None
+    return PCCKinematics(coef[:, 0], table[:, 0], table[:, 1:jac_end], hess, third)
+
+
+class StepKinematics(NamedTuple):
+    """First-order kinematics and velocity terms at (q, q̇) as Python scalars (the per-step path).
+
+    Complex numbers are x + i·y (m). A bias acceleration is a point's acceleration at
+    q̈ = 0, i.e. q̇ᵀ (∂²P/∂q²) q̇ = J̇ q̇.
+    """
+
+    centre_jac: list[list[complex]]  # [i][j] = ∂c_i/∂q_j for j ≤ i (zero for j > i, not stored)
+    centre_bias_acc: list[complex]  # (N) J̇_{c_i} q̇
+    tip: complex  # r
+    tip_vel: complex  # ṙ = J_r q̇
+    tip_bias_acc: complex  # J̇_r q̇
+    tip_jac: list[complex]  # (N) J_r
+    tip_jac_dot: list[complex]  # (N) J̇_r
+
+
+def _step_kinematics(q: np.ndarray, qd: np.ndarray, lengths: np.ndarray) -> StepKinematics:
+    """`StepKinematics` at (q, q̇); no input checks.
+
+    Scalar loops, because numpy's per-call overhead (1–2 µs on a slow machine)
+    dominates for N ≈ 2; tested against `kinematics`. With ω = φ̇ = A q̇ and
+    z_k = e^{iφ_k}: ġ_k = (ℓ_k' q̇_k + i ℓ_k ω_k) z_k, the bias acceleration of g_k is
+    (ℓ_k'' q̇_k² − ℓ_k ω_k² + 2i ℓ_k' q̇_k ω_k) z_k, and, from J_P[j] = W_j ℓ_j' z_j +
+    i Σ_k W_k A_kj g_k, with s_j = i(½ g_j + Σ_{k>j} g_k):
+        J_r[j] = ℓ_j' z_j + s_j,   J_{c_i}[j] = J_r[j] − s_i (j < i),   J_{c_i}[i] = ½ ℓ_i' z_i + ¼ i g_i;
+    J̇_r likewise with d/dt(ℓ_j' z_j) = (ℓ_j'' q̇_j + i ℓ_j' ω_j) z_j and ġ_k for g_k.
+    """
+    n = q.shape[0]
+    chord, chord_d, chord_dot, chord_d_dot, bias = [], [], [], [], []
+    theta = theta_dot = 0.0
+    for (s0, s1, s2, _), length, qk, qdk in zip(_sinc_derivatives(q).tolist(), lengths.tolist(), q.tolist(), qd.tolist()):
+        l0, l1, l2 = length * s0, length * s1, length * s2
+        omega = theta_dot + 0.5 * qdk
+        z = cmath.exp(1j * (theta + 0.5 * qk))
+        theta += qk
+        theta_dot += qdk
+        chord.append(l0 * z)
+        chord_d.append(l1 * z)
+        chord_dot.append((l1 * qdk + 1j * l0 * omega) * z)
+        chord_d_dot.append((l2 * qdk + 1j * l1 * omega) * z)
+        bias.append((l2 * qdk * qdk - l0 * omega * omega + 2j * l1 * qdk * omega) * z)
+
+    tip_jac, tip_jac_dot, shift = [0j] * n, [0j] * n, [0j] * n
+    suffix = suffix_dot = 0j
+    for j in range(n - 1, -1, -1):
+        shift[j] = 1j * (0.5 * chord[j] + suffix)
+        tip_jac[j] = chord_d[j] + shift[j]
+        tip_jac_dot[j] = chord_d_dot[j] + 1j * (0.5 * chord_dot[j] + suffix_dot)
+        suffix += chord[j]
+        suffix_dot += chord_dot[j]
+
+    centre_jac, centre_bias_acc = [], []
+    prefix = 0j
+    for i in range(n):
+        centre_jac.append([tip_jac[j] - shift[i] for j in range(i)] + [0.5 * chord_d[i] + 0.25j * chord[i]])
+        centre_bias_acc.append(prefix + 0.5 * bias[i])
+        prefix += bias[i]
+    return StepKinematics(centre_jac, centre_bias_acc, suffix, suffix_dot, prefix, tip_jac, tip_jac_dot)
+
+
+def _checked(q, lengths) -> tuple[np.ndarray, np.ndarray]:
+    q = as_vector("q", q, None, NonFiniteStateError)
+    lengths = as_vector("lengths", lengths, q.shape[0], ControllerInputError)
+    if not np.all(lengths > 0):
+        raise ControllerInputError(f"lengths must be > 0, got {lengths}")
+    return q, lengths
+
+
+def kinematics(q, lengths, order: int = 1) -> PCCKinematics:
+    """Positions and derivatives up to `order` (0..3) of the chord midpoints and the tip.
+
+    q: (N,) bending angles (rad); lengths: (N,) segment lengths L_i (m).
+    """
+    if order not in range(MAX_ORDER + 1):
+        raise ControllerInputError(f"order must be 0..{MAX_ORDER}, got {order!r}")
+    return _kinematics(*_checked(q, lengths), order)
+
+
+def chord_derivatives(q, lengths) -> np.ndarray:
+    """ℓ_i(q_i) and its first three derivatives: shape (N, 4), [i, a] = d^aℓ_i/dq_i^a (m/rad^a)."""
+    q, lengths = _checked(q, lengths)
+    return _sinc_derivatives(q) * lengths[:, None]
+
+
+def _xy(z: np.ndarray, axis: int) -> np.ndarray:
+    return np.stack((z.real, z.imag), axis=axis)
+
+
+def segment_ends(q, lengths) -> np.ndarray:
+    """p_0 = 0, p_1, …, p_N = r: shape (N+1, 2) (m)."""
+    segments = kinematics(q, lengths, order=0).segments
+    return _xy(np.concatenate(([0j], np.cumsum(segments))), axis=-1)
+
+
+def segment_orientations(q) -> np.ndarray:
+    """θ_0 = 0, θ_1, …, θ_N: tangent angles at the segment ends, shape (N+1,) (rad)."""
+    q = as_vector("q", q, None, NonFiniteStateError)
+    return np.concatenate(([0.0], np.cumsum(q)))
+
+
+def centre_positions(q, lengths) -> np.ndarray:
+    """Chord midpoints c_i: shape (N, 2) (m)."""
+    return _xy(kinematics(q, lengths, order=0).points[:-1], axis=-1)
+
+
+def centre_jacobians(q, lengths) -> np.ndarray:
+    """∂c_i/∂q: shape (N, 2, N), [i] = J_{c_i} (m/rad)."""
+    return _xy(kinematics(q, lengths, order=1).jac[:-1], axis=1)
+
+
+def tip_position(q, lengths) -> np.ndarray:
+    """r(q): shape (2,) (m)."""
+    return _xy(kinematics(q, lengths, order=0).points[-1], axis=0)
+
+
+def tip_jacobian(q, lengths) -> np.ndarray:
+    """J_r = ∂r/∂q: shape (2, N) (m/rad)."""
+    return _xy(kinematics(q, lengths, order=1).jac[-1], axis=0)
+
+
+def tip_jacobian_derivative(q, lengths) -> np.ndarray:
+    """∂J_r/∂q: shape (N, 2, N), [k] = ∂J_r/∂q_k (m/rad²)."""
+    return _xy(kinematics(q, lengths, order=2).hess[-1].T, axis=1)
