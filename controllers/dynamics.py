@@ -215,6 +215,12 @@ class PCCDynamics:
         q, qd = self._state(q, qd)
         return self._acceleration(self._core(q, qd), self._command(u))
 
+    def acceleration_and_mass(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
+        """(q̈, M) at (q, q̇, u) from one evaluation: (N,) rad/s² and (N, N) kg·m²."""
+        q, qd = self._state(q, qd)
+        core = self._core(q, qd)
+        return self._acceleration(core, self._command(u)), np.array(core.mass)
+
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""
         q, qd = self._state(q, qd)

@@ -238,8 +238,14 @@ def _xy(z: np.ndarray, axis: int) -> np.ndarray:
 
 def segment_ends(q, lengths) -> np.ndarray:
     """p_0 = 0, p_1, …, p_N = r: shape (N+1, 2) (m)."""
-    segments = kinematics(q, lengths, order=0).segments
-    return _xy(np.concatenate(([0j], np.cumsum(segments))), axis=-1)
+    q, lengths = _checked(q, lengths)
+    theta = np.cumsum(q)
+    chords = lengths * _sinc_derivatives(q)[:, 0] * np.exp(1j * (theta - 0.5 * q))
+    ends = np.empty((q.shape[0] + 1, 2))
+    ends[0] = 0.0
+    points = np.cumsum(chords)
+    ends[1:, 0], ends[1:, 1] = points.real, points.imag
+    return ends
 
 
 def segment_orientations(q) -> np.ndarray:

@@ -1,0 +1,211 @@
+"""The CBF safety filter: state estimate + nominal command → safe command (SPEC §5).
+
+Every control step, with x = [q; q̇] (rad, rad/s) and u_nom (N,) hPa:
+
+    u* = argmin ‖u − u_nom‖²  s.t.  L_gB_i u ≤ γ/B_i − L_fB_i   (every row i of P)
+                                    u_min ≤ u ≤ u_max            (when pressure_limits)
+
+Defined behaviour in every state (the result says which branch ran, in `action`):
+- "disabled": tuning None (a_E = b_E = γ = 0): u = u_nom, clipped to the limits when
+  they are on (the paper's unfiltered run).
+- "nominal": u_nom already satisfies every row and bound; u = u_nom, no QP solved.
+- "qp": the QP above was solved.
+- "recovery": some row has b_i ≤ 0 (the estimate is outside P, B undefined). For those
+  rows the barrier row is replaced by a quasi-static row: the rest configuration of
+  the command, q_ss = K⁻¹Λu, must lie inside P by ε_i (`recovery_margin` m times
+  ‖H'_i‖), linearised about the current q:
+      b_i − H'_i J_r(q) (K⁻¹Λu − q) ≥ ε_i.
+  The arm's own stiffness and damping then carry the tip back inside, where the CBF
+  rows take over. Rows still inside P keep their CBF rows; `recovery` is flagged.
+  (Rules based on the instantaneous b̈, e.g. an exponential CBF on b or 'maximise b̈',
+  settle at a box corner whose rest shape is outside P: the tip stays outside for
+  tens of seconds. SPEC §5 reports the same; tests/test_filter.py checks this rule
+  over time.)
+- "slack": the rows and the bounds cannot all hold (infeasible). The filter solves the
+  least-violation QP over (u, s), one slack per row in hPa-equivalent units (rows
+  normalised to unit norm in u):
+      min ‖u − u_nom‖² + w ‖s‖²  s.t.  â_i u − s_i ≤ b̂_i,  s ≥ 0,  bounds on u,
+      and, as hard rows, the quasi-static rows above for every row of P,
+  with w = `slack_weight` (default 1e6: 1 hPa of violation costs as much as 1000 hPa of
+  deviation from u_nom). The hard quasi-static rows stop the least-violation command
+  from settling at a box corner whose rest shape is outside P (the trap of SPEC §5);
+  if they cannot hold with the bounds, they are dropped. `infeasible` is flagged and
+  `slack` holds max_i s_i.
+- "vent": only if a solver fails outright: u = 0 hPa clipped to the limits (the arm
+  relaxes towards its rest shape). `infeasible` is flagged.
+The command is finite and within the bounds in every branch. A non-finite state or
+nominal command raises NonFiniteStateError / NonFiniteCommandError (controllers.errors).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from controllers.cbf import Tuning, barrier_terms
+from controllers.dynamics import PCCDynamics
+from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.params import RobotParams
+from controllers.qp import DEFAULT_BACKEND, available_backends, solve_qp
+from controllers.safe_set import ForceSafeSet
+
+ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
+
+
+@dataclass(frozen=True, eq=False)
+class FilterResult:
+    """One filter step. Arrays: u, u_nom (N,) hPa; b, B, constraint, active (P,) over rows of P.
+
+    constraint: L_fB + L_gB u − γ/B at the returned u (≤ 0 is safe; +inf where B is
+    undefined). rho_pred: predicted safety margin of the estimate, min over facets.
+    solve_us: time spent in QP solves (µs). slack: max row violation accepted by the
+    "slack" branch (hPa-equivalent), else 0.
+    """
+
+    u: np.ndarray
+    u_nom: np.ndarray
+    b: np.ndarray
+    B: np.ndarray
+    constraint: np.ndarray
+    active: np.ndarray
+    infeasible: bool
+    recovery: bool
+    action: str
+    rho_pred: float
+    solve_us: float
+    slack: float
+
+
+class CBFFilter:
+    """CBF-QP safety filter for the PCC model `params` and force-safe set `safe_set`."""
+
+    def __init__(
+        self,
+        params: RobotParams,
+        safe_set: ForceSafeSet,
+        tuning: Tuning,
+        pressure_limits: bool = True,
+        qp_backend: str = DEFAULT_BACKEND,
+        recovery_margin: float = 1e-3,
+        slack_weight: float = 1e6,
+    ) -> None:
+        if qp_backend not in available_backends():
+            raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
+        if not (math.isfinite(slack_weight) and slack_weight > 0):
+            raise ValueError(f"slack_weight must be > 0, got {slack_weight}")
+        if not (math.isfinite(recovery_margin) and recovery_margin >= 0):
+            raise ValueError(f"recovery_margin must be >= 0 m, got {recovery_margin}")
+        self.params = params
+        self.safe_set = safe_set
+        self.tuning = tuning
+        self.pressure_limits = bool(pressure_limits)
+        self.qp_backend = qp_backend
+        self.recovery_margin = float(recovery_margin)
+        self.slack_weight = float(slack_weight)
+        self.dynamics = PCCDynamics(params)
+        self.n = params.n_segments
+        self._H = np.array(safe_set.H_prime, dtype=float)
+        self._h = np.array(safe_set.h_prime, dtype=float)
+        self._rows = self._H.tolist()
+        self._eps = (self.recovery_margin * np.hypot(self._H[:, 0], self._H[:, 1])).tolist()
+        self._lb = params.array("u_min") if self.pressure_limits else None
+        self._ub = params.array("u_max") if self.pressure_limits else None
+        self._lb_list, self._ub_list = list(params.u_min), list(params.u_max)
+        self._static_gain = (params.array("gains") / params.array("stiffness")).tolist()  # K⁻¹Λ, rad/hPa
+
+    @property
+    def enabled(self) -> bool:
+        """False for the paper's None tuning (u = u_nom)."""
+        return not self.tuning.disabled
+
+    def _clip(self, u: np.ndarray) -> np.ndarray:
+        return np.clip(u, self._lb, self._ub) if self.pressure_limits else u
+
+    def _static_row(self, ev, x: np.ndarray, b_i: float, i: int) -> tuple[list[float], float]:
+        """Row (a, c), a·u ≤ c: the rest configuration q_ss = K⁻¹Λu lies inside P by ε_i.
+
+        Linearised about the current q: b(q_ss) ≈ b − H'_i J_r (K⁻¹Λu − q) ≥ ε_i.
+        """
+        hx, hy = self._rows[i]
+        hj = [hx * j.real + hy * j.imag for j in ev.tip_jac.tolist()]
+        a = [v * g for v, g in zip(hj, self._static_gain)]
+        return a, b_i - self._eps[i] + sum(v * q for v, q in zip(hj, x[: self.n].tolist()))
+
+    def _slack_qp(self, u_nom: np.ndarray, rows: np.ndarray, rhs: np.ndarray, hard: list[tuple[list[float], float]]):
+        """Least-violation QP over z = (u, √w s) with hard rows `hard`; returns (u, max s) or (None, nan)."""
+        n, p = self.n, len(rows)
+        norms = np.maximum(np.linalg.norm(rows, axis=1), 1e-12)
+        root_w = math.sqrt(self.slack_weight)
+        pad = np.zeros((len(hard), p))
+        a_rows = [np.hstack((rows / norms[:, None], -np.eye(p) / root_w)), np.hstack((np.zeros((p, n)), -np.eye(p)))]
+        b_rows = [rhs / norms, np.zeros(p)]
+        if hard:
+            a_rows.append(np.hstack((np.array([a for a, _ in hard]), pad)))
+            b_rows.append(np.array([c for _, c in hard]))
+        if self.pressure_limits:
+            eye = np.hstack((np.eye(n), np.zeros((n, p))))
+            a_rows += [eye, -eye]
+            b_rows += [self._ub, -self._lb]
+        sol = solve_qp(np.concatenate((u_nom, np.zeros(p))), np.vstack(a_rows), np.concatenate(b_rows), backend=self.qp_backend)
+        if not sol.feasible:
+            return None, math.nan
+        return sol.u[:n], float(np.max(sol.u[n:]) / root_w)
+
+    def __call__(self, x, u_nom) -> FilterResult:
+        """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""
+        x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
+        u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
+        ev = self.dynamics.evaluate(x[: self.n], x[self.n :])
+        bt = barrier_terms(ev, self._H, self._h, self.tuning)
+        tip = ev.tip[0]
+        rho_pred = float(self.safe_set.margin(np.array((tip.real, tip.imag))))
+        defined = bt.defined.tolist()
+        recovery = self.enabled and not all(defined)
+        solve_us, slack, infeasible = 0.0, 0.0, False
+        active = np.zeros(len(defined), dtype=bool)
+        gamma = self.tuning.gamma
+        u_list = u_nom.tolist()
+
+        if not self.enabled:
+            u, action = self._clip(u_nom), "disabled"
+        else:
+            # Scalar loops: P and N are tiny and numpy's per-call overhead would dominate.
+            rows, rhs = bt.LgB.tolist(), []
+            for i, (ok, big_b, lfb) in enumerate(zip(defined, bt.B.tolist(), bt.LfB.tolist())):
+                if ok:
+                    rhs.append(gamma / big_b - lfb)
+                else:
+                    rows[i], c = self._static_row(ev, x, float(bt.b[i]), i)
+                    rhs.append(c)
+            feasible_nominal = all(sum(a * v for a, v in zip(row, u_list)) <= c for row, c in zip(rows, rhs))
+            if self.pressure_limits:
+                feasible_nominal = feasible_nominal and all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list))
+            if feasible_nominal:
+                u, action = u_nom, "nominal"
+            else:
+                t0 = time.perf_counter()
+                sol = solve_qp(u_nom, rows, rhs, self._lb, self._ub, backend=self.qp_backend)
+                if sol.feasible:
+                    u, active, action = sol.u, sol.active, ("recovery" if recovery else "qp")
+                else:
+                    infeasible = True
+                    hard = [self._static_row(ev, x, b_i, i) for i, b_i in enumerate(bt.b.tolist())]
+                    u, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), hard)
+                    if u is None:
+                        u, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), [])
+                    action = "slack"
+                    if u is None:
+                        u, action = np.zeros(self.n), "vent"
+                solve_us = (time.perf_counter() - t0) * 1e6
+                u = self._clip(np.asarray(u, dtype=float))
+                if not np.all(np.isfinite(u)):
+                    u, action, infeasible = self._clip(np.zeros(self.n)), "vent", True
+        u_final = u.tolist()
+        constraint = np.array([
+            lfb + sum(a * v for a, v in zip(row, u_final)) - gamma / big_b if ok else math.inf
+            for ok, lfb, row, big_b in zip(defined, bt.LfB.tolist(), bt.LgB.tolist(), bt.B.tolist())
+        ])
+        return FilterResult(u, u_nom, bt.b, bt.B, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack)

@@ -1,0 +1,79 @@
+"""Nominal (unsafe) controllers whose commands the CBF filter makes safe.
+
+A nominal controller is any callable `(t, q, qd) -> u_nom` with t in s, q and qd of
+shape (N,) in rad and rad/s, and u_nom of shape (N,) in hPa. Scenarios pass one to
+the closed loop; the filter never needs to know which one it is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Protocol
+
+import numpy as np
+
+from controllers.params import RobotParams, per_segment
+from controllers.pcc import tip_jacobian, tip_position
+
+
+class NominalController(Protocol):
+    def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class SinusoidNominal:
+    """The paper's open-loop command u_nom,j(t) = A_j sin(2π f t + φ_j) (SPEC §6).
+
+    amplitude: (N,) hPa (paper: 80 for both segments); frequency: Hz (paper: 0.01);
+    phase: (N,) rad (paper: 0).
+    """
+
+    amplitude: tuple[float, ...]
+    frequency: float
+    phase: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.frequency) and self.frequency > 0):
+            raise ValueError(f"frequency must be > 0 Hz, got {self.frequency}")
+        if len(self.amplitude) != len(self.phase):
+            raise ValueError(f"amplitude and phase must have the same length, got {len(self.amplitude)} and {len(self.phase)}")
+        for name in ("amplitude", "phase"):
+            if not all(math.isfinite(v) for v in getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        object.__setattr__(self, "_amp", np.array(self.amplitude, dtype=float))
+        object.__setattr__(self, "_phase", np.array(self.phase, dtype=float))
+
+    @classmethod
+    def paper(cls, n_segments: int = 2, amplitude: float = 80.0, frequency: float = 0.01) -> "SinusoidNominal":
+        amp = per_segment(amplitude, n_segments, "amplitude")
+        return cls(tuple(amp), frequency, (0.0,) * n_segments)
+
+    def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        return self._amp * np.sin(2.0 * math.pi * self.frequency * t + self._phase)
+
+
+@dataclass(frozen=True)
+class TipTracker:
+    """Drive the tip along a target path r*(t) (m), e.g. straight into a wall.
+
+    Quasi-static law: one damped-least-squares step of the PCC kinematics gives a
+    target configuration q* = q + Jᵀ(J Jᵀ + μ²I)⁻¹ (r* − r(q)); the command is the
+    pressure that holds q* at rest, Λ⁻¹ K q*, plus a damping term −Λ⁻¹ k_d q̇.
+    No pressure limits are applied here (the filter or the plant applies them).
+    """
+
+    params: RobotParams
+    target: Callable[[float], np.ndarray]
+    damping_ratio_gain: float = 0.0
+    mu: float = 1e-2
+
+    def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        lengths = self.params.array("lengths")
+        error = np.asarray(self.target(t), dtype=float) - tip_position(q, lengths)
+        jac = tip_jacobian(q, lengths)
+        step = jac.T @ np.linalg.solve(jac @ jac.T + self.mu**2 * np.eye(2), error)
+        q_star = q + step
+        k = self.params.array("stiffness")
+        lam = self.params.array("gains")
+        return (k * q_star - self.damping_ratio_gain * qd) / lam
