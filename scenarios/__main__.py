@@ -57,7 +57,7 @@ def _parse_params(scenario: Scenario, tokens: list[str]) -> dict[str, object]:
     known, unknown = parser.parse_known_args(tokens)
     if unknown:
         valid = ", ".join(f"--{n.replace('_', '-')}" for n in params)
-        raise SystemExit(f"error: unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
+        raise ValueError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
     return vars(known)
 
 
@@ -78,7 +78,11 @@ def main(argv: list[str] | None = None) -> int:
         scenario = get(args.name)
     except KeyError as exc:
         parser.error(exc.args[0])
-    params = _parse_params(scenario, rest)
+    try:
+        params = _parse_params(scenario, rest)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if args.out is None:
         parser.error("--out DIR is required to run a scenario")
     try:

@@ -1,0 +1,167 @@
+"""The CBF-QP safety filter: every branch, bounds, flags, bad input, and behaviour over time."""
+
+import math
+
+import numpy as np
+import pytest
+
+from controllers.cbf import Tuning, barrier_terms, get_tuning
+from controllers.errors import NonFiniteCommandError, NonFiniteStateError
+from controllers.filter import ACTIONS, CBFFilter
+from controllers.params import reference_robot
+from controllers.pcc import tip_position
+from controllers.qp import available_backends
+from controllers.safe_set import paper_safe_set
+from softcbf_mj.pcc_plant import PCCPlant
+
+ROBOT = reference_robot()
+SAFE = paper_safe_set()
+LENGTHS = ROBOT.array("lengths")
+
+
+def b_of(q):
+    return SAFE.h_prime - SAFE.H_prime @ tip_position(q, LENGTHS)
+
+
+def approaching_state():
+    """A state inside P moving fast towards the facet (b > 0, ḃ < 0)."""
+    return np.array([0.3, 0.25, 1.0, 1.0])
+
+
+def outside_state():
+    """A state at rest with the tip beyond P (b < 0)."""
+    q = np.array([0.8, 0.8])
+    assert np.all(b_of(q) < 0)
+    return np.concatenate((q, np.zeros(2)))
+
+
+def test_disabled_tuning_passes_nominal_and_clips_only_with_limits():
+    x, u_nom = approaching_state(), np.array([400.0, -20.0])
+    free = CBFFilter(ROBOT, SAFE, get_tuning("None"), pressure_limits=False)(x, u_nom)
+    assert free.action == "disabled" and not free.infeasible and not free.recovery
+    np.testing.assert_array_equal(free.u, u_nom)
+    limited = CBFFilter(ROBOT, SAFE, get_tuning("None"), pressure_limits=True)(x, u_nom)
+    np.testing.assert_array_equal(limited.u, [150.0, -20.0])
+
+
+def test_safe_nominal_is_returned_unchanged_without_a_qp():
+    res = CBFFilter(ROBOT, SAFE, get_tuning("Low"))(np.zeros(4), np.array([10.0, 10.0]))
+    assert res.action == "nominal" and res.solve_us == 0.0
+    np.testing.assert_array_equal(res.u, [10.0, 10.0])
+    assert np.all(res.constraint <= 0) and res.rho_pred == 1.0
+
+
+@pytest.mark.parametrize("backend", available_backends())
+def test_active_qp_satisfies_kkt(backend):
+    """One active row, no bounds: u* = u_nom − μ a with μ ≥ 0, a = L_gB, and a·u* = c."""
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"), pressure_limits=False, qp_backend=backend)
+    u_nom, x = np.array([150.0, 150.0]), approaching_state()
+    res = filt(x, u_nom)
+    assert res.action == "qp" and res.active[0] and not res.infeasible
+    terms = barrier_terms(filt.dynamics.evaluate(x[:2], x[2:]), SAFE.H_prime, SAFE.h_prime, get_tuning("Low"))
+    a = terms.LgB[0]
+    c = get_tuning("Low").gamma / terms.B[0] - terms.LfB[0]
+    assert abs(a @ res.u - c) <= 1e-6 * np.linalg.norm(a) * (1 + np.linalg.norm(res.u))  # active, primal feasible
+    mu = (u_nom - res.u) @ a / (a @ a)
+    assert mu > 0  # dual feasible
+    np.testing.assert_allclose(u_nom - res.u, mu * a, atol=1e-6 * np.linalg.norm(u_nom))  # stationary
+    assert res.constraint[0] <= 1e-6 * np.linalg.norm(a) * (1 + np.linalg.norm(res.u))
+
+
+def test_command_within_bounds_and_flagged_when_infeasible():
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("High"), pressure_limits=True)
+    res = filt(np.array([0.32, 0.28, 2.0, 2.0]), np.array([150.0, 150.0]))
+    assert res.infeasible and res.action == "slack"
+    assert np.all(np.isfinite(res.u)) and np.all(np.abs(res.u) <= 150.0)
+    assert res.slack > 0
+
+
+def test_outside_safe_set_gives_flagged_bounded_recovery():
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"), pressure_limits=True)
+    res = filt(outside_state(), np.array([100.0, 100.0]))
+    assert res.recovery and res.action in ("recovery", "slack")
+    assert np.all(np.isfinite(res.u)) and np.all(np.abs(res.u) <= 150.0)
+    assert math.isinf(res.B[0]) and math.isinf(res.constraint[0])
+    # The command's rest shape K⁻¹Λu is back inside P.
+    q_rest = ROBOT.array("gains") * res.u / ROBOT.array("stiffness")
+    assert np.all(b_of(q_rest) > 0)
+
+
+@pytest.mark.parametrize("tuning", ["Low", "High"])
+def test_recovery_brings_the_tip_back_inside_within_a_second(tuning):
+    """Over time, not only instantaneously: from outside P with u_nom pushing outwards."""
+    plant = PCCPlant(ROBOT, SAFE)
+    filt = CBFFilter(ROBOT, SAFE, get_tuning(tuning), pressure_limits=True)
+    state = plant.reset(outside_state()[:2])
+    inside_at = None
+    for k in range(3000):
+        res = filt(np.concatenate((state.q, state.qd)), np.array([120.0, 120.0]))
+        state = plant.step(res.u)
+        if inside_at is None and np.all(b_of(state.q) > 0):
+            inside_at = k
+    assert inside_at is not None and inside_at < 1000, inside_at
+    assert np.all(b_of(state.q) > 0), "the tip left P again while the nominal command kept pushing"
+
+
+@pytest.mark.parametrize("bad, error", [(np.array([np.nan, 0, 0, 0]), NonFiniteStateError), (np.array([0, 0, np.inf, 0]), NonFiniteStateError)])
+def test_nonfinite_state_raises(bad, error):
+    with pytest.raises(error, match="x must be finite"):
+        CBFFilter(ROBOT, SAFE, get_tuning("Low"))(bad, np.zeros(2))
+
+
+def test_nonfinite_command_and_wrong_shapes_raise():
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"))
+    with pytest.raises(NonFiniteCommandError, match="u_nom must be finite"):
+        filt(np.zeros(4), np.array([np.nan, 0.0]))
+    with pytest.raises(ValueError, match=r"x must have shape \(4,\)"):
+        filt(np.zeros(3), np.zeros(2))
+
+
+def test_configuration_errors_name_field_and_value():
+    with pytest.raises(ValueError, match="qp_backend must be one of"):
+        CBFFilter(ROBOT, SAFE, get_tuning("Low"), qp_backend="matlab")
+    with pytest.raises(ValueError, match="slack_weight must be > 0, got -1"):
+        CBFFilter(ROBOT, SAFE, get_tuning("Low"), slack_weight=-1)
+    with pytest.raises(ValueError, match="recovery_margin must be >= 0 m, got -0.1"):
+        CBFFilter(ROBOT, SAFE, get_tuning("Low"), recovery_margin=-0.1)
+
+
+def test_random_states_always_give_finite_bounded_commands():
+    rng = np.random.default_rng(3)
+    filters = [CBFFilter(ROBOT, SAFE, Tuning("t", a, a, a), pressure_limits=True) for a in (0.2, 2.0, 100.0)]
+    for _ in range(300):
+        x = np.concatenate((rng.uniform(-1.2, 1.2, 2), rng.uniform(-8, 8, 2)))
+        u_nom = rng.uniform(-400, 400, 2)
+        for filt in filters:
+            res = filt(x, u_nom)
+            assert res.action in ACTIONS
+            assert np.all(np.isfinite(res.u)) and np.all(np.abs(res.u) <= 150.0 + 1e-12)
+            assert res.recovery == bool(np.any(res.b <= 0))
+
+
+@pytest.mark.parametrize("tuning", ["Low", "High"])
+def test_forward_invariance_dense_evaluation(tuning):
+    """Theorem 1's setting: no pressure limits, the filter at 10 kHz (≈ continuous time).
+
+    From random rest configurations inside P, with random constant nominal commands
+    that push the tip through the facet, the tip stays in P: b ≥ −1e-5 (row-scaled m;
+    tolerance for the 0.1 ms zero-order hold), i.e. ρ ≥ −1e-3. The runs must come
+    closer to P's boundary (b < 0.75 b0), or the test would prove nothing.
+    """
+    rng = np.random.default_rng(11 if tuning == "Low" else 12)
+    for _ in range(3):
+        while True:
+            q0 = rng.uniform(0.0, 0.4, 2)
+            if 0.005 < b_of(q0)[0] < 0.02:
+                break
+        plant = PCCPlant(ROBOT, SAFE, control_dt=1e-4, physics_dt=1e-4)
+        filt = CBFFilter(ROBOT, SAFE, get_tuning(tuning), pressure_limits=False)
+        u_nom = rng.uniform(150, 300, 2)
+        state = plant.reset(q0)
+        b_min = np.inf
+        for _ in range(8000):
+            res = filt(np.concatenate((state.q, state.qd)), u_nom)
+            b_min = min(b_min, float(res.b[0]))
+            state = plant.step(res.u)
+        assert b_min < 0.75 * b_of(q0)[0], f"never came near P's boundary: b_min {b_min}, b0 {b_of(q0)[0]}"
+        assert b_min >= -1e-5, b_min
