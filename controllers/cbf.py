@@ -129,24 +129,30 @@ def _barrier(b: float, bdot: float, tuning: Tuning) -> tuple[float, float, float
     return math.log1p(1.0 / b) + ab * bdot * bdot / den, -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
 
 
-def barrier_terms(ev: DynamicsEval, H, h, tuning: Tuning) -> BarrierTerms:
-    """b, ḃ, B, L_f B, L_g B of every row of (H', h') at the state `ev` was evaluated at."""
-    rows, hs = _rows(H, h)
-    r, r_dot, r_acc0, *r_acc_u = ev.tip
-    table, defined = [], []  # per row: b, ḃ, B, L_f B, L_g B (N); b > B_MIN
+def _barrier_table(tip: tuple, rows: list[list[float]], hs: list[float], tuning: Tuning) -> list[list[float]]:
+    """Per row of (H', h') as Python floats: [b, ḃ, B, L_f B, L_g B_1..L_g B_N]; no input checks.
+
+    `tip` is `DynamicsEval.tip`. Rows with b ≤ B_MIN get B = +inf and L_f B = L_g B = 0.
+    """
+    r, r_dot, r_acc0, *r_acc_u = tip
+    table = []
     for (hx, hy), h_i in zip(rows, hs):
         b = h_i - (hx * r.real + hy * r.imag)
         bdot = -(hx * r_dot.real + hy * r_dot.imag)
-        ok = b > B_MIN
-        defined.append(ok)
-        if ok:
+        if b > B_MIN:
             value, db, dbdot = _barrier(b, bdot, tuning)
             lfb = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
             table.append([b, bdot, value, lfb, *[-dbdot * (hx * a.real + hy * a.imag) for a in r_acc_u]])
         else:
             table.append([b, bdot, math.inf, 0.0, *[0.0] * len(r_acc_u)])
-    out = np.array(table, dtype=float) if table else np.empty((0, 4 + len(r_acc_u)))
-    return BarrierTerms(out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4:], np.array(defined, dtype=bool), tuning.gamma)
+    return table
+
+
+def barrier_terms(ev: DynamicsEval, H, h, tuning: Tuning) -> BarrierTerms:
+    """b, ḃ, B, L_f B, L_g B of every row of (H', h') at the state `ev` was evaluated at."""
+    table = _barrier_table(ev.tip, *_rows(H, h), tuning)
+    out = np.array(table, dtype=float) if table else np.empty((0, len(ev.tip) + 1))  # b, ḃ, B, L_f B, N × L_g B
+    return BarrierTerms(out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4:], out[:, 0] > B_MIN, tuning.gamma)
 
 
 def barrier_gradients(ev: DynamicsEval, H, h, tuning: Tuning) -> tuple[np.ndarray, np.ndarray]:

@@ -124,8 +124,9 @@ class PCCDynamics:
         self._masses = params.array("masses")
         a = _structure(n, 1)[0].imag  # A = ∂φ/∂q
         self._mass_rot = (a.T @ (params.array("inertias")[:, None] * a)).tolist()
-        self._scalars = (self._masses.tolist(), params.damping, params.stiffness, list(params.gains))
+        self._scalars = (self._masses.tolist(), params.damping, params.stiffness, list(params.gains), list(params.lengths))
         self._stiffness_damping = np.hstack((self.K, self.D))
+        self._last: tuple = (None, None, None)  # (q, q̇, _Core) of the last `_core` call
 
     @property
     def K(self) -> np.ndarray:
@@ -154,12 +155,26 @@ class PCCDynamics:
         return as_vector("u", u, self.n, NonFiniteCommandError)
 
     # -- core ---------------------------------------------------------------------
-    def _core(self, q: np.ndarray, qd: np.ndarray) -> _Core:
-        """M = Σ m_i J_ciᵀ J_ci + M_rot and C q̇ = Σ m_i J_ciᵀ (J̇_ci q̇), summed over j ≤ l ≤ i."""
-        kin = _step_kinematics(q, qd, self.lengths)
-        masses, damping, stiffness, _ = self._scalars
+    def _core(self, q: list[float], qd: list[float]) -> _Core:
+        """The per-step model terms at (q, q̇) (Python floats); see `_mass_and_force`.
+
+        The last state's terms are kept: in a closed loop whose plant and filter share this
+        object, the filter reads the state the plant has just evaluated.
+        """
+        last_q, last_qd, last = self._last
+        if q == last_q and qd == last_qd:
+            return last
+        kin = _step_kinematics(q, qd, self._scalars[4])
+        mass, force = (self._mass_and_force_2 if self.n == 2 else self._mass_and_force)(kin, q, qd)
+        core = _Core(kin, mass, force, _spd_inverse(mass))
+        self._last = (q[:], qd[:], core)
+        return core
+
+    def _mass_and_force(self, kin: StepKinematics, q: list[float], qd: list[float]) -> tuple[list[list[float]], list[float]]:
+        """M = Σ m_i J_ciᵀ J_ci + M_rot and C q̇ + D q̇ + K q with C q̇ = Σ m_i J_ciᵀ (J̇_ci q̇), summed over j ≤ l ≤ i."""
+        masses, damping, stiffness = self._scalars[:3]
         mass = [row[:] for row in self._mass_rot]
-        force = [d * v + k * x for d, v, k, x in zip(damping, qd.tolist(), stiffness, q.tolist())]
+        force = [d * v + k * x for d, v, k, x in zip(damping, qd, stiffness, q)]
         for m_i, row, acc in zip(masses, kin.centre_jac, kin.centre_bias_acc):
             for j, a in enumerate(row):
                 a_re, a_im = m_i * a.real, m_i * a.imag
@@ -170,9 +185,27 @@ class PCCDynamics:
         for j in range(1, self.n):
             for l in range(j):
                 mass[j][l] = mass[l][j]
-        return _Core(kin, mass, force, _spd_inverse(mass))
+        return mass, force
 
-    def _eval(self, q: np.ndarray, qd: np.ndarray) -> DynamicsEval:
+    def _mass_and_force_2(self, kin: StepKinematics, q: list[float], qd: list[float]) -> tuple[list[list[float]], list[float]]:
+        """`_mass_and_force` for N = 2 unrolled: the same operations in the same order (tested)."""
+        (m0, m1), (d0, d1), (k0, k1) = self._scalars[:3]
+        ((r00, r01), (_, r11)), (q0, q1), (v0, v1) = self._mass_rot, q, qd
+        ((h0,), (j10, h1)), (acc0, acc1) = kin.centre_jac, kin.centre_bias_acc
+        a_re, a_im = m0 * h0.real, m0 * h0.imag  # body 1: J_c1 = [h0, 0]
+        f0 = d0 * v0 + k0 * q0 + (a_re * acc0.real + a_im * acc0.imag)
+        m00 = r00 + (a_re * h0.real + a_im * h0.imag)
+        a_re, a_im = m1 * j10.real, m1 * j10.imag  # body 2: J_c2 = [j10, h1]
+        f0 += a_re * acc1.real + a_im * acc1.imag
+        m00 += a_re * j10.real + a_im * j10.imag
+        m01 = r01 + (a_re * h1.real + a_im * h1.imag)
+        a_re, a_im = m1 * h1.real, m1 * h1.imag
+        f1 = d1 * v1 + k1 * q1 + (a_re * acc1.real + a_im * acc1.imag)
+        m11 = r11 + (a_re * h1.real + a_im * h1.imag)
+        return [[m00, m01], [m01, m11]], [f0, f1]
+
+    def _eval(self, q: list[float], qd: list[float]) -> DynamicsEval:
+        """`evaluate` on Python float lists; no input checks."""
         core = self._core(q, qd)
         kin, gains = core.kin, self._scalars[3]
         # w = M⁻¹ J_r (M⁻¹ symmetric): tip acceleration per unit generalised force.
@@ -182,17 +215,24 @@ class PCCDynamics:
 
     def evaluate(self, q, qd) -> DynamicsEval:
         """All per-step quantities of the filter at (q, q̇) in one pass."""
-        return self._eval(*self._state(q, qd))
+        q, qd = self._state(q, qd)
+        return self._eval(q.tolist(), qd.tolist())
 
-    def _acceleration(self, core: _Core, u: np.ndarray) -> np.ndarray:
-        tau = [g * u_l - f for g, u_l, f in zip(self._scalars[3], u.tolist(), core.force)]
-        return np.array([sum(map(mul, row, tau)) for row in core.mass_inv])
+    def _acceleration(self, core: _Core, u: list[float]) -> list[float]:
+        """q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q) from `core` and a Python float list u."""
+        tau = [g * u_l - f for g, u_l, f in zip(self._scalars[3], u, core.force)]
+        return [sum(map(mul, row, tau)) for row in core.mass_inv]
+
+    def _acceleration_and_mass(self, q: list[float], qd: list[float], u: list[float]) -> tuple[list[float], list[list[float]]]:
+        """(q̈, M) as Python floats from one evaluation; no input checks (the plant's per-step path)."""
+        core = self._core(q, qd)
+        return self._acceleration(core, u), core.mass
 
     # -- model terms --------------------------------------------------------------
     def mass_matrix(self, q) -> np.ndarray:
         """M(q): (N, N), symmetric positive definite (kg·m²)."""
         q = as_vector("q", q, self.n, NonFiniteStateError)
-        return np.array(self._core(q, np.zeros(self.n)).mass)
+        return np.array(self._core(q.tolist(), [0.0] * self.n).mass)
 
     def mass_matrix_derivative(self, q) -> np.ndarray:
         """∂M/∂q: (N, N, N), [k] = ∂M/∂q_k (kg·m²/rad)."""
@@ -213,21 +253,21 @@ class PCCDynamics:
     def acceleration(self, q, qd, u) -> np.ndarray:
         """q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q): (N,) (rad/s²)."""
         q, qd = self._state(q, qd)
-        return self._acceleration(self._core(q, qd), self._command(u))
+        return np.array(self._acceleration(self._core(q.tolist(), qd.tolist()), self._command(u).tolist()))
 
     def acceleration_and_mass(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(q̈, M) at (q, q̇, u) from one evaluation: (N,) rad/s² and (N, N) kg·m²."""
         q, qd = self._state(q, qd)
-        core = self._core(q, qd)
-        return self._acceleration(core, self._command(u)), np.array(core.mass)
+        qdd, mass = self._acceleration_and_mass(q.tolist(), qd.tolist(), self._command(u).tolist())
+        return np.array(qdd), np.array(mass)
 
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""
         q, qd = self._state(q, qd)
         u = self._command(u)
         n = self.n
-        core = self._core(q, qd)
-        qdd = self._acceleration(core, u)
+        core = self._core(q.tolist(), qd.tolist())
+        qdd = np.array(self._acceleration(core, u.tolist()))
         kin = _kinematics(q, self.lengths, 3)
         jac, hess = kin.jac[:n], kin.hess[:n]
         jac_dot = hess.dot(qd)  # [i, m] = Σ_j ∂²c_i/∂q_m∂q_j q̇_j  (.dot: less call overhead than @)
@@ -244,17 +284,17 @@ class PCCDynamics:
     def f(self, x) -> np.ndarray:
         """Drift f(x) = [q̇; −M⁻¹(C q̇ + D q̇ + K q)]: (2N,)."""
         q, qd = self._split(x)
-        return np.concatenate((qd, self._acceleration(self._core(q, qd), np.zeros(self.n))))
+        return np.concatenate((qd, self._acceleration(self._core(q.tolist(), qd.tolist()), [0.0] * self.n)))
 
     def g(self, x) -> np.ndarray:
         """Input matrix g(x) = [0; M⁻¹ Λ]: (2N, N)."""
         q, qd = self._split(x)
-        return np.vstack((np.zeros((self.n, self.n)), self._eval(q, qd).input_acc))
+        return np.vstack((np.zeros((self.n, self.n)), self._eval(q.tolist(), qd.tolist()).input_acc))
 
     def state_derivative(self, x, u) -> np.ndarray:
         """ẋ = f(x) + g(x) u: (2N,)."""
         q, qd = self._split(x)
-        return np.concatenate((qd, self._acceleration(self._core(q, qd), self._command(u))))
+        return np.concatenate((qd, self._acceleration(self._core(q.tolist(), qd.tolist()), self._command(u).tolist())))
 
     def kinetic_energy(self, q, qd) -> float:
         """T = ½ q̇ᵀ M(q) q̇ (J)."""

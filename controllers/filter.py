@@ -45,11 +45,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import Tuning, barrier_terms
-from controllers.dynamics import PCCDynamics
+from controllers.cbf import B_MIN, Tuning, _barrier_table
+from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
-from controllers.qp import DEFAULT_BACKEND, available_backends, solve_qp
+from controllers.qp import DEFAULT_BACKEND, _dot, _solve, available_backends, solve_qp
 from controllers.safe_set import ForceSafeSet
 
 ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
@@ -80,7 +80,12 @@ class FilterResult:
 
 
 class CBFFilter:
-    """CBF-QP safety filter for the PCC model `params` and force-safe set `safe_set`."""
+    """CBF-QP safety filter for the PCC model `params` and force-safe set `safe_set`.
+
+    `dynamics`: the model object to evaluate (default: a new `PCCDynamics(params)`). A
+    simulation whose plant integrates the same model may pass the plant's, so that the
+    filter reuses the plant's evaluation at the state it reports (`PCCDynamics._core`).
+    """
 
     def __init__(
         self,
@@ -91,6 +96,7 @@ class CBFFilter:
         qp_backend: str = DEFAULT_BACKEND,
         recovery_margin: float = 1e-3,
         slack_weight: float = 1e6,
+        dynamics: PCCDynamics | None = None,
     ) -> None:
         if qp_backend not in available_backends():
             raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
@@ -98,6 +104,8 @@ class CBFFilter:
             raise ValueError(f"slack_weight must be > 0, got {slack_weight}")
         if not (math.isfinite(recovery_margin) and recovery_margin >= 0):
             raise ValueError(f"recovery_margin must be >= 0 m, got {recovery_margin}")
+        if dynamics is not None and dynamics.params != params:
+            raise ValueError("dynamics must be a PCCDynamics of the same params as the filter")
         self.params = params
         self.safe_set = safe_set
         self.tuning = tuning
@@ -105,15 +113,16 @@ class CBFFilter:
         self.qp_backend = qp_backend
         self.recovery_margin = float(recovery_margin)
         self.slack_weight = float(slack_weight)
-        self.dynamics = PCCDynamics(params)
+        self.dynamics = PCCDynamics(params) if dynamics is None else dynamics
         self.n = params.n_segments
         self._H = np.array(safe_set.H_prime, dtype=float)
         self._h = np.array(safe_set.h_prime, dtype=float)
-        self._rows = self._H.tolist()
+        self._rows, self._hs = self._H.tolist(), self._h.tolist()
         self._eps = (self.recovery_margin * np.hypot(self._H[:, 0], self._H[:, 1])).tolist()
         self._lb = params.array("u_min") if self.pressure_limits else None
         self._ub = params.array("u_max") if self.pressure_limits else None
-        self._lb_list, self._ub_list = list(params.u_min), list(params.u_max)
+        self._lb_list = list(params.u_min) if self.pressure_limits else None
+        self._ub_list = list(params.u_max) if self.pressure_limits else None
         self._static_gain = (params.array("gains") / params.array("stiffness")).tolist()  # K⁻¹Λ, rad/hPa
 
     @property
@@ -121,10 +130,13 @@ class CBFFilter:
         """False for the paper's None tuning (u = u_nom)."""
         return not self.tuning.disabled
 
-    def _clip(self, u: np.ndarray) -> np.ndarray:
-        return np.clip(u, self._lb, self._ub) if self.pressure_limits else u
+    def _clip(self, u: list[float]) -> list[float]:
+        """u within the pressure limits when they are on (like np.clip: NaN stays NaN)."""
+        if not self.pressure_limits:
+            return u
+        return [min(max(v, lo), hi) for v, lo, hi in zip(u, self._lb_list, self._ub_list)]
 
-    def _static_row(self, ev, x: np.ndarray, b_i: float, i: int) -> tuple[list[float], float]:
+    def _static_row(self, ev: DynamicsEval, q: list[float], b_i: float, i: int) -> tuple[list[float], float]:
         """Row (a, c), a·u ≤ c: the rest configuration q_ss = K⁻¹Λu lies inside P by ε_i.
 
         Linearised about the current q: b(q_ss) ≈ b − H'_i J_r (K⁻¹Λu − q) ≥ ε_i.
@@ -132,7 +144,7 @@ class CBFFilter:
         hx, hy = self._rows[i]
         hj = [hx * j.real + hy * j.imag for j in ev.tip_jac.tolist()]
         a = [v * g for v, g in zip(hj, self._static_gain)]
-        return a, b_i - self._eps[i] + sum(v * q for v, q in zip(hj, x[: self.n].tolist()))
+        return a, b_i - self._eps[i] + sum(v * q_j for v, q_j in zip(hj, q))
 
     def _slack_qp(self, u_nom: np.ndarray, rows: np.ndarray, rhs: np.ndarray, hard: list[tuple[list[float], float]]):
         """Least-violation QP over z = (u, √w s) with hard rows `hard`; returns (u, max s) or (None, nan)."""
@@ -158,54 +170,58 @@ class CBFFilter:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""
         x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
-        ev = self.dynamics.evaluate(x[: self.n], x[self.n :])
-        bt = barrier_terms(ev, self._H, self._h, self.tuning)
+        # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
+        xs, u_list = x.tolist(), u_nom.tolist()
+        q = xs[: self.n]
+        ev = self.dynamics._eval(q, xs[self.n :])
+        table = _barrier_table(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
         tip = ev.tip[0]
-        rho_pred = float(self.safe_set.margin(np.array((tip.real, tip.imag))))
-        defined = bt.defined.tolist()
+        rho_pred = self.safe_set.margin_at(tip.real, tip.imag)
+        defined = [row[0] > B_MIN for row in table]
         recovery = self.enabled and not all(defined)
-        solve_us, slack, infeasible = 0.0, 0.0, False
-        active = np.zeros(len(defined), dtype=bool)
+        solve_us, slack, infeasible, active = 0.0, 0.0, False, None
         gamma = self.tuning.gamma
-        u_list = u_nom.tolist()
 
         if not self.enabled:
-            u, action = self._clip(u_nom), "disabled"
+            u, action = self._clip(u_list), "disabled"
         else:
-            # Scalar loops: P and N are tiny and numpy's per-call overhead would dominate.
-            rows, rhs = bt.LgB.tolist(), []
-            for i, (ok, big_b, lfb) in enumerate(zip(defined, bt.B.tolist(), bt.LfB.tolist())):
+            rows, rhs = [], []
+            for i, (ok, (b_i, _, big_b, lfb, *lgb)) in enumerate(zip(defined, table)):
                 if ok:
+                    rows.append(lgb)
                     rhs.append(gamma / big_b - lfb)
                 else:
-                    rows[i], c = self._static_row(ev, x, float(bt.b[i]), i)
+                    row, c = self._static_row(ev, q, b_i, i)
+                    rows.append(row)
                     rhs.append(c)
-            feasible_nominal = all(sum(a * v for a, v in zip(row, u_list)) <= c for row, c in zip(rows, rhs))
+            feasible_nominal = all(_dot(row, u_list) <= c for row, c in zip(rows, rhs))
             if self.pressure_limits:
                 feasible_nominal = feasible_nominal and all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list))
             if feasible_nominal:
-                u, action = u_nom, "nominal"
+                u, action = u_list, "nominal"
             else:
                 t0 = time.perf_counter()
-                sol = solve_qp(u_nom, rows, rhs, self._lb, self._ub, backend=self.qp_backend)
+                sol = _solve(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
                 if sol.feasible:
-                    u, active, action = sol.u, sol.active, ("recovery" if recovery else "qp")
+                    u, active, action = sol.u.tolist(), sol.active, ("recovery" if recovery else "qp")
                 else:
                     infeasible = True
-                    hard = [self._static_row(ev, x, b_i, i) for i, b_i in enumerate(bt.b.tolist())]
-                    u, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), hard)
-                    if u is None:
-                        u, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), [])
+                    hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(table)]
+                    u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), hard)
+                    if u_arr is None:
+                        u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), [])
                     action = "slack"
-                    if u is None:
-                        u, action = np.zeros(self.n), "vent"
+                    if u_arr is None:
+                        u_arr, action = np.zeros(self.n), "vent"
+                    u = u_arr.tolist()
                 solve_us = (time.perf_counter() - t0) * 1e6
-                u = self._clip(np.asarray(u, dtype=float))
-                if not np.all(np.isfinite(u)):
-                    u, action, infeasible = self._clip(np.zeros(self.n)), "vent", True
-        u_final = u.tolist()
-        constraint = np.array([
-            lfb + sum(a * v for a, v in zip(row, u_final)) - gamma / big_b if ok else math.inf
-            for ok, lfb, row, big_b in zip(defined, bt.LfB.tolist(), bt.LgB.tolist(), bt.B.tolist())
-        ])
-        return FilterResult(u, u_nom, bt.b, bt.B, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack)
+                u = self._clip(u)
+                if not all(map(math.isfinite, u)):
+                    u, action, infeasible = self._clip([0.0] * self.n), "vent", True
+        constraint = [lfb + _dot(lgb, u) - gamma / big_b if ok else math.inf
+                      for ok, (_, _, big_b, lfb, *lgb) in zip(defined, table)]
+        b, big_b, constraint = np.array([[row[0] for row in table], [row[2] for row in table], constraint])
+        if active is None:
+            active = np.zeros(len(table), dtype=bool)
+        return FilterResult(u_nom if u is u_list else np.array(u), u_nom, b, big_b, constraint, active,
+                            infeasible, recovery, action, rho_pred, solve_us, slack)

@@ -40,7 +40,7 @@ import cmath
 import itertools
 import math
 from functools import lru_cache
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -48,8 +48,6 @@ from controllers.errors import ControllerInputError, NonFiniteStateError, as_vec
 
 _SERIES_SWITCH = 2.0  # |q| below which the Taylor series is used (|x| = |q/2| < 1)
 _SERIES_DEGREE = 19  # powers q^0..q^19; first omitted term < 1e-21 relative at |q| = 2
-_POWERS = np.arange(_SERIES_DEGREE + 1.0)
-_HALF_POWERS = np.array([1.0, 0.5, 0.25, 0.125])  # d^a/dq^a = 2^{-a} d^a/dx^a
 MAX_ORDER = 3
 
 
@@ -71,23 +69,35 @@ def _series_matrix(degree: int) -> np.ndarray:
 _SERIES = _series_matrix(_SERIES_DEGREE)
 
 
+# Column a of _SERIES has nonzero entries only at powers p ≡ a (mod 2): per Horner step (highest
+# power first) the four coefficients of q^(2k + a mod 2), so s^(a) = q^(a mod 2) · poly_a(q²).
+_HORNER_ROWS = tuple(zip(*(_SERIES[a % 2 :: 2, a][::-1].tolist() for a in range(4))))
+
+
+def _sinc_half(q: float) -> tuple[float, float, float, float]:
+    """s^{(a)}(q) for s(q) = sinc(q/2) = ℓ(q)/L and a = 0..3, one Python float q. No input checks.
+
+    The only evaluation of s: scalar, because numpy's per-call overhead dominates at N ≈ 2.
+    """
+    if abs(q) < _SERIES_SWITCH:
+        x = q * q
+        s0 = s1 = s2 = s3 = 0.0
+        for c0, c1, c2, c3 in _HORNER_ROWS:
+            s0, s1, s2, s3 = s0 * x + c0, s1 * x + c1, s2 * x + c2, s3 * x + c3
+        return s0, s1 * q, s2, s3 * q
+    # x s0 = sin x, differentiated thrice: s0 + x s1 = cos x, 2 s1 + x s2 = -sin x, 3 s2 + x s3 = -cos x.
+    x = 0.5 * q
+    sin, cos = math.sin(x), math.cos(x)
+    s0 = sin / x
+    s1 = (cos - s0) / x
+    s2 = -s0 - 2.0 * s1 / x
+    s3 = -(cos + 3.0 * s2) / x
+    return s0, 0.5 * s1, 0.25 * s2, 0.125 * s3  # d^a/dq^a = 2^{-a} d^a/dx^a
+
+
 def _sinc_derivatives(q: np.ndarray) -> np.ndarray:
-    """s^{(a)}(q_i) for s(q) = sinc(q/2) = ℓ(q)/L and a = 0..3: shape (N, 4). No input checks."""
-    large = max(map(abs, q.tolist()), default=0.0) >= _SERIES_SWITCH
-    # Where |q| is large the series value is discarded; clipping keeps it from overflowing.
-    clipped = np.clip(q, -_SERIES_SWITCH, _SERIES_SWITCH) if large else q
-    out = (clipped[:, None] ** _POWERS).dot(_SERIES)  # .dot: less call overhead than @
-    if large:
-        big = np.abs(q) >= _SERIES_SWITCH
-        x = 0.5 * q[big]
-        sin, cos = np.sin(x), np.cos(x)
-        # x s0 = sin x, differentiated thrice: s0 + x s1 = cos x, 2 s1 + x s2 = -sin x, 3 s2 + x s3 = -cos x.
-        s0 = sin / x
-        s1 = (cos - s0) / x
-        s2 = -s0 - 2.0 * s1 / x
-        s3 = -(cos + 3.0 * s2) / x
-        out[big] = np.column_stack((s0, s1, s2, s3)) * _HALF_POWERS
-    return out
+    """`_sinc_half` of every q_i: shape (N, 4). No input checks."""
+    return np.array([_sinc_half(v) for v in q.tolist()]).reshape(-1, 4)
 
 
 @lru_cache(maxsize=None)
@@ -155,6 +165,7 @@ class StepKinematics(NamedTuple):
     q̈ = 0, i.e. q̇ᵀ (∂²P/∂q²) q̇ = J̇ q̇.
     """
 
+    ends: list[complex]  # (N) segment ends p_1..p_N (p_N = r)
     centre_jac: list[list[complex]]  # [i][j] = ∂c_i/∂q_j for j ≤ i (zero for j > i, not stored)
     centre_bias_acc: list[complex]  # (N) J̇_{c_i} q̇
     tip: complex  # r
@@ -164,8 +175,18 @@ class StepKinematics(NamedTuple):
     tip_jac_dot: list[complex]  # (N) J̇_r
 
 
-def _step_kinematics(q: np.ndarray, qd: np.ndarray, lengths: np.ndarray) -> StepKinematics:
-    """`StepKinematics` at (q, q̇); no input checks.
+def _step_kinematics(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
+    """`StepKinematics` at (q, q̇), given as Python float lists (N,); no input checks.
+
+    N = 2 (the paper's arm) takes `_step_kinematics_2`, the same arithmetic unrolled.
+    """
+    if len(q) == 2:
+        return _step_kinematics_2(q, qd, lengths)
+    return _step_kinematics_n(q, qd, lengths)
+
+
+def _step_kinematics_n(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
+    """`StepKinematics` for any N.
 
     Scalar loops, because numpy's per-call overhead (1–2 µs on a slow machine)
     dominates for N ≈ 2; tested against `kinematics`. With ω = φ̇ = A q̇ and
@@ -175,29 +196,32 @@ def _step_kinematics(q: np.ndarray, qd: np.ndarray, lengths: np.ndarray) -> Step
         J_r[j] = ℓ_j' z_j + s_j,   J_{c_i}[j] = J_r[j] − s_i (j < i),   J_{c_i}[i] = ½ ℓ_i' z_i + ¼ i g_i;
     J̇_r likewise with d/dt(ℓ_j' z_j) = (ℓ_j'' q̇_j + i ℓ_j' ω_j) z_j and ġ_k for g_k.
     """
-    n = q.shape[0]
-    chord, chord_d, chord_dot, chord_d_dot, bias = [], [], [], [], []
-    theta = theta_dot = 0.0
-    for (s0, s1, s2, _), length, qk, qdk in zip(_sinc_derivatives(q).tolist(), lengths.tolist(), q.tolist(), qd.tolist()):
+    n = len(q)
+    ends, chord, chord_d, chord_dot, chord_d_dot, bias = [], [], [], [], [], []
+    end, theta, theta_dot = 0j, 0.0, 0.0
+    for length, qk, qdk in zip(lengths, q, qd):
+        s0, s1, s2, _ = _sinc_half(qk)
         l0, l1, l2 = length * s0, length * s1, length * s2
         omega = theta_dot + 0.5 * qdk
         z = cmath.exp(1j * (theta + 0.5 * qk))
         theta += qk
         theta_dot += qdk
         chord.append(l0 * z)
+        end += chord[-1]
+        ends.append(end)
         chord_d.append(l1 * z)
         chord_dot.append((l1 * qdk + 1j * l0 * omega) * z)
         chord_d_dot.append((l2 * qdk + 1j * l1 * omega) * z)
         bias.append((l2 * qdk * qdk - l0 * omega * omega + 2j * l1 * qdk * omega) * z)
 
     tip_jac, tip_jac_dot, shift = [0j] * n, [0j] * n, [0j] * n
-    suffix = suffix_dot = 0j
+    suffix = tip_vel = 0j  # Σ_{k>j} g_k and Σ_{k>j} ġ_k, finally ṙ
     for j in range(n - 1, -1, -1):
         shift[j] = 1j * (0.5 * chord[j] + suffix)
         tip_jac[j] = chord_d[j] + shift[j]
-        tip_jac_dot[j] = chord_d_dot[j] + 1j * (0.5 * chord_dot[j] + suffix_dot)
+        tip_jac_dot[j] = chord_d_dot[j] + 1j * (0.5 * chord_dot[j] + tip_vel)
         suffix += chord[j]
-        suffix_dot += chord_dot[j]
+        tip_vel += chord_dot[j]
 
     centre_jac, centre_bias_acc = [], []
     prefix = 0j
@@ -205,7 +229,32 @@ def _step_kinematics(q: np.ndarray, qd: np.ndarray, lengths: np.ndarray) -> Step
         centre_jac.append([tip_jac[j] - shift[i] for j in range(i)] + [0.5 * chord_d[i] + 0.25j * chord[i]])
         centre_bias_acc.append(prefix + 0.5 * bias[i])
         prefix += bias[i]
-    return StepKinematics(centre_jac, centre_bias_acc, suffix, suffix_dot, prefix, tip_jac, tip_jac_dot)
+    return StepKinematics(ends, centre_jac, centre_bias_acc, end, tip_vel, prefix, tip_jac, tip_jac_dot)
+
+
+def _step_kinematics_2(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
+    """`_step_kinematics_n` for N = 2 with its loops unrolled: the same operations in the same
+    order, so the same floats (tested), at well under half the interpreter overhead."""
+    (q0, q1), (v0, v1), (length0, length1) = q, qd, lengths
+    s0, s1, s2, _ = _sinc_half(q0)
+    a0, a1, a2 = length0 * s0, length0 * s1, length0 * s2  # ℓ_1, ℓ_1', ℓ_1''
+    s0, s1, s2, _ = _sinc_half(q1)
+    b0, b1, b2 = length1 * s0, length1 * s1, length1 * s2  # ℓ_2, ℓ_2', ℓ_2''
+    w0, w1 = 0.5 * v0, v0 + 0.5 * v1  # ω = φ̇
+    z0, z1 = cmath.exp(1j * (0.5 * q0)), cmath.exp(1j * (q0 + 0.5 * q1))
+    g0, g1 = a0 * z0, b0 * z1  # chords
+    gd0, gd1 = a1 * z0, b1 * z1  # ℓ' z
+    gv0 = (a1 * v0 + 1j * a0 * w0) * z0  # ġ
+    gv1 = (b1 * v1 + 1j * b0 * w1) * z1
+    bias0 = (a2 * v0 * v0 - a0 * w0 * w0 + 2j * a1 * v0 * w0) * z0
+    bias1 = (b2 * v1 * v1 - b0 * w1 * w1 + 2j * b1 * v1 * w1) * z1
+    shift0, shift1 = 1j * (0.5 * g0 + g1), 1j * (0.5 * g1)
+    jac0, jac1 = gd0 + shift0, gd1 + shift1
+    jac_dot0 = (a2 * v0 + 1j * a1 * w0) * z0 + 1j * (0.5 * gv0 + gv1)
+    jac_dot1 = (b2 * v1 + 1j * b1 * w1) * z1 + 1j * (0.5 * gv1)
+    tip = g0 + g1
+    return StepKinematics([g0, tip], [[0.5 * gd0 + 0.25j * g0], [jac0 - shift1, 0.5 * gd1 + 0.25j * g1]],
+                          [0.5 * bias0, bias0 + 0.5 * bias1], tip, gv1 + gv0, bias0 + bias1, [jac0, jac1], [jac_dot0, jac_dot1])
 
 
 def _checked(q, lengths) -> tuple[np.ndarray, np.ndarray]:
@@ -236,16 +285,15 @@ def _xy(z: np.ndarray, axis: int) -> np.ndarray:
     return np.stack((z.real, z.imag), axis=axis)
 
 
+def _ends_array(ends: list[complex]) -> np.ndarray:
+    """`StepKinematics.ends` as the (N+1, 2) array p_0 = 0, p_1, …, p_N (m)."""
+    return np.array([(0.0, 0.0)] + [(p.real, p.imag) for p in ends])
+
+
 def segment_ends(q, lengths) -> np.ndarray:
     """p_0 = 0, p_1, …, p_N = r: shape (N+1, 2) (m)."""
     q, lengths = _checked(q, lengths)
-    theta = np.cumsum(q)
-    chords = lengths * _sinc_derivatives(q)[:, 0] * np.exp(1j * (theta - 0.5 * q))
-    ends = np.empty((q.shape[0] + 1, 2))
-    ends[0] = 0.0
-    points = np.cumsum(chords)
-    ends[1:, 0], ends[1:, 1] = points.real, points.imag
-    return ends
+    return _ends_array(_step_kinematics(q.tolist(), [0.0] * q.shape[0], lengths.tolist()).ends)
 
 
 def segment_orientations(q) -> np.ndarray:

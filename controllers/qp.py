@@ -47,10 +47,11 @@ Backends (`available_backends()`):
 from __future__ import annotations
 
 import math
-import operator
 import warnings
+from functools import lru_cache
+from operator import mul
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, Sequence
 
 import daqp
 import numpy as np
@@ -86,7 +87,7 @@ class QPSolution:
 
 
 def _dot(a: list[float], b: list[float]) -> float:
-    return sum(map(operator.mul, a, b))
+    return sum(map(mul, a, b))
 
 
 def _split(Q: list[list[float]], a: list[float]) -> tuple[list[float], list[float]]:
@@ -95,7 +96,7 @@ def _split(Q: list[list[float]], a: list[float]) -> tuple[list[float], list[floa
     z = list(a)
     for _ in range(2):
         for k, q in enumerate(Q):
-            c = _dot(q, z)
+            c = sum(map(mul, q, z))
             d[k] += c
             z = [zi - c * qi for zi, qi in zip(z, q)]
     return d, z
@@ -127,7 +128,7 @@ def _dual_active_set(x: list[float], rows: list[list[float]], rhs: list[float],
         p, worst = -1, tol
         for k, (a, c) in enumerate(zip(rows, rhs)):
             if k not in working:
-                violation = _dot(a, x) - c
+                violation = sum(map(mul, a, x)) - c
                 if violation > worst:
                     p, worst = k, violation
         if p < 0:
@@ -171,12 +172,12 @@ class _Problem(NamedTuple):
     b_hat: list[float]
     lb: list[float] | None
     ub: list[float] | None
-    rows: list[list[float]]
+    rows: list[Sequence[float]]
     rhs: list[float]
     tol: float
 
     def violation(self, u: list[float]) -> float:
-        return max((_dot(a, u) - c for a, c in zip(self.rows, self.rhs)), default=0.0)
+        return max([sum(map(mul, a, u)) - c for a, c in zip(self.rows, self.rhs)], default=0.0)
 
 
 BackendResult = tuple["list[float] | np.ndarray | None", str, "int | None"]
@@ -276,6 +277,19 @@ def solve_qp(u_nom: ArrayLike, A: ArrayLike, b: ArrayLike, lb: ArrayLike | None 
         for j, (lo, hi) in enumerate(zip(lb_list, ub_list)):
             if lo > hi:
                 raise ValueError(f"lb[{j}] = {lo} exceeds ub[{j}] = {hi}")
+    return _solve(u0, rows, b_list, lb_list, ub_list, backend, zero_row_tol)
+
+
+@lru_cache(maxsize=None)
+def _unit_rows(n: int, sign: float) -> tuple[tuple[float, ...], ...]:
+    """The box rows sign·e_j, j = 0..n−1 (read-only)."""
+    return tuple(tuple(sign if k == j else 0.0 for k in range(n)) for j in range(n))
+
+
+def _solve(u0: list[float], rows: list[list[float]], b_list: list[float], lb_list: list[float] | None,
+           ub_list: list[float] | None, backend: str = DEFAULT_BACKEND, zero_row_tol: float = ZERO_ROW_TOL) -> QPSolution:
+    """`solve_qp` on Python float lists that were checked already (shapes, finite, lb ≤ ub, backend)."""
+    n, m = len(u0), len(rows)
 
     def failure(status: str, iterations: int | None) -> QPSolution:
         return QPSolution(None, False, np.zeros(m, dtype=bool), status, iterations)
@@ -291,14 +305,15 @@ def solve_qp(u_nom: ArrayLike, A: ArrayLike, b: ArrayLike, lb: ArrayLike | None 
             kept.append(i)
         elif bi < 0.0:
             return failure(f"infeasible: row {i} is zero (|a| = {norm:.1e}) and b = {bi:.3g} < 0", 0)
-    box_rows: list[list[float]] = []
-    box_rhs: list[float] = []
-    for sign, bound in ((1.0, ub_list), (-1.0, lb_list)):
-        for j, value in enumerate(bound or ()):
-            box_rows.append([sign if k == j else 0.0 for k in range(n)])
-            box_rhs.append(sign * value)
+    rows_all, rhs_all = list(A_hat), list(b_hat)
+    if ub_list is not None:
+        rows_all += _unit_rows(n, 1.0)
+        rhs_all += ub_list
+    if lb_list is not None:
+        rows_all += _unit_rows(n, -1.0)
+        rhs_all += [-value for value in lb_list]
     scale = 1.0 + max(map(abs, u0 + (lb_list or []) + (ub_list or [])))
-    problem = _Problem(u0, A_hat, b_hat, lb_list, ub_list, A_hat + box_rows, b_hat + box_rhs, FEASIBILITY_RTOL * scale)
+    problem = _Problem(u0, A_hat, b_hat, lb_list, ub_list, rows_all, rhs_all, FEASIBILITY_RTOL * scale)
 
     if problem.violation(u0) <= problem.tol:
         u, status, iterations = u0, "optimal", 0

@@ -269,6 +269,7 @@ class ForceSafeSet:
     is_vertex_correction: np.ndarray = field(init=False, repr=False)
     _unit_rows: np.ndarray = field(init=False, repr=False)
     _unit_offsets: np.ndarray = field(init=False, repr=False)
+    _facets: tuple[tuple[float, float, float], ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         f_max = float(self.f_max)
@@ -301,6 +302,8 @@ class ForceSafeSet:
         object.__setattr__(self, "h_prime", _frozen(offsets / scale))
         object.__setattr__(self, "is_vertex_correction",
                            _frozen(np.arange(len(rows)) >= env.n_facets))
+        object.__setattr__(self, "_facets", tuple((nx, ny, d) for (nx, ny), d in
+                                                  zip(env.normals.tolist(), env.offsets.tolist())))
 
     @property
     def n_facets(self) -> int:
@@ -330,6 +333,23 @@ class ForceSafeSet:
     def margin_from_force(self, force: ArrayLike) -> np.ndarray:
         """ρ = (n_max − ψ⁻¹(F))/n_max elementwise for measured forces F (N), e.g. shape (P,) or (T, P)."""
         return (self.n_max - self.stiffness.penetration(force)) / self.n_max
+
+    def penetration_at(self, x: float, y: float) -> list[float]:
+        """`penetration` at one point r = (x, y) given as Python floats (m): a list of P floats.
+
+        The per-step path (numpy's per-call overhead dominates for one point); tested against `penetration`.
+        """
+        return [max(nx * x + ny * y - d, 0.0) for nx, ny, d in self._facets]
+
+    def margin_at(self, x: float, y: float) -> float:
+        """`margin` at one point r = (x, y) (m), as a Python float."""
+        n_max = self.n_max
+        return min([(n_max - n) / n_max for n in self.penetration_at(x, y)])
+
+    def force_at(self, x: float, y: float) -> np.ndarray:
+        """`force` at one point r = (x, y) (m): shape (P,), N (ψ is not called when nothing is penetrated: ψ(0) = 0)."""
+        penetration = self.penetration_at(x, y)
+        return self.stiffness.force(penetration) if any(penetration) else np.zeros(len(penetration))
 
     def contains(self, r: ArrayLike, tol: float = 0.0) -> np.ndarray:
         """Whether r ∈ P, i.e. every row's Euclidean excess (H'_i r − h'_i)/‖H'_i‖ ≤ tol (m); bool or (T,)."""

@@ -68,7 +68,8 @@ def paper_sim(
     summary = SummaryWriter(out_dir, "paper_sim", params)
     for tuning in tuning_list:
         plant = PCCPlant(robot_params, safe_set, control_dt=1.0 / control_rate, integrator=integrator)
-        controller = CBFFilter(robot_params, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
+        controller = CBFFilter(robot_params, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend,
+                               dynamics=plant.dynamics)
         run_tuning(out_dir, summary, tuning.name, plant, controller, nominal, duration, q0, progress)
     print(f"paper_sim: {duration:g} s, pressure limits {'on' if pressure_limits else 'off'}; outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))

@@ -8,6 +8,7 @@ happened is recorded at the control rate as arrays with first axis k.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -74,50 +75,28 @@ def run_closed_loop(
     if n_steps < 1:
         raise ValueError(f"duration must cover at least one control period ({plant.control_dt} s), got {duration}")
     safe_set = controller.safe_set
-    n, p = plant.n_segments, len(controller.safe_set.H_prime)
-    log = {
-        "t": np.empty(n_steps),
-        "q": np.empty((n_steps, n)),
-        "qd": np.empty((n_steps, n)),
-        "q_est": np.empty((n_steps, n)),
-        "qd_est": np.empty((n_steps, n)),
-        "tip": np.empty((n_steps, 2)),
-        "segment_ends": np.empty((n_steps, n + 1, 2)),
-        "u_nom": np.empty((n_steps, n)),
-        "u": np.empty((n_steps, n)),
-        "u_applied": np.empty((n_steps, n)),
-        "contact_force": np.empty((n_steps, safe_set.n_facets)),
-        "rho_pred": np.empty(n_steps),
-        "rho_meas": np.empty(n_steps),
-        "b": np.empty((n_steps, p)),
-        "active": np.empty((n_steps, p), dtype=bool),
-        "infeasible": np.empty(n_steps, dtype=bool),
-        "recovery": np.empty(n_steps, dtype=bool),
-        "filter_us": np.empty(n_steps),
-    }
+    n, p = plant.n_segments, len(safe_set.H_prime)
+    # Each step writes one row of floats and one row of flags (a single numpy call each);
+    # the per-key arrays are cut from them at the end. Float columns, in this order:
+    float_shapes = {"t": (), "q": (n,), "qd": (n,), "q_est": (n,), "qd_est": (n,), "segment_ends": (n + 1, 2),
+                    "u_nom": (n,), "u": (n,), "u_applied": (n,), "contact_force": (safe_set.n_facets,),
+                    "rho_pred": (), "b": (p,), "filter_us": ()}
+    floats = np.empty((n_steps, sum(math.prod(shape) for shape in float_shapes.values())))
+    flags = np.empty((n_steps, p + 2), dtype=bool)  # active (P), infeasible, recovery
     extras: dict[str, np.ndarray] = {}
+    clock = time.perf_counter
     state = plant.reset(q0)
     for k in range(n_steps):
         est = estimator(state)
         u_nom = nominal(est.t, est.q, est.qd)
-        t0 = time.perf_counter()
+        t0 = clock()
         result: FilterResult = controller(np.concatenate((est.q, est.qd)), u_nom)
-        filter_us = (time.perf_counter() - t0) * 1e6
-        log["t"][k] = state.t
-        log["q"][k], log["qd"][k] = state.q, state.qd
-        log["q_est"][k], log["qd_est"][k] = est.q, est.qd
-        log["tip"][k] = state.tip
-        log["segment_ends"][k] = state.segment_ends
-        log["u_nom"][k], log["u"][k] = result.u_nom, result.u
-        log["u_applied"][k] = state.u_applied
-        log["contact_force"][k] = state.contact_forces
-        log["rho_pred"][k] = result.rho_pred
-        log["rho_meas"][k] = np.min(safe_set.margin_from_force(state.contact_forces))
-        log["b"][k] = result.b
-        log["active"][k] = result.active
-        log["infeasible"][k] = result.infeasible
-        log["recovery"][k] = result.recovery
-        log["filter_us"][k] = filter_us
+        filter_us = (clock() - t0) * 1e6
+        floats[k] = [state.t, *state.q.tolist(), *state.qd.tolist(), *est.q.tolist(), *est.qd.tolist(),
+                     *state.segment_ends.ravel().tolist(), *result.u_nom.tolist(), *result.u.tolist(),
+                     *state.u_applied.tolist(), *state.contact_forces.tolist(), result.rho_pred,
+                     *result.b.tolist(), filter_us]
+        flags[k] = [*result.active.tolist(), result.infeasible, result.recovery]
         for key, value in state.extras.items():
             if key not in extras:
                 extras[key] = np.empty((n_steps,) + np.shape(value))
@@ -127,5 +106,15 @@ def run_closed_loop(
             progress.update(k)
     if progress is not None:
         progress.close()
+    columns, start = {}, 0
+    for key, shape in float_shapes.items():
+        size = math.prod(shape)
+        columns[key] = floats[:, start : start + size].reshape((n_steps,) + shape).copy()
+        start += size
+    columns["tip"] = columns["segment_ends"][:, -1].copy()
+    columns["rho_meas"] = np.min(safe_set.margin_from_force(columns["contact_force"]), axis=-1)
+    columns["active"] = flags[:, :p].copy()
+    columns["infeasible"], columns["recovery"] = flags[:, p].copy(), flags[:, p + 1].copy()
+    log = {key: columns[key] for key in TIMESERIES_UNITS}
     log.update(extras)
     return log

@@ -42,6 +42,13 @@ WARNINGS: dict[int, str] = {
     if name.startswith("mjWARN_")
 }
 
+# Units of the `PlantState.extras` this plant reports (for run records).
+EXTRAS_UNITS: dict[str, str] = {
+    "plate_displacement_m": "m",
+    "force_solver_N": "N",
+    **{f"warning_{name}": "count (cumulative)" for name in WARNINGS.values()},
+}
+
 _ACTUATOR = re.compile(r"seg(\d+)_pressure")
 _PLATE_JOINT = re.compile(r"plate(\d+)_slide")
 
@@ -64,7 +71,8 @@ class MujocoPlant:
     Build it from parameters with `from_config` (an `ArmModelConfig` and/or its fields as
     keywords), from an MJCF file with `from_xml`, or from a compiled model. Attributes
     read from the model: `u_min`, `u_max` (hPa, the ctrlrange), `gains` (λ, N·m/hPa, the
-    actuator gears), `plate_stiffness` (N/m), `n_segments`, `n_facets`.
+    actuator gears), `plate_stiffness` (N/m), `n_segments`, `n_facets`, and per segment
+    the qpos / dof addresses of its hinges, `hinge_qpos` and `hinge_dofs` (lists of arrays).
     The model is read by name: actuators `seg{i}_pressure`, tendons `seg{i}_bend`, hinges
     `seg{i}_j{j}`, sites `base` and `seg{i}_end`, geom `tip`, joints `plate{k}_slide`,
     geoms `plate{k}`.
@@ -83,8 +91,8 @@ class MujocoPlant:
         self.n_segments = n
         self._actuators = [model.actuator(f"seg{i}_pressure").id for i in range(1, n + 1)]
         self._tendons = [model.tendon(f"seg{i}_bend").id for i in range(1, n + 1)]
-        self._hinge_qpos: list[np.ndarray] = []  # per segment: qpos addresses of its hinges
-        self._hinge_dof: list[np.ndarray] = []  # per segment: their dof addresses
+        self.hinge_qpos: list[np.ndarray] = []  # per segment: qpos addresses of its hinges
+        self.hinge_dofs: list[np.ndarray] = []  # per segment: their dof addresses
         for i in range(1, n + 1):
             hinges, j = [], 1
             while mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"seg{i}_j{j}") >= 0:
@@ -92,8 +100,8 @@ class MujocoPlant:
                 j += 1
             if not hinges:
                 raise ValueError(f"the model has no hinges seg{i}_j1, seg{i}_j2, …")
-            self._hinge_qpos.append(np.array([h.qposadr[0] for h in hinges]))
-            self._hinge_dof.append(np.array([h.dofadr[0] for h in hinges]))
+            self.hinge_qpos.append(np.array([h.qposadr[0] for h in hinges]))
+            self.hinge_dofs.append(np.array([h.dofadr[0] for h in hinges]))
         self._sites = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
         self._tip = model.geom("tip").id
 
@@ -157,8 +165,8 @@ class MujocoPlant:
             )
         mujoco.mj_resetData(self.model, self.data)
         for i in range(self.n_segments):
-            self.data.qpos[self._hinge_qpos[i]] = q0[i] / len(self._hinge_qpos[i])
-            self.data.qvel[self._hinge_dof[i]] = qd0[i] / len(self._hinge_dof[i])
+            self.data.qpos[self.hinge_qpos[i]] = q0[i] / len(self.hinge_qpos[i])
+            self.data.qvel[self.hinge_dofs[i]] = qd0[i] / len(self.hinge_dofs[i])
         self.data.ctrl[self._actuators] = u0
         dynamic = self._act_adr >= 0
         self.data.act[self._act_adr[dynamic]] = u0[dynamic]

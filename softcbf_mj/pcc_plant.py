@@ -22,12 +22,13 @@ Agreement with the reference is measured by tools/integrator_check.py and tested
 from __future__ import annotations
 
 import math
+from operator import mul
 
 import numpy as np
 
-from controllers.dynamics import PCCDynamics
+from controllers.dynamics import PCCDynamics, _spd_inverse
 from controllers.params import RobotParams
-from controllers.pcc import segment_ends
+from controllers.pcc import _ends_array
 from controllers.safe_set import ForceSafeSet
 from softcbf_mj.plant import PlantState, steps_per_control
 
@@ -37,7 +38,13 @@ _GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
 class PCCPlant:
-    """PCC model as a plant: `reset(q0)`, then `step(u)` once per control period."""
+    """PCC model as a plant: `reset(q0)`, then `step(u)` once per control period.
+
+    The integrators work on Python float lists through the unchecked per-step path of
+    `PCCDynamics` (numpy's per-call overhead dominates at N ≈ 2); `step` checks u once.
+    The model terms at the current state (`_core`) are computed once, when the state is
+    reached, and serve both its report (segment ends, contact force) and the next step.
+    """
 
     def __init__(
         self,
@@ -57,55 +64,64 @@ class PCCPlant:
         self.integrator = integrator
         self.physics_dt = float(physics_dt if physics_dt is not None else DEFAULT_PHYSICS_DT[integrator])
         self.substeps = steps_per_control(self.control_dt, self.physics_dt)
-        self._lengths = params.array("lengths")
-        self._stiffness = params.array("stiffness")
-        self._damping = params.array("damping")
+        self._gh = gh = _GAMMA * self.physics_dt  # ROS2's γh and the W-solve's γh·k_i, γh·d_i + (γh)²·k_i
+        self._gh_stiffness = [gh * k for k in params.stiffness]
+        self._schur_diag = [gh * d + gh * gh * k for d, k in zip(params.damping, params.stiffness)]
         self._step_fn = {"ros2": self._ros2, "rk4": self._rk4, "euler": self._euler}[integrator]
-        self._x = np.zeros(2 * self.n_segments)
+        self._x: list[float] = []
+        self._core = None  # the dynamics' terms at self._x
         self._t = 0.0
         self._k = 0
 
-    def _rhs(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def _at(self, x: list[float]):
+        """The dynamics' per-step terms at x (`PCCDynamics._core`)."""
         n = self.n_segments
-        return np.concatenate((x[n:], self.dynamics.acceleration(x[:n], x[n:], u)))
+        return self.dynamics._core(x[:n], x[n:])
 
-    def _euler(self, x: np.ndarray, u: np.ndarray, h: float) -> np.ndarray:
-        return x + h * self._rhs(x, u)
+    def _rhs(self, x: list[float], core, u: list[float]) -> list[float]:
+        """F(x, u) = [q̇; q̈] with `core` the terms at x."""
+        return x[self.n_segments :] + self.dynamics._acceleration(core, u)
 
-    def _rk4(self, x: np.ndarray, u: np.ndarray, h: float) -> np.ndarray:
-        k1 = self._rhs(x, u)
-        k2 = self._rhs(x + 0.5 * h * k1, u)
-        k3 = self._rhs(x + 0.5 * h * k2, u)
-        k4 = self._rhs(x + h * k3, u)
-        return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    def _euler(self, x: list[float], core, u: list[float], h: float) -> list[float]:
+        return [xi + h * fi for xi, fi in zip(x, self._rhs(x, core, u))]
 
-    def _ros2(self, x: np.ndarray, u: np.ndarray, h: float) -> np.ndarray:
+    def _rk4(self, x: list[float], core, u: list[float], h: float) -> list[float]:
+        k1 = self._rhs(x, core, u)
+        x2 = [xi + 0.5 * h * k for xi, k in zip(x, k1)]
+        k2 = self._rhs(x2, self._at(x2), u)
+        x3 = [xi + 0.5 * h * k for xi, k in zip(x, k2)]
+        k3 = self._rhs(x3, self._at(x3), u)
+        x4 = [xi + h * k for xi, k in zip(x, k3)]
+        k4 = self._rhs(x4, self._at(x4), u)
+        return [xi + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4)]
+
+    def _ros2(self, x: list[float], core, u: list[float], h: float) -> list[float]:
         # W k = r with W = [[I, −γhI], [γh M⁻¹K, I + γh M⁻¹D]] by block elimination:
-        # (M + γh D + (γh)² K) k_v = M r_v − γh K r_q,  k_q = r_q + γh k_v.
+        # (M + γh D + (γh)² K) k_v = M r_v − γh K r_q,  k_q = r_q + γh k_v  (h = physics_dt).
         n = self.n_segments
-        gh = _GAMMA * h
-        qdd, mass = self.dynamics.acceleration_and_mass(x[:n], x[n:], u)
-        schur_inv = np.linalg.inv(mass + np.diag(gh * self._damping + gh * gh * self._stiffness))
+        mass = core.mass
+        schur_inv = _spd_inverse([[m + s if j == l else m for l, m in enumerate(row)]
+                                  for j, (row, s) in enumerate(zip(mass, self._schur_diag))])
+        k1 = self._solve_w(mass, schur_inv, x[n:], self.dynamics._acceleration(core, u))
+        x2 = [xi + h * k for xi, k in zip(x, k1)]
+        r2 = [f - 2.0 * k for f, k in zip(self._rhs(x2, self._at(x2), u), k1)]
+        k2 = self._solve_w(mass, schur_inv, r2[:n], r2[n:])
+        return [xi + (0.5 * h) * (3.0 * a + b) for xi, a, b in zip(x, k1, k2)]
 
-        def solve_w(r_q: np.ndarray, r_v: np.ndarray) -> np.ndarray:
-            k_v = schur_inv @ (mass @ r_v - gh * self._stiffness * r_q)
-            return np.concatenate((r_q + gh * k_v, k_v))
-
-        k1 = solve_w(x[n:], qdd)
-        f2 = self._rhs(x + h * k1, u)
-        k2 = solve_w(f2[:n] - 2.0 * k1[:n], f2[n:] - 2.0 * k1[n:])
-        return x + (0.5 * h) * (3.0 * k1 + k2)
+    def _solve_w(self, mass: list[list[float]], schur_inv: list[list[float]], r_q: list[float], r_v: list[float]) -> list[float]:
+        """k = W⁻¹ [r_q; r_v] (see `_ros2`)."""
+        rhs = [sum(map(mul, row, r_v)) - c * r for row, c, r in zip(mass, self._gh_stiffness, r_q)]
+        k_v = [sum(map(mul, row, rhs)) for row in schur_inv]
+        return [r + self._gh * k for r, k in zip(r_q, k_v)] + k_v
 
     def _state(self, u: np.ndarray) -> PlantState:
-        n = self.n_segments
-        q, qd = self._x[:n].copy(), self._x[n:].copy()
-        ends = segment_ends(q, self._lengths)
+        n, x, tip = self.n_segments, self._x, self._core.kin.ends[-1]
         return PlantState(
             t=self._t,
-            q=q,
-            qd=qd,
-            segment_ends=ends,
-            contact_forces=self.safe_set.force(ends[-1]),
+            q=np.array(x[:n]),
+            qd=np.array(x[n:]),
+            segment_ends=_ends_array(self._core.kin.ends),
+            contact_forces=self.safe_set.force_at(tip.real, tip.imag),
             u_applied=u,
         )
 
@@ -116,23 +132,29 @@ class PCCPlant:
             raise ValueError(f"q0 and qd0 must have shape ({self.n_segments},), got {q0.shape} and {qd0.shape}")
         if not (np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))):
             raise ValueError(f"q0 and qd0 must be finite, got q0={q0}, qd0={qd0}")
-        self._x = np.concatenate((q0, qd0))
+        self._x = q0.tolist() + qd0.tolist()
+        self._core = self._at(self._x)
         self._t, self._k = 0.0, 0
         return self._state(np.zeros(self.n_segments))
 
     def step(self, u: np.ndarray) -> PlantState:
-        u = np.asarray(u, dtype=float).reshape(-1)
-        if u.shape != (self.n_segments,) or not np.all(np.isfinite(u)):
+        u = np.array(u, dtype=float).reshape(-1)
+        u_list = u.tolist()
+        if u.shape != (self.n_segments,) or not all(map(math.isfinite, u_list)):
             raise ValueError(f"u must be finite with shape ({self.n_segments},), got {u}")
-        x, h = self._x, self.physics_dt
+        x, core, h = self._x, self._core, self.physics_dt
         for _ in range(self.substeps):
-            x = self._step_fn(x, u, h)
-        if not np.all(np.isfinite(x)):
-            raise FloatingPointError(
-                f"PCC plant diverged at t={self._t:.4f} s with integrator {self.integrator!r} and "
-                f"physics_dt={h:g} s; use integrator='ros2' or a smaller physics_dt"
-            )
-        self._x = x
+            try:
+                x = self._step_fn(x, core, u_list, h)
+            except (OverflowError, ValueError):  # math.sin or cmath.exp of ±inf inside a stage
+                x = [math.nan]
+            if not all(map(math.isfinite, x)):
+                raise FloatingPointError(
+                    f"PCC plant diverged at t={self._t:.4f} s with integrator {self.integrator!r} and "
+                    f"physics_dt={h:g} s; use integrator='ros2' or a smaller physics_dt"
+                )
+            core = self._at(x)
+        self._x, self._core = x, core
         self._k += 1
         self._t = self._k * self.control_dt
-        return self._state(u.copy())
+        return self._state(u)

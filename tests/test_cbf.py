@@ -163,7 +163,7 @@ def test_rows_outside_the_set_are_flagged_not_raised():
     dyn = PCCDynamics(uniform_robot(2))
     q, qd = np.array([0.2, 0.1]), np.array([1.0, -2.0])
     ev = dyn.evaluate(q, qd)
-    tip = pcc.tip_position(q, dyn.lengths)
+    tip = np.array([ev.tip[0].real, ev.tip[0].imag])  # the very r the barrier uses, so row 1's b is exactly 0
     H = np.array([[0.0, 1.0], [1.0, 0.0], [0.36, 1.0], [0.0, -1.0]])
     h = H @ tip + np.array([-0.01, 0.0, 0.05, B_MIN * 0.5])  # outside, on the boundary, inside, b < B_MIN
     with warnings.catch_warnings():

@@ -72,7 +72,7 @@ def test_existing_output_folder_is_refused(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["nosuch", "--out", "x"], "unknown scenario 'nosuch'; available: paper_sim"),
+        (["nosuch", "--out", "x"], "unknown scenario 'nosuch'; available: mujoco_contact, paper_sim"),
         (["paper_sim", "--out", "{out}", "--tunings", "Medium"], "unknown tuning 'Medium'; valid: None, Low, High, HW-Low, HW-High"),
         (["paper_sim", "--out", "{out}", "--duration", "abc"], "--duration: could not convert string to float"),
         (["paper_sim", "--out", "{out}", "--pressure-limits", "maybe"], "--pressure-limits: expected one of"),

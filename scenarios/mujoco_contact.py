@@ -1,0 +1,131 @@
+"""Scenario `mujoco_contact`: the paper's sinusoid against the compliant plate in MuJoCo (SPEC §7).
+
+The ground truth is `MujocoPlant` (the discretised rod of the reference robot, SPEC §3,
+and the paper's plate on a spring of `plate_stiffness` N/m, SPEC §4). The controller
+under test (`CBFFilter`) runs at 1 kHz with zero-order hold and sees the exact rod state
+(q_i = Σ hinge angles, q̇_i likewise: `exact_state`); its model is `robot` (the reference
+parameters, or a calibration JSON from tools/calibrate.py) and its force-safe set assumes
+ψ(n) = `assumed_plate_stiffness` · n with limit `f_max`. The nominal command is
+u_nom,j(t) = A sin(2π f (t + t0)) on both segments (paper: A = 80 hPa, f = 0.01 Hz,
+t0 = 0; t0 > 0 starts later in the cycle, e.g. t0 = 25 s starts at the peak).
+
+Pressure limits are ON by default (the filter's QP holds the ±150 hPa box). The
+MuJoCo actuators clamp to the same ctrlrange in every case, so with
+`pressure_limits=False` the filter may ask for more than the arm receives
+(`u` vs `u_applied` in the time series).
+
+Per run, besides the SPEC §8 fields (ρ_meas and t_violation_s from the plate's spring
+force: ρ_meas = 1 − F/F_max for linear ψ, violation while F > F_max), summary.json holds
+`softcbf_mj.metrics.contact_figures`: the force the controller predicts, ψ of its own
+predicted penetration, against the measured plate force (RMS and max error), and the
+loaded-rod penetration bias, predicted − measured penetration while in contact (m and %
+of n_max; SPEC §7: a loaded rod is not constant-curvature). Time series add the plant's
+extras `plate_displacement_m` and `force_solver_N` (and `warning_*` counts if any).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from controllers.filter import CBFFilter
+from controllers.nominal import SinusoidNominal
+from controllers.params import per_segment, reference_robot
+from scenarios import register
+from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning
+from softcbf_mj.metrics import contact_figures, format_table
+from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.runio import SummaryWriter
+
+CONTROL_DT = 1e-3  # s, the paper's 1 kHz
+
+TABLE = (
+    ("tuning", "tuning", ""),
+    ("rho_pred", "rho_min_pred", ".4f"),
+    ("rho_meas", "rho_min_meas", ".4f"),
+    ("F_max [N]", "force_max_N", ".4f"),
+    ("t_viol [s]", "t_violation_s", ".3f"),
+    ("t_contact [s]", "t_contact_s", ".2f"),
+    ("F err rms [mN]", "force_err_rms_N", ".2f", 1e3),
+    ("F err max [mN]", "force_err_max_N", ".2f", 1e3),
+    ("bias mean [mm]", "penetration_bias_mean_m", ".3f", 1e3),
+    ("bias max [mm]", "penetration_bias_max_m", ".3f", 1e3),
+    ("bias mean [%]", "penetration_bias_mean_pct", ".1f"),
+    ("bias max [%]", "penetration_bias_max_pct", ".1f"),
+    ("infeasible", "infeasible_steps", "d"),
+    ("recovery", "recovery_steps", "d"),
+    ("chatter [1/s]", "chatter_per_s", ".2f"),
+    ("on/off [1/s]", "switches_per_s", ".1f"),
+    ("touch on/off [1/s]", "contact_switches_per_s", ".1f"),
+    ("F solver [N]", "force_solver_max_N", ".3f"),
+    ("filter med [us]", "filter_us_median", ".1f"),
+    ("RTF", "realtime_factor", ".2f"),
+)
+
+
+@register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High")
+def mujoco_contact(
+    out_dir: Path,
+    *,
+    duration: float = 100.0,
+    tunings: str = "None,Low,High",
+    amplitude: float = 80.0,
+    frequency: float = 0.01,
+    t0: float = 0.0,
+    pressure_limits: bool = True,
+    robot: str = "reference",
+    environment: str = "paper",
+    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
+    tau_p: float = DEFAULT_TAU_P,
+    physics_dt: float = DEFAULT_PHYSICS_DT,
+    plate_stiffness: float = 11.16,
+    assumed_plate_stiffness: float = 11.16,
+    f_max: float = 0.16,
+    row_scaling: str = "paper",
+    qp_backend: str = "native",
+    seed: int = 0,
+    q0_std: float = 0.0,
+    progress: bool = True,
+) -> dict:
+    """Run each tuning for `duration` s; write summary.json and one time series per tuning.
+
+    `robot` is the controller's model only; the MuJoCo arm is always the reference robot.
+    `plate_stiffness` is the true plate's (N/m), `assumed_plate_stiffness` the controller's.
+    """
+    params = dict(locals())
+    params.pop("out_dir")
+    if not duration > 0:
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    if not math.isfinite(t0):
+        raise ValueError(f"t0 must be finite, got {t0}")
+    model_robot = load_robot(robot)
+    safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
+    env = safe_set.environment
+    plant = MujocoPlant.from_config(
+        control_dt=CONTROL_DT, robot=reference_robot(), H=env.H, h=env.h, plate_stiffness=plate_stiffness,
+        links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
+    )
+    if model_robot.n_segments != plant.n_segments:
+        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
+    tuning_list = parse_tunings(tunings)
+    n = plant.n_segments
+    nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
+    q0 = initial_configuration(n, seed, q0_std)
+
+    def figures(log: dict[str, np.ndarray]) -> dict:
+        return contact_figures(log, safe_set, plant.control_dt)
+
+    summary = SummaryWriter(out_dir, "mujoco_contact", params)
+    for tuning in tuning_list:
+        controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
+        run_tuning(out_dir, summary, tuning.name, plant, controller, nominal, duration, q0, progress,
+                   extra_figures=figures, extra_units=EXTRAS_UNITS)
+    print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
+          f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
+          f"plate {plate_stiffness:g} N/m (assumed {assumed_plate_stiffness:g}), F_max {f_max:g} N, n_max {safe_set.n_max * 1e3:.2f} mm; "
+          f"outputs in {out_dir}")
+    print(format_table(summary.data["runs"], TABLE))
+    return summary.data

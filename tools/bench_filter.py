@@ -1,0 +1,118 @@
+"""Time one CBF filter step (state → command) of the paper's scenario, N = 2, P = 1 (SPEC §5–6).
+
+For each tuning (Low, High) and pressure limits off/on, the paper's closed loop (sinusoid
+into the facet, PCC plant, filter at 1 kHz) runs for `--duration` s; `--samples` states
+(x, u_nom) are taken evenly along that trajectory, so the QP is active, inactive, infeasible
+or recovering as often as in the real run (the action counts are printed). Each state is
+then timed through `CBFFilter.__call__` (dynamics, barrier terms, Lie derivatives, QP when
+needed), round-robin over the four filters and a bare `PCCPlant.step` from the same
+states, so that drifting machine load biases none of them. The garbage collector is off
+while timing (as in timeit); the default clock is this thread's CPU time (immune to other
+processes on a shared machine; --clock wall for elapsed time).
+
+Prints per configuration the median and p99 (µs), the ratio to the paper's average QP
+solve (0.31 ms, MATLAB quadprog) and to the bare plant step, then one line of JSON.
+
+Usage: python tools/bench_filter.py [--samples 4000] [--duration 100] [--clock cpu|wall]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import platform
+import time
+from collections import Counter
+
+import numpy as np
+
+from controllers.cbf import get_tuning
+from controllers.filter import CBFFilter
+from controllers.nominal import SinusoidNominal
+from controllers.params import reference_robot
+from controllers.safe_set import paper_safe_set
+from softcbf_mj.loop import run_closed_loop
+from softcbf_mj.pcc_plant import PCCPlant
+
+PAPER_QP_US = 310.0  # paper §VI: average QP solve time, MATLAB quadprog
+CLOCKS = {"cpu": time.thread_time_ns, "wall": time.perf_counter_ns}
+
+
+def summary(times_us: list[float]) -> dict[str, float]:
+    t = np.asarray(times_us)
+    return {"median_us": round(float(np.median(t)), 2), "p99_us": round(float(np.percentile(t, 99)), 2),
+            "mean_us": round(float(np.mean(t)), 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=4000, help="states per configuration")
+    parser.add_argument("--duration", type=float, default=100.0, help="trajectory length (s); the paper's run is 100 s")
+    parser.add_argument("--tunings", default="Low,High")
+    parser.add_argument("--clock", choices=list(CLOCKS), default="cpu")
+    args = parser.parse_args()
+    clock = CLOCKS[args.clock]
+    robot, safe_set = reference_robot(), paper_safe_set()
+    nominal = SinusoidNominal.paper(robot.n_segments)
+
+    configs: dict[str, tuple[CBFFilter, list[tuple[np.ndarray, np.ndarray]]]] = {}
+    plant_cases: list[tuple[np.ndarray, np.ndarray]] = []
+    for name in args.tunings.split(","):
+        for limits in (False, True):
+            tuning = get_tuning(name)
+            log = run_closed_loop(PCCPlant(robot, safe_set), CBFFilter(robot, safe_set, tuning, pressure_limits=limits),
+                                  nominal, args.duration, np.zeros(robot.n_segments))
+            picks = np.linspace(0, len(log["t"]) - 1, args.samples).round().astype(int)
+            states = [(np.concatenate((log["q"][k], log["qd"][k])), log["u_nom"][k]) for k in picks]
+            configs[f"{tuning.name} limits {'on' if limits else 'off'}"] = (
+                CBFFilter(robot, safe_set, tuning, pressure_limits=limits), states)
+            plant_cases += [(log["q"][k], log["qd"][k], log["u"][k]) for k in picks[:: 4]]
+
+    plant = PCCPlant(robot, safe_set)
+    times: dict[str, list[float]] = {key: [] for key in configs}
+    plant_times: list[float] = []
+    actions = {key: Counter(filt(x, u).action for x, u in states) for key, (filt, states) in configs.items()}
+    gc.disable()
+    for k in range(args.samples):
+        for key, (filt, states) in configs.items():
+            x, u_nom = states[k]
+            start = clock()
+            filt(x, u_nom)
+            times[key].append((clock() - start) / 1e3)
+        if k < len(plant_cases):
+            q, qd, u = plant_cases[k]
+            plant.reset(q, qd)  # untimed: sets the state (and its model terms, as a previous step would)
+            start = clock()
+            plant.step(u)
+            plant_times.append((clock() - start) / 1e3)
+    gc.enable()
+
+    plant_fig = summary(plant_times)
+    results = {}
+    for key in configs:
+        fig = summary(times[key])
+        fig["vs_paper_qp"] = round(fig["median_us"] / PAPER_QP_US, 4)
+        fig["vs_plant_step"] = round(fig["median_us"] / plant_fig["median_us"], 3)
+        fig["actions"] = dict(actions[key])
+        results[key] = fig
+    print(f"CBF filter step, {args.clock} time, N=2, P=1, {args.samples} states along a {args.duration:g} s paper_sim "
+          f"trajectory per configuration ({platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+          f"numpy {np.__version__})")
+    header = f"{'configuration':20s}{'median':>9s}{'p99':>9s}{'mean':>9s}{'/0.31ms':>9s}{'/plant':>8s}  actions"
+    print(header)
+    print("-" * len(header))
+    for key, fig in results.items():
+        counts = ", ".join(f"{a} {c}" for a, c in sorted(fig["actions"].items()))
+        print(f"{key:20s}{fig['median_us']:9.1f}{fig['p99_us']:9.1f}{fig['mean_us']:9.1f}"
+              f"{fig['vs_paper_qp']:9.3f}{fig['vs_plant_step']:8.2f}  {counts}")
+    print(f"{'bare PCC plant step':20s}{plant_fig['median_us']:9.1f}{plant_fig['p99_us']:9.1f}{plant_fig['mean_us']:9.1f}"
+          f"   (ROS2, 1 ms, {len(plant_times)} states)")
+    print("(µs; /0.31ms: median over the paper's average QP solve; /plant: median over the plant step's median)")
+    print(json.dumps({"unit": "us", "clock": args.clock, "samples": args.samples, "duration_s": args.duration,
+                      "paper_qp_us": PAPER_QP_US, "plant_step": plant_fig, "filter": results}))
+
+
+if __name__ == "__main__":
+    main()
