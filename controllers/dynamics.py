@@ -15,11 +15,14 @@ C is the Christoffel matrix C_jk = Σ_l ½(∂_l M_jk + ∂_k M_jl − ∂_j M_k
 the centripetal/Coriolis accelerations of the bodies (the rotational term has no
 velocity part: φ is linear in q); that is how the per-step path computes it.
 
-Per-step path (`evaluate`, `acceleration`, `state_derivative`): Python scalars on top
-of `pcc._step_kinematics`, with M⁻¹ in closed form for N ≤ 2, because numpy's per-call
-overhead dominates such small arrays. Derivative terms (∂M/∂q, C, the Jacobians of q̈)
-use the tensor path `pcc.kinematics`; the tests check both against each other and
-against finite differences.
+Per-step path (`evaluate`, `acceleration`, `state_derivative`; unchecked Python-list
+entry points `_core`, `_eval`, `_acceleration` for the filter and the PCC plant): Python
+scalars on top of `pcc._step_kinematics`, with M⁻¹ in closed form for N ≤ 2 and M,
+C q̇ unrolled for N = 2 (the same floats), because numpy's per-call overhead dominates
+such small arrays. `_core` keeps the last state's terms, so a plant and a filter sharing
+one `PCCDynamics` evaluate each measured state once. Derivative terms (∂M/∂q, C, the
+Jacobians of q̈) use the tensor path `pcc.kinematics`; the tests check both against
+each other and against finite differences.
 
 Energies: kinetic T = ½ q̇ᵀ M q̇, elastic V = ½ qᵀ K q (J); no gravity (SPEC §1).
 
@@ -223,10 +226,6 @@ class PCCDynamics:
         tau = [g * u_l - f for g, u_l, f in zip(self._scalars[3], u, core.force)]
         return [sum(map(mul, row, tau)) for row in core.mass_inv]
 
-    def _acceleration_and_mass(self, q: list[float], qd: list[float], u: list[float]) -> tuple[list[float], list[list[float]]]:
-        """(q̈, M) as Python floats from one evaluation; no input checks (the plant's per-step path)."""
-        core = self._core(q, qd)
-        return self._acceleration(core, u), core.mass
 
     # -- model terms --------------------------------------------------------------
     def mass_matrix(self, q) -> np.ndarray:
@@ -258,8 +257,8 @@ class PCCDynamics:
     def acceleration_and_mass(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(q̈, M) at (q, q̇, u) from one evaluation: (N,) rad/s² and (N, N) kg·m²."""
         q, qd = self._state(q, qd)
-        qdd, mass = self._acceleration_and_mass(q.tolist(), qd.tolist(), self._command(u).tolist())
-        return np.array(qdd), np.array(mass)
+        core = self._core(q.tolist(), qd.tolist())
+        return np.array(self._acceleration(core, self._command(u).tolist())), np.array(core.mass)
 
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import B_MIN, Tuning, _barrier_table
+from controllers.cbf import B_MIN, Tuning, _barrier_rows
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
@@ -174,54 +174,50 @@ class CBFFilter:
         xs, u_list = x.tolist(), u_nom.tolist()
         q = xs[: self.n]
         ev = self.dynamics._eval(q, xs[self.n :])
-        table = _barrier_table(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
+        barrier = _barrier_rows(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
         tip = ev.tip[0]
         rho_pred = self.safe_set.margin_at(tip.real, tip.imag)
-        defined = [row[0] > B_MIN for row in table]
+        defined = [row[0] > B_MIN for row in barrier]
         recovery = self.enabled and not all(defined)
-        solve_us, slack, infeasible, active = 0.0, 0.0, False, None
         gamma = self.tuning.gamma
-
+        u, action, active, infeasible, slack, solve_us = u_list, "nominal", None, False, 0.0, 0.0
         if not self.enabled:
             u, action = self._clip(u_list), "disabled"
         else:
             rows, rhs = [], []
-            for i, (ok, (b_i, _, big_b, lfb, *lgb)) in enumerate(zip(defined, table)):
-                if ok:
-                    rows.append(lgb)
-                    rhs.append(gamma / big_b - lfb)
-                else:
-                    row, c = self._static_row(ev, q, b_i, i)
-                    rows.append(row)
-                    rhs.append(c)
-            feasible_nominal = all(_dot(row, u_list) <= c for row, c in zip(rows, rhs))
-            if self.pressure_limits:
-                feasible_nominal = feasible_nominal and all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list))
-            if feasible_nominal:
-                u, action = u_list, "nominal"
-            else:
+            feasible = not self.pressure_limits or all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list))
+            for i, (ok, (b_i, _, big_b, lfb, lgb)) in enumerate(zip(defined, barrier)):
+                row, c = (lgb, gamma / big_b - lfb) if ok else self._static_row(ev, q, b_i, i)
+                rows.append(row)
+                rhs.append(c)
+                feasible = feasible and _dot(row, u_list) <= c
+            if not feasible:
                 t0 = time.perf_counter()
-                sol = _solve(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
-                if sol.feasible:
-                    u, active, action = sol.u.tolist(), sol.active, ("recovery" if recovery else "qp")
-                else:
-                    infeasible = True
-                    hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(table)]
-                    u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), hard)
-                    if u_arr is None:
-                        u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), [])
-                    action = "slack"
-                    if u_arr is None:
-                        u_arr, action = np.zeros(self.n), "vent"
-                    u = u_arr.tolist()
+                u, action, active, infeasible, slack = self._qp_command(ev, q, u_nom, rows, rhs, barrier, recovery)
                 solve_us = (time.perf_counter() - t0) * 1e6
-                u = self._clip(u)
-                if not all(map(math.isfinite, u)):
-                    u, action, infeasible = self._clip([0.0] * self.n), "vent", True
         constraint = [lfb + _dot(lgb, u) - gamma / big_b if ok else math.inf
-                      for ok, (_, _, big_b, lfb, *lgb) in zip(defined, table)]
-        b, big_b, constraint = np.array([[row[0] for row in table], [row[2] for row in table], constraint])
-        if active is None:
-            active = np.zeros(len(table), dtype=bool)
-        return FilterResult(u_nom if u is u_list else np.array(u), u_nom, b, big_b, constraint, active,
+                      for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
+        return FilterResult(u_nom if u is u_list else np.array(u), u_nom, np.array([row[0] for row in barrier]),
+                            np.array([row[2] for row in barrier]), np.array(constraint),
+                            np.zeros(len(barrier), dtype=bool) if active is None else active,
                             infeasible, recovery, action, rho_pred, solve_us, slack)
+
+    def _qp_command(self, ev: DynamicsEval, q: list[float], u_nom: np.ndarray, rows: list[list[float]], rhs: list[float],
+               barrier: list[tuple], recovery: bool) -> tuple[list[float], str, np.ndarray | None, bool, float]:
+        """The QP branches ("qp", "recovery", "slack", "vent"): (u, action, active, infeasible, slack)."""
+        u, qp_active, _, _ = _solve(u_nom.tolist(), rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
+        if u is not None:
+            action, active, infeasible, slack = ("recovery" if recovery else "qp"), np.array(qp_active), False, 0.0
+        else:
+            hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(barrier)]
+            u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), hard)
+            if u_arr is None:
+                u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), [])
+            action = "slack"
+            if u_arr is None:
+                u_arr, action = np.zeros(self.n), "vent"
+            u, active, infeasible = u_arr.tolist(), None, True
+        u = self._clip(u)
+        if not all(map(math.isfinite, u)):
+            u, action, infeasible = self._clip([0.0] * self.n), "vent", True
+        return u, action, active, infeasible, slack

@@ -23,15 +23,17 @@ coefficients ℓ_k^{(a)} e^{iφ_k} in one matrix product that yields the positio
 Jacobians (n = 1), Hessians (n = 2) and third derivatives (n = 3) of the N chord
 midpoints and the tip together.
 
-ℓ and its derivatives come from s(q) = sinc(q/2) = ℓ/L: a Taylor series in q for
-|q| < 2, where the closed forms cancel catastrophically, and the closed forms
-(well-conditioned there) for |q| ≥ 2. Every derivative is then smooth, finite through
-q = 0 and accurate to a few ulp (the tests compare with exact rational sums).
+ℓ and its derivatives come from s(q) = sinc(q/2) = ℓ/L (`_sinc_half`, the one
+evaluation of s, in Python floats): a Taylor series in q for |q| < 2, where the closed
+forms cancel catastrophically, and the closed forms (well-conditioned there) for
+|q| ≥ 2. Every derivative is then smooth, finite through q = 0 and accurate to a few
+ulp (the tests compare with exact rational sums).
 
 Two evaluation paths share these formulas: `kinematics` (numpy tensors, any order ≤ 3,
 for derivatives, the plant's Jacobian and the public wrappers) and `_step_kinematics`
-(Python scalars, first order plus the q̇-terms, for the filter's 1 kHz step, where
-numpy's per-call overhead would dominate at N ≈ 2). Tests check one against the other.
+(Python scalars, first order plus the q̇-terms, for the 1 kHz filter and plant steps,
+where numpy's per-call overhead would dominate at N ≈ 2; for N = 2 its loops are
+unrolled, giving the same floats). Tests check one path against the other.
 """
 
 from __future__ import annotations
@@ -82,8 +84,11 @@ def _sinc_half(q: float) -> tuple[float, float, float, float]:
     if abs(q) < _SERIES_SWITCH:
         x = q * q
         s0 = s1 = s2 = s3 = 0.0
-        for c0, c1, c2, c3 in _HORNER_ROWS:
-            s0, s1, s2, s3 = s0 * x + c0, s1 * x + c1, s2 * x + c2, s3 * x + c3
+        for c0, c1, c2, c3 in _HORNER_ROWS:  # separate statements: no tuple built per step
+            s0 = s0 * x + c0
+            s1 = s1 * x + c1
+            s2 = s2 * x + c2
+            s3 = s3 * x + c3
         return s0, s1 * q, s2, s3 * q
     # x s0 = sin x, differentiated thrice: s0 + x s1 = cos x, 2 s1 + x s2 = -sin x, 3 s2 + x s3 = -cos x.
     x = 0.5 * q

@@ -48,9 +48,9 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 from functools import lru_cache
 from operator import mul
-from dataclasses import dataclass
 from typing import Callable, NamedTuple, Sequence
 
 import daqp
@@ -63,6 +63,7 @@ ACCEPT_RTOL = 1e-6
 ZERO_ROW_TOL = 1e-12
 _DEPENDENT_TOL = 1e-12
 """‖z‖ below which an added unit row counts as a combination of the working set's rows."""
+_DEPENDENT_TOL_SQ = _DEPENDENT_TOL**2
 _MAX_ITERATIONS = 200
 _DAQP_INF = 1e30
 
@@ -138,14 +139,17 @@ def _dual_active_set(x: list[float], rows: list[list[float]], rhs: list[float],
             iterations += 1
             if iterations > _MAX_ITERATIONS:
                 return None, "iteration_limit", iterations
-            d, z = _split(Q, a)
-            zz = _dot(z, z)
-            r = _back_substitute(R, d)
+            if Q:
+                d, z = _split(Q, a)
+                r = _back_substitute(R, d)
+            else:  # empty working set: nothing to project out
+                d, z, r = [], list(a), []
+            zz = sum(map(mul, z, z))
             t_dual, block = math.inf, -1
             for k, (rk, lk) in enumerate(zip(r, lam)):
                 if rk > 0.0 and lk < t_dual * rk:
                     t_dual, block = lk / rk, k
-            t_full = (_dot(a, x) - rhs[p]) / zz if zz > _DEPENDENT_TOL**2 else math.inf
+            t_full = (sum(map(mul, a, x)) - rhs[p]) / zz if zz > _DEPENDENT_TOL_SQ else math.inf
             t = min(t_dual, t_full)
             if t == math.inf:
                 return None, "infeasible", iterations
@@ -277,7 +281,8 @@ def solve_qp(u_nom: ArrayLike, A: ArrayLike, b: ArrayLike, lb: ArrayLike | None 
         for j, (lo, hi) in enumerate(zip(lb_list, ub_list)):
             if lo > hi:
                 raise ValueError(f"lb[{j}] = {lo} exceeds ub[{j}] = {hi}")
-    return _solve(u0, rows, b_list, lb_list, ub_list, backend, zero_row_tol)
+    u, active, status, iterations = _solve(u0, rows, b_list, lb_list, ub_list, backend, zero_row_tol)
+    return QPSolution(None if u is None else np.array(u), u is not None, np.array(active, dtype=bool), status, iterations)
 
 
 @lru_cache(maxsize=None)
@@ -287,24 +292,25 @@ def _unit_rows(n: int, sign: float) -> tuple[tuple[float, ...], ...]:
 
 
 def _solve(u0: list[float], rows: list[list[float]], b_list: list[float], lb_list: list[float] | None,
-           ub_list: list[float] | None, backend: str = DEFAULT_BACKEND, zero_row_tol: float = ZERO_ROW_TOL) -> QPSolution:
-    """`solve_qp` on Python float lists that were checked already (shapes, finite, lb ≤ ub, backend)."""
+           ub_list: list[float] | None, backend: str = DEFAULT_BACKEND,
+           zero_row_tol: float = ZERO_ROW_TOL) -> tuple[list[float] | None, list[bool], str, int | None]:
+    """`solve_qp` on Python float lists that were checked already (shapes, finite, lb ≤ ub, backend).
+
+    Returns (u or None when infeasible, active, status, iterations) as Python objects.
+    """
     n, m = len(u0), len(rows)
-
-    def failure(status: str, iterations: int | None) -> QPSolution:
-        return QPSolution(None, False, np.zeros(m, dtype=bool), status, iterations)
-
+    active = [False] * m
     A_hat: list[list[float]] = []
     b_hat: list[float] = []
     kept: list[int] = []
     for i, (a, bi) in enumerate(zip(rows, b_list)):
-        norm = math.sqrt(_dot(a, a))
+        norm = math.sqrt(sum(map(mul, a, a)))
         if norm > zero_row_tol:
             A_hat.append([x / norm for x in a])
             b_hat.append(bi / norm)
             kept.append(i)
         elif bi < 0.0:
-            return failure(f"infeasible: row {i} is zero (|a| = {norm:.1e}) and b = {bi:.3g} < 0", 0)
+            return None, active, f"infeasible: row {i} is zero (|a| = {norm:.1e}) and b = {bi:.3g} < 0", 0
     rows_all, rhs_all = list(A_hat), list(b_hat)
     if ub_list is not None:
         rows_all += _unit_rows(n, 1.0)
@@ -320,12 +326,11 @@ def _solve(u0: list[float], rows: list[list[float]], b_list: list[float], lb_lis
     else:
         x, status, iterations = _BACKENDS[backend](problem)
         if x is None:
-            return failure(status, iterations)
-        u = [float(v) for v in x]
+            return None, active, status, iterations
+        u = list(map(float, x))
         excess = problem.violation(u)
         if not excess <= ACCEPT_RTOL * scale:
-            return failure(f"{status} but violates a constraint by {excess:.3g} hPa", iterations)
-    active = np.zeros(m, dtype=bool)
+            return None, active, f"{status} but violates a constraint by {excess:.3g} hPa", iterations
     for i, a, c in zip(kept, A_hat, b_hat):
-        active[i] = c - _dot(a, u) <= ACCEPT_RTOL * scale
-    return QPSolution(np.array(u), True, active, status, iterations)
+        active[i] = c - sum(map(mul, a, u)) <= ACCEPT_RTOL * scale
+    return u, active, status, iterations

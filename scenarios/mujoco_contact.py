@@ -19,8 +19,11 @@ force: ρ_meas = 1 − F/F_max for linear ψ, violation while F > F_max), summar
 `softcbf_mj.metrics.contact_figures`: the force the controller predicts, ψ of its own
 predicted penetration, against the measured plate force (RMS and max error), and the
 loaded-rod penetration bias, predicted − measured penetration while in contact (m and %
-of n_max; SPEC §7: a loaded rod is not constant-curvature). Time series add the plant's
-extras `plate_displacement_m` and `force_solver_N` (and `warning_*` counts if any).
+of n_max; SPEC §7: a loaded rod is not constant-curvature), the solver's peak contact
+force (impacts on the 10 g plate) and how often the arm touches and leaves the plate;
+and `switches_per_s`, how often the filter's correction turns on and off. Time series
+add the plant's extras `plate_displacement_m` and `force_solver_N` (and `warning_*`
+counts if any). Results and the benchmark: models/softcbf_arm/README.md.
 """
 
 from __future__ import annotations

@@ -99,7 +99,7 @@ def run_closed_loop(
         flags[k] = [*result.active.tolist(), result.infeasible, result.recovery]
         for key, value in state.extras.items():
             if key not in extras:
-                extras[key] = np.empty((n_steps,) + np.shape(value))
+                extras[key] = np.zeros((n_steps,) + np.shape(value))
             extras[key][k] = value
         state = plant.step(result.u)
         if progress is not None and k % 500 == 0:

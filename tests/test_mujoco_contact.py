@@ -30,7 +30,7 @@ CONTACT_FIELDS = ("force_solver_max_N", "t_contact_s", "contact_switches_per_s",
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    """None and Low for 3 s (≈ 6 s wall), from a seeded, slightly bent start."""
+    """None and Low for 3 s (≈ 3–6 s wall), from a seeded, slightly bent start."""
     out = tmp_path_factory.mktemp("mujoco_contact")
     get("mujoco_contact").run(out, duration=DURATION, tunings="None,Low", **START)
     summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))

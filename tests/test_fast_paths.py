@@ -1,0 +1,142 @@
+"""The per-step fast paths against the general code they stand in for (same floats or
+within rounding), and the closed loop's packed recording against a plain per-key one."""
+
+import math
+
+import numpy as np
+import pytest
+
+from controllers import pcc
+from controllers.cbf import get_tuning
+from controllers.dynamics import PCCDynamics
+from controllers.filter import CBFFilter
+from controllers.nominal import SinusoidNominal
+from controllers.params import reference_robot, uniform_robot
+from controllers.safe_set import Environment, ForceSafeSet, PowerLawStiffness, paper_safe_set
+from derivative_cases import SPECIAL_ANGLES, configurations, lengths
+from softcbf_mj.loop import TIMESERIES_UNITS, run_closed_loop
+from softcbf_mj.pcc_plant import PCCPlant
+
+ROBOT = reference_robot()
+SAFE = paper_safe_set()
+
+
+def _states(n: int, count: int = 300) -> list[tuple[list[float], list[float]]]:
+    """(q, q̇) as Python lists: the delicate angles of `configurations` and random ones, both branches of ℓ."""
+    rng = np.random.default_rng(7)
+    qs = [q.tolist() for q in configurations(n)] + rng.uniform(-4.0, 4.0, (count, n)).tolist()
+    return [(q, rng.normal(0.0, 3.0, n).tolist()) for q in qs]
+
+
+def test_unrolled_two_segment_kinematics_gives_the_same_floats():
+    lens = lengths(2).tolist()
+    for q, qd in _states(2):
+        assert pcc._step_kinematics_2(q, qd, lens) == pcc._step_kinematics_n(q, qd, lens), (q, qd)
+    assert pcc._step_kinematics([0.1, 0.2], [0.0, 1.0], lens) == pcc._step_kinematics_2([0.1, 0.2], [0.0, 1.0], lens)
+
+
+def test_unrolled_two_segment_mass_and_force_give_the_same_floats():
+    dyn = PCCDynamics(uniform_robot(2).replace(lengths=tuple(lengths(2)), masses=(0.2, 0.07)))
+    for q, qd in _states(2):
+        kin = pcc._step_kinematics(q, qd, dyn.lengths.tolist())
+        assert dyn._mass_and_force_2(kin, q, qd) == dyn._mass_and_force(kin, q, qd), (q, qd)
+
+
+def test_scalar_sinc_matches_the_series_matrix_and_is_the_array_path():
+    """`_sinc_half` (Horner on _SERIES' columns) against Σ_p S[p, a] q^p, and `_sinc_derivatives` is it per entry."""
+    q = np.array(list(SPECIAL_ANGLES) + np.linspace(-1.99, 1.99, 41).tolist())
+    series = (np.clip(q, -2, 2)[:, None] ** np.arange(pcc._SERIES_DEGREE + 1.0)) @ pcc._SERIES
+    small = np.abs(q) < pcc._SERIES_SWITCH
+    np.testing.assert_allclose(pcc._sinc_derivatives(q)[small], series[small], rtol=1e-15, atol=1e-17)
+    assert pcc._sinc_derivatives(q).tolist() == [list(pcc._sinc_half(v)) for v in q.tolist()]
+
+
+def test_dynamics_memo_returns_the_terms_of_the_state_asked_for():
+    dyn, fresh = PCCDynamics(ROBOT), PCCDynamics(ROBOT)
+    for q, qd in _states(2, 20):
+        first = dyn._core(q, qd)
+        assert dyn._core(list(q), list(qd)) is first  # same state: kept
+        other = dyn._core([q[0] + 1e-9, q[1]], qd)
+        assert other is not first and other.kin.tip != first.kin.tip
+        assert dyn._core(q, qd).mass == fresh._core(q, qd).mass
+
+
+def test_filter_sharing_the_plant_dynamics_gives_the_same_commands():
+    plant = PCCPlant(ROBOT, SAFE)
+    shared = CBFFilter(ROBOT, SAFE, get_tuning("High"), dynamics=plant.dynamics)
+    alone = CBFFilter(ROBOT, SAFE, get_tuning("High"))
+    state = plant.reset(np.array([0.3, 0.2]))
+    for _ in range(300):
+        x = np.concatenate((state.q, state.qd))
+        a, b = shared(x, np.array([150.0, 150.0])), alone(x, np.array([150.0, 150.0]))
+        assert a.u.tolist() == b.u.tolist() and a.constraint.tolist() == b.constraint.tolist() and a.action == b.action
+        state = plant.step(a.u)
+    with pytest.raises(ValueError, match="same params"):
+        CBFFilter(ROBOT, SAFE, get_tuning("Low"), dynamics=PCCDynamics(uniform_robot(2, mass=0.2)))
+
+
+@pytest.mark.parametrize("safe_set", [
+    paper_safe_set(),
+    ForceSafeSet(Environment.from_polygon([[0.05, -0.3], [0.3, -0.1], [0.28, 0.2], [0.0, 0.25]]),
+                 PowerLawStiffness(30.0, 1.5), 0.2, row_scaling="unit"),
+], ids=["paper", "box"])
+def test_point_methods_match_the_array_methods(safe_set):
+    rng = np.random.default_rng(3)
+    for r in rng.uniform(-0.1, 0.4, (500, 2)):
+        x, y = r.tolist()
+        # n = n̂·r − d cancels near a facet: equal to the rounding of r (≈ 1e-17 m), not relatively
+        np.testing.assert_allclose(safe_set.penetration_at(x, y), safe_set.penetration(r), rtol=0, atol=1e-16)
+        np.testing.assert_allclose(safe_set.force_at(x, y), safe_set.force(r), rtol=1e-14, atol=1e-14)
+        assert math.isclose(safe_set.margin_at(x, y), float(safe_set.margin(r)), rel_tol=0, abs_tol=1e-16 / safe_set.n_max)
+
+
+def test_unrolled_two_segment_ros2_step_gives_the_same_floats():
+    params = uniform_robot(2).replace(lengths=tuple(lengths(2)), masses=(0.2, 0.07), damping=(0.05, 0.09))
+    plant = PCCPlant(params, SAFE)
+    rng = np.random.default_rng(5)
+    for q, qd in _states(2):
+        x, u = q + qd, rng.uniform(-300.0, 300.0, 2).tolist()
+        core = plant._at(x)
+        assert plant._ros2_2(x, core, u, plant.physics_dt) == plant._ros2(x, core, u, plant.physics_dt), (x, u)
+
+
+@pytest.mark.parametrize("integrator", ["ros2", "rk4", "euler"])
+def test_plant_reports_the_kinematics_of_its_state(integrator):
+    plant = PCCPlant(ROBOT, SAFE, integrator=integrator)
+    state = plant.reset(np.array([0.7, 0.6]), np.array([1.0, -1.0]))
+    for _ in range(30):
+        state = plant.step(np.array([150.0, 150.0]))
+        np.testing.assert_allclose(state.segment_ends, pcc.segment_ends(state.q, ROBOT.array("lengths")), rtol=0, atol=1e-16)
+        np.testing.assert_allclose(state.contact_forces, SAFE.force(state.tip), rtol=1e-14, atol=1e-17)
+
+
+def _reference_loop(plant, controller, nominal, n_steps, q0):
+    """The closed loop recorded key by key, as plainly as possible."""
+    log = {key: [] for key in TIMESERIES_UNITS}
+    state = plant.reset(q0)
+    for _ in range(n_steps):
+        u_nom = nominal(state.t, state.q, state.qd)
+        res = controller(np.concatenate((state.q, state.qd)), u_nom)
+        for key, value in (("t", state.t), ("q", state.q), ("qd", state.qd), ("q_est", state.q), ("qd_est", state.qd),
+                           ("tip", state.tip), ("segment_ends", state.segment_ends), ("u_nom", res.u_nom), ("u", res.u),
+                           ("u_applied", state.u_applied), ("contact_force", state.contact_forces),
+                           ("rho_pred", res.rho_pred),
+                           ("rho_meas", np.min(controller.safe_set.margin_from_force(state.contact_forces))),
+                           ("b", res.b), ("active", res.active), ("infeasible", res.infeasible),
+                           ("recovery", res.recovery), ("filter_us", 0.0)):
+            log[key].append(np.copy(value))
+        state = plant.step(res.u)
+    return {key: np.array(values) for key, values in log.items()}
+
+
+def test_packed_recording_matches_a_plain_one():
+    nominal = SinusoidNominal.paper(2, 150.0, 0.5)
+    q0 = np.array([0.3, 0.1])
+    log = run_closed_loop(PCCPlant(ROBOT, SAFE), CBFFilter(ROBOT, SAFE, get_tuning("Low")), nominal, 1.5, q0)
+    ref = _reference_loop(PCCPlant(ROBOT, SAFE), CBFFilter(ROBOT, SAFE, get_tuning("Low")), nominal, 1500, q0)
+    assert list(log) == list(TIMESERIES_UNITS)
+    assert np.any(log["active"]) and np.any(log["rho_meas"] < 1)  # the run exercises the filter and the contact
+    for key in TIMESERIES_UNITS:
+        assert log[key].shape == ref[key].shape and log[key].dtype == ref[key].dtype, key
+        if key != "filter_us":
+            np.testing.assert_array_equal(log[key], ref[key], err_msg=key)
