@@ -49,7 +49,7 @@ from controllers.cbf import B_MIN, Tuning, _barrier_rows
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
-from controllers.qp import DEFAULT_BACKEND, _dot, _solve, available_backends, solve_qp
+from controllers.qp import DEFAULT_BACKEND, _dot, _solve, available_backends
 from controllers.safe_set import ForceSafeSet
 
 ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
@@ -119,8 +119,6 @@ class CBFFilter:
         self._h = np.array(safe_set.h_prime, dtype=float)
         self._rows, self._hs = self._H.tolist(), self._h.tolist()
         self._eps = (self.recovery_margin * np.hypot(self._H[:, 0], self._H[:, 1])).tolist()
-        self._lb = params.array("u_min") if self.pressure_limits else None
-        self._ub = params.array("u_max") if self.pressure_limits else None
         self._lb_list = list(params.u_min) if self.pressure_limits else None
         self._ub_list = list(params.u_max) if self.pressure_limits else None
         self._static_gain = (params.array("gains") / params.array("stiffness")).tolist()  # K⁻¹Λ, rad/hPa
@@ -146,25 +144,29 @@ class CBFFilter:
         a = [v * g for v, g in zip(hj, self._static_gain)]
         return a, b_i - self._eps[i] + sum(v * q_j for v, q_j in zip(hj, q))
 
-    def _slack_qp(self, u_nom: np.ndarray, rows: np.ndarray, rhs: np.ndarray, hard: list[tuple[list[float], float]]):
+    def _slack_qp(self, u_nom: list[float], rows: list[list[float]], rhs: list[float],
+                  hard: list[tuple[list[float], float]]) -> tuple[list[float] | None, float]:
         """Least-violation QP over z = (u, √w s) with hard rows `hard`; returns (u, max s) or (None, nan)."""
         n, p = self.n, len(rows)
-        norms = np.maximum(np.linalg.norm(rows, axis=1), 1e-12)
         root_w = math.sqrt(self.slack_weight)
-        pad = np.zeros((len(hard), p))
-        a_rows = [np.hstack((rows / norms[:, None], -np.eye(p) / root_w)), np.hstack((np.zeros((p, n)), -np.eye(p)))]
-        b_rows = [rhs / norms, np.zeros(p)]
-        if hard:
-            a_rows.append(np.hstack((np.array([a for a, _ in hard]), pad)))
-            b_rows.append(np.array([c for _, c in hard]))
+        minus_eye = [[-1.0 if k == i else -0.0 for k in range(p)] for i in range(p)]
+        a_rows, b_rows = [], []
+        for row, c, e in zip(rows, rhs, minus_eye):  # â_i u − s_i ≤ b̂_i
+            norm = max(math.sqrt(_dot(row, row)), 1e-12)
+            a_rows.append([v / norm for v in row] + [v / root_w for v in e])
+            b_rows.append(c / norm)
+        a_rows += [[0.0] * n + e for e in minus_eye]  # s ≥ 0
+        b_rows += [0.0] * p
+        a_rows += [a + [0.0] * p for a, _ in hard]
+        b_rows += [c for _, c in hard]
         if self.pressure_limits:
-            eye = np.hstack((np.eye(n), np.zeros((n, p))))
-            a_rows += [eye, -eye]
-            b_rows += [self._ub, -self._lb]
-        sol = solve_qp(np.concatenate((u_nom, np.zeros(p))), np.vstack(a_rows), np.concatenate(b_rows), backend=self.qp_backend)
-        if not sol.feasible:
+            eye = [[1.0 if k == j else 0.0 for k in range(n + p)] for j in range(n)]
+            a_rows += eye + [[-v for v in row] for row in eye]
+            b_rows += self._ub_list + [-v for v in self._lb_list]
+        z, _, _, _ = _solve(u_nom + [0.0] * p, a_rows, b_rows, None, None, self.qp_backend)
+        if z is None:
             return None, math.nan
-        return sol.u[:n], float(np.max(sol.u[n:]) / root_w)
+        return z[:n], max(z[n:]) / root_w
 
     def __call__(self, x, u_nom) -> FilterResult:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""
@@ -193,7 +195,7 @@ class CBFFilter:
                 feasible = feasible and _dot(row, u_list) <= c
             if not feasible:
                 t0 = time.perf_counter()
-                u, action, active, infeasible, slack = self._qp_command(ev, q, u_nom, rows, rhs, barrier, recovery)
+                u, action, active, infeasible, slack = self._qp_command(ev, q, u_list, rows, rhs, barrier, recovery)
                 solve_us = (time.perf_counter() - t0) * 1e6
         constraint = [lfb + _dot(lgb, u) - gamma / big_b if ok else math.inf
                       for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
@@ -202,21 +204,20 @@ class CBFFilter:
                             np.zeros(len(barrier), dtype=bool) if active is None else active,
                             infeasible, recovery, action, rho_pred, solve_us, slack)
 
-    def _qp_command(self, ev: DynamicsEval, q: list[float], u_nom: np.ndarray, rows: list[list[float]], rhs: list[float],
-               barrier: list[tuple], recovery: bool) -> tuple[list[float], str, np.ndarray | None, bool, float]:
+    def _qp_command(self, ev: DynamicsEval, q: list[float], u_list: list[float], rows: list[list[float]],
+                    rhs: list[float], barrier: list[tuple], recovery: bool) -> tuple[list[float], str, np.ndarray | None, bool, float]:
         """The QP branches ("qp", "recovery", "slack", "vent"): (u, action, active, infeasible, slack)."""
-        u, qp_active, _, _ = _solve(u_nom.tolist(), rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
+        u, qp_active, _, _ = _solve(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
         if u is not None:
             action, active, infeasible, slack = ("recovery" if recovery else "qp"), np.array(qp_active), False, 0.0
         else:
             hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(barrier)]
-            u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), hard)
-            if u_arr is None:
-                u_arr, slack = self._slack_qp(u_nom, np.array(rows), np.array(rhs), [])
-            action = "slack"
-            if u_arr is None:
-                u_arr, action = np.zeros(self.n), "vent"
-            u, active, infeasible = u_arr.tolist(), None, True
+            u, slack = self._slack_qp(u_list, rows, rhs, hard)
+            if u is None:
+                u, slack = self._slack_qp(u_list, rows, rhs, [])
+            action, active, infeasible = "slack", None, True
+            if u is None:
+                u, action = [0.0] * self.n, "vent"
         u = self._clip(u)
         if not all(map(math.isfinite, u)):
             u, action, infeasible = self._clip([0.0] * self.n), "vent", True

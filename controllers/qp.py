@@ -153,7 +153,8 @@ def _dual_active_set(x: list[float], rows: list[list[float]], rhs: list[float],
             t = min(t_dual, t_full)
             if t == math.inf:
                 return None, "infeasible", iterations
-            lam = [lk - t * rk for lk, rk in zip(lam, r)]
+            if lam:
+                lam = [lk - t * rk for lk, rk in zip(lam, r)]
             lam_p += t
             if t_full < math.inf:
                 x = [xi - t * zi for xi, zi in zip(x, z)]
