@@ -1,0 +1,1 @@
+"""The AprilTag pipeline shared by the simulations and the hardware: OpenCV and numpy only, never MuJoCo."""
