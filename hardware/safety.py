@@ -1,0 +1,114 @@
+"""The laptop's safe-action state machine: run, hold, then vent.
+
+The hardware loop calls `SafetyMonitor.step(t, u_cmd, flags)` once per control cycle
+(t in s, non-decreasing; u_cmd the controller's command in hPa, shape (N,), or None when
+the controller raised) and sends what the returned `SafetyDecision` says, in the same
+cycle, so every safe action starts within one control cycle of its cause:
+
+| condition (highest first)                          | action                                                   |
+|----------------------------------------------------|----------------------------------------------------------|
+| `interrupted` (Ctrl-C)                             | VENT now, latched                                        |
+| `link_lost`                                        | VENT now, latched (the board's watchdog vents as well)   |
+| a vent is latched                                  | VENT until `reset()`                                     |
+| `perception_stale` or `command_nonfinite` (or u_cmd None / non-finite) | HOLD the last command sent with RUN; VENT, latched, once the hold has lasted `hold_s` (at once if nothing was ever sent) |
+| none                                               | RUN: u = u_cmd                                           |
+
+A HOLD that ends (its flags clear) before `hold_s` returns to RUN; the next one gets a
+full `hold_s` again. VENT means u = 0 hPa and the loop sends the protocol's VENT frame.
+A latched vent clears only by `reset()`, which refuses while a flag is raised. The class
+does no I/O and reads no clock, so it is tested exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from enum import Enum
+
+import numpy as np
+
+DEFAULT_HOLD_S = 0.5  # five cycles of the 10 Hz loop
+
+
+class SafeAction(str, Enum):
+    RUN = "run"
+    HOLD = "hold"
+    VENT = "vent"
+
+
+@dataclass(frozen=True)
+class SafetyFlags:
+    """What the hardware loop observed this cycle."""
+
+    perception_stale: bool = False  # no valid state estimate for the configured staleness time
+    link_lost: bool = False  # `ValveBoardLink.link_lost`
+    command_nonfinite: bool = False  # the controller raised NonFiniteCommandError or gave NaN/inf
+    interrupted: bool = False  # Ctrl-C or another stop request
+
+    def raised(self) -> tuple[str, ...]:
+        """Names of the flags that are set, in field order."""
+        return tuple(f.name for f in fields(self) if getattr(self, f.name))
+
+
+@dataclass(frozen=True)
+class SafetyDecision:
+    """What to send this cycle: the action, the pressures (hPa, (N,); zeros for VENT) and the raised flags."""
+
+    action: SafeAction
+    u: np.ndarray
+    reasons: tuple[str, ...]
+
+
+class SafetyMonitor:
+    """Run → hold → vent (see the module table). One instance per hardware run."""
+
+    def __init__(self, n_segments: int, hold_s: float = DEFAULT_HOLD_S) -> None:
+        if not (isinstance(n_segments, int) and n_segments >= 1):
+            raise ValueError(f"n_segments must be an int >= 1, got {n_segments!r}")
+        if not (math.isfinite(hold_s) and hold_s >= 0.0):
+            raise ValueError(f"hold_s must be a finite time >= 0 s (0 vents at once), got {hold_s}")
+        self.n_segments = n_segments
+        self.hold_s = float(hold_s)
+        self._last_run: np.ndarray | None = None
+        self._hold_since: float | None = None
+        self._vent_reasons: tuple[str, ...] | None = None
+        self._t = -math.inf
+
+    @property
+    def vent_latched(self) -> bool:
+        return self._vent_reasons is not None
+
+    def reset(self, flags: SafetyFlags = SafetyFlags()) -> None:
+        """Clear a latched vent; refused (ValueError) while any of `flags` is raised."""
+        if flags.raised():
+            raise ValueError(f"cannot clear the vent while {', '.join(flags.raised())} is raised")
+        self._vent_reasons = None
+        self._hold_since = None
+
+    def step(self, t: float, u_cmd: np.ndarray | None, flags: SafetyFlags = SafetyFlags()) -> SafetyDecision:
+        if not (math.isfinite(t) and t >= self._t):
+            raise ValueError(f"t must be finite and non-decreasing, got {t} after {self._t}")
+        self._t = t
+        u = None if u_cmd is None else np.asarray(u_cmd, dtype=float)
+        if u is not None and u.shape != (self.n_segments,):
+            raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")
+        if (u is None or not np.isfinite(u).all()) and not flags.command_nonfinite:
+            flags = replace(flags, command_nonfinite=True)
+        reasons = flags.raised()
+        if flags.interrupted or flags.link_lost:
+            return self._vent(reasons)
+        if self._vent_reasons is not None:
+            return SafetyDecision(SafeAction.VENT, np.zeros(self.n_segments), self._vent_reasons)
+        if flags.perception_stale or flags.command_nonfinite:
+            if self._hold_since is None:
+                self._hold_since = t
+            if self._last_run is None or t - self._hold_since >= self.hold_s:
+                return self._vent(reasons)
+            return SafetyDecision(SafeAction.HOLD, self._last_run.copy(), reasons)
+        self._hold_since = None
+        self._last_run = u.copy()
+        return SafetyDecision(SafeAction.RUN, u.copy(), reasons)
+
+    def _vent(self, reasons: tuple[str, ...]) -> SafetyDecision:
+        self._vent_reasons = reasons
+        return SafetyDecision(SafeAction.VENT, np.zeros(self.n_segments), reasons)
