@@ -42,6 +42,20 @@ cover every point of the facet line within the arm's reach Σ L_i. Contacts are
 frictionless (condim 1: normal force only, as in the paper's model) and stiff
 (solref = (`contact_timeconst`, 1)).
 
+AprilTags (SPEC §7, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
+on the base point; tag i on the body that carries `seg{i}_end`, centred on that site,
+except the tip tag, which is shifted back along its link by half its textured edge so
+that its front edge is the tip point r and it never overhangs the plate. Each is a flat
+box geom `tag{id}` (textured edge S = `textured_size(tag_size)`, m; 1 mm thick) whose top
+face lies in the plane z = `TAG_PLANE_Z` above every other geom (plates reach
+z = `_PLATE_HALF_HEIGHT`), so nothing occludes a tag from the overhead camera; its image
+x axis runs along the body's x axis, its image up along +y. Tags are visual only
+(contype = conaffinity = 0, density 0: no mass; the arm's bodies carry explicit
+inertials), textured with the 36h11 images of `perception.tags.tag_image` (PNG files
+`assets/tag{id}.png`; in-memory specs carry the same bytes in `spec.assets`), with a
+matte material (no specular highlight). The calibration scene adds a board of tags
+`CALIBRATION_BOARD_IDS` on the world in the same plane (`calibration_board`).
+
 Options: `implicitfast` (joint damping integrated implicitly), dense Jacobian (MuJoCo
 4.0.0 sparse-solver bug), gravity off (the arm lies on a table). The defaults n = 10
 and physics step 0.1 ms come from `tools/convergence_study.py` (models/softcbf_arm/README.md).
@@ -59,14 +73,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import mujoco
 import numpy as np
 
 from controllers.params import RobotParams, per_segment, reference_robot
+from perception.plane import TagBoard
+from perception.tags import arm_tag_ids, tag_image, textured_size
 
 ARM_FILE = "softcbf_arm.xml"
 SCENE_FILE = "scene.xml"
 SCENE_MODEL_NAME = "softcbf_arm scene"
+CALIBRATION_SCENE_FILE = "scene_calibration.xml"
+CALIBRATION_SCENE_MODEL_NAME = "softcbf_arm calibration scene"
+CALIBRATION_BOARD_FILE = "scene_calibration_board.json"  # perception.plane.TagBoard
+ASSETS_DIR = "assets"
 
 PAPER_H = ((0.36, 1.0),)  # SPEC §4: the paper's single facet, H r ≤ h
 PAPER_h = (0.15,)  # m
@@ -87,6 +108,17 @@ _CAMERA_FIELD_MARGIN = 1.1  # the image height covers ±1.1 Σ L around the work
 
 _ARM_COLOR = (0.55, 0.35, 0.75, 1.0)
 _PLATE_COLOR = (0.15, 0.15, 0.15, 1.0)
+
+# AprilTags (visual only).
+DEFAULT_TAG_SIZE = 0.03  # m, black square of the 36h11 tag (chosen: the hardware's printed size)
+TAG_PLANE_Z = 0.025  # m, top faces of all tags: above the plates (z <= _PLATE_HALF_HEIGHT) and the arm
+_TAG_HALF_THICKNESS = 0.0005  # m
+TAG_TEXTURE_CELL_PX = 16  # texture px per tag cell: 160 × 160 px textures (8 cells + 1 quiet cell each side)
+CALIBRATION_BOARD_IDS = tuple(range(10, 22))  # tags of the calibration board (arm: 0..N)
+# Board tag centres in units of the reach Σ L (x from the base, y): one column behind the
+# base, three beyond the reach; every tag lies outside the reach circle and inside the view.
+_BOARD_COLUMNS = (-1.25, 1.3, 1.7, 2.1)
+_BOARD_ROWS = (-0.8, 0.0, 0.8)
 
 
 def _r6(x: float) -> float:
@@ -115,8 +147,11 @@ class ArmModelConfig:
     | plate_mass          | 0.01                     | kg    | chosen                    |
     | plate_damping_ratio | 0.2                      | —     | chosen (light damping)    |
     | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)    |
+    | tag_size            | 0.03                     | m     | chosen (hardware tags)    |
 
-    An empty facet set (H of shape (0, 2)) gives the arm alone.
+    `tag_size` is the black square of each AprilTag; its texture (with the white quiet
+    zone) spans `textured_size(tag_size)`, at most half the shortest segment so that
+    neighbouring tags cannot overlap. An empty facet set (H of shape (0, 2)) gives the arm alone.
     """
 
     robot: RobotParams = field(default_factory=reference_robot)
@@ -131,6 +166,7 @@ class ArmModelConfig:
     plate_mass: float = 0.01
     plate_damping_ratio: float = 0.2
     contact_timeconst: float = 0.002
+    tag_size: float = DEFAULT_TAG_SIZE
 
     def __post_init__(self) -> None:
         H = np.atleast_2d(np.asarray(self.H, dtype=float)) if np.size(self.H) else np.zeros((0, 2))
@@ -166,6 +202,15 @@ class ArmModelConfig:
             raise ValueError(f"integrator must be one of {valid}, got {self.integrator!r}")
         if not (math.isfinite(self.plate_damping_ratio) and self.plate_damping_ratio >= 0):
             raise ValueError(f"plate_damping_ratio must be >= 0, got {self.plate_damping_ratio}")
+        if not (math.isfinite(self.tag_size) and self.tag_size > 0):
+            raise ValueError(f"tag_size must be > 0 m, got {self.tag_size}")
+        if textured_size(self.tag_size) > min(self.robot.lengths) / 2:
+            largest = min(self.robot.lengths) / 2 * self.tag_size / textured_size(self.tag_size)
+            raise ValueError(
+                f"tag_size {self.tag_size:g} m gives tags of {textured_size(self.tag_size):g} m with their quiet zone, "
+                f"more than half the shortest segment ({min(self.robot.lengths):g} m), so neighbouring tags "
+                f"could overlap; use tag_size <= {largest:.4g} m"
+            )
         if self.contact_timeconst < 2 * self.physics_dt:
             raise ValueError(
                 f"contact_timeconst ({self.contact_timeconst:g} s) must be >= 2 physics_dt "
@@ -257,6 +302,57 @@ def _capsule(body: mujoco.MjsBody, default: mujoco.MjsDefault, x0: float, x1: fl
     )
 
 
+def tag_texture_file(tag_id: int) -> str:
+    """Path of tag `tag_id`'s texture relative to the model folder (MJCF `file` attribute)."""
+    return f"{ASSETS_DIR}/tag{tag_id}.png"
+
+
+def tag_textures(tag_ids: Any) -> dict[str, bytes]:
+    """PNG bytes of the 36h11 textures of `tag_ids`, keyed by `tag_texture_file` (same ids, same bytes)."""
+    textures = {}
+    for tag_id in tag_ids:
+        ok, png = cv2.imencode(".png", tag_image(int(tag_id), TAG_TEXTURE_CELL_PX))
+        if not ok:
+            raise RuntimeError(f"OpenCV could not encode tag {tag_id} as PNG")
+        textures[tag_texture_file(int(tag_id))] = png.tobytes()
+    return textures
+
+
+@dataclass(frozen=True)
+class TagPlacement:
+    """Where an arm tag sits: its centre is site `site` + `offset` (m) along the body's x axis."""
+
+    tag_id: int
+    body: str
+    site: str
+    offset: float
+
+
+def arm_tag_placements(config: ArmModelConfig) -> tuple[TagPlacement, ...]:
+    """Tag 0 on `base` at the base point; tag i on the body of `seg{i}_end`, the tip tag shifted back by S/2."""
+    n, n_seg = config.links_per_segment, config.robot.n_segments
+    ids = arm_tag_ids(n_seg)
+    placements = [TagPlacement(ids[0], "base", "base", 0.0)]
+    for i in range(1, n_seg + 1):
+        offset = -textured_size(config.tag_size) / 2 if i == n_seg else 0.0
+        placements.append(TagPlacement(ids[i], f"seg{i}_link{n}", f"seg{i}_end", _r6(offset)))
+    return tuple(placements)
+
+
+def _add_tag(spec: mujoco.MjSpec, body: mujoco.MjsBody, tag_id: int, x: float, y: float, angle: float, tag_size: float) -> None:
+    """Texture, matte material and flat visual box `tag{id}` centred at (x, y) of `body`, top face at TAG_PLANE_Z."""
+    name = f"tag{tag_id}"
+    spec.add_texture(name=name, type=mujoco.mjtTexture.mjTEXTURE_2D, file=tag_texture_file(tag_id))
+    spec.add_material(name=name, textures=["", name], specular=0.0, shininess=0.0, reflectance=0.0)
+    half = textured_size(tag_size) / 2
+    body.add_geom(
+        name=name, type=mujoco.mjtGeom.mjGEOM_BOX, material=name, contype=0, conaffinity=0, group=2, density=0.0,
+        pos=_r6v([x, y, TAG_PLANE_Z - _TAG_HALF_THICKNESS]),
+        quat=[_r6(v) if abs(v) > 1e-12 else 0.0 for v in (math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2))],
+        size=_r6v([half, half, _TAG_HALF_THICKNESS]),
+    )
+
+
 def _add_arm(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
     robot, n, r = config.robot, config.links_per_segment, config.tip_radius
     visual, collision = spec.find_default("visual"), spec.find_default("collision")
@@ -310,6 +406,10 @@ def _add_arm(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
             else:
                 _capsule(body, collision, 0.0, length, r)
             parent, offset = body, length if j == n else c
+
+    for tag in arm_tag_placements(config):
+        site = spec.site(tag.site)
+        _add_tag(spec, spec.body(tag.body), tag.tag_id, site.pos[0] + tag.offset, 0.0, 0.0, config.tag_size)
 
     for i in range(n_seg):
         tendon = spec.add_tendon(name=f"seg{i + 1}_bend")
@@ -371,6 +471,7 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     spec.option.integrator = mujoco.mjtIntegrator.__members__[f"mjINT_{config.integrator.upper()}"]
     spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # SPEC §7: MuJoCo 4.0.0 sparse-solver bug
     spec.option.gravity = [0.0, 0.0, 0.0]
+    spec.assets = tag_textures(arm_tag_ids(config.robot.n_segments))
     _add_defaults(spec, config)
     _add_arm(spec, config)
     _add_plates(spec, config)
@@ -394,18 +495,63 @@ def overhead_camera_pose(config: ArmModelConfig) -> tuple[tuple[float, float, fl
     return (_r6(reach / 2), 0.0, height), focal
 
 
-def _add_scene(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
-    """Table, lights, overhead camera and render settings: the scene file's content."""
+def calibration_board(config: ArmModelConfig | None = None) -> TagBoard:
+    """The calibration scene's board: tags `CALIBRATION_BOARD_IDS` of `tag_size` in the tag plane.
+
+    Centres at (column, row) × Σ L for the columns `_BOARD_COLUMNS` and rows `_BOARD_ROWS`
+    (one column behind the base, three beyond the reach), angles 0, π/2, π, −π/2 in turn;
+    refused unless every tag lies outside the reach circle (Σ L plus the tag's
+    half-diagonal: no arm tag can slide under it) and wholly inside the overhead view.
+    """
+    config = config or ArmModelConfig()
+    reach = sum(config.robot.lengths)
+    arm_ids = arm_tag_ids(config.robot.n_segments)
+    if set(arm_ids) & set(CALIBRATION_BOARD_IDS):
+        raise ValueError(
+            f"the arm's tags {list(arm_ids)} overlap the calibration board's {list(CALIBRATION_BOARD_IDS)}; "
+            f"the board needs an arm of at most {CALIBRATION_BOARD_IDS[0] - 1} segments"
+        )
+    centres = [(c * reach, r * reach) for c in _BOARD_COLUMNS for r in _BOARD_ROWS]
+    angles = [0.0, math.pi / 2, math.pi, -math.pi / 2]
+    tags = {tag_id: (_r6(x), _r6(y), angles[k % 4]) for k, (tag_id, (x, y)) in enumerate(zip(CALIBRATION_BOARD_IDS, centres))}
+    half_diagonal = textured_size(config.tag_size) / math.sqrt(2)
+    (cam_x, cam_y, cam_z), focal = overhead_camera_pose(config)
+    half_h = (CAMERA_RESOLUTION[1] / 2) * (cam_z - TAG_PLANE_Z) / focal
+    half_w = (CAMERA_RESOLUTION[0] / 2) * (cam_z - TAG_PLANE_Z) / focal
+    for tag_id, (x, y, _) in tags.items():
+        if math.hypot(x, y) < reach + half_diagonal:
+            raise ValueError(f"board tag {tag_id} at ({x:g}, {y:g}) m is within the arm's reach; use a smaller tag_size")
+        if abs(x - cam_x) + half_diagonal > half_w or abs(y - cam_y) + half_diagonal > half_h:
+            raise ValueError(f"board tag {tag_id} at ({x:g}, {y:g}) m leaves the overhead view; use a smaller tag_size")
+    return TagBoard(config.tag_size, tags)
+
+
+def _add_scene(spec: mujoco.MjSpec, config: ArmModelConfig, board: bool) -> None:
+    """Table, lights, overhead camera, render settings and optionally the calibration board.
+
+    Lighting for detectable tags: a directional light straight down (diffuse 0.5) plus the
+    headlight (ambient 0.25, diffuse 0.25), no specular light and no shadows, so an
+    upward face of colour c is lit to c·1.0 everywhere in the view: tag white renders as
+    255, tag black as 0, the table below saturation. No multisampling (offsamples 0): a
+    tag's black-white edges lie inside its texture, not on polygon edges, so antialiasing
+    does not change them (identical detections, measured) and costs 2-3× the render time
+    on the CPU.
+    """
     spec.visual.global_.offwidth = CAMERA_RESOLUTION[0]
     spec.visual.global_.offheight = CAMERA_RESOLUTION[1]
-    spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
-    spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
+    spec.visual.quality.offsamples = 0
+    spec.visual.headlight.diffuse = [0.25, 0.25, 0.25]
+    spec.visual.headlight.ambient = [0.25, 0.25, 0.25]
+    spec.visual.headlight.specular = [0.0, 0.0, 0.0]
     spec.add_texture(
         name="table", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
         rgb1=[0.82, 0.8, 0.76], rgb2=[0.74, 0.72, 0.68], width=300, height=300,
     )
     spec.add_material(name="table", textures=["", "table"], texrepeat=[20, 20], reflectance=0.0)
-    spec.worldbody.add_light(name="top", pos=[0.12, 0.0, 1.5], dir=[0.0, 0.0, -1.0])
+    spec.worldbody.add_light(
+        name="top", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[0.12, 0.0, 1.5], dir=[0.0, 0.0, -1.0],
+        diffuse=[0.5, 0.5, 0.5], specular=[0.0, 0.0, 0.0], castshadow=False,
+    )
     spec.worldbody.add_geom(
         name="table", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], material="table",
         pos=[0.0, 0.0, -_VISUAL_RADIUS], contype=0, conaffinity=0,
@@ -414,20 +560,25 @@ def _add_scene(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
     spec.worldbody.add_camera(
         name="overhead", pos=list(pos), fovy=CAMERA_FOVY_DEG, resolution=list(CAMERA_RESOLUTION)
     )
+    if board:
+        tags = calibration_board(config).tags
+        spec.assets = {**spec.assets, **tag_textures(tags)}
+        for tag_id, (x, y, angle) in tags.items():
+            _add_tag(spec, spec.worldbody, tag_id, x, y, angle, config.tag_size)
 
 
-def build_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
-    """The whole scene (what `scene.xml` loads) as one spec, for building variants at run time."""
+def build_spec(config: ArmModelConfig | None = None, board: bool = False) -> mujoco.MjSpec:
+    """The whole scene (what `scene.xml` loads; with `board`, `scene_calibration.xml`) as one spec."""
     config = config or ArmModelConfig()
     spec = build_arm_spec(config)
-    spec.modelname = SCENE_MODEL_NAME
-    _add_scene(spec, config)
+    spec.modelname = CALIBRATION_SCENE_MODEL_NAME if board else SCENE_MODEL_NAME
+    _add_scene(spec, config, board)
     return spec
 
 
-def build_model(config: ArmModelConfig | None = None) -> mujoco.MjModel:
-    """Compile the scene of `config`."""
-    return build_spec(config).compile()
+def build_model(config: ArmModelConfig | None = None, board: bool = False) -> mujoco.MjModel:
+    """Compile the scene of `config` (with `board`: the calibration scene)."""
+    return build_spec(config, board).compile()
 
 
 def arm_xml(config: ArmModelConfig | None = None) -> str:
@@ -435,23 +586,46 @@ def arm_xml(config: ArmModelConfig | None = None) -> str:
     return build_arm_spec(config).to_xml()
 
 
-def scene_xml(config: ArmModelConfig | None = None) -> str:
-    """Text of `scene.xml`: an include of the arm file plus table, lights and the overhead camera."""
+def scene_xml(config: ArmModelConfig | None = None, board: bool = False) -> str:
+    """Text of `scene.xml` (with `board`: `scene_calibration.xml`): an include of the arm file plus
+    table, lights, the overhead camera and, with `board`, the calibration board."""
     config = config or ArmModelConfig()
     spec = mujoco.MjSpec()
-    spec.modelname = SCENE_MODEL_NAME
-    _add_scene(spec, config)
+    spec.modelname = CALIBRATION_SCENE_MODEL_NAME if board else SCENE_MODEL_NAME
+    _add_scene(spec, config, board)
     head, sep, body = spec.to_xml().partition("\n")
     if not head.startswith("<mujoco"):
         raise RuntimeError(f"unexpected MJCF header from MjSpec.to_xml: {head!r}")
     return f'{head}{sep}  <include file="{ARM_FILE}"/>\n\n{body}'
 
 
+def model_textures(config: ArmModelConfig | None = None) -> dict[str, bytes]:
+    """Every texture file the written model references (arm and board tags), keyed by relative path."""
+    config = config or ArmModelConfig()
+    return tag_textures(arm_tag_ids(config.robot.n_segments) + tuple(calibration_board(config).tags))
+
+
+def write_tag_textures(directory: str | Path, config: ArmModelConfig | None = None) -> list[Path]:
+    """Write `model_textures(config)` under `directory` (into `assets/`); return their paths."""
+    directory = Path(directory)
+    paths = []
+    for name, data in model_textures(config).items():
+        path = directory / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+        paths.append(path)
+    return paths
+
+
 def write_model_files(directory: str | Path, config: ArmModelConfig | None = None) -> list[Path]:
-    """Write `softcbf_arm.xml` and `scene.xml` into `directory`; return their paths."""
+    """Write the model folder into `directory`: `softcbf_arm.xml`, `scene.xml`,
+    `scene_calibration.xml`, its board JSON and the tag textures; return their paths."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    paths = [directory / ARM_FILE, directory / SCENE_FILE]
-    for path, text in zip(paths, (arm_xml(config), scene_xml(config))):
-        path.write_text(text, encoding="utf-8")
-    return paths
+    texts = {ARM_FILE: arm_xml(config), SCENE_FILE: scene_xml(config), CALIBRATION_SCENE_FILE: scene_xml(config, board=True)}
+    paths = []
+    for name, text in texts.items():
+        (directory / name).write_text(text, encoding="utf-8")
+        paths.append(directory / name)
+    calibration_board(config).save(directory / CALIBRATION_BOARD_FILE)
+    return paths + [directory / CALIBRATION_BOARD_FILE] + write_tag_textures(directory, config)

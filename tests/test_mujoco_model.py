@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from controllers.params import reference_robot, uniform_robot
+from perception.plane import TagBoard
 from softcbf_mj import model_builder as mb
 from softcbf_mj.mujoco_plant import WARNINGS
 
@@ -46,28 +47,39 @@ def test_generation_is_byte_stable():
         assert mb.scene_xml(config) == mb.scene_xml(config)
 
 
-def test_committed_files_equal_what_the_generator_writes_now():
-    for name, text in ((mb.ARM_FILE, mb.arm_xml()), (mb.SCENE_FILE, mb.scene_xml())):
+def test_committed_files_equal_what_the_generator_writes_now(tmp_path):
+    for name, text in ((mb.ARM_FILE, mb.arm_xml()), (mb.SCENE_FILE, mb.scene_xml()),
+                       (mb.CALIBRATION_SCENE_FILE, mb.scene_xml(board=True))):
         committed = (MODEL_DIR / name).read_text(encoding="utf-8")
         assert committed == text, f"{name} is stale: run `python tools/generate_model.py`"
+    written = mb.write_model_files(tmp_path)
+    assert len(written) == 4 + 3 + 12  # 3 XML files, the board JSON, 3 arm + 12 board textures
+    for path in written:
+        name = path.relative_to(tmp_path)
+        assert (MODEL_DIR / name).read_bytes() == path.read_bytes(), f"{name} is stale: run `python tools/generate_model.py`"
+    assert sorted(p.name for p in (MODEL_DIR / mb.ASSETS_DIR).iterdir()) == sorted(
+        p.name for p in written if p.parent.name == mb.ASSETS_DIR
+    )
 
 
-def test_written_files_compile_to_the_runtime_model(tmp_path):
+@pytest.mark.parametrize("board", [False, True], ids=["scene", "calibration_scene"])
+def test_written_files_compile_to_the_runtime_model(tmp_path, board):
     """Numbers are rounded to the XML writer's precision first, so file and spec agree exactly."""
     config = mb.ArmModelConfig(robot=reference_robot().replace(gains=(1 / 170, 1 / 190)), plate_mass=1 / 70)
     mb.write_model_files(tmp_path, config)
-    from_file = mujoco.MjModel.from_xml_path(str(tmp_path / mb.SCENE_FILE))
-    runtime = mb.build_model(config)
+    from_file = mujoco.MjModel.from_xml_path(str(tmp_path / (mb.CALIBRATION_SCENE_FILE if board else mb.SCENE_FILE)))
+    runtime = mb.build_model(config, board=board)
     differing = []
     for name in dir(from_file):
         a = getattr(from_file, name)
-        if isinstance(a, np.ndarray) and not name.startswith("_"):
+        if isinstance(a, np.ndarray) and not name.startswith("_") and name != "tex_pathadr":  # where a texture was read from
             b = getattr(runtime, name)
             if name == "site_size":  # the writer keeps only the radius of a sphere site
                 a, b = a[:, 0], b[:, 0]
             if a.shape != b.shape or not np.array_equal(a, b):
                 differing.append(name)
     assert differing == []
+    assert from_file.ntex == runtime.ntex == 1 + 3 + (12 if board else 0)  # table + tags
 
 
 def test_options_names_and_limits():
@@ -184,6 +196,81 @@ def test_overhead_camera_looks_down_with_documented_intrinsics():
     assert half_height >= sum(config.robot.lengths)
 
 
+def test_tags_leave_the_physics_bit_identical():
+    """Same trajectory (1 s, random pressures, the tip striking the plate) with and without the tags
+    (their texture, material and geom lines removed from the arm file; MjSpec.delete of a geom
+    corrupts memory in MuJoCo 4.0.0)."""
+    arm = mb.arm_xml()
+    without = "\n".join(line for line in arm.splitlines() if 'name="tag' not in line)
+    assert arm.count('name="tag') == 9 and 'name="tag' not in without  # 3 textures, 3 materials, 3 geoms
+    textures = mb.tag_textures(range(3))
+    trajectories, masses = [], []
+    for text in (arm, without):
+        model = mujoco.MjModel.from_xml_string(mb.scene_xml(), {mb.ARM_FILE: text.encode(), **textures})
+        data = mujoco.MjData(model)
+        rng = np.random.default_rng(3)
+        low, high = model.actuator_ctrlrange.T
+        rows = []
+        for k in range(10_000):
+            if k % 500 == 0:
+                data.ctrl[:] = rng.uniform(0.3 * high, high)  # positive pressures bend towards the plate
+            mujoco.mj_step(model, data)
+            if k % 10 == 0:
+                rows.append(np.concatenate([data.qpos, data.qvel, data.act]))
+        plate = model.joint("plate1_slide").qposadr[0]
+        trajectories.append(np.array(rows))
+        masses.append((model.body_mass.copy(), model.body_inertia.copy()))
+    np.testing.assert_array_equal(trajectories[0], trajectories[1])
+    np.testing.assert_array_equal(masses[0][0], masses[1][0])
+    np.testing.assert_array_equal(masses[0][1], masses[1][1])
+    assert np.ptp(trajectories[0][:, plate]) > 1e-3  # the plate moved: contact happened
+
+
+@pytest.mark.parametrize("tag_size", [mb.DEFAULT_TAG_SIZE, 0.02])
+def test_tags_sit_where_documented(tag_size):
+    """Visual-only flat boxes, top faces in the plane TAG_PLANE_Z above the plates, centred on the
+    base / segment-end sites (the tip tag S/2 behind the tip), x axis along the body's x axis."""
+    config = mb.ArmModelConfig(tag_size=tag_size)
+    model = mb.build_model(config)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    data.qpos[:20] = rng.uniform(-0.1, 0.1, 20)
+    mujoco.mj_forward(model, data)
+    edge = tag_size * 10 / 8  # black square plus a one-cell quiet zone on each side
+    plate_top = data.geom("plate1").xpos[2] + model.geom("plate1").size[2]
+    for placement in mb.arm_tag_placements(config):
+        geom = model.geom(f"tag{placement.tag_id}")
+        assert geom.contype[0] == 0 and geom.conaffinity[0] == 0
+        assert model.body(geom.bodyid[0]).name == placement.body
+        np.testing.assert_allclose(geom.size, [edge / 2, edge / 2, 0.0005], rtol=1e-6)
+        xmat = data.geom(geom.id).xmat.reshape(3, 3)
+        body_xmat = data.body(placement.body).xmat.reshape(3, 3)
+        np.testing.assert_allclose(xmat, body_xmat, atol=1e-12)
+        top = data.geom(geom.id).xpos[2] + geom.size[2]
+        assert top == pytest.approx(mb.TAG_PLANE_Z, abs=1e-12) and top - geom.size[2] * 2 > plate_top
+        centre = data.site(placement.site).xpos + placement.offset * body_xmat[:, 0]
+        np.testing.assert_allclose(data.geom(geom.id).xpos[:2], centre[:2], atol=1e-6)
+    assert mb.arm_tag_placements(config)[-1].offset == pytest.approx(-edge / 2)
+    assert [p.tag_id for p in mb.arm_tag_placements(config)] == [0, 1, 2]
+
+
+def test_calibration_board_lies_in_the_tag_plane_at_the_documented_poses():
+    config = mb.ArmModelConfig()
+    board = TagBoard.load(MODEL_DIR / mb.CALIBRATION_BOARD_FILE)
+    assert board == mb.calibration_board(config)
+    assert sorted(board.tags) == list(mb.CALIBRATION_BOARD_IDS) and board.tag_size == config.tag_size
+    model = mujoco.MjModel.from_xml_path(str(MODEL_DIR / mb.CALIBRATION_SCENE_FILE))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    reach = sum(config.robot.lengths)
+    for tag_id, (x, y, angle) in board.tags.items():
+        geom = data.geom(f"tag{tag_id}")
+        np.testing.assert_allclose(geom.xpos, [x, y, mb.TAG_PLANE_Z - 0.0005], atol=1e-9)
+        xmat = geom.xmat.reshape(3, 3)
+        assert math.atan2(xmat[1, 0], xmat[0, 0]) == pytest.approx(math.atan2(math.sin(angle), math.cos(angle)), abs=1e-6)
+        assert math.hypot(x, y) > reach + config.tag_size * 10 / 8 / math.sqrt(2)
+
+
 @pytest.mark.parametrize(
     "changes, message",
     [
@@ -197,6 +284,8 @@ def test_overhead_camera_looks_down_with_documented_intrinsics():
         (dict(physics_dt=0.0), "physics_dt must be > 0"),
         (dict(physics_dt=2e-3), "contact_timeconst .* must be >= 2 physics_dt"),
         (dict(integrator="leapfrog"), "integrator must be one of"),
+        (dict(tag_size=0.0), "tag_size must be > 0 m"),
+        (dict(tag_size=0.06), r"tag_size 0.06 m gives tags of 0.075 m .* use tag_size <= 0.0488 m"),
     ],
 )
 def test_config_validation_says_what_was_wrong(changes, message):

@@ -1,9 +1,11 @@
-"""Write the default MuJoCo model files (models/softcbf_arm/softcbf_arm.xml and scene.xml).
+"""Write the default MuJoCo model folder models/softcbf_arm/ (XML, calibration board, tag textures).
 
 The files come from `softcbf_mj.model_builder` with `ArmModelConfig()` defaults (the
-reference robot, the paper's plate, the chosen links per segment and physics step);
-the same parameters always give the same bytes. Usage:
-`python tools/generate_model.py [--out DIR]`.
+reference robot, the paper's plate, the chosen links per segment and physics step, 30 mm
+tags): `softcbf_arm.xml`, `scene.xml`, `scene_calibration.xml`, its board
+`scene_calibration_board.json` and the tag textures `assets/tag{id}.png` (which
+`tools/generate_tags.py` writes alone). The same parameters always give the same bytes.
+Usage: `python tools/generate_model.py [--out DIR]`.
 """
 
 from __future__ import annotations
