@@ -14,7 +14,7 @@ import inspect
 from dataclasses import dataclass
 from typing import Any, Callable
 
-_MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact")
+_MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop")
 
 
 @dataclass(frozen=True)

@@ -35,9 +35,10 @@ import numpy as np
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import per_segment, reference_robot
+from controllers.params import RobotParams, per_segment, reference_robot
 from scenarios import register
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning
+from controllers.safe_set import Environment
+from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
 from softcbf_mj.metrics import contact_figures, format_table
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
@@ -91,12 +92,25 @@ def mujoco_contact(
     qp_backend: str = "native",
     seed: int = 0,
     q0_std: float = 0.0,
+    true_stiffness_scale: float = 1.0,
+    true_damping_scale: float = 1.0,
+    true_gain_scale: float = 1.0,
+    true_length_scale: float = 1.0,
+    facet_offset: float = 0.0,
+    facet_angle: float = 0.0,
     progress: bool = True,
 ) -> dict:
     """Run each tuning for `duration` s; write summary.json and one time series per tuning.
 
-    `robot` is the controller's model only; the MuJoCo arm is always the reference robot.
-    `plate_stiffness` is the true plate's (N/m), `assumed_plate_stiffness` the controller's.
+    `robot` is the controller's model only. The MuJoCo arm is the reference robot with
+    its k, d, λ and L multiplied by `true_stiffness_scale`, `true_damping_scale`,
+    `true_gain_scale` and `true_length_scale` (inertias by the length scale squared, as
+    for a rod; defaults 1: the reference robot itself). `plate_stiffness` is the true
+    plate's (N/m), `assumed_plate_stiffness` the controller's. The true plates sit on the
+    `environment` facets moved by `facet_offset` (m) along their outward normals (> 0:
+    farther from the base) and then turned by `facet_angle` (rad, counter-clockwise seen
+    from +z) about the foot of the perpendicular from the base; the controller keeps the
+    unmoved facets. Model mismatch studies vary these (softcbf_mj.study).
     """
     params = dict(locals())
     params.pop("out_dir")
@@ -104,11 +118,28 @@ def mujoco_contact(
         raise ValueError(f"duration must be > 0 s, got {duration}")
     if not math.isfinite(t0):
         raise ValueError(f"t0 must be finite, got {t0}")
+    for name in ("true_stiffness_scale", "true_damping_scale", "true_gain_scale", "true_length_scale"):
+        if not (math.isfinite(params[name]) and params[name] > 0):
+            raise ValueError(f"{name} must be > 0 (1: the reference robot), got {params[name]}")
+    if not (math.isfinite(facet_offset) and math.isfinite(facet_angle) and abs(facet_angle) < math.pi / 2):
+        raise ValueError(f"facet_offset (m) must be finite and |facet_angle| < pi/2 rad, got {facet_offset}, {facet_angle}")
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     env = safe_set.environment
+    ref = reference_robot()
+    true_robot = RobotParams(
+        lengths=ref.array("lengths") * true_length_scale, masses=ref.masses,
+        stiffness=ref.array("stiffness") * true_stiffness_scale, damping=ref.array("damping") * true_damping_scale,
+        gains=ref.array("gains") * true_gain_scale, u_min=ref.u_min, u_max=ref.u_max,
+        inertias=ref.array("inertias") * true_length_scale**2,
+    )
+    # True facets: row k of H turned by facet_angle; the line through the foot of the
+    # perpendicular (h_k/‖H_k‖ + facet_offset) n̂_k. Exact (bit-identical) at 0 and 0.
+    cos_a, sin_a = math.cos(facet_angle), math.sin(facet_angle)
+    true_H = np.column_stack((env.H[:, 0] * cos_a - env.H[:, 1] * sin_a, env.H[:, 0] * sin_a + env.H[:, 1] * cos_a))
+    true_h = (env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])) * cos_a
     plant = MujocoPlant.from_config(
-        control_dt=CONTROL_DT, robot=reference_robot(), H=env.H, h=env.h, plate_stiffness=plate_stiffness,
+        control_dt=CONTROL_DT, robot=true_robot, H=true_H, h=true_h, plate_stiffness=plate_stiffness,
         links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
     )
     if model_robot.n_segments != plant.n_segments:
@@ -121,7 +152,8 @@ def mujoco_contact(
     def figures(log: dict[str, np.ndarray]) -> dict:
         return contact_figures(log, safe_set, plant.control_dt)
 
-    summary = SummaryWriter(out_dir, "mujoco_contact", params)
+    summary = SummaryWriter(out_dir, "mujoco_contact", params,
+                            scene_record(true_robot, safe_set, plate_stiffness, Environment(true_H, true_h)))
     for tuning in tuning_list:
         controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
         run_tuning(out_dir, summary, tuning.name, plant, controller, nominal, duration, q0, progress,

@@ -12,7 +12,7 @@ from pathlib import Path
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from scenarios import register
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning
+from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
 from softcbf_mj.metrics import format_table
 from softcbf_mj.pcc_plant import PCCPlant
 from softcbf_mj.runio import SummaryWriter
@@ -65,7 +65,7 @@ def paper_sim(
     tuning_list = parse_tunings(tunings)
     nominal = SinusoidNominal.paper(robot_params.n_segments, amplitude, frequency)
     q0 = initial_configuration(robot_params.n_segments, seed, q0_std)
-    summary = SummaryWriter(out_dir, "paper_sim", params)
+    summary = SummaryWriter(out_dir, "paper_sim", params, scene_record(robot_params, safe_set, plate_stiffness))
     for tuning in tuning_list:
         plant = PCCPlant(robot_params, safe_set, control_dt=1.0 / control_rate, integrator=integrator)
         controller = CBFFilter(robot_params, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend,

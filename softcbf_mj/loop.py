@@ -17,6 +17,7 @@ import numpy as np
 
 from controllers.filter import CBFFilter, FilterResult
 from controllers.nominal import NominalController
+from controllers.safe_set import ForceSafeSet
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 
@@ -57,6 +58,61 @@ TIMESERIES_UNITS = {
 }
 
 
+class LoopRecorder:
+    """The time series of a closed loop, one row per plant step (preallocated).
+
+    Each `record` writes one row of floats and one row of flags (a single numpy call
+    each); `columns` cuts the per-key arrays (TIMESERIES_UNITS + the plant's extras) from
+    them. ρ_meas comes from the plant's measured contact force through the controller's
+    force-safe set (its ψ and n_max), ρ_pred from the controller's own estimate.
+    """
+
+    def __init__(self, n_steps: int, n_segments: int, safe_set: ForceSafeSet) -> None:
+        n, p = n_segments, len(safe_set.H_prime)
+        self.safe_set, self.n_steps, self._p = safe_set, n_steps, p
+        self._float_shapes = {"t": (), "q": (n,), "qd": (n,), "q_est": (n,), "qd_est": (n,), "segment_ends": (n + 1, 2),
+                              "u_nom": (n,), "u": (n,), "u_applied": (n,), "contact_force": (safe_set.n_facets,),
+                              "rho_pred": (), "b": (p,), "filter_us": ()}
+        self._floats = np.empty((n_steps, sum(math.prod(shape) for shape in self._float_shapes.values())))
+        self._flags = np.empty((n_steps, p + 2), dtype=bool)  # active (P), infeasible, recovery
+        self._extras: dict[str, np.ndarray] = {}
+
+    def record(self, k: int, state: PlantState, est: Estimate, result: FilterResult, filter_us: float) -> None:
+        """Row k: the plant's state, the estimate and filter result in force, and the filter's time (µs).
+
+        In a multi-rate loop the result is held between controller calls: pass
+        filter_us = NaN on the rows without a call; `infeasible` and `recovery` are then
+        recorded False, so their counts are counts of controller calls.
+        """
+        called = not math.isnan(filter_us)
+        self._floats[k] = [state.t, *state.q.tolist(), *state.qd.tolist(), *est.q.tolist(), *est.qd.tolist(),
+                           *state.segment_ends.ravel().tolist(), *result.u_nom.tolist(), *result.u.tolist(),
+                           *state.u_applied.tolist(), *state.contact_forces.tolist(), result.rho_pred,
+                           *result.b.tolist(), filter_us]
+        self._flags[k] = [*result.active.tolist(), called and result.infeasible, called and result.recovery]
+        for key, value in state.extras.items():
+            if key not in self._extras:
+                self._extras[key] = np.zeros((self.n_steps,) + np.shape(value))
+            self._extras[key][k] = value
+
+    def columns(self, n_rows: int | None = None) -> dict[str, np.ndarray]:
+        """The first `n_rows` rows (default all) as arrays by key."""
+        rows = self.n_steps if n_rows is None else n_rows
+        columns, start = {}, 0
+        for key, shape in self._float_shapes.items():
+            size = math.prod(shape)
+            columns[key] = self._floats[:rows, start : start + size].reshape((rows,) + shape).copy()
+            start += size
+        p = self._p
+        columns["tip"] = columns["segment_ends"][:, -1].copy()
+        columns["rho_meas"] = np.min(self.safe_set.margin_from_force(columns["contact_force"]), axis=-1)
+        columns["active"] = self._flags[:rows, :p].copy()
+        columns["infeasible"], columns["recovery"] = self._flags[:rows, p].copy(), self._flags[:rows, p + 1].copy()
+        log = {key: columns[key] for key in TIMESERIES_UNITS}
+        log.update({key: value[:rows].copy() for key, value in self._extras.items()})
+        return log
+
+
 def run_closed_loop(
     plant: Plant,
     controller: CBFFilter,
@@ -66,24 +122,11 @@ def run_closed_loop(
     estimator: Callable[[PlantState], Estimate] = exact_state,
     progress: Progress | None = None,
 ) -> dict[str, np.ndarray]:
-    """Run for `duration` s from rest at q0; return the time series (keys: TIMESERIES_UNITS + plant extras).
-
-    ρ_meas comes from the plant's measured contact force through the controller's
-    force-safe set (its ψ and n_max), ρ_pred from the controller's own estimate.
-    """
+    """Run for `duration` s from rest at q0; return the time series (`LoopRecorder.columns`)."""
     n_steps = int(round(duration / plant.control_dt))
     if n_steps < 1:
         raise ValueError(f"duration must cover at least one control period ({plant.control_dt} s), got {duration}")
-    safe_set = controller.safe_set
-    n, p = plant.n_segments, len(safe_set.H_prime)
-    # Each step writes one row of floats and one row of flags (a single numpy call each);
-    # the per-key arrays are cut from them at the end. Float columns, in this order:
-    float_shapes = {"t": (), "q": (n,), "qd": (n,), "q_est": (n,), "qd_est": (n,), "segment_ends": (n + 1, 2),
-                    "u_nom": (n,), "u": (n,), "u_applied": (n,), "contact_force": (safe_set.n_facets,),
-                    "rho_pred": (), "b": (p,), "filter_us": ()}
-    floats = np.empty((n_steps, sum(math.prod(shape) for shape in float_shapes.values())))
-    flags = np.empty((n_steps, p + 2), dtype=bool)  # active (P), infeasible, recovery
-    extras: dict[str, np.ndarray] = {}
+    recorder = LoopRecorder(n_steps, plant.n_segments, controller.safe_set)
     clock = time.perf_counter
     state = plant.reset(q0)
     for k in range(n_steps):
@@ -92,29 +135,10 @@ def run_closed_loop(
         t0 = clock()
         result: FilterResult = controller(np.concatenate((est.q, est.qd)), u_nom)
         filter_us = (clock() - t0) * 1e6
-        floats[k] = [state.t, *state.q.tolist(), *state.qd.tolist(), *est.q.tolist(), *est.qd.tolist(),
-                     *state.segment_ends.ravel().tolist(), *result.u_nom.tolist(), *result.u.tolist(),
-                     *state.u_applied.tolist(), *state.contact_forces.tolist(), result.rho_pred,
-                     *result.b.tolist(), filter_us]
-        flags[k] = [*result.active.tolist(), result.infeasible, result.recovery]
-        for key, value in state.extras.items():
-            if key not in extras:
-                extras[key] = np.zeros((n_steps,) + np.shape(value))
-            extras[key][k] = value
+        recorder.record(k, state, est, result, filter_us)
         state = plant.step(result.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
     if progress is not None:
         progress.close()
-    columns, start = {}, 0
-    for key, shape in float_shapes.items():
-        size = math.prod(shape)
-        columns[key] = floats[:, start : start + size].reshape((n_steps,) + shape).copy()
-        start += size
-    columns["tip"] = columns["segment_ends"][:, -1].copy()
-    columns["rho_meas"] = np.min(safe_set.margin_from_force(columns["contact_force"]), axis=-1)
-    columns["active"] = flags[:, :p].copy()
-    columns["infeasible"], columns["recovery"] = flags[:, p].copy(), flags[:, p + 1].copy()
-    log = {key: columns[key] for key in TIMESERIES_UNITS}
-    log.update(extras)
-    return log
+    return recorder.columns()

@@ -34,12 +34,17 @@ def switches_per_s(u: np.ndarray, u_nom: np.ndarray, duration: float) -> float:
 
 
 def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool, wall_s: float) -> dict[str, Any]:
-    """The SPEC §8 run fields plus extras, from a `run_closed_loop` log."""
+    """The SPEC §8 run fields plus extras, from a `LoopRecorder` log whose rows are `control_dt` s apart.
+
+    Filter times are taken over the rows with a controller call (finite `filter_us`).
+    """
     n_steps = len(log["t"])
     sim_s = n_steps * control_dt
-    filter_us = log["filter_us"]
+    filter_us = log["filter_us"][np.isfinite(log["filter_us"])]  # NaN: no controller call at that step
+    filtered = filtered and filter_us.size > 0
+    rho_pred = log["rho_pred"][np.isfinite(log["rho_pred"])]  # NaN: no estimate yet (camera loop start-up)
     return {
-        "rho_min_pred": float(np.min(log["rho_pred"])),
+        "rho_min_pred": float(np.nanmin(rho_pred)) if rho_pred.size else None,
         "rho_min_meas": float(np.min(log["rho_meas"])),
         "force_max_N": float(np.max(log["contact_force"])),
         "t_violation_s": float(np.count_nonzero(log["rho_meas"] < 0.0) * control_dt),
@@ -72,18 +77,21 @@ def contact_figures(log: Mapping[str, np.ndarray], safe_set: ForceSafeSet, contr
       spring force; `contact_switches_per_s` counts the arm touching / leaving any plate).
     Force error F_pred − F_meas over the steps where either is > 0 (RMS, max |·|, N);
     penetration bias n̂_pred − n_meas over the steps in contact (mean, max; m and % of the
-    controller's n_max), None when there is no such step.
+    controller's n_max), None when there is no such step. Steps whose barrier is NaN (no
+    estimate yet) have no prediction and are left out of both.
     """
     p = safe_set.n_facets
     rows = np.asarray(safe_set.H_prime[:p], dtype=float)
-    n_pred = np.maximum(safe_set.n_max - log["b"][:, :p] / np.hypot(rows[:, 0], rows[:, 1]), 0.0)
+    predicted = np.all(np.isfinite(log["b"][:, :p]), axis=1)  # rows with a prediction (camera loop: not before the first estimate)
+    b = np.where(predicted[:, None], log["b"][:, :p], np.inf)
+    n_pred = np.maximum(safe_set.n_max - b / np.hypot(rows[:, 0], rows[:, 1]), 0.0)
     n_meas = np.maximum(log["plate_displacement_m"], 0.0)
     f_pred, f_meas = safe_set.stiffness.force(n_pred), log["contact_force"]
-    either = (f_pred > 0) | (f_meas > 0)
+    either = ((f_pred > 0) | (f_meas > 0)) & predicted[:, None]
     f_err = (f_pred - f_meas)[either]
     contact = log["force_solver_N"] > 0
     touching = np.any(contact, axis=1)
-    bias = (n_pred - n_meas)[contact]
+    bias = (n_pred - n_meas)[contact & predicted[:, None]]
     n_max = safe_set.n_max
     out: dict[str, Any] = {
         "force_solver_max_N": float(np.max(log["force_solver_N"], initial=0.0)),
@@ -109,9 +117,14 @@ def _cell(value: Any, fmt: str, scale: float = 1.0) -> str:
     return format(value, fmt) if fmt else str(value)
 
 
-def format_table(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple]) -> str:
-    """A plain-text table: columns are (header, key, format spec) or (header, key, format spec, scale)."""
+def format_table(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple], markdown: bool = False) -> str:
+    """A plain-text (or, with `markdown`, a Markdown) table: columns are (header, key, format spec)
+    or (header, key, format spec, scale)."""
     rows = [[c[0] for c in columns]] + [[_cell(r.get(c[1]), *c[2:]) for c in columns] for r in runs]
+    if markdown:
+        lines = ["| " + " | ".join(row) + " |" for row in rows]
+        lines.insert(1, "|" + "---|" * len(columns))
+        return "\n".join(lines)
     widths = [max(len(row[i]) for row in rows) for i in range(len(columns))]
     lines = ["  ".join(c.rjust(w) for c, w in zip(row, widths)) for row in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))

@@ -1,8 +1,22 @@
 """Run outputs (SPEC §8): the output folder, summary.json and per-run time series.
 
 Layout of a run folder DIR:
-    DIR/summary.json                 {"scenario", "params", "versions", "runs": [...]}
+    DIR/config.json                  {"scenario", "params", "seed", "versions", "command",
+                                      "cwd", "started"}: written once, when the run starts
+    DIR/summary.json                 {"scenario", "params", "versions", "scene", "runs": [...]}
     DIR/timeseries/<run>.npz         one NumPy .npz archive per run (format below)
+    DIR/frames/<run>/frames.json     optional camera frames of a run (format below)
+    DIR/plots/*.png, DIR/report.md   the report (softcbf_mj.report)
+    DIR/recording.rrd                the rerun recording (softcbf_mj.recording)
+
+summary.json's optional "scene" holds the geometry a run used (written by the scenario,
+read by the report and the recording): "segment_lengths_m" (N,) of the true arm;
+"facets" {"H" (P, 2), "h" (P,) m}: the controller's free space N; "plates" {"H", "h"}:
+the true plates' surfaces at rest (equal to "facets" unless the scenario moves them);
+"force_safe_set" {"H_prime" (P', 2), "h_prime" (P',), "is_vertex_correction" (P',),
+"row_scaling"}: the controller's P; "n_max_m", "f_max_N"; "stiffness" {"law":
+"LinearStiffness" | "PowerLawStiffness", and that law's fields}: the controller's ψ;
+"plate_stiffness_N_per_m": the true plates' spring.
 
 Time-series format: a compressed `.npz` (numpy.savez_compressed) holding one
 array per signal, the first axis the control step k = 0..T-1; `t` (T,) s is always
@@ -10,23 +24,43 @@ present. Units are SI, pressures in hPa, angles in rad; the keys and their units
 listed in the archive's `units` entry (a JSON string). Read with
 `numpy.load(path)` or `softcbf_mj.runio.load_timeseries(path)`.
 
+Camera frames (`save_frames_index` / `load_frames_index`): DIR/frames/<run>/ holds the
+images (PNG or JPEG, any names) and frames.json = {"frames": [{"t": s, "file": name
+relative to that folder, "detections": [{"id": int, "corners": [[x, y] × 4] px}]}]},
+times ascending, corners in OpenCV's image convention (x right, y down) and the order of
+`perception.detect` (top-left, top-right, bottom-right, bottom-left of the upright tag).
+
 summary.json is rewritten (atomically) after every run, so an interrupted scenario
 leaves a readable folder holding every finished run.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import datetime
 import json
 import os
 import platform
 import re
+import shlex
 import shutil
+import sys
 import tempfile
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+
+from controllers.safe_set import LinearStiffness, PowerLawStiffness, StiffnessLaw
+
+CONFIG_FILE = "config.json"
+SUMMARY_FILE = "summary.json"
+TIMESERIES_DIR = "timeseries"
+FRAMES_DIR = "frames"
+FRAMES_INDEX = "frames.json"
+STIFFNESS_LAWS = {law.__name__: law for law in (LinearStiffness, PowerLawStiffness)}
 
 
 class OutputDirError(ValueError):
@@ -64,6 +98,9 @@ def versions() -> dict[str, str | None]:
         "numpy": _version("numpy"),
         "qpsolvers": _version("qpsolvers"),
         "daqp": _version("daqp"),
+        "rerun_sdk": _version("rerun-sdk"),
+        "matplotlib": _version("matplotlib"),
+        "opencv": _version("opencv-python-headless"),
         "platform": platform.platform(),
     }
 
@@ -104,7 +141,7 @@ def safe_name(text: str) -> str:
 
 def save_timeseries(out_dir: Path, run: str, series: Mapping[str, np.ndarray], units: Mapping[str, str]) -> Path:
     """Write one run's time series to DIR/timeseries/<run>.npz and return its path."""
-    folder = Path(out_dir) / "timeseries"
+    folder = Path(out_dir) / TIMESERIES_DIR
     folder.mkdir(exist_ok=True)
     lengths = {k: len(v) for k, v in series.items()}
     if len(set(lengths.values())) != 1:
@@ -127,14 +164,154 @@ def load_timeseries(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
     return arrays, units
 
 
-class SummaryWriter:
-    """Builds DIR/summary.json run by run; each `add_run` rewrites the file."""
+def write_config(out_dir: Path, scenario: str, params: Mapping[str, Any]) -> dict[str, Any]:
+    """Write DIR/config.json: every parameter, the seed (params["seed"], None without one),
+    the versions, the command line (this process's, as the shell received it), the working folder
+    and the start time (UTC, ISO 8601); return what it wrote."""
+    config = {
+        "scenario": scenario,
+        "params": dict(params),
+        "seed": params.get("seed"),
+        "versions": versions(),
+        "command": shlex.join(sys.orig_argv),
+        "cwd": os.getcwd(),
+        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+    write_json(Path(out_dir) / CONFIG_FILE, config)
+    return config
 
-    def __init__(self, out_dir: Path, scenario: str, params: Mapping[str, Any]) -> None:
-        self.path = Path(out_dir) / "summary.json"
-        self.data: dict[str, Any] = {"scenario": scenario, "params": dict(params), "versions": versions(), "runs": []}
+
+class SummaryWriter:
+    """Builds DIR/summary.json run by run; each `add_run` rewrites the file.
+
+    Construction also writes DIR/config.json (`write_config`). `scene` (see the module
+    docstring) is stored as summary.json's "scene" when given.
+    """
+
+    def __init__(self, out_dir: Path, scenario: str, params: Mapping[str, Any],
+                 scene: Mapping[str, Any] | None = None) -> None:
+        self.path = Path(out_dir) / SUMMARY_FILE
+        write_config(out_dir, scenario, params)
+        self.data: dict[str, Any] = {"scenario": scenario, "params": dict(params), "versions": versions()}
+        if scene is not None:
+            self.data["scene"] = _jsonable(scene)
+        self.data["runs"] = []
         write_json(self.path, self.data)
 
     def add_run(self, run: Mapping[str, Any]) -> None:
         self.data["runs"].append(dict(run))
         write_json(self.path, self.data)
+
+
+def stiffness_to_json(law: StiffnessLaw) -> dict[str, Any]:
+    """ψ as {"law": class name, **fields}, e.g. {"law": "LinearStiffness", "k": 11.16}."""
+    name = type(law).__name__
+    if name not in STIFFNESS_LAWS:
+        raise ValueError(f"stiffness law {name} cannot be recorded; known: {', '.join(STIFFNESS_LAWS)}")
+    return {"law": name, **dataclasses.asdict(law)}
+
+
+def stiffness_from_json(data: Mapping[str, Any]) -> StiffnessLaw:
+    """The inverse of `stiffness_to_json`."""
+    fields = dict(data)
+    name = fields.pop("law", None)
+    if name not in STIFFNESS_LAWS:
+        raise ValueError(f"stiffness law must be one of {', '.join(STIFFNESS_LAWS)}, got {name!r}")
+    return STIFFNESS_LAWS[name](**fields)
+
+
+class RunFolderError(ValueError):
+    """A folder is not a readable run folder (no summary.json, a missing time series...)."""
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise RunFolderError(f"{path} is not valid JSON ({exc})") from None
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """A run folder as written by a scenario: summary.json, config.json (None in folders
+    written before it existed) and the time series of every finished run."""
+
+    path: Path
+    summary: dict[str, Any]
+    config: dict[str, Any] | None
+
+    @property
+    def runs(self) -> list[dict[str, Any]]:
+        return self.summary["runs"]
+
+    @property
+    def labels(self) -> list[str]:
+        return [run["tuning"] for run in self.runs]
+
+    @property
+    def scene(self) -> dict[str, Any] | None:
+        return self.summary.get("scene")
+
+    def timeseries(self, label: str) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+        """The time series of run `label`: (arrays by key, units by key)."""
+        return load_timeseries(self._timeseries_path(label))
+
+    def frames(self, label: str) -> list[dict[str, Any]]:
+        """Camera frames of run `label` (`load_frames_index`); [] when it has none."""
+        return load_frames_index(self.path, label)
+
+    def _timeseries_path(self, label: str) -> Path:
+        rows = [run for run in self.runs if run["tuning"] == label]
+        if not rows:
+            raise RunFolderError(f"{self.path} has no run {label!r}; runs: {', '.join(self.labels) or 'none'}")
+        path = self.path / rows[0].get("timeseries", f"{TIMESERIES_DIR}/{safe_name(label)}.npz")
+        if not path.is_file():
+            raise RunFolderError(f"time series of run {label!r} is missing: {path}")
+        return path
+
+
+def read_run_folder(path: str | Path) -> RunFolder:
+    """Open a run folder; errors name what is missing and what a run folder holds."""
+    folder = Path(path)
+    summary_path = folder / SUMMARY_FILE
+    if not summary_path.is_file():
+        raise RunFolderError(f"{folder} is not a run folder: it has no {SUMMARY_FILE} "
+                             "(give a folder written by `softcbf run` or `python -m scenarios`)")
+    summary = _read_json(summary_path)
+    for key in ("scenario", "params", "runs"):
+        if key not in summary:
+            raise RunFolderError(f"{summary_path} lacks {key!r} (SPEC §8: scenario, params, versions, runs)")
+    config_path = folder / CONFIG_FILE
+    config = _read_json(config_path) if config_path.is_file() else None
+    return RunFolder(folder, summary, config)
+
+
+def frames_folder(out_dir: Path, run: str) -> Path:
+    """DIR/frames/<run>/: where a run's camera images and frames.json go."""
+    return Path(out_dir) / FRAMES_DIR / safe_name(run)
+
+
+def save_frames_index(out_dir: Path, run: str, frames: list[Mapping[str, Any]]) -> Path:
+    """Write frames.json of run `run` (format in the module docstring) after checking every
+    entry: t finite and ascending, the image file present, four [x, y] corners per tag."""
+    folder = frames_folder(out_dir, run)
+    last = -np.inf
+    for i, frame in enumerate(frames):
+        t = float(frame["t"])
+        if not (np.isfinite(t) and t >= last):
+            raise ValueError(f"frame {i}: t must be finite and ascending, got {t} after {last}")
+        last = t
+        if not (folder / frame["file"]).is_file():
+            raise ValueError(f"frame {i}: image {folder / frame['file']} does not exist; write it before the index")
+        for det in frame.get("detections", []):
+            if np.shape(det["corners"]) != (4, 2):
+                raise ValueError(f"frame {i}, tag {det['id']}: corners must be 4 [x, y] pairs, got shape {np.shape(det['corners'])}")
+    path = folder / FRAMES_INDEX
+    write_json(path, {"frames": [dict(f) for f in frames]})
+    return path
+
+
+def load_frames_index(out_dir: Path, run: str) -> list[dict[str, Any]]:
+    """Frames of run `run` from DIR/frames/<run>/frames.json, [] when there is none."""
+    path = frames_folder(out_dir, run) / FRAMES_INDEX
+    return _read_json(path)["frames"] if path.is_file() else []

@@ -9,6 +9,7 @@ import pytest
 
 from scenarios import get, registry
 from scenarios.__main__ import main
+from scenarios.common import data_only
 from softcbf_mj.runio import load_timeseries
 
 SPEC_RUN_FIELDS = {
@@ -49,6 +50,15 @@ def test_paper_sim_writes_the_spec_outputs(tmp_path):
     assert summary["params"]["duration"] == 2.0 and summary["params"]["amplitude"] == 150.0
     assert summary["params"]["tunings"] == "None,Low"
     assert {"softcbf_mj", "mujoco", "python"} <= set(summary["versions"])
+    config = json.loads((out_dir / "config.json").read_text(encoding="utf-8"))
+    assert config["params"] == summary["params"] and config["seed"] == 0
+    assert "-m scenarios paper_sim --out" in config["command"]
+    scene = summary["scene"]
+    assert scene["n_max_m"] == pytest.approx(0.16 / 11.16, rel=1e-15) and scene["f_max_N"] == 0.16
+    assert scene["facets"] == {"H": [[0.36, 1.0]], "h": [0.15]} and scene["plates"] == scene["facets"]
+    assert scene["stiffness"] == {"law": "LinearStiffness", "k": 11.16} and scene["segment_lengths_m"] == [0.122, 0.122]
+    for name in ("recording.rrd", "report.md", "plots/rho.png"):
+        assert (out_dir / name).stat().st_size > 0
     assert [r["tuning"] for r in summary["runs"]] == ["None", "Low"]
     for run in summary["runs"]:
         for key, kind in SPEC_RUN_FIELDS.items():
@@ -72,9 +82,9 @@ def test_existing_output_folder_is_refused(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["nosuch", "--out", "x"], "unknown scenario 'nosuch'; available: mujoco_contact, paper_sim"),
+        (["nosuch", "--out", "x"], "unknown scenario 'nosuch'; available: camera_loop, mujoco_contact, paper_sim"),
         (["paper_sim", "--out", "{out}", "--tunings", "Medium"], "unknown tuning 'Medium'; valid: None, Low, High, HW-Low, HW-High"),
-        (["paper_sim", "--out", "{out}", "--duration", "abc"], "--duration: could not convert string to float"),
+        (["paper_sim", "--out", "{out}", "--duration", "abc"], "--duration: expected float, got 'abc'"),
         (["paper_sim", "--out", "{out}", "--pressure-limits", "maybe"], "--pressure-limits: expected one of"),
         (["paper_sim", "--out", "{out}", "--speed", "3"], "unknown parameter(s) --speed 3 for scenario paper_sim; valid: --duration"),
         (["paper_sim", "--out", "{out}", "--duration", "-1"], "duration must be > 0 s, got -1.0"),
@@ -82,11 +92,11 @@ def test_existing_output_folder_is_refused(tmp_path):
         (["paper_sim"], "--out DIR is required"),
     ],
 )
-def test_bad_arguments_name_the_parameter_and_valid_values(tmp_path, args, message):
+def test_bad_arguments_name_the_parameter_and_valid_values(tmp_path, capsys, args, message):
     args = [a.replace("{out}", str(tmp_path / "o")) for a in args]
-    res = run_cli(*args)
-    assert res.returncode == 2
-    assert message in res.stderr, res.stderr
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # nothing is left that would refuse the corrected command
 
 
 def test_same_seed_same_arrays(tmp_path):
@@ -94,7 +104,9 @@ def test_same_seed_same_arrays(tmp_path):
     scenario = get("paper_sim")
     for name in ("a", "b"):
         (tmp_path / name).mkdir()
-        scenario.run(tmp_path / name, **params)
+        with data_only():
+            scenario.run(tmp_path / name, **params)
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["config.json", "summary.json", "timeseries"]
     a, _ = load_timeseries(tmp_path / "a" / "timeseries" / "Low.npz")
     b, _ = load_timeseries(tmp_path / "b" / "timeseries" / "Low.npz")
     for key in ("q", "qd", "u", "u_nom", "rho_pred", "contact_force"):

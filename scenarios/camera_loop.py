@@ -1,0 +1,221 @@
+"""Scenario `camera_loop`: the paper's hardware experiment (Table II) in MuJoCo, the controller fed by the camera.
+
+The ground truth is `MujocoPlant` as in `mujoco_contact` (the discretised reference rod
+and the paper's plate). The controller under test sees the arm only through the
+overhead camera: MuJoCo's offscreen renders of the arm's AprilTags go through the
+hardware's pipeline (`perception`: detection, image-to-plane map, angles from tag
+orientations, q̇ by finite differences), with the hardware's timing
+(`softcbf_mj.camera_loop`: 12.8 frames/s, a `latency` from exposure to estimate, the
+CBF filter at 10 Hz with zero-order hold, and the hardware's safe action — hold, then
+vent — when the estimate goes stale). Tunings default to the paper's hardware ones:
+None, HW-Low (γ = 100) and HW-High (γ = 10).
+
+The image-to-plane map comes from `calibration`: "board" (default, as on the hardware:
+the calibration scene's tag board is rendered once and `perception.plane.calibrate`
+fits the map), "truth" (the exact map of MuJoCo's pinhole camera) or a JSON file
+written by tools/calibrate_camera.py.
+
+Per run, besides the SPEC §8 fields (ρ_meas from the plate's spring force) and the
+contact figures of `mujoco_contact`, summary.json holds the perception figures: q error
+of complete frames against the true q at exposure (RMS and max, rad), detection rate
+(complete frames / frames taken), frames dropped, render and detection wall time per
+frame (median, ms), and the loop latency: the age of the estimate at the controller's
+calls (capture → command, mean and max, s). Time series: the tick-rate series of
+`mujoco_contact` plus one per-frame series `<run>_frames.npz` (`FRAME_UNITS`); a few
+frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from controllers.filter import CBFFilter
+from controllers.nominal import SinusoidNominal
+from controllers.params import per_segment, reference_robot
+from perception.detect import TagDetector
+from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
+from perception.plane import PlaneCalibration, calibrate
+from perception.tags import arm_tag_ids
+from scenarios import register
+from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, save_run, scene_record
+from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
+from softcbf_mj.metrics import contact_figures, format_table
+from softcbf_mj.model_builder import (
+    DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig, build_model, calibration_board,
+)
+from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.progress import Progress
+from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration, tag_plane_z
+from softcbf_mj.runio import SummaryWriter, frames_folder, safe_name, save_frames_index, save_timeseries
+
+TICK = 1e-3  # s, the plant's tick: exposures and deliveries fall on it
+
+TABLE = (
+    ("tuning", "tuning", ""),
+    ("rho_pred", "rho_min_pred", ".4f"),
+    ("rho_meas", "rho_min_meas", ".4f"),
+    ("F_max [N]", "force_max_N", ".4f"),
+    ("t_viol [s]", "t_violation_s", ".2f"),
+    ("q err rms [deg]", "q_err_rms_rad", ".3f", 180 / math.pi),
+    ("q err max [deg]", "q_err_max_rad", ".3f", 180 / math.pi),
+    ("detected", "detection_rate", ".3f"),
+    ("latency mean [s]", "loop_latency_mean_s", ".3f"),
+    ("latency max [s]", "loop_latency_max_s", ".3f"),
+    ("render [ms]", "render_ms_median", ".1f"),
+    ("detect [ms]", "detect_ms_median", ".1f"),
+    ("hold/vent", "safe_action_calls", "d"),
+    ("infeasible", "infeasible_steps", "d"),
+    ("RTF", "realtime_factor", ".2f"),
+)
+
+
+def _calibration(spec: str, config: ArmModelConfig, width: int, height: int, detector: TagDetector) -> PlaneCalibration:
+    """The image-to-plane map: "board" (fit from a render of the calibration board), "truth", or a JSON file."""
+    if spec == "truth":
+        model = build_model(config)
+        import mujoco
+
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        return ground_truth_calibration(model, data, "overhead", width, height, tag_plane_z(model, data))
+    if spec == "board":
+        import mujoco
+
+        model = build_model(config, board=True)
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        with OffscreenRenderer(model, "overhead", width, height) as renderer:
+            image = renderer.render(data)
+        board = calibration_board(config)
+        return calibrate(TagDetector(detector.backend).detect(image), board)
+    path = Path(spec)
+    if not path.is_file():
+        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {spec!r} (no such file)")
+    return PlaneCalibration.load(path)
+
+
+def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarray]) -> dict:
+    taken = ~frames["dropped"]
+    complete = frames["complete"]
+    err = (frames["q_camera"] - frames["q_true"])[complete]
+    ages = calls["age_s"][np.isfinite(calls["age_s"])]
+    return {
+        "frames": int(len(frames["t"])),
+        "frames_dropped": int(np.count_nonzero(frames["dropped"])),
+        "detection_rate": float(np.count_nonzero(complete) / max(1, np.count_nonzero(taken))),
+        "q_err_rms_rad": float(np.sqrt(np.mean(err**2))) if err.size else None,
+        "q_err_max_rad": float(np.max(np.abs(err))) if err.size else None,
+        "render_ms_median": float(np.median(frames["render_ms"][taken])) if np.any(taken) else None,
+        "detect_ms_median": float(np.median(frames["detect_ms"][taken])) if np.any(taken) else None,
+        "loop_latency_mean_s": float(np.mean(ages)) if ages.size else None,
+        "loop_latency_max_s": float(np.max(ages)) if ages.size else None,
+        "safe_action_calls": int(np.count_nonzero(np.isin(calls["action"], ("hold", "vent")))),
+    }
+
+
+@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop")
+def camera_loop(
+    out_dir: Path,
+    *,
+    duration: float = 100.0,
+    tunings: str = "None,HW-Low,HW-High",
+    amplitude: float = 80.0,
+    frequency: float = 0.01,
+    t0: float = 0.0,
+    pressure_limits: bool = True,
+    robot: str = "reference",
+    environment: str = "paper",
+    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
+    tau_p: float = DEFAULT_TAU_P,
+    physics_dt: float = DEFAULT_PHYSICS_DT,
+    plate_stiffness: float = 11.16,
+    assumed_plate_stiffness: float = 11.16,
+    f_max: float = 0.16,
+    row_scaling: str = "paper",
+    qp_backend: str = "native",
+    frame_rate: float = 12.8,
+    control_rate: float = 10.0,
+    latency: float = CameraTiming.latency,
+    drop_rate: float = 0.0,
+    pixel_noise: float = 0.0,
+    hold_s: float = CameraTiming.hold_s,
+    max_hold_s: float = DEFAULT_MAX_HOLD_S,
+    qd_filter_tau: float = 0.0,
+    width: int = 1280,
+    height: int = 720,
+    calibration: str = "board",
+    detector: str = "opencv",
+    saved_frames_hz: float = 0.5,
+    seed: int = 0,
+    q0_std: float = 0.0,
+    progress: bool = True,
+) -> dict:
+    """Run each tuning for `duration` s through the camera path; write summary.json, time series and frames."""
+    params = dict(locals())
+    params.pop("out_dir")
+    if not duration > 0:
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    if not (math.isfinite(saved_frames_hz) and saved_frames_hz >= 0):
+        raise ValueError(f"saved_frames_hz must be finite and >= 0 Hz (0: none), got {saved_frames_hz}")
+    timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
+    timing.ticks_per_control(TICK)
+    model_robot = load_robot(robot)
+    safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
+    env = safe_set.environment
+    true_robot = reference_robot()
+    config = ArmModelConfig(robot=true_robot, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
+                            links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
+    plant = MujocoPlant(build_model(config), TICK)
+    if model_robot.n_segments != plant.n_segments:
+        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
+    n = plant.n_segments
+    tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
+    plane = _calibration(calibration, config, width, height, tag_detector)
+    nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
+    q0 = initial_configuration(n, seed, q0_std)
+    save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
+
+    summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(true_robot, safe_set, plate_stiffness))
+    with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
+        for tuning in parse_tunings(tunings):
+            label = tuning.name
+            controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
+            estimator = ArmAngleEstimator(n, plane, config.tag_size, max_hold_s=max_hold_s, qd_filter_tau=qd_filter_tau)
+            saved: list[dict] = []
+            folder = frames_folder(out_dir, label)
+
+            def keep_frame(j: int, t: float, image: np.ndarray, detections: list) -> None:
+                if not save_every or j % save_every:
+                    return
+                folder.mkdir(parents=True, exist_ok=True)
+                name = f"frame_{j:06d}.jpg"
+                cv2.imwrite(str(folder / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+                saved.append({"t": t, "file": name,
+                              "detections": [{"id": d.tag_id, "corners": d.corners.tolist()} for d in detections]})
+
+            bar = Progress(f"camera_loop {label}", int(round(duration / TICK)), enabled=progress, unit_s=TICK)
+            start = time.perf_counter()
+            log, frames, calls = run_camera_loop(plant, lambda: renderer.render(plant.data), tag_detector, estimator,
+                                                 controller, nominal, duration, q0, timing, seed, keep_frame, bar)
+            wall = time.perf_counter() - start
+            if saved:
+                save_frames_index(out_dir, label, saved)
+            frames_file = save_timeseries(out_dir, f"{label}_frames", frames, FRAME_UNITS)
+
+            def figures(series: dict[str, np.ndarray]) -> dict:
+                out = contact_figures(series, safe_set, TICK)
+                out.update(_perception_figures(frames, calls))
+                out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
+                return out
+
+            save_run(out_dir, summary, label, log, wall, TICK, controller.enabled, figures, EXTRAS_UNITS)
+    print(f"camera_loop: {duration:g} s, camera {width}x{height} at {frame_rate:g} fps, loop {control_rate:g} Hz, "
+          f"latency {latency * 1e3:g} ms, drop rate {drop_rate:g}, pixel noise {pixel_noise:g}, calibration {calibration!r}, "
+          f"F_max {f_max:g} N; outputs in {out_dir}")
+    print(format_table(summary.data["runs"], TABLE))
+    return summary.data

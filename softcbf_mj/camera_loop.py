@@ -1,0 +1,243 @@
+"""The camera in the loop (SPEC §7, paper §VI): plant → camera → AprilTag pipeline → controller, each at its own rate.
+
+Time runs on the plant's tick grid, Δ = `plant.control_dt` (s); the command is held
+(zero-order hold) between controller calls, the physics steps at its own rate inside
+each tick. At tick k (t = k·Δ), in this order:
+
+1. Exposure: when t reaches the next exposure time j / `frame_rate` (so exposures lie
+   within one tick after the ideal times), frame j is lost with probability
+   `drop_rate` (seeded); otherwise the plant's current state is rendered, Gaussian
+   noise of `pixel_noise` grey levels is added, and the tags are detected. The
+   detections become available `latency` s after the exposure (the time the
+   hardware's pipeline needs from exposure to estimate).
+2. Delivery: detections that are available by t reach the estimator in capture order
+   (`ArmAngleEstimator.update(t_capture, detections)`).
+3. Control, every round(1 / (`control_rate` Δ)) ticks: the estimator's held estimate
+   at t (`query(t)`) and u_nom(t) go to the CBF filter; the safety monitor
+   (`hardware.safety.SafetyMonitor`, the hardware mode's) turns the result into the
+   command: RUN (the filter's u), HOLD (the last command, while the estimate is
+   stale) or VENT (u = 0, latched, once the hold has lasted `hold_s`). Until the first
+   valid estimate arrives the arm is vented without latching (start-up, as on the
+   hardware).
+4. The plant holds the command for one tick.
+
+The loop records one row per tick (`LoopRecorder`: q, q̂ in force, u_nom, u, forces,
+ρ_pred of the last controller call, filter time on ticks with a call, NaN elsewhere)
+and one row per frame (`FrameLog`: exposure time, whether it was dropped, the tags
+seen, the true q at exposure and the q the frame gave, wall time of render and detection).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from controllers.filter import CBFFilter, FilterResult
+from controllers.nominal import NominalController
+from hardware.safety import SafeAction, SafetyFlags, SafetyMonitor
+from perception.detect import Detection, TagDetector
+from perception.estimator import ArmAngleEstimator
+from softcbf_mj.loop import Estimate, LoopRecorder
+from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.progress import Progress
+
+FRAME_UNITS = {
+    "t": "s (exposure)",
+    "dropped": "bool",
+    "complete": "bool (every segment tag seen, the estimator took the frame)",
+    "n_tags": "1",
+    "q_true": "rad (at exposure)",
+    "q_camera": "rad (NaN: incomplete frame)",
+    "render_ms": "ms (wall)",
+    "detect_ms": "ms (wall)",
+}
+
+
+@dataclass(frozen=True)
+class CameraTiming:
+    """Rates and imperfections of the camera path (defaults: the paper's hardware, SPEC §7).
+
+    frame_rate (Hz), control_rate (Hz), latency (s, exposure → detections available),
+    drop_rate (fraction of frames lost, [0, 1)), pixel_noise (grey levels, std of
+    Gaussian image noise), hold_s (s, how long the safety monitor holds the last
+    command on a stale estimate before it vents).
+    """
+
+    frame_rate: float = 12.8
+    control_rate: float = 10.0
+    latency: float = 0.03
+    drop_rate: float = 0.0
+    pixel_noise: float = 0.0
+    hold_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("frame_rate", "control_rate"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0 Hz, got {value}")
+        if not (math.isfinite(self.latency) and self.latency >= 0):
+            raise ValueError(f"latency must be finite and >= 0 s, got {self.latency}")
+        if not 0 <= self.drop_rate < 1:
+            raise ValueError(f"drop_rate must be in [0, 1), got {self.drop_rate}")
+        if not (math.isfinite(self.pixel_noise) and self.pixel_noise >= 0):
+            raise ValueError(f"pixel_noise must be finite and >= 0 grey levels, got {self.pixel_noise}")
+        if not (math.isfinite(self.hold_s) and self.hold_s >= 0):
+            raise ValueError(f"hold_s must be finite and >= 0 s, got {self.hold_s}")
+
+    def ticks_per_control(self, tick: float) -> int:
+        """Control period in plant ticks; refuses a period that is not a whole number of ticks."""
+        ratio = 1.0 / (self.control_rate * tick)
+        ticks = int(round(ratio))
+        if ticks < 1 or abs(ratio - ticks) > 1e-9 * ratio:
+            raise ValueError(
+                f"the control period 1/{self.control_rate:g} Hz must be a whole number of plant ticks of {tick:g} s "
+                f"(got {ratio:.6g}); choose a control_rate that divides 1/{tick:g} Hz or a smaller tick"
+            )
+        return ticks
+
+
+class FrameLog:
+    """Per-frame records (keys and units: FRAME_UNITS), appended as frames are taken."""
+
+    def __init__(self, n_segments: int) -> None:
+        self.n_segments = n_segments
+        self._rows: list[dict] = []
+
+    def add(self, t: float, q_true: np.ndarray, dropped: bool = False, n_tags: int = 0,
+            render_ms: float = 0.0, detect_ms: float = 0.0) -> int:
+        """Append a frame exposed at t (s); return its row."""
+        self._rows.append({"t": t, "dropped": dropped, "complete": False, "n_tags": n_tags, "q_true": q_true.copy(),
+                           "q_camera": np.full(self.n_segments, np.nan), "render_ms": render_ms, "detect_ms": detect_ms})
+        return len(self._rows) - 1
+
+    def complete(self, row: int, q_camera: np.ndarray) -> None:
+        """The estimator took frame `row` and got q_camera (rad)."""
+        self._rows[row]["complete"] = True
+        self._rows[row]["q_camera"] = np.array(q_camera, dtype=float)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        n = self.n_segments
+        shapes = {"q_true": (0, n), "q_camera": (0, n)}
+        return {key: np.array([r[key] for r in self._rows]) if self._rows else np.zeros(shapes.get(key, (0,)))
+                for key in FRAME_UNITS}
+
+
+FrameHook = Callable[[int, float, np.ndarray, list[Detection]], None]
+
+
+def run_camera_loop(
+    plant: MujocoPlant,
+    render: Callable[[], np.ndarray],
+    detector: TagDetector,
+    estimator: ArmAngleEstimator,
+    controller: CBFFilter,
+    nominal: NominalController,
+    duration: float,
+    q0: np.ndarray,
+    timing: CameraTiming = CameraTiming(),
+    seed: int = 0,
+    frame_hook: FrameHook | None = None,
+    progress: Progress | None = None,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Run for `duration` s from rest at q0; return (per-tick time series, per-frame log, per-call log).
+
+    The per-call log has, for each controller tick: `t` (s), `age_s` (age of the estimate
+    used, s; NaN before the first) and `action` ("wait": no estimate yet, vented;
+    "run", "hold", "vent": the safety monitor's decision).
+
+    `render()` returns the camera image (H, W, 3) uint8 of the plant's current state;
+    `frame_hook(j, t, image, detections)` sees every frame that was taken (e.g. to save
+    some). The estimator must be fresh (no frame yet).
+    """
+    tick = plant.control_dt
+    n_ticks = int(round(duration / tick))
+    if n_ticks < 1:
+        raise ValueError(f"duration must cover at least one plant tick ({tick} s), got {duration}")
+    per_control = timing.ticks_per_control(tick)
+    n = plant.n_segments
+    rng = np.random.default_rng(seed)
+    safety = SafetyMonitor(n, hold_s=timing.hold_s)
+    recorder = LoopRecorder(n_ticks, n, controller.safe_set)
+    frames = FrameLog(n)
+    pending: list[tuple[float, float, int, list[Detection]]] = []  # (ready, t_capture, row, detections)
+    nan_p = np.full(len(controller.safe_set.H_prime), np.nan)
+    result: FilterResult | None = None
+    u = np.zeros(n)
+    next_frame = 0
+    started = False
+    calls: list[tuple[float, float, str]] = []
+    clock = time.perf_counter
+
+    state = plant.reset(q0)
+    for k in range(n_ticks):
+        t = state.t
+        # 1. exposure
+        if t >= next_frame / timing.frame_rate - 1e-9 * tick:
+            j = next_frame
+            next_frame += 1
+            if timing.drop_rate > 0 and rng.random() < timing.drop_rate:
+                frames.add(t, state.q, dropped=True)
+            else:
+                c0 = clock()
+                image = render()
+                c1 = clock()
+                if timing.pixel_noise > 0:
+                    noisy = image.astype(np.float32) + rng.normal(0.0, timing.pixel_noise, image.shape).astype(np.float32)
+                    image = np.clip(noisy, 0, 255).astype(np.uint8)
+                detections = detector.detect(image)
+                c2 = clock()
+                row = frames.add(t, state.q, n_tags=len(detections), render_ms=(c1 - c0) * 1e3, detect_ms=(c2 - c1) * 1e3)
+                pending.append((t + timing.latency, t, row, detections))
+                if frame_hook is not None:
+                    frame_hook(j, t, image, detections)
+        # 2. delivery
+        while pending and pending[0][0] <= t + 1e-9 * tick:
+            _, t_capture, row, detections = pending.pop(0)
+            est = estimator.update(t_capture, detections)
+            if est.valid and est.t == t_capture and est.frames_missed == 0:
+                frames.complete(row, est.q)
+        # 3. control
+        filter_us = math.nan
+        est = estimator.query(t)
+        if k % per_control == 0:
+            q_hat, qd_hat = (est.q, est.qd) if est.valid else (np.zeros(n), np.zeros(n))
+            u_nom = np.asarray(nominal(t, q_hat, qd_hat), dtype=float)
+            started = started or (est.valid and not est.stale)
+            if not started:
+                u = np.zeros(n)
+                result = _no_estimate_result(u, u_nom, nan_p)
+                calls.append((t, math.nan, "wait"))
+            else:
+                command = None
+                if not est.stale:
+                    c0 = clock()
+                    result = controller(np.concatenate((est.q, est.qd)), u_nom)
+                    filter_us = (clock() - c0) * 1e6
+                    command = result.u
+                decision = safety.step(t, command, SafetyFlags(perception_stale=est.stale))
+                u = decision.u
+                calls.append((t, est.age_s, decision.action.value))
+                if result is None or decision.action is not SafeAction.RUN:
+                    result = replace(result or _no_estimate_result(u, u_nom, nan_p), u=u, u_nom=u_nom, action=decision.action.value)
+        recorder.record(k, state, Estimate(t, np.asarray(est.q), np.asarray(est.qd)), result, filter_us)
+        state = plant.step(u)
+        if progress is not None and k % 500 == 0:
+            progress.update(k)
+    if progress is not None:
+        progress.close()
+    call_t, call_age, call_action = zip(*calls) if calls else ((), (), ())
+    call_log = {"t": np.array(call_t, dtype=float), "age_s": np.array(call_age, dtype=float),
+                "action": np.array(call_action, dtype="U4")}
+    return recorder.columns(), frames.columns(), call_log
+
+
+def _no_estimate_result(u: np.ndarray, u_nom: np.ndarray, nan_p: np.ndarray) -> FilterResult:
+    """The record of a tick without a controller result: no prediction, nothing active."""
+    return FilterResult(
+        u=u, u_nom=u_nom, b=nan_p, B=nan_p, constraint=nan_p, active=np.zeros(len(nan_p), bool),
+        infeasible=False, recovery=False, action="vent", rho_pred=math.nan, solve_us=0.0, slack=0.0,
+    )

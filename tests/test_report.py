@@ -1,0 +1,120 @@
+"""Reports (softcbf_mj.report): plots of the expected size that are not blank, the Markdown
+table, and the drawing helpers the recording shares (boundaries, arcs, predicted force)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from controllers.pcc import segment_ends
+from controllers.safe_set import LinearStiffness
+from scenarios import get
+from softcbf_mj.report import (
+    ARC_CHORDS,
+    DPI,
+    FIGURE_SIZES_IN,
+    Scene,
+    arm_polyline,
+    boundary_segments,
+    predicted_force,
+    write_report,
+)
+from softcbf_mj.runio import RunFolderError, read_run_folder
+
+RUN = dict(duration=0.5, tunings="None,Low", amplitude=150.0, frequency=0.5, progress=False)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    get("paper_sim").run(out, **RUN)
+    return out
+
+
+def test_plots_have_the_stated_size_and_are_not_blank(run_dir):
+    for name, (w_in, h_in) in FIGURE_SIZES_IN.items():
+        image = imread(run_dir / "plots" / f"{name}.png")
+        assert image.shape[:2] == (round(h_in * DPI), round(w_in * DPI)), name
+        grey = image[..., :3].mean(axis=2)
+        # drawn lines and text: at least 2 % of the pixels are clearly darker than the white background
+        assert np.mean(grey < 0.8) > 0.02, name
+        assert len(np.unique(grey)) > 20, name  # anti-aliased lines and text, not a few flat fills
+
+
+def test_rebuilding_gives_the_same_files_without_touching_the_data(run_dir):
+    summary = (run_dir / "summary.json").read_bytes()
+    series = (run_dir / "timeseries" / "Low.npz").read_bytes()
+    (run_dir / "report.md").unlink()
+    for png in (run_dir / "plots").glob("*.png"):
+        png.unlink()
+    files = write_report(run_dir)
+    assert set(files) == {*FIGURE_SIZES_IN, "report"} and all(p.is_file() for p in files.values())
+    assert (run_dir / "summary.json").read_bytes() == summary
+    assert (run_dir / "timeseries" / "Low.npz").read_bytes() == series
+    assert not list(run_dir.rglob(".*tmp*"))
+
+
+def test_markdown_table_holds_every_run_with_its_figures(run_dir):
+    text = (run_dir / "report.md").read_text(encoding="utf-8")
+    runs = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))["runs"]
+    header = next(line for line in text.splitlines() if line.startswith("| tuning |"))
+    assert "ρ_pred min" in header and "ρ_meas min" in header and "F max [N]" in header
+    for run in runs:
+        row = next(line for line in text.splitlines() if line.startswith(f"| {run['tuning']} |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert float(cells[2]) == pytest.approx(run["rho_min_meas"], abs=5e-5)
+        assert float(cells[3]) == pytest.approx(run["force_max_N"], abs=5e-5)
+    for name in FIGURE_SIZES_IN:
+        assert f"(plots/{name}.png)" in text
+    assert "| duration | `0.5` |" in text
+
+
+def test_scene_is_read_back_as_written(run_dir):
+    scene = Scene.of(read_run_folder(run_dir))
+    assert scene.n_max == pytest.approx(0.16 / 11.16, rel=1e-15)
+    np.testing.assert_array_equal(scene.facets_H, [[0.36, 1.0]])
+    np.testing.assert_array_equal(scene.lengths, [0.122, 0.122])
+    # Lemma 1, paper row scaling: h' = h + n_max·√(m² + 1)
+    np.testing.assert_allclose(scene.P_h, [0.15 + scene.n_max * math.hypot(0.36, 1.0)], rtol=1e-14)
+    assert scene.stiffness == LinearStiffness(11.16)
+
+
+def test_folder_without_scene_or_summary_is_refused_with_the_fix(tmp_path, run_dir):
+    with pytest.raises(RunFolderError, match="no summary.json.*softcbf run"):
+        write_report(tmp_path)
+    summary = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
+    del summary["scene"]
+    (tmp_path / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
+    with pytest.raises(RunFolderError, match="no 'scene'.*run the scenario again"):
+        write_report(tmp_path)
+
+
+def test_boundary_segments_clip_the_lines_to_the_box():
+    box = (-1.0, 1.0, -1.0, 1.0)
+    (edge,) = boundary_segments(np.array([[0.0, 1.0]]), np.array([0.1]), box)
+    np.testing.assert_allclose(sorted(edge.tolist()), [[-1.0, 0.1], [1.0, 0.1]], atol=1e-15)
+    # two facets meeting at (0.2, 0.3): y <= 0.3 and x <= 0.2, each edge ends at the corner and the box
+    edges = boundary_segments(np.array([[0.0, 2.0], [1.0, 0.0]]), np.array([0.6, 0.2]), box)
+    assert len(edges) == 2
+    ends = {tuple(np.round(p, 12)) for e in edges for p in e}
+    assert ends == {(0.2, 0.3), (-1.0, 0.3), (0.2, -1.0)}
+    assert boundary_segments(np.array([[0.0, 1.0]]), np.array([-5.0]), box) == []  # the box is outside
+
+
+def test_arm_polyline_is_the_pcc_arc():
+    q, lengths, base = np.array([0.7, -0.4]), np.array([0.122, 0.1]), np.array([0.01, -0.02])
+    points = arm_polyline(q, lengths, base)
+    assert points.shape == (2 * ARC_CHORDS + 1, 2)
+    np.testing.assert_allclose(points[::ARC_CHORDS], segment_ends(q, lengths) + base, atol=1e-15)
+    # segment 1 is an arc of radius L/q about base + (0, L/q)
+    centre = base + np.array([0.0, lengths[0] / q[0]])
+    radii = np.hypot(*(points[: ARC_CHORDS + 1] - centre).T)
+    np.testing.assert_allclose(radii, lengths[0] / q[0], rtol=1e-12)
+
+
+def test_predicted_force_inverts_rho_through_psi(run_dir):
+    scene = Scene.of(read_run_folder(run_dir))
+    np.testing.assert_allclose(predicted_force(scene, np.array([1.0, 0.0, -1.0, 0.25])),
+                               [0.0, 0.16, 0.32, 0.12], rtol=1e-13, atol=1e-16)
