@@ -1,0 +1,172 @@
+"""Study results → per-tuning distributions, violation probabilities with confidence intervals, sensitivities.
+
+Violation. A sample violates when its measured margin `rho_min_meas` < 0, i.e. the
+measured contact force exceeded F_max at some control step (ρ_meas = (n_max − n)/n_max
+with ψ strictly increasing, so ρ_meas < 0 ⇔ F > F_max; SPEC §4, §8). Only samples with
+status "ok" and a measured ρ count; failed samples are counted apart.
+
+Violation probability p = k/n with the Wilson score interval at confidence level 1 − α
+(z = Φ⁻¹(1 − α/2), 1.96 for 95 %):
+
+    centre = (k + z²/2) / (n + z²),  half = z √(k (n − k)/n + z²/4) / (n + z²)
+
+which stays inside [0, 1] and is informative at k = 0 (upper bound ≈ 3.84/(n + 3.84)).
+
+Sensitivity. For a numeric varied parameter the range of its drawn values is cut into
+`bins` equal-width bins (grid values: one bin per grid value); per tuning and bin,
+p and its Wilson interval of the samples in that bin, marginalised over every other
+varied parameter. `crossing` reads where such a curve first reaches a level (e.g. 5 %):
+linear interpolation between bin centres, walking from the end of the range with the
+lower probability. Non-numeric parameters get one bin per value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from softcbf_mj.study.store import PARAM_PREFIX
+
+QUANTILES = (0.0, 0.05, 0.5, 0.95, 1.0)
+
+
+def wilson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval (low, high) for k successes in n trials; (0, 1) when n = 0."""
+    if not (0 <= k <= n):
+        raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
+    if n == 0:
+        return 0.0, 1.0
+    z = NormalDist().inv_cdf(0.5 + confidence / 2)
+    denom = n + z * z
+    centre = (k + z * z / 2) / denom
+    half = z * math.sqrt(k * (n - k) / n + z * z / 4) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def violated(row: Mapping[str, Any]) -> bool | None:
+    """Whether an ok row's measured force exceeded F_max (None when it has no measured ρ or failed)."""
+    rho = row.get("rho_min_meas")
+    if row.get("status") != "ok" or rho is None:
+        return None
+    return bool(rho < 0.0)
+
+
+@dataclass(frozen=True)
+class Proportion:
+    """k of n with its Wilson interval."""
+
+    k: int
+    n: int
+    low: float
+    high: float
+
+    @property
+    def p(self) -> float | None:
+        return self.k / self.n if self.n else None
+
+    @classmethod
+    def of(cls, flags: Iterable[bool | None], confidence: float = 0.95) -> "Proportion":
+        values = [f for f in flags if f is not None]
+        k = sum(values)
+        return cls(k, len(values), *wilson_interval(k, len(values), confidence))
+
+
+def _quantiles(values: Sequence[float]) -> dict[str, float] | None:
+    finite = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+    if finite.size == 0:
+        return None
+    return {f"q{int(round(100 * q)):02d}": float(np.quantile(finite, q)) for q in QUANTILES}
+
+
+def tuning_summary(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str]) -> list[dict[str, Any]]:
+    """Per tuning (in the given order): samples, failed, violation Proportion, quantiles of ρ_min_meas and F max."""
+    out = []
+    for tuning in tunings:
+        mine = [r for r in rows if r["tuning"] == tuning]
+        ok = [r for r in mine if r["status"] == "ok"]
+        out.append({
+            "tuning": tuning,
+            "samples": len(mine),
+            "failed": len(mine) - len(ok),
+            "violation": Proportion.of(violated(r) for r in ok),
+            "rho_min_meas": _quantiles([r.get("rho_min_meas") for r in ok]),
+            "force_max_N": _quantiles([r.get("force_max_N") for r in ok]),
+        })
+    return out
+
+
+def varied_parameters(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Names of the varied parameters present in the rows (without the `param.` prefix)."""
+    names: dict[str, None] = {}
+    for row in rows:
+        for key in row:
+            if key.startswith(PARAM_PREFIX):
+                names[key[len(PARAM_PREFIX):]] = None
+    return list(names)
+
+
+@dataclass(frozen=True)
+class Bin:
+    """Samples whose parameter lies in [low, high] (numeric) or equals `value` (other types)."""
+
+    low: float | None
+    high: float | None
+    value: Any
+    violation: Proportion
+
+    @property
+    def centre(self) -> float | None:
+        return None if self.low is None else 0.5 * (self.low + self.high)
+
+
+def _numeric(values: Sequence[Any]) -> bool:
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+
+
+def sensitivity(rows: Sequence[Mapping[str, Any]], parameter: str, tuning: str, bins: int = 6) -> list[Bin]:
+    """Violation probability of `tuning` per bin of `parameter` (module docstring)."""
+    if bins < 1:
+        raise ValueError(f"bins must be >= 1, got {bins}")
+    key = PARAM_PREFIX + parameter
+    mine = [r for r in rows if r["tuning"] == tuning and r["status"] == "ok" and r.get(key) is not None]
+    values = [r[key] for r in mine]
+    if not mine:
+        return []
+    distinct = sorted(set(values), key=lambda v: (str(type(v)), v))
+    if not _numeric(values) or len(distinct) <= bins:
+        return [Bin(float(v) if _numeric([v]) else None, float(v) if _numeric([v]) else None, v,
+                    Proportion.of(violated(r) for r, x in zip(mine, values) if x == v)) for v in distinct]
+    edges = np.linspace(min(values), max(values), bins + 1)
+    which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, bins - 1)
+    return [Bin(float(edges[b]), float(edges[b + 1]), None,
+                Proportion.of(violated(r) for r, w in zip(mine, which) if w == b)) for b in range(bins)]
+
+
+def crossing(curve: Sequence[Bin], level: float = 0.05) -> dict[str, Any]:
+    """Where a binned violation curve first reaches `level`, walking from its safer end.
+
+    Returns {"value": parameter value or None, "direction": "increasing"/"decreasing",
+    "status": "crosses" | "below" (never reaches it) | "above" (already at the safer end)}.
+    Bins without samples are skipped; numeric bins only.
+    """
+    points = [(b.centre, b.violation.p) for b in curve if b.centre is not None and b.violation.n]
+    if len(points) < 2:
+        return {"value": None, "direction": None, "status": "too few bins"}
+    x = [c for c, _ in points]
+    p = [q for _, q in points]
+    if p[-1] < p[0]:
+        x, p, direction = x[::-1], p[::-1], "decreasing"
+    else:
+        direction = "increasing"
+    if p[0] >= level:
+        return {"value": x[0], "direction": direction, "status": "above"}
+    for (x0, p0), (x1, p1) in zip(zip(x, p), zip(x[1:], p[1:])):
+        if p1 >= level:
+            return {"value": x0 + (level - p0) / (p1 - p0) * (x1 - x0), "direction": direction, "status": "crosses"}
+    return {"value": None, "direction": direction, "status": "below"}

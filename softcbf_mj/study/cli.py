@@ -1,0 +1,89 @@
+"""Command line of robustness studies: `python -m softcbf_mj.study run|report`.
+
+    python -m softcbf_mj.study run STUDY_FILE --out DIR [--workers N | --scheduler tcp://host:8786]
+                                   [--resume] [--samples N] [--keep-runs] [--no-progress]
+    python -m softcbf_mj.study report DIR [--level 0.05] [--bins 6]
+
+`run` runs the study file's samples (all, or the first N with --samples; sample order is
+draw-major, so N = draws × tunings runs whole draws) into DIR, one Parquet part per sample;
+`--resume` continues a study folder; Ctrl-C stops it and leaves every finished sample
+stored. It ends with the report. `report` (re)writes DIR/report.md and DIR/plots/.
+`softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf_mj.cli).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from softcbf_mj.runio import OutputDirError
+
+# The study machinery (pyarrow, Dask, matplotlib) is imported by the handlers, so that
+# `softcbf --version`, `list` and usage errors do not pay for it.
+
+
+def _run(args: argparse.Namespace) -> int:
+    from softcbf_mj.study.definition import load_study
+    from softcbf_mj.study.execute import run_study
+    from softcbf_mj.study.report import write_report
+
+    try:
+        study = load_study(args.study_file)
+        outcome = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
+                            samples=args.samples, keep_runs=args.keep_runs, progress=not args.no_progress)
+    except (ValueError, OutputDirError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished samples are stored in {args.out}; continue with --resume", file=sys.stderr)
+        return 130
+    print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already stored, "
+          f"{outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
+    print(f"report: {write_report(args.out)}")
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from softcbf_mj.study.report import write_report
+
+    try:
+        path = write_report(args.dir, level=args.level, bins=args.bins)
+    except (ValueError, OutputDirError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(path.read_text(encoding="utf-8"))
+    return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare the `run` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf_mj.study`)."""
+    commands = parser.add_subparsers(dest="study_command", required=True)
+    run = commands.add_parser("run", help="run a study file into a study folder")
+    run.add_argument("study_file", type=Path, help="study definition (TOML), e.g. studies/paper_tunings_plate_errors.toml")
+    run.add_argument("--out", type=Path, required=True, help="study folder (refused if not empty, unless --resume)")
+    backend = run.add_mutually_exclusive_group()
+    backend.add_argument("--workers", type=int, help="local worker processes (default: every core)")
+    backend.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786 (instead of the local pool)")
+    run.add_argument("--resume", action="store_true", help="continue the study stored in --out")
+    run.add_argument("--samples", type=int, help="run only samples 0..N-1 (draw-major); --resume runs the rest later")
+    run.add_argument("--keep-runs", action="store_true", help="keep every sample's scenario outputs in DIR/runs/")
+    run.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    run.set_defaults(study_handler=_run)
+    report = commands.add_parser("report", help="write report.md and plots/ for a study folder")
+    report.add_argument("dir", type=Path, help="study folder")
+    report.add_argument("--level", type=float, default=0.05, help="violation probability to locate (default 0.05)")
+    report.add_argument("--bins", type=int, default=6, help="bins per varied parameter (default 6)")
+    report.set_defaults(study_handler=_report)
+
+
+def run_command(args: argparse.Namespace, extra: list[str]) -> int:
+    """Handler of `softcbf study`: runs the chosen sub-command; returns the exit code."""
+    return args.study_handler(args)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m softcbf_mj.study", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    return run_command(parser.parse_args(argv), [])

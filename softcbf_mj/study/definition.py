@@ -1,0 +1,308 @@
+"""Study definition and sampling: a scenario, fixed parameters, distributions, tunings.
+
+A study runs one registered scenario (`scenarios`, SPEC §8) many times. Its parts:
+
+- `scenario`: the scenario's name; `fixed`: values for some of its keyword parameters;
+- `vary`: one `Distribution` per varied keyword parameter of that scenario (model
+  mismatches such as `plate_stiffness` or `facet_offset`, camera noise, latency, …:
+  anything the scenario takes as a parameter);
+- `tunings` and `tuning_parameter`: the scenario parameter that names the tuning (default
+  `tunings`) and the tunings to compare;
+- `sampling`: "monte_carlo" (`draws` seeded draws) or "grid" (the Cartesian product of
+  every distribution's grid, the first parameter varying slowest); `seed`.
+
+Samples. One sample is one parameter draw run with one tuning, i.e. one run of the
+scenario and one row of results. Sample index i ∈ [0, draws · T) with T tunings is
+draw-major: draw d = i // T, tuning = tunings[i mod T], so every tuning meets the same
+mismatches (paired comparison) and the first N·T samples are N whole draws. Draw d is a
+pure function of (study, seed, d): its generator is
+`numpy.random.default_rng(SeedSequence([seed, d]))`, which first draws `scenario_seed`
+(an integer in [0, 2³¹), passed to the scenario's own `seed` parameter when it has one
+and the study neither fixes nor varies it, e.g. the initial-pose or pixel noise) and then
+one value per distribution in the order they are listed. Grid draws take the grid values
+and the same `scenario_seed`.
+
+Distributions (parameters of float type accept every kind; int, bool and str parameters
+only `choice`):
+
+| dist        | keys                      | Monte Carlo                 | grid (`points` ≥ 2)            |
+|-------------|---------------------------|-----------------------------|--------------------------------|
+| uniform     | low < high                | U(low, high)                | linspace(low, high, points)    |
+| loguniform  | 0 < low < high            | exp U(ln low, ln high)      | geomspace(low, high, points)   |
+| normal      | mean, std > 0             | N(mean, std²)               | — (refused)                    |
+| choice      | values (non-empty list)   | uniform over values         | values                         |
+
+Study file (TOML; `load_study`):
+
+    name = "plate_errors"
+    scenario = "mujoco_contact"
+    seed = 1
+    sampling = "monte_carlo"        # or "grid"
+    draws = 100                     # Monte Carlo only; grid: the product of the grid sizes
+    tunings = ["None", "Low", "High"]
+    [fixed]
+    duration = 30.0
+    [vary.plate_stiffness]          # N/m, the true plate (the controller assumes 11.16)
+    dist = "uniform"
+    low = 8.0
+    high = 16.0
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scenarios import get as get_scenario
+
+SAMPLINGS = ("monte_carlo", "grid")
+KINDS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"), "choice": ("values",)}
+SEED_PARAMETER = "seed"  # the scenario parameter that receives scenario_seed
+_STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description"}
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """A distribution over one scenario parameter (keys per `kind`: module table)."""
+
+    parameter: str
+    kind: str
+    low: float | None = None
+    high: float | None = None
+    mean: float | None = None
+    std: float | None = None
+    values: tuple[Any, ...] | None = None
+    points: int | None = None
+
+    def __post_init__(self) -> None:
+        where = f"distribution of {self.parameter!r}"
+        if self.kind not in KINDS:
+            raise ValueError(f"{where}: dist must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        given = {k for k in ("low", "high", "mean", "std", "values") if getattr(self, k) is not None}
+        if given != set(KINDS[self.kind]):
+            raise ValueError(f"{where}: dist {self.kind!r} takes exactly the keys {', '.join(KINDS[self.kind])} "
+                             f"(and optionally points), got {', '.join(sorted(given)) or 'none'}")
+        if self.kind == "choice":
+            values = tuple(self.values)
+            if not values:
+                raise ValueError(f"{where}: values must be a non-empty list")
+            object.__setattr__(self, "values", values)
+        else:
+            for key in KINDS[self.kind]:
+                value = getattr(self, key)
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise ValueError(f"{where}: {key} must be a finite number, got {value!r}")
+                object.__setattr__(self, key, float(value))
+        if self.kind in ("uniform", "loguniform") and not self.low < self.high:
+            raise ValueError(f"{where}: low must be < high, got low={self.low}, high={self.high}")
+        if self.kind == "loguniform" and not self.low > 0:
+            raise ValueError(f"{where}: loguniform needs low > 0, got {self.low}")
+        if self.kind == "normal" and not self.std > 0:
+            raise ValueError(f"{where}: std must be > 0, got {self.std}")
+        if self.points is not None and (isinstance(self.points, bool) or int(self.points) != self.points or self.points < 2):
+            raise ValueError(f"{where}: points must be an integer >= 2, got {self.points!r}")
+
+    def draw(self, rng: np.random.Generator) -> Any:
+        """One Monte Carlo value."""
+        if self.kind == "uniform":
+            return float(rng.uniform(self.low, self.high))
+        if self.kind == "loguniform":
+            return float(math.exp(rng.uniform(math.log(self.low), math.log(self.high))))
+        if self.kind == "normal":
+            return float(rng.normal(self.mean, self.std))
+        return self.values[int(rng.integers(len(self.values)))]
+
+    def grid(self) -> tuple[Any, ...]:
+        """The grid values (refused for `normal`; uniform and loguniform need `points`)."""
+        if self.kind == "choice":
+            return self.values
+        if self.kind == "normal":
+            raise ValueError(f"distribution of {self.parameter!r}: a normal distribution has no grid; "
+                             "use dist = 'uniform' with points, or sampling = 'monte_carlo'")
+        if self.points is None:
+            raise ValueError(f"distribution of {self.parameter!r}: grid sampling needs points (>= 2) for dist {self.kind!r}")
+        space = np.linspace if self.kind == "uniform" else np.geomspace
+        return tuple(float(v) for v in space(self.low, self.high, int(self.points)))
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"dist": self.kind}
+        for key in ("low", "high", "mean", "std", "values", "points"):
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = list(value) if key == "values" else value
+        return out
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One sample: its index, draw, tuning, the drawn values and the scenario's full keyword arguments."""
+
+    index: int
+    draw: int
+    tuning: str
+    scenario_seed: int
+    values: dict[str, Any]
+    kwargs: dict[str, Any]
+
+
+def _check_type(parameter: str, value: Any, annotation: Any) -> Any:
+    """`value` as the scenario parameter's type, or a ValueError naming the parameter."""
+    if annotation is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if annotation is int and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if annotation in (bool, str) and isinstance(value, annotation):
+        return value
+    raise ValueError(f"parameter {parameter!r} takes {annotation.__name__} values, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Study:
+    """A validated study (module docstring): checks every name against the scenario's parameters."""
+
+    name: str
+    scenario: str
+    tunings: tuple[str, ...]
+    vary: tuple[Distribution, ...] = ()
+    fixed: dict[str, Any] = field(default_factory=dict)
+    sampling: str = "monte_carlo"
+    draws: int | None = None
+    seed: int = 0
+    tuning_parameter: str = "tunings"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a study needs a name")
+        try:
+            scenario = get_scenario(self.scenario)
+        except KeyError as exc:
+            raise ValueError(exc.args[0]) from None
+        params = scenario.parameters()
+        hints = typing.get_type_hints(scenario.run)
+        object.__setattr__(self, "tunings", tuple(self.tunings))
+        object.__setattr__(self, "vary", tuple(self.vary))
+        if not self.tunings or not all(isinstance(t, str) and t for t in self.tunings):
+            raise ValueError(f"tunings must be a non-empty list of tuning names, got {list(self.tunings)!r}")
+        if len(set(self.tunings)) != len(self.tunings):
+            raise ValueError(f"tunings must not repeat, got {list(self.tunings)}")
+        if self.tuning_parameter not in params or hints[self.tuning_parameter] is not str:
+            raise ValueError(f"tuning_parameter must be a str parameter of scenario {self.scenario!r}, "
+                             f"got {self.tuning_parameter!r}; parameters: {', '.join(params)}")
+        varied = [d.parameter for d in self.vary]
+        if len(set(varied)) != len(varied):
+            raise ValueError(f"each parameter may be varied once, got {varied}")
+        for name in [*self.fixed, *varied]:
+            if name not in params:
+                raise ValueError(f"scenario {self.scenario!r} has no parameter {name!r}; parameters: {', '.join(params)}")
+        clash = ({self.tuning_parameter} & (set(self.fixed) | set(varied))) | (set(self.fixed) & set(varied))
+        if clash:
+            raise ValueError(f"parameter(s) {sorted(clash)} are given more than once (fixed, vary or tuning_parameter)")
+        object.__setattr__(self, "fixed", {k: _check_type(k, v, hints[k]) for k, v in self.fixed.items()})
+        for dist in self.vary:
+            if hints[dist.parameter] is not float and dist.kind != "choice":
+                raise ValueError(f"parameter {dist.parameter!r} takes {hints[dist.parameter].__name__} values: "
+                                 f"use dist = 'choice' with a list of values, not {dist.kind!r}")
+            if dist.kind == "choice":
+                object.__setattr__(dist, "values", tuple(_check_type(dist.parameter, v, hints[dist.parameter])
+                                                         for v in dist.values))
+        if self.sampling not in SAMPLINGS:
+            raise ValueError(f"sampling must be one of {', '.join(SAMPLINGS)}, got {self.sampling!r}")
+        if self.sampling == "monte_carlo":
+            if isinstance(self.draws, bool) or not isinstance(self.draws, int) or self.draws < 1:
+                raise ValueError(f"Monte Carlo sampling needs draws, an integer >= 1, got {self.draws!r}")
+        else:
+            if self.draws is not None:
+                raise ValueError("grid sampling takes no draws (the grid fixes their number); remove draws")
+            for dist in self.vary:
+                dist.grid()  # raises for grids that are not defined
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+
+    @property
+    def n_draws(self) -> int:
+        if self.sampling == "grid":
+            return math.prod(len(d.grid()) for d in self.vary)
+        return int(self.draws)
+
+    @property
+    def n_samples(self) -> int:
+        return self.n_draws * len(self.tunings)
+
+    def sample(self, index: int) -> Sample:
+        """Sample `index` (module docstring): a pure function of the study and the index."""
+        if not 0 <= index < self.n_samples:
+            raise IndexError(f"sample index must lie in [0, {self.n_samples}), got {index}")
+        draw, t = divmod(index, len(self.tunings))
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, draw]))
+        scenario_seed = int(rng.integers(2**31))
+        if self.sampling == "grid":
+            grids = [d.grid() for d in self.vary]
+            cell = np.unravel_index(draw, [len(g) for g in grids]) if grids else ()
+            values = {d.parameter: g[int(k)] for d, g, k in zip(self.vary, grids, cell)}
+        else:
+            values = {d.parameter: d.draw(rng) for d in self.vary}
+        kwargs = dict(self.fixed)
+        kwargs.update(values)
+        kwargs[self.tuning_parameter] = self.tunings[t]
+        parameters = get_scenario(self.scenario).parameters()
+        if SEED_PARAMETER in parameters and SEED_PARAMETER not in kwargs:
+            kwargs[SEED_PARAMETER] = scenario_seed
+        if "progress" in parameters:
+            kwargs["progress"] = False
+        return Sample(index, draw, self.tunings[t], scenario_seed, values, kwargs)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The study as its file's keys (JSON/TOML-able); `from_dict` reads it back."""
+        out: dict[str, Any] = {"name": self.name, "description": self.description, "scenario": self.scenario,
+                               "seed": self.seed, "sampling": self.sampling, "tunings": list(self.tunings),
+                               "tuning_parameter": self.tuning_parameter, "fixed": dict(self.fixed),
+                               "vary": {d.parameter: d.to_dict() for d in self.vary}}
+        if self.draws is not None:
+            out["draws"] = self.draws
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "Study":
+        unknown = set(data) - _STUDY_KEYS
+        if unknown:
+            raise ValueError(f"unknown study key(s) {sorted(unknown)}; valid: {', '.join(sorted(_STUDY_KEYS))}")
+        for key in ("name", "scenario", "tunings"):
+            if key not in data:
+                raise ValueError(f"a study needs the key {key!r}")
+        vary = []
+        for parameter, spec in dict(data.get("vary", {})).items():
+            spec = dict(spec)
+            if "dist" not in spec:
+                raise ValueError(f"vary.{parameter} needs dist = one of {', '.join(KINDS)}")
+            extra = set(spec) - {"dist", "low", "high", "mean", "std", "values", "points"}
+            if extra:
+                raise ValueError(f"vary.{parameter}: unknown key(s) {sorted(extra)}")
+            kind = spec.pop("dist")
+            vary.append(Distribution(parameter, kind, **spec))
+        return cls(name=data["name"], scenario=data["scenario"], tunings=tuple(data["tunings"]), vary=tuple(vary),
+                   fixed=dict(data.get("fixed", {})), sampling=data.get("sampling", "monte_carlo"),
+                   draws=data.get("draws"), seed=data.get("seed", 0),
+                   tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""))
+
+
+def load_study(path: str | Path) -> Study:
+    """Read a study file (TOML, module docstring); errors name the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"study file {path} does not exist")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"study file {path} is not valid TOML: {exc}") from None
+    try:
+        return Study.from_dict(data)
+    except ValueError as exc:
+        raise ValueError(f"study file {path}: {exc}") from None
+

@@ -1,0 +1,83 @@
+"""One sample in a worker: run the scenario, keep its summary row, never raise for the sample's own errors.
+
+`run_sample(study, index, keep_dir)` resolves sample `index` (`Study.sample`), runs the
+scenario with those keyword arguments into a temporary folder (or into `keep_dir`,
+which is then kept, with the scenario's report and recording), silences the scenario's
+printed table, and returns the sample's row
+(columns: `softcbf_mj.study.store`). The scenario must produce exactly one run (one
+tuning). An exception inside the scenario becomes a row with status "error" and its
+text, so a crashing sample never stops the study; only a dead worker process (a
+segfault, a kill) escapes, and the executor handles that.
+
+Cost: besides the closed loop, a sample pays for building the scenario (for
+`mujoco_contact`: compiling the MuJoCo model) and for writing its summary and time series
+to the temporary folder (`scenarios.common.data_only()` skips the per-run report and
+recording, 1–3 s per run); `tools/bench_study.py` measures the total against the loop's
+`wall_s`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from scenarios import get as get_scenario
+from scenarios.common import data_only
+from softcbf_mj.study.definition import Study
+from softcbf_mj.study.store import PARAM_PREFIX
+
+_SKIPPED_RUN_FIELDS = ("tuning", "timeseries")  # the row has its own tuning; no time series is kept
+
+
+def _scalar(value: Any) -> bool:
+    return value is None or isinstance(value, (bool, int, float, str))
+
+
+def sample_row(study: Study, index: int) -> dict[str, Any]:
+    """The columns that identify sample `index`: sample, draw, tuning, scenario_seed, param.*."""
+    sample = study.sample(index)
+    row: dict[str, Any] = {"sample": sample.index, "draw": sample.draw, "tuning": sample.tuning,
+                           "scenario_seed": sample.scenario_seed}
+    row.update({PARAM_PREFIX + k: v for k, v in sample.values.items()})
+    return row
+
+
+def failed_row(study: Study, index: int, error: str) -> dict[str, Any]:
+    """The row of a sample whose worker failed outside the scenario (e.g. the process died)."""
+    return {**sample_row(study, index), "status": "error", "error": error, "sample_wall_s": None, "worker": None}
+
+
+def run_sample(study: Study, index: int, keep_dir: str | None = None) -> dict[str, Any]:
+    """The result row of sample `index` (status "ok" with the run's scalar fields, or "error")."""
+    start = time.perf_counter()
+    sample = study.sample(index)
+    row = sample_row(study, index)
+    try:
+        scenario = get_scenario(study.scenario)
+        with contextlib.ExitStack() as stack:
+            if keep_dir is None:
+                folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="softcbf-sample-")))
+                stack.enter_context(data_only())  # no per-run report and recording: nobody reads them
+            else:
+                folder = Path(keep_dir)
+                folder.mkdir(parents=True, exist_ok=True)
+            with open(os.devnull, "w", encoding="utf-8") as sink, contextlib.redirect_stdout(sink):
+                summary = scenario.run(folder, **sample.kwargs)
+        runs = summary["runs"]
+        if len(runs) != 1:
+            raise ValueError(f"scenario {study.scenario!r} returned {len(runs)} runs for one sample; a study needs "
+                             f"one run per tuning (check tuning_parameter {study.tuning_parameter!r})")
+        row.update(status="ok", error="")
+        row.update({k: v for k, v in runs[0].items() if k not in _SKIPPED_RUN_FIELDS and _scalar(v)})
+    except Exception as exc:  # noqa: BLE001 - a failing sample is a result, recorded with its error
+        tail = "".join(traceback.format_exception(exc)[-3:])
+        row.update(status="error", error=f"{type(exc).__name__}: {exc}\n{tail}".strip())
+    row["sample_wall_s"] = time.perf_counter() - start
+    row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    return row
