@@ -3,6 +3,9 @@
     softcbf list                                   scenarios, one line each, with their parameters
     softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR] [--overwrite] [--spawn]
     softcbf report RUN_DIR [--no-recording]        rebuild plots/, report.md and recording.rrd
+    softcbf report STUDY_DIR                       a study folder's report.md and plots/
+    softcbf study run STUDY_FILE --out DIR | report DIR   robustness studies (softcbf_mj.study)
+    softcbf hardware --config FILE ...             the hardware mode (softcbf_mj.hardware_cli)
     softcbf --version
 
 `run` runs a registered scenario (`scenarios.registry`): its parameters are its keyword
@@ -43,7 +46,10 @@ from pathlib import Path
 
 import softcbf_mj
 from scenarios import Scenario, get, registry
+from softcbf_mj import hardware_cli
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, RunFolderError, prepare_out_dir, read_run_folder, versions
+from softcbf_mj.study import cli as study_cli
+from softcbf_mj.study.store import STUDY_FILE
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay.
@@ -242,6 +248,11 @@ def _report_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _report(args: argparse.Namespace, extra: list[str]) -> int:
+    if (args.run_dir / STUDY_FILE).is_file():
+        from softcbf_mj.study.report import write_report as write_study_report
+
+        print(f"study report: {write_study_report(args.run_dir)}")
+        return 0
     from softcbf_mj.recording import write_recording
     from softcbf_mj.report import write_report
 
@@ -262,8 +273,11 @@ def _report(args: argparse.Namespace, extra: list[str]) -> int:
 register_command("list", "list the scenarios with their parameters", None, _list)
 register_command("run", "run a scenario: softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR]", _run_args, _run,
                  extra_args=True)
-register_command("report", "rebuild a run folder's plots, report.md and recording.rrd from its saved data",
+register_command("report", "rebuild a run or study folder's plots and report.md (and a run's recording.rrd) from its saved data",
                  _report_args, _report)
+register_command("study", "robustness studies of model mismatch: softcbf study run STUDY_FILE --out DIR | report DIR",
+                 study_cli.add_arguments, study_cli.run_command)
+register_command("hardware", hardware_cli.HELP, hardware_cli.add_arguments, hardware_cli.run_command)
 
 
 def version_line() -> str:

@@ -1,0 +1,326 @@
+"""The hardware loop: camera frames → perception → CBF filter → safety monitor → valve-board link.
+
+Two threads share one monotonic clock (s):
+
+- perception (`PerceptionWorker`): reads frames from a `perception.capture.FrameSource` as
+  they come (a camera paces itself; the virtual camera at its frame rate), detects the
+  tags (`TagDetector`) and updates the `ArmAngleEstimator` with each frame's capture time;
+- control (`HardwareLoop.run`): at t_k = t_0 + k·T (T = 1 / rate, absolute schedule), it
+
+      1. takes the estimate at now = clock() (q, q̇ of the latest complete frame; stale when
+         older than the estimator's max_hold_s),
+      2. u_nom = nominal(now − t_0, q, q̇); u = CBFFilter([q; q̇], u_nom) — the same
+         `controllers.filter.CBFFilter` the simulations run, unchanged,
+      3. decision = SafetyMonitor.step(now, u, flags) with flags perception_stale,
+         link_lost (the previous exchange failed), command_nonfinite (the filter raised),
+         interrupted (Ctrl-C or `stop()`),
+      4. sends it in the same cycle: RUN/HOLD → `send_setpoints(decision.u)` (zeros with
+         `dry_run`), VENT → `vent()`; the link clamps to its limits and waits for the ACK.
+
+  So a stale estimate, a lost link, a non-finite command or Ctrl-C changes what goes on
+  the wire in the first cycle that sees it: HOLD the last RUN command, then VENT once the
+  hold has lasted `hold_s` (`hardware.safety`); the board's own watchdog vents when
+  commands stop arriving (a cut cable).
+
+Start: the loop waits (up to `startup_timeout_s`) for the first complete frame, so q is
+finite from the first cycle on; without one it vents and raises `PerceptionStartupError`.
+End: after `duration_s`, on `stop()` or Ctrl-C (KeyboardInterrupt) — the last cycle is a
+VENT (interrupted) — and in every case a final `vent()` leaves the valves at 0 hPa.
+
+`HardwareLog.columns()` gives one row per control cycle (units in `LOG_UNITS`); `summary()`
+the counts of actions, flags, perception and link quality. Nothing here imports MuJoCo
+or `softcbf_mj`: the emulator (softcbf_mj.emulate) only provides the frame source and
+the serial port.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from controllers.errors import ControllerInputError
+from controllers.filter import CBFFilter
+from controllers.nominal import NominalController, SinusoidNominal
+from controllers.params import per_segment
+from hardware.config import HardwareConfig
+from hardware.link import LinkResult, ValveBoardLink
+from hardware.safety import SafeAction, SafetyFlags, SafetyMonitor
+from hardware.transport import ByteTransport
+from perception.capture import FrameSource
+from perception.detect import TagDetector
+from perception.estimator import ArmAngleEstimator, ArmEstimate
+from perception.plane import PlaneCalibration
+from perception.tags import arm_tag_ids
+
+log = logging.getLogger(__name__)
+
+ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}
+NO_FRAME_WAIT_S = 0.01  # pause after a source delivered no frame, s
+
+LOG_UNITS = {
+    "t": "s (since the run started)",
+    "t_clock": "s (monotonic clock)",
+    "q_est": "rad",
+    "qd_est": "rad/s",
+    "est_age_s": "s",
+    "est_stale": "bool",
+    "u_nom": "hPa",
+    "u_filter": "hPa",
+    "u": "hPa",
+    "u_sent": "hPa",
+    "u_measured": "hPa",
+    "rho_pred": "1",
+    "b": "barrier units (row-scaled m)",
+    "active": "bool",
+    "infeasible": "bool",
+    "recovery": "bool",
+    "filter_us": "us",
+    "action": "0 run, 1 hold, 2 vent",
+    "link_acked": "bool",
+    "link_latency_s": "s",
+    "link_lost": "bool",
+    "late_s": "s",
+}
+
+
+class PerceptionStartupError(RuntimeError):
+    """No complete frame arrived before the start-up timeout."""
+
+
+class PerceptionWorker:
+    """Frames → detections → estimator, in a daemon thread; `query(now)` is the estimate at now."""
+
+    def __init__(self, source: FrameSource, detector: TagDetector, estimator: ArmAngleEstimator,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.source, self.detector, self.estimator, self.clock = source, detector, estimator, clock
+        self.frames = 0
+        self.frames_complete = 0
+        self.empty_reads = 0
+        self.detect_s: list[float] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="perception", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                frame = self.source.read()
+                if frame is None:
+                    self.empty_reads += 1
+                    self._stop.wait(NO_FRAME_WAIT_S)
+                    continue
+                start = time.perf_counter()
+                detections = self.detector.detect(frame.image)
+                self.detect_s.append(time.perf_counter() - start)
+                with self._lock:
+                    estimate = self.estimator.update(frame.t, detections)
+                self.frames += 1
+                self.frames_complete += estimate.valid and estimate.t == frame.t
+        except BaseException as exc:  # the loop sees a stale estimate; close() re-raises
+            self._error = exc
+
+    def query(self) -> tuple[float, ArmEstimate]:
+        """(now, the estimate at now), read under the lock so no newer frame lands between the two."""
+        with self._lock:
+            now = self.clock()
+            return now, self.estimator.query(now)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.source.close()
+        if self._error is not None:
+            raise RuntimeError("the perception thread failed") from self._error
+
+    def stats(self) -> dict[str, Any]:
+        detect = np.array(self.detect_s) * 1e3 if self.detect_s else np.array([math.nan])
+        return {"frames": self.frames, "frames_complete": self.frames_complete, "empty_reads": self.empty_reads,
+                "detect_ms_median": float(np.median(detect)), "detect_ms_p99": float(np.percentile(detect, 99))}
+
+
+@dataclass
+class HardwareLog:
+    """The rows of a hardware run (one per control cycle) and its counts."""
+
+    n_segments: int
+    n_rows_b: int
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    reasons: Counter = field(default_factory=Counter)
+    link_stats: dict[str, Any] = field(default_factory=dict)
+    perception_stats: dict[str, Any] = field(default_factory=dict)
+    final_vent_acked: bool | None = None
+    interrupted: bool = False
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Arrays by key (LOG_UNITS), first axis the cycle."""
+        if not self.rows:
+            n, p = self.n_segments, self.n_rows_b
+            shapes = {"q_est": (n,), "qd_est": (n,), "u_nom": (n,), "u_filter": (n,), "u": (n,), "u_sent": (n,),
+                      "u_measured": (n,), "b": (p,), "active": (p,)}
+            return {k: np.zeros((0,) + shapes.get(k, ())) for k in LOG_UNITS}
+        return {k: np.array([row[k] for row in self.rows]) for k in LOG_UNITS}
+
+    def summary(self) -> dict[str, Any]:
+        actions = Counter(row["action"] for row in self.rows)
+        late = np.array([row["late_s"] for row in self.rows]) if self.rows else np.array([0.0])
+        return {
+            "cycles": len(self.rows),
+            **{f"cycles_{a.value}": actions.get(code, 0) for a, code in ACTION_CODES.items()},
+            "flags": dict(self.reasons),
+            "cycle_late_max_s": float(late.max()),
+            "final_vent_acked": self.final_vent_acked,
+            "interrupted": self.interrupted,
+            "link": self.link_stats,
+            "perception": self.perception_stats,
+        }
+
+
+class HardwareLoop:
+    """The control loop of the module docstring; `run()` returns its `HardwareLog`."""
+
+    def __init__(
+        self,
+        perception: PerceptionWorker,
+        link: ValveBoardLink,
+        controller: CBFFilter,
+        nominal: NominalController,
+        monitor: SafetyMonitor,
+        period_s: float,
+        duration_s: float,
+        *,
+        dry_run: bool = False,
+        startup_timeout_s: float = 5.0,
+        clock: Callable[[], float] = time.monotonic,
+        on_cycle: Callable[[int, float, SafeAction], None] | None = None,
+    ) -> None:
+        for name, value in (("period_s", period_s), ("duration_s", duration_s), ("startup_timeout_s", startup_timeout_s)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite time > 0 s, got {value}")
+        n = controller.n
+        if not (link.n_segments == monitor.n_segments == perception.estimator.n_segments == n):
+            raise ValueError(f"segments disagree: controller {n}, link {link.n_segments}, monitor {monitor.n_segments}, "
+                             f"estimator {perception.estimator.n_segments}")
+        self.perception, self.link, self.controller, self.nominal, self.monitor = perception, link, controller, nominal, monitor
+        self.period_s, self.duration_s = float(period_s), float(duration_s)
+        self.dry_run, self.startup_timeout_s, self.clock, self.on_cycle = dry_run, float(startup_timeout_s), clock, on_cycle
+        self._stop = threading.Event()
+
+    @classmethod
+    def from_config(cls, config: HardwareConfig, source: FrameSource, calibration: PlaneCalibration,
+                    transport: ByteTransport | str, *, clock: Callable[[], float] = time.monotonic,
+                    on_cycle: Callable[[int, float, SafeAction], None] | None = None) -> "HardwareLoop":
+        """The loop of `config` reading `source` (image → plane map `calibration`) and talking over
+        `transport` (a ByteTransport, or a serial port name opened at `link.baudrate`)."""
+        robot = config.robot_params()
+        n, cam, ctl, lk = robot.n_segments, config.camera, config.control, config.link
+        estimator = ArmAngleEstimator(n, calibration, cam.tag_size_m, max_hold_s=cam.max_hold_s,
+                                      qd_filter_tau=cam.qd_filter_tau_s)
+        perception = PerceptionWorker(source, TagDetector(cam.detector, arm_tag_ids(n)), estimator, clock)
+        link = ValveBoardLink(transport, n, robot.u_min, robot.u_max, ack_timeout_s=lk.ack_timeout_s,
+                              retries=lk.retries, clock=clock, lost_after=lk.lost_after, baudrate=lk.baudrate)
+        controller = CBFFilter(robot, config.safe_set(), ctl.tuning_params(), pressure_limits=ctl.pressure_limits,
+                               qp_backend=ctl.qp_backend)
+        nominal = SinusoidNominal(tuple(per_segment(ctl.amplitude_hPa, n, "control.amplitude_hPa")), ctl.frequency_hz,
+                                  tuple(per_segment(ctl.phase_rad, n, "control.phase_rad")))
+        return cls(perception, link, controller, nominal, SafetyMonitor(n, config.safety.hold_s), ctl.period_s,
+                   config.run.duration_s, dry_run=config.run.dry_run, startup_timeout_s=cam.startup_timeout_s,
+                   clock=clock, on_cycle=on_cycle)
+
+    def stop(self) -> None:
+        """Ask the loop to end: its next cycle vents (interrupted) and it returns."""
+        self._stop.set()
+
+    def _wait_for_perception(self) -> None:
+        deadline = self.clock() + self.startup_timeout_s
+        while self.clock() < deadline and not self._stop.is_set():
+            _, estimate = self.perception.query()
+            if estimate.valid and not estimate.stale:
+                return
+            time.sleep(0.01)
+        if not self._stop.is_set():
+            raise PerceptionStartupError(
+                f"no complete frame (every arm tag seen once) within {self.startup_timeout_s:g} s "
+                f"({self.perception.frames} frames read); check the camera source, its calibration and that the tags are in view")
+
+    def run(self) -> HardwareLog:
+        n = self.controller.n
+        record = HardwareLog(n, len(self.controller.safe_set.H_prime))
+        self.perception.start()
+        try:
+            self._wait_for_perception()
+            t0 = self.clock()
+            n_cycles = int(round(self.duration_s / self.period_s))
+            for k in range(n_cycles):
+                interrupted = self._stop.is_set()
+                try:
+                    delay = t0 + k * self.period_s - self.clock()
+                    if delay > 0 and not interrupted:
+                        self._stop.wait(delay)
+                        interrupted = self._stop.is_set()
+                    action = self._cycle(k, t0, interrupted, record)
+                except KeyboardInterrupt:
+                    interrupted = True
+                    action = self._cycle(k, t0, True, record)
+                if interrupted:
+                    record.interrupted = True
+                    break
+                if self.on_cycle is not None:
+                    self.on_cycle(k, self.clock() - t0, action)
+        finally:
+            final = self.link.vent()
+            record.final_vent_acked = final.ok
+            record.link_stats = self.link.stats().to_dict()
+            try:
+                self.perception.close()
+            finally:
+                record.perception_stats = self.perception.stats()
+        return record
+
+    def _cycle(self, k: int, t0: float, interrupted: bool, record: HardwareLog) -> SafeAction:
+        n = self.controller.n
+        now, est = self.perception.query()
+        t_run = now - t0
+        nan_n = np.full(n, math.nan)
+        u_nom, u_cmd, result, filter_us = nan_n, None, None, math.nan
+        try:
+            u_nom = np.asarray(self.nominal(t_run, est.q, est.qd), dtype=float)
+            start = time.perf_counter()
+            result = self.controller(np.concatenate((est.q, est.qd)), u_nom)
+            filter_us = (time.perf_counter() - start) * 1e6
+            u_cmd = result.u
+        except ControllerInputError as exc:
+            log.warning("cycle %d: the controller refused its input (%s); the safety monitor holds", k, exc)
+        flags = SafetyFlags(perception_stale=est.stale, link_lost=self.link.link_lost,
+                            command_nonfinite=u_cmd is None, interrupted=interrupted)
+        decision = self.monitor.step(now, u_cmd, flags)
+        record.reasons.update(decision.reasons)
+        if decision.action is SafeAction.VENT:
+            sent: LinkResult = self.link.vent()
+        else:
+            sent = self.link.send_setpoints(np.zeros(n) if self.dry_run else decision.u)
+        p = record.n_rows_b
+        record.rows.append({
+            "t": t_run, "t_clock": now, "q_est": np.array(est.q), "qd_est": np.array(est.qd), "est_age_s": est.age_s,
+            "est_stale": est.stale,
+            "u_nom": u_nom, "u_filter": nan_n if result is None else result.u, "u": decision.u, "u_sent": sent.sent,
+            "u_measured": nan_n if sent.ack is None else sent.ack.measured,
+            "rho_pred": math.nan if result is None else result.rho_pred,
+            "b": np.full(p, math.nan) if result is None else result.b,
+            "active": np.zeros(p, dtype=bool) if result is None else result.active,
+            "infeasible": result is not None and result.infeasible, "recovery": result is not None and result.recovery,
+            "filter_us": filter_us, "action": ACTION_CODES[decision.action], "link_acked": sent.ok,
+            "link_latency_s": math.nan if sent.latency_s is None else sent.latency_s, "link_lost": sent.link_lost,
+            "late_s": max(0.0, now - (t0 + k * self.period_s)),
+        })
+        return decision.action

@@ -1,0 +1,207 @@
+"""`softcbf hardware`: run the controller on the arm (or on the emulator) and write a run folder.
+
+    softcbf hardware CONFIG [--port PORT|emulated] [--camera SOURCE|virtual] [--tuning NAME]
+                            [--duration S] [--dry-run] [--out DIR] [--overwrite]
+
+CONFIG is a `hardware.config` file (TOML or JSON; examples/hardware_emulated.toml); the
+options override its `link.port`, `camera.source`, `control.tuning`, `run.duration_s` and
+`run.dry_run`. `--port emulated --camera virtual` runs the whole hardware path against
+`softcbf_mj.emulate.EmulatedHardware` (MuJoCo arm and plate behind a pty valve board,
+rendered by a virtual camera); the two go together (a real camera cannot see the emulated
+arm). A real run imports no MuJoCo: the emulator is imported only for emulated runs.
+
+The run folder is the simulations' (SPEC §8, `softcbf_mj.runio`): config.json,
+summary.json (scenario "hardware", the configuration as params, one row per run with
+the SPEC fields from `softcbf_mj.metrics.run_figures` at the control rate plus the
+loop's counts), timeseries/<tuning>.npz (one row per control cycle: the keys of
+`softcbf_mj.loop.TIMESERIES_UNITS` plus the loop's own columns, `hardware.runner.LOG_UNITS`),
+plots, report.md and recording.rrd. Ground truth: on the emulator q, q̇, the segment
+ends, the pressure acting and the plate force are the emulator's true values at each
+cycle's time, and timeseries/<tuning>_emulator.npz holds its full 1 kHz record
+(`softcbf_mj.valve_emulator.RECORD_UNITS`), from which `force_max_emulator_N` and
+`t_violation_emulator_s` are taken; on the arm q, q̇ are the camera's estimate, the
+pressure acting is the board's measured pressure (ACK) and the force is not measured
+(NaN: ρ_meas and force_max_N are null).
+
+Exit codes as `softcbf`: 0 done, 2 usage error (bad configuration or option), 130
+interrupted (Ctrl-C: the loop vents within one cycle and the folder is still written).
+
+Mount: `register_command("hardware", HELP, add_arguments, run_command)` in softcbf_mj/cli.py;
+`python -m softcbf_mj.hardware_cli` runs it alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from controllers.pcc import segment_ends
+from hardware.config import EMULATED_PORT, VIRTUAL_CAMERA, ConfigError, HardwareConfig
+from hardware.runner import LOG_UNITS, HardwareLog, HardwareLoop
+from hardware.safety import SafeAction
+from perception.capture import VideoCaptureSource
+from perception.plane import PlaneCalibration
+from scenarios.common import scene_record
+from softcbf_mj.loop import TIMESERIES_UNITS
+from softcbf_mj.metrics import run_figures
+from softcbf_mj.runio import OutputDirError, SummaryWriter, prepare_out_dir, save_timeseries
+
+HELP = "run the controller on the valve board and camera (or --port emulated --camera virtual)"
+SCENARIO = "hardware"
+USAGE_ERROR, INTERRUPTED = 2, 130
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", type=Path, help="hardware configuration file (.toml or .json)")
+    parser.add_argument("--port", help=f"valve board serial port, or {EMULATED_PORT!r} (overrides link.port)")
+    parser.add_argument("--camera", help=f"camera device index, video file or URL, or {VIRTUAL_CAMERA!r} (overrides camera.source)")
+    parser.add_argument("--tuning", help="CBF tuning (overrides control.tuning)")
+    parser.add_argument("--duration", type=float, help="run length in s (overrides run.duration_s)")
+    parser.add_argument("--dry-run", action="store_true", help="run everything but send zero pressure")
+    parser.add_argument("--out", type=Path, help="output folder (default runs/hardware-<time>)")
+    parser.add_argument("--overwrite", action="store_true", help="replace the contents of an existing --out folder")
+
+
+def configure(args: argparse.Namespace) -> HardwareConfig:
+    """The configuration file with the command line's overrides applied."""
+    changes: dict[str, dict[str, Any]] = {"link": {}, "camera": {}, "control": {}, "run": {}}
+    if args.port is not None:
+        changes["link"]["port"] = args.port
+    if args.camera is not None:
+        changes["camera"]["source"] = int(args.camera) if args.camera.isdigit() else args.camera
+    if args.tuning is not None:
+        changes["control"]["tuning"] = args.tuning
+    if args.duration is not None:
+        changes["run"]["duration_s"] = args.duration
+    if args.dry_run:
+        changes["run"]["dry_run"] = True
+    return HardwareConfig.load(args.config).with_overrides(changes)
+
+
+def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int:
+    """Handler of `softcbf hardware` (see the module docstring for the exit codes)."""
+    try:
+        config = configure(args)
+        out = args.out or Path("runs") / f"{SCENARIO}-{time.strftime('%Y%m%d-%H%M%S')}"
+        out_dir = prepare_out_dir(out, args.overwrite)
+    except (ConfigError, OutputDirError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    row = run_hardware(config, out_dir)
+    print(f"hardware run ({row['tuning']}{', dry run' if config.run.dry_run else ''}): {row['cycles']} cycles, "
+          f"{row['cycles_run']} run / {row['cycles_hold']} hold / {row['cycles_vent']} vent, link acknowledged "
+          f"{row['link_acked_fraction']:.3f}, rho_min_pred {row['rho_min_pred']}, force_max_N {row['force_max_N']}; "
+          f"outputs in {out_dir}")
+    return INTERRUPTED if row["interrupted"] else 0
+
+
+def run_hardware(config: HardwareConfig, out_dir: Path, *, emulation: Any = None,
+                 on_cycle: Callable[[int, float, SafeAction], None] | None = None, report: bool = True) -> dict[str, Any]:
+    """Run `config` and write the run folder `out_dir` (existing, empty); return the summary row.
+
+    Emulated runs (link.port "emulated", camera.source "virtual") use `emulation` (an
+    `EmulatedHardware` of this config, e.g. one a test injects faults into) or make their own.
+    `on_cycle(k, t, action)` is called after every cycle (t: s since the start). `report`
+    False skips the plots, report.md and recording.rrd (tests).
+    """
+    emulated = config.link.is_emulated
+    own = None
+    if emulated and emulation is None:
+        from softcbf_mj.emulate import EmulatedHardware  # imported only here: real runs load no MuJoCo
+
+        emulation = own = EmulatedHardware(config)
+    try:
+        if emulated:
+            source, port = emulation.camera, emulation.port_name
+            calibration = emulation.calibration()
+        else:
+            source, port = VideoCaptureSource(config.camera.source), config.link.port
+        if config.camera.calibration is not None:
+            calibration = PlaneCalibration.load(config.resolve(config.camera.calibration))
+        loop = HardwareLoop.from_config(config, source, calibration, port, on_cycle=on_cycle)
+        start = time.perf_counter()
+        log = loop.run()
+        wall = time.perf_counter() - start
+        return write_run(config, out_dir, log, loop, wall, emulation, report)
+    finally:
+        if own is not None:
+            own.close()
+
+
+def _series(config: HardwareConfig, log: HardwareLog, safe_set, emulation: Any) -> tuple[dict, dict]:
+    """The run's time series in the simulations' keys (TIMESERIES_UNITS) plus the loop's columns."""
+    c = log.columns()
+    lengths = config.robot_params().array("lengths")
+    series = {key: c[key] for key in ("t", "q_est", "qd_est", "u_nom", "u", "rho_pred", "b", "active",
+                                      "infeasible", "recovery", "filter_us")}
+    if emulation is not None:
+        truth = emulation.emulator.state_at(c["t_clock"])
+        series.update(q=truth["q"], qd=truth["qd"], segment_ends=truth["segment_ends"], u_applied=truth["u_applied"],
+                      contact_force=truth["contact_force"], plate_displacement_m=truth["plate_displacement_m"])
+    else:
+        series.update(q=c["q_est"], qd=c["qd_est"], u_applied=c["u_measured"],
+                      segment_ends=np.array([segment_ends(q, lengths) for q in c["q_est"]]).reshape(-1, len(lengths) + 1, 2),
+                      contact_force=np.full((len(c["t"]), safe_set.n_facets), np.nan))
+    series["tip"] = series["segment_ends"][:, -1]
+    series["rho_meas"] = np.min(safe_set.margin_from_force(series["contact_force"]), axis=-1) if len(c["t"]) else np.zeros(0)
+    units = dict(TIMESERIES_UNITS)
+    units["plate_displacement_m"] = "m"
+    for key, unit in LOG_UNITS.items():
+        if key not in series:
+            series[key], units[key] = c[key], unit
+    return series, {k: units[k] for k in series}
+
+
+def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: HardwareLoop, wall_s: float,
+              emulation: Any, report: bool = True) -> dict[str, Any]:
+    """summary.json, the time series, the report and the recording of one hardware run."""
+    safe_set = loop.controller.safe_set
+    plate_k = config.emulator.plate_stiffness_N_per_m if emulation is not None else config.environment.stiffness_N_per_m
+    params = {**config.to_dict(), "emulated": emulation is not None}
+    summary = SummaryWriter(out_dir, SCENARIO, params, scene_record(config.robot_params(), safe_set, plate_k))
+    label = config.control.tuning
+    series, units = _series(config, log, safe_set, emulation)
+    counts = log.summary()
+    row: dict[str, Any] = {"tuning": label}
+    if len(series["t"]):
+        row.update(run_figures(series, loop.period_s, loop.controller.enabled, wall_s))
+    link = counts["link"]
+    row.update({k: v for k, v in counts.items() if k not in ("link", "perception")})
+    row.update(link_acked_fraction=link["acked_fraction"], link_latency_median_ms=link["latency_median_s"] * 1e3,
+               link_latency_p99_ms=link["latency_p99_s"] * 1e3, link=link, perception=counts["perception"],
+               dry_run=config.run.dry_run)
+    row["timeseries"] = str(save_timeseries(out_dir, label, series, units).relative_to(out_dir))
+    if emulation is not None:
+        from softcbf_mj.valve_emulator import RECORD_UNITS
+
+        record = emulation.emulator.record()
+        force = record["contact_force"]
+        rho = np.min(safe_set.margin_from_force(force), axis=-1)
+        dt = emulation.emulator.plant.control_dt
+        row.update(force_max_emulator_N=float(force.max(initial=0.0)),
+                   t_violation_emulator_s=float(np.count_nonzero(rho < 0) * dt),
+                   emulator_lag_max_s=emulation.emulator.lag_max_s, camera_frames_dropped=emulation.camera.dropped)
+        row["timeseries_emulator"] = str(save_timeseries(out_dir, f"{label}_emulator", record, RECORD_UNITS).relative_to(out_dir))
+    summary.add_run(row)
+    if report and len(series["t"]) > 1:
+        from softcbf_mj.recording import write_recording
+        from softcbf_mj.report import write_report
+
+        write_report(out_dir)
+        write_recording(out_dir)
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="softcbf hardware", description=HELP)
+    add_arguments(parser)
+    return run_command(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
