@@ -1,7 +1,10 @@
 """Scenario `camera_loop`: the paper's hardware experiment (Table II) in MuJoCo, the controller fed by the camera.
 
 The ground truth is `MujocoPlant` as in `mujoco_contact` (the discretised reference rod
-and the paper's plate). The controller under test sees the arm only through the
+and the paper's plate), by default with the coarser rod of the hardware emulator
+(`CAMERA_LINKS_PER_SEGMENT` = 5 links at `CAMERA_PHYSICS_DT` = 0.2 ms; ≈ 1 mN of plate
+force from the 10-link rod) and a plant tick of 2 ms (exposures, deliveries and the
+controller fall on it; the time series are logged at it). The controller under test sees the arm only through the
 overhead camera: MuJoCo's offscreen renders of the arm's AprilTags go through the
 hardware's pipeline (`perception`: detection, image-to-plane map, angles from tag
 orientations, q̇ by finite differences), with the hardware's timing
@@ -10,6 +13,8 @@ CBF filter at 10 Hz with zero-order hold, and the hardware's safe action — hol
 vent — when the estimate goes stale). Tunings default to the paper's hardware ones:
 None, HW-Low (γ = 100) and HW-High (γ = 10).
 
+Tags are detected in windows around their last positions (`perception.tracking`, the
+same corners as a full-frame detection; `tracking=False` detects in the whole frame).
 The image-to-plane map comes from `calibration`: "board" (default, as on the hardware:
 the calibration scene's tag board is rendered once and `perception.plane.calibrate`
 fits the map), "truth" (the exact map of MuJoCo's pinhole camera) or a JSON file
@@ -40,20 +45,20 @@ from controllers.params import per_segment, reference_robot
 from perception.detect import TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
+from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, save_run, scene_record
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from softcbf_mj.metrics import contact_figures, format_table
 from softcbf_mj.model_builder import (
-    DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig, build_model, calibration_board,
+    CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig, build_model, calibration_board,
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration, tag_plane_z
 from softcbf_mj.runio import SummaryWriter, frames_folder, safe_name, save_frames_index, save_timeseries
 
-TICK = 1e-3  # s, the plant's tick: exposures and deliveries fall on it
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -130,14 +135,15 @@ def camera_loop(
     pressure_limits: bool = True,
     robot: str = "reference",
     environment: str = "paper",
-    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
+    links_per_segment: int = CAMERA_LINKS_PER_SEGMENT,
     tau_p: float = DEFAULT_TAU_P,
-    physics_dt: float = DEFAULT_PHYSICS_DT,
+    physics_dt: float = CAMERA_PHYSICS_DT,
     plate_stiffness: float = 11.16,
     assumed_plate_stiffness: float = 11.16,
     f_max: float = 0.16,
     row_scaling: str = "paper",
     qp_backend: str = "native",
+    tick: float = 2e-3,
     frame_rate: float = 12.8,
     control_rate: float = 10.0,
     latency: float = CameraTiming.latency,
@@ -150,6 +156,7 @@ def camera_loop(
     height: int = 720,
     calibration: str = "board",
     detector: str = "opencv",
+    tracking: bool = True,
     saved_frames_hz: float = 0.5,
     seed: int = 0,
     q0_std: float = 0.0,
@@ -163,14 +170,14 @@ def camera_loop(
     if not (math.isfinite(saved_frames_hz) and saved_frames_hz >= 0):
         raise ValueError(f"saved_frames_hz must be finite and >= 0 Hz (0: none), got {saved_frames_hz}")
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    timing.ticks_per_control(TICK)
+    timing.ticks_per_control(tick)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     env = safe_set.environment
     true_robot = reference_robot()
     config = ArmModelConfig(robot=true_robot, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
                             links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
-    plant = MujocoPlant(build_model(config), TICK)
+    plant = MujocoPlant(build_model(config), tick)
     if model_robot.n_segments != plant.n_segments:
         raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
     n = plant.n_segments
@@ -186,6 +193,7 @@ def camera_loop(
             label = tuning.name
             controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
             estimator = ArmAngleEstimator(n, plane, config.tag_size, max_hold_s=max_hold_s, qd_filter_tau=qd_filter_tau)
+            frame_detector = TrackingTagDetector(tag_detector, arm_tag_ids(n)) if tracking else tag_detector
             saved: list[dict] = []
             folder = frames_folder(out_dir, label)
 
@@ -198,9 +206,9 @@ def camera_loop(
                 saved.append({"t": t, "file": name,
                               "detections": [{"id": d.tag_id, "corners": d.corners.tolist()} for d in detections]})
 
-            bar = Progress(f"camera_loop {label}", int(round(duration / TICK)), enabled=progress, unit_s=TICK)
+            bar = Progress(f"camera_loop {label}", int(round(duration / tick)), enabled=progress, unit_s=tick)
             start = time.perf_counter()
-            log, frames, calls = run_camera_loop(plant, lambda: renderer.render(plant.data), tag_detector, estimator,
+            log, frames, calls = run_camera_loop(plant, lambda: renderer.render(plant.data), frame_detector, estimator,
                                                  controller, nominal, duration, q0, timing, seed, keep_frame, bar)
             wall = time.perf_counter() - start
             if saved:
@@ -208,12 +216,12 @@ def camera_loop(
             frames_file = save_timeseries(out_dir, f"{label}_frames", frames, FRAME_UNITS)
 
             def figures(series: dict[str, np.ndarray]) -> dict:
-                out = contact_figures(series, safe_set, TICK)
+                out = contact_figures(series, safe_set, tick)
                 out.update(_perception_figures(frames, calls))
                 out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
                 return out
 
-            save_run(out_dir, summary, label, log, wall, TICK, controller.enabled, figures, EXTRAS_UNITS)
+            save_run(out_dir, summary, label, log, wall, tick, controller.enabled, figures, EXTRAS_UNITS)
     print(f"camera_loop: {duration:g} s, camera {width}x{height} at {frame_rate:g} fps, loop {control_rate:g} Hz, "
           f"latency {latency * 1e3:g} ms, drop rate {drop_rate:g}, pixel noise {pixel_noise:g}, calibration {calibration!r}, "
           f"F_max {f_max:g} N; outputs in {out_dir}")

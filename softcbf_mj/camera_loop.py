@@ -41,6 +41,7 @@ from controllers.nominal import NominalController
 from hardware.safety import SafeAction, SafetyFlags, SafetyMonitor
 from perception.detect import Detection, TagDetector
 from perception.estimator import ArmAngleEstimator
+from perception.tracking import TrackingTagDetector
 from softcbf_mj.loop import Estimate, LoopRecorder
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.progress import Progress
@@ -132,7 +133,7 @@ FrameHook = Callable[[int, float, np.ndarray, list[Detection]], None]
 def run_camera_loop(
     plant: MujocoPlant,
     render: Callable[[], np.ndarray],
-    detector: TagDetector,
+    detector: TagDetector | TrackingTagDetector,
     estimator: ArmAngleEstimator,
     controller: CBFFilter,
     nominal: NominalController,

@@ -96,6 +96,11 @@ PAPER_PLATE_STIFFNESS = 11.16  # N/m, paper
 DEFAULT_LINKS_PER_SEGMENT = 10  # chosen by tools/convergence_study.py (model README)
 DEFAULT_PHYSICS_DT = 1e-4  # s, chosen by tools/convergence_study.py (model README)
 DEFAULT_TAU_P = 0.05  # s, SPEC §7
+# Coarser rod for loops that render a camera (camera_loop, the hardware emulator): about twice
+# as fast; against the defaults on mujoco_contact's Low run, 0.08 mm of tip and ≈ 1 mN of plate
+# force (tools/bench_mujoco_contact.py sweep, model README), far below the camera's own errors.
+CAMERA_LINKS_PER_SEGMENT = 5
+CAMERA_PHYSICS_DT = 2e-4  # s
 
 # Appearance and scene geometry (no effect on the physics).
 _VISUAL_RADIUS = 0.01  # m, drawn arm radius
@@ -108,6 +113,7 @@ _CAMERA_FIELD_MARGIN = 1.1  # the image height covers ±1.1 Σ L around the work
 
 _ARM_COLOR = (0.55, 0.35, 0.75, 1.0)
 _PLATE_COLOR = (0.15, 0.15, 0.15, 1.0)
+_TABLE_COLOR = (0.78, 0.76, 0.72, 1.0)
 
 # AprilTags (visual only).
 DEFAULT_TAG_SIZE = 0.03  # m, black square of the 36h11 tag (chosen: the hardware's printed size)
@@ -535,7 +541,8 @@ def _add_scene(spec: mujoco.MjSpec, config: ArmModelConfig, board: bool) -> None
     255, tag black as 0, the table below saturation. No multisampling (offsamples 0): a
     tag's black-white edges lie inside its texture, not on polygon edges, so antialiasing
     does not change them (identical detections, measured) and costs 2-3× the render time
-    on the CPU.
+    on the CPU. The table is plain (untextured): a textured surface filling the view cost
+    ≈ 40 % of a 1280×720 OSMesa frame (tools/bench_render.py: 20 → 12.5 ms, measured).
     """
     spec.visual.global_.offwidth = CAMERA_RESOLUTION[0]
     spec.visual.global_.offheight = CAMERA_RESOLUTION[1]
@@ -543,17 +550,12 @@ def _add_scene(spec: mujoco.MjSpec, config: ArmModelConfig, board: bool) -> None
     spec.visual.headlight.diffuse = [0.25, 0.25, 0.25]
     spec.visual.headlight.ambient = [0.25, 0.25, 0.25]
     spec.visual.headlight.specular = [0.0, 0.0, 0.0]
-    spec.add_texture(
-        name="table", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
-        rgb1=[0.82, 0.8, 0.76], rgb2=[0.74, 0.72, 0.68], width=300, height=300,
-    )
-    spec.add_material(name="table", textures=["", "table"], texrepeat=[20, 20], reflectance=0.0)
     spec.worldbody.add_light(
         name="top", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[0.12, 0.0, 1.5], dir=[0.0, 0.0, -1.0],
         diffuse=[0.5, 0.5, 0.5], specular=[0.0, 0.0, 0.0], castshadow=False,
     )
     spec.worldbody.add_geom(
-        name="table", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], material="table",
+        name="table", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05], rgba=list(_TABLE_COLOR),
         pos=[0.0, 0.0, -_VISUAL_RADIUS], contype=0, conaffinity=0,
     )
     pos, _ = overhead_camera_pose(config)

@@ -109,3 +109,10 @@ def test_cli_refuses_a_bad_configuration_with_exit_code_2(tmp_path, capsys):
     assert main([str(EXAMPLE), "--tuning", "Bogus", "--out", str(tmp_path / "out")]) == 2
     assert "control.tuning: unknown tuning 'Bogus'" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_emulator_defaults_are_the_camera_scenarios_rod():
+    from hardware.config import EmulatorConfig
+    from softcbf_mj.model_builder import CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT
+
+    assert (EmulatorConfig().links_per_segment, EmulatorConfig().physics_dt_s) == (CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)

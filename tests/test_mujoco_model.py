@@ -79,7 +79,7 @@ def test_written_files_compile_to_the_runtime_model(tmp_path, board):
             if a.shape != b.shape or not np.array_equal(a, b):
                 differing.append(name)
     assert differing == []
-    assert from_file.ntex == runtime.ntex == 1 + 3 + (12 if board else 0)  # table + tags
+    assert from_file.ntex == runtime.ntex == 3 + (12 if board else 0)  # the tags (the table is plain)
 
 
 def test_options_names_and_limits():

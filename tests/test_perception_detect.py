@@ -78,6 +78,38 @@ def test_edge_refinement_keeps_the_corners_where_there_are_no_edges():
     np.testing.assert_array_equal(refine_corners(np.full((720, 1280), 128, np.float32), corners), corners)
 
 
+def test_a_window_around_a_tag_gives_its_full_image_corners_exactly(image, detections):
+    detector, rng = TagDetector(), np.random.default_rng(5)
+    for d in detections:
+        side = float(np.linalg.norm(np.roll(d.corners, -1, axis=0) - d.corners, axis=1).mean())
+        grow = detector.window_guard_px(side) + rng.uniform(0.0, 6.0, 4)
+        x0, y0 = np.floor(d.corners.min(axis=0) - grow[:2]).astype(int)
+        x1, y1 = np.floor(d.corners.max(axis=0) + grow[2:]).astype(int) + 1
+        in_window = [w for w in detector.detect_window(image, (x0, y0, x1, y1)) if w.tag_id == d.tag_id]
+        assert len(in_window) == 1, d.tag_id
+        np.testing.assert_allclose(in_window[0].corners, d.corners, rtol=0, atol=1e-9)  # measured: 0
+
+
+def test_edge_refinement_on_a_window_with_its_origin_is_the_full_image_refinement(image):
+    pixels = image.astype(np.float32)
+    rng = np.random.default_rng(6)
+    for tag_id in TAGS:
+        start = true_corners(tag_id) + rng.uniform(-1.0, 1.0, (4, 2))
+        x0, y0 = np.floor(start.min(axis=0)).astype(int) - 12
+        x1, y1 = np.floor(start.max(axis=0)).astype(int) + 13
+        window = refine_corners(np.ascontiguousarray(pixels[y0:y1, x0:x1]), start, (x0, y0))
+        np.testing.assert_array_equal(window, refine_corners(pixels, start))
+    with pytest.raises(ValueError, match="origin must be two integers"):
+        refine_corners(pixels, start, (0.5, 0))
+
+
+def test_bad_windows_are_refused(image):
+    with pytest.raises(ValueError, match=r"window must be \(x0, y0, x1, y1\) px .*the image is 1280 x 720"):
+        TagDetector().detect_window(image, (0, 0, 1281, 720))
+    with pytest.raises(ValueError, match="x1 - x0 >= 8"):
+        TagDetector().detect_window(image, (100, 0, 104, 720))
+
+
 def test_unexpected_ids_are_ignored(image):
     assert [d.tag_id for d in TagDetector(tag_ids=(1, 5, 99)).detect(image)] == [1, 5]
 
@@ -115,6 +147,14 @@ def test_bad_detections_and_backends_are_refused():
         Detection(-1, np.zeros((4, 2)))
     with pytest.raises(ValueError, match="backend"):
         TagDetector("zbar")
+    with pytest.raises(ValueError, match=r"threshold_windows_px must be \(min, max, step\) px with odd"):
+        TagDetector(threshold_windows_px=(4, 24, 10))
+
+
+def test_arucos_default_threshold_windows_find_the_same_tags_and_widen_the_window_guard(image, detections):
+    wide = TagDetector(threshold_windows_px=(3, 23, 10))
+    assert [d.tag_id for d in wide.detect(image)] == [d.tag_id for d in detections]
+    assert wide.window_guard_px(42.0) - TagDetector().window_guard_px(42.0) == 10.0  # 23 vs 13 px windows
 
 
 def test_pupil_backend_without_the_package_says_how_to_install(monkeypatch):
@@ -134,7 +174,7 @@ def test_pupil_backend_uses_the_same_ids_corner_order_and_pixel_convention(image
 def test_perception_imports_neither_mujoco_nor_softcbf_mj():
     code = (
         "import sys\n"
-        "import perception.tags, perception.detect, perception.plane, perception.estimator, perception.capture, perception.synthetic\n"
+        "import perception.tags, perception.detect, perception.plane, perception.estimator, perception.capture, perception.synthetic, perception.tracking\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('mujoco', 'softcbf_mj')))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=Path(__file__).parents[1])
