@@ -23,7 +23,7 @@ written by tools/calibrate_camera.py.
 Per run, besides the SPEC §8 fields (ρ_meas from the plate's spring force) and the
 contact figures of `mujoco_contact`, summary.json holds the perception figures: q error
 of complete frames against the true q at exposure (RMS and max, rad), detection rate
-(complete frames / frames taken), frames dropped, render and detection wall time per
+(complete frames / frames taken), frames dropped, render, detection and estimation wall time per
 frame (median, ms), and the loop latency: the age of the estimate at the controller's
 calls (capture → command, mean and max, s). Time series: the tick-rate series of
 `mujoco_contact` plus one per-frame series `<run>_frames.npz` (`FRAME_UNITS`); a few
@@ -117,6 +117,7 @@ def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarr
         "q_err_max_rad": float(np.max(np.abs(err))) if err.size else None,
         "render_ms_median": float(np.median(frames["render_ms"][taken])) if np.any(taken) else None,
         "detect_ms_median": float(np.median(frames["detect_ms"][taken])) if np.any(taken) else None,
+        "estimate_ms_median": float(np.median(frames["estimate_ms"][taken])) if np.any(taken) else None,
         "loop_latency_mean_s": float(np.mean(ages)) if ages.size else None,
         "loop_latency_max_s": float(np.max(ages)) if ages.size else None,
         "safe_action_calls": int(np.count_nonzero(np.isin(calls["action"], ("hold", "vent")))),

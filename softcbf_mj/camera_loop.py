@@ -24,7 +24,8 @@ each tick. At tick k (t = k·Δ), in this order:
 The loop records one row per tick (`LoopRecorder`: q, q̂ in force, u_nom, u, forces,
 ρ_pred of the last controller call, filter time on ticks with a call, NaN elsewhere)
 and one row per frame (`FrameLog`: exposure time, whether it was dropped, the tags
-seen, the true q at exposure and the q the frame gave, wall time of render and detection).
+seen, the true q at exposure and the q the frame gave, wall time of render, detection
+and estimation).
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ FRAME_UNITS = {
     "q_camera": "rad (NaN: incomplete frame)",
     "render_ms": "ms (wall)",
     "detect_ms": "ms (wall)",
+    "estimate_ms": "ms (wall, the estimator's update on delivery)",
 }
 
 
@@ -112,13 +114,16 @@ class FrameLog:
             render_ms: float = 0.0, detect_ms: float = 0.0) -> int:
         """Append a frame exposed at t (s); return its row."""
         self._rows.append({"t": t, "dropped": dropped, "complete": False, "n_tags": n_tags, "q_true": q_true.copy(),
-                           "q_camera": np.full(self.n_segments, np.nan), "render_ms": render_ms, "detect_ms": detect_ms})
+                           "q_camera": np.full(self.n_segments, np.nan), "render_ms": render_ms, "detect_ms": detect_ms,
+                           "estimate_ms": 0.0})
         return len(self._rows) - 1
 
-    def complete(self, row: int, q_camera: np.ndarray) -> None:
-        """The estimator took frame `row` and got q_camera (rad)."""
-        self._rows[row]["complete"] = True
-        self._rows[row]["q_camera"] = np.array(q_camera, dtype=float)
+    def delivered(self, row: int, estimate_ms: float, q_camera: np.ndarray | None) -> None:
+        """Frame `row` reached the estimator, which took estimate_ms; q_camera (rad) if it was complete."""
+        self._rows[row]["estimate_ms"] = estimate_ms
+        if q_camera is not None:
+            self._rows[row]["complete"] = True
+            self._rows[row]["q_camera"] = np.array(q_camera, dtype=float)
 
     def columns(self) -> dict[str, np.ndarray]:
         n = self.n_segments
@@ -198,9 +203,10 @@ def run_camera_loop(
         # 2. delivery
         while pending and pending[0][0] <= t + 1e-9 * tick:
             _, t_capture, row, detections = pending.pop(0)
+            c0 = clock()
             est = estimator.update(t_capture, detections)
-            if est.valid and est.t == t_capture and est.frames_missed == 0:
-                frames.complete(row, est.q)
+            complete = est.valid and est.t == t_capture and est.frames_missed == 0
+            frames.delivered(row, (clock() - c0) * 1e3, est.q if complete else None)
         # 3. control
         filter_us = math.nan
         est = estimator.query(t)
