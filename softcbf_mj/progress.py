@@ -51,7 +51,7 @@ class Progress:
 
     def _line(self, frac: float, now: float) -> str:
         elapsed = now - self.start
-        eta = elapsed * (1 - frac) / frac if frac > 0 else float("nan")
+        eta = f"{elapsed * (1 - frac) / frac:5.1f} s" if frac > 0 else "    - s"
         bar = "#" * int(frac * 20)
         note = f", {self._note}" if self._note else ""
         sim = ""
@@ -59,7 +59,7 @@ class Progress:
             sim_s, total_s = frac * self.total * self.unit_s, self.total * self.unit_s
             rtf = f"{sim_s / elapsed:5.1f}x real time" if elapsed > 0 else "  -  x real time"
             sim = f"  sim {sim_s:.1f}/{total_s:g} s, {rtf},"
-        return f"[{self.label}] |{bar:<20}| {100 * frac:5.1f}%{sim}  {elapsed:6.1f} s elapsed, eta {eta:5.1f} s{note}"
+        return f"[{self.label}] |{bar:<20}| {100 * frac:5.1f}%{sim}  {elapsed:6.1f} s elapsed, eta {eta}{note}"
 
     def close(self) -> None:
         self.update(self.total, self._note)
