@@ -24,8 +24,10 @@ Two threads share one monotonic clock (s):
 
 Start: the loop waits (up to `startup_timeout_s`) for the first complete frame, so q is
 finite from the first cycle on; without one it vents and raises `PerceptionStartupError`.
-End: after `duration_s`, on `stop()` or Ctrl-C (KeyboardInterrupt) — the last cycle is a
-VENT (interrupted) — and in every case a final `vent()` leaves the valves at 0 hPa.
+End: after `duration_s`, on `stop()` or Ctrl-C — the last cycle is a VENT (interrupted) —
+and in every case a final `vent()` leaves the valves at 0 hPa. In the main thread `run()`
+turns SIGINT into `stop()` for its duration, so Ctrl-C takes effect in the next cycle
+wherever it lands (elsewhere a KeyboardInterrupt inside a cycle does the same).
 
 `HardwareLog.columns()` gives one row per control cycle (units in `LOG_UNITS`); `summary()`
 the counts of actions, flags, perception and link quality. Nothing here imports MuJoCo
@@ -37,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import math
+import signal
 import threading
 import time
 from collections import Counter
@@ -256,6 +259,10 @@ class HardwareLoop:
     def run(self) -> HardwareLog:
         n = self.controller.n
         record = HardwareLog(n, len(self.controller.safe_set.H_prime))
+        # Ctrl-C (SIGINT) asks the loop to stop wherever it lands, like stop(): the next cycle
+        # (at once, the wait is cut short) vents. Only the main thread may install handlers.
+        in_main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: self.stop()) if in_main else None
         self.perception.start()
         try:
             self._wait_for_perception()
@@ -278,6 +285,8 @@ class HardwareLoop:
                 if self.on_cycle is not None:
                     self.on_cycle(k, self.clock() - t0, action)
         finally:
+            if in_main:
+                signal.signal(signal.SIGINT, previous)
             final = self.link.vent()
             record.final_vent_acked = final.ok
             record.link_stats = self.link.stats().to_dict()

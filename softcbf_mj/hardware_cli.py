@@ -92,7 +92,12 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
     except (ConfigError, OutputDirError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return USAGE_ERROR
-    row = run_hardware(config, out_dir)
+    try:
+        row = run_hardware(config, out_dir)
+    except KeyboardInterrupt:  # outside the loop (which turns Ctrl-C into its vent cycle): start-up or writing
+        print(f"\ninterrupted outside the control loop; a loop that had started vented the valves on its way out; "
+              f"outputs so far in {out_dir}", file=sys.stderr)
+        return INTERRUPTED
     print(f"hardware run ({row['tuning']}{', dry run' if config.run.dry_run else ''}): {row['cycles']} cycles, "
           f"{row['cycles_run']} run / {row['cycles_hold']} hold / {row['cycles_vent']} vent, link acknowledged "
           f"{row['link_acked_fraction']:.3f}, rho_min_pred {row['rho_min_pred']}, force_max_N {row['force_max_N']}; "

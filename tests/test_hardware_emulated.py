@@ -127,3 +127,41 @@ def test_link_cut_vents_the_board_by_its_watchdog_and_the_laptop_within_one_cycl
     assert 0.15 < watchdog[0].t - last_setpoint < 0.15 + 0.005  # 1 ms board tick, loaded machine
     assert last_setpoint < t[failed[0]] + 0.001 and not [a for a in log if a.t > watchdog[0].t]
     assert row["final_vent_acked"] is False
+
+
+def test_ctrl_c_vents_within_one_cycle_and_exits_130(tmp_path):
+    """SIGINT to a running `softcbf hardware` process: the next cycle vents, the board's
+    outputs go to 0 hPa, the run folder is written and the exit code is 130."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "softcbf_mj.hardware_cli", str(EXAMPLE), "--duration", "30", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env={**os.environ, "PYTHONPATH": str(EXAMPLE.parents[1])},
+    )
+    deadline = time.monotonic() + 60
+    while not out.is_dir() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.1)  # the folder appears when the command starts
+    time.sleep(10.0)  # imports, the emulator and the first complete frame take ≈ 3–6 s here
+    t_signal = time.monotonic()  # CLOCK_MONOTONIC: the same clock as the loop's t_clock
+    process.send_signal(signal.SIGINT)
+    output, _ = process.communicate(timeout=60)
+    assert process.returncode == 130, output
+    row = read_run_folder(out).summary["runs"][0]
+    assert row["interrupted"] is True and row["final_vent_acked"] is True
+    s, _ = load_timeseries(out / row["timeseries"])
+    t = s["t_clock"]
+    assert t[0] < t_signal  # the loop was running
+    vent = np.flatnonzero(s["action"] == VENT)
+    assert vent.size == 1 and vent[0] == len(t) - 1 and np.all(s["action"][:-1] != VENT)
+    period = HardwareConfig.load(EXAMPLE).control.period_s
+    assert t_signal <= t[-1] <= t_signal + SCHEDULE_TOL_S  # the wait is cut short: it vents at once
+    assert t[-1] - t[-2] <= period + SCHEDULE_TOL_S
+    truth, _ = load_timeseries(out / row["timeseries"].replace(".npz", "_emulator.npz"))
+    after = truth["t"] > t[-1] + 0.02  # the board's record, 20 ms after the vent cycle
+    assert np.any(after) and np.all(truth["u"][after] == 0.0)
