@@ -137,6 +137,11 @@ def test_wilson_interval_matches_the_closed_form_values():
     assert wilson_interval(0, 10) == pytest.approx((0.0, 0.27753), abs=1e-5)
     assert wilson_interval(5, 10) == pytest.approx((0.23659, 0.76341), abs=1e-5)
     assert wilson_interval(1, 20) == pytest.approx((0.00889, 0.23613), abs=1e-5)
+    for n in range(1, 60):  # the interval holds k/n for every k, its ends exactly 0 and 1 at k = 0 and n
+        for k in range(n + 1):
+            low, high = wilson_interval(k, n)
+            assert low <= k / n <= high
+        assert wilson_interval(0, n)[0] == 0.0 and wilson_interval(n, n)[1] == 1.0
     assert wilson_interval(0, 0) == (0.0, 1.0)
     with pytest.raises(ValueError, match="0 <= k <= n"):
         wilson_interval(3, 2)

@@ -46,7 +46,11 @@ def wilson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, fl
     denom = n + z * z
     centre = (k + z * z / 2) / denom
     half = z * math.sqrt(k * (n - k) / n + z * z / 4) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # The interval always holds k/n, and its ends are exactly 0 at k = 0 and 1 at k = n;
+    # rounding may miss both by an ulp, which would put k/n outside it.
+    low = 0.0 if k == 0 else min(max(0.0, centre - half), k / n)
+    high = 1.0 if k == n else max(min(1.0, centre + half), k / n)
+    return low, high
 
 
 def violated(row: Mapping[str, Any]) -> bool | None:
