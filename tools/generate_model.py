@@ -3,8 +3,8 @@
 The files come from `softcbf_mj.model_builder` with `ArmModelConfig()` defaults (the
 reference robot, the paper's plate, the chosen links per segment and physics step, 30 mm
 tags): `softcbf_arm.xml`, `scene.xml`, `scene_calibration.xml`, its board
-`scene_calibration_board.json` and the tag textures `assets/tag{id}.png` (which
-`tools/generate_tags.py` writes alone). The same parameters always give the same bytes.
+`scene_calibration_board.json` and the tag textures `assets/tag{id}.png` (36h11, from OpenCV's dictionary via
+`perception.tags.tag_image`). The same parameters always give the same bytes.
 Usage: `python tools/generate_model.py [--out DIR]`.
 """
 
