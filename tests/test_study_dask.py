@@ -15,11 +15,10 @@ import threading
 import time
 from pathlib import Path
 
+import distributed
 import pytest
 
-distributed = pytest.importorskip("distributed")
-
-from softcbf_mj.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study  # noqa: E402
+from softcbf_mj.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study
 
 STUDY = Study("kill", "mujoco_contact", ("None", "Low"), draws=4, seed=11, fixed={"t0": 25.0, "duration": 0.6},
               vary=(Distribution("plate_stiffness", "uniform", low=8.0, high=18.0),
