@@ -50,6 +50,14 @@ from perception.detect import Detection
 FORMAT_VERSION = 1
 
 
+def fovy_intrinsics(width: int, height: int, fovy_deg: float) -> np.ndarray:
+    """K (3 × 3, px) of a distortion-free camera with square pixels, vertical field of view
+    `fovy_deg` and its principal point at the image centre (OpenCV pixel convention: pixel
+    centres at integers), rendering `width` × `height` px: f = (H/2) / tan(fovy/2)."""
+    f = (height / 2) / math.tan(math.radians(fovy_deg) / 2)
+    return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
+
+
 def _finite_points(points: Any, name: str) -> np.ndarray:
     array = np.asarray(points, dtype=float)
     if array.ndim == 1 and array.shape == (2,):

@@ -32,7 +32,7 @@ from collections.abc import Mapping
 import cv2
 import numpy as np
 
-from perception.plane import PlaneCalibration
+from perception.plane import PlaneCalibration, fovy_intrinsics
 from perception.tags import tag_image, textured_size
 
 TAG_CELL_PX = 16  # texture resolution of a tag cell before warping
@@ -44,10 +44,8 @@ R_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # x ri
 
 
 def pinhole_intrinsics(image_size: tuple[int, int] = IMAGE_SIZE, fovy_deg: float = FOVY_DEG) -> np.ndarray:
-    """K (3 × 3) of a camera with square pixels, vertical field of view `fovy_deg` and a centred principal point."""
-    width, height = image_size
-    f = (height / 2) / math.tan(math.radians(fovy_deg) / 2)
-    return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
+    """K (3 × 3) of the default overhead camera (`perception.plane.fovy_intrinsics`)."""
+    return fovy_intrinsics(*image_size, fovy_deg)
 
 
 def overhead_calibration(

@@ -78,7 +78,7 @@ import mujoco
 import numpy as np
 
 from controllers.params import RobotParams, per_segment, reference_robot
-from perception.plane import TagBoard
+from perception.plane import TagBoard, fovy_intrinsics
 from perception.tags import arm_tag_ids, tag_image, textured_size
 
 ARM_FILE = "softcbf_arm.xml"
@@ -492,12 +492,12 @@ def overhead_camera_pose(config: ArmModelConfig) -> tuple[tuple[float, float, fl
 
     The camera looks down −z with image right = +x and image up = +y; it sits above
     (Σ L / 2, 0) at the height where the image height spans ±1.1 Σ L. Intrinsics:
-    fx = fy = (H_px / 2) / tan(fovy / 2), principal point at the image centre.
+    `perception.plane.fovy_intrinsics` (fx = fy = (H_px / 2) / tan(fovy / 2), centred principal point).
     """
     reach = sum(config.robot.lengths)
     half_fov = math.radians(CAMERA_FOVY_DEG) / 2
     height = _r6(round(_CAMERA_FIELD_MARGIN * reach / math.tan(half_fov), 2))
-    focal = (CAMERA_RESOLUTION[1] / 2) / math.tan(half_fov)
+    focal = float(fovy_intrinsics(*CAMERA_RESOLUTION, CAMERA_FOVY_DEG)[0, 0])
     return (_r6(reach / 2), 0.0, height), focal
 
 

@@ -44,7 +44,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from perception.plane import PlaneCalibration, TagPose
+from perception.plane import PlaneCalibration, TagPose, fovy_intrinsics
 from perception.tags import QUIET_CELLS, TAG_CELLS
 from softcbf_mj.gl_backend import fix_for
 
@@ -93,9 +93,7 @@ def camera_matrix(model: mujoco.MjModel, camera: str = "overhead", width: int | 
             f"camera {camera!r} is defined by a physical sensor (sensorsize/focal); camera_matrix supports "
             "cameras defined by fovy only"
         )
-    w, h = image_size(model, camera, width, height)
-    f = (h / 2) / math.tan(math.radians(float(model.cam_fovy[camera_id])) / 2)
-    return np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
+    return fovy_intrinsics(*image_size(model, camera, width, height), float(model.cam_fovy[camera_id]))
 
 
 def camera_pose_cv(model: mujoco.MjModel, data: mujoco.MjData, camera: str = "overhead") -> tuple[np.ndarray, np.ndarray]:
