@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import cv2
+import mujoco
 import numpy as np
 
 from controllers.filter import CBFFilter
@@ -56,7 +57,7 @@ from softcbf_mj.model_builder import (
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.progress import Progress
-from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration, tag_plane_z
+from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 from softcbf_mj.runio import SummaryWriter, frames_folder, safe_name, save_frames_index, save_timeseries
 
 
@@ -79,25 +80,18 @@ TABLE = (
 )
 
 
-def _calibration(spec: str, config: ArmModelConfig, width: int, height: int, detector: TagDetector) -> PlaneCalibration:
+def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: int, height: int,
+                 backend: str) -> PlaneCalibration:
     """The image-to-plane map: "board" (fit from a render of the calibration board), "truth", or a JSON file."""
     if spec == "truth":
-        model = build_model(config)
-        import mujoco
-
-        data = mujoco.MjData(model)
-        mujoco.mj_forward(model, data)
-        return ground_truth_calibration(model, data, "overhead", width, height, tag_plane_z(model, data))
+        return ground_truth_calibration(plant.model, plant.data, "overhead", width, height)
     if spec == "board":
-        import mujoco
-
         model = build_model(config, board=True)
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
         with OffscreenRenderer(model, "overhead", width, height) as renderer:
             image = renderer.render(data)
-        board = calibration_board(config)
-        return calibrate(TagDetector(detector.backend).detect(image), board)
+        return calibrate(TagDetector(backend).detect(image), calibration_board(config))
     path = Path(spec)
     if not path.is_file():
         raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {spec!r} (no such file)")
@@ -183,7 +177,7 @@ def camera_loop(
         raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
     n = plant.n_segments
     tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
-    plane = _calibration(calibration, config, width, height, tag_detector)
+    plane = _calibration(calibration, plant, config, width, height, detector)
     nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
     q0 = initial_configuration(n, seed, q0_std)
     save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
