@@ -29,7 +29,7 @@ from typing import Any
 
 from scenarios import get as get_scenario
 from scenarios.common import data_only
-from softcbf_mj.study.definition import Study
+from softcbf_mj.study.definition import Sample, Study
 from softcbf_mj.study.store import PARAM_PREFIX
 
 _SKIPPED_RUN_FIELDS = ("tuning", "timeseries")  # the row has its own tuning; no time series is kept
@@ -39,9 +39,8 @@ def _scalar(value: Any) -> bool:
     return value is None or isinstance(value, (bool, int, float, str))
 
 
-def sample_row(study: Study, index: int) -> dict[str, Any]:
-    """The columns that identify sample `index`: sample, draw, tuning, scenario_seed, param.*."""
-    sample = study.sample(index)
+def sample_row(sample: Sample) -> dict[str, Any]:
+    """The columns that identify `sample`: sample, draw, tuning, scenario_seed, param.*."""
     row: dict[str, Any] = {"sample": sample.index, "draw": sample.draw, "tuning": sample.tuning,
                            "scenario_seed": sample.scenario_seed}
     row.update({PARAM_PREFIX + k: v for k, v in sample.values.items()})
@@ -50,14 +49,14 @@ def sample_row(study: Study, index: int) -> dict[str, Any]:
 
 def failed_row(study: Study, index: int, error: str) -> dict[str, Any]:
     """The row of a sample whose worker failed outside the scenario (e.g. the process died)."""
-    return {**sample_row(study, index), "status": "error", "error": error, "sample_wall_s": None, "worker": None}
+    return {**sample_row(study.sample(index)), "status": "error", "error": error, "sample_wall_s": None, "worker": None}
 
 
 def run_sample(study: Study, index: int, keep_dir: str | None = None) -> dict[str, Any]:
     """The result row of sample `index` (status "ok" with the run's scalar fields, or "error")."""
     start = time.perf_counter()
     sample = study.sample(index)
-    row = sample_row(study, index)
+    row = sample_row(sample)
     try:
         scenario = get_scenario(study.scenario)
         with contextlib.ExitStack() as stack:
