@@ -10,23 +10,14 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from scenarios import get
 from softcbf_mj import recording
 from softcbf_mj.recording import GEOMETRY_HZ, RECORDING_FILE, live_viewer, write_recording
 from softcbf_mj.runio import frames_folder, load_timeseries, save_frames_index
 
-RUN = dict(duration=0.5, tunings="None,Low", amplitude=150.0, frequency=0.5, progress=False)
 STEPS = 500  # 0.5 s at 1 kHz
 SERIES = ("u", "u_nom", "rho", "force", "flags", "plate_displacement")
 GEOMETRY = ("scene/arm", "scene/tags", "scene/tip", "scene/plate")
 STATIC = ("scene", "scene/tip_trace")
-
-
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("run")
-    get("paper_sim").run(out, **RUN)
-    return out
 
 
 def read(path):

@@ -10,7 +10,6 @@ from matplotlib.image import imread
 
 from controllers.pcc import segment_ends
 from controllers.safe_set import LinearStiffness
-from scenarios import get
 from softcbf_mj.report import (
     ARC_CHORDS,
     DPI,
@@ -23,14 +22,6 @@ from softcbf_mj.report import (
 )
 from softcbf_mj.runio import RunFolderError, read_run_folder
 
-RUN = dict(duration=0.5, tunings="None,Low", amplitude=150.0, frequency=0.5, progress=False)
-
-
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("run")
-    get("paper_sim").run(out, **RUN)
-    return out
 
 
 def test_plots_have_the_stated_size_and_are_not_blank(run_dir):
