@@ -17,10 +17,8 @@ driver drops frames nobody reads.
 `blackout = True` covers the lens: frames keep coming at the same times, all black (no
 tags), until it is set back to False — the perception blackout of the tests.
 
-Rendering is the costly part (OSMesa, development machine under load: ≈ 20 ms at
-480 × 270, 27 ms at 640 × 360, 63 ms at 1280 × 720 without shadows and multisampling;
-≈ 2× more with them), so the camera switches off the model's visual-only extras before
-it renders: shadows (`light_castshadow`) and multisampling (`vis.quality.offsamples`).
+Rendering is the costly part (OSMesa; the generated model already renders without
+shadows and multisampling, see models/softcbf_arm/README.md "Rendering").
 The GL context is made on the first `read()`, in the thread that reads.
 `calibration()` is the camera's exact image-to-plane map (`render.ground_truth_calibration`).
 """
@@ -82,8 +80,6 @@ class VirtualCamera:
         if self.blackout:
             return Frame(t, np.zeros((self.height, self.width, 3), dtype=np.uint8), slot)
         if self._renderer is None:
-            self.model.light_castshadow[:] = False
-            self.model.vis.quality.offsamples = 0
             self._renderer = OffscreenRenderer(self.model, self.camera, self.width, self.height)
         self._data.qpos[:] = qpos
         mujoco.mj_kinematics(self.model, self._data)
