@@ -1,7 +1,7 @@
 """Command line: `python -m scenarios --list` and `python -m scenarios NAME --out DIR [--param value ...]`.
 
 SPEC §8's spelling of `softcbf list` / `softcbf run NAME --out DIR ...`: the same
-implementation (`softcbf_mj.cli.run_scenario`), the same outputs, errors and exit codes,
+implementation (`softcbf.cli.run_scenario`), the same outputs, errors and exit codes,
 except that --out is required here.
 """
 
@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from scenarios import registry
-from softcbf_mj.cli import USAGE_ERROR, UsageError, describe, run_scenario
+from softcbf.cli import USAGE_ERROR, UsageError, describe, run_scenario
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -110,7 +110,7 @@ def mujoco_contact(
     `environment` facets moved by `facet_offset` (m) along their outward normals (> 0:
     farther from the base) and then turned by `facet_angle` (rad, counter-clockwise seen
     from +z) about the foot of the perpendicular from the base; the controller keeps the
-    unmoved facets. Model mismatch studies vary these (softcbf_mj.study).
+    unmoved facets. Model mismatch studies vary these (softcbf.study).
     """
     params = dict(locals())
     params.pop("out_dir")

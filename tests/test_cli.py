@@ -13,7 +13,7 @@ import rerun as rr
 import scenarios.common
 import softcbf_mj
 from scenarios import registry
-from softcbf_mj.cli import INTERRUPTED, USAGE_ERROR, main
+from softcbf.cli import INTERRUPTED, USAGE_ERROR, main
 from softcbf_mj.runio import load_timeseries, read_run_folder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,7 +36,7 @@ def run_dir(tmp_path_factory):
 
 def test_softcbf_is_the_installed_entry_point():
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["scripts"]
-    assert scripts == {"softcbf": "softcbf_mj.cli:main"}
+    assert scripts == {"softcbf": "softcbf.cli:main"}
     (entry,) = metadata.entry_points(group="console_scripts", name="softcbf")
     assert entry.load() is main
 

@@ -87,7 +87,9 @@ def test_point_methods_match_the_array_methods(safe_set):
         # n = n̂·r − d cancels near a facet: equal to the rounding of r (≈ 1e-17 m), not relatively
         np.testing.assert_allclose(safe_set.penetration_at(x, y), safe_set.penetration(r), rtol=0, atol=1e-16)
         np.testing.assert_allclose(safe_set.force_at(x, y), safe_set.force(r), rtol=1e-14, atol=1e-14)
-        assert math.isclose(safe_set.margin_at(x, y), float(safe_set.margin(r)), rel_tol=0, abs_tol=1e-16 / safe_set.n_max)
+        # ρ = (n_max − n)/n_max: the penetration's 1e-16 m above, the subtraction's rounding
+        # (an ulp of n_max − n) over n_max, and the division's ulps of ρ itself
+        assert math.isclose(safe_set.margin_at(x, y), float(safe_set.margin(r)), rel_tol=4e-16, abs_tol=2e-16 / safe_set.n_max)
 
 
 def test_unrolled_two_segment_ros2_step_gives_the_same_floats():

@@ -90,7 +90,7 @@ def test_hardware_path_runs_the_simulations_controller_module_without_mujoco():
         "perception.capture, perception.detect, perception.estimator, perception.plane, controllers.filter\n"
         "assert hardware.runner.CBFFilter is controllers.filter.CBFFilter\n"
         "bad = sorted(m for m in sys.modules if m == 'mujoco' or m.startswith(('mujoco.', 'softcbf_mj')))\n"
-        "import softcbf_mj.hardware_cli\n"
+        "import softcbf.hardware_cli\n"
         "print(repr((bad, 'mujoco' in sys.modules, controllers.filter.__file__)))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True).stdout
@@ -104,7 +104,7 @@ def test_hardware_path_runs_the_simulations_controller_module_without_mujoco():
 
 
 def test_cli_refuses_a_bad_configuration_with_exit_code_2(tmp_path, capsys):
-    from softcbf_mj.hardware_cli import main
+    from softcbf.hardware_cli import main
 
     assert main([str(EXAMPLE), "--tuning", "Bogus", "--out", str(tmp_path / "out")]) == 2
     assert "control.tuning: unknown tuning 'Bogus'" in capsys.readouterr().err

@@ -21,7 +21,7 @@ from hardware.runner import ACTION_CODES
 from hardware.safety import SafeAction
 from hardware.transport import LineFaults
 from softcbf_mj.emulate import EmulatedHardware
-from softcbf_mj.hardware_cli import run_hardware
+from softcbf.hardware_cli import run_hardware
 from softcbf_mj.runio import load_timeseries, read_run_folder
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml"
@@ -140,7 +140,7 @@ def test_ctrl_c_vents_within_one_cycle_and_exits_130(tmp_path):
 
     out = tmp_path / "run"
     process = subprocess.Popen(
-        [sys.executable, "-m", "softcbf_mj.hardware_cli", str(EXAMPLE), "--duration", "30", "--out", str(out)],
+        [sys.executable, "-m", "softcbf.hardware_cli", str(EXAMPLE), "--duration", "30", "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env={**os.environ, "PYTHONPATH": str(EXAMPLE.parents[1])},
     )

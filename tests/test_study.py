@@ -1,4 +1,4 @@
-"""Robustness studies (softcbf_mj.study): definition and sampling, statistics, local runs —
+"""Robustness studies (softcbf.study): definition and sampling, statistics, local runs —
 determinism, resume after an interrupt, failing samples recorded, report.
 
 Studies here run `mujoco_contact` for 0.3 s from the sinusoid's peak (t0 = 25 s), where the
@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 
 from softcbf_mj.runio import OutputDirError
-from softcbf_mj.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, load_study, run_study
-from softcbf_mj.study.analysis import Proportion, crossing, sensitivity, tuning_summary, wilson_interval
-from softcbf_mj.study.report import write_report
+from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, load_study, run_study
+from softcbf.study.analysis import Proportion, crossing, sensitivity, tuning_summary, wilson_interval
+from softcbf.study.report import write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_TOML = """
@@ -187,7 +187,7 @@ def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_pat
     study_file = tmp_path / "slow.toml"
     study_file.write_text(TINY_TOML.replace("duration = 0.3", "duration = 1.0"), encoding="utf-8")
     out = tmp_path / "study"
-    cmd = [sys.executable, "-m", "softcbf_mj.study", "run", str(study_file), "--out", str(out), "--workers", "1"]
+    cmd = [sys.executable, "-m", "softcbf.study", "run", str(study_file), "--out", str(out), "--workers", "1"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not len(list((out / "results").glob("sample-*.parquet"))) >= 2 and time.monotonic() < deadline:

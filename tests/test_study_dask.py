@@ -18,7 +18,7 @@ from pathlib import Path
 import distributed
 import pytest
 
-from softcbf_mj.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study
+from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study
 
 STUDY = Study("kill", "mujoco_contact", ("None", "Low"), draws=4, seed=11, fixed={"t0": 25.0, "duration": 0.6},
               vary=(Distribution("plate_stiffness", "uniform", low=8.0, high=18.0),

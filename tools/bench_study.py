@@ -25,7 +25,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from softcbf_mj.study import Study, StudyStore, load_study, run_study
+from softcbf.study import Study, StudyStore, load_study, run_study
 
 ROOT = Path(__file__).resolve().parents[1]
 

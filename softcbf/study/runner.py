@@ -4,7 +4,7 @@
 scenario with those keyword arguments into a temporary folder (or into `keep_dir`,
 which is then kept, with the scenario's report and recording), silences the scenario's
 printed table, and returns the sample's row
-(columns: `softcbf_mj.study.store`). The scenario must produce exactly one run (one
+(columns: `softcbf.study.store`). The scenario must produce exactly one run (one
 tuning). An exception inside the scenario becomes a row with status "error" and its
 text, so a crashing sample never stops the study; only a dead worker process (a
 segfault, a kill) escapes, and the executor handles that.
@@ -29,8 +29,8 @@ from typing import Any
 
 from scenarios import get as get_scenario
 from scenarios.common import data_only
-from softcbf_mj.study.definition import Sample, Study
-from softcbf_mj.study.store import PARAM_PREFIX
+from softcbf.study.definition import Sample, Study
+from softcbf.study.store import PARAM_PREFIX
 
 _SKIPPED_RUN_FIELDS = ("tuning", "timeseries")  # the row has its own tuning; no time series is kept
 

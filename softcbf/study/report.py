@@ -1,4 +1,4 @@
-"""A study folder's report: PNG plots and a Markdown summary (`softcbf_mj.study.analysis`).
+"""A study folder's report: PNG plots and a Markdown summary (`softcbf.study.analysis`).
 
 `write_report(DIR, level=0.05, bins=6)` reads DIR's rows and writes:
 
@@ -26,8 +26,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
 
-from softcbf_mj.study.analysis import crossing, sensitivity, tuning_summary, varied_parameters  # noqa: E402
-from softcbf_mj.study.store import StudyStore  # noqa: E402
+from softcbf.study.analysis import crossing, sensitivity, tuning_summary, varied_parameters  # noqa: E402
+from softcbf.study.store import StudyStore  # noqa: E402
 
 REPORT_FILE = "report.md"
 PLOTS_DIR = "plots"

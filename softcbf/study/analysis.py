@@ -29,7 +29,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from softcbf_mj.study.store import PARAM_PREFIX
+from softcbf.study.store import PARAM_PREFIX
 
 QUANTILES = (0.0, 0.05, 0.5, 0.95, 1.0)
 

@@ -49,7 +49,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from softcbf_mj.runio import OutputDirError, versions, write_json
-from softcbf_mj.study.definition import Study
+from softcbf.study.definition import Study
 
 STUDY_FILE = "study.json"
 RESULTS_DIR = "results"

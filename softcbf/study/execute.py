@@ -41,9 +41,9 @@ from pathlib import Path
 from typing import Any
 
 from softcbf_mj.progress import Progress
-from softcbf_mj.study.definition import Study
-from softcbf_mj.study.runner import failed_row, run_sample
-from softcbf_mj.study.store import StudyStore
+from softcbf.study.definition import Study
+from softcbf.study.runner import failed_row, run_sample
+from softcbf.study.store import StudyStore
 
 MAX_ATTEMPTS = 2  # local pool breaks a sample may be in flight for before it is recorded as failed
 

@@ -26,8 +26,8 @@ pressure acting is the board's measured pressure (ACK) and the force is not meas
 Exit codes as `softcbf`: 0 done, 2 usage error (bad configuration or option), 130
 interrupted (Ctrl-C: the loop vents within one cycle and the folder is still written).
 
-Mount: `register_command("hardware", HELP, add_arguments, run_command)` in softcbf_mj/cli.py;
-`python -m softcbf_mj.hardware_cli` runs it alone.
+Mount: `register_command("hardware", HELP, add_arguments, run_command)` in softcbf/cli.py;
+`python -m softcbf.hardware_cli` runs it alone.
 """
 
 from __future__ import annotations

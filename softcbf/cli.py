@@ -4,8 +4,8 @@
     softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR] [--overwrite] [--spawn]
     softcbf report RUN_DIR [--no-recording]        rebuild plots/, report.md and recording.rrd
     softcbf report STUDY_DIR                       a study folder's report.md and plots/
-    softcbf study run STUDY_FILE --out DIR | report DIR   robustness studies (softcbf_mj.study)
-    softcbf hardware --config FILE ...             the hardware mode (softcbf_mj.hardware_cli)
+    softcbf study run STUDY_FILE --out DIR | report DIR   robustness studies (softcbf.study)
+    softcbf hardware --config FILE ...             the hardware mode (softcbf.hardware_cli)
     softcbf --version
 
 `run` runs a registered scenario (`scenarios.registry`): its parameters are its keyword
@@ -46,10 +46,10 @@ from pathlib import Path
 
 import softcbf_mj
 from scenarios import Scenario, get, registry
-from softcbf_mj import hardware_cli
+from softcbf import hardware_cli
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, RunFolderError, prepare_out_dir, read_run_folder, versions
-from softcbf_mj.study import cli as study_cli
-from softcbf_mj.study.store import STUDY_FILE
+from softcbf.study import cli as study_cli
+from softcbf.study.store import STUDY_FILE
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay.
@@ -249,7 +249,7 @@ def _report_args(parser: argparse.ArgumentParser) -> None:
 
 def _report(args: argparse.Namespace, extra: list[str]) -> int:
     if (args.run_dir / STUDY_FILE).is_file():
-        from softcbf_mj.study.report import write_report as write_study_report
+        from softcbf.study.report import write_report as write_study_report
 
         print(f"study report: {write_study_report(args.run_dir)}")
         return 0

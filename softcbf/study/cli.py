@@ -1,14 +1,14 @@
-"""Command line of robustness studies: `python -m softcbf_mj.study run|report`.
+"""Command line of robustness studies: `python -m softcbf.study run|report`.
 
-    python -m softcbf_mj.study run STUDY_FILE --out DIR [--workers N | --scheduler tcp://host:8786]
+    python -m softcbf.study run STUDY_FILE --out DIR [--workers N | --scheduler tcp://host:8786]
                                    [--resume] [--samples N] [--keep-runs] [--no-progress]
-    python -m softcbf_mj.study report DIR [--level 0.05] [--bins 6]
+    python -m softcbf.study report DIR [--level 0.05] [--bins 6]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
 draw-major, so N = draws × tunings runs whole draws) into DIR, one Parquet part per sample;
 `--resume` continues a study folder; Ctrl-C stops it and leaves every finished sample
 stored. It ends with the report. `report` (re)writes DIR/report.md and DIR/plots/.
-`softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf_mj.cli).
+`softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf.cli).
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from softcbf_mj.runio import OutputDirError
 
 
 def _run(args: argparse.Namespace) -> int:
-    from softcbf_mj.study.definition import load_study
-    from softcbf_mj.study.execute import run_study
-    from softcbf_mj.study.report import write_report
+    from softcbf.study.definition import load_study
+    from softcbf.study.execute import run_study
+    from softcbf.study.report import write_report
 
     try:
         study = load_study(args.study_file)
@@ -45,7 +45,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from softcbf_mj.study.report import write_report
+    from softcbf.study.report import write_report
 
     try:
         path = write_report(args.dir, level=args.level, bins=args.bins)
@@ -57,7 +57,7 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Declare the `run` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf_mj.study`)."""
+    """Declare the `run` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf.study`)."""
     commands = parser.add_subparsers(dest="study_command", required=True)
     run = commands.add_parser("run", help="run a study file into a study folder")
     run.add_argument("study_file", type=Path, help="study definition (TOML), e.g. studies/paper_tunings_plate_errors.toml")
@@ -83,7 +83,7 @@ def run_command(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m softcbf_mj.study", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m softcbf.study", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(parser)
     return run_command(parser.parse_args(argv), [])

@@ -1,0 +1,193 @@
+"""The safety-filter plug-in contract (SPEC §9): what a loop gives a filter and what it gets back.
+
+A safety filter maps the controller's view of the state and a nominal command to the
+command that is sent:
+
+    filter(estimate: Estimate, u_nom: (N,) hPa) -> FilterOutput | (N,) array of hPa
+
+- `Estimate`: t (s, the control time), q (N,) rad, qd (N,) rad/s and t_capture (s, when
+  the measurement behind q and qd was taken; t_capture = t for the exact state, earlier
+  for a camera). `t − t_capture` is the estimate's age, over which a filter may predict.
+- A bare array return means "this is u"; the loop wraps it in `FilterOutput(u)` with the
+  neutral defaults (action "user", not infeasible, no predicted margin, no diagnostics).
+- `FilterOutput.diagnostics` is the place for everything specific to one filter (the
+  CBF's b, B and active rows, a governor's certificate); `diagnostic_units` declares the
+  unit of each key, and the recorder stores them as time-series columns. Nothing
+  outside a filter's own module reads a filter-specific field by name.
+- Filters may keep state (their own command history); `reset()`, when present, is
+  called before each run. `filter_batch`, when present, filters B states at once
+  (`EstimateBatch`, u_nom (B, N) → `BatchOutput`); loops that run batches fall back to a
+  per-state loop over `__call__` for filters without it (`filter_batch` below).
+- `FilterContext` is what a filter is told at construction (the registry passes it to
+  factories that ask for a `context` argument): the robot model, the force-safe set,
+  the pressure limits, the control period and, where known, the command's delay and
+  the actuator's time constant.
+
+Whatever a filter returns, the control step clips it to the limits and refuses
+non-finite commands (softcbf_mj's control step); a filter need not repeat that.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from controllers.params import RobotParams
+from controllers.safe_set import ForceSafeSet
+
+USER_ACTION = "user"  # the action label of a bare-array return
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """The controller's view of the state: t and t_capture (s), q (N,) rad, qd (N,) rad/s."""
+
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    t_capture: float
+
+    @property
+    def age(self) -> float:
+        """t − t_capture (s): how old the measurement behind q and qd is at the control time."""
+        return self.t - self.t_capture
+
+
+@dataclass(frozen=True, eq=False)
+class EstimateBatch:
+    """B estimates at once: t, t_capture (B,) s; q, qd (B, N) rad and rad/s."""
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    t_capture: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.q.shape[0])
+
+    def __getitem__(self, i: int) -> Estimate:
+        return Estimate(float(self.t[i]), self.q[i], self.qd[i], float(self.t_capture[i]))
+
+
+@dataclass(frozen=True, eq=False)
+class FilterOutput:
+    """One filter call's result.
+
+    u: (N,) hPa, the filter's command (before the loop's clipping).
+    action: a short label of what the filter did ("user" for a bare array; the paper's
+        CBF uses "disabled", "nominal", "qp", "recovery", "slack", "vent").
+    infeasible: the filter could not satisfy its own constraints and says so.
+    rho_pred: the margin (1) the filter predicts from its estimate and model, min over
+        facets; NaN when the filter makes no prediction.
+    diagnostics: filter-specific values by name (floats or small arrays, fixed shapes
+        over a run); diagnostic_units: the unit of every key of diagnostics.
+    """
+
+    u: np.ndarray
+    action: str = USER_ACTION
+    infeasible: bool = False
+    rho_pred: float = math.nan
+    diagnostics: Mapping[str, object] = field(default_factory=dict)
+    diagnostic_units: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        missing = set(self.diagnostics) - set(self.diagnostic_units)
+        if missing:
+            raise ValueError(f"diagnostic_units must declare a unit for every diagnostic, missing {sorted(missing)}")
+
+
+@dataclass(frozen=True, eq=False)
+class BatchOutput:
+    """B filter calls' results: u (B, N) hPa, action (B,) str, infeasible (B,) bool, rho_pred (B,)."""
+
+    u: np.ndarray
+    action: np.ndarray
+    infeasible: np.ndarray
+    rho_pred: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class FilterContext:
+    """What a filter is told at construction.
+
+    robot: the controller's model of the arm; safe_set: the force-safe set P it must keep
+    the tip in; u_min, u_max: (N,) hPa, the pressure limits (None: unbounded, the paper's
+    simulation); control_dt: s, the period between filter calls; command_delay: s, the
+    time from the filter's call to the command taking effect at the valves, beyond the
+    estimate's own age (None: unknown); actuator_tau: s, the pressure's first-order time
+    constant (0: ideal valve; None: unknown).
+    """
+
+    robot: RobotParams
+    safe_set: ForceSafeSet
+    u_min: np.ndarray | None
+    u_max: np.ndarray | None
+    control_dt: float
+    command_delay: float | None = None
+    actuator_tau: float | None = None
+
+    def __post_init__(self) -> None:
+        if (self.u_min is None) != (self.u_max is None):
+            raise ValueError("u_min and u_max must both be given or both be None")
+        if self.u_min is not None:
+            n = self.robot.n_segments
+            lo, hi = np.asarray(self.u_min, dtype=float), np.asarray(self.u_max, dtype=float)
+            if lo.shape != (n,) or hi.shape != (n,) or not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
+                raise ValueError(f"u_min < u_max must be finite arrays of shape ({n},) hPa, got {self.u_min} and {self.u_max}")
+            object.__setattr__(self, "u_min", lo)
+            object.__setattr__(self, "u_max", hi)
+        if not (math.isfinite(self.control_dt) and self.control_dt > 0):
+            raise ValueError(f"control_dt must be finite and > 0 s, got {self.control_dt}")
+        for name in ("command_delay", "actuator_tau"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0 s (or None: unknown), got {value}")
+
+    @property
+    def bounded(self) -> bool:
+        """True when the pressure limits are on."""
+        return self.u_min is not None
+
+
+@runtime_checkable
+class SafetyFilter(Protocol):
+    """Anything callable as `filter(estimate, u_nom)` returning a FilterOutput or a bare (N,) array."""
+
+    def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput | np.ndarray: ...
+
+
+def as_output(result: FilterOutput | np.ndarray) -> FilterOutput:
+    """A filter's return value as a FilterOutput (a bare array becomes FilterOutput(u))."""
+    if isinstance(result, FilterOutput):
+        return result
+    return FilterOutput(np.asarray(result, dtype=float))
+
+
+def reset_filter(safety_filter: SafetyFilter) -> None:
+    """Call the filter's optional `reset()`."""
+    reset = getattr(safety_filter, "reset", None)
+    if callable(reset):
+        reset()
+
+
+def filter_batch(safety_filter: SafetyFilter, estimates: EstimateBatch, u_nom: np.ndarray) -> BatchOutput:
+    """Filter B states: the filter's own `filter_batch` when it has one, else a loop over `__call__`.
+
+    A filter's `filter_batch` must give the same commands as B calls of `__call__` on B
+    independent copies of the filter (one per simulation: a stateful filter keeps B
+    histories); the fallback is that definition for a stateless filter. u_nom: (B, N) hPa.
+    """
+    own = getattr(safety_filter, "filter_batch", None)
+    if callable(own):
+        return own(estimates, u_nom)
+    outputs = [as_output(safety_filter(estimates[i], u_nom[i])) for i in range(len(estimates))]
+    return BatchOutput(
+        np.array([np.asarray(o.u, dtype=float) for o in outputs]).reshape(np.shape(u_nom)),
+        np.array([o.action for o in outputs]),
+        np.array([bool(o.infeasible) for o in outputs]),
+        np.array([float(o.rho_pred) for o in outputs]),
+    )
