@@ -129,7 +129,7 @@ def _barrier(b: float, bdot: float, tuning: Tuning) -> tuple[float, float, float
     return math.log1p(1.0 / b) + ab * bdot * bdot / den, -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
 
 
-def _barrier_rows(tip: tuple, rows: list[list[float]], hs: list[float], tuning: Tuning) -> list[tuple]:
+def barrier_rows(tip: tuple, rows: list[list[float]], hs: list[float], tuning: Tuning) -> list[tuple]:
     """Per row of (H', h'), as Python floats: (b, ḃ, B, L_f B, [L_g B_1..L_g B_N]); no input checks.
 
     `tip` is `DynamicsEval.tip`. Rows with b ≤ B_MIN get B = +inf and L_f B = L_g B = 0.
@@ -150,7 +150,7 @@ def _barrier_rows(tip: tuple, rows: list[list[float]], hs: list[float], tuning: 
 
 def barrier_terms(ev: DynamicsEval, H, h, tuning: Tuning) -> BarrierTerms:
     """b, ḃ, B, L_f B, L_g B of every row of (H', h') at the state `ev` was evaluated at."""
-    table = [(b, bdot, big_b, lfb, *lgb) for b, bdot, big_b, lfb, lgb in _barrier_rows(ev.tip, *_rows(H, h), tuning)]
+    table = [(b, bdot, big_b, lfb, *lgb) for b, bdot, big_b, lfb, lgb in barrier_rows(ev.tip, *_rows(H, h), tuning)]
     out = np.array(table, dtype=float) if table else np.empty((0, len(ev.tip) + 1))  # b, ḃ, B, L_f B, N × L_g B
     return BarrierTerms(out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4:], out[:, 0] > B_MIN, tuning.gamma)
 

@@ -17,7 +17,7 @@ velocity part: φ is linear in q); that is how the per-step path computes it.
 
 Per-step path (`evaluate`, `acceleration`, `state_derivative`; unchecked Python-list
 entry points `_core`, `_eval`, `_acceleration` for the filter and the PCC plant): Python
-scalars on top of `pcc._step_kinematics`, with M⁻¹ in closed form for N ≤ 2 and M,
+scalars on top of `pcc.step_kinematics`, with M⁻¹ in closed form for N ≤ 2 and M,
 C q̇ unrolled for N = 2 (the same floats), because numpy's per-call overhead dominates
 such small arrays. `_core` keeps the last state's terms, so a plant and a filter sharing
 one `PCCDynamics` evaluate each measured state once. Derivative terms (∂M/∂q, C, the
@@ -40,7 +40,7 @@ import numpy as np
 
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
-from controllers.pcc import StepKinematics, _kinematics, _step_kinematics, _structure
+from controllers.pcc import StepKinematics, kinematics_unchecked, step_kinematics, kinematic_structure
 
 
 class DynamicsEval:
@@ -52,7 +52,7 @@ class DynamicsEval:
 
     __slots__ = ("tip", "_mass", "_force", "_mass_inv", "_gains", "_tip_jac", "_tip_jac_dot")
 
-    def __init__(self, tip: tuple, core: "_Core", gains: list[float]) -> None:
+    def __init__(self, tip: tuple, core: "ModelTerms", gains: list[float]) -> None:
         self.tip = tip  # (r, ṙ, r̈ at u = 0, ∂r̈/∂u_1, …, ∂r̈/∂u_N): m, m/s, m/s², m/s² per hPa
         self._mass, self._force, self._mass_inv = core.mass, core.force, core.mass_inv
         self._tip_jac, self._tip_jac_dot = core.kin.tip_jac, core.kin.tip_jac_dot
@@ -94,7 +94,7 @@ class DynamicsEval:
         return np.array(self._tip_jac_dot)
 
 
-class _Core(NamedTuple):
+class ModelTerms(NamedTuple):
     """Python-scalar model terms at (q, q̇): M, C q̇ + D q̇ + K q and M⁻¹ (nested lists)."""
 
     kin: StepKinematics
@@ -103,7 +103,7 @@ class _Core(NamedTuple):
     mass_inv: list[list[float]]
 
 
-def _spd_inverse(m: list[list[float]]) -> list[list[float]]:
+def spd_inverse(m: list[list[float]]) -> list[list[float]]:
     """M⁻¹ of a small SPD matrix; closed form for N ≤ 2 (np.linalg.inv costs ~5 µs)."""
     if len(m) == 1:
         return [[1.0 / m[0][0]]]
@@ -125,11 +125,11 @@ class PCCDynamics:
         self.damping = params.array("damping")
         self.gains = params.array("gains")
         self._masses = params.array("masses")
-        a = _structure(n, 1)[0].imag  # A = ∂φ/∂q
+        a = kinematic_structure(n, 1)[0].imag  # A = ∂φ/∂q
         self._mass_rot = (a.T @ (params.array("inertias")[:, None] * a)).tolist()
         self._scalars = (self._masses.tolist(), params.damping, params.stiffness, list(params.gains), list(params.lengths))
         self._stiffness_damping = np.hstack((self.K, self.D))
-        self._last: tuple = (None, None, None)  # (q, q̇, _Core) of the last `_core` call
+        self._last: tuple = (None, None, None)  # (q, q̇, ModelTerms) of the last `_core` call
 
     @property
     def K(self) -> np.ndarray:
@@ -158,7 +158,7 @@ class PCCDynamics:
         return as_vector("u", u, self.n, NonFiniteCommandError)
 
     # -- core ---------------------------------------------------------------------
-    def _core(self, q: list[float], qd: list[float]) -> _Core:
+    def model_terms(self, q: list[float], qd: list[float]) -> ModelTerms:
         """The per-step model terms at (q, q̇) (Python floats); see `_mass_and_force`.
 
         The last state's terms are kept: in a closed loop whose plant and filter share this
@@ -167,9 +167,9 @@ class PCCDynamics:
         last_q, last_qd, last = self._last
         if q == last_q and qd == last_qd:
             return last
-        kin = _step_kinematics(q, qd, self._scalars[4])
+        kin = step_kinematics(q, qd, self._scalars[4])
         mass, force = (self._mass_and_force_2 if self.n == 2 else self._mass_and_force)(kin, q, qd)
-        core = _Core(kin, mass, force, _spd_inverse(mass))
+        core = ModelTerms(kin, mass, force, spd_inverse(mass))
         self._last = (q[:], qd[:], core)
         return core
 
@@ -207,9 +207,9 @@ class PCCDynamics:
         m11 = r11 + (a_re * h1.real + a_im * h1.imag)
         return [[m00, m01], [m01, m11]], [f0, f1]
 
-    def _eval(self, q: list[float], qd: list[float]) -> DynamicsEval:
+    def evaluate_floats(self, q: list[float], qd: list[float]) -> DynamicsEval:
         """`evaluate` on Python float lists; no input checks."""
-        core = self._core(q, qd)
+        core = self.model_terms(q, qd)
         kin, gains = core.kin, self._scalars[3]
         # w = M⁻¹ J_r (M⁻¹ symmetric): tip acceleration per unit generalised force.
         w = [sum(map(mul, row, kin.tip_jac)) for row in core.mass_inv]
@@ -219,9 +219,9 @@ class PCCDynamics:
     def evaluate(self, q, qd) -> DynamicsEval:
         """All per-step quantities of the filter at (q, q̇) in one pass."""
         q, qd = self._state(q, qd)
-        return self._eval(q.tolist(), qd.tolist())
+        return self.evaluate_floats(q.tolist(), qd.tolist())
 
-    def _acceleration(self, core: _Core, u: list[float]) -> list[float]:
+    def acceleration_from_terms(self, core: ModelTerms, u: list[float]) -> list[float]:
         """q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q) from `core` and a Python float list u."""
         tau = [g * u_l - f for g, u_l, f in zip(self._scalars[3], u, core.force)]
         return [sum(map(mul, row, tau)) for row in core.mass_inv]
@@ -231,12 +231,12 @@ class PCCDynamics:
     def mass_matrix(self, q) -> np.ndarray:
         """M(q): (N, N), symmetric positive definite (kg·m²)."""
         q = as_vector("q", q, self.n, NonFiniteStateError)
-        return np.array(self._core(q.tolist(), [0.0] * self.n).mass)
+        return np.array(self.model_terms(q.tolist(), [0.0] * self.n).mass)
 
     def mass_matrix_derivative(self, q) -> np.ndarray:
         """∂M/∂q: (N, N, N), [k] = ∂M/∂q_k (kg·m²/rad)."""
         q = as_vector("q", q, self.n, NonFiniteStateError)
-        kin = _kinematics(q, self.lengths, 2)
+        kin = kinematics_unchecked(q, self.lengths, 2)
         n = self.n
         weighted = (self._masses[:, None, None] * kin.hess[:n]).conj()
         half = np.einsum("ijk,il->kjl", weighted, kin.jac[:n]).real  # Σ_i m_i (∂J_ci/∂q_k)ᵀ J_ci
@@ -252,22 +252,22 @@ class PCCDynamics:
     def acceleration(self, q, qd, u) -> np.ndarray:
         """q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q): (N,) (rad/s²)."""
         q, qd = self._state(q, qd)
-        return np.array(self._acceleration(self._core(q.tolist(), qd.tolist()), self._command(u).tolist()))
+        return np.array(self.acceleration_from_terms(self.model_terms(q.tolist(), qd.tolist()), self._command(u).tolist()))
 
     def acceleration_and_mass(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(q̈, M) at (q, q̇, u) from one evaluation: (N,) rad/s² and (N, N) kg·m²."""
         q, qd = self._state(q, qd)
-        core = self._core(q.tolist(), qd.tolist())
-        return np.array(self._acceleration(core, self._command(u).tolist())), np.array(core.mass)
+        core = self.model_terms(q.tolist(), qd.tolist())
+        return np.array(self.acceleration_from_terms(core, self._command(u).tolist())), np.array(core.mass)
 
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""
         q, qd = self._state(q, qd)
         u = self._command(u)
         n = self.n
-        core = self._core(q.tolist(), qd.tolist())
-        qdd = np.array(self._acceleration(core, u.tolist()))
-        kin = _kinematics(q, self.lengths, 3)
+        core = self.model_terms(q.tolist(), qd.tolist())
+        qdd = np.array(self.acceleration_from_terms(core, u.tolist()))
+        kin = kinematics_unchecked(q, self.lengths, 3)
         jac, hess = kin.jac[:n], kin.hess[:n]
         jac_dot = hess.dot(qd)  # [i, m] = Σ_j ∂²c_i/∂q_m∂q_j q̇_j  (.dot: less call overhead than @)
         acc = jac.dot(qdd) + jac_dot.dot(qd)  # body accelerations c̈_i
@@ -283,17 +283,17 @@ class PCCDynamics:
     def f(self, x) -> np.ndarray:
         """Drift f(x) = [q̇; −M⁻¹(C q̇ + D q̇ + K q)]: (2N,)."""
         q, qd = self._split(x)
-        return np.concatenate((qd, self._acceleration(self._core(q.tolist(), qd.tolist()), [0.0] * self.n)))
+        return np.concatenate((qd, self.acceleration_from_terms(self.model_terms(q.tolist(), qd.tolist()), [0.0] * self.n)))
 
     def g(self, x) -> np.ndarray:
         """Input matrix g(x) = [0; M⁻¹ Λ]: (2N, N)."""
         q, qd = self._split(x)
-        return np.vstack((np.zeros((self.n, self.n)), self._eval(q.tolist(), qd.tolist()).input_acc))
+        return np.vstack((np.zeros((self.n, self.n)), self.evaluate_floats(q.tolist(), qd.tolist()).input_acc))
 
     def state_derivative(self, x, u) -> np.ndarray:
         """ẋ = f(x) + g(x) u: (2N,)."""
         q, qd = self._split(x)
-        return np.concatenate((qd, self._acceleration(self._core(q.tolist(), qd.tolist()), self._command(u).tolist())))
+        return np.concatenate((qd, self.acceleration_from_terms(self.model_terms(q.tolist(), qd.tolist()), self._command(u).tolist())))
 
     def kinetic_energy(self, q, qd) -> float:
         """T = ½ q̇ᵀ M(q) q̇ (J)."""

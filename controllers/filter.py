@@ -1,4 +1,10 @@
-"""The CBF safety filter: state estimate + nominal command → safe command (SPEC §5).
+"""The paper's CBF safety filter: state estimate + nominal command → safe command (SPEC §5).
+
+A plug-in of `controllers.safety_filter`: `CBFFilter(estimate, u_nom)` returns a
+`FilterOutput` whose diagnostics hold the CBF's own terms (CBF_DIAGNOSTIC_UNITS);
+`CBFFilter.step(x, u_nom)` is the same computation on x = [q; q̇] returning the typed
+`CBFResult`. It uses the estimate's q and q̇ as the state now (no prediction over the
+estimate's age: the paper's design).
 
 Every control step, with x = [q; q̇] (rad, rad/s) and u_nom (N,) hPa:
 
@@ -45,18 +51,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import B_MIN, Tuning, _barrier_rows
+from controllers.cbf import B_MIN, Tuning, barrier_rows
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
-from controllers.qp import DEFAULT_BACKEND, _dot, _solve, available_backends
+from controllers.qp import DEFAULT_BACKEND, dot_lists, solve_lists, available_backends
 from controllers.safe_set import ForceSafeSet
+from controllers.safety_filter import Estimate, FilterOutput
 
 ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
 
+CBF_DIAGNOSTIC_UNITS = {
+    "b": "row-scaled m (barrier value per row of P)",
+    "B": "1 (barrier function per row; inf where b <= 0)",
+    "constraint": "1/s (L_fB + L_gB u - gamma/B per row at the returned u; <= 0 is safe)",
+    "active": "bool (per row: active in the QP)",
+    "recovery": "bool (some row has b <= 0: quasi-static recovery rows)",
+    "slack": "hPa (max row violation accepted by the slack branch)",
+    "solve_us": "us (time in QP solves)",
+}
+
 
 @dataclass(frozen=True, eq=False)
-class FilterResult:
+class CBFResult:
     """One filter step. Arrays: u, u_nom (N,) hPa; b, B, constraint, active (P,) over rows of P.
 
     constraint: L_fB + L_gB u − γ/B at the returned u (≤ 0 is safe; +inf where B is
@@ -84,7 +101,7 @@ class CBFFilter:
 
     `dynamics`: the model object to evaluate (default: a new `PCCDynamics(params)`). A
     simulation whose plant integrates the same model may pass the plant's, so that the
-    filter reuses the plant's evaluation at the state it reports (`PCCDynamics._core`).
+    filter reuses the plant's evaluation at the state it reports (`PCCDynamics.model_terms`).
     """
 
     def __init__(
@@ -152,7 +169,7 @@ class CBFFilter:
         minus_eye = [[-1.0 if k == i else -0.0 for k in range(p)] for i in range(p)]
         a_rows, b_rows = [], []
         for row, c, e in zip(rows, rhs, minus_eye):  # â_i u − s_i ≤ b̂_i
-            norm = max(math.sqrt(_dot(row, row)), 1e-12)
+            norm = max(math.sqrt(dot_lists(row, row)), 1e-12)
             a_rows.append([v / norm for v in row] + [v / root_w for v in e])
             b_rows.append(c / norm)
         a_rows += [[0.0] * n + e for e in minus_eye]  # s ≥ 0
@@ -163,20 +180,27 @@ class CBFFilter:
             eye = [[1.0 if k == j else 0.0 for k in range(n + p)] for j in range(n)]
             a_rows += eye + [[-v for v in row] for row in eye]
             b_rows += self._ub_list + [-v for v in self._lb_list]
-        z, _, _, _ = _solve(u_nom + [0.0] * p, a_rows, b_rows, None, None, self.qp_backend)
+        z, _, _, _ = solve_lists(u_nom + [0.0] * p, a_rows, b_rows, None, None, self.qp_backend)
         if z is None:
             return None, math.nan
         return z[:n], max(z[n:]) / root_w
 
-    def __call__(self, x, u_nom) -> FilterResult:
+    def __call__(self, estimate: Estimate, u_nom) -> FilterOutput:
+        """The plug-in call: `step` at x = [estimate.q; estimate.qd], as a FilterOutput."""
+        r = self.step(np.concatenate((estimate.q, estimate.qd)), u_nom)
+        diagnostics = {"b": r.b, "B": r.B, "constraint": r.constraint, "active": r.active, "recovery": r.recovery,
+                       "slack": r.slack, "solve_us": r.solve_us}
+        return FilterOutput(r.u, r.action, r.infeasible, r.rho_pred, diagnostics, CBF_DIAGNOSTIC_UNITS)
+
+    def step(self, x, u_nom) -> CBFResult:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""
         x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
         # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
         xs, u_list = x.tolist(), u_nom.tolist()
         q = xs[: self.n]
-        ev = self.dynamics._eval(q, xs[self.n :])
-        barrier = _barrier_rows(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
+        ev = self.dynamics.evaluate_floats(q, xs[self.n :])
+        barrier = barrier_rows(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
         tip = ev.tip[0]
         rho_pred = self.safe_set.margin_at(tip.real, tip.imag)
         defined = [row[0] > B_MIN for row in barrier]
@@ -192,14 +216,14 @@ class CBFFilter:
                 row, c = (lgb, gamma / big_b - lfb) if ok else self._static_row(ev, q, b_i, i)
                 rows.append(row)
                 rhs.append(c)
-                feasible = feasible and _dot(row, u_list) <= c
+                feasible = feasible and dot_lists(row, u_list) <= c
             if not feasible:
                 t0 = time.perf_counter()
                 u, action, active, infeasible, slack = self._qp_command(ev, q, u_list, rows, rhs, barrier, recovery)
                 solve_us = (time.perf_counter() - t0) * 1e6
-        constraint = [lfb + _dot(lgb, u) - gamma / big_b if ok else math.inf
+        constraint = [lfb + dot_lists(lgb, u) - gamma / big_b if ok else math.inf
                       for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
-        return FilterResult(u_nom if u is u_list else np.array(u), u_nom, np.array([row[0] for row in barrier]),
+        return CBFResult(u_nom if u is u_list else np.array(u), u_nom, np.array([row[0] for row in barrier]),
                             np.array([row[2] for row in barrier]), np.array(constraint),
                             np.zeros(len(barrier), dtype=bool) if active is None else active,
                             infeasible, recovery, action, rho_pred, solve_us, slack)
@@ -207,7 +231,7 @@ class CBFFilter:
     def _qp_command(self, ev: DynamicsEval, q: list[float], u_list: list[float], rows: list[list[float]],
                     rhs: list[float], barrier: list[tuple], recovery: bool) -> tuple[list[float], str, np.ndarray | None, bool, float]:
         """The QP branches ("qp", "recovery", "slack", "vent"): (u, action, active, infeasible, slack)."""
-        u, qp_active, _, _ = _solve(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
+        u, qp_active, _, _ = solve_lists(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
         if u is not None:
             action, active, infeasible, slack = ("recovery" if recovery else "qp"), np.array(qp_active), False, 0.0
         else:

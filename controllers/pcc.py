@@ -30,7 +30,7 @@ forms cancel catastrophically, and the closed forms (well-conditioned there) for
 ulp (the tests compare with exact rational sums).
 
 Two evaluation paths share these formulas: `kinematics` (numpy tensors, any order ≤ 3,
-for derivatives, the plant's Jacobian and the public wrappers) and `_step_kinematics`
+for derivatives, the plant's Jacobian and the public wrappers) and `step_kinematics`
 (Python scalars, first order plus the q̇-terms, for the 1 kHz filter and plant steps,
 where numpy's per-call overhead would dominate at N ≈ 2; for N = 2 its loops are
 unrolled, giving the same floats). Tests check one path against the other.
@@ -106,7 +106,7 @@ def _sinc_derivatives(q: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=None)
-def _structure(n: int, order: int) -> tuple[np.ndarray, np.ndarray]:
+def kinematic_structure(n: int, order: int) -> tuple[np.ndarray, np.ndarray]:
     """Constants for N = n segments up to derivative `order`.
 
     Returns iA = i·A (n, n) with A[k, j] = ∂φ_k/∂q_j, and the complex map D of shape
@@ -150,10 +150,10 @@ class PCCKinematics(NamedTuple):
     third: np.ndarray | None  # (N+1, N, N, N) ∂³P/∂q³
 
 
-def _kinematics(q: np.ndarray, lengths: np.ndarray, order: int) -> PCCKinematics:
+def kinematics_unchecked(q: np.ndarray, lengths: np.ndarray, order: int) -> PCCKinematics:
     """`kinematics` without input checks (for callers that checked already)."""
     n = q.shape[0]
-    ia, dmap = _structure(n, order)
+    ia, dmap = kinematic_structure(n, order)
     weight = lengths * np.exp(ia.dot(q))  # L_k e^{iφ_k}
     coef = _sinc_derivatives(q)[:, : order + 1] * weight[:, None]
     table = coef.ravel().dot(dmap).reshape(n + 1, -1)
@@ -180,17 +180,17 @@ class StepKinematics(NamedTuple):
     tip_jac_dot: list[complex]  # (N) J̇_r
 
 
-def _step_kinematics(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
+def step_kinematics(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
     """`StepKinematics` at (q, q̇), given as Python float lists (N,); no input checks.
 
-    N = 2 (the paper's arm) takes `_step_kinematics_2`, the same arithmetic unrolled.
+    N = 2 (the paper's arm) takes `step_kinematics_2`, the same arithmetic unrolled.
     """
     if len(q) == 2:
-        return _step_kinematics_2(q, qd, lengths)
-    return _step_kinematics_n(q, qd, lengths)
+        return step_kinematics_2(q, qd, lengths)
+    return step_kinematics_n(q, qd, lengths)
 
 
-def _step_kinematics_n(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
+def step_kinematics_n(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
     """`StepKinematics` for any N.
 
     Scalar loops, because numpy's per-call overhead (1–2 µs on a slow machine)
@@ -237,8 +237,8 @@ def _step_kinematics_n(q: Sequence[float], qd: Sequence[float], lengths: Sequenc
     return StepKinematics(ends, centre_jac, centre_bias_acc, end, tip_vel, prefix, tip_jac, tip_jac_dot)
 
 
-def _step_kinematics_2(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
-    """`_step_kinematics_n` for N = 2 with its loops unrolled: the same operations in the same
+def step_kinematics_2(q: Sequence[float], qd: Sequence[float], lengths: Sequence[float]) -> StepKinematics:
+    """`step_kinematics_n` for N = 2 with its loops unrolled: the same operations in the same
     order, so the same floats (tested), at well under half the interpreter overhead."""
     (q0, q1), (v0, v1), (length0, length1) = q, qd, lengths
     s0, s1, s2, _ = _sinc_half(q0)
@@ -277,7 +277,7 @@ def kinematics(q, lengths, order: int = 1) -> PCCKinematics:
     """
     if order not in range(MAX_ORDER + 1):
         raise ControllerInputError(f"order must be 0..{MAX_ORDER}, got {order!r}")
-    return _kinematics(*_checked(q, lengths), order)
+    return kinematics_unchecked(*_checked(q, lengths), order)
 
 
 def chord_derivatives(q, lengths) -> np.ndarray:
@@ -290,7 +290,7 @@ def _xy(z: np.ndarray, axis: int) -> np.ndarray:
     return np.stack((z.real, z.imag), axis=axis)
 
 
-def _ends_array(ends: list[complex]) -> np.ndarray:
+def ends_array(ends: list[complex]) -> np.ndarray:
     """`StepKinematics.ends` as the (N+1, 2) array p_0 = 0, p_1, …, p_N (m)."""
     return np.array([(0.0, 0.0)] + [(p.real, p.imag) for p in ends])
 
@@ -298,7 +298,7 @@ def _ends_array(ends: list[complex]) -> np.ndarray:
 def segment_ends(q, lengths) -> np.ndarray:
     """p_0 = 0, p_1, …, p_N = r: shape (N+1, 2) (m)."""
     q, lengths = _checked(q, lengths)
-    return _ends_array(_step_kinematics(q.tolist(), [0.0] * q.shape[0], lengths.tolist()).ends)
+    return ends_array(step_kinematics(q.tolist(), [0.0] * q.shape[0], lengths.tolist()).ends)
 
 
 def segment_orientations(q) -> np.ndarray:

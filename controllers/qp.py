@@ -87,7 +87,7 @@ class QPSolution:
     iterations: int | None
 
 
-def _dot(a: list[float], b: list[float]) -> float:
+def dot_lists(a: list[float], b: list[float]) -> float:
     return sum(map(mul, a, b))
 
 
@@ -105,7 +105,7 @@ def _split(Q: list[list[float]], a: list[float]) -> tuple[list[float], list[floa
 
 def _append(Q: list[list[float]], R: list[list[float]], d: list[float], z: list[float]) -> None:
     """Extend Q R by a column whose split is (d, z); R is kept as its columns (column j has j+1 entries)."""
-    norm = math.sqrt(_dot(z, z))
+    norm = math.sqrt(dot_lists(z, z))
     Q.append([zi / norm for zi in z])
     R.append(d + [norm])
 
@@ -282,7 +282,7 @@ def solve_qp(u_nom: ArrayLike, A: ArrayLike, b: ArrayLike, lb: ArrayLike | None 
         for j, (lo, hi) in enumerate(zip(lb_list, ub_list)):
             if lo > hi:
                 raise ValueError(f"lb[{j}] = {lo} exceeds ub[{j}] = {hi}")
-    u, active, status, iterations = _solve(u0, rows, b_list, lb_list, ub_list, backend, zero_row_tol)
+    u, active, status, iterations = solve_lists(u0, rows, b_list, lb_list, ub_list, backend, zero_row_tol)
     return QPSolution(None if u is None else np.array(u), u is not None, np.array(active, dtype=bool), status, iterations)
 
 
@@ -292,7 +292,7 @@ def _unit_rows(n: int, sign: float) -> tuple[tuple[float, ...], ...]:
     return tuple(tuple(sign if k == j else 0.0 for k in range(n)) for j in range(n))
 
 
-def _solve(u0: list[float], rows: list[list[float]], b_list: list[float], lb_list: list[float] | None,
+def solve_lists(u0: list[float], rows: list[list[float]], b_list: list[float], lb_list: list[float] | None,
            ub_list: list[float] | None, backend: str = DEFAULT_BACKEND,
            zero_row_tol: float = ZERO_ROW_TOL) -> tuple[list[float] | None, list[bool], str, int | None]:
     """`solve_qp` on Python float lists that were checked already (shapes, finite, lb ≤ ub, backend).

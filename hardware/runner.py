@@ -305,7 +305,7 @@ class HardwareLoop:
         try:
             u_nom = np.asarray(self.nominal(t_run, est.q, est.qd), dtype=float)
             start = time.perf_counter()
-            result = self.controller(np.concatenate((est.q, est.qd)), u_nom)
+            result = self.controller.step(np.concatenate((est.q, est.qd)), u_nom)
             filter_us = (time.perf_counter() - start) * 1e6
             u_cmd = result.u
         except ControllerInputError as exc:

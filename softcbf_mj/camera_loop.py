@@ -37,7 +37,7 @@ from typing import Callable
 
 import numpy as np
 
-from controllers.filter import CBFFilter, FilterResult
+from controllers.filter import CBFFilter, CBFResult
 from controllers.nominal import NominalController
 from hardware.safety import SafeAction, SafetyFlags, SafetyMonitor
 from perception.detect import Detection, TagDetector
@@ -171,7 +171,7 @@ def run_camera_loop(
     frames = FrameLog(n)
     pending: list[tuple[float, float, int, list[Detection]]] = []  # (ready, t_capture, row, detections)
     nan_p = np.full(len(controller.safe_set.H_prime), np.nan)
-    result: FilterResult | None = None
+    result: CBFResult | None = None
     u = np.zeros(n)
     next_frame = 0
     started = False
@@ -222,7 +222,7 @@ def run_camera_loop(
                 command = None
                 if not est.stale:
                     c0 = clock()
-                    result = controller(np.concatenate((est.q, est.qd)), u_nom)
+                    result = controller.step(np.concatenate((est.q, est.qd)), u_nom)
                     filter_us = (clock() - c0) * 1e6
                     command = result.u
                 decision = safety.step(t, command, SafetyFlags(perception_stale=est.stale))
@@ -242,9 +242,9 @@ def run_camera_loop(
     return recorder.columns(), frames.columns(), call_log
 
 
-def _no_estimate_result(u: np.ndarray, u_nom: np.ndarray, nan_p: np.ndarray) -> FilterResult:
+def _no_estimate_result(u: np.ndarray, u_nom: np.ndarray, nan_p: np.ndarray) -> CBFResult:
     """The record of a tick without a controller result: no prediction, nothing active."""
-    return FilterResult(
+    return CBFResult(
         u=u, u_nom=u_nom, b=nan_p, B=nan_p, constraint=nan_p, active=np.zeros(len(nan_p), bool),
         infeasible=False, recovery=False, action="vent", rho_pred=math.nan, solve_us=0.0, slack=0.0,
     )

@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from controllers.filter import CBFFilter, FilterResult
+from controllers.filter import CBFFilter, CBFResult
 from controllers.nominal import NominalController
 from controllers.safe_set import ForceSafeSet
 from softcbf_mj.plant import Plant, PlantState
@@ -77,7 +77,7 @@ class LoopRecorder:
         self._flags = np.empty((n_steps, p + 2), dtype=bool)  # active (P), infeasible, recovery
         self._extras: dict[str, np.ndarray] = {}
 
-    def record(self, k: int, state: PlantState, est: Estimate, result: FilterResult, filter_us: float) -> None:
+    def record(self, k: int, state: PlantState, est: Estimate, result: CBFResult, filter_us: float) -> None:
         """Row k: the plant's state, the estimate and filter result in force, and the filter's time (µs).
 
         In a multi-rate loop the result is held between controller calls: pass
@@ -133,7 +133,7 @@ def run_closed_loop(
         est = estimator(state)
         u_nom = nominal(est.t, est.q, est.qd)
         t0 = clock()
-        result: FilterResult = controller(np.concatenate((est.q, est.qd)), u_nom)
+        result: CBFResult = controller.step(np.concatenate((est.q, est.qd)), u_nom)
         filter_us = (clock() - t0) * 1e6
         recorder.record(k, state, est, result, filter_us)
         state = plant.step(result.u)

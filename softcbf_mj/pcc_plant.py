@@ -26,9 +26,9 @@ from operator import mul
 
 import numpy as np
 
-from controllers.dynamics import PCCDynamics, _Core, _spd_inverse
+from controllers.dynamics import PCCDynamics, ModelTerms, spd_inverse
 from controllers.params import RobotParams
-from controllers.pcc import _ends_array
+from controllers.pcc import ends_array
 from controllers.safe_set import ForceSafeSet
 from softcbf_mj.plant import PlantState, steps_per_control
 
@@ -72,23 +72,23 @@ class PCCPlant:
         ros2 = self._ros2_2 if self.n_segments == 2 else self._ros2
         self._step_fn = {"ros2": ros2, "rk4": self._rk4, "euler": self._euler}[integrator]
         self._x: list[float] = []
-        self._core: _Core | None = None  # the dynamics' terms at self._x
+        self._terms: ModelTerms | None = None  # the dynamics' terms at self._x
         self._t = 0.0
         self._k = 0
 
-    def _at(self, x: list[float]) -> _Core:
-        """The dynamics' per-step terms at x (`PCCDynamics._core`)."""
+    def _at(self, x: list[float]) -> ModelTerms:
+        """The dynamics' per-step terms at x (`PCCDynamics.model_terms`)."""
         n = self.n_segments
-        return self.dynamics._core(x[:n], x[n:])
+        return self.dynamics.model_terms(x[:n], x[n:])
 
-    def _rhs(self, x: list[float], core: _Core, u: list[float]) -> list[float]:
+    def _rhs(self, x: list[float], core: ModelTerms, u: list[float]) -> list[float]:
         """F(x, u) = [q̇; q̈] with `core` the terms at x."""
-        return x[self.n_segments :] + self.dynamics._acceleration(core, u)
+        return x[self.n_segments :] + self.dynamics.acceleration_from_terms(core, u)
 
-    def _euler(self, x: list[float], core: _Core, u: list[float], h: float) -> list[float]:
+    def _euler(self, x: list[float], core: ModelTerms, u: list[float], h: float) -> list[float]:
         return [xi + h * fi for xi, fi in zip(x, self._rhs(x, core, u))]
 
-    def _rk4(self, x: list[float], core: _Core, u: list[float], h: float) -> list[float]:
+    def _rk4(self, x: list[float], core: ModelTerms, u: list[float], h: float) -> list[float]:
         k1 = self._rhs(x, core, u)
         x2 = [xi + 0.5 * h * k for xi, k in zip(x, k1)]
         k2 = self._rhs(x2, self._at(x2), u)
@@ -98,14 +98,14 @@ class PCCPlant:
         k4 = self._rhs(x4, self._at(x4), u)
         return [xi + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4)]
 
-    def _ros2(self, x: list[float], core: _Core, u: list[float], h: float) -> list[float]:
+    def _ros2(self, x: list[float], core: ModelTerms, u: list[float], h: float) -> list[float]:
         # W k = r with W = [[I, −γhI], [γh M⁻¹K, I + γh M⁻¹D]] by block elimination:
         # (M + γh D + (γh)² K) k_v = M r_v − γh K r_q,  k_q = r_q + γh k_v  (h = physics_dt).
         n = self.n_segments
         mass = core.mass
-        schur_inv = _spd_inverse([[m + s if j == l else m for l, m in enumerate(row)]
+        schur_inv = spd_inverse([[m + s if j == l else m for l, m in enumerate(row)]
                                   for j, (row, s) in enumerate(zip(mass, self._schur_diag))])
-        k1 = self._solve_w(mass, schur_inv, x[n:], self.dynamics._acceleration(core, u))
+        k1 = self._solve_w(mass, schur_inv, x[n:], self.dynamics.acceleration_from_terms(core, u))
         x2 = [xi + h * k for xi, k in zip(x, k1)]
         r2 = [f - 2.0 * k for f, k in zip(self._rhs(x2, self._at(x2), u), k1)]
         k2 = self._solve_w(mass, schur_inv, r2[:n], r2[n:])
@@ -117,12 +117,12 @@ class PCCPlant:
         k_v = [sum(map(mul, row, rhs)) for row in schur_inv]
         return [r + self._gh * k for r, k in zip(r_q, k_v)] + k_v
 
-    def _ros2_2(self, x: list[float], core: _Core, u: list[float], h: float) -> list[float]:
+    def _ros2_2(self, x: list[float], core: ModelTerms, u: list[float], h: float) -> list[float]:
         """`_ros2` for N = 2 unrolled: the same operations in the same order (tested), a third of the cost."""
         gh, (ghk0, ghk1), (sd0, sd1) = self._gh, self._gh_stiffness, self._schur_diag
-        g0, g1 = self.dynamics._scalars[3]  # Λ
+        g0, g1 = self.params.gains  # Λ
         (m00, m01), (m10, m11) = core.mass
-        a, b, c, d = m00 + sd0, m01, m10, m11 + sd1  # Schur complement M + γhD + (γh)²K, inverted as `_spd_inverse`
+        a, b, c, d = m00 + sd0, m01, m10, m11 + sd1  # Schur complement M + γhD + (γh)²K, inverted as `spd_inverse`
         det = a * d - b * c
         s00, s01, s10, s11 = d / det, -b / det, -c / det, a / det
         q0, q1, v0, v1 = x
@@ -145,12 +145,12 @@ class PCCPlant:
         return [xi + (0.5 * h) * (3.0 * k1i + k2i) for xi, k1i, k2i in zip(x, k1, k2)]
 
     def _state(self, u: np.ndarray) -> PlantState:
-        n, x, tip = self.n_segments, self._x, self._core.kin.ends[-1]
+        n, x, tip = self.n_segments, self._x, self._terms.kin.ends[-1]
         return PlantState(
             t=self._t,
             q=np.array(x[:n]),
             qd=np.array(x[n:]),
-            segment_ends=_ends_array(self._core.kin.ends),
+            segment_ends=ends_array(self._terms.kin.ends),
             contact_forces=self.safe_set.force_at(tip.real, tip.imag),
             u_applied=u,
         )
@@ -163,7 +163,7 @@ class PCCPlant:
         if not (np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))):
             raise ValueError(f"q0 and qd0 must be finite, got q0={q0}, qd0={qd0}")
         self._x = q0.tolist() + qd0.tolist()
-        self._core = self._at(self._x)
+        self._terms = self._at(self._x)
         self._t, self._k = 0.0, 0
         return self._state(np.zeros(self.n_segments))
 
@@ -172,7 +172,7 @@ class PCCPlant:
         u_list = u.tolist()
         if u.shape != (self.n_segments,) or not all(map(math.isfinite, u_list)):
             raise ValueError(f"u must be finite with shape ({self.n_segments},), got {u}")
-        x, core, h = self._x, self._core, self.physics_dt
+        x, core, h = self._x, self._terms, self.physics_dt
         for _ in range(self.substeps):
             try:
                 x = self._step_fn(x, core, u_list, h)
@@ -184,7 +184,7 @@ class PCCPlant:
                     f"physics_dt={h:g} s; use integrator='ros2' or a smaller physics_dt"
                 )
             core = self._at(x)
-        self._x, self._core = x, core
+        self._x, self._terms = x, core
         self._k += 1
         self._t = self._k * self.control_dt
         return self._state(u)

@@ -31,14 +31,14 @@ def _states(n: int, count: int = 300) -> list[tuple[list[float], list[float]]]:
 def test_unrolled_two_segment_kinematics_gives_the_same_floats():
     lens = lengths(2).tolist()
     for q, qd in _states(2):
-        assert pcc._step_kinematics_2(q, qd, lens) == pcc._step_kinematics_n(q, qd, lens), (q, qd)
-    assert pcc._step_kinematics([0.1, 0.2], [0.0, 1.0], lens) == pcc._step_kinematics_2([0.1, 0.2], [0.0, 1.0], lens)
+        assert pcc.step_kinematics_2(q, qd, lens) == pcc.step_kinematics_n(q, qd, lens), (q, qd)
+    assert pcc.step_kinematics([0.1, 0.2], [0.0, 1.0], lens) == pcc.step_kinematics_2([0.1, 0.2], [0.0, 1.0], lens)
 
 
 def test_unrolled_two_segment_mass_and_force_give_the_same_floats():
     dyn = PCCDynamics(uniform_robot(2).replace(lengths=tuple(lengths(2)), masses=(0.2, 0.07)))
     for q, qd in _states(2):
-        kin = pcc._step_kinematics(q, qd, dyn.lengths.tolist())
+        kin = pcc.step_kinematics(q, qd, dyn.lengths.tolist())
         assert dyn._mass_and_force_2(kin, q, qd) == dyn._mass_and_force(kin, q, qd), (q, qd)
 
 
@@ -54,11 +54,11 @@ def test_scalar_sinc_matches_the_series_matrix_and_is_the_array_path():
 def test_dynamics_memo_returns_the_terms_of_the_state_asked_for():
     dyn, fresh = PCCDynamics(ROBOT), PCCDynamics(ROBOT)
     for q, qd in _states(2, 20):
-        first = dyn._core(q, qd)
-        assert dyn._core(list(q), list(qd)) is first  # same state: kept
-        other = dyn._core([q[0] + 1e-9, q[1]], qd)
+        first = dyn.model_terms(q, qd)
+        assert dyn.model_terms(list(q), list(qd)) is first  # same state: kept
+        other = dyn.model_terms([q[0] + 1e-9, q[1]], qd)
         assert other is not first and other.kin.tip != first.kin.tip
-        assert dyn._core(q, qd).mass == fresh._core(q, qd).mass
+        assert dyn.model_terms(q, qd).mass == fresh.model_terms(q, qd).mass
 
 
 def test_filter_sharing_the_plant_dynamics_gives_the_same_commands():
@@ -68,7 +68,7 @@ def test_filter_sharing_the_plant_dynamics_gives_the_same_commands():
     state = plant.reset(np.array([0.3, 0.2]))
     for _ in range(300):
         x = np.concatenate((state.q, state.qd))
-        a, b = shared(x, np.array([150.0, 150.0])), alone(x, np.array([150.0, 150.0]))
+        a, b = shared.step(x, np.array([150.0, 150.0])), alone.step(x, np.array([150.0, 150.0]))
         assert a.u.tolist() == b.u.tolist() and a.constraint.tolist() == b.constraint.tolist() and a.action == b.action
         state = plant.step(a.u)
     with pytest.raises(ValueError, match="same params"):
@@ -118,7 +118,7 @@ def _reference_loop(plant, controller, nominal, n_steps, q0):
     state = plant.reset(q0)
     for _ in range(n_steps):
         u_nom = nominal(state.t, state.q, state.qd)
-        res = controller(np.concatenate((state.q, state.qd)), u_nom)
+        res = controller.step(np.concatenate((state.q, state.qd)), u_nom)
         for key, value in (("t", state.t), ("q", state.q), ("qd", state.qd), ("q_est", state.q), ("qd_est", state.qd),
                            ("tip", state.tip), ("segment_ends", state.segment_ends), ("u_nom", res.u_nom), ("u", res.u),
                            ("u_applied", state.u_applied), ("contact_force", state.contact_forces),

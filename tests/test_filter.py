@@ -7,7 +7,8 @@ import pytest
 
 from controllers.cbf import Tuning, barrier_terms, get_tuning
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError
-from controllers.filter import ACTIONS, CBFFilter
+from controllers.filter import CBF_DIAGNOSTIC_UNITS, ACTIONS, CBFFilter
+from controllers.safety_filter import Estimate
 from controllers.params import reference_robot
 from controllers.pcc import tip_position
 from controllers.qp import available_backends
@@ -37,15 +38,15 @@ def outside_state():
 
 def test_disabled_tuning_passes_nominal_and_clips_only_with_limits():
     x, u_nom = approaching_state(), np.array([400.0, -20.0])
-    free = CBFFilter(ROBOT, SAFE, get_tuning("None"), pressure_limits=False)(x, u_nom)
+    free = CBFFilter(ROBOT, SAFE, get_tuning("None"), pressure_limits=False).step(x, u_nom)
     assert free.action == "disabled" and not free.infeasible and not free.recovery
     np.testing.assert_array_equal(free.u, u_nom)
-    limited = CBFFilter(ROBOT, SAFE, get_tuning("None"), pressure_limits=True)(x, u_nom)
+    limited = CBFFilter(ROBOT, SAFE, get_tuning("None"), pressure_limits=True).step(x, u_nom)
     np.testing.assert_array_equal(limited.u, [150.0, -20.0])
 
 
 def test_safe_nominal_is_returned_unchanged_without_a_qp():
-    res = CBFFilter(ROBOT, SAFE, get_tuning("Low"))(np.zeros(4), np.array([10.0, 10.0]))
+    res = CBFFilter(ROBOT, SAFE, get_tuning("Low")).step(np.zeros(4), np.array([10.0, 10.0]))
     assert res.action == "nominal" and res.solve_us == 0.0
     np.testing.assert_array_equal(res.u, [10.0, 10.0])
     assert np.all(res.constraint <= 0) and res.rho_pred == 1.0
@@ -56,7 +57,7 @@ def test_active_qp_satisfies_kkt(backend):
     """One active row, no bounds: u* = u_nom − μ a with μ ≥ 0, a = L_gB, and a·u* = c."""
     filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"), pressure_limits=False, qp_backend=backend)
     u_nom, x = np.array([150.0, 150.0]), approaching_state()
-    res = filt(x, u_nom)
+    res = filt.step(x, u_nom)
     assert res.action == "qp" and res.active[0] and not res.infeasible
     terms = barrier_terms(filt.dynamics.evaluate(x[:2], x[2:]), SAFE.H_prime, SAFE.h_prime, get_tuning("Low"))
     a = terms.LgB[0]
@@ -70,7 +71,7 @@ def test_active_qp_satisfies_kkt(backend):
 
 def test_command_within_bounds_and_flagged_when_infeasible():
     filt = CBFFilter(ROBOT, SAFE, get_tuning("High"), pressure_limits=True)
-    res = filt(np.array([0.32, 0.28, 2.0, 2.0]), np.array([150.0, 150.0]))
+    res = filt.step(np.array([0.32, 0.28, 2.0, 2.0]), np.array([150.0, 150.0]))
     assert res.infeasible and res.action == "slack"
     assert np.all(np.isfinite(res.u)) and np.all(np.abs(res.u) <= 150.0)
     assert res.slack > 0
@@ -78,7 +79,7 @@ def test_command_within_bounds_and_flagged_when_infeasible():
 
 def test_outside_safe_set_gives_flagged_bounded_recovery():
     filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"), pressure_limits=True)
-    res = filt(outside_state(), np.array([100.0, 100.0]))
+    res = filt.step(outside_state(), np.array([100.0, 100.0]))
     assert res.recovery and res.action in ("recovery", "slack")
     assert np.all(np.isfinite(res.u)) and np.all(np.abs(res.u) <= 150.0)
     assert math.isinf(res.B[0]) and math.isinf(res.constraint[0])
@@ -95,7 +96,7 @@ def test_recovery_brings_the_tip_back_inside_within_a_second(tuning):
     state = plant.reset(outside_state()[:2])
     inside_at = None
     for k in range(3000):
-        res = filt(np.concatenate((state.q, state.qd)), np.array([120.0, 120.0]))
+        res = filt.step(np.concatenate((state.q, state.qd)), np.array([120.0, 120.0]))
         state = plant.step(res.u)
         if inside_at is None and np.all(b_of(state.q) > 0):
             inside_at = k
@@ -106,15 +107,15 @@ def test_recovery_brings_the_tip_back_inside_within_a_second(tuning):
 @pytest.mark.parametrize("bad, error", [(np.array([np.nan, 0, 0, 0]), NonFiniteStateError), (np.array([0, 0, np.inf, 0]), NonFiniteStateError)])
 def test_nonfinite_state_raises(bad, error):
     with pytest.raises(error, match="x must be finite"):
-        CBFFilter(ROBOT, SAFE, get_tuning("Low"))(bad, np.zeros(2))
+        CBFFilter(ROBOT, SAFE, get_tuning("Low")).step(bad, np.zeros(2))
 
 
 def test_nonfinite_command_and_wrong_shapes_raise():
     filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"))
     with pytest.raises(NonFiniteCommandError, match="u_nom must be finite"):
-        filt(np.zeros(4), np.array([np.nan, 0.0]))
+        filt.step(np.zeros(4), np.array([np.nan, 0.0]))
     with pytest.raises(ValueError, match=r"x must have shape \(4,\)"):
-        filt(np.zeros(3), np.zeros(2))
+        filt.step(np.zeros(3), np.zeros(2))
 
 
 def test_configuration_errors_name_field_and_value():
@@ -133,7 +134,7 @@ def test_random_states_always_give_finite_bounded_commands():
         x = np.concatenate((rng.uniform(-1.2, 1.2, 2), rng.uniform(-8, 8, 2)))
         u_nom = rng.uniform(-400, 400, 2)
         for filt in filters:
-            res = filt(x, u_nom)
+            res = filt.step(x, u_nom)
             assert res.action in ACTIONS
             assert np.all(np.isfinite(res.u)) and np.all(np.abs(res.u) <= 150.0 + 1e-12)
             assert res.recovery == bool(np.any(res.b <= 0))
@@ -160,8 +161,19 @@ def test_forward_invariance_dense_evaluation(tuning):
         state = plant.reset(q0)
         b_min = np.inf
         for _ in range(8000):
-            res = filt(np.concatenate((state.q, state.qd)), u_nom)
+            res = filt.step(np.concatenate((state.q, state.qd)), u_nom)
             b_min = min(b_min, float(res.b[0]))
             state = plant.step(res.u)
         assert b_min < 0.75 * b_of(q0)[0], f"never came near P's boundary: b_min {b_min}, b0 {b_of(q0)[0]}"
         assert b_min >= -1e-5, b_min
+
+
+def test_plugin_call_is_step_on_the_estimate_with_diagnostics():
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("High"), pressure_limits=True)
+    q, qd, u_nom = np.array([0.32, 0.28]), np.array([2.0, 2.0]), np.array([150.0, 150.0])
+    out = filt(Estimate(1.0, q, qd, 0.97), u_nom)
+    ref = filt.step(np.concatenate((q, qd)), u_nom)
+    assert out.u.tolist() == ref.u.tolist() and out.action == ref.action and out.infeasible == ref.infeasible
+    assert out.rho_pred == ref.rho_pred
+    assert out.diagnostics["b"].tolist() == ref.b.tolist() and out.diagnostics["active"].tolist() == ref.active.tolist()
+    assert set(out.diagnostics) == set(CBF_DIAGNOSTIC_UNITS) == set(out.diagnostic_units)

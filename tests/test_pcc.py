@@ -143,7 +143,7 @@ def test_step_kinematics_matches_the_tensor_path(n):
     rng = np.random.default_rng(n)
     for q in configurations(n):
         qd = rng.normal(0, 2, n)
-        step = pcc._step_kinematics(q, qd, lens)
+        step = pcc.step_kinematics(q, qd, lens)
         kin = pcc.kinematics(q, lens, order=2)
         jac_dot = kin.hess @ qd
         centre_jac = np.zeros((n, n), complex)

@@ -73,13 +73,13 @@ def main() -> None:
     plant = PCCPlant(robot, safe_set)
     times: dict[str, list[float]] = {key: [] for key in configs}
     plant_times: list[float] = []
-    actions = {key: Counter(filt(x, u).action for x, u in states) for key, (filt, states) in configs.items()}
+    actions = {key: Counter(filt.step(x, u).action for x, u in states) for key, (filt, states) in configs.items()}
     gc.disable()
     for k in range(args.samples):
         for key, (filt, states) in configs.items():
             x, u_nom = states[k]
             start = clock()
-            filt(x, u_nom)
+            filt.step(x, u_nom)
             times[key].append((clock() - start) / 1e3)
         if k < len(plant_cases):
             q, qd, u = plant_cases[k]
