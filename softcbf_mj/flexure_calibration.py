@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from softcbf_mj.flexure import SheetInModel
+from softcbf_mj.flexure import SheetInModel, thickness_for_tip_stiffness
 from softcbf_mj.model_builder import ArmModelConfig, build_model
 
 SETTLE_WINDOW_S = 0.1  # s, rest: the deflection changes by less than `tolerance` over this window
@@ -98,3 +98,26 @@ def calibrate_flexure(config: ArmModelConfig | None = None, load: float = 0.16, 
     config = config or ArmModelConfig(plate="flexure")
     config = dataclasses.replace(config, plate="flexure")
     return load_sheet(config, config.flexure[facet - 1].calibration_s, load, facet)
+
+
+def fit_thickness(target: float, config: ArmModelConfig | None = None, load: float = 0.16, facet: int = 1,
+                  rtol: float = 1e-4, max_iterations: int = 10) -> float:
+    """The sheet thickness (m, 6 significant digits) whose `calibrate_flexure` k is `target` N/m within `rtol`.
+
+    Starts from Euler–Bernoulli's `thickness_for_tip_stiffness` and rescales t by (target / k)^(1/3)
+    (k ∝ t³ for a thin sheet) until the calibrated k is within rtol of the target.
+    """
+    if not (math.isfinite(target) and target > 0):
+        raise ValueError(f"target must be finite and > 0 N/m, got {target}")
+    config = dataclasses.replace(config or ArmModelConfig(), plate="flexure")
+    flex = config.flexure[facet - 1]
+    length = flex.calibration_s
+    thickness = thickness_for_tip_stiffness(target, length, flex.width, flex.youngs_modulus)
+    for _ in range(max_iterations):
+        flexures = list(config.flexure)
+        flexures[facet - 1] = dataclasses.replace(flex, thickness=float(f"{thickness:.6g}"))
+        k = calibrate_flexure(dataclasses.replace(config, flexure=tuple(flexures)), load, facet).stiffness_N_per_m
+        if abs(k / target - 1) <= rtol:
+            return float(f"{thickness:.6g}")
+        thickness *= (target / k) ** (1.0 / 3.0)
+    raise RuntimeError(f"no thickness within {max_iterations} iterations gives k = {target:g} N/m (last {k:.6g} N/m)")
