@@ -57,7 +57,7 @@ def load_sheet(config: ArmModelConfig, s: float, load: float = 0.16, facet: int 
     config = dataclasses.replace(config, plate="flexure")
     if not 1 <= facet <= config.n_facets:
         raise ValueError(f"facet must be in 1..{config.n_facets}, got {facet}")
-    length = config.flexure[facet - 1].length
+    length = config.flexures()[facet - 1].length
     if not (math.isfinite(s) and 0 < s <= length):
         raise ValueError(f"s must lie in (0, {length:g}] m (the sheet's length), got {s}")
     model = build_model(config)
@@ -97,7 +97,7 @@ def calibrate_flexure(config: ArmModelConfig | None = None, load: float = 0.16, 
     `.stiffness_N_per_m` is the k to give the controller."""
     config = config or ArmModelConfig(plate="flexure")
     config = dataclasses.replace(config, plate="flexure")
-    return load_sheet(config, config.flexure[facet - 1].calibration_s, load, facet)
+    return load_sheet(config, config.flexures()[facet - 1].calibration_s, load, facet)
 
 
 def fit_thickness(target: float, config: ArmModelConfig | None = None, load: float = 0.16, facet: int = 1,
@@ -110,11 +110,11 @@ def fit_thickness(target: float, config: ArmModelConfig | None = None, load: flo
     if not (math.isfinite(target) and target > 0):
         raise ValueError(f"target must be finite and > 0 N/m, got {target}")
     config = dataclasses.replace(config or ArmModelConfig(), plate="flexure")
-    flex = config.flexure[facet - 1]
+    flex = config.flexures()[facet - 1]
     length = flex.calibration_s
     thickness = thickness_for_tip_stiffness(target, length, flex.width, flex.youngs_modulus)
     for _ in range(max_iterations):
-        flexures = list(config.flexure)
+        flexures = list(config.flexures())
         flexures[facet - 1] = dataclasses.replace(flex, thickness=float(f"{thickness:.6g}"))
         k = calibrate_flexure(dataclasses.replace(config, flexure=tuple(flexures)), load, facet).stiffness_N_per_m
         if abs(k / target - 1) <= rtol:

@@ -236,10 +236,10 @@ class ArmModelConfig:
             )
         if self.plate not in PLATE_KINDS:
             raise ValueError(f"plate must be one of {', '.join(PLATE_KINDS)}, got {self.plate!r}")
-        flexures = (self.flexure,) * len(self.h) if isinstance(self.flexure, FlexureParams) else tuple(self.flexure)
-        if len(flexures) != len(self.h) or not all(isinstance(f, FlexureParams) for f in flexures):
-            raise ValueError(f"flexure must be one FlexureParams or one per facet ({len(self.h)}), got {self.flexure!r}")
-        object.__setattr__(self, "flexure", flexures)
+        if not isinstance(self.flexure, FlexureParams):
+            object.__setattr__(self, "flexure", tuple(self.flexure))
+            if len(self.flexure) != len(self.h) or not all(isinstance(f, FlexureParams) for f in self.flexure):
+                raise ValueError(f"flexure must be one FlexureParams or one per facet ({len(self.h)}), got {self.flexure!r}")
         if not (math.isfinite(self.tip_friction) and self.tip_friction >= 0):
             raise ValueError(f"tip_friction must be finite and >= 0 (0: frictionless), got {self.tip_friction}")
         gravity = tuple(float(g) for g in self.gravity)
@@ -261,6 +261,10 @@ class ArmModelConfig:
         """Unit outward normals n̂_k = H_kᵀ/‖H_k‖, shape (P, 2)."""
         H = np.array(self.H, dtype=float).reshape(-1, 2)
         return H / np.linalg.norm(H, axis=1, keepdims=True)
+
+    def flexures(self) -> tuple[FlexureParams, ...]:
+        """The flexure of each facet, (P,)."""
+        return (self.flexure,) * self.n_facets if isinstance(self.flexure, FlexureParams) else self.flexure
 
     def plate_damping(self) -> np.ndarray:
         """Plate slide damping 2 ζ √(k m), N·s/m, shape (P,)."""
@@ -509,7 +513,7 @@ def _add_flexures(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
     the sheet's surface facing the arm. Sites: `plate{k}_surface` (the clamp end of the
     surface at rest) and `plate{k}_calibration` (the calibration point)."""
     plate = spec.find_default("plate")
-    for k, (normal, hk, flex) in enumerate(zip(config.facet_normals(), config.h, config.flexure)):
+    for k, (normal, hk, flex) in enumerate(zip(config.facet_normals(), config.h, config.flexures())):
         if flex.width / 2 > _PLATE_HALF_HEIGHT:
             raise ValueError(
                 f"flexure width must be <= {2 * _PLATE_HALF_HEIGHT:g} m (the tags lie just above the plates), got {flex.width:g} m"
@@ -576,7 +580,7 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     _add_arm(spec, config)
     if config.plate == "flexure":
         _add_flexures(spec, config)
-        plate_q = sum(1 + flex.links for flex in config.flexure)
+        plate_q = sum(1 + flex.links for flex in config.flexures())
     else:
         _add_plates(spec, config)
         plate_q = config.n_facets
