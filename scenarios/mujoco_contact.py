@@ -22,8 +22,11 @@ loaded-rod penetration bias, predicted − measured penetration while in contact
 of n_max; SPEC §7: a loaded rod is not constant-curvature), the solver's peak contact
 force (impacts on the 10 g plate) and how often the arm touches and leaves the plate;
 and `switches_per_s`, how often the filter's correction turns on and off. Time series
-add the plant's extras `plate_displacement_m` and `force_solver_N` (and `warning_*`
-counts if any). Results and the benchmark: models/softcbf_arm/README.md.
+add the plant's extras `plate_displacement_m`, `force_solver_N` and `force_tangential_N`
+(and `warning_*` counts if any). With `plate="flexure"` (SPEC §12) the measured force is
+the sheet's gauge reading and the run also records where along the sheet the arm touches
+and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
+`contact_s_m`, `contact_stiffness_N_per_m`). Results and the benchmark: models/softcbf_arm/README.md.
 """
 
 from __future__ import annotations

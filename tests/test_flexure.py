@@ -61,15 +61,17 @@ def test_tip_stiffness_is_3EI_over_l_cubed(load, tolerance):
     assert result.stiffness_N_per_m == pytest.approx(float(SHEET.euler_bernoulli_stiffness(SHEET.length)), rel=tolerance)
 
 
-@pytest.mark.parametrize("s", [0.05, 0.10, 0.13])
-def test_stiffness_along_the_sheet_is_3EI_over_s_cubed(s):
-    """Within 1.5 % of Euler–Bernoulli from 3 cells out (measured ≤ 0.85 % at 0.01 N, ≤ 1.1 % at 0.16 N),
-    and the hinge chain's own small-deflection stiffness within 0.01 % at 0.01 N."""
+@pytest.mark.parametrize("s", [0.10, 0.12, 0.14])
+def test_stiffness_along_the_sheet_is_3EI_over_s_cubed_in_series_with_the_gauge(s):
+    """Where the arm touches (s = 0.10–0.15 m): within 1 % of Euler–Bernoulli in series with the
+    gauge, 1 / (s³/3EI + 1/k_g), at 0.01 N (measured ≤ 0.58 %) and 1.5 % at 0.16 N (≤ 1.0 %);
+    the hinge chain's own small-deflection stiffness within 0.01 % at 0.01 N. (Nearer the
+    clamp the cells are coarser for s: +2.1 % at s = 0.05 m, n = 10; models/softcbf_arm/README.md.)"""
     small = load_sheet(FLEXURE, s, 0.01)
     large = load_sheet(FLEXURE, s, 0.16)
-    eb = float(SHEET.euler_bernoulli_stiffness(s))
-    assert small.stiffness_N_per_m == pytest.approx(eb, rel=0.015)
-    assert large.stiffness_N_per_m == pytest.approx(eb, rel=0.015)
+    series = 1.0 / (1.0 / float(SHEET.euler_bernoulli_stiffness(s)) + 1.0 / SHEET.gauge_stiffness)
+    assert small.stiffness_N_per_m == pytest.approx(series, rel=0.01)
+    assert large.stiffness_N_per_m == pytest.approx(series, rel=0.015)
     assert small.stiffness_N_per_m == pytest.approx(float(SHEET.chain_stiffness(s)), rel=1e-4)
 
 
