@@ -166,6 +166,7 @@ def camera_loop(
     sheet_width: float = FlexureParams.width,
     sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
     sheet_links: int = FlexureParams.links,
+    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
     """Run each tuning for `duration` s through the camera path; write summary.json, time series and frames.
@@ -189,7 +190,8 @@ def camera_loop(
         raise ValueError(f"true_robot has {arm.n_segments} segments, the controller's robot {model_robot.n_segments}; "
                          "they must have the same number")
     flexure = FlexureParams(clamp_at=sheet_clamp_at, free_end_at=sheet_free_end_at, thickness=sheet_thickness,
-                            width=sheet_width, youngs_modulus=sheet_youngs_modulus, links=sheet_links)
+                            width=sheet_width, youngs_modulus=sheet_youngs_modulus, links=sheet_links,
+            calibration_fraction=sheet_calibration_fraction)
     config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
                             links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
                             tip_friction=tip_friction, plate=plate, flexure=flexure)

@@ -116,6 +116,7 @@ def mujoco_contact(
     sheet_width: float = FlexureParams.width,
     sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
     sheet_links: int = FlexureParams.links,
+    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
     """Run each tuning for `duration` s; write summary.json and one time series per tuning.
@@ -129,7 +130,8 @@ def mujoco_contact(
     Coulomb μ between the arm and the plates (0: frictionless). `plate` "ideal" is the
     slide-spring plate of `plate_stiffness`; "flexure" the clamped ABS sheet in a force
     gauge (SPEC §12, `softcbf_mj.flexure`: `sheet_*` are its clamp and free-end positions
-    along the facet, thickness, width (m), Young's modulus (Pa) and links), whose gauge
+    along the facet, thickness, width (m), Young's modulus (Pa), links and the calibration point as a
+    fraction of its length from the clamp), whose gauge
     gives ρ_meas; its calibrated k (`calibrate_flexure`) is recorded as the scene's plate
     stiffness, the controller keeps `assumed_plate_stiffness`. `plate_stiffness` is the true
     plate's (N/m), `assumed_plate_stiffness` the controller's. The true plates sit on the
@@ -179,7 +181,8 @@ def mujoco_contact(
     if plate != "ideal":
         truth.update(plate=plate, flexure=FlexureParams(
             clamp_at=sheet_clamp_at, free_end_at=sheet_free_end_at, thickness=sheet_thickness, width=sheet_width,
-            youngs_modulus=sheet_youngs_modulus, links=sheet_links))
+            youngs_modulus=sheet_youngs_modulus, links=sheet_links,
+            calibration_fraction=sheet_calibration_fraction))
         true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
     plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **truth)
     tuning_list = parse_tunings(tunings)
