@@ -39,8 +39,18 @@ n̂_k = H_kᵀ/‖H_k‖ (m), with spring stiffness `plate_stiffness` (N/m), mas
 by `tip_radius` along n̂_k, so the tip sphere touches it exactly when H_k r = h_k. The
 plate is centred on the foot of the perpendicular from the base and is wide enough to
 cover every point of the facet line within the arm's reach Σ L_i. Contacts are
-frictionless (condim 1: normal force only, as in the paper's model) and stiff
-(solref = (`contact_timeconst`, 1)).
+frictionless by default (condim 1: normal force only, as in the paper's model) and stiff
+(solref = (`contact_timeconst`, 1)); `tip_friction` μ > 0 makes them Coulomb contacts
+(condim 3, sliding friction μ on the arm's and the plates' geoms).
+
+Flexure plates (`plate="flexure"`, SPEC §12; maths and defaults in `softcbf_mj.flexure`):
+facet k instead gets a clamped sheet: the clamp body `plate{k}` on the force gauge's slide
+joint `plate{k}_gauge` along n̂_k (stiffness k_g), the sheet's first half cell fixed to it
+and links `plate{k}_link{j}` on hinges `plate{k}_h{j}` about z at the cell centres, on the
+surface that faces the arm; that surface at rest lies on the facet line shifted by
+`tip_radius` (as the ideal plate's), from the clamp at σ = `clamp_at` to the free end at
+σ = `free_end_at` along t̂ = (−n̂_y, n̂_x) from the foot of the perpendicular from the base.
+Sites `plate{k}_surface` (the surface's clamp end) and `plate{k}_calibration`.
 
 AprilTags (SPEC §7, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
 on the base point; tag i on the body that carries `seg{i}_end`, centred on that site,
@@ -57,7 +67,8 @@ matte material (no specular highlight). The calibration scene adds a board of ta
 `CALIBRATION_BOARD_IDS` on the world in the same plane (`calibration_board`).
 
 Options: `implicitfast` (joint damping integrated implicitly), dense Jacobian (MuJoCo
-4.0.0 sparse-solver bug), gravity off (the arm lies on a table). The defaults n = 10
+4.0.0 sparse-solver bug), gravity off by default (the arm lies on a table; `gravity`
+sets it, e.g. (0, −9.81, 0) for an arm in a vertical plane). The defaults n = 10
 and physics step 0.1 ms come from `tools/convergence_study.py` (models/softcbf_arm/README.md).
 
 Units: SI (m, kg, s, rad, N); pressure in hPa.

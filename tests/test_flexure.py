@@ -253,3 +253,17 @@ def test_a_three_segment_robot_file_runs_mujoco_contact_from_the_command_line(tm
     assert [r["tuning"] for r in summary["runs"]] == ["None", "Low"]
     series = np.load(out / summary["runs"][0]["timeseries"])
     assert series["q"].shape[1] == 3 and "contact_s_m" in series and "force_tangential_N" in series
+
+
+def test_written_flexure_variant_compiles_to_the_runtime_model(tmp_path):
+    """Sheet, gauge, friction and gravity survive the XML writer's 6 digits exactly (as the default files)."""
+    config = mb.ArmModelConfig(plate="flexure", tip_friction=0.3, gravity=(0.0, -9.81, 0.0), robot=uniform_robot(3))
+    mb.write_model_files(tmp_path, config)
+    from_file = mujoco.MjModel.from_xml_path(str(tmp_path / mb.SCENE_FILE))
+    runtime = mb.build_model(config)
+    differing = [
+        name for name in dir(from_file)
+        if isinstance(getattr(from_file, name), np.ndarray) and not name.startswith("_") and name not in ("tex_pathadr", "site_size")
+        and not np.array_equal(getattr(from_file, name), getattr(runtime, name))
+    ]
+    assert differing == []
