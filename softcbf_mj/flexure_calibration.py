@@ -65,7 +65,11 @@ def load_sheet(config: ArmModelConfig, s: float, load: float = 0.16, facet: int 
     sheet = SheetInModel.from_model(model, facet)
     body, local = sheet.point(s)
     mujoco.mj_forward(model, data)
-    point = lambda: data.xpos[body] + data.xmat[body].reshape(3, 3) @ local  # noqa: E731 (world position of the loaded point)
+
+    def point() -> np.ndarray:
+        """World position (m, (3,)) of the loaded point."""
+        return data.xpos[body] + data.xmat[body].reshape(3, 3) @ local
+
     rest = point()
     force = np.array([*(load * sheet.normal), 0.0])
     window = max(1, int(round(SETTLE_WINDOW_S / model.opt.timestep)))
