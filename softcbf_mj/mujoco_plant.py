@@ -123,7 +123,7 @@ class MujocoPlant:
         self._sites = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
         self._tip = model.geom("tip").id
 
-        p = _numbered(_names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt), _PLATE_JOINT, "plate joints plate{k}_slide")
+        p = _numbered(_names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt), _PLATE_JOINT, "plate joints plate{k}_slide or plate{k}_gauge")
         self.n_facets = p
         flexures = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"plate{k}_gauge") >= 0 for k in range(1, p + 1)]
         plate_joints = [model.joint(f"plate{k}_{'gauge' if flexure else 'slide'}") for k, flexure in enumerate(flexures, 1)]
