@@ -42,7 +42,7 @@ import numpy as np
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import per_segment, reference_robot
+from controllers.params import per_segment
 from perception.detect import TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
@@ -51,7 +51,9 @@ from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, save_run, scene_record
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-from softcbf_mj.metrics import contact_figures, format_table
+from softcbf_mj.flexure import FlexureParams
+from softcbf_mj.flexure_calibration import calibrate_flexure
+from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import (
     CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig, build_model, calibration_board,
 )
@@ -155,9 +157,23 @@ def camera_loop(
     saved_frames_hz: float = 0.5,
     seed: int = 0,
     q0_std: float = 0.0,
+    true_robot: str = "",
+    tip_friction: float = 0.0,
+    plate: str = "ideal",
+    sheet_clamp_at: float = FlexureParams.clamp_at,
+    sheet_free_end_at: float = FlexureParams.free_end_at,
+    sheet_thickness: float = FlexureParams.thickness,
+    sheet_width: float = FlexureParams.width,
+    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
+    sheet_links: int = FlexureParams.links,
+    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
-    """Run each tuning for `duration` s through the camera path; write summary.json, time series and frames."""
+    """Run each tuning for `duration` s through the camera path; write summary.json, time series and frames.
+
+    The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
+    `true_robot`'s when given (same number of segments); `tip_friction`, `plate` and the
+    `sheet_*` parameters as in `mujoco_contact` (a flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
     if not duration > 0:
@@ -169,12 +185,18 @@ def camera_loop(
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     env = safe_set.environment
-    true_robot = reference_robot()
-    config = ArmModelConfig(robot=true_robot, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
-                            links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
+    arm = load_robot(true_robot) if true_robot else model_robot
+    if arm.n_segments != model_robot.n_segments:
+        raise ValueError(f"true_robot has {arm.n_segments} segments, the controller's robot {model_robot.n_segments}; "
+                         "they must have the same number")
+    flexure = FlexureParams(clamp_at=sheet_clamp_at, free_end_at=sheet_free_end_at, thickness=sheet_thickness,
+                            width=sheet_width, youngs_modulus=sheet_youngs_modulus, links=sheet_links,
+            calibration_fraction=sheet_calibration_fraction)
+    config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
+                            links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
+                            tip_friction=tip_friction, plate=plate, flexure=flexure)
+    true_plate_stiffness = calibrate_flexure(config).stiffness_N_per_m if plate == "flexure" else plate_stiffness
     plant = MujocoPlant(build_model(config), tick)
-    if model_robot.n_segments != plant.n_segments:
-        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
     n = plant.n_segments
     tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
     plane = _calibration(calibration, plant, config, width, height, detector)
@@ -182,7 +204,7 @@ def camera_loop(
     q0 = initial_configuration(n, seed, q0_std)
     save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
 
-    summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(true_robot, safe_set, plate_stiffness))
+    summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(arm, safe_set, true_plate_stiffness))
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
         for tuning in parse_tunings(tunings):
             label = tuning.name
@@ -212,6 +234,7 @@ def camera_loop(
 
             def figures(series: dict[str, np.ndarray]) -> dict:
                 out = contact_figures(series, safe_set, tick)
+                out.update(plate_figures(series))
                 out.update(_perception_figures(frames, calls))
                 out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
                 return out

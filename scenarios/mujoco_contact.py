@@ -22,8 +22,11 @@ loaded-rod penetration bias, predicted − measured penetration while in contact
 of n_max; SPEC §7: a loaded rod is not constant-curvature), the solver's peak contact
 force (impacts on the 10 g plate) and how often the arm touches and leaves the plate;
 and `switches_per_s`, how often the filter's correction turns on and off. Time series
-add the plant's extras `plate_displacement_m` and `force_solver_N` (and `warning_*`
-counts if any). Results and the benchmark: models/softcbf_arm/README.md.
+add the plant's extras `plate_displacement_m`, `force_solver_N` and `force_tangential_N`
+(and `warning_*` counts if any). With `plate="flexure"` (SPEC §12) the measured force is
+the sheet's gauge reading and the run also records where along the sheet the arm touches
+and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
+`contact_s_m`, `contact_stiffness_N_per_m`). Results and the benchmark: models/softcbf_arm/README.md.
 """
 
 from __future__ import annotations
@@ -35,12 +38,14 @@ import numpy as np
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import RobotParams, per_segment, reference_robot
+from controllers.params import RobotParams, per_segment
 from scenarios import register
 from controllers.safe_set import Environment
 from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
-from softcbf_mj.metrics import contact_figures, format_table
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from softcbf_mj.flexure import FlexureParams
+from softcbf_mj.flexure_calibration import calibrate_flexure
+from softcbf_mj.metrics import contact_figures, format_table, plate_figures
+from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.runio import SummaryWriter
 
@@ -65,6 +70,9 @@ TABLE = (
     ("on/off [1/s]", "switches_per_s", ".1f"),
     ("touch on/off [1/s]", "contact_switches_per_s", ".1f"),
     ("F solver [N]", "force_solver_max_N", ".3f"),
+    ("F tang [N]", "force_tangential_max_N", ".3f"),
+    ("s at F max [mm]", "contact_s_at_force_max_m", ".1f", 1e3),
+    ("k there [N/m]", "contact_stiffness_at_force_max_N_per_m", ".2f"),
     ("filter med [us]", "filter_us_median", ".1f"),
     ("RTF", "realtime_factor", ".2f"),
 )
@@ -98,14 +106,34 @@ def mujoco_contact(
     true_length_scale: float = 1.0,
     facet_offset: float = 0.0,
     facet_angle: float = 0.0,
+    true_robot: str = "",
+    gravity: float = 0.0,
+    tip_friction: float = 0.0,
+    plate: str = "ideal",
+    sheet_clamp_at: float = FlexureParams.clamp_at,
+    sheet_free_end_at: float = FlexureParams.free_end_at,
+    sheet_thickness: float = FlexureParams.thickness,
+    sheet_width: float = FlexureParams.width,
+    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
+    sheet_links: int = FlexureParams.links,
+    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
     """Run each tuning for `duration` s; write summary.json and one time series per tuning.
 
-    `robot` is the controller's model only. The MuJoCo arm is the reference robot with
-    its k, d, λ and L multiplied by `true_stiffness_scale`, `true_damping_scale`,
+    `robot` is the controller's model and, unless `true_robot` names another robot file,
+    the MuJoCo arm's (any number of segments). The MuJoCo arm's k, d, λ and L are then
+    multiplied by `true_stiffness_scale`, `true_damping_scale`,
     `true_gain_scale` and `true_length_scale` (inertias by the length scale squared, as
-    for a rod; defaults 1: the reference robot itself). `plate_stiffness` is the true
+    for a rod; defaults 1: the robot itself). `gravity` (m/s², ≥ 0) acts along −y (the
+    arm's plane vertical, +y up; 0: the arm lies on a table). `tip_friction` is the
+    Coulomb μ between the arm and the plates (0: frictionless). `plate` "ideal" is the
+    slide-spring plate of `plate_stiffness`; "flexure" the clamped ABS sheet in a force
+    gauge (SPEC §12, `softcbf_mj.flexure`: `sheet_*` are its clamp and free-end positions
+    along the facet, thickness, width (m), Young's modulus (Pa), links and the calibration point as a
+    fraction of its length from the clamp), whose gauge
+    gives ρ_meas; its calibrated k (`calibrate_flexure`) is recorded as the scene's plate
+    stiffness, the controller keeps `assumed_plate_stiffness`. `plate_stiffness` is the true
     plate's (N/m), `assumed_plate_stiffness` the controller's. The true plates sit on the
     `environment` facets moved by `facet_offset` (m) along their outward normals (> 0:
     farther from the base) and then turned by `facet_angle` (rad, counter-clockwise seen
@@ -123,11 +151,16 @@ def mujoco_contact(
             raise ValueError(f"{name} must be > 0 (1: the reference robot), got {params[name]}")
     if not (math.isfinite(facet_offset) and math.isfinite(facet_angle) and abs(facet_angle) < math.pi / 2):
         raise ValueError(f"facet_offset (m) must be finite and |facet_angle| < pi/2 rad, got {facet_offset}, {facet_angle}")
+    if not (math.isfinite(gravity) and gravity >= 0):
+        raise ValueError(f"gravity must be finite and >= 0 m/s² (along -y), got {gravity}")
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     env = safe_set.environment
-    ref = reference_robot()
-    true_robot = RobotParams(
+    ref = load_robot(true_robot) if true_robot else model_robot
+    if ref.n_segments != model_robot.n_segments:
+        raise ValueError(f"true_robot has {ref.n_segments} segments, the controller's robot {model_robot.n_segments}; "
+                         "they must have the same number")
+    true_robot_params = RobotParams(
         lengths=ref.array("lengths") * true_length_scale, masses=ref.masses,
         stiffness=ref.array("stiffness") * true_stiffness_scale, damping=ref.array("damping") * true_damping_scale,
         gains=ref.array("gains") * true_gain_scale, u_min=ref.u_min, u_max=ref.u_max,
@@ -138,29 +171,38 @@ def mujoco_contact(
     cos_a, sin_a = math.cos(facet_angle), math.sin(facet_angle)
     true_H = np.column_stack((env.H[:, 0] * cos_a - env.H[:, 1] * sin_a, env.H[:, 0] * sin_a + env.H[:, 1] * cos_a))
     true_h = (env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])) * cos_a
-    plant = MujocoPlant.from_config(
-        control_dt=CONTROL_DT, robot=true_robot, H=true_H, h=true_h, plate_stiffness=plate_stiffness,
-        links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
-    )
-    if model_robot.n_segments != plant.n_segments:
-        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
+    truth = dict(robot=true_robot_params, H=true_H, h=true_h, plate_stiffness=plate_stiffness,
+                 links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
+    if gravity:
+        truth["gravity"] = (0.0, -gravity, 0.0)
+    if tip_friction:
+        truth["tip_friction"] = tip_friction
+    true_plate_stiffness = plate_stiffness
+    if plate != "ideal":
+        truth.update(plate=plate, flexure=FlexureParams(
+            clamp_at=sheet_clamp_at, free_end_at=sheet_free_end_at, thickness=sheet_thickness, width=sheet_width,
+            youngs_modulus=sheet_youngs_modulus, links=sheet_links,
+            calibration_fraction=sheet_calibration_fraction))
+        true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
+    plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **truth)
     tuning_list = parse_tunings(tunings)
     n = plant.n_segments
     nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
     q0 = initial_configuration(n, seed, q0_std)
 
     def figures(log: dict[str, np.ndarray]) -> dict:
-        return contact_figures(log, safe_set, plant.control_dt)
+        return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log)}
 
     summary = SummaryWriter(out_dir, "mujoco_contact", params,
-                            scene_record(true_robot, safe_set, plate_stiffness, Environment(true_H, true_h)))
+                            scene_record(true_robot_params, safe_set, true_plate_stiffness, Environment(true_H, true_h)))
     for tuning in tuning_list:
         controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
         run_tuning(out_dir, summary, tuning.name, plant, controller, nominal, duration, q0, progress,
                    extra_figures=figures, extra_units=EXTRAS_UNITS)
     print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
           f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
-          f"plate {plate_stiffness:g} N/m (assumed {assumed_plate_stiffness:g}), F_max {f_max:g} N, n_max {safe_set.n_max * 1e3:.2f} mm; "
+          f"{plate} plate {true_plate_stiffness:.4g} N/m{' (calibrated)' if plate != 'ideal' else ''} "
+          f"(assumed {assumed_plate_stiffness:g}), F_max {f_max:g} N, n_max {safe_set.n_max * 1e3:.2f} mm; "
           f"outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))
     return summary.data

@@ -109,6 +109,35 @@ def contact_figures(log: Mapping[str, np.ndarray], safe_set: ForceSafeSet, contr
     return out
 
 
+def plate_figures(log: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Friction and, for flexure plates, where and how stiff the arm met the sheet (a MuJoCo run's
+    `log` with the plant extras `force_tangential_N` and, for flexures, `contact_s_m` and
+    `contact_stiffness_N_per_m`, (T, P) each; `softcbf_mj.mujoco_plant`).
+
+    - `force_tangential_max_N`: the peak tangential (friction) contact force, N;
+    - flexure: `contact_s_min_m`, `contact_s_max_m` (m from the clamp, over the steps in
+      contact), and at the step of the largest measured (gauge) force: `contact_s_at_force_max_m`
+      and `contact_stiffness_at_force_max_N_per_m` (N/m), the sheet's static stiffness there,
+      with `force_true_at_force_max_N`, the arm's normal contact force at that step (the gauge
+      reads the clamp reaction, not the contact force). None without contact.
+    """
+    out: dict[str, Any] = {"force_tangential_max_N": float(np.max(log["force_tangential_N"], initial=0.0))}
+    if "contact_s_m" not in log:
+        return out
+    where = np.asarray(log["contact_s_m"], dtype=float)
+    touching = np.isfinite(where)
+    step, facet = np.unravel_index(int(np.argmax(log["contact_force"])), np.shape(log["contact_force"]))
+    at_peak = bool(touching[step, facet])
+    out.update({
+        "contact_s_min_m": float(np.min(where[touching])) if np.any(touching) else None,
+        "contact_s_max_m": float(np.max(where[touching])) if np.any(touching) else None,
+        "contact_s_at_force_max_m": float(where[step, facet]) if at_peak else None,
+        "contact_stiffness_at_force_max_N_per_m": float(log["contact_stiffness_N_per_m"][step, facet]) if at_peak else None,
+        "force_true_at_force_max_N": float(log["force_solver_N"][step, facet]) if at_peak else None,
+    })
+    return out
+
+
 def _cell(value: Any, fmt: str, scale: float = 1.0) -> str:
     if value is None:
         return "-"
