@@ -7,9 +7,8 @@ commands u_nom (B, 2) hPa, every state gets what `CBFFilter` computes:
                                         u_min ≤ u ≤ u_max                        (when bounded)
 
 Barrier terms: b, ḃ, B, L_fB, L_gB per row (`controllers.cbf`) from the tip terms of
-`controllers.dynamics_batch.BatchDynamics`, in the scalar path's operation order (B
-differs from the scalar path by at most 1 ulp where numpy's log1p and the math
-module's disagree). Branches, as `CBFFilter` takes them:
+`controllers.dynamics_batch.BatchDynamics`, in the scalar path's operation order, so
+b, ḃ, B, L_fB, L_gB are the scalar filter's floats (log1p is the math module's, per state). Branches, as `CBFFilter` takes them:
 - "disabled" (tuning None): u = u_nom, clipped to the bounds when they are on;
 - "nominal": u_nom within the bounds and L_gB_i u_nom ≤ c_i for every row, tested
   exactly as the scalar filter tests it (u = u_nom);
@@ -42,6 +41,7 @@ row's violation at an intermediate iterate lies below it; in tests this never ha
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -52,6 +52,7 @@ from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError
 from controllers.qp import FEASIBILITY_RTOL, ZERO_ROW_TOL
 from controllers.safe_set import ForceSafeSet
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterOutput
 
 
 class ScalarResult(Protocol):
@@ -101,8 +102,12 @@ def _nearest_feasible(u_nom: np.ndarray, rows: np.ndarray, rhs: np.ndarray, tol:
     found (S,)); u is NaN where no candidate is feasible.
     """
     m = rows.shape[1]
-    excess = np.einsum("smk,sk->sm", rows, u_nom) - rhs
-    singles = u_nom[:, None, :] - excess[:, :, None] * rows  # projections onto each row's line
+    r0, r1 = rows[..., 0], rows[..., 1]
+    # Projections onto each row's line, in the operations of the scalar solver's first step
+    # (t = (â·u − b̂)/‖â‖², u − t â), so that a one-row solution is the scalar filter's float for float.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step = ((r0 * u_nom[:, None, 0] + r1 * u_nom[:, None, 1]) - rhs) / (r0 * r0 + r1 * r1)
+    singles = u_nom[:, None, :] - step[:, :, None] * rows
     pairs = list(itertools.combinations(range(m), 2))
     candidates = [u_nom[:, None, :], singles]
     if pairs:
@@ -164,7 +169,11 @@ def cbf_qp_batch(
             b = h_i - (hx * rx + hy * ry)
             bdot = -(hx * vx + hy * vy)
             den = 1.0 + b_e * bdot * bdot
-            big_b = np.log1p(1.0 / b) + ab * bdot * bdot / den
+            # math.log1p, not np.log1p (which differs by 1 ulp on ~1 % of arguments): B's rounding
+            # reaches u through 1/‖L_gB‖ and a chattering closed loop amplifies it.
+            inverse = (1.0 / b).tolist()
+            log_term = np.array([math.log1p(v) if v > -1.0 else math.nan for v in inverse])
+            big_b = log_term + ab * bdot * bdot / den
             db, dbdot = -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
             lfb = db * bdot - dbdot * (hx * acc0[0] + hy * acc0[1])
             lgb = np.stack([-dbdot * (hx * a[0] + hy * a[1]) for a in acc_u], axis=1)
@@ -223,3 +232,29 @@ def cbf_qp_batch(
         result = fallback(int(i))
         u[i], action[i], infeasible[i] = np.asarray(result.u, dtype=float), result.action, bool(result.infeasible)
     return CBFBatchResult(u, action.astype(str), infeasible, rho_pred, b_all, resolved)
+
+
+class PaperCBFBatch:
+    """Today's `CBFFilter` (called as `cbf(x, u_nom)`) under the plug-in contract, with `filter_batch`.
+
+    `__call__(estimate, u_nom)` is one scalar call; `filter_batch(estimates, u_nom)` is
+    `cbf_qp_batch` with the scalar filter as the fallback. Transitional: once `CBFFilter`
+    follows the contract itself, its own `filter_batch` makes this same call (with
+    `fallback=lambda i: self(estimates[i], u_nom[i])`) and this wrapper can go.
+    """
+
+    def __init__(self, cbf) -> None:
+        self.cbf = cbf
+        self.dynamics = BatchDynamics(cbf.params)
+        bounded = cbf.pressure_limits
+        self.u_min = np.array(cbf.params.u_min, dtype=float) if bounded else None
+        self.u_max = np.array(cbf.params.u_max, dtype=float) if bounded else None
+
+    def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput:
+        result = self.cbf(np.concatenate((estimate.q, estimate.qd)), u_nom)
+        return FilterOutput(result.u, result.action, result.infeasible, result.rho_pred)
+
+    def filter_batch(self, estimates: EstimateBatch, u_nom: np.ndarray) -> BatchOutput:
+        out = cbf_qp_batch(self.dynamics, self.cbf.safe_set, self.cbf.tuning, estimates.q, estimates.qd, u_nom,
+                           self.u_min, self.u_max, fallback=lambda i: self(estimates[i], u_nom[i]))
+        return BatchOutput(out.u, out.action, out.infeasible, out.rho_pred)
