@@ -119,9 +119,22 @@ class BatchDynamics:
         self.stiffness = tuple(column([p.stiffness[i] for p in models]) for i in range(2))
         self.gains = tuple(column([p.gains[i] for p in models]) for i in range(2))
         self._lengths = tuple(column([p.lengths[i] for p in models]) for i in range(2))
+        self._last: tuple = (None, None, None)  # (q, q̇, BatchTerms) of the last `terms` call
 
     def terms(self, q: np.ndarray, qd: np.ndarray) -> BatchTerms:
-        """The model terms at (q, q̇), each (B, 2); no input checks."""
+        """The model terms at (q, q̇), each (B, 2); no input checks.
+
+        The last call's terms are kept: a plant and a filter sharing this object evaluate
+        each reported state once (as `PCCDynamics._core` does for one state).
+        """
+        last_q, last_qd, last = self._last
+        if last is not None and np.array_equal(q, last_q) and np.array_equal(qd, last_qd):
+            return last
+        terms = self._terms(q, qd)
+        self._last = (q.copy(), qd.copy(), terms)
+        return terms
+
+    def _terms(self, q: np.ndarray, qd: np.ndarray) -> BatchTerms:
         q0, q1, v0, v1 = q[:, 0], q[:, 1], qd[:, 0], qd[:, 1]
         length0, length1 = self._lengths
         s0, s1, s2 = _sinc_half(q0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from controllers.cbf import TUNINGS
-from controllers.cbf_batch import PaperCBFBatch
+from controllers.cbf_batch import SCALAR_BELOW, PaperCBFBatch
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
@@ -71,9 +71,9 @@ def test_pcc_batch_loop_equals_serial_loops(tuning, pressure_limits, per_sim_fil
 def test_mujoco_batch_loop_equals_serial_loops():
     params, safe_set = reference_robot(), paper_safe_set()
     configs = [ArmModelConfig(robot=r, plate_stiffness=k, links_per_segment=4, physics_dt=2e-4)
-               for r, k in zip(_true_robots(3), (11.16, 13.0, 9.5))]
-    q0 = np.random.default_rng(6).normal(0.2, 0.05, (3, 2))
-    amplitudes = (100.0, 120.0, 140.0)
+               for r, k in zip(_true_robots(4), (11.16, 13.0, 9.5, 12.0))]
+    q0 = np.random.default_rng(6).normal(0.2, 0.05, (4, 2))
+    amplitudes = (100.0, 120.0, 140.0, 110.0)
     nominals = [SinusoidNominal((a, a), 0.01, (math.pi / 2, math.pi / 2)) for a in amplitudes]
     duration = 0.6
     plant = MujocoBatchPlant.from_configs(configs, nthread=2)
@@ -83,6 +83,7 @@ def test_mujoco_batch_loop_equals_serial_loops():
     logs = [run_closed_loop(MujocoPlant.from_config(c), CBFFilter(params, safe_set, TUNINGS["HW-High"]), nominal,
                             duration, q0[b]) for b, (c, nominal) in enumerate(zip(configs, nominals))]
     _compare(batch, logs, plant.control_dt, True)
+    assert len(configs) >= SCALAR_BELOW, "the batch must take the vectorised filter"
     assert np.all(batch.force_max_N > 0), "every sample must press the plate"
 
 

@@ -1,0 +1,192 @@
+"""Throughput of batched closed loops against today's serial loop, on the same samples.
+
+Two sample types, each a short closed-loop run (`--duration` s at 1 kHz) of the paper's
+CBF with the paper's sinusoid started at its peak (so that short runs reach the facet):
+- mujoco_contact-type: the MuJoCo rod (`--links`, `--physics-dt`, defaults those of the
+  scenario) against the plate, HW-High, ±150 hPa; sample s has its own true arm and plate
+  (stiffness and gain ×U(0.9, 1.1), plate stiffness 11.16·U(0.9, 1.1) N/m, a mismatch
+  study's draw) and start q0 ~ N(0.2, 0.05) rad;
+- paper_sim-type: the PCC plant (ROS2, 1 ms), Low, no pressure limits, the controller's
+  model = the plant's, start q0 ~ N(0.2, 0.05) rad.
+Serial: `softcbf_mj.loop.run_closed_loop` (one `MujocoPlant` / `PCCPlant` per sample, the
+`CBFFilter` called per step) over the first `--serial` samples. Batched:
+`run_batch_closed_loop` over the first B samples in one batch, for B in `--batches`
+(MuJoCo on 1 and 2 threads of `mujoco.batch`; PCC in numpy, one thread), then the same
+batch replaying the commands it sent, without filter, nominal or figures: the batch's
+physics ceiling. Throughput is samples per hour = samples / wall s × 3600, each wall time
+the best of `--repeats` runs.
+`ratio_vs_serial` = batched / serial samples per hour; `fraction_of_physics_ceiling`
+= batched loop / its replay. The batched figures are checked against the serial ones
+on the common samples (max |Δρ_meas|).
+
+The machine may be shared: wall times then include other jobs' load, and two threads
+may not get two cores. Ratios measured side by side in one run are the figures to
+trust. Usage: `python tools/bench_batch.py [--duration 0.2] [--serial 8] [--batches 1,8,32,128]
+[--pcc-batches 1,8,32,128,1024]`; prints tables and ends with one line of JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import platform
+import time
+from typing import Callable, TypeVar
+
+import mujoco
+import numpy as np
+
+from controllers.cbf import TUNINGS
+from controllers.cbf_batch import PaperCBFBatch
+from controllers.filter import CBFFilter
+from controllers.nominal import SinusoidNominal
+from controllers.params import reference_robot
+from controllers.safe_set import paper_safe_set
+from softcbf_mj.batch_loop import broadcast_nominal, replay_commands, run_batch_closed_loop
+from softcbf_mj.loop import run_closed_loop
+from softcbf_mj.metrics import run_figures
+from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig
+from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
+from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.pcc_batch_plant import PCCBatchPlant
+from softcbf_mj.pcc_plant import PCCPlant
+
+PEAK = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))
+HOUR = 3600.0
+T = TypeVar("T")
+
+
+def mujoco_samples(n: int, links: int, physics_dt: float, seed: int = 0) -> tuple[list[ArmModelConfig], np.ndarray]:
+    """n mismatch draws (true arm and plate) and their starts q0 (n, 2) rad."""
+    rng = np.random.default_rng(seed)
+    ref = reference_robot()
+    configs = []
+    for k_scale, g_scale, plate in zip(rng.uniform(0.9, 1.1, n), rng.uniform(0.9, 1.1, n), rng.uniform(0.9, 1.1, n)):
+        robot = dataclasses.replace(ref, stiffness=tuple(v * k_scale for v in ref.stiffness),
+                                    gains=tuple(v * g_scale for v in ref.gains))
+        configs.append(ArmModelConfig(robot=robot, plate_stiffness=11.16 * plate, links_per_segment=links, physics_dt=physics_dt))
+    return configs, rng.normal(0.2, 0.05, (n, 2))
+
+
+def best_of(repeats: int, run: Callable[[], T]) -> tuple[T, float]:
+    """run() `repeats` times; its last result and the shortest wall time (s)."""
+    walls = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = run()
+        walls.append(time.perf_counter() - start)
+    return result, min(walls)
+
+
+def _rate(samples: int, wall: float) -> float:
+    return samples / wall * HOUR
+
+
+def bench_mujoco(args: argparse.Namespace) -> dict:
+    params, safe_set = reference_robot(), paper_safe_set()
+    tuning, limits = TUNINGS["HW-High"], (np.array(params.u_min), np.array(params.u_max))
+    n_max = max(max(args.batches), args.serial)
+    configs, q0 = mujoco_samples(n_max, args.links, args.physics_dt)
+
+    def serial_pass() -> list[dict]:
+        return [run_figures(run_closed_loop(MujocoPlant.from_config(config), CBFFilter(params, safe_set, tuning), PEAK,
+                                            args.duration, q), 1e-3, True, 0.0)
+                for config, q in zip(configs[: args.serial], q0)]
+
+    serial_runs, wall = best_of(args.repeats, serial_pass)
+    serial = _rate(args.serial, wall)
+    print(f"mujoco_contact-type: {args.duration:g} s per sample, n = {args.links}, dt = {args.physics_dt:g} s, HW-High, ±150 hPa")
+    print(f"  serial ({args.serial} samples): {serial:10.0f} samples/h")
+    print("      B  threads  samples/h  ratio vs serial  physics ceiling  fraction of ceiling")
+    rows, check = [], 0.0
+    for nthread in (1, 2):
+        for b in args.batches:
+            plant = MujocoBatchPlant.from_configs(configs[:b], nthread=nthread)
+            filt = PaperCBFBatch(CBFFilter(params, safe_set, tuning))
+            run, wall = best_of(args.repeats, lambda: run_batch_closed_loop(
+                plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], *limits, record_commands=True))
+            rate = _rate(b, wall)
+            ceiling = _rate(b, min(replay_commands(plant, run.commands, q0[:b]) for _ in range(args.repeats)))
+            for s in range(min(b, args.serial)):
+                check = max(check, abs(run.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]))
+            rows.append({"B": b, "threads": nthread, "samples_per_hour": rate, "ratio_vs_serial": rate / serial,
+                         "ceiling_samples_per_hour": ceiling, "fraction_of_physics_ceiling": rate / ceiling})
+            print(f"  {b:5d} {nthread:8d} {rate:10.0f} {rate / serial:16.2f} {ceiling:16.0f} {rate / ceiling:20.3f}")
+    print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
+    return {"serial_samples_per_hour": serial, "batched": rows, "max_abs_rho_meas_diff": check}
+
+
+def bench_pcc(args: argparse.Namespace) -> dict:
+    params, safe_set = reference_robot(), paper_safe_set()
+    tuning = TUNINGS["Low"]
+    n_max = max(max(args.pcc_batches), args.serial)
+    q0 = np.random.default_rng(1).normal(0.2, 0.05, (n_max, 2))
+
+    def serial_pass() -> list[dict]:
+        runs = []
+        for q in q0[: args.serial]:
+            plant = PCCPlant(params, safe_set)
+            controller = CBFFilter(params, safe_set, tuning, pressure_limits=False, dynamics=plant.dynamics)
+            runs.append(run_figures(run_closed_loop(plant, controller, PEAK, args.duration, q), 1e-3, True, 0.0))
+        return runs
+
+    serial_runs, wall = best_of(args.repeats, serial_pass)
+    serial = _rate(args.serial, wall)
+    print(f"\npaper_sim-type: {args.duration:g} s per sample, PCC ROS2 1 ms, Low, no pressure limits")
+    print(f"  serial ({args.serial} samples): {serial:10.0f} samples/h")
+    print("      B  samples/h  ratio vs serial  physics ceiling  fraction of ceiling")
+    rows, check = [], 0.0
+    for b in args.pcc_batches:
+        plant = PCCBatchPlant(params, safe_set, b)
+        filt = PaperCBFBatch(CBFFilter(params, safe_set, tuning, pressure_limits=False), dynamics=plant.dynamics)
+        run, wall = best_of(args.repeats, lambda: run_batch_closed_loop(
+            plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], record_commands=True))
+        rate = _rate(b, wall)
+        ceiling = _rate(b, min(replay_commands(plant, run.commands, q0[:b]) for _ in range(args.repeats)))
+        for s in range(min(b, args.serial)):
+            check = max(check, abs(run.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]))
+        rows.append({"B": b, "threads": 1, "samples_per_hour": rate, "ratio_vs_serial": rate / serial,
+                     "ceiling_samples_per_hour": ceiling, "fraction_of_physics_ceiling": rate / ceiling})
+        print(f"  {b:5d} {rate:10.0f} {rate / serial:16.2f} {ceiling:16.0f} {rate / ceiling:20.3f}")
+    print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
+    return {"serial_samples_per_hour": serial, "batched": rows, "max_abs_rho_meas_diff": check}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=0.2, help="simulated s per sample")
+    parser.add_argument("--serial", type=int, default=8, help="samples run serially")
+    parser.add_argument("--batches", type=lambda s: [int(v) for v in s.split(",")], default=[1, 8, 32, 128])
+    parser.add_argument("--pcc-batches", type=lambda s: [int(v) for v in s.split(",")], default=[1, 8, 32, 128, 1024])
+    parser.add_argument("--links", type=int, default=DEFAULT_LINKS_PER_SEGMENT)
+    parser.add_argument("--physics-dt", type=float, default=DEFAULT_PHYSICS_DT)
+    parser.add_argument("--repeats", type=int, default=2, help="timings are the best of this many runs")
+    parser.add_argument("--skip-mujoco", action="store_true")
+    args = parser.parse_args()
+    report: dict = {"duration_s": args.duration, "cpus": os.cpu_count(), "mujoco": mujoco.__version__,
+                    "python": platform.python_version(), "machine_shared": True}
+    pcc = bench_pcc(args)
+    best_pcc = max(pcc["batched"], key=lambda r: r["samples_per_hour"])
+    report["pcc"] = pcc
+    ratio = {"pcc": best_pcc["ratio_vs_serial"]}
+    fraction = {"pcc": best_pcc["fraction_of_physics_ceiling"]}
+    if not args.skip_mujoco:
+        mj = bench_mujoco(args)
+        best_mj = max(mj["batched"], key=lambda r: r["samples_per_hour"])
+        report["mujoco_contact"] = mj
+        ratio["mujoco_contact"] = best_mj["ratio_vs_serial"]
+        fraction["mujoco_contact"] = best_mj["fraction_of_physics_ceiling"]
+        print(f"\nbest mujoco_contact-type: B = {best_mj['B']}, {best_mj['threads']} thread(s): "
+              f"{best_mj['ratio_vs_serial']:.2f}× serial, {best_mj['fraction_of_physics_ceiling']:.1%} of its physics ceiling")
+    print(f"best paper_sim-type: B = {best_pcc['B']}: {best_pcc['ratio_vs_serial']:.1f}× serial, "
+          f"{best_pcc['fraction_of_physics_ceiling']:.1%} of its physics ceiling")
+    report["ratio_vs_serial"] = ratio
+    report["fraction_of_physics_ceiling"] = fraction
+    print(json.dumps(report))
+
+
+if __name__ == "__main__":
+    main()
