@@ -45,8 +45,7 @@ class BatchPlantState:
 
     t: (B,) s. q, qd: (B, N) rad, rad/s. segment_ends: (B, N+1, 2) m. contact_forces:
     (B, P) N. u_applied: (B, N) hPa. extras: plant-specific arrays with first axis B.
-    The arrays are the plant's own buffers or fresh copies (see the plant): copy what
-    you keep beyond the next `step`.
+    Every call of a batch plant returns fresh arrays (nothing is overwritten by its next `step`).
     """
 
     t: np.ndarray
