@@ -52,12 +52,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.cbf import B_MIN, Tuning, barrier_rows
+from controllers.cbf_batch import SCALAR_BELOW, cbf_qp_batch
+from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
 from controllers.qp import DEFAULT_BACKEND, dot_lists, solve_lists, available_backends
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterOutput
 
 ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
 
@@ -114,6 +116,7 @@ class CBFFilter:
         recovery_margin: float = 1e-3,
         slack_weight: float = 1e6,
         dynamics: PCCDynamics | None = None,
+        batch_dynamics: BatchDynamics | None = None,
     ) -> None:
         if qp_backend not in available_backends():
             raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
@@ -123,6 +126,8 @@ class CBFFilter:
             raise ValueError(f"recovery_margin must be >= 0 m, got {recovery_margin}")
         if dynamics is not None and dynamics.params != params:
             raise ValueError("dynamics must be a PCCDynamics of the same params as the filter")
+        if batch_dynamics is not None and batch_dynamics.params != params:
+            raise ValueError("batch_dynamics must be a BatchDynamics of the same params as the filter")
         self.params = params
         self.safe_set = safe_set
         self.tuning = tuning
@@ -131,6 +136,7 @@ class CBFFilter:
         self.recovery_margin = float(recovery_margin)
         self.slack_weight = float(slack_weight)
         self.dynamics = PCCDynamics(params) if dynamics is None else dynamics
+        self._batch_dynamics = batch_dynamics
         self.n = params.n_segments
         self._H = np.array(safe_set.H_prime, dtype=float)
         self._h = np.array(safe_set.h_prime, dtype=float)
@@ -191,6 +197,22 @@ class CBFFilter:
         diagnostics = {"b": r.b, "B": r.B, "constraint": r.constraint, "active": r.active, "recovery": r.recovery,
                        "slack": r.slack, "solve_us": r.solve_us}
         return FilterOutput(r.u, r.action, r.infeasible, r.rho_pred, diagnostics, CBF_DIAGNOSTIC_UNITS)
+
+    def filter_batch(self, estimates: EstimateBatch, u_nom) -> BatchOutput:
+        """B states at once: `controllers.cbf_batch.cbf_qp_batch` (the "disabled", "nominal" and
+        "qp" branches vectorised; recovery and infeasible states through `__call__`), the same
+        actions as B calls and commands within 1e-9 hPa. Batches smaller than SCALAR_BELOW
+        go state by state. u_nom: (B, N) hPa."""
+        if len(estimates) < SCALAR_BELOW:
+            outputs = [self(estimates[i], u_nom[i]) for i in range(len(estimates))]
+            return BatchOutput(np.array([o.u for o in outputs]), np.array([o.action for o in outputs]),
+                               np.array([o.infeasible for o in outputs]), np.array([o.rho_pred for o in outputs]))
+        if self._batch_dynamics is None:
+            self._batch_dynamics = BatchDynamics(self.params)
+        lo, hi = (np.array(self.params.u_min), np.array(self.params.u_max)) if self.pressure_limits else (None, None)
+        out = cbf_qp_batch(self._batch_dynamics, self.safe_set, self.tuning, estimates.q, estimates.qd, u_nom, lo, hi,
+                           fallback=lambda i: self(estimates[i], u_nom[i]))
+        return BatchOutput(out.u, out.action, out.infeasible, out.rho_pred)
 
     def step(self, x, u_nom) -> CBFResult:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""

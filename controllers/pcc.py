@@ -76,6 +76,15 @@ _SERIES = _series_matrix(_SERIES_DEGREE)
 _HORNER_ROWS = tuple(zip(*(_SERIES[a % 2 :: 2, a][::-1].tolist() for a in range(4))))
 
 
+def sinc_half_coefficients() -> tuple[tuple[tuple[float, float, float, float], ...], float]:
+    """(Horner rows, switch) of `_sinc_half`'s series, for evaluations that must give its floats.
+
+    Each row holds the coefficients (a = 0..3) of one Horner step, highest power first;
+    s^(a)(q) = q^(a mod 2) · poly_a(q²) for |q| < switch (rad), the closed forms beyond.
+    """
+    return _HORNER_ROWS, _SERIES_SWITCH
+
+
 def _sinc_half(q: float) -> tuple[float, float, float, float]:
     """s^{(a)}(q) for s(q) = sinc(q/2) = ℓ(q)/L and a = 0..3, one Python float q. No input checks.
 

@@ -88,6 +88,10 @@ class MujocoPlant:
     read from the model: `u_min`, `u_max` (hPa, the ctrlrange), `gains` (λ, N·m/hPa, the
     actuator gears), `plate_stiffness` (N/m), `n_segments`, `n_facets`, and per segment
     the qpos / dof addresses of its hinges, `hinge_qpos` and `hinge_dofs` (lists of arrays).
+    Ids and addresses the state is read from (public for the batched plant,
+    `softcbf_mj.mujoco_batch_plant`): `actuator_ids` and `tendon_ids` (N,), `site_ids`
+    (N,: `base`, `seg1_end` … `seg{N-1}_end`), `tip_geom`, `plate_qpos` and `plate_dofs`
+    (P,), `act_adr` (N,: −1 where the actuator has no pressure dynamics).
     The model is read by name: actuators `seg{i}_pressure`, tendons `seg{i}_bend`, hinges
     `seg{i}_j{j}`, sites `base` and `seg{i}_end`, geom `tip`, per facet an ideal plate
     (joint `plate{k}_slide`) or a flexure (joint `plate{k}_gauge`, `SheetInModel`), whose
@@ -107,8 +111,8 @@ class MujocoPlant:
         if n == 0:
             raise ValueError("the model has no actuators named seg{i}_pressure")
         self.n_segments = n
-        self._actuators = [model.actuator(f"seg{i}_pressure").id for i in range(1, n + 1)]
-        self._tendons = [model.tendon(f"seg{i}_bend").id for i in range(1, n + 1)]
+        self.actuator_ids = [model.actuator(f"seg{i}_pressure").id for i in range(1, n + 1)]
+        self.tendon_ids = [model.tendon(f"seg{i}_bend").id for i in range(1, n + 1)]
         self.hinge_qpos: list[np.ndarray] = []  # per segment: qpos addresses of its hinges
         self.hinge_dofs: list[np.ndarray] = []  # per segment: their dof addresses
         for i in range(1, n + 1):
@@ -120,14 +124,15 @@ class MujocoPlant:
                 raise ValueError(f"the model has no hinges seg{i}_j1, seg{i}_j2, …")
             self.hinge_qpos.append(np.array([h.qposadr[0] for h in hinges]))
             self.hinge_dofs.append(np.array([h.dofadr[0] for h in hinges]))
-        self._sites = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
-        self._tip = model.geom("tip").id
+        self.site_ids = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
+        self.tip_geom = model.geom("tip").id
 
         p = _numbered(_names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt), _PLATE_JOINT, "plate joints plate{k}_slide or plate{k}_gauge")
         self.n_facets = p
         flexures = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"plate{k}_gauge") >= 0 for k in range(1, p + 1)]
         plate_joints = [model.joint(f"plate{k}_{'gauge' if flexure else 'slide'}") for k, flexure in enumerate(flexures, 1)]
-        self._plate_qpos = np.array([jnt.qposadr[0] for jnt in plate_joints], dtype=int)
+        self.plate_qpos = np.array([jnt.qposadr[0] for jnt in plate_joints], dtype=int)
+        self.plate_dofs = np.array([jnt.dofadr[0] for jnt in plate_joints], dtype=int)
         self.plate_stiffness = np.array([model.jnt_stiffness[jnt.id] for jnt in plate_joints])
         self.sheets = {k - 1: SheetInModel.from_model(model, k) for k, flexure in enumerate(flexures, 1) if flexure}
         plate_roots = {model.body(f"plate{k}").id: k - 1 for k in range(1, p + 1)}
@@ -135,10 +140,10 @@ class MujocoPlant:
                                if model.body_rootid[model.geom_bodyid[g]] in plate_roots}
         self._base = model.body("base").id
 
-        self.u_min = model.actuator_ctrlrange[self._actuators, 0].copy()
-        self.u_max = model.actuator_ctrlrange[self._actuators, 1].copy()
-        self.gains = model.actuator_gear[self._actuators, 0].copy()
-        self._act_adr = model.actuator_actadr[self._actuators].copy()  # -1: no pressure dynamics
+        self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
+        self.u_max = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
+        self.gains = model.actuator_gear[self.actuator_ids, 0].copy()
+        self.act_adr = model.actuator_actadr[self.actuator_ids].copy()  # -1: no pressure dynamics
         self._contact_force = np.zeros(6)
         self.reset(np.zeros(n))
 
@@ -189,9 +194,9 @@ class MujocoPlant:
         for i in range(self.n_segments):
             self.data.qpos[self.hinge_qpos[i]] = q0[i] / len(self.hinge_qpos[i])
             self.data.qvel[self.hinge_dofs[i]] = qd0[i] / len(self.hinge_dofs[i])
-        self.data.ctrl[self._actuators] = u0
-        dynamic = self._act_adr >= 0
-        self.data.act[self._act_adr[dynamic]] = u0[dynamic]
+        self.data.ctrl[self.actuator_ids] = u0
+        dynamic = self.act_adr >= 0
+        self.data.act[self.act_adr[dynamic]] = u0[dynamic]
         mujoco.mj_forward(self.model, self.data)
         return self.state()
 
@@ -201,7 +206,7 @@ class MujocoPlant:
         u is NOT clipped here: MuJoCo clamps it to each actuator's ctrlrange (the
         pressure limits of `RobotParams`), and `u_applied` reports what acted.
         """
-        self.data.ctrl[self._actuators] = self._vector(u, "u")
+        self.data.ctrl[self.actuator_ids] = self._vector(u, "u")
         mujoco.mj_step(self.model, self.data, nstep=self.steps_per_control)
         mujoco.mj_forward(self.model, self.data)
         return self.state()
@@ -210,9 +215,9 @@ class MujocoPlant:
         """The state of the current data (after `mj_forward`, if you edited it)."""
         data = self.data
         ends = np.empty((self.n_segments + 1, 2))
-        ends[:-1] = data.site_xpos[self._sites, :2]
-        ends[-1] = data.geom_xpos[self._tip, :2]
-        spring = data.qpos[self._plate_qpos].copy()  # the plate's Δ or the gauge's x_g, m
+        ends[:-1] = data.site_xpos[self.site_ids, :2]
+        ends[-1] = data.geom_xpos[self.tip_geom, :2]
+        spring = data.qpos[self.plate_qpos].copy()  # the plate's Δ or the gauge's x_g, m
         contacts = self._plate_contacts()
         displacement = spring.copy()
         extras: dict[str, float | np.ndarray] = {
@@ -238,11 +243,11 @@ class MujocoPlant:
             extras[f"warning_{WARNINGS[index]}"] = float(counts[index])
         return PlantState(
             t=float(data.time),
-            q=data.ten_length[self._tendons].copy(),
-            qd=data.ten_velocity[self._tendons].copy(),
+            q=data.ten_length[self.tendon_ids].copy(),
+            qd=data.ten_velocity[self.tendon_ids].copy(),
             segment_ends=ends,
             contact_forces=np.maximum(0.0, self.plate_stiffness * spring),
-            u_applied=data.actuator_force[self._actuators].copy(),
+            u_applied=data.actuator_force[self.actuator_ids].copy(),
             extras=extras,
         )
 

@@ -34,7 +34,7 @@ from softcbf_mj.plant import PlantState, steps_per_control
 
 INTEGRATORS = ("ros2", "rk4", "euler")
 DEFAULT_PHYSICS_DT = {"ros2": 1e-3, "rk4": 1e-4, "euler": 1e-5}
-_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
 class PCCPlant:
@@ -66,7 +66,7 @@ class PCCPlant:
         self.integrator = integrator
         self.physics_dt = float(physics_dt if physics_dt is not None else DEFAULT_PHYSICS_DT[integrator])
         self.substeps = steps_per_control(self.control_dt, self.physics_dt)
-        self._gh = gh = _GAMMA * self.physics_dt  # ROS2's γh and the W-solve's γh·k_i, γh·d_i + (γh)²·k_i
+        self._gh = gh = ROS2_GAMMA * self.physics_dt  # ROS2's γh and the W-solve's γh·k_i, γh·d_i + (γh)²·k_i
         self._gh_stiffness = [gh * k for k in params.stiffness]
         self._schur_diag = [gh * d + gh * gh * k for d, k in zip(params.damping, params.stiffness)]
         ros2 = self._ros2_2 if self.n_segments == 2 else self._ros2
@@ -134,7 +134,7 @@ class PCCPlant:
             return rq0 + gh * kv0, rq1 + gh * kv1, kv0, kv1
 
         ((n00, n01), (n10, n11)), (f0, f1) = core.mass_inv, core.force
-        t0, t1 = g0 * u[0] - f0, g1 * u[1] - f1  # q̈ = M⁻¹(Λu − f) as `PCCDynamics._acceleration`
+        t0, t1 = g0 * u[0] - f0, g1 * u[1] - f1  # q̈ = M⁻¹(Λu − f) as `PCCDynamics.acceleration_from_terms`
         k1 = solve_w(v0, v1, n00 * t0 + n01 * t1, n10 * t0 + n11 * t1)
         x2 = [q0 + h * k1[0], q1 + h * k1[1], v0 + h * k1[2], v1 + h * k1[3]]
         core2 = self._at(x2)
