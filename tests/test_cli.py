@@ -14,7 +14,7 @@ import scenarios.common
 import softcbf_mj
 from scenarios import registry
 from softcbf.cli import INTERRUPTED, USAGE_ERROR, main
-from softcbf_mj.runio import load_timeseries, read_run_folder
+from softcbf_mj.runio import RUN_MARKER, load_timeseries, read_run_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--duration", "0.5", "--tunings", "None,Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
@@ -62,7 +62,7 @@ def test_run_writes_one_complete_folder(run_dir, capsys):
     assert {"config.json", "summary.json", "report.md", "recording.rrd", "timeseries/None.npz",
             "timeseries/Low.npz"} <= names
     assert {p.name for p in (run_dir / "plots").iterdir()} == PLOTS
-    assert not [n for n in names if Path(n).name.startswith(".")]  # no temp files left
+    assert [n for n in names if Path(n).name.startswith(".")] == [RUN_MARKER]  # the marker, no temp files
     config = json.loads((run_dir / "config.json").read_text(encoding="utf-8"))
     defaults = registry()["paper_sim"].defaults()
     assert config["params"] == {**defaults, "duration": 0.5, "tunings": "None,Low", "amplitude": 150.0,
