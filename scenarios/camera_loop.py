@@ -193,11 +193,12 @@ def camera_loop(
     plane = _calibration(calibration, plant, config, width, height, detector)
     nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
     q0 = initial_configuration(n, seed, q0_std)
+    tuning_list = parse_tunings(tunings)
     save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
 
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
         summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(true_robot, safe_set, plate_stiffness))
-        for tuning in parse_tunings(tunings):
+        for tuning in tuning_list:
             label = tuning.name
             controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
             estimator = ArmAngleEstimator(n, plane, config.tag_size, max_hold_s=max_hold_s, qd_filter_tau=qd_filter_tau)

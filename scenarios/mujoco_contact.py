@@ -51,13 +51,13 @@ from softcbf_mj.runio import SummaryWriter
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
 
-SCALE = Bound(0.0, low_open=True, unit="(1: the reference robot)")
+SCALE = Bound(1e-3, 1e3, unit="(1: the reference robot)")  # beyond, the arm's numbers overflow
 BOUNDS = {
     "duration": positive("s"), "frequency": non_negative("Hz"), "links_per_segment": Bound(1, 100),
     "tau_p": non_negative("s"), "physics_dt": Bound(1e-6, CONTROL_DT, unit="s"), "plate_stiffness": positive("N/m"),
     "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "true_stiffness_scale": SCALE,
     "true_damping_scale": SCALE, "true_gain_scale": SCALE, "true_length_scale": SCALE,
-    "facet_angle": Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"),
+    "facet_offset": Bound(-1.0, 1.0, unit="m"), "facet_angle": Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"),
 }
 
 TABLE = (
