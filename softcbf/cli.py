@@ -10,20 +10,28 @@
 
 `run` runs a registered scenario (`scenarios.registry`): its parameters are its keyword
 arguments, spelt with dashes (`--pressure-limits true`); `--out` defaults to
-runs/<scenario>-<YYYYmmdd-HHMMSS>. The run folder gets config.json, summary.json,
-timeseries/*.npz, plots/*.png, report.md and recording.rrd (softcbf_mj.runio), the report
-and the recording rebuilt after every finished tuning, so an interrupted run (Ctrl-C,
-exit code 130) leaves them for the tunings it finished. `--spawn` streams each finished
-tuning to a rerun viewer when a display is present, and says so when it skips it.
-`python -m scenarios` is the same `run` (SPEC §8 spelling: `python -m scenarios NAME
---out DIR ...`, `--list`).
+runs/<scenario>-<YYYYmmdd-HHMMSS> (-2, -3, ... when runs start in the same second). The
+run folder gets config.json, summary.json, timeseries/*.npz, plots/*.png, report.md and
+recording.rrd (softcbf_mj.runio), the report and the recording rebuilt after every
+finished tuning. `--spawn` streams each finished tuning to a rerun viewer when a display
+is present, and says so when it skips it. `python -m scenarios` is the same `run`
+(SPEC §8 spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
+
+The run folder is locked while a run writes it (softcbf_mj.runio: a second run into it is
+refused, naming the process that holds it). `--overwrite` replaces the contents of a run
+folder (one softcbf wrote: its .softcbf-run marker or a SPEC §8 summary.json), never any
+other folder, nor the working folder, a folder above it or the home folder.
 
 Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the wrong
-type or out of range, an existing non-empty --out without --overwrite, a folder that is
-not a run folder), with one line on stderr naming the parameter and the valid values;
-130 interrupted. A run the scenario rejects (ValueError) before its first finished
-tuning leaves no output behind (a folder it created is removed, one that existed empty
-is emptied), so the corrected command is not refused.
+type, not finite or out of range, a duration whose time series would not fit in memory,
+an --out that is in use, not writable, or non-empty without --overwrite, a folder that is
+not a run folder, a time series that cannot be read), with one line on stderr naming the
+parameter (or file) and the valid values; 130 interrupted. Scenarios check every
+parameter before they write anything; a run that stops before its first finished tuning
+(rejected, failed or interrupted) leaves no output behind (folders it created are
+removed, one that existed is emptied), so the corrected command is not refused. Ctrl-C
+after a finished tuning keeps the finished tunings and brings the report and the
+recording up to them if they lag behind (a second Ctrl-C skips that and says what to run).
 
 A subcommand is one `register_command(name, help, add_arguments, handler)` call:
 `add_arguments(parser)` declares its options, `handler(args, extra) -> exit code` runs
