@@ -239,6 +239,26 @@ def test_unusable_out_folders_are_one_line_errors(tmp_path, capsys, out):
     assert err.startswith(f"error: cannot write the run folder {out}: ") and err.count("\n") == 1, err
 
 
+@pytest.fixture
+def immutable_folder(tmp_path):
+    """An empty folder nobody may write into, root included (chattr +i); skipped where chattr cannot do that."""
+    folder = tmp_path / "immutable"
+    folder.mkdir()
+    if shutil.which("chattr") is None or subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode:
+        pytest.skip("chattr +i is not available here (needs root and a file system with the immutable flag)")
+    yield folder
+    subprocess.run(["chattr", "-i", str(folder)], check=True)
+
+
+def test_an_immutable_out_folder_is_a_one_line_error(immutable_folder, capsys):
+    """L3: an empty folder that cannot be written passed the checks, then raised PermissionError from
+    summary.json's temp file."""
+    assert main(["run", "paper_sim", "--duration", ".5", "--out", str(immutable_folder)]) == USAGE_ERROR
+    err = capsys.readouterr().err
+    assert err == f"error: cannot write the run folder {immutable_folder}: Operation not permitted\n"
+    assert list(immutable_folder.iterdir()) == []
+
+
 def test_overwrite_through_a_symlink_replaces_the_run_folder_it_points_to(tmp_path, capsys):
     """L3: a symlink with --overwrite raised OSError (rmtree of a symlink) after its checks."""
     tiny = ["--duration", "0.01", "--tunings", "None", "--progress", "false"]
