@@ -51,8 +51,8 @@ from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    Bound, build_safe_set, check_choice, check_parameters, initial_configuration, load_robot, non_negative, parse_tunings,
-    positive, read_parameter_file, save_run, scene_record,
+    Bound, build_safe_set, check_choice, check_parameters, existing_file, initial_configuration, load_robot, non_negative,
+    parse_tunings, positive, read_parameter_file, save_run, scene_record,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from softcbf_mj.metrics import contact_figures, format_table
@@ -106,9 +106,7 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
         with OffscreenRenderer(model, "overhead", width, height) as renderer:
             image = renderer.render(data)
         return calibrate(TagDetector(backend).detect(image), calibration_board(config))
-    path = Path(spec)
-    if not path.is_file():
-        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {spec!r} (no such file)")
+    path = existing_file("calibration", spec, "'board', 'truth' or a calibration JSON file")
     return read_parameter_file("calibration", path, PlaneCalibration.load)
 
 

@@ -46,7 +46,7 @@ class Bound:
     unit: str = ""
 
     def __contains__(self, value: float) -> bool:
-        if not math.isfinite(value):
+        if isinstance(value, float) and not math.isfinite(value):
             return False
         if self.low is not None and (value <= self.low if self.low_open else value < self.low):
             return False
@@ -80,7 +80,7 @@ def check_parameters(params: dict[str, Any], bounds: dict[str, Bound]) -> None:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             continue
         bound = bounds.get(name, Bound())
-        if not math.isfinite(value):
+        if isinstance(value, float) and not math.isfinite(value):  # ints are finite (and may exceed any float)
             raise ValueError(f"{name} must be finite{f' and {bound}' if name in bounds else ''}, got {value!r}")
         if value not in bound:
             raise ValueError(f"{name} must be {bound}, got {value!r}")
@@ -90,6 +90,19 @@ def check_choice(name: str, value: str, valid: Sequence[str]) -> None:
     """ValueError naming the parameter and the valid values unless `value` is one of them."""
     if value not in valid:
         raise ValueError(f"{name} must be one of {', '.join(valid)}, got {value!r}")
+
+
+def existing_file(name: str, spec: str, expected: str) -> Path:
+    """The file a parameter names; ValueError "NAME must be EXPECTED, got SPEC (no such file)"
+    when it is not one (also for names the OS refuses: too long, a NUL byte)."""
+    path = Path(spec)
+    try:
+        found = path.is_file()
+    except (OSError, ValueError):
+        found = False
+    if not found:
+        raise ValueError(f"{name} must be {expected}, got {spec!r} (no such file)")
+    return path
 
 
 def read_parameter_file(name: str, path: Path, load: Callable[[Path], T]) -> T:
@@ -120,9 +133,7 @@ def load_robot(spec: str) -> RobotParams:
     """'' or 'reference' → the SPEC §3 reference arm; otherwise a JSON file written by RobotParams.save."""
     if spec in ("", "reference"):
         return reference_robot()
-    path = Path(spec)
-    if not path.is_file():
-        raise ValueError(f"robot must be 'reference' or a robot JSON file, got {spec!r} (no such file)")
+    path = existing_file("robot", spec, "'reference' or a robot JSON file")
     return read_parameter_file("robot", path, RobotParams.load)
 
 
@@ -130,9 +141,7 @@ def load_environment(spec: str) -> Environment:
     """'paper' → the paper's facet; otherwise a JSON file {"H": [[a, b], ...], "h": [...]} (m)."""
     if spec == "paper":
         return paper_environment()
-    path = Path(spec)
-    if not path.is_file():
-        raise ValueError(f"environment must be 'paper' or a JSON file with keys H and h, got {spec!r} (no such file)")
+    path = existing_file("environment", spec, "'paper' or a JSON file with keys H and h")
     return read_parameter_file("environment", path, _read_environment)
 
 

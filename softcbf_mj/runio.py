@@ -163,10 +163,10 @@ def prepare_out_dir(path: str | Path, overwrite: bool = False) -> Path:
     if str(path) == "":
         raise OutputDirError("--out must name a folder, got ''")
     out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise OutputDirError(f"{out} exists and is not a folder")
-    marked, run_folder = (out / RUN_MARKER).is_file(), is_run_folder(out)  # before the lock marks it
     try:
+        if out.exists() and not out.is_dir():
+            raise OutputDirError(f"{out} exists and is not a folder")
+        marked, run_folder = (out / RUN_MARKER).is_file(), is_run_folder(out)  # before the lock marks it
         out.mkdir(parents=True, exist_ok=True)
         _lock(out)
     except OSError as exc:

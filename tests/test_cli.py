@@ -214,6 +214,10 @@ def test_default_folders_of_runs_started_in_the_same_second_differ(tmp_path, mon
         (["paper_sim", "--environment", "{tmp}/env.json"], "environment file {tmp}/env.json cannot be used: "),  # L6
         (["mujoco_contact", "--links-per-segment", "0"], "links_per_segment must be in [1, 100], got 0"),
         (["camera_loop", "--width", "100000"], "width must be in [16, 1280] px, got 100000"),
+        # found by tests/test_cli_properties.py: OverflowError (int to float) and OSError (file name too long)
+        (["paper_sim", "--seed", "9" * 400, "--q0-std", "-1"], "q0_std must be in [0, pi] rad, got -1.0"),
+        (["camera_loop", "--width", "9" * 400], "width must be in [16, 1280] px, got 999"),
+        (["paper_sim", "--environment", "9" * 400], "environment must be 'paper' or a JSON file with keys H and h, got '999"),
     ],
 )
 def test_bad_values_are_refused_naming_the_parameter_before_anything_is_written(tmp_path, capsys, args, message):
@@ -228,7 +232,7 @@ def test_bad_values_are_refused_naming_the_parameter_before_anything_is_written(
     assert not out.exists()
 
 
-@pytest.mark.parametrize("out", ["/proc/x", "{tmp}/file/sub", "{tmp}/dangling"])
+@pytest.mark.parametrize("out", ["/proc/x", "{tmp}/file/sub", "{tmp}/dangling", "{tmp}/" + "x" * 300])
 def test_unusable_out_folders_are_one_line_errors(tmp_path, capsys, out):
     """L3: --out /proc/x, --out FILE/sub (and a dangling link) raised OSError tracebacks."""
     (tmp_path / "file").write_text("x")

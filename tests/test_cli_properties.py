@@ -43,7 +43,7 @@ WEIRD = ["nan", "NaN", "inf", "-inf", "1e308", "1e309", "-1e308", "1e6", "1e-300
 TEXT = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00\n\r"), max_size=12)
 SEGMENT = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00\n\r/"), min_size=1, max_size=12)
 VALUES = st.one_of(st.sampled_from(WEIRD), st.floats().map(repr), st.integers(-10**30, 10**30).map(str), TEXT)
-OUT_NAMES = ["file", "file/sub", "full", "empty", "empty/new/deeper", "runfolder", "link", "new", "ünï"]
+OUT_NAMES = ["file", "file/sub", "full", "empty", "empty/new/deeper", "runfolder", "link", "new", "ünï", "x" * 300]
 
 
 class Validated(BaseException):
