@@ -89,7 +89,7 @@ def _populate(root: Path) -> None:
     (root / "link").symlink_to(root / "runfolder")
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(command_lines())
 def test_random_command_lines_are_checked_without_a_traceback(command):
     entry, argv, out = command
