@@ -4,6 +4,13 @@ At each control step k (t_k = k·Δt): the estimator turns the plant's ground tr
 into the controller's view of the state, the nominal controller proposes u_nom,
 the safety filter returns u, and the plant holds u for one period. Everything that
 happened is recorded at the control rate as arrays with first axis k.
+
+The record is preallocated: T = round(duration / Δt) rows of F floats (F = 1 + 4N +
+2(N + 1) + 3N + facets + 1 + P' + 1 for N segments and P' rows of the force-safe set)
+and P' + 2 flags. Its peak, T (2 (8F + P' + 2) + 64) bytes (the rows, the columns cut
+from them and 8 floats a step for the plant's extras; measured within 8 % above
+tracemalloc's peak), is checked against the available memory before a run starts
+(`check_duration`), together with a finite duration of at least one period.
 """
 
 from __future__ import annotations
