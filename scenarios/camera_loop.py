@@ -43,25 +43,40 @@ import numpy as np
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import per_segment
+from controllers.qp import available_backends
 from perception.detect import TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
 from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, save_run, scene_record
+from scenarios.common import (
+    Bound, build_safe_set, check_choice, check_parameters, existing_file, initial_configuration, load_robot, non_negative,
+    parse_tunings, positive, read_parameter_file, save_run, scene_record,
+)
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
+from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import (
-    CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig, build_model, calibration_board,
+    CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, CAMERA_RESOLUTION, DEFAULT_TAU_P, ArmModelConfig, build_model,
+    calibration_board,
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 from softcbf_mj.runio import SummaryWriter, frames_folder, safe_name, save_frames_index, save_timeseries
 
+
+BOUNDS = {
+    "duration": positive("s"), "frequency": non_negative("Hz"), "links_per_segment": Bound(1, 100),
+    "tau_p": non_negative("s"), "physics_dt": Bound(1e-6, unit="s"), "plate_stiffness": positive("N/m"),
+    "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "tick": positive("s"),
+    "max_hold_s": positive("s"), "qd_filter_tau": non_negative("s"), "width": Bound(16, CAMERA_RESOLUTION[0], unit="px"),
+    "height": Bound(16, CAMERA_RESOLUTION[1], unit="px"), "saved_frames_hz": non_negative("Hz (0: none)"),
+    "tip_friction": non_negative("(Coulomb μ)"),
+}
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -94,10 +109,8 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
         with OffscreenRenderer(model, "overhead", width, height) as renderer:
             image = renderer.render(data)
         return calibrate(TagDetector(backend).detect(image), calibration_board(config))
-    path = Path(spec)
-    if not path.is_file():
-        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {spec!r} (no such file)")
-    return PlaneCalibration.load(path)
+    path = existing_file("calibration", spec, "'board', 'truth' or a calibration JSON file")
+    return read_parameter_file("calibration", path, PlaneCalibration.load)
 
 
 def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarray]) -> dict:
@@ -176,14 +189,13 @@ def camera_loop(
     `sheet_*` parameters as in `mujoco_contact` (a flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not (math.isfinite(saved_frames_hz) and saved_frames_hz >= 0):
-        raise ValueError(f"saved_frames_hz must be finite and >= 0 Hz (0: none), got {saved_frames_hz}")
+    check_parameters(params, BOUNDS)
+    check_choice("qp_backend", qp_backend, available_backends())
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
     timing.ticks_per_control(tick)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
+    check_duration(duration, tick, model_robot.n_segments, safe_set)
     env = safe_set.environment
     arm = load_robot(true_robot) if true_robot else model_robot
     if arm.n_segments != model_robot.n_segments:
@@ -202,11 +214,12 @@ def camera_loop(
     plane = _calibration(calibration, plant, config, width, height, detector)
     nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
     q0 = initial_configuration(n, seed, q0_std)
+    tuning_list = parse_tunings(tunings)
     save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
 
-    summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(arm, safe_set, true_plate_stiffness))
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
-        for tuning in parse_tunings(tunings):
+        summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(arm, safe_set, true_plate_stiffness))
+        for tuning in tuning_list:
             label = tuning.name
             controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
             estimator = ArmAngleEstimator(n, plane, config.tag_size, max_hold_s=max_hold_s, qd_filter_tau=qd_filter_tau)

@@ -39,17 +39,32 @@ import numpy as np
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import RobotParams, per_segment
+from controllers.qp import available_backends
 from scenarios import register
 from controllers.safe_set import Environment
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
+from scenarios.common import (
+    Bound, build_safe_set, check_choice, check_parameters, initial_configuration, load_robot, non_negative, parse_tunings,
+    positive, run_tuning, scene_record,
+)
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
+from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.runio import SummaryWriter
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
+
+SCALE = Bound(1e-3, 1e3, unit="(1: the reference robot)")  # beyond, the arm's numbers overflow
+BOUNDS = {
+    "duration": positive("s"), "frequency": non_negative("Hz"), "links_per_segment": Bound(1, 100),
+    "tau_p": non_negative("s"), "physics_dt": Bound(1e-6, CONTROL_DT, unit="s"), "plate_stiffness": positive("N/m"),
+    "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "true_stiffness_scale": SCALE,
+    "true_damping_scale": SCALE, "true_gain_scale": SCALE, "true_length_scale": SCALE,
+    "facet_offset": Bound(-1.0, 1.0, unit="m"), "facet_angle": Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"),
+    "gravity": non_negative("m/s² (along -y)"), "tip_friction": non_negative("(Coulomb μ)"),
+}
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -142,19 +157,11 @@ def mujoco_contact(
     """
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not math.isfinite(t0):
-        raise ValueError(f"t0 must be finite, got {t0}")
-    for name in ("true_stiffness_scale", "true_damping_scale", "true_gain_scale", "true_length_scale"):
-        if not (math.isfinite(params[name]) and params[name] > 0):
-            raise ValueError(f"{name} must be > 0 (1: the reference robot), got {params[name]}")
-    if not (math.isfinite(facet_offset) and math.isfinite(facet_angle) and abs(facet_angle) < math.pi / 2):
-        raise ValueError(f"facet_offset (m) must be finite and |facet_angle| < pi/2 rad, got {facet_offset}, {facet_angle}")
-    if not (math.isfinite(gravity) and gravity >= 0):
-        raise ValueError(f"gravity must be finite and >= 0 m/s² (along -y), got {gravity}")
+    check_parameters(params, BOUNDS)
+    check_choice("qp_backend", qp_backend, available_backends())
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
+    check_duration(duration, CONTROL_DT, model_robot.n_segments, safe_set)
     env = safe_set.environment
     ref = load_robot(true_robot) if true_robot else model_robot
     if ref.n_segments != model_robot.n_segments:

@@ -11,10 +11,15 @@ from pathlib import Path
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
+from controllers.qp import available_backends
 from scenarios import register
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
+from scenarios.common import (
+    build_safe_set, check_choice, check_parameters, initial_configuration, load_robot, non_negative, parse_tunings,
+    positive, run_tuning, scene_record,
+)
+from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
-from softcbf_mj.pcc_plant import PCCPlant
+from softcbf_mj.pcc_plant import INTEGRATORS, PCCPlant
 from softcbf_mj.runio import SummaryWriter
 
 TABLE = (
@@ -30,6 +35,10 @@ TABLE = (
     ("filter p99 [us]", "filter_us_p99", ".1f"),
     ("RTF", "realtime_factor", ".1f"),
 )
+
+
+BOUNDS = {"duration": positive("s"), "frequency": non_negative("Hz"), "f_max": positive("N"),
+          "plate_stiffness": positive("N/m"), "control_rate": positive("Hz")}
 
 
 @register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High")
@@ -56,12 +65,12 @@ def paper_sim(
     """Run each tuning for `duration` s; write summary.json and one time series per tuning."""
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not control_rate > 0:
-        raise ValueError(f"control_rate must be > 0 Hz, got {control_rate}")
+    check_parameters(params, BOUNDS)
+    check_choice("integrator", integrator, INTEGRATORS)
+    check_choice("qp_backend", qp_backend, available_backends())
     robot_params = load_robot(robot)
     safe_set = build_safe_set(environment, plate_stiffness, f_max, row_scaling)
+    check_duration(duration, 1.0 / control_rate, robot_params.n_segments, safe_set)
     tuning_list = parse_tunings(tunings)
     nominal = SinusoidNominal.paper(robot_params.n_segments, amplitude, frequency)
     q0 = initial_configuration(robot_params.n_segments, seed, q0_std)

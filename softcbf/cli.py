@@ -10,20 +10,28 @@
 
 `run` runs a registered scenario (`scenarios.registry`): its parameters are its keyword
 arguments, spelt with dashes (`--pressure-limits true`); `--out` defaults to
-runs/<scenario>-<YYYYmmdd-HHMMSS>. The run folder gets config.json, summary.json,
-timeseries/*.npz, plots/*.png, report.md and recording.rrd (softcbf_mj.runio), the report
-and the recording rebuilt after every finished tuning, so an interrupted run (Ctrl-C,
-exit code 130) leaves them for the tunings it finished. `--spawn` streams each finished
-tuning to a rerun viewer when a display is present, and says so when it skips it.
-`python -m scenarios` is the same `run` (SPEC §8 spelling: `python -m scenarios NAME
---out DIR ...`, `--list`).
+runs/<scenario>-<YYYYmmdd-HHMMSS> (-2, -3, ... when runs start in the same second). The
+run folder gets config.json, summary.json, timeseries/*.npz, plots/*.png, report.md and
+recording.rrd (softcbf_mj.runio), the report and the recording rebuilt after every
+finished tuning. `--spawn` streams each finished tuning to a rerun viewer when a display
+is present, and says so when it skips it. `python -m scenarios` is the same `run`
+(SPEC §8 spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
+
+The run folder is locked while a run writes it (softcbf_mj.runio: a second run into it is
+refused, naming the process that holds it). `--overwrite` replaces the contents of a run
+folder (one softcbf wrote: its .softcbf-run marker or a SPEC §8 summary.json), never any
+other folder, nor the working folder, a folder above it or the home folder.
 
 Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the wrong
-type or out of range, an existing non-empty --out without --overwrite, a folder that is
-not a run folder), with one line on stderr naming the parameter and the valid values;
-130 interrupted. A run the scenario rejects (ValueError) before its first finished
-tuning leaves no output behind (a folder it created is removed, one that existed empty
-is emptied), so the corrected command is not refused.
+type, not finite or out of range, a duration whose time series would not fit in memory,
+an --out that is in use, not writable, or non-empty without --overwrite, a folder that is
+not a run folder, a time series that cannot be read), with one line on stderr naming the
+parameter (or file) and the valid values; 130 interrupted. Scenarios check every
+parameter before they write anything; a run that stops before its first finished tuning
+(rejected, failed or interrupted) leaves no output behind (folders it created are
+removed, one that existed is emptied), so the corrected command is not refused. Ctrl-C
+after a finished tuning keeps the finished tunings and brings the report and the
+recording up to them if they lag behind (a second Ctrl-C skips that and says what to run).
 
 A subcommand is one `register_command(name, help, add_arguments, handler)` call:
 `add_arguments(parser)` declares its options, `handler(args, extra) -> exit code` runs
@@ -35,7 +43,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import datetime
+import os
 import shutil
 import sys
 import time
@@ -47,7 +55,9 @@ from pathlib import Path
 import softcbf_mj
 from scenarios import Scenario, get, registry
 from softcbf import hardware_cli
-from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, RunFolderError, prepare_out_dir, read_run_folder, versions
+from softcbf_mj.runio import (
+    SUMMARY_FILE, OutputDirError, RunFolderError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir, versions,
+)
 from softcbf.study import cli as study_cli
 from softcbf.study.store import STUDY_FILE
 
@@ -156,49 +166,113 @@ def _finished_runs(out_dir: Path) -> list[str]:
     return read_run_folder(out_dir).labels if (out_dir / SUMMARY_FILE).is_file() else []
 
 
-def _discard(out_dir: Path, keep_folder: bool) -> None:
-    """Remove what a run that was rejected before its first finished run wrote (and the
-    folder unless it existed before), so that the corrected command is not refused."""
+def _missing_folders(path: Path) -> list[Path]:
+    """`path` and those of its parents that do not exist yet, deepest first."""
+    return [p for p in (path, *path.parents) if not os.path.lexists(p)]
+
+
+def _remove_empty(folders: Sequence[Path]) -> None:
+    """Remove the folders this run created (deepest first) as far as they are empty."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
+
+
+def _discard(out_dir: Path, created: Sequence[Path]) -> None:
+    """Remove what a run that stopped before its first finished run wrote (and the folders
+    it created), so that the corrected command is not refused."""
     for path in out_dir.iterdir():
-        if path.is_dir():
+        if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
         else:
             path.unlink()
-    if not keep_folder:
-        out_dir.rmdir()
+    _remove_empty(created)
 
 
-def run_scenario(name: str, tokens: Sequence[str], out: Path | None, overwrite: bool = False, spawn: bool = False) -> int:
+def _stale_outputs(out_dir: Path) -> list[str]:
+    """Which of the report and the recording do not show every finished run: missing, or
+    older than summary.json (rewritten after each run, before both are rebuilt)."""
+    from softcbf_mj.recording import RECORDING_FILE
+    from softcbf_mj.report import REPORT_FILE
+
+    summary_ns = (out_dir / SUMMARY_FILE).stat().st_mtime_ns
+    return [name for name in (REPORT_FILE, RECORDING_FILE)
+            if not (out_dir / name).is_file() or (out_dir / name).stat().st_mtime_ns < summary_ns]
+
+
+def _interrupted(out_dir: Path, done: list[str]) -> int:
+    """After Ctrl-C with `done` finished runs: bring the report and the recording up to
+    them (a second Ctrl-C skips that), say what the folder holds, return 130."""
+    from softcbf_mj.recording import RECORDING_FILE, write_recording
+    from softcbf_mj.report import write_report
+
+    runs = f"{len(done)} finished run(s) ({', '.join(done)})"
+    stale = _stale_outputs(out_dir)
+    if stale:
+        print(f"\ninterrupted: rebuilding {' and '.join(stale)} for the {runs} (Ctrl-C again to skip)", file=sys.stderr)
+        try:
+            for name in stale:
+                (write_recording if name == RECORDING_FILE else write_report)(out_dir)
+        except KeyboardInterrupt:
+            print(f"\ninterrupted again: the {runs} are in {out_dir}; {' and '.join(_stale_outputs(out_dir))} "
+                  f"may not show them all: rebuild with: softcbf report {out_dir}", file=sys.stderr)
+            return INTERRUPTED
+    print(f"\ninterrupted: {runs} are in {out_dir}, with their report and recording", file=sys.stderr)
+    return INTERRUPTED
+
+
+def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overwrite: bool = False,
+                 spawn: bool = False) -> int:
     """Run scenario `name` with parameters from `tokens` into `out` (default
-    runs/<name>-<time>); the one implementation behind `softcbf run` and `python -m scenarios`."""
+    runs/<name>-<time>, made unique); the one implementation behind `softcbf run` and
+    `python -m scenarios`. Every parameter is checked before anything is written."""
     try:
         scenario = get(name)
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
     params = scenario_parameters(scenario, tokens)
-    if out is None:
-        out = DEFAULT_RUNS_DIR / f"{name}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
-    existed = out.exists()
     try:
-        out_dir = prepare_out_dir(out, overwrite=overwrite)
+        if out is None:
+            missing = _missing_folders(DEFAULT_RUNS_DIR)
+            out = new_run_dir(DEFAULT_RUNS_DIR, name)
+            created = [out, *missing]
+        else:
+            created = _missing_folders(Path(out))
+        try:
+            out_dir = prepare_out_dir(out, overwrite=overwrite)
+        except BaseException:
+            _remove_empty(created)
+            raise
     except OutputDirError as exc:
         raise UsageError(str(exc)) from None
-    from softcbf_mj.recording import live_viewer
-
     try:
+        return _run_locked(scenario, params, out_dir, created, spawn)
+    finally:
+        release_out_dir(out_dir)
+
+
+def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, created: list[Path], spawn: bool) -> int:
+    try:
+        from softcbf_mj.recording import live_viewer
+
         with live_viewer() if spawn else contextlib.nullcontext("") as message:
             if message:
                 print(message, file=sys.stderr)
             scenario.run(out_dir, **params)
-    except ValueError as exc:
-        if not _finished_runs(out_dir):
-            _discard(out_dir, keep_folder=existed)
-        raise UsageError(str(exc)) from None
-    except KeyboardInterrupt:
+    except BaseException as exc:
         done = _finished_runs(out_dir)
-        print(f"\ninterrupted: {len(done)} finished run(s) ({', '.join(done) or 'none'}) are in {out_dir}, "
-              "with their report and recording", file=sys.stderr)
-        return INTERRUPTED
+        if not done:
+            _discard(out_dir, created)
+        if isinstance(exc, KeyboardInterrupt):
+            if not done:
+                print(f"\ninterrupted before the first run finished; nothing kept in {out_dir}", file=sys.stderr)
+                return INTERRUPTED
+            return _interrupted(out_dir, done)
+        if isinstance(exc, ValueError):
+            raise UsageError(str(exc)) from None
+        raise
     print(_outputs_summary(out_dir))
     return 0
 
@@ -233,8 +307,9 @@ def _list(args: argparse.Namespace, extra: list[str]) -> int:
 
 def _run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario name (softcbf list)")
-    parser.add_argument("--out", type=Path, help="output folder (default runs/<scenario>-<time>; refused if it exists and is not empty)")
-    parser.add_argument("--overwrite", action="store_true", help="replace the contents of an existing --out folder")
+    parser.add_argument("--out", help="output folder (default runs/<scenario>-<time>; refused if it exists and is not empty)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the contents of an existing run folder (one written by softcbf)")
     parser.add_argument("--spawn", action="store_true", help="stream each finished tuning to a rerun viewer (needs a display)")
 
 
@@ -309,6 +384,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return USAGE_ERROR
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

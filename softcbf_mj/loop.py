@@ -4,11 +4,19 @@ At each control step k (t_k = k·Δt): the estimator turns the plant's ground tr
 into the controller's view of the state, the nominal controller proposes u_nom,
 the safety filter returns u, and the plant holds u for one period. Everything that
 happened is recorded at the control rate as arrays with first axis k.
+
+The record is preallocated: T = round(duration / Δt) rows of F floats (F = 1 + 4N +
+2(N + 1) + 3N + facets + 1 + P' + 1 for N segments and P' rows of the force-safe set)
+and P' + 2 flags. Its peak, T (2 (8F + P' + 2) + 64) bytes (the rows, the columns cut
+from them and 8 floats a step for the plant's extras; measured within 8 % above
+tracemalloc's peak), is checked against the available memory before a run starts
+(`check_duration`), together with a finite duration of at least one period.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -58,6 +66,39 @@ TIMESERIES_UNITS = {
 }
 
 
+def available_memory_bytes() -> int:
+    """Memory a new allocation can get without swapping: MemAvailable of /proc/meminfo
+    (Linux), else the machine's physical memory."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_duration(duration: float, control_dt: float, n_segments: int, safe_set: ForceSafeSet) -> int:
+    """The number of control steps of a run of `duration` s at period `control_dt` s,
+    after checking it: duration finite and > 0, at least one period, and the time series
+    (`LoopRecorder.bytes_needed`) within the available memory. Raises ValueError naming
+    duration; call it before writing anything."""
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f"duration must be finite and > 0 s, got {duration}")
+    if not (math.isfinite(control_dt) and control_dt > 0):
+        raise ValueError(f"the control period must be finite and > 0 s, got {control_dt}")
+    n_steps = int(round(duration / control_dt))
+    if n_steps < 1:
+        raise ValueError(f"duration must cover at least one control period ({control_dt:g} s), got {duration} s")
+    needed, available = LoopRecorder.bytes_needed(n_steps, n_segments, safe_set), available_memory_bytes()
+    if needed > available:
+        raise ValueError(f"duration {duration:g} s ({n_steps} steps of {control_dt:g} s) needs {needed / 2**30:.1f} GiB "
+                         f"for its time series, more than the {available / 2**30:.1f} GiB of memory available; "
+                         "shorten duration or lower the rate")
+    return n_steps
+
+
 class LoopRecorder:
     """The time series of a closed loop, one row per plant step (preallocated).
 
@@ -68,14 +109,29 @@ class LoopRecorder:
     """
 
     def __init__(self, n_steps: int, n_segments: int, safe_set: ForceSafeSet) -> None:
-        n, p = n_segments, len(safe_set.H_prime)
+        p = len(safe_set.H_prime)
         self.safe_set, self.n_steps, self._p = safe_set, n_steps, p
-        self._float_shapes = {"t": (), "q": (n,), "qd": (n,), "q_est": (n,), "qd_est": (n,), "segment_ends": (n + 1, 2),
-                              "u_nom": (n,), "u": (n,), "u_applied": (n,), "contact_force": (safe_set.n_facets,),
-                              "rho_pred": (), "b": (p,), "filter_us": ()}
+        self._float_shapes = self.float_shapes(n_segments, safe_set)
         self._floats = np.empty((n_steps, sum(math.prod(shape) for shape in self._float_shapes.values())))
         self._flags = np.empty((n_steps, p + 2), dtype=bool)  # active (P), infeasible, recovery
         self._extras: dict[str, np.ndarray] = {}
+
+    @staticmethod
+    def float_shapes(n_segments: int, safe_set: ForceSafeSet) -> dict[str, tuple[int, ...]]:
+        """The per-step shape of every float column."""
+        n, p = n_segments, len(safe_set.H_prime)
+        return {"t": (), "q": (n,), "qd": (n,), "q_est": (n,), "qd_est": (n,), "segment_ends": (n + 1, 2),
+                "u_nom": (n,), "u": (n,), "u_applied": (n,), "contact_force": (safe_set.n_facets,),
+                "rho_pred": (), "b": (p,), "filter_us": ()}
+
+    @classmethod
+    def bytes_needed(cls, n_steps: int, n_segments: int, safe_set: ForceSafeSet) -> int:
+        """Peak memory of a run's time series: the preallocated rows plus the columns cut
+        from them (`columns` copies), i.e. twice the rows, plus 8 floats a step for the
+        plant's extras."""
+        floats = sum(math.prod(shape) for shape in cls.float_shapes(n_segments, safe_set).values())
+        flags = len(safe_set.H_prime) + 2
+        return n_steps * (2 * (8 * floats + flags) + 8 * 8)
 
     def record(self, k: int, state: PlantState, est: Estimate, result: CBFResult, filter_us: float) -> None:
         """Row k: the plant's state, the estimate and filter result in force, and the filter's time (µs).
@@ -123,9 +179,7 @@ def run_closed_loop(
     progress: Progress | None = None,
 ) -> dict[str, np.ndarray]:
     """Run for `duration` s from rest at q0; return the time series (`LoopRecorder.columns`)."""
-    n_steps = int(round(duration / plant.control_dt))
-    if n_steps < 1:
-        raise ValueError(f"duration must cover at least one control period ({plant.control_dt} s), got {duration}")
+    n_steps = check_duration(duration, plant.control_dt, plant.n_segments, controller.safe_set)
     recorder = LoopRecorder(n_steps, plant.n_segments, controller.safe_set)
     clock = time.perf_counter
     state = plant.reset(q0)

@@ -70,7 +70,7 @@ from softcbf_mj.report import (
     run_color,
     scene_box,
 )
-from softcbf_mj.runio import RunFolder, RunFolderError, frames_folder, read_run_folder
+from softcbf_mj.runio import RunFolder, RunFolderError, atomic_path, frames_folder, read_run_folder
 
 APP_ID = "softcbf_mj"
 RECORDING_FILE = "recording.rrd"
@@ -285,14 +285,15 @@ def write_recording(run_dir: str | Path) -> Path:
     cameras = [label for label in folder.labels if folder.frames(label)]
     blueprint = _blueprint(folder.labels, cameras, box)
     path = folder.path / RECORDING_FILE
-    tmp = folder.path / f".{RECORDING_FILE}.tmp"
-    rec = rr.RecordingStream(APP_ID, recording_id=_recording_id(folder))
-    rec.save(tmp, default_blueprint=blueprint)
-    rec.send_recording_name(f"{folder.summary['scenario']}: {folder.path.name}")
-    _log(rec, folder, scene, series, folder.labels, box)
-    rec.flush()
-    rec.disconnect()
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        rec = rr.RecordingStream(APP_ID, recording_id=_recording_id(folder))
+        rec.save(tmp, default_blueprint=blueprint)
+        try:
+            rec.send_recording_name(f"{folder.summary['scenario']}: {folder.path.name}")
+            _log(rec, folder, scene, series, folder.labels, box)
+            rec.flush()
+        finally:
+            rec.disconnect()
     live = _LIVE.get()
     if live is not None:
         new = [label for label in folder.labels if label not in live.sent]

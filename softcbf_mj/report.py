@@ -30,7 +30,6 @@ report and the recording draw the same things.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +40,7 @@ from matplotlib.figure import Figure
 
 from controllers.safe_set import StiffnessLaw
 from softcbf_mj.metrics import format_table
-from softcbf_mj.runio import RunFolder, RunFolderError, read_run_folder, stiffness_from_json
+from softcbf_mj.runio import RunFolder, RunFolderError, atomic_path, read_run_folder, stiffness_from_json
 
 DPI = 100
 FIGURE_SIZES_IN: dict[str, tuple[float, float]] = {
@@ -188,9 +187,8 @@ def _figure(name: str) -> Figure:
 
 
 def _save(fig: Figure, path: Path) -> None:
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=DPI, format="png")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=DPI, format="png")
 
 
 def _plot_rho(runs: Sequence[tuple[str, str, dict]], path: Path) -> None:
@@ -325,7 +323,7 @@ def write_report(run_dir: str | Path) -> dict[str, Path]:
     _plot_force(scene, runs, plots["force"])
     _plot_pressure(runs, plots["pressure"])
     report = folder.path / REPORT_FILE
-    tmp = report.with_name(f".{REPORT_FILE}.tmp")
-    tmp.write_text(_markdown(folder, scene, plots), encoding="utf-8")
-    os.replace(tmp, report)
+    text = _markdown(folder, scene, plots)
+    with atomic_path(report) as tmp:
+        tmp.write_text(text, encoding="utf-8")
     return {**plots, "report": report}
