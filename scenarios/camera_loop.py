@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
+from typing import Any, Mapping
 
 import cv2
 import mujoco
@@ -43,19 +44,22 @@ import numpy as np
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import per_segment, reference_robot
-from perception.detect import TagDetector
+from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
 from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, save_run, scene_record
+from scenarios.common import (
+    build_safe_set, check_controller_parameters, initial_configuration, load_robot, parse_tunings, save_run, scene_record,
+)
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from softcbf_mj.metrics import contact_figures, format_table
 from softcbf_mj.model_builder import (
     CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig, build_model, calibration_board,
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 from softcbf_mj.runio import SummaryWriter, frames_folder, safe_name, save_frames_index, save_timeseries
@@ -118,7 +122,37 @@ def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarr
     }
 
 
-@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `camera_loop` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
+    for name in ("t0", "amplitude", "frequency"):
+        if not math.isfinite(params[name]):
+            raise ValueError(f"{name} must be finite, got {params[name]}")
+    if not (math.isfinite(params["saved_frames_hz"]) and params["saved_frames_hz"] >= 0):
+        raise ValueError(f"saved_frames_hz must be finite and >= 0 Hz (0: none), got {params['saved_frames_hz']}")
+    timing = CameraTiming(params["frame_rate"], params["control_rate"], params["latency"], params["drop_rate"],
+                          params["pixel_noise"], params["hold_s"])
+    timing.ticks_per_control(params["tick"])
+    for name in ("max_hold_s", "qd_filter_tau"):
+        if not (math.isfinite(params[name]) and params[name] >= 0):
+            raise ValueError(f"{name} must be a finite time >= 0 s, got {params[name]}")
+    for name in ("width", "height"):
+        if params[name] < 8:
+            raise ValueError(f"{name} must be >= 8 px, got {params[name]}")
+    if params["detector"] not in DETECTOR_BACKENDS:
+        raise ValueError(f"detector must be one of {', '.join(DETECTOR_BACKENDS)}, got {params['detector']!r}")
+    if params["calibration"] not in ("board", "truth") and not Path(params["calibration"]).is_file():
+        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {params['calibration']!r} "
+                         "(no such file)")
+    ArmModelConfig(plate_stiffness=params["plate_stiffness"], links_per_segment=params["links_per_segment"],
+                   tau_p=params["tau_p"], physics_dt=params["physics_dt"])
+    steps_per_control(params["tick"], params["physics_dt"])
+    if model_robot.n_segments != reference_robot().n_segments:
+        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {reference_robot().n_segments}")
+
+
+@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop",
+          check_parameters)
 def camera_loop(
     out_dir: Path,
     *,
@@ -160,12 +194,8 @@ def camera_loop(
     """Run each tuning for `duration` s through the camera path; write summary.json, time series and frames."""
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not (math.isfinite(saved_frames_hz) and saved_frames_hz >= 0):
-        raise ValueError(f"saved_frames_hz must be finite and >= 0 Hz (0: none), got {saved_frames_hz}")
+    check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    timing.ticks_per_control(tick)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     env = safe_set.environment
@@ -173,8 +203,6 @@ def camera_loop(
     config = ArmModelConfig(robot=true_robot, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
                             links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
     plant = MujocoPlant(build_model(config), tick)
-    if model_robot.n_segments != plant.n_segments:
-        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
     n = plant.n_segments
     tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
     plane = _calibration(calibration, plant, config, width, height, detector)

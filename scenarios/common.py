@@ -1,12 +1,14 @@
-"""Builders shared by scenarios: robot, environment, force-safe set, tunings, the scene
-record, one tuning's run and the saving of a finished run (with its report and recording)."""
+"""Builders shared by scenarios: robot, environment, force-safe set, tunings, the checks
+every scenario makes of its parameters before it runs, the scene record, one tuning's run
+and the saving of a finished run (with its report and recording)."""
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, Callable
@@ -17,6 +19,7 @@ from controllers.cbf import Tuning, get_tuning
 from controllers.filter import CBFFilter
 from controllers.nominal import NominalController
 from controllers.params import RobotParams, reference_robot
+from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
 from softcbf_mj.loop import TIMESERIES_UNITS, Estimate, exact_state, run_closed_loop
 from softcbf_mj.metrics import run_figures
@@ -74,6 +77,24 @@ def parse_tunings(text: str) -> list[Tuning]:
     if not names:
         raise ValueError("tunings must name at least one tuning, e.g. None,Low,High")
     return [get_tuning(name) for name in names]
+
+
+def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffness: str = "plate_stiffness") -> RobotParams:
+    """The checks shared by every scenario, made before anything is built (`Scenario.validate`):
+    duration > 0 s, q0_std >= 0 rad, the tunings, the controller's robot, its force-safe set
+    (environment, f_max, row_scaling and the stiffness parameter `assumed_plate_stiffness`)
+    and qp_backend. Returns the controller's robot."""
+    duration = params["duration"]
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    if not (math.isfinite(params["q0_std"]) and params["q0_std"] >= 0):
+        raise ValueError(f"q0_std must be >= 0 rad, got {params['q0_std']}")
+    parse_tunings(params["tunings"])
+    robot = load_robot(params["robot"])
+    build_safe_set(params["environment"], params[assumed_plate_stiffness], params["f_max"], params["row_scaling"])
+    if params["qp_backend"] not in available_backends():
+        raise ValueError(f"qp_backend must be one of {', '.join(available_backends())}, got {params['qp_backend']!r}")
+    return robot
 
 
 def initial_configuration(n_segments: int, seed: int, q0_std: float) -> np.ndarray:

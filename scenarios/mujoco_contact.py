@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -38,10 +39,13 @@ from controllers.nominal import SinusoidNominal
 from controllers.params import RobotParams, per_segment, reference_robot
 from scenarios import register
 from controllers.safe_set import Environment
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
+from scenarios.common import (
+    build_safe_set, check_controller_parameters, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record,
+)
 from softcbf_mj.metrics import contact_figures, format_table
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
@@ -70,7 +74,28 @@ TABLE = (
 )
 
 
-@register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `mujoco_contact` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
+    for name in ("t0", "amplitude", "frequency"):
+        if not math.isfinite(params[name]):
+            raise ValueError(f"{name} must be finite, got {params[name]}")
+    for name in ("true_stiffness_scale", "true_damping_scale", "true_gain_scale", "true_length_scale"):
+        if not (math.isfinite(params[name]) and params[name] > 0):
+            raise ValueError(f"{name} must be > 0 (1: the reference robot), got {params[name]}")
+    if not math.isfinite(params["facet_offset"]):
+        raise ValueError(f"facet_offset must be a finite distance (m), got {params['facet_offset']}")
+    if not (math.isfinite(params["facet_angle"]) and abs(params["facet_angle"]) < math.pi / 2):
+        raise ValueError(f"|facet_angle| must be < pi/2 rad, got {params['facet_angle']}")
+    ArmModelConfig(plate_stiffness=params["plate_stiffness"], links_per_segment=params["links_per_segment"],
+                   tau_p=params["tau_p"], physics_dt=params["physics_dt"])
+    steps_per_control(CONTROL_DT, params["physics_dt"])
+    if model_robot.n_segments != reference_robot().n_segments:
+        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {reference_robot().n_segments}")
+
+
+@register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
+          check_parameters)
 def mujoco_contact(
     out_dir: Path,
     *,
@@ -114,15 +139,7 @@ def mujoco_contact(
     """
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not math.isfinite(t0):
-        raise ValueError(f"t0 must be finite, got {t0}")
-    for name in ("true_stiffness_scale", "true_damping_scale", "true_gain_scale", "true_length_scale"):
-        if not (math.isfinite(params[name]) and params[name] > 0):
-            raise ValueError(f"{name} must be > 0 (1: the reference robot), got {params[name]}")
-    if not (math.isfinite(facet_offset) and math.isfinite(facet_angle) and abs(facet_angle) < math.pi / 2):
-        raise ValueError(f"facet_offset (m) must be finite and |facet_angle| < pi/2 rad, got {facet_offset}, {facet_angle}")
+    check_parameters(params)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     env = safe_set.environment
@@ -142,8 +159,6 @@ def mujoco_contact(
         control_dt=CONTROL_DT, robot=true_robot, H=true_H, h=true_h, plate_stiffness=plate_stiffness,
         links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
     )
-    if model_robot.n_segments != plant.n_segments:
-        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
     tuning_list = parse_tunings(tunings)
     n = plant.n_segments
     nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)

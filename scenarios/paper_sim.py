@@ -7,14 +7,18 @@ By default there are no pressure limits, as in the paper (SPEC §5).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
+from typing import Any, Mapping
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from scenarios import register
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
+from scenarios.common import (
+    build_safe_set, check_controller_parameters, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record,
+)
 from softcbf_mj.metrics import format_table
-from softcbf_mj.pcc_plant import PCCPlant
+from softcbf_mj.pcc_plant import INTEGRATORS, PCCPlant
 from softcbf_mj.runio import SummaryWriter
 
 TABLE = (
@@ -32,7 +36,20 @@ TABLE = (
 )
 
 
-@register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `paper_sim` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    check_controller_parameters(params, "plate_stiffness")
+    for name in ("amplitude", "frequency"):
+        if not math.isfinite(params[name]):
+            raise ValueError(f"{name} must be finite, got {params[name]}")
+    if not (math.isfinite(params["control_rate"]) and params["control_rate"] > 0):
+        raise ValueError(f"control_rate must be a finite rate > 0 Hz, got {params['control_rate']}")
+    if params["integrator"] not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {params['integrator']!r}")
+
+
+@register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High",
+          check_parameters)
 def paper_sim(
     out_dir: Path,
     *,
@@ -56,10 +73,7 @@ def paper_sim(
     """Run each tuning for `duration` s; write summary.json and one time series per tuning."""
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not control_rate > 0:
-        raise ValueError(f"control_rate must be > 0 Hz, got {control_rate}")
+    check_parameters(params)
     robot_params = load_robot(robot)
     safe_set = build_safe_set(environment, plate_stiffness, f_max, row_scaling)
     tuning_list = parse_tunings(tunings)
