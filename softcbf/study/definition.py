@@ -34,15 +34,15 @@ only `choice`):
 
 Checked at load. A `Study` refuses, with one line naming the key or parameter, the
 range and the value received: wrong types (a string for `tunings`, a list or table where
-a value belongs), unknown keys and parameters, non-finite numbers, and every value the
-scenario would refuse when the sample runs — the study's first sample (every fixed value,
-each distribution at its first value: low, mean or values[0]) with every tuning, then
-each distribution's other end (high) and every choice value through the scenario's own
-checks (`scenarios.Scenario.validate`), so a mistake stops the study before its first
-sample instead of failing every sample. A normal distribution's draws beyond its mean are
-unbounded and are checked when they are drawn (a sample that the scenario refuses is a
-row with status "error"). Sizes: draws × tunings < 2⁶³ (sample indices are int64), grid
-`points` ≤ `MAX_GRID_POINTS`; nothing of the size of the sample count is ever built
+a value belongs), unknown keys and parameters, non-finite numbers, and the values the
+scenario would refuse when a sample runs: the first draw with every tuning (so every
+fixed value and every tuning), then both ends of every range, the mean of every normal
+distribution and every choice value, each in the first sample, go through the scenario's
+own checks (`scenarios.Scenario.validate`). A mistake thus stops the study before its
+first sample instead of failing every sample. Draws of a normal distribution are
+unbounded: one that the scenario refuses is a row with status "error" when it runs.
+Sizes: draws × tunings ≤ 2⁶³ − 1 (sample indices are int64), grid `points` ≤
+`MAX_GRID_POINTS`; nothing of the size of the sample count is ever built
 (`softcbf.study.execute` streams the indices).
 
 Study file (TOML; `load_study`):
@@ -96,7 +96,7 @@ class Distribution:
     points: int | None = None
 
     def __post_init__(self) -> None:
-        where = f"distribution of {self.parameter!r}"
+        where = f"vary.{self.parameter}"
         if self.kind not in KINDS:
             raise ValueError(f"{where}: dist must be one of {', '.join(KINDS)}, got {self.kind!r}")
         given = {k for k in ("low", "high", "mean", "std", "values") if getattr(self, k) is not None}
@@ -138,10 +138,10 @@ class Distribution:
         if self.kind == "choice":
             return len(self.values)
         if self.kind == "normal":
-            raise ValueError(f"distribution of {self.parameter!r}: a normal distribution has no grid; "
+            raise ValueError(f"vary.{self.parameter}: a normal distribution has no grid; "
                              "use dist = 'uniform' with points, or sampling = 'monte_carlo'")
         if self.points is None:
-            raise ValueError(f"distribution of {self.parameter!r}: grid sampling needs points (>= 2) for dist {self.kind!r}")
+            raise ValueError(f"vary.{self.parameter}: grid sampling needs points (>= 2) for dist {self.kind!r}")
         return self.points
 
     def grid_value(self, k: int) -> Any:
@@ -152,8 +152,8 @@ class Distribution:
         return float(space(self.low, self.high, self.grid_size())[k])
 
     def ends(self) -> dict[str, Any]:
-        """The values a study checks against its scenario at load: key → value (both ends of a
-        range, the mean of a normal, every choice value); the first is the draw of the first sample check."""
+        """The values a study checks against its scenario at load, by key: both ends of a range,
+        the mean of a normal, every choice value."""
         if self.kind == "choice":
             return {f"values[{i}]": v for i, v in enumerate(self.values)}
         if self.kind == "normal":
@@ -266,15 +266,15 @@ class Study:
         self._check_against_scenario(scenario)
 
     def _check_against_scenario(self, scenario: Any) -> None:
-        """The first sample with every tuning, then every other distribution end, through the scenario's checks."""
-        first = dict(self.fixed)
-        first.update({d.parameter: next(iter(d.ends().values())) for d in self.vary})
-        for tuning in self.tunings:
-            _named(f"scenario {self.scenario!r} refuses the study's first sample (fixed values, each varied parameter "
-                   f"at its first value) with tuning {tuning!r}", scenario.validate, {**first, self.tuning_parameter: tuning})
-        first[self.tuning_parameter] = self.tunings[0]
+        """The first draw with every tuning, then every distribution end, through the scenario's checks."""
+        for t in range(len(self.tunings)):
+            sample = self.sample(t)
+            drawn = ", ".join(f"{k} = {v!r}" for k, v in sample.values.items()) or "nothing varied"
+            _named(f"scenario {self.scenario!r} refuses sample {t} (draw 0 with tuning {sample.tuning!r}: the fixed values "
+                   f"and {drawn})", scenario.validate, sample.kwargs)
+        first = self.sample(0).kwargs
         for dist in self.vary:
-            for key, value in list(dist.ends().items())[1:]:
+            for key, value in dist.ends().items():
                 _named(f"vary.{dist.parameter}: {key} = {value!r}", scenario.validate, {**first, dist.parameter: value})
 
     @property
