@@ -93,7 +93,12 @@ LOG_UNITS = {
 }
 
 
-class PerceptionStartupError(RuntimeError):
+class StartupError(RuntimeError):
+    """The run could not start: a camera, serial port or emulator that does not open, or no first frame.
+    The message is one line that names the setting to fix."""
+
+
+class PerceptionStartupError(StartupError):
     """No complete frame arrived before the start-up timeout."""
 
 
