@@ -136,13 +136,10 @@ def _native_stderr_unless_failed() -> Iterator[None]:
         os.dup2(held.fileno(), 2)
         try:
             yield
-        except BaseException:
-            os.dup2(saved, 2)
-            raise
         finally:
             os.dup2(saved, 2)
             os.close(saved)
-        held.seek(0)
+        held.seek(0)  # reached only when the block succeeded
         sys.stderr.write(held.read().decode("utf-8", "replace"))
 
 

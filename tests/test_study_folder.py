@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study
+from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, execute, run_study
 from softcbf.study.execute import PARENT_POLL_S, pending_indices
 from softcbf.study.report import write_report
 from softcbf.study.store import CorruptPartError, part_name, read_part
@@ -63,13 +63,16 @@ def test_pending_indices_stream_without_building_the_range():
 
 
 def test_a_study_of_a_million_draws_starts_without_materialising_its_indices(tmp_path, monkeypatch):
-    """2·10⁶ samples: the old driver built a deque of every index (≈ 72 MB here, 3.2 GB for 10⁹ draws)
-    before the first sample; the driver's traced memory until the first stored row stays below 16 MB."""
-    stored = []
+    """2·10⁶ samples: the old driver built a deque of every index before the first sample (here
+    80 MB held by softcbf/study/execute.py, measured; 3.2 GB for 10⁹ draws). Measured when the first
+    row is stored: the memory the driver's module holds then stays below 1 MB."""
+    held = []
     write = StudyStore.write
 
     def write_then_stop(self, row):
-        stored.append(write(self, row))
+        path = write(self, row)
+        snapshot = tracemalloc.take_snapshot().filter_traces([tracemalloc.Filter(True, execute.__file__)])
+        held.append((path.name, sum(stat.size for stat in snapshot.statistics("filename"))))
         raise KeyboardInterrupt  # Ctrl-C after the first stored sample
 
     monkeypatch.setattr(StudyStore, "write", write_then_stop)
@@ -78,11 +81,10 @@ def test_a_study_of_a_million_draws_starts_without_materialising_its_indices(tmp
     try:
         with pytest.raises(KeyboardInterrupt):
             run_study(study, tmp_path / "big", workers=1, progress=False)
-        peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    assert study.n_samples == 2 * 10**6 and [p.name for p in stored] == [part_name(0)]
-    assert peak < 16e6
+    assert study.n_samples == 2 * 10**6 and [name for name, _ in held] == [part_name(0)]
+    assert held[0][1] < 1e6
 
 
 # -- S3: corrupted parts are detected, named and run again -----------------------

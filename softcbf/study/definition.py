@@ -115,6 +115,9 @@ class Distribution:
                 object.__setattr__(self, key, float(value))
         if self.kind in ("uniform", "loguniform") and not self.low < self.high:
             raise ValueError(f"{where}: low must be < high, got low={self.low}, high={self.high}")
+        if self.kind == "uniform" and not math.isfinite(self.high - self.low):
+            raise ValueError(f"{where}: high - low must be a finite number (its draws would be infinite), "
+                             f"got low={self.low}, high={self.high}")
         if self.kind == "loguniform" and not self.low > 0:
             raise ValueError(f"{where}: loguniform needs low > 0, got {self.low}")
         if self.kind == "normal" and not self.std > 0:
