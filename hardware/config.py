@@ -152,6 +152,11 @@ def _choice(key: str, value: Any, valid: tuple[str, ...]) -> str:
     return value
 
 
+def camera_source_is_file(source: int | str) -> bool:
+    """Whether a camera source names a file: not a device index, "virtual", a URL ("://") or a GStreamer pipeline ("!")."""
+    return isinstance(source, str) and source != VIRTUAL_CAMERA and "://" not in source and "!" not in source
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     source: int | str = 0
@@ -195,7 +200,7 @@ class CameraConfig:
     @property
     def is_file(self) -> bool:
         """Whether `source` names a file (a relative one is relative to the configuration's folder)."""
-        return isinstance(self.source, str) and not self.is_virtual and "://" not in self.source and "!" not in self.source
+        return camera_source_is_file(self.source)
 
 
 @dataclass(frozen=True)

@@ -56,7 +56,7 @@ from typing import Any, Callable
 import numpy as np
 
 from controllers.pcc import segment_ends
-from hardware.config import EMULATED_PORT, VIRTUAL_CAMERA, ConfigError, HardwareConfig
+from hardware.config import EMULATED_PORT, VIRTUAL_CAMERA, ConfigError, HardwareConfig, camera_source_is_file
 from hardware.runner import LOG_UNITS, HardwareLog, HardwareLoop, StartupError
 from hardware.safety import SafeAction
 from hardware.transport import open_serial
@@ -89,7 +89,7 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
         changes["link"]["port"] = args.port
     if args.camera is not None:
         source: int | str = int(args.camera) if args.camera.isdigit() else args.camera
-        if isinstance(source, str) and source != VIRTUAL_CAMERA and "://" not in source and "!" not in source:
+        if camera_source_is_file(source):
             source = str(Path(source).absolute())  # a file named on the command line: relative to the working directory
         changes["camera"]["source"] = source
     if args.tuning is not None:
