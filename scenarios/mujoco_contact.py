@@ -86,7 +86,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
     if not math.isfinite(params["facet_offset"]):
         raise ValueError(f"facet_offset must be a finite distance (m), got {params['facet_offset']}")
     if not (math.isfinite(params["facet_angle"]) and abs(params["facet_angle"]) < math.pi / 2):
-        raise ValueError(f"|facet_angle| must be < pi/2 rad, got {params['facet_angle']}")
+        raise ValueError(f"facet_angle must satisfy |facet_angle| < pi/2 rad, got {params['facet_angle']}")
     ArmModelConfig(plate_stiffness=params["plate_stiffness"], links_per_segment=params["links_per_segment"],
                    tau_p=params["tau_p"], physics_dt=params["physics_dt"])
     steps_per_control(CONTROL_DT, params["physics_dt"])
