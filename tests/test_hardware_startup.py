@@ -134,6 +134,18 @@ def test_no_first_frame_vents_and_exits_2_removing_the_empty_folder(real, tmp_pa
     assert not out.exists()
 
 
+def test_an_emulator_that_does_not_start_is_one_line_exit_2_and_no_folder(tmp_path, capfd, monkeypatch):
+    import softcbf_mj.emulate
+
+    def refuse(config):
+        raise RuntimeError("the MuJoCo model did not compile\n(details on a second line)")
+
+    monkeypatch.setattr(softcbf_mj.emulate, "EmulatedHardware", refuse)
+    code, err = _run_cli(capfd, [str(EXAMPLE), "--out", str(tmp_path / "out")])
+    assert (code, err) == (2, "error: emulator: RuntimeError: the MuJoCo model did not compile\n")
+    assert not (tmp_path / "out").exists()
+
+
 # -- H2: paths relative to the configuration's folder ----------------------------
 
 
