@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
+from typing import Any, Mapping
 
 import cv2
 import mujoco
@@ -43,18 +44,18 @@ import numpy as np
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import per_segment
-from controllers.qp import available_backends
-from perception.detect import TagDetector
+from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
 from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    Bound, build_safe_set, check_choice, check_parameters, existing_file, initial_configuration, load_robot, non_negative,
-    parse_tunings, positive, read_parameter_file, save_run, scene_record,
+    Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, existing_file,
+    initial_configuration, load_robot, non_negative, parse_tunings, positive, read_parameter_file, save_run, scene_record,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
+from scenarios.ground_truth import check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
@@ -64,9 +65,10 @@ from softcbf_mj.model_builder import (
     calibration_board,
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
-from softcbf_mj.runio import SummaryWriter, frames_folder, safe_name, save_frames_index, save_timeseries
+from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
 
 
 BOUNDS = {
@@ -133,7 +135,23 @@ def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarr
     }
 
 
-@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `camera_loop` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    check_bounds(params, BOUNDS)
+    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
+    timing = CameraTiming(params["frame_rate"], params["control_rate"], params["latency"], params["drop_rate"],
+                          params["pixel_noise"], params["hold_s"])
+    timing.ticks_per_control(params["tick"])
+    check_choice("detector", params["detector"], DETECTOR_BACKENDS)
+    if params["calibration"] not in ("board", "truth") and not Path(params["calibration"]).is_file():
+        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {params['calibration']!r} "
+                         "(no such file)")
+    check_true_arm(params, model_robot)
+    steps_per_control(params["tick"], params["physics_dt"])
+
+
+@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop",
+          check_parameters)
 def camera_loop(
     out_dir: Path,
     *,
@@ -189,24 +207,16 @@ def camera_loop(
     `sheet_*` parameters as in `mujoco_contact` (a flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
-    check_parameters(params, BOUNDS)
-    check_choice("qp_backend", qp_backend, available_backends())
+    check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    timing.ticks_per_control(tick)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     check_duration(duration, tick, model_robot.n_segments, safe_set)
     env = safe_set.environment
     arm = load_robot(true_robot) if true_robot else model_robot
-    if arm.n_segments != model_robot.n_segments:
-        raise ValueError(f"true_robot has {arm.n_segments} segments, the controller's robot {model_robot.n_segments}; "
-                         "they must have the same number")
-    flexure = FlexureParams(clamp_at=sheet_clamp_at, free_end_at=sheet_free_end_at, thickness=sheet_thickness,
-                            width=sheet_width, youngs_modulus=sheet_youngs_modulus, links=sheet_links,
-            calibration_fraction=sheet_calibration_fraction)
     config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
                             links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
-                            tip_friction=tip_friction, plate=plate, flexure=flexure)
+                            tip_friction=tip_friction, plate=plate, flexure=flexure_params(params))
     true_plate_stiffness = calibrate_flexure(config).stiffness_N_per_m if plate == "flexure" else plate_stiffness
     plant = MujocoPlant(build_model(config), tick)
     n = plant.n_segments

@@ -2,9 +2,11 @@
 tunings, the scene record, one tuning's run and the saving of a finished run (with its
 report and recording).
 
-A scenario checks every parameter before it writes anything (`check_parameters`,
-`check_choice`, `softcbf_mj.loop.check_duration`, and the loaders here, whose errors
-name the parameter and the file), so that a rejected command leaves no output behind.
+A scenario checks every parameter before it writes anything: its registered check
+(`scenarios.Scenario.validate`, built from `check_bounds`, `check_controller_parameters`,
+`check_choice` and the loaders here, whose errors name the parameter
+and the file) and `softcbf_mj.loop.check_duration`, so that a rejected command leaves no
+output behind and a study refuses a bad file at load.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import contextlib
 import json
 import math
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +27,7 @@ from controllers.cbf import Tuning, get_tuning
 from controllers.filter import CBFFilter
 from controllers.nominal import NominalController
 from controllers.params import RobotParams, reference_robot
+from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
 from softcbf_mj.loop import TIMESERIES_UNITS, Estimate, exact_state, run_closed_loop
 from softcbf_mj.metrics import run_figures
@@ -73,7 +76,7 @@ def non_negative(unit: str = "") -> Bound:
     return Bound(0.0, unit=unit)
 
 
-def check_parameters(params: dict[str, Any], bounds: dict[str, Bound]) -> None:
+def check_bounds(params: Mapping[str, Any], bounds: Mapping[str, Bound]) -> None:
     """Every float parameter finite, and every parameter named in `bounds` within its
     bound; ValueError "NAME must be BOUND, got VALUE" for the first that is not."""
     for name, value in params.items():
@@ -163,6 +166,23 @@ def parse_tunings(text: str) -> list[Tuning]:
     if not names:
         raise ValueError("tunings must name at least one tuning, e.g. None,Low,High")
     return [get_tuning(name) for name in names]
+
+
+COMMON_BOUNDS = {"duration": positive("s"), "q0_std": Bound(0.0, math.pi, unit="rad"), "seed": Bound(0)}
+"""Bounds of the parameters every scenario has."""
+
+
+def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffness: str = "plate_stiffness") -> RobotParams:
+    """The checks shared by every scenario, made before anything is built (`Scenario.validate`):
+    COMMON_BOUNDS (duration, q0_std, seed), the tunings, the controller's robot, its force-safe
+    set (environment, f_max, row_scaling and the stiffness parameter `assumed_plate_stiffness`)
+    and qp_backend. Returns the controller's robot."""
+    check_bounds(params, COMMON_BOUNDS)
+    parse_tunings(params["tunings"])
+    robot = load_robot(params["robot"])
+    build_safe_set(params["environment"], params[assumed_plate_stiffness], params["f_max"], params["row_scaling"])
+    check_choice("qp_backend", params["qp_backend"], available_backends())
+    return robot
 
 
 def initial_configuration(n_segments: int, seed: int, q0_std: float) -> np.ndarray:

@@ -33,25 +33,27 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import RobotParams, per_segment
-from controllers.qp import available_backends
 from scenarios import register
 from controllers.safe_set import Environment
 from scenarios.common import (
-    Bound, build_safe_set, check_choice, check_parameters, initial_configuration, load_robot, non_negative, parse_tunings,
-    positive, run_tuning, scene_record,
+    Bound, build_safe_set, check_bounds, check_controller_parameters, initial_configuration,
+    load_robot, non_negative, parse_tunings, positive, run_tuning, scene_record,
 )
+from scenarios.ground_truth import check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
@@ -93,7 +95,16 @@ TABLE = (
 )
 
 
-@register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `mujoco_contact` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    check_bounds(params, BOUNDS)
+    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
+    check_true_arm(params, model_robot)
+    steps_per_control(CONTROL_DT, params["physics_dt"])
+
+
+@register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
+          check_parameters)
 def mujoco_contact(
     out_dir: Path,
     *,
@@ -157,16 +168,12 @@ def mujoco_contact(
     """
     params = dict(locals())
     params.pop("out_dir")
-    check_parameters(params, BOUNDS)
-    check_choice("qp_backend", qp_backend, available_backends())
+    check_parameters(params)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     check_duration(duration, CONTROL_DT, model_robot.n_segments, safe_set)
     env = safe_set.environment
     ref = load_robot(true_robot) if true_robot else model_robot
-    if ref.n_segments != model_robot.n_segments:
-        raise ValueError(f"true_robot has {ref.n_segments} segments, the controller's robot {model_robot.n_segments}; "
-                         "they must have the same number")
     true_robot_params = RobotParams(
         lengths=ref.array("lengths") * true_length_scale, masses=ref.masses,
         stiffness=ref.array("stiffness") * true_stiffness_scale, damping=ref.array("damping") * true_damping_scale,
@@ -186,10 +193,7 @@ def mujoco_contact(
         truth["tip_friction"] = tip_friction
     true_plate_stiffness = plate_stiffness
     if plate != "ideal":
-        truth.update(plate=plate, flexure=FlexureParams(
-            clamp_at=sheet_clamp_at, free_end_at=sheet_free_end_at, thickness=sheet_thickness, width=sheet_width,
-            youngs_modulus=sheet_youngs_modulus, links=sheet_links,
-            calibration_fraction=sheet_calibration_fraction))
+        truth.update(plate=plate, flexure=flexure_params(params))
         true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
     plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **truth)
     tuning_list = parse_tunings(tunings)

@@ -8,14 +8,14 @@ By default there are no pressure limits, as in the paper (SPEC §5).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Mapping
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.qp import available_backends
 from scenarios import register
 from scenarios.common import (
-    build_safe_set, check_choice, check_parameters, initial_configuration, load_robot, non_negative, parse_tunings,
-    positive, run_tuning, scene_record,
+    build_safe_set, check_bounds, check_choice, check_controller_parameters, initial_configuration, load_robot, non_negative,
+    parse_tunings, positive, run_tuning, scene_record,
 )
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
@@ -41,7 +41,15 @@ BOUNDS = {"duration": positive("s"), "frequency": non_negative("Hz"), "f_max": p
           "plate_stiffness": positive("N/m"), "control_rate": positive("Hz")}
 
 
-@register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `paper_sim` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    check_bounds(params, BOUNDS)
+    check_controller_parameters(params, "plate_stiffness")
+    check_choice("integrator", params["integrator"], INTEGRATORS)
+
+
+@register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High",
+          check_parameters)
 def paper_sim(
     out_dir: Path,
     *,
@@ -65,9 +73,7 @@ def paper_sim(
     """Run each tuning for `duration` s; write summary.json and one time series per tuning."""
     params = dict(locals())
     params.pop("out_dir")
-    check_parameters(params, BOUNDS)
-    check_choice("integrator", integrator, INTEGRATORS)
-    check_choice("qp_backend", qp_backend, available_backends())
+    check_parameters(params)
     robot_params = load_robot(robot)
     safe_set = build_safe_set(environment, plate_stiffness, f_max, row_scaling)
     check_duration(duration, 1.0 / control_rate, robot_params.n_segments, safe_set)

@@ -141,6 +141,16 @@ def release_out_dir(path: str | Path) -> None:
         os.close(fd)
 
 
+def remove_if_unused(path: str | Path) -> None:
+    """Release and remove a run folder that holds nothing but its marker (made for a run
+    that did not start), so that the corrected command is not refused."""
+    folder = Path(path)
+    release_out_dir(folder)
+    if folder.is_dir() and not folder.is_symlink() and {p.name for p in folder.iterdir()} <= {RUN_MARKER}:
+        (folder / RUN_MARKER).unlink(missing_ok=True)
+        folder.rmdir()
+
+
 def _empty(folder: Path, keep: str) -> None:
     for entry in folder.iterdir():
         if entry.name == keep:

@@ -9,7 +9,7 @@ import pytest
 
 from scenarios import get, registry
 from scenarios.__main__ import main
-from scenarios.common import Bound, check_parameters, data_only, non_negative, positive
+from scenarios.common import Bound, check_bounds, data_only, non_negative, positive
 from softcbf_mj.runio import load_timeseries
 
 SPEC_RUN_FIELDS = {
@@ -122,7 +122,7 @@ def test_in_process_main_matches_the_module_cli(tmp_path, capsys):
 def test_check_parameters_names_the_parameter_its_bound_and_the_value():
     bounds = {"duration": positive("s"), "offset": Bound(-1.0, 1.0, unit="m"), "rate": Bound(0.0, 1.0, high_open=True),
               "seed": non_negative()}
-    check_parameters({"duration": 1e-9, "offset": -1.0, "rate": 0.0, "seed": 0, "flag": True, "name": "x"}, bounds)
+    check_bounds({"duration": 1e-9, "offset": -1.0, "rate": 0.0, "seed": 0, "flag": True, "name": "x"}, bounds)
     for params, message in [
         ({"duration": 0.0}, "duration must be > 0 s, got 0.0"),
         ({"duration": float("inf")}, "duration must be finite and > 0 s, got inf"),
@@ -132,5 +132,5 @@ def test_check_parameters_names_the_parameter_its_bound_and_the_value():
         ({"other": float("nan")}, "other must be finite, got nan"),  # every float, bounded or not
     ]:
         with pytest.raises(ValueError) as exc:
-            check_parameters(params, bounds)
+            check_bounds(params, bounds)
         assert str(exc.value) == message

@@ -32,15 +32,16 @@ def _run(args: argparse.Namespace) -> int:
         study = load_study(args.study_file)
         outcome = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                             samples=args.samples, keep_runs=args.keep_runs, progress=not args.no_progress)
+        print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already "
+              f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
+              + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
+        print(f"report: {write_report(args.out)}")
     except (ValueError, OutputDirError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished samples are stored in {args.out}; continue with --resume", file=sys.stderr)
         return 130
-    print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already stored, "
-          f"{outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
-    print(f"report: {write_report(args.out)}")
     return 0
 
 
