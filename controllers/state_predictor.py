@@ -1,0 +1,152 @@
+"""Predict the arm's state over the estimate's age and the command delay (SPEC §9, §10).
+
+A filter called at time t gets an estimate (q, q̇) captured at t_c ≤ t; the command it
+returns acts at the valves from t_a = t + δ (δ: the command delay, s). Between t_c and
+t_a the valves saw the filter's earlier commands, each from its own application time.
+This module keeps that command history and integrates the model across it:
+
+    M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p                      (SPEC §3, p: acting pressure, hPa)
+    ṗ = (u(t) − p) / τ_p      (τ_p > 0),      p = u(t)   (τ_p = 0, ideal valve)
+
+u(t) is piecewise constant: u_k from its application time until the next one. p(t)
+follows from the history alone (open loop): it starts at 0 hPa at `reset` (vented
+valves, the arm at rest) and is advanced exactly, p(t + s) = u + (p(t) − u) e^{−s/τ_p}.
+
+The arm is integrated with the two-stage L-stable Rosenbrock method ROS2 (the PCC
+plant's default; γ = 1 + 1/√2, W = I − γhJ̃, J̃ = [[0, I], [−M⁻¹K, −M⁻¹D]]) through the
+public `PCCDynamics.acceleration_and_mass`, with steps of at most `step_s` (default 2 ms;
+each interval of constant u is split into equal steps) and, per step, p held at its exact
+mean over the step (the PCC plant's rule). tests/test_energy_governor.py compares it
+with a fine integration.
+
+The history keeps every command applied after t_c of the oldest estimate it may still
+be asked about: commands older than `horizon_s` before the latest application time
+are folded into the pressure at the start of the kept history.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from controllers.dynamics import PCCDynamics
+
+_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+
+
+class StatePredictor:
+    """Command history, pressure estimate and model integration for one arm (see the module docstring).
+
+    dynamics: the model; actuator_tau: τ_p (s, 0: ideal valve); step_s: largest
+    integration step (s); horizon_s: how far back (s) the history reaches.
+    """
+
+    def __init__(self, dynamics: PCCDynamics, actuator_tau: float, step_s: float = 2e-3, horizon_s: float = 2.0) -> None:
+        if not (math.isfinite(actuator_tau) and actuator_tau >= 0):
+            raise ValueError(f"actuator_tau must be finite and >= 0 s, got {actuator_tau}")
+        if not (math.isfinite(step_s) and step_s > 0):
+            raise ValueError(f"step_s must be finite and > 0 s, got {step_s}")
+        if not (math.isfinite(horizon_s) and horizon_s > 0):
+            raise ValueError(f"horizon_s must be finite and > 0 s, got {horizon_s}")
+        self.dynamics = dynamics
+        self.n = dynamics.n
+        self.tau = float(actuator_tau)
+        self.step_s = float(step_s)
+        self.horizon_s = float(horizon_s)
+        self.reset()
+
+    def reset(self) -> None:
+        """Vented valves since t = −∞: p = u = 0 hPa, no commands."""
+        self._t0 = -math.inf  # start of the kept history
+        self._p0 = np.zeros(self.n)  # pressure at _t0
+        self._u0 = np.zeros(self.n)  # command acting from _t0
+        self._commands: list[tuple[float, np.ndarray]] = []  # (application time, u), increasing times
+
+    def record(self, t_apply: float, u: np.ndarray) -> None:
+        """The command u (N,) hPa acts from t_apply (s) on; times must not decrease."""
+        if self._commands and t_apply < self._commands[-1][0]:
+            raise ValueError(f"t_apply must not decrease: got {t_apply} after {self._commands[-1][0]}")
+        self._commands.append((float(t_apply), np.array(u, dtype=float)))
+        cutoff = t_apply - self.horizon_s
+        while self._commands and self._commands[0][0] <= cutoff:
+            t_next, u_next = self._commands.pop(0)
+            self._p0 = self._advance(self._p0, self._u0, t_next - self._t0)
+            self._t0, self._u0 = t_next, u_next
+
+    @property
+    def oldest_time(self) -> float:
+        """The earliest time (s) the predictor knows the command and pressure at (−inf after reset)."""
+        return self._t0
+
+    def command_at(self, t: float) -> np.ndarray:
+        """The command acting at the valves at time t (s): (N,) hPa."""
+        u = self._u0
+        for t_k, u_k in self._commands:
+            if t_k > t:
+                break
+            u = u_k
+        return u
+
+    def _advance(self, p: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        if self.tau == 0.0 or math.isinf(dt):
+            return u.copy()
+        return u + (p - u) * math.exp(-dt / self.tau)
+
+    def _pieces(self, t_start: float, t_end: float) -> tuple[np.ndarray, list[tuple[float, float, np.ndarray]]]:
+        """p at t_start and the intervals (a, b, u) of constant command u covering [t_start, t_end]."""
+        if t_start < self._t0:
+            raise ValueError(f"t_start = {t_start} s is older than the kept history (from {self._t0} s)")
+        commands, i = self._commands, 0
+        p, t, u = self._p0, self._t0, self._u0
+        while i < len(commands) and commands[i][0] <= t_start:
+            p = self._advance(p, u, commands[i][0] - t)
+            t, u = commands[i]
+            i += 1
+        p = self._advance(p, u, t_start - t)
+        pieces: list[tuple[float, float, np.ndarray]] = []
+        a = t_start
+        while a < t_end:
+            b = min(commands[i][0], t_end) if i < len(commands) else t_end
+            if b > a:
+                pieces.append((a, b, u))
+            a = b
+            if i < len(commands):
+                u = commands[i][1]
+                i += 1
+        return p, pieces
+
+    def pressure_at(self, t: float) -> np.ndarray:
+        """The acting pressure p(t): (N,) hPa."""
+        return self._pieces(t, t)[0]
+
+    def predict(self, t_start: float, q, qd, t_end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q, q̇, p) at t_end from (q, q̇) at t_start (≤ t_end) through the recorded commands."""
+        q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
+        p, pieces = self._pieces(t_start, t_end)
+        for a, b, u in pieces:
+            steps = max(1, math.ceil((b - a) / self.step_s - 1e-9))
+            h = (b - a) / steps
+            decay = math.exp(-h / self.tau) if self.tau > 0 else 0.0
+            mean = self.tau / h * -math.expm1(-h / self.tau) if self.tau > 0 else 0.0
+            for _ in range(steps):
+                acting = u + (p - u) * mean
+                p = u + (p - u) * decay
+                q, qd = self._ros2(q, qd, acting, h)
+        return q, qd, p
+
+    def _ros2(self, q: np.ndarray, qd: np.ndarray, u: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """One ROS2 step of length h with the pressure u held (see the module docstring)."""
+        dyn, gh = self.dynamics, _GAMMA * h
+        acc, mass = dyn.acceleration_and_mass(q, qd, u)
+        schur = mass + gh * dyn.D + gh * gh * dyn.K
+
+        def solve_w(r_q: np.ndarray, r_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            k_v = np.linalg.solve(schur, mass @ r_v - gh * (dyn.stiffness * r_q))
+            return r_q + gh * k_v, k_v
+
+        k1q, k1v = solve_w(qd, acc)
+        q2, qd2 = q + h * k1q, qd + h * k1v
+        acc2, _ = dyn.acceleration_and_mass(q2, qd2, u)
+        k2q, k2v = solve_w(qd2 - 2.0 * k1q, acc2 - 2.0 * k1v)
+        return q + 0.5 * h * (3.0 * k1q + k2q), qd + 0.5 * h * (3.0 * k1v + k2v)
