@@ -260,6 +260,16 @@ class PCCDynamics:
         core = self._core(q.tolist(), qd.tolist())
         return np.array(self._acceleration(core, self._command(u).tolist())), np.array(core.mass)
 
+    def acceleration_and_mass_unchecked(self, q: list[float], qd: list[float], u: list[float]) -> tuple[list[float], list[list[float]]]:
+        """`acceleration_and_mass` on Python float lists (N,), unchecked: (q̈, M) as lists.
+
+        For per-step integrators outside this module (the governors' state predictor), where
+        numpy's per-call overhead would dominate at N ≈ 2; the caller guarantees finite
+        inputs of length N. Same floats as `acceleration_and_mass` (tested).
+        """
+        core = self._core(q, qd)
+        return self._acceleration(core, u), core.mass
+
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""
         q, qd = self._state(q, qd)

@@ -46,16 +46,26 @@ Each call (estimate captured at t_c, called at t, the command acting from t_a = 
 δ = `command_delay_s` or the context's command delay):
 1. target: the quasi-static governor's command for u_nom (`QuasiStaticGovernor`,
    margin `margin_m`, on the same P): its rest shape keeps the tip inside P, so Γ(target) > 0
-   and the arm at rest at it is certified.
+   and the arm at rest at it is certified. The margin sets how fast the governor can move
+   along P's boundary: a step of Δz (K-weighted rad) needs Γ ≥ ½(1 + κ)Δz² + ε, so a target
+   parked at the boundary crawls. Default 5 mm; measured on the PCC plant at 10 Hz with
+   camera timing, u_nom = 150 sin(2πt/T) hPa on both segments: longest time held beyond a
+   retreating u_nom 0.4 s / 0.1 s (T = 8 s / 20 s), ρ_min 0.35; with 1 mm: 0.7 s / 0.8 s,
+   ρ_min 0.16 / 0.13 (tools/bench_governors.py prints the figures).
 2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c through the commands this
    governor issued and the pressure lag (`controllers.state_predictor`); without it the
    certificate is evaluated at a state up to 0.2 s old (SPEC §10: the governor then froze
    for 4–6 s against the plate while u_nom retreated).
-3. step: u = u_prev + σ (target − u_prev), u_prev the command acting at t_a (this
-   governor's last output); σ = 1 if certified, else the largest certified σ found by
-   `bisection_steps` halvings of [0, 1] when the held command (σ = 0) is certified
-   (the certified σ need not form an interval: the result is certified, and the largest
-   one when they do).
+3. step: along each ray from u_prev (the command acting at t_a, this governor's last
+   output) towards a goal g, u(σ) = u_prev + σ (g − u_prev), the largest certified σ ∈ [0, 1]
+   found by `bisection_steps` halvings (the certified σ need not form an interval: the
+   result is certified, and the largest one when they do). σ = 1 towards the target ends
+   the search ("free"); otherwise the goals are the target, the vented command 0 hPa and
+   u_nom (clipped to the box), and the certified end point nearest the target wins (u_prev
+   itself if none is nearer: "hold"). Near the boundary of P the straight ray to the
+   target runs along it, where Γ is small, and advances slowly; the ray towards 0 hPa
+   backs away from it first, which ends the hold when u_nom retreats (measured on the
+   PCC plant: tests/test_energy_governor.py).
 4. recovery: if even the held command fails ((1 + κ)W > Γ) at x̂ (model mismatch, a
    disturbance, a wrong estimate: a detected violation), the command is chosen among the
    table's grid commands, u_prev and the target: the certified one nearest the target,
@@ -75,8 +85,8 @@ guarantee.
 
 Diagnostics per call (units in `DIAGNOSTIC_UNITS`): W_J (the certified energy of the
 returned command at x̂, plate term included when contact-aware, before κ), Gamma_J (min_j Γ_j + c_j at it),
-margin_J (Gamma_J − (1+κ)W_J − ε; ≥ 0 when certified), step_fraction σ, blocked (1 when
-σ < 1), violation (1 when the held command failed its certificate at x̂), prediction_s
+margin_J (Gamma_J − (1+κ)W_J − ε; ≥ 0 when certified), step_fraction (σ along the ray to
+the target; NaN in recovery), blocked (1 when the target was not reached), violation (1 when the held command failed its certificate at x̂), prediction_s
 (t_a − t_c).
 """
 
@@ -98,7 +108,7 @@ from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
 
 DIAGNOSTIC_UNITS = {
-    "W_J": "J", "Gamma_J": "J", "margin_J": "J", "step_fraction": "1", "blocked": "bool (1: σ < 1)",
+    "W_J": "J", "Gamma_J": "J", "margin_J": "J", "step_fraction": "1", "blocked": "bool (1: the target was not reached)",
     "violation": "bool (1: the held command failed its certificate)", "prediction_s": "s", "solve_us": "µs",
 }
 
@@ -117,8 +127,8 @@ def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndar
 class EnergyGovernor:
     """The E-ERG as a safety filter (see the module docstring for the maths, actions and assumptions).
 
-    Actions: "free" (σ = 1: the target is certified), "governed" (0 < σ < 1), "hold"
-    (σ = 0), "recover" (the held command failed; infeasible when no candidate is
+    Actions: "free" (σ = 1: the target is certified), "governed" (a certified step along
+    one of the rays), "hold" (no step nearer the target), "recover" (the held command failed; infeasible when no candidate is
     certified), "stale" (the estimate is older than the predictor's history: the held
     command is kept, infeasible).
     """
@@ -137,10 +147,10 @@ class EnergyGovernor:
         "bisection_steps": "halvings of the step towards the target [1]",
     }
 
-    def __init__(self, context: FilterContext, margin_m: float = 1e-3, kappa: float = 0.5, energy_margin_J: float = 1e-5,
+    def __init__(self, context: FilterContext, margin_m: float = 5e-3, kappa: float = 0.5, energy_margin_J: float = 1e-5,
                  contact_aware: bool = False, stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0,
                  command_delay_s: float | None = None, actuator_tau_s: float | None = None, grid_hPa: float = 2.5,
-                 predictor_step_s: float = 2e-3, bisection_steps: int = 12) -> None:
+                 predictor_step_s: float = 1e-3, bisection_steps: int = 12) -> None:
         for name, value in (("kappa", kappa), ("energy_margin_J", energy_margin_J)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value}")
@@ -174,16 +184,18 @@ class EnergyGovernor:
         self.target_governor = QuasiStaticGovernor(governed, margin_m=margin_m)
         u_lo = robot.array("u_min") if context.u_min is None else context.u_min
         u_hi = robot.array("u_max") if context.u_max is None else context.u_max
+        self.beta = pressure_lag_weights(context, tau)
         self.table = EscapeEnergyTable(robot, self.safe_set, u_lo, u_hi, grid_hPa=grid_hPa)
         credit = self.stiffness_lo * float(law.energy(self.safe_set.n_max)) if self.contact_aware else 0.0
         self._plate_weight = self.stiffness_hi if self.contact_aware else 0.0
         self._credit = [0.0 if corner else credit for corner in self.safe_set.is_vertex_correction.tolist()]
         self.dynamics = PCCDynamics(robot)
         self.predictor = StatePredictor(self.dynamics, tau, step_s=predictor_step_s)
-        self.beta = pressure_lag_weights(context, tau)
         self._k = robot.array("stiffness").tolist()
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()
+        self._box = None if context.u_min is None else (context.u_min, context.u_max)
+        self._rest = np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)
         self._grid = self.table.grid_commands()
         self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
 
@@ -244,15 +256,21 @@ class EnergyGovernor:
         if margin(target) >= 0.0:
             u, action = target, "free"
         elif held_ok:
-            lo, hi = 0.0, 1.0
-            for _ in range(self.bisection_steps):
-                mid = 0.5 * (lo + hi)
-                if margin(u_prev + mid * (target - u_prev)) >= 0.0:
-                    lo = mid
-                else:
-                    hi = mid
-            sigma = lo
-            u, action = u_prev + lo * (target - u_prev), ("governed" if lo > 0.0 else "hold")
+            u, sigma, best = u_prev, 0.0, float(np.sum((u_prev - target) ** 2))
+            for goal in (target, self._rest, u_nom if self._box is None else np.clip(u_nom, *self._box)):
+                lo, hi = 0.0, 1.0
+                for _ in range(self.bisection_steps):
+                    mid = 0.5 * (lo + hi)
+                    if margin(u_prev + mid * (goal - u_prev)) >= 0.0:
+                        lo = mid
+                    else:
+                        hi = mid
+                sigma = lo if goal is target else sigma
+                candidate = u_prev + lo * (goal - u_prev)
+                distance = float(np.sum((candidate - target) ** 2))
+                if distance < best:
+                    u, best = candidate, distance
+            action = "hold" if u is u_prev else "governed"
         else:
             u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             action, sigma = "recover", math.nan
@@ -260,7 +278,7 @@ class EnergyGovernor:
         energy = self.energy(base, q_list, p_list, u.tolist())
         gamma = self.escape(u.tolist())
         diagnostics = {"W_J": energy, "Gamma_J": gamma, "margin_J": gamma - (1.0 + self.kappa) * energy - self.energy_margin,
-                       "step_fraction": sigma, "blocked": float(not sigma == 1.0), "violation": float(not held_ok)}
+                       "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
         return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
 
     def _recover(self, base: float, q_hat: np.ndarray, p_hat: np.ndarray, u_prev: np.ndarray,

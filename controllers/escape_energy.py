@@ -25,15 +25,22 @@ The table (N ≤ 2 segments; the q-space search below is a grid):
    Beyond the q-grid's box nothing is searched: there the distance is at least the
    distance e(u) from z_u to the box's outside. Hence, at every command grid point,
        d_j ≥ d̲_j = max(0, min(min_{s∈B_j} ‖z_u − z_s‖ − h_z, e(u)))   (0 when g_j(q_u) ≥ 0).
-4. Between grid points, (*) from every corner c of u's cell:
-       d_j(u) ≥ max_c (d̲_j(c) − ‖u − u_c‖_w),   Γ̲_j(u) = ½ max(0, ·)².
-   Outside the box the nearest cell's corners give the same (valid, looser) bound.
-So Γ̲_j(u) ≤ Γ_j(u) everywhere: the table is conservative. It loses h_z at the grid points
-(≈ 2.8e-3 J^{1/2} at the defaults, against d ≈ 0.1–1 J^{1/2}) and up to the half cell
-diagonal in ‖·‖_w (≈ 1.9e-2 J^{1/2} at 5 hPa) at a cell's centre; Γ saturates at
-½ k_min reach² (0.72 J at the defaults), larger than the elastic energy of any command
-step within ±150 hPa of the reference arm (≤ 0.67 J). tests/test_energy_governor.py
-compares the table with a brute-force minimisation.
+4. Between grid points, two bounds from the cell's corners c (values Γ̲_c = ½ d̲_c²):
+   a. Semiconcavity: ½‖u‖²_w − Γ_j(u) = max_{z∈S_j} (z·z_u − ½|z|²) is convex in u (a max of
+      affine functions of z_u, which is linear in u), so it lies below the bilinear
+      interpolation of its corner values (bilinear weights ω_c ≥ 0 are barycentric); with
+      Σ_c ω_c ‖u_c‖²_w − ‖u‖²_w = Σ_i w_i (u_i − a_i)(b_i − u_i) on the cell [a, b]:
+          Γ_j(u) ≥ Σ_c ω_c Γ̲_c − ½ Σ_i w_i (u_i − a_i)(b_i − u_i)
+      (the correction is at most ≈ 4.6e-5 J at 2.5 hPa on the reference arm). Inside the box only.
+   b. Lipschitz, from (*): d_j(u) ≥ max_c (d̲_c − ‖u − u_c‖_w), Γ ≥ ½ max(0, ·)²; valid
+      anywhere, so it also covers commands outside the box (the nearest cell's corners).
+   Γ̲_j(u) is the larger of the two.
+So Γ̲_j(u) ≤ Γ_j(u) everywhere: the table is conservative. Its looseness in d: h_z
+(≈ 2.8e-3 J^{1/2} at the defaults) and the band's extent on the near side of g_j = 0 where
+‖∇g_j‖ < L_j at the grid points, plus bound 4a's correction between them (measured: see
+tests/test_energy_governor.py; d ≈ 0.1–1 J^{1/2} away from the plate). Γ saturates at ½ k_min reach²
+(0.72 J at the defaults), above the elastic energy of any command step within ±150 hPa
+of the reference arm (≤ 0.67 J). tests/test_energy_governor.py compares the table with a brute-force minimisation.
 """
 
 from __future__ import annotations
@@ -125,18 +132,25 @@ class EscapeEnergyTable:
     def values(self, u) -> list[float]:
         """Γ̲_j(u) for every row j: P' floats (J). u: (N,) hPa (Python floats or an array).
 
-        Python floats: this runs several times per filter call, where numpy's per-call
-        overhead would dominate at N ≤ 2.
+        The larger of the two bounds 4a (inside the box) and 4b. Python floats: this runs
+        several times per filter call, where numpy's per-call overhead would dominate at N ≤ 2.
         """
-        flat, corners = 0, []
+        flat, dims, inside, curvature = 0, [], True, 0.0
         for v, lo, step, size, stride, w in zip(u, self._lo, self._step, self._shape, self._strides, self._w):
             i = min(max(int((v - lo) // step), 0), size - 2) if size > 1 else 0
             o = v - (lo + i * step)
+            inside = inside and 0.0 <= o <= step
             flat += i * stride
-            corners.append(((0, w * o * o), (stride, w * (o - step) ** 2)))
-        offsets = [(sum(c[0] for c in combo), math.sqrt(sum(c[1] for c in combo))) for combo in itertools.product(*corners)]
+            curvature += 0.5 * w * o * (step - o)
+            t = o / step
+            dims.append(((0, w * o * o, 1.0 - t), (stride, w * (o - step) ** 2, t)))
+        corners = [(sum(c[0] for c in combo), math.sqrt(sum(c[1] for c in combo)), math.prod(c[2] for c in combo))
+                   for combo in itertools.product(*dims)]
         result = []
         for table in self._flat_rows:
-            best = max(table[flat + k] - dist for k, dist in offsets)
-            result.append(0.5 * best * best if best > 0.0 else 0.0)
+            cone = max(table[flat + k] - dist for k, dist, _ in corners)
+            best = 0.5 * cone * cone if cone > 0.0 else 0.0
+            if inside:
+                best = max(best, sum(0.5 * table[flat + k] ** 2 * weight for k, _, weight in corners) - curvature)
+            result.append(best)
         return result

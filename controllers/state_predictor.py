@@ -14,7 +14,8 @@ valves, the arm at rest) and is advanced exactly, p(t + s) = u + (p(t) − u) e^
 
 The arm is integrated with the two-stage L-stable Rosenbrock method ROS2 (the PCC
 plant's default; γ = 1 + 1/√2, W = I − γhJ̃, J̃ = [[0, I], [−M⁻¹K, −M⁻¹D]]) through the
-public `PCCDynamics.acceleration_and_mass`, with steps of at most `step_s` (default 2 ms;
+public `PCCDynamics.acceleration_and_mass_unchecked` (Python floats: numpy's per-call
+overhead would dominate at N ≈ 2), with steps of at most `step_s` (default 1 ms;
 each interval of constant u is split into equal steps) and, per step, p held at its exact
 mean over the step (the PCC plant's rule). tests/test_energy_governor.py compares it
 with a fine integration.
@@ -42,7 +43,7 @@ class StatePredictor:
     integration step (s); horizon_s: how far back (s) the history reaches.
     """
 
-    def __init__(self, dynamics: PCCDynamics, actuator_tau: float, step_s: float = 2e-3, horizon_s: float = 2.0) -> None:
+    def __init__(self, dynamics: PCCDynamics, actuator_tau: float, step_s: float = 1e-3, horizon_s: float = 2.0) -> None:
         if not (math.isfinite(actuator_tau) and actuator_tau >= 0):
             raise ValueError(f"actuator_tau must be finite and >= 0 s, got {actuator_tau}")
         if not (math.isfinite(step_s) and step_s > 0):
@@ -54,6 +55,8 @@ class StatePredictor:
         self.tau = float(actuator_tau)
         self.step_s = float(step_s)
         self.horizon_s = float(horizon_s)
+        self._stiffness = dynamics.stiffness.tolist()
+        self._damping = dynamics.damping.tolist()
         self.reset()
 
     def reset(self) -> None:
@@ -122,31 +125,49 @@ class StatePredictor:
 
     def predict(self, t_start: float, q, qd, t_end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, p) at t_end from (q, q̇) at t_start (≤ t_end) through the recorded commands."""
-        q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
+        q, qd = [float(v) for v in q], [float(v) for v in qd]
         p, pieces = self._pieces(t_start, t_end)
+        p = p.tolist()
         for a, b, u in pieces:
             steps = max(1, math.ceil((b - a) / self.step_s - 1e-9))
             h = (b - a) / steps
             decay = math.exp(-h / self.tau) if self.tau > 0 else 0.0
             mean = self.tau / h * -math.expm1(-h / self.tau) if self.tau > 0 else 0.0
+            u = u.tolist()
             for _ in range(steps):
-                acting = u + (p - u) * mean
-                p = u + (p - u) * decay
+                acting = [v + (pi - v) * mean for v, pi in zip(u, p)]
+                p = [v + (pi - v) * decay for v, pi in zip(u, p)]
                 q, qd = self._ros2(q, qd, acting, h)
-        return q, qd, p
+        return np.array(q), np.array(qd), np.array(p)
 
-    def _ros2(self, q: np.ndarray, qd: np.ndarray, u: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """One ROS2 step of length h with the pressure u held (see the module docstring)."""
-        dyn, gh = self.dynamics, _GAMMA * h
-        acc, mass = dyn.acceleration_and_mass(q, qd, u)
-        schur = mass + gh * dyn.D + gh * gh * dyn.K
+    def _ros2(self, q: list[float], qd: list[float], u: list[float], h: float) -> tuple[list[float], list[float]]:
+        """One ROS2 step of length h with the pressure u held (see the module docstring), on Python floats."""
+        accel, gh = self.dynamics.acceleration_and_mass_unchecked, _GAMMA * h
+        acc, mass = accel(q, qd, u)
+        ghk = [gh * k for k in self._stiffness]
+        schur_inv = _inverse([[m + (gh * d + gh * gh * k if j == l else 0.0) for l, m in enumerate(row)]
+                              for j, (row, d, k) in enumerate(zip(mass, self._damping, self._stiffness))])
 
-        def solve_w(r_q: np.ndarray, r_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            k_v = np.linalg.solve(schur, mass @ r_v - gh * (dyn.stiffness * r_q))
-            return r_q + gh * k_v, k_v
+        def solve_w(r_q: list[float], r_v: list[float]) -> tuple[list[float], list[float]]:
+            rhs = [sum(m * r for m, r in zip(row, r_v)) - c * rq for row, c, rq in zip(mass, ghk, r_q)]
+            k_v = [sum(s * r for s, r in zip(row, rhs)) for row in schur_inv]
+            return [rq + gh * kv for rq, kv in zip(r_q, k_v)], k_v
 
         k1q, k1v = solve_w(qd, acc)
-        q2, qd2 = q + h * k1q, qd + h * k1v
-        acc2, _ = dyn.acceleration_and_mass(q2, qd2, u)
-        k2q, k2v = solve_w(qd2 - 2.0 * k1q, acc2 - 2.0 * k1v)
-        return q + 0.5 * h * (3.0 * k1q + k2q), qd + 0.5 * h * (3.0 * k1v + k2v)
+        q2 = [a + h * b for a, b in zip(q, k1q)]
+        qd2 = [a + h * b for a, b in zip(qd, k1v)]
+        acc2, _ = accel(q2, qd2, u)
+        k2q, k2v = solve_w([a - 2.0 * b for a, b in zip(qd2, k1q)], [a - 2.0 * b for a, b in zip(acc2, k1v)])
+        return ([a + 0.5 * h * (3.0 * b + c) for a, b, c in zip(q, k1q, k2q)],
+                [a + 0.5 * h * (3.0 * b + c) for a, b, c in zip(qd, k1v, k2v)])
+
+
+def _inverse(m: list[list[float]]) -> list[list[float]]:
+    """The inverse of a small SPD matrix (closed form for N ≤ 2)."""
+    if len(m) == 1:
+        return [[1.0 / m[0][0]]]
+    if len(m) == 2:
+        (a, b), (c, d) = m
+        det = a * d - b * c
+        return [[d / det, -b / det], [-c / det, a / det]]
+    return np.linalg.inv(np.array(m)).tolist()
