@@ -133,8 +133,41 @@ class EscapeEnergyTable:
         """Γ̲_j(u) for every row j: P' floats (J). u: (N,) hPa (Python floats or an array).
 
         The larger of the two bounds 4a (inside the box) and 4b. Python floats: this runs
-        several times per filter call, where numpy's per-call overhead would dominate at N ≤ 2.
+        several times per filter call, where numpy's per-call overhead would dominate at N ≤ 2;
+        N = 2 takes `_values_2`, the same arithmetic unrolled (tested against this path).
         """
+        if self.n == 2:
+            return self._values_2(float(u[0]), float(u[1]))
+        return self._values_general(u)
+
+    def _values_2(self, u0: float, u1: float) -> list[float]:
+        """`values` for N = 2 (cell corners unrolled)."""
+        (lo0, lo1), (step0, step1), (size0, size1), (w0, w1) = self._lo, self._step, self._shape, self._w
+        i0 = min(max(int((u0 - lo0) // step0), 0), size0 - 2)
+        i1 = min(max(int((u1 - lo1) // step1), 0), size1 - 2)
+        o0, o1 = u0 - (lo0 + i0 * step0), u1 - (lo1 + i1 * step1)
+        inside = 0.0 <= o0 <= step0 and 0.0 <= o1 <= step1
+        a0, b0 = w0 * o0 * o0, w0 * (o0 - step0) ** 2
+        a1, b1 = w1 * o1 * o1, w1 * (o1 - step1) ** 2
+        d00, d10, d01, d11 = math.sqrt(a0 + a1), math.sqrt(b0 + a1), math.sqrt(a0 + b1), math.sqrt(b0 + b1)
+        t0, t1 = o0 / step0, o1 / step1
+        curvature = 0.5 * (w0 * o0 * (step0 - o0) + w1 * o1 * (step1 - o1))
+        k00 = i0 * size1 + i1
+        k10, k01, k11 = k00 + size1, k00 + 1, k00 + size1 + 1
+        result = []
+        for table in self._flat_rows:
+            e00, e10, e01, e11 = table[k00], table[k10], table[k01], table[k11]
+            cone = max(e00 - d00, e10 - d10, e01 - d01, e11 - d11)
+            best = 0.5 * cone * cone if cone > 0.0 else 0.0
+            if inside:
+                bilinear = 0.5 * ((1.0 - t0) * ((1.0 - t1) * e00 * e00 + t1 * e01 * e01)
+                                  + t0 * ((1.0 - t1) * e10 * e10 + t1 * e11 * e11)) - curvature
+                best = max(best, bilinear)
+            result.append(best)
+        return result
+
+    def _values_general(self, u) -> list[float]:
+        """`values` for any N ≤ MAX_SEGMENTS (loops over the 2^N corners)."""
         flat, dims, inside, curvature = 0, [], True, 0.0
         for v, lo, step, size, stride, w in zip(u, self._lo, self._step, self._shape, self._strides, self._w):
             i = min(max(int((v - lo) // step), 0), size - 2) if size > 1 else 0

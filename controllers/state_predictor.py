@@ -20,13 +20,14 @@ each interval of constant u is split into equal steps) and, per step, p held at 
 mean over the step (the PCC plant's rule). tests/test_energy_governor.py compares it
 with a fine integration.
 
-The history keeps every command applied after t_c of the oldest estimate it may still
-be asked about: commands older than `horizon_s` before the latest application time
-are folded into the pressure at the start of the kept history.
+The history keeps, per command, its application time and the exact pressure then, and
+drops records older than `horizon_s` (default 2 s) before the latest application time
+(an estimate older than that cannot be predicted: `oldest_time`); look-ups bisect it.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -60,36 +61,33 @@ class StatePredictor:
         self.reset()
 
     def reset(self) -> None:
-        """Vented valves since t = −∞: p = u = 0 hPa, no commands."""
-        self._t0 = -math.inf  # start of the kept history
-        self._p0 = np.zeros(self.n)  # pressure at _t0
-        self._u0 = np.zeros(self.n)  # command acting from _t0
-        self._commands: list[tuple[float, np.ndarray]] = []  # (application time, u), increasing times
+        """Vented valves since t = −inf: p = u = 0 hPa, no commands."""
+        # Record k: the command u_k acting from time t_k and the pressure p_k at t_k (exact).
+        self._times: list[float] = [-math.inf]
+        self._commands: list[np.ndarray] = [np.zeros(self.n)]
+        self._pressures: list[np.ndarray] = [np.zeros(self.n)]
 
     def record(self, t_apply: float, u: np.ndarray) -> None:
         """The command u (N,) hPa acts from t_apply (s) on; times must not decrease."""
-        if self._commands and t_apply < self._commands[-1][0]:
-            raise ValueError(f"t_apply must not decrease: got {t_apply} after {self._commands[-1][0]}")
-        self._commands.append((float(t_apply), np.array(u, dtype=float)))
+        if t_apply < self._times[-1]:
+            raise ValueError(f"t_apply must not decrease: got {t_apply} after {self._times[-1]}")
+        p = self._advance(self._pressures[-1], self._commands[-1], t_apply - self._times[-1])
+        self._times.append(float(t_apply))
+        self._commands.append(np.array(u, dtype=float))
+        self._pressures.append(p)
         cutoff = t_apply - self.horizon_s
-        while self._commands and self._commands[0][0] <= cutoff:
-            t_next, u_next = self._commands.pop(0)
-            self._p0 = self._advance(self._p0, self._u0, t_next - self._t0)
-            self._t0, self._u0 = t_next, u_next
+        drop = bisect.bisect_right(self._times, cutoff) - 1  # keep the record acting at the cutoff
+        if drop > 0:
+            del self._times[:drop], self._commands[:drop], self._pressures[:drop]
 
     @property
     def oldest_time(self) -> float:
         """The earliest time (s) the predictor knows the command and pressure at (−inf after reset)."""
-        return self._t0
+        return self._times[0]
 
     def command_at(self, t: float) -> np.ndarray:
         """The command acting at the valves at time t (s): (N,) hPa."""
-        u = self._u0
-        for t_k, u_k in self._commands:
-            if t_k > t:
-                break
-            u = u_k
-        return u
+        return self._commands[max(bisect.bisect_right(self._times, t) - 1, 0)]
 
     def _advance(self, p: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         if self.tau == 0.0 or math.isinf(dt):
@@ -98,25 +96,18 @@ class StatePredictor:
 
     def _pieces(self, t_start: float, t_end: float) -> tuple[np.ndarray, list[tuple[float, float, np.ndarray]]]:
         """p at t_start and the intervals (a, b, u) of constant command u covering [t_start, t_end]."""
-        if t_start < self._t0:
-            raise ValueError(f"t_start = {t_start} s is older than the kept history (from {self._t0} s)")
-        commands, i = self._commands, 0
-        p, t, u = self._p0, self._t0, self._u0
-        while i < len(commands) and commands[i][0] <= t_start:
-            p = self._advance(p, u, commands[i][0] - t)
-            t, u = commands[i]
-            i += 1
-        p = self._advance(p, u, t_start - t)
+        if t_start < self._times[0]:
+            raise ValueError(f"t_start = {t_start} s is older than the kept history (from {self._times[0]} s)")
+        times, commands = self._times, self._commands
+        i = bisect.bisect_right(times, t_start) - 1
+        p = self._advance(self._pressures[i], commands[i], t_start - times[i])
         pieces: list[tuple[float, float, np.ndarray]] = []
         a = t_start
         while a < t_end:
-            b = min(commands[i][0], t_end) if i < len(commands) else t_end
+            b = min(times[i + 1], t_end) if i + 1 < len(times) else t_end
             if b > a:
-                pieces.append((a, b, u))
-            a = b
-            if i < len(commands):
-                u = commands[i][1]
-                i += 1
+                pieces.append((a, b, commands[i]))
+            a, i = b, i + 1
         return p, pieces
 
     def pressure_at(self, t: float) -> np.ndarray:

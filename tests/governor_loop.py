@@ -6,11 +6,13 @@ captured `age` s earlier (age drawn uniformly from `age_range`, seeded, rounded 
 ticks: the camera's latency plus the estimate's age); the command it returns acts
 from t_k + `delay` on. Records per tick: t, the command acting, u_nom, ρ of the true tip
 (ψ(n) of the true state at every integration step: the plant's physics step is the tick),
-the true state and pressure; per call: the call's tick, the command, its application tick.
+the true state and pressure; per call: the command, its application tick, the
+FilterOutput and the call's wall time.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -36,6 +38,8 @@ class LoopRecord:
     apply_ticks: list[int]  # tick index at whose start each call's command acts
     commands: list[np.ndarray]  # each call's command
     outputs: list  # each call's FilterOutput
+    call_us: np.ndarray  # (calls,) wall time of each filter call, µs
+    call_cpu_us: np.ndarray  # (calls,) process CPU time of each filter call, µs (less sensitive to a loaded machine)
 
 
 def context(robot: RobotParams, safe_set: ForceSafeSet, period: float, delay: float, tau_p: float) -> FilterContext:
@@ -55,14 +59,17 @@ def run_loop(safety_filter, robot: RobotParams, safe_set: ForceSafeSet, u_nom: C
     history_q, history_qd = [state.q], [state.qd]
     acting, pending = np.zeros(n), []  # pending: (tick, u)
     rec = {k: [] for k in ("t", "u", "u_nom", "rho", "q", "qd", "p")}
-    apply_ticks, commands, outputs, last_nom = [], [], [], np.zeros(n)
+    apply_ticks, commands, outputs, call_us, call_cpu_us, last_nom = [], [], [], [], [], np.zeros(n)
     for k in range(ticks):
         if k % per_call == 0:
             age = int(round(rng.uniform(*age_range) / TICK))
             j = max(k - age, 0)
             last_nom = np.asarray(u_nom(k * TICK), dtype=float)
             est = Estimate(k * TICK, history_q[j], history_qd[j], j * TICK)
+            t0, c0 = time.perf_counter(), time.process_time()
             out = as_output(safety_filter(est, last_nom))
+            call_us.append((time.perf_counter() - t0) * 1e6)
+            call_cpu_us.append((time.process_time() - c0) * 1e6)
             pending.append((k + delay_ticks, out.u))
             apply_ticks.append(k + delay_ticks)
             commands.append(np.array(out.u))
@@ -80,4 +87,5 @@ def run_loop(safety_filter, robot: RobotParams, safe_set: ForceSafeSet, u_nom: C
         rec["qd"].append(state.qd)
         rec["p"].append(state.u_applied)
     arrays = {k: np.array(v) for k, v in rec.items()}
-    return LoopRecord(**arrays, apply_ticks=apply_ticks, commands=commands, outputs=outputs)
+    return LoopRecord(**arrays, apply_ticks=apply_ticks, commands=commands, outputs=outputs, call_us=np.array(call_us),
+                      call_cpu_us=np.array(call_cpu_us))
