@@ -69,7 +69,10 @@ Each call (estimate captured at t_c, called at t, the command acting from t_a = 
 4. recovery: if even the held command fails ((1 + κ)W > Γ) at x̂ (model mismatch, a
    disturbance, a wrong estimate: a detected violation), the command is chosen among the
    table's grid commands, u_prev and the target: the certified one nearest the target,
-   or, if none is certified, the one with the largest certificate margin (infeasible).
+   or, if none is certified (infeasible), the one with the largest certificate margin
+   among those whose rest shape lies inside P (Γ̲ ≥ ε), so that the arm at least settles
+   inside (the largest margin overall favours commands that hold the arm where it is,
+   outside P: the least-violation trap of SPEC §5); the target if there is none.
 The command is recorded for the predictor and returned; it lies in the box whenever the
 context is bounded (the grid, u_prev and the target do, and so do their segments).
 
@@ -84,10 +87,12 @@ estimate is not caught until the next estimate shows it; the recovery then has n
 guarantee.
 
 Diagnostics per call (units in `DIAGNOSTIC_UNITS`): W_J (the certified energy of the
-returned command at x̂, plate term included when contact-aware, before κ), Gamma_J (min_j Γ_j + c_j at it),
-margin_J (Gamma_J − (1+κ)W_J − ε; ≥ 0 when certified), step_fraction (σ along the ray to
-the target; NaN in recovery), blocked (1 when the target was not reached), violation (1 when the held command failed its certificate at x̂), prediction_s
-(t_a − t_c).
+returned command at x̂, plate term included when contact-aware, before κ), Gamma_J
+(min_j Γ̲_j + c_j at it), margin_J (Gamma_J − (1+κ)W_J − ε; ≥ 0 when certified),
+step_fraction (σ along the ray to the target; NaN in recovery), blocked (1 when the
+target was not reached), violation (1 when the held command failed its certificate at
+x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
+(the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
 """
 
 from __future__ import annotations
@@ -293,7 +298,10 @@ class EnergyGovernor:
         if np.any(certified):
             distance = np.where(certified, np.sum((candidates - target) ** 2, axis=1), np.inf)
             return candidates[int(np.argmin(distance))].copy(), False
-        return candidates[int(np.argmax(margins))].copy(), True
+        resting_inside = gamma >= self.energy_margin  # rest shape inside P: the arm settles there
+        if not np.any(resting_inside):
+            return target.copy(), True
+        return candidates[int(np.argmax(np.where(resting_inside, margins, -np.inf)))].copy(), True
 
     def _finish(self, u: np.ndarray, action: str, infeasible: bool, rho: float, diagnostics: dict,
                 t_apply: float, t_capture: float, t0: float) -> FilterOutput:

@@ -285,3 +285,23 @@ def test_parameter_docs_cover_the_signature():
     names = set(inspect.signature(EnergyGovernor).parameters) - {"context"}
     assert set(EnergyGovernor.parameter_docs) == names
     assert all(doc.endswith("]") for doc in EnergyGovernor.parameter_docs.values())
+
+
+def test_a_failed_certificate_is_detected_and_recovered(governor_ideal):
+    """An estimate the held command cannot certify (the tip beyond P, moving at 4 rad/s
+    towards the plate): a detected violation, no certified candidate (infeasible), a command
+    whose rest shape lies inside P, inside the box; then, at rest inside P, certified again."""
+    gov = governor_ideal
+    gov.reset()
+    rest = np.zeros(2)
+    gov(Estimate(0.0, rest, rest, 0.0), np.array([150.0, 150.0]))
+    out = gov(Estimate(0.1, np.array([0.35, 0.8]), np.array([4.0, 4.0]), 0.1), np.array([150.0, 150.0]))
+    assert out.action == "recover" and out.diagnostics["violation"] == 1.0 and out.infeasible
+    assert out.rho_pred < 0
+    assert np.all(np.abs(out.u) <= 150.0)
+    assert out.diagnostics["Gamma_J"] >= gov.energy_margin
+    assert gov.target_governor.rest_margins(out.u).min() + gov.target_governor.margin_m > 0  # it settles inside P
+    calm_state = 0.5 * gov.target_governor.rest_shape(out.u)
+    calm = gov(Estimate(0.2, calm_state, rest, 0.2), np.array([150.0, 150.0]))
+    assert not calm.infeasible and calm.diagnostics["margin_J"] >= 0.0
+    gov.reset()
