@@ -23,7 +23,7 @@ are checked at the returned command; a command whose rest shape misses the margi
 more than `RESIDUAL_TOL_M` (non-convergence) is replaced by the best command on the
 segment from the previous command (last call's u, or u = 0 at the first call) that
 keeps its rest shape inside P by the margin (bisection on the true rows; action
-"backtrack"). When the QP is infeasible (the rate limit forbids reaching a safe rest
+"backtrack"; flagged infeasible if even that segment's start misses the margin). When the QP is infeasible (the rate limit forbids reaching a safe rest
 shape, or no command in the box has one), the rate limit is dropped first; if it is
 still infeasible the governor vents (u = 0 hPa clipped to the box) and flags it.
 
@@ -196,6 +196,7 @@ class QuasiStaticGovernor:
             elif np.min(self.rest_margins(u)) < -RESIDUAL_TOL_M:
                 u, action = self._backtrack(u), "backtrack"
             margins = self.rest_margins(u)
+            infeasible = infeasible or float(np.min(margins)) < -RESIDUAL_TOL_M
         self._u_prev = np.array(u, dtype=float)
         solve_us = (time.perf_counter() - t0) * 1e6
         return FilterOutput(

@@ -81,6 +81,21 @@ def test_rate_limit_holds_and_reset_forgets_the_previous_command():
     np.testing.assert_array_equal(gov(REST, target).u, target)  # no history: no rate limit at the first call
 
 
+def test_an_unconverged_iteration_backtracks_to_a_safe_rest_shape():
+    """One iteration linearised far from the solution (the last command (−141.5, −112.7) hPa,
+    u_nom (151.8, 141.2) hPa) lands outside: the governor backs off along the segment from the
+    last command to the rest-shape boundary."""
+    gov = make(max_iterations=1)
+    gov(REST, np.array([-141.5, -112.7]))  # safe: becomes the previous command
+    out = gov(REST, np.array([151.8, 141.2]))
+    assert out.action == "backtrack"
+    assert abs(rest_margin_grid(out.u[None], 1e-3)[0]) <= 2 * RESIDUAL_TOL_M  # on the boundary
+    assert rest_margin_grid(out.u[None], 1e-3)[0] >= -RESIDUAL_TOL_M
+    assert not out.infeasible
+    converged = make()(REST, np.array([150.0, 150.0]))
+    assert converged.diagnostics["iterations"] > 1  # the default needs more than one
+
+
 def test_unbounded_context_and_output_contract():
     ctx = FilterContext(ROBOT, SAFE, None, None, 1e-3)
     out = QuasiStaticGovernor(ctx)(REST, np.array([-400.0, 0.0]))
