@@ -53,7 +53,8 @@ Each call (estimate captured at t_c, called at t, the command acting from t_a = 
    retreating u_nom 0.4 s / 0.1 s (T = 8 s / 20 s), ρ_min 0.35; with 1 mm: 0.7 s / 0.8 s,
    ρ_min 0.16 / 0.13 (tools/bench_governors.py prints the figures).
 2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c through the commands this
-   governor issued and the pressure lag (`controllers.state_predictor`); without it the
+   governor issued and the pressure lag (`controllers.state_predictor`; contact-aware:
+   with the model's plate pushing back); without it the
    certificate is evaluated at a state up to 0.2 s old (SPEC §10: the governor then froze
    for 4–6 s against the plate while u_nom retreated).
 3. step: along each ray from u_prev (the command acting at t_a, this governor's last
@@ -195,7 +196,8 @@ class EnergyGovernor:
         self._plate_weight = self.stiffness_hi if self.contact_aware else 0.0
         self._credit = [0.0 if corner else credit for corner in self.safe_set.is_vertex_correction.tolist()]
         self.dynamics = PCCDynamics(robot)
-        self.predictor = StatePredictor(self.dynamics, tau, step_s=predictor_step_s)
+        self.predictor = StatePredictor(self.dynamics, tau, step_s=predictor_step_s,
+                                        plate=context.safe_set if self.contact_aware else None)
         self._k = robot.array("stiffness").tolist()
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()

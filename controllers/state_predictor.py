@@ -5,9 +5,11 @@ returns acts at the valves from t_a = t + δ (δ: the command delay, s). Between
 t_a the valves saw the filter's earlier commands, each from its own application time.
 This module keeps that command history and integrates the model across it:
 
-    M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p                      (SPEC §3, p: acting pressure, hPa)
+    M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p − J_r(q)ᵀ Σ_i n̂_i ψ(n_i(r(q)))   (SPEC §3, §4)
     ṗ = (u(t) − p) / τ_p      (τ_p > 0),      p = u(t)   (τ_p = 0, ideal valve)
 
+(p: the acting pressure, hPa; the plate term, the facets pushing back along their
+normals, only when a `plate` is given: the contact-aware energy governor's world.)
 u(t) is piecewise constant: u_k from its application time until the next one. p(t)
 follows from the history alone (open loop): it starts at 0 hPa at `reset` (vented
 valves, the arm at rest) and is advanced exactly, p(t + s) = u + (p(t) − u) e^{−s/τ_p}.
@@ -33,6 +35,7 @@ import math
 import numpy as np
 
 from controllers.dynamics import PCCDynamics
+from controllers.safe_set import ForceSafeSet
 
 _GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
@@ -41,10 +44,12 @@ class StatePredictor:
     """Command history, pressure estimate and model integration for one arm (see the module docstring).
 
     dynamics: the model; actuator_tau: τ_p (s, 0: ideal valve); step_s: largest
-    integration step (s); horizon_s: how far back (s) the history reaches.
+    integration step (s); horizon_s: how far back (s) the history reaches; plate: the
+    environment whose facets push back on the tip (None: they do not).
     """
 
-    def __init__(self, dynamics: PCCDynamics, actuator_tau: float, step_s: float = 1e-3, horizon_s: float = 2.0) -> None:
+    def __init__(self, dynamics: PCCDynamics, actuator_tau: float, step_s: float = 1e-3, horizon_s: float = 2.0,
+                 plate: ForceSafeSet | None = None) -> None:
         if not (math.isfinite(actuator_tau) and actuator_tau >= 0):
             raise ValueError(f"actuator_tau must be finite and >= 0 s, got {actuator_tau}")
         if not (math.isfinite(step_s) and step_s > 0):
@@ -56,6 +61,8 @@ class StatePredictor:
         self.tau = float(actuator_tau)
         self.step_s = float(step_s)
         self.horizon_s = float(horizon_s)
+        self.plate = plate
+        self._normals = [] if plate is None else plate.environment.normals.tolist()
         self._stiffness = dynamics.stiffness.tolist()
         self._damping = dynamics.damping.tolist()
         self.reset()
@@ -133,7 +140,7 @@ class StatePredictor:
 
     def _ros2(self, q: list[float], qd: list[float], u: list[float], h: float) -> tuple[list[float], list[float]]:
         """One ROS2 step of length h with the pressure u held (see the module docstring), on Python floats."""
-        accel, gh = self.dynamics.acceleration_and_mass_unchecked, _GAMMA * h
+        accel, gh = self._acceleration_and_mass, _GAMMA * h
         acc, mass = accel(q, qd, u)
         ghk = [gh * k for k in self._stiffness]
         schur_inv = _inverse([[m + (gh * d + gh * gh * k if j == l else 0.0) for l, m in enumerate(row)]
@@ -151,6 +158,21 @@ class StatePredictor:
         k2q, k2v = solve_w([a - 2.0 * b for a, b in zip(qd2, k1q)], [a - 2.0 * b for a, b in zip(acc2, k1v)])
         return ([a + 0.5 * h * (3.0 * b + c) for a, b, c in zip(q, k1q, k2q)],
                 [a + 0.5 * h * (3.0 * b + c) for a, b, c in zip(qd, k1v, k2v)])
+
+
+    def _acceleration_and_mass(self, q: list[float], qd: list[float], u: list[float]) -> tuple[list[float], list[list[float]]]:
+        """q̈ and M at (q, q̇) with pressure u, the plate's push included (see the module docstring)."""
+        acc, mass = self.dynamics.acceleration_and_mass_unchecked(q, qd, u)
+        if self.plate is None:
+            return acc, mass
+        ev = self.dynamics.evaluate(q, qd)  # the same state: the dynamics' cached terms
+        tip = ev.tip[0]
+        forces = self.plate.force_at(tip.real, tip.imag).tolist()
+        if not any(forces):
+            return acc, mass
+        jac = ev.tip_jac.tolist()
+        tau = [-sum(f * (nx * j.real + ny * j.imag) for f, (nx, ny) in zip(forces, self._normals)) for j in jac]
+        return [a + sum(m * t for m, t in zip(row, tau)) for a, row in zip(acc, _inverse(mass))], mass
 
 
 def _inverse(m: list[list[float]]) -> list[list[float]]:

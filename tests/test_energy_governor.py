@@ -23,7 +23,7 @@ from controllers.state_predictor import StatePredictor
 from softcbf_mj.pcc_plant import PCCPlant
 
 sys.path.insert(0, str(Path(__file__).parent))
-from governor_loop import context, run_loop  # noqa: E402
+from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()
@@ -305,3 +305,27 @@ def test_a_failed_certificate_is_detected_and_recovered(governor_ideal):
     calm = gov(Estimate(0.2, calm_state, rest, 0.2), np.array([150.0, 150.0]))
     assert not calm.infeasible and calm.diagnostics["margin_J"] >= 0.0
     gov.reset()
+
+
+def test_contact_aware_on_a_plate_that_pushes_back():
+    """The plate pushes back, 10 % stiffer than the model (the governor is told [0.9, 1.12]);
+    worst step with the valve lag at 10 Hz with camera timing: the true force stays below
+    F_max at every tick, and W_u + E_true ≤ Γ(u) + lo·E(n_max) holds at the true state when
+    each command starts to act."""
+    gov = EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), contact_aware=True,
+                         stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.12)
+    ratio = 1.1
+    plant = PushingPlatePlant(ROBOT, SAFE, 11.16 * ratio, 0.05)
+    rec = run_loop(gov, ROBOT, SAFE, lambda t: np.array([150.0, 150.0]), 2.0, PERIOD, DELAY, tau_p=0.05,
+                   seed=2, plant=plant)
+    assert rec.force.max() <= SAFE.f_max
+    assert rec.force.max() > 0.02  # it does press on the plate
+    slack = []
+    for tick, u in zip(rec.apply_ticks, rec.commands):
+        i = tick - 1
+        if not 0 <= i < len(rec.t):
+            continue
+        n = SAFE.penetration(tip_positions(rec.q[i][None], ROBOT.array("lengths"))[0])
+        base = gov.dynamics.kinetic_energy(rec.q[i], rec.qd[i]) + ratio * float(np.sum(SAFE.stiffness.energy(n)))
+        slack.append(gov.escape(u.tolist()) - gov.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
+    assert min(slack) >= 0.0
