@@ -103,8 +103,10 @@ class _Core(NamedTuple):
     mass_inv: list[list[float]]
 
 
-def _spd_inverse(m: list[list[float]]) -> list[list[float]]:
-    """M⁻¹ of a small SPD matrix; closed form for N ≤ 2 (np.linalg.inv costs ~5 µs)."""
+def spd_inverse(m: list[list[float]]) -> list[list[float]]:
+    """M⁻¹ of a small SPD matrix given as nested Python float lists; closed form for N ≤ 2
+    (np.linalg.inv costs ~5 µs). For per-step integrators (this module, the PCC plant, the
+    governors' state predictor)."""
     if len(m) == 1:
         return [[1.0 / m[0][0]]]
     if len(m) == 2:
@@ -169,7 +171,7 @@ class PCCDynamics:
             return last
         kin = _step_kinematics(q, qd, self._scalars[4])
         mass, force = (self._mass_and_force_2 if self.n == 2 else self._mass_and_force)(kin, q, qd)
-        core = _Core(kin, mass, force, _spd_inverse(mass))
+        core = _Core(kin, mass, force, spd_inverse(mass))
         self._last = (q[:], qd[:], core)
         return core
 

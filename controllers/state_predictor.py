@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from controllers.dynamics import PCCDynamics
+from controllers.dynamics import PCCDynamics, spd_inverse
 from controllers.safe_set import ForceSafeSet
 
 _GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
@@ -143,7 +143,7 @@ class StatePredictor:
         accel, gh = self._acceleration_and_mass, _GAMMA * h
         acc, mass = accel(q, qd, u)
         ghk = [gh * k for k in self._stiffness]
-        schur_inv = _inverse([[m + (gh * d + gh * gh * k if j == l else 0.0) for l, m in enumerate(row)]
+        schur_inv = spd_inverse([[m + (gh * d + gh * gh * k if j == l else 0.0) for l, m in enumerate(row)]
                               for j, (row, d, k) in enumerate(zip(mass, self._damping, self._stiffness))])
 
         def solve_w(r_q: list[float], r_v: list[float]) -> tuple[list[float], list[float]]:
@@ -172,15 +172,5 @@ class StatePredictor:
             return acc, mass
         jac = ev.tip_jac.tolist()
         tau = [-sum(f * (nx * j.real + ny * j.imag) for f, (nx, ny) in zip(forces, self._normals)) for j in jac]
-        return [a + sum(m * t for m, t in zip(row, tau)) for a, row in zip(acc, _inverse(mass))], mass
+        return [a + sum(m * t for m, t in zip(row, tau)) for a, row in zip(acc, spd_inverse(mass))], mass
 
-
-def _inverse(m: list[list[float]]) -> list[list[float]]:
-    """The inverse of a small SPD matrix (closed form for N ≤ 2)."""
-    if len(m) == 1:
-        return [[1.0 / m[0][0]]]
-    if len(m) == 2:
-        (a, b), (c, d) = m
-        det = a * d - b * c
-        return [[d / det, -b / det], [-c / det, a / det]]
-    return np.linalg.inv(np.array(m)).tolist()

@@ -34,7 +34,7 @@ from operator import mul
 
 import numpy as np
 
-from controllers.dynamics import PCCDynamics, _Core, _spd_inverse
+from controllers.dynamics import PCCDynamics, _Core, spd_inverse
 from controllers.params import RobotParams
 from controllers.pcc import _ends_array
 from controllers.safe_set import ForceSafeSet
@@ -118,7 +118,7 @@ class PCCPlant:
         # (M + γh D + (γh)² K) k_v = M r_v − γh K r_q,  k_q = r_q + γh k_v  (h = physics_dt).
         n = self.n_segments
         mass = core.mass
-        schur_inv = _spd_inverse([[m + s if j == l else m for l, m in enumerate(row)]
+        schur_inv = spd_inverse([[m + s if j == l else m for l, m in enumerate(row)]
                                   for j, (row, s) in enumerate(zip(mass, self._schur_diag))])
         k1 = self._solve_w(mass, schur_inv, x[n:], self.dynamics._acceleration(core, u))
         x2 = [xi + h * k for xi, k in zip(x, k1)]
@@ -137,7 +137,7 @@ class PCCPlant:
         gh, (ghk0, ghk1), (sd0, sd1) = self._gh, self._gh_stiffness, self._schur_diag
         g0, g1 = self.dynamics._scalars[3]  # Λ
         (m00, m01), (m10, m11) = core.mass
-        a, b, c, d = m00 + sd0, m01, m10, m11 + sd1  # Schur complement M + γhD + (γh)²K, inverted as `_spd_inverse`
+        a, b, c, d = m00 + sd0, m01, m10, m11 + sd1  # Schur complement M + γhD + (γh)²K, inverted as `spd_inverse`
         det = a * d - b * c
         s00, s01, s10, s11 = d / det, -b / det, -c / det, a / det
         q0, q1, v0, v1 = x

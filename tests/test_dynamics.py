@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from controllers import pcc
-from controllers.dynamics import PCCDynamics, _spd_inverse
+from controllers.dynamics import PCCDynamics, spd_inverse
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
 from controllers.params import RobotParams, reference_robot, uniform_robot
 from derivative_cases import SEGMENT_COUNTS, central_difference, configurations, lengths
@@ -219,7 +219,7 @@ def test_small_spd_inverse(n):
     rng = np.random.default_rng(n)
     a = rng.normal(size=(n, n))
     m = a @ a.T + n * np.eye(n)
-    np.testing.assert_allclose(_spd_inverse(m.tolist()), np.linalg.inv(m), rtol=1e-12)
+    np.testing.assert_allclose(spd_inverse(m.tolist()), np.linalg.inv(m), rtol=1e-12)
 
 
 def test_input_errors():
