@@ -339,3 +339,19 @@ def tip_jacobian(q, lengths) -> np.ndarray:
 def tip_jacobian_derivative(q, lengths) -> np.ndarray:
     """∂J_r/∂q: shape (N, 2, N), [k] = ∂J_r/∂q_k (m/rad²)."""
     return _xy(kinematics(q, lengths, order=2).hess[-1].T, axis=1)
+
+
+def tip_positions(q, lengths) -> np.ndarray:
+    """r(q) for T configurations at once: q (T, N) rad → (T, 2) m (vectorised over T, for tables).
+
+    The chord form of SPEC §2 with ℓ_i = L_i sinc(q_i/2) (numpy's sinc, exact at q_i = 0).
+    """
+    q = np.asarray(q, dtype=float)
+    lengths = as_vector("lengths", lengths, None, ControllerInputError)
+    if q.ndim != 2 or q.shape[1] != lengths.shape[0]:
+        raise ControllerInputError(f"q must have shape (T, {lengths.shape[0]}), got {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise NonFiniteStateError("q must be finite")
+    theta = np.cumsum(q, axis=1) - 0.5 * q  # chord directions φ_i
+    chord = lengths * np.sinc(q / (2.0 * np.pi))
+    return np.stack(((chord * np.cos(theta)).sum(axis=1), (chord * np.sin(theta)).sum(axis=1)), axis=1)

@@ -67,6 +67,9 @@ class StiffnessLaw(Protocol):
 
     `force(n)`: F = ψ(n) in N for penetration n in m (ψ = 0 for n ≤ 0).
     `penetration(F)`: n = ψ⁻¹(F) in m (0 for F ≤ 0). NaN propagates.
+    The built-in laws also give `energy(n)`: E(n) = ∫₀ⁿ ψ(s) ds in J, the energy the
+    facet stores at penetration n (0 for n ≤ 0); the energy governor's contact-aware
+    certificate needs it, other code does not.
     """
 
     def force(self, n: ArrayLike) -> np.ndarray: ...
@@ -89,6 +92,11 @@ class LinearStiffness:
     def penetration(self, force: ArrayLike) -> np.ndarray:
         return np.maximum(np.asarray(force, dtype=float), 0.0) / self.k
 
+    def energy(self, n: ArrayLike) -> np.ndarray:
+        """E(n) = ½ k n² (J) for n ≥ 0, else 0."""
+        n = np.maximum(np.asarray(n, dtype=float), 0.0)
+        return 0.5 * self.k * n * n
+
 
 @dataclass(frozen=True)
 class PowerLawStiffness:
@@ -106,6 +114,11 @@ class PowerLawStiffness:
 
     def penetration(self, force: ArrayLike) -> np.ndarray:
         return (np.maximum(np.asarray(force, dtype=float), 0.0) / self.k) ** (1.0 / self.exponent)
+
+    def energy(self, n: ArrayLike) -> np.ndarray:
+        """E(n) = k n^(p+1)/(p+1) (J) for n ≥ 0, else 0."""
+        n = np.maximum(np.asarray(n, dtype=float), 0.0)
+        return self.k * n ** (self.exponent + 1.0) / (self.exponent + 1.0)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -243,3 +243,14 @@ def test_input_errors():
         dyn.evaluate(np.zeros(3), good)
     with pytest.raises(ControllerInputError, match=r"x must have shape \(4,\)"):
         dyn.f(np.zeros(2))
+
+
+def test_unchecked_acceleration_and_mass_gives_the_same_floats():
+    dyn = PCCDynamics(reference_robot())
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q, qd, u = rng.uniform(-1, 1, 2), rng.uniform(-3, 3, 2), rng.uniform(-150, 150, 2)
+        acc, mass = dyn.acceleration_and_mass_unchecked(q.tolist(), qd.tolist(), u.tolist())
+        expected_acc, expected_mass = dyn.acceleration_and_mass(q, qd, u)
+        np.testing.assert_array_equal(acc, expected_acc)
+        np.testing.assert_array_equal(mass, expected_mass)
