@@ -76,6 +76,8 @@ TABLE = (
     ("detect [ms]", "detect_ms_median", ".1f"),
     ("hold/vent", "safe_action_calls", "d"),
     ("infeasible", "infeasible_steps", "d"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
     ("RTF", "realtime_factor", ".2f"),
 )
 
