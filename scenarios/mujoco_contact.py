@@ -1,7 +1,7 @@
-"""Scenario `mujoco_contact`: the paper's sinusoid against the compliant plate in MuJoCo (SPEC §7).
+"""Scenario `mujoco_contact`: the paper's sinusoid against the compliant plate in MuJoCo (docs/ground-truth.md).
 
-The ground truth is `MujocoPlant` (the discretised rod of the reference robot, SPEC §3,
-and the paper's plate on a spring of `plate_stiffness` N/m, SPEC §4). The controller
+The ground truth is `MujocoPlant` (the discretised rod of the reference robot, docs/model.md#rppr-dynamics,
+and the paper's plate on a spring of `plate_stiffness` N/m, docs/model.md#force-safe-set). The controller
 under test (`CBFFilter`) runs at 1 kHz with zero-order hold and sees the exact rod state
 (q_i = Σ hinge angles, q̇_i likewise: `exact_state`); its model is `robot` (the reference
 parameters, or a calibration JSON from tools/calibrate.py) and its force-safe set assumes
@@ -14,12 +14,12 @@ MuJoCo actuators clamp to the same ctrlrange in every case, so with
 `pressure_limits=False` the filter may ask for more than the arm receives
 (`u` vs `u_applied` in the time series).
 
-Per run, besides the SPEC §8 fields (ρ_meas and t_violation_s from the plate's spring
+Per run, besides the docs/run-outputs.md fields (ρ_meas and t_violation_s from the plate's spring
 force: ρ_meas = 1 − F/F_max for linear ψ, violation while F > F_max), summary.json holds
 `softcbf_mj.metrics.contact_figures`: the force the controller predicts, ψ of its own
 predicted penetration, against the measured plate force (RMS and max error), and the
 loaded-rod penetration bias, predicted − measured penetration while in contact (m and %
-of n_max; SPEC §7: a loaded rod is not constant-curvature), the solver's peak contact
+of n_max; docs/ground-truth.md: a loaded rod is not constant-curvature), the solver's peak contact
 force (impacts on the 10 g plate) and how often the arm touches and leaves the plate;
 and `switches_per_s`, how often the filter's correction turns on and off. Time series
 add the plant's extras `plate_displacement_m` and `force_solver_N` (and `warning_*`

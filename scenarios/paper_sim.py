@@ -2,7 +2,7 @@
 
 The paper's sinusoid u_nom,j = A sin(2π f t) drives both segments into one facet;
 the controller sees the exact state at the control rate; None/Low/High tunings.
-By default there are no pressure limits, as in the paper (SPEC §5).
+By default there are no pressure limits, as in the paper (docs/model.md#control-barrier-function).
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ timeseries/*.npz, plots/*.png, report.md and recording.rrd (softcbf_mj.runio), t
 and the recording rebuilt after every finished tuning, so an interrupted run (Ctrl-C,
 exit code 130) leaves them for the tunings it finished. `--spawn` streams each finished
 tuning to a rerun viewer when a display is present, and says so when it skips it.
-`python -m scenarios` is the same `run` (SPEC §8 spelling: `python -m scenarios NAME
+`python -m scenarios` is the same `run` (docs/run-outputs.md spelling: `python -m scenarios NAME
 --out DIR ...`, `--list`).
 
 Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the wrong

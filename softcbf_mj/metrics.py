@@ -1,4 +1,4 @@
-"""Per-run figures from a closed-loop time series (SPEC §8 summary fields, MuJoCo contact
+"""Per-run figures from a closed-loop time series (docs/run-outputs.md summary fields, MuJoCo contact
 figures) and their table.
 
 How much the filter's command chatters, three ways (u, u_nom (T, N) in hPa, one row per
@@ -88,7 +88,7 @@ def high_frequency_fraction(u: np.ndarray, dt: float, cutoff_hz: float = HF_CUTO
 
 
 def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool, wall_s: float) -> dict[str, Any]:
-    """The SPEC §8 run fields plus extras, from a `LoopRecorder` log whose rows are `control_dt` s apart.
+    """The docs/run-outputs.md run fields plus extras, from a `LoopRecorder` log whose rows are `control_dt` s apart.
 
     Filter times are taken over the rows with a controller call (finite `filter_us`).
     """

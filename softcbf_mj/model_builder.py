@@ -1,4 +1,4 @@
-"""MJCF of the discretised PCC arm and its compliant plates, generated with MjSpec (SPEC §7).
+"""MJCF of the discretised PCC arm and its compliant plates, generated with MjSpec (docs/ground-truth.md).
 
 Arm. Segment i of the PCC arm (length L_i, mass m_i, inertia I_i, stiffness k_i,
 damping d_i, gain λ_i; `controllers.params.RobotParams`) becomes n rigid links joined
@@ -42,7 +42,7 @@ cover every point of the facet line within the arm's reach Σ L_i. Contacts are
 frictionless (condim 1: normal force only, as in the paper's model) and stiff
 (solref = (`contact_timeconst`, 1)).
 
-AprilTags (SPEC §7, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
+AprilTags (docs/ground-truth.md, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
 on the base point; tag i on the body that carries `seg{i}_end`, centred on that site,
 except the tip tag, which is shifted back along its link by half its textured edge so
 that its front edge is the tip point r and it never overhangs the plate. Each is a flat
@@ -89,13 +89,13 @@ CALIBRATION_SCENE_MODEL_NAME = "softcbf_arm calibration scene"
 CALIBRATION_BOARD_FILE = "scene_calibration_board.json"  # perception.plane.TagBoard
 ASSETS_DIR = "assets"
 
-PAPER_H = ((0.36, 1.0),)  # SPEC §4: the paper's single facet, H r ≤ h
+PAPER_H = ((0.36, 1.0),)  # docs/model.md#force-safe-set: the paper's single facet, H r ≤ h
 PAPER_h = (0.15,)  # m
 PAPER_PLATE_STIFFNESS = 11.16  # N/m, paper
 
 DEFAULT_LINKS_PER_SEGMENT = 10  # chosen by tools/convergence_study.py (model README)
 DEFAULT_PHYSICS_DT = 1e-4  # s, chosen by tools/convergence_study.py (model README)
-DEFAULT_TAU_P = 0.05  # s, SPEC §7
+DEFAULT_TAU_P = 0.05  # s, docs/ground-truth.md
 # Coarser rod for loops that render a camera (camera_loop, the hardware emulator): about twice
 # as fast; against the defaults on mujoco_contact's Low run, 0.08 mm of tip and ≈ 1 mN of plate
 # force (tools/bench_mujoco_contact.py sweep, model README), far below the camera's own errors.
@@ -140,20 +140,20 @@ def _r6v(values: Any) -> list[float]:
 class ArmModelConfig:
     """Everything the generated model depends on (units in the module docstring).
 
-    | field               | default                  | unit  | source                    |
-    |---------------------|--------------------------|-------|---------------------------|
-    | robot               | reference_robot()        | —     | SPEC §3                   |
-    | H, h                | [[0.36, 1.0]], [0.15]    | —, m  | paper (SPEC §4)           |
-    | plate_stiffness     | 11.16 (per facet)        | N/m   | paper                     |
-    | links_per_segment   | 10                       | —     | convergence study         |
-    | tau_p               | 0.05                     | s     | chosen (SPEC §7)          |
-    | physics_dt          | 1e-4                     | s     | convergence study         |
-    | integrator          | "implicitfast"           | —     | SPEC §7 (see model README)|
-    | tip_radius          | 0.004                    | m     | chosen                    |
-    | plate_mass          | 0.01                     | kg    | chosen                    |
-    | plate_damping_ratio | 0.2                      | —     | chosen (light damping)    |
-    | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)    |
-    | tag_size            | 0.03                     | m     | chosen (hardware tags)    |
+    | field               | default                  | unit  | source                                  |
+    |---------------------|--------------------------|-------|-----------------------------------------|
+    | robot               | reference_robot()        | —     | docs/model.md#rppr-dynamics             |
+    | H, h                | [[0.36, 1.0]], [0.15]    | —, m  | paper (docs/model.md#force-safe-set)    |
+    | plate_stiffness     | 11.16 (per facet)        | N/m   | paper                                   |
+    | links_per_segment   | 10                       | —     | convergence study                       |
+    | tau_p               | 0.05                     | s     | chosen (docs/ground-truth.md)           |
+    | physics_dt          | 1e-4                     | s     | convergence study                       |
+    | integrator          | "implicitfast"           | —     | docs/ground-truth.md (see model README) |
+    | tip_radius          | 0.004                    | m     | chosen                                  |
+    | plate_mass          | 0.01                     | kg    | chosen                                  |
+    | plate_damping_ratio | 0.2                      | —     | chosen (light damping)                  |
+    | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)                  |
+    | tag_size            | 0.03                     | m     | chosen (hardware tags)                  |
 
     `tag_size` is the black square of each AprilTag; its texture (with the white quiet
     zone) spans `textured_size(tag_size)`, at most half the shortest segment so that
@@ -475,7 +475,7 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     spec.compiler.autolimits = True
     spec.option.timestep = _r6(config.physics_dt)
     spec.option.integrator = mujoco.mjtIntegrator.__members__[f"mjINT_{config.integrator.upper()}"]
-    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # SPEC §7: MuJoCo 4.0.0 sparse-solver bug
+    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # docs/ground-truth.md: MuJoCo 4.0.0 sparse-solver bug
     spec.option.gravity = [0.0, 0.0, 0.0]
     spec.assets = tag_textures(arm_tag_ids(config.robot.n_segments))
     _add_defaults(spec, config)

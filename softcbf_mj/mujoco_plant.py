@@ -1,4 +1,4 @@
-"""The MuJoCo ground truth as a `Plant` (SPEC §7; model in `softcbf_mj.model_builder`).
+"""The MuJoCo ground truth as a `Plant` (docs/ground-truth.md; model in `softcbf_mj.model_builder`).
 
 Each control period (control_dt, s) holds the pressure command u (hPa, shape (N,)) and
 advances the physics by control_dt / physics_dt steps of MuJoCo's `implicitfast`

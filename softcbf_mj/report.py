@@ -392,7 +392,7 @@ def _markdown(folder: RunFolder, scene: Scene, plots: Mapping[str, Path]) -> str
         format_table(folder.runs, columns, markdown=True),
         "",
         "ρ_pred: from the controller's state estimate and model; ρ_meas: from the measured contact force "
-        "(SPEC §8). t_viol: time with ρ_meas < 0.",
+        "(docs/run-outputs.md). t_viol: time with ρ_meas < 0.",
         "",
         "## Plots",
         "",

@@ -1,4 +1,4 @@
-"""Run outputs (SPEC §8): the output folder, summary.json and per-run time series.
+"""Run outputs (docs/run-outputs.md): the output folder, summary.json and per-run time series.
 
 Layout of a run folder DIR:
     DIR/config.json                  {"scenario", "params", "seed", "versions", "command",
@@ -280,7 +280,7 @@ def read_run_folder(path: str | Path) -> RunFolder:
     summary = _read_json(summary_path)
     for key in ("scenario", "params", "runs"):
         if key not in summary:
-            raise RunFolderError(f"{summary_path} lacks {key!r} (SPEC §8: scenario, params, versions, runs)")
+            raise RunFolderError(f"{summary_path} lacks {key!r} (docs/run-outputs.md: scenario, params, versions, runs)")
     config_path = folder / CONFIG_FILE
     config = _read_json(config_path) if config_path.is_file() else None
     return RunFolder(folder, summary, config)

@@ -1,4 +1,4 @@
-"""rerun recordings (softcbf_mj.recording), read back with rerun's own reader (SPEC §8):
+"""rerun recordings (softcbf_mj.recording), read back with rerun's own reader (docs/run-outputs.md):
 entities, time steps, values, the camera-frame hook, the viewer switch."""
 
 import collections
