@@ -1,6 +1,7 @@
 """The `softcbf` CLI: list, run, report, --version, errors and exit codes, interrupted runs."""
 
 import json
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -14,11 +15,12 @@ import scenarios.common
 import softcbf_mj
 from scenarios import registry
 from softcbf.cli import INTERRUPTED, USAGE_ERROR, main
+from softcbf_mj.report import FIGURE_SIZES_IN
 from softcbf_mj.runio import load_timeseries, read_run_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--duration", "0.5", "--tunings", "None,Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
-PLOTS = {"rho.png", "tip_path.png", "force.png", "pressure.png"}
+PLOTS = {f"{name}.png" for name in FIGURE_SIZES_IN}
 
 
 @pytest.fixture(scope="module")
@@ -86,6 +88,8 @@ def test_run_prints_the_table_and_where_everything_is(tmp_path, capsys, monkeypa
     assert "viewer not spawned: no display" in captured.err
     assert "rho_min" in captured.out and f"outputs in {out}:" in captured.out
     assert f"rerun {out / 'recording.rrd'}" in captured.out and f"softcbf report {out}" in captured.out
+    viewer = captured.out.split("view it with: ")[1].split()[0]  # a program that exists here, not a bare 'rerun'
+    assert shutil.which(viewer) is not None
 
 
 def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
@@ -107,6 +111,9 @@ def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
     assert main(["report", str(run_dir), "--no-recording"]) == 0
     assert not (run_dir / "recording.rrd").exists()
     assert main(["report", str(run_dir)]) == 0
+    assert main(["report", str(run_dir), "--no-recording", "--figure-format", "svg", "--dpi", "80"]) == 0
+    assert {f"{name}.svg" for name in FIGURE_SIZES_IN} <= {p.name for p in (run_dir / "plots").iterdir()}
+    assert "plots/rho.svg" in (run_dir / "report.md").read_text(encoding="utf-8")
 
 
 @pytest.mark.parametrize(

@@ -2,6 +2,7 @@
 shows, every Python block runs, every relative link and anchor resolves, and no code or
 model README cites the old out-of-repository specification."""
 
+import os
 import re
 import subprocess
 import sys
@@ -108,7 +109,7 @@ def test_python_blocks_run(page, tag, tmp_path):
     script = tmp_path / "blocks.py"
     script.write_text("\n".join(blocks), encoding="utf-8")
     result = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=600,
-                            env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert result.returncode == 0, result.stderr[-3000:]
     if tag == "quickstart":
         assert "High: rho_min +" in result.stdout and "qp False rho_pred 0.487" in result.stdout
