@@ -1,4 +1,4 @@
-"""The paper's CBF-QP filter (`controllers.filter.CBFFilter`) for B states at once (SPEC §5, §13).
+"""The paper's CBF-QP filter (`controllers.filter.CBFFilter`) for B states at once (docs/model.md#control-barrier-function, docs/beyond-the-paper.md#batched-ground-truth).
 
 For B states x_b = [q_b; q̇_b] ((B, 2) rad and rad/s each, N = 2 segments) and nominal
 commands u_nom (B, 2) hPa, every state gets what `CBFFilter` computes:

@@ -1,4 +1,4 @@
-"""Augmented-body (RPPR) dynamics of the planar PCC arm (SPEC §3).
+"""Augmented-body (RPPR) dynamics of the planar PCC arm (docs/model.md#rppr-dynamics).
 
 State x = [q; q̇] ∈ R^{2N} (rad, rad/s); input u ∈ R^N (hPa). Each segment is one
 rigid body at its chord midpoint c_i (see `controllers.pcc`) with mass m_i (kg),
@@ -24,7 +24,7 @@ one `PCCDynamics` evaluate each measured state once. Derivative terms (∂M/∂q
 Jacobians of q̈) use the tensor path `pcc.kinematics`; the tests check both against
 each other and against finite differences.
 
-Energies: kinetic T = ½ q̇ᵀ M q̇, elastic V = ½ qᵀ K q (J); no gravity (SPEC §1).
+Energies: kinetic T = ½ q̇ᵀ M q̇, elastic V = ½ qᵀ K q (J); no gravity (docs/model.md#frames-units-conventions).
 
 The plant's implicit integrators get the analytic Jacobians of q̈ = M⁻¹(Λu − Cq̇ − Dq̇ − Kq):
     ∂q̈/∂q = −M⁻¹ (∂(M q̈ + C q̇)/∂q |_{q̈, q̇ fixed} + K),  ∂q̈/∂q̇ = −M⁻¹ (∂(C q̇)/∂q̇ + D),

@@ -1,4 +1,4 @@
-"""The PCC model's per-step terms at B states at once (numpy over the batch; SPEC §2, §3).
+"""The PCC model's per-step terms at B states at once (numpy over the batch; docs/model.md#pcc-kinematics, docs/model.md#rppr-dynamics).
 
 The same quantities as the scalar per-step path of `controllers.pcc` and
 `controllers.dynamics` (`step_kinematics_2`, `PCCDynamics.model_terms` / `evaluate_floats`), for

@@ -1,9 +1,9 @@
-"""Energy-certified explicit reference governor (E-ERG, SPEC §10) with a state predictor.
+"""Energy-certified explicit reference governor (E-ERG, docs/beyond-the-paper.md#filters-beyond-the-paper) with a state predictor.
 
 The elastic arm is its own stabilising controller: for a held command u (N,) hPa, its
 rest shape q_u = K⁻¹Λu (rad) is an equilibrium, and an energy about q_u can only fall.
 
-Certificate. Model (SPEC §3) with the pressure p (hPa) lagging the command (τ_p, s):
+Certificate. Model (docs/model.md#rppr-dynamics) with the pressure p (hPa) lagging the command (τ_p, s):
 
     M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p,     ṗ = (u − p)/τ_p,
 
@@ -55,7 +55,7 @@ Each call (estimate captured at t_c, called at t, the command acting from t_a = 
 2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c through the commands this
    governor issued and the pressure lag (`controllers.state_predictor`; contact-aware:
    with the model's plate pushing back); without it the
-   certificate is evaluated at a state up to 0.2 s old (SPEC §10: the governor then froze
+   certificate is evaluated at a state up to 0.2 s old (docs/beyond-the-paper.md#filters-beyond-the-paper: the governor then froze
    for 4–6 s against the plate while u_nom retreated).
 3. step: along each ray from u_prev (the command acting at t_a, this governor's last
    output) towards a goal g, u(σ) = u_prev + σ (g − u_prev), the largest certified σ ∈ [0, 1]
@@ -73,7 +73,7 @@ Each call (estimate captured at t_c, called at t, the command acting from t_a = 
    or, if none is certified (infeasible), the one with the largest certificate margin
    among those whose rest shape lies inside P (Γ̲ ≥ ε), so that the arm at least settles
    inside (the largest margin overall favours commands that hold the arm where it is,
-   outside P: the least-violation trap of SPEC §5); the target if there is none.
+   outside P: the least-violation trap of docs/model.md#control-barrier-function); the target if there is none.
 The command is recorded for the predictor and returned; it lies in the box whenever the
 context is bounded (the grid, u_prev and the target do, and so do their segments).
 

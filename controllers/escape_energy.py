@@ -1,7 +1,7 @@
-"""Escape energy Γ(u): the least elastic energy about a command's rest shape that reaches outside P (SPEC §10).
+"""Escape energy Γ(u): the least elastic energy about a command's rest shape that reaches outside P (docs/beyond-the-paper.md#filters-beyond-the-paper).
 
 For a held command u (N,) hPa with rest shape q_u = K⁻¹Λu (rad) and each row j of the
-force-safe set P = {r | H' r ≤ h'} (SPEC §4),
+force-safe set P = {r | H' r ≤ h'} (docs/model.md#force-safe-set),
 
     Γ_j(u) = min { ½ (q − q_u)ᵀ K (q − q_u)  :  g_j(q) = H'_j r(q) − h'_j ≥ 0 }   (J),
     Γ(u) = min_j Γ_j(u),

@@ -1,4 +1,4 @@
-"""The paper's CBF safety filter: state estimate + nominal command → safe command (SPEC §5).
+"""The paper's CBF safety filter: state estimate + nominal command → safe command (docs/model.md#control-barrier-function).
 
 A plug-in of `controllers.safety_filter`: `CBFFilter(estimate, u_nom)` returns a
 `FilterOutput` whose diagnostics hold the CBF's own terms (CBF_DIAGNOSTIC_UNITS);
@@ -25,7 +25,7 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   rows take over. Rows still inside P keep their CBF rows; `recovery` is flagged.
   (Rules based on the instantaneous b̈, e.g. an exponential CBF on b or 'maximise b̈',
   settle at a box corner whose rest shape is outside P: the tip stays outside for
-  tens of seconds. SPEC §5 reports the same; tests/test_filter.py checks this rule
+  tens of seconds. docs/model.md#control-barrier-function reports the same; tests/test_filter.py checks this rule
   over time.)
 - "slack": the rows and the bounds cannot all hold (infeasible). The filter solves the
   least-violation QP over (u, s), one slack per row in hPa-equivalent units (rows
@@ -34,7 +34,7 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
       and, as hard rows, the quasi-static rows above for every row of P,
   with w = `slack_weight` (default 1e6: 1 hPa of violation costs as much as 1000 hPa of
   deviation from u_nom). The hard quasi-static rows stop the least-violation command
-  from settling at a box corner whose rest shape is outside P (the trap of SPEC §5);
+  from settling at a box corner whose rest shape is outside P (the trap of docs/model.md#control-barrier-function);
   if they cannot hold with the bounds, they are dropped. `infeasible` is flagged and
   `slack` holds max_i s_i.
 - "vent": only if a solver fails outright: u = 0 hPa clipped to the limits (the arm

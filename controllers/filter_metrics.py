@@ -1,4 +1,4 @@
-"""Per-run figures of a safety filter (SPEC §10) from its recorded commands and call times.
+"""Per-run figures of a safety filter (docs/beyond-the-paper.md#filters-beyond-the-paper) from its recorded commands and call times.
 
 Inputs: t (T,) s, increasing; u, u_nom (T, N) hPa (what the filter returned and the
 nominal command it was given, per record row); filter_us (T,) µs per filter call, NaN

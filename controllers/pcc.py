@@ -1,4 +1,4 @@
-"""Kinematics of N planar piecewise-constant-curvature (PCC) segments (SPEC §2).
+"""Kinematics of N planar piecewise-constant-curvature (PCC) segments (docs/model.md#pcc-kinematics).
 
 Angles in rad, lengths in m. For segment i = 1..N with length L_i and bending
 angle q_i (positive: counter-clockwise seen from +z, the tip moves towards +y):
@@ -6,7 +6,7 @@ angle q_i (positive: counter-clockwise seen from +z, the tip moves towards +y):
     ℓ_i = 2 L_i sin(q_i/2) / q_i        chord length (→ L_i as q_i → 0)
     φ_i = θ_{i-1} + q_i/2               chord direction, θ_i = θ_{i-1} + q_i, θ_0 = 0
     p_i = p_{i-1} + ℓ_i e^{iφ_i},  p_0 = 0,   tip r = p_N
-    c_i = p_{i-1} + ½ ℓ_i e^{iφ_i}      chord midpoint: the body of the RPPR model (SPEC §3)
+    c_i = p_{i-1} + ½ ℓ_i e^{iφ_i}      chord midpoint: the body of the RPPR model (docs/model.md#rppr-dynamics)
 
 Points of the plane are complex numbers x + i·y inside this module and the
 dynamics; the public wrappers return real arrays with an (x, y) axis.
@@ -344,7 +344,7 @@ def tip_jacobian_derivative(q, lengths) -> np.ndarray:
 def tip_positions(q, lengths) -> np.ndarray:
     """r(q) for T configurations at once: q (T, N) rad → (T, 2) m (vectorised over T, for tables).
 
-    The chord form of SPEC §2 with ℓ_i = L_i sinc(q_i/2) (numpy's sinc, exact at q_i = 0).
+    The chord form of docs/model.md#pcc-kinematics with ℓ_i = L_i sinc(q_i/2) (numpy's sinc, exact at q_i = 0).
     """
     q = np.asarray(q, dtype=float)
     lengths = as_vector("lengths", lengths, None, ControllerInputError)

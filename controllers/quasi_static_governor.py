@@ -1,7 +1,7 @@
-"""Quasi-static governor (QSG, SPEC §10): keep the command's rest shape inside P by a margin.
+"""Quasi-static governor (QSG, docs/beyond-the-paper.md#filters-beyond-the-paper): keep the command's rest shape inside P by a margin.
 
 A held command u (N,) hPa brings the arm to rest at q_u = K⁻¹Λu (rad; K = diag(k_i)
-N·m/rad, Λ = diag(λ_i) N·m/hPa, SPEC §3). The governor returns
+N·m/rad, Λ = diag(λ_i) N·m/hPa, docs/model.md#rppr-dynamics). The governor returns
 
     u* = argmin ‖u − u_nom‖²   s.t.   b_j(q_u) = h'_j − H'_j r(q_u) ≥ δ_j   (every row j of P)
                                       u_min ≤ u ≤ u_max                      (when the context is bounded)
@@ -30,7 +30,7 @@ still infeasible the governor vents (u = 0 hPa clipped to the box) and flags it.
 Guarantee and its limits: in steady state (u held long enough for the transient to die)
 the tip rests at least δ inside P, under the model (K, Λ and the PCC kinematics exact).
 The QSG ignores the state: there is no transient guarantee (the arm overshoots its rest
-shape: SPEC §10 measured ρ −0.068 for the step rest → (150, 150) hPa with an ideal valve)
+shape: docs/beyond-the-paper.md#filters-beyond-the-paper measured ρ −0.068 for the step rest → (150, 150) hPa with an ideal valve)
 and no feedback (an actuator-gain error moves every rest shape).
 
 Actions: "nominal" (u_nom's rest shape is safe and u_nom satisfies the box and rate

@@ -1,4 +1,4 @@
-"""Force-safe set P of a deformable planar environment (SPEC §4, paper §III).
+"""Force-safe set P of a deformable planar environment (docs/model.md#force-safe-set, paper §III).
 
 Shapes and units (SI; positions in m, forces in N):
 
@@ -23,7 +23,7 @@ Shapes and units (SI; positions in m, forces in N):
   rows in facet order, then one correction row per vertex in `Environment.vertices` order.
 
 Row scaling of (H', h') — it sets the scale (and units) of the barrier b = h' − H' r
-downstream (SPEC §5), so it is a required, explicit choice:
+downstream (docs/model.md#control-barrier-function), so it is a required, explicit choice:
 - "paper": each row divided by |H'_i[1]| so its second column is ±1 (the paper's
   slope-intercept form; b is a vertical distance in m). Rows within 1e-9 rad of vertical
   (|H'_i[1]| ≤ 1e-9 ‖H'_i‖), where that form does not exist, are scaled to unit norm instead.
@@ -334,7 +334,7 @@ class ForceSafeSet:
     def margins(self, r: ArrayLike) -> np.ndarray:
         """ρ_i = (n_max − n_i(r))/n_max per facet, shape (P,) or (T, P); 1 = no contact, < 0 = violation.
 
-        Per facet as SPEC §4 defines it: near a vertex r can leave P through a correction
+        Per facet as docs/model.md#force-safe-set defines it: near a vertex r can leave P through a correction
         row while every ρ_i ≥ 0 (by at most the factor 1/cos(θ/2) of the Lemma corner).
         """
         return (self.n_max - self.penetration(r)) / self.n_max

@@ -1,11 +1,11 @@
-"""Predict the arm's state over the estimate's age and the command delay (SPEC §9, §10).
+"""Predict the arm's state over the estimate's age and the command delay (docs/safety-filter.md, docs/beyond-the-paper.md#filters-beyond-the-paper).
 
 A filter called at time t gets an estimate (q, q̇) captured at t_c ≤ t; the command it
 returns acts at the valves from t_a = t + δ (δ: the command delay, s). Between t_c and
 t_a the valves saw the filter's earlier commands, each from its own application time.
 This module keeps that command history and integrates the model across it:
 
-    M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p − J_r(q)ᵀ Σ_i n̂_i ψ(n_i(r(q)))   (SPEC §3, §4)
+    M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p − J_r(q)ᵀ Σ_i n̂_i ψ(n_i(r(q)))   (docs/model.md#rppr-dynamics, docs/model.md#force-safe-set)
     ṗ = (u(t) − p) / τ_p      (τ_p > 0),      p = u(t)   (τ_p = 0, ideal valve)
 
 (p: the acting pressure, hPa; the plate term, the facets pushing back along their

@@ -15,9 +15,9 @@ same for a mapping; `with_overrides({section: {key: value}})` applies command-li
 | camera.max_hold_s                     | 0.3              | s      | an estimate older than this is stale (perception.estimator)     |
 | camera.qd_filter_tau_s                | 0.0              | s      | first-order low pass of q̇ (0: raw finite differences)           |
 | camera.startup_timeout_s              | 5.0              | s      | wait at most this long for the first complete frame             |
-| camera.fps                            | 12.8             | 1/s    | virtual camera only: frame rate (SPEC §7: the hardware's ~12.8) |
+| camera.fps                            | 12.8             | 1/s    | virtual camera only: frame rate (docs/ground-truth.md: the hardware's ~12.8) |
 | camera.width, camera.height           | 480, 270         | px     | virtual camera only: image size                                 |
-| robot.params                          | "reference"      | –      | "reference" (SPEC §3) or a RobotParams JSON (RobotParams.save, tools/calibrate.py) |
+| robot.params                          | "reference"      | –      | "reference" (docs/model.md#rppr-dynamics) or a RobotParams JSON (RobotParams.save, tools/calibrate.py) |
 | environment.H, environment.h          | [[0.36, 1]], [0.15] | –, m | facets of the free space H r ≤ h (the paper's plate)            |
 | environment.stiffness_N_per_m         | 11.16            | N/m    | the controller's ψ(n) = k n                                     |
 | environment.f_max_N                   | 0.16             | N      | force limit per facet                                           |
@@ -38,7 +38,7 @@ same for a mapping; `with_overrides({section: {key: value}})` applies command-li
 | run.duration_s                        | 100.0            | s      | length of the run after the first estimate                      |
 | run.dry_run                           | false            | –      | run everything but send zero pressure                           |
 | emulator.plate_stiffness_N_per_m      | 11.16            | N/m    | the emulated plate's true spring                                |
-| emulator.tau_p_s                      | 0.05             | s      | the emulated valves' first-order time constant (SPEC §7)        |
+| emulator.tau_p_s                      | 0.05             | s      | the emulated valves' first-order time constant (docs/ground-truth.md)        |
 | emulator.q0_rad                       | 0.0              | rad    | the emulated arm's initial bend (scalar or per segment)         |
 | emulator.links_per_segment            | 5                | –      | rigid links per segment of the MuJoCo rod (simulations: 10)      |
 | emulator.physics_dt_s                 | 2e-4             | s      | MuJoCo step (simulations: 1e-4); 5 links at 0.2 ms run ≈ 9× real time, 10 at 0.1 ms ≈ 3× |

@@ -2,9 +2,7 @@
 
 A scenario is a function `fn(out_dir: Path, *, param=default, ...) -> dict` whose
 keyword parameters (with type annotations and defaults) are its parameters; it runs,
-writes its outputs into `out_dir` (SPEC §8) and returns the summary it wrote. It checks
-every parameter (ValueError naming it, its range and the value) before it writes
-anything (`scenarios.common.check_parameters`).
+writes its outputs into `out_dir` (docs/run-outputs.md) and returns the summary it wrote.
 `python -m scenarios --list` lists them; `python -m scenarios NAME --out DIR
 [--param value ...]` runs one.
 

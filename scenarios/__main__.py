@@ -1,6 +1,6 @@
 """Command line: `python -m scenarios --list` and `python -m scenarios NAME --out DIR [--param value ...]`.
 
-SPEC §8's spelling of `softcbf list` / `softcbf run NAME --out DIR ...`: the same
+docs/run-outputs.md's spelling of `softcbf list` / `softcbf run NAME --out DIR ...`: the same
 implementation (`softcbf.cli.run_scenario`), the same outputs, errors and exit codes,
 except that --out is required here.
 """

@@ -20,7 +20,7 @@ the calibration scene's tag board is rendered once and `perception.plane.calibra
 fits the map), "truth" (the exact map of MuJoCo's pinhole camera) or a JSON file
 written by tools/calibrate_camera.py.
 
-Per run, besides the SPEC §8 fields (ρ_meas from the plate's spring force) and the
+Per run, besides the docs/run-outputs.md fields (ρ_meas from the plate's spring force) and the
 contact figures of `mujoco_contact`, summary.json holds the perception figures: q error
 of complete frames against the true q at exposure (RMS and max, rad), detection rate
 (complete frames / frames taken), frames dropped, render, detection and estimation wall time per
@@ -95,6 +95,8 @@ TABLE = (
     ("detect [ms]", "detect_ms_median", ".1f"),
     ("hold/vent", "safe_action_calls", "d"),
     ("infeasible", "infeasible_steps", "d"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
     ("RTF", "realtime_factor", ".2f"),
 )
 

@@ -133,7 +133,7 @@ def data_only() -> Iterator[None]:
 
 
 def load_robot(spec: str) -> RobotParams:
-    """'' or 'reference' → the SPEC §3 reference arm; otherwise a JSON file written by RobotParams.save."""
+    """'' or 'reference' → the docs/model.md#rppr-dynamics reference arm; otherwise a JSON file written by RobotParams.save."""
     if spec in ("", "reference"):
         return reference_robot()
     path = existing_file("robot", spec, "'reference' or a robot JSON file")

@@ -1,7 +1,7 @@
-"""Scenario `mujoco_contact`: the paper's sinusoid against the compliant plate in MuJoCo (SPEC §7).
+"""Scenario `mujoco_contact`: the paper's sinusoid against the compliant plate in MuJoCo (docs/ground-truth.md).
 
-The ground truth is `MujocoPlant` (the discretised rod of the reference robot, SPEC §3,
-and the paper's plate on a spring of `plate_stiffness` N/m, SPEC §4). The controller
+The ground truth is `MujocoPlant` (the discretised rod of the reference robot, docs/model.md#rppr-dynamics,
+and the paper's plate on a spring of `plate_stiffness` N/m, docs/model.md#force-safe-set). The controller
 under test (`CBFFilter`) runs at 1 kHz with zero-order hold and sees the exact rod state
 (q_i = Σ hinge angles, q̇_i likewise: `exact_state`); its model is `robot` (the reference
 parameters, or a calibration JSON from tools/calibrate.py) and its force-safe set assumes
@@ -14,16 +14,16 @@ MuJoCo actuators clamp to the same ctrlrange in every case, so with
 `pressure_limits=False` the filter may ask for more than the arm receives
 (`u` vs `u_applied` in the time series).
 
-Per run, besides the SPEC §8 fields (ρ_meas and t_violation_s from the plate's spring
+Per run, besides the docs/run-outputs.md fields (ρ_meas and t_violation_s from the plate's spring
 force: ρ_meas = 1 − F/F_max for linear ψ, violation while F > F_max), summary.json holds
 `softcbf_mj.metrics.contact_figures`: the force the controller predicts, ψ of its own
 predicted penetration, against the measured plate force (RMS and max error), and the
 loaded-rod penetration bias, predicted − measured penetration while in contact (m and %
-of n_max; SPEC §7: a loaded rod is not constant-curvature), the solver's peak contact
+of n_max; docs/ground-truth.md: a loaded rod is not constant-curvature), the solver's peak contact
 force (impacts on the 10 g plate) and how often the arm touches and leaves the plate;
 and `switches_per_s`, how often the filter's correction turns on and off. Time series
 add the plant's extras `plate_displacement_m`, `force_solver_N` and `force_tangential_N`
-(and `warning_*` counts if any). With `plate="flexure"` (SPEC §12) the measured force is
+(and `warning_*` counts if any). With `plate="flexure"` (docs/beyond-the-paper.md#flexure-plate) the measured force is
 the sheet's gauge reading and the run also records where along the sheet the arm touches
 and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
 `contact_s_m`, `contact_stiffness_N_per_m`). Results and the benchmark: models/softcbf_arm/README.md.
@@ -83,7 +83,8 @@ TABLE = (
     ("bias max [%]", "penetration_bias_max_pct", ".1f"),
     ("infeasible", "infeasible_steps", "d"),
     ("recovery", "recovery_steps", "d"),
-    ("chatter [1/s]", "chatter_per_s", ".2f"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
     ("on/off [1/s]", "switches_per_s", ".1f"),
     ("touch on/off [1/s]", "contact_switches_per_s", ".1f"),
     ("F solver [N]", "force_solver_max_N", ".3f"),
@@ -155,7 +156,7 @@ def mujoco_contact(
     arm's plane vertical, +y up; 0: the arm lies on a table). `tip_friction` is the
     Coulomb μ between the arm and the plates (0: frictionless). `plate` "ideal" is the
     slide-spring plate of `plate_stiffness`; "flexure" the clamped ABS sheet in a force
-    gauge (SPEC §12, `softcbf_mj.flexure`: `sheet_*` are its clamp and free-end positions
+    gauge (docs/beyond-the-paper.md#flexure-plate, `softcbf_mj.flexure`: `sheet_*` are its clamp and free-end positions
     along the facet, thickness, width (m), Young's modulus (Pa), links and the calibration point as a
     fraction of its length from the clamp), whose gauge
     gives ρ_meas; its calibrated k (`calibrate_flexure`) is recorded as the scene's plate

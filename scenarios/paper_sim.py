@@ -2,7 +2,7 @@
 
 The paper's sinusoid u_nom,j = A sin(2π f t) drives both segments into one facet;
 the controller sees the exact state at the control rate; None/Low/High tunings.
-By default there are no pressure limits, as in the paper (SPEC §5).
+By default there are no pressure limits, as in the paper (docs/model.md#control-barrier-function).
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ TABLE = (
     ("|u|peak [hPa]", "u_peak_abs_hPa", ".1f"),
     ("infeasible", "infeasible_steps", "d"),
     ("recovery", "recovery_steps", "d"),
-    ("chatter [1/s]", "chatter_per_s", ".2f"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
     ("filter med [us]", "filter_us_median", ".1f"),
     ("filter p99 [us]", "filter_us_p99", ".1f"),
     ("RTF", "realtime_factor", ".1f"),

@@ -15,11 +15,11 @@ run folder gets config.json, summary.json, timeseries/*.npz, plots/*.png, report
 recording.rrd (softcbf_mj.runio), the report and the recording rebuilt after every
 finished tuning. `--spawn` streams each finished tuning to a rerun viewer when a display
 is present, and says so when it skips it. `python -m scenarios` is the same `run`
-(SPEC §8 spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
+(docs/run-outputs.md spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
 
 The run folder is locked while a run writes it (softcbf_mj.runio: a second run into it is
 refused, naming the process that holds it). `--overwrite` replaces the contents of a run
-folder (one softcbf wrote: its .softcbf-run marker or a SPEC §8 summary.json), never any
+folder (one softcbf wrote: its .softcbf-run marker or a summary.json of docs/run-outputs.md), never any
 other folder, nor the working folder, a folder above it or the home folder.
 
 Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the wrong
@@ -145,7 +145,7 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str]) -> dict[str, 
 
 def _outputs_summary(out_dir: Path) -> str:
     """What a run folder holds, in a few lines, for the end of a run."""
-    from softcbf_mj.recording import RECORDING_FILE
+    from softcbf_mj.recording import RECORDING_FILE, viewer_command
     from softcbf_mj.report import PLOTS_DIR, REPORT_FILE
 
     folder = read_run_folder(out_dir)
@@ -155,7 +155,7 @@ def _outputs_summary(out_dir: Path) -> str:
         ("config.json, summary.json", f"every parameter, versions, seed; one row per run ({', '.join(folder.labels)})"),
         ("timeseries/*.npz", f"{len(folder.runs)} time series (NumPy archives with units)"),
         (f"{PLOTS_DIR}/*.png, {REPORT_FILE}", f"{', '.join(plots)}; summary table"),
-        (RECORDING_FILE, f"{recording.stat().st_size / 1e6:.1f} MB; view it with: rerun {recording}"),
+        (RECORDING_FILE, f"{recording.stat().st_size / 1e6:.1f} MB; view it with: {viewer_command(recording)}"),
     ]
     width = max(len(name) for name, _ in rows)
     return "\n".join([f"outputs in {out_dir}:", *[f"  {name:<{width}}  {what}" for name, what in rows],
@@ -320,20 +320,23 @@ def _run(args: argparse.Namespace, extra: list[str]) -> int:
 def _report_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", type=Path, help="a run folder written by softcbf run")
     parser.add_argument("--no-recording", action="store_true", help="rebuild the plots and report.md only")
+    # figure options (softcbf_mj.report.write_report / softcbf.study.report.write_report parameters)
+    parser.add_argument("--figure-format", choices=("png", "svg", "pdf"), default="png", help="plot file format (default png)")
+    parser.add_argument("--dpi", type=float, default=100.0, help="raster resolution of the plots, dots per inch (default 100)")
 
 
 def _report(args: argparse.Namespace, extra: list[str]) -> int:
     if (args.run_dir / STUDY_FILE).is_file():
         from softcbf.study.report import write_report as write_study_report
 
-        print(f"study report: {write_study_report(args.run_dir)}")
+        print(f"study report: {write_study_report(args.run_dir, figure_format=args.figure_format, dpi=args.dpi)}")
         return 0
     from softcbf_mj.recording import write_recording
     from softcbf_mj.report import write_report
 
     try:
         start = time.perf_counter()
-        files = write_report(args.run_dir)
+        files = write_report(args.run_dir, figure_format=args.figure_format, dpi=args.dpi)
         report_s = time.perf_counter() - start
         print(f"report ({report_s:.1f} s): " + ", ".join(str(p) for p in files.values()))
         if not args.no_recording:

@@ -10,9 +10,9 @@ options override its `link.port`, `camera.source`, `control.tuning`, `run.durati
 rendered by a virtual camera); the two go together (a real camera cannot see the emulated
 arm). A real run imports no MuJoCo: the emulator is imported only for emulated runs.
 
-The run folder is the simulations' (SPEC §8, `softcbf_mj.runio`): config.json,
+The run folder is the simulations' (docs/run-outputs.md, `softcbf_mj.runio`): config.json,
 summary.json (scenario "hardware", the configuration as params, one row per run with
-the SPEC fields from `softcbf_mj.metrics.run_figures` at the control rate plus the
+the run-output fields from `softcbf_mj.metrics.run_figures` at the control rate plus the
 loop's counts), timeseries/<tuning>.npz (one row per control cycle: the keys of
 `softcbf_mj.loop.TIMESERIES_UNITS` plus the loop's own columns, `hardware.runner.LOG_UNITS`),
 plots, report.md and recording.rrd. Ground truth: on the emulator q, q̇, the segment

@@ -1,4 +1,4 @@
-"""The closed loop over B simulations at once (SPEC §9, §13): many samples of a study per call.
+"""The closed loop over B simulations at once (docs/safety-filter.md, docs/beyond-the-paper.md#batched-ground-truth): many samples of a study per call.
 
 Each control step k (t_k = k·Δt), for all B simulations together:
     plant state (B) → estimates (the exact state: q, q̇, t_capture = t) → nominal (B, N)
@@ -74,7 +74,7 @@ class BatchRun:
     commands: np.ndarray | None = None
 
     def run(self, b: int) -> dict[str, Any]:
-        """Simulation b's figures under the SPEC §8 names (rho_min_pred None when never predicted)."""
+        """Simulation b's figures under the docs/run-outputs.md names (rho_min_pred None when never predicted)."""
         rho_pred = float(self.rho_min_pred[b])
         return {
             "rho_min_pred": None if math.isnan(rho_pred) else rho_pred,

@@ -1,4 +1,4 @@
-"""The flexure plate (SPEC §12): a clamped cantilever sheet in a force gauge, as on the hardware.
+"""The flexure plate (docs/beyond-the-paper.md#flexure-plate): a clamped cantilever sheet in a force gauge, as on the hardware.
 
 The hardware's plate is a flexible ABS sheet clamped at one end into a force gauge; its
 spring constant was calibrated with masses at its tip. Unlike the rigid plate on a slide
@@ -16,7 +16,7 @@ and the sheet there turns by F s² / (2 EI) rad (it does not only translate alon
 normal: the paper's assumption 2 fails). Its first bending mode has ω₁ = 1.8751² √(EI /
 (ρ w t ℓ⁴)) (rad/s, ρ the density).
 
-Discretisation (as the arm's cells, SPEC §7). The sheet is cut into n equal cells of length
+Discretisation (as the arm's cells, docs/ground-truth.md). The sheet is cut into n equal cells of length
 c = ℓ / n with a hinge at the centre of each, s_j = (j − ½) c, of stiffness EI / c
 (N·m/rad): the first half cell is part of the clamp. A normal load F at s then turns hinge
 j (s_j < s) by F (s − s_j) c / EI, and the loaded point moves by

@@ -1,4 +1,4 @@
-"""Calibrating a flexure plate as the paper did (SPEC §12): a known load at the calibration point → k.
+"""Calibrating a flexure plate as the paper did (docs/beyond-the-paper.md#flexure-plate): a known load at the calibration point → k.
 
 The paper hung masses on the sheet's tip and read how far it moved: k = F / δ. Here, on
 the model the scenario runs (`ArmModelConfig` with `plate="flexure"`, the arm straight and

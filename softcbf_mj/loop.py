@@ -1,4 +1,4 @@
-"""The closed loop: plant → estimator → controller → command → plant (SPEC §6).
+"""The closed loop: plant → estimator → controller → command → plant (docs/model.md#nominal-controller-and-the-papers-scenario).
 
 At each control step k (t_k = k·Δt): the estimator turns the plant's ground truth
 into the controller's view of the state, the nominal controller proposes u_nom,

@@ -1,4 +1,4 @@
-"""MJCF of the discretised PCC arm and its compliant plates, generated with MjSpec (SPEC §7).
+"""MJCF of the discretised PCC arm and its compliant plates, generated with MjSpec (docs/ground-truth.md).
 
 Arm. Segment i of the PCC arm (length L_i, mass m_i, inertia I_i, stiffness k_i,
 damping d_i, gain λ_i; `controllers.params.RobotParams`) becomes n rigid links joined
@@ -43,7 +43,7 @@ frictionless by default (condim 1: normal force only, as in the paper's model) a
 (solref = (`contact_timeconst`, 1)); `tip_friction` μ > 0 makes them Coulomb contacts
 (condim 3, sliding friction μ on the arm's and the plates' geoms).
 
-Flexure plates (`plate="flexure"`, SPEC §12; maths and defaults in `softcbf_mj.flexure`):
+Flexure plates (`plate="flexure"`, docs/beyond-the-paper.md#flexure-plate; maths and defaults in `softcbf_mj.flexure`):
 facet k instead gets a clamped sheet: the clamp body `plate{k}` on the force gauge's slide
 joint `plate{k}_gauge` along n̂_k (stiffness k_g), the sheet's first half cell fixed to it
 and links `plate{k}_link{j}` on hinges `plate{k}_h{j}` about z at the cell centres, on the
@@ -52,7 +52,7 @@ surface that faces the arm; that surface at rest lies on the facet line shifted 
 σ = `free_end_at` along t̂ = (−n̂_y, n̂_x) from the foot of the perpendicular from the base.
 Sites `plate{k}_surface` (the surface's clamp end) and `plate{k}_calibration`.
 
-AprilTags (SPEC §7, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
+AprilTags (docs/ground-truth.md, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
 on the base point; tag i on the body that carries `seg{i}_end`, centred on that site,
 except the tip tag, which is shifted back along its link by half its textured edge so
 that its front edge is the tip point r and it never overhangs the plate. Each is a flat
@@ -101,14 +101,14 @@ CALIBRATION_SCENE_MODEL_NAME = "softcbf_arm calibration scene"
 CALIBRATION_BOARD_FILE = "scene_calibration_board.json"  # perception.plane.TagBoard
 ASSETS_DIR = "assets"
 
-PAPER_H = ((0.36, 1.0),)  # SPEC §4: the paper's single facet, H r ≤ h
+PAPER_H = ((0.36, 1.0),)  # docs/model.md#force-safe-set: the paper's single facet, H r ≤ h
 PAPER_h = (0.15,)  # m
 PAPER_PLATE_STIFFNESS = 11.16  # N/m, paper
-PLATE_KINDS = ("ideal", "flexure")  # a rigid plate on a slide spring (SPEC §7) | a clamped sheet in a force gauge (§12)
+PLATE_KINDS = ("ideal", "flexure")  # a rigid plate on a slide spring (docs/ground-truth.md) | a clamped sheet in a force gauge (§12)
 
 DEFAULT_LINKS_PER_SEGMENT = 10  # chosen by tools/convergence_study.py (model README)
 DEFAULT_PHYSICS_DT = 1e-4  # s, chosen by tools/convergence_study.py (model README)
-DEFAULT_TAU_P = 0.05  # s, SPEC §7
+DEFAULT_TAU_P = 0.05  # s, docs/ground-truth.md
 # Coarser rod for loops that render a camera (camera_loop, the hardware emulator): about twice
 # as fast; against the defaults on mujoco_contact's Low run, 0.08 mm of tip and ≈ 1 mN of plate
 # force (tools/bench_mujoco_contact.py sweep, model README), far below the camera's own errors.
@@ -154,24 +154,24 @@ def _r6v(values: Any) -> list[float]:
 class ArmModelConfig:
     """Everything the generated model depends on (units in the module docstring).
 
-    | field               | default                  | unit  | source                    |
-    |---------------------|--------------------------|-------|---------------------------|
-    | robot               | reference_robot()        | —     | SPEC §3                   |
-    | H, h                | [[0.36, 1.0]], [0.15]    | —, m  | paper (SPEC §4)           |
-    | plate_stiffness     | 11.16 (per facet)        | N/m   | paper                     |
-    | links_per_segment   | 10                       | —     | convergence study         |
-    | tau_p               | 0.05                     | s     | chosen (SPEC §7)          |
-    | physics_dt          | 1e-4                     | s     | convergence study         |
-    | integrator          | "implicitfast"           | —     | SPEC §7 (see model README)|
-    | tip_radius          | 0.004                    | m     | chosen                    |
-    | plate_mass          | 0.01                     | kg    | chosen                    |
-    | plate_damping_ratio | 0.2                      | —     | chosen (light damping)    |
-    | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)    |
-    | tag_size            | 0.03                     | m     | chosen (hardware tags)    |
-    | plate               | "ideal"                  | —     | SPEC §7 ("flexure": §12)  |
-    | flexure             | FlexureParams()          | —     | SPEC §12 (softcbf_mj.flexure) |
-    | tip_friction        | 0.0                      | —     | SPEC §12 (0: frictionless)|
-    | gravity             | (0, 0, 0)                | m/s²  | chosen (arm on a table)   |
+    | field               | default                  | unit  | source                                  |
+    |---------------------|--------------------------|-------|-----------------------------------------|
+    | robot               | reference_robot()        | —     | docs/model.md#rppr-dynamics             |
+    | H, h                | [[0.36, 1.0]], [0.15]    | —, m  | paper (docs/model.md#force-safe-set)    |
+    | plate_stiffness     | 11.16 (per facet)        | N/m   | paper                                   |
+    | links_per_segment   | 10                       | —     | convergence study                       |
+    | tau_p               | 0.05                     | s     | chosen (docs/ground-truth.md)           |
+    | physics_dt          | 1e-4                     | s     | convergence study                       |
+    | integrator          | "implicitfast"           | —     | docs/ground-truth.md (see model README) |
+    | tip_radius          | 0.004                    | m     | chosen                                  |
+    | plate_mass          | 0.01                     | kg    | chosen                                  |
+    | plate_damping_ratio | 0.2                      | —     | chosen (light damping)                  |
+    | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)                  |
+    | tag_size            | 0.03                     | m     | chosen (hardware tags)                  |
+    | plate               | "ideal"                  | —     | docs/ground-truth.md ("flexure": docs/beyond-the-paper.md) |
+    | flexure             | FlexureParams()          | —     | docs/beyond-the-paper.md (softcbf_mj.flexure) |
+    | tip_friction        | 0.0                      | —     | docs/beyond-the-paper.md (0: frictionless) |
+    | gravity             | (0, 0, 0)                | m/s²  | chosen (arm on a table)                 |
 
     `tag_size` is the black square of each AprilTag; its texture (with the white quiet
     zone) spans `textured_size(tag_size)`, at most half the shortest segment so that
@@ -584,7 +584,7 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     spec.compiler.autolimits = True
     spec.option.timestep = _r6(config.physics_dt)
     spec.option.integrator = mujoco.mjtIntegrator.__members__[f"mjINT_{config.integrator.upper()}"]
-    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # SPEC §7: MuJoCo 4.0.0 sparse-solver bug
+    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # docs/ground-truth.md: MuJoCo 4.0.0 sparse-solver bug
     spec.option.gravity = _r6v(config.gravity)
     spec.assets = tag_textures(arm_tag_ids(config.robot.n_segments))
     _add_defaults(spec, config)

@@ -1,4 +1,4 @@
-"""B MuJoCo ground truths stepped together on `mujoco.batch` (SPEC §7, §13).
+"""B MuJoCo ground truths stepped together on `mujoco.batch` (docs/ground-truth.md, docs/beyond-the-paper.md#batched-ground-truth).
 
 Simulation b of the batch is `MujocoPlant(models[b])`: the same model, the same reset,
 the same control period (hold u_b, `steps_per_control` steps of the model's

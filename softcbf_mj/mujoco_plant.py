@@ -1,4 +1,4 @@
-"""The MuJoCo ground truth as a `Plant` (SPEC §7; model in `softcbf_mj.model_builder`).
+"""The MuJoCo ground truth as a `Plant` (docs/ground-truth.md; model in `softcbf_mj.model_builder`).
 
 Each control period (control_dt, s) holds the pressure command u (hPa, shape (N,)) and
 advances the physics by control_dt / physics_dt steps of MuJoCo's `implicitfast`
@@ -12,7 +12,7 @@ derived quantity belongs to the reported state):
 - contact_forces (P,) (N): per facet, the measured force: the ideal plate's spring force
   max(0, k_k Δ_k) with Δ_k the plate's displacement along its outward normal (the ground
   truth), or a flexure's gauge reading max(0, k_g x_g), the clamp reaction along the gauge
-  axis (SPEC §12; what the hardware measures);
+  axis (docs/beyond-the-paper.md#flexure-plate; what the hardware measures);
 - u_applied (N,) (hPa): the pressure acting, the actuator force in actuator space
   (the gear carries λ_i, so this is τ_i / λ_i), after the ctrlrange clamp and the
   first-order pressure dynamics;

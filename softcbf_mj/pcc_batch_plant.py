@@ -1,4 +1,4 @@
-"""B PCC plants integrated together (numpy over the batch; SPEC §3, §6, §13).
+"""B PCC plants integrated together (numpy over the batch; docs/model.md#rppr-dynamics, docs/model.md#nominal-controller-and-the-papers-scenario, docs/beyond-the-paper.md#batched-ground-truth).
 
 Simulation b is `PCCPlant(params[b], safe_set, control_dt, integrator, physics_dt)`:
 the same model (`controllers.dynamics_batch.BatchDynamics`, the scalar per-step path's

@@ -1,4 +1,4 @@
-"""The paper's own simulation plant: the PCC model integrated in time (SPEC §3, §6).
+"""The paper's own simulation plant: the PCC model integrated in time (docs/model.md#rppr-dynamics, docs/model.md#nominal-controller-and-the-papers-scenario).
 
 State x = [q; q̇] ∈ R^{2N}; ẋ = F(x, u) = [q̇; q̈(q, q̇, u)] with
 q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q). The command u (hPa, (N,)) is held constant over
@@ -20,7 +20,7 @@ Integrators (each a fixed step h = physics_dt dividing the control period):
   with W = I − γ h J̃ and J̃ = [[0, I], [−M⁻¹K, −M⁻¹D]] at x_n, the part of ∂F/∂x that
   makes the model stiff (ROS2 keeps order 2 for any J̃, i.e. it is a W-method; the full
   analytic Jacobian costs 4× more and changed nothing measurable). L-stability matters:
-  the reference robot has a fast mode near −3.7e3 s⁻¹ (SPEC §5), faster than the 1 ms
+  the reference robot has a fast mode near −3.7e3 s⁻¹ (docs/model.md#rppr-dynamics), faster than the 1 ms
   control period, which this method damps at h = 1 ms.
 - "rk4": classical Runge–Kutta (stable for h ≲ 0.7 ms on the reference robot).
 - "euler": forward Euler, the paper's reference at h = 1e-5 s.

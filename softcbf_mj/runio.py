@@ -1,4 +1,4 @@
-"""Run outputs (SPEC §8): the output folder, summary.json and per-run time series.
+"""Run outputs (docs/run-outputs.md): the output folder, summary.json and per-run time series.
 
 Layout of a run folder DIR:
     DIR/config.json                  {"scenario", "params", "seed", "versions", "command",
@@ -89,7 +89,7 @@ _LOCKS: dict[Path, int] = {}  # run folder (resolved) -> descriptor of its locke
 
 def is_run_folder(path: str | Path) -> bool:
     """Whether `path` was written by this tool: it holds the marker, or (folders written
-    before the marker existed) a summary.json with SPEC §8's scenario, params and runs."""
+    before the marker existed) a summary.json with docs/run-outputs.md's scenario, params and runs."""
     folder = Path(path)
     if (folder / RUN_MARKER).is_file():
         return True
@@ -436,7 +436,7 @@ def read_run_folder(path: str | Path) -> RunFolder:
     summary = _read_json(summary_path)
     for key in ("scenario", "params", "runs"):
         if key not in summary:
-            raise RunFolderError(f"{summary_path} lacks {key!r} (SPEC §8: scenario, params, versions, runs)")
+            raise RunFolderError(f"{summary_path} lacks {key!r} (docs/run-outputs.md: scenario, params, versions, runs)")
     config_path = folder / CONFIG_FILE
     config = _read_json(config_path) if config_path.is_file() else None
     return RunFolder(folder, summary, config)

@@ -19,11 +19,12 @@ import scenarios.common
 import softcbf_mj
 from scenarios import registry
 from softcbf.cli import INTERRUPTED, USAGE_ERROR, main
+from softcbf_mj.report import FIGURE_SIZES_IN
 from softcbf_mj.runio import RUN_MARKER, load_timeseries, read_run_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--duration", "0.5", "--tunings", "None,Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
-PLOTS = {"rho.png", "tip_path.png", "force.png", "pressure.png"}
+PLOTS = {f"{name}.png" for name in FIGURE_SIZES_IN}
 
 
 @pytest.fixture(scope="module")
@@ -91,6 +92,8 @@ def test_run_prints_the_table_and_where_everything_is(tmp_path, capsys, monkeypa
     assert "viewer not spawned: no display" in captured.err
     assert "rho_min" in captured.out and f"outputs in {out}:" in captured.out
     assert f"rerun {out / 'recording.rrd'}" in captured.out and f"softcbf report {out}" in captured.out
+    viewer = captured.out.split("view it with: ")[1].split()[0]  # a program that exists here, not a bare 'rerun'
+    assert shutil.which(viewer) is not None
 
 
 def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
@@ -112,6 +115,9 @@ def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
     assert main(["report", str(run_dir), "--no-recording"]) == 0
     assert not (run_dir / "recording.rrd").exists()
     assert main(["report", str(run_dir)]) == 0
+    assert main(["report", str(run_dir), "--no-recording", "--figure-format", "svg", "--dpi", "80"]) == 0
+    assert {f"{name}.svg" for name in FIGURE_SIZES_IN} <= {p.name for p in (run_dir / "plots").iterdir()}
+    assert "plots/rho.svg" in (run_dir / "report.md").read_text(encoding="utf-8")
 
 
 @pytest.mark.parametrize(
@@ -215,7 +221,7 @@ def test_default_folders_of_runs_started_in_the_same_second_differ(tmp_path, mon
         (["mujoco_contact", "--links-per-segment", "0"], "links_per_segment must be in [1, 100], got 0"),
         (["camera_loop", "--width", "100000"], "width must be in [16, 1280] px, got 100000"),
         # found by tests/test_cli_properties.py: OverflowError (int to float) and OSError (file name too long)
-        (["paper_sim", "--seed", "9" * 400, "--q0-std", "-1"], "q0_std must be in [0, pi] rad, got -1.0"),
+        (["paper_sim", "--seed", "9" * 400, "--q0-std", "-1"], "q0_std must be in [0, 3.14159] rad, got -1.0"),
         (["camera_loop", "--width", "9" * 400], "width must be in [16, 1280] px, got 999"),
         (["paper_sim", "--environment", "9" * 400], "environment must be 'paper' or a JSON file with keys H and h, got '999"),
     ],

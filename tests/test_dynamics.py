@@ -1,4 +1,4 @@
-"""RPPR dynamics (SPEC §3): structure of M and C, derivatives against finite differences,
+"""RPPR dynamics (docs/model.md#rppr-dynamics): structure of M and C, derivatives against finite differences,
 energy balance of integrated trajectories, the single-segment closed form and the
 linearisation's fast mode.
 
@@ -182,7 +182,7 @@ def test_energy_is_conserved_without_damping_or_input():
 
 
 def test_quasi_static_bend_and_restoring_sign():
-    """q = Λu/k is an equilibrium (25° at 80 hPa, SPEC §3); a bent arm at rest accelerates back."""
+    """q = Λu/k is an equilibrium (25° at 80 hPa, docs/model.md#rppr-dynamics); a bent arm at rest accelerates back."""
     dyn = PCCDynamics(reference_robot())
     u = np.array([80.0, -80.0])
     q_eq = dyn.gains * u / dyn.stiffness
@@ -198,7 +198,7 @@ def test_quasi_static_bend_and_restoring_sign():
 
 def test_linearisation_at_rest_has_the_stiff_mode_of_the_spec():
     """At x = 0: ∂q̈/∂q = −M⁻¹K, ∂q̈/∂q̇ = −M⁻¹D; the reference arm's fastest mode is ≈ −3.68e3 s⁻¹
-    (SPEC §5 "near −3.7e3"), the slow ones ≈ −14.3 and −14.6 ± 14.3i s⁻¹ (|λ| ≈ 20 rad/s)."""
+    (docs/model.md#rppr-dynamics "near −3.7e3"), the slow ones ≈ −14.3 and −14.6 ± 14.3i s⁻¹ (|λ| ≈ 20 rad/s)."""
     dyn = PCCDynamics(reference_robot())
     zero = np.zeros(2)
     d_q, d_qd = dyn.acceleration_jacobian(zero, zero, zero)

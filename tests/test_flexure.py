@@ -1,4 +1,4 @@
-"""The flexure plate (SPEC §12): Euler–Bernoulli statics, the gauge, the calibration, and the plant's
+"""The flexure plate (docs/beyond-the-paper.md#flexure-plate): Euler–Bernoulli statics, the gauge, the calibration, and the plant's
 readings; tip friction (μ = 0 is today's model bit for bit); gravity; the arm of any robot file."""
 
 from __future__ import annotations

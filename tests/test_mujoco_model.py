@@ -23,7 +23,7 @@ def test_scenes_exist():
     assert MODEL_DIR / "scene.xml" in SCENES
 
 
-# Generated variants (SPEC §12 and any arm): flexure plates, friction, gravity, 1 and 3 segments,
+# Generated variants (docs/beyond-the-paper.md#flexure-plate and any arm): flexure plates, friction, gravity, 1 and 3 segments,
 # the camera loop's coarser rod; each must compile and step as warning-free as the files.
 VARIANTS = {
     "flexure": dict(plate="flexure"),

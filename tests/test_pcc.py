@@ -1,4 +1,4 @@
-"""PCC kinematics (SPEC §2): chord series accuracy, geometry against independent
+"""PCC kinematics (docs/model.md#pcc-kinematics): chord series accuracy, geometry against independent
 constructions (arc integration, the paper's homogeneous transforms), and every
 derivative against central finite differences.
 

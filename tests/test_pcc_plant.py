@@ -49,7 +49,7 @@ def test_statics_settle_at_k_inverse_lambda_u():
         state = plant.step(u)
     np.testing.assert_allclose(state.q, ROBOT.array("gains") * u / ROBOT.array("stiffness"), atol=1e-9)
     np.testing.assert_allclose(state.segment_ends, segment_ends(state.q, ROBOT.array("lengths")))
-    np.testing.assert_allclose(np.degrees(state.q[0]), 25.0, rtol=1e-9)  # 80 hPa → 25° (SPEC §3)
+    np.testing.assert_allclose(np.degrees(state.q[0]), 25.0, rtol=1e-9)  # 80 hPa → 25° (docs/model.md#rppr-dynamics)
 
 
 def test_contact_force_is_psi_of_true_penetration():
@@ -63,7 +63,7 @@ def test_contact_force_is_psi_of_true_penetration():
 @pytest.mark.parametrize("integrator, physics_dt, stable", [("ros2", 1e-3, True), ("rk4", 1e-4, True), ("rk4", 1e-3, False)])
 def test_unforced_energy_never_grows_when_stable(integrator, physics_dt, stable):
     """With u = 0 and D > 0, T + V must decrease. The fast mode near q = 0 (≈ −3.7e3 1/s,
-    SPEC §5) times 1 ms lies outside RK4's stability interval (−2.79, 0): RK4 at 1 ms gains
+    docs/model.md#control-barrier-function) times 1 ms lies outside RK4's stability interval (−2.79, 0): RK4 at 1 ms gains
     energy, ROS2 (L-stable) does not."""
     plant = PCCPlant(ROBOT, SAFE, integrator=integrator, physics_dt=physics_dt)
     state = plant.reset(np.array([0.05, -0.05]))

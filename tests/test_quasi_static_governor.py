@@ -1,6 +1,6 @@
 """Quasi-static governor (controllers.quasi_static_governor): rest-shape rows at its solution,
 optimality against a grid search, box and rate limit, reset, bad parameters, and its known
-transient weakness (SPEC §10: the step rest → (150, 150) hPa with an ideal valve)."""
+transient weakness (docs/beyond-the-paper.md#filters-beyond-the-paper: the step rest → (150, 150) hPa with an ideal valve)."""
 
 import sys
 from pathlib import Path
@@ -123,7 +123,7 @@ def test_parameter_docs_cover_the_signature():
 
 
 def test_worst_step_overshoots_with_an_ideal_valve_but_settles_inside():
-    """SPEC §10 measured ρ −0.068: the QSG has no transient guarantee. The test pins that
+    """docs/beyond-the-paper.md#filters-beyond-the-paper measured ρ −0.068: the QSG has no transient guarantee. The test pins that
     weakness (and the steady state) so a change of behaviour shows."""
     gov = QuasiStaticGovernor(context(ROBOT, SAFE, 0.1, 0.02, 0.0))
     rec = run_loop(gov, ROBOT, SAFE, lambda t: np.array([150.0, 150.0]), 3.0, tau_p=0.0)

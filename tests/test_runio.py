@@ -1,4 +1,4 @@
-"""Run-output contract (SPEC §8): output folders, summary.json, time series."""
+"""Run-output contract (docs/run-outputs.md): output folders, summary.json, time series."""
 
 import json
 import os

@@ -1,4 +1,4 @@
-"""Force-safe set (SPEC §4): Lemma 1, the vertex correction, scalings, ψ laws, margins, validation.
+"""Force-safe set (docs/model.md#force-safe-set): Lemma 1, the vertex correction, scalings, ψ laws, margins, validation.
 
 The central property — every point of the corrected P lies within n_max of N — is checked
 against an independent distance: N is described here by its own vertex list (a far-away

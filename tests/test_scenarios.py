@@ -1,4 +1,4 @@
-"""Scenario registry and CLI (SPEC §8): list, run, outputs, errors, determinism."""
+"""Scenario registry and CLI (docs/run-outputs.md): list, run, outputs, errors, determinism."""
 
 import json
 import subprocess

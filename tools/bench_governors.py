@@ -1,4 +1,4 @@
-"""Governors (SPEC §10) on the PCC plant: per-call compute time and per-run figures.
+"""Governors (docs/beyond-the-paper.md#filters-beyond-the-paper) on the PCC plant: per-call compute time and per-run figures.
 
 Uses the tests' loop (tests/governor_loop.py: PCC plant at 1 ms ticks, zero-order hold,
 the filter given the true state captured `age` s earlier, its command acting `delay` s

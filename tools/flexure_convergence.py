@@ -1,4 +1,4 @@
-"""Convergence of the flexure plate (SPEC §12) in its links n and the physics step dt.
+"""Convergence of the flexure plate (docs/beyond-the-paper.md#flexure-plate) in its links n and the physics step dt.
 
 Statics (dt does not matter at rest): for each n, the sheet's stiffness k(s) = F / δ under
 a load F along the gauge axis at s from the clamp (`softcbf_mj.flexure_calibration.load_sheet`),

@@ -1,6 +1,6 @@
 """Study definition and sampling: a scenario, fixed parameters, distributions, tunings.
 
-A study runs one registered scenario (`scenarios`, SPEC §8) many times. Its parts:
+A study runs one registered scenario (`scenarios`, docs/run-outputs.md) many times. Its parts:
 
 - `scenario`: the scenario's name; `fixed`: values for some of its keyword parameters;
 - `vary`: one `Distribution` per varied keyword parameter of that scenario (model

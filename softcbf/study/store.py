@@ -32,7 +32,7 @@ Columns (one row per sample):
 | param.<name>        | per     | the drawn value of every varied parameter, in its own unit       |
 | status              | string  | "ok" or "error"                                                  |
 | error               | string  | "" when ok; the exception and the end of its traceback otherwise |
-| <run field>         | per     | every scalar field of the scenario's run row (SPEC §8:           |
+| <run field>         | per     | every scalar field of the scenario's run row (docs/run-outputs.md: |
 |                     |         | rho_min_pred, rho_min_meas, force_max_N [N], t_violation_s [s],  |
 |                     |         | infeasible_steps, …, plus the scenario's extras); null on error  |
 | sample_wall_s       | float64 | wall time of the whole sample in the worker (s)                  |
