@@ -42,7 +42,7 @@ def as_vector(name: str, value, n: int | None, nonfinite: type[ControllerInputEr
                 raise TypeError("complex")
             arr = arr.astype(float)
     except (TypeError, ValueError, OverflowError) as exc:
-        raise ControllerInputError(f"{name} must be an array of real numbers, got {value!r}") from exc
+        raise ControllerInputError(f"{name} must be an array of numbers (real, within the float range), got {value!r}") from exc
     if arr.ndim != 1 or (n is not None and arr.shape[0] != n):
         want = f"({n},)" if n is not None else "(N,)"
         raise ControllerInputError(f"{name} must have shape {want}, got {arr.shape}")

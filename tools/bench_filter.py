@@ -13,7 +13,7 @@ processes on a shared machine; --clock wall for elapsed time).
 Prints per configuration the median and p99 (µs), the ratio to the paper's average QP
 solve (0.31 ms, MATLAB quadprog) and to the bare plant step, then one line of JSON.
 
-Usage: python tools/bench_filter.py [--samples 4000] [--duration 100] [--clock cpu|wall]
+Usage: python tools/bench_filter.py [--samples 4000] [--duration 100] [--clock cpu|wall] [--backend native]
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ import numpy as np
 from controllers.cbf import get_tuning
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
+from controllers.qp import DEFAULT_BACKEND
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
 from softcbf_mj.loop import run_closed_loop
@@ -52,6 +53,7 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=100.0, help="trajectory length (s); the paper's run is 100 s")
     parser.add_argument("--tunings", default="Low,High")
     parser.add_argument("--clock", choices=list(CLOCKS), default="cpu")
+    parser.add_argument("--backend", default=DEFAULT_BACKEND, help="QP backend of the timed filters (controllers.qp)")
     args = parser.parse_args()
     clock = CLOCKS[args.clock]
     robot, safe_set = reference_robot(), paper_safe_set()
@@ -67,7 +69,7 @@ def main() -> None:
             picks = np.linspace(0, len(log["t"]) - 1, args.samples).round().astype(int)
             states = [(np.concatenate((log["q"][k], log["qd"][k])), log["u_nom"][k]) for k in picks]
             configs[f"{tuning.name} limits {'on' if limits else 'off'}"] = (
-                CBFFilter(robot, safe_set, tuning, pressure_limits=limits), states)
+                CBFFilter(robot, safe_set, tuning, pressure_limits=limits, qp_backend=args.backend), states)
             plant_cases += [(log["q"][k], log["qd"][k], log["u"][k]) for k in picks[:: 4]]
 
     plant = PCCPlant(robot, safe_set)
@@ -97,7 +99,7 @@ def main() -> None:
         fig["vs_plant_step"] = round(fig["median_us"] / plant_fig["median_us"], 3)
         fig["actions"] = dict(actions[key])
         results[key] = fig
-    print(f"CBF filter step, {args.clock} time, N=2, P=1, {args.samples} states along a {args.duration:g} s paper_sim "
+    print(f"CBF filter step, QP backend {args.backend}, {args.clock} time, N=2, P=1, {args.samples} states along a {args.duration:g} s paper_sim "
           f"trajectory per configuration ({platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
           f"numpy {np.__version__})")
     header = f"{'configuration':20s}{'median':>9s}{'p99':>9s}{'mean':>9s}{'/0.31ms':>9s}{'/plant':>8s}  actions"
@@ -110,7 +112,7 @@ def main() -> None:
     print(f"{'bare PCC plant step':20s}{plant_fig['median_us']:9.1f}{plant_fig['p99_us']:9.1f}{plant_fig['mean_us']:9.1f}"
           f"   (ROS2, 1 ms, {len(plant_times)} states)")
     print("(µs; /0.31ms: median over the paper's average QP solve; /plant: median over the plant step's median)")
-    print(json.dumps({"unit": "us", "clock": args.clock, "samples": args.samples, "duration_s": args.duration,
+    print(json.dumps({"unit": "us", "clock": args.clock, "backend": args.backend, "samples": args.samples, "duration_s": args.duration,
                       "paper_qp_us": PAPER_QP_US, "plant_step": plant_fig, "filter": results}))
 
 
