@@ -42,7 +42,7 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   inside after 0.126 s with Low and HW-High (before: "slack" with u = 0 for 3000 of 3000
   steps, never inside); afterwards u_nom = 0 keeps pulling the rest shape outside and the
   tip cycles around P's boundary (b ≥ −3.0 mm Low, −4.2 mm HW-High). `infeasible` is
-  flagged if the target violates a defined CBF row. With no target inside P the slack
+  flagged if the target violates a defined CBF row or a CBF row is not finite (below). With no target inside P the slack
   QP without hard rows runs, as below.
 - "slack": the rows and the bounds cannot all hold (infeasible), or a CBF row is not
   finite (L_fB, L_gB or γ/B overflowed, e.g. at |q̇| ≳ 1e154 rad/s; such a row is
@@ -329,5 +329,5 @@ class CBFFilter:
         u = self._clip(u)
         if not all(map(math.isfinite, u)):
             u, action = self._clip([0.0] * self.n), "vent"
-        infeasible = action != "recovery" or self._violates(u, u_list, rows, rhs, cbf_rows)
+        infeasible = action != "recovery" or unevaluable or self._violates(u, u_list, rows, rhs, cbf_rows)
         return u, action, None, infeasible, slack
