@@ -79,7 +79,7 @@ from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_real, as_vector
 from controllers.params import RobotParams
 from controllers.pcc import step_kinematics
-from controllers.qp import DEFAULT_BACKEND, available_backends, dot_lists, solve_lists, tolerances
+from controllers.qp import DEFAULT_BACKEND, available_backends, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate, FilterOutput
 
@@ -201,7 +201,7 @@ class CBFFilter:
         minus_eye = [[-1.0 if k == i else -0.0 for k in range(p)] for i in range(p)]
         a_rows, b_rows = [], []
         for row, c, e in zip(rows, rhs, minus_eye):  # â_i u − s_i ≤ b̂_i
-            norm = max(math.hypot(*row), 1e-12)
+            norm = max(row_norm(row), 1e-12)
             a_rows.append([v / norm for v in row] + [v / root_w for v in e])
             b_rows.append(c / norm)
         a_rows += [[0.0] * n + e for e in minus_eye]  # s ≥ 0
@@ -303,7 +303,7 @@ class CBFFilter:
                   cbf_rows: list[int]) -> bool:
         """Whether u violates a defined CBF row by more than the QP's acceptance tolerance (hPa, unit rows)."""
         tol = tolerances(u_nom, self._lb_list, self._ub_list)[1]
-        return any(dot_lists(rows[i], u) - rhs[i] > tol * math.hypot(*rows[i]) for i in cbf_rows)
+        return any(dot_lists(rows[i], u) - rhs[i] > tol * row_norm(rows[i]) for i in cbf_rows)
 
     def _qp_command(self, ev: DynamicsEval, q: list[float], u_list: list[float], rows: list[list[float]],
                     rhs: list[float], barrier: list[tuple], cbf_rows: list[int], recovery: bool,

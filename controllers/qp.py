@@ -108,6 +108,12 @@ def dot_lists(a: list[float], b: list[float]) -> float:
     return sum(map(mul, a, b))
 
 
+def row_norm(a: Sequence[float]) -> float:
+    """‖a‖ as √(a·a) (the floats every earlier result used), through hypot only where the squares overflow."""
+    norm = math.sqrt(sum(map(mul, a, a)))
+    return math.hypot(*a) if norm == math.inf else norm
+
+
 def _split(Q: list[list[float]], a: list[float]) -> tuple[list[float], list[float]]:
     """a = Q d + z with z ⊥ span(Q): classical Gram–Schmidt applied twice (stable for ≤ 4 vectors)."""
     d = [0.0] * len(Q)
@@ -323,7 +329,7 @@ def solve_lists(u0: list[float], rows: list[list[float]], b_list: list[float], l
     b_hat: list[float] = []
     kept: list[int] = []
     for i, (a, bi) in enumerate(zip(rows, b_list)):
-        norm = math.hypot(*a)
+        norm = row_norm(a)
         if not math.isfinite(norm + bi):
             return None, active, f"infeasible: row {i} is not finite (|a| = {norm}, b = {bi})", 0
         if norm > zero_row_tol:
