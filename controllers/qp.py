@@ -57,7 +57,14 @@ Backends (`available_backends()`):
   in 100000 iterations ≈ 100 ms).
   quadprog has no feasibility tolerance and may call a degenerate problem (a dependent
   row violated by rounding at a vertex with more tight rows than N) infeasible.
-`tools/bench_qp.py` measures them; DEFAULT_BACKEND is the fastest exact one there.
+`tools/bench_qp.py` measures them per solve, `tools/bench_filter.py --backends native,daqp`
+inside the whole filter step. DEFAULT_BACKEND stays "native" (issue 12 item 5, decided on the
+second measurement): over 3000 states of each 30 s paper_sim configuration, timed round-robin
+in one process (CPU time, 2-CPU x86_64 shared machine), the median of the steps that solve a
+QP was 85 / 100 / 83 / 107 µs with native and 103 / 110 / 99 / 119 µs with daqp (Low off,
+Low on, High off, High on), with identical actions and commands within 6.2e-11 hPa. daqp's C
+solve is fast, but its Python call (arrays built per solve) costs more than the whole native
+solve at N = 2, P = 1. daqp stays available, and the slack QP's fallback is native.
 """
 
 from __future__ import annotations
@@ -329,8 +336,8 @@ def solve_lists(u0: list[float], rows: list[list[float]], b_list: list[float], l
     b_hat: list[float] = []
     kept: list[int] = []
     for i, (a, bi) in enumerate(zip(rows, b_list)):
-        norm = row_norm(a)
-        if not math.isfinite(norm + bi):
+        norm = math.sqrt(sum(map(mul, a, a)))  # row_norm, inlined: this loop runs every filter QP
+        if not math.isfinite(norm + bi) and not math.isfinite((norm := math.hypot(*a)) + bi):
             return None, active, f"infeasible: row {i} is not finite (|a| = {norm}, b = {bi})", 0
         if norm > zero_row_tol:
             A_hat.append([x / norm for x in a])
@@ -370,6 +377,6 @@ def tolerances(u0: Sequence[float], lb_list: Sequence[float] | None,
     See the module docstring: FEASIBILITY_RTOL / ACCEPT_RTOL times s = 1 + max(|lb|, |ub|),
     plus the rounding floor ROUNDING_RTOL · max|u_nom|.
     """
-    box = max(map(abs, (lb_list or []) + (ub_list or [])), default=0.0)
-    floor = ROUNDING_RTOL * max(map(abs, u0))
-    return FEASIBILITY_RTOL * (1.0 + box) + floor, ACCEPT_RTOL * (1.0 + box) + floor
+    scale = 1.0 + max(map(abs, (lb_list or []) + (ub_list or [])), default=0.0)
+    floor = ROUNDING_RTOL * max(max(u0), -min(u0))
+    return FEASIBILITY_RTOL * scale + floor, ACCEPT_RTOL * scale + floor
