@@ -62,9 +62,9 @@ inside the whole filter step. DEFAULT_BACKEND stays "native" (issue 12 item 5, d
 second measurement): over 3000 states of each 30 s paper_sim configuration, timed round-robin
 in one process (CPU time, 2-CPU x86_64 shared machine), the median of the steps that solve a
 QP was 85 / 100 / 83 / 107 µs with native and 103 / 110 / 99 / 119 µs with daqp (Low off,
-Low on, High off, High on), with identical actions and commands within 6.2e-11 hPa. daqp's C
-solve is fast, but its Python call (arrays built per solve) costs more than the whole native
-solve at N = 2, P = 1. daqp stays available, and the slack QP's fallback is native.
+Low on, High off, High on), with identical actions and commands within 6.2e-11 hPa (issue 12
+had measured 74 vs 76 µs on another machine). daqp stays available; the slack QP's fallback is
+native.
 """
 
 from __future__ import annotations
