@@ -33,14 +33,14 @@ from typing import NamedTuple
 import numpy as np
 
 from controllers.dynamics import DynamicsEval
-from controllers.errors import ControllerInputError, NonFiniteCommandError, as_vector
+from controllers.errors import ControllerInputError, NonFiniteCommandError, as_real, as_vector
 
 B_MIN = math.sqrt(sys.float_info.min)  # ≈ 1.5e-154: smallest b treated as inside P
 
 
 @dataclass(frozen=True)
 class Tuning:
-    """Barrier tuning (a_E, b_E, γ), all finite and ≥ 0.
+    """Barrier tuning (a_E, b_E, γ), all finite and ≥ 0, with 2 a_E b_E finite.
 
     a_E, b_E shape the velocity term of B; γ is the class-κ gain of the constraint.
     a_E = b_E = γ = 0 is the paper's "None": the filter is disabled (u* = u_nom).
@@ -58,11 +58,14 @@ class Tuning:
             value = getattr(self, field)
             if isinstance(value, bool) or not isinstance(value, numbers.Real):
                 raise ValueError(f"{field} must be a number >= 0, got {value!r}")
+            value = as_real(field, value)
             if not math.isfinite(value):
                 raise ValueError(f"{field} must be finite and >= 0, got {value!r}")
             if value < 0:
                 raise ValueError(f"{field} must be >= 0, got {value!r}")
-            object.__setattr__(self, field, float(value))
+            object.__setattr__(self, field, value)
+        if not math.isfinite(2.0 * self.a_E * self.b_E):
+            raise ValueError(f"a_E·b_E must be finite (2 a_E b_E enters ∂B/∂ḃ), got a_E = {self.a_E:g}, b_E = {self.b_E:g}")
 
     @property
     def disabled(self) -> bool:

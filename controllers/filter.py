@@ -15,7 +15,13 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
 - "disabled": tuning None (a_E = b_E = γ = 0): u = u_nom, clipped to the limits when
   they are on (the paper's unfiltered run).
 - "nominal": u_nom already satisfies every row and bound; u = u_nom, no QP solved.
-- "qp": the QP above was solved.
+- "qp": the QP above was solved and its answer passed the post-check (solve_lists' own
+  acceptance test, repeated here only if clipping to the limits moved u): every defined CBF
+  row holds within the QP's acceptance tolerance (`controllers.qp.tolerances`: 1e-6 hPa ·
+  (1 + max|u_min|, |u_max|) on unit rows, plus the rounding floor 1e-13 · max|u_nom|; so
+  ≈ 1.5e-4 hPa with the reference limits, whatever u_nom). An answer that fails it is
+  treated as infeasible ("slack"). (Before, the tolerance grew with |u_nom|: u_nom = 1e12 hPa
+  returned the box corner with the barrier row violated by 79 hPa as "qp".)
 - "recovery": some row has b_i ≤ 0 (the estimate is outside P, B undefined). For those
   rows the barrier row is replaced by a quasi-static row: the rest configuration of
   the command, q_ss = K⁻¹Λu, must lie inside P by ε_i (`recovery_margin` m times
@@ -27,17 +33,38 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   settle at a box corner whose rest shape is outside P: the tip stays outside for
   tens of seconds. docs/model.md#control-barrier-function reports the same; tests/test_filter.py checks this rule
   over time.)
-- "slack": the rows and the bounds cannot all hold (infeasible). The filter solves the
-  least-violation QP over (u, s), one slack per row in hPa-equivalent units (rows
-  normalised to unit norm in u):
+  Rest target: when the quasi-static rows cannot hold even as hard rows of the slack QP
+  below — e.g. the straight arm at rest before a vertical wall, where H'_i J_r = 0 makes the
+  row all zeros — u is the rest target nearest to u_nom: a command of a grid over
+  [u_min, u_max] (`rest_targets`, ≤ REST_GRID_POINTS points) whose exact rest tip
+  r(K⁻¹Λu) is inside every row of P by ε_i. It cannot deadlock: it is a fixed command whose
+  rest shape is inside P, which the arm's stiffness and damping approach. Measured (wall
+  x ≤ 0.2 m, q = 0, u_nom = 0, PCC plant, limits on): the tip, 29.7 mm outside P, is
+  inside after 0.126 s with Low and HW-High (before: "slack" with u = 0 for 3000 of 3000
+  steps, never inside); afterwards u_nom = 0 keeps pulling the rest shape outside and the
+  tip cycles around P's boundary (b ≥ −3.0 mm Low, −4.2 mm HW-High). `infeasible` is
+  flagged if the target violates a defined CBF row or a CBF row is not finite (below).
+  With no target inside P the slack QP without hard rows runs, as below.
+- "slack": the rows and the bounds cannot all hold (infeasible), or a CBF row is not
+  finite (L_fB, L_gB or γ/B overflowed, e.g. at |q̇| ≳ 1e154 rad/s; such a row is
+  replaced by its quasi-static row, never dropped, and `constraint` reads +inf there).
+  The filter solves the least-violation QP over (u, s), one slack per row in
+  hPa-equivalent units (rows normalised to unit norm in u):
       min ‖u − u_nom‖² + w ‖s‖²  s.t.  â_i u − s_i ≤ b̂_i,  s ≥ 0,  bounds on u,
       and, as hard rows, the quasi-static rows above for every row of P,
   with w = `slack_weight` (default 1e6: 1 hPa of violation costs as much as 1000 hPa of
   deviation from u_nom). The hard quasi-static rows stop the least-violation command
   from settling at a box corner whose rest shape is outside P (the trap of docs/model.md#control-barrier-function);
-  if they cannot hold with the bounds, they are dropped. `infeasible` is flagged and
-  `slack` holds max_i s_i.
-- "vent": only if a solver fails outright: u = 0 hPa clipped to the limits (the arm
+  if they cannot hold with the bounds, they are dropped (outside P: the rest target
+  first). `infeasible` is flagged and `slack` holds max_i s_i. If the filter's backend
+  fails on this QP, the native solver solves it: OSQP reports it "primal infeasible
+  inaccurate" (in the identity-Hessian form the slack variable √w s reaches ≈ 6.6e5
+  against a 1e-3 coefficient) and used to vent on every infeasible step. Measured on
+  `softcbf run paper_sim --duration 10 --frequency 0.1 --tunings High --pressure-limits
+  true --qp-backend qpsolvers:osqp`: chatter 61/s → 1.40/s (native: 1.40/s), 1011 infeasible
+  steps (native 1010), filter p99 70 ms → 14 ms (OSQP still spends its 4000 iterations
+  before the fallback; native: 4 ms), real-time factor 0.2 → 0.7.
+- "vent": only if every solver fails outright: u = 0 hPa clipped to the limits (the arm
   relaxes towards its rest shape). `infeasible` is flagged.
 The command is finite and within the bounds in every branch. A non-finite state or
 nominal command raises NonFiniteStateError / NonFiniteCommandError (controllers.errors).
@@ -55,11 +82,15 @@ from controllers.cbf import B_MIN, Tuning, barrier_rows
 from controllers.cbf_batch import SCALAR_BELOW, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
-from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_real, as_vector
 from controllers.params import RobotParams
-from controllers.qp import DEFAULT_BACKEND, dot_lists, solve_lists, available_backends
+from controllers.pcc import step_kinematics
+from controllers.qp import DEFAULT_BACKEND, available_backends, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterOutput
+
+REST_GRID_POINTS = 1024
+"""Grid size (at most) of the rest-target search over the pressure box (`CBFFilter.rest_targets`)."""
 
 ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
 
@@ -120,6 +151,7 @@ class CBFFilter:
     ) -> None:
         if qp_backend not in available_backends():
             raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
+        slack_weight, recovery_margin = as_real("slack_weight", slack_weight), as_real("recovery_margin", recovery_margin, "m")
         if not (math.isfinite(slack_weight) and slack_weight > 0):
             raise ValueError(f"slack_weight must be > 0, got {slack_weight}")
         if not (math.isfinite(recovery_margin) and recovery_margin >= 0):
@@ -145,6 +177,7 @@ class CBFFilter:
         self._lb_list = list(params.u_min) if self.pressure_limits else None
         self._ub_list = list(params.u_max) if self.pressure_limits else None
         self._static_gain = (params.array("gains") / params.array("stiffness")).tolist()  # K⁻¹Λ, rad/hPa
+        self._rest_targets: np.ndarray | None = None
 
     @property
     def enabled(self) -> bool:
@@ -169,13 +202,16 @@ class CBFFilter:
 
     def _slack_qp(self, u_nom: list[float], rows: list[list[float]], rhs: list[float],
                   hard: list[tuple[list[float], float]]) -> tuple[list[float] | None, float]:
-        """Least-violation QP over z = (u, √w s) with hard rows `hard`; returns (u, max s) or (None, nan)."""
+        """Least-violation QP over z = (u, √w s) with hard rows `hard`; returns (u, max s) or (None, nan).
+
+        If the filter's backend fails on it, the native solver gets the same problem (module docstring).
+        """
         n, p = self.n, len(rows)
         root_w = math.sqrt(self.slack_weight)
         minus_eye = [[-1.0 if k == i else -0.0 for k in range(p)] for i in range(p)]
         a_rows, b_rows = [], []
         for row, c, e in zip(rows, rhs, minus_eye):  # â_i u − s_i ≤ b̂_i
-            norm = max(math.sqrt(dot_lists(row, row)), 1e-12)
+            norm = max(row_norm(row), 1e-12)
             a_rows.append([v / norm for v in row] + [v / root_w for v in e])
             b_rows.append(c / norm)
         a_rows += [[0.0] * n + e for e in minus_eye]  # s ≥ 0
@@ -186,10 +222,41 @@ class CBFFilter:
             eye = [[1.0 if k == j else 0.0 for k in range(n + p)] for j in range(n)]
             a_rows += eye + [[-v for v in row] for row in eye]
             b_rows += self._ub_list + [-v for v in self._lb_list]
-        z, _, _, _ = solve_lists(u_nom + [0.0] * p, a_rows, b_rows, None, None, self.qp_backend)
+        z0 = u_nom + [0.0] * p
+        z = solve_lists(z0, a_rows, b_rows, None, None, self.qp_backend)[0]
+        if z is None and self.qp_backend != "native":
+            z = solve_lists(z0, a_rows, b_rows, None, None, "native")[0]
         if z is None:
             return None, math.nan
         return z[:n], max(z[n:]) / root_w
+
+    def rest_targets(self) -> np.ndarray:
+        """Commands (K, N) hPa on a grid over [u_min, u_max] whose rest tip r(K⁻¹Λu) is inside every row of P by ε_i.
+
+        The grid has max(2, ⌊REST_GRID_POINTS^(1/N)⌋) points per input, box corners included;
+        it is built on first use (measured 12–23 ms CPU for N = 1..4) and kept. Empty when no rest
+        shape of the grid is inside P.
+        """
+        if self._rest_targets is None:
+            per_axis = max(2, int(REST_GRID_POINTS ** (1.0 / self.n)))
+            axes = [np.linspace(lo, hi, per_axis) for lo, hi in zip(self.params.u_min, self.params.u_max)]
+            grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, self.n)
+            lengths, rest_velocity, keep = list(self.params.lengths), [0.0] * self.n, []
+            for u in grid.tolist():
+                tip = step_kinematics([g * v for g, v in zip(self._static_gain, u)], rest_velocity, lengths).tip
+                if all(h_i - (hx * tip.real + hy * tip.imag) > e
+                       for (hx, hy), h_i, e in zip(self._rows, self._hs, self._eps)):
+                    keep.append(u)
+            self._rest_targets = np.array(keep, dtype=float).reshape(-1, self.n)
+        return self._rest_targets
+
+    def _rest_target(self, u_nom: list[float]) -> list[float] | None:
+        """The rest target nearest to u_nom (clipped to [u_min, u_max] first), or None when there is none."""
+        targets = self.rest_targets()
+        if not len(targets):
+            return None
+        ref = np.clip(u_nom, self.params.u_min, self.params.u_max)
+        return targets[int(np.argmin(((targets - ref) ** 2).sum(axis=1)))].tolist()
 
     def __call__(self, estimate: Estimate, u_nom) -> FilterOutput:
         """The plug-in call: `step` at x = [estimate.q; estimate.qd], as a FilterOutput."""
@@ -232,16 +299,25 @@ class CBFFilter:
         if not self.enabled:
             u, action = self._clip(u_list), "disabled"
         else:
-            rows, rhs = [], []
+            rows, rhs, cbf_rows, unevaluable = [], [], [], False
             feasible = not self.pressure_limits or all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list))
             for i, (ok, (b_i, _, big_b, lfb, lgb)) in enumerate(zip(defined, barrier)):
-                row, c = (lgb, gamma / big_b - lfb) if ok else self._static_row(ev, q, b_i, i)
+                if ok:
+                    row, c = lgb, gamma / big_b - lfb
+                    if math.isfinite(c + sum(row)):  # (also false for finite terms whose sum overflows: flagged)
+                        cbf_rows.append(i)
+                    else:  # overflowed terms (huge q̇): unevaluable, see "slack"
+                        defined[i], unevaluable = False, True
+                        row, c = self._static_row(ev, q, b_i, i)
+                else:
+                    row, c = self._static_row(ev, q, b_i, i)
                 rows.append(row)
                 rhs.append(c)
                 feasible = feasible and dot_lists(row, u_list) <= c
-            if not feasible:
+            if unevaluable or not feasible:
                 t0 = time.perf_counter()
-                u, action, active, infeasible, slack = self._qp_command(ev, q, u_list, rows, rhs, barrier, recovery)
+                u, action, active, infeasible, slack = self._qp_command(
+                    ev, q, u_list, rows, rhs, barrier, cbf_rows, recovery, unevaluable)
                 solve_us = (time.perf_counter() - t0) * 1e6
         constraint = [lfb + dot_lists(lgb, u) - gamma / big_b if ok else math.inf
                       for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
@@ -250,21 +326,37 @@ class CBFFilter:
                             np.zeros(len(barrier), dtype=bool) if active is None else active,
                             infeasible, recovery, action, rho_pred, solve_us, slack)
 
+    def _violates(self, u: list[float], u_nom: list[float], rows: list[list[float]], rhs: list[float],
+                  cbf_rows: list[int]) -> bool:
+        """Whether u violates a defined CBF row by more than the QP's acceptance tolerance (hPa, unit rows)."""
+        tol = tolerances(u_nom, self._lb_list, self._ub_list)[1]
+        return any(dot_lists(rows[i], u) - rhs[i] > tol * row_norm(rows[i]) for i in cbf_rows)
+
     def _qp_command(self, ev: DynamicsEval, q: list[float], u_list: list[float], rows: list[list[float]],
-                    rhs: list[float], barrier: list[tuple], recovery: bool) -> tuple[list[float], str, np.ndarray | None, bool, float]:
+                    rhs: list[float], barrier: list[tuple], cbf_rows: list[int], recovery: bool,
+                    unevaluable: bool) -> tuple[list[float], str, np.ndarray | None, bool, float]:
         """The QP branches ("qp", "recovery", "slack", "vent"): (u, action, active, infeasible, slack)."""
-        u, qp_active, _, _ = solve_lists(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
-        if u is not None:
-            action, active, infeasible, slack = ("recovery" if recovery else "qp"), np.array(qp_active), False, 0.0
-        else:
-            hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(barrier)]
-            u, slack = self._slack_qp(u_list, rows, rhs, hard)
-            if u is None:
-                u, slack = self._slack_qp(u_list, rows, rhs, [])
-            action, active, infeasible = "slack", None, True
-            if u is None:
-                u, action = [0.0] * self.n, "vent"
+        if not unevaluable:
+            u, qp_active, _, _ = solve_lists(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
+            if u is not None:
+                # solve_lists accepted u only if every row holds within the acceptance tolerance (the
+                # post-check); only a clip that moved u (by rounding) needs the rows checked again.
+                clipped = self._clip(u)
+                if clipped == u or not self._violates(clipped, u_list, rows, rhs, cbf_rows):
+                    return clipped, ("recovery" if recovery else "qp"), np.array(qp_active), False, 0.0
+        hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(barrier)]
+        u, slack = self._slack_qp(u_list, rows, rhs, hard)
+        action = "slack"
+        if u is None and recovery:
+            u = self._rest_target(u_list)
+            action, slack = "recovery", 0.0
+        if u is None:
+            u, slack = self._slack_qp(u_list, rows, rhs, [])
+            action = "slack"
+        if u is None:
+            u, action = [0.0] * self.n, "vent"
         u = self._clip(u)
         if not all(map(math.isfinite, u)):
-            u, action, infeasible = self._clip([0.0] * self.n), "vent", True
-        return u, action, active, infeasible, slack
+            u, action = self._clip([0.0] * self.n), "vent"
+        infeasible = action != "recovery" or unevaluable or self._violates(u, u_list, rows, rhs, cbf_rows)
+        return u, action, None, infeasible, slack

@@ -15,6 +15,17 @@ docs/model.md#reference-robot):
 | u_min      | hPa         | −150                                          | chosen  |
 | u_max      | hPa         | +150                                          | chosen  |
 
+Valid ranges (checked at construction, so that the model's products — M's determinant,
+M⁻¹Λ, K⁻¹Λ — stay inside the float range): lengths, masses, inertias, stiffness and gains
+in [1e-30, 1e30] (SI), damping in [0, 1e30], u_min < u_max with |u| ≤ 1e30 hPa. The mass
+matrix must also be well-conditioned for every q: its condition number is bounded by
+
+    κ(M) ≤ (N (Σ L)² Σ m + N Σ I) / (min I · σ_min(A)²)
+
+(M = Σ m_i J_ciᵀ J_ci + Aᵀ diag(I) A with |∂c_i/∂q_j| ≤ Σ L and A = ∂φ/∂q, A_ij = 1 for
+j < i, ½ for j = i), and that bound must not exceed MAX_MASS_CONDITION = 1e12 (the
+closed-form 2 × 2 inverse then keeps ≥ 4 significant digits).
+
 The pressure limits live here and nowhere else: the simulations and the hardware
 mode read them from this object (or from the model's `ctrlrange`, which the model
 generator writes from it).
@@ -38,14 +49,20 @@ REFERENCE_BEND_RAD_AT_80HPA = math.radians(25.0)
 REFERENCE_PRESSURE_HPA = 80.0
 REFERENCE_U_LIMIT_HPA = 150.0
 
+VALUE_MIN, VALUE_MAX = 1e-30, 1e30
+MAX_MASS_CONDITION = 1e12
+
 _PER_SEGMENT = ("lengths", "masses", "inertias", "stiffness", "damping", "gains", "u_min", "u_max")
 
 
 def _as_tuple(name: str, value: Any, n: int | None) -> tuple[float, ...]:
     try:
-        values = tuple(float(v) for v in np.atleast_1d(np.asarray(value, dtype=float)))
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a sequence of numbers, got {value!r}") from exc
+        arr = np.atleast_1d(np.asarray(value))
+        if arr.dtype.kind == "c":
+            raise TypeError("complex")
+        values = tuple(arr.astype(float).ravel().tolist())
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValueError(f"{name} must be a sequence of numbers (real), got {value!r}") from exc
     if n is not None and len(values) != n:
         raise ValueError(f"{name} must have one value per segment ({n}), got {len(values)}: {values}")
     for i, v in enumerate(values):
@@ -54,18 +71,33 @@ def _as_tuple(name: str, value: Any, n: int | None) -> tuple[float, ...]:
     return values
 
 
-def _require_positive(name: str, values: tuple[float, ...]) -> None:
+def _require_range(name: str, values: tuple[float, ...], lo: float, unit: str) -> None:
     for i, v in enumerate(values):
-        if not v > 0.0:
+        if lo == 0.0 and v < 0.0:
+            raise ValueError(f"{name}[{i}] must be >= 0, got {v}")
+        if lo > 0.0 and not v > 0.0:
             raise ValueError(f"{name}[{i}] must be > 0, got {v}")
+        if not lo <= v <= VALUE_MAX:
+            raise ValueError(f"{name}[{i}] must be in [{lo:g}, {VALUE_MAX:g}] {unit}, got {v}")
+
+
+def mass_condition_bound(params: "RobotParams") -> float:
+    """An upper bound on the condition number of M(q) over all q (module docstring)."""
+    n = params.n_segments
+    a = np.tril(np.ones((n, n))) - 0.5 * np.eye(n)  # A = ∂φ/∂q
+    sigma_min = float(np.linalg.svd(a, compute_uv=False)[-1])
+    total_length = sum(params.lengths)
+    largest = n * total_length**2 * sum(params.masses) + n * sum(params.inertias)
+    return largest / (min(params.inertias) * sigma_min**2)
 
 
 @dataclass(frozen=True)
 class RobotParams:
     """Parameters of an N-segment planar PCC arm; see the module table for units.
 
-    `inertias` defaults to m_i L_i² / 12. Values are checked at construction:
-    lengths, masses, inertias, stiffness and gains > 0, damping ≥ 0, u_min < u_max.
+    `inertias` defaults to m_i L_i² / 12. Values are checked at construction (ValueError
+    naming the field, its range and the value): the ranges and the mass-matrix condition
+    bound of the module docstring.
     """
 
     lengths: tuple[float, ...]
@@ -90,14 +122,19 @@ class RobotParams:
         else:
             inertias = _as_tuple("inertias", self.inertias, n)
         object.__setattr__(self, "inertias", inertias)
-        for name in ("lengths", "masses", "inertias", "stiffness", "gains"):
-            _require_positive(name, getattr(self, name))
-        for i, d in enumerate(self.damping):
-            if d < 0.0:
-                raise ValueError(f"damping[{i}] must be >= 0, got {d}")
+        units = {"lengths": "m", "masses": "kg", "inertias": "kg·m²", "stiffness": "N·m/rad", "gains": "N·m/hPa"}
+        for name, unit in units.items():
+            _require_range(name, getattr(self, name), VALUE_MIN, unit)
+        _require_range("damping", self.damping, 0.0, "N·m·s/rad")
         for i, (lo, hi) in enumerate(zip(self.u_min, self.u_max)):
             if not lo < hi:
                 raise ValueError(f"u_min[{i}] must be < u_max[{i}], got u_min={lo}, u_max={hi}")
+            if not (-VALUE_MAX <= lo and hi <= VALUE_MAX):
+                raise ValueError(f"u_min[{i}] and u_max[{i}] must be within ±{VALUE_MAX:g} hPa, got u_min={lo}, u_max={hi}")
+        condition = mass_condition_bound(self)
+        if not condition <= MAX_MASS_CONDITION:
+            raise ValueError(f"the mass matrix's condition number may reach {condition:.3g} (bound over all q), above "
+                             f"{MAX_MASS_CONDITION:g}: masses, lengths and inertias differ too much between segments")
 
     @property
     def n_segments(self) -> int:

@@ -10,18 +10,30 @@ Preprocessing, the same for every backend:
 - Each general row is scaled to unit norm: â_i = a_i/‖a_i‖ (dimensionless),
   b̂_i = b_i/‖a_i‖ (hPa, the signed distance of the row's boundary from u = 0). L_gB is
   ≈ 1e-5…1e-4 per hPa; unscaled, solvers with absolute tolerances mis-solve the row.
+- A row with a NaN or infinite coefficient or bound (‖a_i‖ or b_i not finite) cannot be
+  evaluated: the problem is reported infeasible ("row i is not finite"), the row is never
+  dropped (a caller that builds rows from overflowing terms learns it).
 - A row with ‖a_i‖ ≤ `zero_row_tol` (default 1e-12, in A's units) reads 0 ≤ b_i: it is
   dropped if b_i ≥ 0 and makes the problem infeasible if b_i < 0. Such rows are never
   reported active.
 - If u_nom satisfies every row and the box within the feasibility tolerance it is the
   answer (iterations = 0) and no backend runs.
 
-Tolerances, relative to s = 1 + max(|u_nom|, |lb|, |ub|) (hPa; b̂ is left out because a far,
-inactive row — b̂ → ±∞ as L_gB → 0 — must not loosen the other rows' tolerance):
-- FEASIBILITY_RTOL·s = 1e-9·s: the native solver's and the shortcut's feasibility test.
-- ACCEPT_RTOL·s = 1e-6·s: a backend's answer counts as feasible only if it violates no row
-  or bound by more than this; the same threshold marks a general row active
-  (b̂_i − â_i u ≤ ACCEPT_RTOL·s).
+Tolerances (hPa, on the unit rows), `tolerances(u_nom, lb, ub)`:
+    feasibility  = FEASIBILITY_RTOL · s + ROUNDING_RTOL · max|u_nom|   (1e-9 · s + …)
+    acceptance   = ACCEPT_RTOL · s + ROUNDING_RTOL · max|u_nom|        (1e-6 · s + …)
+with s = 1 + max(|lb|, |ub|) over the bounds given (s = 1 without bounds) and
+ROUNDING_RTOL = 1e-13 (≈ 450 ulp). The first term is fixed by the problem's box, not by
+u_nom: a huge but finite u_nom (1e12 hPa) must not loosen the rows (it did when s also
+held |u_nom|: the filter then returned a command violating its barrier row by 79 hPa as
+"optimal"). The second term is the floating-point floor of the computation, which starts
+at u_nom: an iterate's rounding error is a few ulp of max|u_nom|, 1e-4 hPa at 1e12 hPa;
+for |u_nom| ≤ 1e4 hPa it is below 1e-9 hPa. b̂ is left out because a far, inactive row
+— b̂ → ±∞ as L_gB → 0 — must not loosen the other rows' tolerance.
+- feasibility: the native solver's and the shortcut's feasibility test;
+- acceptance: a backend's answer counts as feasible only if it violates no row or bound
+  by more than this; the same threshold marks a general row active (b̂_i − â_i u ≤ it).
+  Callers (the CBF filter) check their own rows against it after the solve.
 
 Backends (`available_backends()`):
 - "native": a Goldfarb–Idnani dual active-set method specialised to the identity Hessian,
@@ -38,10 +50,21 @@ Backends (`available_backends()`):
 - "daqp": DAQP's own C API (daqp.solve), the box passed as simple bounds.
 - "qpsolvers:<name>": the same problem through qpsolvers for name in daqp, quadprog, osqp,
   proxqp, piqp (those installed), with tolerances tightened to ≈ 1e-10; `iterations` is
-  None and a failure reads "infeasible or failed" (qpsolvers does not tell them apart).
+  None and a failure reads "infeasible or failed" (qpsolvers does not tell them apart); an
+  exception of the solver (OSQP refuses bounds beyond its 1e30 "infinity") reads "<name> failed".
+  OSQP's max_iter is 4000 (its solves of the filter's and the tests' QPs take ≤ 375
+  iterations; the least-violation QP, which it cannot solve, then fails in ≈ 15 ms, not
+  in 100000 iterations ≈ 100 ms).
   quadprog has no feasibility tolerance and may call a degenerate problem (a dependent
   row violated by rounding at a vertex with more tight rows than N) infeasible.
-`tools/bench_qp.py` measures them; DEFAULT_BACKEND is the fastest exact one there.
+`tools/bench_qp.py` measures them per solve, `tools/bench_filter.py --backends native,daqp`
+inside the whole filter step. DEFAULT_BACKEND stays "native" (issue 12 item 5, decided on the
+second measurement): over 3000 states of each 30 s paper_sim configuration, timed round-robin
+in one process (CPU time, 2-CPU x86_64 shared machine), the median of the steps that solve a
+QP was 85 / 100 / 83 / 107 µs with native and 103 / 110 / 99 / 119 µs with daqp (Low off,
+Low on, High off, High on), with identical actions and commands within 6.2e-11 hPa (issue 12
+had measured 74 vs 76 µs on another machine). daqp stays available; the slack QP's fallback is
+native.
 """
 
 from __future__ import annotations
@@ -60,6 +83,7 @@ from numpy.typing import ArrayLike
 
 FEASIBILITY_RTOL = 1e-9
 ACCEPT_RTOL = 1e-6
+ROUNDING_RTOL = 1e-13
 ZERO_ROW_TOL = 1e-12
 _DEPENDENT_TOL = 1e-12
 """‖z‖ below which an added unit row counts as a combination of the working set's rows."""
@@ -70,7 +94,7 @@ _DAQP_INF = 1e30
 _QPSOLVERS_SETTINGS: dict[str, dict[str, float | bool]] = {
     "daqp": {"primal_tol": 1e-10},
     "quadprog": {},
-    "osqp": {"eps_abs": 1e-10, "eps_rel": 1e-10, "polishing": True, "max_iter": 100000},
+    "osqp": {"eps_abs": 1e-10, "eps_rel": 1e-10, "polishing": True, "max_iter": 4000},
     "proxqp": {"eps_abs": 1e-10, "eps_rel": 0.0},
     "piqp": {"eps_abs": 1e-10, "eps_rel": 1e-10},
 }
@@ -89,6 +113,12 @@ class QPSolution:
 
 def dot_lists(a: list[float], b: list[float]) -> float:
     return sum(map(mul, a, b))
+
+
+def row_norm(a: Sequence[float]) -> float:
+    """‖a‖ as √(a·a) (the floats every earlier result used), through hypot only where the squares overflow."""
+    norm = math.sqrt(sum(map(mul, a, a)))
+    return math.hypot(*a) if norm == math.inf else norm
 
 
 def _split(Q: list[list[float]], a: list[float]) -> tuple[list[float], list[float]]:
@@ -223,8 +253,9 @@ def _qpsolvers_backend(solver: str) -> Callable[[_Problem], BackendResult]:
             warnings.simplefilter("ignore")  # qpsolvers' dense→sparse conversion notice for osqp
             try:
                 solution = qpsolvers.solve_problem(qp, solver=solver, **settings)
-            except (qpsolvers.SolverError, ValueError) as exc:
-                return None, f"{solver} failed: {exc}", None
+            except Exception as exc:  # noqa: BLE001 — a third-party solver's own exception types (e.g. OSQPException
+                # for bounds beyond its 1e30 "infinity") all mean "this backend failed", never a crash of the filter
+                return None, f"{solver} failed: {type(exc).__name__}: {exc}", None
         if not solution.found or solution.x is None:
             return None, "infeasible or failed", None
         return solution.x, "optimal", None
@@ -305,7 +336,9 @@ def solve_lists(u0: list[float], rows: list[list[float]], b_list: list[float], l
     b_hat: list[float] = []
     kept: list[int] = []
     for i, (a, bi) in enumerate(zip(rows, b_list)):
-        norm = math.sqrt(sum(map(mul, a, a)))
+        norm = math.sqrt(sum(map(mul, a, a)))  # row_norm, inlined: this loop runs every filter QP
+        if not math.isfinite(norm + bi) and not math.isfinite((norm := math.hypot(*a)) + bi):
+            return None, active, f"infeasible: row {i} is not finite (|a| = {norm}, b = {bi})", 0
         if norm > zero_row_tol:
             A_hat.append([x / norm for x in a])
             b_hat.append(bi / norm)
@@ -319,8 +352,8 @@ def solve_lists(u0: list[float], rows: list[list[float]], b_list: list[float], l
     if lb_list is not None:
         rows_all += _unit_rows(n, -1.0)
         rhs_all += [-value for value in lb_list]
-    scale = 1.0 + max(map(abs, u0 + (lb_list or []) + (ub_list or [])))
-    problem = _Problem(u0, A_hat, b_hat, lb_list, ub_list, rows_all, rhs_all, FEASIBILITY_RTOL * scale)
+    feasibility_tol, accept_tol = tolerances(u0, lb_list, ub_list)
+    problem = _Problem(u0, A_hat, b_hat, lb_list, ub_list, rows_all, rhs_all, feasibility_tol)
 
     if problem.violation(u0) <= problem.tol:
         u, status, iterations = u0, "optimal", 0
@@ -330,8 +363,20 @@ def solve_lists(u0: list[float], rows: list[list[float]], b_list: list[float], l
             return None, active, status, iterations
         u = list(map(float, x))
         excess = problem.violation(u)
-        if not excess <= ACCEPT_RTOL * scale:
+        if not excess <= accept_tol:
             return None, active, f"{status} but violates a constraint by {excess:.3g} hPa", iterations
     for i, a, c in zip(kept, A_hat, b_hat):
-        active[i] = c - sum(map(mul, a, u)) <= ACCEPT_RTOL * scale
+        active[i] = c - sum(map(mul, a, u)) <= accept_tol
     return u, active, status, iterations
+
+
+def tolerances(u0: Sequence[float], lb_list: Sequence[float] | None,
+               ub_list: Sequence[float] | None) -> tuple[float, float]:
+    """(feasibility, acceptance) tolerances in hPa on unit rows for a problem with these u_nom and bounds.
+
+    See the module docstring: FEASIBILITY_RTOL / ACCEPT_RTOL times s = 1 + max(|lb|, |ub|),
+    plus the rounding floor ROUNDING_RTOL · max|u_nom|.
+    """
+    scale = 1.0 + max(map(abs, (lb_list or []) + (ub_list or [])), default=0.0)
+    floor = ROUNDING_RTOL * max(max(u0), -min(u0))
+    return FEASIBILITY_RTOL * scale + floor, ACCEPT_RTOL * scale + floor

@@ -43,6 +43,8 @@ from typing import Literal, Protocol, get_args
 import numpy as np
 from numpy.typing import ArrayLike
 
+from controllers.errors import as_real
+
 RowScaling = Literal["paper", "unit"]
 
 GEOMETRY_TOL_M = 1e-9
@@ -56,7 +58,7 @@ _VERTICAL_TOL = 1e-9
 
 
 def _positive_finite(name: str, value: float) -> float:
-    value = float(value)
+    value = as_real(name, value)
     if not (math.isfinite(value) and value > 0.0):
         raise ValueError(f"{name} must be finite and > 0, got {value}")
     return value
@@ -285,7 +287,7 @@ class ForceSafeSet:
     _facets: tuple[tuple[float, float, float], ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        f_max = float(self.f_max)
+        f_max = as_real("F_max", self.f_max, "N")
         if not f_max > 0.0:
             raise ValueError(f"F_max must be > 0, got {f_max}")
         if not math.isfinite(f_max):

@@ -1,18 +1,19 @@
 """The CBF-QP safety filter: every branch, bounds, flags, bad input, and behaviour over time."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
 
 from controllers.cbf import Tuning, barrier_terms, get_tuning
-from controllers.errors import NonFiniteCommandError, NonFiniteStateError
+from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
 from controllers.filter import CBF_DIAGNOSTIC_UNITS, ACTIONS, CBFFilter
 from controllers.safety_filter import Estimate
 from controllers.params import reference_robot
 from controllers.pcc import tip_position
 from controllers.qp import available_backends
-from controllers.safe_set import paper_safe_set
+from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
 from softcbf_mj.pcc_plant import PCCPlant
 
 ROBOT = reference_robot()
@@ -177,3 +178,91 @@ def test_plugin_call_is_step_on_the_estimate_with_diagnostics():
     assert out.rho_pred == ref.rho_pred
     assert out.diagnostics["b"].tolist() == ref.b.tolist() and out.diagnostics["active"].tolist() == ref.active.tolist()
     assert set(out.diagnostics) == set(CBF_DIAGNOSTIC_UNITS) == set(out.diagnostic_units)
+
+
+def test_huge_finite_nominal_does_not_switch_the_barrier_off():
+    """C1: u_nom = (1e12, 1e12) gave (150, 150), action "qp", with the barrier row violated by ≈79 hPa.
+
+    The answer must be the one for any u_nom far out along (1, 1) inside the limits' reach:
+    (150, 70.97) hPa, the same as for u_nom = (150, 150), with the row holding.
+    """
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"), pressure_limits=True)
+    x = np.array([0.3, 0.3, 2.0, 2.0])
+    ref = filt.step(x, np.array([150.0, 150.0]))
+    for u_nom in ([1e12, 1e12], [1e6, 1e6]):
+        res = filt.step(x, np.array(u_nom))
+        assert res.action == "qp" and not res.infeasible
+        np.testing.assert_allclose(res.u, ref.u, atol=1e-6)
+        terms = barrier_terms(filt.dynamics.evaluate(x[:2], x[2:]), SAFE.H_prime, SAFE.h_prime, get_tuning("Low"))
+        a, c = terms.LgB[0], get_tuning("Low").gamma / terms.B[0] - terms.LfB[0]
+        assert (a @ res.u - c) / np.linalg.norm(a) <= 0.11  # hPa: the QP's acceptance tolerance at |u_nom| = 1e12
+    np.testing.assert_allclose(ref.u, [150.0, 70.97419257], atol=1e-6)
+
+
+@pytest.mark.parametrize("backend", [b for b in available_backends() if b != "native"])
+def test_least_violation_qp_falls_back_to_native_before_venting(backend):
+    """C2: qpsolvers:osqp never solved the slack QP (z_s ≈ 6.6e5 against a 1e-3 coefficient: "primal
+    infeasible inaccurate") and vented on every infeasible step. Every backend now gives the native answer."""
+    x, u_nom = np.array([0.32, 0.28, 2.0, 2.0]), np.array([150.0, 150.0])
+    ref = CBFFilter(ROBOT, SAFE, get_tuning("High"), pressure_limits=True, qp_backend="native").step(x, u_nom)
+    res = CBFFilter(ROBOT, SAFE, get_tuning("High"), pressure_limits=True, qp_backend=backend).step(x, u_nom)
+    assert ref.action == res.action == "slack" and res.infeasible
+    np.testing.assert_allclose(res.u, ref.u, atol=1e-6)
+    np.testing.assert_allclose(res.slack, ref.slack, rtol=1e-6)
+
+
+def vertical_wall_safe_set():
+    """A wall x ≤ 0.2 m in front of the straight reference arm (tip at x = 0.244 m: 29.7 mm outside P)."""
+    return ForceSafeSet(Environment(np.array([[1.0, 0.0]]), np.array([0.2])), LinearStiffness(11.16), 0.16, row_scaling="paper")
+
+
+@pytest.mark.parametrize("tuning", ["Low", "HW-High"])
+def test_recovery_cannot_deadlock_when_its_row_vanishes(tuning):
+    """C3: at q = 0 the tip Jacobian is parallel to the wall, the quasi-static row is all zeros, and the
+    filter returned "slack" with u = 0 for 3000 of 3000 steps: the tip never came back.
+
+    Now the rest-target rule moves the arm; over time on the PCC plant the tip is inside P within
+    0.2 s. Afterwards u_nom = 0 keeps pulling the rest shape outside P and the CBF at 1 kHz lets the
+    tip cycle around P's boundary (measured: b ≥ −3.0 mm (Low), −4.2 mm (HW-High), i.e. ρ ≥ −0.21 / −0.29),
+    far from the 29.7 mm it started at: asserted as b ≥ −5 mm.
+    """
+    safe = vertical_wall_safe_set()
+    plant = PCCPlant(ROBOT, safe)
+    filt = CBFFilter(ROBOT, safe, get_tuning(tuning), pressure_limits=True)
+    state = plant.reset(np.zeros(2))
+    first = filt.step(np.zeros(4), np.zeros(2))
+    assert first.recovery and first.action == "recovery" and np.any(first.u != 0.0)
+    q_rest = ROBOT.array("gains") * first.u / ROBOT.array("stiffness")
+    assert safe.contains(tip_position(q_rest, LENGTHS), tol=-filt.recovery_margin)  # the target's rest tip is inside P
+    b = []
+    for _ in range(3000):
+        res = filt.step(np.concatenate((state.q, state.qd)), np.zeros(2))
+        state = plant.step(res.u)
+        b.append(float(res.b[0]))
+    b = np.array(b)
+    inside_at = int(np.argmax(b > 0))
+    assert b[inside_at] > 0 and inside_at < 200, inside_at
+    assert b[inside_at:].min() >= -5e-3
+
+
+def test_unevaluable_rows_are_flagged_infeasible_never_dropped():
+    """C4: at q̇ = 1e160 rad/s ḃ² overflows and the row was NaN; it read as a zero row (dropped) and the
+    clipped nominal came back as "qp", not flagged. Now such a row is replaced by its quasi-static row in
+    the least-violation QP and the step is flagged."""
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"), pressure_limits=True)
+    res = filt.step(np.array([0.3, 0.3, 1e160, 1e160]), np.array([150.0, 150.0]))
+    assert res.infeasible and res.action == "slack" and not res.recovery
+    assert np.all(np.isfinite(res.u)) and np.all(np.abs(res.u) <= 150.0) and math.isinf(res.constraint[0])
+    with pytest.raises(ValueError, match="a_E·b_E must be finite"):
+        Tuning("big", 1e200, 1e200, 1.0)
+
+
+@pytest.mark.parametrize("bad", [np.array([0.1 + 1j, 0, 0, 0]), [10**400, 0, 0, 0], ["a", 0, 0, 0]])
+def test_non_real_or_overflowing_state_raises_the_documented_error(bad):
+    """C5: a complex state was accepted with a ComplexWarning; 10**400 raised OverflowError."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ControllerInputError, match=r"x must be an array of numbers \(real"):
+            CBFFilter(ROBOT, SAFE, get_tuning("Low")).step(bad, np.zeros(2))
+        with pytest.raises(ControllerInputError, match=r"u_nom must be an array of numbers \(real"):
+            CBFFilter(ROBOT, SAFE, get_tuning("Low")).step(np.zeros(4), bad[:2])

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from controllers.params import RobotParams, reference_robot, uniform_robot
+from controllers.dynamics import PCCDynamics
+from controllers.params import RobotParams, mass_condition_bound, reference_robot, uniform_robot
 
 
 def test_reference_robot_matches_spec():
@@ -29,11 +30,29 @@ def test_reference_robot_matches_spec():
         ({"gains": (float("nan"), 1.0)}, r"gains\[0\] must be finite, got nan"),
         ({"u_min": (10.0, -150.0), "u_max": (5.0, 150.0)}, r"u_min\[0\] must be < u_max\[0\], got u_min=10.0, u_max=5.0"),
         ({"stiffness": "abc"}, r"stiffness must be a sequence of numbers"),
+        # C5: these raised ZeroDivisionError (in the dynamics), OverflowError, or passed with a ComplexWarning
+        ({"masses": (1e-300, 1e-300)}, r"masses\[0\] must be in \[1e-30, 1e\+30\] kg, got 1e-300"),
+        ({"masses": (10**400, 0.13)}, r"masses must be a sequence of numbers \(real\)"),
+        ({"gains": (1e-3 + 1e-3j, 1e-3)}, r"gains must be a sequence of numbers \(real\)"),
+        ({"u_max": (1e31, 150.0)}, r"u_min\[0\] and u_max\[0\] must be within ±1e\+30 hPa"),
+        ({"masses": (1e3, 1e-6)}, r"the mass matrix's condition number may reach 2.28e\+12"),
     ],
 )
 def test_invalid_values_name_field_value_and_range(change, message):
     with pytest.raises(ValueError, match=message):
         reference_robot().replace(**change)
+
+
+def test_mass_condition_bound_holds_at_random_configurations():
+    """κ(M(q)) ≤ mass_condition_bound for random q, robots and N = 1..4 (the bound the validation uses)."""
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        n = int(rng.integers(1, 5))
+        robot = RobotParams(lengths=rng.uniform(0.01, 1.0, n), masses=10 ** rng.uniform(-3, 1, n), stiffness=np.ones(n),
+                            damping=np.zeros(n), gains=np.ones(n), u_min=-np.ones(n), u_max=np.ones(n))
+        dyn = PCCDynamics(robot)
+        for q in rng.uniform(-3, 3, (5, n)):
+            assert np.linalg.cond(dyn.mass_matrix(q)) <= mass_condition_bound(robot)
 
 
 def test_uniform_robot_validation():

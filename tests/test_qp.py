@@ -20,7 +20,9 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls
 
-from controllers.qp import ACCEPT_RTOL, available_backends, solve_qp
+import math
+
+from controllers.qp import available_backends, solve_lists, solve_qp, tolerances
 
 BACKENDS = available_backends()
 EXACT = {"native", "daqp", "qpsolvers:daqp", "qpsolvers:quadprog"}
@@ -106,7 +108,8 @@ def test_kkt_on_random_feasible_problems(backend):
         G, c, _, keep = unit_rows(u_nom, A, b, lb, ub)
         G, c = G[: keep.sum()], c[: keep.sum()]
         expected = np.zeros(len(b), dtype=bool)
-        expected[keep] = c - G @ sol.u <= ACCEPT_RTOL * scale
+        accept = tolerances(u_nom.tolist(), None if lb is None else lb.tolist(), None if ub is None else ub.tolist())[1]
+        expected[keep] = c - G @ sol.u <= accept
         np.testing.assert_array_equal(sol.active, expected, err_msg=f"problem {k}")
         solved_active += bool(sol.active.any())
     assert solved_active > len(problems) // 3  # the set exercises active rows, not only the shortcut
@@ -204,6 +207,37 @@ def test_far_inactive_row_does_not_loosen_the_box(backend):
     sol = solve_qp(np.array([150.001, 0.0]), np.array([[1e-11, 0.0]]), np.array([1.0]),
                    -150 * np.ones(2), 150 * np.ones(2), backend=backend)
     assert sol.feasible and sol.u[0] <= 150.0 + 1e-9 * 151 and sol.active.tolist() == [False]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_huge_finite_u_nom_does_not_loosen_the_rows(backend):
+    """C1: with s = 1 + max|u_nom| the feasibility tolerance was 1e-9 · 1e12 = 1000 hPa, and the box
+    corner (150, 150), 67 hPa beyond the row, came back as "optimal".
+
+    Row u_1 − u_2/2 ≤ 0 (scaled like L_gB), box ±150, u_nom far out along (1, 1): the solution is
+    the vertex (75, 150) (KKT: u_nom − u = λ_1 (1, −½) + λ_2 (0, 1) with λ ≈ (2e12, 3e12) ≥ 0).
+    Exact solvers must find it; the others may refuse (never return a wrong u).
+    """
+    A, b = np.array([[3e-5, -1.5e-5]]), np.array([0.0])
+    box = dict(lb=-150 * np.ones(2), ub=150 * np.ones(2))
+    _, accept = tolerances([1e12, 1e12], [-150.0] * 2, [150.0] * 2)
+    assert accept < 0.11  # 1e-6 · 151 + 1e-13 · 1e12 hPa: the box's term and the rounding floor, not 1e-6 · u_nom
+    for u_nom in ([1e12, 1e12], [1e6, 1e6], [1e12 + 0.3, 1e12]):
+        sol = solve_qp(np.array(u_nom), A, b, backend=backend, **box)
+        if backend not in EXACT and not sol.feasible:
+            continue
+        assert sol.feasible, (u_nom, sol.status)
+        assert (A[0] @ sol.u - b[0]) / np.linalg.norm(A[0]) <= accept, (u_nom, sol.u)
+        np.testing.assert_allclose(sol.u, [75.0, 150.0], atol=accept)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("row, rhs", [([math.nan, 1e-5], 0.0), ([math.inf, 0.0], 1.0), ([1e-5, 1e-5], math.nan),
+                                      ([1e-5, 1e-5], -math.inf), ([0.0, 0.0], math.nan), ([1e-5, 1e-5], math.inf)])
+def test_nonfinite_rows_are_infeasible_never_dropped(backend, row, rhs):
+    """C4: a NaN/inf row used to read as a zero row (dropped): the caller got u_nom as 'optimal'."""
+    u, active, status, _ = solve_lists([10.0, 10.0], [row, [1e-5, 0.0]], [rhs, 1.0], [-150.0] * 2, [150.0] * 2, backend)
+    assert u is None and status.startswith("infeasible: row 0 is not finite") and active == [False, False]
 
 
 def test_shortcut_returns_a_copy_of_u_nom_when_it_is_feasible():
