@@ -39,7 +39,9 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   `slack` holds max_i s_i.
 - "vent": only if a solver fails outright: u = 0 hPa clipped to the limits (the arm
   relaxes towards its rest shape). `infeasible` is flagged.
-The command is finite and within the bounds in every branch. A non-finite state or
+The command is finite and within the bounds in every branch.
+`paper_cbf(context, tuning, ...)` is the registry's factory ("paper-cbf"): the paper's
+presets by name, or tuning="custom" with a_E, b_E and γ. A non-finite state or
 nominal command raises NonFiniteStateError / NonFiniteCommandError (controllers.errors).
 """
 
@@ -51,13 +53,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import B_MIN, Tuning, barrier_rows
+from controllers.cbf import B_MIN, TUNINGS, Tuning, barrier_rows, get_tuning
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
 from controllers.qp import DEFAULT_BACKEND, dot_lists, solve_lists, available_backends
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate, FilterOutput
+from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 
 ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
 
@@ -246,3 +248,56 @@ class CBFFilter:
         if not all(map(math.isfinite, u)):
             u, action, infeasible = self._clip([0.0] * self.n), "vent", True
         return u, action, active, infeasible, slack
+
+
+CUSTOM_TUNING = "custom"
+
+
+def paper_cbf(
+    context: FilterContext,
+    tuning: str = "Low",
+    a_E: float | None = None,
+    b_E: float | None = None,
+    gamma: float | None = None,
+    qp_backend: str = DEFAULT_BACKEND,
+    recovery_margin: float = 1e-3,
+    slack_weight: float = 1e6,
+) -> CBFFilter:
+    """The paper's CBF-QP filter (SPEC §5), a preset tuning or a custom (a_E, b_E, γ).
+
+    The pressure limits are the robot model's own when `context.bounded`; `context.dynamics`
+    (the plant's evaluation of the same model), when given, is shared.
+    """
+    if tuning.strip().lower() == CUSTOM_TUNING:
+        missing = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is None]
+        if missing:
+            raise ValueError(f"tuning 'custom' needs a_E, b_E and gamma (each >= 0), missing {', '.join(missing)}")
+        chosen = Tuning(CUSTOM_TUNING, a_E, b_E, gamma)
+    else:
+        given = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} set a custom tuning: use tuning='custom' (not {tuning!r}), "
+                             f"or a preset alone ({', '.join(TUNINGS)})")
+        chosen = get_tuning(tuning)
+    return CBFFilter(context.robot, context.safe_set, chosen, pressure_limits=context.bounded, qp_backend=qp_backend,
+                     recovery_margin=recovery_margin, slack_weight=slack_weight, dynamics=context.dynamics)
+
+
+def paper_cbf_label(params: dict[str, object]) -> str:
+    """A run's label: the preset's name, or custom(a_E=..,b_E=..,gamma=..)."""
+    tuning = str(params.get("tuning", "Low"))
+    if tuning.strip().lower() != CUSTOM_TUNING:
+        return tuning
+    return "custom(" + ",".join(f"{k}={params.get(k)}" for k in ("a_E", "b_E", "gamma")) + ")"
+
+
+paper_cbf.run_label = paper_cbf_label
+paper_cbf.parameter_docs = {
+    "tuning": f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below) [-]",
+    "a_E": "custom tuning: velocity weight of the barrier B [1/s]",
+    "b_E": "custom tuning: velocity offset of the barrier B [1/s]",
+    "gamma": "custom tuning: class-K gain of the constraint L_fB + L_gB u <= gamma/B [1/s]",
+    "qp_backend": f"QP solver ({', '.join(available_backends())}) [-]",
+    "recovery_margin": "quasi-static recovery: rest shape inside P by this much [m]",
+    "slack_weight": "infeasible rows: cost of 1 hPa of violation vs 1 hPa of deviation, squared [1]",
+}

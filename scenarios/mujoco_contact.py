@@ -33,12 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.filter import CBFFilter
-from controllers.nominal import SinusoidNominal
-from controllers.params import RobotParams, per_segment, reference_robot
-from scenarios import register
+from controllers.params import RobotParams, reference_robot
 from controllers.safe_set import Environment
-from scenarios.common import build_safe_set, initial_configuration, load_robot, parse_tunings, run_tuning, scene_record
+from controllers.safety_filter import FilterContext
+from scenarios import register
+from scenarios.common import (
+    PAPER_FILTER, build_safe_set, control_step, controller_row, controller_runs, initial_configuration, load_robot,
+    nominal_arguments, run_tuning, scene_record,
+)
 from softcbf_mj.metrics import contact_figures, format_table
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
@@ -76,6 +78,10 @@ def mujoco_contact(
     *,
     duration: float = 100.0,
     tunings: str = "None,Low,High",
+    filter: str = PAPER_FILTER,
+    filter_params: str = "",
+    nominal: str = "sinusoid",
+    nominal_params: str = "",
     amplitude: float = 80.0,
     frequency: float = 0.01,
     t0: float = 0.0,
@@ -100,7 +106,7 @@ def mujoco_contact(
     facet_angle: float = 0.0,
     progress: bool = True,
 ) -> dict:
-    """Run each tuning for `duration` s; write summary.json and one time series per tuning.
+    """Run each controller (tuning) for `duration` s; write summary.json and one time series per run.
 
     `robot` is the controller's model only. The MuJoCo arm is the reference robot with
     its k, d, λ and L multiplied by `true_stiffness_scale`, `true_damping_scale`,
@@ -144,20 +150,21 @@ def mujoco_contact(
     )
     if model_robot.n_segments != plant.n_segments:
         raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
-    tuning_list = parse_tunings(tunings)
+    runs = controller_runs(filter, filter_params, tunings, qp_backend)
+    nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency, t0=t0)
     n = plant.n_segments
-    nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
     q0 = initial_configuration(n, seed, q0_std)
+    context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, pressure_limits, command_delay=0.0, actuator_tau=tau_p)
 
     def figures(log: dict[str, np.ndarray]) -> dict:
         return contact_figures(log, safe_set, plant.control_dt)
 
     summary = SummaryWriter(out_dir, "mujoco_contact", params,
                             scene_record(true_robot, safe_set, plate_stiffness, Environment(true_H, true_h)))
-    for tuning in tuning_list:
-        controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
-        run_tuning(out_dir, summary, tuning.name, plant, controller, nominal, duration, q0, progress,
-                   extra_figures=figures, extra_units=EXTRAS_UNITS)
+    for run in runs:
+        run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, context), safe_set,
+                   duration, q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
+                   row=controller_row(run, nominal, nominal_kwargs))
     print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
           f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
           f"plate {plate_stiffness:g} N/m (assumed {assumed_plate_stiffness:g}), F_max {f_max:g} N, n_max {safe_set.n_max * 1e3:.2f} mm; "

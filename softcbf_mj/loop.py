@@ -1,144 +1,84 @@
-"""The closed loop: plant → estimator → controller → command → plant (SPEC §6).
+"""The simulated closed loop: plant → estimator → control step → plant (SPEC §6, §9).
 
-At each control step k (t_k = k·Δt): the estimator turns the plant's ground truth
-into the controller's view of the state, the nominal controller proposes u_nom,
-the safety filter returns u, and the plant holds u for one period. Everything that
-happened is recorded at the control rate as arrays with first axis k.
+At each control step k (t_k = k·Δt): the estimator turns the plant's ground truth into
+the controller's view of the state (`controllers.safety_filter.Estimate`), the control
+step (`closedloop.step.ControlStep`: nominal, filter, admission, safety monitor) gives
+the command, and the plant holds it for one period. This module owns only the clock
+and the plant's I/O; everything is recorded at the control rate by `closedloop.record`
+(the plant's columns: `plant_columns`, `plant_values`, `plant_series`).
 """
 
 from __future__ import annotations
 
-import math
-import time
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from controllers.filter import CBFFilter, CBFResult
-from controllers.nominal import NominalController
+from closedloop.record import TIMESERIES_UNITS, Recorder
+from closedloop.step import ControlStep
 from controllers.safe_set import ForceSafeSet
+from controllers.safety_filter import Estimate
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 
-
-@dataclass(frozen=True)
-class Estimate:
-    """The controller's view of the state at time t: q, qd (N,), rad and rad/s."""
-
-    t: float
-    q: np.ndarray
-    qd: np.ndarray
+Series = tuple[dict[str, np.ndarray], dict[str, str]]  # time series by key, and their units
 
 
 def exact_state(state: PlantState) -> Estimate:
-    """Estimator that passes the plant's true state through (the paper's simulation)."""
-    return Estimate(state.t, state.q, state.qd)
+    """Estimator that passes the plant's true state through (the paper's simulation): t_capture = t."""
+    return Estimate(state.t, state.q, state.qd, state.t)
 
 
-TIMESERIES_UNITS = {
-    "t": "s",
-    "q": "rad",
-    "qd": "rad/s",
-    "q_est": "rad",
-    "qd_est": "rad/s",
-    "tip": "m",
-    "segment_ends": "m",
-    "u_nom": "hPa",
-    "u": "hPa",
-    "u_applied": "hPa",
-    "contact_force": "N",
-    "rho_pred": "1",
-    "rho_meas": "1",
-    "b": "barrier units (row-scaled m)",
-    "active": "bool",
-    "infeasible": "bool",
-    "recovery": "bool",
-    "filter_us": "us",
-}
+def plant_columns(n_segments: int, n_facets: int) -> dict[str, tuple[int, ...]]:
+    """The simulated loops' own float columns and shapes, in the order of `plant_values`."""
+    n = n_segments
+    return {"t": (), "q": (n,), "qd": (n,), "q_est": (n,), "qd_est": (n,), "segment_ends": (n + 1, 2),
+            "u_applied": (n,), "contact_force": (n_facets,)}
 
 
-class LoopRecorder:
-    """The time series of a closed loop, one row per plant step (preallocated).
+def plant_values(state: PlantState, q_est: np.ndarray, qd_est: np.ndarray) -> list[float]:
+    """One row of `plant_columns`: the plant's state and the estimate in force."""
+    return [state.t, *state.q.tolist(), *state.qd.tolist(), *q_est.tolist(), *qd_est.tolist(),
+            *state.segment_ends.ravel().tolist(), *state.u_applied.tolist(), *state.contact_forces.tolist()]
 
-    Each `record` writes one row of floats and one row of flags (a single numpy call
-    each); `columns` cuts the per-key arrays (TIMESERIES_UNITS + the plant's extras) from
-    them. ρ_meas comes from the plant's measured contact force through the controller's
-    force-safe set (its ψ and n_max), ρ_pred from the controller's own estimate.
-    """
 
-    def __init__(self, n_steps: int, n_segments: int, safe_set: ForceSafeSet) -> None:
-        n, p = n_segments, len(safe_set.H_prime)
-        self.safe_set, self.n_steps, self._p = safe_set, n_steps, p
-        self._float_shapes = {"t": (), "q": (n,), "qd": (n,), "q_est": (n,), "qd_est": (n,), "segment_ends": (n + 1, 2),
-                              "u_nom": (n,), "u": (n,), "u_applied": (n,), "contact_force": (safe_set.n_facets,),
-                              "rho_pred": (), "b": (p,), "filter_us": ()}
-        self._floats = np.empty((n_steps, sum(math.prod(shape) for shape in self._float_shapes.values())))
-        self._flags = np.empty((n_steps, p + 2), dtype=bool)  # active (P), infeasible, recovery
-        self._extras: dict[str, np.ndarray] = {}
-
-    def record(self, k: int, state: PlantState, est: Estimate, result: CBFResult, filter_us: float) -> None:
-        """Row k: the plant's state, the estimate and filter result in force, and the filter's time (µs).
-
-        In a multi-rate loop the result is held between controller calls: pass
-        filter_us = NaN on the rows without a call; `infeasible` and `recovery` are then
-        recorded False, so their counts are counts of controller calls.
-        """
-        called = not math.isnan(filter_us)
-        self._floats[k] = [state.t, *state.q.tolist(), *state.qd.tolist(), *est.q.tolist(), *est.qd.tolist(),
-                           *state.segment_ends.ravel().tolist(), *result.u_nom.tolist(), *result.u.tolist(),
-                           *state.u_applied.tolist(), *state.contact_forces.tolist(), result.rho_pred,
-                           *result.b.tolist(), filter_us]
-        self._flags[k] = [*result.active.tolist(), called and result.infeasible, called and result.recovery]
-        for key, value in state.extras.items():
-            if key not in self._extras:
-                self._extras[key] = np.zeros((self.n_steps,) + np.shape(value))
-            self._extras[key][k] = value
-
-    def columns(self, n_rows: int | None = None) -> dict[str, np.ndarray]:
-        """The first `n_rows` rows (default all) as arrays by key."""
-        rows = self.n_steps if n_rows is None else n_rows
-        columns, start = {}, 0
-        for key, shape in self._float_shapes.items():
-            size = math.prod(shape)
-            columns[key] = self._floats[:rows, start : start + size].reshape((rows,) + shape).copy()
-            start += size
-        p = self._p
-        columns["tip"] = columns["segment_ends"][:, -1].copy()
-        columns["rho_meas"] = np.min(self.safe_set.margin_from_force(columns["contact_force"]), axis=-1)
-        columns["active"] = self._flags[:rows, :p].copy()
-        columns["infeasible"], columns["recovery"] = self._flags[:rows, p].copy(), self._flags[:rows, p + 1].copy()
-        log = {key: columns[key] for key in TIMESERIES_UNITS}
-        log.update({key: value[:rows].copy() for key, value in self._extras.items()})
-        return log
+def plant_series(recorder: Recorder, safe_set: ForceSafeSet, n_rows: int | None = None) -> Series:
+    """The recorder's columns plus tip (m) and ρ_meas (1, from the measured contact force through
+    the controller's force-safe set: its ψ and n_max), and their units (the plant's extras not included)."""
+    columns = recorder.columns(n_rows)
+    columns["tip"] = columns["segment_ends"][:, -1].copy()
+    columns["rho_meas"] = np.min(safe_set.margin_from_force(columns["contact_force"]), axis=-1)
+    units = recorder.units()
+    units.update({key: TIMESERIES_UNITS[key] for key in ("tip", "rho_meas")})
+    return columns, units
 
 
 def run_closed_loop(
     plant: Plant,
-    controller: CBFFilter,
-    nominal: NominalController,
+    step: ControlStep,
+    safe_set: ForceSafeSet,
     duration: float,
     q0: np.ndarray,
     estimator: Callable[[PlantState], Estimate] = exact_state,
     progress: Progress | None = None,
-) -> dict[str, np.ndarray]:
-    """Run for `duration` s from rest at q0; return the time series (`LoopRecorder.columns`)."""
+) -> Series:
+    """Run for `duration` s from rest at q0; return the time series and their units (`plant_series`).
+
+    `safe_set` is the controller's (ρ_meas uses its ψ and n_max).
+    """
     n_steps = int(round(duration / plant.control_dt))
     if n_steps < 1:
         raise ValueError(f"duration must cover at least one control period ({plant.control_dt} s), got {duration}")
-    recorder = LoopRecorder(n_steps, plant.n_segments, controller.safe_set)
-    clock = time.perf_counter
+    recorder = Recorder(n_steps, plant.n_segments, plant_columns(plant.n_segments, safe_set.n_facets))
+    step.reset()
     state = plant.reset(q0)
     for k in range(n_steps):
         est = estimator(state)
-        u_nom = nominal(est.t, est.q, est.qd)
-        t0 = clock()
-        result: CBFResult = controller.step(np.concatenate((est.q, est.qd)), u_nom)
-        filter_us = (clock() - t0) * 1e6
-        recorder.record(k, state, est, result, filter_us)
-        state = plant.step(result.u)
+        record = step(est)
+        recorder.record(k, record, True, plant_values(state, est.q, est.qd), extras=state.extras)
+        state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
     if progress is not None:
         progress.close()
-    return recorder.columns()
+    return plant_series(recorder, safe_set)
