@@ -294,8 +294,8 @@ def paper_cbf_label(params: dict[str, object]) -> str:
 paper_cbf.run_label = paper_cbf_label
 paper_cbf.parameter_docs = {
     "tuning": f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below) [-]",
-    "a_E": "custom tuning: velocity weight of the barrier B [1/s]",
-    "b_E": "custom tuning: velocity offset of the barrier B [1/s]",
+    "a_E": "custom tuning: weight of the velocity term a_E b_E bdot^2 / (1 + b_E bdot^2) of B [1]",
+    "b_E": "custom tuning: velocity scale of that term [s^2/m^2, bdot in row-scaled m/s]",
     "gamma": "custom tuning: class-K gain of the constraint L_fB + L_gB u <= gamma/B [1/s]",
     "qp_backend": f"QP solver ({', '.join(available_backends())}) [-]",
     "recovery_margin": "quasi-static recovery: rest shape inside P by this much [m]",

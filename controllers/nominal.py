@@ -105,5 +105,5 @@ def tip_tracker(context: FilterContext, x_m: float = 0.2, y_m: float = 0.15, dam
 
 
 tip_tracker.parameter_docs = {"x_m": "target tip x [m]", "y_m": "target tip y [m]",
-                              "damping_ratio_gain": "velocity damping k_d [hPa s/rad x gain]",
+                              "damping_ratio_gain": "velocity damping k_d, u -= k_d qd / lambda [N m s/rad]",
                               "mu": "damped-least-squares damping [m]"}

@@ -1,7 +1,8 @@
 """The `softcbf` command line (installed by pyproject.toml's [project.scripts]).
 
-    softcbf list                                   scenarios, one line each, with their parameters
-    softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR] [--overwrite] [--spawn]
+    softcbf list                                   scenarios, filters and nominal controllers with their parameters
+    softcbf run SCENARIO [--PARAM VALUE ...] [--filter SPEC] [--filter-param NAME=VALUE ...]
+                         [--nominal SPEC] [--nominal-param NAME=VALUE ...] [--out DIR] [--overwrite] [--spawn]
     softcbf report RUN_DIR [--no-recording]        rebuild plots/, report.md and recording.rrd
     softcbf report STUDY_DIR                       a study folder's report.md and plots/
     softcbf study run STUDY_FILE --out DIR | report DIR   robustness studies (softcbf.study)
@@ -9,7 +10,9 @@
     softcbf --version
 
 `run` runs a registered scenario (`scenarios.registry`): its parameters are its keyword
-arguments, spelt with dashes (`--pressure-limits true`); `--out` defaults to
+arguments, spelt with dashes (`--pressure-limits true`); `--filter-param NAME=VALUE` and
+`--nominal-param NAME=VALUE` (repeatable) add to the scenario's `filter_params` and
+`nominal_params` (`scenarios.common`: the controller under test); `--out` defaults to
 runs/<scenario>-<YYYYmmdd-HHMMSS>. The run folder gets config.json, summary.json,
 timeseries/*.npz, plots/*.png, report.md and recording.rrd (softcbf_mj.runio), the report
 and the recording rebuilt after every finished tuning, so an interrupted run (Ctrl-C,
@@ -45,6 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import softcbf_mj
+from controllers import registry as controllers_registry
 from scenarios import Scenario, get, registry
 from softcbf import hardware_cli
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, RunFolderError, prepare_out_dir, read_run_folder, versions
@@ -59,6 +63,7 @@ INTERRUPTED = 130
 DEFAULT_RUNS_DIR = Path("runs")
 _TRUE = ("1", "true", "yes", "on")
 _FALSE = ("0", "false", "no", "off")
+PLUGIN_PARAMS = ("filter_params", "nominal_params")  # scenario parameters also given by repeated --filter-param / --nominal-param
 
 
 class UsageError(Exception):
@@ -123,14 +128,23 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str]) -> dict[str, 
 
         typed.__name__ = type_name
         parser.add_argument(_option(name), dest=name, type=typed, default=p.default)
+    repeated = {name: _option(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
+    for name, option in repeated.items():
+        parser.add_argument(option, dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE")
     try:
         known, unknown = parser.parse_known_args(list(tokens))
     except UsageError as exc:
         raise UsageError(str(exc).removeprefix(f"{parser.prog}: argument ")) from None
     if unknown:
-        valid = ", ".join(_option(n) for n in params)
+        valid = ", ".join([*(_option(n) for n in params), *repeated.values()])
         raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
-    return vars(known)
+    values = vars(known)
+    for name, option in repeated.items():
+        items = values.pop(f"{name}_items")
+        if any("=" not in item for item in items):
+            raise UsageError(f"{option} takes NAME=VALUE, got {' '.join(i for i in items if '=' not in i)}")
+        values[name] = ";".join(part for part in (values[name], *items) if part)
+    return values
 
 
 def _outputs_summary(out_dir: Path) -> str:
@@ -226,8 +240,18 @@ def register_command(name: str, help: str, add_arguments: Callable[[argparse.Arg
     return COMMANDS[name]
 
 
+def list_text() -> str:
+    """`softcbf list`: the scenarios, then the filters and nominal controllers with every parameter's meaning, unit and default."""
+    lines = ["scenarios:", *(describe(s) for s in registry().values()), "",
+             "filters (--filter NAME, or FILE.py:Factory / package.module:Factory; --filter-param NAME=VALUE):"]
+    lines += [controllers_registry.describe(name, f) for name, f in controllers_registry.FILTERS.items()]
+    lines += ["", "nominal controllers (--nominal NAME, or FILE.py:Factory returning (t, q, qd) -> u_nom; --nominal-param NAME=VALUE):"]
+    lines += [controllers_registry.describe(name, f) for name, f in controllers_registry.NOMINALS.items()]
+    return "\n".join(lines)
+
+
 def _list(args: argparse.Namespace, extra: list[str]) -> int:
-    print("\n".join(describe(s) for s in registry().values()))
+    print(list_text())
     return 0
 
 
@@ -270,7 +294,7 @@ def _report(args: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
-register_command("list", "list the scenarios with their parameters", None, _list)
+register_command("list", "list the scenarios, filters and nominal controllers with their parameters", None, _list)
 register_command("run", "run a scenario: softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR]", _run_args, _run,
                  extra_args=True)
 register_command("report", "rebuild a run or study folder's plots and report.md (and a run's recording.rrd) from its saved data",

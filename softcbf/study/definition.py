@@ -8,6 +8,12 @@ A study runs one registered scenario (`scenarios`, SPEC §8) many times. Its par
   anything the scenario takes as a parameter);
 - `tunings` and `tuning_parameter`: the scenario parameter that names the tuning (default
   `tunings`) and the tunings to compare;
+- the controller under test: `filter` and a `[filter_params]` table go into `fixed` (the
+  scenario's `filter` and `filter_params`, scenarios.common); `vary."filter_param.NAME"`
+  varies one filter parameter (float unless dist = "choice"), folded into the sample's
+  `filter_params` after the fixed ones; to compare filters, set `tuning_parameter =
+  "filter"` and list the filter specs in `tunings` (each with its own defaults; fix
+  the paper filter's `tunings` to one preset);
 - `sampling`: "monte_carlo" (`draws` seeded draws) or "grid" (the Cartesian product of
   every distribution's grid, the first parameter varying slowest); `seed`.
 
@@ -64,7 +70,10 @@ from scenarios import get as get_scenario
 SAMPLINGS = ("monte_carlo", "grid")
 KINDS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"), "choice": ("values",)}
 SEED_PARAMETER = "seed"  # the scenario parameter that receives scenario_seed
-_STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description"}
+FILTER_PARAM_PREFIX = "filter_param."  # vary."filter_param.NAME": one parameter of the filter
+FILTER_PARAMS = "filter_params"  # the scenario parameter they are folded into
+_STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description",
+               "filter", "filter_params"}
 
 
 @dataclass(frozen=True)
@@ -199,13 +208,19 @@ class Study:
         if len(set(varied)) != len(varied):
             raise ValueError(f"each parameter may be varied once, got {varied}")
         for name in [*self.fixed, *varied]:
+            if name.startswith(FILTER_PARAM_PREFIX) and FILTER_PARAMS in params and name != FILTER_PARAM_PREFIX:
+                continue
             if name not in params:
                 raise ValueError(f"scenario {self.scenario!r} has no parameter {name!r}; parameters: {', '.join(params)}")
         clash = ({self.tuning_parameter} & (set(self.fixed) | set(varied))) | (set(self.fixed) & set(varied))
         if clash:
             raise ValueError(f"parameter(s) {sorted(clash)} are given more than once (fixed, vary or tuning_parameter)")
         object.__setattr__(self, "fixed", {k: _check_type(k, v, hints[k]) for k, v in self.fixed.items()})
+        if set(self.fixed) & {d.parameter for d in self.vary if d.parameter.startswith(FILTER_PARAM_PREFIX)}:
+            raise ValueError("filter_param.NAME may only be varied (fixed filter parameters go in filter_params)")
         for dist in self.vary:
+            if dist.parameter.startswith(FILTER_PARAM_PREFIX):
+                continue  # the filter checks its own parameters when it is built
             if hints[dist.parameter] is not float and dist.kind != "choice":
                 raise ValueError(f"parameter {dist.parameter!r} takes {hints[dist.parameter].__name__} values: "
                                  f"use dist = 'choice' with a list of values, not {dist.kind!r}")
@@ -249,7 +264,10 @@ class Study:
         else:
             values = {d.parameter: d.draw(rng) for d in self.vary}
         kwargs = dict(self.fixed)
-        kwargs.update(values)
+        kwargs.update({k: v for k, v in values.items() if not k.startswith(FILTER_PARAM_PREFIX)})
+        varied = [f"{k.removeprefix(FILTER_PARAM_PREFIX)}={v}" for k, v in values.items() if k.startswith(FILTER_PARAM_PREFIX)]
+        if varied:
+            kwargs[FILTER_PARAMS] = ";".join(part for part in (kwargs.get(FILTER_PARAMS, ""), *varied) if part)
         kwargs[self.tuning_parameter] = self.tunings[t]
         parameters = get_scenario(self.scenario).parameters()
         if SEED_PARAMETER in parameters and SEED_PARAMETER not in kwargs:
@@ -286,8 +304,17 @@ class Study:
                 raise ValueError(f"vary.{parameter}: unknown key(s) {sorted(extra)}")
             kind = spec.pop("dist")
             vary.append(Distribution(parameter, kind, **spec))
+        fixed = dict(data.get("fixed", {}))
+        for key in ("filter", FILTER_PARAMS):
+            if key in data:
+                if key in fixed:
+                    raise ValueError(f"{key} is given twice (top level and fixed)")
+                value = data[key]
+                if key == FILTER_PARAMS and isinstance(value, dict):
+                    value = ";".join(f"{k}={v}" for k, v in value.items())
+                fixed[key] = value
         return cls(name=data["name"], scenario=data["scenario"], tunings=tuple(data["tunings"]), vary=tuple(vary),
-                   fixed=dict(data.get("fixed", {})), sampling=data.get("sampling", "monte_carlo"),
+                   fixed=fixed, sampling=data.get("sampling", "monte_carlo"),
                    draws=data.get("draws"), seed=data.get("seed", 0),
                    tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""))
 
