@@ -230,3 +230,19 @@ def test_example_filter_runs_on_the_hardware_emulator(tmp_path):
     series, _ = load_timeseries(tmp_path / "hw" / row["timeseries"])
     assert np.all(np.abs(series["u_sent"]) <= 40.0 + 0.05) and series["u_nom"].max() > 0
     np.testing.assert_array_equal(series["u_filter"], np.clip(series["u_nom"], -40.0, 40.0))
+
+
+def test_hardware_cli_takes_a_filter_and_refuses_a_bad_parameter(tmp_path, capsys):
+    import argparse
+
+    from softcbf.hardware_cli import add_arguments, configure, main as hardware_main
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    example = REPO / "examples" / "hardware_emulated.toml"
+    args = parser.parse_args([str(example), "--filter", f"{EXAMPLE_FILTER}:ClipFilter", "--filter-param", "limit_hPa=60"])
+    config = configure(args)
+    assert config.control.filter == f"{EXAMPLE_FILTER}:ClipFilter" and config.control.filter_arguments() == {"limit_hPa": "60"}
+    assert hardware_main([str(example), "--filter", f"{EXAMPLE_FILTER}:ClipFilter", "--filter-param", "limit=1",
+                          "--out", str(tmp_path / "o")]) == 2
+    assert "control.filter: unknown parameter(s) limit for ClipFilter" in capsys.readouterr().err
