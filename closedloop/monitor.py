@@ -55,9 +55,10 @@ class SafetyFlags:
 NO_FLAGS = SafetyFlags()  # nothing raised
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False, slots=True)
 class SafetyDecision:
-    """What to send this cycle: the action, the pressures (hPa, (N,); zeros for VENT) and the raised flags."""
+    """What to send this cycle: the action, the pressures (hPa, (N,); zeros for VENT) and the raised flags.
+    Made every control call (not frozen: cheaper); nothing modifies it."""
 
     action: SafeAction
     u: np.ndarray
@@ -94,15 +95,16 @@ class SafetyMonitor:
         if not (math.isfinite(t) and t >= self._t):
             raise ValueError(f"t must be finite and non-decreasing, got {t} after {self._t}")
         self._t = t
-        u = None if u_cmd is None else np.asarray(u_cmd, dtype=float)
+        u = None if u_cmd is None else np.array(u_cmd, dtype=float)  # a copy: the monitor keeps it
         if u is not None and u.shape != (self.n_segments,):
             raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")
-        if (u is None or not np.isfinite(u).all()) and not flags.command_nonfinite:
+        finite = u is not None and all(map(math.isfinite, u.tolist()))
+        if not finite and not flags.command_nonfinite:
             flags = replace(flags, command_nonfinite=True)
         if flags is NO_FLAGS and self._vent_reasons is None:  # the common case: RUN, nothing raised
             self._hold_since = None
-            self._last_run = u.copy()
-            return SafetyDecision(SafeAction.RUN, self._last_run, ())
+            self._last_run = u
+            return SafetyDecision(SafeAction.RUN, u, ())
         reasons = flags.raised()
         if flags.interrupted or flags.link_lost:
             return self._vent(reasons)
@@ -115,7 +117,7 @@ class SafetyMonitor:
                 return self._vent(reasons)
             return SafetyDecision(SafeAction.HOLD, self._last_run.copy(), reasons)
         self._hold_since = None
-        self._last_run = u.copy()
+        self._last_run = u
         return SafetyDecision(SafeAction.RUN, u.copy(), reasons)
 
     def _vent(self, reasons: tuple[str, ...]) -> SafetyDecision:

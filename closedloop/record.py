@@ -58,14 +58,14 @@ TIMESERIES_UNITS = {
     "link_lost": "bool",
     "late_s": "s (cycle start after its scheduled time)",
 }
-STEP_COLUMNS = ("u_nom", "u_filter", "u", "rho_pred", "filter_us", "action")  # float columns of the step, in row order
 
 
 class Recorder:
-    """Preallocated time series of `n_steps` rows (module docstring).
+    """Preallocated time series of `n_steps` rows (module docstring), one float matrix.
 
     loop_columns: key → shape of the loop's float columns, in the order `record` gets
-    their values; loop_flags: keys of the loop's boolean columns, likewise.
+    their values; loop_flags: keys of the loop's boolean columns, likewise. Booleans and
+    the action code are stored as floats and typed back by `columns`.
     """
 
     def __init__(self, n_steps: int, n_segments: int, loop_columns: Mapping[str, tuple[int, ...]],
@@ -75,19 +75,22 @@ class Recorder:
             raise ValueError(f"loop columns must be keys of TIMESERIES_UNITS, got {unknown}")
         n = n_segments
         self.n_steps, self.n_segments = n_steps, n
-        self._float_shapes = dict(loop_columns)
-        self._float_shapes.update({"u_nom": (n,), "u_filter": (n,), "u": (n,), "rho_pred": (), "filter_us": (), "action": ()})
-        self._flag_keys = (*loop_flags, "infeasible")
-        self._floats = np.full((n_steps, sum(math.prod(s) for s in self._float_shapes.values())), math.nan)
-        self._flags = np.zeros((n_steps, len(self._flag_keys)), dtype=bool)
-        self._nan_n = [math.nan] * n
-        self._held_filter = [*self._nan_n, math.nan]  # u_filter, rho_pred of the output in force
+        # (key, shape, dtype) in row order: the loop's floats, the loop's flags, the step's columns, then diagnostics
+        self._layout: list[tuple[str, tuple[int, ...], type]] = [
+            *((key, tuple(shape), float) for key, shape in loop_columns.items()),
+            *((key, (), bool) for key in loop_flags),
+            ("u_nom", (n,), float), ("u_filter", (n,), float), ("u", (n,), float), ("rho_pred", (), float),
+            ("infeasible", (), bool), ("filter_us", (), float), ("action", (), np.int8),
+        ]
+        self._floats = np.full((n_steps, sum(math.prod(s) for _, s, _ in self._layout)), math.nan)
+        self._n_loop = len(loop_columns) + len(loop_flags)
+        self._held_filter = [math.nan] * (n + 1)  # u_filter, rho_pred of the output in force
         self._diag_layout: list[tuple[str, tuple[int, ...], bool]] | None = None  # key, shape, bool
         self._diag_units: dict[str, str] = {}
-        self._diag: np.ndarray | None = None
         self._diag_called: list = []
-        self._diag_held: list = []
         self._cached_step: StepRecord | None = None
+        self._row_called: list = []
+        self._row_held: list | None = None
         self._extras: dict[str, np.ndarray] = {}
 
     def record(self, k: int, step: StepRecord, called: bool, values: Sequence[float], flags: Sequence[bool] = (),
@@ -97,12 +100,12 @@ class Recorder:
         (a plant's own signals; the caller declares their units)."""
         if step is not self._cached_step:
             self._cache(step)
-        self._floats[k] = [*values, *step.u_nom.tolist(), *self._held_filter[:-1], *step.u.tolist(),
-                           self._held_filter[-1], step.filter_us if called else math.nan, ACTION_CODES[step.action]]
-        output = step.output
-        self._flags[k] = [*flags, called and output is not None and bool(output.infeasible)]
-        if self._diag is not None:
-            self._diag[k] = self._diag_called if called and output is not None else self._diag_held
+        if called and step.output is not None:
+            self._floats[k] = [*values, *flags, *self._row_called]
+        else:
+            if self._row_held is None:
+                self._row_held = self._held_row()
+            self._floats[k] = [*values, *flags, *self._row_held]
         if extras:
             for key, value in extras.items():
                 if key not in self._extras:
@@ -110,69 +113,78 @@ class Recorder:
                 self._extras[key][k] = value
 
     def _cache(self, step: StepRecord) -> None:
-        """The filter's values of a new step: its own output's, or the last output's when it has none."""
-        self._cached_step = step
+        """The row of a new step (its output's values, or the last output's when it has none)."""
+        self._cached_step, self._row_held = step, None
         output = step.output
-        if output is None:
-            return
-        self._held_filter = [*np.asarray(output.u, dtype=float).tolist(), float(output.rho_pred)]
-        if output.diagnostics or self._diag_layout is not None:
-            if self._diag_layout is None:
-                self._layout(output)
-            self._diag_called, self._diag_held = self._flatten(output)
+        if output is not None:
+            u = output.u if isinstance(output.u, np.ndarray) else np.asarray(output.u, dtype=float)
+            self._held_filter = [*u.tolist(), float(output.rho_pred)]
+            if output.diagnostics or self._diag_layout is not None:
+                if self._diag_layout is None:
+                    self._add_diagnostics(output)
+                self._diag_called = self._flatten(output)
+        held = self._held_filter
+        self._row_called = [*step.u_nom.tolist(), *held[:-1], *step.u.tolist(), held[-1],
+                            output is not None and bool(output.infeasible), step.filter_us, ACTION_CODES[step.action],
+                            *self._diag_called]
 
-    def _layout(self, output: FilterOutput) -> None:
-        clash = sorted(set(output.diagnostics) & (set(TIMESERIES_UNITS) | set(self._float_shapes)))
+    def _held_row(self) -> list:
+        """A row without the filter's call: no infeasible, no filter time, scalar boolean diagnostics False."""
+        row = list(self._row_called)
+        n = self.n_segments
+        row[3 * n + 1], row[3 * n + 2] = False, math.nan  # infeasible, filter_us (after u_nom, u_filter, u, rho_pred)
+        if self._diag_layout is not None:
+            i = 3 * n + 4  # after action
+            for _, shape, is_bool in self._diag_layout:
+                if not shape and is_bool:
+                    row[i] = False
+                i += math.prod(shape)
+        return row
+
+    def _add_diagnostics(self, output: FilterOutput) -> None:
+        """Columns for the filter's diagnostics, NaN on the rows before its first output."""
+        taken = {key for key, _, _ in self._layout}
+        clash = sorted(set(output.diagnostics) & (set(TIMESERIES_UNITS) | taken))
         if clash:
             raise ValueError(f"filter diagnostics must not reuse the loop's column names, got {clash}")
         self._diag_layout = [(key, np.shape(value), np.asarray(value).dtype == bool)
                              for key, value in output.diagnostics.items()]
         self._diag_units = {key: str(output.diagnostic_units[key]) for key in output.diagnostics}
-        self._diag = np.full((self.n_steps, sum(math.prod(s) for _, s, _ in self._diag_layout)), math.nan)
+        self._layout += [(key, shape, bool if is_bool else float) for key, shape, is_bool in self._diag_layout]
+        size = sum(math.prod(s) for _, s, _ in self._diag_layout)
+        self._floats = np.hstack((self._floats, np.full((self.n_steps, size), math.nan)))
 
-    def _flatten(self, output: FilterOutput) -> tuple[list, list]:
-        """(values on the call's row, values held on later rows): scalar booleans only on the call's row."""
+    def _flatten(self, output: FilterOutput) -> list:
+        """The diagnostics' values on the call's row, flattened in their layout's order."""
         diagnostics = output.diagnostics
-        if [key for key, _, _ in self._diag_layout] != list(diagnostics):
-            raise ValueError(f"filter diagnostics must keep their keys over a run: first "
-                             f"{[key for key, _, _ in self._diag_layout]}, now {list(diagnostics)}")
-        called, held = [], []
-        for key, shape, is_bool in self._diag_layout:
-            value = diagnostics[key]
-            if shape:
-                flat = np.asarray(value, dtype=float).ravel().tolist()
-                if len(flat) != math.prod(shape):
-                    raise ValueError(f"filter diagnostic {key!r} must keep its shape {shape} over a run, got {np.shape(value)}")
-                called += flat
-                held += flat
-            else:
-                called.append(float(value))
-                held.append(0.0 if is_bool else float(value))
-        return called, held
+        flat: list = []
+        try:
+            for key, shape, _ in self._diag_layout:
+                value = diagnostics[key]
+                if not shape:
+                    flat.append(value)
+                elif len(shape) == 1 and type(value) is np.ndarray and value.shape == shape:
+                    flat += value.tolist()
+                else:
+                    flat += np.asarray(value, dtype=float).reshape(shape).ravel().tolist()
+        except (KeyError, ValueError):
+            raise ValueError(f"filter diagnostics must keep their keys and shapes over a run: first "
+                             f"{[(key, shape) for key, shape, _ in self._diag_layout]}, now "
+                             f"{[(key, np.shape(value)) for key, value in diagnostics.items()]}") from None
+        return flat
 
     def units(self) -> dict[str, str]:
         """The units of every column `columns` returns except the extras."""
-        units = {key: TIMESERIES_UNITS[key] for key in (*self._float_shapes, *self._flag_keys)}
-        units.update(self._diag_units)
-        return units
+        return {key: self._diag_units.get(key) or TIMESERIES_UNITS[key] for key, _, _ in self._layout}
 
     def columns(self, n_rows: int | None = None) -> dict[str, np.ndarray]:
         """The first `n_rows` rows (default all) as arrays by key."""
         rows = self.n_steps if n_rows is None else n_rows
         columns, start = {}, 0
-        for key, shape in self._float_shapes.items():
+        for key, shape, dtype in self._layout:
             size = math.prod(shape)
-            columns[key] = self._floats[:rows, start : start + size].reshape((rows,) + shape).copy()
+            block = self._floats[:rows, start : start + size].reshape((rows,) + shape)
+            columns[key] = np.nan_to_num(block, nan=0.0).astype(dtype) if dtype is not float else block.copy()
             start += size
-        columns["action"] = columns["action"].astype(np.int8)
-        for i, key in enumerate(self._flag_keys):
-            columns[key] = self._flags[:rows, i].copy()
-        if self._diag is not None:
-            start = 0
-            for key, shape, is_bool in self._diag_layout:
-                size = math.prod(shape)
-                block = self._diag[:rows, start : start + size].reshape((rows,) + shape)
-                columns[key] = np.nan_to_num(block, nan=0.0).astype(bool) if is_bool else block.copy()
-                start += size
         columns.update({key: value[:rows].copy() for key, value in self._extras.items()})
         return columns

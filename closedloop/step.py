@@ -40,11 +40,12 @@ from controllers.safety_filter import Estimate, FilterContext, FilterOutput, Saf
 ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}  # the time series' `action` column
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False, slots=True)
 class StepRecord:
     """One control call: the estimate, u_nom (N,) hPa (NaN if the nominal raised), the
     filter's output (None: not called or raised), the command sent u (N,) hPa, the
-    monitor's action and raised flags, and the filter's time filter_us (µs; NaN: not called)."""
+    monitor's action and raised flags, and the filter's time filter_us (µs; NaN: not called).
+    Not frozen (it is made every control call); nothing modifies it."""
 
     estimate: Estimate
     u_nom: np.ndarray
@@ -96,7 +97,7 @@ class ControlStep:
         u = np.asarray(u_filter, dtype=float)
         if u.shape != (self.n,):
             raise ValueError(f"the filter returned a command of shape {u.shape}, expected ({self.n},) hPa")
-        if not np.isfinite(u).all():
+        if not all(map(math.isfinite, u.tolist())):  # Python floats: faster than numpy for N ~ 2
             return None
         if self.context.u_min is None:
             return u

@@ -99,8 +99,8 @@ class FilterOutput:
     diagnostic_units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        missing = set(self.diagnostics) - set(self.diagnostic_units)
-        if missing:
+        if self.diagnostics and not self.diagnostics.keys() <= self.diagnostic_units.keys():
+            missing = set(self.diagnostics) - set(self.diagnostic_units)
             raise ValueError(f"diagnostic_units must declare a unit for every diagnostic, missing {sorted(missing)}")
 
 
