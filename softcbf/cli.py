@@ -12,7 +12,9 @@
 `run` runs a registered scenario (`scenarios.registry`): its parameters are its keyword
 arguments, spelt with dashes (`--pressure-limits true`); `--filter-param NAME=VALUE` and
 `--nominal-param NAME=VALUE` (repeatable) add to the scenario's `filter_params` and
-`nominal_params` (`scenarios.common`: the controller under test); `--out` defaults to
+`nominal_params` (`scenarios.common`: the controller under test), and `--tuning NAME` is
+`--filter-param tuning=NAME` (one run of that paper-cbf preset, or `--tuning custom
+--filter-param a_E=5 --filter-param b_E=5 --filter-param gamma=5`); `--out` defaults to
 runs/<scenario>-<YYYYmmdd-HHMMSS>. The run folder gets config.json, summary.json,
 timeseries/*.npz, plots/*.png, report.md and recording.rrd (softcbf_mj.runio), the report
 and the recording rebuilt after every finished tuning, so an interrupted run (Ctrl-C,
@@ -131,6 +133,8 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str]) -> dict[str, 
     repeated = {name: _option(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
     for name, option in repeated.items():
         parser.add_argument(option, dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE")
+    if "filter_params" in repeated and "tuning" not in params:  # --tuning X: the filter's tuning (one run), SPEC §9
+        parser.add_argument("--tuning", dest="filter_params_items", action="append", type=lambda v: f"tuning={v}")
     try:
         known, unknown = parser.parse_known_args(list(tokens))
     except UsageError as exc:
@@ -243,7 +247,8 @@ def register_command(name: str, help: str, add_arguments: Callable[[argparse.Arg
 def list_text() -> str:
     """`softcbf list`: the scenarios, then the filters and nominal controllers with every parameter's meaning, unit and default."""
     lines = ["scenarios:", *(describe(s) for s in registry().values()), "",
-             "filters (--filter NAME, or FILE.py:Factory / package.module:Factory; --filter-param NAME=VALUE):"]
+             "filters (--filter NAME, or FILE.py:Factory / package.module:Factory; --filter-param NAME=VALUE; "
+             "paper-cbf: --tunings P1,P2 or --tuning PRESET|custom):"]
     lines += [controllers_registry.describe(name, f) for name, f in controllers_registry.FILTERS.items()]
     lines += ["", "nominal controllers (--nominal NAME, or FILE.py:Factory returning (t, q, qd) -> u_nom; --nominal-param NAME=VALUE):"]
     lines += [controllers_registry.describe(name, f) for name, f in controllers_registry.NOMINALS.items()]
