@@ -73,6 +73,9 @@ class ControlStep:
             raise ValueError(f"monitor has {self.monitor.n_segments} segments, the robot {self.n}")
         self.clock = clock
         self._nan_n = np.full(self.n, math.nan)
+        bounded = context.u_min is not None
+        self._lo = context.u_min.tolist() if bounded else None
+        self._hi = context.u_max.tolist() if bounded else None
 
     def reset(self) -> None:
         """Before a run: the filter's own `reset()`, when it has one."""
@@ -97,11 +100,12 @@ class ControlStep:
         u = np.asarray(u_filter, dtype=float)
         if u.shape != (self.n,):
             raise ValueError(f"the filter returned a command of shape {u.shape}, expected ({self.n},) hPa")
-        if not all(map(math.isfinite, u.tolist())):  # Python floats: faster than numpy for N ~ 2
+        values = u.tolist()  # Python floats: faster than numpy for N ~ 2
+        if not all(map(math.isfinite, values)):
             return None
-        if self.context.u_min is None:
+        if self._lo is None:
             return u
-        return np.minimum(np.maximum(u, self.context.u_min), self.context.u_max)
+        return np.array([min(max(v, lo), hi) for v, lo, hi in zip(values, self._lo, self._hi)])
 
     def wait(self, estimate: Estimate) -> StepRecord:
         """A call before the loop has its first estimate (camera start-up): the filter and the
