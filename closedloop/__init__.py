@@ -1,4 +1,4 @@
-"""The closed loop's controller side, shared by every clock (SPEC §9): numpy only, no MuJoCo, no I/O.
+"""The closed loop's controller side, shared by every clock (docs/safety-filter.md): numpy only, no MuJoCo, no I/O.
 
 - `closedloop.step`: `ControlStep`, the one control step (estimate → nominal → filter →
   admission → safety monitor → command) and its `StepRecord`;

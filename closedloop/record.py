@@ -93,6 +93,16 @@ class Recorder:
         self._row_held: list | None = None
         self._extras: dict[str, np.ndarray] = {}
 
+    @staticmethod
+    def bytes_needed(n_steps: int, n_segments: int, loop_columns: Mapping[str, tuple[int, ...]],
+                     loop_flags: Sequence[str] = (), diagnostic_floats: int = 0, extra_floats: int = 0) -> int:
+        """Peak memory of `n_steps` rows: the float matrix twice (widened once by the filter's
+        `diagnostic_floats` columns, and copied again by `columns`) plus `extra_floats` a row."""
+        n = n_segments
+        width = (sum(math.prod(shape) for shape in loop_columns.values()) + len(loop_flags)
+                 + 3 * n + 4 + diagnostic_floats)
+        return 8 * n_steps * (2 * width + extra_floats)
+
     def record(self, k: int, step: StepRecord, called: bool, values: Sequence[float], flags: Sequence[bool] = (),
                extras: Mapping[str, object] | None = None) -> None:
         """Row k: the loop's values (floats, then flags, in their declared order), the step in

@@ -1,4 +1,4 @@
-"""The one control step shared by the three clocks (SPEC §9): the simulated loop, the camera loop and the hardware loop.
+"""The one control step shared by the three clocks (docs/safety-filter.md): the simulated loop, the camera loop and the hardware loop.
 
 Each loop owns its clock and its I/O; at each control call it hands `ControlStep` the
 controller's view of the state (`controllers.safety_filter.Estimate`: t, t_capture in s,

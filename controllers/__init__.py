@@ -3,7 +3,7 @@
 Public API (importable from `controllers` directly; each name is loaded from its module
 on first use, so `import controllers.params` stays cheap):
 
-- the plug-in contract (`controllers.safety_filter`, SPEC §9): `SafetyFilter`,
+- the plug-in contract (`controllers.safety_filter`, docs/safety-filter.md): `SafetyFilter`,
   `Estimate`, `EstimateBatch`, `FilterOutput`, `BatchOutput`, `FilterContext`,
   `PassThroughFilter`, `as_output`, `reset_filter`, `filter_batch`;
 - the registry (`controllers.registry`): `FILTERS`, `NOMINALS`, `build_filter`,

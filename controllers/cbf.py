@@ -1,4 +1,4 @@
-"""Control barrier function of the force-safe set (SPEC §5, paper eqns 9–10).
+"""Control barrier function of the force-safe set (docs/model.md#control-barrier-function, paper eqns 9–10).
 
 For each row i of the force-safe set P = {r | H' r ≤ h'} (H' shape (P, 2), h' shape
 (P,), in the caller's row scaling, so b is in "row-scaled metres"):

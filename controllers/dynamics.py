@@ -1,4 +1,4 @@
-"""Augmented-body (RPPR) dynamics of the planar PCC arm (SPEC §3).
+"""Augmented-body (RPPR) dynamics of the planar PCC arm (docs/model.md#rppr-dynamics).
 
 State x = [q; q̇] ∈ R^{2N} (rad, rad/s); input u ∈ R^N (hPa). Each segment is one
 rigid body at its chord midpoint c_i (see `controllers.pcc`) with mass m_i (kg),
@@ -16,15 +16,15 @@ the centripetal/Coriolis accelerations of the bodies (the rotational term has no
 velocity part: φ is linear in q); that is how the per-step path computes it.
 
 Per-step path (`evaluate`, `acceleration`, `state_derivative`; unchecked Python-list
-entry points `_core`, `_eval`, `_acceleration` for the filter and the PCC plant): Python
+entry points `model_terms`, `evaluate_floats`, `acceleration_from_terms` for the filter and the PCC plant): Python
 scalars on top of `pcc.step_kinematics`, with M⁻¹ in closed form for N ≤ 2 and M,
 C q̇ unrolled for N = 2 (the same floats), because numpy's per-call overhead dominates
-such small arrays. `_core` keeps the last state's terms, so a plant and a filter sharing
+such small arrays. `model_terms` keeps the last state's terms, so a plant and a filter sharing
 one `PCCDynamics` evaluate each measured state once. Derivative terms (∂M/∂q, C, the
 Jacobians of q̈) use the tensor path `pcc.kinematics`; the tests check both against
 each other and against finite differences.
 
-Energies: kinetic T = ½ q̇ᵀ M q̇, elastic V = ½ qᵀ K q (J); no gravity (SPEC §1).
+Energies: kinetic T = ½ q̇ᵀ M q̇, elastic V = ½ qᵀ K q (J); no gravity (docs/model.md#frames-units-conventions).
 
 The plant's implicit integrators get the analytic Jacobians of q̈ = M⁻¹(Λu − Cq̇ − Dq̇ − Kq):
     ∂q̈/∂q = −M⁻¹ (∂(M q̈ + C q̇)/∂q |_{q̈, q̇ fixed} + K),  ∂q̈/∂q̇ = −M⁻¹ (∂(C q̇)/∂q̇ + D),
@@ -104,7 +104,9 @@ class ModelTerms(NamedTuple):
 
 
 def spd_inverse(m: list[list[float]]) -> list[list[float]]:
-    """M⁻¹ of a small SPD matrix; closed form for N ≤ 2 (np.linalg.inv costs ~5 µs)."""
+    """M⁻¹ of a small SPD matrix given as nested Python float lists; closed form for N ≤ 2
+    (np.linalg.inv costs ~5 µs). For per-step integrators (this module, the PCC plant, the
+    governors' state predictor)."""
     if len(m) == 1:
         return [[1.0 / m[0][0]]]
     if len(m) == 2:
@@ -129,7 +131,7 @@ class PCCDynamics:
         self._mass_rot = (a.T @ (params.array("inertias")[:, None] * a)).tolist()
         self._scalars = (self._masses.tolist(), params.damping, params.stiffness, list(params.gains), list(params.lengths))
         self._stiffness_damping = np.hstack((self.K, self.D))
-        self._last: tuple = (None, None, None)  # (q, q̇, ModelTerms) of the last `_core` call
+        self._last: tuple = (None, None, None)  # (q, q̇, ModelTerms) of the last `model_terms` call
 
     @property
     def K(self) -> np.ndarray:
@@ -259,6 +261,16 @@ class PCCDynamics:
         q, qd = self._state(q, qd)
         core = self.model_terms(q.tolist(), qd.tolist())
         return np.array(self.acceleration_from_terms(core, self._command(u).tolist())), np.array(core.mass)
+
+    def acceleration_and_mass_unchecked(self, q: list[float], qd: list[float], u: list[float]) -> tuple[list[float], list[list[float]]]:
+        """`acceleration_and_mass` on Python float lists (N,), unchecked: (q̈, M) as lists.
+
+        For per-step integrators outside this module (the governors' state predictor), where
+        numpy's per-call overhead would dominate at N ≈ 2; the caller guarantees finite
+        inputs of length N. Same floats as `acceleration_and_mass` (tested).
+        """
+        core = self.model_terms(q, qd)
+        return self.acceleration_from_terms(core, u), core.mass
 
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""

@@ -1,4 +1,4 @@
-"""The paper's CBF safety filter: state estimate + nominal command → safe command (SPEC §5).
+"""The paper's CBF safety filter: state estimate + nominal command → safe command (docs/model.md#control-barrier-function).
 
 A plug-in of `controllers.safety_filter`: `CBFFilter(estimate, u_nom)` returns a
 `FilterOutput` whose diagnostics hold the CBF's own terms (CBF_DIAGNOSTIC_UNITS);
@@ -25,7 +25,7 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   rows take over. Rows still inside P keep their CBF rows; `recovery` is flagged.
   (Rules based on the instantaneous b̈, e.g. an exponential CBF on b or 'maximise b̈',
   settle at a box corner whose rest shape is outside P: the tip stays outside for
-  tens of seconds. SPEC §5 reports the same; tests/test_filter.py checks this rule
+  tens of seconds. docs/model.md#control-barrier-function reports the same; tests/test_filter.py checks this rule
   over time.)
 - "slack": the rows and the bounds cannot all hold (infeasible). The filter solves the
   least-violation QP over (u, s), one slack per row in hPa-equivalent units (rows
@@ -34,7 +34,7 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
       and, as hard rows, the quasi-static rows above for every row of P,
   with w = `slack_weight` (default 1e6: 1 hPa of violation costs as much as 1000 hPa of
   deviation from u_nom). The hard quasi-static rows stop the least-violation command
-  from settling at a box corner whose rest shape is outside P (the trap of SPEC §5);
+  from settling at a box corner whose rest shape is outside P (the trap of docs/model.md#control-barrier-function);
   if they cannot hold with the bounds, they are dropped. `infeasible` is flagged and
   `slack` holds max_i s_i.
 - "vent": only if a solver fails outright: u = 0 hPa clipped to the limits (the arm
@@ -54,12 +54,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.cbf import B_MIN, TUNINGS, Tuning, barrier_rows, get_tuning
+from controllers.cbf_batch import SCALAR_BELOW, cbf_qp_batch
+from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
 from controllers.qp import DEFAULT_BACKEND, dot_lists, solve_lists, available_backends
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
 
 ACTIONS = ("disabled", "nominal", "qp", "recovery", "slack", "vent")
 
@@ -116,6 +118,7 @@ class CBFFilter:
         recovery_margin: float = 1e-3,
         slack_weight: float = 1e6,
         dynamics: PCCDynamics | None = None,
+        batch_dynamics: BatchDynamics | None = None,
     ) -> None:
         if qp_backend not in available_backends():
             raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
@@ -125,6 +128,8 @@ class CBFFilter:
             raise ValueError(f"recovery_margin must be >= 0 m, got {recovery_margin}")
         if dynamics is not None and dynamics.params != params:
             raise ValueError("dynamics must be a PCCDynamics of the same params as the filter")
+        if batch_dynamics is not None and batch_dynamics.params != params:
+            raise ValueError("batch_dynamics must be a BatchDynamics of the same params as the filter")
         self.params = params
         self.safe_set = safe_set
         self.tuning = tuning
@@ -133,6 +138,7 @@ class CBFFilter:
         self.recovery_margin = float(recovery_margin)
         self.slack_weight = float(slack_weight)
         self.dynamics = PCCDynamics(params) if dynamics is None else dynamics
+        self._batch_dynamics = batch_dynamics
         self.n = params.n_segments
         self._H = np.array(safe_set.H_prime, dtype=float)
         self._h = np.array(safe_set.h_prime, dtype=float)
@@ -194,6 +200,22 @@ class CBFFilter:
                        "slack": r.slack, "solve_us": r.solve_us}
         return FilterOutput(r.u, r.action, r.infeasible, r.rho_pred, diagnostics, CBF_DIAGNOSTIC_UNITS)
 
+    def filter_batch(self, estimates: EstimateBatch, u_nom) -> BatchOutput:
+        """B states at once: `controllers.cbf_batch.cbf_qp_batch` (the "disabled", "nominal" and
+        "qp" branches vectorised; recovery and infeasible states through `__call__`), the same
+        actions as B calls and commands within 1e-9 hPa. Batches smaller than SCALAR_BELOW
+        go state by state. u_nom: (B, N) hPa."""
+        if len(estimates) < SCALAR_BELOW:
+            outputs = [self(estimates[i], u_nom[i]) for i in range(len(estimates))]
+            return BatchOutput(np.array([o.u for o in outputs]), np.array([o.action for o in outputs]),
+                               np.array([o.infeasible for o in outputs]), np.array([o.rho_pred for o in outputs]))
+        if self._batch_dynamics is None:
+            self._batch_dynamics = BatchDynamics(self.params)
+        lo, hi = (np.array(self.params.u_min), np.array(self.params.u_max)) if self.pressure_limits else (None, None)
+        out = cbf_qp_batch(self._batch_dynamics, self.safe_set, self.tuning, estimates.q, estimates.qd, u_nom, lo, hi,
+                           fallback=lambda i: self(estimates[i], u_nom[i]))
+        return BatchOutput(out.u, out.action, out.infeasible, out.rho_pred)
+
     def step(self, x, u_nom) -> CBFResult:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""
         x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
@@ -253,6 +275,22 @@ class CBFFilter:
 CUSTOM_TUNING = "custom"
 
 
+def paper_tuning(tuning: str, a_E: float | None = None, b_E: float | None = None,
+                 gamma: float | None = None) -> Tuning:
+    """The tuning `paper_cbf` runs: the preset named `tuning`, or with tuning 'custom' the
+    (a_E, b_E, γ) given; ValueError naming what is missing or contradictory."""
+    if tuning.strip().lower() == CUSTOM_TUNING:
+        missing = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is None]
+        if missing:
+            raise ValueError(f"tuning 'custom' needs a_E, b_E and gamma (each >= 0), missing {', '.join(missing)}")
+        return Tuning(CUSTOM_TUNING, a_E, b_E, gamma)
+    given = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)} set a custom tuning: use tuning='custom' (not {tuning!r}), "
+                         f"or a preset alone ({', '.join(TUNINGS)})")
+    return get_tuning(tuning)
+
+
 def paper_cbf(
     context: FilterContext,
     tuning: str = "Low",
@@ -263,22 +301,12 @@ def paper_cbf(
     recovery_margin: float = 1e-3,
     slack_weight: float = 1e6,
 ) -> CBFFilter:
-    """The paper's CBF-QP filter (SPEC §5), a preset tuning or a custom (a_E, b_E, γ).
+    """The paper's CBF-QP filter (docs/model.md#control-barrier-function), a preset tuning or a custom (a_E, b_E, γ).
 
     The pressure limits are the robot model's own when `context.bounded`; `context.dynamics`
     (the plant's evaluation of the same model), when given, is shared.
     """
-    if tuning.strip().lower() == CUSTOM_TUNING:
-        missing = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is None]
-        if missing:
-            raise ValueError(f"tuning 'custom' needs a_E, b_E and gamma (each >= 0), missing {', '.join(missing)}")
-        chosen = Tuning(CUSTOM_TUNING, a_E, b_E, gamma)
-    else:
-        given = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is not None]
-        if given:
-            raise ValueError(f"{', '.join(given)} set a custom tuning: use tuning='custom' (not {tuning!r}), "
-                             f"or a preset alone ({', '.join(TUNINGS)})")
-        chosen = get_tuning(tuning)
+    chosen = paper_tuning(tuning, a_E, b_E, gamma)
     return CBFFilter(context.robot, context.safe_set, chosen, pressure_limits=context.bounded, qp_backend=qp_backend,
                      recovery_margin=recovery_margin, slack_weight=slack_weight, dynamics=context.dynamics)
 
@@ -291,7 +319,17 @@ def paper_cbf_label(params: dict[str, object]) -> str:
     return "custom(" + ",".join(f"{k}={params.get(k)}" for k in ("a_E", "b_E", "gamma")) + ")"
 
 
+def check_paper_cbf(arguments: dict[str, object]) -> None:
+    """What `paper_cbf` would refuse of its (converted) `arguments`, checked without building
+    it: the tuning (`paper_tuning`) and the QP backend."""
+    paper_tuning(str(arguments.get("tuning", "Low")), arguments.get("a_E"), arguments.get("b_E"), arguments.get("gamma"))
+    backend = arguments.get("qp_backend", DEFAULT_BACKEND)
+    if backend not in available_backends():
+        raise ValueError(f"qp_backend must be one of {', '.join(available_backends())}, got {backend!r}")
+
+
 paper_cbf.run_label = paper_cbf_label
+paper_cbf.check_arguments = check_paper_cbf
 paper_cbf.parameter_docs = {
     "tuning": f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below) [-]",
     "a_E": "custom tuning: weight of the velocity term a_E b_E bdot^2 / (1 + b_E bdot^2) of B [1]",

@@ -25,7 +25,7 @@ class NominalController(Protocol):
 
 @dataclass(frozen=True)
 class SinusoidNominal:
-    """The paper's open-loop command u_nom,j(t) = A_j sin(2π f t + φ_j) (SPEC §6).
+    """The paper's open-loop command u_nom,j(t) = A_j sin(2π f t + φ_j) (docs/model.md#nominal-controller-and-the-papers-scenario).
 
     amplitude: (N,) hPa (paper: 80 for both segments); frequency: Hz (paper: 0.01);
     phase: (N,) rad (paper: 0).

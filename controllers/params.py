@@ -1,9 +1,10 @@
-"""Robot parameters of a planar N-segment PCC soft arm (SPEC §3).
+"""Robot parameters of a planar N-segment PCC soft arm (docs/model.md#rppr-dynamics).
 
 One frozen, validated object holds everything the controller's model needs. Every
-per-segment field is a tuple of N floats in SI units, pressures in hPa:
+per-segment field is a tuple of N floats in SI units, pressures in hPa (reference values:
+docs/model.md#reference-robot):
 
-| field      | unit        | reference value (SPEC §3)                     | source  |
+| field      | unit        | reference value                               | source  |
 |------------|-------------|-----------------------------------------------|---------|
 | lengths    | m           | 0.122                                         | paper   |
 | masses     | kg          | 0.13                                          | paper   |
@@ -171,7 +172,7 @@ def uniform_robot(
 
 
 def reference_robot() -> RobotParams:
-    """The two-segment reference arm of SPEC §3."""
+    """The two-segment reference arm of docs/model.md#rppr-dynamics."""
     return uniform_robot(2)
 
 

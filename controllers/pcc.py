@@ -1,4 +1,4 @@
-"""Kinematics of N planar piecewise-constant-curvature (PCC) segments (SPEC §2).
+"""Kinematics of N planar piecewise-constant-curvature (PCC) segments (docs/model.md#pcc-kinematics).
 
 Angles in rad, lengths in m. For segment i = 1..N with length L_i and bending
 angle q_i (positive: counter-clockwise seen from +z, the tip moves towards +y):
@@ -6,7 +6,7 @@ angle q_i (positive: counter-clockwise seen from +z, the tip moves towards +y):
     ℓ_i = 2 L_i sin(q_i/2) / q_i        chord length (→ L_i as q_i → 0)
     φ_i = θ_{i-1} + q_i/2               chord direction, θ_i = θ_{i-1} + q_i, θ_0 = 0
     p_i = p_{i-1} + ℓ_i e^{iφ_i},  p_0 = 0,   tip r = p_N
-    c_i = p_{i-1} + ½ ℓ_i e^{iφ_i}      chord midpoint: the body of the RPPR model (SPEC §3)
+    c_i = p_{i-1} + ½ ℓ_i e^{iφ_i}      chord midpoint: the body of the RPPR model (docs/model.md#rppr-dynamics)
 
 Points of the plane are complex numbers x + i·y inside this module and the
 dynamics; the public wrappers return real arrays with an (x, y) axis.
@@ -74,6 +74,15 @@ _SERIES = _series_matrix(_SERIES_DEGREE)
 # Column a of _SERIES has nonzero entries only at powers p ≡ a (mod 2): per Horner step (highest
 # power first) the four coefficients of q^(2k + a mod 2), so s^(a) = q^(a mod 2) · poly_a(q²).
 _HORNER_ROWS = tuple(zip(*(_SERIES[a % 2 :: 2, a][::-1].tolist() for a in range(4))))
+
+
+def sinc_half_coefficients() -> tuple[tuple[tuple[float, float, float, float], ...], float]:
+    """(Horner rows, switch) of `_sinc_half`'s series, for evaluations that must give its floats.
+
+    Each row holds the coefficients (a = 0..3) of one Horner step, highest power first;
+    s^(a)(q) = q^(a mod 2) · poly_a(q²) for |q| < switch (rad), the closed forms beyond.
+    """
+    return _HORNER_ROWS, _SERIES_SWITCH
 
 
 def _sinc_half(q: float) -> tuple[float, float, float, float]:
@@ -330,3 +339,19 @@ def tip_jacobian(q, lengths) -> np.ndarray:
 def tip_jacobian_derivative(q, lengths) -> np.ndarray:
     """∂J_r/∂q: shape (N, 2, N), [k] = ∂J_r/∂q_k (m/rad²)."""
     return _xy(kinematics(q, lengths, order=2).hess[-1].T, axis=1)
+
+
+def tip_positions(q, lengths) -> np.ndarray:
+    """r(q) for T configurations at once: q (T, N) rad → (T, 2) m (vectorised over T, for tables).
+
+    The chord form of docs/model.md#pcc-kinematics with ℓ_i = L_i sinc(q_i/2) (numpy's sinc, exact at q_i = 0).
+    """
+    q = np.asarray(q, dtype=float)
+    lengths = as_vector("lengths", lengths, None, ControllerInputError)
+    if q.ndim != 2 or q.shape[1] != lengths.shape[0]:
+        raise ControllerInputError(f"q must have shape (T, {lengths.shape[0]}), got {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise NonFiniteStateError("q must be finite")
+    theta = np.cumsum(q, axis=1) - 0.5 * q  # chord directions φ_i
+    chord = lengths * np.sinc(q / (2.0 * np.pi))
+    return np.stack(((chord * np.cos(theta)).sum(axis=1), (chord * np.sin(theta)).sum(axis=1)), axis=1)

@@ -1,4 +1,4 @@
-"""The CBF filter's quadratic program (SPEC §5), solved thousands of times a second.
+"""The CBF filter's quadratic program (docs/model.md#control-barrier-function), solved thousands of times a second.
 
     u* = argmin_u ‖u − u_nom‖²   s.t.   A u ≤ b,   lb ≤ u ≤ ub (optional box)
 

@@ -1,13 +1,14 @@
 """Safety filters and nominal controllers by name: the built-ins, and user code by `FILE.py:Factory` or `pkg.mod:Factory`.
 
 A spec names a factory (a class or a function):
-- a built-in's name (`FILTERS`, `NOMINALS`), e.g. "paper-cbf", "none", "sinusoid";
+- a built-in's name (`FILTERS`, `NOMINALS`), e.g. "paper-cbf", "none", "qsg" (the
+  quasi-static governor), "e-erg" (the energy-certified reference governor), "sinusoid";
 - `path/to/file.py:Factory` (the file is imported as a module of its own; the path is
   relative to the working directory);
 - `package.module:Factory` (imported from sys.path).
 
 The factory is called as `Factory(**params)`, plus `context=FilterContext(...)` when its
-signature has a parameter named `context` (SPEC §9). A filter factory returns a safety
+signature has a parameter named `context` (docs/safety-filter.md). A filter factory returns a safety
 filter (`controllers.safety_filter`); a nominal factory returns a callable
 `(t, q, qd) -> u_nom` (N,) hPa. Parameters not given take the signature's defaults;
 unknown names are refused with the list of valid ones. Values given as strings (the
@@ -16,7 +17,8 @@ without one, by its default's type (bool: true/false/yes/no/1/0/on/off; "none" f
 parameter whose annotation allows None). Built-in factories carry `parameter_docs`:
 {name: "meaning [unit]"} (`parameters` returns it with every parameter's default) and
 may carry `run_label(params) -> str`, a run's label (`label`; default
-`Factory(name=value,...)`).
+`Factory(name=value,...)`), and `check_arguments(arguments)`, the checks its construction
+would make, run without building it (`check_filter`).
 """
 
 from __future__ import annotations
@@ -32,11 +34,15 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from controllers.energy_governor import EnergyGovernor
 from controllers.filter import paper_cbf
 from controllers.nominal import NominalController, sinusoid, tip_tracker
+from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safety_filter import FilterContext, PassThroughFilter, SafetyFilter
 
-FILTERS: dict[str, Callable[..., SafetyFilter]] = {"paper-cbf": paper_cbf, "none": PassThroughFilter}
+FILTERS: dict[str, Callable[..., SafetyFilter]] = {
+    "paper-cbf": paper_cbf, "none": PassThroughFilter, "qsg": QuasiStaticGovernor, "e-erg": EnergyGovernor,
+}
 NOMINALS: dict[str, Callable[..., NominalController]] = {"sinusoid": sinusoid, "tip-tracker": tip_tracker}
 CONTEXT = "context"
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
@@ -161,8 +167,9 @@ def _convert(name: str, value: object, hint: object, default: object) -> object:
     return value
 
 
-def build(factory: Callable, params: Mapping[str, object], context: FilterContext | None) -> object:
-    """Call `factory` with `params` (strings converted) and `context` when it takes one."""
+def arguments(factory: Callable, params: Mapping[str, object]) -> dict[str, object]:
+    """`params` checked against the factory's signature (unknown names refused with the valid
+    ones) and converted (module docstring); `context` not included. Builds nothing."""
     signature = _signature(factory)
     accepted = {n for n, p in signature.parameters.items() if n != CONTEXT and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
     open_kwargs = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
@@ -175,9 +182,31 @@ def build(factory: Callable, params: Mapping[str, object], context: FilterContex
     for key, value in params.items():
         p = signature.parameters.get(key)
         kwargs[key] = _convert(key, value, hints.get(key, inspect.Parameter.empty), p.default if p else inspect.Parameter.empty)
-    if CONTEXT in signature.parameters:
+    return kwargs
+
+
+def build(factory: Callable, params: Mapping[str, object], context: FilterContext | None) -> object:
+    """Call `factory` with `params` (`arguments`) and `context` when it takes one."""
+    kwargs = arguments(factory, params)
+    if CONTEXT in _signature(factory).parameters:
         kwargs[CONTEXT] = context
     return factory(**kwargs)
+
+
+def check_filter(spec: str, params: Mapping[str, object]) -> None:
+    """ValueError unless `spec` resolves to a filter factory taking `params` (names and
+    convertible values; nothing is built, so a study can check its runs cheaply), nor unless
+    the factory's own `check_arguments(arguments)`, when it carries one, accepts them."""
+    factory = resolve(spec, FILTERS)
+    kwargs = arguments(factory, params)
+    check = getattr(factory, "check_arguments", None)
+    if callable(check):
+        check(kwargs)
+
+
+def check_nominal(spec: str, params: Mapping[str, object]) -> None:
+    """`check_filter` for a nominal controller's spec and parameters."""
+    arguments(resolve(spec, NOMINALS), params)
 
 
 def build_filter(spec: str, params: Mapping[str, object], context: FilterContext) -> SafetyFilter:

@@ -1,4 +1,4 @@
-"""Force-safe set P of a deformable planar environment (SPEC §4, paper §III).
+"""Force-safe set P of a deformable planar environment (docs/model.md#force-safe-set, paper §III).
 
 Shapes and units (SI; positions in m, forces in N):
 
@@ -23,7 +23,7 @@ Shapes and units (SI; positions in m, forces in N):
   rows in facet order, then one correction row per vertex in `Environment.vertices` order.
 
 Row scaling of (H', h') — it sets the scale (and units) of the barrier b = h' − H' r
-downstream (SPEC §5), so it is a required, explicit choice:
+downstream (docs/model.md#control-barrier-function), so it is a required, explicit choice:
 - "paper": each row divided by |H'_i[1]| so its second column is ±1 (the paper's
   slope-intercept form; b is a vertical distance in m). Rows within 1e-9 rad of vertical
   (|H'_i[1]| ≤ 1e-9 ‖H'_i‖), where that form does not exist, are scaled to unit norm instead.
@@ -67,6 +67,9 @@ class StiffnessLaw(Protocol):
 
     `force(n)`: F = ψ(n) in N for penetration n in m (ψ = 0 for n ≤ 0).
     `penetration(F)`: n = ψ⁻¹(F) in m (0 for F ≤ 0). NaN propagates.
+    The built-in laws also give `energy(n)`: E(n) = ∫₀ⁿ ψ(s) ds in J, the energy the
+    facet stores at penetration n (0 for n ≤ 0); the energy governor's contact-aware
+    certificate needs it, other code does not.
     """
 
     def force(self, n: ArrayLike) -> np.ndarray: ...
@@ -89,6 +92,11 @@ class LinearStiffness:
     def penetration(self, force: ArrayLike) -> np.ndarray:
         return np.maximum(np.asarray(force, dtype=float), 0.0) / self.k
 
+    def energy(self, n: ArrayLike) -> np.ndarray:
+        """E(n) = ½ k n² (J) for n ≥ 0, else 0."""
+        n = np.maximum(np.asarray(n, dtype=float), 0.0)
+        return 0.5 * self.k * n * n
+
 
 @dataclass(frozen=True)
 class PowerLawStiffness:
@@ -106,6 +114,11 @@ class PowerLawStiffness:
 
     def penetration(self, force: ArrayLike) -> np.ndarray:
         return (np.maximum(np.asarray(force, dtype=float), 0.0) / self.k) ** (1.0 / self.exponent)
+
+    def energy(self, n: ArrayLike) -> np.ndarray:
+        """E(n) = k n^(p+1)/(p+1) (J) for n ≥ 0, else 0."""
+        n = np.maximum(np.asarray(n, dtype=float), 0.0)
+        return self.k * n ** (self.exponent + 1.0) / (self.exponent + 1.0)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -321,7 +334,7 @@ class ForceSafeSet:
     def margins(self, r: ArrayLike) -> np.ndarray:
         """ρ_i = (n_max − n_i(r))/n_max per facet, shape (P,) or (T, P); 1 = no contact, < 0 = violation.
 
-        Per facet as SPEC §4 defines it: near a vertex r can leave P through a correction
+        Per facet as docs/model.md#force-safe-set defines it: near a vertex r can leave P through a correction
         row while every ρ_i ≥ 0 (by at most the factor 1/cos(θ/2) of the Lemma corner).
         """
         return (self.n_max - self.penetration(r)) / self.n_max

@@ -1,4 +1,4 @@
-"""The safety-filter plug-in contract (SPEC §9): what a loop gives a filter and what it gets back.
+"""The safety-filter plug-in contract (docs/safety-filter.md): what a loop gives a filter and what it gets back.
 
 A safety filter maps the controller's view of the state and a nominal command to the
 command that is sent:

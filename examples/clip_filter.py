@@ -1,4 +1,4 @@
-"""The simplest user safety filter (SPEC §9): clip the nominal command to ±limit_hPa.
+"""The simplest user safety filter (docs/safety-filter.md): clip the nominal command to ±limit_hPa.
 
 Not safe by any measure — it knows nothing of the plate — it shows the plug-in contract
 (controllers.safety_filter): a class whose constructor takes its parameters and whose

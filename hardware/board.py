@@ -44,7 +44,7 @@ from hardware.protocol import (
 )
 
 DEFAULT_WATCHDOG_S = 0.15  # 1.5 periods of the 10 Hz loop: vents half a period after the first missed command
-DEFAULT_PRESSURE_TAU_S = 0.05  # SPEC §7's default τ_p
+DEFAULT_PRESSURE_TAU_S = 0.05  # docs/ground-truth.md's default τ_p
 
 
 class PlantHook(Protocol):

@@ -15,9 +15,9 @@ same for a mapping; `with_overrides({section: {key: value}})` applies command-li
 | camera.max_hold_s                     | 0.3              | s      | an estimate older than this is stale (perception.estimator)     |
 | camera.qd_filter_tau_s                | 0.0              | s      | first-order low pass of q̇ (0: raw finite differences)           |
 | camera.startup_timeout_s              | 5.0              | s      | wait at most this long for the first complete frame             |
-| camera.fps                            | 12.8             | 1/s    | virtual camera only: frame rate (SPEC §7: the hardware's ~12.8) |
+| camera.fps                            | 12.8             | 1/s    | virtual camera only: frame rate (docs/ground-truth.md: the hardware's ~12.8) |
 | camera.width, camera.height           | 480, 270         | px     | virtual camera only: image size                                 |
-| robot.params                          | "reference"      | –      | "reference" (SPEC §3) or a RobotParams JSON (RobotParams.save, tools/calibrate.py) |
+| robot.params                          | "reference"      | –      | "reference" (docs/model.md#rppr-dynamics) or a RobotParams JSON (RobotParams.save, tools/calibrate.py) |
 | environment.H, environment.h          | [[0.36, 1]], [0.15] | –, m | facets of the free space H r ≤ h (the paper's plate)            |
 | environment.stiffness_N_per_m         | 11.16            | N/m    | the controller's ψ(n) = k n                                     |
 | environment.f_max_N                   | 0.16             | N      | force limit per facet                                           |
@@ -42,15 +42,45 @@ same for a mapping; `with_overrides({section: {key: value}})` applies command-li
 | run.duration_s                        | 100.0            | s      | length of the run after the first estimate                      |
 | run.dry_run                           | false            | –      | run everything but send zero pressure                           |
 | emulator.plate_stiffness_N_per_m      | 11.16            | N/m    | the emulated plate's true spring                                |
-| emulator.tau_p_s                      | 0.05             | s      | the emulated valves' first-order time constant (SPEC §7)        |
+| emulator.tau_p_s                      | 0.05             | s      | the emulated valves' first-order time constant (docs/ground-truth.md)        |
 | emulator.q0_rad                       | 0.0              | rad    | the emulated arm's initial bend (scalar or per segment)         |
 | emulator.links_per_segment            | 5                | –      | rigid links per segment of the MuJoCo rod (simulations: 10)      |
 | emulator.physics_dt_s                 | 2e-4             | s      | MuJoCo step (simulations: 1e-4); 5 links at 0.2 ms run ≈ 9× real time, 10 at 0.1 ms ≈ 3× |
 
+Plausibility bounds. A value outside its bound is refused with the unit and the likely
+unit mistake in the message ("safety.watchdog_s must be <= 5 s (a plausibility bound;
+a time in ms? 150 ms = 0.15 s), got 150"):
+
+| key                                  | bound                | a value beyond it is likely  |
+|--------------------------------------|----------------------|------------------------------|
+| safety.watchdog_s                    | ≤ 5 s                | milliseconds                 |
+| safety.hold_s                        | ≤ 10 s               | milliseconds                 |
+| link.ack_timeout_s                   | ≤ 1 s                | milliseconds                 |
+| camera.max_hold_s, camera.qd_filter_tau_s | ≤ 10 s          | milliseconds                 |
+| camera.startup_timeout_s             | ≤ 600 s              | milliseconds                 |
+| camera.tag_size_m                    | ≤ 0.5 m              | millimetres                  |
+| control.rate_hz                      | ≤ 1000 1/s           | a period in ms               |
+| control.amplitude_hPa, pressure.*    | within ±3276.7 hPa (the protocol's range, `hardware.protocol`) | pascals |
+| run.duration_s                       | ≤ 86400 s            | milliseconds                 |
+| emulator.tau_p_s                     | ≤ 5 s                | milliseconds                 |
+| emulator.physics_dt_s                | 1e-5 … 1e-3 s, dividing the emulated board's 2 ms command period | milliseconds |
+| emulator.q0_rad                      | within ±π rad        | degrees                      |
+
+Pressure limits must hold 0 hPa (u_min ≤ 0 ≤ u_max per segment): VENT, the safe action,
+sets 0 hPa, and the emulated valves start there.
+
+Files. Relative paths in the file — robot.params, camera.calibration and a camera.source
+that is a file (not a device index, "virtual", a URL with "://" or a GStreamer pipeline
+with "!") — are relative to the configuration file's folder (`base_dir`), so a
+configuration runs the same from any working directory. robot.params and
+camera.calibration are read at load (a missing or malformed file is a ConfigError); the
+camera and the serial port are opened at start-up (`softcbf.hardware_cli`).
+
 Timing rules checked at load (period T = 1 / control.rate_hz): the link's worst
 exchange (1 + retries) · ack_timeout_s must end inside T, so that a safe action sent in
 a cycle arrives in that cycle; the board's watchdog must exceed T (or it vents between
-commands) and camera.max_hold_s must exceed one frame period of the virtual camera;
+commands) and camera.max_hold_s must exceed one frame period of the virtual camera; the
+nominal sinusoid's control.frequency_hz must stay below half the control rate;
 link.port "emulated" and camera.source "virtual" go together.
 """
 
@@ -70,12 +100,17 @@ from controllers.cbf import get_tuning
 from controllers.params import RobotParams, per_segment, reference_robot
 from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
+from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
+from perception.plane import PlaneCalibration
 
 VIRTUAL_CAMERA = "virtual"
 EMULATED_PORT = "emulated"
 DETECTORS = ("opencv", "pupil")
 ROW_SCALINGS = ("paper", "unit")
 Scalars = float | tuple[float, ...]
+EMULATOR_COMMAND_PERIOD_S = 2e-3  # s, the emulated board's command resolution (softcbf_mj.emulate)
+# The unit mistake a value beyond a plausibility bound most likely is: unit → (wrong unit, factor to the right one).
+_LIKELY_MISTAKE = {"s": ("ms", 1e-3), "hPa": ("Pa", 1e-2), "m": ("mm", 1e-3), "rad": ("°", math.pi / 180)}
 
 
 class ConfigError(ValueError):
@@ -87,25 +122,43 @@ def _require(ok: bool, key: str, message: str) -> None:
         raise ConfigError(f"{key} {message}")
 
 
-def _number(key: str, value: Any, low: float = -math.inf, *, above: bool = False) -> float:
-    """A finite real ≥ low (> low with `above`)."""
+def _number(key: str, value: Any, low: float = -math.inf, *, above: bool = False, high: float | None = None,
+            unit: str = "") -> float:
+    """A finite real ≥ low (> low with `above`) and, when given, ≤ the plausibility bound `high` (in `unit`)."""
     _require(isinstance(value, (int, float)) and not isinstance(value, bool), key, f"must be a number, got {value!r}")
     _require(math.isfinite(value), key, f"must be finite, got {value!r}")
-    _require(value > low if above else value >= low, key, f"must be {'>' if above else '>='} {low:g}, got {value!r}")
+    _require(value > low if above else value >= low, key,
+             f"must be {'>' if above else '>='} {low:g}{' ' + unit if unit else ''}, got {value!r}")
+    if high is not None:
+        _require(abs(value) <= high if low == -math.inf else value <= high, key,
+                 f"must be {'within ±' if low == -math.inf else '<= '}{high:g} {unit} ({_plausibility_hint(value, unit)}), "
+                 f"got {value!r}")
     return float(value)
 
 
-def _numbers(key: str, value: Any) -> Scalars:
-    """A finite number or a list of them (one per segment)."""
+def _plausibility_hint(value: float, unit: str) -> str:
+    if unit not in _LIKELY_MISTAKE:
+        return "a plausibility bound"
+    wrong, factor = _LIKELY_MISTAKE[unit]
+    return f"a plausibility bound; a value in {wrong}? {value:g} {wrong} = {value * factor:.4g} {unit}"
+
+
+def _numbers(key: str, value: Any, *, high: float | None = None, unit: str = "") -> Scalars:
+    """A finite number or a list of them (one per segment), each within ±`high` when given."""
     if isinstance(value, (list, tuple)):
         _require(len(value) > 0, key, "must be a number or a non-empty list of numbers, got []")
-        return tuple(_number(f"{key}[{i}]", v) for i, v in enumerate(value))
-    return _number(key, value)
+        return tuple(_number(f"{key}[{i}]", v, high=high, unit=unit) for i, v in enumerate(value))
+    return _number(key, value, high=high, unit=unit)
 
 
 def _choice(key: str, value: Any, valid: tuple[str, ...]) -> str:
     _require(value in valid, key, f"must be one of {', '.join(map(repr, valid))}, got {value!r}")
     return value
+
+
+def camera_source_is_file(source: int | str) -> bool:
+    """Whether a camera source names a file: not a device index, "virtual", a URL ("://") or a GStreamer pipeline ("!")."""
+    return isinstance(source, str) and source != VIRTUAL_CAMERA and "://" not in source and "!" not in source
 
 
 @dataclass(frozen=True)
@@ -129,12 +182,12 @@ class CameraConfig:
                  "camera.calibration", f"must be the path of a plane calibration JSON, got {self.calibration!r}")
         _require(self.is_virtual or self.calibration is not None, "camera.calibration",
                  "is required for a real camera: fit one with tools/calibrate_camera.py and give its JSON path")
-        _number("camera.tag_size_m", self.tag_size_m, 0, above=True)
+        _number("camera.tag_size_m", self.tag_size_m, 0, above=True, high=0.5, unit="m")
         _choice("camera.detector", self.detector, DETECTORS)
-        _number("camera.max_hold_s", self.max_hold_s, 0, above=True)
-        _number("camera.qd_filter_tau_s", self.qd_filter_tau_s, 0)
-        _number("camera.startup_timeout_s", self.startup_timeout_s, 0, above=True)
-        _number("camera.fps", self.fps, 0, above=True)
+        _number("camera.max_hold_s", self.max_hold_s, 0, above=True, high=10.0, unit="s")
+        _number("camera.qd_filter_tau_s", self.qd_filter_tau_s, 0, high=10.0, unit="s")
+        _number("camera.startup_timeout_s", self.startup_timeout_s, 0, above=True, high=600.0, unit="s")
+        _number("camera.fps", self.fps, 0, above=True, high=1000.0, unit="1/s")
         for name in ("width", "height"):
             value = getattr(self, name)
             _require(isinstance(value, int) and not isinstance(value, bool) and value >= 8, f"camera.{name}",
@@ -147,6 +200,11 @@ class CameraConfig:
     @property
     def is_virtual(self) -> bool:
         return self.source == VIRTUAL_CAMERA
+
+    @property
+    def is_file(self) -> bool:
+        """Whether `source` names a file (a relative one is relative to the configuration's folder)."""
+        return camera_source_is_file(self.source)
 
 
 @dataclass(frozen=True)
@@ -173,6 +231,9 @@ class EnvironmentConfig:
             raise ConfigError(f"environment.H, environment.h must describe facets H r <= h (H: P rows of 2, h: P values, m): {exc}") from None
         object.__setattr__(self, "H", tuple(tuple(float(v) for v in row) for row in self.H))
         object.__setattr__(self, "h", tuple(float(v) for v in self.h))
+        for k, value in enumerate(self.h):
+            _require(value > 0, f"environment.h[{k}]", f"must be > 0 m: the arm's base (the origin) must lie inside the free "
+                     f"space H r <= h, got {value:g}")
         _number("environment.stiffness_N_per_m", self.stiffness_N_per_m, 0, above=True)
         _number("environment.f_max_N", self.f_max_N, 0, above=True)
         _choice("environment.row_scaling", self.row_scaling, ROW_SCALINGS)
@@ -186,7 +247,8 @@ class PressureConfig:
     def __post_init__(self) -> None:
         for name in ("u_min_hPa", "u_max_hPa"):
             if getattr(self, name) is not None:
-                object.__setattr__(self, name, _numbers(f"pressure.{name}", getattr(self, name)))
+                object.__setattr__(self, name, _numbers(f"pressure.{name}", getattr(self, name), high=PRESSURE_RANGE_HPA,
+                                                        unit="hPa"))
 
 
 @dataclass(frozen=True)
@@ -217,10 +279,11 @@ class ControlConfig:
                 get_tuning(self.tuning)
             except ValueError as exc:
                 raise ConfigError(f"control.tuning: {exc}") from None
-        _number("control.rate_hz", self.rate_hz, 0, above=True)
+        _number("control.rate_hz", self.rate_hz, 0, above=True, high=1000.0, unit="1/s")
         _require(isinstance(self.pressure_limits, bool), "control.pressure_limits", f"must be true or false, got {self.pressure_limits!r}")
         _choice("control.qp_backend", self.qp_backend, tuple(available_backends()))
-        object.__setattr__(self, "amplitude_hPa", _numbers("control.amplitude_hPa", self.amplitude_hPa))
+        object.__setattr__(self, "amplitude_hPa", _numbers("control.amplitude_hPa", self.amplitude_hPa,
+                                                           high=PRESSURE_RANGE_HPA, unit="hPa"))
         _number("control.frequency_hz", self.frequency_hz, 0, above=True)
         object.__setattr__(self, "phase_rad", _numbers("control.phase_rad", self.phase_rad))
 
@@ -249,8 +312,8 @@ class SafetyConfig:
     watchdog_s: float = 0.15
 
     def __post_init__(self) -> None:
-        _number("safety.hold_s", self.hold_s, 0)
-        _number("safety.watchdog_s", self.watchdog_s, 0, above=True)
+        _number("safety.hold_s", self.hold_s, 0, high=10.0, unit="s")
+        _number("safety.watchdog_s", self.watchdog_s, 0, above=True, high=5.0, unit="s")
 
 
 @dataclass(frozen=True)
@@ -268,7 +331,7 @@ class LinkConfig:
             value = getattr(self, name)
             _require(isinstance(value, int) and not isinstance(value, bool) and value >= low, f"link.{name}",
                      f"must be an integer >= {low}, got {value!r}")
-        _number("link.ack_timeout_s", self.ack_timeout_s, 0, above=True)
+        _number("link.ack_timeout_s", self.ack_timeout_s, 0, above=True, high=1.0, unit="s")
 
     @property
     def is_emulated(self) -> bool:
@@ -285,7 +348,7 @@ class RunConfig:
     dry_run: bool = False
 
     def __post_init__(self) -> None:
-        _number("run.duration_s", self.duration_s, 0, above=True)
+        _number("run.duration_s", self.duration_s, 0, above=True, high=86400.0, unit="s")
         _require(isinstance(self.dry_run, bool), "run.dry_run", f"must be true or false, got {self.dry_run!r}")
 
 
@@ -299,12 +362,16 @@ class EmulatorConfig:
 
     def __post_init__(self) -> None:
         _number("emulator.plate_stiffness_N_per_m", self.plate_stiffness_N_per_m, 0, above=True)
-        _number("emulator.tau_p_s", self.tau_p_s, 0)
-        object.__setattr__(self, "q0_rad", _numbers("emulator.q0_rad", self.q0_rad))
+        _number("emulator.tau_p_s", self.tau_p_s, 0, high=5.0, unit="s")
+        object.__setattr__(self, "q0_rad", _numbers("emulator.q0_rad", self.q0_rad, high=math.pi, unit="rad"))
         _require(isinstance(self.links_per_segment, int) and not isinstance(self.links_per_segment, bool)
                  and self.links_per_segment >= 1, "emulator.links_per_segment",
                  f"must be an integer >= 1, got {self.links_per_segment!r}")
-        _number("emulator.physics_dt_s", self.physics_dt_s, 0, above=True)
+        _number("emulator.physics_dt_s", self.physics_dt_s, 1e-5, high=1e-3, unit="s")
+        ratio = EMULATOR_COMMAND_PERIOD_S / self.physics_dt_s
+        _require(abs(ratio - round(ratio)) <= 1e-9 * ratio, "emulator.physics_dt_s",
+                 f"must divide the emulated board's command period {EMULATOR_COMMAND_PERIOD_S:g} s into whole steps "
+                 f"(e.g. 1e-4, 2e-4, 5e-4, 1e-3 s), got {self.physics_dt_s!r}")
 
 
 _SECTIONS = {
@@ -348,10 +415,23 @@ class HardwareConfig:
         _require(self.safety.watchdog_s > period, "safety.watchdog_s",
                  f"must exceed the control period {period:g} s (got {self.safety.watchdog_s:g} s), "
                  "or the board vents between two commands; 1.5 periods is the default")
+        _require(self.control.frequency_hz < self.control.rate_hz / 2, "control.frequency_hz",
+                 f"must be below half the control rate ({self.control.rate_hz / 2:g} 1/s), got {self.control.frequency_hz:g}")
         _require(self.link.is_emulated == self.camera.is_virtual, "link.port",
                  f'"{EMULATED_PORT}" and camera.source "{VIRTUAL_CAMERA}" go together (the virtual camera renders the '
                  f"emulated arm; a real camera sees the real one), got port {self.link.port!r}, camera {self.camera.source!r}")
-        self.robot_params()  # fail at load on a bad robot file or pressure limits
+        n = self.robot_params().n_segments  # fail at load on a bad robot file or pressure limits
+        for key, value in (("control.amplitude_hPa", self.control.amplitude_hPa), ("control.phase_rad", self.control.phase_rad),
+                           ("emulator.q0_rad", self.emulator.q0_rad)):
+            try:
+                per_segment(value, n, key)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+        try:
+            self.safe_set()
+        except ValueError as exc:
+            raise ConfigError(f"environment: {exc}") from None
+        self.plane_calibration()  # fail at load on a missing or malformed calibration file
 
     # -- loading ------------------------------------------------------------------
 
@@ -402,8 +482,27 @@ class HardwareConfig:
         return spec
 
     def resolve(self, path: str) -> Path:
+        """`path` relative to the configuration file's folder (unchanged when absolute)."""
         p = Path(path)
         return p if p.is_absolute() else self.base_dir / p
+
+    def camera_source(self) -> int | str:
+        """camera.source for `cv2.VideoCapture`: a file resolved against the configuration's folder, else as given."""
+        source = self.camera.source
+        return str(self.resolve(source)) if self.camera.is_file else source
+
+    def plane_calibration(self) -> PlaneCalibration | None:
+        """The camera.calibration file's image → plane map (None when none is configured)."""
+        if self.camera.calibration is None:
+            return None
+        path = self.resolve(self.camera.calibration)
+        if not path.is_file():
+            raise ConfigError(f"camera.calibration must be a plane calibration JSON file, got {self.camera.calibration!r} "
+                              f"(no file {path}; relative paths are relative to the configuration's folder)")
+        try:
+            return PlaneCalibration.load(path)
+        except (ValueError, KeyError, TypeError, OSError) as exc:
+            raise ConfigError(f"camera.calibration {path}: {type(exc).__name__}: {exc}".splitlines()[0]) from None
 
     # -- the objects the run needs --------------------------------------------------
 
@@ -429,9 +528,15 @@ class HardwareConfig:
                 except ValueError as exc:
                     raise ConfigError(str(exc)) from None
         try:
-            return robot.replace(**changes) if changes else robot
+            robot = robot.replace(**changes) if changes else robot
+            PressureLimits.of(n, robot.u_min, robot.u_max)  # the link's and the board's limits
         except ValueError as exc:
             raise ConfigError(f"pressure limits: {exc}") from None
+        for i, (low, high) in enumerate(zip(robot.u_min, robot.u_max)):
+            _require(low <= 0.0 <= high, "pressure limits",
+                     f"must hold 0 hPa, the vented state the safe action VENT sets, for every segment: got u_min={low:g}, "
+                     f"u_max={high:g} hPa for segment {i} (pressure.u_min_hPa, pressure.u_max_hPa or the robot's)")
+        return robot
 
     def safe_set(self) -> ForceSafeSet:
         env = self.environment

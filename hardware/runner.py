@@ -24,7 +24,8 @@ Two threads share one monotonic clock (s):
   commands stop arriving (a cut cable).
 
 Start: the loop waits (up to `startup_timeout_s`) for the first complete frame, so q is
-finite from the first cycle on; without one it vents and raises `PerceptionStartupError`.
+finite from the first cycle on; without one it vents and raises `PerceptionStartupError`
+(a `StartupError`, like a camera or port that does not open: one line naming the setting).
 End: after `duration_s`, on `stop()` or Ctrl-C — the last cycle is a VENT (interrupted) —
 and in every case a final `vent()` leaves the valves at 0 hPa. In the main thread `run()`
 turns SIGINT into `stop()` for its duration, so Ctrl-C takes effect in the next cycle
@@ -77,7 +78,12 @@ def controller_context(config: HardwareConfig) -> FilterContext:
                                    config.control.pressure_limits)
 
 
-class PerceptionStartupError(RuntimeError):
+class StartupError(RuntimeError):
+    """The run could not start: a camera, serial port or emulator that does not open, or no first frame.
+    The message is one line that names the setting to fix."""
+
+
+class PerceptionStartupError(StartupError):
     """No complete frame arrived before the start-up timeout."""
 
 

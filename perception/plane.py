@@ -2,7 +2,7 @@
 
 Conventions. Image points are pixels in OpenCV's convention (x right, y down, pixel
 centres at integer coordinates). Plane points are metres in the plane the tags lie in
-(the table plane z = plane_z of the world frame, with its x, y axes; SPEC §1). Tags are
+(the table plane z = plane_z of the world frame, with its x, y axes; docs/model.md#frames-units-conventions). Tags are
 flat, so one homography H (3 × 3, normalised to H[2, 2] = 1) maps every image point of
 that plane to its plane point:
 

@@ -5,7 +5,7 @@ border. Its *size* (m) is the edge of that black square, the convention of the A
 library; printed and textured tags add a white quiet zone of `QUIET_CELLS` cells on
 every side, so a texture spans size · (8 + 2·QUIET_CELLS) / 8.
 
-Layout on the arm (SPEC §7, as on the hardware): tag 0 on the base, tag i on the end of
+Layout on the arm (docs/ground-truth.md, as on the hardware): tag 0 on the base, tag i on the end of
 segment i (i = 1..N). A tag's image x axis (left → right when the tag is upright) lies
 along the body's x axis, its image "up" along the body's +y axis.
 """

@@ -2,17 +2,27 @@
 
 A scenario is a function `fn(out_dir: Path, *, param=default, ...) -> dict` whose
 keyword parameters (with type annotations and defaults) are its parameters; it runs,
-writes its outputs into `out_dir` (SPEC §8) and returns the summary it wrote.
+writes its outputs into `out_dir` (docs/run-outputs.md) and returns the summary it wrote.
 `python -m scenarios --list` lists them; `python -m scenarios NAME --out DIR
 [--param value ...]` runs one.
+
+Checking without running. `Scenario.validate(params)` gives the full keyword arguments
+(the defaults updated with `params`) after the checks a run would make first, without
+building or running anything expensive: every name is a parameter; every value has its
+annotated type (an int is accepted for a float and becomes one); every float is finite;
+then the scenario's own `check(kwargs)` (given to `register`), which the scenario's run
+also calls first, checks the ranges and the files and names it refers to. Errors are
+`ValueError`s that name the parameter, the valid range and the value received.
 """
 
 from __future__ import annotations
 
 import importlib
 import inspect
+import math
+import typing
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 _MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop")
 
@@ -22,6 +32,7 @@ class Scenario:
     name: str
     description: str
     run: Callable[..., dict]
+    check: Callable[[Mapping[str, Any]], None] | None = None
 
     def parameters(self) -> dict[str, inspect.Parameter]:
         """Keyword parameters of the scenario, by name (out_dir excluded)."""
@@ -31,17 +42,43 @@ class Scenario:
     def defaults(self) -> dict[str, Any]:
         return {k: p.default for k, p in self.parameters().items()}
 
+    def coerce(self, name: str, value: Any) -> Any:
+        """`value` as parameter `name`'s annotated type (int → float for floats; floats finite), else ValueError."""
+        params = self.parameters()
+        if name not in params:
+            raise ValueError(f"scenario {self.name!r} has no parameter {name!r}; parameters: {', '.join(params)}")
+        annotation = typing.get_type_hints(self.run)[name]
+        if annotation is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                raise ValueError(f"parameter {name!r} must be a finite number, got {value!r}")
+            return float(value)
+        if annotation is int and isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if annotation in (bool, str) and isinstance(value, annotation):
+            return value
+        raise ValueError(f"parameter {name!r} takes {annotation.__name__} values, got {value!r}")
+
+    def validate(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        """The full keyword arguments (defaults updated with `params`), checked without running (module docstring)."""
+        kwargs = self.defaults()
+        kwargs.update({name: self.coerce(name, value) for name, value in params.items()})
+        if self.check is not None:
+            self.check(kwargs)
+        return kwargs
+
 
 _REGISTRY: dict[str, Scenario] = {}
 
 
-def register(name: str, description: str) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
-    """Decorator: register `fn` as scenario `name` with a one-line description."""
+def register(name: str, description: str, check: Callable[[Mapping[str, Any]], None] | None = None,
+             ) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
+    """Decorator: register `fn` as scenario `name` with a one-line description and its
+    parameter check `check(kwargs)` (raises ValueError; `Scenario.validate`)."""
 
     def wrap(fn: Callable[..., dict]) -> Callable[..., dict]:
         if name in _REGISTRY:
             raise ValueError(f"scenario {name!r} is registered twice")
-        _REGISTRY[name] = Scenario(name, description, fn)
+        _REGISTRY[name] = Scenario(name, description, fn, check)
         return fn
 
     return wrap

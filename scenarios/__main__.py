@@ -1,7 +1,7 @@
 """Command line: `python -m scenarios --list` and `python -m scenarios NAME --out DIR [--param value ...]`.
 
-SPEC §8's spelling of `softcbf list` / `softcbf run NAME --out DIR ...`: the same
-implementation (`softcbf.cli.run_scenario`), the same outputs, errors and exit codes,
+docs/run-outputs.md's spelling of `softcbf list` / `softcbf run NAME --out DIR ...`: the same
+implementation (`scenarios.run.run_scenario`), the same outputs, errors and exit codes,
 except that --out is required here.
 """
 
@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from scenarios import registry
-from softcbf.cli import USAGE_ERROR, UsageError, describe, run_scenario
+from scenarios.run import INTERRUPTED, USAGE_ERROR, UsageError, describe, run_scenario
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -20,8 +19,9 @@ def main(argv: list[str] | None = None) -> int:
                                      allow_abbrev=False)
     parser.add_argument("name", nargs="?", help="scenario name (see --list)")
     parser.add_argument("--list", action="store_true", help="list scenarios with their parameters")
-    parser.add_argument("--out", type=Path, help="output folder (refused if it exists and is not empty)")
-    parser.add_argument("--overwrite", action="store_true", help="replace the contents of an existing --out folder")
+    parser.add_argument("--out", help="output folder (refused if it exists and is not empty)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the contents of an existing run folder (one written by softcbf)")
     parser.add_argument("--spawn", action="store_true", help="stream each finished tuning to a rerun viewer (needs a display)")
     args, rest = parser.parse_known_args(argv)
 
@@ -37,6 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return USAGE_ERROR
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ the calibration scene's tag board is rendered once and `perception.plane.calibra
 fits the map), "truth" (the exact map of MuJoCo's pinhole camera) or a JSON file
 written by tools/calibrate_camera.py.
 
-Per run, besides the SPEC §8 fields (ρ_meas from the plate's spring force) and the
+Per run, besides the docs/run-outputs.md fields (ρ_meas from the plate's spring force) and the
 contact figures of `mujoco_contact`, summary.json holds the perception figures: q error
 of complete frames against the true q at exposure (RMS and max, rad), detection rate
 (complete frames / frames taken), frames dropped, render, detection and estimation wall time per
@@ -35,33 +35,49 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
+from typing import Any, Mapping
 
 import cv2
 import mujoco
 import numpy as np
 
-from controllers.params import reference_robot
 from controllers.safety_filter import FilterContext
-from perception.detect import TagDetector
+from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
 from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, build_safe_set, control_step, controller_row, controller_runs, filter_enabled, initial_configuration,
-    load_robot, nominal_arguments, save_run, scene_record,
+    PAPER_FILTER, Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
+    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot, non_negative,
+    nominal_arguments, positive, read_parameter_file, save_run, scene_record,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-from softcbf_mj.metrics import contact_figures, format_table
+from scenarios.ground_truth import check_true_arm, flexure_params
+from softcbf_mj.flexure import FlexureParams
+from softcbf_mj.flexure_calibration import calibrate_flexure
+from softcbf_mj.loop import check_duration
+from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import (
-    CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig, build_model, calibration_board,
+    CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, CAMERA_RESOLUTION, DEFAULT_TAU_P, ArmModelConfig, build_model,
+    calibration_board,
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
-from softcbf_mj.runio import SummaryWriter, frames_folder, safe_name, save_frames_index, save_timeseries
+from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
 
+
+BOUNDS = {
+    "duration": positive("s"), "frequency": non_negative("Hz"), "links_per_segment": Bound(1, 100),
+    "tau_p": non_negative("s"), "physics_dt": Bound(1e-6, unit="s"), "plate_stiffness": positive("N/m"),
+    "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "tick": positive("s"),
+    "max_hold_s": positive("s"), "qd_filter_tau": non_negative("s"), "width": Bound(16, CAMERA_RESOLUTION[0], unit="px"),
+    "height": Bound(16, CAMERA_RESOLUTION[1], unit="px"), "saved_frames_hz": non_negative("Hz (0: none)"),
+    "tip_friction": non_negative("(Coulomb μ)"),
+}
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -78,6 +94,8 @@ TABLE = (
     ("detect [ms]", "detect_ms_median", ".1f"),
     ("hold/vent", "safe_action_calls", "d"),
     ("infeasible", "infeasible_steps", "d"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
     ("RTF", "realtime_factor", ".2f"),
 )
 
@@ -94,10 +112,8 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
         with OffscreenRenderer(model, "overhead", width, height) as renderer:
             image = renderer.render(data)
         return calibrate(TagDetector(backend).detect(image), calibration_board(config))
-    path = Path(spec)
-    if not path.is_file():
-        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {spec!r} (no such file)")
-    return PlaneCalibration.load(path)
+    path = existing_file("calibration", spec, "'board', 'truth' or a calibration JSON file")
+    return read_parameter_file("calibration", path, PlaneCalibration.load)
 
 
 def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarray]) -> dict:
@@ -120,7 +136,23 @@ def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarr
     }
 
 
-@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `camera_loop` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    check_bounds(params, BOUNDS)
+    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
+    timing = CameraTiming(params["frame_rate"], params["control_rate"], params["latency"], params["drop_rate"],
+                          params["pixel_noise"], params["hold_s"])
+    timing.ticks_per_control(params["tick"])
+    check_choice("detector", params["detector"], DETECTOR_BACKENDS)
+    if params["calibration"] not in ("board", "truth") and not Path(params["calibration"]).is_file():
+        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {params['calibration']!r} "
+                         "(no such file)")
+    check_true_arm(params, model_robot)
+    steps_per_control(params["tick"], params["physics_dt"])
+
+
+@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop",
+          check_parameters)
 def camera_loop(
     out_dir: Path,
     *,
@@ -161,26 +193,37 @@ def camera_loop(
     saved_frames_hz: float = 0.5,
     seed: int = 0,
     q0_std: float = 0.0,
+    true_robot: str = "",
+    tip_friction: float = 0.0,
+    plate: str = "ideal",
+    sheet_clamp_at: float = FlexureParams.clamp_at,
+    sheet_free_end_at: float = FlexureParams.free_end_at,
+    sheet_thickness: float = FlexureParams.thickness,
+    sheet_width: float = FlexureParams.width,
+    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
+    sheet_links: int = FlexureParams.links,
+    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
-    """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames."""
+    """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
+
+    The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
+    `true_robot`'s when given (same number of segments); `tip_friction`, `plate` and the
+    `sheet_*` parameters as in `mujoco_contact` (a flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not (math.isfinite(saved_frames_hz) and saved_frames_hz >= 0):
-        raise ValueError(f"saved_frames_hz must be finite and >= 0 Hz (0: none), got {saved_frames_hz}")
+    check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    timing.ticks_per_control(tick)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
+    check_duration(duration, tick, model_robot.n_segments, safe_set)
     env = safe_set.environment
-    true_robot = reference_robot()
-    config = ArmModelConfig(robot=true_robot, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
-                            links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
+    arm = load_robot(true_robot) if true_robot else model_robot
+    config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
+                            links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
+                            tip_friction=tip_friction, plate=plate, flexure=flexure_params(params))
+    true_plate_stiffness = calibrate_flexure(config).stiffness_N_per_m if plate == "flexure" else plate_stiffness
     plant = MujocoPlant(build_model(config), tick)
-    if model_robot.n_segments != plant.n_segments:
-        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
     n = plant.n_segments
     tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
     plane = _calibration(calibration, plant, config, width, height, detector)
@@ -192,8 +235,8 @@ def camera_loop(
     q0 = initial_configuration(n, seed, q0_std)
     save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
 
-    summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(true_robot, safe_set, plate_stiffness))
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
+        summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(arm, safe_set, true_plate_stiffness))
         for run in runs:
             label = run.label
             step = control_step(run, nominal, nominal_kwargs, context, timing.monitor(n))
@@ -222,6 +265,7 @@ def camera_loop(
 
             def figures(series: dict[str, np.ndarray]) -> dict:
                 out = contact_figures(series, safe_set, tick)
+                out.update(plate_figures(series))
                 out.update(_perception_figures(frames, calls))
                 out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
                 return out

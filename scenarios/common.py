@@ -1,9 +1,9 @@
-"""Builders shared by scenarios: robot, environment, force-safe set, the controller runs
-(filter, its parameters and tunings; the nominal controller), the scene record, one
-run and the saving of a finished run (with its report and recording).
+"""Builders shared by scenarios: parameter checks, robot, environment, force-safe set, the
+controller runs (filter, its parameters and tunings; the nominal controller), the scene
+record, one run and the saving of a finished run (with its report and recording).
 
-Every scenario takes the controller under test as parameters (SPEC §9):
-- `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none",
+Every scenario takes the controller under test as parameters (docs/extending.md):
+- `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
   FILE.py:Factory, package.module:Factory); `filter_params`: "name=value;name=value"
   (the command line's repeated `--filter-param name=value`, joined);
 - `tunings`: for "paper-cbf", a comma list of its presets, or "custom" (a_E, b_E and
@@ -14,25 +14,33 @@ Every scenario takes the controller under test as parameters (SPEC §9):
   the sinusoid's amplitude, frequency and t0 default to the scenario's parameters.
 summary.json's rows keep "tuning" as the run's label and add "filter", "filter_params",
 "nominal" and "nominal_params".
+
+A scenario checks every parameter before it writes anything: its registered check
+(`scenarios.Scenario.validate`, built from `check_bounds`, `check_controller_parameters`,
+`check_choice` and the loaders here, whose errors name the parameter
+and the file) and `softcbf_mj.loop.check_duration`, so that a rejected command leaves no
+output behind and a study refuses a bad file at load.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 from closedloop.monitor import SafetyMonitor
 from closedloop.step import ControlStep
 from controllers.params import RobotParams, reference_robot
-from controllers.registry import build_filter, build_nominal, label, parse_params
+from controllers.registry import build_filter, build_nominal, check_filter, check_nominal, label, parse_params
+from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
 from controllers.safety_filter import Estimate, FilterContext
 from softcbf_mj.loop import Series, exact_state, run_closed_loop
@@ -40,6 +48,87 @@ from softcbf_mj.metrics import run_figures
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
+
+T = TypeVar("T")
+
+@dataclass(frozen=True)
+class Bound:
+    """The valid range of a numeric parameter: `low` <= value <= `high` (None: unbounded),
+    `<` instead of `<=` where open; `unit` for the message. Values are always finite."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    unit: str = ""
+
+    def __contains__(self, value: float) -> bool:
+        if isinstance(value, float) and not math.isfinite(value):
+            return False
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return False
+        return self.high is None or (value < self.high if self.high_open else value <= self.high)
+
+    def __str__(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        if self.low is not None and self.high is not None:
+            return f"in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}{unit}"
+        if self.low is not None:
+            return f"{'>' if self.low_open else '>='} {self.low:g}{unit}"
+        if self.high is not None:
+            return f"{'<' if self.high_open else '<='} {self.high:g}{unit}"
+        return "finite"
+
+
+def positive(unit: str = "") -> Bound:
+    """> 0 (and finite)."""
+    return Bound(0.0, low_open=True, unit=unit)
+
+
+def non_negative(unit: str = "") -> Bound:
+    """>= 0 (and finite)."""
+    return Bound(0.0, unit=unit)
+
+
+def check_bounds(params: Mapping[str, Any], bounds: Mapping[str, Bound]) -> None:
+    """Every float parameter finite, and every parameter named in `bounds` within its
+    bound; ValueError "NAME must be BOUND, got VALUE" for the first that is not."""
+    for name, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            continue
+        bound = bounds.get(name, Bound())
+        if isinstance(value, float) and not math.isfinite(value):  # ints are finite (and may exceed any float)
+            raise ValueError(f"{name} must be finite{f' and {bound}' if name in bounds else ''}, got {value!r}")
+        if value not in bound:
+            raise ValueError(f"{name} must be {bound}, got {value!r}")
+
+
+def check_choice(name: str, value: str, valid: Sequence[str]) -> None:
+    """ValueError naming the parameter and the valid values unless `value` is one of them."""
+    if value not in valid:
+        raise ValueError(f"{name} must be one of {', '.join(valid)}, got {value!r}")
+
+
+def existing_file(name: str, spec: str, expected: str) -> Path:
+    """The file a parameter names; ValueError "NAME must be EXPECTED, got SPEC (no such file)"
+    when it is not one (also for names the OS refuses: too long, a NUL byte)."""
+    path = Path(spec)
+    try:
+        found = path.is_file()
+    except (OSError, ValueError):
+        found = False
+    if not found:
+        raise ValueError(f"{name} must be {expected}, got {spec!r} (no such file)")
+    return path
+
+
+def read_parameter_file(name: str, path: Path, load: Callable[[Path], T]) -> T:
+    """`load(path)` of the file a parameter named; any failure to read or parse it becomes
+    a ValueError naming the parameter and the file."""
+    try:
+        return load(path)
+    except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:  # JSON and format errors alike
+        raise ValueError(f"{name} file {path} cannot be used: {exc}") from None
 
 
 _REPORT_AND_RECORDING: ContextVar[bool] = ContextVar("scenarios_report_and_recording", default=True)
@@ -58,27 +147,27 @@ def data_only() -> Iterator[None]:
 
 
 def load_robot(spec: str) -> RobotParams:
-    """'' or 'reference' → the SPEC §3 reference arm; otherwise a JSON file written by RobotParams.save."""
+    """'' or 'reference' → the docs/model.md#rppr-dynamics reference arm; otherwise a JSON file written by RobotParams.save."""
     if spec in ("", "reference"):
         return reference_robot()
-    path = Path(spec)
-    if not path.is_file():
-        raise ValueError(f"robot must be 'reference' or a robot JSON file, got {spec!r} (no such file)")
-    return RobotParams.load(path)
+    path = existing_file("robot", spec, "'reference' or a robot JSON file")
+    return read_parameter_file("robot", path, RobotParams.load)
 
 
 def load_environment(spec: str) -> Environment:
     """'paper' → the paper's facet; otherwise a JSON file {"H": [[a, b], ...], "h": [...]} (m)."""
     if spec == "paper":
         return paper_environment()
-    path = Path(spec)
-    if not path.is_file():
-        raise ValueError(f"environment must be 'paper' or a JSON file with keys H and h, got {spec!r} (no such file)")
+    path = existing_file("environment", spec, "'paper' or a JSON file with keys H and h")
+    return read_parameter_file("environment", path, _read_environment)
+
+
+def _read_environment(path: Path) -> Environment:
     data = json.loads(path.read_text(encoding="utf-8"))
-    try:
-        return Environment(np.asarray(data["H"], dtype=float), np.asarray(data["h"], dtype=float))
-    except KeyError as exc:
-        raise ValueError(f"environment file {path} lacks key {exc.args[0]!r} (needs H and h)") from None
+    missing = {"H", "h"} - set(data) if isinstance(data, dict) else {"H", "h"}
+    if missing:
+        raise ValueError(f"it needs a JSON object with keys H and h (m), lacking {', '.join(sorted(missing))}")
+    return Environment(np.asarray(data["H"], dtype=float), np.asarray(data["h"], dtype=float))
 
 
 def build_safe_set(environment: str, plate_stiffness: float, f_max: float, row_scaling: str) -> ForceSafeSet:
@@ -134,10 +223,33 @@ def controller_row(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, o
             "nominal_params": {k: v for k, v in nominal_kwargs.items()}}
 
 
+COMMON_BOUNDS = {"duration": positive("s"), "q0_std": Bound(0.0, math.pi, unit="rad"), "seed": Bound(0)}
+"""Bounds of the parameters every scenario has."""
+
+
+def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffness: str = "plate_stiffness") -> RobotParams:
+    """The checks shared by every scenario, made before anything is built (`Scenario.validate`):
+    COMMON_BOUNDS (duration, q0_std, seed), the controller under test (filter, filter_params,
+    tunings, nominal, nominal_params: the specs resolve and take the parameters, nothing is
+    built: `controllers.registry.check_filter`), the controller's robot, its force-safe
+    set (environment, f_max, row_scaling and the stiffness parameter `assumed_plate_stiffness`)
+    and qp_backend. Returns the controller's robot."""
+    check_bounds(params, COMMON_BOUNDS)
+    for run in controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"]):
+        check_filter(run.filter, run.filter_params)
+    check_nominal(params["nominal"], parse_params(params["nominal_params"]))
+    robot = load_robot(params["robot"])
+    build_safe_set(params["environment"], params[assumed_plate_stiffness], params["f_max"], params["row_scaling"])
+    check_choice("qp_backend", params["qp_backend"], available_backends())
+    return robot
+
+
 def initial_configuration(n_segments: int, seed: int, q0_std: float) -> np.ndarray:
     """Straight arm, plus seeded Gaussian noise of q0_std rad per segment."""
-    if q0_std < 0:
-        raise ValueError(f"q0_std must be >= 0 rad, got {q0_std}")
+    if not (math.isfinite(q0_std) and 0 <= q0_std <= math.pi):
+        raise ValueError(f"q0_std must be in [0, pi] rad, got {q0_std}")
+    if seed < 0:  # numpy's generators take seeds >= 0
+        raise ValueError(f"seed must be an integer >= 0, got {seed}")
     return np.random.default_rng(seed).normal(0.0, q0_std, n_segments) if q0_std > 0 else np.zeros(n_segments)
 
 

@@ -1,7 +1,7 @@
-"""Scenario `mujoco_contact`: the paper's sinusoid against the compliant plate in MuJoCo (SPEC §7).
+"""Scenario `mujoco_contact`: the paper's sinusoid against the compliant plate in MuJoCo (docs/ground-truth.md).
 
-The ground truth is `MujocoPlant` (the discretised rod of the reference robot, SPEC §3,
-and the paper's plate on a spring of `plate_stiffness` N/m, SPEC §4). The controller
+The ground truth is `MujocoPlant` (the discretised rod of the reference robot, docs/model.md#rppr-dynamics,
+and the paper's plate on a spring of `plate_stiffness` N/m, docs/model.md#force-safe-set). The controller
 under test (`CBFFilter`) runs at 1 kHz with zero-order hold and sees the exact rod state
 (q_i = Σ hinge angles, q̇_i likewise: `exact_state`); its model is `robot` (the reference
 parameters, or a calibration JSON from tools/calibrate.py) and its force-safe set assumes
@@ -14,39 +14,59 @@ MuJoCo actuators clamp to the same ctrlrange in every case, so with
 `pressure_limits=False` the filter may ask for more than the arm receives
 (`u` vs `u_applied` in the time series).
 
-Per run, besides the SPEC §8 fields (ρ_meas and t_violation_s from the plate's spring
+Per run, besides the docs/run-outputs.md fields (ρ_meas and t_violation_s from the plate's spring
 force: ρ_meas = 1 − F/F_max for linear ψ, violation while F > F_max), summary.json holds
 `softcbf_mj.metrics.contact_figures`: the force the controller predicts, ψ of its own
 predicted penetration, against the measured plate force (RMS and max error), and the
 loaded-rod penetration bias, predicted − measured penetration while in contact (m and %
-of n_max; SPEC §7: a loaded rod is not constant-curvature), the solver's peak contact
+of n_max; docs/ground-truth.md: a loaded rod is not constant-curvature), the solver's peak contact
 force (impacts on the 10 g plate) and how often the arm touches and leaves the plate;
 and `switches_per_s`, how often the filter's correction turns on and off. Time series
-add the plant's extras `plate_displacement_m` and `force_solver_N` (and `warning_*`
-counts if any). Results and the benchmark: models/softcbf_arm/README.md.
+add the plant's extras `plate_displacement_m`, `force_solver_N` and `force_tangential_N`
+(and `warning_*` counts if any). With `plate="flexure"` (docs/beyond-the-paper.md#flexure-plate) the measured force is
+the sheet's gauge reading and the run also records where along the sheet the arm touches
+and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
+`contact_s_m`, `contact_stiffness_N_per_m`). Results and the benchmark: models/softcbf_arm/README.md.
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
-from controllers.params import RobotParams, reference_robot
+from controllers.params import RobotParams
 from controllers.safe_set import Environment
 from controllers.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, build_safe_set, control_step, controller_row, controller_runs, initial_configuration, load_robot,
-    nominal_arguments, run_tuning, scene_record,
+    PAPER_FILTER, Bound, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
+    controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning,
+    scene_record,
 )
-from softcbf_mj.metrics import contact_figures, format_table
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from scenarios.ground_truth import check_true_arm, flexure_params
+from softcbf_mj.flexure import FlexureParams
+from softcbf_mj.flexure_calibration import calibrate_flexure
+from softcbf_mj.loop import check_duration
+from softcbf_mj.metrics import contact_figures, format_table, plate_figures
+from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
+
+SCALE = Bound(1e-3, 1e3, unit="(1: the reference robot)")  # beyond, the arm's numbers overflow
+BOUNDS = {
+    "duration": positive("s"), "frequency": non_negative("Hz"), "links_per_segment": Bound(1, 100),
+    "tau_p": non_negative("s"), "physics_dt": Bound(1e-6, CONTROL_DT, unit="s"), "plate_stiffness": positive("N/m"),
+    "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "true_stiffness_scale": SCALE,
+    "true_damping_scale": SCALE, "true_gain_scale": SCALE, "true_length_scale": SCALE,
+    "facet_offset": Bound(-1.0, 1.0, unit="m"), "facet_angle": Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"),
+    "gravity": non_negative("m/s² (along -y)"), "tip_friction": non_negative("(Coulomb μ)"),
+}
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -63,16 +83,29 @@ TABLE = (
     ("bias max [%]", "penetration_bias_max_pct", ".1f"),
     ("infeasible", "infeasible_steps", "d"),
     ("recovery", "recovery_steps", "d"),
-    ("chatter [1/s]", "chatter_per_s", ".2f"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
     ("on/off [1/s]", "switches_per_s", ".1f"),
     ("touch on/off [1/s]", "contact_switches_per_s", ".1f"),
     ("F solver [N]", "force_solver_max_N", ".3f"),
+    ("F tang [N]", "force_tangential_max_N", ".3f"),
+    ("s at F max [mm]", "contact_s_at_force_max_m", ".1f", 1e3),
+    ("k there [N/m]", "contact_stiffness_at_force_max_N_per_m", ".2f"),
     ("filter med [us]", "filter_us_median", ".1f"),
     ("RTF", "realtime_factor", ".2f"),
 )
 
 
-@register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High")
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `mujoco_contact` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    check_bounds(params, BOUNDS)
+    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
+    check_true_arm(params, model_robot)
+    steps_per_control(CONTROL_DT, params["physics_dt"])
+
+
+@register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
+          check_parameters)
 def mujoco_contact(
     out_dir: Path,
     *,
@@ -104,14 +137,34 @@ def mujoco_contact(
     true_length_scale: float = 1.0,
     facet_offset: float = 0.0,
     facet_angle: float = 0.0,
+    true_robot: str = "",
+    gravity: float = 0.0,
+    tip_friction: float = 0.0,
+    plate: str = "ideal",
+    sheet_clamp_at: float = FlexureParams.clamp_at,
+    sheet_free_end_at: float = FlexureParams.free_end_at,
+    sheet_thickness: float = FlexureParams.thickness,
+    sheet_width: float = FlexureParams.width,
+    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
+    sheet_links: int = FlexureParams.links,
+    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
     """Run each controller (tuning) for `duration` s; write summary.json and one time series per run.
 
-    `robot` is the controller's model only. The MuJoCo arm is the reference robot with
-    its k, d, λ and L multiplied by `true_stiffness_scale`, `true_damping_scale`,
+    `robot` is the controller's model and, unless `true_robot` names another robot file,
+    the MuJoCo arm's (any number of segments). The MuJoCo arm's k, d, λ and L are then
+    multiplied by `true_stiffness_scale`, `true_damping_scale`,
     `true_gain_scale` and `true_length_scale` (inertias by the length scale squared, as
-    for a rod; defaults 1: the reference robot itself). `plate_stiffness` is the true
+    for a rod; defaults 1: the robot itself). `gravity` (m/s², ≥ 0) acts along −y (the
+    arm's plane vertical, +y up; 0: the arm lies on a table). `tip_friction` is the
+    Coulomb μ between the arm and the plates (0: frictionless). `plate` "ideal" is the
+    slide-spring plate of `plate_stiffness`; "flexure" the clamped ABS sheet in a force
+    gauge (docs/beyond-the-paper.md#flexure-plate, `softcbf_mj.flexure`: `sheet_*` are its clamp and free-end positions
+    along the facet, thickness, width (m), Young's modulus (Pa), links and the calibration point as a
+    fraction of its length from the clamp), whose gauge
+    gives ρ_meas; its calibrated k (`calibrate_flexure`) is recorded as the scene's plate
+    stiffness, the controller keeps `assumed_plate_stiffness`. `plate_stiffness` is the true
     plate's (N/m), `assumed_plate_stiffness` the controller's. The true plates sit on the
     `environment` facets moved by `facet_offset` (m) along their outward normals (> 0:
     farther from the base) and then turned by `facet_angle` (rad, counter-clockwise seen
@@ -120,20 +173,13 @@ def mujoco_contact(
     """
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not math.isfinite(t0):
-        raise ValueError(f"t0 must be finite, got {t0}")
-    for name in ("true_stiffness_scale", "true_damping_scale", "true_gain_scale", "true_length_scale"):
-        if not (math.isfinite(params[name]) and params[name] > 0):
-            raise ValueError(f"{name} must be > 0 (1: the reference robot), got {params[name]}")
-    if not (math.isfinite(facet_offset) and math.isfinite(facet_angle) and abs(facet_angle) < math.pi / 2):
-        raise ValueError(f"facet_offset (m) must be finite and |facet_angle| < pi/2 rad, got {facet_offset}, {facet_angle}")
+    check_parameters(params)
     model_robot = load_robot(robot)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
+    check_duration(duration, CONTROL_DT, model_robot.n_segments, safe_set)
     env = safe_set.environment
-    ref = reference_robot()
-    true_robot = RobotParams(
+    ref = load_robot(true_robot) if true_robot else model_robot
+    true_robot_params = RobotParams(
         lengths=ref.array("lengths") * true_length_scale, masses=ref.masses,
         stiffness=ref.array("stiffness") * true_stiffness_scale, damping=ref.array("damping") * true_damping_scale,
         gains=ref.array("gains") * true_gain_scale, u_min=ref.u_min, u_max=ref.u_max,
@@ -144,12 +190,17 @@ def mujoco_contact(
     cos_a, sin_a = math.cos(facet_angle), math.sin(facet_angle)
     true_H = np.column_stack((env.H[:, 0] * cos_a - env.H[:, 1] * sin_a, env.H[:, 0] * sin_a + env.H[:, 1] * cos_a))
     true_h = (env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])) * cos_a
-    plant = MujocoPlant.from_config(
-        control_dt=CONTROL_DT, robot=true_robot, H=true_H, h=true_h, plate_stiffness=plate_stiffness,
-        links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
-    )
-    if model_robot.n_segments != plant.n_segments:
-        raise ValueError(f"robot has {model_robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
+    truth = dict(robot=true_robot_params, H=true_H, h=true_h, plate_stiffness=plate_stiffness,
+                 links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
+    if gravity:
+        truth["gravity"] = (0.0, -gravity, 0.0)
+    if tip_friction:
+        truth["tip_friction"] = tip_friction
+    true_plate_stiffness = plate_stiffness
+    if plate != "ideal":
+        truth.update(plate=plate, flexure=flexure_params(params))
+        true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
+    plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **truth)
     runs = controller_runs(filter, filter_params, tunings, qp_backend)
     nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency, t0=t0)
     n = plant.n_segments
@@ -157,17 +208,18 @@ def mujoco_contact(
     context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, pressure_limits, command_delay=0.0, actuator_tau=tau_p)
 
     def figures(log: dict[str, np.ndarray]) -> dict:
-        return contact_figures(log, safe_set, plant.control_dt)
+        return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log)}
 
     summary = SummaryWriter(out_dir, "mujoco_contact", params,
-                            scene_record(true_robot, safe_set, plate_stiffness, Environment(true_H, true_h)))
+                            scene_record(true_robot_params, safe_set, true_plate_stiffness, Environment(true_H, true_h)))
     for run in runs:
         run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, context), safe_set,
                    duration, q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
                    row=controller_row(run, nominal, nominal_kwargs))
     print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
           f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
-          f"plate {plate_stiffness:g} N/m (assumed {assumed_plate_stiffness:g}), F_max {f_max:g} N, n_max {safe_set.n_max * 1e3:.2f} mm; "
+          f"{plate} plate {true_plate_stiffness:.4g} N/m{' (calibrated)' if plate != 'ideal' else ''} "
+          f"(assumed {assumed_plate_stiffness:g}), F_max {f_max:g} N, n_max {safe_set.n_max * 1e3:.2f} mm; "
           f"outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))
     return summary.data

@@ -4,21 +4,23 @@ The paper's sinusoid u_nom,j = A sin(2π f t) drives both segments into one face
 the controller sees the exact state at the control rate; None/Low/High tunings of the
 paper's filter by default, any filter and nominal controller by `filter`, `nominal`
 (scenarios.common).
-By default there are no pressure limits, as in the paper (SPEC §5).
+By default there are no pressure limits, as in the paper (docs/model.md#control-barrier-function).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Mapping
 
 from controllers.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, build_safe_set, control_step, controller_row, controller_runs, initial_configuration, load_robot,
-    nominal_arguments, run_tuning, scene_record,
+    PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
+    controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning, scene_record,
 )
+from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
-from softcbf_mj.pcc_plant import PCCPlant
+from softcbf_mj.pcc_plant import INTEGRATORS, PCCPlant
 from softcbf_mj.runio import SummaryWriter
 
 TABLE = (
@@ -29,14 +31,27 @@ TABLE = (
     ("|u|peak [hPa]", "u_peak_abs_hPa", ".1f"),
     ("infeasible", "infeasible_steps", "d"),
     ("recovery", "recovery_steps", "d"),
-    ("chatter [1/s]", "chatter_per_s", ".2f"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
     ("filter med [us]", "filter_us_median", ".1f"),
     ("filter p99 [us]", "filter_us_p99", ".1f"),
     ("RTF", "realtime_factor", ".1f"),
 )
 
 
-@register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High")
+BOUNDS = {"duration": positive("s"), "frequency": non_negative("Hz"), "f_max": positive("N"),
+          "plate_stiffness": positive("N/m"), "control_rate": positive("Hz")}
+
+
+def check_parameters(params: Mapping[str, Any]) -> None:
+    """The checks `paper_sim` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    check_bounds(params, BOUNDS)
+    check_controller_parameters(params, "plate_stiffness")
+    check_choice("integrator", params["integrator"], INTEGRATORS)
+
+
+@register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High",
+          check_parameters)
 def paper_sim(
     out_dir: Path,
     *,
@@ -64,12 +79,10 @@ def paper_sim(
     """Run each controller (tuning) for `duration` s; write summary.json and one time series per run."""
     params = dict(locals())
     params.pop("out_dir")
-    if not duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {duration}")
-    if not control_rate > 0:
-        raise ValueError(f"control_rate must be > 0 Hz, got {control_rate}")
+    check_parameters(params)
     robot_params = load_robot(robot)
     safe_set = build_safe_set(environment, plate_stiffness, f_max, row_scaling)
+    check_duration(duration, 1.0 / control_rate, robot_params.n_segments, safe_set)
     runs = controller_runs(filter, filter_params, tunings, qp_backend)
     nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency)
     q0 = initial_configuration(robot_params.n_segments, seed, q0_std)

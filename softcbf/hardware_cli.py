@@ -13,9 +13,9 @@ unknown name or parameter is a usage error). `--port emulated --camera virtual` 
 rendered by a virtual camera); the two go together (a real camera cannot see the emulated
 arm). A real run imports no MuJoCo: the emulator is imported only for emulated runs.
 
-The run folder is the simulations' (SPEC §8, `softcbf_mj.runio`): config.json,
+The run folder is the simulations' (docs/run-outputs.md, `softcbf_mj.runio`): config.json,
 summary.json (scenario "hardware", the configuration as params, one row per run with
-the SPEC fields from `softcbf_mj.metrics.run_figures` at the control rate plus the
+the run-output fields from `softcbf_mj.metrics.run_figures` at the control rate plus the
 loop's counts), timeseries/<tuning>.npz (one row per control cycle, recorded by the
 recorder every loop shares, `closedloop.record`: the control step's columns, the
 filter's diagnostics and the hardware loop's own columns, all with units),
@@ -27,8 +27,18 @@ cycle's time, and timeseries/<tuning>_emulator.npz holds its full 1 kHz record
 pressure acting is the board's measured pressure (ACK) and the force is not measured
 (NaN: ρ_meas and force_max_N are null).
 
-Exit codes as `softcbf`: 0 done, 2 usage error (bad configuration or option), 130
-interrupted (Ctrl-C: the loop vents within one cycle and the folder is still written).
+Start-up. Everything that can fail before the loop runs is checked before the run folder
+is made: the configuration (`hardware.config`), then the emulator, the camera
+(`cv2.VideoCapture` of `camera.source`, a file resolved against the configuration's
+folder; `--camera FILE` against the working directory) and the serial port
+(`link.port`, opened at `link.baudrate`). A failure is one line on stderr naming the
+setting (`StartupError`), exit code 2, and no folder (nor, with --overwrite, a replaced
+one). A loop that then sees no complete frame within camera.startup_timeout_s vents and
+ends the same way, removing the folder it had made.
+
+Exit codes as `softcbf`: 0 done, 2 usage error (bad configuration or option, hardware
+that does not start), 130 interrupted (Ctrl-C: the loop vents within one cycle and the
+folder is still written).
 
 Mount: `register_command("hardware", HELP, add_arguments, run_command)` in softcbf/cli.py;
 `python -m softcbf.hardware_cli` runs it alone.
@@ -37,25 +47,30 @@ Mount: `register_command("hardware", HELP, add_arguments, run_command)` in softc
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
+import tempfile
+import termios
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from controllers.pcc import segment_ends
-from hardware.config import EMULATED_PORT, VIRTUAL_CAMERA, ConfigError, HardwareConfig
-from hardware.runner import HardwareLog, HardwareLoop, controller_context
 from closedloop.monitor import SafeAction
+from hardware.config import EMULATED_PORT, VIRTUAL_CAMERA, ConfigError, HardwareConfig, camera_source_is_file
+from hardware.runner import HardwareLog, HardwareLoop, StartupError, controller_context
+from hardware.transport import open_serial
 from perception.capture import VideoCaptureSource
-from perception.plane import PlaneCalibration
 from scenarios.common import scene_record
 from closedloop.record import TIMESERIES_UNITS
 from controllers.registry import build_filter, build_nominal, parse_params
 from controllers.registry import label as run_label
 from softcbf_mj.metrics import run_figures
-from softcbf_mj.runio import OutputDirError, SummaryWriter, prepare_out_dir, save_timeseries
+from softcbf_mj.runio import OutputDirError, SummaryWriter, prepare_out_dir, remove_if_unused, save_timeseries
 
 HELP = "run the controller on the valve board and camera (or --port emulated --camera virtual)"
 SCENARIO = "hardware"
@@ -83,7 +98,10 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
     if args.port is not None:
         changes["link"]["port"] = args.port
     if args.camera is not None:
-        changes["camera"]["source"] = int(args.camera) if args.camera.isdigit() else args.camera
+        source: int | str = int(args.camera) if args.camera.isdigit() else args.camera
+        if camera_source_is_file(source):
+            source = str(Path(source).absolute())  # a file named on the command line: relative to the working directory
+        changes["camera"]["source"] = source
     if args.tuning is not None:
         changes["control"]["tuning"] = args.tuning
     if args.duration is not None:
@@ -120,18 +138,21 @@ def check_controller(config: HardwareConfig) -> None:
 
 def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int:
     """Handler of `softcbf hardware` (see the module docstring for the exit codes)."""
+    out_dir = None
     try:
         config = configure(args)
-        out = args.out or Path("runs") / f"{SCENARIO}-{time.strftime('%Y%m%d-%H%M%S')}"
-        out_dir = prepare_out_dir(out, args.overwrite)
-    except (ConfigError, OutputDirError) as exc:
+        with started_loop(config) as (loop, emulation):
+            out_dir = prepare_out_dir(args.out or Path("runs") / f"{SCENARIO}-{time.strftime('%Y%m%d-%H%M%S')}",
+                                      args.overwrite)
+            row = run_loop(config, loop, emulation, out_dir)
+    except (ConfigError, StartupError, OutputDirError) as exc:
+        if out_dir is not None:
+            remove_if_unused(out_dir)  # made for a run that did not start
         print(f"error: {exc}", file=sys.stderr)
         return USAGE_ERROR
-    try:
-        row = run_hardware(config, out_dir)
     except KeyboardInterrupt:  # outside the loop (which turns Ctrl-C into its vent cycle): start-up or writing
-        print(f"\ninterrupted outside the control loop; a loop that had started vented the valves on its way out; "
-              f"outputs so far in {out_dir}", file=sys.stderr)
+        print(f"\ninterrupted outside the control loop; a loop that had started vented the valves on its way out"
+              + (f"; outputs so far in {out_dir}" if out_dir is not None else ""), file=sys.stderr)
         return INTERRUPTED
     print(f"hardware run ({row['tuning']}{', dry run' if config.run.dry_run else ''}): {row['cycles']} cycles, "
           f"{row['cycles_run']} run / {row['cycles_hold']} hold / {row['cycles_vent']} vent, link acknowledged "
@@ -140,37 +161,77 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
     return INTERRUPTED if row["interrupted"] else 0
 
 
+@contextlib.contextmanager
+def _native_stderr_unless_failed() -> Iterator[None]:
+    """Hold what native code (OpenCV, FFmpeg) writes to file descriptor 2 inside the block; pass it on
+    when the block succeeds, drop it when it raises (the one-line StartupError says what failed)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        held.seek(0)  # reached only when the block succeeded
+        sys.stderr.write(held.read().decode("utf-8", "replace"))
+
+
+def _start(setting: str, opener: Callable[[], Any]) -> Any:
+    """`opener()`, with the errors of opening a device as a one-line StartupError naming `setting`."""
+    try:
+        return opener()
+    except (OSError, ValueError, RuntimeError, termios.error) as exc:  # serial.SerialException is an OSError
+        raise StartupError(f"{setting}: " + f"{type(exc).__name__}: {exc}".splitlines()[0]) from None
+
+
+@contextlib.contextmanager
+def started_loop(config: HardwareConfig, emulation: Any = None,
+                 on_cycle: Callable[[int, float, SafeAction], None] | None = None) -> Iterator[tuple[HardwareLoop, Any]]:
+    """(the loop of `config` with its emulator, camera and serial port open, the emulation or None); closes them after.
+
+    Emulated runs (link.port "emulated", camera.source "virtual") use `emulation` (an
+    `EmulatedHardware` of this config, e.g. one a test injects faults into) or start their
+    own. What cannot be opened raises a one-line `StartupError` naming the setting.
+    """
+    with contextlib.ExitStack() as stack:
+        if config.link.is_emulated:
+            if emulation is None:
+                from softcbf_mj.emulate import EmulatedHardware  # imported only here: real runs load no MuJoCo
+
+                emulation = stack.enter_context(_start("emulator", lambda: EmulatedHardware(config)))
+            source, port, calibration = emulation.camera, emulation.port_name, emulation.calibration()
+        else:
+            with _native_stderr_unless_failed():
+                source = _start(f"camera.source {config.camera.source!r}", lambda: VideoCaptureSource(config.camera_source()))
+            stack.callback(source.close)
+            port, calibration = config.link.port, None
+        calibration = config.plane_calibration() or calibration
+        transport = _start(f"link.port {port!r} (the valve board's serial port)",
+                           lambda: open_serial(port, config.link.baudrate))
+        stack.callback(transport.close)
+        yield HardwareLoop.from_config(config, source, calibration, transport, on_cycle=on_cycle), emulation
+
+
 def run_hardware(config: HardwareConfig, out_dir: Path, *, emulation: Any = None,
                  on_cycle: Callable[[int, float, SafeAction], None] | None = None, report: bool = True) -> dict[str, Any]:
     """Run `config` and write the run folder `out_dir` (existing, empty); return the summary row.
 
-    Emulated runs (link.port "emulated", camera.source "virtual") use `emulation` (an
-    `EmulatedHardware` of this config, e.g. one a test injects faults into) or make their own.
-    `on_cycle(k, t, action)` is called after every cycle (t: s since the start). `report`
-    False skips the plots, report.md and recording.rrd (tests).
+    `emulation`: as for `started_loop`. `on_cycle(k, t, action)` is called after every
+    cycle (t: s since the start). `report` False skips the plots, report.md and
+    recording.rrd (tests).
     """
-    emulated = config.link.is_emulated
-    own = None
-    if emulated and emulation is None:
-        from softcbf_mj.emulate import EmulatedHardware  # imported only here: real runs load no MuJoCo
+    with started_loop(config, emulation, on_cycle) as (loop, emulation):
+        return run_loop(config, loop, emulation, out_dir, report)
 
-        emulation = own = EmulatedHardware(config)
-    try:
-        if emulated:
-            source, port = emulation.camera, emulation.port_name
-            calibration = emulation.calibration()
-        else:
-            source, port = VideoCaptureSource(config.camera.source), config.link.port
-        if config.camera.calibration is not None:
-            calibration = PlaneCalibration.load(config.resolve(config.camera.calibration))
-        loop = HardwareLoop.from_config(config, source, calibration, port, on_cycle=on_cycle)
-        start = time.perf_counter()
-        log = loop.run()
-        wall = time.perf_counter() - start
-        return write_run(config, out_dir, log, loop, wall, emulation, report)
-    finally:
-        if own is not None:
-            own.close()
+
+def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir: Path, report: bool = True) -> dict[str, Any]:
+    """Run a started loop and write the run folder `out_dir`; return the summary row."""
+    start = time.perf_counter()
+    log = loop.run()
+    wall = time.perf_counter() - start
+    return write_run(config, out_dir, log, loop, wall, emulation, report)
 
 
 def _series(config: HardwareConfig, log: HardwareLog, safe_set, emulation: Any) -> tuple[dict, dict]:

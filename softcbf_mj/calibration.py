@@ -1,6 +1,6 @@
 """Calibration of the PCC model's stiffness K, damping D and pressure gain Λ from motion data.
 
-Model (SPEC §3), one equation per segment i, N·m:
+Model (docs/model.md#rppr-dynamics), one equation per segment i, N·m:
 
     τ_i := [M(q) q̈ + C(q, q̇) q̇]_i = λ_i u_i − k_i q_i − d_i q̇_i
 

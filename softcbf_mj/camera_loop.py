@@ -1,4 +1,4 @@
-"""The camera in the loop (SPEC §7, paper §VI): plant → camera → AprilTag pipeline → controller, each at its own rate.
+"""The camera in the loop (docs/ground-truth.md, paper §VI): plant → camera → AprilTag pipeline → controller, each at its own rate.
 
 Time runs on the plant's tick grid, Δ = `plant.control_dt` (s); the command is held
 (zero-order hold) between controller calls, the physics steps at its own rate inside
@@ -65,7 +65,7 @@ FRAME_UNITS = {
 
 @dataclass(frozen=True)
 class CameraTiming:
-    """Rates and imperfections of the camera path (defaults: the paper's hardware, SPEC §7).
+    """Rates and imperfections of the camera path (defaults: the paper's hardware, docs/ground-truth.md).
 
     frame_rate (Hz), control_rate (Hz), latency (s, exposure → detections available),
     drop_rate (fraction of frames lost, [0, 1)), pixel_noise (grey levels, std of

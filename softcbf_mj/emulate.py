@@ -31,14 +31,14 @@ import numpy as np
 
 from controllers.params import per_segment
 from hardware.board import ValveBoard
-from hardware.config import HardwareConfig
+from hardware.config import EMULATOR_COMMAND_PERIOD_S, HardwareConfig
 from hardware.transport import PtyBoardLine
 from perception.plane import PlaneCalibration
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.valve_emulator import ValveEmulator
 from softcbf_mj.virtual_camera import VirtualCamera
 
-CONTROL_DT = 2e-3  # s, the emulator's command resolution (board outputs act from the next 2 ms step)
+CONTROL_DT = EMULATOR_COMMAND_PERIOD_S  # s, the emulator's command resolution (board outputs act from the next 2 ms step)
 
 
 class EmulatedHardware:

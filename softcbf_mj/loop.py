@@ -1,4 +1,4 @@
-"""The simulated closed loop: plant → estimator → control step → plant (SPEC §6, §9).
+"""The simulated closed loop: plant → estimator → control step → plant (docs/model.md#nominal-controller-and-the-papers-scenario).
 
 At each control step k (t_k = k·Δt): the estimator turns the plant's ground truth into
 the controller's view of the state (`controllers.safety_filter.Estimate`), the control
@@ -6,10 +6,17 @@ step (`closedloop.step.ControlStep`: nominal, filter, admission, safety monitor)
 the command, and the plant holds it for one period. This module owns only the clock
 and the plant's I/O; everything is recorded at the control rate by `closedloop.record`
 (the plant's columns: `plant_columns`, `plant_values`, `plant_series`).
+
+The record is preallocated (`closedloop.record.Recorder`): T = round(duration / Δt) rows of
+F floats. Its peak (`series_bytes_needed`: the rows, the columns cut from them, the filter's
+diagnostics and the plant's extras) is checked against the available memory before a run
+starts (`check_duration`), together with a finite duration of at least one period.
 """
 
 from __future__ import annotations
 
+import math
+import os
 from typing import Callable
 
 import numpy as np
@@ -42,6 +49,48 @@ def plant_values(state: PlantState, q_est: np.ndarray, qd_est: np.ndarray) -> li
             *state.segment_ends.ravel().tolist(), *state.u_applied.tolist(), *state.contact_forces.tolist()]
 
 
+def available_memory_bytes() -> int:
+    """Memory a new allocation can get without swapping: MemAvailable of /proc/meminfo
+    (Linux), else the machine's physical memory."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def series_bytes_needed(n_steps: int, n_segments: int, safe_set: ForceSafeSet) -> int:
+    """Peak memory of a simulated run's time series (`Recorder.bytes_needed` of `plant_columns`),
+    with room for the paper CBF's diagnostics (b and active: P' each, a few scalars) and
+    8 floats a step of the plant's extras."""
+    p = len(safe_set.H_prime)
+    return Recorder.bytes_needed(n_steps, n_segments, plant_columns(n_segments, safe_set.n_facets),
+                                 diagnostic_floats=2 * p + 4, extra_floats=8)
+
+
+def check_duration(duration: float, control_dt: float, n_segments: int, safe_set: ForceSafeSet) -> int:
+    """The number of control steps of a run of `duration` s at period `control_dt` s,
+    after checking it: duration finite and > 0, at least one period, and the time series
+    (`series_bytes_needed`) within the available memory. Raises ValueError naming
+    duration; call it before writing anything."""
+    if not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f"duration must be finite and > 0 s, got {duration}")
+    if not (math.isfinite(control_dt) and control_dt > 0):
+        raise ValueError(f"the control period must be finite and > 0 s, got {control_dt}")
+    n_steps = int(round(duration / control_dt))
+    if n_steps < 1:
+        raise ValueError(f"duration must cover at least one control period ({control_dt:g} s), got {duration} s")
+    needed, available = series_bytes_needed(n_steps, n_segments, safe_set), available_memory_bytes()
+    if needed > available:
+        raise ValueError(f"duration {duration:g} s ({n_steps} steps of {control_dt:g} s) needs {needed / 2**30:.1f} GiB "
+                         f"for its time series, more than the {available / 2**30:.1f} GiB of memory available; "
+                         "shorten duration or lower the rate")
+    return n_steps
+
+
 def plant_series(recorder: Recorder, safe_set: ForceSafeSet, n_rows: int | None = None) -> Series:
     """The recorder's columns plus tip (m) and ρ_meas (1, from the measured contact force through
     the controller's force-safe set: its ψ and n_max), and their units (the plant's extras not included)."""
@@ -66,9 +115,7 @@ def run_closed_loop(
 
     `safe_set` is the controller's (ρ_meas uses its ψ and n_max).
     """
-    n_steps = int(round(duration / plant.control_dt))
-    if n_steps < 1:
-        raise ValueError(f"duration must cover at least one control period ({plant.control_dt} s), got {duration}")
+    n_steps = check_duration(duration, plant.control_dt, plant.n_segments, safe_set)
     recorder = Recorder(n_steps, plant.n_segments, plant_columns(plant.n_segments, safe_set.n_facets))
     step.reset()
     state = plant.reset(q0)

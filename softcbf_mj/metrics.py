@@ -1,5 +1,15 @@
-"""Per-run figures from a closed-loop time series (SPEC §8 summary fields, MuJoCo contact
-figures) and their table."""
+"""Per-run figures from a closed-loop time series (docs/run-outputs.md summary fields, MuJoCo contact
+figures) and their table.
+
+How much the filter's command chatters, three ways (u, u_nom (T, N) in hPa, one row per
+control step of Δt s; d = u − u_nom, "no correction" where |d_j| ≤ CHATTER_THRESHOLD_HPA):
+- `chatter_per_s`: switches of the correction's ternary sign per second, summed over
+  segments (on, off or reversal of each d_j);
+- `switches_per_s`: on/off switches of the filter as a whole per second;
+- `u_hf_fraction`: the fraction of u's variance above HF_CUTOFF_HZ (power the arm cannot
+  follow, i.e. command energy the valves spend for nothing).
+Plus `u_dev_rms_hPa` and `u_dev_max_hPa`, RMS and max |d| over all steps and segments.
+"""
 
 from __future__ import annotations
 
@@ -9,32 +19,76 @@ import numpy as np
 
 from controllers.safe_set import ForceSafeSet
 
-CHATTER_THRESHOLD_HPA = 1e-3
+CHATTER_THRESHOLD_HPA = 0.1  # |u − u_nom| below this (hPa) counts as "no correction"
+HF_CUTOFF_HZ = 5.0  # above the reference arm's first mode (≈ 20 rad/s ≈ 3.2 Hz): power the arm cannot follow
 
 
-def chatter_per_s(u: np.ndarray, u_nom: np.ndarray, duration: float) -> float:
-    """Sign changes per second of the filter's correction u − u_nom, summed over segments.
+def correction_sign(u: np.ndarray, u_nom: np.ndarray, threshold_hPa: float = CHATTER_THRESHOLD_HPA) -> np.ndarray:
+    """Ternary sign of the filter's correction d = u − u_nom, (T, N) → (T, N) in {−1, 0, +1}:
+    0 where |d| ≤ `threshold_hPa` (no correction), sign(d) elsewhere."""
+    if not threshold_hPa >= 0:
+        raise ValueError(f"threshold_hPa must be >= 0 hPa, got {threshold_hPa}")
+    d = np.asarray(u, dtype=float) - np.asarray(u_nom, dtype=float)
+    return np.where(np.abs(d) > threshold_hPa, np.sign(d), 0.0)
 
-    Corrections smaller than CHATTER_THRESHOLD_HPA count as 'no correction' and are
-    skipped, so a filter that is simply inactive scores 0.
+
+def chatter_per_s(u: np.ndarray, u_nom: np.ndarray, duration: float,
+                  threshold_hPa: float = CHATTER_THRESHOLD_HPA) -> float:
+    """Switches per second of the filter's correction, summed over segments.
+
+    For each segment j, s_j(k) = correction_sign(u, u_nom)[k, j] ∈ {−1, 0, +1}; a switch is
+    a step k with s_j(k) ≠ s_j(k − 1): the correction turning on (0 → ±1), turning off
+    (±1 → 0) or reversing (−1 ↔ +1, one switch). A command that alternates every step
+    between u_nom and a corrected value therefore scores one switch per step and segment
+    it corrects (1000/s per segment at 1 kHz); a filter that is inactive, or whose
+    correction turns on once and stays on, scores ≈ 0. `duration` in s; u, u_nom (T, N) hPa.
     """
-    changes = 0
-    for d in (u - u_nom).T:
-        signs = np.sign(d[np.abs(d) > CHATTER_THRESHOLD_HPA])
-        changes += int(np.count_nonzero(signs[1:] != signs[:-1]))
-    return changes / duration
+    if not duration > 0:
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    s = correction_sign(u, u_nom, threshold_hPa)
+    return int(np.count_nonzero(s[1:] != s[:-1])) / duration
 
 
-def switches_per_s(u: np.ndarray, u_nom: np.ndarray, duration: float) -> float:
-    """On/off switches per second of the filter's correction: steps where "some segment's
-    |u − u_nom| > CHATTER_THRESHOLD_HPA" changes value. Catches the chatter `chatter_per_s`
-    misses: a correction that keeps its sign but turns off and on (u = u_nom between)."""
-    on = np.any(np.abs(u - u_nom) > CHATTER_THRESHOLD_HPA, axis=1)
+def switches_per_s(u: np.ndarray, u_nom: np.ndarray, duration: float,
+                   threshold_hPa: float = CHATTER_THRESHOLD_HPA) -> float:
+    """On/off switches per second of the filter as a whole: steps where "some segment's
+    |u − u_nom| > `threshold_hPa`" changes value (a sign reversal with the filter on all
+    along does not count; `chatter_per_s` does)."""
+    if not duration > 0:
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    on = np.any(correction_sign(u, u_nom, threshold_hPa) != 0, axis=1)
     return int(np.count_nonzero(on[1:] != on[:-1])) / duration
 
 
+def high_frequency_fraction(u: np.ndarray, dt: float, cutoff_hz: float = HF_CUTOFF_HZ) -> float | None:
+    """Fraction of the command's variance above `cutoff_hz`: u (T, N) hPa sampled every `dt` s.
+
+    Each u_j is extended by its mirror image (u_j followed by u_j reversed, length 2T, so the
+    periodic extension the DFT assumes has no jump at the ends: no spectral leakage from a
+    run that ends mid-swing) and its mean removed; with U_j(f) the one-sided DFT of that
+    (`numpy.fft.rfft`), the fraction is Σ_j Σ_{f > cutoff} |U_j(f)|² / Σ_j Σ_f |U_j(f)|² ∈ [0, 1].
+    The paper's 0.01 Hz sinusoid over 10 s scores 1.5e-7; a command that alternates every
+    step between two values scores ≈ the alternating part's share of the variance. None for
+    a constant command (no variance) or a cut-off at or above the Nyquist frequency 1/(2 dt).
+    """
+    if not dt > 0:
+        raise ValueError(f"dt must be > 0 s, got {dt}")
+    if not cutoff_hz > 0:
+        raise ValueError(f"cutoff_hz must be > 0 Hz, got {cutoff_hz}")
+    u = np.asarray(u, dtype=float).reshape(len(u), -1)
+    if len(u) < 2 or cutoff_hz >= 0.5 / dt:
+        return None
+    mirrored = np.concatenate((u, u[::-1]), axis=0)
+    power = np.abs(np.fft.rfft(mirrored - mirrored.mean(axis=0), axis=0)) ** 2
+    freq = np.fft.rfftfreq(len(mirrored), dt)
+    total = float(power.sum())
+    if total <= 0.0:
+        return None
+    return float(power[freq > cutoff_hz].sum() / total)
+
+
 def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool, wall_s: float) -> dict[str, Any]:
-    """The SPEC §8 run fields plus extras, from a `LoopRecorder` log whose rows are `control_dt` s apart.
+    """The docs/run-outputs.md run fields plus extras, from a `LoopRecorder` log whose rows are `control_dt` s apart.
 
     Filter times are taken over the rows with a controller call (finite `filter_us`).
     `recovery_steps` and `active_steps` count the paper filter's diagnostics `recovery`
@@ -60,6 +114,9 @@ def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool
         "active_steps": int(np.count_nonzero(np.any(log["active"], axis=1))) if "active" in log else None,
         "chatter_per_s": chatter_per_s(log["u"], log["u_nom"], sim_s),
         "switches_per_s": switches_per_s(log["u"], log["u_nom"], sim_s),
+        "u_hf_fraction": high_frequency_fraction(log["u"], control_dt),
+        "u_dev_rms_hPa": float(np.sqrt(np.mean((log["u"] - log["u_nom"]) ** 2))),
+        "u_dev_max_hPa": float(np.max(np.abs(log["u"] - log["u_nom"]))),
         "realtime_factor": float(sim_s / wall_s) if wall_s > 0 else None,
     }
 
@@ -111,6 +168,35 @@ def contact_figures(log: Mapping[str, np.ndarray], safe_set: ForceSafeSet, contr
     for key in ("mean", "max"):
         value = out[f"penetration_bias_{key}_m"]
         out[f"penetration_bias_{key}_pct"] = None if value is None else 100.0 * value / n_max
+    return out
+
+
+def plate_figures(log: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Friction and, for flexure plates, where and how stiff the arm met the sheet (a MuJoCo run's
+    `log` with the plant extras `force_tangential_N` and, for flexures, `contact_s_m` and
+    `contact_stiffness_N_per_m`, (T, P) each; `softcbf_mj.mujoco_plant`).
+
+    - `force_tangential_max_N`: the peak tangential (friction) contact force, N;
+    - flexure: `contact_s_min_m`, `contact_s_max_m` (m from the clamp, over the steps in
+      contact), and at the step of the largest measured (gauge) force: `contact_s_at_force_max_m`
+      and `contact_stiffness_at_force_max_N_per_m` (N/m), the sheet's static stiffness there,
+      with `force_true_at_force_max_N`, the arm's normal contact force at that step (the gauge
+      reads the clamp reaction, not the contact force). None without contact.
+    """
+    out: dict[str, Any] = {"force_tangential_max_N": float(np.max(log["force_tangential_N"], initial=0.0))}
+    if "contact_s_m" not in log:
+        return out
+    where = np.asarray(log["contact_s_m"], dtype=float)
+    touching = np.isfinite(where)
+    step, facet = np.unravel_index(int(np.argmax(log["contact_force"])), np.shape(log["contact_force"]))
+    at_peak = bool(touching[step, facet])
+    out.update({
+        "contact_s_min_m": float(np.min(where[touching])) if np.any(touching) else None,
+        "contact_s_max_m": float(np.max(where[touching])) if np.any(touching) else None,
+        "contact_s_at_force_max_m": float(where[step, facet]) if at_peak else None,
+        "contact_stiffness_at_force_max_N_per_m": float(log["contact_stiffness_N_per_m"][step, facet]) if at_peak else None,
+        "force_true_at_force_max_N": float(log["force_solver_N"][step, facet]) if at_peak else None,
+    })
     return out
 
 

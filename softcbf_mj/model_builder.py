@@ -1,4 +1,4 @@
-"""MJCF of the discretised PCC arm and its compliant plates, generated with MjSpec (SPEC §7).
+"""MJCF of the discretised PCC arm and its compliant plates, generated with MjSpec (docs/ground-truth.md).
 
 Arm. Segment i of the PCC arm (length L_i, mass m_i, inertia I_i, stiffness k_i,
 damping d_i, gain λ_i; `controllers.params.RobotParams`) becomes n rigid links joined
@@ -39,10 +39,20 @@ n̂_k = H_kᵀ/‖H_k‖ (m), with spring stiffness `plate_stiffness` (N/m), mas
 by `tip_radius` along n̂_k, so the tip sphere touches it exactly when H_k r = h_k. The
 plate is centred on the foot of the perpendicular from the base and is wide enough to
 cover every point of the facet line within the arm's reach Σ L_i. Contacts are
-frictionless (condim 1: normal force only, as in the paper's model) and stiff
-(solref = (`contact_timeconst`, 1)).
+frictionless by default (condim 1: normal force only, as in the paper's model) and stiff
+(solref = (`contact_timeconst`, 1)); `tip_friction` μ > 0 makes them Coulomb contacts
+(condim 3, sliding friction μ on the arm's and the plates' geoms).
 
-AprilTags (SPEC §7, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
+Flexure plates (`plate="flexure"`, docs/beyond-the-paper.md#flexure-plate; maths and defaults in `softcbf_mj.flexure`):
+facet k instead gets a clamped sheet: the clamp body `plate{k}` on the force gauge's slide
+joint `plate{k}_gauge` along n̂_k (stiffness k_g), the sheet's first half cell fixed to it
+and links `plate{k}_link{j}` on hinges `plate{k}_h{j}` about z at the cell centres, on the
+surface that faces the arm; that surface at rest lies on the facet line shifted by
+`tip_radius` (as the ideal plate's), from the clamp at σ = `clamp_at` to the free end at
+σ = `free_end_at` along t̂ = (−n̂_y, n̂_x) from the foot of the perpendicular from the base.
+Sites `plate{k}_surface` (the surface's clamp end) and `plate{k}_calibration`.
+
+AprilTags (docs/ground-truth.md, as on the hardware). Tag 0 (`perception.tags`) lies on `base`, centred
 on the base point; tag i on the body that carries `seg{i}_end`, centred on that site,
 except the tip tag, which is shifted back along its link by half its textured edge so
 that its front edge is the tip point r and it never overhangs the plate. Each is a flat
@@ -57,7 +67,8 @@ matte material (no specular highlight). The calibration scene adds a board of ta
 `CALIBRATION_BOARD_IDS` on the world in the same plane (`calibration_board`).
 
 Options: `implicitfast` (joint damping integrated implicitly), dense Jacobian (MuJoCo
-4.0.0 sparse-solver bug), gravity off (the arm lies on a table). The defaults n = 10
+4.0.0 sparse-solver bug), gravity off by default (the arm lies on a table; `gravity`
+sets it, e.g. (0, −9.81, 0) for an arm in a vertical plane). The defaults n = 10
 and physics step 0.1 ms come from `tools/convergence_study.py` (models/softcbf_arm/README.md).
 
 Units: SI (m, kg, s, rad, N); pressure in hPa.
@@ -78,6 +89,7 @@ import mujoco
 import numpy as np
 
 from controllers.params import RobotParams, per_segment, reference_robot
+from softcbf_mj.flexure import FlexureParams
 from perception.plane import TagBoard, fovy_intrinsics
 from perception.tags import arm_tag_ids, tag_image, textured_size
 
@@ -89,13 +101,14 @@ CALIBRATION_SCENE_MODEL_NAME = "softcbf_arm calibration scene"
 CALIBRATION_BOARD_FILE = "scene_calibration_board.json"  # perception.plane.TagBoard
 ASSETS_DIR = "assets"
 
-PAPER_H = ((0.36, 1.0),)  # SPEC §4: the paper's single facet, H r ≤ h
+PAPER_H = ((0.36, 1.0),)  # docs/model.md#force-safe-set: the paper's single facet, H r ≤ h
 PAPER_h = (0.15,)  # m
 PAPER_PLATE_STIFFNESS = 11.16  # N/m, paper
+PLATE_KINDS = ("ideal", "flexure")  # a rigid plate on a slide spring (docs/ground-truth.md) | a clamped sheet in a force gauge (§12)
 
 DEFAULT_LINKS_PER_SEGMENT = 10  # chosen by tools/convergence_study.py (model README)
 DEFAULT_PHYSICS_DT = 1e-4  # s, chosen by tools/convergence_study.py (model README)
-DEFAULT_TAU_P = 0.05  # s, SPEC §7
+DEFAULT_TAU_P = 0.05  # s, docs/ground-truth.md
 # Coarser rod for loops that render a camera (camera_loop, the hardware emulator): about twice
 # as fast; against the defaults on mujoco_contact's Low run, 0.08 mm of tip and ≈ 1 mN of plate
 # force (tools/bench_mujoco_contact.py sweep, model README), far below the camera's own errors.
@@ -107,6 +120,7 @@ _VISUAL_RADIUS = 0.01  # m, drawn arm radius
 _PLATE_THICKNESS = 0.005  # m
 _PLATE_HALF_HEIGHT = 0.02  # m, along z
 _PLATE_EDGE_MARGIN = 0.02  # m, beyond the reachable chord at each side
+_FLEXURE_CLAMP_SIZE = 0.01  # m, the clamp block's edge (behind the sheet's surface)
 CAMERA_FOVY_DEG = 45.0
 CAMERA_RESOLUTION = (1280, 720)  # px, width × height
 _CAMERA_FIELD_MARGIN = 1.1  # the image height covers ±1.1 Σ L around the workspace centre
@@ -140,24 +154,34 @@ def _r6v(values: Any) -> list[float]:
 class ArmModelConfig:
     """Everything the generated model depends on (units in the module docstring).
 
-    | field               | default                  | unit  | source                    |
-    |---------------------|--------------------------|-------|---------------------------|
-    | robot               | reference_robot()        | —     | SPEC §3                   |
-    | H, h                | [[0.36, 1.0]], [0.15]    | —, m  | paper (SPEC §4)           |
-    | plate_stiffness     | 11.16 (per facet)        | N/m   | paper                     |
-    | links_per_segment   | 10                       | —     | convergence study         |
-    | tau_p               | 0.05                     | s     | chosen (SPEC §7)          |
-    | physics_dt          | 1e-4                     | s     | convergence study         |
-    | integrator          | "implicitfast"           | —     | SPEC §7 (see model README)|
-    | tip_radius          | 0.004                    | m     | chosen                    |
-    | plate_mass          | 0.01                     | kg    | chosen                    |
-    | plate_damping_ratio | 0.2                      | —     | chosen (light damping)    |
-    | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)    |
-    | tag_size            | 0.03                     | m     | chosen (hardware tags)    |
+    | field               | default                  | unit  | source                                  |
+    |---------------------|--------------------------|-------|-----------------------------------------|
+    | robot               | reference_robot()        | —     | docs/model.md#rppr-dynamics             |
+    | H, h                | [[0.36, 1.0]], [0.15]    | —, m  | paper (docs/model.md#force-safe-set)    |
+    | plate_stiffness     | 11.16 (per facet)        | N/m   | paper                                   |
+    | links_per_segment   | 10                       | —     | convergence study                       |
+    | tau_p               | 0.05                     | s     | chosen (docs/ground-truth.md)           |
+    | physics_dt          | 1e-4                     | s     | convergence study                       |
+    | integrator          | "implicitfast"           | —     | docs/ground-truth.md (see model README) |
+    | tip_radius          | 0.004                    | m     | chosen                                  |
+    | plate_mass          | 0.01                     | kg    | chosen                                  |
+    | plate_damping_ratio | 0.2                      | —     | chosen (light damping)                  |
+    | contact_timeconst   | 0.002                    | s     | chosen (stiff contact)                  |
+    | tag_size            | 0.03                     | m     | chosen (hardware tags)                  |
+    | plate               | "ideal"                  | —     | docs/ground-truth.md ("flexure": docs/beyond-the-paper.md) |
+    | flexure             | FlexureParams()          | —     | docs/beyond-the-paper.md (softcbf_mj.flexure) |
+    | tip_friction        | 0.0                      | —     | docs/beyond-the-paper.md (0: frictionless) |
+    | gravity             | (0, 0, 0)                | m/s²  | chosen (arm on a table)                 |
 
     `tag_size` is the black square of each AprilTag; its texture (with the white quiet
     zone) spans `textured_size(tag_size)`, at most half the shortest segment so that
     neighbouring tags cannot overlap. An empty facet set (H of shape (0, 2)) gives the arm alone.
+    `plate` "flexure" replaces every ideal plate by a clamped sheet in a force gauge
+    (`flexure`: one `FlexureParams` for every facet, or one per facet; `plate_stiffness`
+    is then unused). `tip_friction` μ ≥ 0 is the Coulomb friction between the arm and the
+    plates (μ > 0: condim 3; μ = 0 keeps the frictionless condim 1 model exactly).
+    `gravity` (m/s², world frame; the arm moves in the x-y plane): e.g. (0, −9.81, 0) for
+    an arm in a vertical plane with +y up.
     """
 
     robot: RobotParams = field(default_factory=reference_robot)
@@ -173,6 +197,10 @@ class ArmModelConfig:
     plate_damping_ratio: float = 0.2
     contact_timeconst: float = 0.002
     tag_size: float = DEFAULT_TAG_SIZE
+    plate: str = "ideal"
+    flexure: FlexureParams | tuple[FlexureParams, ...] = field(default_factory=FlexureParams)
+    tip_friction: float = 0.0
+    gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         H = np.atleast_2d(np.asarray(self.H, dtype=float)) if np.size(self.H) else np.zeros((0, 2))
@@ -217,6 +245,18 @@ class ArmModelConfig:
                 f"more than half the shortest segment ({min(self.robot.lengths):g} m), so neighbouring tags "
                 f"could overlap; use tag_size <= {largest:.4g} m"
             )
+        if self.plate not in PLATE_KINDS:
+            raise ValueError(f"plate must be one of {', '.join(PLATE_KINDS)}, got {self.plate!r}")
+        if not isinstance(self.flexure, FlexureParams):
+            object.__setattr__(self, "flexure", tuple(self.flexure))
+            if len(self.flexure) != len(self.h) or not all(isinstance(f, FlexureParams) for f in self.flexure):
+                raise ValueError(f"flexure must be one FlexureParams or one per facet ({len(self.h)}), got {self.flexure!r}")
+        if not (math.isfinite(self.tip_friction) and self.tip_friction >= 0):
+            raise ValueError(f"tip_friction must be finite and >= 0 (0: frictionless), got {self.tip_friction}")
+        gravity = tuple(float(g) for g in self.gravity)
+        if len(gravity) != 3 or not all(math.isfinite(g) for g in gravity):
+            raise ValueError(f"gravity must be 3 finite numbers (m/s²), got {self.gravity!r}")
+        object.__setattr__(self, "gravity", gravity)
         if self.contact_timeconst < 2 * self.physics_dt:
             raise ValueError(
                 f"contact_timeconst ({self.contact_timeconst:g} s) must be >= 2 physics_dt "
@@ -232,6 +272,10 @@ class ArmModelConfig:
         """Unit outward normals n̂_k = H_kᵀ/‖H_k‖, shape (P, 2)."""
         H = np.array(self.H, dtype=float).reshape(-1, 2)
         return H / np.linalg.norm(H, axis=1, keepdims=True)
+
+    def flexures(self) -> tuple[FlexureParams, ...]:
+        """The flexure of each facet, (P,)."""
+        return (self.flexure,) * self.n_facets if isinstance(self.flexure, FlexureParams) else self.flexure
 
     def plate_damping(self) -> np.ndarray:
         """Plate slide damping 2 ζ √(k m), N·s/m, shape (P,)."""
@@ -278,7 +322,9 @@ def _add_defaults(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
     visual.geom.conaffinity = 0
     visual.geom.group = 2
     visual.geom.rgba = list(_ARM_COLOR)
-    contact = dict(condim=1, solref=[_r6(config.contact_timeconst), 1.0])
+    contact: dict[str, Any] = dict(condim=1, solref=[_r6(config.contact_timeconst), 1.0])
+    if config.tip_friction > 0:  # both sides carry μ (MuJoCo takes the larger of the two geoms')
+        contact.update(condim=3, friction=[_r6(config.tip_friction), 0.005, 0.0001])
     collision = spec.add_default("collision", main)
     collision.geom.contype = 1
     collision.geom.conaffinity = 0
@@ -466,6 +512,69 @@ def _add_plates(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
         body.add_site(name=f"plate{k + 1}_surface", pos=[0, 0, 0], size=[_r6(config.tip_radius), 0, 0])
 
 
+def _box_inertia(mass: float, half: np.ndarray) -> list[float]:
+    """Principal inertia (kg·m²) of a uniform box of `mass` (kg) and half sizes `half` (m)."""
+    return _r6v(mass / 3.0 * np.array([half[1] ** 2 + half[2] ** 2, half[0] ** 2 + half[2] ** 2, half[0] ** 2 + half[1] ** 2]))
+
+
+def _add_flexures(spec: mujoco.MjSpec, config: ArmModelConfig) -> None:
+    """Per facet k a clamped sheet (`softcbf_mj.flexure`): body `plate{k}` (the clamp) on the
+    gauge's slide joint `plate{k}_gauge` along n̂, the first half cell `plate{k}` fixed to it,
+    then links `plate{k}_link{j}` on hinges `plate{k}_h{j}` about z at the cell centres, on
+    the sheet's surface facing the arm. Sites: `plate{k}_surface` (the clamp end of the
+    surface at rest) and `plate{k}_calibration` (the calibration point)."""
+    plate = spec.find_default("plate")
+    for k, (normal, hk, flex) in enumerate(zip(config.facet_normals(), config.h, config.flexures())):
+        if flex.width / 2 > _PLATE_HALF_HEIGHT:
+            raise ValueError(
+                f"flexure width must be <= {2 * _PLATE_HALF_HEIGHT:g} m (the tags lie just above the plates), got {flex.width:g} m"
+            )
+        name = f"plate{k + 1}"
+        tangent = np.array([-normal[1], normal[0]])
+        distance = hk / float(np.linalg.norm(config.H[k]))
+        clamp = normal * (distance + config.tip_radius) + flex.clamp_at * tangent
+        angle = math.atan2(normal[1], normal[0])
+        sign, c, t = flex.direction, flex.cell, flex.thickness
+        body = spec.worldbody.add_body(
+            name=name, pos=_r6v([clamp[0], clamp[1], 0.0]), quat=_r6v([math.cos(angle / 2), 0, 0, math.sin(angle / 2)]),
+        )
+        body.add_joint(
+            name=f"{name}_gauge", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1.0, 0.0, 0.0],
+            stiffness=[_r6(flex.gauge_stiffness), 0, 0], damping=[_r6(flex.gauge_damping), 0, 0],
+        )
+        clamp_half = np.array([_FLEXURE_CLAMP_SIZE / 2, _FLEXURE_CLAMP_SIZE / 2, _PLATE_HALF_HEIGHT])
+        clamp_centre = [clamp_half[0], -sign * clamp_half[1], 0.0]  # behind the surface, beyond the clamped end
+        body.explicitinertial = True
+        body.mass = _r6(flex.gauge_mass)
+        body.ipos = _r6v(clamp_centre)
+        body.inertia = _box_inertia(flex.gauge_mass, clamp_half)
+        body.add_geom(default=plate, name=f"{name}_clamp", type=mujoco.mjtGeom.mjGEOM_BOX, pos=_r6v(clamp_centre), size=_r6v(clamp_half))
+        body.add_site(name=f"{name}_surface", pos=[0, 0, 0], size=[_r6(config.tip_radius), 0, 0])
+        lengths = [c / 2] + [c] * (flex.links - 1) + [c / 2]  # the clamped half cell, the links
+        starts = np.concatenate(([0.0], flex.hinge_positions()))
+        calibration = min(int(np.searchsorted(starts, flex.calibration_s, side="right")) - 1, flex.links)
+        parent = body
+        for j, length in enumerate(lengths):
+            half = np.array([t / 2, length / 2, flex.width / 2])
+            centre = _r6v([t / 2, sign * length / 2, 0.0])
+            if j > 0:
+                parent = parent.add_body(name=f"{name}_link{j}", pos=_r6v([0.0, sign * lengths[j - 1], 0.0]))
+                parent.add_joint(
+                    name=f"{name}_h{j}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, 0.0, 1.0],
+                    stiffness=[_r6(flex.hinge_stiffness), 0, 0], damping=[_r6(flex.hinge_damping), 0, 0],
+                )
+                mass = flex.density * t * length * flex.width
+                parent.explicitinertial = True
+                parent.mass = _r6(mass)
+                parent.ipos = centre
+                parent.inertia = _box_inertia(mass, half)
+            parent.add_geom(default=plate, name=name if j == 0 else f"{name}_link{j}", type=mujoco.mjtGeom.mjGEOM_BOX,
+                            pos=centre, size=_r6v(half))
+            if j == calibration:
+                parent.add_site(name=f"{name}_calibration", pos=_r6v([0.0, sign * (flex.calibration_s - starts[j]), 0.0]),
+                                size=[_r6(config.tip_radius), 0, 0])
+
+
 def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     """The robot file's spec: options, defaults, arm, plates, tendons, actuators and the `home` key."""
     config = config or ArmModelConfig()
@@ -475,13 +584,18 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     spec.compiler.autolimits = True
     spec.option.timestep = _r6(config.physics_dt)
     spec.option.integrator = mujoco.mjtIntegrator.__members__[f"mjINT_{config.integrator.upper()}"]
-    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # SPEC §7: MuJoCo 4.0.0 sparse-solver bug
-    spec.option.gravity = [0.0, 0.0, 0.0]
+    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # docs/ground-truth.md: MuJoCo 4.0.0 sparse-solver bug
+    spec.option.gravity = _r6v(config.gravity)
     spec.assets = tag_textures(arm_tag_ids(config.robot.n_segments))
     _add_defaults(spec, config)
     _add_arm(spec, config)
-    _add_plates(spec, config)
-    n_q = config.robot.n_segments * config.links_per_segment + config.n_facets
+    if config.plate == "flexure":
+        _add_flexures(spec, config)
+        plate_q = sum(1 + flex.links for flex in config.flexures())
+    else:
+        _add_plates(spec, config)
+        plate_q = config.n_facets
+    n_q = config.robot.n_segments * config.links_per_segment + plate_q
     n_act = config.robot.n_segments if config.tau_p > 0 else 0
     spec.add_key(name="home", qpos=[0.0] * n_q, act=[0.0] * n_act, ctrl=[0.0] * config.robot.n_segments)
     return spec

@@ -1,4 +1,4 @@
-"""The MuJoCo ground truth as a `Plant` (SPEC §7; model in `softcbf_mj.model_builder`).
+"""The MuJoCo ground truth as a `Plant` (docs/ground-truth.md; model in `softcbf_mj.model_builder`).
 
 Each control period (control_dt, s) holds the pressure command u (hPa, shape (N,)) and
 advances the physics by control_dt / physics_dt steps of MuJoCo's `implicitfast`
@@ -9,14 +9,25 @@ derived quantity belongs to the reported state):
   tendon `seg{i}_bend` over segment i's hinges;
 - segment_ends (N+1, 2) (m): the `base` site, the `seg{i}_end` sites; the last row is
   the tip r, the centre of the `tip` sphere (placed on `seg{N}_end`);
-- contact_forces (P,) (N): per facet, the plate's spring force max(0, k_k Δ_k) with Δ_k
-  the plate's displacement along its outward normal (the ground truth);
+- contact_forces (P,) (N): per facet, the measured force: the ideal plate's spring force
+  max(0, k_k Δ_k) with Δ_k the plate's displacement along its outward normal (the ground
+  truth), or a flexure's gauge reading max(0, k_g x_g), the clamp reaction along the gauge
+  axis (docs/beyond-the-paper.md#flexure-plate; what the hardware measures);
 - u_applied (N,) (hPa): the pressure acting, the actuator force in actuator space
   (the gear carries λ_i, so this is τ_i / λ_i), after the ctrlrange clamp and the
   first-order pressure dynamics;
-- extras: `plate_displacement_m` (P,) (m); `force_solver_N` (P,) (N), the normal
+- extras: `plate_displacement_m` (P,) (m): the ideal plate's Δ_k, or a flexure's deflection
+  along n̂ at the contact point (0 without contact); `force_solver_N` (P,) (N), the normal
   contact force MuJoCo's solver applies between the arm and each plate (mj_contactForce,
-  summed over contacts); and `warning_<name>` counts for every MuJoCo warning raised.
+  summed over contacts: the true contact force); `force_tangential_N` (P,) (N), the
+  magnitude of the summed tangential (friction) contact force, 0 when frictionless; and
+  `warning_<name>` counts for every MuJoCo warning raised. With flexure plates also
+  `contact_s_m` (P,) (m): where the arm touches the sheet, the distance from the clamp
+  along the sheet at rest of the contact carrying the largest normal force (NaN without
+  contact), and `contact_stiffness_N_per_m` (P,) (N/m): the sheet's static stiffness there
+  (`SheetInModel.stiffness`: the hinge chain in series with the gauge; NaN without contact).
+  Contact points are the sheet's surface points of MuJoCo's contacts (midpoint moved by
+  half the penetration).
 """
 
 from __future__ import annotations
@@ -31,6 +42,7 @@ import mujoco
 import numpy as np
 
 import softcbf_mj
+from softcbf_mj.flexure import SheetInModel
 from softcbf_mj.model_builder import ArmModelConfig, build_model
 from softcbf_mj.plant import PlantState, steps_per_control
 
@@ -46,11 +58,14 @@ WARNINGS: dict[int, str] = {
 EXTRAS_UNITS: dict[str, str] = {
     "plate_displacement_m": "m",
     "force_solver_N": "N",
+    "force_tangential_N": "N",
+    "contact_s_m": "m (from the sheet's clamp; NaN: no contact)",
+    "contact_stiffness_N_per_m": "N/m (NaN: no contact)",
     **{f"warning_{name}": "count (cumulative)" for name in WARNINGS.values()},
 }
 
 _ACTUATOR = re.compile(r"seg(\d+)_pressure")
-_PLATE_JOINT = re.compile(r"plate(\d+)_slide")
+_PLATE_JOINT = re.compile(r"plate(\d+)_(?:slide|gauge)")
 
 
 def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
@@ -73,9 +88,16 @@ class MujocoPlant:
     read from the model: `u_min`, `u_max` (hPa, the ctrlrange), `gains` (λ, N·m/hPa, the
     actuator gears), `plate_stiffness` (N/m), `n_segments`, `n_facets`, and per segment
     the qpos / dof addresses of its hinges, `hinge_qpos` and `hinge_dofs` (lists of arrays).
+    Ids and addresses the state is read from (public for the batched plant,
+    `softcbf_mj.mujoco_batch_plant`): `actuator_ids` and `tendon_ids` (N,), `site_ids`
+    (N,: `base`, `seg1_end` … `seg{N-1}_end`), `tip_geom`, `plate_qpos` and `plate_dofs`
+    (P,), `act_adr` (N,: −1 where the actuator has no pressure dynamics).
     The model is read by name: actuators `seg{i}_pressure`, tendons `seg{i}_bend`, hinges
-    `seg{i}_j{j}`, sites `base` and `seg{i}_end`, geom `tip`, joints `plate{k}_slide`,
-    geoms `plate{k}`.
+    `seg{i}_j{j}`, sites `base` and `seg{i}_end`, geom `tip`, per facet an ideal plate
+    (joint `plate{k}_slide`) or a flexure (joint `plate{k}_gauge`, `SheetInModel`), whose
+    geoms are those of the bodies below body `plate{k}`. `plate_stiffness` is the spring of
+    that joint: the plate's (ideal) or the gauge's (flexure); `sheets` maps the facet index
+    (0-based) of each flexure to its `SheetInModel`.
     """
 
     def __init__(self, model: mujoco.MjModel, control_dt: float = 1e-3) -> None:
@@ -89,8 +111,8 @@ class MujocoPlant:
         if n == 0:
             raise ValueError("the model has no actuators named seg{i}_pressure")
         self.n_segments = n
-        self._actuators = [model.actuator(f"seg{i}_pressure").id for i in range(1, n + 1)]
-        self._tendons = [model.tendon(f"seg{i}_bend").id for i in range(1, n + 1)]
+        self.actuator_ids = [model.actuator(f"seg{i}_pressure").id for i in range(1, n + 1)]
+        self.tendon_ids = [model.tendon(f"seg{i}_bend").id for i in range(1, n + 1)]
         self.hinge_qpos: list[np.ndarray] = []  # per segment: qpos addresses of its hinges
         self.hinge_dofs: list[np.ndarray] = []  # per segment: their dof addresses
         for i in range(1, n + 1):
@@ -102,21 +124,26 @@ class MujocoPlant:
                 raise ValueError(f"the model has no hinges seg{i}_j1, seg{i}_j2, …")
             self.hinge_qpos.append(np.array([h.qposadr[0] for h in hinges]))
             self.hinge_dofs.append(np.array([h.dofadr[0] for h in hinges]))
-        self._sites = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
-        self._tip = model.geom("tip").id
+        self.site_ids = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
+        self.tip_geom = model.geom("tip").id
 
-        p = _numbered(_names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt), _PLATE_JOINT, "plate joints plate{k}_slide")
+        p = _numbered(_names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt), _PLATE_JOINT, "plate joints plate{k}_slide or plate{k}_gauge")
         self.n_facets = p
-        plate_joints = [model.joint(f"plate{k}_slide") for k in range(1, p + 1)]
-        self._plate_qpos = np.array([jnt.qposadr[0] for jnt in plate_joints], dtype=int)
+        flexures = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"plate{k}_gauge") >= 0 for k in range(1, p + 1)]
+        plate_joints = [model.joint(f"plate{k}_{'gauge' if flexure else 'slide'}") for k, flexure in enumerate(flexures, 1)]
+        self.plate_qpos = np.array([jnt.qposadr[0] for jnt in plate_joints], dtype=int)
+        self.plate_dofs = np.array([jnt.dofadr[0] for jnt in plate_joints], dtype=int)
         self.plate_stiffness = np.array([model.jnt_stiffness[jnt.id] for jnt in plate_joints])
-        self._plate_of_geom = {model.geom(f"plate{k}").id: k - 1 for k in range(1, p + 1)}
+        self.sheets = {k - 1: SheetInModel.from_model(model, k) for k, flexure in enumerate(flexures, 1) if flexure}
+        plate_roots = {model.body(f"plate{k}").id: k - 1 for k in range(1, p + 1)}
+        self._plate_of_geom = {g: plate_roots[model.body_rootid[model.geom_bodyid[g]]] for g in range(model.ngeom)
+                               if model.body_rootid[model.geom_bodyid[g]] in plate_roots}
         self._base = model.body("base").id
 
-        self.u_min = model.actuator_ctrlrange[self._actuators, 0].copy()
-        self.u_max = model.actuator_ctrlrange[self._actuators, 1].copy()
-        self.gains = model.actuator_gear[self._actuators, 0].copy()
-        self._act_adr = model.actuator_actadr[self._actuators].copy()  # -1: no pressure dynamics
+        self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
+        self.u_max = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
+        self.gains = model.actuator_gear[self.actuator_ids, 0].copy()
+        self.act_adr = model.actuator_actadr[self.actuator_ids].copy()  # -1: no pressure dynamics
         self._contact_force = np.zeros(6)
         self.reset(np.zeros(n))
 
@@ -167,9 +194,9 @@ class MujocoPlant:
         for i in range(self.n_segments):
             self.data.qpos[self.hinge_qpos[i]] = q0[i] / len(self.hinge_qpos[i])
             self.data.qvel[self.hinge_dofs[i]] = qd0[i] / len(self.hinge_dofs[i])
-        self.data.ctrl[self._actuators] = u0
-        dynamic = self._act_adr >= 0
-        self.data.act[self._act_adr[dynamic]] = u0[dynamic]
+        self.data.ctrl[self.actuator_ids] = u0
+        dynamic = self.act_adr >= 0
+        self.data.act[self.act_adr[dynamic]] = u0[dynamic]
         mujoco.mj_forward(self.model, self.data)
         return self.state()
 
@@ -179,7 +206,7 @@ class MujocoPlant:
         u is NOT clipped here: MuJoCo clamps it to each actuator's ctrlrange (the
         pressure limits of `RobotParams`), and `u_applied` reports what acted.
         """
-        self.data.ctrl[self._actuators] = self._vector(u, "u")
+        self.data.ctrl[self.actuator_ids] = self._vector(u, "u")
         mujoco.mj_step(self.model, self.data, nstep=self.steps_per_control)
         mujoco.mj_forward(self.model, self.data)
         return self.state()
@@ -188,23 +215,39 @@ class MujocoPlant:
         """The state of the current data (after `mj_forward`, if you edited it)."""
         data = self.data
         ends = np.empty((self.n_segments + 1, 2))
-        ends[:-1] = data.site_xpos[self._sites, :2]
-        ends[-1] = data.geom_xpos[self._tip, :2]
-        displacement = data.qpos[self._plate_qpos].copy()
+        ends[:-1] = data.site_xpos[self.site_ids, :2]
+        ends[-1] = data.geom_xpos[self.tip_geom, :2]
+        spring = data.qpos[self.plate_qpos].copy()  # the plate's Δ or the gauge's x_g, m
+        contacts = self._plate_contacts()
+        displacement = spring.copy()
         extras: dict[str, float | np.ndarray] = {
             "plate_displacement_m": displacement,
-            "force_solver_N": self._solver_forces(),
+            "force_solver_N": contacts.normal,
+            "force_tangential_N": contacts.tangential,
         }
+        if self.sheets:
+            where = np.full(self.n_facets, np.nan)
+            stiffness = np.full(self.n_facets, np.nan)
+            for k, sheet in self.sheets.items():
+                point = contacts.point[k]
+                displacement[k] = 0.0
+                if np.all(np.isfinite(point)):
+                    relative = point - sheet.origin
+                    displacement[k] = float(sheet.normal @ relative)
+                    where[k] = float(sheet.along @ relative)
+                    stiffness[k] = float(sheet.stiffness(where[k]))
+            extras["contact_s_m"] = where
+            extras["contact_stiffness_N_per_m"] = stiffness
         counts = data.warning.number
         for index in np.flatnonzero(counts):
             extras[f"warning_{WARNINGS[index]}"] = float(counts[index])
         return PlantState(
             t=float(data.time),
-            q=data.ten_length[self._tendons].copy(),
-            qd=data.ten_velocity[self._tendons].copy(),
+            q=data.ten_length[self.tendon_ids].copy(),
+            qd=data.ten_velocity[self.tendon_ids].copy(),
             segment_ends=ends,
-            contact_forces=np.maximum(0.0, self.plate_stiffness * displacement),
-            u_applied=data.actuator_force[self._actuators].copy(),
+            contact_forces=np.maximum(0.0, self.plate_stiffness * spring),
+            u_applied=data.actuator_force[self.actuator_ids].copy(),
             extras=extras,
         )
 
@@ -218,15 +261,41 @@ class MujocoPlant:
             raise ValueError(f"{name} must be finite, got {arr.tolist()}")
         return arr
 
-    def _solver_forces(self) -> np.ndarray:
-        """Normal contact force (N) between the arm and each plate, from MuJoCo's solver."""
-        forces = np.zeros(self.n_facets)
+    def _plate_contacts(self) -> "PlateContacts":
+        """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce)."""
         model, data = self.model, self.data
+        contacts = PlateContacts.empty(self.n_facets)
+        tangential = np.zeros((self.n_facets, 3))
+        strongest = np.zeros(self.n_facets)
         for c in range(data.ncon):
-            geoms = (data.contact[c].geom1, data.contact[c].geom2)
-            for plate_geom, other in (geoms, geoms[::-1]):
+            contact = data.contact[c]
+            geoms = (contact.geom1, contact.geom2)
+            for side, (plate_geom, other) in enumerate((geoms, geoms[::-1])):
                 k = self._plate_of_geom.get(plate_geom)
-                if k is not None and model.body_rootid[model.geom_bodyid[other]] == self._base:
-                    mujoco.mj_contactForce(model, data, c, self._contact_force)
-                    forces[k] += self._contact_force[0]
-        return forces
+                if k is None or model.body_rootid[model.geom_bodyid[other]] != self._base:
+                    continue
+                mujoco.mj_contactForce(model, data, c, self._contact_force)
+                frame = contact.frame.reshape(3, 3)
+                normal = self._contact_force[0]
+                contacts.normal[k] += normal
+                tangential[k] += self._contact_force[1] * frame[1] + self._contact_force[2] * frame[2]
+                if normal > strongest[k]:
+                    strongest[k] = normal
+                    toward_plate = frame[0] if side == 1 else -frame[0]  # frame[0] points from geom1 to geom2
+                    contacts.point[k] = (contact.pos + 0.5 * contact.dist * toward_plate)[:2]
+        contacts.tangential[:] = np.linalg.norm(tangential, axis=1)
+        return contacts
+
+
+@dataclasses.dataclass
+class PlateContacts:
+    """Per facet (P,): summed normal force (N), magnitude of the summed tangential force (N), and the
+    sheet-surface point (world x, y, m) of the contact with the largest normal force (NaN: none)."""
+
+    normal: np.ndarray
+    tangential: np.ndarray
+    point: np.ndarray
+
+    @classmethod
+    def empty(cls, n_facets: int) -> "PlateContacts":
+        return cls(np.zeros(n_facets), np.zeros(n_facets), np.full((n_facets, 2), np.nan))

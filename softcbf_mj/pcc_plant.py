@@ -1,9 +1,17 @@
-"""The paper's own simulation plant: the PCC model integrated in time (SPEC §3, §6).
+"""The paper's own simulation plant: the PCC model integrated in time (docs/model.md#rppr-dynamics, docs/model.md#nominal-controller-and-the-papers-scenario).
 
 State x = [q; q̇] ∈ R^{2N}; ẋ = F(x, u) = [q̇; q̈(q, q̇, u)] with
 q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q). The command u (hPa, (N,)) is held constant over
 each control period (zero-order hold). Contact force per facet is ψ(n_i(r)) of the
 true tip r: the environment does not push back in this plant, as in the paper.
+
+Valves (`tau_p`, s; default 0, the paper's ideal valve): the pressure p acting on the
+arm follows the command with a first-order lag, ṗ = (u − p)/τ_p, from p = 0 at `reset`.
+Over each physics step of length h, p is advanced exactly,
+p(h) = u + (p(0) − u) e^{−h/τ_p}, and the arm is integrated with p held at its exact
+mean over the step, u + (p(0) − u)(τ_p/h)(1 − e^{−h/τ_p}), which keeps the integrator's
+order (tests/test_pcc_plant.py compares it with a fine Euler reference).
+`PlantState.u_applied` is p at the end of the period.
 
 Integrators (each a fixed step h = physics_dt dividing the control period):
 - "ros2" (default): the two-stage, second-order, L-stable Rosenbrock method of
@@ -12,7 +20,7 @@ Integrators (each a fixed step h = physics_dt dividing the control period):
   with W = I − γ h J̃ and J̃ = [[0, I], [−M⁻¹K, −M⁻¹D]] at x_n, the part of ∂F/∂x that
   makes the model stiff (ROS2 keeps order 2 for any J̃, i.e. it is a W-method; the full
   analytic Jacobian costs 4× more and changed nothing measurable). L-stability matters:
-  the reference robot has a fast mode near −3.7e3 s⁻¹ (SPEC §5), faster than the 1 ms
+  the reference robot has a fast mode near −3.7e3 s⁻¹ (docs/model.md#rppr-dynamics), faster than the 1 ms
   control period, which this method damps at h = 1 ms.
 - "rk4": classical Runge–Kutta (stable for h ≲ 0.7 ms on the reference robot).
 - "euler": forward Euler, the paper's reference at h = 1e-5 s.
@@ -34,7 +42,7 @@ from softcbf_mj.plant import PlantState, steps_per_control
 
 INTEGRATORS = ("ros2", "rk4", "euler")
 DEFAULT_PHYSICS_DT = {"ros2": 1e-3, "rk4": 1e-4, "euler": 1e-5}
-_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 
 class PCCPlant:
@@ -43,7 +51,7 @@ class PCCPlant:
     The integrators work on Python float lists through the unchecked per-step path of
     `PCCDynamics` (numpy's per-call overhead dominates at N ≈ 2; for N = 2 the ROS2 step
     is unrolled, giving the same floats); `step` checks u once. The model terms at the
-    current state (`_core`) are computed once, when the state is reached, and serve its
+    current state (`PCCDynamics.model_terms`) are computed once, when the state is reached, and serve its
     report (segment ends, contact force), the next step and, through `self.dynamics`, a
     filter built with `CBFFilter(..., dynamics=plant.dynamics)`.
     """
@@ -55,6 +63,7 @@ class PCCPlant:
         control_dt: float = 1e-3,
         integrator: str = "ros2",
         physics_dt: float | None = None,
+        tau_p: float = 0.0,
     ) -> None:
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {integrator!r}")
@@ -66,7 +75,13 @@ class PCCPlant:
         self.integrator = integrator
         self.physics_dt = float(physics_dt if physics_dt is not None else DEFAULT_PHYSICS_DT[integrator])
         self.substeps = steps_per_control(self.control_dt, self.physics_dt)
-        self._gh = gh = _GAMMA * self.physics_dt  # ROS2's γh and the W-solve's γh·k_i, γh·d_i + (γh)²·k_i
+        if not (math.isfinite(tau_p) and tau_p >= 0):
+            raise ValueError(f"tau_p must be finite and >= 0 s (0: ideal valve), got {tau_p}")
+        self.tau_p = float(tau_p)
+        # Per physics step: p ← u + (p − u)·decay; the arm sees u + (p − u)·mean (exact mean over the step).
+        self._lag = (math.exp(-self.physics_dt / tau_p), tau_p / self.physics_dt * -math.expm1(-self.physics_dt / tau_p)) if tau_p > 0 else None
+        self._p: list[float] = []
+        self._gh = gh = ROS2_GAMMA * self.physics_dt  # ROS2's γh and the W-solve's γh·k_i, γh·d_i + (γh)²·k_i
         self._gh_stiffness = [gh * k for k in params.stiffness]
         self._schur_diag = [gh * d + gh * gh * k for d, k in zip(params.damping, params.stiffness)]
         ros2 = self._ros2_2 if self.n_segments == 2 else self._ros2
@@ -134,7 +149,7 @@ class PCCPlant:
             return rq0 + gh * kv0, rq1 + gh * kv1, kv0, kv1
 
         ((n00, n01), (n10, n11)), (f0, f1) = core.mass_inv, core.force
-        t0, t1 = g0 * u[0] - f0, g1 * u[1] - f1  # q̈ = M⁻¹(Λu − f) as `PCCDynamics._acceleration`
+        t0, t1 = g0 * u[0] - f0, g1 * u[1] - f1  # q̈ = M⁻¹(Λu − f) as `PCCDynamics.acceleration_from_terms`
         k1 = solve_w(v0, v1, n00 * t0 + n01 * t1, n10 * t0 + n11 * t1)
         x2 = [q0 + h * k1[0], q1 + h * k1[1], v0 + h * k1[2], v1 + h * k1[3]]
         core2 = self._at(x2)
@@ -163,6 +178,7 @@ class PCCPlant:
         if not (np.all(np.isfinite(q0)) and np.all(np.isfinite(qd0))):
             raise ValueError(f"q0 and qd0 must be finite, got q0={q0}, qd0={qd0}")
         self._x = q0.tolist() + qd0.tolist()
+        self._p = [0.0] * self.n_segments
         self._terms = self._at(self._x)
         self._t, self._k = 0.0, 0
         return self._state(np.zeros(self.n_segments))
@@ -172,10 +188,15 @@ class PCCPlant:
         u_list = u.tolist()
         if u.shape != (self.n_segments,) or not all(map(math.isfinite, u_list)):
             raise ValueError(f"u must be finite with shape ({self.n_segments},), got {u}")
-        x, core, h = self._x, self._terms, self.physics_dt
+        x, core, h, p = self._x, self._terms, self.physics_dt, self._p
         for _ in range(self.substeps):
+            acting = u_list
+            if self._lag is not None:
+                decay, mean = self._lag
+                acting = [v + (pi - v) * mean for v, pi in zip(u_list, p)]
+                p = [v + (pi - v) * decay for v, pi in zip(u_list, p)]
             try:
-                x = self._step_fn(x, core, u_list, h)
+                x = self._step_fn(x, core, acting, h)
             except (OverflowError, ValueError):  # math.sin or cmath.exp of ±inf inside a stage
                 x = [math.nan]
             if not all(map(math.isfinite, x)):
@@ -185,6 +206,7 @@ class PCCPlant:
                 )
             core = self._at(x)
         self._x, self._terms = x, core
+        self._p = p if self._lag is not None else u_list
         self._k += 1
         self._t = self._k * self.control_dt
-        return self._state(u)
+        return self._state(np.array(self._p))

@@ -39,6 +39,33 @@ class PlantState:
         return self.segment_ends[-1]
 
 
+@dataclass(frozen=True, eq=False)
+class BatchPlantState:
+    """Ground truth of B plants at once; row b is simulation b's `PlantState`.
+
+    t: (B,) s. q, qd: (B, N) rad, rad/s. segment_ends: (B, N+1, 2) m. contact_forces:
+    (B, P) N. u_applied: (B, N) hPa. extras: plant-specific arrays with first axis B.
+    Every call of a batch plant returns fresh arrays (nothing is overwritten by its next `step`).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    segment_ends: np.ndarray
+    contact_forces: np.ndarray
+    u_applied: np.ndarray
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.q.shape[0])
+
+    def row(self, b: int) -> PlantState:
+        """Simulation b's state as a `PlantState` (copies)."""
+        return PlantState(float(self.t[b]), self.q[b].copy(), self.qd[b].copy(), self.segment_ends[b].copy(),
+                          self.contact_forces[b].copy(), self.u_applied[b].copy(),
+                          {key: np.array(value[b]) for key, value in self.extras.items()})
+
+
 class Plant(Protocol):
     """What a closed loop needs from a plant."""
 
@@ -67,3 +94,19 @@ def steps_per_control(control_dt: float, physics_dt: float) -> int:
             f"({physics_dt:g} s; ratio {ratio:.6g}); choose a physics step such as {divisors} s"
         )
     return n
+
+
+class BatchPlant(Protocol):
+    """B plants stepped together (one control period each call); rows are simulations."""
+
+    control_dt: float  # s
+    n_segments: int
+    n_sims: int
+
+    def reset(self, q0: np.ndarray, qd0: np.ndarray | None = None) -> BatchPlantState:
+        """Start every simulation b at q0[b] (rad, (B, N)), at rest or with rates qd0[b]."""
+        ...
+
+    def step(self, u: np.ndarray) -> BatchPlantState:
+        """Hold u[b] (hPa, (B, N)) on simulation b for one control period; return the states at its end."""
+        ...

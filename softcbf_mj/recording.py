@@ -3,7 +3,8 @@
 `write_recording(DIR)` reads summary.json (its "scene"), config.json and the time series
 of every finished run, logs them into one recording (application id `APP_ID`) with one
 timeline, `sim_time` (a duration, s), and writes DIR/recording.rrd atomically (temp file
-+ rename) together with a default blueprint. Open it with `rerun DIR/recording.rrd`.
++ rename) together with a default blueprint. Open it with `viewer_command(path)`'s command
+(`.venv/bin/rerun DIR/recording.rrd`, or `python -m rerun DIR/recording.rrd`).
 
 Entities (`<run>` is the tuning label; "static" = no time, logged once):
 
@@ -12,6 +13,7 @@ Entities (`<run>` is the tuning label; "static" = no time, logged once):
 | /scene                          | Transform3D        | static       | y mirrored, so +y points up in 2D views   |
 | /scene/facets                   | LineStrips2D       | static       | the facets (boundary of N), m             |
 | /scene/P                        | LineStrips2D       | static       | the boundary of the force-safe set P, m   |
+| /legend                         | TextDocument       | static       | the colour legend (`legend_markdown`)     |
 | /runs/<run>/scene               | Transform3D        | static       | y mirrored, as /scene                     |
 | /runs/<run>/scene/arm           | LineStrips2D       | GEOMETRY_HZ  | the arm as PCC arcs of the true q, m      |
 | /runs/<run>/scene/tags          | Points2D           | GEOMETRY_HZ  | base and segment ends ("tag 0".."tag N")  |
@@ -36,8 +38,16 @@ exactly an arc, the tags sit at the rod's true segment ends. Predicted force and
 displacement as in softcbf_mj.report. Camera frames: DIR/frames/<run>/frames.json
 (format: softcbf_mj.runio); images are logged as encoded files, unchanged.
 
-Default blueprint: the 2D scene (and one view per camera) on the left; on the right the
-time series ρ, force vs F_max, u vs u_nom and the flags, each with every run.
+Colours (softcbf_mj.palette, shared with the report: Okabe–Ito, no black, legible on
+rerun's dark theme): each run its colour, its second series (ρ_pred, F_pred) lighter,
+u_nom, facets and plates grey, F_max and P vermillion. Scalar series are styled by
+SERIES_STYLES: zoomed out, u and the flags keep each pixel column's min and max, so a
+command or flag switching every step shows as a band instead of being averaged away.
+
+Default blueprint: the 2D scene (and one view per camera) and the colour legend on the
+left; on the right the time series ρ, force vs F_max, u vs u_nom and the flags, each with
+every run. rerun draws plot legends inside the plot, so they are hidden (the legend view
+and hovering name every line).
 
 `live_viewer()` (the CLI's `--spawn`): while it is active and a display is present,
 each `write_recording` also streams the runs it has not streamed yet to a spawned
@@ -60,8 +70,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from softcbf_mj.palette import LIMIT_COLOR, rgb, run_color
 from softcbf_mj.report import (
     FACET_COLOR,
+    NOMINAL_COLOR,
     P_COLOR,
     PLATE_COLOR,
     Scene,
@@ -69,10 +81,9 @@ from softcbf_mj.report import (
     boundary_segments,
     plate_displacement,
     predicted_force,
-    run_color,
     scene_box,
 )
-from softcbf_mj.runio import RunFolder, RunFolderError, frames_folder, read_run_folder
+from softcbf_mj.runio import RunFolder, RunFolderError, atomic_path, frames_folder, read_run_folder
 
 APP_ID = "softcbf_mj"
 RECORDING_FILE = "recording.rrd"
@@ -81,16 +92,23 @@ GEOMETRY_HZ = 50.0
 MEDIA_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
 MIRROR_Y = rr.Transform3D(scale=[1.0, -1.0, 1.0])
 PLATE_HALF_LENGTH_M = 0.05  # half-length (m) of the plate surfaces drawn
+LEGEND_ENTITY = "/legend"
+# How rerun draws a scalar series when one pixel column holds many steps (zoomed out):
+# "switching" (u) and "flag" keep each column's min and max (a switching signal shows as a
+# band, never as its average: a flag switching every step is not a flat 0.5); "flag" also
+# holds each value until the next step; "smooth" signals keep the column's mid-range
+# (min + max)/2, so a lone spike still moves the line.
+SERIES_STYLES: dict[str, dict] = {
+    "switching": {"aggregation_policy": rr.components.AggregationPolicy.MinMax},
+    "flag": {"aggregation_policy": rr.components.AggregationPolicy.MinMax,
+             "interpolation_mode": rr.components.InterpolationMode.StepAfter},
+    "smooth": {"aggregation_policy": rr.components.AggregationPolicy.MinMaxAverage},
+}
 
 
 def run_path(label: str) -> str:
     """Entity path prefix of run `label`."""
     return f"/runs/{rr.escape_entity_path_part(label)}"
-
-
-def _rgb(color: str, lighten: float = 0.0) -> list[int]:
-    rgb = np.array([int(color[i : i + 2], 16) for i in (1, 3, 5)], dtype=float)
-    return [int(round(v)) for v in rgb + (255.0 - rgb) * lighten]
 
 
 def _decimation(t: np.ndarray) -> int:
@@ -102,14 +120,14 @@ def _decimation(t: np.ndarray) -> int:
 def _log_scene(rec: rr.RecordingStream, scene: Scene, box: tuple[float, float, float, float]) -> None:
     rec.log("/scene", MIRROR_Y, static=True)
     rec.log("/scene/facets", rr.LineStrips2D(boundary_segments(scene.facets_H, scene.facets_h, box),
-                                             colors=_rgb(FACET_COLOR), radii=rr.Radius.ui_points(2.0)), static=True)
+                                             colors=rgb(FACET_COLOR), radii=rr.Radius.ui_points(2.0)), static=True)
     rec.log("/scene/P", rr.LineStrips2D(boundary_segments(scene.P_H, scene.P_h, box),
-                                        colors=_rgb(P_COLOR), radii=rr.Radius.ui_points(1.5)), static=True)
+                                        colors=rgb(P_COLOR), radii=rr.Radius.ui_points(1.5)), static=True)
 
 
-def _series_style(rec: rr.RecordingStream, path: str, names: Sequence[str], color: str) -> None:
-    shades = np.linspace(0.0, 0.6, len(names)) if len(names) > 1 else [0.0]
-    rec.log(path, rr.SeriesLines(names=list(names), colors=[_rgb(color, s) for s in shades]), static=True)
+def _shades(color: str, count: int) -> list[list[int]]:
+    """`count` shades of one palette colour, from the colour itself towards white (≤ 45 %)."""
+    return [rgb(color, lighten) for lighten in np.linspace(0.0, 0.45, count)] if count > 1 else [rgb(color)]
 
 
 def _log_run(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: Mapping[str, np.ndarray],
@@ -117,44 +135,48 @@ def _log_run(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: M
     root = run_path(label)
     t = np.asarray(s["t"], dtype=float)
     time = [rr.TimeColumn(TIMELINE, duration=t)]
-    n = s["u"].shape[1]
+    n, p = s["u"].shape[1], s["contact_force"].shape[1]
+    light = rgb(color, 0.45)
+    # name: (series names, values (T, K), colours (K), style); SERIES_STYLES explains the styles
     scalars = {
-        "u": ([f"{label} u{j + 1}" for j in range(n)], s["u"]),
-        "u_nom": ([f"{label} u_nom{j + 1}" for j in range(n)], s["u_nom"]),
-        "rho": ([f"{label} ρ_pred", f"{label} ρ_meas"], np.column_stack((s["rho_pred"], s["rho_meas"]))),
+        "u": ([f"{label} u{j + 1}" for j in range(n)], s["u"], _shades(color, n), "switching"),
+        "u_nom": ([f"{label} u_nom{j + 1}" for j in range(n)], s["u_nom"], _shades(NOMINAL_COLOR, n), "smooth"),
+        "rho": ([f"{label} ρ_pred", f"{label} ρ_meas"], np.column_stack((s["rho_pred"], s["rho_meas"])),
+                [light, rgb(color)], "smooth"),
         "force": ([f"{label} F_meas", f"{label} F_pred", "F_max"],
                   np.column_stack((np.max(s["contact_force"], axis=1), predicted_force(scene, s["rho_pred"]),
-                                   np.full(len(t), scene.f_max)))),
+                                   np.full(len(t), scene.f_max))), [rgb(color), light, rgb(LIMIT_COLOR)], "smooth"),
         "flags": ([f"{label} active", f"{label} infeasible", f"{label} recovery"],
                   np.column_stack((np.any(s["active"], axis=1) if "active" in s else np.zeros(len(t)), s["infeasible"],
-                                   s.get("recovery", np.zeros(len(t))))).astype(float)),
-        "plate_displacement": ([f"{label} plate {i + 1} [mm]" for i in range(s["contact_force"].shape[1])],
-                               1e3 * plate_displacement(scene, s)),
+                                   s.get("recovery", np.zeros(len(t))))).astype(float),
+                  _shades(color, 3), "flag"),
+        "plate_displacement": ([f"{label} plate {i + 1} [mm]" for i in range(p)], 1e3 * plate_displacement(scene, s),
+                               _shades(color, p), "smooth"),
     }
-    for name, (names, values) in scalars.items():
-        _series_style(rec, f"{root}/{name}", names, color)
+    for name, (names, values, colors, style) in scalars.items():
+        rec.log(f"{root}/{name}", rr.SeriesLines(names=names, colors=colors, **SERIES_STYLES[style]), static=True)
         rec.send_columns(f"{root}/{name}", indexes=time, columns=rr.Scalars.columns(scalars=values))
 
     k = np.arange(0, len(t), _decimation(t))
     geo_time = [rr.TimeColumn(TIMELINE, duration=t[k])]
     ends = np.asarray(s["segment_ends"], dtype=float)[k]
     q = np.asarray(s["q"], dtype=float)[k]
-    rgb = _rgb(color)
+    run_rgb = rgb(color)
     rec.log(f"{root}/scene", MIRROR_Y, static=True)
-    rec.log(f"{root}/scene/arm", rr.LineStrips2D.from_fields(colors=rgb, radii=rr.Radius.ui_points(3.0)), static=True)
+    rec.log(f"{root}/scene/arm", rr.LineStrips2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(3.0)), static=True)
     arms = arm_polyline(q, scene.lengths, ends[:, 0])
     rec.send_columns(f"{root}/scene/arm", indexes=geo_time, columns=rr.LineStrips2D.columns(strips=arms))
     n_tags = ends.shape[1]
-    rec.log(f"{root}/scene/tags", rr.Points2D.from_fields(colors=rgb, radii=rr.Radius.ui_points(5.0),
+    rec.log(f"{root}/scene/tags", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(5.0),
                                                          labels=[f"tag {i}" for i in range(n_tags)]), static=True)
     rec.send_columns(f"{root}/scene/tags", indexes=geo_time,
                      columns=rr.Points2D.columns(positions=ends.reshape(-1, 2)).partition([n_tags] * len(k)))
-    rec.log(f"{root}/scene/tip", rr.Points2D.from_fields(colors=rgb, radii=rr.Radius.ui_points(4.0)), static=True)
+    rec.log(f"{root}/scene/tip", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(4.0)), static=True)
     rec.send_columns(f"{root}/scene/tip", indexes=geo_time, columns=rr.Points2D.columns(positions=ends[:, -1]))
-    rec.log(f"{root}/scene/tip_trace", rr.LineStrips2D([ends[:, -1]], colors=_rgb(color, 0.4),
+    rec.log(f"{root}/scene/tip_trace", rr.LineStrips2D([ends[:, -1]], colors=rgb(color, 0.4),
                                                       radii=rr.Radius.ui_points(1.0)), static=True)
     plates = _plate_strips(scene, s, k)
-    rec.log(f"{root}/scene/plate", rr.LineStrips2D.from_fields(colors=_rgb(PLATE_COLOR), radii=rr.Radius.ui_points(3.0)),
+    rec.log(f"{root}/scene/plate", rr.LineStrips2D.from_fields(colors=rgb(PLATE_COLOR), radii=rr.Radius.ui_points(3.0)),
             static=True)
     rec.send_columns(f"{root}/scene/plate", indexes=geo_time,
                      columns=rr.LineStrips2D.columns(strips=plates.reshape(-1, 2, 2)).partition([plates.shape[1]] * len(k)))
@@ -196,21 +218,37 @@ def _log_frames(rec: rr.RecordingStream, root: str, frames_dir: Path, frames: Se
                          columns=rr.LineStrips2D.columns(strips=strips, labels=labels).partition(counts))
 
 
+def legend_markdown(labels: Sequence[str]) -> str:
+    """The recording's colour legend (Markdown): one line per run, plus the shared colours."""
+    lines = ["**Colours** (Okabe–Ito; shades of a run's colour: its components in order)", ""]
+    lines += [f"- `{run_color(label, i)}` {label}: u, ρ_meas, F_meas, arm; lighter: ρ_pred, F_pred"
+              for i, label in enumerate(labels)]
+    lines += [f"- `{NOMINAL_COLOR}` u_nom, the facets (boundary of N), the plates", f"- `{LIMIT_COLOR}` F_max, the boundary of P",
+              "", "Zoomed out, u and the flags show each pixel column's min–max band (a switching command or flag is a "
+              "filled band, not its average). Hover a line for its name."]
+    return "\n".join(lines)
+
+
 def _blueprint(labels: Sequence[str], cameras: Sequence[str], box: tuple[float, float, float, float]) -> rrb.Blueprint:
     roots = [run_path(label) for label in labels]
     scene = rrb.Spatial2DView(name="arm, plates, N and P", origin="/",
                               contents=["/scene/**", *[f"{r}/scene/**" for r in roots]],
                               visual_bounds=rrb.VisualBounds2D(x_range=box[:2], y_range=(-box[3], -box[2])))
     camera_views = [rrb.Spatial2DView(name=f"{label} camera", origin=f"{run_path(label)}/camera") for label in cameras]
+    legend = rrb.TextDocumentView(name="colours", origin=LEGEND_ENTITY)
 
     def series(name: str, *entities: str) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(name=name, origin="/runs", contents=[f"{r}/{e}" for r in roots for e in entities])
+        # rerun draws legends inside the plot; hidden, so they cover no data (the "colours" view and hovering name the lines)
+        return rrb.TimeSeriesView(name=name, origin="/runs", contents=[f"{r}/{e}" for r in roots for e in entities],
+                                  plot_legend=rrb.PlotLegend(visible=False))
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(scene, *camera_views),
-            rrb.Vertical(series("ρ: predicted and measured", "rho"), series("contact force vs F_max [N]", "force"),
-                         series("u vs u_nom [hPa]", "u", "u_nom"), series("active / infeasible / recovery", "flags")),
+            rrb.Vertical(scene, *camera_views, legend, row_shares=[4, *[3] * len(camera_views), 1]),
+            rrb.Vertical(series("ρ: predicted (light) and measured", "rho"),
+                         series("contact force: measured, predicted (light), F_max [N]", "force"),
+                         series("u vs u_nom (grey) [hPa]", "u", "u_nom"),
+                         series("active / infeasible / recovery (0/1)", "flags")),
             column_shares=[2, 3],
         ),
         collapse_panels=True,
@@ -233,10 +271,22 @@ def display_available() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def _viewer_executable() -> str | None:
-    """The `rerun` viewer beside this Python (a virtualenv's bin/) or on PATH."""
+def viewer_executable() -> str | None:
+    """The `rerun` viewer beside this Python (a virtualenv's bin/) or on PATH; None if neither."""
     beside = Path(sys.executable).with_name("rerun")
     return str(beside) if beside.is_file() else shutil.which("rerun")
+
+
+def viewer_command(recording: str | Path) -> str:
+    """A shell command that opens `recording` in the viewer and works from any folder: the
+    `rerun` executable found by `viewer_executable` (absolute path unless it is on PATH),
+    else `<this python> -m rerun`."""
+    executable = viewer_executable()
+    if executable is None:
+        program = f"{sys.executable} -m rerun"
+    else:
+        program = "rerun" if shutil.which("rerun") == executable else executable
+    return f"{program} {recording}"
 
 
 @contextlib.contextmanager
@@ -244,9 +294,9 @@ def live_viewer() -> Iterator[str]:
     """While active, `write_recording` also streams each newly finished run to a spawned
     viewer; yields a one-line message saying whether the viewer was spawned (it is not
     without a display or a `rerun` executable)."""
-    executable = _viewer_executable()
+    executable = viewer_executable()
     if not display_available():
-        yield "viewer not spawned: no display (DISPLAY and WAYLAND_DISPLAY are unset); open recording.rrd with `rerun` later"
+        yield "viewer not spawned: no display (DISPLAY and WAYLAND_DISPLAY are unset); open recording.rrd later with `python -m rerun`"
         return
     if executable is None:
         yield "viewer not spawned: no `rerun` executable beside this Python or on PATH (pip install rerun-sdk)"
@@ -271,6 +321,7 @@ def _recording_id(folder: RunFolder) -> uuid.UUID:
 def _log(rec: rr.RecordingStream, folder: RunFolder, scene: Scene, series: Mapping[str, Mapping[str, np.ndarray]],
          labels: Sequence[str], box: tuple[float, float, float, float]) -> None:
     _log_scene(rec, scene, box)
+    rec.log(LEGEND_ENTITY, rr.TextDocument(legend_markdown(folder.labels), media_type=rr.MediaType.MARKDOWN), static=True)
     for label in labels:
         index = folder.labels.index(label)
         _log_run(rec, scene, label, run_color(label, index), series[label], frames_folder(folder.path, label),
@@ -288,14 +339,15 @@ def write_recording(run_dir: str | Path) -> Path:
     cameras = [label for label in folder.labels if folder.frames(label)]
     blueprint = _blueprint(folder.labels, cameras, box)
     path = folder.path / RECORDING_FILE
-    tmp = folder.path / f".{RECORDING_FILE}.tmp"
-    rec = rr.RecordingStream(APP_ID, recording_id=_recording_id(folder))
-    rec.save(tmp, default_blueprint=blueprint)
-    rec.send_recording_name(f"{folder.summary['scenario']}: {folder.path.name}")
-    _log(rec, folder, scene, series, folder.labels, box)
-    rec.flush()
-    rec.disconnect()
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        rec = rr.RecordingStream(APP_ID, recording_id=_recording_id(folder))
+        rec.save(tmp, default_blueprint=blueprint)
+        try:
+            rec.send_recording_name(f"{folder.summary['scenario']}: {folder.path.name}")
+            _log(rec, folder, scene, series, folder.labels, box)
+            rec.flush()
+        finally:
+            rec.disconnect()
     live = _LIVE.get()
     if live is not None:
         new = [label for label in folder.labels if label not in live.sent]

@@ -1,36 +1,52 @@
-"""The report of a run folder: paper-style PNG plots and a Markdown summary, rebuilt from
-the folder alone (summary.json with its "scene", config.json, the time series).
+"""The report of a run folder: paper-style plots and a Markdown summary, rebuilt from the
+folder alone (summary.json with its "scene", config.json, the time series).
 
-`write_report(DIR)` writes, each file atomically (temp file + rename):
+`write_report(DIR, figure_format="png", dpi=DPI)` writes, each file atomically (temp file + rename):
 
-| file                  | size (px, at DPI = 100)  | what                                                        |
+| file                  | size (in; px at 100 dpi) | what                                                        |
 |-----------------------|--------------------------|-------------------------------------------------------------|
-| plots/rho.png         | 900 × 400                | ρ_meas(t) (solid) and ρ_pred(t) (dashed) of every run, ρ = 0 |
+| plots/overview.<fmt>  | 9 × 10; 900 × 1000       | the paper's Fig. 5 / Fig. 7 analogue on one time axis: tip  |
+|                       |                          | r_x(t), r_y(t) [m], measured force F(t) against F_max [N],  |
+|                       |                          | u_j(t) of every run against u_nom,j (dashed) [hPa]          |
+| plots/rho.<fmt>       | 9 × 4; 900 × 400         | ρ_meas(t) (solid) and ρ_pred(t) (dashed) of every run, ρ = 0 |
 |                       |                          | (the paper's Fig. 6 / Fig. 8 analogues)                     |
-| plots/tip_path.png    | 700 × 600                | tip paths r(t), the facets (boundary of N), the boundary of |
+| plots/tip_path.<fmt>  | 8 × 7; 800 × 700         | tip paths r(t), the facets (boundary of N), the boundary of |
 |                       |                          | P, the plates at rest when they differ from the facets, the |
 |                       |                          | arm at t = 0 and at each run's minimum ρ_meas               |
-| plots/force.png       | 900 × 600                | per run: measured contact force, predicted force and F_max  |
-| plots/pressure.png    | 900 × 600                | per segment: commanded u of every run and nominal u_nom     |
+| plots/force.<fmt>     | 9 × 6; 900 × 600         | per run: measured contact force, predicted force and F_max  |
+| plots/pressure.<fmt>  | 12 × 6; 1200 × 600       | per segment: commanded u of every run and nominal u_nom;    |
+|                       |                          | left the whole run, right a ZOOM_WINDOW_S zoom (below)      |
 | report.md             |                          | the summary table, the plots, parameters, scene, versions   |
 
-Signals (units as in the time series: s, m, N, hPa): ρ_meas, ρ_pred and u, u_nom (N,)
-are read directly. Measured force F = max_i contact_force_i (the most loaded facet);
+`figure_format` is one of FIGURE_FORMATS (png, svg, pdf); `dpi` sets the raster
+resolution (png pixels = inches × dpi; in svg/pdf it only scales embedded rasters).
+
+Signals (units as in the time series: s, m, N, hPa): ρ_meas, ρ_pred, the tip r and u, u_nom
+(N,) are read directly. Measured force F = max_i contact_force_i (the most loaded facet);
 predicted force F̂ = ψ(n_max (1 − ρ_pred)) with the controller's ψ and n_max from the
 scene, i.e. the force the controller's own state estimate and model imply on its most
 penetrated facet (ρ_pred = (n_max − n̂)/n_max).
 
-Plots use matplotlib's Agg canvas directly (`matplotlib.figure.Figure`, no pyplot, no
-global backend change), fixed sizes (`FIGURE_SIZES_IN`, inches) at `DPI`.
+Legibility: a time series longer than ENVELOPE_BINS samples is drawn as its min/max
+envelope over ENVELOPE_BINS equal runs of samples (about one per pixel column; shaded)
+plus the mean of each run of samples (line), so a command that switches every 1 ms step
+shows as a band around its mean instead of a solid block of vertical lines (`envelope`).
+The zoom of plots/pressure is ZOOM_WINDOW_S wide, centred on the step with the largest
+|u − u_nom| of any run (where the filter corrects most; without any correction, on the
+first run's minimum ρ_meas), drawn step by step; its span is shaded in the left panels.
+Legends sit outside the axes (right; below the tip path). Colours: softcbf_mj.palette (Okabe–Ito), shared with
+the recording.
 
-The drawing helpers here (`run_color`, `scene_box`, `boundary_segments`, `arm_polyline`,
+Plots use matplotlib's Agg canvas directly (`matplotlib.figure.Figure`, no pyplot, no
+global backend change), fixed sizes (`FIGURE_SIZES_IN`, inches).
+
+The drawing helpers here (`scene_box`, `boundary_segments`, `arm_polyline`,
 `predicted_force`, `plate_displacement`) are shared with softcbf_mj.recording, so the
 report and the recording draw the same things.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,23 +57,26 @@ from matplotlib.figure import Figure
 
 from controllers.safe_set import StiffnessLaw
 from softcbf_mj.metrics import format_table
-from softcbf_mj.runio import RunFolder, RunFolderError, read_run_folder, stiffness_from_json
+from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, run_color
+from softcbf_mj.runio import RunFolder, RunFolderError, atomic_path, read_run_folder, stiffness_from_json
 
 DPI = 100
+FIGURE_FORMATS = ("png", "svg", "pdf")
 FIGURE_SIZES_IN: dict[str, tuple[float, float]] = {
+    "overview": (9.0, 10.0),
     "rho": (9.0, 4.0),
-    "tip_path": (7.0, 6.0),
+    "tip_path": (8.0, 7.0),
     "force": (9.0, 6.0),
-    "pressure": (9.0, 6.0),
+    "pressure": (12.0, 6.0),
 }
 PLOTS_DIR = "plots"
 REPORT_FILE = "report.md"
 BOX_MARGIN_M = 0.03  # margin (m) around everything the arm reached, for drawing the lines of N and P
 ARC_CHORDS = 8  # chords per PCC segment when the arm is drawn as arcs
-# Colours by tuning name (the paper's: None black); other labels take TAB10 in order.
-TUNING_COLORS = {"None": "#000000", "Low": "#1f77b4", "High": "#2ca02c", "HW-Low": "#ff7f0e", "HW-High": "#9467bd"}
-TAB10 = ("#d62728", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
-FACET_COLOR, P_COLOR, PLATE_COLOR, NOMINAL_COLOR = "#000000", "#d62728", "#7f7f7f", "#7f7f7f"
+ENVELOPE_BINS = 800  # runs of samples per time axis (≈ one per pixel column of a 9 in axis at 100 dpi)
+ZOOM_WINDOW_S = 0.05  # width (s) of the pressure zoom: 50 control steps at 1 kHz, each step visible
+TIP_PATH_POINTS = 4000  # at most this many points of each tip path are drawn (the path is smooth)
+FACET_COLOR, P_COLOR, PLATE_COLOR, NOMINAL_COLOR = NEUTRAL_COLOR, LIMIT_COLOR, NEUTRAL_COLOR, NEUTRAL_COLOR
 
 SUMMARY_COLUMNS = (
     ("tuning", "tuning", ""),
@@ -68,7 +87,10 @@ SUMMARY_COLUMNS = (
     ("infeasible", "infeasible_steps", "d"),
     ("recovery", "recovery_steps", "d"),
     ("\\|u\\| peak [hPa]", "u_peak_abs_hPa", ".1f"),
-    ("chatter [1/s]", "chatter_per_s", ".2f"),
+    ("chatter [1/s]", "chatter_per_s", ".1f"),
+    ("on/off [1/s]", "switches_per_s", ".1f"),
+    ("u HF [%]", "u_hf_fraction", ".1f", 100.0),
+    ("\\|u − u_nom\\| RMS [hPa]", "u_dev_rms_hPa", ".1f"),
     ("F err RMS [mN]", "force_err_rms_N", ".2f", 1e3),
     ("bias mean [mm]", "penetration_bias_mean_m", ".3f", 1e3),
     ("filter median [µs]", "filter_us_median", ".1f"),
@@ -77,11 +99,6 @@ SUMMARY_COLUMNS = (
     ("wall [s]", "wall_s", ".1f"),
     ("RTF", "realtime_factor", ".2f"),
 )
-
-
-def run_color(label: str, index: int) -> str:
-    """Hex colour of run `label` (the `index`-th run of its folder)."""
-    return TUNING_COLORS.get(label, TAB10[index % len(TAB10)])
 
 
 @dataclass(frozen=True)
@@ -181,34 +198,95 @@ def arm_polyline(q: np.ndarray, lengths: np.ndarray, base: np.ndarray) -> np.nda
     return np.concatenate((start, np.cumsum(steps, axis=-2)), axis=-2) + np.asarray(base, dtype=float)[..., None, :]
 
 
-def _figure(name: str) -> Figure:
-    fig = Figure(figsize=FIGURE_SIZES_IN[name], dpi=DPI, layout="constrained")
+def envelope(t: np.ndarray, y: np.ndarray, bins: int = ENVELOPE_BINS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(t_mid, y_min, y_max, y_mean), (B,) each: y (T,) split into B = min(bins, T) runs of
+    consecutive samples of (almost) equal length; t_mid is the time of each run's middle
+    sample. With T ≤ bins every sample is its own run (t, y, y, y)."""
+    if bins < 1:
+        raise ValueError(f"bins must be >= 1, got {bins}")
+    t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
+    if len(y) <= bins:
+        return t, y, y, y
+    edges = np.linspace(0, len(y), bins + 1).astype(int)
+    starts, counts = edges[:-1], np.diff(edges)
+    return (t[starts + (counts - 1) // 2], np.minimum.reduceat(y, starts), np.maximum.reduceat(y, starts),
+            np.add.reduceat(y, starts) / counts)
+
+
+def _draw(ax, t: np.ndarray, y: np.ndarray, color: str, label: str | None, **line) -> None:
+    """y(t) as its envelope plus mean (long series) or step by step (short ones)."""
+    tm, lo, hi, mean = envelope(t, y)
+    if len(tm) < len(t):
+        ax.fill_between(tm, lo, hi, color=color, alpha=0.3, lw=0)
+        ax.plot(tm, mean, color=color, label=label, **line)
+    else:
+        ax.plot(t, y, color=color, label=label, drawstyle="steps-post", **line)
+
+
+def _figure(name: str, dpi: float) -> Figure:
+    fig = Figure(figsize=FIGURE_SIZES_IN[name], dpi=dpi, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
 
 
-def _save(fig: Figure, path: Path) -> None:
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=DPI, format="png")
-    os.replace(tmp, path)
+def _legend_outside(fig: Figure, axes, loc: str = "outside right upper", ncols: int = 1) -> None:
+    """One legend for the figure outside the axes (`loc`: matplotlib's "outside …"), each label once."""
+    entries: dict[str, object] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
+    fig.legend(list(entries.values()), list(entries), loc=loc, ncols=ncols, fontsize=8)
 
 
-def _plot_rho(runs: Sequence[tuple[str, str, dict]], path: Path) -> None:
-    fig = _figure("rho")
+def save_figure(fig: Figure, path: Path, figure_format: str, dpi: float) -> None:
+    """Write `fig` to `path` atomically (temp file + rename) as `figure_format` (FIGURE_FORMATS)
+    at `dpi`, without a creation date in svg/pdf (a rebuild gives the same bytes)."""
+    metadata = {"svg": {"Date": None}, "pdf": {"CreationDate": None}}.get(figure_format)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=figure_format, metadata=metadata)
+
+
+def _plot_overview(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: str, dpi: float) -> None:
+    n = runs[0][2]["u"].shape[1]
+    fig = _figure("overview", dpi)
+    axes = fig.subplots(3 + n, 1, sharex=True)
+    for label, color, s in runs:
+        _draw(axes[0], s["t"], s["tip"][:, 0], color, label, lw=1.2)
+        _draw(axes[1], s["t"], s["tip"][:, 1], color, label, lw=1.2)
+        _draw(axes[2], s["t"], np.max(s["contact_force"], axis=1), color, label, lw=1.2)
+        for j in range(n):
+            _draw(axes[3 + j], s["t"], s["u"][:, j], color, label, lw=1.0)
+    axes[2].axhline(scene.f_max, color=LIMIT_COLOR, lw=1.2, ls="--", label=f"F_max = {scene.f_max:g} N")
+    same_nominal = all(np.array_equal(s["u_nom"], runs[0][2]["u_nom"]) for _, _, s in runs)
+    for j in range(n):
+        for label, color, s in runs[:1] if same_nominal else runs:
+            _draw(axes[3 + j], s["t"], s["u_nom"][:, j], NOMINAL_COLOR if same_nominal else color,
+                  "u_nom" if same_nominal else f"{label} u_nom", lw=1.0, ls="--")
+    for ax, ylabel in zip(axes, ["r_x [m]", "r_y [m]", "F [N]", *[f"u{j + 1} [hPa]" for j in range(n)]]):
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("t [s]")
+    axes[0].set_title("tip, measured force, command; shaded: min–max of each pixel column", fontsize=10)
+    _legend_outside(fig, axes)
+    save_figure(fig, path, figure_format, dpi)
+
+
+def _plot_rho(runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: str, dpi: float) -> None:
+    fig = _figure("rho", dpi)
     ax = fig.add_subplot()
     for label, color, s in runs:
-        ax.plot(s["t"], s["rho_meas"], color=color, lw=1.2, label=f"{label} measured")
-        ax.plot(s["t"], s["rho_pred"], color=color, lw=1.0, ls="--", label=f"{label} predicted")
-    ax.axhline(0.0, color="0.3", lw=0.8, ls=":")
-    ax.set(xlabel="t [s]", ylabel="safety margin ρ", title="ρ(t): measured (solid) and predicted (dashed)")
-    ax.legend(fontsize=8, ncol=len(runs), loc="lower left")
+        _draw(ax, s["t"], s["rho_meas"], color, f"{label} measured", lw=1.2)
+        _draw(ax, s["t"], s["rho_pred"], color, f"{label} predicted", lw=1.0, ls="--")
+    ax.axhline(0.0, color=LIMIT_COLOR, lw=1.0, ls="--", label="ρ = 0 (F = F_max)")
+    ax.set(xlabel="t [s]", ylabel="safety margin ρ [-]", title="ρ(t): measured (solid) and predicted (dashed)")
     ax.grid(alpha=0.3)
-    _save(fig, path)
+    _legend_outside(fig, [ax])
+    save_figure(fig, path, figure_format, dpi)
 
 
-def _plot_tip_path(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Path) -> None:
+def _plot_tip_path(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: str, dpi: float) -> None:
     box = scene_box([s for _, _, s in runs])
-    fig = _figure("tip_path")
+    fig = _figure("tip_path", dpi)
     ax = fig.add_subplot()
     for k, edge in enumerate(boundary_segments(scene.facets_H, scene.facets_h, box)):
         ax.plot(*edge.T, color=FACET_COLOR, lw=2.0, label="facets (boundary of N)" if k == 0 else None)
@@ -216,54 +294,84 @@ def _plot_tip_path(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Pa
         ax.plot(*edge.T, color=P_COLOR, lw=1.5, ls="--", label="boundary of P" if k == 0 else None)
     if not (np.array_equal(scene.plates_H, scene.facets_H) and np.array_equal(scene.plates_h, scene.facets_h)):
         for k, edge in enumerate(boundary_segments(scene.plates_H, scene.plates_h, box)):
-            ax.plot(*edge.T, color=PLATE_COLOR, lw=1.5, label="true plates at rest" if k == 0 else None)
+            ax.plot(*edge.T, color=PLATE_COLOR, lw=1.5, ls=":", label="true plates at rest" if k == 0 else None)
     first = runs[0][2]
-    ax.plot(*arm_polyline(first["q"][0], scene.lengths, first["segment_ends"][0, 0]).T, color="0.6", lw=3, label="arm at t = 0")
+    ax.plot(*arm_polyline(first["q"][0], scene.lengths, first["segment_ends"][0, 0]).T, color=NEUTRAL_COLOR, lw=3,
+            alpha=0.6, label="arm at t = 0")
     for label, color, s in runs:
-        ax.plot(s["tip"][:, 0], s["tip"][:, 1], color=color, lw=1.0, label=f"{label} tip")
+        stride = max(1, -(-len(s["tip"]) // TIP_PATH_POINTS))
+        ax.plot(s["tip"][::stride, 0], s["tip"][::stride, 1], color=color, lw=1.0, label=f"{label} tip")
         k = int(np.argmin(s["rho_meas"]))
         ax.plot(*arm_polyline(s["q"][k], scene.lengths, s["segment_ends"][k, 0]).T, color=color, lw=2, alpha=0.6,
                 label=f"{label} arm at min ρ_meas (t = {s['t'][k]:.1f} s)")
     ax.set(xlim=box[:2], ylim=box[2:], xlabel="x [m]", ylabel="y [m]", title="tip path with N and P", aspect="equal")
-    ax.legend(fontsize=7, loc="lower left")
     ax.grid(alpha=0.3)
-    _save(fig, path)
+    _legend_outside(fig, [ax], loc="outside lower center", ncols=2)
+    save_figure(fig, path, figure_format, dpi)
 
 
-def _plot_force(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Path) -> None:
-    fig = _figure("force")
+def _plot_force(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: str, dpi: float) -> None:
+    fig = _figure("force", dpi)
     axes = fig.subplots(len(runs), 1, sharex=True, squeeze=False)[:, 0]
     for ax, (label, color, s) in zip(axes, runs):
-        ax.plot(s["t"], np.max(s["contact_force"], axis=1), color=color, lw=1.2, label="measured")
-        ax.plot(s["t"], predicted_force(scene, s["rho_pred"]), color=color, lw=1.0, ls="--", label="predicted")
-        ax.axhline(scene.f_max, color=P_COLOR, lw=1.0, ls=":", label="F_max")
+        _draw(ax, s["t"], np.max(s["contact_force"], axis=1), color, f"{label} measured", lw=1.2)
+        _draw(ax, s["t"], predicted_force(scene, s["rho_pred"]), color, f"{label} predicted", lw=1.0, ls="--")
+        ax.axhline(scene.f_max, color=LIMIT_COLOR, lw=1.0, ls="--", label=f"F_max = {scene.f_max:g} N")
         ax.set(ylabel="F [N]", title=label)
-        ax.legend(fontsize=7, loc="upper right")
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("t [s]")
-    fig.suptitle("contact force: measured vs predicted")
-    _save(fig, path)
+    axes[0].set_title(f"{runs[0][0]}; contact force measured (solid), predicted (dashed)", fontsize=10)
+    _legend_outside(fig, axes)
+    save_figure(fig, path, figure_format, dpi)
 
 
-def _plot_pressure(runs: Sequence[tuple[str, str, dict]], path: Path) -> None:
+def zoom_window(runs: Sequence[Mapping[str, np.ndarray]], width_s: float = ZOOM_WINDOW_S) -> tuple[float, float]:
+    """(t0, t1) (s): `width_s` wide, centred on the step with the largest |u − u_nom| of any run
+    (the first run's minimum ρ_meas when no run corrects), shifted to lie inside the runs' span."""
+    if not width_s > 0:
+        raise ValueError(f"width_s must be > 0 s, got {width_s}")
+    peaks = [float(np.max(np.abs(s["u"] - s["u_nom"]), initial=0.0)) for s in runs]
+    worst = runs[int(np.argmax(peaks))]
+    if max(peaks) > 0:
+        centre = float(worst["t"][np.argmax(np.max(np.abs(worst["u"] - worst["u_nom"]), axis=1))])
+    else:
+        centre = float(runs[0]["t"][np.argmin(runs[0]["rho_meas"])])
+    start = min(float(s["t"][0]) for s in runs)
+    end = max(float(s["t"][-1]) for s in runs)
+    t0 = min(max(centre - width_s / 2, start), max(end - width_s, start))
+    return t0, t0 + width_s
+
+
+def _plot_pressure(runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: str, dpi: float) -> None:
     n = runs[0][2]["u"].shape[1]
     same_nominal = all(np.array_equal(s["u_nom"], runs[0][2]["u_nom"]) for _, _, s in runs)
-    fig = _figure("pressure")
-    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
-    for j, ax in enumerate(axes):
+    t0, t1 = zoom_window([s for _, _, s in runs])
+    fig = _figure("pressure", dpi)
+    axes = fig.subplots(n, 2, sharex="col", squeeze=False, width_ratios=(3, 1))
+    for j in range(n):
+        full, zoom = axes[j]
         for label, color, s in runs:
-            ax.plot(s["t"], s["u"][:, j], color=color, lw=1.0, label=f"{label} u")
+            inside = (s["t"] >= t0) & (s["t"] <= t1)
+            _draw(full, s["t"], s["u"][:, j], color, f"{label} u", lw=1.0)
+            _draw(zoom, s["t"][inside], s["u"][inside, j], color, f"{label} u", lw=1.0)
             if not same_nominal:
-                ax.plot(s["t"], s["u_nom"][:, j], color=color, lw=0.8, ls=":", label=f"{label} u_nom")
+                _draw(full, s["t"], s["u_nom"][:, j], color, f"{label} u_nom", lw=0.8, ls=":")
+                _draw(zoom, s["t"][inside], s["u_nom"][inside, j], color, f"{label} u_nom", lw=0.8, ls=":")
         if same_nominal:
             first = runs[0][2]
-            ax.plot(first["t"], first["u_nom"][:, j], color=NOMINAL_COLOR, lw=1.0, ls="--", label="u_nom")
-        ax.set(ylabel=f"u{j + 1} [hPa]")
-        ax.legend(fontsize=7, ncol=len(runs) + 1, loc="upper right")
-        ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle("commanded u vs nominal u_nom")
-    _save(fig, path)
+            inside = (first["t"] >= t0) & (first["t"] <= t1)
+            _draw(full, first["t"], first["u_nom"][:, j], NOMINAL_COLOR, "u_nom", lw=1.0, ls="--")
+            _draw(zoom, first["t"][inside], first["u_nom"][inside, j], NOMINAL_COLOR, "u_nom", lw=1.0, ls="--")
+        full.axvspan(t0, t1, color=NEUTRAL_COLOR, alpha=0.25, lw=0)
+        full.set(ylabel=f"u{j + 1} [hPa]")
+        for ax in (full, zoom):
+            ax.grid(alpha=0.3)
+    axes[0, 0].set_title("u vs u_nom; shaded: min–max of each pixel column; grey: zoom", fontsize=10)
+    axes[0, 1].set_title(f"zoom {t0:.3f}–{t1:.3f} s, each step", fontsize=10)
+    axes[-1, 0].set_xlabel("t [s]")
+    axes[-1, 1].set_xlabel("t [s]")
+    _legend_outside(fig, axes.ravel())
+    save_figure(fig, path, figure_format, dpi)
 
 
 def _markdown(folder: RunFolder, scene: Scene, plots: Mapping[str, Path]) -> str:
@@ -282,7 +390,7 @@ def _markdown(folder: RunFolder, scene: Scene, plots: Mapping[str, Path]) -> str
         format_table(folder.runs, columns, markdown=True),
         "",
         "ρ_pred: from the controller's state estimate and model; ρ_meas: from the measured contact force "
-        "(SPEC §8). t_viol: time with ρ_meas < 0.",
+        "(docs/run-outputs.md). t_viol: time with ρ_meas < 0.",
         "",
         "## Plots",
         "",
@@ -310,8 +418,13 @@ def _markdown(folder: RunFolder, scene: Scene, plots: Mapping[str, Path]) -> str
     return "\n".join(lines)
 
 
-def write_report(run_dir: str | Path) -> dict[str, Path]:
-    """Rebuild DIR/plots/*.png and DIR/report.md from the folder; return the files by name."""
+def write_report(run_dir: str | Path, figure_format: str = "png", dpi: float = DPI) -> dict[str, Path]:
+    """Rebuild DIR/plots/*.<figure_format> (FIGURE_FORMATS; raster resolution `dpi`) and
+    DIR/report.md from the folder; return the files by name."""
+    if figure_format not in FIGURE_FORMATS:
+        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
+    if not dpi > 0:
+        raise ValueError(f"dpi must be > 0, got {dpi}")
     folder = read_run_folder(run_dir)
     if not folder.runs:
         raise RunFolderError(f"{folder.path} has no finished run to report")
@@ -319,13 +432,14 @@ def write_report(run_dir: str | Path) -> dict[str, Path]:
     runs = [(label, run_color(label, i), folder.timeseries(label)[0]) for i, label in enumerate(folder.labels)]
     plots_dir = folder.path / PLOTS_DIR
     plots_dir.mkdir(exist_ok=True)
-    plots = {name: plots_dir / f"{name}.png" for name in FIGURE_SIZES_IN}
-    _plot_rho(runs, plots["rho"])
-    _plot_tip_path(scene, runs, plots["tip_path"])
-    _plot_force(scene, runs, plots["force"])
-    _plot_pressure(runs, plots["pressure"])
+    plots = {name: plots_dir / f"{name}.{figure_format}" for name in FIGURE_SIZES_IN}
+    _plot_overview(scene, runs, plots["overview"], figure_format, dpi)
+    _plot_rho(runs, plots["rho"], figure_format, dpi)
+    _plot_tip_path(scene, runs, plots["tip_path"], figure_format, dpi)
+    _plot_force(scene, runs, plots["force"], figure_format, dpi)
+    _plot_pressure(runs, plots["pressure"], figure_format, dpi)
     report = folder.path / REPORT_FILE
-    tmp = report.with_name(f".{REPORT_FILE}.tmp")
-    tmp.write_text(_markdown(folder, scene, plots), encoding="utf-8")
-    os.replace(tmp, report)
+    text = _markdown(folder, scene, plots)
+    with atomic_path(report) as tmp:
+        tmp.write_text(text, encoding="utf-8")
     return {**plots, "report": report}

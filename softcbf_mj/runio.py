@@ -1,4 +1,4 @@
-"""Run outputs (SPEC §8): the output folder, summary.json and per-run time series.
+"""Run outputs (docs/run-outputs.md): the output folder, summary.json and per-run time series.
 
 Layout of a run folder DIR:
     DIR/config.json                  {"scenario", "params", "seed", "versions", "command",
@@ -31,21 +31,35 @@ times ascending, corners in OpenCV's image convention (x right, y down) and the 
 `perception.detect` (top-left, top-right, bottom-right, bottom-left of the upright tag).
 
 summary.json is rewritten (atomically) after every run, so an interrupted scenario
-leaves a readable folder holding every finished run.
+leaves a readable folder holding every finished run. Every file is written atomically
+(a hidden temp file renamed into place, removed again if writing fails or is
+interrupted: `atomic_path`) with the mode umask gives new files (0644 under umask 022).
+
+The run folder is marked and locked by DIR/.softcbf-run (`prepare_out_dir`): the marker
+says that this tool made the folder, so `--overwrite` replaces its contents and no other
+folder's (never the working folder, one above it or the home folder); while a process
+holds an exclusive `fcntl.flock` on it (until `release_out_dir` or its exit, also when it
+is killed: no stale locks), any other process is refused the folder. The marker holds the
+PID of the last process that locked it, for the message.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
+import fcntl
 import json
 import os
+import pickle
 import platform
 import re
 import shlex
 import shutil
 import sys
-import tempfile
+import zipfile
+import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -63,21 +77,147 @@ FRAMES_INDEX = "frames.json"
 STIFFNESS_LAWS = {law.__name__: law for law in (LinearStiffness, PowerLawStiffness)}
 
 
+RUN_MARKER = ".softcbf-run"
+
+
 class OutputDirError(ValueError):
-    """The output folder cannot be used (exists and is not empty, or is a file)."""
+    """The output folder cannot be used (not empty, a file, not writable, in use by another run...)."""
+
+
+_LOCKS: dict[Path, int] = {}  # run folder (resolved) -> descriptor of its locked marker
+
+
+def is_run_folder(path: str | Path) -> bool:
+    """Whether `path` was written by this tool: it holds the marker, or (folders written
+    before the marker existed) a summary.json with docs/run-outputs.md's scenario, params and runs."""
+    folder = Path(path)
+    if (folder / RUN_MARKER).is_file():
+        return True
+    try:
+        summary = json.loads((folder / SUMMARY_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(summary, dict) and {"scenario", "params", "runs"} <= summary.keys()
+
+
+def _protected(folder: Path) -> str | None:
+    """Why `folder` must never be emptied (the working folder, a folder above it, home), or None."""
+    resolved, cwd = folder.resolve(), Path.cwd().resolve()
+    if resolved == cwd:
+        return "it is the working folder"
+    if resolved in cwd.parents:
+        return "the working folder lies inside it"
+    if resolved == Path.home().resolve():
+        return "it is the home folder"
+    return None
+
+
+def _lock(folder: Path) -> None:
+    """Lock `folder` for this process (created marker + exclusive flock); OutputDirError if
+    another process holds it. Locking a folder this process holds already is a no-op."""
+    key = folder.resolve()
+    if key in _LOCKS:
+        return
+    marker = folder / RUN_MARKER
+    fd = os.open(marker, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if os.fstat(fd).st_ino != os.stat(marker).st_ino:  # its holder removed it meanwhile
+            raise BlockingIOError
+    except (BlockingIOError, FileNotFoundError):
+        holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
+        os.close(fd)
+        raise OutputDirError(f"{folder} is in use by another run (process {holder}); "
+                             "wait for it to finish or choose another --out") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+    _LOCKS[key] = fd
+
+
+def release_out_dir(path: str | Path) -> None:
+    """Release this process's lock on a run folder (`prepare_out_dir`); the marker stays."""
+    fd = _LOCKS.pop(Path(path).resolve(), None)
+    if fd is not None:
+        os.close(fd)
+
+
+def remove_if_unused(path: str | Path) -> None:
+    """Release and remove a run folder that holds nothing but its marker (made for a run
+    that did not start), so that the corrected command is not refused."""
+    folder = Path(path)
+    release_out_dir(folder)
+    if folder.is_dir() and not folder.is_symlink() and {p.name for p in folder.iterdir()} <= {RUN_MARKER}:
+        (folder / RUN_MARKER).unlink(missing_ok=True)
+        folder.rmdir()
+
+
+def _empty(folder: Path, keep: str) -> None:
+    for entry in folder.iterdir():
+        if entry.name == keep:
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
 
 
 def prepare_out_dir(path: str | Path, overwrite: bool = False) -> Path:
-    """Create the run folder; refuse an existing non-empty one unless `overwrite` (then empty it)."""
+    """Create (or take, when empty) the run folder `path`, mark it and lock it for this
+    process (see the module docstring); return it.
+
+    A folder holding anything but the marker is refused unless `overwrite`, and then only
+    when it is a run folder (`is_run_folder`) and not the working folder, one above it or
+    home: its contents are deleted. Raises OutputDirError (never OSError) naming the
+    folder and what is wrong, before deleting anything.
+    """
+    if str(path) == "":
+        raise OutputDirError("--out must name a folder, got ''")
     out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise OutputDirError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not overwrite:
-            raise OutputDirError(f"{out} exists and is not empty; choose another --out or pass --overwrite")
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        if out.exists() and not out.is_dir():
+            raise OutputDirError(f"{out} exists and is not a folder")
+        marked, run_folder = (out / RUN_MARKER).is_file(), is_run_folder(out)  # before the lock marks it
+        out.mkdir(parents=True, exist_ok=True)
+        _lock(out)
+    except OSError as exc:
+        raise OutputDirError(f"cannot write the run folder {out}: {exc.strerror or exc}") from None
+    try:
+        if any(entry.name != RUN_MARKER for entry in out.iterdir()):
+            if not overwrite:
+                raise OutputDirError(f"{out} exists and is not empty; choose another --out or pass --overwrite")
+            if not run_folder:
+                raise OutputDirError(f"{out} is not a run folder (it has no {RUN_MARKER} or {SUMMARY_FILE}); "
+                                     "--overwrite only replaces folders written by softcbf: choose another --out")
+            reason = _protected(out)
+            if reason:
+                raise OutputDirError(f"refusing to overwrite {out}: {reason}; choose another --out")
+            _empty(out, keep=RUN_MARKER)
+    except (OSError, OutputDirError) as exc:
+        if not marked:
+            (out / RUN_MARKER).unlink(missing_ok=True)
+        release_out_dir(out)
+        if isinstance(exc, OutputDirError):
+            raise
+        raise OutputDirError(f"cannot empty the run folder {out}: {exc.strerror or exc}") from None
     return out
+
+
+def new_run_dir(parent: str | Path, stem: str) -> Path:
+    """Create a new folder parent/<stem>-<YYYYmmdd-HHMMSS> (suffix -2, -3, ... when that
+    exists) atomically (mkdir), so that runs started in the same second get one each."""
+    base = Path(parent) / f"{stem}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
+    candidate, index = base, 1
+    try:
+        base.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            try:
+                candidate.mkdir()
+                return candidate
+            except FileExistsError:
+                index += 1
+                candidate = base.with_name(f"{base.name}-{index}")
+    except OSError as exc:
+        raise OutputDirError(f"cannot create the run folder {candidate}: {exc.strerror or exc}") from None
 
 
 def _version(dist: str) -> str | None:
@@ -124,14 +264,26 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
-def write_json(path: Path, data: Mapping[str, Any]) -> None:
-    """Write UTF-8 JSON atomically (temp file + rename); non-finite floats become null."""
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A hidden temp path beside `path` (".<stem>.tmp<suffix>") for a writer to create; it
+    is renamed onto `path` when the block ends, and removed when the block raises
+    (KeyboardInterrupt included), so no torn or temp file stays behind."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        json.dump(_jsonable(data), fh, indent=2, allow_nan=False)
-        fh.write("\n")
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: Path, data: Mapping[str, Any]) -> None:
+    """Write UTF-8 JSON atomically (`atomic_path`); non-finite floats become null."""
+    text = json.dumps(_jsonable(data), indent=2, allow_nan=False) + "\n"
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
 
 
 def safe_name(text: str) -> str:
@@ -150,17 +302,21 @@ def save_timeseries(out_dir: Path, run: str, series: Mapping[str, np.ndarray], u
     if missing:
         raise ValueError(f"time series of run {run!r} lack units for {sorted(missing)}")
     path = folder / f"{safe_name(run)}.npz"
-    tmp = folder / f".{path.stem}.tmp.npz"
-    np.savez_compressed(tmp, units=np.array(json.dumps(dict(units))), **{k: np.asarray(v) for k, v in series.items()})
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, units=np.array(json.dumps(dict(units))), **{k: np.asarray(v) for k, v in series.items()})
     return path
 
 
 def load_timeseries(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """Read a run's time series: (arrays by key, units by key)."""
-    with np.load(path) as data:
-        units = json.loads(str(data["units"]))
-        arrays = {k: data[k] for k in data.files if k != "units"}
+    """Read a run's time series: (arrays by key, units by key). RunFolderError naming the
+    file when it cannot be read (missing, truncated, not an archive of this format)."""
+    try:
+        with np.load(path) as data:
+            units = json.loads(str(data["units"]))
+            arrays = {k: data[k] for k in data.files if k != "units"}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, pickle.UnpicklingError) as exc:
+        raise RunFolderError(f"time series {path} cannot be read ({type(exc).__name__}: {exc}); "
+                             "rerun the scenario to write it again") from None
     return arrays, units
 
 
@@ -227,8 +383,8 @@ class RunFolderError(ValueError):
 def _read_json(path: Path) -> dict[str, Any]:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise RunFolderError(f"{path} is not valid JSON ({exc})") from None
+    except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise RunFolderError(f"{path} cannot be read as JSON ({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -280,7 +436,7 @@ def read_run_folder(path: str | Path) -> RunFolder:
     summary = _read_json(summary_path)
     for key in ("scenario", "params", "runs"):
         if key not in summary:
-            raise RunFolderError(f"{summary_path} lacks {key!r} (SPEC §8: scenario, params, versions, runs)")
+            raise RunFolderError(f"{summary_path} lacks {key!r} (docs/run-outputs.md: scenario, params, versions, runs)")
     config_path = folder / CONFIG_FILE
     config = _read_json(config_path) if config_path.is_file() else None
     return RunFolder(folder, summary, config)

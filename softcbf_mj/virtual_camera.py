@@ -36,7 +36,7 @@ from perception.plane import PlaneCalibration
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration, image_size
 from softcbf_mj.valve_emulator import ValveEmulator
 
-DEFAULT_FPS = 12.8  # SPEC §7: the hardware camera's ~12.8 frames/s
+DEFAULT_FPS = 12.8  # docs/ground-truth.md: the hardware camera's ~12.8 frames/s
 
 
 class VirtualCamera:

@@ -1,4 +1,4 @@
-"""Barrier of SPEC §5: tunings, the definitions of b, ḃ, B, and ∂B/∂q, ∂B/∂q̇, L_f B, L_g B
+"""Barrier of docs/model.md#control-barrier-function: tunings, the definitions of b, ḃ, B, and ∂B/∂q, ∂B/∂q̇, L_f B, L_g B
 against finite differences of an independent B(q, q̇) built from the public kinematics.
 
 Finite-difference tolerance: central differences with step 1e-7 are accurate to ≈ 1e-8

@@ -1,6 +1,10 @@
 """The `softcbf` CLI: list, run, report, --version, errors and exit codes, interrupted runs."""
 
+import datetime
 import json
+import os
+import shutil
+import stat
 import subprocess
 import sys
 import tomllib
@@ -9,16 +13,18 @@ from pathlib import Path
 
 import pytest
 import rerun as rr
+from matplotlib.figure import Figure
 
 import scenarios.common
 import softcbf_mj
 from scenarios import registry
 from softcbf.cli import INTERRUPTED, USAGE_ERROR, main
-from softcbf_mj.runio import load_timeseries, read_run_folder
+from softcbf_mj.report import FIGURE_SIZES_IN
+from softcbf_mj.runio import RUN_MARKER, load_timeseries, read_run_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--duration", "0.5", "--tunings", "None,Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
-PLOTS = {"rho.png", "tip_path.png", "force.png", "pressure.png"}
+PLOTS = {f"{name}.png" for name in FIGURE_SIZES_IN}
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +68,7 @@ def test_run_writes_one_complete_folder(run_dir, capsys):
     assert {"config.json", "summary.json", "report.md", "recording.rrd", "timeseries/None.npz",
             "timeseries/Low.npz"} <= names
     assert {p.name for p in (run_dir / "plots").iterdir()} == PLOTS
-    assert not [n for n in names if Path(n).name.startswith(".")]  # no temp files left
+    assert [n for n in names if Path(n).name.startswith(".")] == [RUN_MARKER]  # the marker, no temp files
     config = json.loads((run_dir / "config.json").read_text(encoding="utf-8"))
     defaults = registry()["paper_sim"].defaults()
     assert config["params"] == {**defaults, "duration": 0.5, "tunings": "None,Low", "amplitude": 150.0,
@@ -86,6 +92,8 @@ def test_run_prints_the_table_and_where_everything_is(tmp_path, capsys, monkeypa
     assert "viewer not spawned: no display" in captured.err
     assert "rho_min" in captured.out and f"outputs in {out}:" in captured.out
     assert f"rerun {out / 'recording.rrd'}" in captured.out and f"softcbf report {out}" in captured.out
+    viewer = captured.out.split("view it with: ")[1].split()[0]  # a program that exists here, not a bare 'rerun'
+    assert shutil.which(viewer) is not None
 
 
 def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
@@ -107,6 +115,9 @@ def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
     assert main(["report", str(run_dir), "--no-recording"]) == 0
     assert not (run_dir / "recording.rrd").exists()
     assert main(["report", str(run_dir)]) == 0
+    assert main(["report", str(run_dir), "--no-recording", "--figure-format", "svg", "--dpi", "80"]) == 0
+    assert {f"{name}.svg" for name in FIGURE_SIZES_IN} <= {p.name for p in (run_dir / "plots").iterdir()}
+    assert "plots/rho.svg" in (run_dir / "report.md").read_text(encoding="utf-8")
 
 
 @pytest.mark.parametrize(
@@ -139,14 +150,154 @@ def test_bad_arguments_exit_2_naming_the_parameter_and_valid_values(tmp_path, ca
 
 
 def test_existing_folder_is_refused_unless_overwrite(tmp_path, capsys):
+    out = tmp_path / "run"
+    tiny = ["--duration", "0.01", "--tunings", "None", "--progress", "false"]
+    assert main(["run", "paper_sim", "--out", str(out), *tiny]) == 0
+    assert main(["run", "paper_sim", "--out", str(out), *tiny]) == USAGE_ERROR
+    assert f"{out} exists and is not empty; choose another --out or pass --overwrite" in capsys.readouterr().err
+    (out / "keep.txt").write_text("data")
+    assert main(["run", "paper_sim", "--out", str(out), "--overwrite", *tiny]) == 0
+    assert not (out / "keep.txt").exists() and (out / "summary.json").is_file()
+
+
+@pytest.mark.parametrize("out", ["{tmp}", ".", ""])
+def test_overwrite_never_deletes_a_folder_softcbf_did_not_write(tmp_path, capsys, monkeypatch, out):
+    """L1: `--out . --overwrite` (or --out "") deleted keep.txt, then crashed."""
+    monkeypatch.chdir(tmp_path)
     (tmp_path / "keep.txt").write_text("data")
-    assert main(["run", "paper_sim", "--out", str(tmp_path), "--duration", "0.01"]) == USAGE_ERROR
+    args = ["run", "paper_sim", "--duration", ".5", "--tunings", "None", "--out", out.replace("{tmp}", str(tmp_path)),
+            "--overwrite"]
+    assert main(args) == USAGE_ERROR
     err = capsys.readouterr().err
-    assert f"{tmp_path} exists and is not empty; choose another --out or pass --overwrite" in err
-    assert (tmp_path / "keep.txt").read_text() == "data"
-    assert main(["run", "paper_sim", "--out", str(tmp_path), "--overwrite", "--duration", "0.01", "--tunings", "None",
-                 "--progress", "false"]) == 0
-    assert not (tmp_path / "keep.txt").exists() and (tmp_path / "summary.json").is_file()
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    assert "is not a run folder" in err or "--out must name a folder, got ''" in err
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"] and (tmp_path / "keep.txt").read_text() == "data"
+
+
+def test_a_run_folder_in_use_is_refused(tmp_path, capsys):
+    """L2: a second run into the --out of a running one succeeded and mixed the two runs' files."""
+    out = tmp_path / "run"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.runio import prepare_out_dir\n"
+                               "prepare_out_dir(sys.argv[1]); print('locked', flush=True); time.sleep(600)", str(out)],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        assert main(["run", "paper_sim", "--out", str(out), "--duration", "0.01", "--tunings", "None"]) == USAGE_ERROR
+        assert f"{out} is in use by another run (process {holder.pid})" in capsys.readouterr().err
+        assert [p.name for p in out.iterdir()] == [RUN_MARKER]
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_default_folders_of_runs_started_in_the_same_second_differ(tmp_path, monkeypatch):
+    """L2: runs/<scenario>-<YYYYmmdd-HHMMSS> collided for runs started in the same second."""
+    monkeypatch.chdir(tmp_path)
+    now = datetime.datetime.now()
+    for seconds in range(4):  # the folder the clock would name, now and in the next seconds, is taken
+        taken = tmp_path / "runs" / f"paper_sim-{now + datetime.timedelta(seconds=seconds):%Y%m%d-%H%M%S}"
+        taken.mkdir(parents=True)
+        (taken / "summary.json").write_text("{}")
+    assert main(["run", "paper_sim", "--duration", "0.01", "--tunings", "None", "--progress", "false"]) == 0
+    (new,) = [p for p in (tmp_path / "runs").iterdir() if (p / "config.json").is_file()]
+    assert new.name.startswith("paper_sim-") and new.name.rsplit("-", 1)[1] == "2"
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["paper_sim", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
+        (["mujoco_contact", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
+        (["camera_loop", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
+        (["paper_sim", "--duration", "1e6"], "duration 1e+06 s (1000000000 steps of 0.001 s) needs 4"),
+        (["mujoco_contact", "--duration", "1e6"], "duration 1e+06 s (1000000000 steps of 0.001 s) needs"),
+        (["camera_loop", "--duration", "1e6"], "duration 1e+06 s (500000000 steps of 0.002 s) needs"),
+        (["paper_sim", "--q0-std", "nan"], "q0_std must be finite, got nan"),  # L5
+        (["paper_sim", "--control-rate", "1e-3", "--duration", ".5"],
+         "duration must cover at least one control period (1000 s), got 0.5 s"),  # L6
+        (["paper_sim", "--control-rate", "inf"], "control_rate must be finite and > 0 Hz, got inf"),  # L6
+        (["paper_sim", "--seed", "-1", "--q0-std", ".1"], "seed must be >= 0, got -1"),  # L6
+        (["paper_sim", "--environment", "{tmp}/env.json"], "environment file {tmp}/env.json cannot be used: "),  # L6
+        (["mujoco_contact", "--links-per-segment", "0"], "links_per_segment must be in [1, 100], got 0"),
+        (["camera_loop", "--width", "100000"], "width must be in [16, 1280] px, got 100000"),
+        # found by tests/test_cli_properties.py: OverflowError (int to float) and OSError (file name too long)
+        (["paper_sim", "--seed", "9" * 400, "--q0-std", "-1"], "q0_std must be in [0, 3.14159] rad, got -1.0"),
+        (["camera_loop", "--width", "9" * 400], "width must be in [16, 1280] px, got 999"),
+        (["paper_sim", "--environment", "9" * 400], "environment must be 'paper' or a JSON file with keys H and h, got '999"),
+    ],
+)
+def test_bad_values_are_refused_naming_the_parameter_before_anything_is_written(tmp_path, capsys, args, message):
+    """L3, L5, L6: tracebacks (OverflowError, MemoryError), accepted NaN and messages that did not name the
+    parameter; the crashes left config.json and summary.json behind, which blocked the corrected command."""
+    (tmp_path / "env.json").write_text('{"H": [1', encoding="utf-8")
+    out = tmp_path / "o"
+    args = ["run", *[a.replace("{tmp}", str(tmp_path)) for a in args], "--out", str(out)]
+    assert main(args) == USAGE_ERROR
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message.replace("{tmp}", str(tmp_path)) in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("out", ["/proc/x", "{tmp}/file/sub", "{tmp}/dangling", "{tmp}/" + "x" * 300])
+def test_unusable_out_folders_are_one_line_errors(tmp_path, capsys, out):
+    """L3: --out /proc/x, --out FILE/sub (and a dangling link) raised OSError tracebacks."""
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    out = out.replace("{tmp}", str(tmp_path))
+    assert main(["run", "paper_sim", "--duration", ".5", "--out", out]) == USAGE_ERROR
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: cannot write the run folder {out}: ") and err.count("\n") == 1, err
+
+
+@pytest.fixture
+def immutable_folder(tmp_path):
+    """An empty folder nobody may write into, root included (chattr +i); skipped where chattr cannot do that."""
+    folder = tmp_path / "immutable"
+    folder.mkdir()
+    if shutil.which("chattr") is None or subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode:
+        pytest.skip("chattr +i is not available here (needs root and a file system with the immutable flag)")
+    yield folder
+    subprocess.run(["chattr", "-i", str(folder)], check=True)
+
+
+def test_an_immutable_out_folder_is_a_one_line_error(immutable_folder, capsys):
+    """L3: an empty folder that cannot be written passed the checks, then raised PermissionError from
+    summary.json's temp file."""
+    assert main(["run", "paper_sim", "--duration", ".5", "--out", str(immutable_folder)]) == USAGE_ERROR
+    err = capsys.readouterr().err
+    assert err == f"error: cannot write the run folder {immutable_folder}: Operation not permitted\n"
+    assert list(immutable_folder.iterdir()) == []
+
+
+def test_overwrite_through_a_symlink_replaces_the_run_folder_it_points_to(tmp_path, capsys):
+    """L3: a symlink with --overwrite raised OSError (rmtree of a symlink) after its checks."""
+    tiny = ["--duration", "0.01", "--tunings", "None", "--progress", "false"]
+    target, link = tmp_path / "run", tmp_path / "link"
+    assert main(["run", "paper_sim", "--out", str(target), *tiny]) == 0
+    link.symlink_to(target)
+    (target / "old.txt").write_text("x")
+    assert main(["run", "paper_sim", "--out", str(link), "--overwrite", *tiny]) == 0
+    assert link.is_symlink() and (target / "summary.json").is_file() and not (target / "old.txt").exists()
+
+
+def test_report_of_a_truncated_timeseries_is_a_one_line_error(run_dir, tmp_path, capsys):
+    """L4: `softcbf report` on a truncated .npz raised zipfile.BadZipFile."""
+    folder = tmp_path / "copy"
+    shutil.copytree(run_dir, folder)
+    npz = folder / "timeseries" / "Low.npz"
+    npz.write_bytes(npz.read_bytes()[: npz.stat().st_size // 2])
+    assert main(["report", str(folder), "--no-recording"]) == USAGE_ERROR
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: time series {npz} cannot be read (") and err.count("\n") == 1, err
+    assert not [p for p in folder.rglob(".*") if p.name != RUN_MARKER]
+
+
+def test_run_outputs_get_the_mode_umask_gives_new_files(run_dir):
+    """L8: config.json and summary.json were written 0600, every other output 0644 (umask 022 here)."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    modes = {p.relative_to(run_dir).as_posix(): stat.S_IMODE(p.stat().st_mode) for p in run_dir.rglob("*") if p.is_file()}
+    assert set(modes.values()) == {0o666 & ~umask}, modes
 
 
 def test_interrupted_run_leaves_its_finished_tunings_readable(tmp_path, capsys, monkeypatch):
@@ -171,6 +322,103 @@ def test_interrupted_run_leaves_its_finished_tunings_readable(tmp_path, capsys, 
     assert "| None |" in (out / "report.md").read_text(encoding="utf-8")
     paths = rr.chunk.RrdReader(out / "recording.rrd").stream().collect().schema().entity_paths()
     assert "/runs/None/rho" in paths and not any(p.startswith("/runs/Low") for p in paths)
+
+
+def _main_catching_interrupts(args):
+    """main(args), failing the test (not the session) when a KeyboardInterrupt escapes it."""
+    try:
+        return main(args)
+    except KeyboardInterrupt:
+        pytest.fail("KeyboardInterrupt escaped main: a traceback for the user")
+
+
+def _interrupt_savefig_call(monkeypatch, number):
+    """Ctrl-C in the middle of writing the `number`-th plot file (a torn temp file on disk)."""
+    real, calls = Figure.savefig, []
+
+    def savefig(self, fname, *args, **kwargs):
+        calls.append(fname)
+        if len(calls) == number:
+            Path(fname).write_bytes(b"\x89PNG torn")
+            raise KeyboardInterrupt
+        return real(self, fname, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    return calls
+
+
+def test_interrupt_during_the_first_report_leaves_a_complete_folder_and_says_so(tmp_path, capsys, monkeypatch):
+    """L7: Ctrl-C while the first report was built said "with their report and recording" though neither
+    existed, and left plots/.force.tmp.png."""
+    _interrupt_savefig_call(monkeypatch, 3)  # rho, tip_path, then force
+    out = tmp_path / "run"
+    assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT[:2], "--tunings", "None",
+                                      "--progress", "false"]) == INTERRUPTED
+    err = capsys.readouterr().err
+    assert "rebuilding report.md and recording.rrd for the 1 finished run(s) (None)" in err
+    assert "interrupted: 1 finished run(s) (None) are in" in err and "with their report and recording" in err
+    assert not [p for p in out.rglob(".*") if p.name != RUN_MARKER]
+    assert {p.name for p in (out / "plots").iterdir()} == PLOTS
+    assert "| None |" in (out / "report.md").read_text(encoding="utf-8")
+    paths = rr.chunk.RrdReader(out / "recording.rrd").stream().collect().schema().entity_paths()
+    assert "/runs/None/rho" in paths
+
+
+def test_interrupt_during_the_last_report_still_reports_every_finished_run(tmp_path, capsys, monkeypatch):
+    """L7: Ctrl-C while the report of the last tuning was built left a report without that tuning."""
+    _interrupt_savefig_call(monkeypatch, 6)  # the second report's tip_path
+    out = tmp_path / "run"
+    assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT]) == INTERRUPTED
+    assert "interrupted: 2 finished run(s) (None, Low) are in" in capsys.readouterr().err
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert "| None |" in report and "| Low |" in report
+    paths = rr.chunk.RrdReader(out / "recording.rrd").stream().collect().schema().entity_paths()
+    assert "/runs/Low/rho" in paths
+    assert not [p for p in out.rglob(".*") if p.name != RUN_MARKER]
+
+
+def test_a_second_interrupt_skips_the_rebuild_and_says_what_is_missing(tmp_path, capsys, monkeypatch):
+    import softcbf_mj.report
+
+    real, calls = softcbf_mj.report.write_report, []
+
+    def interrupt_after_the_first(run_dir):  # the second tuning's report, then the rebuild after Ctrl-C
+        calls.append(run_dir)
+        if len(calls) > 1:
+            raise KeyboardInterrupt
+        return real(run_dir)
+
+    monkeypatch.setattr(softcbf_mj.report, "write_report", interrupt_after_the_first)
+    out = tmp_path / "run"
+    assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT]) == INTERRUPTED
+    err = capsys.readouterr().err
+    assert len(calls) == 3
+    assert err.endswith(f"interrupted again: the 2 finished run(s) (None, Low) are in {out}; report.md and "
+                        f"recording.rrd may not show them all: rebuild with: softcbf report {out}\n"), err
+
+
+@pytest.mark.parametrize("when", ["import", "scenario"])
+def test_interrupt_at_start_up_exits_130_with_one_line_and_no_folder(tmp_path, capsys, monkeypatch, when):
+    """L7: Ctrl-C at start-up (importing rerun, building the scenario) gave a KeyboardInterrupt traceback
+    or "0 finished run(s) ... with their report and recording", and left an empty folder."""
+    import types
+
+    import scenarios.paper_sim
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    if when == "import":
+        module = types.ModuleType("softcbf_mj.recording")
+        module.__getattr__ = lambda name: interrupt()
+        monkeypatch.setitem(sys.modules, "softcbf_mj.recording", module)
+    else:
+        monkeypatch.setattr(scenarios.paper_sim, "build_safe_set", interrupt)
+    out = tmp_path / "new" / "run"
+    assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT]) == INTERRUPTED
+    err = capsys.readouterr().err
+    assert err.strip() == f"interrupted before the first run finished; nothing kept in {out}"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_console_script_runs():

@@ -1,4 +1,4 @@
-"""RPPR dynamics (SPEC §3): structure of M and C, derivatives against finite differences,
+"""RPPR dynamics (docs/model.md#rppr-dynamics): structure of M and C, derivatives against finite differences,
 energy balance of integrated trajectories, the single-segment closed form and the
 linearisation's fast mode.
 
@@ -182,7 +182,7 @@ def test_energy_is_conserved_without_damping_or_input():
 
 
 def test_quasi_static_bend_and_restoring_sign():
-    """q = Λu/k is an equilibrium (25° at 80 hPa, SPEC §3); a bent arm at rest accelerates back."""
+    """q = Λu/k is an equilibrium (25° at 80 hPa, docs/model.md#rppr-dynamics); a bent arm at rest accelerates back."""
     dyn = PCCDynamics(reference_robot())
     u = np.array([80.0, -80.0])
     q_eq = dyn.gains * u / dyn.stiffness
@@ -198,7 +198,7 @@ def test_quasi_static_bend_and_restoring_sign():
 
 def test_linearisation_at_rest_has_the_stiff_mode_of_the_spec():
     """At x = 0: ∂q̈/∂q = −M⁻¹K, ∂q̈/∂q̇ = −M⁻¹D; the reference arm's fastest mode is ≈ −3.68e3 s⁻¹
-    (SPEC §5 "near −3.7e3"), the slow ones ≈ −14.3 and −14.6 ± 14.3i s⁻¹ (|λ| ≈ 20 rad/s)."""
+    (docs/model.md#rppr-dynamics "near −3.7e3"), the slow ones ≈ −14.3 and −14.6 ± 14.3i s⁻¹ (|λ| ≈ 20 rad/s)."""
     dyn = PCCDynamics(reference_robot())
     zero = np.zeros(2)
     d_q, d_qd = dyn.acceleration_jacobian(zero, zero, zero)
@@ -243,3 +243,14 @@ def test_input_errors():
         dyn.evaluate(np.zeros(3), good)
     with pytest.raises(ControllerInputError, match=r"x must have shape \(4,\)"):
         dyn.f(np.zeros(2))
+
+
+def test_unchecked_acceleration_and_mass_gives_the_same_floats():
+    dyn = PCCDynamics(reference_robot())
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q, qd, u = rng.uniform(-1, 1, 2), rng.uniform(-3, 3, 2), rng.uniform(-150, 150, 2)
+        acc, mass = dyn.acceleration_and_mass_unchecked(q.tolist(), qd.tolist(), u.tolist())
+        expected_acc, expected_mass = dyn.acceleration_and_mass(q, qd, u)
+        np.testing.assert_array_equal(acc, expected_acc)
+        np.testing.assert_array_equal(mass, expected_mass)

@@ -8,10 +8,12 @@ import sys
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from controllers.params import reference_robot
 from hardware.config import ConfigError, HardwareConfig
+from perception.plane import PlaneCalibration
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "hardware_emulated.toml"
@@ -40,17 +42,18 @@ def test_json_and_toml_give_the_same_config_and_limits_replace_the_robots(tmp_pa
     assert config.to_dict()["control"] == HardwareConfig.load(EXAMPLE).to_dict()["control"]
 
 
-def test_defaults_need_a_calibration_for_a_real_camera():
+def test_defaults_need_a_calibration_for_a_real_camera(tmp_path):
     with pytest.raises(ConfigError, match=r"camera.calibration is required for a real camera: fit one with tools/calibrate_camera.py"):
         HardwareConfig()
-    config = HardwareConfig.from_dict({"camera": {"source": 2, "calibration": "cal.json"}})
+    PlaneCalibration(np.eye(3)).save(tmp_path / "cal.json")
+    config = HardwareConfig.from_dict({"camera": {"source": 2, "calibration": "cal.json"}}, tmp_path)
     assert config.camera.source == 2 and config.link.port == "/dev/ttyACM0" and config.control.tuning == "HW-High"
 
 
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"camera": {"fps": -1.0}}, r"camera.fps must be > 0, got -1.0"),
+        ({"camera": {"fps": -1.0}}, r"camera.fps must be > 0 1/s, got -1.0"),
         ({"camera": {"zoom": 2}}, r"\[camera\] has unknown key\(s\) \['zoom'\]; valid keys: source, calibration"),
         ({"cameras": {}}, r"unknown section\(s\) \['cameras'\]"),
         ({"control": {"tuning": "Bogus"}}, r"control.tuning: unknown tuning 'Bogus'; valid: None, Low, High"),

@@ -10,10 +10,9 @@ packages on one layer do not import each other):
     4  scenarios                 registered experiments
     5  softcbf                   the application layer: CLI, hardware CLI, studies
 
-Every module of every package is parsed (ast), including imports inside functions.
-`python -m scenarios` (scenarios/__main__.py) is the one exception: an entry point
-that no module imports, it runs the application layer's `softcbf run` under SPEC §8's
-older spelling.
+Every module of every package is parsed (ast), including imports inside functions, with
+no exception: `python -m scenarios` (scenarios/__main__.py) runs `scenarios.run`, the
+implementation `softcbf run` imports.
 """
 
 from __future__ import annotations
@@ -33,7 +32,6 @@ FORBIDDEN = {  # third-party modules a package must not import
     "closedloop": ("mujoco", "cv2", "rerun", "matplotlib"),
     "hardware": ("mujoco", "rerun", "matplotlib"),
 }
-ENTRY_POINTS = {"scenarios/__main__.py": {"softcbf.cli"}}
 
 
 def _modules(package: str) -> list[Path]:
@@ -72,7 +70,7 @@ def _violations(package: str, rel: str, module_name: str, imports: list[tuple[st
     out = []
     for module, names in imports:
         top = module.split(".")[0]
-        if top in LAYERS and top != package and module not in ENTRY_POINTS.get(rel, set()) and LAYERS[top] >= LAYERS[package]:
+        if top in LAYERS and top != package and LAYERS[top] >= LAYERS[package]:
             out.append(f"{rel} imports {module}: layer {top} is not below {package}")
         if top in FORBIDDEN.get(package, ()):
             out.append(f"{rel} imports {module}, which {package} must not use")

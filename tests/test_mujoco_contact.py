@@ -1,4 +1,4 @@
-"""Scenario `mujoco_contact` (SPEC §7, §8): outputs, MuJoCo extras, contact figures, determinism,
+"""Scenario `mujoco_contact` (docs/ground-truth.md, docs/run-outputs.md): outputs, MuJoCo extras, contact figures, determinism,
 and what the unfiltered and the Low-filtered arm do against the plate.
 
 Short runs start at t0 = 25 s, the peak of the 100 s sinusoid: the arm, straight and vented
@@ -84,7 +84,7 @@ def test_predicted_penetration_is_the_pcc_tip_of_the_estimate(run):
 
 def test_unfiltered_arm_exceeds_f_max_and_low_holds_it(run):
     """Measured (3 s from the sinusoid's peak): None presses 0.252 N (ρ_meas −0.58) for 2.8 s;
-    Low peaks at 0.158 N (ρ_meas +0.011; +0.005 from a straight start) — SPEC §5 allows
+    Low peaks at 0.158 N (ρ_meas +0.011; +0.005 from a straight start) — docs/model.md#control-barrier-function allows
     violations of order 0.01 at a 1 ms hold, so the assertion leaves 0.02. The loaded rod's
     predicted penetration is biased by +0.23…0.31 mm on average (1.6–2.2 % of n_max)."""
     _, summary, _ = run

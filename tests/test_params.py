@@ -1,4 +1,4 @@
-"""Robot parameters: reference values (SPEC §3), validation messages, file round trip."""
+"""Robot parameters: reference values (docs/model.md#rppr-dynamics), validation messages, file round trip."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""PCC kinematics (SPEC §2): chord series accuracy, geometry against independent
+"""PCC kinematics (docs/model.md#pcc-kinematics): chord series accuracy, geometry against independent
 constructions (arc integration, the paper's homogeneous transforms), and every
 derivative against central finite differences.
 
@@ -173,3 +173,14 @@ def test_input_errors():
         pcc.kinematics([0.1], [0.1], order=4)
     with pytest.raises(ControllerInputError, match="array of numbers"):
         pcc.tip_position(["a"], [0.1])
+
+
+def test_tip_positions_vectorised_matches_tip_position():
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3):
+        lengths = rng.uniform(0.05, 0.2, n)
+        q = np.vstack((rng.uniform(-3.0, 3.0, (50, n)), np.zeros((1, n)), np.full((1, n), 1e-9)))
+        expected = np.array([pcc.tip_position(row, lengths) for row in q])
+        np.testing.assert_allclose(pcc.tip_positions(q, lengths), expected, rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match=r"q must have shape \(T, 2\)"):
+        pcc.tip_positions(np.zeros(2), [0.1, 0.1])

@@ -49,7 +49,7 @@ def test_statics_settle_at_k_inverse_lambda_u():
         state = plant.step(u)
     np.testing.assert_allclose(state.q, ROBOT.array("gains") * u / ROBOT.array("stiffness"), atol=1e-9)
     np.testing.assert_allclose(state.segment_ends, segment_ends(state.q, ROBOT.array("lengths")))
-    np.testing.assert_allclose(np.degrees(state.q[0]), 25.0, rtol=1e-9)  # 80 hPa → 25° (SPEC §3)
+    np.testing.assert_allclose(np.degrees(state.q[0]), 25.0, rtol=1e-9)  # 80 hPa → 25° (docs/model.md#rppr-dynamics)
 
 
 def test_contact_force_is_psi_of_true_penetration():
@@ -63,7 +63,7 @@ def test_contact_force_is_psi_of_true_penetration():
 @pytest.mark.parametrize("integrator, physics_dt, stable", [("ros2", 1e-3, True), ("rk4", 1e-4, True), ("rk4", 1e-3, False)])
 def test_unforced_energy_never_grows_when_stable(integrator, physics_dt, stable):
     """With u = 0 and D > 0, T + V must decrease. The fast mode near q = 0 (≈ −3.7e3 1/s,
-    SPEC §5) times 1 ms lies outside RK4's stability interval (−2.79, 0): RK4 at 1 ms gains
+    docs/model.md#control-barrier-function) times 1 ms lies outside RK4's stability interval (−2.79, 0): RK4 at 1 ms gains
     energy, ROS2 (L-stable) does not."""
     plant = PCCPlant(ROBOT, SAFE, integrator=integrator, physics_dt=physics_dt)
     state = plant.reset(np.array([0.05, -0.05]))
@@ -92,3 +92,31 @@ def test_bad_configuration_and_inputs():
 def test_same_inputs_same_arrays():
     commands = np.tile([[50.0, -30.0]], (200, 1))
     np.testing.assert_array_equal(tip_path("ros2", 1e-3, commands, np.zeros(2)), tip_path("ros2", 1e-3, commands, np.zeros(2)))
+
+
+def test_pressure_lag_follows_first_order_valve_and_agrees_with_fine_euler():
+    """τ_p = 0.05 s: u_applied is the exact first-order response; the tip agrees with forward
+    Euler at 1e-5 s (lag advanced per Euler step) to 1e-4 m, like the ideal-valve check above."""
+    rng = np.random.default_rng(2)
+    commands = np.repeat(rng.uniform(-150, 150, (6, 2)), 50, axis=0)
+    q0 = np.array([0.1, -0.2])
+
+    def run(integrator, physics_dt, tau_p):
+        plant = PCCPlant(ROBOT, SAFE, integrator=integrator, physics_dt=physics_dt, tau_p=tau_p)
+        plant.reset(q0)
+        states = [plant.step(u) for u in commands]
+        return np.array([s.tip for s in states]), np.array([s.u_applied for s in states])
+
+    tips, pressure = run("ros2", 1e-3, 0.05)
+    reference, _ = run("euler", 1e-5, 0.05)
+    ideal, ideal_pressure = run("ros2", 1e-3, 0.0)
+    assert np.max(np.abs(tips - reference)) < 1e-4
+    assert np.max(np.abs(tips - ideal)) > 1e-3  # the lag changes the motion
+    np.testing.assert_array_equal(ideal_pressure, commands)
+    p, expected = np.zeros(2), []
+    for u in commands:
+        p = u + (p - u) * np.exp(-1e-3 / 0.05)
+        expected.append(p)
+    np.testing.assert_allclose(pressure, expected, rtol=1e-12, atol=1e-9)
+    with pytest.raises(ValueError, match="tau_p must be finite and >= 0 s"):
+        PCCPlant(ROBOT, SAFE, tau_p=-0.01)

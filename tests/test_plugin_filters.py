@@ -1,4 +1,4 @@
-"""The controller under test is a plug-in (SPEC §9): the registry, the one control step, and
+"""The controller under test is a plug-in (docs/safety-filter.md): the registry, the one control step, and
 user filters through every front end (softcbf run in MuJoCo and the camera loop, a study,
 the hardware emulator)."""
 
@@ -38,7 +38,7 @@ FAST = ["--amplitude", "150", "--frequency", "0.25", "--t0", "1", "--progress", 
 
 @pytest.fixture(scope="module")
 def clip_file(tmp_path_factory) -> Path:
-    """The SPEC §9 ClipFilter, verbatim, in a file outside the project."""
+    """The docs/safety-filter.md ClipFilter, verbatim, in a file outside the project."""
     path = tmp_path_factory.mktemp("user") / "clip.py"
     path.write_text(SPEC_CLIP_FILTER, encoding="utf-8")
     return path

@@ -1,4 +1,4 @@
-"""The filter's QP (SPEC §5): KKT conditions for every backend, infeasibility, zero rows, input checks.
+"""The filter's QP (docs/model.md#control-barrier-function): KKT conditions for every backend, infeasibility, zero rows, input checks.
 
 Optimality is certified independently of the solvers' own multipliers. With unit rows
 g_k (general rows scaled here, box rows ±e_j) and slacks s_k = c_k − g_k·u (hPa):

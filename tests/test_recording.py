@@ -1,4 +1,4 @@
-"""rerun recordings (softcbf_mj.recording), read back with rerun's own reader (SPEC §8):
+"""rerun recordings (softcbf_mj.recording), read back with rerun's own reader (docs/run-outputs.md):
 entities, time steps, values, the camera-frame hook, the viewer switch."""
 
 import collections
@@ -157,3 +157,43 @@ def test_live_viewer_spawns_and_streams_each_new_run_once(monkeypatch, run_dir):
     live = [label for rec, label in logged if rec is call["recording"]]
     assert live == ["None", "Low"]  # the file got both runs twice, the viewer once
     assert len(logged) == 6
+
+
+def _static_components(path):
+    """{entity: {component: values of its first static row}} of a recording."""
+    store = rr.chunk.RrdReader(path).stream().collect()
+    out = {}
+    for chunk in store.stream():
+        if chunk.is_static:
+            batch = chunk.to_record_batch()
+            out.setdefault(chunk.entity_path, {}).update(
+                {n: batch.column(n).to_pylist()[0] for n in batch.schema.names if ":" in n})
+    return out
+
+
+def test_series_are_legible_on_the_dark_theme_and_switching_is_not_averaged(run_dir):
+    static = _static_components(run_dir / RECORDING_FILE)
+    for label in ("None", "Low"):
+        for name in SERIES:
+            style = static[f"/runs/{label}/{name}"]
+            for packed in style["SeriesLines:colors"]:  # 0xRRGGBBAA; none black or near-black
+                r, g, b = (packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255
+                assert 0.2126 * r + 0.7152 * g + 0.0722 * b > 0.3 * 255, (label, name, hex(packed))
+        policy = rr.components.AggregationPolicy
+        assert static[f"/runs/{label}/flags"]["SeriesLines:aggregation_policy"] == [policy.MinMax.value]
+        assert static[f"/runs/{label}/flags"]["SeriesLines:interpolation_mode"] == [rr.components.InterpolationMode.StepAfter.value]
+        assert static[f"/runs/{label}/u"]["SeriesLines:aggregation_policy"] == [policy.MinMax.value]
+    from softcbf_mj.palette import run_color
+    force_colors = static["/runs/None/force"]["SeriesLines:colors"]
+    assert force_colors[0] >> 8 == int(run_color("None", 0)[1:], 16)  # the run's palette colour, as in the plots
+    legend = static[recording.LEGEND_ENTITY]["TextDocument:text"][0]
+    assert "None" in legend and "Low" in legend and run_color("Low", 1) in legend
+
+
+def test_viewer_command_names_an_executable_that_exists(monkeypatch, tmp_path):
+    command = recording.viewer_command("x.rrd")
+    program = command[: -len(" x.rrd")]
+    assert command.endswith(" x.rrd")
+    assert shutil.which(program.split()[0]) is not None  # 'rerun' on PATH, an absolute path, or python -m rerun
+    monkeypatch.setattr(recording, "viewer_executable", lambda: None)
+    assert recording.viewer_command("x.rrd") == f"{recording.sys.executable} -m rerun x.rrd"

@@ -17,8 +17,10 @@ from softcbf_mj.report import (
     Scene,
     arm_polyline,
     boundary_segments,
+    envelope,
     predicted_force,
     write_report,
+    zoom_window,
 )
 from softcbf_mj.runio import RunFolderError, read_run_folder
 
@@ -109,3 +111,43 @@ def test_predicted_force_inverts_rho_through_psi(run_dir):
     scene = Scene.of(read_run_folder(run_dir))
     np.testing.assert_allclose(predicted_force(scene, np.array([1.0, 0.0, -1.0, 0.25])),
                                [0.0, 0.16, 0.32, 0.12], rtol=1e-13, atol=1e-16)
+
+
+def test_every_figure_format_is_written_at_the_requested_dpi(run_dir):
+    for figure_format, magic in (("svg", b"<?xml"), ("pdf", b"%PDF")):
+        files = write_report(run_dir, figure_format=figure_format)
+        for name in FIGURE_SIZES_IN:
+            assert files[name].suffix == f".{figure_format}" and files[name].read_bytes().startswith(magic), name
+        assert f"plots/rho.{figure_format}" in files["report"].read_text(encoding="utf-8")
+    files = write_report(run_dir, dpi=150)
+    for name, (w_in, h_in) in FIGURE_SIZES_IN.items():
+        assert imread(files[name]).shape[:2] == (round(h_in * 150), round(w_in * 150)), name
+    with pytest.raises(ValueError, match="figure_format must be one of png, svg, pdf, got 'jpg'"):
+        write_report(run_dir, figure_format="jpg")
+    with pytest.raises(ValueError, match="dpi must be > 0, got 0"):
+        write_report(run_dir, dpi=0)
+    write_report(run_dir)  # leave the default PNGs for the other tests
+
+
+def test_envelope_keeps_the_extremes_of_a_switching_signal():
+    t = np.arange(10_000) * 1e-3
+    y = np.where(np.arange(10_000) % 2, 138.7, 80.0)  # alternates every step
+    tm, lo, hi, mean = envelope(t, y, bins=100)
+    assert len(tm) == 100 and np.all(np.diff(tm) > 0)
+    np.testing.assert_array_equal(lo, 80.0)
+    np.testing.assert_array_equal(hi, 138.7)
+    np.testing.assert_allclose(mean, (80.0 + 138.7) / 2)
+    short = envelope(t[:50], y[:50], bins=100)
+    assert all(np.array_equal(a, b) for a, b in zip(short, (t[:50], y[:50], y[:50], y[:50])))
+
+
+def test_zoom_window_centres_on_the_largest_correction():
+    t = np.arange(1000) * 1e-3
+    u_nom = np.zeros((1000, 2))
+    u = u_nom.copy()
+    u[700, 1] = -50.0
+    run = {"t": t, "u": u, "u_nom": u_nom, "rho_meas": np.ones(1000)}
+    assert zoom_window([run], 0.05) == pytest.approx((0.675, 0.725))
+    u[700, 1] = 0.0
+    u[995, 0] = 10.0  # near the end: the window is shifted inside the run
+    assert zoom_window([run], 0.05) == pytest.approx((0.999 - 0.05, 0.999))

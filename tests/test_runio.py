@@ -1,15 +1,24 @@
-"""Run-output contract (SPEC §8): output folders, summary.json, time series."""
+"""Run-output contract (docs/run-outputs.md): output folders, summary.json, time series."""
 
 import json
+import os
+import stat
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 from softcbf_mj.runio import (
+    RUN_MARKER,
     OutputDirError,
+    RunFolderError,
     SummaryWriter,
+    atomic_path,
     load_timeseries,
+    new_run_dir,
     prepare_out_dir,
+    release_out_dir,
     safe_name,
     save_timeseries,
 )
@@ -17,13 +26,110 @@ from softcbf_mj.runio import (
 
 def test_existing_nonempty_folder_is_refused_unless_overwrite(tmp_path):
     out = tmp_path / "run"
-    out.mkdir()
+    SummaryWriter(prepare_out_dir(out), "demo", {})
+    release_out_dir(out)
     (out / "keep.txt").write_text("data")
     with pytest.raises(OutputDirError, match="not empty.*--overwrite"):
         prepare_out_dir(out)
     assert (out / "keep.txt").read_text() == "data"
     prepare_out_dir(out, overwrite=True)
-    assert list(out.iterdir()) == []
+    assert [p.name for p in out.iterdir()] == [RUN_MARKER]
+    release_out_dir(out)
+
+
+def test_overwrite_refuses_a_folder_softcbf_did_not_write(tmp_path):
+    """L1: --overwrite used to delete any folder (keep.txt, the checkout...)."""
+    (tmp_path / "keep.txt").write_text("data")
+    with pytest.raises(OutputDirError, match="is not a run folder .*--overwrite only replaces folders written by softcbf"):
+        prepare_out_dir(tmp_path, overwrite=True)
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]  # nothing deleted, no marker left behind
+    with pytest.raises(OutputDirError, match="must name a folder"):
+        prepare_out_dir("", overwrite=True)
+
+
+@pytest.mark.parametrize("where", ["cwd", "parent", "home"])
+def test_overwrite_never_empties_the_working_folder_its_parents_or_home(tmp_path, monkeypatch, where):
+    """L1: even a run folder is not emptied when it is (or holds) the working folder, or is home."""
+    run = tmp_path / "run"
+    SummaryWriter(prepare_out_dir(run), "demo", {})
+    release_out_dir(run)
+    inside = run / "sub"
+    inside.mkdir()
+    monkeypatch.chdir({"cwd": run, "parent": inside, "home": tmp_path}[where])
+    monkeypatch.setenv("HOME", str(run))
+    reason = {"cwd": "it is the working folder", "parent": "the working folder lies inside it",
+              "home": "it is the home folder"}[where]
+    with pytest.raises(OutputDirError, match=f"refusing to overwrite .*: {reason}"):
+        prepare_out_dir(run, overwrite=True)
+    assert (run / "summary.json").is_file() and inside.is_dir()
+
+
+def test_a_locked_run_folder_is_refused_to_another_process_until_released(tmp_path):
+    """L2: two runs into one folder used to both succeed and mix their files."""
+    out = tmp_path / "run"
+    prepare_out_dir(out)
+    other = [sys.executable, "-c", "import sys; from softcbf_mj.runio import prepare_out_dir, OutputDirError\n"
+             "try:\n    prepare_out_dir(sys.argv[1])\nexcept OutputDirError as e:\n    sys.exit(str(e))", str(out)]
+    res = subprocess.run(other, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 1 and f"{out} is in use by another run (process {os.getpid()})" in res.stderr
+    assert prepare_out_dir(out) == out  # this process may take it again
+    release_out_dir(out)
+    res = subprocess.run(other, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+
+
+def test_a_killed_run_leaves_no_stale_lock(tmp_path):
+    """The lock is an flock: it dies with its process, whatever the marker file says."""
+    out = tmp_path / "run"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.runio import prepare_out_dir\n"
+                               "prepare_out_dir(sys.argv[1]); print('locked', flush=True); time.sleep(600)", str(out)],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(OutputDirError, match=f"in use by another run \\(process {holder.pid}\\)"):
+            prepare_out_dir(out)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert prepare_out_dir(out) == out
+    release_out_dir(out)
+
+
+def test_new_run_dirs_are_unique_within_one_second(tmp_path):
+    """L2: the default runs/<scenario>-<time> collided for runs started in the same second."""
+    folders = [new_run_dir(tmp_path / "runs", "paper_sim") for _ in range(3)]
+    assert len(set(folders)) == 3 and all(f.is_dir() and not any(f.iterdir()) for f in folders)
+    assert all(f.name.startswith("paper_sim-") for f in folders)
+
+
+def test_json_and_timeseries_get_the_mode_umask_gives_new_files(tmp_path):
+    """L8: config.json and summary.json were 0600 (mkstemp), every other output 0644."""
+    old = os.umask(0o022)
+    try:
+        SummaryWriter(tmp_path, "demo", {"duration": 1.0})
+        save_timeseries(tmp_path, "r", {"t": np.zeros(3)}, {"t": "s"})
+    finally:
+        os.umask(old)
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in tmp_path.rglob("*") if p.is_file()}
+    assert modes == {"config.json": 0o644, "summary.json": 0o644, "r.npz": 0o644}
+
+
+def test_an_interrupted_write_leaves_no_temp_file(tmp_path):
+    """L7: Ctrl-C while a file is written leaves neither a torn file nor its temp file."""
+    target = tmp_path / "force.png"
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"\x89PNG half")
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_truncated_timeseries_is_a_run_folder_error_naming_the_file(tmp_path):
+    """L4: a truncated .npz raised zipfile.BadZipFile."""
+    path = save_timeseries(tmp_path, "r", {"t": np.arange(1000.0)}, {"t": "s"})
+    path.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(RunFolderError, match=f"time series {path} cannot be read"):
+        load_timeseries(path)
 
 
 def test_empty_or_missing_folder_is_accepted_and_file_is_refused(tmp_path):

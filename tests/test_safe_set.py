@@ -1,4 +1,4 @@
-"""Force-safe set (SPEC §4): Lemma 1, the vertex correction, scalings, ψ laws, margins, validation.
+"""Force-safe set (docs/model.md#force-safe-set): Lemma 1, the vertex correction, scalings, ψ laws, margins, validation.
 
 The central property — every point of the corrected P lies within n_max of N — is checked
 against an independent distance: N is described here by its own vertex list (a far-away
@@ -274,3 +274,12 @@ def test_environment_constructors_agree_and_arrays_are_read_only():
     for arr in (a.H, a.vertices, safe.H_prime, safe.h_prime, safe.is_vertex_correction):
         with pytest.raises(ValueError):
             arr[0] = 1
+
+
+@pytest.mark.parametrize("law", [LinearStiffness(11.16), PowerLawStiffness(40.0, 1.5)])
+def test_stored_energy_is_the_integral_of_the_force(law):
+    n = np.linspace(0.0, 0.02, 20001)
+    force = law.force(n)
+    integral = np.concatenate(([0.0], np.cumsum(0.5 * (force[1:] + force[:-1]) * np.diff(n))))
+    np.testing.assert_allclose(law.energy(n), integral, rtol=1e-6, atol=1e-12)
+    assert law.energy(-0.01) == 0.0

@@ -1,4 +1,4 @@
-"""Scenario registry and CLI (SPEC §8): list, run, outputs, errors, determinism."""
+"""Scenario registry and CLI (docs/run-outputs.md): list, run, outputs, errors, determinism."""
 
 import json
 import subprocess
@@ -9,7 +9,7 @@ import pytest
 
 from scenarios import get, registry
 from scenarios.__main__ import main
-from scenarios.common import data_only
+from scenarios.common import Bound, check_bounds, data_only, non_negative, positive
 from softcbf_mj.runio import load_timeseries
 
 SPEC_RUN_FIELDS = {
@@ -117,3 +117,20 @@ def test_same_seed_same_arrays(tmp_path):
 def test_in_process_main_matches_the_module_cli(tmp_path, capsys):
     assert main(["--list"]) == 0
     assert "paper_sim" in capsys.readouterr().out
+
+
+def test_check_parameters_names_the_parameter_its_bound_and_the_value():
+    bounds = {"duration": positive("s"), "offset": Bound(-1.0, 1.0, unit="m"), "rate": Bound(0.0, 1.0, high_open=True),
+              "seed": non_negative()}
+    check_bounds({"duration": 1e-9, "offset": -1.0, "rate": 0.0, "seed": 0, "flag": True, "name": "x"}, bounds)
+    for params, message in [
+        ({"duration": 0.0}, "duration must be > 0 s, got 0.0"),
+        ({"duration": float("inf")}, "duration must be finite and > 0 s, got inf"),
+        ({"offset": 1.5}, "offset must be in [-1, 1] m, got 1.5"),
+        ({"rate": 1.0}, "rate must be in [0, 1), got 1.0"),
+        ({"seed": -1}, "seed must be >= 0, got -1"),
+        ({"other": float("nan")}, "other must be finite, got nan"),  # every float, bounded or not
+    ]:
+        with pytest.raises(ValueError) as exc:
+            check_bounds(params, bounds)
+        assert str(exc.value) == message

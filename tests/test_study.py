@@ -14,12 +14,13 @@ import sys
 import time
 from pathlib import Path
 
+import pandas
 import pytest
 
 from softcbf_mj.runio import OutputDirError
 from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, load_study, run_study
 from softcbf.study.analysis import Proportion, crossing, sensitivity, tuning_summary, wilson_interval
-from softcbf.study.report import write_report
+from softcbf.study.report import assumed_value, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_TOML = """
@@ -196,7 +197,8 @@ def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_pat
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "--resume" in err
     store = StudyStore.open(out)
-    stopped = store.done()
+    stopped, corrupted = store.scan()
+    assert corrupted == []
     assert 2 <= len(stopped) < 6
     (out / "results" / ".sample-0000005.x.tmp").write_bytes(b"PAR1 torn")  # a part cut by a crash: ignored
     with pytest.raises(OutputDirError, match="pass --resume"):
@@ -210,11 +212,12 @@ def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_pat
 
 
 def test_a_failing_sample_is_recorded_and_the_study_goes_on(tmp_path):
-    study = Study("fails", "mujoco_contact", ("None", "Low"), sampling="grid", fixed={"t0": 25.0, "duration": 0.2},
-                  vary=(Distribution("tau_p", "choice", values=(-1.0, 0.05)),))
+    """A normal distribution's draws are unbounded, so the scenario refuses some only when they run (tau_p < 0)."""
+    study = Study("fails", "mujoco_contact", ("None", "Low"), draws=2, seed=7, fixed={"t0": 25.0, "duration": 0.2},
+                  vary=(Distribution("tau_p", "normal", mean=0.02, std=0.05),))
     outcome = run_study(study, tmp_path / "s", workers=2, progress=False)
     rows = StudyStore.open(tmp_path / "s").load_rows()
-    assert [r["param.tau_p"] for r in rows] == [-1.0, -1.0, 0.05, 0.05]
+    assert [r["param.tau_p"] > 0 for r in rows] == [True, True, False, False]  # seed 7: 0.035, -0.097 s
     assert (outcome.ran, outcome.failed) == (4, 2)
     for row in rows:
         if row["param.tau_p"] < 0:
@@ -234,9 +237,30 @@ def test_report_writes_markdown_plots_and_one_parquet(reference, tiny):
     assert "| plate_stiffness |" in text and "| facet_offset |" in text
     for name in ("rho_min_meas", "force_max_N", "violation_plate_stiffness", "violation_facet_offset"):
         assert (out / "plots" / f"{name}.png").stat().st_size > 1000
-    import pyarrow.parquet as pq
+    assert "pandas.read_parquet" in text
+    assert pandas.read_parquet(out / "results.parquet")["sample"].tolist() == list(range(6))
 
-    assert pq.read_table(out / "results.parquet").column("sample").to_pylist() == list(range(6))
+
+def test_report_figures_carry_units_the_assumed_value_and_f_max(reference):
+    out, _ = reference
+    write_report(out, level=0.05, bins=3, figure_format="svg")
+    for name, texts in {"force_max_N": ["F_max = 0.16 N", "peak measured force [N]"],
+                        "rho_min_meas": ["ρ = 0 (F = F_max)", "ρ_min measured [-]"],
+                        "violation_plate_stiffness": ["plate_stiffness [N/m]", "assumed by the controller: 11.16"],
+                        "violation_facet_offset": ["facet_offset [m]", "assumed by the controller: 0"]}.items():
+        svg = (out / "plots" / f"{name}.svg").read_text(encoding="utf-8")
+        for text in texts:  # matplotlib writes text into the svg as a comment beside its glyphs
+            assert f"<!-- {text} -->" in svg, (name, text)
+    with pytest.raises(ValueError, match="figure_format must be one of png, svg, pdf, got 'gif'"):
+        write_report(out, figure_format="gif")
+
+
+def test_assumed_value_reads_the_fixed_value_or_the_scenario_default():
+    assert assumed_value("mujoco_contact", {"assumed_plate_stiffness": 12.0}, "plate_stiffness") == 12.0
+    assert assumed_value("mujoco_contact", {}, "plate_stiffness") == 11.16  # the scenario's default
+    assert assumed_value("mujoco_contact", {}, "true_gain_scale") == 1.0
+    assert assumed_value("mujoco_contact", {}, "tau_p") is None
+    assert assumed_value("mujoco_contact", {}, "not_a_known_parameter") is None
 
 
 def test_preset_study_file_is_valid():

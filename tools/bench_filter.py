@@ -1,4 +1,4 @@
-"""Time one CBF filter step (state → command) of the paper's scenario, N = 2, P = 1 (SPEC §5–6).
+"""Time one CBF filter step (state → command) of the paper's scenario, N = 2, P = 1 (docs/model.md#control-barrier-function, docs/model.md#nominal-controller-and-the-papers-scenario).
 
 For each tuning (Low, High) and pressure limits off/on, the paper's closed loop (sinusoid
 into the facet, PCC plant, filter at 1 kHz) runs for `--duration` s; `--samples` states

@@ -1,4 +1,4 @@
-"""Real-time factor of the `paper_sim` scenario per tuning (simulated s per wall s; SPEC §6).
+"""Real-time factor of the `paper_sim` scenario per tuning (simulated s per wall s; docs/model.md#nominal-controller-and-the-papers-scenario).
 
 Runs `paper_sim` (PCC plant, filter at 1 kHz) once per tuning for `--duration` s with
 outputs in a temporary folder, and reports per tuning the scenario's own figure

@@ -1,4 +1,4 @@
-"""Per-solve time of each QP backend on the CBF filter's problem (SPEC §5).
+"""Per-solve time of each QP backend on the CBF filter's problem (docs/model.md#control-barrier-function).
 
 Problem: N = 2 pressures (hPa), one CBF row with L_gB-sized coefficients (≈ 1e-5…1e-4
 per hPa) and the ±150 hPa box. Three cases, `--samples` random problems each (u_nom

@@ -7,7 +7,7 @@ GPU). Each frame shows the arm in a new pose (both segments sweeping ±60°), so
 is rebuilt every frame as in a simulation. After `--warmup` frames, `--frames` frames are
 timed one by one (wall clock); the median and 90th percentile are reported, with the
 median time of AprilTag detection (`perception.detect.TagDetector`) on the same frames
-for comparison with the camera's ~78 ms period (12.8 frames/s, SPEC §7). The default
+for comparison with the camera's ~78 ms period (12.8 frames/s, docs/ground-truth.md). The default
 resolution is the camera's, 1280 × 720. Usage:
 `python tools/bench_render.py [--frames 30] [--warmup 3] [--sizes 640x360,1280x720,1920x1080]`;
 prints a table and ends with one line of JSON.

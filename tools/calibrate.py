@@ -1,4 +1,4 @@
-"""Calibrate the PCC model's K, D, Λ (SPEC §3) and write a robot JSON the controller loads.
+"""Calibrate the PCC model's K, D, Λ (docs/model.md#rppr-dynamics) and write a robot JSON the controller loads.
 
 Two sources of data (maths and conventions in `softcbf_mj/calibration.py`):
 - MuJoCo (default): motor babbling (seeded random pressure steps plus chirps within the

@@ -6,7 +6,7 @@ same integrator:
 
 - `chirp`: no plate; u_1 = A sin 2πφ(t), u_2 = −A sin(2πφ(t) + π/3), a linear chirp
   φ' = 0.2 → 5 Hz over the run (A = 120 hPa): the first modes and large bends;
-- `contact`: the paper's plate (SPEC §4); u = (120, 120) hPa from t = 0 (the tip strikes
+- `contact`: the paper's plate (docs/model.md#force-safe-set); u = (120, 120) hPa from t = 0 (the tip strikes
   the plate at speed and deflects it ≈ 46 mm), then (−60, 60) hPa from half-time (an
   abrupt release: the plate springs back and rings); pressure dynamics τ_p = 0.05 s;
 - `contact_ideal`: the same with an ideal actuator (τ_p = 0), the harshest case.
@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig
+from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
 from softcbf_mj.mujoco_plant import MujocoPlant
 
 CONTROL_DT = 1e-3  # s

@@ -2,7 +2,7 @@
 
 Violation. A sample violates when its measured margin `rho_min_meas` < 0, i.e. the
 measured contact force exceeded F_max at some control step (ρ_meas = (n_max − n)/n_max
-with ψ strictly increasing, so ρ_meas < 0 ⇔ F > F_max; SPEC §4, §8). Only samples with
+with ψ strictly increasing, so ρ_meas < 0 ⇔ F > F_max; docs/model.md#force-safe-set, docs/run-outputs.md). Only samples with
 status "ok" and a measured ρ count; failed samples are counted apart.
 
 Violation probability p = k/n with the Wilson score interval at confidence level 1 − α

@@ -2,7 +2,7 @@
 
     python -m softcbf.study run STUDY_FILE --out DIR [--workers N | --scheduler tcp://host:8786]
                                    [--resume] [--samples N] [--keep-runs] [--no-progress]
-    python -m softcbf.study report DIR [--level 0.05] [--bins 6]
+    python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
 draw-major, so N = draws × tunings runs whole draws) into DIR, one Parquet part per sample;
@@ -32,15 +32,16 @@ def _run(args: argparse.Namespace) -> int:
         study = load_study(args.study_file)
         outcome = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                             samples=args.samples, keep_runs=args.keep_runs, progress=not args.no_progress)
+        print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already "
+              f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
+              + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
+        print(f"report: {write_report(args.out)}")
     except (ValueError, OutputDirError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished samples are stored in {args.out}; continue with --resume", file=sys.stderr)
         return 130
-    print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already stored, "
-          f"{outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
-    print(f"report: {write_report(args.out)}")
     return 0
 
 
@@ -48,7 +49,7 @@ def _report(args: argparse.Namespace) -> int:
     from softcbf.study.report import write_report
 
     try:
-        path = write_report(args.dir, level=args.level, bins=args.bins)
+        path = write_report(args.dir, level=args.level, bins=args.bins, figure_format=args.figure_format, dpi=args.dpi)
     except (ValueError, OutputDirError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -74,6 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     report.add_argument("dir", type=Path, help="study folder")
     report.add_argument("--level", type=float, default=0.05, help="violation probability to locate (default 0.05)")
     report.add_argument("--bins", type=int, default=6, help="bins per varied parameter (default 6)")
+    report.add_argument("--figure-format", choices=("png", "svg", "pdf"), default="png", help="plot file format (default png)")
+    report.add_argument("--dpi", type=float, default=110.0, help="raster resolution of the plots (default 110)")
     report.set_defaults(study_handler=_report)
 
 

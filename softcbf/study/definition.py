@@ -1,6 +1,6 @@
 """Study definition and sampling: a scenario, fixed parameters, distributions, tunings.
 
-A study runs one registered scenario (`scenarios`, SPEC §8) many times. Its parts:
+A study runs one registered scenario (`scenarios`, docs/run-outputs.md) many times. Its parts:
 
 - `scenario`: the scenario's name; `fixed`: values for some of its keyword parameters;
 - `vary`: one `Distribution` per varied keyword parameter of that scenario (model
@@ -38,6 +38,19 @@ only `choice`):
 | normal      | mean, std > 0             | N(mean, std²)               | — (refused)                    |
 | choice      | values (non-empty list)   | uniform over values         | values                         |
 
+Checked at load. A `Study` refuses, with one line naming the key or parameter, the
+range and the value received: wrong types (a string for `tunings`, a list or table where
+a value belongs), unknown keys and parameters, non-finite numbers, and the values the
+scenario would refuse when a sample runs: the first draw with every tuning (so every
+fixed value and every tuning), then both ends of every range, the mean of every normal
+distribution and every choice value, each in the first sample, go through the scenario's
+own checks (`scenarios.Scenario.validate`). A mistake thus stops the study before its
+first sample instead of failing every sample. Draws of a normal distribution are
+unbounded: one that the scenario refuses is a row with status "error" when it runs.
+Sizes: draws × tunings ≤ 2⁶³ − 1 (sample indices are int64), grid `points` ≤
+`MAX_GRID_POINTS`; nothing of the size of the sample count is ever built
+(`softcbf.study.execute` streams the indices).
+
 Study file (TOML; `load_study`):
 
     name = "plate_errors"
@@ -61,7 +74,7 @@ import tomllib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -74,6 +87,8 @@ FILTER_PARAM_PREFIX = "filter_param."  # vary."filter_param.NAME": one parameter
 FILTER_PARAMS = "filter_params"  # the scenario parameter they are folded into
 _STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description",
                "filter", "filter_params"}
+MAX_SAMPLES = 2**63 - 1  # sample indices are int64 columns
+MAX_GRID_POINTS = 1_000_000  # per distribution: its grid is held in memory
 
 
 @dataclass(frozen=True)
@@ -90,7 +105,7 @@ class Distribution:
     points: int | None = None
 
     def __post_init__(self) -> None:
-        where = f"distribution of {self.parameter!r}"
+        where = f"vary.{self.parameter}"
         if self.kind not in KINDS:
             raise ValueError(f"{where}: dist must be one of {', '.join(KINDS)}, got {self.kind!r}")
         given = {k for k in ("low", "high", "mean", "std", "values") if getattr(self, k) is not None}
@@ -98,10 +113,9 @@ class Distribution:
             raise ValueError(f"{where}: dist {self.kind!r} takes exactly the keys {', '.join(KINDS[self.kind])} "
                              f"(and optionally points), got {', '.join(sorted(given)) or 'none'}")
         if self.kind == "choice":
-            values = tuple(self.values)
-            if not values:
-                raise ValueError(f"{where}: values must be a non-empty list")
-            object.__setattr__(self, "values", values)
+            if not isinstance(self.values, (list, tuple)) or not self.values:
+                raise ValueError(f"{where}: values must be a non-empty list, got {self.values!r}")
+            object.__setattr__(self, "values", tuple(self.values))
         else:
             for key in KINDS[self.kind]:
                 value = getattr(self, key)
@@ -110,12 +124,16 @@ class Distribution:
                 object.__setattr__(self, key, float(value))
         if self.kind in ("uniform", "loguniform") and not self.low < self.high:
             raise ValueError(f"{where}: low must be < high, got low={self.low}, high={self.high}")
+        if self.kind == "uniform" and not math.isfinite(self.high - self.low):
+            raise ValueError(f"{where}: high - low must be a finite number (its draws would be infinite), "
+                             f"got low={self.low}, high={self.high}")
         if self.kind == "loguniform" and not self.low > 0:
             raise ValueError(f"{where}: loguniform needs low > 0, got {self.low}")
         if self.kind == "normal" and not self.std > 0:
             raise ValueError(f"{where}: std must be > 0, got {self.std}")
-        if self.points is not None and (isinstance(self.points, bool) or int(self.points) != self.points or self.points < 2):
-            raise ValueError(f"{where}: points must be an integer >= 2, got {self.points!r}")
+        if self.points is not None and (not isinstance(self.points, int) or isinstance(self.points, bool)
+                                        or not 2 <= self.points <= MAX_GRID_POINTS):
+            raise ValueError(f"{where}: points must be an integer in [2, {MAX_GRID_POINTS}], got {self.points!r}")
 
     def draw(self, rng: np.random.Generator) -> Any:
         """One Monte Carlo value."""
@@ -127,17 +145,32 @@ class Distribution:
             return float(rng.normal(self.mean, self.std))
         return self.values[int(rng.integers(len(self.values)))]
 
-    def grid(self) -> tuple[Any, ...]:
-        """The grid values (refused for `normal`; uniform and loguniform need `points`)."""
+    def grid_size(self) -> int:
+        """The number of grid values (refused for `normal`; uniform and loguniform need `points`)."""
         if self.kind == "choice":
-            return self.values
+            return len(self.values)
         if self.kind == "normal":
-            raise ValueError(f"distribution of {self.parameter!r}: a normal distribution has no grid; "
+            raise ValueError(f"vary.{self.parameter}: a normal distribution has no grid; "
                              "use dist = 'uniform' with points, or sampling = 'monte_carlo'")
         if self.points is None:
-            raise ValueError(f"distribution of {self.parameter!r}: grid sampling needs points (>= 2) for dist {self.kind!r}")
+            raise ValueError(f"vary.{self.parameter}: grid sampling needs points (>= 2) for dist {self.kind!r}")
+        return self.points
+
+    def grid_value(self, k: int) -> Any:
+        """Grid value k of `grid_size()`: linspace or geomspace(low, high, points)[k], or values[k]."""
+        if self.kind == "choice":
+            return self.values[k]
         space = np.linspace if self.kind == "uniform" else np.geomspace
-        return tuple(float(v) for v in space(self.low, self.high, int(self.points)))
+        return float(space(self.low, self.high, self.grid_size())[k])
+
+    def ends(self) -> dict[str, Any]:
+        """The values a study checks against its scenario at load, by key: both ends of a range,
+        the mean of a normal, every choice value."""
+        if self.kind == "choice":
+            return {f"values[{i}]": v for i, v in enumerate(self.values)}
+        if self.kind == "normal":
+            return {"mean": self.mean}
+        return {"low": self.low, "high": self.high}
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"dist": self.kind}
@@ -160,15 +193,23 @@ class Sample:
     kwargs: dict[str, Any]
 
 
-def _check_type(parameter: str, value: Any, annotation: Any) -> Any:
-    """`value` as the scenario parameter's type, or a ValueError naming the parameter."""
-    if annotation is float and isinstance(value, (int, float)) and not isinstance(value, bool):
-        return float(value)
-    if annotation is int and isinstance(value, int) and not isinstance(value, bool):
-        return value
-    if annotation in (bool, str) and isinstance(value, annotation):
-        return value
-    raise ValueError(f"parameter {parameter!r} takes {annotation.__name__} values, got {value!r}")
+def fold_values(fixed: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
+    """The scenario keyword arguments of `fixed` and the drawn `values`, each varied
+    filter_param.NAME folded into filter_params as NAME=value."""
+    kwargs = dict(fixed)
+    kwargs.update({k: v for k, v in values.items() if not k.startswith(FILTER_PARAM_PREFIX)})
+    varied = [f"{k.removeprefix(FILTER_PARAM_PREFIX)}={v}" for k, v in values.items() if k.startswith(FILTER_PARAM_PREFIX)]
+    if varied:
+        kwargs[FILTER_PARAMS] = ";".join(part for part in (kwargs.get(FILTER_PARAMS, ""), *varied) if part)
+    return kwargs
+
+
+def _named(where: str, check: Callable[..., Any], *args: Any) -> Any:
+    """`check(*args)`, with a ValueError's message prefixed by `where` (the study key it came from)."""
+    try:
+        return check(*args)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -187,6 +228,9 @@ class Study:
     description: str = ""
 
     def __post_init__(self) -> None:
+        for key in ("name", "scenario", "tuning_parameter", "description"):
+            if not isinstance(getattr(self, key), str):
+                raise ValueError(f"{key} must be a string, got {getattr(self, key)!r}")
         if not self.name:
             raise ValueError("a study needs a name")
         try:
@@ -195,6 +239,12 @@ class Study:
             raise ValueError(exc.args[0]) from None
         params = scenario.parameters()
         hints = typing.get_type_hints(scenario.run)
+        if isinstance(self.tunings, str) or not isinstance(self.tunings, (list, tuple)):
+            raise ValueError(f'tunings must be a list of tuning names such as ["None", "Low"], got {self.tunings!r}')
+        if not isinstance(self.vary, (list, tuple)) or not all(isinstance(d, Distribution) for d in self.vary):
+            raise ValueError(f"vary must be a list of Distribution, got {self.vary!r}")
+        if not isinstance(self.fixed, dict):
+            raise ValueError(f"fixed must be a table of scenario parameters and values, got {self.fixed!r}")
         object.__setattr__(self, "tunings", tuple(self.tunings))
         object.__setattr__(self, "vary", tuple(self.vary))
         if not self.tunings or not all(isinstance(t, str) and t for t in self.tunings):
@@ -215,7 +265,7 @@ class Study:
         clash = ({self.tuning_parameter} & (set(self.fixed) | set(varied))) | (set(self.fixed) & set(varied))
         if clash:
             raise ValueError(f"parameter(s) {sorted(clash)} are given more than once (fixed, vary or tuning_parameter)")
-        object.__setattr__(self, "fixed", {k: _check_type(k, v, hints[k]) for k, v in self.fixed.items()})
+        object.__setattr__(self, "fixed", {k: _named(f"fixed.{k}", scenario.coerce, k, v) for k, v in self.fixed.items()})
         if set(self.fixed) & {d.parameter for d in self.vary if d.parameter.startswith(FILTER_PARAM_PREFIX)}:
             raise ValueError("filter_param.NAME may only be varied (fixed filter parameters go in filter_params)")
         for dist in self.vary:
@@ -225,7 +275,7 @@ class Study:
                 raise ValueError(f"parameter {dist.parameter!r} takes {hints[dist.parameter].__name__} values: "
                                  f"use dist = 'choice' with a list of values, not {dist.kind!r}")
             if dist.kind == "choice":
-                object.__setattr__(dist, "values", tuple(_check_type(dist.parameter, v, hints[dist.parameter])
+                object.__setattr__(dist, "values", tuple(_named(f"vary.{dist.parameter}", scenario.coerce, dist.parameter, v)
                                                          for v in dist.values))
         if self.sampling not in SAMPLINGS:
             raise ValueError(f"sampling must be one of {', '.join(SAMPLINGS)}, got {self.sampling!r}")
@@ -236,14 +286,31 @@ class Study:
             if self.draws is not None:
                 raise ValueError("grid sampling takes no draws (the grid fixes their number); remove draws")
             for dist in self.vary:
-                dist.grid()  # raises for grids that are not defined
+                dist.grid_size()  # raises for grids that are not defined
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if self.n_samples > MAX_SAMPLES:
+            raise ValueError(f"draws × tunings must be <= 2**63 - 1 (sample indices are int64), got "
+                             f"{self.n_draws} × {len(self.tunings)} = {self.n_samples}")
+        self._check_against_scenario(scenario)
+
+    def _check_against_scenario(self, scenario: Any) -> None:
+        """The first draw with every tuning, then every distribution end, through the scenario's checks."""
+        for t in range(len(self.tunings)):
+            sample = self.sample(t)
+            drawn = ", ".join(f"{k} = {v!r}" for k, v in sample.values.items()) or "nothing varied"
+            _named(f"scenario {self.scenario!r} refuses sample {t} (draw 0 with tuning {sample.tuning!r}: the fixed values "
+                   f"and {drawn})", scenario.validate, sample.kwargs)
+        first = self.sample(0)
+        for dist in self.vary:
+            for key, value in dist.ends().items():
+                kwargs = {**first.kwargs, **fold_values(self.fixed, {**first.values, dist.parameter: value})}
+                _named(f"vary.{dist.parameter}: {key} = {value!r}", scenario.validate, kwargs)
 
     @property
     def n_draws(self) -> int:
         if self.sampling == "grid":
-            return math.prod(len(d.grid()) for d in self.vary)
+            return math.prod(d.grid_size() for d in self.vary)
         return int(self.draws)
 
     @property
@@ -258,16 +325,14 @@ class Study:
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, draw]))
         scenario_seed = int(rng.integers(2**31))
         if self.sampling == "grid":
-            grids = [d.grid() for d in self.vary]
-            cell = np.unravel_index(draw, [len(g) for g in grids]) if grids else ()
-            values = {d.parameter: g[int(k)] for d, g, k in zip(self.vary, grids, cell)}
+            values, rest = {}, draw
+            for d in reversed(self.vary):  # the first parameter varies slowest
+                rest, k = divmod(rest, d.grid_size())
+                values[d.parameter] = d.grid_value(k)
+            values = {d.parameter: values[d.parameter] for d in self.vary}
         else:
             values = {d.parameter: d.draw(rng) for d in self.vary}
-        kwargs = dict(self.fixed)
-        kwargs.update({k: v for k, v in values.items() if not k.startswith(FILTER_PARAM_PREFIX)})
-        varied = [f"{k.removeprefix(FILTER_PARAM_PREFIX)}={v}" for k, v in values.items() if k.startswith(FILTER_PARAM_PREFIX)]
-        if varied:
-            kwargs[FILTER_PARAMS] = ";".join(part for part in (kwargs.get(FILTER_PARAMS, ""), *varied) if part)
+        kwargs = fold_values(self.fixed, values)
         kwargs[self.tuning_parameter] = self.tunings[t]
         parameters = get_scenario(self.scenario).parameters()
         if SEED_PARAMETER in parameters and SEED_PARAMETER not in kwargs:
@@ -294,8 +359,13 @@ class Study:
         for key in ("name", "scenario", "tunings"):
             if key not in data:
                 raise ValueError(f"a study needs the key {key!r}")
+        for key in ("fixed", "vary"):
+            if not isinstance(data.get(key, {}), dict):
+                raise ValueError(f"{key} must be a table ([{key}]), got {data[key]!r}")
         vary = []
-        for parameter, spec in dict(data.get("vary", {})).items():
+        for parameter, spec in data.get("vary", {}).items():
+            if not isinstance(spec, dict):
+                raise ValueError(f"vary.{parameter} must be a table ([vary.{parameter}] with dist = ...), got {spec!r}")
             spec = dict(spec)
             if "dist" not in spec:
                 raise ValueError(f"vary.{parameter} needs dist = one of {', '.join(KINDS)}")
@@ -313,7 +383,7 @@ class Study:
                 if key == FILTER_PARAMS and isinstance(value, dict):
                     value = ";".join(f"{k}={v}" for k, v in value.items())
                 fixed[key] = value
-        return cls(name=data["name"], scenario=data["scenario"], tunings=tuple(data["tunings"]), vary=tuple(vary),
+        return cls(name=data["name"], scenario=data["scenario"], tunings=data["tunings"], vary=tuple(vary),
                    fixed=fixed, sampling=data.get("sampling", "monte_carlo"),
                    draws=data.get("draws"), seed=data.get("seed", 0),
                    tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""))

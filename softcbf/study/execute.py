@@ -23,9 +23,19 @@ resubmits the samples that were in flight; a sample in flight at `MAX_ATTEMPTS` 
 breaks is recorded as an error (it is the likely culprit, though an innocent sample
 sharing both breaks would be recorded too).
 
-Resume: samples with a part in the folder are skipped, so an interrupted study (Ctrl-C,
-a killed driver, a lost cluster) continues with `resume=True`; nothing is lost beyond
-the samples then running, and nothing is stored twice.
+Resume: samples with a sound part in the folder are skipped, so an interrupted study
+(Ctrl-C, a killed driver, a lost cluster) continues with `resume=True`; nothing is lost
+beyond the samples then running, and nothing is stored twice. A part that fails its
+check (`StudyStore.scan`: unreadable, or its row digest does not match) is run again.
+
+Memory: the sample indices are streamed (`range` filtered by the stored parts), so the
+driver holds the stored indices, the window and the retries, never a list of the
+study's size: `draws = 10**12` starts its first sample at once.
+
+Orphans: a local worker exits within `PARENT_POLL_S` when its driver dies, even by
+SIGKILL (which runs no clean-up): a daemon thread in every worker compares
+`os.getppid()` with the driver's pid and calls `os._exit` once they differ (the worker
+was reparented). Dask workers belong to their cluster and are not affected.
 """
 
 from __future__ import annotations
@@ -33,12 +43,13 @@ from __future__ import annotations
 import collections
 import multiprocessing
 import os
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from softcbf_mj.progress import Progress
 from softcbf.study.definition import Study
@@ -46,11 +57,14 @@ from softcbf.study.runner import failed_row, run_sample
 from softcbf.study.store import StudyStore
 
 MAX_ATTEMPTS = 2  # local pool breaks a sample may be in flight for before it is recorded as failed
+PARENT_POLL_S = 0.5  # how often a local worker checks that its driver is alive, s
+ORPHAN_EXIT_CODE = 70  # a local worker's exit status when its driver died
 
 
 @dataclass(frozen=True)
 class StudyOutcome:
-    """What one `run_study` call did: samples of the study, already stored, run now, failed now, wall time (s)."""
+    """What one `run_study` call did: samples of the study, already stored, run now, failed now, wall time (s),
+    and how many stored parts were corrupted (and so run again)."""
 
     n_samples: int
     skipped: int
@@ -59,10 +73,29 @@ class StudyOutcome:
     wall_s: float
     backend: str
     workers: int
+    corrupted: int = 0
+
+
+def exit_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
+    """In a worker process: start a daemon thread that ends this process (`os._exit`) once its
+    parent is no longer `parent_pid` (the parent died and the worker was reparented)."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        os._exit(ORPHAN_EXIT_CODE)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def _local_pool(workers: int) -> ProcessPoolExecutor:
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=exit_with_parent, initargs=(os.getpid(),))
+
+
+def pending_indices(limit: int, done: set[int]) -> Iterator[int]:
+    """The indices 0 … limit−1 not in `done`, in order, one at a time (nothing of size `limit` is built)."""
+    return (i for i in range(limit) if i not in done)
 
 
 def run_study(
@@ -92,9 +125,11 @@ def run_study(
     if not 1 <= limit <= study.n_samples:
         raise ValueError(f"samples must lie in [1, {study.n_samples}] (the study's draws × tunings), got {samples}")
     store = StudyStore.create(out_dir, study, resume=resume)
-    done = store.done()
-    todo = collections.deque(i for i in range(limit) if i not in done)
-    skipped, n_todo = limit - len(todo), len(todo)
+    done, corrupted = store.scan()
+    fresh = pending_indices(limit, done)
+    retry: collections.deque[int] = collections.deque()  # samples of a broken pool, run before fresh ones
+    skipped = sum(1 for i in done if i < limit)
+    n_todo = limit - skipped
 
     own_client = None
     if scheduler is not None:
@@ -126,11 +161,15 @@ def run_study(
         bar.update(ran, f"{ran}/{n_todo} done, {failed} failed")
 
     try:
-        while todo or pending:
-            while todo and len(pending) < window:
-                index = todo.popleft()
+        while True:
+            while len(pending) < window:
+                index = retry.popleft() if retry else next(fresh, None)
+                if index is None:
+                    break
                 keep = str(store.run_dir(index)) if keep_runs else None
                 pending[executor.submit(run_sample, study, index, keep)] = index
+            if not pending:
+                break
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             broken: list[int] = []
             for future in finished:
@@ -154,7 +193,7 @@ def run_study(
                         record(failed_row(study, index, f"the worker process died {attempts[index]} times while "
                                                         "running this sample (crash or kill outside Python)"))
                     else:
-                        todo.appendleft(index)
+                        retry.appendleft(index)
     except BaseException:
         for future in pending:
             future.cancel()
@@ -165,4 +204,5 @@ def run_study(
             own_client.close()
     executor.shutdown(wait=True)
     bar.close()
-    return StudyOutcome(study.n_samples, skipped, ran, failed, time.perf_counter() - start, backend, n_workers)
+    return StudyOutcome(study.n_samples, skipped, ran, failed, time.perf_counter() - start, backend, n_workers,
+                        len(corrupted))

@@ -1,19 +1,24 @@
-"""A study folder's report: PNG plots and a Markdown summary (`softcbf.study.analysis`).
+"""A study folder's report: plots and a Markdown summary (`softcbf.study.analysis`).
 
-`write_report(DIR, level=0.05, bins=6)` reads DIR's rows and writes:
+`write_report(DIR, level=0.05, bins=6, figure_format="png", dpi=DPI)` reads DIR's rows and writes:
 
     DIR/report.md                      per tuning: samples, failed, violation probability with its
                                        95 % Wilson interval, quantiles of ρ_min_meas and F max [N];
                                        per varied parameter and tuning: where the binned violation
                                        probability reaches `level`; the first failed samples' errors
-    DIR/plots/rho_min_meas.png         ρ_min_meas per sample, by tuning (dots over box plots)
-    DIR/plots/force_max_N.png          peak measured force [N] per sample, by tuning, F_max marked
-                                       when the study fixes one (scenario parameter `f_max`)
-    DIR/plots/violation_<param>.png    binned violation probability vs the parameter, per tuning,
-                                       with Wilson intervals and the `level` line
-    DIR/results.parquet                every row in one file (`StudyStore.compact`)
+    DIR/plots/rho_min_meas.<fmt>       ρ_min_meas [-] per sample, by tuning (dots over box plots),
+                                       ρ = 0 (F = F_max) marked
+    DIR/plots/force_max_N.<fmt>        peak measured force [N] per sample, by tuning, F_max marked
+                                       (the study's fixed `f_max`, else the scenario's default)
+    DIR/plots/violation_<param>.<fmt>  binned violation probability vs the parameter [its unit], per
+                                       tuning, with Wilson intervals, the `level` line and the value
+                                       the controller assumes (PARAMETERS)
+    DIR/results.parquet                every row in one file (`StudyStore.compact`); load it with
+                                       `pandas.read_parquet("DIR/results.parquet")`
 
-Plots use matplotlib's Agg backend (no display needed).
+`figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. Colours: tunings take
+their run colours (softcbf_mj.palette, Okabe–Ito), as in run reports; legends sit outside
+the axes. Plots use matplotlib's Agg canvas (no display needed, no global backend change).
 """
 
 from __future__ import annotations
@@ -21,45 +26,98 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-import matplotlib
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
-
-from softcbf.study.analysis import crossing, sensitivity, tuning_summary, varied_parameters  # noqa: E402
-from softcbf.study.store import StudyStore  # noqa: E402
+from scenarios import get as get_scenario
+from softcbf.study.analysis import crossing, sensitivity, tuning_summary, varied_parameters
+from softcbf.study.store import StudyStore
+from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, run_color
+from softcbf_mj.report import FIGURE_FORMATS, save_figure
 
 REPORT_FILE = "report.md"
 PLOTS_DIR = "plots"
 MAX_ERRORS_LISTED = 5
+DPI = 110
+# Known scenario parameters: (unit, the value the controller assumes). The assumed value is
+# a number, the name of the parameter that holds it (its fixed value in the study, else
+# the scenario's default), or None (the controller has no assumption to mark).
+PARAMETERS: dict[str, tuple[str, float | str | None]] = {
+    "plate_stiffness": ("N/m", "assumed_plate_stiffness"),
+    "assumed_plate_stiffness": ("N/m", None),
+    "true_stiffness_scale": ("-", 1.0),
+    "true_damping_scale": ("-", 1.0),
+    "true_gain_scale": ("-", 1.0),
+    "true_length_scale": ("-", 1.0),
+    "facet_offset": ("m", 0.0),
+    "facet_angle": ("rad", 0.0),
+    "tau_p": ("s", None),
+    "links_per_segment": ("-", None),
+    "f_max": ("N", None),
+    "latency": ("s", 0.0),
+    "pixel_noise": ("px", 0.0),
+    "drop_rate": ("-", 0.0),
+    "amplitude": ("hPa", None),
+    "frequency": ("Hz", None),
+}
 
 
 def _fmt(value: Any, spec: str = ".4g") -> str:
     return "–" if value is None else format(value, spec)
 
 
+def _figure(size: tuple[float, float], dpi: float) -> Figure:
+    fig = Figure(figsize=size, dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def scenario_value(scenario: str, fixed: Mapping[str, Any], parameter: str) -> Any:
+    """The value of `parameter` in a study of `scenario`: its fixed value, else the scenario's default (None if it has no such parameter)."""
+    if parameter in fixed:
+        return fixed[parameter]
+    return get_scenario(scenario).defaults().get(parameter)
+
+
+def assumed_value(scenario: str, fixed: Mapping[str, Any], parameter: str) -> float | None:
+    """The value the controller assumes for a varied `parameter` (PARAMETERS), or None."""
+    assumed = PARAMETERS.get(parameter, ("", None))[1]
+    if isinstance(assumed, str):
+        assumed = scenario_value(scenario, fixed, assumed)
+    return None if assumed is None else float(assumed)
+
+
+def _axis_label(parameter: str) -> str:
+    unit = PARAMETERS.get(parameter, ("", None))[0]
+    return f"{parameter} [{unit}]" if unit else parameter
+
+
 def _distribution_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], key: str, label: str,
-                       path: Path, line: float | None = None) -> None:
+                       path: Path, figure_format: str, dpi: float, line: float | None = None,
+                       line_label: str = "") -> None:
     data = [[r[key] for r in rows if r["tuning"] == t and r["status"] == "ok" and r.get(key) is not None]
             for t in tunings]
-    fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(tunings), 4))
+    fig = _figure((2.8 + 1.3 * len(tunings), 4), dpi)
+    ax = fig.add_subplot()
     if any(data):
-        ax.boxplot([d if d else [float("nan")] for d in data], showfliers=False)
-    for i, d in enumerate(data, start=1):
-        ax.plot([i] * len(d), d, ".", alpha=0.5, color="C0")
+        ax.boxplot([d if d else [float("nan")] for d in data], showfliers=False,
+                   medianprops={"color": NEUTRAL_COLOR})
+    for i, (tuning, d) in enumerate(zip(tunings, data), start=1):
+        ax.plot([i] * len(d), d, ".", alpha=0.6, color=run_color(tuning, i - 1))
     ax.set_xticks(range(1, len(tunings) + 1), tunings)
     if line is not None:
-        ax.axhline(line, color="C3", ls="--", lw=1)
+        ax.axhline(line, color=LIMIT_COLOR, ls="--", lw=1.2, label=line_label)
+        fig.legend(loc="outside right upper", fontsize=8)
+    ax.set_xlabel("tuning")
     ax.set_ylabel(label)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, figure_format, dpi)
 
 
 def _sensitivity_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], parameter: str, bins: int,
-                      level: float, path: Path) -> None:
-    fig, ax = plt.subplots(figsize=(6, 4))
+                      level: float, assumed: float | None, path: Path, figure_format: str, dpi: float) -> None:
+    fig = _figure((7.5, 4), dpi)
+    ax = fig.add_subplot()
     for i, tuning in enumerate(tunings):
         curve = [b for b in sensitivity(rows, parameter, tuning, bins) if b.violation.n and b.centre is not None]
         if not curve:
@@ -67,22 +125,27 @@ def _sensitivity_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str],
         x = [b.centre for b in curve]
         p = [b.violation.p for b in curve]
         err = [[q - b.violation.low for q, b in zip(p, curve)], [b.violation.high - q for q, b in zip(p, curve)]]
-        ax.errorbar(x, p, yerr=err, marker="o", capsize=3, label=tuning, color=f"C{i}")
-    ax.axhline(level, color="k", ls=":", lw=1, label=f"{100 * level:g} %")
-    ax.set_xlabel(parameter)
-    ax.set_ylabel("P(F > F_max)")
+        ax.errorbar(x, p, yerr=err, marker="o", capsize=3, label=tuning, color=run_color(tuning, i))
+    ax.axhline(level, color=NEUTRAL_COLOR, ls=":", lw=1.2, label=f"level {100 * level:g} %")
+    if assumed is not None:
+        ax.axvline(assumed, color=LIMIT_COLOR, ls="--", lw=1.2, label=f"assumed by the controller: {assumed:g}")
+    ax.set_xlabel(_axis_label(parameter))
+    ax.set_ylabel("P(F > F_max) [-]")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    fig.legend(loc="outside right upper", fontsize=8)
+    save_figure(fig, path, figure_format, dpi)
 
 
-def write_report(root: str | Path, level: float = 0.05, bins: int = 6) -> Path:
-    """Write DIR/report.md, DIR/plots/*.png and DIR/results.parquet; return the report's path."""
+def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_format: str = "png",
+                 dpi: float = DPI) -> Path:
+    """Write DIR/report.md, DIR/plots/*.<figure_format> and DIR/results.parquet; return the report's path."""
     if not 0 < level < 1:
         raise ValueError(f"level must lie in (0, 1), got {level}")
+    if figure_format not in FIGURE_FORMATS:
+        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
+    if not dpi > 0:
+        raise ValueError(f"dpi must be > 0, got {dpi}")
     store = StudyStore.open(root)
     study = store.study
     rows = store.load_rows()
@@ -93,12 +156,16 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6) -> Path:
     plots.mkdir(exist_ok=True)
     tunings = list(study.tunings)
     summary = tuning_summary(rows, tunings)
-    f_max = study.fixed.get("f_max")
-    _distribution_plot(rows, tunings, "rho_min_meas", "ρ_min measured", plots / "rho_min_meas.png", line=0.0)
-    _distribution_plot(rows, tunings, "force_max_N", "peak measured force [N]", plots / "force_max_N.png", line=f_max)
+    f_max = scenario_value(study.scenario, study.fixed, "f_max")
+    ext = figure_format
+    _distribution_plot(rows, tunings, "rho_min_meas", "ρ_min measured [-]", plots / f"rho_min_meas.{ext}", ext, dpi,
+                       line=0.0, line_label="ρ = 0 (F = F_max)")
+    _distribution_plot(rows, tunings, "force_max_N", "peak measured force [N]", plots / f"force_max_N.{ext}", ext, dpi,
+                       line=f_max, line_label=f"F_max = {f_max:g} N" if f_max is not None else "")
     parameters = varied_parameters(rows)
     for parameter in parameters:
-        _sensitivity_plot(rows, tunings, parameter, bins, level, plots / f"violation_{parameter}.png")
+        _sensitivity_plot(rows, tunings, parameter, bins, level, assumed_value(study.scenario, study.fixed, parameter),
+                          plots / f"violation_{parameter}.{ext}", ext, dpi)
 
     lines = [f"# Study `{study.name}`", ""]
     if study.description:
@@ -118,7 +185,8 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6) -> Path:
                      f"| [{v.low:.3f}, {v.high:.3f}] | {_fmt(rho.get('q00'))} / {_fmt(rho.get('q50'))} / "
                      f"{_fmt(rho.get('q100'))} | {_fmt(force.get('q50'))} / {_fmt(force.get('q95'))} / "
                      f"{_fmt(force.get('q100'))} |")
-    lines += ["", "![rho](plots/rho_min_meas.png) ![force](plots/force_max_N.png)", ""]
+    lines += ["", f"![rho](plots/rho_min_meas.{ext}) ![force](plots/force_max_N.{ext})", "",
+              "All rows: `pandas.read_parquet(\"results.parquet\")` (one row per sample; columns: softcbf.study.store).", ""]
     if parameters:
         lines += [f"## Sensitivity: where P(violation) reaches {100 * level:g} %", "",
                   f"Binned ({bins} equal-width bins, or one per distinct value) and marginalised over the other "
@@ -131,7 +199,7 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6) -> Path:
                 c = crossing(sensitivity(rows, parameter, tuning, bins), level)
                 cells.append(f"{c['value']:.4g} ({c['status']})" if c["value"] is not None else c["status"])
             lines.append(f"| {parameter} | " + " | ".join(cells) + " |")
-        lines += [""] + [f"![{p}](plots/violation_{p}.png)" for p in parameters] + [""]
+        lines += [""] + [f"![{p}](plots/violation_{p}.{ext})" for p in parameters] + [""]
     errors = [r for r in rows if r["status"] != "ok"]
     if errors:
         lines += [f"## Failed samples ({len(errors)})", ""]

@@ -9,11 +9,17 @@ Layout of a study folder DIR:
     DIR/runs/sample-0000042/             the scenario's own outputs, only with keep_runs
 
 Each part is written to a hidden temporary file and renamed, so a crash leaves either a
-complete part or none; a Parquet file without its footer cannot arise. Resume reads the
-part names: a sample with a part is done (failed ones too: delete a failed sample's part
-to run it again). Read the folder with `load_rows` (a list of dicts in sample order) or
-`load_table` (a pyarrow Table; parts whose columns differ, e.g. failed rows without
-results, are merged with nulls).
+complete part or none. Damage after the fact (a bad disk, a truncated copy, a flipped bit)
+is detected: every part carries in its Parquet key-value metadata `softcbf.row_sha256`,
+the SHA-256 of its row as canonical JSON (`row_digest`), and `read_part` decodes the
+file, checks that it holds one row whose `sample` is the index in its name and that the
+row's digest matches. A part that fails is corrupted (`CorruptPartError`, naming the
+file). Resume (`scan`) reads and checks every part (≈ 1 ms each): a sample with a sound
+part is done (failed ones too: delete a failed sample's part to run it again), a
+sample with a corrupted part is run again and its part replaced. Read the folder with
+`load_rows` (a list of dicts in sample order) or `load_table` (a pyarrow Table; parts
+whose columns differ, e.g. failed rows without results, are merged with nulls); both
+raise `CorruptPartError` for a corrupted part.
 
 Columns (one row per sample):
 
@@ -26,7 +32,7 @@ Columns (one row per sample):
 | param.<name>        | per     | the drawn value of every varied parameter, in its own unit       |
 | status              | string  | "ok" or "error"                                                  |
 | error               | string  | "" when ok; the exception and the end of its traceback otherwise |
-| <run field>         | per     | every scalar field of the scenario's run row (SPEC §8:           |
+| <run field>         | per     | every scalar field of the scenario's run row (docs/run-outputs.md: |
 |                     |         | rho_min_pred, rho_min_meas, force_max_N [N], t_violation_s [s],  |
 |                     |         | infeasible_steps, …, plus the scenario's extras); null on error  |
 | sample_wall_s       | float64 | wall time of the whole sample in the worker (s)                  |
@@ -38,6 +44,7 @@ comparing runs for determinism.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -57,11 +64,45 @@ COMPACT_FILE = "results.parquet"
 RUNS_DIR = "runs"
 PARAM_PREFIX = "param."
 WALL_CLOCK_COLUMNS = frozenset({"wall_s", "filter_us_median", "filter_us_p99", "realtime_factor", "sample_wall_s", "worker"})
+DIGEST_KEY = b"softcbf.row_sha256"
 _PART = re.compile(r"sample-(\d+)\.parquet")
+
+
+class CorruptPartError(ValueError):
+    """A stored part cannot be read or does not match its digest; the message names the file."""
 
 
 def part_name(index: int) -> str:
     return f"sample-{index:07d}.parquet"
+
+
+def row_digest(row: Mapping[str, Any]) -> str:
+    """SHA-256 (hex) of `row` as canonical JSON (sorted keys; NaN and ±inf as JSON's extensions; a value
+    of another type, e.g. the bytes of a damaged string column, by its repr)."""
+    return hashlib.sha256(json.dumps(dict(row), sort_keys=True, default=repr).encode("utf-8")).hexdigest()
+
+
+def read_part(path: Path) -> pa.Table:
+    """The one-row table of part `path`, checked (module docstring); CorruptPartError naming the file otherwise."""
+    match = _PART.fullmatch(path.name)
+    if match is None:
+        raise ValueError(f"{path} is not a study part (sample-<index>.parquet)")
+    try:
+        table = pq.read_table(path)
+        problem = None
+        if table.num_rows != 1 or "sample" not in table.column_names:
+            problem = f"expected one row with a 'sample' column, got {table.num_rows} row(s), columns {table.column_names}"
+        elif table.column("sample")[0].as_py() != int(match.group(1)):
+            problem = f"its row is sample {table.column('sample')[0].as_py()!r}, its name says {int(match.group(1))}"
+        else:
+            stored = (table.schema.metadata or {}).get(DIGEST_KEY)
+            if stored is not None and stored.decode("ascii", "replace") != row_digest(table.to_pylist()[0]):
+                problem = "its row does not match the digest stored with it (the file was altered after it was written)"
+    except (pa.ArrowException, OSError, ValueError, UnicodeDecodeError) as exc:
+        problem = f"{type(exc).__name__}: {exc}".splitlines()[0]
+    if problem is not None:
+        raise CorruptPartError(f"study part {path} is corrupted ({problem}); `study run --resume` runs its sample again")
+    return table.replace_schema_metadata(None)
 
 
 class StudyStore:
@@ -105,19 +146,34 @@ class StudyStore:
         data = json.loads(path.read_text(encoding="utf-8"))
         return cls(root, Study.from_dict(data["study"]))
 
-    def done(self) -> set[int]:
-        """Indices of the samples that have a part (finished, ok or failed)."""
+    def part_paths(self) -> list[Path]:
+        """The stored parts, in sample order."""
         if not self.results.is_dir():
-            return set()
-        return {int(m.group(1)) for m in map(_PART.fullmatch, os.listdir(self.results)) if m}
+            return []
+        indexed = [(int(m.group(1)), m.group(0)) for m in map(_PART.fullmatch, os.listdir(self.results)) if m]
+        return [self.results / name for _, name in sorted(indexed)]
+
+    def scan(self) -> tuple[set[int], list[Path]]:
+        """(indices of the samples with a sound part — finished, ok or failed —, the corrupted parts)."""
+        done, corrupted = set(), []
+        for path in self.part_paths():
+            try:
+                read_part(path)
+            except CorruptPartError:
+                corrupted.append(path)
+            else:
+                done.add(int(_PART.fullmatch(path.name).group(1)))
+        return done, corrupted
 
     def write(self, row: Mapping[str, Any]) -> Path:
-        """Store one sample's row atomically as results/sample-<index>.parquet."""
+        """Store one sample's row atomically as results/sample-<index>.parquet, with its digest."""
         path = self.results / part_name(int(row["sample"]))
         fd, tmp = tempfile.mkstemp(dir=self.results, prefix=f".{path.stem}.", suffix=".tmp")
         os.close(fd)
         try:
-            pq.write_table(pa.Table.from_pylist([dict(row)]), tmp)
+            table = pa.Table.from_pylist([dict(row)])
+            table = table.replace_schema_metadata({DIGEST_KEY: row_digest(table.to_pylist()[0]).encode("ascii")})
+            pq.write_table(table, tmp)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -126,11 +182,10 @@ class StudyStore:
 
     def load_table(self) -> pa.Table:
         """Every stored row, in sample order (empty table when none)."""
-        names = sorted(n for n in os.listdir(self.results) if _PART.fullmatch(n)) if self.results.is_dir() else []
-        if not names:
+        paths = self.part_paths()
+        if not paths:
             return pa.table({})
-        tables = [pq.read_table(self.results / n) for n in names]
-        return pa.concat_tables(tables, promote_options="permissive")
+        return pa.concat_tables([read_part(p) for p in paths], promote_options="permissive")
 
     def load_rows(self) -> list[dict[str, Any]]:
         return self.load_table().to_pylist()

@@ -1,0 +1,317 @@
+"""Energy-certified explicit reference governor (E-ERG, docs/beyond-the-paper.md#filters-beyond-the-paper) with a state predictor.
+
+The elastic arm is its own stabilising controller: for a held command u (N,) hPa, its
+rest shape q_u = K⁻¹Λu (rad) is an equilibrium, and an energy about q_u can only fall.
+
+Certificate. Model (docs/model.md#rppr-dynamics) with the pressure p (hPa) lagging the command (τ_p, s):
+
+    M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p,     ṗ = (u − p)/τ_p,
+
+    W_u(q, q̇, p) = ½ q̇ᵀM(q)q̇ + ½ (q − q_u)ᵀK(q − q_u) + ½ Σ_i β_i (p_i − u_i)²   (J),
+    β_i = τ_p λ_i² / (4 d_i)   (J/hPa²).
+
+Along the model's trajectories with u held,
+    Ẇ = q̇ᵀ(Λp − Cq̇ − Dq̇ − Kq) + ½ q̇ᵀṀq̇ + q̇ᵀK(q − q_u) − Σ β_i (p_i − u_i)²/τ_p
+      = q̇ᵀΛ(p − u) − q̇ᵀDq̇ − Σ (β_i/τ_p)(p_i − u_i)²            (q̇ᵀ(Ṁ − 2C)q̇ = 0, K q_u = Λu)
+      = −Σ_i (√d_i q̇_i − λ_i (p_i − u_i)/(2√d_i))² ≤ 0            (β_i/τ_p = λ_i²/(4 d_i)),
+so W_u never grows while u is held (τ_p = 0: β = 0, p = u, Ẇ = −q̇ᵀDq̇). Since
+W_u ≥ ½ (q − q_u)ᵀK(q − q_u), the tip stays in P for as long as u is held if
+W_u(x(t_a)) ≤ Γ(u) at the instant t_a when u starts to act, with Γ(u) the escape energy
+(`controllers.escape_energy`: Γ(u) = min over q with r(q) ∉ P of ½ (q − q_u)ᵀK(q − q_u),
+tabulated as a lower bound).
+
+The plate. Two variants. Plain (`contact_aware` False): the environment does not push
+back (the PCC plant, the paper's simulation); the certificate is (1 + κ)W_u(x̂) + ε ≤ Γ(u).
+Contact-aware: a facet pushes back with force ψ_true(n) ∈ [lo·ψ(n), hi·ψ(n)]
+(`stiffness_lo_ratio`, `stiffness_hi_ratio`); it stores E_true(n) = ∫₀ⁿ ψ_true with
+lo·E(n) ≤ E_true(n) ≤ hi·E(n) (E = `ψ.energy`), a conservative force, so W_u + E_true
+never grows. Safety is F_true ≤ F_max, which holds if n ≤ n_max = ψ⁻¹(F_max/hi) (the
+stiffest plate): P is built with that n_max whenever hi ≠ 1, in both variants. Leaving P
+through facet j's row means n_j ≥ n_max, where the plate holds at least lo·E(n_max). So
+
+    (1 + κ) [W_u(x̂) + hi Σ_facets E(n_i(x̂))] + ε ≤ min_j (Γ_j(u) + c_j),
+
+c_j = lo·E(n_max) for facet rows, 0 for vertex-correction rows, implies
+W_u + E_true ≤ Γ_j + c_j along the motion, hence the tip stays in P. The plain variant
+is not sound where the plate pushes back while the tip is in contact (the plate's
+stored energy can return to the arm), and the contact-aware one is not sound where the
+plate does not push back (nothing stops the tip at n_max).
+κ (`kappa`, default 0.5) inflates the whole energy against estimate and prediction
+errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
+the absolute margin a new command must keep. The held command, certified when it was
+issued, counts as failed only when it has lost all of ε ((1 + κ)W > Γ): a hysteresis
+that keeps integration round-off from reading as a violation.
+
+Each call (estimate captured at t_c, called at t, the command acting from t_a = t + δ,
+δ = `command_delay_s` or the context's command delay):
+1. target: the quasi-static governor's command for u_nom (`QuasiStaticGovernor`,
+   margin `margin_m`, on the same P): its rest shape keeps the tip inside P, so Γ(target) > 0
+   and the arm at rest at it is certified. The margin sets how fast the governor can move
+   along P's boundary: a step of Δz (K-weighted rad) needs Γ ≥ ½(1 + κ)Δz² + ε, so a target
+   parked at the boundary crawls. Default 5 mm; measured on the PCC plant at 10 Hz with
+   camera timing, u_nom = 150 sin(2πt/T) hPa on both segments: longest time held beyond a
+   retreating u_nom 0.4 s / 0.1 s (T = 8 s / 20 s), ρ_min 0.35; with 1 mm: 0.7 s / 0.8 s,
+   ρ_min 0.16 / 0.13 (tools/bench_governors.py prints the figures).
+2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c through the commands this
+   governor issued and the pressure lag (`controllers.state_predictor`; contact-aware:
+   with the model's plate pushing back); without it the
+   certificate is evaluated at a state up to 0.2 s old (docs/beyond-the-paper.md#filters-beyond-the-paper: the governor then froze
+   for 4–6 s against the plate while u_nom retreated).
+3. step: along each ray from u_prev (the command acting at t_a, this governor's last
+   output) towards a goal g, u(σ) = u_prev + σ (g − u_prev), the largest certified σ ∈ [0, 1]
+   found by `bisection_steps` halvings (the certified σ need not form an interval: the
+   result is certified, and the largest one when they do). σ = 1 towards the target ends
+   the search ("free"); otherwise the goals are the target, the vented command 0 hPa and
+   u_nom (clipped to the box), and the certified end point nearest the target wins (u_prev
+   itself if none is nearer: "hold"). Near the boundary of P the straight ray to the
+   target runs along it, where Γ is small, and advances slowly; the ray towards 0 hPa
+   backs away from it first, which ends the hold when u_nom retreats (measured on the
+   PCC plant: tests/test_energy_governor.py).
+4. recovery: if even the held command fails ((1 + κ)W > Γ) at x̂ (model mismatch, a
+   disturbance, a wrong estimate: a detected violation), the command is chosen among the
+   table's grid commands, u_prev and the target: the certified one nearest the target,
+   or, if none is certified (infeasible), the one with the largest certificate margin
+   among those whose rest shape lies inside P (Γ̲ ≥ ε), so that the arm at least settles
+   inside (the largest margin overall favours commands that hold the arm where it is,
+   outside P: the least-violation trap of docs/model.md#control-barrier-function); the target if there is none.
+The command is recorded for the predictor and returned; it lies in the box whenever the
+context is bounded (the grid, u_prev and the target do, and so do their segments).
+
+Assumptions of the guarantee (tip in P at all times): the model is the plant (M, C, K,
+D, Λ, τ_p, the PCC kinematics, P and ψ within [lo, hi]); the estimate and the predictor
+are accurate to within the κ-inflation; the commands this governor returns are applied
+unchanged from t + δ and held until the next one acts (no clipping, no other source);
+the valves start vented (p = 0) at `reset`; Γ̲ ≤ Γ (by construction); the arm starts
+certified (e.g. at rest with its rest shape in P). Where it can fail: a wrong model
+(gain, stiffness, plate position) is not covered by κ, and a state far from the
+estimate is not caught until the next estimate shows it; the recovery then has no
+guarantee.
+
+Diagnostics per call (units in `DIAGNOSTIC_UNITS`): W_J (the certified energy of the
+returned command at x̂, plate term included when contact-aware, before κ), Gamma_J
+(min_j Γ̲_j + c_j at it), margin_J (Gamma_J − (1+κ)W_J − ε; ≥ 0 when certified),
+step_fraction (σ along the ray to the target; NaN in recovery), blocked (1 when the
+target was not reached), violation (1 when the held command failed its certificate at
+x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
+(the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from controllers.dynamics import PCCDynamics
+from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.escape_energy import EscapeEnergyTable
+from controllers.pcc import kinematics
+from controllers.quasi_static_governor import QuasiStaticGovernor
+from controllers.safe_set import ForceSafeSet
+from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.state_predictor import StatePredictor
+
+DIAGNOSTIC_UNITS = {
+    "W_J": "J", "Gamma_J": "J", "margin_J": "J", "step_fraction": "1", "blocked": "bool (1: the target was not reached)",
+    "violation": "bool (1: the held command failed its certificate)", "prediction_s": "s", "solve_us": "µs",
+}
+
+
+def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
+    """β_i = τ_p λ_i² / (4 d_i): (N,) J/hPa²; refuses τ_p > 0 with an undamped segment."""
+    damping, gains = context.robot.array("damping"), context.robot.array("gains")
+    if actuator_tau == 0.0:
+        return np.zeros_like(gains)
+    if np.any(damping <= 0):
+        raise ValueError(f"a pressure lag (actuator_tau = {actuator_tau} s) needs damping > 0 on every segment, "
+                         f"got {damping.tolist()}: the certificate's β = τ_p λ²/(4d) is undefined")
+    return actuator_tau * gains**2 / (4.0 * damping)
+
+
+class EnergyGovernor:
+    """The E-ERG as a safety filter (see the module docstring for the maths, actions and assumptions).
+
+    Actions: "free" (σ = 1: the target is certified), "governed" (a certified step along
+    one of the rays), "hold" (no step nearer the target), "recover" (the held command failed; infeasible when no candidate is
+    certified), "stale" (the estimate is older than the predictor's history: the held
+    command is kept, infeasible).
+    """
+
+    parameter_docs = {
+        "margin_m": "rest-shape tip margin of the target (quasi-static governor) inside P [m]",
+        "kappa": "relative inflation of the certified energy against estimate/prediction errors [1]",
+        "energy_margin_J": "absolute certificate margin ε [J]",
+        "contact_aware": "credit the plate's stored energy at the boundary (the plate pushes back) [bool]",
+        "stiffness_lo_ratio": "lowest true plate stiffness as a multiple of the model's ψ [1]",
+        "stiffness_hi_ratio": "highest true plate stiffness as a multiple of the model's ψ (n_max = ψ⁻¹(F_max/hi)) [1]",
+        "command_delay_s": "call → command acting at the valves (None: the context's, unknown = 0) [s]",
+        "actuator_tau_s": "valve pressure time constant τ_p (None: the context's, unknown = 0) [s]",
+        "grid_hPa": "command spacing of the escape-energy table [hPa]",
+        "predictor_step_s": "largest integration step of the state predictor [s]",
+        "bisection_steps": "halvings of the step towards the target [1]",
+    }
+
+    def __init__(self, context: FilterContext, margin_m: float = 5e-3, kappa: float = 0.5, energy_margin_J: float = 1e-5,
+                 contact_aware: bool = False, stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0,
+                 command_delay_s: float | None = None, actuator_tau_s: float | None = None, grid_hPa: float = 2.5,
+                 predictor_step_s: float = 1e-3, bisection_steps: int = 12) -> None:
+        for name, value in (("kappa", kappa), ("energy_margin_J", energy_margin_J)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        if not (math.isfinite(stiffness_lo_ratio) and math.isfinite(stiffness_hi_ratio) and 0 <= stiffness_lo_ratio <= stiffness_hi_ratio and stiffness_hi_ratio > 0):
+            raise ValueError(f"plate stiffness ratios must satisfy 0 <= stiffness_lo_ratio <= stiffness_hi_ratio, hi > 0, "
+                             f"got lo = {stiffness_lo_ratio}, hi = {stiffness_hi_ratio}")
+        if isinstance(bisection_steps, bool) or int(bisection_steps) != bisection_steps or bisection_steps < 1:
+            raise ValueError(f"bisection_steps must be an integer >= 1, got {bisection_steps}")
+        delay = context.command_delay if command_delay_s is None else command_delay_s
+        tau = context.actuator_tau if actuator_tau_s is None else actuator_tau_s
+        delay, tau = (0.0 if delay is None else float(delay)), (0.0 if tau is None else float(tau))
+        for name, value in (("command_delay_s", delay), ("actuator_tau_s", tau)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0 s, got {value}")
+        law = context.safe_set.stiffness
+        if not callable(getattr(law, "energy", None)):
+            raise ValueError(f"the plate's stiffness law {type(law).__name__} has no energy(n); "
+                             "use LinearStiffness or PowerLawStiffness")
+        self.kappa, self.energy_margin = float(kappa), float(energy_margin_J)
+        self.contact_aware = bool(contact_aware)
+        self.stiffness_lo, self.stiffness_hi = float(stiffness_lo_ratio), float(stiffness_hi_ratio)
+        self.command_delay, self.actuator_tau = delay, tau
+        self.bisection_steps = int(bisection_steps)
+        self.context = context
+        robot = context.robot
+        self.n = robot.n_segments
+        nominal = context.safe_set
+        self.safe_set = nominal if self.stiffness_hi == 1.0 else ForceSafeSet(
+            nominal.environment, law, nominal.f_max / self.stiffness_hi, nominal.row_scaling)
+        governed = replace(context, safe_set=self.safe_set)
+        self.target_governor = QuasiStaticGovernor(governed, margin_m=margin_m)
+        u_lo = robot.array("u_min") if context.u_min is None else context.u_min
+        u_hi = robot.array("u_max") if context.u_max is None else context.u_max
+        self.beta = pressure_lag_weights(context, tau)
+        self.table = EscapeEnergyTable(robot, self.safe_set, u_lo, u_hi, grid_hPa=grid_hPa)
+        credit = self.stiffness_lo * float(law.energy(self.safe_set.n_max)) if self.contact_aware else 0.0
+        self._plate_weight = self.stiffness_hi if self.contact_aware else 0.0
+        self._credit = [0.0 if corner else credit for corner in self.safe_set.is_vertex_correction.tolist()]
+        self.dynamics = PCCDynamics(robot)
+        self.predictor = StatePredictor(self.dynamics, tau, step_s=predictor_step_s,
+                                        plate=context.safe_set if self.contact_aware else None)
+        self._k = robot.array("stiffness").tolist()
+        self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
+        self._beta = self.beta.tolist()
+        self._box = None if context.u_min is None else (context.u_min, context.u_max)
+        self._rest = np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)
+        self._grid = self.table.grid_commands()
+        self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
+
+    def reset(self) -> None:
+        """Forget the command history (vented valves, p = 0) and the target governor's warm start."""
+        self.predictor.reset()
+        self.target_governor.reset()
+
+    # -- certificate ------------------------------------------------------------------
+    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
+        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J)."""
+        total = kinetic_and_plate
+        for k, a, beta, qi, pi, ui in zip(self._k, self._a, self._beta, q, p, u):
+            e = qi - a * ui
+            total += 0.5 * (k * e * e + beta * (pi - ui) ** 2)
+        return total
+
+    def escape(self, u) -> float:
+        """min_j (Γ̲_j(u) + c_j) (J)."""
+        return min(g + c for g, c in zip(self.table.values(u), self._credit))
+
+    def certificate_margin(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
+        """Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at the state."""
+        return self.escape(u) - (1.0 + self.kappa) * self.energy(kinetic_and_plate, q, p, u) - self.energy_margin
+
+    def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, complex]:
+        """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
+        the tip r(q) as x + i·y in m)."""
+        tip = kinematics(q, self.dynamics.lengths, order=0).points[-1]
+        kinetic = self.dynamics.kinetic_energy(q, qd)
+        if not self._plate_weight:
+            return kinetic, tip
+        nominal = self.context.safe_set
+        return kinetic + self._plate_weight * float(np.sum(nominal.stiffness.energy(nominal.penetration_at(tip.real, tip.imag)))), tip
+
+    # -- the filter -------------------------------------------------------------------
+    def __call__(self, estimate: Estimate, u_nom) -> FilterOutput:
+        """Govern u_nom (N,) hPa at `estimate`; see the module docstring."""
+        t0 = time.perf_counter()
+        q = as_vector("q", estimate.q, self.n, NonFiniteStateError)
+        qd = as_vector("qd", estimate.qd, self.n, NonFiniteStateError)
+        u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
+        t_apply = float(estimate.t) + self.command_delay
+        t_capture = min(float(estimate.t_capture), t_apply)
+        target = self.target_governor.govern(u_nom).u
+        u_prev = self.predictor.command_at(t_apply)
+        if t_capture < self.predictor.oldest_time:
+            return self._finish(u_prev, "stale", True, math.nan, {}, t_apply, t_capture, t0)
+        q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
+        base, tip = self.state_energy(q_hat, qd_hat)
+        q_list, p_list = q_hat.tolist(), p_hat.tolist()
+
+        def margin(u: np.ndarray) -> float:
+            return self.certificate_margin(base, q_list, p_list, u.tolist())
+
+        held_ok = margin(u_prev) + self.energy_margin >= 0.0
+        infeasible, sigma = False, 1.0
+        if margin(target) >= 0.0:
+            u, action = target, "free"
+        elif held_ok:
+            u, sigma, best = u_prev, 0.0, float(np.sum((u_prev - target) ** 2))
+            for goal in (target, self._rest, u_nom if self._box is None else np.clip(u_nom, *self._box)):
+                lo, hi = 0.0, 1.0
+                for _ in range(self.bisection_steps):
+                    mid = 0.5 * (lo + hi)
+                    if margin(u_prev + mid * (goal - u_prev)) >= 0.0:
+                        lo = mid
+                    else:
+                        hi = mid
+                sigma = lo if goal is target else sigma
+                candidate = u_prev + lo * (goal - u_prev)
+                distance = float(np.sum((candidate - target) ** 2))
+                if distance < best:
+                    u, best = candidate, distance
+            action = "hold" if u is u_prev else "governed"
+        else:
+            u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
+            action, sigma = "recover", math.nan
+        rho = self.context.safe_set.margin_at(tip.real, tip.imag)
+        energy = self.energy(base, q_list, p_list, u.tolist())
+        gamma = self.escape(u.tolist())
+        diagnostics = {"W_J": energy, "Gamma_J": gamma, "margin_J": gamma - (1.0 + self.kappa) * energy - self.energy_margin,
+                       "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
+        return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
+
+    def _recover(self, base: float, q_hat: np.ndarray, p_hat: np.ndarray, u_prev: np.ndarray,
+                 target: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The held command failed: the certified candidate nearest the target, else the best margin."""
+        candidates = np.vstack((self._grid, u_prev, target))
+        gamma = np.concatenate((self._grid_gamma, [self.escape(u_prev.tolist()), self.escape(target.tolist())]))
+        k, a, beta = np.array(self._k), np.array(self._a), self.beta
+        energy = base + 0.5 * np.sum(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2, axis=1)
+        margins = gamma - (1.0 + self.kappa) * energy - self.energy_margin
+        certified = margins >= 0.0
+        if np.any(certified):
+            distance = np.where(certified, np.sum((candidates - target) ** 2, axis=1), np.inf)
+            return candidates[int(np.argmin(distance))].copy(), False
+        resting_inside = gamma >= self.energy_margin  # rest shape inside P: the arm settles there
+        if not np.any(resting_inside):
+            return target.copy(), True
+        return candidates[int(np.argmax(np.where(resting_inside, margins, -np.inf)))].copy(), True
+
+    def _finish(self, u: np.ndarray, action: str, infeasible: bool, rho: float, diagnostics: dict,
+                t_apply: float, t_capture: float, t0: float) -> FilterOutput:
+        u = np.array(u, dtype=float)
+        self.predictor.record(t_apply, u)
+        full = {"W_J": math.nan, "Gamma_J": math.nan, "margin_J": math.nan, "step_fraction": math.nan,
+                "blocked": math.nan, "violation": math.nan}
+        full.update(diagnostics)
+        full["prediction_s"] = t_apply - t_capture
+        full["solve_us"] = (time.perf_counter() - t0) * 1e6
+        return FilterOutput(u, action, infeasible, rho, full, DIAGNOSTIC_UNITS)

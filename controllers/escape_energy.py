@@ -1,0 +1,189 @@
+"""Escape energy Γ(u): the least elastic energy about a command's rest shape that reaches outside P (docs/beyond-the-paper.md#filters-beyond-the-paper).
+
+For a held command u (N,) hPa with rest shape q_u = K⁻¹Λu (rad) and each row j of the
+force-safe set P = {r | H' r ≤ h'} (docs/model.md#force-safe-set),
+
+    Γ_j(u) = min { ½ (q − q_u)ᵀ K (q − q_u)  :  g_j(q) = H'_j r(q) − h'_j ≥ 0 }   (J),
+    Γ(u) = min_j Γ_j(u),
+
+r(q) the PCC tip (m), K = diag(k_i) (N·m/rad). In the coordinates z = K^{1/2} q,
+Γ_j(u) = ½ d_j(u)² with d_j(u) the Euclidean distance from z_u = K^{1/2} q_u to the
+unsafe set S_j = {z : g_j ≥ 0}. A distance function is 1-Lipschitz, so
+
+    |d_j(u) − d_j(u')| ≤ ‖K^{1/2} K⁻¹Λ (u − u')‖ = ‖u − u'‖_w,   w_i = λ_i²/k_i   (J^{1/2})   (*)
+
+The table (N ≤ 2 segments; the q-space search below is a grid):
+1. Commands: a regular grid over the box [u_lo, u_hi] with spacing ≤ `grid_hPa` (default
+   5 hPa: 61 × 61 points for ±150 hPa).
+2. q-space: a regular grid with spacing Δq_i = `q_spacing_rad`/√k_i (uniform in z) over the rest
+   shapes' box widened by `reach_rad` (default 1.2 rad) on every side; g_j on every point.
+3. Band: the nearest point z* of S_j to z_u lies on g_j = 0; the grid point s nearest to
+   it is within h_q = ½‖Δq‖ (rad) of it, so |g_j(s)| ≤ L_j h_q with L_j ≥ ‖∇g_j‖ from
+   ‖∂r/∂q_i‖ ≤ Σ_{k≥i} L_k (a chord's rotation and length change move the tip by at most
+   the arc beyond it): L_j = ‖H'_j‖ (Σ_i (Σ_{k≥i} L_k)²)^{1/2}. The band B_j = {s : |g_j(s)| ≤ L_j h_q}
+   therefore holds such an s, and ‖z_u − z_s‖ ≤ d_j + h_z with h_z = ½‖K^{1/2}Δq‖.
+   Beyond the q-grid's box nothing is searched: there the distance is at least the
+   distance e(u) from z_u to the box's outside. Hence, at every command grid point,
+       d_j ≥ d̲_j = max(0, min(min_{s∈B_j} ‖z_u − z_s‖ − h_z, e(u)))   (0 when g_j(q_u) ≥ 0).
+4. Between grid points, two bounds from the cell's corners c (values Γ̲_c = ½ d̲_c²):
+   a. Semiconcavity: ½‖u‖²_w − Γ_j(u) = max_{z∈S_j} (z·z_u − ½|z|²) is convex in u (a max of
+      affine functions of z_u, which is linear in u), so it lies below the bilinear
+      interpolation of its corner values (bilinear weights ω_c ≥ 0 are barycentric); with
+      Σ_c ω_c ‖u_c‖²_w − ‖u‖²_w = Σ_i w_i (u_i − a_i)(b_i − u_i) on the cell [a, b]:
+          Γ_j(u) ≥ Σ_c ω_c Γ̲_c − ½ Σ_i w_i (u_i − a_i)(b_i − u_i)
+      (the correction is at most ≈ 4.6e-5 J at 2.5 hPa on the reference arm). Inside the box only.
+   b. Lipschitz, from (*): d_j(u) ≥ max_c (d̲_c − ‖u − u_c‖_w), Γ ≥ ½ max(0, ·)²; valid
+      anywhere, so it also covers commands outside the box (the nearest cell's corners).
+   Γ̲_j(u) is the larger of the two.
+So Γ̲_j(u) ≤ Γ_j(u) everywhere: the table is conservative. Its looseness in d: h_z
+(≈ 2.8e-3 J^{1/2} at the defaults) and the band's extent on the near side of g_j = 0 where
+‖∇g_j‖ < L_j at the grid points, plus bound 4a's correction between them (measured: see
+tests/test_energy_governor.py; d ≈ 0.1–1 J^{1/2} away from the plate). Γ saturates at ½ k_min reach²
+(0.72 J at the defaults), above the elastic energy of any command step within ±150 hPa
+of the reference arm (≤ 0.67 J). tests/test_energy_governor.py compares the table with a brute-force minimisation.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from controllers.params import RobotParams
+from controllers.pcc import tip_positions
+from controllers.safe_set import ForceSafeSet
+
+MAX_SEGMENTS = 2
+_CHUNK = 512  # command grid points per distance block (memory: _CHUNK × band size floats)
+
+
+class EscapeEnergyTable:
+    """Γ̲_j(u) ≤ Γ_j(u) for every row j of `safe_set`, tabulated over [u_lo, u_hi] (see the module docstring)."""
+
+    def __init__(self, robot: RobotParams, safe_set: ForceSafeSet, u_lo, u_hi, grid_hPa: float = 2.5,
+                 q_spacing_rad: float = 4e-3, reach_rad: float = 1.2) -> None:
+        n = robot.n_segments
+        if n > MAX_SEGMENTS:
+            raise ValueError(f"the escape-energy table supports N <= {MAX_SEGMENTS} segments (a q-space grid), got N = {n}")
+        for name, value in (("grid_hPa", grid_hPa), ("q_spacing_rad", q_spacing_rad), ("reach_rad", reach_rad)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value}")
+        u_lo, u_hi = np.asarray(u_lo, dtype=float), np.asarray(u_hi, dtype=float)
+        if u_lo.shape != (n,) or u_hi.shape != (n,) or not np.all(u_lo < u_hi):
+            raise ValueError(f"u_lo < u_hi must have shape ({n},) hPa, got {u_lo} and {u_hi}")
+        self.n = n
+        self.stiffness = robot.array("stiffness")
+        self.static_gain = robot.array("gains") / self.stiffness  # K⁻¹Λ, rad/hPa
+        self.weights = robot.array("gains") ** 2 / self.stiffness  # w, J per hPa²
+        self.axes = [np.linspace(lo, hi, int(math.ceil((hi - lo) / grid_hPa)) + 1) for lo, hi in zip(u_lo, u_hi)]
+        self.spacing = np.array([a[1] - a[0] for a in self.axes])
+        self.reach_rad = float(reach_rad)
+        commands = self.grid_commands()
+        self.distance = self._distances(robot, safe_set, commands, float(q_spacing_rad))  # (P', G) J^{1/2}
+        self._shape = tuple(len(a) for a in self.axes)
+        self._flat_rows = [d.tolist() for d in self.distance]  # C order: flat index Σ_i index_i · stride_i
+        self._strides = [int(np.prod(self._shape[i + 1:])) for i in range(self.n)]
+        self._lo = u_lo.tolist()
+        self._step = self.spacing.tolist()
+        self._w = self.weights.tolist()
+
+    def grid_commands(self) -> np.ndarray:
+        """The command grid: (G, N) hPa, G = Π_i G_i, C order over the axes."""
+        mesh = np.meshgrid(*self.axes, indexing="ij")
+        return np.stack([m.ravel() for m in mesh], axis=1)
+
+    def grid_values(self) -> np.ndarray:
+        """Γ̲_j at the grid commands: (P', G) J."""
+        return 0.5 * self.distance**2
+
+    def _distances(self, robot: RobotParams, safe_set: ForceSafeSet, commands: np.ndarray, spacing: float) -> np.ndarray:
+        lengths = robot.array("lengths")
+        rest = commands * self.static_gain
+        root_k = np.sqrt(self.stiffness)
+        lo = rest.min(axis=0) - self.reach_rad
+        hi = rest.max(axis=0) + self.reach_rad
+        dq = spacing / root_k
+        axes = [np.linspace(a, b, int(math.ceil((b - a) / d)) + 1) for a, b, d in zip(lo, hi, dq)]
+        dq = np.array([a[1] - a[0] for a in axes])
+        q = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=1)
+        H, h = np.array(safe_set.H_prime, dtype=float), np.array(safe_set.h_prime, dtype=float)
+        g = tip_positions(q, lengths) @ H.T - h  # (M, P')
+        g_rest = tip_positions(rest, lengths) @ H.T - h  # (G, P')
+        beyond = np.cumsum(lengths[::-1])[::-1]  # Σ_{k≥i} L_k
+        lipschitz = np.hypot(H[:, 0], H[:, 1]) * math.sqrt(float(np.sum(beyond**2)))
+        h_q = 0.5 * float(np.linalg.norm(dq))
+        h_z = 0.5 * float(np.linalg.norm(root_k * dq))
+        z_rest = rest * root_k
+        outside = np.min(root_k * np.minimum(rest - lo, hi - rest), axis=1)  # e(u), J^{1/2}
+        distance = np.empty((H.shape[0], len(commands)))
+        for j in range(H.shape[0]):
+            band = q[np.abs(g[:, j]) <= lipschitz[j] * h_q] * root_k
+            nearest = np.full(len(commands), np.inf)
+            for start in range(0, len(commands), _CHUNK):
+                block = z_rest[start:start + _CHUNK]
+                d2 = np.sum(block * block, axis=1)[:, None] - 2.0 * block @ band.T + np.sum(band * band, axis=1)
+                nearest[start:start + _CHUNK] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
+            d = np.maximum(np.minimum(nearest - h_z, outside), 0.0)
+            d[g_rest[:, j] >= 0.0] = 0.0
+            distance[j] = d
+        return distance
+
+    def values(self, u) -> list[float]:
+        """Γ̲_j(u) for every row j: P' floats (J). u: (N,) hPa (Python floats or an array).
+
+        The larger of the two bounds 4a (inside the box) and 4b. Python floats: this runs
+        several times per filter call, where numpy's per-call overhead would dominate at N ≤ 2;
+        N = 2 takes `_values_2`, the same arithmetic unrolled (tested against this path).
+        """
+        if self.n == 2:
+            return self._values_2(float(u[0]), float(u[1]))
+        return self._values_general(u)
+
+    def _values_2(self, u0: float, u1: float) -> list[float]:
+        """`values` for N = 2 (cell corners unrolled)."""
+        (lo0, lo1), (step0, step1), (size0, size1), (w0, w1) = self._lo, self._step, self._shape, self._w
+        i0 = min(max(int((u0 - lo0) // step0), 0), size0 - 2)
+        i1 = min(max(int((u1 - lo1) // step1), 0), size1 - 2)
+        o0, o1 = u0 - (lo0 + i0 * step0), u1 - (lo1 + i1 * step1)
+        inside = 0.0 <= o0 <= step0 and 0.0 <= o1 <= step1
+        a0, b0 = w0 * o0 * o0, w0 * (o0 - step0) ** 2
+        a1, b1 = w1 * o1 * o1, w1 * (o1 - step1) ** 2
+        d00, d10, d01, d11 = math.sqrt(a0 + a1), math.sqrt(b0 + a1), math.sqrt(a0 + b1), math.sqrt(b0 + b1)
+        t0, t1 = o0 / step0, o1 / step1
+        curvature = 0.5 * (w0 * o0 * (step0 - o0) + w1 * o1 * (step1 - o1))
+        k00 = i0 * size1 + i1
+        k10, k01, k11 = k00 + size1, k00 + 1, k00 + size1 + 1
+        result = []
+        for table in self._flat_rows:
+            e00, e10, e01, e11 = table[k00], table[k10], table[k01], table[k11]
+            cone = max(e00 - d00, e10 - d10, e01 - d01, e11 - d11)
+            best = 0.5 * cone * cone if cone > 0.0 else 0.0
+            if inside:
+                bilinear = 0.5 * ((1.0 - t0) * ((1.0 - t1) * e00 * e00 + t1 * e01 * e01)
+                                  + t0 * ((1.0 - t1) * e10 * e10 + t1 * e11 * e11)) - curvature
+                best = max(best, bilinear)
+            result.append(best)
+        return result
+
+    def _values_general(self, u) -> list[float]:
+        """`values` for any N ≤ MAX_SEGMENTS (loops over the 2^N corners)."""
+        flat, dims, inside, curvature = 0, [], True, 0.0
+        for v, lo, step, size, stride, w in zip(u, self._lo, self._step, self._shape, self._strides, self._w):
+            i = min(max(int((v - lo) // step), 0), size - 2) if size > 1 else 0
+            o = v - (lo + i * step)
+            inside = inside and 0.0 <= o <= step
+            flat += i * stride
+            curvature += 0.5 * w * o * (step - o)
+            t = o / step
+            dims.append(((0, w * o * o, 1.0 - t), (stride, w * (o - step) ** 2, t)))
+        corners = [(sum(c[0] for c in combo), math.sqrt(sum(c[1] for c in combo)), math.prod(c[2] for c in combo))
+                   for combo in itertools.product(*dims)]
+        result = []
+        for table in self._flat_rows:
+            cone = max(table[flat + k] - dist for k, dist, _ in corners)
+            best = 0.5 * cone * cone if cone > 0.0 else 0.0
+            if inside:
+                best = max(best, sum(0.5 * table[flat + k] ** 2 * weight for k, _, weight in corners) - curvature)
+            result.append(best)
+        return result

@@ -1,0 +1,218 @@
+"""Quasi-static governor (QSG, docs/beyond-the-paper.md#filters-beyond-the-paper): keep the command's rest shape inside P by a margin.
+
+A held command u (N,) hPa brings the arm to rest at q_u = K⁻¹Λu (rad; K = diag(k_i)
+N·m/rad, Λ = diag(λ_i) N·m/hPa, docs/model.md#rppr-dynamics). The governor returns
+
+    u* = argmin ‖u − u_nom‖²   s.t.   b_j(q_u) = h'_j − H'_j r(q_u) ≥ δ_j   (every row j of P)
+                                      u_min ≤ u ≤ u_max                      (when the context is bounded)
+                                      |u − u_prev| ≤ r·T                      (optional rate limit)
+
+with r(q) the PCC tip (m), P = {r | H' r ≤ h'} the force-safe set in its row scaling and
+δ_j = δ‖H'_j‖ (δ = `margin_m`, m: the rest tip lies at least δ inside each row's line).
+b_j(q_u) is not linear in u; each iteration linearises it about the current rest shape q̄,
+
+    b_j(q̄) − H'_j J_r(q̄) (K⁻¹Λu − q̄) ≥ δ_j,
+
+solves that QP (`controllers.qp.solve_qp`), and moves q̄ to the solution's rest shape,
+starting from the rest shape of the previous call's command (warm start; u_nom at the
+first call), clipped to the box. It stops when the command moves by less than
+`tolerance_hPa` (default 1e-2 hPa) between iterations, or after `max_iterations`
+(default 20). At a fixed point q̄ = q_u*, so the linearised rows are
+the true rows: b_j(q_u*) ≥ δ_j holds to the QP's tolerance. After the loop the true rows
+are checked at the returned command; a command whose rest shape misses the margin by
+more than `RESIDUAL_TOL_M` (non-convergence) is replaced by the best command on the
+segment from the previous command (last call's u, or u = 0 at the first call) that
+keeps its rest shape inside P by the margin (bisection on the true rows; action
+"backtrack"; flagged infeasible if even that segment's start misses the margin). When the QP is infeasible (the rate limit forbids reaching a safe rest
+shape, or no command in the box has one), the rate limit is dropped first; if it is
+still infeasible the governor vents (u = 0 hPa clipped to the box) and flags it.
+
+Guarantee and its limits: in steady state (u held long enough for the transient to die)
+the tip rests at least δ inside P, under the model (K, Λ and the PCC kinematics exact).
+The QSG ignores the state: there is no transient guarantee (the arm overshoots its rest
+shape: docs/beyond-the-paper.md#filters-beyond-the-paper measured ρ −0.068 for the step rest → (150, 150) hPa with an ideal valve)
+and no feedback (an actuator-gain error moves every rest shape).
+
+Actions: "nominal" (u_nom's rest shape is safe and u_nom satisfies the box and rate
+limit: u = u_nom, no QP), "governed" (the QP ran and converged), "backtrack" (see
+above), "rate_dropped" (feasible only without the rate limit; infeasible flagged),
+"vent" (infeasible; u = 0 clipped). Diagnostics (per call): the smallest rest-shape
+margin min_j (b_j(q_u) − δ_j)/‖H'_j‖ in m, the iterations and the QP solve time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.pcc import kinematics
+from controllers.qp import DEFAULT_BACKEND, available_backends, solve_qp
+from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+
+RESIDUAL_TOL_M = 1e-6
+"""Rest-shape rows may miss the margin by this much (m, Euclidean) at the returned command."""
+
+_BACKTRACK_HALVINGS = 30
+
+
+class QuasiStaticGovernor:
+    """The QSG as a safety filter (see the module docstring for the maths and the actions)."""
+
+    parameter_docs = {
+        "margin_m": "rest-shape tip margin inside each row of P [m]",
+        "rate_limit_hPa_per_s": "largest command change per second, |u − u_prev| ≤ r·T (None: no limit) [hPa/s]",
+        "max_iterations": "linearise-and-solve iterations per call [1]",
+        "tolerance_hPa": "stop iterating when the command moves less than this [hPa]",
+        "qp_backend": "QP solver of controllers.qp [name]",
+    }
+
+    def __init__(self, context: FilterContext, margin_m: float = 1e-3, rate_limit_hPa_per_s: float | None = None,
+                 max_iterations: int = 20, tolerance_hPa: float = 1e-2, qp_backend: str = DEFAULT_BACKEND) -> None:
+        if not (math.isfinite(margin_m) and margin_m >= 0):
+            raise ValueError(f"margin_m must be finite and >= 0 m, got {margin_m}")
+        if rate_limit_hPa_per_s is not None and not (math.isfinite(rate_limit_hPa_per_s) and rate_limit_hPa_per_s > 0):
+            raise ValueError(f"rate_limit_hPa_per_s must be finite and > 0 hPa/s (or None: no limit), got {rate_limit_hPa_per_s}")
+        if isinstance(max_iterations, bool) or int(max_iterations) != max_iterations or max_iterations < 1:
+            raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations}")
+        if not (math.isfinite(tolerance_hPa) and tolerance_hPa > 0):
+            raise ValueError(f"tolerance_hPa must be finite and > 0 hPa, got {tolerance_hPa}")
+        if qp_backend not in available_backends():
+            raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
+        self.context = context
+        self.margin_m = float(margin_m)
+        self.rate_limit = None if rate_limit_hPa_per_s is None else float(rate_limit_hPa_per_s)
+        self.max_iterations = int(max_iterations)
+        self.tolerance = float(tolerance_hPa)
+        self.qp_backend = qp_backend
+        robot = context.robot
+        self.n = robot.n_segments
+        self.lengths = robot.array("lengths")
+        self.static_gain = robot.array("gains") / robot.array("stiffness")  # K⁻¹Λ, rad/hPa
+        H = np.array(context.safe_set.H_prime, dtype=float)
+        self._row_norms = np.hypot(H[:, 0], H[:, 1])
+        self._H, self._h = H, np.array(context.safe_set.h_prime, dtype=float)
+        self._delta = self.margin_m * self._row_norms
+        self._u_prev: np.ndarray | None = None
+        self._row_cache: dict[tuple, tuple] = {}
+
+    def reset(self) -> None:
+        """Forget the previous command (the rate limit and the warm start then start afresh)."""
+        self._u_prev = None
+
+    # -- maths ------------------------------------------------------------------------
+    def rest_shape(self, u: np.ndarray) -> np.ndarray:
+        """q_u = K⁻¹Λu: (N,) rad."""
+        return self.static_gain * u
+
+    def rest_margins(self, u: np.ndarray) -> np.ndarray:
+        """(b_j(q_u) − δ_j)/‖H'_j‖ per row of P: (P',) m (≥ 0: the rest tip keeps the margin)."""
+        return self._rest_rows(u)[0]
+
+    def _rest_rows(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """At q̄ = q_u: the rest margins (P',) m and the rows (A, c), A u ≤ c, linearised about q̄.
+
+        One kinematics evaluation serves both; the last two results are kept (u_nom's check
+        and the last iterate, the next call's warm start).
+        """
+        key = tuple(u.tolist())
+        if key in self._row_cache:
+            return self._row_cache[key]
+        q_bar = self.rest_shape(u)
+        kin = kinematics(q_bar, self.lengths, order=1)
+        tip, jac = kin.points[-1], kin.jac[-1]
+        hj = self._H @ np.vstack((jac.real, jac.imag))  # H'_j J_r(q̄): (P', N)
+        b = self._h - self._H @ np.array([tip.real, tip.imag])
+        result = ((b - self._delta) / self._row_norms, hj * self.static_gain, b - self._delta + hj @ q_bar)
+        if len(self._row_cache) >= 2:
+            del self._row_cache[next(iter(self._row_cache))]
+        self._row_cache[key] = result
+        return result
+
+    def _bounds(self, rate: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+        lb, ub = self.context.u_min, self.context.u_max
+        if rate and self.rate_limit is not None and self._u_prev is not None:
+            step = self.rate_limit * self.context.control_dt
+            lo, hi = self._u_prev - step, self._u_prev + step
+            lb = lo if lb is None else np.maximum(lb, lo)
+            ub = hi if ub is None else np.minimum(ub, hi)
+        return lb, ub
+
+    def _iterate(self, u_nom: np.ndarray, rate: bool) -> tuple[np.ndarray | None, int]:
+        """The linearise-and-solve loop; returns (u or None when a QP is infeasible, iterations)."""
+        lb, ub = self._bounds(rate)
+        u = u_nom if self._u_prev is None else self._u_prev  # warm start: the last command
+        u = u if lb is None else np.clip(u, lb, ub)
+        for iteration in range(1, self.max_iterations + 1):
+            _, A, c = self._rest_rows(u)
+            solution = solve_qp(u_nom, A, c, lb, ub, backend=self.qp_backend)
+            if not solution.feasible:
+                return None, iteration
+            moved = float(np.max(np.abs(solution.u - u)))
+            u = solution.u
+            if moved <= self.tolerance:
+                break
+        return u, iteration
+
+    def _backtrack(self, u: np.ndarray) -> np.ndarray:
+        """The point of the segment u_from → u nearest u whose rest shape keeps the margin (bisection)."""
+        lb, ub = self._bounds(True)
+        start = np.zeros(self.n) if self._u_prev is None else self._u_prev
+        start = start if lb is None else np.clip(start, lb, ub)
+        if np.min(self.rest_margins(start)) < -RESIDUAL_TOL_M:
+            return start
+        lo, hi = 0.0, 1.0
+        for _ in range(_BACKTRACK_HALVINGS):
+            mid = 0.5 * (lo + hi)
+            if np.min(self.rest_margins(start + mid * (u - start))) >= -RESIDUAL_TOL_M:
+                lo = mid
+            else:
+                hi = mid
+        return start + lo * (u - start)
+
+    def govern(self, u_nom) -> FilterOutput:
+        """The QSG's command for u_nom (N,) hPa; it does not need the state."""
+        u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
+        t0 = time.perf_counter()
+        lb, ub = self._bounds(True)
+        inside = lb is None or bool(np.all((lb <= u_nom) & (u_nom <= ub)))
+        margins = self.rest_margins(u_nom)
+        iterations, infeasible = 0, False
+        if inside and np.min(margins) >= 0.0:
+            u, action = u_nom, "nominal"
+        else:
+            u, iterations = self._iterate(u_nom, rate=True)
+            action = "governed"
+            if u is None and self.rate_limit is not None:
+                u, more = self._iterate(u_nom, rate=False)
+                iterations += more
+                action, infeasible = "rate_dropped", True
+            if u is None:
+                lo, hi = self.context.u_min, self.context.u_max
+                u = np.zeros(self.n) if lo is None else np.clip(np.zeros(self.n), lo, hi)
+                action, infeasible = "vent", True
+            elif np.min(self.rest_margins(u)) < -RESIDUAL_TOL_M:
+                u, action = self._backtrack(u), "backtrack"
+            margins = self.rest_margins(u)
+            infeasible = infeasible or float(np.min(margins)) < -RESIDUAL_TOL_M
+        self._u_prev = np.array(u, dtype=float)
+        solve_us = (time.perf_counter() - t0) * 1e6
+        return FilterOutput(
+            np.array(u, dtype=float), action, infeasible,
+            diagnostics={"rest_margin": float(np.min(margins)), "iterations": float(iterations), "solve_us": solve_us},
+            diagnostic_units={"rest_margin": "m", "iterations": "1", "solve_us": "µs"},
+        )
+
+    def __call__(self, estimate: Estimate, u_nom) -> FilterOutput:
+        """Filter u_nom at `estimate` (checked finite; the QSG itself does not use the state).
+
+        rho_pred is the margin of the estimate's tip, min over facets.
+        """
+        q = as_vector("q", estimate.q, self.n, NonFiniteStateError)
+        as_vector("qd", estimate.qd, self.n, NonFiniteStateError)
+        out = self.govern(u_nom)
+        tip = kinematics(q, self.lengths, order=0).points[-1]
+        rho = self.context.safe_set.margin_at(tip.real, tip.imag)
+        return FilterOutput(out.u, out.action, out.infeasible, rho, out.diagnostics, out.diagnostic_units)

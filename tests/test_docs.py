@@ -1,0 +1,155 @@
+"""docs/: every example file loads with the project's own loader and is the one the page
+shows, every Python block runs, every relative link and anchor resolves, and no code or
+model README cites the old out-of-repository specification."""
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controllers.params import RobotParams, reference_robot
+from controllers.safe_set import ForceSafeSet, LinearStiffness, paper_safe_set
+from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from hardware.config import HardwareConfig
+from scenarios.common import load_environment, load_robot
+from softcbf.study import load_study
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+EXAMPLES = DOCS / "examples"
+EXAMPLE_BLOCK = re.compile(r"<!-- example: (\S+) -->\n```\w*\n(.*?)```", re.S)
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+OLD_CITATIONS = ("SPEC" + " §", "shared/" + "SPEC.md")  # spelled apart so that this file does not cite it
+
+
+def _blocks(page: str, tag: str) -> list[str]:
+    text = (DOCS / page).read_text(encoding="utf-8")
+    return re.findall(rf"<!-- run: {tag} -->\n```python\n(.*?)```", text, re.S)
+
+
+def test_file_format_blocks_are_the_example_files_and_every_example_is_shown():
+    text = (DOCS / "file-formats.md").read_text(encoding="utf-8")
+    shown = {name: body for name, body in EXAMPLE_BLOCK.findall(text)}
+    assert set(shown) == {"examples/robot.json", "examples/environment.json", "examples/study.toml",
+                          "examples/hardware.toml"}
+    for name, body in shown.items():
+        assert (DOCS / name).read_text(encoding="utf-8") == body, name
+
+
+def test_robot_example_is_the_reference_arm():
+    robot = RobotParams.load(EXAMPLES / "robot.json")
+    assert load_robot(str(EXAMPLES / "robot.json")) == robot
+    np.testing.assert_allclose(robot.array("gains"), reference_robot().array("gains"), rtol=1e-6)
+    np.testing.assert_allclose(robot.array("inertias"), reference_robot().array("inertias"), rtol=1e-5)
+    for name in ("lengths", "masses", "stiffness", "damping", "u_min", "u_max"):
+        np.testing.assert_array_equal(robot.array(name), reference_robot().array(name))
+
+
+def test_environment_example_builds_a_force_safe_set_with_a_vertical_wall():
+    env = load_environment(str(EXAMPLES / "environment.json"))
+    assert env.n_facets == 2
+    for scaling in ("paper", "unit"):
+        safe_set = ForceSafeSet(env, LinearStiffness(11.16), 0.16, row_scaling=scaling)
+        assert safe_set.H_prime.shape == (3, 2)  # two Lemma rows and one vertex correction
+        assert safe_set.contains(np.array([0.2, 0.0]))  # the straight arm's tip region is free
+        assert not safe_set.contains(np.array([0.26 + 0.02, 0.0]))  # 20 mm into the wall: beyond n_max = 14.3 mm
+
+
+def test_study_example_is_a_3_by_3_grid():
+    study = load_study(EXAMPLES / "study.toml")
+    assert study.scenario == "mujoco_contact" and study.sampling == "grid"
+    assert study.tunings == ("None", "Low", "HW-High") and study.n_samples == 9
+    assert [s.values["true_gain_scale"] for s in map(study.sample, range(0, 9, 3))] == pytest.approx([0.9, 1.0, 1.1])
+
+
+def test_hardware_example_loads_and_resolves_its_robot_file():
+    config = HardwareConfig.load(EXAMPLES / "hardware.toml")
+    assert config.robot_params() == RobotParams.load(EXAMPLES / "robot.json")
+    assert config.control.tuning == "HW-High" and config.control.rate_hz == 10.0
+
+
+def test_example_filters_keep_to_the_contract():
+    from importlib.util import module_from_spec, spec_from_file_location
+
+    spec = spec_from_file_location("my_filters", EXAMPLES / "my_filters.py")
+    module = module_from_spec(spec)
+    spec.loader.exec_module(module)
+    estimate = Estimate(t=0.0, q=np.zeros(2), qd=np.zeros(2), t_capture=0.0)
+    np.testing.assert_array_equal(module.ClipFilter(limit_hPa=100.0)(estimate, np.array([150.0, -20.0])), [100.0, -20.0])
+    robot, safe_set = reference_robot(), paper_safe_set()
+    context = FilterContext(robot=robot, safe_set=safe_set, u_min=robot.array("u_min"), u_max=robot.array("u_max"),
+                            control_dt=1e-3)
+    scaler = module.RestShapeScaler(margin_m=0.001, steps=50, context=context)
+    out = scaler(estimate, np.array([50.0, 50.0]))
+    assert isinstance(out, FilterOutput) and out.action == "nominal" and out.diagnostics == {"scale": 1.0}
+    from controllers.pcc import tip_position
+
+    gain = robot.array("gains") / robot.array("stiffness")
+    rows = np.hypot(safe_set.H_prime[:, 0], safe_set.H_prime[:, 1])
+    for u_nom in ([80.0, 80.0], [150.0, 150.0], [150.0, -150.0]):
+        out = scaler(estimate, np.array(u_nom))
+        s = out.diagnostics["scale"]
+        assert out.action == "scaled" and 0 < s < 1
+        slack = lambda scale: np.min((safe_set.h_prime - safe_set.H_prime @ tip_position(gain * scale * np.array(u_nom),
+                                                                                          robot.array("lengths"))) / rows)
+        assert slack(s) >= 0.001 - 1e-12  # the returned command's rest shape keeps the margin …
+        assert slack(s + 1 / 50) < 0.001  # … and the next larger scale would not
+    with pytest.raises(ValueError, match="margin_m must be >= 0 m, got -1"):
+        module.RestShapeScaler(margin_m=-1, context=context)
+
+
+@pytest.mark.parametrize("page, tag", [("quickstart.md", "quickstart"), ("extending.md", "extending")])
+def test_python_blocks_run(page, tag, tmp_path):
+    blocks = _blocks(page, tag)
+    assert blocks, page
+    (tmp_path / "docs").symlink_to(DOCS)
+    script = tmp_path / "blocks.py"
+    script.write_text("\n".join(blocks), encoding="utf-8")
+    result = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert result.returncode == 0, result.stderr[-3000:]
+    if tag == "quickstart":
+        assert "High: rho_min +" in result.stdout and "qp False rho_pred 0.487" in result.stdout
+        assert (tmp_path / "runs" / "quickstart" / "plots" / "overview.svg").is_file()
+
+
+def _anchors(path: Path) -> set[str]:
+    """GitHub's heading anchors: lower case, punctuation dropped, spaces → '-'."""
+    heads = re.findall(r"^#+ (.+)$", path.read_text(encoding="utf-8"), re.M)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in heads}
+
+
+def test_links_and_anchors_resolve():
+    pages = sorted(DOCS.glob("*.md"))
+    for page in pages:
+        for target in LINK.findall(page.read_text(encoding="utf-8")):
+            if target.startswith(("http://", "https://")):
+                continue
+            file, _, anchor = target.partition("#")
+            path = (page.parent / file) if file else page
+            assert path.exists(), (page.name, target)
+            if anchor:
+                assert anchor in _anchors(path), (page.name, target)
+
+
+def test_code_cites_docs_not_the_external_specification():
+    """Every docs/ page and anchor cited in code and model READMEs exists; nothing cites the
+    specification outside the repository (README.md and CHANGELOG.md are the integrator's)."""
+    files = subprocess.run(["git", "ls-files", "*.py", "*.md", "*.toml"], cwd=ROOT, capture_output=True, text=True,
+                           check=True).stdout.split()
+    cited = set()
+    for name in files:
+        if name in ("README.md", "CHANGELOG.md") or not (ROOT / name).is_file():
+            continue
+        text = (ROOT / name).read_text(encoding="utf-8")
+        assert not any(old in text for old in OLD_CITATIONS), name
+        cited.update(re.findall(r"docs/([\w.-]+\.md)(?:#([\w-]+))?", text))
+    assert cited
+    for page, anchor in cited:
+        assert (DOCS / page).is_file(), page
+        if anchor:
+            assert anchor in _anchors(DOCS / page), (page, anchor)

@@ -1,0 +1,331 @@
+"""Energy-certified reference governor (controllers.energy_governor) and its parts: the
+escape-energy table against brute force, Ẇ ≤ 0 along the model, the state predictor
+against a fine integration, and closed loops on the PCC plant at 10 Hz with camera timing
+(estimate 0.03–0.1 s old, command delay 20 ms) and a first-order valve."""
+
+import inspect
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controllers.dynamics import PCCDynamics
+from controllers.energy_governor import EnergyGovernor
+from controllers.escape_energy import EscapeEnergyTable
+from controllers.filter_metrics import governor_figures
+from controllers.params import reference_robot, uniform_robot
+from controllers.pcc import tip_positions
+from controllers.safe_set import ForceSafeSet, paper_environment, paper_safe_set
+from controllers.safety_filter import Estimate, FilterContext
+from controllers.state_predictor import StatePredictor
+from softcbf_mj.pcc_plant import PCCPlant
+
+sys.path.insert(0, str(Path(__file__).parent))
+from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
+
+ROBOT = reference_robot()
+SAFE = paper_safe_set()
+PERIOD, DELAY = 0.1, 0.02
+
+
+@pytest.fixture(scope="module")
+def governor_lag():
+    return EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05))
+
+
+@pytest.fixture(scope="module")
+def governor_ideal():
+    return EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.0))
+
+
+def certificate_slack(gov: EnergyGovernor, rec) -> np.ndarray:
+    """Γ(u_k) − W_{u_k} at the TRUE state (q, q̇, p) when each command u_k starts to act (J)."""
+    slack = []
+    for tick, u in zip(rec.apply_ticks, rec.commands):
+        if not 1 <= tick <= len(rec.t):
+            continue
+        i = tick - 1  # the state at the end of tick i is the state when tick `tick` starts
+        base, _ = gov.state_energy(rec.q[i], rec.qd[i])
+        slack.append(gov.escape(u.tolist()) - gov.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
+    return np.array(slack)
+
+
+# -- the escape-energy table ------------------------------------------------------------
+def test_escape_table_is_a_lower_bound_close_to_brute_force():
+    table = EscapeEnergyTable(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"))
+    axis = np.linspace(-2.6, 2.6, 1734)  # 3 mrad: the brute force's own error ≤ 2.1e-3 J^½ in √(2Γ)
+    q = np.stack([m.ravel() for m in np.meshgrid(axis, axis, indexing="ij")], axis=1)
+    g = (tip_positions(q, ROBOT.array("lengths")) @ SAFE.H_prime.T - SAFE.h_prime)[:, 0]
+    unsafe = q[(g >= 0) & (g <= 0.01)]  # unsafe samples within 1 cm of the row's line: any subset bounds Γ above
+    gain, k = ROBOT.array("gains") / ROBOT.array("stiffness"), ROBOT.array("stiffness")
+    rng = np.random.default_rng(4)
+    commands = np.vstack((rng.uniform(-150, 150, (40, 2)), [[0, 0], [80, 80], [150, 150], [-150, 150], [37.3, 81.1]]))
+    def brute_force(u):  # ≥ Γ (a sampled minimum); 0 when the rest shape itself is outside
+        rest = gain * u
+        if (tip_positions(rest[None], ROBOT.array("lengths")) @ SAFE.H_prime.T - SAFE.h_prime)[0, 0] >= 0:
+            return 0.0
+        return 0.5 * np.min(np.sum(k * (unsafe - rest) ** 2, axis=1))
+
+    for u in commands:
+        brute = brute_force(u)
+        tabulated = table.values(u)[0]
+        assert tabulated <= brute
+        # looseness in √(2Γ) (J^½), measured on 150 random commands: ≤ 0.0134 (the band's
+        # near side + half a cell diagonal in ‖·‖_w); Γ saturates at ½ k reach² (1.2 rad, k = 1)
+        assert min(math.sqrt(2 * brute), 1.2) - math.sqrt(2 * tabulated) <= 0.016
+    # at the grid points (measured on 150 of them: ≤ 0.0096)
+    for u in table.grid_commands()[::997]:
+        brute = brute_force(u)
+        assert table.values(u)[0] <= brute
+        assert min(math.sqrt(2 * brute), 1.2) - math.sqrt(2 * table.values(u)[0]) <= 0.011
+    # the unrolled N = 2 look-up is the general one (inside and outside the box)
+    for u in np.vstack((rng.uniform(-200, 200, (300, 2)), table.grid_commands()[::500])):
+        assert table.values(u) == pytest.approx(table._values_general(u), rel=1e-14, abs=1e-16)
+    with pytest.raises(ValueError, match="supports N <= 2 segments"):
+        EscapeEnergyTable(uniform_robot(3), SAFE, -np.ones(3), np.ones(3))
+
+
+# -- the certificate --------------------------------------------------------------------
+def rk4_with_lag(dyn: PCCDynamics, q, qd, p, u, tau, h, steps):
+    """Fine RK4 of (q, q̇, p) with ṗ = (u − p)/τ; yields every state."""
+    x = np.concatenate((q, qd, p))
+    n = len(q)
+
+    def rhs(x):
+        acc = dyn.acceleration(x[:n], x[n:2 * n], x[2 * n:])
+        return np.concatenate((x[n:2 * n], acc, (u - x[2 * n:]) / tau))
+
+    for _ in range(steps):
+        k1 = rhs(x)
+        k2 = rhs(x + 0.5 * h * k1)
+        k3 = rhs(x + 0.5 * h * k2)
+        k4 = rhs(x + h * k3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        yield x[:n], x[n:2 * n], x[2 * n:]
+
+
+def test_certified_energy_never_grows_along_the_model(governor_lag):
+    """W_u along fine RK4 trajectories of the model with the valve lag (τ_p = 0.05 s) from
+    random states: nonincreasing, and its rate matches −Σ(√d q̇ − λ(p − u)/(2√d))².
+    Without the pressure term (β = 0) W grows: the term is needed."""
+    gov, dyn = governor_lag, governor_lag.dynamics
+    d, lam, tau = ROBOT.array("damping"), ROBOT.array("gains"), 0.05
+    rng = np.random.default_rng(6)
+    grew_without_beta = False
+    for _ in range(4):
+        q, qd = rng.uniform(-0.8, 0.8, 2), rng.uniform(-3, 3, 2)
+        p, u = rng.uniform(-150, 150, 2), rng.uniform(-150, 150, 2)
+
+        def energy(q, qd, p, beta=True):
+            base = dyn.kinetic_energy(q, qd)
+            w = gov.energy(base, q.tolist(), p.tolist(), u.tolist())
+            return w if beta else w - 0.5 * float(np.sum(gov.beta * (p - u) ** 2))
+
+        h = 2e-5
+        states = [(q, qd, p)] + list(rk4_with_lag(dyn, q, qd, p, u, tau, h, 1500))
+        values = np.array([energy(*x) for x in states])
+        plain = np.array([energy(*x, beta=False) for x in states])
+        assert np.all(np.diff(values) <= 1e-12 * max(values[0], 1e-9))
+        grew_without_beta |= bool(np.any(np.diff(plain) > 1e-9))
+        for i in (0, 200, 1000):  # Ẇ = ∇W·ẋ by a central difference along the vector field
+            q_i, qd_i, p_i = states[i]
+            flow = (qd_i, dyn.acceleration(q_i, qd_i, p_i), (u - p_i) / tau)
+            e = 1e-6
+            rate = (energy(*(x + e * v for x, v in zip(states[i], flow)))
+                    - energy(*(x - e * v for x, v in zip(states[i], flow)))) / (2 * e)
+            expected = -np.sum((np.sqrt(d) * qd_i - lam * (p_i - u) / (2 * np.sqrt(d))) ** 2)
+            assert rate == pytest.approx(expected, rel=1e-5, abs=1e-8)
+    assert grew_without_beta
+
+
+# -- the predictor ----------------------------------------------------------------------
+@pytest.mark.parametrize("tau", [0.0, 0.05])
+def test_predictor_agrees_with_a_fine_integration(tau):
+    """Commands (±150 hPa) switching every 50 ms (offset 13 ms) for 0.6 s; predictions over
+    1–170 ms from states of forward Euler at 1e-5 s (the plant's reference) agree to 5e-4 rad
+    and in kinetic energy to 2 % + 1e-6 J (ROS2 at 1 ms; segment 2's velocity carries the
+    fast mode, ≈ 0.07 rad/s off at 0.6 rad/s, but its inertia is small), and the pressure to
+    1e-9 hPa (exact)."""
+    rng = np.random.default_rng(7)
+    plant = PCCPlant(ROBOT, SAFE, control_dt=1e-3, integrator="euler", physics_dt=1e-5, tau_p=tau)
+    states = [plant.reset(np.array([0.1, -0.2]))]
+    dyn = PCCDynamics(ROBOT)
+    predictor = StatePredictor(dyn, tau)
+    times = np.arange(0.0, 0.6, 0.05) + 0.013
+    commands = rng.uniform(-150, 150, (len(times), 2))
+    for t_a, u in zip(times, commands):
+        predictor.record(t_a, u)
+    for k in range(600):
+        i = np.searchsorted(times, k * 1e-3 + 1e-12, side="right") - 1
+        states.append(plant.step(commands[i] if i >= 0 else np.zeros(2)))
+    for k0, k1 in ((100, 230), (250, 251), (300, 420), (431, 599)):
+        q, qd, p = predictor.predict(k0 * 1e-3, states[k0].q, states[k0].qd, k1 * 1e-3)
+        assert np.max(np.abs(q - states[k1].q)) < 5e-4
+        kinetic = dyn.kinetic_energy(states[k1].q, states[k1].qd)
+        assert abs(dyn.kinetic_energy(q, qd) - kinetic) <= 0.02 * kinetic + 1e-6
+        np.testing.assert_allclose(p, states[k1].u_applied, atol=1e-9)
+        np.testing.assert_allclose(predictor.pressure_at(k1 * 1e-3), states[k1].u_applied, atol=1e-9)
+    with pytest.raises(ValueError, match="t_apply must not decrease"):
+        predictor.record(0.1, np.zeros(2))
+
+
+# -- closed loops on the PCC plant --------------------------------------------------------
+@pytest.mark.parametrize("tau", [0.0, 0.05])
+def test_worst_step_stays_in_P_and_the_certificate_holds_at_the_true_state(tau, governor_lag, governor_ideal):
+    gov = governor_lag if tau else governor_ideal
+    rec = run_loop(gov, ROBOT, SAFE, lambda t: np.array([150.0, 150.0]), 4.0, PERIOD, DELAY, tau_p=tau, seed=1)
+    assert rec.rho.min() >= 0.0
+    assert certificate_slack(gov, rec).min() >= 0.0
+    assert np.all(np.abs(rec.u) <= 150.0)
+    assert not any(o.diagnostics["violation"] for o in rec.outputs)
+    # it reaches the target (rest tip 5 mm inside P: ρ ≈ 0.35) and stays there
+    assert rec.outputs[-1].action == "free"
+    assert 0.3 < rec.rho[-1] < 0.4
+
+
+def test_random_steps_from_rest_stay_in_P(governor_lag):
+    rng = np.random.default_rng(20)
+    worst_rho, worst_slack = np.inf, np.inf
+    for seed in range(20):
+        u_nom = rng.uniform(60.0, 300.0, 2)
+        rec = run_loop(governor_lag, ROBOT, SAFE, lambda t: u_nom, 2.0, PERIOD, DELAY, tau_p=0.05, seed=seed)
+        worst_rho = min(worst_rho, rec.rho.min())
+        worst_slack = min(worst_slack, certificate_slack(governor_lag, rec).min())
+        assert np.all(np.abs(rec.u) <= 150.0)
+    assert worst_rho >= 0.0
+    assert worst_slack >= 0.0
+
+
+@pytest.mark.parametrize("period_s", [8.0])
+def test_never_holds_a_retreating_nominal_for_long(governor_lag, period_s):
+    """u_nom = 150 sin(2πt/T) hPa on both segments for 1.5 T: pushes into the plate, retreats
+    (the target slides along P's boundary first). Measured: longest hold 0.4 s (T = 8 s), 0.1 s
+    (T = 20 s, tools/bench_governors.py) at the default 5 mm target margin; 0.7–0.8 s with 1 mm."""
+    def nominal(t):
+        return np.full(2, 150.0 * math.sin(2 * math.pi * t / period_s))
+
+    rec = run_loop(governor_lag, ROBOT, SAFE, nominal, 1.5 * period_s, PERIOD, DELAY, tau_p=0.05, seed=3)
+    assert rec.rho.min() >= 0.0
+    assert certificate_slack(governor_lag, rec).min() >= 0.0
+    t = (np.array(rec.apply_ticks) - int(round(DELAY / 1e-3))) * 1e-3
+    u_nom = np.array([nominal(s) for s in t])
+    figures = governor_figures(t, np.array(rec.commands), u_nom, np.array([o.diagnostics["solve_us"] for o in rec.outputs]))
+    assert figures["blocked_longest_s"] <= 0.5
+    assert figures["u_dev_max_hPa"] > 10.0  # it did govern near the plate
+
+
+def test_reset_replays_the_same_run_and_stale_estimates_hold(governor_ideal):
+    gov = governor_ideal
+    first = run_loop(gov, ROBOT, SAFE, lambda t: np.array([120.0, 90.0]), 1.0, PERIOD, DELAY, tau_p=0.0, seed=5)
+    again = run_loop(gov, ROBOT, SAFE, lambda t: np.array([120.0, 90.0]), 1.0, PERIOD, DELAY, tau_p=0.0, seed=5)
+    np.testing.assert_array_equal(np.array(first.commands), np.array(again.commands))
+    gov.reset()
+    rest = np.zeros(2)
+    gov(Estimate(0.0, rest, rest, 0.0), np.array([100.0, 100.0]))
+    held = gov(Estimate(5.0, rest, rest, 5.0), np.array([100.0, 100.0])).u  # history now starts at 0.02 s
+    old = gov(Estimate(5.1, rest, rest, 0.01), np.array([0.0, 0.0]))  # captured before the kept history
+    assert old.action == "stale" and old.infeasible
+    np.testing.assert_array_equal(old.u, held)
+    gov.reset()
+    assert gov.predictor.oldest_time == -math.inf
+
+
+def test_contact_aware_terms_and_robust_n_max():
+    ctx = context(ROBOT, SAFE, PERIOD, DELAY, 0.05)
+    plain = EnergyGovernor(ctx, grid_hPa=10.0)
+    aware = EnergyGovernor(ctx, contact_aware=True, stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.1, grid_hPa=10.0)
+    assert aware.safe_set.n_max == pytest.approx(0.16 / (11.16 * 1.1))
+    credit = 0.9 * 0.5 * 11.16 * aware.safe_set.n_max**2
+    robust = EnergyGovernor(ctx, stiffness_hi_ratio=1.1, grid_hPa=10.0)
+    u = [40.0, 100.0]
+    assert aware.escape(u) == pytest.approx(robust.escape(u) + credit, rel=1e-12)
+    assert robust.escape(u) < plain.escape(u)  # the stiffer plate shrinks P
+    q = np.array([0.6, 0.9])  # the tip pressed into the plate
+    n = SAFE.penetration(tip_positions(q[None], ROBOT.array("lengths"))[0])[0]
+    assert n > 0
+    plain_base, _ = plain.state_energy(q, np.zeros(2))
+    aware_base, _ = aware.state_energy(q, np.zeros(2))
+    assert plain_base == 0.0
+    assert aware_base == pytest.approx(1.1 * 0.5 * 11.16 * n**2)
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"kappa": -0.1}, "kappa must be finite and >= 0, got -0.1"),
+    ({"energy_margin_J": math.inf}, "energy_margin_J must be finite and >= 0"),
+    ({"stiffness_lo_ratio": 1.2, "stiffness_hi_ratio": 1.1}, "stiffness_lo_ratio <= stiffness_hi_ratio"),
+    ({"bisection_steps": 0}, "bisection_steps must be an integer >= 1, got 0"),
+    ({"command_delay_s": -0.01}, "command_delay_s must be finite and >= 0 s, got -0.01"),
+    ({"grid_hPa": 0.0}, "grid_hPa must be finite and > 0"),
+])
+def test_bad_parameters_are_refused(params, message):
+    with pytest.raises(ValueError, match=message):
+        EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), **params)
+
+
+def test_bad_models_are_refused():
+    undamped = ROBOT.replace(damping=(0.0, 0.07))
+    with pytest.raises(ValueError, match="needs damping > 0 on every segment"):
+        EnergyGovernor(context(undamped, SAFE, PERIOD, DELAY, 0.05))
+
+    class NoEnergy:
+        def force(self, n):
+            return 11.16 * np.maximum(n, 0.0)
+
+        def penetration(self, force):
+            return np.maximum(force, 0.0) / 11.16
+
+    odd = ForceSafeSet(paper_environment(), NoEnergy(), 0.16, row_scaling="paper")
+    with pytest.raises(ValueError, match="has no energy"):
+        EnergyGovernor(FilterContext(ROBOT, odd, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD))
+
+
+def test_parameter_docs_cover_the_signature():
+    names = set(inspect.signature(EnergyGovernor).parameters) - {"context"}
+    assert set(EnergyGovernor.parameter_docs) == names
+    assert all(doc.endswith("]") for doc in EnergyGovernor.parameter_docs.values())
+
+
+def test_a_failed_certificate_is_detected_and_recovered(governor_ideal):
+    """An estimate the held command cannot certify (the tip beyond P, moving at 4 rad/s
+    towards the plate): a detected violation, no certified candidate (infeasible), a command
+    whose rest shape lies inside P, inside the box; then, at rest inside P, certified again."""
+    gov = governor_ideal
+    gov.reset()
+    rest = np.zeros(2)
+    gov(Estimate(0.0, rest, rest, 0.0), np.array([150.0, 150.0]))
+    out = gov(Estimate(0.1, np.array([0.35, 0.8]), np.array([4.0, 4.0]), 0.1), np.array([150.0, 150.0]))
+    assert out.action == "recover" and out.diagnostics["violation"] == 1.0 and out.infeasible
+    assert out.rho_pred < 0
+    assert np.all(np.abs(out.u) <= 150.0)
+    assert out.diagnostics["Gamma_J"] >= gov.energy_margin
+    assert gov.target_governor.rest_margins(out.u).min() + gov.target_governor.margin_m > 0  # it settles inside P
+    calm_state = 0.5 * gov.target_governor.rest_shape(out.u)
+    calm = gov(Estimate(0.2, calm_state, rest, 0.2), np.array([150.0, 150.0]))
+    assert not calm.infeasible and calm.diagnostics["margin_J"] >= 0.0
+    gov.reset()
+
+
+def test_contact_aware_on_a_plate_that_pushes_back():
+    """The plate pushes back, 10 % stiffer than the model (the governor is told [0.9, 1.12]);
+    worst step with the valve lag at 10 Hz with camera timing: the true force stays below
+    F_max at every tick, and W_u + E_true ≤ Γ(u) + lo·E(n_max) holds at the true state when
+    each command starts to act."""
+    gov = EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), contact_aware=True,
+                         stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.12)
+    ratio = 1.1
+    plant = PushingPlatePlant(ROBOT, SAFE, 11.16 * ratio, 0.05)
+    rec = run_loop(gov, ROBOT, SAFE, lambda t: np.array([150.0, 150.0]), 2.0, PERIOD, DELAY, tau_p=0.05,
+                   seed=2, plant=plant)
+    assert rec.force.max() <= SAFE.f_max
+    assert rec.force.max() > 0.02  # it does press on the plate
+    slack = []
+    for tick, u in zip(rec.apply_ticks, rec.commands):
+        i = tick - 1
+        if not 0 <= i < len(rec.t):
+            continue
+        n = SAFE.penetration(tip_positions(rec.q[i][None], ROBOT.array("lengths"))[0])
+        base = gov.dynamics.kinetic_energy(rec.q[i], rec.qd[i]) + ratio * float(np.sum(SAFE.stiffness.energy(n)))
+        slack.append(gov.escape(u.tolist()) - gov.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
+    assert min(slack) >= 0.0

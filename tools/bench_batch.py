@@ -1,0 +1,224 @@
+"""Throughput of batched closed loops against today's serial loop, on the same samples.
+
+Two sample types, each a short closed-loop run (`--duration` s at 1 kHz) of the paper's
+CBF with the paper's sinusoid started at its peak (so that short runs reach the facet):
+- mujoco_contact-type: the MuJoCo rod (`--links`, `--physics-dt`, defaults those of the
+  scenario) against the plate, HW-High, ±150 hPa; sample s has its own true arm and plate
+  (stiffness and gain ×U(0.9, 1.1), plate stiffness 11.16·U(0.9, 1.1) N/m, a mismatch
+  study's draw) and start q0 ~ N(0.2, 0.05) rad;
+- paper_sim-type: the PCC plant (ROS2, 1 ms), Low, no pressure limits, the controller's
+  model = the plant's, start q0 ~ N(0.2, 0.05) rad.
+Serial: `softcbf_mj.loop.run_closed_loop` (one `MujocoPlant` / `PCCPlant` per sample, the
+`CBFFilter` called per step) over the first `--serial` samples. Batched:
+`run_batch_closed_loop` over the first B samples in one batch, for B in `--batches`
+(MuJoCo on 1 and 2 threads of `mujoco.batch`; PCC in numpy, one thread), then the same
+batch replaying the commands it sent, without filter, nominal or figures: the batch's
+physics ceiling. Throughput is samples per hour = samples / wall s × 3600, each time the
+best of `--repeats` runs; also per CPU-hour (samples / CPU s of this process, all its
+threads, × 3600), which other jobs on a shared machine disturb far less than wall time:
+the CPU ratios compare the work each way needs, the wall ratios what one gets now.
+`ratio_vs_serial` = batched / serial samples per hour; `fraction_of_physics_ceiling`
+= batched loop / its replay; the JSON line's headline figures are those of the largest
+batch (PCC; MuJoCo on 1 and on 2 threads). The batched figures are checked against the serial ones
+on the common samples (max |Δρ_meas|).
+
+The machine may be shared: wall times then include other jobs' load, and two threads
+may not get two cores. Ratios measured side by side in one run are the figures to
+trust. Usage: `python tools/bench_batch.py [--duration 0.2] [--serial 8] [--batches 1,8,32,128]
+[--pcc-batches 1,8,32,128,1024]`; prints tables and ends with one line of JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import platform
+import time
+from dataclasses import dataclass
+from typing import Callable, TypeVar
+
+import mujoco
+import numpy as np
+
+from controllers.cbf import TUNINGS
+from controllers.filter import CBFFilter
+from controllers.nominal import SinusoidNominal
+from controllers.params import reference_robot
+from controllers.safe_set import paper_safe_set
+from softcbf_mj.batch_loop import broadcast_nominal, replay_commands, run_batch_closed_loop
+from softcbf_mj.loop import run_closed_loop
+from softcbf_mj.metrics import run_figures
+from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig
+from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
+from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.pcc_batch_plant import PCCBatchPlant
+from softcbf_mj.pcc_plant import PCCPlant
+
+PEAK = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))
+HOUR = 3600.0
+T = TypeVar("T")
+
+
+def mujoco_samples(n: int, links: int, physics_dt: float, seed: int = 0) -> tuple[list[ArmModelConfig], np.ndarray]:
+    """n mismatch draws (true arm and plate) and their starts q0 (n, 2) rad."""
+    rng = np.random.default_rng(seed)
+    ref = reference_robot()
+    configs = []
+    for k_scale, g_scale, plate in zip(rng.uniform(0.9, 1.1, n), rng.uniform(0.9, 1.1, n), rng.uniform(0.9, 1.1, n)):
+        robot = dataclasses.replace(ref, stiffness=tuple(v * k_scale for v in ref.stiffness),
+                                    gains=tuple(v * g_scale for v in ref.gains))
+        configs.append(ArmModelConfig(robot=robot, plate_stiffness=11.16 * plate, links_per_segment=links, physics_dt=physics_dt))
+    return configs, rng.normal(0.2, 0.05, (n, 2))
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Best wall and best CPU time (s, this process, all its threads) over repeated runs."""
+
+    wall: float
+    cpu: float
+
+
+def best_of(repeats: int, run: Callable[[], T]) -> tuple[T, Timing]:
+    """run() `repeats` times; its last result and the shortest wall and CPU times."""
+    walls, cpus = [], []
+    for _ in range(repeats):
+        wall, cpu = time.perf_counter(), time.process_time()
+        result = run()
+        walls.append(time.perf_counter() - wall)
+        cpus.append(time.process_time() - cpu)
+    return result, Timing(min(walls), min(cpus))
+
+
+def _row(b: int, nthread: int, loop: Timing, ceiling: Timing, serial: Timing, n_serial: int) -> dict:
+    """Samples per hour (wall and per CPU-hour) and the ratios of a batched run of b samples."""
+    rate, rate_cpu = b / loop.wall * HOUR, b / loop.cpu * HOUR
+    serial_rate, serial_cpu = n_serial / serial.wall * HOUR, n_serial / serial.cpu * HOUR
+    row = {"B": b, "threads": nthread, "samples_per_hour": rate, "samples_per_cpu_hour": rate_cpu,
+           "ratio_vs_serial": rate / serial_rate, "ratio_vs_serial_cpu": rate_cpu / serial_cpu,
+           "ceiling_samples_per_hour": b / ceiling.wall * HOUR,
+           "fraction_of_physics_ceiling": ceiling.wall / loop.wall, "fraction_of_physics_ceiling_cpu": ceiling.cpu / loop.cpu}
+    print(f"  {b:5d} {nthread:8d} {rate:10.0f} {row['ratio_vs_serial']:8.2f} {row['ratio_vs_serial_cpu']:8.2f} "
+          f"{row['ceiling_samples_per_hour']:12.0f} {row['fraction_of_physics_ceiling']:9.3f} {row['fraction_of_physics_ceiling_cpu']:9.3f}")
+    return row
+
+
+HEADER = ("      B  threads  samples/h  ×serial  ×serial   ceiling/h  fraction  fraction\n"
+          "                             (wall)    (CPU)               (wall)     (CPU)")
+
+
+def _batched(b: int, nthread: int, plant, filt, nominal, safe_set, duration: float, q0: np.ndarray, limits: tuple,
+             repeats: int, serial: Timing, n_serial: int, serial_runs: list[dict]) -> tuple[dict, float]:
+    """Loop and replay of one batch; its row and max |Δρ_meas| against the serial runs it shares."""
+    run, loop = best_of(repeats, lambda: run_batch_closed_loop(plant, filt, nominal, safe_set, duration, q0, *limits,
+                                                               record_commands=True))
+    _, ceiling = best_of(repeats, lambda: replay_commands(plant, run.commands, q0))
+    diff = max([abs(run.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]) for s in range(min(b, n_serial))])
+    return _row(b, nthread, loop, ceiling, serial, n_serial), diff
+
+
+def bench_mujoco(args: argparse.Namespace) -> dict:
+    params, safe_set = reference_robot(), paper_safe_set()
+    tuning, limits = TUNINGS["HW-High"], (np.array(params.u_min), np.array(params.u_max))
+    n_max = max(max(args.batches), args.serial)
+    configs, q0 = mujoco_samples(n_max, args.links, args.physics_dt)
+
+    def serial_pass() -> list[dict]:
+        return [run_figures(run_closed_loop(MujocoPlant.from_config(config), CBFFilter(params, safe_set, tuning), PEAK,
+                                            args.duration, q), 1e-3, True, 0.0)
+                for config, q in zip(configs[: args.serial], q0)]
+
+    serial_runs, serial = best_of(args.repeats, serial_pass)
+    print(f"mujoco_contact-type: {args.duration:g} s per sample, n = {args.links}, dt = {args.physics_dt:g} s, HW-High, ±150 hPa")
+    print(f"  serial ({args.serial} samples): {args.serial / serial.wall * HOUR:10.0f} samples/h, "
+          f"{args.serial / serial.cpu * HOUR:10.0f} per CPU-hour")
+    print(HEADER)
+    rows, check = [], 0.0
+    for nthread in (1, 2):
+        for b in args.batches:
+            plant = MujocoBatchPlant.from_configs(configs[:b], nthread=nthread)
+            filt = CBFFilter(params, safe_set, tuning)
+            row, diff = _batched(b, nthread, plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], limits,
+                                 args.repeats, serial, args.serial, serial_runs)
+            rows.append(row)
+            check = max(check, diff)
+    print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
+    return {"serial_samples_per_hour": args.serial / serial.wall * HOUR,
+            "serial_samples_per_cpu_hour": args.serial / serial.cpu * HOUR, "batched": rows, "max_abs_rho_meas_diff": check}
+
+
+def bench_pcc(args: argparse.Namespace) -> dict:
+    params, safe_set = reference_robot(), paper_safe_set()
+    tuning = TUNINGS["Low"]
+    n_max = max(max(args.pcc_batches), args.serial)
+    q0 = np.random.default_rng(1).normal(0.2, 0.05, (n_max, 2))
+
+    def serial_pass() -> list[dict]:
+        runs = []
+        for q in q0[: args.serial]:
+            plant = PCCPlant(params, safe_set)
+            controller = CBFFilter(params, safe_set, tuning, pressure_limits=False, dynamics=plant.dynamics)
+            runs.append(run_figures(run_closed_loop(plant, controller, PEAK, args.duration, q), 1e-3, True, 0.0))
+        return runs
+
+    serial_runs, serial = best_of(args.repeats, serial_pass)
+    print(f"\npaper_sim-type: {args.duration:g} s per sample, PCC ROS2 1 ms, Low, no pressure limits")
+    print(f"  serial ({args.serial} samples): {args.serial / serial.wall * HOUR:10.0f} samples/h, "
+          f"{args.serial / serial.cpu * HOUR:10.0f} per CPU-hour")
+    print(HEADER)
+    rows, check = [], 0.0
+    for b in args.pcc_batches:
+        plant = PCCBatchPlant(params, safe_set, b)
+        filt = CBFFilter(params, safe_set, tuning, pressure_limits=False, batch_dynamics=plant.dynamics)
+        row, diff = _batched(b, 1, plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], (None, None),
+                             args.repeats, serial, args.serial, serial_runs)
+        rows.append(row)
+        check = max(check, diff)
+    print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
+    return {"serial_samples_per_hour": args.serial / serial.wall * HOUR,
+            "serial_samples_per_cpu_hour": args.serial / serial.cpu * HOUR, "batched": rows, "max_abs_rho_meas_diff": check}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=0.2, help="simulated s per sample")
+    parser.add_argument("--serial", type=int, default=8, help="samples run serially")
+    parser.add_argument("--batches", type=lambda s: [int(v) for v in s.split(",")], default=[1, 8, 32, 128])
+    parser.add_argument("--pcc-batches", type=lambda s: [int(v) for v in s.split(",")], default=[1, 8, 32, 128, 1024])
+    parser.add_argument("--links", type=int, default=DEFAULT_LINKS_PER_SEGMENT)
+    parser.add_argument("--physics-dt", type=float, default=DEFAULT_PHYSICS_DT)
+    parser.add_argument("--repeats", type=int, default=2, help="timings are the best of this many runs")
+    parser.add_argument("--skip-mujoco", action="store_true")
+    args = parser.parse_args()
+    report: dict = {"duration_s": args.duration, "cpus": os.cpu_count(), "mujoco": mujoco.__version__,
+                    "python": platform.python_version(), "machine_shared": True}
+    pcc = bench_pcc(args)
+    headline = {"pcc": max(pcc["batched"], key=lambda r: r["B"])}  # the largest batch: the setting a study would use
+    report["pcc"] = pcc
+    if not args.skip_mujoco:
+        mj = bench_mujoco(args)
+        report["mujoco_contact"] = mj
+        largest = max(args.batches)
+        for row in mj["batched"]:
+            if row["B"] == largest:
+                headline[f"mujoco_contact_{row['threads']}_thread"] = row
+    print()
+    for name, row in headline.items():
+        print(f"{name}: B = {row['B']}: {row['ratio_vs_serial']:.2f}× serial ({row['ratio_vs_serial_cpu']:.2f}× per CPU-hour), "
+              f"{row['fraction_of_physics_ceiling']:.1%} of its physics ceiling ({row['fraction_of_physics_ceiling_cpu']:.1%} in CPU time)")
+    ratio = {name: row["ratio_vs_serial"] for name, row in headline.items()}
+    fraction = {name: row["fraction_of_physics_ceiling"] for name, row in headline.items()}
+    ratio_cpu = {name: row["ratio_vs_serial_cpu"] for name, row in headline.items()}
+    fraction_cpu = {name: row["fraction_of_physics_ceiling_cpu"] for name, row in headline.items()}
+    report["ratio_vs_serial"] = ratio
+    report["ratio_vs_serial_cpu"] = ratio_cpu
+    report["fraction_of_physics_ceiling_cpu"] = fraction_cpu
+    report["fraction_of_physics_ceiling"] = fraction
+    print(json.dumps(report))
+
+
+if __name__ == "__main__":
+    main()
