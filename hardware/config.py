@@ -274,6 +274,7 @@ class ControlConfig:
             value = getattr(self, key)
             _require(isinstance(value, Mapping) and all(isinstance(k, str) for k in value), f"control.{key}",
                      f"must be a table of name = value, got {value!r}")
+        _require(isinstance(self.tuning, str), "control.tuning", f"must be a tuning name or custom, got {self.tuning!r}")
         if self.filter == "paper-cbf" and self.tuning.strip().lower() != "custom":
             try:
                 get_tuning(self.tuning)

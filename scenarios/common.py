@@ -235,9 +235,15 @@ def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffne
     set (environment, f_max, row_scaling and the stiffness parameter `assumed_plate_stiffness`)
     and qp_backend. Returns the controller's robot."""
     check_bounds(params, COMMON_BOUNDS)
-    for run in controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"]):
-        check_filter(run.filter, run.filter_params)
-    check_nominal(params["nominal"], parse_params(params["nominal_params"]))
+    try:
+        for run in controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"]):
+            check_filter(run.filter, run.filter_params)
+    except ValueError as exc:
+        raise ValueError(f"filter {params['filter']!r}: {exc}") from None
+    try:
+        check_nominal(params["nominal"], parse_params(params["nominal_params"]))
+    except ValueError as exc:
+        raise ValueError(f"nominal {params['nominal']!r}: {exc}") from None
     robot = load_robot(params["robot"])
     build_safe_set(params["environment"], params[assumed_plate_stiffness], params["f_max"], params["row_scaling"])
     check_choice("qp_backend", params["qp_backend"], available_backends())
