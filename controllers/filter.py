@@ -66,7 +66,9 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   before the fallback; native: 4 ms), real-time factor 0.2 → 0.7.
 - "vent": only if every solver fails outright: u = 0 hPa clipped to the limits (the arm
   relaxes towards its rest shape). `infeasible` is flagged.
-The command is finite and within the bounds in every branch. A non-finite state or
+The command is finite and within the bounds in every branch.
+`paper_cbf(context, tuning, ...)` is the registry's factory ("paper-cbf"): the paper's
+presets by name, or tuning="custom" with a_E, b_E and γ. A non-finite state or
 nominal command raises NonFiniteStateError / NonFiniteCommandError (controllers.errors).
 """
 
@@ -78,7 +80,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import B_MIN, Tuning, barrier_rows
+from controllers.cbf import B_MIN, TUNINGS, Tuning, barrier_rows, get_tuning
 from controllers.cbf_batch import SCALAR_BELOW, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
@@ -87,7 +89,7 @@ from controllers.params import RobotParams
 from controllers.pcc import step_kinematics
 from controllers.qp import DEFAULT_BACKEND, available_backends, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
 
 REST_GRID_POINTS = 1024
 """Grid size (at most) of the rest-target search over the pressure box (`CBFFilter.rest_targets`)."""
@@ -360,3 +362,73 @@ class CBFFilter:
             u, action = self._clip([0.0] * self.n), "vent"
         infeasible = action != "recovery" or unevaluable or self._violates(u, u_list, rows, rhs, cbf_rows)
         return u, action, None, infeasible, slack
+
+
+
+CUSTOM_TUNING = "custom"
+
+
+def paper_tuning(tuning: str, a_E: float | None = None, b_E: float | None = None,
+                 gamma: float | None = None) -> Tuning:
+    """The tuning `paper_cbf` runs: the preset named `tuning`, or with tuning 'custom' the
+    (a_E, b_E, γ) given; ValueError naming what is missing or contradictory."""
+    if tuning.strip().lower() == CUSTOM_TUNING:
+        missing = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is None]
+        if missing:
+            raise ValueError(f"tuning 'custom' needs a_E, b_E and gamma (each >= 0), missing {', '.join(missing)}")
+        return Tuning(CUSTOM_TUNING, a_E, b_E, gamma)
+    given = [name for name, value in (("a_E", a_E), ("b_E", b_E), ("gamma", gamma)) if value is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)} set a custom tuning: use tuning='custom' (not {tuning!r}), "
+                         f"or a preset alone ({', '.join(TUNINGS)})")
+    return get_tuning(tuning)
+
+
+def paper_cbf(
+    context: FilterContext,
+    tuning: str = "Low",
+    a_E: float | None = None,
+    b_E: float | None = None,
+    gamma: float | None = None,
+    qp_backend: str = DEFAULT_BACKEND,
+    recovery_margin: float = 1e-3,
+    slack_weight: float = 1e6,
+) -> CBFFilter:
+    """The paper's CBF-QP filter (docs/model.md#control-barrier-function), a preset tuning or a custom (a_E, b_E, γ).
+
+    The pressure limits are the robot model's own when `context.bounded`; `context.dynamics`
+    (the plant's evaluation of the same model), when given, is shared.
+    """
+    chosen = paper_tuning(tuning, a_E, b_E, gamma)
+    return CBFFilter(context.robot, context.safe_set, chosen, pressure_limits=context.bounded, qp_backend=qp_backend,
+                     recovery_margin=recovery_margin, slack_weight=slack_weight, dynamics=context.dynamics)
+
+
+def paper_cbf_label(params: dict[str, object]) -> str:
+    """A run's label: the preset's name, or custom(a_E=..,b_E=..,gamma=..)."""
+    tuning = str(params.get("tuning", "Low"))
+    if tuning.strip().lower() != CUSTOM_TUNING:
+        return tuning
+    return "custom(" + ",".join(f"{k}={params.get(k)}" for k in ("a_E", "b_E", "gamma")) + ")"
+
+
+def check_paper_cbf(arguments: dict[str, object]) -> None:
+    """What `paper_cbf` would refuse of its (converted) `arguments`, checked without building
+    it: the tuning (`paper_tuning`) and the QP backend."""
+    paper_tuning(str(arguments.get("tuning", "Low")), arguments.get("a_E"), arguments.get("b_E"), arguments.get("gamma"))
+    backend = arguments.get("qp_backend", DEFAULT_BACKEND)
+    if backend not in available_backends():
+        raise ValueError(f"qp_backend must be one of {', '.join(available_backends())}, got {backend!r}")
+
+
+paper_cbf.run_label = paper_cbf_label
+paper_cbf.check_arguments = check_paper_cbf
+paper_cbf.parameter_docs = {
+    "tuning": f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below) [-]",
+    "a_E": "custom tuning: weight of the velocity term a_E b_E bdot^2 / (1 + b_E bdot^2) of B [1]",
+    "b_E": "custom tuning: velocity scale of that term [s^2/m^2, bdot in row-scaled m/s]",
+    "gamma": "custom tuning: class-K gain of the constraint L_fB + L_gB u <= gamma/B [1/s]",
+    "qp_backend": f"QP solver ({', '.join(available_backends())}) [-]",
+    "recovery_margin": "quasi-static recovery: rest shape inside P by this much [m]",
+    "slack_weight": "infeasible rows: cost of 1 hPa of violation vs 1 hPa of deviation, squared [1]",
+}

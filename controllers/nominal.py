@@ -2,7 +2,8 @@
 
 A nominal controller is any callable `(t, q, qd) -> u_nom` with t in s, q and qd of
 shape (N,) in rad and rad/s, and u_nom of shape (N,) in hPa. Scenarios pass one to
-the closed loop; the filter never needs to know which one it is.
+the closed loop; the filter never needs to know which one it is. `sinusoid` and
+`tip_tracker` are the registry's factories ("sinusoid", "tip-tracker").
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 
 from controllers.params import RobotParams, per_segment
 from controllers.pcc import tip_jacobian, tip_position
+from controllers.safety_filter import FilterContext
 
 
 class NominalController(Protocol):
@@ -77,3 +79,31 @@ class TipTracker:
         k = self.params.array("stiffness")
         lam = self.params.array("gains")
         return (k * q_star - self.damping_ratio_gain * qd) / lam
+
+
+def sinusoid(context: FilterContext, amplitude: float = 80.0, frequency: float = 0.01, t0: float = 0.0,
+             phase: float = 0.0) -> SinusoidNominal:
+    """The paper's sinusoid, u_nom,j = A_j sin(2π f (t + t0) + φ_j)."""
+    n = context.robot.n_segments
+    shift = 2 * math.pi * frequency * t0
+    return SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency,
+                           tuple(shift + p for p in per_segment(phase, n, "phase").tolist()))
+
+
+sinusoid.parameter_docs = {"amplitude": "A_j, scalar or one per segment [hPa]", "frequency": "f [Hz]",
+                           "t0": "time offset: t0 > 0 starts later in the cycle [s]",
+                           "phase": "phi_j, scalar or one per segment [rad]"}
+
+
+def tip_tracker(context: FilterContext, x_m: float = 0.2, y_m: float = 0.15, damping_ratio_gain: float = 0.0,
+                mu: float = 1e-2) -> TipTracker:
+    """Drive the tip towards a fixed point r* = (x_m, y_m) (default: into the paper's facet)."""
+    target = np.array([x_m, y_m], dtype=float)
+    if not np.isfinite(target).all():
+        raise ValueError(f"x_m and y_m must be finite m, got {x_m}, {y_m}")
+    return TipTracker(context.robot, lambda t: target, damping_ratio_gain, mu)
+
+
+tip_tracker.parameter_docs = {"x_m": "target tip x [m]", "y_m": "target tip y [m]",
+                              "damping_ratio_gain": "velocity damping k_d, u -= k_d qd / lambda [N m s/rad]",
+                              "mu": "damped-least-squares damping [m]"}

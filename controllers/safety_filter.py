@@ -21,10 +21,13 @@ command that is sent:
 - `FilterContext` is what a filter is told at construction (the registry passes it to
   factories that ask for a `context` argument): the robot model, the force-safe set,
   the pressure limits, the control period and, where known, the command's delay and
-  the actuator's time constant.
+  the actuator's time constant (and, where the plant integrates the controller's own
+  model, that model's evaluation object, which a filter may share).
+- An optional attribute `enabled` (default True): False says the filter passes u_nom
+  through (the paper's None tuning); its call times are then not reported as filter times.
 
 Whatever a filter returns, the control step clips it to the limits and refuses
-non-finite commands (softcbf_mj's control step); a filter need not repeat that.
+non-finite commands (`closedloop.step`); a filter need not repeat that.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from controllers.dynamics import PCCDynamics
 from controllers.params import RobotParams
 from controllers.safe_set import ForceSafeSet
 
@@ -95,8 +99,8 @@ class FilterOutput:
     diagnostic_units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        missing = set(self.diagnostics) - set(self.diagnostic_units)
-        if missing:
+        if self.diagnostics and not self.diagnostics.keys() <= self.diagnostic_units.keys():
+            missing = set(self.diagnostics) - set(self.diagnostic_units)
             raise ValueError(f"diagnostic_units must declare a unit for every diagnostic, missing {sorted(missing)}")
 
 
@@ -119,7 +123,9 @@ class FilterContext:
     simulation); control_dt: s, the period between filter calls; command_delay: s, the
     time from the filter's call to the command taking effect at the valves, beyond the
     estimate's own age (None: unknown); actuator_tau: s, the pressure's first-order time
-    constant (0: ideal valve; None: unknown).
+    constant (0: ideal valve; None: unknown); dynamics: the plant's evaluation object of
+    `robot`'s PCC model when the plant integrates exactly that model (the PCC plant), so a
+    filter may share its evaluations at the state the plant reports; None otherwise.
     """
 
     robot: RobotParams
@@ -129,6 +135,15 @@ class FilterContext:
     control_dt: float
     command_delay: float | None = None
     actuator_tau: float | None = None
+    dynamics: PCCDynamics | None = None
+
+    @classmethod
+    def for_robot(cls, robot: RobotParams, safe_set: ForceSafeSet, control_dt: float, pressure_limits: bool = True,
+                  **known: object) -> "FilterContext":
+        """The context of `robot` with its own limits u_min, u_max when `pressure_limits`
+        (None otherwise); `known`: command_delay, actuator_tau, dynamics."""
+        limits = (np.array(robot.u_min, dtype=float), np.array(robot.u_max, dtype=float)) if pressure_limits else (None, None)
+        return cls(robot, safe_set, *limits, control_dt, **known)
 
     def __post_init__(self) -> None:
         if (self.u_min is None) != (self.u_max is None):
@@ -146,6 +161,8 @@ class FilterContext:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0 s (or None: unknown), got {value}")
+        if self.dynamics is not None and self.dynamics.params != self.robot:
+            raise ValueError("dynamics must evaluate the context's robot model")
 
     @property
     def bounded(self) -> bool:
@@ -158,6 +175,15 @@ class SafetyFilter(Protocol):
     """Anything callable as `filter(estimate, u_nom)` returning a FilterOutput or a bare (N,) array."""
 
     def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput | np.ndarray: ...
+
+
+class PassThroughFilter:
+    """No filter: u = u_nom (the loop still clips it to the limits)."""
+
+    parameter_docs: dict[str, str] = {}
+
+    def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> np.ndarray:
+        return u_nom
 
 
 def as_output(result: FilterOutput | np.ndarray) -> FilterOutput:

@@ -23,14 +23,18 @@ same for a mapping; `with_overrides({section: {key: value}})` applies command-li
 | environment.f_max_N                   | 0.16             | N      | force limit per facet                                           |
 | environment.row_scaling               | "paper"          | –      | P's row scaling ("paper" or "unit")                             |
 | pressure.u_min_hPa, pressure.u_max_hPa | the robot's     | hPa    | pressure limits (scalar or one per segment); replace the robot's, so the filter, the laptop's clamp and the board read one value |
-| control.tuning                        | "HW-High"        | –      | None, Low, High, HW-Low, HW-High (controllers.cbf)              |
+| control.filter                        | "paper-cbf"      | –      | the safety filter (controllers.registry): a built-in name, FILE.py:Factory (relative to this file) or package.module:Factory |
+| control.filter_params                 | {}               | –      | its parameters, a table {name = value} (`softcbf list` lists them) |
+| control.tuning                        | "HW-High"        | –      | paper-cbf's tuning: None, Low, High, HW-Low, HW-High (controllers.cbf), or "custom" with filter_params a_E, b_E, gamma; filter_params.tuning wins |
+| control.nominal                       | "sinusoid"       | –      | the nominal controller (controllers.registry), likewise         |
+| control.nominal_params                | {}               | –      | its parameters; the sinusoid's default to amplitude_hPa, frequency_hz, phase_rad below |
 | control.rate_hz                       | 10.0             | 1/s    | control loop rate (the paper's 10 Hz)                           |
 | control.pressure_limits               | true             | –      | the filter's QP holds the pressure box                          |
 | control.qp_backend                    | "native"         | –      | controllers.qp backend                                          |
 | control.amplitude_hPa                 | 80.0             | hPa    | nominal u_nom,j = A sin(2π f t + φ) (scalar or per segment)      |
 | control.frequency_hz                  | 0.01             | 1/s    | its frequency                                                   |
 | control.phase_rad                     | 0.0              | rad    | its phase (scalar or per segment)                               |
-| safety.hold_s                         | 0.5              | s      | HOLD lasts this long before VENT (hardware.safety)              |
+| safety.hold_s                         | 0.5              | s      | HOLD lasts this long before VENT (closedloop.monitor)              |
 | safety.watchdog_s                     | 0.15             | s      | the board's watchdog (the emulated board's; the firmware's own on hardware) |
 | link.port                             | "/dev/ttyACM0"   | –      | serial port of the valve board, or "emulated"                   |
 | link.baudrate                         | 115200           | baud   | serial line rate                                                |
@@ -92,7 +96,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from controllers.cbf import Tuning, get_tuning
+from controllers.cbf import get_tuning
 from controllers.params import RobotParams, per_segment, reference_robot
 from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
@@ -249,6 +253,8 @@ class PressureConfig:
 
 @dataclass(frozen=True)
 class ControlConfig:
+    filter: str = "paper-cbf"
+    filter_params: dict = field(default_factory=dict)
     tuning: str = "HW-High"
     rate_hz: float = 10.0
     pressure_limits: bool = True
@@ -256,12 +262,24 @@ class ControlConfig:
     amplitude_hPa: Scalars = 80.0
     frequency_hz: float = 0.01
     phase_rad: Scalars = 0.0
+    nominal: str = "sinusoid"
+    nominal_params: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        try:
-            get_tuning(self.tuning)
-        except ValueError as exc:
-            raise ConfigError(f"control.tuning: {exc}") from None
+        for key in ("filter", "nominal"):
+            value = getattr(self, key)
+            _require(isinstance(value, str) and value.strip() != "", f"control.{key}",
+                     f"must be a name or FILE.py:Factory (softcbf list), got {value!r}")
+        for key in ("filter_params", "nominal_params"):
+            value = getattr(self, key)
+            _require(isinstance(value, Mapping) and all(isinstance(k, str) for k in value), f"control.{key}",
+                     f"must be a table of name = value, got {value!r}")
+        _require(isinstance(self.tuning, str), "control.tuning", f"must be a tuning name or custom, got {self.tuning!r}")
+        if self.filter == "paper-cbf" and self.tuning.strip().lower() != "custom":
+            try:
+                get_tuning(self.tuning)
+            except ValueError as exc:
+                raise ConfigError(f"control.tuning: {exc}") from None
         _number("control.rate_hz", self.rate_hz, 0, above=True, high=1000.0, unit="1/s")
         _require(isinstance(self.pressure_limits, bool), "control.pressure_limits", f"must be true or false, got {self.pressure_limits!r}")
         _choice("control.qp_backend", self.qp_backend, tuple(available_backends()))
@@ -274,8 +292,19 @@ class ControlConfig:
     def period_s(self) -> float:
         return 1.0 / self.rate_hz
 
-    def tuning_params(self) -> Tuning:
-        return get_tuning(self.tuning)
+    def filter_arguments(self) -> dict[str, Any]:
+        """The filter's parameters: for paper-cbf, tuning and qp_backend from this section unless filter_params set them."""
+        if self.filter == "paper-cbf":
+            return {"tuning": self.tuning, "qp_backend": self.qp_backend, **self.filter_params}
+        return dict(self.filter_params)
+
+    def nominal_arguments(self) -> dict[str, Any]:
+        """The nominal's parameters: for the sinusoid, amplitude, frequency and phase from this section unless set."""
+        if self.nominal == "sinusoid":
+            return {"amplitude": self.amplitude_hPa, "frequency": self.frequency_hz, "phase": self.phase_rad,
+                    **self.nominal_params}
+        return dict(self.nominal_params)
+
 
 
 @dataclass(frozen=True)
@@ -445,6 +474,13 @@ class HardwareConfig:
     def to_dict(self) -> dict[str, Any]:
         """The sections as plain data (for config.json of the run folder)."""
         return {name: dataclasses.asdict(getattr(self, name)) for name in _SECTIONS}
+
+    def plugin_spec(self, spec: str) -> str:
+        """A filter or nominal spec with its FILE.py made relative to this file's folder (names unchanged)."""
+        where, sep, name = spec.rpartition(":")
+        if sep and where.endswith(".py"):
+            return f"{self.resolve(where)}:{name}"
+        return spec
 
     def resolve(self, path: str) -> Path:
         """`path` relative to the configuration file's folder (unchanged when absolute)."""

@@ -1,4 +1,4 @@
-"""The hardware loop: camera frames → perception → CBF filter → safety monitor → valve-board link.
+"""The hardware loop: camera frames → perception → control step → valve-board link.
 
 Two threads share one monotonic clock (s):
 
@@ -9,17 +9,18 @@ Two threads share one monotonic clock (s):
 
       1. takes the estimate at now = clock() (q, q̇ of the latest complete frame; stale when
          older than the estimator's max_hold_s),
-      2. u_nom = nominal(now − t_0, q, q̇); u = CBFFilter([q; q̇], u_nom) — the same
-         `controllers.filter.CBFFilter` the simulations run, unchanged,
-      3. decision = SafetyMonitor.step(now, u, flags) with flags perception_stale,
-         link_lost (the previous exchange failed), command_nonfinite (the filter raised),
-         interrupted (Ctrl-C or `stop()`),
-      4. sends it in the same cycle: RUN/HOLD → `send_setpoints(decision.u)` (zeros with
+      2. runs the control step the simulations run (`closedloop.step.ControlStep`, at
+         t = now − t_0): u_nom = nominal(t, q, q̇), u = filter(estimate, u_nom) — any
+         registered or user filter (`controllers.registry`, config `control.filter`) —,
+         admission (clipped to the limits; non-finite or raised: command_nonfinite), and
+         the safety monitor (`closedloop.monitor`) with flags perception_stale, link_lost
+         (the previous exchange failed) and interrupted (Ctrl-C or `stop()`),
+      3. sends its command in the same cycle: RUN/HOLD → `send_setpoints(u)` (zeros with
          `dry_run`), VENT → `vent()`; the link clamps to its limits and waits for the ACK.
 
   So a stale estimate, a lost link, a non-finite command or Ctrl-C changes what goes on
   the wire in the first cycle that sees it: HOLD the last RUN command, then VENT once the
-  hold has lasted `hold_s` (`hardware.safety`); the board's own watchdog vents when
+  hold has lasted `hold_s` (`closedloop.monitor`); the board's own watchdog vents when
   commands stop arriving (a cut cable).
 
 Start: the loop waits (up to `startup_timeout_s`) for the first complete frame, so q is
@@ -30,8 +31,9 @@ and in every case a final `vent()` leaves the valves at 0 hPa. In the main threa
 turns SIGINT into `stop()` for its duration, so Ctrl-C takes effect in the next cycle
 wherever it lands (elsewhere a KeyboardInterrupt inside a cycle does the same).
 
-`HardwareLog.columns()` gives one row per control cycle (units in `LOG_UNITS`); `summary()`
-the counts of actions, flags, perception and link quality. Nothing here imports MuJoCo
+`HardwareLog.columns()` gives one row per control cycle, recorded by the recorder every loop
+shares (`closedloop.record`; units: `HardwareLog.units()`); `summary()` the counts of
+actions, flags, perception and link quality. Nothing here imports MuJoCo
 or `softcbf_mj`: the emulator (softcbf_mj.emulate) only provides the frame source and
 the serial port.
 """
@@ -49,13 +51,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from controllers.errors import ControllerInputError
-from controllers.filter import CBFFilter
-from controllers.nominal import NominalController, SinusoidNominal
-from controllers.params import per_segment
+from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
+from closedloop.record import Recorder
+from closedloop.step import ACTION_CODES, ControlStep
+from controllers.registry import build_filter, build_nominal
+from controllers.safety_filter import Estimate, FilterContext
 from hardware.config import HardwareConfig
 from hardware.link import LinkResult, ValveBoardLink
-from hardware.safety import SafeAction, SafetyFlags, SafetyMonitor
 from hardware.transport import ByteTransport
 from perception.capture import FrameSource
 from perception.detect import TagDetector
@@ -65,33 +67,15 @@ from perception.tags import arm_tag_ids
 
 log = logging.getLogger(__name__)
 
-ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}
 NO_FRAME_WAIT_S = 0.01  # pause after a source delivered no frame, s
+LOOP_COLUMNS = ("t", "t_clock", "q_est", "qd_est", "est_age_s", "u_sent", "u_measured", "link_latency_s", "late_s")
+LOOP_FLAGS = ("est_stale", "link_acked", "link_lost")
 
-LOG_UNITS = {
-    "t": "s (since the run started)",
-    "t_clock": "s (monotonic clock)",
-    "q_est": "rad",
-    "qd_est": "rad/s",
-    "est_age_s": "s",
-    "est_stale": "bool",
-    "u_nom": "hPa",
-    "u_filter": "hPa",
-    "u": "hPa",
-    "u_sent": "hPa",
-    "u_measured": "hPa",
-    "rho_pred": "1",
-    "b": "barrier units (row-scaled m)",
-    "active": "bool",
-    "infeasible": "bool",
-    "recovery": "bool",
-    "filter_us": "us",
-    "action": "0 run, 1 hold, 2 vent",
-    "link_acked": "bool",
-    "link_latency_s": "s",
-    "link_lost": "bool",
-    "late_s": "s",
-}
+
+def controller_context(config: HardwareConfig) -> FilterContext:
+    """What the configured filter is told: the robot model, P, the limits when control.pressure_limits, the period."""
+    return FilterContext.for_robot(config.robot_params(), config.safe_set(), config.control.period_s,
+                                   config.control.pressure_limits)
 
 
 class StartupError(RuntimeError):
@@ -160,34 +144,37 @@ class PerceptionWorker:
 
 @dataclass
 class HardwareLog:
-    """The rows of a hardware run (one per control cycle) and its counts."""
+    """The rows of a hardware run (one per control cycle, `recorder`) and its counts."""
 
-    n_segments: int
-    n_rows_b: int
-    rows: list[dict[str, Any]] = field(default_factory=list)
+    recorder: Recorder
+    cycles: int = 0
     reasons: Counter = field(default_factory=Counter)
     link_stats: dict[str, Any] = field(default_factory=dict)
     perception_stats: dict[str, Any] = field(default_factory=dict)
     final_vent_acked: bool | None = None
     interrupted: bool = False
 
+    @classmethod
+    def for_cycles(cls, n_cycles: int, n_segments: int) -> "HardwareLog":
+        n = n_segments
+        shapes = {"q_est": (n,), "qd_est": (n,), "u_sent": (n,), "u_measured": (n,)}
+        return cls(Recorder(n_cycles, n, {key: shapes.get(key, ()) for key in LOOP_COLUMNS}, LOOP_FLAGS))
+
     def columns(self) -> dict[str, np.ndarray]:
-        """Arrays by key (LOG_UNITS), first axis the cycle."""
-        if not self.rows:
-            n, p = self.n_segments, self.n_rows_b
-            shapes = {"q_est": (n,), "qd_est": (n,), "u_nom": (n,), "u_filter": (n,), "u": (n,), "u_sent": (n,),
-                      "u_measured": (n,), "b": (p,), "active": (p,)}
-            return {k: np.zeros((0,) + shapes.get(k, ())) for k in LOG_UNITS}
-        return {k: np.array([row[k] for row in self.rows]) for k in LOG_UNITS}
+        """Arrays by key (`units()`), first axis the cycle."""
+        return self.recorder.columns(self.cycles)
+
+    def units(self) -> dict[str, str]:
+        return self.recorder.units()
 
     def summary(self) -> dict[str, Any]:
-        actions = Counter(row["action"] for row in self.rows)
-        late = np.array([row["late_s"] for row in self.rows]) if self.rows else np.array([0.0])
+        c = self.columns()
+        actions = Counter(c["action"].tolist())
         return {
-            "cycles": len(self.rows),
+            "cycles": self.cycles,
             **{f"cycles_{a.value}": actions.get(code, 0) for a, code in ACTION_CODES.items()},
             "flags": dict(self.reasons),
-            "cycle_late_max_s": float(late.max()),
+            "cycle_late_max_s": float(c["late_s"].max()) if self.cycles else 0.0,
             "final_vent_acked": self.final_vent_acked,
             "interrupted": self.interrupted,
             "link": self.link_stats,
@@ -202,9 +189,7 @@ class HardwareLoop:
         self,
         perception: PerceptionWorker,
         link: ValveBoardLink,
-        controller: CBFFilter,
-        nominal: NominalController,
-        monitor: SafetyMonitor,
+        step: ControlStep,
         period_s: float,
         duration_s: float,
         *,
@@ -216,11 +201,11 @@ class HardwareLoop:
         for name, value in (("period_s", period_s), ("duration_s", duration_s), ("startup_timeout_s", startup_timeout_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite time > 0 s, got {value}")
-        n = controller.n
-        if not (link.n_segments == monitor.n_segments == perception.estimator.n_segments == n):
-            raise ValueError(f"segments disagree: controller {n}, link {link.n_segments}, monitor {monitor.n_segments}, "
+        n = step.n
+        if not (link.n_segments == perception.estimator.n_segments == n):
+            raise ValueError(f"segments disagree: controller {n}, link {link.n_segments}, "
                              f"estimator {perception.estimator.n_segments}")
-        self.perception, self.link, self.controller, self.nominal, self.monitor = perception, link, controller, nominal, monitor
+        self.perception, self.link, self.step = perception, link, step
         self.period_s, self.duration_s = float(period_s), float(duration_s)
         self.dry_run, self.startup_timeout_s, self.clock, self.on_cycle = dry_run, float(startup_timeout_s), clock, on_cycle
         self._stop = threading.Event()
@@ -238,13 +223,12 @@ class HardwareLoop:
         perception = PerceptionWorker(source, TagDetector(cam.detector, arm_tag_ids(n)), estimator, clock)
         link = ValveBoardLink(transport, n, robot.u_min, robot.u_max, ack_timeout_s=lk.ack_timeout_s,
                               retries=lk.retries, clock=clock, lost_after=lk.lost_after, baudrate=lk.baudrate)
-        controller = CBFFilter(robot, config.safe_set(), ctl.tuning_params(), pressure_limits=ctl.pressure_limits,
-                               qp_backend=ctl.qp_backend)
-        nominal = SinusoidNominal(tuple(per_segment(ctl.amplitude_hPa, n, "control.amplitude_hPa")), ctl.frequency_hz,
-                                  tuple(per_segment(ctl.phase_rad, n, "control.phase_rad")))
-        return cls(perception, link, controller, nominal, SafetyMonitor(n, config.safety.hold_s), ctl.period_s,
-                   config.run.duration_s, dry_run=config.run.dry_run, startup_timeout_s=cam.startup_timeout_s,
-                   clock=clock, on_cycle=on_cycle)
+        context = controller_context(config)
+        step = ControlStep(build_filter(config.plugin_spec(ctl.filter), ctl.filter_arguments(), context),
+                           build_nominal(config.plugin_spec(ctl.nominal), ctl.nominal_arguments(), context), context,
+                           SafetyMonitor(n, config.safety.hold_s))
+        return cls(perception, link, step, ctl.period_s, config.run.duration_s, dry_run=config.run.dry_run,
+                   startup_timeout_s=cam.startup_timeout_s, clock=clock, on_cycle=on_cycle)
 
     def stop(self) -> None:
         """Ask the loop to end: its next cycle vents (interrupted) and it returns."""
@@ -263,12 +247,12 @@ class HardwareLoop:
                 f"({self.perception.frames} frames read); check the camera source, its calibration and that the tags are in view")
 
     def run(self) -> HardwareLog:
-        n = self.controller.n
-        record = HardwareLog(n, len(self.controller.safe_set.H_prime))
+        record = HardwareLog.for_cycles(int(round(self.duration_s / self.period_s)), self.step.n)
         # Ctrl-C (SIGINT) asks the loop to stop wherever it lands, like stop(): the next cycle
         # (at once, the wait is cut short) vents. Only the main thread may install handlers.
         in_main = threading.current_thread() is threading.main_thread()
         previous = signal.signal(signal.SIGINT, lambda signum, frame: self.stop()) if in_main else None
+        self.step.reset()
         self.perception.start()
         try:
             self._wait_for_perception()
@@ -303,39 +287,22 @@ class HardwareLoop:
         return record
 
     def _cycle(self, k: int, t0: float, interrupted: bool, record: HardwareLog) -> SafeAction:
-        n = self.controller.n
         now, est = self.perception.query()
         t_run = now - t0
-        nan_n = np.full(n, math.nan)
-        u_nom, u_cmd, result, filter_us = nan_n, None, None, math.nan
-        try:
-            u_nom = np.asarray(self.nominal(t_run, est.q, est.qd), dtype=float)
-            start = time.perf_counter()
-            result = self.controller.step(np.concatenate((est.q, est.qd)), u_nom)
-            filter_us = (time.perf_counter() - start) * 1e6
-            u_cmd = result.u
-        except ControllerInputError as exc:
-            log.warning("cycle %d: the controller refused its input (%s); the safety monitor holds", k, exc)
-        flags = SafetyFlags(perception_stale=est.stale, link_lost=self.link.link_lost,
-                            command_nonfinite=u_cmd is None, interrupted=interrupted)
-        decision = self.monitor.step(now, u_cmd, flags)
-        record.reasons.update(decision.reasons)
-        if decision.action is SafeAction.VENT:
+        flags = SafetyFlags(perception_stale=est.stale, link_lost=self.link.link_lost, interrupted=interrupted)
+        step = self.step(Estimate(t_run, est.q, est.qd, est.t - t0), flags)
+        if "command_nonfinite" in step.reasons:
+            log.warning("cycle %d: the controller refused its input or returned a non-finite command; the safety "
+                        "monitor holds", k)
+        record.reasons.update(step.reasons)
+        if step.action is SafeAction.VENT:
             sent: LinkResult = self.link.vent()
         else:
-            sent = self.link.send_setpoints(np.zeros(n) if self.dry_run else decision.u)
-        p = record.n_rows_b
-        record.rows.append({
-            "t": t_run, "t_clock": now, "q_est": np.array(est.q), "qd_est": np.array(est.qd), "est_age_s": est.age_s,
-            "est_stale": est.stale,
-            "u_nom": u_nom, "u_filter": nan_n if result is None else result.u, "u": decision.u, "u_sent": sent.sent,
-            "u_measured": nan_n if sent.ack is None else sent.ack.measured,
-            "rho_pred": math.nan if result is None else result.rho_pred,
-            "b": np.full(p, math.nan) if result is None else result.b,
-            "active": np.zeros(p, dtype=bool) if result is None else result.active,
-            "infeasible": result is not None and result.infeasible, "recovery": result is not None and result.recovery,
-            "filter_us": filter_us, "action": ACTION_CODES[decision.action], "link_acked": sent.ok,
-            "link_latency_s": math.nan if sent.latency_s is None else sent.latency_s, "link_lost": sent.link_lost,
-            "late_s": max(0.0, now - (t0 + k * self.period_s)),
-        })
-        return decision.action
+            sent = self.link.send_setpoints(np.zeros(self.step.n) if self.dry_run else step.u)
+        measured = [math.nan] * self.step.n if sent.ack is None else np.asarray(sent.ack.measured, dtype=float).tolist()
+        values = [t_run, now, *np.asarray(est.q, dtype=float).tolist(), *np.asarray(est.qd, dtype=float).tolist(),
+                  est.age_s, *np.asarray(sent.sent, dtype=float).tolist(), *measured,
+                  math.nan if sent.latency_s is None else sent.latency_s, max(0.0, now - (t0 + k * self.period_s))]
+        record.recorder.record(k, step, True, values, [est.stale, sent.ok, sent.link_lost])
+        record.cycles = k + 1
+        return step.action

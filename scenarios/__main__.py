@@ -1,7 +1,7 @@
 """Command line: `python -m scenarios --list` and `python -m scenarios NAME --out DIR [--param value ...]`.
 
 docs/run-outputs.md's spelling of `softcbf list` / `softcbf run NAME --out DIR ...`: the same
-implementation (`softcbf.cli.run_scenario`), the same outputs, errors and exit codes,
+implementation (`scenarios.run.run_scenario`), the same outputs, errors and exit codes,
 except that --out is required here.
 """
 
@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from scenarios import registry
-from softcbf.cli import INTERRUPTED, USAGE_ERROR, UsageError, describe, run_scenario
+from scenarios.run import INTERRUPTED, USAGE_ERROR, UsageError, describe, run_scenario
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -41,9 +41,7 @@ import cv2
 import mujoco
 import numpy as np
 
-from controllers.filter import CBFFilter
-from controllers.nominal import SinusoidNominal
-from controllers.params import per_segment
+from controllers.safety_filter import FilterContext
 from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
@@ -51,8 +49,9 @@ from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, existing_file,
-    initial_configuration, load_robot, non_negative, parse_tunings, positive, read_parameter_file, save_run, scene_record,
+    PAPER_FILTER, Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
+    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot, non_negative,
+    nominal_arguments, positive, read_parameter_file, save_run, scene_record,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from scenarios.ground_truth import check_true_arm, flexure_params
@@ -159,6 +158,10 @@ def camera_loop(
     *,
     duration: float = 100.0,
     tunings: str = "None,HW-Low,HW-High",
+    filter: str = PAPER_FILTER,
+    filter_params: str = "",
+    nominal: str = "sinusoid",
+    nominal_params: str = "",
     amplitude: float = 80.0,
     frequency: float = 0.01,
     t0: float = 0.0,
@@ -202,7 +205,7 @@ def camera_loop(
     sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
-    """Run each tuning for `duration` s through the camera path; write summary.json, time series and frames.
+    """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
 
     The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
     `true_robot`'s when given (same number of segments); `tip_friction`, `plate` and the
@@ -224,16 +227,19 @@ def camera_loop(
     n = plant.n_segments
     tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
     plane = _calibration(calibration, plant, config, width, height, detector)
-    nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
+    runs = controller_runs(filter, filter_params, tunings, qp_backend)
+    nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency, t0=t0)
+    # The filter's command takes effect at the next tick after the call; the estimate's own age is the rest.
+    context = FilterContext.for_robot(model_robot, safe_set, 1.0 / control_rate, pressure_limits, command_delay=0.0,
+                                      actuator_tau=tau_p)
     q0 = initial_configuration(n, seed, q0_std)
-    tuning_list = parse_tunings(tunings)
     save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
 
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
         summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(arm, safe_set, true_plate_stiffness))
-        for tuning in tuning_list:
-            label = tuning.name
-            controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
+        for run in runs:
+            label = run.label
+            step = control_step(run, nominal, nominal_kwargs, context, timing.monitor(n))
             estimator = ArmAngleEstimator(n, plane, config.tag_size, max_hold_s=max_hold_s, qd_filter_tau=qd_filter_tau)
             frame_detector = TrackingTagDetector(tag_detector, arm_tag_ids(n)) if tracking else tag_detector
             saved: list[dict] = []
@@ -250,8 +256,8 @@ def camera_loop(
 
             bar = Progress(f"camera_loop {label}", int(round(duration / tick)), enabled=progress, unit_s=tick)
             start = time.perf_counter()
-            log, frames, calls = run_camera_loop(plant, lambda: renderer.render(plant.data), frame_detector, estimator,
-                                                 controller, nominal, duration, q0, timing, seed, keep_frame, bar)
+            series, frames, calls = run_camera_loop(plant, lambda: renderer.render(plant.data), frame_detector, estimator,
+                                                    step, safe_set, duration, q0, timing, seed, keep_frame, bar)
             wall = time.perf_counter() - start
             if saved:
                 save_frames_index(out_dir, label, saved)
@@ -264,7 +270,8 @@ def camera_loop(
                 out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
                 return out
 
-            save_run(out_dir, summary, label, log, wall, tick, controller.enabled, figures, EXTRAS_UNITS)
+            save_run(out_dir, summary, label, series, wall, tick, filter_enabled(step), figures, EXTRAS_UNITS,
+                     controller_row(run, nominal, nominal_kwargs))
     print(f"camera_loop: {duration:g} s, camera {width}x{height} at {frame_rate:g} fps, loop {control_rate:g} Hz, "
           f"latency {latency * 1e3:g} ms, drop rate {drop_rate:g}, pixel noise {pixel_noise:g}, calibration {calibration!r}, "
           f"F_max {f_max:g} N; outputs in {out_dir}")

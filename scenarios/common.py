@@ -1,6 +1,19 @@
-"""Builders shared by scenarios: parameter checks, robot, environment, force-safe set,
-tunings, the scene record, one tuning's run and the saving of a finished run (with its
-report and recording).
+"""Builders shared by scenarios: parameter checks, robot, environment, force-safe set, the
+controller runs (filter, its parameters and tunings; the nominal controller), the scene
+record, one run and the saving of a finished run (with its report and recording).
+
+Every scenario takes the controller under test as parameters (docs/extending.md):
+- `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
+  FILE.py:Factory, package.module:Factory); `filter_params`: "name=value;name=value"
+  (the command line's repeated `--filter-param name=value`, joined);
+- `tunings`: for "paper-cbf", a comma list of its presets, or "custom" (a_E, b_E and
+  gamma from filter_params): one run each, labelled by the preset (a `tuning` in
+  filter_params makes one run of that tuning); other filters make one run, labelled
+  `Factory(name=value,...)`;
+- `nominal`, `nominal_params`: likewise ("sinusoid", "tip-tracker", FILE.py:Factory);
+  the sinusoid's amplitude, frequency and t0 default to the scenario's parameters.
+summary.json's rows keep "tuning" as the run's label and add "filter", "filter_params",
+"nominal" and "nominal_params".
 
 A scenario checks every parameter before it writes anything: its registered check
 (`scenarios.Scenario.validate`, built from `check_bounds`, `check_controller_parameters`,
@@ -23,13 +36,14 @@ from typing import Any, Callable, TypeVar
 
 import numpy as np
 
-from controllers.cbf import Tuning, get_tuning
-from controllers.filter import CBFFilter
-from controllers.nominal import NominalController
+from closedloop.monitor import SafetyMonitor
+from closedloop.step import ControlStep
 from controllers.params import RobotParams, reference_robot
+from controllers.registry import build_filter, build_nominal, check_filter, check_nominal, label, parse_params
 from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
-from softcbf_mj.loop import TIMESERIES_UNITS, Estimate, exact_state, run_closed_loop
+from controllers.safety_filter import Estimate, FilterContext
+from softcbf_mj.loop import Series, exact_state, run_closed_loop
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
@@ -160,12 +174,53 @@ def build_safe_set(environment: str, plate_stiffness: float, f_max: float, row_s
     return ForceSafeSet(load_environment(environment), LinearStiffness(plate_stiffness), f_max, row_scaling=row_scaling)
 
 
-def parse_tunings(text: str) -> list[Tuning]:
-    """Comma-separated tuning names ('None,Low,High'); errors list the valid names."""
-    names = [t.strip() for t in text.split(",") if t.strip()]
+PAPER_FILTER = "paper-cbf"
+
+
+@dataclass(frozen=True)
+class ControllerRun:
+    """One run's controller under test: its label (summary.json's "tuning"), filter spec and parameters."""
+
+    label: str
+    filter: str
+    filter_params: dict[str, str]
+
+
+def controller_runs(filter_spec: str, filter_params: str, tunings: str, qp_backend: str) -> list[ControllerRun]:
+    """The runs of a scenario (module docstring; the scenario's `qp_backend` is the paper
+    filter's unless filter_params set it); errors name the parameter and the valid values."""
+    params = parse_params(filter_params)
+    spec = filter_spec.strip()
+    if spec != PAPER_FILTER:
+        return [ControllerRun(label(spec, params), spec, params)]
+    names = [params["tuning"]] if "tuning" in params else [t.strip() for t in tunings.split(",") if t.strip()]
     if not names:
-        raise ValueError("tunings must name at least one tuning, e.g. None,Low,High")
-    return [get_tuning(name) for name in names]
+        raise ValueError("tunings must name at least one tuning, e.g. None,Low,High (or custom with a_E, b_E, gamma)")
+    runs = []
+    for name in names:
+        run_params = {"qp_backend": qp_backend, **params, "tuning": name}
+        runs.append(ControllerRun(label(spec, run_params), spec, run_params))
+    return runs
+
+
+def nominal_arguments(nominal: str, text: str, **sinusoid: float) -> dict[str, object]:
+    """The nominal controller's parameters: `text` ("name=value;..."), over the scenario's
+    sinusoid parameters (amplitude, frequency, t0) when `nominal` is the sinusoid."""
+    params = parse_params(text)
+    return {**sinusoid, **params} if nominal.strip() == "sinusoid" else params
+
+
+def control_step(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, object], context: FilterContext,
+                 monitor: SafetyMonitor | None = None) -> ControlStep:
+    """The control step of `run`: its filter and the nominal controller, told `context`."""
+    safety_filter = build_filter(run.filter, run.filter_params, context)
+    return ControlStep(safety_filter, build_nominal(nominal, nominal_kwargs, context), context, monitor)
+
+
+def controller_row(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, object]) -> dict[str, Any]:
+    """summary.json's fields that name the controller under test."""
+    return {"filter": run.filter, "filter_params": dict(run.filter_params), "nominal": nominal,
+            "nominal_params": {k: v for k, v in nominal_kwargs.items()}}
 
 
 COMMON_BOUNDS = {"duration": positive("s"), "q0_std": Bound(0.0, math.pi, unit="rad"), "seed": Bound(0)}
@@ -174,11 +229,21 @@ COMMON_BOUNDS = {"duration": positive("s"), "q0_std": Bound(0.0, math.pi, unit="
 
 def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffness: str = "plate_stiffness") -> RobotParams:
     """The checks shared by every scenario, made before anything is built (`Scenario.validate`):
-    COMMON_BOUNDS (duration, q0_std, seed), the tunings, the controller's robot, its force-safe
+    COMMON_BOUNDS (duration, q0_std, seed), the controller under test (filter, filter_params,
+    tunings, nominal, nominal_params: the specs resolve and take the parameters, nothing is
+    built: `controllers.registry.check_filter`), the controller's robot, its force-safe
     set (environment, f_max, row_scaling and the stiffness parameter `assumed_plate_stiffness`)
     and qp_backend. Returns the controller's robot."""
     check_bounds(params, COMMON_BOUNDS)
-    parse_tunings(params["tunings"])
+    try:
+        for run in controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"]):
+            check_filter(run.filter, run.filter_params)
+    except ValueError as exc:
+        raise ValueError(f"filter {params['filter']!r}: {exc}") from None
+    try:
+        check_nominal(params["nominal"], parse_params(params["nominal_params"]))
+    except ValueError as exc:
+        raise ValueError(f"nominal {params['nominal']!r}: {exc}") from None
     robot = load_robot(params["robot"])
     build_safe_set(params["environment"], params[assumed_plate_stiffness], params["f_max"], params["row_scaling"])
     check_choice("qp_backend", params["qp_backend"], available_backends())
@@ -219,44 +284,55 @@ def run_tuning(
     summary: SummaryWriter,
     label: str,
     plant: Plant,
-    controller: CBFFilter,
-    nominal: NominalController,
+    step: ControlStep,
+    safe_set: ForceSafeSet,
     duration: float,
     q0: np.ndarray,
     show_progress: bool,
     estimator: Callable[[PlantState], Estimate] = exact_state,
     extra_figures: Callable[[dict[str, np.ndarray]], dict[str, Any]] | None = None,
     extra_units: dict[str, str] | None = None,
+    row: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Run one tuning in the closed loop and `save_run` it; return its summary row."""
+    """Run one controller in the closed loop and `save_run` it; return its summary row."""
     progress = Progress(f"{summary.data['scenario']} {label}", int(round(duration / plant.control_dt)), enabled=show_progress,
                         unit_s=plant.control_dt)
     start = time.perf_counter()
-    log = run_closed_loop(plant, controller, nominal, duration, q0, estimator=estimator, progress=progress)
+    series = run_closed_loop(plant, step, safe_set, duration, q0, estimator=estimator, progress=progress)
     wall = time.perf_counter() - start
-    return save_run(out_dir, summary, label, log, wall, plant.control_dt, controller.enabled, extra_figures, extra_units)
+    return save_run(out_dir, summary, label, series, wall, plant.control_dt, filter_enabled(step), extra_figures,
+                    extra_units, row)
+
+
+def filter_enabled(step: ControlStep) -> bool:
+    """The filter's optional `enabled` (controllers.safety_filter): False reports no filter times."""
+    return bool(getattr(step.filter, "enabled", True))
 
 
 def save_run(
     out_dir: Path,
     summary: SummaryWriter,
     label: str,
-    log: dict[str, np.ndarray],
+    series: Series,
     wall_s: float,
     control_dt: float,
     filtered: bool,
     extra_figures: Callable[[dict[str, np.ndarray]], dict[str, Any]] | None = None,
     extra_units: dict[str, str] | None = None,
+    row_fields: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Save a finished run `label`: its figures (`run_figures` plus `extra_figures(log)`),
-    its time series (TIMESERIES_UNITS plus `extra_units`) and its summary.json row; then
+    its time series (`series`: columns and units, plus `extra_units` for the plant's
+    extras) and its summary.json row (with `row_fields`, e.g. `controller_row`); then
     rebuild the report and the recording from the folder (so an interrupted scenario
     leaves both for its finished runs; not within `data_only()`). Returns the row."""
+    log, units = series
     row: dict[str, Any] = {"tuning": label}
+    row.update(row_fields or {})
     row.update(run_figures(log, control_dt, filtered, wall_s))
     if extra_figures is not None:
         row.update(extra_figures(log))
-    units = dict(TIMESERIES_UNITS)
+    units = dict(units)
     units.update(extra_units or {})
     row["timeseries"] = str(save_timeseries(out_dir, label, log, units).relative_to(out_dir))
     summary.add_run(row)

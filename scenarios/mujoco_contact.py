@@ -37,14 +37,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from controllers.filter import CBFFilter
-from controllers.nominal import SinusoidNominal
-from controllers.params import RobotParams, per_segment
-from scenarios import register
+from controllers.params import RobotParams
 from controllers.safe_set import Environment
+from controllers.safety_filter import FilterContext
+from scenarios import register
 from scenarios.common import (
-    Bound, build_safe_set, check_bounds, check_controller_parameters, initial_configuration,
-    load_robot, non_negative, parse_tunings, positive, run_tuning, scene_record,
+    PAPER_FILTER, Bound, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
+    controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning,
+    scene_record,
 )
 from scenarios.ground_truth import check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
@@ -111,6 +111,10 @@ def mujoco_contact(
     *,
     duration: float = 100.0,
     tunings: str = "None,Low,High",
+    filter: str = PAPER_FILTER,
+    filter_params: str = "",
+    nominal: str = "sinusoid",
+    nominal_params: str = "",
     amplitude: float = 80.0,
     frequency: float = 0.01,
     t0: float = 0.0,
@@ -146,7 +150,7 @@ def mujoco_contact(
     sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
     progress: bool = True,
 ) -> dict:
-    """Run each tuning for `duration` s; write summary.json and one time series per tuning.
+    """Run each controller (tuning) for `duration` s; write summary.json and one time series per run.
 
     `robot` is the controller's model and, unless `true_robot` names another robot file,
     the MuJoCo arm's (any number of segments). The MuJoCo arm's k, d, λ and L are then
@@ -197,20 +201,21 @@ def mujoco_contact(
         truth.update(plate=plate, flexure=flexure_params(params))
         true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
     plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **truth)
-    tuning_list = parse_tunings(tunings)
+    runs = controller_runs(filter, filter_params, tunings, qp_backend)
+    nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency, t0=t0)
     n = plant.n_segments
-    nominal = SinusoidNominal(tuple(per_segment(amplitude, n, "amplitude")), frequency, (2 * math.pi * frequency * t0,) * n)
     q0 = initial_configuration(n, seed, q0_std)
+    context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, pressure_limits, command_delay=0.0, actuator_tau=tau_p)
 
     def figures(log: dict[str, np.ndarray]) -> dict:
         return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log)}
 
     summary = SummaryWriter(out_dir, "mujoco_contact", params,
                             scene_record(true_robot_params, safe_set, true_plate_stiffness, Environment(true_H, true_h)))
-    for tuning in tuning_list:
-        controller = CBFFilter(model_robot, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend)
-        run_tuning(out_dir, summary, tuning.name, plant, controller, nominal, duration, q0, progress,
-                   extra_figures=figures, extra_units=EXTRAS_UNITS)
+    for run in runs:
+        run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, context), safe_set,
+                   duration, q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
+                   row=controller_row(run, nominal, nominal_kwargs))
     print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
           f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
           f"{plate} plate {true_plate_stiffness:.4g} N/m{' (calibrated)' if plate != 'ideal' else ''} "

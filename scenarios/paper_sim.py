@@ -1,7 +1,9 @@
 """Scenario `paper_sim`: the paper's simulation (§V, Table I) on the PCC plant.
 
 The paper's sinusoid u_nom,j = A sin(2π f t) drives both segments into one facet;
-the controller sees the exact state at the control rate; None/Low/High tunings.
+the controller sees the exact state at the control rate; None/Low/High tunings of the
+paper's filter by default, any filter and nominal controller by `filter`, `nominal`
+(scenarios.common).
 By default there are no pressure limits, as in the paper (docs/model.md#control-barrier-function).
 """
 
@@ -10,12 +12,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from controllers.filter import CBFFilter
-from controllers.nominal import SinusoidNominal
+from controllers.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
-    build_safe_set, check_bounds, check_choice, check_controller_parameters, initial_configuration, load_robot, non_negative,
-    parse_tunings, positive, run_tuning, scene_record,
+    PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
+    controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning, scene_record,
 )
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
@@ -56,6 +57,10 @@ def paper_sim(
     *,
     duration: float = 100.0,
     tunings: str = "None,Low,High",
+    filter: str = PAPER_FILTER,
+    filter_params: str = "",
+    nominal: str = "sinusoid",
+    nominal_params: str = "",
     amplitude: float = 80.0,
     frequency: float = 0.01,
     pressure_limits: bool = False,
@@ -71,22 +76,24 @@ def paper_sim(
     q0_std: float = 0.0,
     progress: bool = True,
 ) -> dict:
-    """Run each tuning for `duration` s; write summary.json and one time series per tuning."""
+    """Run each controller (tuning) for `duration` s; write summary.json and one time series per run."""
     params = dict(locals())
     params.pop("out_dir")
     check_parameters(params)
     robot_params = load_robot(robot)
     safe_set = build_safe_set(environment, plate_stiffness, f_max, row_scaling)
     check_duration(duration, 1.0 / control_rate, robot_params.n_segments, safe_set)
-    tuning_list = parse_tunings(tunings)
-    nominal = SinusoidNominal.paper(robot_params.n_segments, amplitude, frequency)
+    runs = controller_runs(filter, filter_params, tunings, qp_backend)
+    nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency)
     q0 = initial_configuration(robot_params.n_segments, seed, q0_std)
     summary = SummaryWriter(out_dir, "paper_sim", params, scene_record(robot_params, safe_set, plate_stiffness))
-    for tuning in tuning_list:
+    for run in runs:
         plant = PCCPlant(robot_params, safe_set, control_dt=1.0 / control_rate, integrator=integrator)
-        controller = CBFFilter(robot_params, safe_set, tuning, pressure_limits=pressure_limits, qp_backend=qp_backend,
-                               dynamics=plant.dynamics)
-        run_tuning(out_dir, summary, tuning.name, plant, controller, nominal, duration, q0, progress)
+        context = FilterContext.for_robot(robot_params, safe_set, plant.control_dt, pressure_limits,
+                                          actuator_tau=0.0, command_delay=0.0, dynamics=plant.dynamics)
+        step = control_step(run, nominal, nominal_kwargs, context)
+        run_tuning(out_dir, summary, run.label, plant, step, safe_set, duration, q0, progress,
+                   row=controller_row(run, nominal, nominal_kwargs))
     print(f"paper_sim: {duration:g} s, pressure limits {'on' if pressure_limits else 'off'}; outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))
     return summary.data

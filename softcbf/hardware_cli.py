@@ -1,11 +1,14 @@
 """`softcbf hardware`: run the controller on the arm (or on the emulator) and write a run folder.
 
     softcbf hardware CONFIG [--port PORT|emulated] [--camera SOURCE|virtual] [--tuning NAME]
+                            [--filter SPEC] [--filter-param NAME=VALUE ...]
                             [--duration S] [--dry-run] [--out DIR] [--overwrite]
 
 CONFIG is a `hardware.config` file (TOML or JSON; examples/hardware_emulated.toml); the
-options override its `link.port`, `camera.source`, `control.tuning`, `run.duration_s` and
-`run.dry_run`. `--port emulated --camera virtual` runs the whole hardware path against
+options override its `link.port`, `camera.source`, `control.tuning`, `control.filter`
+(`--filter-param` adds to `control.filter_params`), `run.duration_s` and `run.dry_run`.
+The filter and the nominal controller are built once at start-up to check them (an
+unknown name or parameter is a usage error). `--port emulated --camera virtual` runs the whole hardware path against
 `softcbf_mj.emulate.EmulatedHardware` (MuJoCo arm and plate behind a pty valve board,
 rendered by a virtual camera); the two go together (a real camera cannot see the emulated
 arm). A real run imports no MuJoCo: the emulator is imported only for emulated runs.
@@ -13,8 +16,9 @@ arm). A real run imports no MuJoCo: the emulator is imported only for emulated r
 The run folder is the simulations' (docs/run-outputs.md, `softcbf_mj.runio`): config.json,
 summary.json (scenario "hardware", the configuration as params, one row per run with
 the run-output fields from `softcbf_mj.metrics.run_figures` at the control rate plus the
-loop's counts), timeseries/<tuning>.npz (one row per control cycle: the keys of
-`softcbf_mj.loop.TIMESERIES_UNITS` plus the loop's own columns, `hardware.runner.LOG_UNITS`),
+loop's counts), timeseries/<tuning>.npz (one row per control cycle, recorded by the
+recorder every loop shares, `closedloop.record`: the control step's columns, the
+filter's diagnostics and the hardware loop's own columns, all with units),
 plots, report.md and recording.rrd. Ground truth: on the emulator q, q̇, the segment
 ends, the pressure acting and the plate force are the emulator's true values at each
 cycle's time, and timeseries/<tuning>_emulator.npz holds its full 1 kHz record
@@ -56,13 +60,15 @@ from typing import Any, Callable
 import numpy as np
 
 from controllers.pcc import segment_ends
+from closedloop.monitor import SafeAction
 from hardware.config import EMULATED_PORT, VIRTUAL_CAMERA, ConfigError, HardwareConfig, camera_source_is_file
-from hardware.runner import LOG_UNITS, HardwareLog, HardwareLoop, StartupError
-from hardware.safety import SafeAction
+from hardware.runner import HardwareLog, HardwareLoop, StartupError, controller_context
 from hardware.transport import open_serial
 from perception.capture import VideoCaptureSource
 from scenarios.common import scene_record
-from softcbf_mj.loop import TIMESERIES_UNITS
+from closedloop.record import TIMESERIES_UNITS
+from controllers.registry import build_filter, build_nominal, parse_params
+from controllers.registry import label as run_label
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.runio import OutputDirError, SummaryWriter, prepare_out_dir, remove_if_unused, save_timeseries
 
@@ -76,6 +82,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", help=f"valve board serial port, or {EMULATED_PORT!r} (overrides link.port)")
     parser.add_argument("--camera", help=f"camera device index, video file or URL, or {VIRTUAL_CAMERA!r} (overrides camera.source)")
     parser.add_argument("--tuning", help="CBF tuning (overrides control.tuning)")
+    parser.add_argument("--filter", help="safety filter: a name (softcbf list), FILE.py:Factory or package.module:Factory "
+                                         "(overrides control.filter)")
+    parser.add_argument("--filter-param", action="append", default=[], metavar="NAME=VALUE",
+                        help="a filter parameter (repeatable; added to control.filter_params)")
     parser.add_argument("--duration", type=float, help="run length in s (overrides run.duration_s)")
     parser.add_argument("--dry-run", action="store_true", help="run everything but send zero pressure")
     parser.add_argument("--out", type=Path, help="output folder (default runs/hardware-<time>)")
@@ -98,7 +108,32 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
         changes["run"]["duration_s"] = args.duration
     if args.dry_run:
         changes["run"]["dry_run"] = True
-    return HardwareConfig.load(args.config).with_overrides(changes)
+    config = HardwareConfig.load(args.config)
+    if args.filter is not None:
+        changes["control"]["filter"] = args.filter
+        changes["control"]["filter_params"] = {}
+    if args.filter_param:
+        try:
+            extra = parse_params(";".join(args.filter_param))
+        except ValueError as exc:
+            raise ConfigError(f"--filter-param: {exc}") from None
+        base = changes["control"].get("filter_params", config.control.filter_params)
+        changes["control"]["filter_params"] = {**base, **extra}
+    config = config.with_overrides(changes)
+    check_controller(config)
+    return config
+
+
+def check_controller(config: HardwareConfig) -> None:
+    """Build the configured filter and nominal once; ConfigError naming the key if either is refused."""
+    context = controller_context(config)
+    ctl = config.control
+    for key, build, spec, params in (("control.filter", build_filter, ctl.filter, ctl.filter_arguments()),
+                                     ("control.nominal", build_nominal, ctl.nominal, ctl.nominal_arguments())):
+        try:
+            build(config.plugin_spec(spec), params, context)
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"{key}: {exc}") from None
 
 
 def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int:
@@ -200,11 +235,10 @@ def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir
 
 
 def _series(config: HardwareConfig, log: HardwareLog, safe_set, emulation: Any) -> tuple[dict, dict]:
-    """The run's time series in the simulations' keys (TIMESERIES_UNITS) plus the loop's columns."""
+    """The run's time series: the recorder's columns plus the simulations' plant keys (TIMESERIES_UNITS)."""
     c = log.columns()
     lengths = config.robot_params().array("lengths")
-    series = {key: c[key] for key in ("t", "q_est", "qd_est", "u_nom", "u", "rho_pred", "b", "active",
-                                      "infeasible", "recovery", "filter_us")}
+    series = dict(c)
     if emulation is not None:
         truth = emulation.emulator.state_at(c["t_clock"])
         series.update(q=truth["q"], qd=truth["qd"], segment_ends=truth["segment_ends"], u_applied=truth["u_applied"],
@@ -215,27 +249,25 @@ def _series(config: HardwareConfig, log: HardwareLog, safe_set, emulation: Any) 
                       contact_force=np.full((len(c["t"]), safe_set.n_facets), np.nan))
     series["tip"] = series["segment_ends"][:, -1]
     series["rho_meas"] = np.min(safe_set.margin_from_force(series["contact_force"]), axis=-1) if len(c["t"]) else np.zeros(0)
-    units = dict(TIMESERIES_UNITS)
-    units["plate_displacement_m"] = "m"
-    for key, unit in LOG_UNITS.items():
-        if key not in series:
-            series[key], units[key] = c[key], unit
+    units = {**TIMESERIES_UNITS, **log.units(), "plate_displacement_m": "m"}
     return series, {k: units[k] for k in series}
 
 
 def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: HardwareLoop, wall_s: float,
               emulation: Any, report: bool = True) -> dict[str, Any]:
     """summary.json, the time series, the report and the recording of one hardware run."""
-    safe_set = loop.controller.safe_set
+    safe_set = loop.step.context.safe_set
     plate_k = config.emulator.plate_stiffness_N_per_m if emulation is not None else config.environment.stiffness_N_per_m
     params = {**config.to_dict(), "emulated": emulation is not None}
     summary = SummaryWriter(out_dir, SCENARIO, params, scene_record(config.robot_params(), safe_set, plate_k))
-    label = config.control.tuning
+    ctl = config.control
+    label = run_label(config.plugin_spec(ctl.filter), ctl.filter_arguments())
     series, units = _series(config, log, safe_set, emulation)
     counts = log.summary()
-    row: dict[str, Any] = {"tuning": label}
+    row: dict[str, Any] = {"tuning": label, "filter": ctl.filter, "filter_params": ctl.filter_arguments(),
+                           "nominal": ctl.nominal, "nominal_params": ctl.nominal_arguments()}
     if len(series["t"]):
-        row.update(run_figures(series, loop.period_s, loop.controller.enabled, wall_s))
+        row.update(run_figures(series, loop.period_s, bool(getattr(loop.step.filter, "enabled", True)), wall_s))
     link = counts["link"]
     row.update({k: v for k, v in counts.items() if k not in ("link", "perception")})
     row.update(link_acked_fraction=link["acked_fraction"], link_latency_median_ms=link["latency_median_s"] * 1e3,

@@ -17,7 +17,8 @@ step is not a row, as in `softcbf_mj.loop.run_closed_loop`):
   contact force, through the controller's force-safe set (`ForceSafeSet.margin_from_force`);
 - force_max_N: max over rows and facets of F; t_violation_s: Δt · #rows with ρ_meas < 0;
 - infeasible_steps: #rows whose filter call said infeasible; u_peak_abs_hPa: max |u|
-  of the filter's command (before the loop's clipping, as the serial log's `u`);
+  of the command sent (after the loop's clipping, as the serial log's `u`,
+  `closedloop.record`);
 - refused_steps (batch only): #rows whose command had a non-finite entry and was
   replaced by the safe action (0 hPa, clipped to the limits).
 `record_commands=True` also returns the commands sent, (T, B, N) hPa, e.g. to replay
@@ -158,7 +159,7 @@ def run_batch_closed_loop(
         violations += margin < 0.0
         infeasible += out.infeasible
         refused += ~finite
-        u_peak = np.fmax(u_peak, np.max(np.abs(u), axis=1))
+        u_peak = np.fmax(u_peak, np.max(np.abs(sent), axis=1))
         if commands is not None:
             commands[k] = sent
         state = plant.step(sent)

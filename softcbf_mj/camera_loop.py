@@ -13,16 +13,17 @@ each tick. At tick k (t = k·Δ), in this order:
 2. Delivery: detections that are available by t reach the estimator in capture order
    (`ArmAngleEstimator.update(t_capture, detections)`).
 3. Control, every round(1 / (`control_rate` Δ)) ticks: the estimator's held estimate
-   at t (`query(t)`) and u_nom(t) go to the CBF filter; the safety monitor
-   (`hardware.safety.SafetyMonitor`, the hardware mode's) turns the result into the
-   command: RUN (the filter's u), HOLD (the last command, while the estimate is
-   stale) or VENT (u = 0, latched, once the hold has lasted `hold_s`). Until the first
-   valid estimate arrives the arm is vented without latching (start-up, as on the
-   hardware).
+   at t (`query(t)`) goes to the control step (`closedloop.step.ControlStep`: u_nom(t),
+   the safety filter, admission, and the safety monitor shared with the hardware mode):
+   RUN (the filter's u), HOLD (the last command, while the estimate is stale) or VENT
+   (u = 0, latched, once the hold has lasted `hold_s`). Until the first valid estimate
+   arrives the arm is vented without latching (start-up, as on the hardware:
+   `ControlStep.wait`).
 4. The plant holds the command for one tick.
 
-The loop records one row per tick (`LoopRecorder`: q, q̂ in force, u_nom, u, forces,
-ρ_pred of the last controller call, filter time on ticks with a call, NaN elsewhere)
+The loop records one row per tick (`closedloop.record.Recorder`: q, q̂ in force, the
+step in force — u_nom, u_filter, u, ρ_pred and the filter's diagnostics of the last
+filter call —, forces, filter time on ticks with a call, NaN elsewhere)
 and one row per frame (`FrameLog`: exposure time, whether it was dropped, the tags
 seen, the true q at exposure and the q the frame gave, wall time of render, detection
 and estimation).
@@ -32,18 +33,20 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from controllers.filter import CBFFilter, CBFResult
-from controllers.nominal import NominalController
-from hardware.safety import SafeAction, SafetyFlags, SafetyMonitor
+from closedloop.monitor import SafetyFlags, SafetyMonitor
+from closedloop.record import Recorder
+from closedloop.step import ControlStep, StepRecord
+from controllers.safe_set import ForceSafeSet
+from controllers.safety_filter import Estimate
 from perception.detect import Detection, TagDetector
 from perception.estimator import ArmAngleEstimator
 from perception.tracking import TrackingTagDetector
-from softcbf_mj.loop import Estimate, LoopRecorder
+from softcbf_mj.loop import Series, plant_columns, plant_series, plant_values
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.progress import Progress
 
@@ -90,6 +93,10 @@ class CameraTiming:
             raise ValueError(f"pixel_noise must be finite and >= 0 grey levels, got {self.pixel_noise}")
         if not (math.isfinite(self.hold_s) and self.hold_s >= 0):
             raise ValueError(f"hold_s must be finite and >= 0 s, got {self.hold_s}")
+
+    def monitor(self, n_segments: int) -> SafetyMonitor:
+        """The safety monitor of this timing: it holds for `hold_s` before it vents."""
+        return SafetyMonitor(n_segments, hold_s=self.hold_s)
 
     def ticks_per_control(self, tick: float) -> int:
         """Control period in plant ticks; refuses a period that is not a whole number of ticks."""
@@ -140,20 +147,21 @@ def run_camera_loop(
     render: Callable[[], np.ndarray],
     detector: TagDetector | TrackingTagDetector,
     estimator: ArmAngleEstimator,
-    controller: CBFFilter,
-    nominal: NominalController,
+    step: ControlStep,
+    safe_set: ForceSafeSet,
     duration: float,
     q0: np.ndarray,
     timing: CameraTiming = CameraTiming(),
     seed: int = 0,
     frame_hook: FrameHook | None = None,
     progress: Progress | None = None,
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Run for `duration` s from rest at q0; return (per-tick time series, per-frame log, per-call log).
+) -> tuple[Series, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Run for `duration` s from rest at q0; return ((per-tick time series, units), per-frame log, per-call log).
 
-    The per-call log has, for each controller tick: `t` (s), `age_s` (age of the estimate
-    used, s; NaN before the first) and `action` ("wait": no estimate yet, vented;
-    "run", "hold", "vent": the safety monitor's decision).
+    `step`'s monitor holds for `timing.hold_s` (`CameraTiming.monitor`); `safe_set` is the
+    controller's (ρ_meas). The per-call log has, for each controller tick: `t` (s),
+    `age_s` (age of the estimate used, s; NaN before the first) and `action` ("wait": no
+    estimate yet, vented; "run", "hold", "vent": the safety monitor's decision).
 
     `render()` returns the camera image (H, W, 3) uint8 of the plant's current state;
     `frame_hook(j, t, image, detections)` sees every frame that was taken (e.g. to save
@@ -166,18 +174,16 @@ def run_camera_loop(
     per_control = timing.ticks_per_control(tick)
     n = plant.n_segments
     rng = np.random.default_rng(seed)
-    safety = SafetyMonitor(n, hold_s=timing.hold_s)
-    recorder = LoopRecorder(n_ticks, n, controller.safe_set)
+    recorder = Recorder(n_ticks, n, plant_columns(n, safe_set.n_facets))
     frames = FrameLog(n)
     pending: list[tuple[float, float, int, list[Detection]]] = []  # (ready, t_capture, row, detections)
-    nan_p = np.full(len(controller.safe_set.H_prime), np.nan)
-    result: CBFResult | None = None
-    u = np.zeros(n)
+    record: StepRecord | None = None
     next_frame = 0
     started = False
     calls: list[tuple[float, float, str]] = []
     clock = time.perf_counter
 
+    step.reset()
     state = plant.reset(q0)
     for k in range(n_ticks):
         t = state.t
@@ -208,30 +214,19 @@ def run_camera_loop(
             complete = est.valid and est.t == t_capture and est.frames_missed == 0
             frames.delivered(row, (clock() - c0) * 1e3, est.q if complete else None)
         # 3. control
-        filter_us = math.nan
         est = estimator.query(t)
-        if k % per_control == 0:
-            q_hat, qd_hat = (est.q, est.qd) if est.valid else (np.zeros(n), np.zeros(n))
-            u_nom = np.asarray(nominal(t, q_hat, qd_hat), dtype=float)
+        called = k % per_control == 0
+        if called:
             started = started or (est.valid and not est.stale)
             if not started:
-                u = np.zeros(n)
-                result = _no_estimate_result(u, u_nom, nan_p)
+                record = step.wait(Estimate(t, np.zeros(n), np.zeros(n), t))
                 calls.append((t, math.nan, "wait"))
             else:
-                command = None
-                if not est.stale:
-                    c0 = clock()
-                    result = controller.step(np.concatenate((est.q, est.qd)), u_nom)
-                    filter_us = (clock() - c0) * 1e6
-                    command = result.u
-                decision = safety.step(t, command, SafetyFlags(perception_stale=est.stale))
-                u = decision.u
-                calls.append((t, est.age_s, decision.action.value))
-                if result is None or decision.action is not SafeAction.RUN:
-                    result = replace(result or _no_estimate_result(u, u_nom, nan_p), u=u, u_nom=u_nom, action=decision.action.value)
-        recorder.record(k, state, Estimate(t, np.asarray(est.q), np.asarray(est.qd)), result, filter_us)
-        state = plant.step(u)
+                q_hat, qd_hat = (est.q, est.qd) if est.valid else (np.zeros(n), np.zeros(n))
+                record = step(Estimate(t, q_hat, qd_hat, est.t), SafetyFlags(perception_stale=est.stale))
+                calls.append((t, est.age_s, record.action.value))
+        recorder.record(k, record, called, plant_values(state, np.asarray(est.q), np.asarray(est.qd)), extras=state.extras)
+        state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
     if progress is not None:
@@ -239,12 +234,4 @@ def run_camera_loop(
     call_t, call_age, call_action = zip(*calls) if calls else ((), (), ())
     call_log = {"t": np.array(call_t, dtype=float), "age_s": np.array(call_age, dtype=float),
                 "action": np.array(call_action, dtype="U4")}
-    return recorder.columns(), frames.columns(), call_log
-
-
-def _no_estimate_result(u: np.ndarray, u_nom: np.ndarray, nan_p: np.ndarray) -> CBFResult:
-    """The record of a tick without a controller result: no prediction, nothing active."""
-    return CBFResult(
-        u=u, u_nom=u_nom, b=nan_p, B=nan_p, constraint=nan_p, active=np.zeros(len(nan_p), bool),
-        infeasible=False, recovery=False, action="vent", rho_pred=math.nan, solve_us=0.0, slack=0.0,
-    )
+    return plant_series(recorder, safe_set), frames.columns(), call_log

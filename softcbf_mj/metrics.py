@@ -91,6 +91,8 @@ def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool
     """The docs/run-outputs.md run fields plus extras, from a `LoopRecorder` log whose rows are `control_dt` s apart.
 
     Filter times are taken over the rows with a controller call (finite `filter_us`).
+    `recovery_steps` and `active_steps` count the paper filter's diagnostics `recovery`
+    and `active` when the log has them (0 and None for a filter without them).
     """
     n_steps = len(log["t"])
     sim_s = n_steps * control_dt
@@ -103,13 +105,13 @@ def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool
         "force_max_N": float(np.max(log["contact_force"])),
         "t_violation_s": float(np.count_nonzero(log["rho_meas"] < 0.0) * control_dt),
         "infeasible_steps": int(np.count_nonzero(log["infeasible"])),
-        "recovery_steps": int(np.count_nonzero(log["recovery"])),
+        "recovery_steps": int(np.count_nonzero(log["recovery"])) if "recovery" in log else 0,
         "filter_us_median": float(np.median(filter_us)) if filtered else None,
         "filter_us_p99": float(np.percentile(filter_us, 99)) if filtered else None,
         "wall_s": float(wall_s),
         "sim_s": float(sim_s),
         "u_peak_abs_hPa": float(np.max(np.abs(log["u"]))),
-        "active_steps": int(np.count_nonzero(np.any(log["active"], axis=1))),
+        "active_steps": int(np.count_nonzero(np.any(log["active"], axis=1))) if "active" in log else None,
         "chatter_per_s": chatter_per_s(log["u"], log["u_nom"], sim_s),
         "switches_per_s": switches_per_s(log["u"], log["u_nom"], sim_s),
         "u_hf_fraction": high_frequency_fraction(log["u"], control_dt),
@@ -135,12 +137,15 @@ def contact_figures(log: Mapping[str, np.ndarray], safe_set: ForceSafeSet, contr
     Force error F_pred − F_meas over the steps where either is > 0 (RMS, max |·|, N);
     penetration bias n̂_pred − n_meas over the steps in contact (mean, max; m and % of the
     controller's n_max), None when there is no such step. Steps whose barrier is NaN (no
-    estimate yet) have no prediction and are left out of both.
+    estimate yet) have no prediction and are left out of both; a filter that records no
+    barrier `b` (a diagnostic of the paper's filter) has no prediction at all: those
+    figures are None.
     """
     p = safe_set.n_facets
     rows = np.asarray(safe_set.H_prime[:p], dtype=float)
-    predicted = np.all(np.isfinite(log["b"][:, :p]), axis=1)  # rows with a prediction (camera loop: not before the first estimate)
-    b = np.where(predicted[:, None], log["b"][:, :p], np.inf)
+    barrier = log["b"] if "b" in log else np.full((len(log["t"]), p), np.nan)
+    predicted = np.all(np.isfinite(barrier[:, :p]), axis=1)  # rows with a prediction (camera loop: not before the first estimate)
+    b = np.where(predicted[:, None], barrier[:, :p], np.inf)
     n_pred = np.maximum(safe_set.n_max - b / np.hypot(rows[:, 0], rows[:, 1]), 0.0)
     n_meas = np.maximum(log["plate_displacement_m"], 0.0)
     f_pred, f_meas = safe_set.stiffness.force(n_pred), log["contact_force"]

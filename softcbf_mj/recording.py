@@ -23,10 +23,12 @@ Entities (`<run>` is the tuning label; "static" = no time, logged once):
 | /runs/<run>/u, /runs/<run>/u_nom| Scalars (N)        | every step   | commanded and nominal pressure, hPa       |
 | /runs/<run>/rho                 | Scalars (2)        | every step   | [predicted, measured] ρ                   |
 | /runs/<run>/force               | Scalars (3)        | every step   | [measured, predicted, F_max], N           |
-| /runs/<run>/flags               | Scalars (3)        | every step   | [active, infeasible, recovery], 0/1       |
+| /runs/<run>/flags               | Scalars (3)        | every step   | [active, infeasible, recovery], 0/1 (*)   |
 | /runs/<run>/plate_displacement  | Scalars (P)        | every step   | plate displacement along its normal, mm   |
 | /runs/<run>/camera/image        | EncodedImage       | each frame   | camera images (runs with frames only)     |
 | /runs/<run>/camera/image/detections | LineStrips2D   | each frame   | detected tag outlines, labelled "tag id"  |
+
+(*) active and recovery are the paper filter's diagnostics; 0 for a filter without them.
 
 Time series go in with the columnar API (`rr.send_columns`), one call per entity; the
 geometry is decimated to GEOMETRY_HZ (every round(1/(GEOMETRY_HZ·Δt))-th control step;
@@ -145,7 +147,8 @@ def _log_run(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: M
                   np.column_stack((np.max(s["contact_force"], axis=1), predicted_force(scene, s["rho_pred"]),
                                    np.full(len(t), scene.f_max))), [rgb(color), light, rgb(LIMIT_COLOR)], "smooth"),
         "flags": ([f"{label} active", f"{label} infeasible", f"{label} recovery"],
-                  np.column_stack((np.any(s["active"], axis=1), s["infeasible"], s["recovery"])).astype(float),
+                  np.column_stack((np.any(s["active"], axis=1) if "active" in s else np.zeros(len(t)), s["infeasible"],
+                                   s.get("recovery", np.zeros(len(t))))).astype(float),
                   _shades(color, 3), "flag"),
         "plate_displacement": ([f"{label} plate {i + 1} [mm]" for i in range(p)], 1e3 * plate_displacement(scene, s),
                                _shades(color, p), "smooth"),

@@ -8,12 +8,14 @@ import math
 import numpy as np
 import pytest
 
+from closedloop.step import ControlStep
 from controllers.cbf import TUNINGS
 from controllers.cbf_batch import SCALAR_BELOW
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
+from controllers.safety_filter import FilterContext
 from softcbf_mj.batch_loop import broadcast_nominal, per_simulation_nominal, run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import run_figures
@@ -33,6 +35,13 @@ def _true_robots(n: int):
     scales = np.random.default_rng(4).uniform(0.9, 1.1, (n, 2))
     return [dataclasses.replace(ref, stiffness=tuple(v * s for v in ref.stiffness), gains=tuple(v * g for v in ref.gains))
             for s, g in scales]
+
+
+def _serial(plant, safety_filter, nominal, safe_set, pressure_limits, duration, q0):
+    """The serial loop's log of one sample: the control step clips to the model's limits when `pressure_limits`."""
+    context = FilterContext.for_robot(reference_robot(), safe_set, plant.control_dt, pressure_limits)
+    log, _ = run_closed_loop(plant, ControlStep(safety_filter, nominal, context), safe_set, duration, q0)
+    return log
 
 
 def _compare(batch, serial_logs, control_dt, filtered):
@@ -62,7 +71,8 @@ def test_pcc_batch_loop_equals_serial_loops(tuning, pressure_limits, per_sim_fil
     limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
     batch = run_batch_closed_loop(plant, filt, broadcast_nominal(PEAK), safe_set, duration, q0, *limits,
                                   record_commands=True)
-    logs = [run_closed_loop(PCCPlant(r, safe_set), controller(), PEAK, duration, q0[b]) for b, r in enumerate(robots)]
+    logs = [_serial(PCCPlant(r, safe_set), controller(), PEAK, safe_set, pressure_limits, duration, q0[b])
+            for b, r in enumerate(robots)]
     _compare(batch, logs, plant.control_dt, True)
     assert np.all(batch.force_max_N > 0), "every sample must reach the facet"
     assert np.all(batch.refused_steps == 0)
@@ -80,8 +90,8 @@ def test_mujoco_batch_loop_equals_serial_loops():
     controller = CBFFilter(params, safe_set, TUNINGS["HW-High"])
     batch = run_batch_closed_loop(plant, controller, per_simulation_nominal(nominals), safe_set,
                                   duration, q0, np.array(params.u_min), np.array(params.u_max), record_commands=True)
-    logs = [run_closed_loop(MujocoPlant.from_config(c), CBFFilter(params, safe_set, TUNINGS["HW-High"]), nominal,
-                            duration, q0[b]) for b, (c, nominal) in enumerate(zip(configs, nominals))]
+    logs = [_serial(MujocoPlant.from_config(c), CBFFilter(params, safe_set, TUNINGS["HW-High"]), nominal, safe_set, True,
+                    duration, q0[b]) for b, (c, nominal) in enumerate(zip(configs, nominals))]
     _compare(batch, logs, plant.control_dt, True)
     assert len(configs) >= SCALAR_BELOW, "the batch must take the vectorised filter"
     assert np.all(batch.force_max_N > 0), "every sample must press the plate"

@@ -12,6 +12,8 @@ from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
+from controllers.safety_filter import FilterContext
+from closedloop.step import ControlStep
 from perception.detect import TagDetector
 from perception.estimator import ArmAngleEstimator
 from perception.tags import arm_tag_ids
@@ -41,9 +43,12 @@ def _run(rig, duration, timing=CameraTiming(), render=None, tuning="HW-High", se
     estimator = ArmAngleEstimator(2, plane, config.tag_size, max_hold_s=MAX_HOLD_S)
     controller = CBFFilter(reference_robot(), safe_set, get_tuning(tuning))
     nominal = SinusoidNominal((40.0, 40.0), 0.5, (0.0, 0.0))
+    context = FilterContext.for_robot(reference_robot(), safe_set, 1.0 / timing.control_rate)
+    step = ControlStep(controller, nominal, context, timing.monitor(2))
     camera = render or (lambda: renderer.render(plant.data))
-    return run_camera_loop(plant, camera, TagDetector(tag_ids=arm_tag_ids(2)), estimator, controller, nominal,
-                           duration, np.array(q0), timing, seed)
+    (log, _), frames, calls = run_camera_loop(plant, camera, TagDetector(tag_ids=arm_tag_ids(2)), estimator, step, safe_set,
+                                              duration, np.array(q0), timing, seed)
+    return log, frames, calls
 
 
 def test_timing_is_validated_and_the_control_period_must_fit_the_tick():

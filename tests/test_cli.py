@@ -209,7 +209,7 @@ def test_default_folders_of_runs_started_in_the_same_second_differ(tmp_path, mon
         (["paper_sim", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
         (["mujoco_contact", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
         (["camera_loop", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
-        (["paper_sim", "--duration", "1e6"], "duration 1e+06 s (1000000000 steps of 0.001 s) needs 4"),
+        (["paper_sim", "--duration", "1e6"], "duration 1e+06 s (1000000000 steps of 0.001 s) needs 566.2 GiB for its time series"),
         (["mujoco_contact", "--duration", "1e6"], "duration 1e+06 s (1000000000 steps of 0.001 s) needs"),
         (["camera_loop", "--duration", "1e6"], "duration 1e+06 s (500000000 steps of 0.002 s) needs"),
         (["paper_sim", "--q0-std", "nan"], "q0_std must be finite, got nan"),  # L5

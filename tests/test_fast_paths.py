@@ -9,12 +9,15 @@ import pytest
 from controllers import pcc
 from controllers.cbf import get_tuning
 from controllers.dynamics import PCCDynamics
-from controllers.filter import CBFFilter
+from closedloop.record import TIMESERIES_UNITS
+from closedloop.step import ControlStep
+from controllers.filter import CBF_DIAGNOSTIC_UNITS, CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot, uniform_robot
 from controllers.safe_set import Environment, ForceSafeSet, PowerLawStiffness, paper_safe_set
 from derivative_cases import SPECIAL_ANGLES, configurations, lengths
-from softcbf_mj.loop import TIMESERIES_UNITS, run_closed_loop
+from controllers.safety_filter import FilterContext
+from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.pcc_plant import PCCPlant
 
 ROBOT = reference_robot()
@@ -112,33 +115,40 @@ def test_plant_reports_the_kinematics_of_its_state(integrator):
         np.testing.assert_allclose(state.contact_forces, SAFE.force(state.tip), rtol=1e-14, atol=1e-17)
 
 
+COMPARED = ("t", "q", "qd", "q_est", "qd_est", "tip", "segment_ends", "u_nom", "u_filter", "u", "u_applied",
+            "contact_force", "rho_pred", "rho_meas", "b", "active", "infeasible", "recovery", "action")
+
+
 def _reference_loop(plant, controller, nominal, n_steps, q0):
     """The closed loop recorded key by key, as plainly as possible."""
-    log = {key: [] for key in TIMESERIES_UNITS}
+    log = {key: [] for key in COMPARED}
     state = plant.reset(q0)
     for _ in range(n_steps):
         u_nom = nominal(state.t, state.q, state.qd)
         res = controller.step(np.concatenate((state.q, state.qd)), u_nom)
         for key, value in (("t", state.t), ("q", state.q), ("qd", state.qd), ("q_est", state.q), ("qd_est", state.qd),
-                           ("tip", state.tip), ("segment_ends", state.segment_ends), ("u_nom", res.u_nom), ("u", res.u),
-                           ("u_applied", state.u_applied), ("contact_force", state.contact_forces),
-                           ("rho_pred", res.rho_pred),
+                           ("tip", state.tip), ("segment_ends", state.segment_ends), ("u_nom", res.u_nom),
+                           ("u_filter", res.u), ("u", res.u), ("u_applied", state.u_applied),
+                           ("contact_force", state.contact_forces), ("rho_pred", res.rho_pred),
                            ("rho_meas", np.min(controller.safe_set.margin_from_force(state.contact_forces))),
                            ("b", res.b), ("active", res.active), ("infeasible", res.infeasible),
-                           ("recovery", res.recovery), ("filter_us", 0.0)):
+                           ("recovery", res.recovery), ("action", np.int8(0))):
             log[key].append(np.copy(value))
         state = plant.step(res.u)
     return {key: np.array(values) for key, values in log.items()}
 
 
 def test_packed_recording_matches_a_plain_one():
+    """The one recorder (closedloop.record) through the simulated loop, against a plain key-by-key loop."""
     nominal = SinusoidNominal.paper(2, 150.0, 0.5)
     q0 = np.array([0.3, 0.1])
-    log = run_closed_loop(PCCPlant(ROBOT, SAFE), CBFFilter(ROBOT, SAFE, get_tuning("Low")), nominal, 1.5, q0)
+    step = ControlStep(CBFFilter(ROBOT, SAFE, get_tuning("Low")), nominal, FilterContext.for_robot(ROBOT, SAFE, 1e-3))
+    log, units = run_closed_loop(PCCPlant(ROBOT, SAFE), step, SAFE, 1.5, q0)
     ref = _reference_loop(PCCPlant(ROBOT, SAFE), CBFFilter(ROBOT, SAFE, get_tuning("Low")), nominal, 1500, q0)
-    assert list(log) == list(TIMESERIES_UNITS)
+    assert set(units) == set(log) and set(COMPARED) <= set(log)
+    assert units["b"] == CBF_DIAGNOSTIC_UNITS["b"] and units["u"] == TIMESERIES_UNITS["u"]
     assert np.any(log["active"]) and np.any(log["rho_meas"] < 1)  # the run exercises the filter and the contact
-    for key in TIMESERIES_UNITS:
+    assert np.all(np.isfinite(log["filter_us"]))
+    for key in COMPARED:
         assert log[key].shape == ref[key].shape and log[key].dtype == ref[key].dtype, key
-        if key != "filter_us":
-            np.testing.assert_array_equal(log[key], ref[key], err_msg=key)
+        np.testing.assert_array_equal(log[key], ref[key], err_msg=key)

@@ -87,11 +87,11 @@ def test_bad_files_are_refused(tmp_path):
 
 
 def test_hardware_path_runs_the_simulations_controller_module_without_mujoco():
-    """hardware.*, perception.* and the CLI of a real run import no MuJoCo; the runner's CBFFilter is the scenarios' one."""
+    """hardware.*, perception.* and the CLI of a real run import no MuJoCo; the runner builds its filter with the scenarios' registry."""
     code = (
-        "import sys, hardware.config, hardware.runner, hardware.board, hardware.link, hardware.transport, hardware.safety, "
-        "perception.capture, perception.detect, perception.estimator, perception.plane, controllers.filter\n"
-        "assert hardware.runner.CBFFilter is controllers.filter.CBFFilter\n"
+        "import sys, hardware.config, hardware.runner, hardware.board, hardware.link, hardware.transport, closedloop.monitor, "
+        "perception.capture, perception.detect, perception.estimator, perception.plane, controllers.filter, controllers.registry\n"
+        "assert hardware.runner.build_filter is controllers.registry.build_filter\n"
         "bad = sorted(m for m in sys.modules if m == 'mujoco' or m.startswith(('mujoco.', 'softcbf_mj')))\n"
         "import softcbf.hardware_cli\n"
         "print(repr((bad, 'mujoco' in sys.modules, controllers.filter.__file__)))\n"
@@ -100,10 +100,11 @@ def test_hardware_path_runs_the_simulations_controller_module_without_mujoco():
     bad, mujoco_after_cli, filter_file = eval(out)
     assert bad == [] and mujoco_after_cli is False
     import controllers.filter
-    import scenarios.mujoco_contact
+    import controllers.registry
+    import scenarios.common
 
     assert Path(filter_file) == Path(controllers.filter.__file__)
-    assert scenarios.mujoco_contact.CBFFilter is controllers.filter.CBFFilter
+    assert scenarios.common.build_filter is controllers.registry.build_filter
 
 
 def test_cli_refuses_a_bad_configuration_with_exit_code_2(tmp_path, capsys):

@@ -18,7 +18,7 @@ import rerun as rr
 
 from hardware.config import HardwareConfig
 from hardware.runner import ACTION_CODES
-from hardware.safety import SafeAction
+from closedloop.monitor import SafeAction
 from hardware.transport import LineFaults
 from softcbf_mj.emulate import EmulatedHardware
 from softcbf.hardware_cli import run_hardware

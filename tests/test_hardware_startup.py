@@ -16,10 +16,10 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from closedloop.monitor import SafetyMonitor
 from controllers.params import per_segment
 from hardware.config import EMULATOR_COMMAND_PERIOD_S, ConfigError, HardwareConfig
 from hardware.protocol import PressureLimits
-from hardware.safety import SafetyMonitor
 from perception.plane import PlaneCalibration
 from softcbf.hardware_cli import main
 from softcbf_mj.model_builder import ArmModelConfig

@@ -9,10 +9,12 @@ import pytest
 import softcbf_mj.loop
 from controllers.cbf import get_tuning
 from controllers.filter import CBFFilter
+from closedloop.step import ControlStep
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
+from controllers.safety_filter import FilterContext
 from scenarios.common import build_safe_set
-from softcbf_mj.loop import LoopRecorder, check_duration, run_closed_loop
+from softcbf_mj.loop import check_duration, run_closed_loop, series_bytes_needed
 from softcbf_mj.pcc_plant import PCCPlant
 
 SAFE_SET = build_safe_set("paper", 11.16, 0.16, "paper")
@@ -23,15 +25,16 @@ def test_bytes_needed_covers_the_measured_peak_of_a_run_within_25_percent():
     robot = reference_robot()
     plant = PCCPlant(robot, SAFE_SET, control_dt=1e-3)
     controller = CBFFilter(robot, SAFE_SET, get_tuning("High"), dynamics=plant.dynamics)
+    step = ControlStep(controller, SinusoidNominal.paper(2, 80.0, 0.01), FilterContext.for_robot(robot, SAFE_SET, 1e-3))
     n_steps = 2000
     tracemalloc.start()
     try:
         base = tracemalloc.get_traced_memory()[0]
-        run_closed_loop(plant, controller, SinusoidNominal.paper(2, 80.0, 0.01), n_steps * 1e-3, np.zeros(2))
+        run_closed_loop(plant, step, SAFE_SET, n_steps * 1e-3, np.zeros(2))
         peak = tracemalloc.get_traced_memory()[1] - base
     finally:
         tracemalloc.stop()
-    needed = LoopRecorder.bytes_needed(n_steps, 2, SAFE_SET)
+    needed = series_bytes_needed(n_steps, 2, SAFE_SET)
     assert peak <= needed <= 1.25 * peak, (peak, needed)
 
 
@@ -46,7 +49,7 @@ def test_check_duration_counts_steps_and_names_duration():
 
 
 def test_check_duration_refuses_what_does_not_fit_in_the_available_memory(monkeypatch):
-    per_step = LoopRecorder.bytes_needed(1, 2, SAFE_SET)
+    per_step = series_bytes_needed(1, 2, SAFE_SET)
     monkeypatch.setattr(softcbf_mj.loop, "available_memory_bytes", lambda: 1000 * per_step)
     assert check_duration(1.0, 1e-3, 2, SAFE_SET) == 1000
     with pytest.raises(ValueError, match=r"duration 1.001 s \(1001 steps of 0.001 s\) needs .* GiB for its time series, "

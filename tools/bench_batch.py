@@ -43,11 +43,13 @@ from typing import Callable, TypeVar
 import mujoco
 import numpy as np
 
+from closedloop.step import ControlStep
 from controllers.cbf import TUNINGS
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
+from controllers.safety_filter import FilterContext
 from softcbf_mj.batch_loop import broadcast_nominal, replay_commands, run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import run_figures
@@ -58,6 +60,14 @@ from softcbf_mj.pcc_batch_plant import PCCBatchPlant
 from softcbf_mj.pcc_plant import PCCPlant
 
 PEAK = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))
+
+
+def serial_log(plant, safety_filter, safe_set, pressure_limits: bool, duration: float, q0: np.ndarray) -> dict:
+    """One sample's time series through the serial loop (the control step clips to the
+    reference robot's limits when `pressure_limits`, as the batched loop given them)."""
+    context = FilterContext.for_robot(reference_robot(), safe_set, plant.control_dt, pressure_limits)
+    log, _ = run_closed_loop(plant, ControlStep(safety_filter, PEAK, context), safe_set, duration, q0)
+    return log
 HOUR = 3600.0
 T = TypeVar("T")
 
@@ -127,8 +137,8 @@ def bench_mujoco(args: argparse.Namespace) -> dict:
     configs, q0 = mujoco_samples(n_max, args.links, args.physics_dt)
 
     def serial_pass() -> list[dict]:
-        return [run_figures(run_closed_loop(MujocoPlant.from_config(config), CBFFilter(params, safe_set, tuning), PEAK,
-                                            args.duration, q), 1e-3, True, 0.0)
+        return [run_figures(serial_log(MujocoPlant.from_config(config), CBFFilter(params, safe_set, tuning), safe_set, True,
+                                       args.duration, q), 1e-3, True, 0.0)
                 for config, q in zip(configs[: args.serial], q0)]
 
     serial_runs, serial = best_of(args.repeats, serial_pass)
@@ -161,7 +171,7 @@ def bench_pcc(args: argparse.Namespace) -> dict:
         for q in q0[: args.serial]:
             plant = PCCPlant(params, safe_set)
             controller = CBFFilter(params, safe_set, tuning, pressure_limits=False, dynamics=plant.dynamics)
-            runs.append(run_figures(run_closed_loop(plant, controller, PEAK, args.duration, q), 1e-3, True, 0.0))
+            runs.append(run_figures(serial_log(plant, controller, safe_set, False, args.duration, q), 1e-3, True, 0.0))
         return runs
 
     serial_runs, serial = best_of(args.repeats, serial_pass)

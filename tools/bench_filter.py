@@ -32,6 +32,8 @@ from collections import Counter
 
 import numpy as np
 
+from closedloop.step import ControlStep
+from controllers.safety_filter import FilterContext
 from controllers.cbf import get_tuning
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
@@ -71,8 +73,9 @@ def main() -> None:
     for name in args.tunings.split(","):
         for limits in (False, True):
             tuning = get_tuning(name)
-            log = run_closed_loop(PCCPlant(robot, safe_set), CBFFilter(robot, safe_set, tuning, pressure_limits=limits),
-                                  nominal, args.duration, np.zeros(robot.n_segments))
+            step = ControlStep(CBFFilter(robot, safe_set, tuning, pressure_limits=limits), nominal,
+                               FilterContext.for_robot(robot, safe_set, 1e-3, limits))
+            log, _ = run_closed_loop(PCCPlant(robot, safe_set), step, safe_set, args.duration, np.zeros(robot.n_segments))
             picks = np.linspace(0, len(log["t"]) - 1, args.samples).round().astype(int)
             states = [(np.concatenate((log["q"][k], log["qd"][k])), log["u_nom"][k]) for k in picks]
             for backend in backends:

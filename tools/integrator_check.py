@@ -15,11 +15,13 @@ import time
 
 import numpy as np
 
+from closedloop.step import ControlStep
+from controllers.safety_filter import FilterContext
+from controllers.cbf import get_tuning
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
-from scenarios.common import parse_tunings
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.pcc_plant import PCCPlant
 
@@ -46,12 +48,14 @@ def main() -> None:
     robot, safe = reference_robot(), paper_safe_set()
     nominal = SinusoidNominal.paper(2)
     figures = []
-    for tuning in parse_tunings(args.tunings):
+    for tuning in [get_tuning(name) for name in args.tunings.split(",")]:
         logs = {}
         for integrator, dt in cases:
             plant = PCCPlant(robot, safe, integrator=integrator, physics_dt=dt)
             start = time.perf_counter()
-            logs[(integrator, dt)] = run_closed_loop(plant, CBFFilter(robot, safe, tuning, pressure_limits=False), nominal, args.duration, np.zeros(2))
+            step = ControlStep(CBFFilter(robot, safe, tuning, pressure_limits=False), nominal,
+                               FilterContext.for_robot(robot, safe, plant.control_dt, pressure_limits=False))
+            logs[(integrator, dt)], _ = run_closed_loop(plant, step, safe, args.duration, np.zeros(2))
             logs[(integrator, dt)]["wall"] = time.perf_counter() - start
         ref = logs[REFERENCE]
         for integrator, dt in cases[1:]:

@@ -17,6 +17,8 @@ import json
 
 import numpy as np
 
+from closedloop.step import ControlStep
+from controllers.safety_filter import FilterContext
 from controllers.cbf import get_tuning
 from controllers.filter import CBFFilter
 from controllers.params import reference_robot
@@ -48,7 +50,8 @@ def main() -> None:
             worst, t_viol, infeasible, recovery = np.inf, 0.0, 0, 0
             for q0, u_const in zip(starts, commands):
                 filt = CBFFilter(robot, safe, get_tuning(name), pressure_limits=limits)
-                log = run_closed_loop(PCCPlant(robot, safe), filt, lambda t, q, qd, u=u_const: u, args.seconds, q0)
+                step = ControlStep(filt, lambda t, q, qd, u=u_const: u, FilterContext.for_robot(robot, safe, 1e-3, limits))
+                log, _ = run_closed_loop(PCCPlant(robot, safe), step, safe, args.seconds, q0)
                 worst = min(worst, float(np.min(log["rho_meas"])))
                 t_viol += float(np.count_nonzero(log["rho_meas"] < 0) * 1e-3)
                 infeasible += int(np.count_nonzero(log["infeasible"]))

@@ -8,6 +8,12 @@ A study runs one registered scenario (`scenarios`, docs/run-outputs.md) many tim
   anything the scenario takes as a parameter);
 - `tunings` and `tuning_parameter`: the scenario parameter that names the tuning (default
   `tunings`) and the tunings to compare;
+- the controller under test: `filter` and a `[filter_params]` table go into `fixed` (the
+  scenario's `filter` and `filter_params`, scenarios.common); `vary."filter_param.NAME"`
+  varies one filter parameter (float unless dist = "choice"), folded into the sample's
+  `filter_params` after the fixed ones; to compare filters, set `tuning_parameter =
+  "filter"` and list the filter specs in `tunings` (each with its own defaults; fix
+  the paper filter's `tunings` to one preset);
 - `sampling`: "monte_carlo" (`draws` seeded draws) or "grid" (the Cartesian product of
   every distribution's grid, the first parameter varying slowest); `seed`.
 
@@ -77,7 +83,10 @@ from scenarios import get as get_scenario
 SAMPLINGS = ("monte_carlo", "grid")
 KINDS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"), "choice": ("values",)}
 SEED_PARAMETER = "seed"  # the scenario parameter that receives scenario_seed
-_STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description"}
+FILTER_PARAM_PREFIX = "filter_param."  # vary."filter_param.NAME": one parameter of the filter
+FILTER_PARAMS = "filter_params"  # the scenario parameter they are folded into
+_STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description",
+               "filter", "filter_params"}
 MAX_SAMPLES = 2**63 - 1  # sample indices are int64 columns
 MAX_GRID_POINTS = 1_000_000  # per distribution: its grid is held in memory
 
@@ -184,6 +193,17 @@ class Sample:
     kwargs: dict[str, Any]
 
 
+def fold_values(fixed: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
+    """The scenario keyword arguments of `fixed` and the drawn `values`, each varied
+    filter_param.NAME folded into filter_params as NAME=value."""
+    kwargs = dict(fixed)
+    kwargs.update({k: v for k, v in values.items() if not k.startswith(FILTER_PARAM_PREFIX)})
+    varied = [f"{k.removeprefix(FILTER_PARAM_PREFIX)}={v}" for k, v in values.items() if k.startswith(FILTER_PARAM_PREFIX)]
+    if varied:
+        kwargs[FILTER_PARAMS] = ";".join(part for part in (kwargs.get(FILTER_PARAMS, ""), *varied) if part)
+    return kwargs
+
+
 def _named(where: str, check: Callable[..., Any], *args: Any) -> Any:
     """`check(*args)`, with a ValueError's message prefixed by `where` (the study key it came from)."""
     try:
@@ -238,13 +258,19 @@ class Study:
         if len(set(varied)) != len(varied):
             raise ValueError(f"each parameter may be varied once, got {varied}")
         for name in [*self.fixed, *varied]:
+            if name.startswith(FILTER_PARAM_PREFIX) and FILTER_PARAMS in params and name != FILTER_PARAM_PREFIX:
+                continue
             if name not in params:
                 raise ValueError(f"scenario {self.scenario!r} has no parameter {name!r}; parameters: {', '.join(params)}")
         clash = ({self.tuning_parameter} & (set(self.fixed) | set(varied))) | (set(self.fixed) & set(varied))
         if clash:
             raise ValueError(f"parameter(s) {sorted(clash)} are given more than once (fixed, vary or tuning_parameter)")
         object.__setattr__(self, "fixed", {k: _named(f"fixed.{k}", scenario.coerce, k, v) for k, v in self.fixed.items()})
+        if set(self.fixed) & {d.parameter for d in self.vary if d.parameter.startswith(FILTER_PARAM_PREFIX)}:
+            raise ValueError("filter_param.NAME may only be varied (fixed filter parameters go in filter_params)")
         for dist in self.vary:
+            if dist.parameter.startswith(FILTER_PARAM_PREFIX):
+                continue  # the filter checks its own parameters when it is built
             if hints[dist.parameter] is not float and dist.kind != "choice":
                 raise ValueError(f"parameter {dist.parameter!r} takes {hints[dist.parameter].__name__} values: "
                                  f"use dist = 'choice' with a list of values, not {dist.kind!r}")
@@ -275,10 +301,11 @@ class Study:
             drawn = ", ".join(f"{k} = {v!r}" for k, v in sample.values.items()) or "nothing varied"
             _named(f"scenario {self.scenario!r} refuses sample {t} (draw 0 with tuning {sample.tuning!r}: the fixed values "
                    f"and {drawn})", scenario.validate, sample.kwargs)
-        first = self.sample(0).kwargs
+        first = self.sample(0)
         for dist in self.vary:
             for key, value in dist.ends().items():
-                _named(f"vary.{dist.parameter}: {key} = {value!r}", scenario.validate, {**first, dist.parameter: value})
+                kwargs = {**first.kwargs, **fold_values(self.fixed, {**first.values, dist.parameter: value})}
+                _named(f"vary.{dist.parameter}: {key} = {value!r}", scenario.validate, kwargs)
 
     @property
     def n_draws(self) -> int:
@@ -305,8 +332,7 @@ class Study:
             values = {d.parameter: values[d.parameter] for d in self.vary}
         else:
             values = {d.parameter: d.draw(rng) for d in self.vary}
-        kwargs = dict(self.fixed)
-        kwargs.update(values)
+        kwargs = fold_values(self.fixed, values)
         kwargs[self.tuning_parameter] = self.tunings[t]
         parameters = get_scenario(self.scenario).parameters()
         if SEED_PARAMETER in parameters and SEED_PARAMETER not in kwargs:
@@ -348,8 +374,17 @@ class Study:
                 raise ValueError(f"vary.{parameter}: unknown key(s) {sorted(extra)}")
             kind = spec.pop("dist")
             vary.append(Distribution(parameter, kind, **spec))
+        fixed = dict(data.get("fixed", {}))
+        for key in ("filter", FILTER_PARAMS):
+            if key in data:
+                if key in fixed:
+                    raise ValueError(f"{key} is given twice (top level and fixed)")
+                value = data[key]
+                if key == FILTER_PARAMS and isinstance(value, dict):
+                    value = ";".join(f"{k}={v}" for k, v in value.items())
+                fixed[key] = value
         return cls(name=data["name"], scenario=data["scenario"], tunings=data["tunings"], vary=tuple(vary),
-                   fixed=dict(data.get("fixed", {})), sampling=data.get("sampling", "monte_carlo"),
+                   fixed=fixed, sampling=data.get("sampling", "monte_carlo"),
                    draws=data.get("draws"), seed=data.get("seed", 0),
                    tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""))
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hardware.safety import SafeAction, SafetyFlags, SafetyMonitor
+from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
 
 U = np.array([40.0, -20.0])
 DT = 0.1  # the 10 Hz loop

@@ -1,9 +1,11 @@
-"""The laptop's safe-action state machine: run, hold, then vent.
+"""The safe-action state machine shared by every loop: run, hold, then vent.
 
-The hardware loop calls `SafetyMonitor.step(t, u_cmd, flags)` once per control cycle
-(t in s, non-decreasing; u_cmd the controller's command in hPa, shape (N,), or None when
-the controller raised) and sends what the returned `SafetyDecision` says, in the same
-cycle, so every safe action starts within one control cycle of its cause:
+The control step (`closedloop.step`) calls `SafetyMonitor.step(t, u_cmd, flags)` once per
+control call of every loop — the simulated one, the camera loop and the hardware loop —
+(t in s, non-decreasing; u_cmd the filter's command in hPa, shape (N,), or None when the
+filter raised or returned a non-finite command) and the loop sends what the returned
+`SafetyDecision` says, in the same cycle, so every safe action starts within one control
+cycle of its cause:
 
 | condition (highest first)                          | action                                                   |
 |----------------------------------------------------|----------------------------------------------------------|
@@ -38,7 +40,7 @@ class SafeAction(str, Enum):
 
 @dataclass(frozen=True)
 class SafetyFlags:
-    """What the hardware loop observed this cycle."""
+    """What the loop observed this cycle."""
 
     perception_stale: bool = False  # no valid state estimate for the configured staleness time
     link_lost: bool = False  # `ValveBoardLink.link_lost`
@@ -50,9 +52,13 @@ class SafetyFlags:
         return tuple(f.name for f in fields(self) if getattr(self, f.name))
 
 
-@dataclass(frozen=True)
+NO_FLAGS = SafetyFlags()  # nothing raised
+
+
+@dataclass(eq=False, slots=True)
 class SafetyDecision:
-    """What to send this cycle: the action, the pressures (hPa, (N,); zeros for VENT) and the raised flags."""
+    """What to send this cycle: the action, the pressures (hPa, (N,); zeros for VENT) and the raised flags.
+    Made every control call (not frozen: cheaper); nothing modifies it."""
 
     action: SafeAction
     u: np.ndarray
@@ -60,7 +66,7 @@ class SafetyDecision:
 
 
 class SafetyMonitor:
-    """Run → hold → vent (see the module table). One instance per hardware run."""
+    """Run → hold → vent (see the module table). One instance per run."""
 
     def __init__(self, n_segments: int, hold_s: float = DEFAULT_HOLD_S) -> None:
         if not (isinstance(n_segments, int) and n_segments >= 1):
@@ -85,15 +91,20 @@ class SafetyMonitor:
         self._vent_reasons = None
         self._hold_since = None
 
-    def step(self, t: float, u_cmd: np.ndarray | None, flags: SafetyFlags = SafetyFlags()) -> SafetyDecision:
+    def step(self, t: float, u_cmd: np.ndarray | None, flags: SafetyFlags = NO_FLAGS) -> SafetyDecision:
         if not (math.isfinite(t) and t >= self._t):
             raise ValueError(f"t must be finite and non-decreasing, got {t} after {self._t}")
         self._t = t
-        u = None if u_cmd is None else np.asarray(u_cmd, dtype=float)
+        u = None if u_cmd is None else np.array(u_cmd, dtype=float)  # a copy: the monitor keeps it
         if u is not None and u.shape != (self.n_segments,):
             raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")
-        if (u is None or not np.isfinite(u).all()) and not flags.command_nonfinite:
+        finite = u is not None and all(map(math.isfinite, u.tolist()))
+        if not finite and not flags.command_nonfinite:
             flags = replace(flags, command_nonfinite=True)
+        if flags is NO_FLAGS and self._vent_reasons is None:  # the common case: RUN, nothing raised
+            self._hold_since = None
+            self._last_run = u
+            return SafetyDecision(SafeAction.RUN, u, ())
         reasons = flags.raised()
         if flags.interrupted or flags.link_lost:
             return self._vent(reasons)
@@ -106,7 +117,7 @@ class SafetyMonitor:
                 return self._vent(reasons)
             return SafetyDecision(SafeAction.HOLD, self._last_run.copy(), reasons)
         self._hold_since = None
-        self._last_run = u.copy()
+        self._last_run = u
         return SafetyDecision(SafeAction.RUN, u.copy(), reasons)
 
     def _vent(self, reasons: tuple[str, ...]) -> SafetyDecision:

@@ -1,0 +1,9 @@
+"""The closed loop's controller side, shared by every clock (docs/safety-filter.md): numpy only, no MuJoCo, no I/O.
+
+- `closedloop.step`: `ControlStep`, the one control step (estimate → nominal → filter →
+  admission → safety monitor → command) and its `StepRecord`;
+- `closedloop.monitor`: `SafetyMonitor`, the run → hold → vent state machine;
+- `closedloop.record`: `Recorder`, the one recorder, and `TIMESERIES_UNITS`, the one table of units.
+
+Layers: imports `controllers` only; `hardware`, `softcbf_mj` and above import it.
+"""

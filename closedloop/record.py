@@ -1,0 +1,200 @@
+"""The one recorder of every loop's time series, and the one table of their units.
+
+One row per loop row k (a plant tick, a control period or a hardware cycle), preallocated.
+A row holds:
+- the loop's own columns (its clock and I/O: the plant's state, the estimate it formed,
+  the hardware link's results), declared at construction by key and shape, all keys of
+  TIMESERIES_UNITS;
+- the control step's columns (`StepRecord` in force at that row): u_nom, u_filter (what the
+  filter returned), u (what was sent), rho_pred, infeasible, action (ACTION_CODES) and
+  filter_us;
+- the filter's diagnostics (`FilterOutput.diagnostics`), one column per key with the
+  unit the filter declares in `diagnostic_units` (`units()`); their shapes are fixed by
+  the first output of the run.
+
+Rows between control calls (a multi-rate loop passes `called=False`) repeat the step in
+force. The filter's columns (u_filter, rho_pred, diagnostics) hold the last output the
+filter returned (NaN / False before the first), also on calls where it was not called
+(a stale estimate) or raised; `infeasible`, the scalar boolean diagnostics (events such
+as the CBF's `recovery`) and `filter_us` are set only on the row of the call that
+produced them (False / NaN elsewhere), so their counts are counts of filter calls.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from closedloop.step import ACTION_CODES, StepRecord
+from controllers.safety_filter import FilterOutput
+
+TIMESERIES_UNITS = {
+    "t": "s (the loop's control time: simulated, or since the hardware run started)",
+    "q": "rad (true)",
+    "qd": "rad/s (true)",
+    "q_est": "rad",
+    "qd_est": "rad/s",
+    "tip": "m (true)",
+    "segment_ends": "m (true)",
+    "u_nom": "hPa",
+    "u_filter": "hPa (the filter's return, before clipping)",
+    "u": "hPa (the command sent: clipped, or the safety monitor's hold / vent)",
+    "u_applied": "hPa (at the plant's valves)",
+    "contact_force": "N (measured)",
+    "rho_pred": "1 (the filter's predicted margin; NaN: no prediction)",
+    "rho_meas": "1 (from the measured contact force)",
+    "infeasible": "bool (the filter said so, on its call's row)",
+    "action": "0 run, 1 hold, 2 vent (the safety monitor)",
+    "filter_us": "us (the filter call's wall time; NaN on rows without a call)",
+    "t_clock": "s (monotonic clock)",
+    "est_age_s": "s (t - t_capture of the estimate)",
+    "est_stale": "bool",
+    "u_sent": "hPa (what the link sent)",
+    "u_measured": "hPa (the board's measured pressure)",
+    "link_acked": "bool",
+    "link_latency_s": "s",
+    "link_lost": "bool",
+    "late_s": "s (cycle start after its scheduled time)",
+}
+
+
+class Recorder:
+    """Preallocated time series of `n_steps` rows (module docstring), one float matrix.
+
+    loop_columns: key → shape of the loop's float columns, in the order `record` gets
+    their values; loop_flags: keys of the loop's boolean columns, likewise. Booleans and
+    the action code are stored as floats and typed back by `columns`.
+    """
+
+    def __init__(self, n_steps: int, n_segments: int, loop_columns: Mapping[str, tuple[int, ...]],
+                 loop_flags: Sequence[str] = ()) -> None:
+        unknown = [key for key in (*loop_columns, *loop_flags) if key not in TIMESERIES_UNITS]
+        if unknown:
+            raise ValueError(f"loop columns must be keys of TIMESERIES_UNITS, got {unknown}")
+        n = n_segments
+        self.n_steps, self.n_segments = n_steps, n
+        # (key, shape, dtype) in row order: the loop's floats, the loop's flags, the step's columns, then diagnostics
+        self._layout: list[tuple[str, tuple[int, ...], type]] = [
+            *((key, tuple(shape), float) for key, shape in loop_columns.items()),
+            *((key, (), bool) for key in loop_flags),
+            ("u_nom", (n,), float), ("u_filter", (n,), float), ("u", (n,), float), ("rho_pred", (), float),
+            ("infeasible", (), bool), ("filter_us", (), float), ("action", (), np.int8),
+        ]
+        self._floats = np.full((n_steps, sum(math.prod(s) for _, s, _ in self._layout)), math.nan)
+        self._n_loop = len(loop_columns) + len(loop_flags)
+        self._held_filter = [math.nan] * (n + 1)  # u_filter, rho_pred of the output in force
+        self._diag_layout: list[tuple[str, tuple[int, ...], bool]] | None = None  # key, shape, bool
+        self._diag_units: dict[str, str] = {}
+        self._diag_called: list = []
+        self._cached_step: StepRecord | None = None
+        self._row_called: list = []
+        self._row_held: list | None = None
+        self._extras: dict[str, np.ndarray] = {}
+
+    @staticmethod
+    def bytes_needed(n_steps: int, n_segments: int, loop_columns: Mapping[str, tuple[int, ...]],
+                     loop_flags: Sequence[str] = (), diagnostic_floats: int = 0, extra_floats: int = 0) -> int:
+        """Peak memory of `n_steps` rows: the float matrix twice (widened once by the filter's
+        `diagnostic_floats` columns, and copied again by `columns`) plus `extra_floats` a row."""
+        n = n_segments
+        width = (sum(math.prod(shape) for shape in loop_columns.values()) + len(loop_flags)
+                 + 3 * n + 4 + diagnostic_floats)
+        return 8 * n_steps * (2 * width + extra_floats)
+
+    def record(self, k: int, step: StepRecord, called: bool, values: Sequence[float], flags: Sequence[bool] = (),
+               extras: Mapping[str, object] | None = None) -> None:
+        """Row k: the loop's values (floats, then flags, in their declared order), the step in
+        force and whether this row made the call; `extras`: further float columns by key
+        (a plant's own signals; the caller declares their units)."""
+        if step is not self._cached_step:
+            self._cache(step)
+        if called and step.output is not None:
+            self._floats[k] = [*values, *flags, *self._row_called]
+        else:
+            if self._row_held is None:
+                self._row_held = self._held_row()
+            self._floats[k] = [*values, *flags, *self._row_held]
+        if extras:
+            for key, value in extras.items():
+                if key not in self._extras:
+                    self._extras[key] = np.zeros((self.n_steps,) + np.shape(value))
+                self._extras[key][k] = value
+
+    def _cache(self, step: StepRecord) -> None:
+        """The row of a new step (its output's values, or the last output's when it has none)."""
+        self._cached_step, self._row_held = step, None
+        output = step.output
+        if output is not None:
+            u = output.u if isinstance(output.u, np.ndarray) else np.asarray(output.u, dtype=float)
+            self._held_filter = [*u.tolist(), float(output.rho_pred)]
+            if output.diagnostics or self._diag_layout is not None:
+                if self._diag_layout is None:
+                    self._add_diagnostics(output)
+                self._diag_called = self._flatten(output)
+        held = self._held_filter
+        self._row_called = [*step.u_nom.tolist(), *held[:-1], *step.u.tolist(), held[-1],
+                            output is not None and bool(output.infeasible), step.filter_us, ACTION_CODES[step.action],
+                            *self._diag_called]
+
+    def _held_row(self) -> list:
+        """A row without the filter's call: no infeasible, no filter time, scalar boolean diagnostics False."""
+        row = list(self._row_called)
+        n = self.n_segments
+        row[3 * n + 1], row[3 * n + 2] = False, math.nan  # infeasible, filter_us (after u_nom, u_filter, u, rho_pred)
+        if self._diag_layout is not None:
+            i = 3 * n + 4  # after action
+            for _, shape, is_bool in self._diag_layout:
+                if not shape and is_bool:
+                    row[i] = False
+                i += math.prod(shape)
+        return row
+
+    def _add_diagnostics(self, output: FilterOutput) -> None:
+        """Columns for the filter's diagnostics, NaN on the rows before its first output."""
+        taken = {key for key, _, _ in self._layout}
+        clash = sorted(set(output.diagnostics) & (set(TIMESERIES_UNITS) | taken))
+        if clash:
+            raise ValueError(f"filter diagnostics must not reuse the loop's column names, got {clash}")
+        self._diag_layout = [(key, np.shape(value), np.asarray(value).dtype == bool)
+                             for key, value in output.diagnostics.items()]
+        self._diag_units = {key: str(output.diagnostic_units[key]) for key in output.diagnostics}
+        self._layout += [(key, shape, bool if is_bool else float) for key, shape, is_bool in self._diag_layout]
+        size = sum(math.prod(s) for _, s, _ in self._diag_layout)
+        self._floats = np.hstack((self._floats, np.full((self.n_steps, size), math.nan)))
+
+    def _flatten(self, output: FilterOutput) -> list:
+        """The diagnostics' values on the call's row, flattened in their layout's order."""
+        diagnostics = output.diagnostics
+        flat: list = []
+        try:
+            for key, shape, _ in self._diag_layout:
+                value = diagnostics[key]
+                if not shape:
+                    flat.append(value)
+                elif len(shape) == 1 and type(value) is np.ndarray and value.shape == shape:
+                    flat += value.tolist()
+                else:
+                    flat += np.asarray(value, dtype=float).reshape(shape).ravel().tolist()
+        except (KeyError, ValueError):
+            raise ValueError(f"filter diagnostics must keep their keys and shapes over a run: first "
+                             f"{[(key, shape) for key, shape, _ in self._diag_layout]}, now "
+                             f"{[(key, np.shape(value)) for key, value in diagnostics.items()]}") from None
+        return flat
+
+    def units(self) -> dict[str, str]:
+        """The units of every column `columns` returns except the extras."""
+        return {key: self._diag_units.get(key) or TIMESERIES_UNITS[key] for key, _, _ in self._layout}
+
+    def columns(self, n_rows: int | None = None) -> dict[str, np.ndarray]:
+        """The first `n_rows` rows (default all) as arrays by key."""
+        rows = self.n_steps if n_rows is None else n_rows
+        columns, start = {}, 0
+        for key, shape, dtype in self._layout:
+            size = math.prod(shape)
+            block = self._floats[:rows, start : start + size].reshape((rows,) + shape)
+            columns[key] = np.nan_to_num(block, nan=0.0).astype(dtype) if dtype is not float else block.copy()
+            start += size
+        columns.update({key: value[:rows].copy() for key, value in self._extras.items()})
+        return columns

@@ -1,0 +1,248 @@
+"""Safety filters and nominal controllers by name: the built-ins, and user code by `FILE.py:Factory` or `pkg.mod:Factory`.
+
+A spec names a factory (a class or a function):
+- a built-in's name (`FILTERS`, `NOMINALS`), e.g. "paper-cbf", "none", "qsg" (the
+  quasi-static governor), "e-erg" (the energy-certified reference governor), "sinusoid";
+- `path/to/file.py:Factory` (the file is imported as a module of its own; the path is
+  relative to the working directory);
+- `package.module:Factory` (imported from sys.path).
+
+The factory is called as `Factory(**params)`, plus `context=FilterContext(...)` when its
+signature has a parameter named `context` (docs/safety-filter.md). A filter factory returns a safety
+filter (`controllers.safety_filter`); a nominal factory returns a callable
+`(t, q, qd) -> u_nom` (N,) hPa. Parameters not given take the signature's defaults;
+unknown names are refused with the list of valid ones. Values given as strings (the
+command line, "name=value;name=value") are converted by the parameter's annotation or,
+without one, by its default's type (bool: true/false/yes/no/1/0/on/off; "none" for a
+parameter whose annotation allows None). Built-in factories carry `parameter_docs`:
+{name: "meaning [unit]"} (`parameters` returns it with every parameter's default) and
+may carry `run_label(params) -> str`, a run's label (`label`; default
+`Factory(name=value,...)`), and `check_arguments(arguments)`, the checks its construction
+would make, run without building it (`check_filter`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import inspect
+import sys
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from controllers.energy_governor import EnergyGovernor
+from controllers.filter import paper_cbf
+from controllers.nominal import NominalController, sinusoid, tip_tracker
+from controllers.quasi_static_governor import QuasiStaticGovernor
+from controllers.safety_filter import FilterContext, PassThroughFilter, SafetyFilter
+
+FILTERS: dict[str, Callable[..., SafetyFilter]] = {
+    "paper-cbf": paper_cbf, "none": PassThroughFilter, "qsg": QuasiStaticGovernor, "e-erg": EnergyGovernor,
+}
+NOMINALS: dict[str, Callable[..., NominalController]] = {"sinusoid": sinusoid, "tip-tracker": tip_tracker}
+CONTEXT = "context"
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A factory parameter: name, default (inspect.Parameter.empty: required), type name and "meaning [unit]"."""
+
+    name: str
+    default: object
+    type_name: str
+    doc: str
+
+
+def resolve(spec: str, builtins: Mapping[str, Callable]) -> Callable:
+    """The factory named by `spec` (module docstring); ValueError naming the spec otherwise."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"a filter or nominal spec must be a name ({', '.join(builtins)}) or FILE.py:Factory or "
+                         f"package.module:Factory, got {spec!r}")
+    spec = spec.strip()
+    if spec in builtins:
+        return builtins[spec]
+    if ":" not in spec:
+        raise ValueError(f"unknown name {spec!r}; built-ins: {', '.join(builtins)}; or FILE.py:Factory, package.module:Factory")
+    where, _, name = spec.rpartition(":")
+    module = _load_file(Path(where)) if where.endswith(".py") or "/" in where or "\\" in where else _import(where)
+    factory = getattr(module, name, None)
+    if not callable(factory):
+        raise ValueError(f"{where} has no callable {name!r} (spec {spec!r})")
+    return factory
+
+
+def _import(name: str) -> types.ModuleType:
+    try:
+        return importlib.import_module(name)
+    except ImportError as exc:
+        raise ValueError(f"cannot import module {name!r}: {exc}") from None
+
+
+def _load_file(path: Path) -> types.ModuleType:
+    """Import the Python file `path` as a module named after its resolved path (imported once)."""
+    if not path.is_file():
+        raise ValueError(f"no such Python file {str(path)!r}")
+    resolved = path.resolve()
+    name = f"softcbf_user_{resolved.stem}_{hashlib.sha1(str(resolved).encode()).hexdigest()[:10]}"
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, resolved)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return module
+
+
+def _signature(factory: Callable) -> inspect.Signature:
+    return inspect.signature(factory)
+
+
+def _hints(factory: Callable) -> dict[str, object]:
+    target = factory.__init__ if inspect.isclass(factory) else factory
+    try:
+        return typing.get_type_hints(target)
+    except Exception:  # unresolvable annotations: fall back to the defaults' types
+        return {}
+
+
+def parameters(factory: Callable) -> list[Parameter]:
+    """The factory's parameters (without `context`), with defaults, type names and docs."""
+    docs = getattr(factory, "parameter_docs", {})
+    hints = _hints(factory)
+    out = []
+    for name, p in _signature(factory).parameters.items():
+        if name == CONTEXT or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+            continue
+        hint = hints.get(name, type(p.default) if p.default not in (p.empty, None) else p.empty)
+        type_name = getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
+        out.append(Parameter(name, p.default, "" if hint is p.empty else type_name, docs.get(name, "")))
+    return out
+
+
+def parse_params(text: str) -> dict[str, str]:
+    """"name=value;name=value" (the command line's repeated --filter-param joined by ';') → {name: value}."""
+    out: dict[str, str] = {}
+    for item in (text or "").split(";"):
+        if not item.strip():
+            continue
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"parameters must be name=value, got {item.strip()!r}")
+        out[name.strip()] = value.strip()
+    return out
+
+
+def _convert(name: str, value: object, hint: object, default: object) -> object:
+    if not isinstance(value, str):
+        return value
+    kinds = [a for a in typing.get_args(hint) if a is not type(None)] if typing.get_origin(hint) in (typing.Union, types.UnionType) else [hint]
+    allows_none = hint is not None and type(None) in typing.get_args(hint) or default is None
+    if allows_none and value.strip().lower() == "none":
+        return None
+    if kinds == [inspect.Parameter.empty] or kinds == [None]:
+        kinds = [type(default)] if default not in (inspect.Parameter.empty, None) else [str]
+    for kind in kinds:
+        try:
+            if kind is bool:
+                low = value.strip().lower()
+                if low in _TRUE or low in _FALSE:
+                    return low in _TRUE
+                continue
+            if kind in (int, float, str):
+                return kind(value)
+        except ValueError:
+            continue
+    if kinds and all(k in (bool, int, float, str) for k in kinds):
+        expected = " or ".join(k.__name__ for k in kinds)
+        raise ValueError(f"parameter {name} must be {expected}, got {value!r}")
+    return value
+
+
+def arguments(factory: Callable, params: Mapping[str, object]) -> dict[str, object]:
+    """`params` checked against the factory's signature (unknown names refused with the valid
+    ones) and converted (module docstring); `context` not included. Builds nothing."""
+    signature = _signature(factory)
+    accepted = {n for n, p in signature.parameters.items() if n != CONTEXT and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    open_kwargs = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
+    unknown = sorted(set(params) - accepted) if not open_kwargs else []
+    name = getattr(factory, "__name__", repr(factory))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {name}; valid: {', '.join(sorted(accepted)) or 'none'}")
+    hints = _hints(factory)
+    kwargs = {}
+    for key, value in params.items():
+        p = signature.parameters.get(key)
+        kwargs[key] = _convert(key, value, hints.get(key, inspect.Parameter.empty), p.default if p else inspect.Parameter.empty)
+    return kwargs
+
+
+def build(factory: Callable, params: Mapping[str, object], context: FilterContext | None) -> object:
+    """Call `factory` with `params` (`arguments`) and `context` when it takes one."""
+    kwargs = arguments(factory, params)
+    if CONTEXT in _signature(factory).parameters:
+        kwargs[CONTEXT] = context
+    return factory(**kwargs)
+
+
+def check_filter(spec: str, params: Mapping[str, object]) -> None:
+    """ValueError unless `spec` resolves to a filter factory taking `params` (names and
+    convertible values; nothing is built, so a study can check its runs cheaply), nor unless
+    the factory's own `check_arguments(arguments)`, when it carries one, accepts them."""
+    factory = resolve(spec, FILTERS)
+    kwargs = arguments(factory, params)
+    check = getattr(factory, "check_arguments", None)
+    if callable(check):
+        check(kwargs)
+
+
+def check_nominal(spec: str, params: Mapping[str, object]) -> None:
+    """`check_filter` for a nominal controller's spec and parameters."""
+    arguments(resolve(spec, NOMINALS), params)
+
+
+def build_filter(spec: str, params: Mapping[str, object], context: FilterContext) -> SafetyFilter:
+    """The safety filter of `spec` with `params`, told `context`."""
+    safety_filter = build(resolve(spec, FILTERS), params, context)
+    if not callable(safety_filter):
+        raise ValueError(f"filter {spec!r} must build a callable filter(estimate, u_nom), got {type(safety_filter).__name__}")
+    return safety_filter
+
+
+def build_nominal(spec: str, params: Mapping[str, object], context: FilterContext) -> NominalController:
+    """The nominal controller of `spec` with `params`, told `context` (its robot model and limits)."""
+    nominal = build(resolve(spec, NOMINALS), params, context)
+    if not callable(nominal):
+        raise ValueError(f"nominal {spec!r} must build a callable (t, q, qd) -> u_nom, got {type(nominal).__name__}")
+    return nominal
+
+
+def label(spec: str, params: Mapping[str, object]) -> str:
+    """A run's label for the filter `spec` with `params`: the factory's `run_label(params)`, or
+    `Factory(name=value,...)` (Factory: the built-in's name or the name after ':')."""
+    factory = resolve(spec, FILTERS)
+    run_label = getattr(factory, "run_label", None)
+    if callable(run_label):
+        return run_label(dict(params))
+    name = spec.strip().rpartition(":")[2]
+    args = ",".join(f"{k}={v}" for k, v in params.items())
+    return f"{name}({args})" if args else name
+
+
+def describe(name: str, factory: Callable) -> str:
+    """`name`: the factory's first docstring line, then one line per parameter: meaning, unit, default."""
+    doc = (inspect.getdoc(factory) or "").splitlines()
+    lines = [f"{name}: {doc[0] if doc else ''}"]
+    for p in parameters(factory):
+        default = "required" if p.default is inspect.Parameter.empty else f"default {p.default!r}"
+        meaning = f" — {p.doc}" if p.doc else ""
+        lines.append(f"    {p.name} ({p.type_name or 'any'}, {default}){meaning}")
+    return "\n".join(lines)

@@ -1,0 +1,256 @@
+"""Running a registered scenario from command-line tokens: the one implementation behind
+`softcbf run` (softcbf/cli.py) and `python -m scenarios` (scenarios/__main__.py).
+
+`scenario_parameters` turns `--name value` tokens into the scenario's keyword arguments
+(spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
+repeatable, add to `filter_params` and `nominal_params`; `--tuning NAME` is
+`--filter-param tuning=NAME`). `run_scenario` checks every parameter before anything is
+written, locks the run folder (`softcbf_mj.runio`), and on failure or Ctrl-C before the
+first finished run leaves no output behind (the folders it created are removed, one that
+existed is emptied); Ctrl-C after a finished run keeps the finished runs and brings the
+report and the recording up to them (a second Ctrl-C skips that and says what to run).
+Usage errors raise `UsageError` (exit code `USAGE_ERROR`); interrupts return `INTERRUPTED`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import shutil
+import sys
+import typing
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from scenarios import Scenario, get
+from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
+
+# softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
+# matplotlib take seconds to import, which usage errors should not pay.
+
+USAGE_ERROR = 2
+INTERRUPTED = 130
+DEFAULT_RUNS_DIR = Path("runs")
+_TRUE = ("1", "true", "yes", "on")
+_FALSE = ("0", "false", "no", "off")
+PLUGIN_PARAMS = ("filter_params", "nominal_params")  # scenario parameters also given by repeated --filter-param / --nominal-param
+
+
+class UsageError(Exception):
+    """Bad command-line input; the message names the parameter and the valid values."""
+
+
+class UsageParser(argparse.ArgumentParser):
+    """An ArgumentParser that raises UsageError instead of printing usage and exiting."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def _parse_bool(text: str) -> bool:
+    low = text.strip().lower()
+    if low in _TRUE:
+        return True
+    if low in _FALSE:
+        return False
+    raise ValueError(f"expected one of {', '.join(_TRUE + _FALSE)}")
+
+
+def _converter(annotation: object) -> Callable[[str], object]:
+    if annotation is bool:
+        return _parse_bool
+    if annotation in (int, float, str):
+        return annotation  # type: ignore[return-value]
+    raise TypeError(f"scenario parameter type {annotation!r} is not supported on the command line")
+
+
+def _option(name: str) -> str:
+    return f"--{name.replace('_', '-')}"
+
+
+def describe(scenario: Scenario) -> str:
+    """The scenario's name, one-line description and parameters (option, type, default)."""
+    hints = typing.get_type_hints(scenario.run)
+    lines = [f"{scenario.name}: {scenario.description}"]
+    for name, p in scenario.parameters().items():
+        lines.append(f"    {_option(name)} {hints[name].__name__} (default {p.default!r})")
+    return "\n".join(lines)
+
+
+def scenario_parameters(scenario: Scenario, tokens: Sequence[str]) -> dict[str, object]:
+    """Every parameter of `scenario` (defaults overridden by `tokens`: --name value ...).
+
+    Raises UsageError naming the parameter and its type or valid values, or the unknown
+    tokens and the valid options.
+    """
+    hints = typing.get_type_hints(scenario.run)
+    params = scenario.parameters()
+    parser = UsageParser(prog=f"scenario {scenario.name}", add_help=False, allow_abbrev=False)
+    for name, p in params.items():
+        convert, type_name = _converter(hints[name]), hints[name].__name__
+
+        def typed(text: str, _convert=convert, _type: str = type_name) -> object:
+            try:
+                return _convert(text)
+            except ValueError as exc:
+                detail = str(exc) if _convert is _parse_bool else f"expected {_type}"
+                raise argparse.ArgumentTypeError(f"{detail}, got {text!r}") from None
+
+        typed.__name__ = type_name
+        parser.add_argument(_option(name), dest=name, type=typed, default=p.default)
+    repeated = {name: _option(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
+    for name, option in repeated.items():
+        parser.add_argument(option, dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE")
+    if "filter_params" in repeated and "tuning" not in params:  # --tuning X: the filter's tuning (one run), docs/extending.md
+        parser.add_argument("--tuning", dest="filter_params_items", action="append", type=lambda v: f"tuning={v}")
+    try:
+        known, unknown = parser.parse_known_args(list(tokens))
+    except UsageError as exc:
+        raise UsageError(str(exc).removeprefix(f"{parser.prog}: argument ")) from None
+    if unknown:
+        valid = ", ".join([*(_option(n) for n in params), *repeated.values()])
+        raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
+    values = vars(known)
+    for name, option in repeated.items():
+        items = values.pop(f"{name}_items")
+        if any("=" not in item for item in items):
+            raise UsageError(f"{option} takes NAME=VALUE, got {' '.join(i for i in items if '=' not in i)}")
+        values[name] = ";".join(part for part in (values[name], *items) if part)
+    return values
+
+
+def _outputs_summary(out_dir: Path) -> str:
+    """What a run folder holds, in a few lines, for the end of a run."""
+    from softcbf_mj.recording import RECORDING_FILE, viewer_command
+    from softcbf_mj.report import PLOTS_DIR, REPORT_FILE
+
+    folder = read_run_folder(out_dir)
+    recording = out_dir / RECORDING_FILE
+    plots = sorted(p.name for p in (out_dir / PLOTS_DIR).glob("*.png"))
+    rows = [
+        ("config.json, summary.json", f"every parameter, versions, seed; one row per run ({', '.join(folder.labels)})"),
+        ("timeseries/*.npz", f"{len(folder.runs)} time series (NumPy archives with units)"),
+        (f"{PLOTS_DIR}/*.png, {REPORT_FILE}", f"{', '.join(plots)}; summary table"),
+        (RECORDING_FILE, f"{recording.stat().st_size / 1e6:.1f} MB; view it with: {viewer_command(recording)}"),
+    ]
+    width = max(len(name) for name, _ in rows)
+    return "\n".join([f"outputs in {out_dir}:", *[f"  {name:<{width}}  {what}" for name, what in rows],
+                      f"rebuild the plots, report and recording from the saved data: softcbf report {out_dir}"])
+
+
+def _finished_runs(out_dir: Path) -> list[str]:
+    return read_run_folder(out_dir).labels if (out_dir / SUMMARY_FILE).is_file() else []
+
+
+def _missing_folders(path: Path) -> list[Path]:
+    """`path` and those of its parents that do not exist yet, deepest first."""
+    return [p for p in (path, *path.parents) if not os.path.lexists(p)]
+
+
+def _remove_empty(folders: Sequence[Path]) -> None:
+    """Remove the folders this run created (deepest first) as far as they are empty."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
+
+
+def _discard(out_dir: Path, created: Sequence[Path]) -> None:
+    """Remove what a run that stopped before its first finished run wrote (and the folders
+    it created), so that the corrected command is not refused."""
+    for path in out_dir.iterdir():
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+    _remove_empty(created)
+
+
+def _stale_outputs(out_dir: Path) -> list[str]:
+    """Which of the report and the recording do not show every finished run: missing, or
+    older than summary.json (rewritten after each run, before both are rebuilt)."""
+    from softcbf_mj.recording import RECORDING_FILE
+    from softcbf_mj.report import REPORT_FILE
+
+    summary_ns = (out_dir / SUMMARY_FILE).stat().st_mtime_ns
+    return [name for name in (REPORT_FILE, RECORDING_FILE)
+            if not (out_dir / name).is_file() or (out_dir / name).stat().st_mtime_ns < summary_ns]
+
+
+def _interrupted(out_dir: Path, done: list[str]) -> int:
+    """After Ctrl-C with `done` finished runs: bring the report and the recording up to
+    them (a second Ctrl-C skips that), say what the folder holds, return 130."""
+    from softcbf_mj.recording import RECORDING_FILE, write_recording
+    from softcbf_mj.report import write_report
+
+    runs = f"{len(done)} finished run(s) ({', '.join(done)})"
+    stale = _stale_outputs(out_dir)
+    if stale:
+        print(f"\ninterrupted: rebuilding {' and '.join(stale)} for the {runs} (Ctrl-C again to skip)", file=sys.stderr)
+        try:
+            for name in stale:
+                (write_recording if name == RECORDING_FILE else write_report)(out_dir)
+        except KeyboardInterrupt:
+            print(f"\ninterrupted again: the {runs} are in {out_dir}; {' and '.join(_stale_outputs(out_dir))} "
+                  f"may not show them all: rebuild with: softcbf report {out_dir}", file=sys.stderr)
+            return INTERRUPTED
+    print(f"\ninterrupted: {runs} are in {out_dir}, with their report and recording", file=sys.stderr)
+    return INTERRUPTED
+
+
+def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overwrite: bool = False,
+                 spawn: bool = False) -> int:
+    """Run scenario `name` with parameters from `tokens` into `out` (default
+    runs/<name>-<time>, made unique); the one implementation behind `softcbf run` and
+    `python -m scenarios`. Every parameter is checked before anything is written."""
+    try:
+        scenario = get(name)
+    except KeyError as exc:
+        raise UsageError(exc.args[0]) from None
+    params = scenario_parameters(scenario, tokens)
+    try:
+        if out is None:
+            missing = _missing_folders(DEFAULT_RUNS_DIR)
+            out = new_run_dir(DEFAULT_RUNS_DIR, name)
+            created = [out, *missing]
+        else:
+            created = _missing_folders(Path(out))
+        try:
+            out_dir = prepare_out_dir(out, overwrite=overwrite)
+        except BaseException:
+            _remove_empty(created)
+            raise
+    except OutputDirError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        return _run_locked(scenario, params, out_dir, created, spawn)
+    finally:
+        release_out_dir(out_dir)
+
+
+def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, created: list[Path], spawn: bool) -> int:
+    try:
+        from softcbf_mj.recording import live_viewer
+
+        with live_viewer() if spawn else contextlib.nullcontext("") as message:
+            if message:
+                print(message, file=sys.stderr)
+            scenario.run(out_dir, **params)
+    except BaseException as exc:
+        done = _finished_runs(out_dir)
+        if not done:
+            _discard(out_dir, created)
+        if isinstance(exc, KeyboardInterrupt):
+            if not done:
+                print(f"\ninterrupted before the first run finished; nothing kept in {out_dir}", file=sys.stderr)
+                return INTERRUPTED
+            return _interrupted(out_dir, done)
+        if isinstance(exc, ValueError):
+            raise UsageError(str(exc)) from None
+        raise
+    print(_outputs_summary(out_dir))
+    return 0
+
+
