@@ -15,10 +15,10 @@ MuJoCo), `task` (actions, observations and their units, reward, termination, see
 `gym_adapter` (`GymArmEnv`, registered as "softcbf_mj/SoftArm-v0").
 """
 
-from softcbf_mj.env.environment import ArmEnvConfig, make_environment
+from softcbf_mj.env.environment import ArmEnvConfig, ArmEnvironment, make_environment
 from softcbf_mj.env.gym_adapter import ENV_ID, GymArmEnv
 from softcbf_mj.env.physics import ArmPhysics, StepStats
 from softcbf_mj.env.task import OBSERVATION_UNITS, ArmTask, RewardConfig
 
-__all__ = ["ArmEnvConfig", "make_environment", "ENV_ID", "GymArmEnv", "ArmPhysics", "StepStats", "OBSERVATION_UNITS",
+__all__ = ["ArmEnvConfig", "ArmEnvironment", "make_environment", "ENV_ID", "GymArmEnv", "ArmPhysics", "StepStats", "OBSERVATION_UNITS",
            "ArmTask", "RewardConfig"]

@@ -133,7 +133,14 @@ class ArmEnvConfig:
         return ControlStep(safety_filter, nominal, context, SafetyMonitor(self.robot.n_segments, self.hold_s))
 
 
-def make_environment(config: ArmEnvConfig | None = None, seed: int | None = None, **changes: Any) -> control.Environment:
+class ArmEnvironment(control.Environment):
+    """dm_control's `control.Environment` whose `close()` frees the physics' renderer."""
+
+    def close(self) -> None:
+        self.physics.close()
+
+
+def make_environment(config: ArmEnvConfig | None = None, seed: int | None = None, **changes: Any) -> ArmEnvironment:
     """The dm_control environment of `config` with `changes` applied to its fields (e.g.
     `make_environment(filter="paper-cbf", filter_params={"tuning": "Low"}, action_repeat=10)`);
     `seed` seeds the initial states (`ArmTask.seed`)."""
@@ -142,4 +149,4 @@ def make_environment(config: ArmEnvConfig | None = None, seed: int | None = None
     physics = ArmPhysics(plant, config.control_step, config.safe_set, image_size=config.image_size)
     task = ArmTask(plant.u_min, plant.u_max, plant.n_facets, config.episode_steps, config.reward, config.q0_std,
                    config.camera, config.tag_detections, config.image_size, seed)
-    return control.Environment(physics, task, n_sub_steps=config.action_repeat)
+    return ArmEnvironment(physics, task, n_sub_steps=config.action_repeat)
