@@ -4,7 +4,7 @@ The policy draws u_nom uniformly in the pressure box (±150 hPa) and holds it fo
 `--hold-s` s (the environment's `action_repeat` = hold_s / control_dt control periods per
 env step; the filter runs every control period). Each filter sees the same action
 sequences (the policy's generator is seeded per episode). Reported per filter, over all
-episodes, from the state at the end of every 1 ms control period: the periods with
+episodes, from the state at the end of every control period: the periods with
 ρ_meas < 0 (plate force above F_max = 0.16 N), the largest plate force and the least ρ_meas.
 
     python examples/random_policy_env.py                       # none and paper-cbf Low, 5 episodes of 10 s

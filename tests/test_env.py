@@ -132,6 +132,20 @@ def test_env_runs_exactly_the_scenarios_control_step():
     np.testing.assert_array_equal(np.array(rho), series["rho_pred"])
 
 
+def test_every_episode_starts_afresh():
+    """The filter is built once and reset per episode, the monitor is new: the same actions give the same episode."""
+    env = make_environment(filter="paper-cbf", filter_params={"tuning": "Low"}, episode_steps=40, hold_s=0.02, **FAST)
+    actions = np.random.default_rng(0).uniform(-150.0, 150.0, (40, 2))
+    actions[5] = math.nan  # a refused command: HOLD
+    episodes = []
+    for _ in range(2):
+        env.reset()
+        episodes.append([(env.step(a).observation["q"], env.physics.last_record.u) for a in actions])
+    for (q1, u1), (q2, u2) in zip(*episodes):
+        np.testing.assert_array_equal(q1, q2)
+        np.testing.assert_array_equal(u1, u2)
+
+
 def test_the_filter_changes_what_the_plant_gets_and_the_unfiltered_push_violates():
     """u_nom = +150 hPa into the plate: unfiltered, ρ_meas < 0 within 1 s; the paper's filter sends less pressure."""
     results = {}

@@ -13,9 +13,10 @@ seconds of simulated time. The scene is the one of `scenarios/mujoco_contact.py`
 MuJoCo arm of `robot` (`MujocoPlant.from_config`), the plates on the facets of
 `safe_set.environment` with spring stiffness `plate_stiffness` (N/m), and the control step
 of the scenarios (`closedloop.step.ControlStep`: the filter `filter` with `filter_params`
-built by `controllers.registry.build_filter`, told `FilterContext.for_robot(robot,
-safe_set, control_dt, pressure_limits, command_delay=0, actuator_tau=tau_p)`; admission;
-a `SafetyMonitor` holding `hold_s`). The filter sees the exact state (`exact_state`).
+built once per environment by `controllers.registry.build_filter`, told
+`FilterContext.for_robot(robot, safe_set, control_dt, pressure_limits, command_delay=0,
+actuator_tau=tau_p)`, and reset before every episode; admission; a fresh `SafetyMonitor`
+holding `hold_s` per episode). The filter sees the exact state (`exact_state`).
 Actions, observations, reward and seeds: `softcbf_mj.env.task`; stepping:
 `softcbf_mj.env.physics`.
 """
@@ -29,13 +30,11 @@ from typing import Any
 
 from dm_control.rl import control
 
-from closedloop.monitor import DEFAULT_HOLD_S, SafetyMonitor
-from closedloop.step import ControlStep
-from controllers.nominal import NominalController
+from closedloop.monitor import DEFAULT_HOLD_S
 from controllers.params import RobotParams, reference_robot
 from controllers.registry import build_filter
 from controllers.safe_set import ForceSafeSet, paper_safe_set
-from controllers.safety_filter import FilterContext
+from controllers.safety_filter import FilterContext, SafetyFilter
 from softcbf_mj.env.physics import ArmPhysics
 from softcbf_mj.env.task import ArmTask, RewardConfig
 from softcbf_mj.model_builder import CAMERA_RESOLUTION, DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
@@ -126,11 +125,9 @@ class ArmEnvConfig:
                                        plate_stiffness=self.plate_stiffness, links_per_segment=self.links_per_segment,
                                        tau_p=self.tau_p, physics_dt=self.physics_dt)
 
-    def control_step(self, nominal: NominalController) -> ControlStep:
-        """The control step of one episode: the filter (built anew), admission and a fresh safety monitor."""
-        context = self.context()
-        safety_filter = build_filter(self.filter, self.filter_params, context)
-        return ControlStep(safety_filter, nominal, context, SafetyMonitor(self.robot.n_segments, self.hold_s))
+    def safety_filter(self, context: FilterContext) -> SafetyFilter:
+        """The filter `filter` with `filter_params`, told `context` (the registry's convention)."""
+        return build_filter(self.filter, self.filter_params, context)
 
 
 class ArmEnvironment(control.Environment):
@@ -146,7 +143,8 @@ def make_environment(config: ArmEnvConfig | None = None, seed: int | None = None
     `seed` seeds the initial states (`ArmTask.seed`)."""
     config = replace(config or ArmEnvConfig(), **changes)
     plant = config.plant()
-    physics = ArmPhysics(plant, config.control_step, config.safe_set, image_size=config.image_size)
+    context = config.context()
+    physics = ArmPhysics(plant, config.safety_filter(context), context, config.hold_s, image_size=config.image_size)
     task = ArmTask(plant.u_min, plant.u_max, plant.n_facets, config.episode_steps, config.reward, config.q0_std,
                    config.camera, config.tag_detections, config.image_size, seed)
     return ArmEnvironment(physics, task, n_sub_steps=config.action_repeat)

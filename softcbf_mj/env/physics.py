@@ -18,8 +18,10 @@ not refused here: the control step refuses it (HOLD, then VENT), as in every loo
 Per `step(n)` the physics keeps `StepStats` over its n periods, from the state at each
 period's end: the number of periods with ρ_meas < 0 (ρ_meas = min over facets of the
 safe set's `margin_from_force` of the plate's spring force, 1), the least ρ_meas, the
-largest plate force (N) and whether the safety monitor vented. A new `ControlStep` (and
-with it a fresh filter and safety monitor) is made at every `reset()`: `make_step`.
+largest plate force (N) and whether the safety monitor vented. The filter is built once
+(`controllers.registry.build_filter`, by the environment); every `reset()` makes a new
+`ControlStep` around it with a fresh `SafetyMonitor` (`hold_s`) and calls the filter's
+`reset()` (the plug-in contract: called before each run).
 
 The optional camera renders the model's `overhead` camera (`softcbf_mj.render`) at
 `image_size` (W, H) px; `tag_detections` runs `perception.detect.TagDetector` on that
@@ -35,11 +37,9 @@ from typing import Callable
 import numpy as np
 from dm_control.rl import control
 
-from closedloop.monitor import SafeAction
+from closedloop.monitor import DEFAULT_HOLD_S, SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, StepRecord
-from controllers.nominal import NominalController
-from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate
+from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from perception.detect import Detection, TagDetector
 from perception.tags import arm_tag_ids
 from softcbf_mj.loop import exact_state
@@ -77,19 +77,22 @@ class StepStats:
 class ArmPhysics(control.Physics):
     """MujocoPlant + ControlStep, stepped one control period at a time (module docstring).
 
-    make_step(nominal) builds the control step of an episode around `nominal` (the held
-    action); safe_set gives ρ_meas; image_size (W, H) px sizes the camera's frames.
+    safety_filter: built for `context` (whose safe set gives ρ_meas and whose limits the
+    control step clips to); hold_s: the safety monitor's hold (s); image_size (W, H) px
+    sizes the camera's frames.
     """
 
-    def __init__(self, plant: MujocoPlant, make_step: Callable[[NominalController], ControlStep],
-                 safe_set: ForceSafeSet, estimator: Callable[[PlantState], Estimate] = exact_state,
+    def __init__(self, plant: MujocoPlant, safety_filter: SafetyFilter, context: FilterContext,
+                 hold_s: float = DEFAULT_HOLD_S, estimator: Callable[[PlantState], Estimate] = exact_state,
                  image_size: tuple[int, int] = (320, 180)) -> None:
-        if safe_set.n_facets != plant.n_facets:
-            raise ValueError(f"safe_set has {safe_set.n_facets} facets, the MuJoCo scene {plant.n_facets} plates")
-        self.plant, self.make_step, self.safe_set, self.estimator = plant, make_step, safe_set, estimator
-        self.image_size = image_size
+        if context.safe_set.n_facets != plant.n_facets:
+            raise ValueError(f"the safe set has {context.safe_set.n_facets} facets, the MuJoCo scene {plant.n_facets} plates")
+        if context.robot.n_segments != plant.n_segments:
+            raise ValueError(f"the context's robot has {context.robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
+        self.plant, self.filter, self.context, self.estimator = plant, safety_filter, context, estimator
+        self.safe_set, self.hold_s, self.image_size = context.safe_set, hold_s, image_size
         self.command = HeldCommand(plant.n_segments)
-        self.control_step = make_step(self.command)
+        self.control_step = self.new_control_step()
         self.state = plant.reset(np.zeros(plant.n_segments))
         self.last_record: StepRecord | None = None
         self.stats = StepStats()
@@ -114,9 +117,9 @@ class ArmPhysics(control.Physics):
         self.command.u_nom = u_nom
 
     def reset(self) -> None:
-        """A new episode: a fresh control step (filter and monitor), u_nom = 0, the arm straight at rest."""
+        """A new episode: a new control step (the filter reset, a fresh monitor), u_nom = 0, the arm straight at rest."""
         self.command.u_nom = np.zeros(self.plant.n_segments)
-        self.control_step = self.make_step(self.command)
+        self.control_step = self.new_control_step()
         self.control_step.reset()
         self.reset_state(np.zeros(self.plant.n_segments))
 
@@ -141,6 +144,10 @@ class ArmPhysics(control.Physics):
         self.stats = StepStats(periods, violations, rho_min, force_max, vented)
 
     # -- the environment's view -------------------------------------------------------
+
+    def new_control_step(self) -> ControlStep:
+        """The control step of an episode: the filter, the held action as nominal, a fresh safety monitor."""
+        return ControlStep(self.filter, self.command, self.context, SafetyMonitor(self.plant.n_segments, self.hold_s))
 
     def reset_state(self, q0: np.ndarray) -> None:
         """Rest at bending angles q0 (N,) rad (the plant's `reset`)."""
