@@ -7,14 +7,16 @@ sequences (the policy's generator is seeded per episode). Reported per filter, o
 episodes, from the state at the end of every control period: the periods with
 ρ_meas < 0 (plate force above F_max = 0.16 N), the largest plate force and the least ρ_meas.
 
-    python examples/random_policy_env.py                       # none and paper-cbf Low, 5 episodes of 10 s
-    python examples/random_policy_env.py --filter controllers.energy_governor:EnergyGovernor \\
-        --filter-params "contact_aware=true"                   # any filter of the plug-in registry
+    python examples/random_policy_env.py                       # none, paper-cbf Low (and the E-ERG where
+                                                               # controllers.energy_governor exists), 5 × 10 s
+    python examples/random_policy_env.py --filter examples/clip_filter.py:ClipFilter \\
+        --filter-params "limit_hPa=100"                        # any filter spec of controllers.registry
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import time
 
@@ -23,11 +25,15 @@ import numpy as np
 from controllers.registry import label, parse_params
 from softcbf_mj.env import GymArmEnv
 
+ENERGY_GOVERNOR = "controllers.energy_governor:EnergyGovernor"
+
 
 def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float, hold_s: float, control_dt: float,
                seed: int) -> dict:
     """Run `episodes` episodes of the random policy through the environment filtered by `spec`."""
     repeat = int(round(hold_s / control_dt))
+    if repeat < 1 or abs(hold_s / control_dt - repeat) > 1e-9 * repeat:
+        raise ValueError(f"hold_s must be a whole number >= 1 of control periods ({control_dt:g} s), got {hold_s:g} s")
     env = GymArmEnv(filter=spec, filter_params=params, control_dt=control_dt, action_repeat=repeat,
                     episode_steps=int(round(seconds / hold_s)))
     periods = violations = 0
@@ -46,9 +52,18 @@ def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float,
             force_max, rho_min = max(force_max, info["force_max_N"]), min(rho_min, info["rho_meas_min"])
     env.close()
     name = label(spec, params)
-    return {"filter": spec if name == spec else f"{spec} {name}", "episodes": episodes, "control_periods": periods,
+    return {"filter": name if ":" in spec or name == spec else f"{spec} {name}", "episodes": episodes, "control_periods": periods,
             "violation_periods": violations, "violation_fraction": violations / periods, "force_max_N": force_max,
             "rho_meas_min": rho_min, "wall_s": time.perf_counter() - start}
+
+
+def has_energy_governor() -> bool:
+    """Whether this checkout's controllers have the energy-certified reference governor (E-ERG)."""
+    try:
+        importlib.import_module(ENERGY_GOVERNOR.partition(":")[0])
+    except ImportError:
+        return False
+    return True
 
 
 def main() -> None:
@@ -64,14 +79,17 @@ def main() -> None:
                         help='"name=value;name=value" for the --filter of the same position')
     args = parser.parse_args()
     runs = [("none", {}), ("paper-cbf", {"tuning": "Low"})]
+    if has_energy_governor():
+        runs.append((ENERGY_GOVERNOR, {"contact_aware": "true"}))
     params = args.filter_params + [""] * (len(args.filter) - len(args.filter_params))
     runs += [(spec, parse_params(text)) for spec, text in zip(args.filter, params)]
     results = [run_filter(spec, p, args.episodes, args.seconds, args.hold_s, args.control_dt, args.seed) for spec, p in runs]
     print(f"random policy: u_nom ~ U(±150 hPa) held {args.hold_s:g} s, {args.episodes} episodes of {args.seconds:g} s, "
           f"control period {args.control_dt * 1e3:g} ms")
-    print(f"{'filter':<28} {'periods':>8} {'rho<0':>7} {'rho<0 [%]':>9} {'F max [N]':>9} {'rho min':>8} {'wall [s]':>8}")
+    width = max(len("filter"), *(len(r["filter"]) for r in results))
+    print(f"{'filter':<{width}} {'periods':>8} {'rho<0':>7} {'rho<0 [%]':>9} {'F max [N]':>9} {'rho min':>8} {'wall [s]':>8}")
     for r in results:
-        print(f"{r['filter']:<28} {r['control_periods']:>8d} {r['violation_periods']:>7d} {100 * r['violation_fraction']:>9.2f} "
+        print(f"{r['filter']:<{width}} {r['control_periods']:>8d} {r['violation_periods']:>7d} {100 * r['violation_fraction']:>9.2f} "
               f"{r['force_max_N']:>9.4f} {r['rho_meas_min']:>8.3f} {r['wall_s']:>8.1f}")
     print(json.dumps(results))
 
