@@ -10,13 +10,14 @@ import gymnasium
 import numpy as np
 import pytest
 from absl.testing import absltest
-from dm_env import test_utils
+from dm_env import specs, test_utils
 from gymnasium.utils.env_checker import check_env
 
 from closedloop.step import ControlStep
 from controllers.registry import build_filter
 from controllers.safe_set import paper_safe_set
 from softcbf_mj.env import ENV_ID, OBSERVATION_UNITS, ArmEnvConfig, GymArmEnv, RewardConfig, make_environment
+from softcbf_mj.env.gym_adapter import box
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.render import camera_matrix, camera_pose_cv, project, tag_poses, tag_plane_z
 
@@ -258,3 +259,18 @@ def test_dm_env_time_step_types_and_discounts():
     assert [s.step_type for s in steps] == [dm_env.StepType.FIRST, dm_env.StepType.MID, dm_env.StepType.LAST,
                                             dm_env.StepType.FIRST]
     assert steps[2].discount == 1.0  # truncation, not termination
+
+
+def test_gym_spaces_follow_the_dm_env_specs():
+    env = GymArmEnv(camera=True, tag_detections=True, image_size=(32, 18), **FAST)
+    assert env.action_space.dtype == np.float64
+    np.testing.assert_array_equal(env.action_space.low, [-150.0, -150.0])
+    np.testing.assert_array_equal(env.action_space.high, [150.0, 150.0])
+    image = env.observation_space["image"]
+    assert image.shape == (18, 32, 3) and image.dtype == np.uint8 and image.low.min() == 0 and image.high.max() == 255
+    assert env.observation_space["tag_corners"].shape == (3, 4, 2) and env.observation_space["tag_seen"].high.max() == 1
+    assert np.all(np.isinf(env.observation_space["q"].low))
+    assert env.metadata["render_fps"] == pytest.approx(100.0)  # one env step = 10 ms
+    with pytest.raises(ValueError, match="an unbounded spec must be of a float dtype"):
+        box(specs.Array((2,), np.int32, name="count"))
+    env.close()

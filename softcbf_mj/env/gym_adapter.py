@@ -39,15 +39,14 @@ ENV_ID = "softcbf_mj/SoftArm-v0"
 
 
 def box(spec: specs.Array) -> spaces.Box:
-    """The Box of a dm_env array spec: its bounds for a BoundedArray, else unbounded (integers: their dtype's range)."""
+    """The Box of a dm_env array spec: its bounds for a BoundedArray, else unbounded (float specs only)."""
     dtype = np.dtype(spec.dtype)
     if isinstance(spec, specs.BoundedArray):
         low, high = np.broadcast_to(spec.minimum, spec.shape), np.broadcast_to(spec.maximum, spec.shape)
     elif np.issubdtype(dtype, np.floating):
         low, high = np.full(spec.shape, -np.inf), np.full(spec.shape, np.inf)
     else:
-        info = np.iinfo(dtype)
-        low, high = np.full(spec.shape, info.min), np.full(spec.shape, info.max)
+        raise ValueError(f"an unbounded spec must be of a float dtype, got {spec.name!r} of {dtype}")
     return spaces.Box(low.astype(dtype), high.astype(dtype), spec.shape, dtype)
 
 
