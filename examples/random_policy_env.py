@@ -7,8 +7,8 @@ sequences (the policy's generator is seeded per episode). Reported per filter, o
 episodes, from the state at the end of every control period: the periods with
 ρ_meas < 0 (plate force above F_max = 0.16 N), the largest plate force and the least ρ_meas.
 
-    python examples/random_policy_env.py                       # none, paper-cbf Low (and the E-ERG where
-                                                               # controllers.energy_governor exists), 5 × 10 s
+    python examples/random_policy_env.py                       # none, paper-cbf Low (and e-erg where the
+                                                               # registry has it), 5 episodes of 10 s
     python examples/random_policy_env.py --filter examples/clip_filter.py:ClipFilter \\
         --filter-params "limit_hPa=100"                        # any filter spec of controllers.registry
 """
@@ -16,16 +16,15 @@ episodes, from the state at the end of every control period: the periods with
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import time
 
 import numpy as np
 
-from controllers.registry import label, parse_params
+from controllers.registry import FILTERS, label, parse_params
 from softcbf_mj.env import GymArmEnv
 
-ENERGY_GOVERNOR = "controllers.energy_governor:EnergyGovernor"
+ENERGY_GOVERNOR = "e-erg"
 
 
 def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float, hold_s: float, control_dt: float,
@@ -57,15 +56,6 @@ def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float,
             "rho_meas_min": rho_min, "wall_s": time.perf_counter() - start}
 
 
-def has_energy_governor() -> bool:
-    """Whether this checkout's controllers have the energy-certified reference governor (E-ERG)."""
-    try:
-        importlib.import_module(ENERGY_GOVERNOR.partition(":")[0])
-    except ImportError:
-        return False
-    return True
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5)
@@ -79,7 +69,7 @@ def main() -> None:
                         help='"name=value;name=value" for the --filter of the same position')
     args = parser.parse_args()
     runs = [("none", {}), ("paper-cbf", {"tuning": "Low"})]
-    if has_energy_governor():
+    if ENERGY_GOVERNOR in FILTERS:  # the energy-certified reference governor, where the registry has it
         runs.append((ENERGY_GOVERNOR, {"contact_aware": "true"}))
     params = args.filter_params + [""] * (len(args.filter) - len(args.filter_params))
     runs += [(spec, parse_params(text)) for spec, text in zip(args.filter, params)]

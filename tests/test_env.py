@@ -14,7 +14,7 @@ from dm_env import specs, test_utils
 from gymnasium.utils.env_checker import check_env
 
 from closedloop.step import ControlStep
-from controllers.registry import build_filter
+from controllers.registry import FILTERS, build_filter
 from controllers.safe_set import paper_safe_set
 from softcbf_mj.env import ENV_ID, OBSERVATION_UNITS, ArmEnvConfig, GymArmEnv, RewardConfig, make_environment
 from softcbf_mj.env.gym_adapter import box
@@ -166,6 +166,30 @@ def test_the_filter_changes_what_the_plant_gets_and_the_unfiltered_push_violates
     filtered_violations, filtered_force, filtered_sent = results["paper-cbf"]
     assert filtered_force < force and filtered_violations < violations
     assert np.all(filtered_sent <= 150.0) and np.any(filtered_sent < 150.0)
+
+
+PUSH_THEN_RANDOM = np.vstack((np.full((50, 2), 150.0), np.random.default_rng(0).uniform(-150.0, 150.0, (50, 2))))
+
+
+def violations_and_force(spec: str, params: dict) -> tuple[int, float]:
+    """Control periods with ρ_meas < 0 and the largest plate force (N) of PUSH_THEN_RANDOM (1 s) through `spec`."""
+    env = make_environment(filter=spec, filter_params=params, episode_steps=len(PUSH_THEN_RANDOM), **FAST)
+    env.reset()
+    violations, force = 0, 0.0
+    for action in PUSH_THEN_RANDOM:
+        env.step(action)
+        violations += env.physics.stats.violation_periods
+        force = max(force, env.physics.stats.force_max_N)
+    return violations, force
+
+
+@pytest.mark.skipif("e-erg" not in FILTERS, reason="this checkout's registry has no energy governor (e-erg)")
+@pytest.mark.parametrize("params", [{}, {"contact_aware": "true"}])
+def test_energy_governor_removes_the_violations_of_the_unfiltered_policy(params):
+    unfiltered = violations_and_force("none", {})
+    assert unfiltered[0] > 0 and unfiltered[1] > F_MAX
+    violations, force = violations_and_force("e-erg", params)
+    assert violations == 0 and force <= F_MAX
 
 
 def test_non_finite_action_holds_then_vents_and_terminates():
