@@ -51,7 +51,7 @@ def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float,
             force_max, rho_min = max(force_max, info["force_max_N"]), min(rho_min, info["rho_meas_min"])
     env.close()
     name = label(spec, params)
-    return {"filter": name if ":" in spec or name == spec else f"{spec} {name}", "episodes": episodes, "control_periods": periods,
+    return {"filter": name if ":" in spec or name.startswith(spec) else f"{spec} {name}", "episodes": episodes, "control_periods": periods,
             "violation_periods": violations, "violation_fraction": violations / periods, "force_max_N": force_max,
             "rho_meas_min": rho_min, "wall_s": time.perf_counter() - start}
 
