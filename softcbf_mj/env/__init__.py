@@ -1,0 +1,24 @@
+"""The MuJoCo ground truth as an RL environment: dm_control (dm_env API) and a Gymnasium adapter.
+
+    from softcbf_mj.env import make_environment, GymArmEnv
+    env = make_environment(filter="paper-cbf", filter_params={"tuning": "Low"}, action_repeat=10)  # dm_env
+    gym_env = GymArmEnv(filter="none", episode_steps=200)                                      # Gymnasium
+
+The policy's action is the nominal command u_nom (N,) hPa; between the policy and the
+plant runs the control step of every scenario (`closedloop.step.ControlStep`: the safety
+filter named by `filter` from `controllers.registry`, clipping to the pressure limits,
+refusal of non-finite commands, the safety monitor), once per control period.
+
+Modules: `physics` (one physics step = one control period: estimate → control step →
+MuJoCo), `task` (actions, observations and their units, reward, termination, seeds),
+`environment` (`ArmEnvConfig`, `make_environment`: the clocks and the scene),
+`gym_adapter` (`GymArmEnv`, registered as "softcbf_mj/SoftArm-v0").
+"""
+
+from softcbf_mj.env.environment import ArmEnvConfig, ArmEnvironment, make_environment
+from softcbf_mj.env.gym_adapter import ENV_ID, GymArmEnv
+from softcbf_mj.env.physics import ArmPhysics, StepStats
+from softcbf_mj.env.task import OBSERVATION_UNITS, ArmTask, RewardConfig
+
+__all__ = ["ArmEnvConfig", "ArmEnvironment", "make_environment", "ENV_ID", "GymArmEnv", "ArmPhysics", "StepStats", "OBSERVATION_UNITS",
+           "ArmTask", "RewardConfig"]

@@ -1,0 +1,150 @@
+"""The MuJoCo ground truth as a dm_control environment: `make_environment(ArmEnvConfig(...))`.
+
+Three clocks, all explicit and validated:
+
+    physics step  physics_dt      (s)   MuJoCo's integrator step (`ArmModelConfig.physics_dt`)
+    control period control_dt     (s)   one filter call and one held command; an integer
+                                        multiple of physics_dt (`softcbf_mj.plant.steps_per_control`)
+    env step      action_repeat · control_dt (s)  one policy action, held for action_repeat
+                                        control periods (`control.Environment.control_timestep()`)
+
+An episode lasts `episode_steps` env steps, i.e. episode_steps · action_repeat · control_dt
+seconds of simulated time. The scene is the one of `scenarios/mujoco_contact.py`: the
+MuJoCo arm of `robot` (`MujocoPlant.from_config`), the plates on the facets of
+`safe_set.environment` with spring stiffness `plate_stiffness` (N/m), and the control step
+of the scenarios (`closedloop.step.ControlStep`: the filter `filter` with `filter_params`
+built once per environment by `controllers.registry.build_filter`, told
+`FilterContext.for_robot(robot, safe_set, control_dt, pressure_limits, command_delay=0,
+actuator_tau=tau_p)`, and reset before every episode; admission; a fresh `SafetyMonitor`
+holding `hold_s` per episode). The filter sees the exact state (`exact_state`).
+Actions, observations, reward and seeds: `softcbf_mj.env.task`; stepping:
+`softcbf_mj.env.physics`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from dm_control.rl import control
+
+from closedloop.monitor import DEFAULT_HOLD_S
+from controllers.params import RobotParams, reference_robot
+from controllers.registry import build_filter
+from controllers.safe_set import ForceSafeSet, paper_safe_set
+from controllers.safety_filter import FilterContext, SafetyFilter
+from softcbf_mj.env.physics import ArmPhysics
+from softcbf_mj.env.task import ArmTask, RewardConfig
+from softcbf_mj.model_builder import CAMERA_RESOLUTION, DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.plant import steps_per_control
+
+DEFAULT_CONTROL_DT = 1e-3  # s, the paper's 1 kHz (as scenarios/mujoco_contact.py)
+MIN_IMAGE_PX = 8  # the tag detector's smallest image side
+
+
+@dataclass(frozen=True)
+class ArmEnvConfig:
+    """Everything the environment depends on (units in the module docstring).
+
+    | field            | default              | unit | meaning                                                   |
+    |------------------|----------------------|------|-----------------------------------------------------------|
+    | robot            | reference_robot()    | —    | the true arm and the filter's model                       |
+    | safe_set         | paper_safe_set()     | —    | the filter's P and ρ_meas; its facets place the plates    |
+    | plate_stiffness  | 11.16                | N/m  | the true plates' springs                                  |
+    | control_dt       | 1e-3                 | s    | control period                                            |
+    | physics_dt       | 1e-4                 | s    | MuJoCo step                                               |
+    | links_per_segment| 10                   | —    | rigid links per segment                                   |
+    | tau_p            | 0.05                 | s    | pressure time constant                                    |
+    | action_repeat    | 1                    | —    | control periods per env step                              |
+    | episode_steps    | 1000                 | —    | env steps per episode                                     |
+    | filter           | "none"               | —    | registry spec (controllers.registry)                      |
+    | filter_params    | {}                   | —    | its parameters                                            |
+    | pressure_limits  | True                 | —    | the control step clips to [u_min, u_max]                  |
+    | hold_s           | 0.5                  | s    | the safety monitor's hold before it vents                 |
+    | q0_std           | 0.0                  | rad  | initial bending angles ~ N(0, q0_std²)                    |
+    | reward           | RewardConfig()       | —    | reward and termination (softcbf_mj.env.task)              |
+    | camera           | False                | —    | observation "image"                                       |
+    | tag_detections   | False                | —    | observations "tag_corners", "tag_seen"                    |
+    | image_size       | (320, 180)           | px   | (W, H) of the camera's frames, <= 1280 × 720              |
+    """
+
+    robot: RobotParams = field(default_factory=reference_robot)
+    safe_set: ForceSafeSet = field(default_factory=paper_safe_set)
+    plate_stiffness: float = 11.16
+    control_dt: float = DEFAULT_CONTROL_DT
+    physics_dt: float = DEFAULT_PHYSICS_DT
+    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT
+    tau_p: float = DEFAULT_TAU_P
+    action_repeat: int = 1
+    episode_steps: int = 1000
+    filter: str = "none"
+    filter_params: Mapping[str, object] = field(default_factory=dict)
+    pressure_limits: bool = True
+    hold_s: float = DEFAULT_HOLD_S
+    q0_std: float = 0.0
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    camera: bool = False
+    tag_detections: bool = False
+    image_size: tuple[int, int] = (320, 180)
+
+    def __post_init__(self) -> None:
+        steps_per_control(self.control_dt, self.physics_dt)
+        for name in ("action_repeat", "episode_steps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if not (math.isfinite(self.plate_stiffness) and self.plate_stiffness > 0):
+            raise ValueError(f"plate_stiffness must be finite and > 0 N/m, got {self.plate_stiffness}")
+        if self.safe_set.environment.n_facets < 1:
+            raise ValueError("safe_set must have at least one facet")
+        size = tuple(self.image_size)
+        if not (len(size) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in size)
+                and MIN_IMAGE_PX <= size[0] <= CAMERA_RESOLUTION[0] and MIN_IMAGE_PX <= size[1] <= CAMERA_RESOLUTION[1]):
+            raise ValueError(f"image_size must be (W, H) integers in [{MIN_IMAGE_PX}, {CAMERA_RESOLUTION[0]}] × "
+                             f"[{MIN_IMAGE_PX}, {CAMERA_RESOLUTION[1]}] px, got {self.image_size!r}")
+        object.__setattr__(self, "image_size", size)
+        object.__setattr__(self, "filter_params", dict(self.filter_params))
+
+    @property
+    def env_dt(self) -> float:
+        """s, one env step: action_repeat · control_dt."""
+        return self.action_repeat * self.control_dt
+
+    def context(self) -> FilterContext:
+        """What the filter is told (module docstring)."""
+        return FilterContext.for_robot(self.robot, self.safe_set, self.control_dt, self.pressure_limits,
+                                       command_delay=0.0, actuator_tau=self.tau_p)
+
+    def plant(self) -> MujocoPlant:
+        """The MuJoCo ground truth of this configuration."""
+        env = self.safe_set.environment
+        return MujocoPlant.from_config(control_dt=self.control_dt, robot=self.robot, H=env.H, h=env.h,
+                                       plate_stiffness=self.plate_stiffness, links_per_segment=self.links_per_segment,
+                                       tau_p=self.tau_p, physics_dt=self.physics_dt)
+
+    def safety_filter(self, context: FilterContext) -> SafetyFilter:
+        """The filter `filter` with `filter_params`, told `context` (the registry's convention)."""
+        return build_filter(self.filter, self.filter_params, context)
+
+
+class ArmEnvironment(control.Environment):
+    """dm_control's `control.Environment` whose `close()` frees the physics' renderer."""
+
+    def close(self) -> None:
+        self.physics.close()
+
+
+def make_environment(config: ArmEnvConfig | None = None, seed: int | None = None, **changes: Any) -> ArmEnvironment:
+    """The dm_control environment of `config` with `changes` applied to its fields (e.g.
+    `make_environment(filter="paper-cbf", filter_params={"tuning": "Low"}, action_repeat=10)`);
+    `seed` seeds the initial states (`ArmTask.seed`)."""
+    config = replace(config or ArmEnvConfig(), **changes)
+    plant = config.plant()
+    context = config.context()
+    physics = ArmPhysics(plant, config.safety_filter(context), context, config.hold_s, image_size=config.image_size)
+    task = ArmTask(plant.u_min, plant.u_max, plant.n_facets, config.episode_steps, config.reward, config.q0_std,
+                   config.camera, config.tag_detections, config.image_size, seed)
+    return ArmEnvironment(physics, task, n_sub_steps=config.action_repeat)
