@@ -4,7 +4,7 @@ pty link) drives the MuJoCo arm behind an emulated valve board, seen by a virtua
 Runs in real time (≈ 15 s of wall clock for the file). The arm is
 examples/hardware_slow_arm_robot.json (the reference arm with 20× its damping) and the
 nominal command the paper's sinusoid at 80 hPa and 0.05 Hz, so the arm meets the plate
-within 3 s (examples/hardware_emulated.toml; why: README "Hardware mode"). Safety is
+within 3 s (examples/hardware_emulated.toml; why: docs/hardware.md). Safety is
 asserted on the emulated board's record of applied pressures (`ValveBoard.applied()`).
 """
 

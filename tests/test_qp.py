@@ -149,7 +149,7 @@ def test_degenerate_vertex_with_more_active_rows_than_variables(backend):
     sol = solve_qp(u_nom, A, b, lb, ub, backend=backend)
     if backend in REFUSES_DEGENERATE and not sol.feasible:
         # quadprog has no feasibility tolerance: at a vertex with more tight rows than
-        # variables a rounding-level violation makes it give up (README: not for the filter).
+        # variables a rounding-level violation makes it give up (docs/paper-cbf.md: not for the filter).
         # It may refuse, but never return a wrong u.
         pytest.xfail(f"{backend} has no feasibility tolerance and refuses this degenerate vertex: {sol.status}")
     assert sol.feasible
