@@ -61,9 +61,9 @@ DOCS: dict[str, ParameterDoc] = {
     "control_rate": ParameterDoc("rate of the controller's calls (zero-order hold between)", "Hz", "> 0"),
     # the controller's model
     "robot": ParameterDoc("the controller's robot model", "",
-                          "'reference' or a robot JSON file (docs/file-formats.md#robot)"),
+                          "'reference' or a robot JSON file (docs/file-formats.md#robot-json)"),
     "environment": ParameterDoc("the facets H r <= h of the free space", "",
-                                "'paper' or an environment JSON file (docs/file-formats.md#environment)"),
+                                "'paper' or an environment JSON file (docs/file-formats.md#environment-json)"),
     "f_max": ParameterDoc("force limit F_max per facet", "N"),
     "row_scaling": ParameterDoc("scaling of the rows of the force-safe set P", "", "paper, unit"),
     "assumed_plate_stiffness": ParameterDoc("the controller's plate spring ψ(n) = k n", "N/m"),

@@ -116,7 +116,10 @@ def _list(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _run_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", nargs="?", help="scenario name (softcbf list); optional with --config")
+    # SCENARIO is the first of the tokens the parser leaves (`_run`): a positional would take
+    # the value of a scenario option that follows --config (`--config F --tunings Low`).
+    parser.usage = "softcbf run [SCENARIO] [--config FILE] [--PARAM VALUE ...] [--out DIR] [--overwrite] [--spawn]"
+    parser.epilog = "SCENARIO: a scenario name (softcbf list); optional with --config, which names one."
     parser.add_argument("-h", "--help", action="store_true", help="show this help and the scenario's parameters, then exit")
     parser.add_argument("--config", type=Path, metavar="FILE",
                         help="run configuration: a TOML file (scenario = NAME and parameters) or a run folder's "
@@ -128,10 +131,11 @@ def _run_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace, extra: list[str]) -> int:
+    name = extra[0] if extra and not extra[0].startswith("-") else None
+    tokens = extra[1:] if name is not None else extra
     if args.help:
-        return _run_help(args)
+        return _run_help(args, name)
     base = None
-    name = args.scenario
     if args.config is not None:
         try:
             config = load_run_config(args.config)
@@ -143,13 +147,13 @@ def _run(args: argparse.Namespace, extra: list[str]) -> int:
         name, base = config.scenario, config.params
     if name is None:
         raise UsageError("softcbf run: give a scenario name (softcbf list) or --config FILE")
-    return run_scenario(name, extra, args.out, args.overwrite, args.spawn, base=base)
+    return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base)
 
 
-def _run_help(args: argparse.Namespace) -> int:
+def _run_help(args: argparse.Namespace, name: str | None) -> int:
     """`softcbf run [SCENARIO] --help`: the options, then the scenario's parameters (all scenarios' without one)."""
     args.print_help()
-    names = [args.scenario] if args.scenario else list(registry())
+    names = [name] if name else list(registry())
     try:
         print("\nparameters (--NAME VALUE; docs/parameters.md):")
         print("\n".join(describe(get_scenario(name)) for name in names))
