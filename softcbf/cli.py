@@ -68,7 +68,6 @@ from scenarios.run import INTERRUPTED, USAGE_ERROR, UsageError, UsageParser, des
 from softcbf import hardware_cli
 from softcbf_mj.runio import RunFolderError, versions
 from softcbf.study import cli as study_cli
-from softcbf.study.store import STUDY_FILE
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay.
@@ -171,6 +170,8 @@ def _report_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _report(args: argparse.Namespace, extra: list[str]) -> int:
+    from softcbf.study.store import STUDY_FILE
+
     if (args.run_dir / STUDY_FILE).is_file():
         from softcbf.study.report import write_report as write_study_report
 
