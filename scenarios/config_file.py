@@ -5,7 +5,7 @@ Two formats, told apart by the suffix:
 - `.toml`: `scenario = "NAME"` and any of the scenario's parameters, by their names
   (docs/parameters.md); `filter_params` and `nominal_params` may be tables
   (`[filter_params]` with `tuning = "Low"`), joined to "name=value;..." as on the command
-  line. Example (docs/file-formats.md#run-configuration):
+  line. Example (docs/file-formats.md#run-configuration-toml):
 
       scenario = "paper_sim"
       duration = 10.0

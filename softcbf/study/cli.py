@@ -8,7 +8,8 @@
 draw-major, so N = draws × tunings runs whole draws) into DIR, one Parquet part per sample;
 `--resume` continues a study folder; Ctrl-C stops it and leaves every finished sample
 stored. It ends with the report. `--set fixed.duration=10` (repeatable) sets a dotted key
-of the study file (`softcbf.study.definition.load_study`) without copying the file. `report` (re)writes DIR/report.md and DIR/plots/.
+of the study file (`softcbf.study.definition.load_study`) without copying the file.
+`report` (re)writes DIR/report.md and DIR/plots/.
 `softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf.cli).
 """
 
@@ -72,7 +73,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--keep-runs", action="store_true", help="keep every sample's scenario outputs in DIR/runs/")
     run.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                     help="set a dotted key of the study file, e.g. fixed.duration=10 (TOML value; repeatable)")
+                     help="set a dotted key of the study file, e.g. fixed.duration=10 "
+                          "(TOML value; repeatable; --resume needs the same)")
     run.set_defaults(study_handler=_run)
     report = commands.add_parser("report", help="write report.md and plots/ for a study folder")
     report.add_argument("dir", type=Path, help="study folder")
