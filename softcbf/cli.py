@@ -132,8 +132,6 @@ def _run_args(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace, extra: list[str]) -> int:
     name = extra[0] if extra and not extra[0].startswith("-") else None
     tokens = extra[1:] if name is not None else extra
-    if args.help:
-        return _run_help(args, name)
     base = None
     if args.config is not None:
         try:
@@ -144,6 +142,8 @@ def _run(args: argparse.Namespace, extra: list[str]) -> int:
             raise UsageError(f"scenario {name!r} given, but the run configuration {args.config} is for {config.scenario!r}; "
                              "give one of them")
         name, base = config.scenario, config.params
+    if args.help:
+        return _run_help(args, name)
     if name is None:
         raise UsageError("softcbf run: give a scenario name (softcbf list) or --config FILE")
     return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base)

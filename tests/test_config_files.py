@@ -83,6 +83,9 @@ def test_list_and_run_help_show_meaning_unit_and_valid_values(capsys):
         line = next(line for line in out.splitlines() if line.startswith(f"    --{name.replace('_', '-')} "))
         assert f": {DOCS[name].meaning}; valid: " in line
     assert "mujoco_contact" not in out
+    assert main(["run", "--config", str(ROOT / "docs" / "examples" / "run.toml"), "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "paper_sim: " in out and "mujoco_contact" not in out
     assert main(["run", "no_such", "--help"]) == USAGE_ERROR
     assert "unknown scenario 'no_such'" in capsys.readouterr().err
 
