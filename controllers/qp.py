@@ -69,6 +69,7 @@ native.
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import warnings
 from dataclasses import dataclass
@@ -78,7 +79,6 @@ from typing import Callable, NamedTuple, Sequence
 
 import daqp
 import numpy as np
-import qpsolvers
 from numpy.typing import ArrayLike
 
 FEASIBILITY_RTOL = 1e-9
@@ -98,6 +98,10 @@ _QPSOLVERS_SETTINGS: dict[str, dict[str, float | bool]] = {
     "proxqp": {"eps_abs": 1e-10, "eps_rel": 0.0},
     "piqp": {"eps_abs": 1e-10, "eps_rel": 1e-10},
 }
+QPSOLVERS_MODULES = {"daqp": "daqp", "quadprog": "quadprog", "osqp": "osqp", "proxqp": "proxsuite", "piqp": "piqp"}
+"""The Python module each qpsolvers solver needs: a solver is available when qpsolvers and it are
+installed (found without importing them: qpsolvers imports SciPy, ~0.4 s, which listing the
+backends should not pay; it is imported at the first solve through it)."""
 
 @dataclass(frozen=True, eq=False)
 class QPSolution:
@@ -243,6 +247,8 @@ def _qpsolvers_backend(solver: str) -> Callable[[_Problem], BackendResult]:
     settings = _QPSOLVERS_SETTINGS[solver]
 
     def solve(problem: _Problem) -> BackendResult:
+        import qpsolvers  # noqa: PLC0415 — imported at the first solve (QPSOLVERS_MODULES)
+
         n, has_rows = len(problem.u0), len(problem.b_hat) > 0
         qp = qpsolvers.Problem(
             np.eye(n), -np.array(problem.u0),
@@ -264,8 +270,8 @@ def _qpsolvers_backend(solver: str) -> Callable[[_Problem], BackendResult]:
 
 
 _BACKENDS: dict[str, Callable[[_Problem], BackendResult]] = {"native": _solve_native, "daqp": _solve_daqp}
-_BACKENDS.update({f"qpsolvers:{name}": _qpsolvers_backend(name)
-                  for name in _QPSOLVERS_SETTINGS if name in qpsolvers.available_solvers})
+_BACKENDS.update({f"qpsolvers:{name}": _qpsolvers_backend(name) for name in _QPSOLVERS_SETTINGS
+                  if importlib.util.find_spec("qpsolvers") and importlib.util.find_spec(QPSOLVERS_MODULES[name])})
 
 DEFAULT_BACKEND = "native"
 

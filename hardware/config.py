@@ -381,6 +381,15 @@ _SECTIONS = {
 }
 
 
+def default_values() -> dict[str, Any]:
+    """Every key of the configuration, "section.key", with its default (the module table)."""
+    out: dict[str, Any] = {}
+    for name, cls in _SECTIONS.items():
+        for f in dataclasses.fields(cls):
+            out[f"{name}.{f.name}"] = f.default_factory() if f.default is dataclasses.MISSING else f.default
+    return out
+
+
 def _section(name: str, data: Any) -> Any:
     cls = _SECTIONS[name]
     _require(isinstance(data, Mapping), f"[{name}]", f"must be a table of keys, got {data!r}")

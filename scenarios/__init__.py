@@ -13,6 +13,11 @@ annotated type (an int is accepted for a float and becomes one); every float is 
 then the scenario's own `check(kwargs)` (given to `register`), which the scenario's run
 also calls first, checks the ranges and the files and names it refers to. Errors are
 `ValueError`s that name the parameter, the valid range and the value received.
+
+Documentation. Every parameter's meaning and unit are declared once for all scenarios
+(`scenarios.parameters.DOCS`); its valid values are the scenario's `bounds` entry (given
+to `register`; a range such as "> 0 N") or, without one, the declared valid values
+(`Scenario.valid`).
 """
 
 from __future__ import annotations
@@ -21,8 +26,10 @@ import importlib
 import inspect
 import math
 import typing
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
+
+from scenarios.parameters import parameter_doc
 
 _MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop")
 
@@ -33,6 +40,7 @@ class Scenario:
     description: str
     run: Callable[..., dict]
     check: Callable[[Mapping[str, Any]], None] | None = None
+    bounds: Mapping[str, Any] = field(default_factory=dict)  # name → range (scenarios.common.Bound: str() says it)
 
     def parameters(self) -> dict[str, inspect.Parameter]:
         """Keyword parameters of the scenario, by name (out_dir excluded)."""
@@ -58,6 +66,16 @@ class Scenario:
             return value
         raise ValueError(f"parameter {name!r} takes {annotation.__name__} values, got {value!r}")
 
+    def valid(self, name: str) -> str:
+        """Parameter `name`'s valid values: its bound, else the declared ones, else by its type."""
+        if name in self.bounds:
+            return str(self.bounds[name])
+        declared = parameter_doc(name).valid
+        if declared:
+            return declared
+        annotation = typing.get_type_hints(self.run)[name]
+        return {float: "finite", int: "any integer", bool: "true, false"}.get(annotation, "any")
+
     def validate(self, params: Mapping[str, Any]) -> dict[str, Any]:
         """The full keyword arguments (defaults updated with `params`), checked without running (module docstring)."""
         kwargs = self.defaults()
@@ -71,14 +89,15 @@ _REGISTRY: dict[str, Scenario] = {}
 
 
 def register(name: str, description: str, check: Callable[[Mapping[str, Any]], None] | None = None,
-             ) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
-    """Decorator: register `fn` as scenario `name` with a one-line description and its
-    parameter check `check(kwargs)` (raises ValueError; `Scenario.validate`)."""
+             bounds: Mapping[str, Any] | None = None) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
+    """Decorator: register `fn` as scenario `name` with a one-line description, its
+    parameter check `check(kwargs)` (raises ValueError; `Scenario.validate`) and the ranges
+    that check holds its numeric parameters to (`bounds`, for the documentation)."""
 
     def wrap(fn: Callable[..., dict]) -> Callable[..., dict]:
         if name in _REGISTRY:
             raise ValueError(f"scenario {name!r} is registered twice")
-        _REGISTRY[name] = Scenario(name, description, fn, check)
+        _REGISTRY[name] = Scenario(name, description, fn, check, dict(bounds or {}))
         return fn
 
     return wrap

@@ -49,7 +49,7 @@ from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
+    COMMON_BOUNDS, PAPER_FILTER, Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
     controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot, non_negative,
     nominal_arguments, positive, read_parameter_file, save_run, scene_record,
 )
@@ -152,7 +152,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
 
 
 @register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop",
-          check_parameters)
+          check_parameters, {**COMMON_BOUNDS, **BOUNDS})
 def camera_loop(
     out_dir: Path,
     *,

@@ -42,7 +42,7 @@ from controllers.safe_set import Environment
 from controllers.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, Bound, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
+    COMMON_BOUNDS, PAPER_FILTER, Bound, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
     controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning,
     scene_record,
 )
@@ -105,7 +105,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
 
 
 @register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
-          check_parameters)
+          check_parameters, {**COMMON_BOUNDS, **BOUNDS})
 def mujoco_contact(
     out_dir: Path,
     *,

@@ -15,7 +15,7 @@ from typing import Any, Mapping
 from controllers.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
+    COMMON_BOUNDS, PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
     controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning, scene_record,
 )
 from softcbf_mj.loop import check_duration
@@ -51,7 +51,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
 
 
 @register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High",
-          check_parameters)
+          check_parameters, {**COMMON_BOUNDS, **BOUNDS})
 def paper_sim(
     out_dir: Path,
     *,

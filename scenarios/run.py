@@ -2,7 +2,8 @@
 `softcbf run` (softcbf/cli.py) and `python -m scenarios` (scenarios/__main__.py).
 
 `scenario_parameters` turns `--name value` tokens into the scenario's keyword arguments
-(spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
+over the defaults or the `base` values of a run configuration file (scenarios.config_file;
+spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
 repeatable, add to `filter_params` and `nominal_params`; `--tuning NAME` is
 `--filter-param tuning=NAME`). `run_scenario` checks every parameter before anything is
 written, locks the run folder (`softcbf_mj.runio`), and on failure or Ctrl-C before the
@@ -24,6 +25,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from scenarios import Scenario, get
+from scenarios.parameters import parameter_doc
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
@@ -70,22 +72,32 @@ def _option(name: str) -> str:
 
 
 def describe(scenario: Scenario) -> str:
-    """The scenario's name, one-line description and parameters (option, type, default)."""
+    """The scenario's name, one-line description and parameters: option, type, default and
+    unit, then meaning and valid values (scenarios.parameters)."""
     hints = typing.get_type_hints(scenario.run)
     lines = [f"{scenario.name}: {scenario.description}"]
     for name, p in scenario.parameters().items():
-        lines.append(f"    {_option(name)} {hints[name].__name__} (default {p.default!r})")
+        doc = parameter_doc(name)
+        unit = f" [{doc.unit}]" if doc.unit else ""
+        lines.append(f"    {_option(name)} {hints[name].__name__} (default {p.default!r}){unit}: {doc.meaning}; "
+                     f"valid: {scenario.valid(name)}")
     return "\n".join(lines)
 
 
-def scenario_parameters(scenario: Scenario, tokens: Sequence[str]) -> dict[str, object]:
-    """Every parameter of `scenario` (defaults overridden by `tokens`: --name value ...).
+def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
+                        base: typing.Mapping[str, object] | None = None) -> dict[str, object]:
+    """Every parameter of `scenario`: its defaults, overridden by `base` (a run configuration
+    file's values), overridden by `tokens` (--name value ...).
 
     Raises UsageError naming the parameter and its type or valid values, or the unknown
     tokens and the valid options.
     """
     hints = typing.get_type_hints(scenario.run)
     params = scenario.parameters()
+    try:
+        given = {name: scenario.coerce(name, value) for name, value in (base or {}).items()}
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     parser = UsageParser(prog=f"scenario {scenario.name}", add_help=False, allow_abbrev=False)
     for name, p in params.items():
         convert, type_name = _converter(hints[name]), hints[name].__name__
@@ -98,7 +110,7 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str]) -> dict[str, 
                 raise argparse.ArgumentTypeError(f"{detail}, got {text!r}") from None
 
         typed.__name__ = type_name
-        parser.add_argument(_option(name), dest=name, type=typed, default=p.default)
+        parser.add_argument(_option(name), dest=name, type=typed, default=given.get(name, p.default))
     repeated = {name: _option(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
     for name, option in repeated.items():
         parser.add_argument(option, dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE")
@@ -201,15 +213,16 @@ def _interrupted(out_dir: Path, done: list[str]) -> int:
 
 
 def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overwrite: bool = False,
-                 spawn: bool = False) -> int:
-    """Run scenario `name` with parameters from `tokens` into `out` (default
-    runs/<name>-<time>, made unique); the one implementation behind `softcbf run` and
-    `python -m scenarios`. Every parameter is checked before anything is written."""
+                 spawn: bool = False, base: typing.Mapping[str, object] | None = None) -> int:
+    """Run scenario `name` with parameters from `base` (a run configuration file's) and
+    `tokens` (which override them) into `out` (default runs/<name>-<time>, made unique); the
+    one implementation behind `softcbf run` and `python -m scenarios`. Every parameter is
+    checked before anything is written."""
     try:
         scenario = get(name)
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
-    params = scenario_parameters(scenario, tokens)
+    params = scenario_parameters(scenario, tokens, base)
     try:
         if out is None:
             missing = _missing_folders(DEFAULT_RUNS_DIR)

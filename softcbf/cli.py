@@ -3,6 +3,8 @@
     softcbf list                                   scenarios, filters and nominal controllers with their parameters
     softcbf run SCENARIO [--PARAM VALUE ...] [--filter SPEC] [--filter-param NAME=VALUE ...]
                          [--nominal SPEC] [--nominal-param NAME=VALUE ...] [--out DIR] [--overwrite] [--spawn]
+    softcbf run --config FILE.toml|RUN_DIR/config.json [--PARAM VALUE ...] [--out DIR]
+    softcbf run SCENARIO --help                    the scenario's parameters: meaning, unit, valid values
     softcbf report RUN_DIR [--no-recording]        rebuild plots/, report.md and recording.rrd
     softcbf report STUDY_DIR                       a study folder's report.md and plots/
     softcbf study run STUDY_FILE --out DIR | report DIR   robustness studies (softcbf.study)
@@ -21,6 +23,11 @@ recording.rrd (softcbf_mj.runio), the report and the recording rebuilt after eve
 finished tuning. `--spawn` streams each finished tuning to a rerun viewer when a display
 is present, and says so when it skips it. `python -m scenarios` is the same `run`
 (docs/run-outputs.md spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
+`--config FILE` takes the scenario and its parameters from a run configuration file
+(`scenarios.config_file`: a TOML file, or a run folder's config.json, which replays that
+run); parameters on the command line override the file's, and a SCENARIO given as well
+must be the file's. `softcbf run SCENARIO --help` lists the scenario's parameters with
+their meaning, unit, default and valid values (docs/parameters.md).
 
 The run folder is locked while a run writes it (softcbf_mj.runio: a second run into it is
 refused, naming the process that holds it). `--overwrite` replaces the contents of a run
@@ -55,12 +62,12 @@ from pathlib import Path
 
 import softcbf_mj
 from controllers import registry as controllers_registry
-from scenarios import registry
+from scenarios import get as get_scenario, registry
+from scenarios.config_file import load_run_config
 from scenarios.run import INTERRUPTED, USAGE_ERROR, UsageError, UsageParser, describe, run_scenario
 from softcbf import hardware_cli
 from softcbf_mj.runio import RunFolderError, versions
 from softcbf.study import cli as study_cli
-from softcbf.study.store import STUDY_FILE
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay.
@@ -75,17 +82,19 @@ class Command:
     add_arguments: Callable[[argparse.ArgumentParser], None] | None
     handler: Callable[[argparse.Namespace, list[str]], int]
     extra_args: bool = False
+    add_help: bool = True  # False: the command declares its own -h/--help
 
 
 COMMANDS: dict[str, Command] = {}
 
 
 def register_command(name: str, help: str, add_arguments: Callable[[argparse.ArgumentParser], None] | None,
-                     handler: Callable[[argparse.Namespace, list[str]], int], extra_args: bool = False) -> Command:
+                     handler: Callable[[argparse.Namespace, list[str]], int], extra_args: bool = False,
+                     add_help: bool = True) -> Command:
     """Add subcommand `name` to `softcbf` (see the module docstring)."""
     if name in COMMANDS:
         raise ValueError(f"softcbf subcommand {name!r} is registered twice")
-    COMMANDS[name] = Command(name, help, add_arguments, handler, extra_args)
+    COMMANDS[name] = Command(name, help, add_arguments, handler, extra_args, add_help)
     return COMMANDS[name]
 
 
@@ -106,7 +115,14 @@ def _list(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _run_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", help="scenario name (softcbf list)")
+    # SCENARIO is the first of the tokens the parser leaves (`_run`): a positional would take
+    # the value of a scenario option that follows --config (`--config F --tunings Low`).
+    parser.usage = "softcbf run [SCENARIO] [--config FILE] [--PARAM VALUE ...] [--out DIR] [--overwrite] [--spawn]"
+    parser.epilog = "SCENARIO: a scenario name (softcbf list); optional with --config, which names one."
+    parser.add_argument("-h", "--help", action="store_true", help="show this help and the scenario's parameters, then exit")
+    parser.add_argument("--config", type=Path, metavar="FILE",
+                        help="run configuration: a TOML file (scenario = NAME and parameters) or a run folder's "
+                             "config.json (replays that run); command-line parameters override it")
     parser.add_argument("--out", help="output folder (default runs/<scenario>-<time>; refused if it exists and is not empty)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the contents of an existing run folder (one written by softcbf)")
@@ -114,7 +130,35 @@ def _run_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace, extra: list[str]) -> int:
-    return run_scenario(args.scenario, extra, args.out, args.overwrite, args.spawn)
+    name = extra[0] if extra and not extra[0].startswith("-") else None
+    tokens = extra[1:] if name is not None else extra
+    base = None
+    if args.config is not None:
+        try:
+            config = load_run_config(args.config)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if name is not None and name != config.scenario:
+            raise UsageError(f"scenario {name!r} given, but the run configuration {args.config} is for {config.scenario!r}; "
+                             "give one of them")
+        name, base = config.scenario, config.params
+    if args.help:
+        return _run_help(args, name)
+    if name is None:
+        raise UsageError("softcbf run: give a scenario name (softcbf list) or --config FILE")
+    return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base)
+
+
+def _run_help(args: argparse.Namespace, name: str | None) -> int:
+    """`softcbf run [SCENARIO] --help`: the options, then the scenario's parameters (all scenarios' without one)."""
+    args.print_help()
+    names = [name] if name else list(registry())
+    try:
+        print("\nparameters (--NAME VALUE; docs/parameters.md):")
+        print("\n".join(describe(get_scenario(name)) for name in names))
+    except KeyError as exc:
+        raise UsageError(exc.args[0]) from None
+    return 0
 
 
 def _report_args(parser: argparse.ArgumentParser) -> None:
@@ -126,6 +170,8 @@ def _report_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _report(args: argparse.Namespace, extra: list[str]) -> int:
+    from softcbf.study.store import STUDY_FILE
+
     if (args.run_dir / STUDY_FILE).is_file():
         from softcbf.study.report import write_report as write_study_report
 
@@ -149,8 +195,8 @@ def _report(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 register_command("list", "list the scenarios, filters and nominal controllers with their parameters", None, _list)
-register_command("run", "run a scenario: softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR]", _run_args, _run,
-                 extra_args=True)
+register_command("run", "run a scenario: softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR] | --config FILE",
+                 _run_args, _run, extra_args=True, add_help=False)
 register_command("report", "rebuild a run or study folder's plots and report.md (and a run's recording.rrd) from its saved data",
                  _report_args, _report)
 register_command("study", "robustness studies of model mismatch: softcbf study run STUDY_FILE --out DIR | report DIR",
@@ -169,9 +215,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=version_line())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=UsageParser)
     for command in COMMANDS.values():
-        subparser = sub.add_parser(command.name, help=command.help, description=command.help, allow_abbrev=False)
+        subparser = sub.add_parser(command.name, help=command.help, description=command.help, allow_abbrev=False,
+                                   add_help=command.add_help)
         if command.add_arguments is not None:
             command.add_arguments(subparser)
+        subparser.set_defaults(print_help=subparser.print_help)
     return parser
 
 

@@ -35,7 +35,7 @@ def test_file_format_blocks_are_the_example_files_and_every_example_is_shown():
     text = (DOCS / "file-formats.md").read_text(encoding="utf-8")
     shown = {name: body for name, body in EXAMPLE_BLOCK.findall(text)}
     assert set(shown) == {"examples/robot.json", "examples/environment.json", "examples/study.toml",
-                          "examples/hardware.toml"}
+                          "examples/hardware.toml", "examples/run.toml"}
     for name, body in shown.items():
         assert (DOCS / name).read_text(encoding="utf-8") == body, name
 

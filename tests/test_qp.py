@@ -267,3 +267,16 @@ def test_native_reports_iterations():
 def test_malformed_input_raises(kwargs, message):
     with pytest.raises(ValueError, match=message):
         solve_qp(**kwargs)
+
+
+def test_backends_found_without_importing_qpsolvers_are_those_qpsolvers_finds():
+    """available_backends() finds qpsolvers' solvers without importing it (QPSOLVERS_MODULES): the same set."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from controllers.qp import available_backends; names = available_backends(); "
+            "print('qpsolvers' in sys.modules); import qpsolvers; "
+            "print(sorted(names) == sorted(['native', 'daqp', *('qpsolvers:' + s for s in qpsolvers.available_solvers "
+            "if s in ('daqp', 'quadprog', 'osqp', 'proxqp', 'piqp'))]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "True"]

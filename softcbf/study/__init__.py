@@ -9,8 +9,18 @@ probabilities with confidence intervals and sensitivities; `report` writes the p
 Markdown summary; `cli` is `python -m softcbf.study run|report`.
 """
 
-from softcbf.study.definition import Distribution, Sample, Study, load_study
-from softcbf.study.execute import StudyOutcome, run_study
-from softcbf.study.store import WALL_CLOCK_COLUMNS, StudyStore
 
-__all__ = ["Distribution", "Sample", "Study", "StudyOutcome", "StudyStore", "WALL_CLOCK_COLUMNS", "load_study", "run_study"]
+import importlib
+from typing import Any
+
+_EXPORTS = {"Distribution": "definition", "Sample": "definition", "Study": "definition", "load_study": "definition",
+            "StudyOutcome": "execute", "run_study": "execute", "WALL_CLOCK_COLUMNS": "store", "StudyStore": "store"}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    """The exports, imported on first use: `softcbf.study.cli` (mounted by `softcbf`) should not
+    make `softcbf list` pay for pyarrow and the executors."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)

@@ -1,13 +1,15 @@
 """Command line of robustness studies: `python -m softcbf.study run|report`.
 
     python -m softcbf.study run STUDY_FILE --out DIR [--workers N | --scheduler tcp://host:8786]
-                                   [--resume] [--samples N] [--keep-runs] [--no-progress]
+                                   [--resume] [--samples N] [--keep-runs] [--no-progress] [--set KEY=VALUE ...]
     python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
 draw-major, so N = draws × tunings runs whole draws) into DIR, one Parquet part per sample;
 `--resume` continues a study folder; Ctrl-C stops it and leaves every finished sample
-stored. It ends with the report. `report` (re)writes DIR/report.md and DIR/plots/.
+stored. It ends with the report. `--set fixed.duration=10` (repeatable) sets a dotted key
+of the study file (`softcbf.study.definition.load_study`) without copying the file.
+`report` (re)writes DIR/report.md and DIR/plots/.
 `softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf.cli).
 """
 
@@ -29,7 +31,7 @@ def _run(args: argparse.Namespace) -> int:
     from softcbf.study.report import write_report
 
     try:
-        study = load_study(args.study_file)
+        study = load_study(args.study_file, args.set)
         outcome = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                             samples=args.samples, keep_runs=args.keep_runs, progress=not args.no_progress)
         print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already "
@@ -70,6 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--samples", type=int, help="run only samples 0..N-1 (draw-major); --resume runs the rest later")
     run.add_argument("--keep-runs", action="store_true", help="keep every sample's scenario outputs in DIR/runs/")
     run.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                     help="set a dotted key of the study file, e.g. fixed.duration=10 "
+                          "(TOML value; repeatable; --resume needs the same)")
     run.set_defaults(study_handler=_run)
     report = commands.add_parser("report", help="write report.md and plots/ for a study folder")
     report.add_argument("dir", type=Path, help="study folder")

@@ -65,12 +65,21 @@ Study file (TOML; `load_study`):
     dist = "uniform"
     low = 8.0
     high = 16.0
+
+Settings from the command line (`load_study(path, settings)`, `softcbf study run FILE --set
+KEY=VALUE`, repeatable): KEY is a dotted key into the file's tables (`fixed.duration`,
+`vary.plate_stiffness.high`, `draws`, `filter_params.tuning`), VALUE a TOML value
+(`10`, `"Low"`, `[1, 2]`; a bare word that is not one is a string). A setting replaces
+the file's value or adds the key, before the study is checked, so it is checked as if the
+file held it; a key through a value that is not a table is refused.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import tomllib
+from collections.abc import Sequence
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -389,8 +398,36 @@ class Study:
                    tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""))
 
 
-def load_study(path: str | Path) -> Study:
-    """Read a study file (TOML, module docstring); errors name the file."""
+def parse_setting(text: str) -> tuple[list[str], Any]:
+    """"a.b.c=VALUE" → (["a", "b", "c"], the TOML value of VALUE, or VALUE itself when it is not one)."""
+    key, sep, value = text.partition("=")
+    path = [part.strip() for part in key.split(".")]
+    if not sep or not all(path):
+        raise ValueError(f"--set takes KEY=VALUE with a dotted KEY such as fixed.duration=10, got {text!r}")
+    try:
+        parsed = tomllib.loads(f"value = {value.strip()}")["value"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()
+    return path, parsed
+
+
+def apply_settings(data: dict[str, Any], settings: Sequence[str]) -> dict[str, Any]:
+    """A copy of a study file's `data` with each "dotted.key=VALUE" of `settings` set (module docstring)."""
+    out = copy.deepcopy(data)
+    for text in settings:
+        path, value = parse_setting(text)
+        table = out
+        for depth, part in enumerate(path[:-1]):
+            table = table.setdefault(part, {})
+            if not isinstance(table, dict):
+                raise ValueError(f"--set {text}: {'.'.join(path[:depth + 1])} is not a table, got {table!r}")
+        table[path[-1]] = value
+    return out
+
+
+def load_study(path: str | Path, settings: Sequence[str] = ()) -> Study:
+    """Read a study file (TOML, module docstring) with the command line's `settings`
+    ("dotted.key=VALUE", applied before the checks); errors name the file."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"study file {path} does not exist")
@@ -399,7 +436,7 @@ def load_study(path: str | Path) -> Study:
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"study file {path} is not valid TOML: {exc}") from None
     try:
-        return Study.from_dict(data)
+        return Study.from_dict(apply_settings(data, settings))
     except ValueError as exc:
         raise ValueError(f"study file {path}: {exc}") from None
 

@@ -1,0 +1,193 @@
+"""Parameters that explain themselves and configuration files with one vocabulary:
+scenarios.parameters (every parameter documented, the hardware keys mapped onto the same
+quantities), `softcbf run NAME --help`, `softcbf run --config FILE.toml|config.json`
+(overrides, bit-for-bit replay) and `softcbf study run FILE --set KEY=VALUE`."""
+
+import importlib.util
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hardware import config as hardware_config
+from scenarios import registry
+from scenarios.config_file import load_run_config
+from scenarios.parameters import DOCS, HARDWARE_KEYS, hardware_key, parameter_doc
+from softcbf.cli import USAGE_ERROR, main
+from softcbf.study.definition import apply_settings, load_study, parse_setting
+from softcbf_mj.runio import load_timeseries
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = ["--duration", "0.3", "--tunings", "Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
+TIMING_COLUMNS = ("filter_us", "solve_us")  # wall-clock measurements, not outputs of the simulation
+# Hardware key suffix → the unit its scenario parameter must be documented in.
+SUFFIX_UNITS = (("_N_per_m", "N/m"), ("_N", "N"), ("_s", "s"), ("_hz", "Hz"), ("_hPa", "hPa"))
+# Hardware defaults that differ from camera_loop's (the MuJoCo twin of the hardware run) on purpose.
+HARDWARE_DEFAULTS_DIFFER = {"camera.width": "the real camera's 480 px vs the render's 1280",
+                            "camera.height": "270 px vs 720", "control.filter_params": "a table vs a string",
+                            "control.nominal_params": "a table vs a string"}
+
+
+def test_every_scenario_parameter_is_documented_and_every_entry_is_used():
+    used = set()
+    for scenario in registry().values():
+        for name in scenario.parameters():
+            doc = parameter_doc(name)
+            assert doc.meaning and scenario.valid(name), (scenario.name, name)
+            used.add(name)
+    assert set(DOCS) == used
+
+
+def test_bounded_parameters_are_documented_in_their_bound_s_unit():
+    for scenario in registry().values():
+        for name, bound in scenario.bounds.items():
+            unit = parameter_doc(name).unit
+            assert bound.unit.split(" ")[0] in ("", unit) or bound.unit.startswith("("), (scenario.name, name, bound.unit)
+            assert scenario.valid(name) == str(bound)
+
+
+def test_valid_values_come_from_the_bound_then_the_declaration_then_the_type():
+    paper = registry()["paper_sim"]
+    assert paper.valid("f_max") == "> 0 N" and paper.valid("q0_std") == "in [0, 3.14159] rad"
+    assert paper.valid("integrator") == "ros2, rk4, euler" and paper.valid("amplitude") == "finite"
+    with pytest.raises(KeyError, match="no_such"):
+        parameter_doc("no_such")
+
+
+def _unit_of_suffix(key: str) -> str | None:
+    return next((unit for suffix, unit in SUFFIX_UNITS if key.endswith(suffix)), None)
+
+
+def test_hardware_keys_name_existing_keys_and_the_same_quantities():
+    hardware_defaults = hardware_config.default_values()
+    scenario_defaults = registry()["camera_loop"].defaults()
+    for key, parameter in HARDWARE_KEYS.items():
+        assert key in hardware_defaults and parameter in DOCS and hardware_key(parameter) == key, key
+        unit = _unit_of_suffix(key)
+        assert unit is None or DOCS[parameter].unit == unit, (key, parameter, DOCS[parameter].unit)
+        if key not in HARDWARE_DEFAULTS_DIFFER:
+            assert hardware_defaults[key] == scenario_defaults[parameter], (key, parameter)
+
+
+def test_list_and_run_help_show_meaning_unit_and_valid_values(capsys):
+    assert main(["list"]) == 0
+    listed = capsys.readouterr().out
+    assert "    --f-max float (default 0.16) [N]: force limit F_max per facet; valid: > 0 N" in listed
+    assert main(["run", "paper_sim", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "--config FILE" in out
+    for name in registry()["paper_sim"].parameters():
+        line = next(line for line in out.splitlines() if line.startswith(f"    --{name.replace('_', '-')} "))
+        assert f": {DOCS[name].meaning}; valid: " in line
+    assert "mujoco_contact" not in out
+    assert main(["run", "--config", str(ROOT / "docs" / "examples" / "run.toml"), "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "paper_sim: " in out and "mujoco_contact" not in out
+    assert main(["run", "no_such", "--help"]) == USAGE_ERROR
+    assert "unknown scenario 'no_such'" in capsys.readouterr().err
+
+
+def test_toml_run_configuration_with_command_line_overrides(tmp_path, capsys):
+    config = tmp_path / "run.toml"
+    config.write_text('scenario = "paper_sim"\nduration = 0.2\ntunings = "None,Low"\nprogress = false\n'
+                      'amplitude = 150\n[filter_params]\nslack_weight = 1e4\n', encoding="utf-8")
+    loaded = load_run_config(config)
+    assert loaded.scenario == "paper_sim"
+    assert loaded.params == {"duration": 0.2, "tunings": "None,Low", "progress": False, "amplitude": 150,
+                             "filter_params": "slack_weight=10000.0"}
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(config), "--tunings", "Low", "--filter-param", "recovery_margin=0.002",
+                 "--out", str(out)]) == 0
+    params = json.loads((out / "config.json").read_text(encoding="utf-8"))["params"]
+    assert params["duration"] == 0.2 and params["amplitude"] == 150.0 and params["tunings"] == "Low"
+    assert params["filter_params"] == "slack_weight=10000.0;recovery_margin=0.002"
+    assert [p.name for p in (out / "timeseries").iterdir()] == ["Low.npz"]
+
+
+@pytest.mark.parametrize("text, message", [
+    ('duration = 1.0\n', 'needs scenario = "NAME"'),
+    ('scenario = "paper_sim"\nduration = "long"\n', "parameter 'duration' takes float values, got 'long'"),
+    ('scenario = "paper_sim"\nno_such = 1\n', "has no parameter 'no_such'"),
+    ('scenario = "paper_sim"\nduration = [1, 2]\n', "duration must be a single value"),
+    ('scenario = "paper_sim"\nduration = \n', "is not valid TOML"),
+])
+def test_bad_run_configuration_is_a_usage_error_naming_the_key(tmp_path, capsys, text, message):
+    config = tmp_path / "run.toml"
+    config.write_text(text, encoding="utf-8")
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "out")]) == USAGE_ERROR
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_scenario_and_config_must_agree(tmp_path, capsys):
+    config = tmp_path / "run.toml"
+    config.write_text('scenario = "paper_sim"\n', encoding="utf-8")
+    assert main(["run", "mujoco_contact", "--config", str(config)]) == USAGE_ERROR
+    assert "is for 'paper_sim'" in capsys.readouterr().err
+    assert main(["run", "--config", str(tmp_path / "missing.toml")]) == USAGE_ERROR
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path, capsys):
+    first, replay = tmp_path / "first", tmp_path / "replay"
+    assert main(["run", "paper_sim", *SHORT, "--seed", "3", "--q0-std", "0.05", "--out", str(first)]) == 0
+    assert main(["run", "--config", str(first / "config.json"), "--out", str(replay)]) == 0
+    configs = [json.loads((d / "config.json").read_text(encoding="utf-8")) for d in (first, replay)]
+    assert configs[0]["params"] == configs[1]["params"] and configs[1]["params"]["seed"] == 3
+    a, units_a = load_timeseries(first / "timeseries" / "Low.npz")
+    b, units_b = load_timeseries(replay / "timeseries" / "Low.npz")
+    assert set(a) == set(b) and units_a == units_b and set(TIMING_COLUMNS) <= set(a)
+    assert np.any(a["q"][0] != 0.0)  # the seeded initial pose noise is part of what is replayed
+    for name in sorted(set(a) - set(TIMING_COLUMNS)):
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    # a replay with an override is a different run
+    other = tmp_path / "other"
+    assert main(["run", "--config", str(first / "config.json"), "--seed", "4", "--out", str(other)]) == 0
+    assert not np.array_equal(load_timeseries(other / "timeseries" / "Low.npz")[0]["q"], a["q"])
+
+
+def test_study_settings_set_dotted_keys_before_the_checks(tmp_path):
+    path = ROOT / "studies" / "paper_tunings_plate_errors.toml"
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    study = load_study(path, ["fixed.duration=10", "vary.plate_stiffness.high=20", "draws=3", 'name="short"'])
+    assert study.fixed["duration"] == 10.0 and isinstance(study.fixed["duration"], float)
+    assert study.n_draws == 3 and study.name == "short"
+    (stiffness,) = [d for d in study.vary if d.parameter == "plate_stiffness"]
+    assert stiffness.high == 20.0
+    assert load_study(path).to_dict()["fixed"] == {k: float(v) if isinstance(v, int) else v
+                                                   for k, v in data["fixed"].items()}
+    assert apply_settings(data, ["fixed.tip_friction=0.2"])["fixed"]["tip_friction"] == 0.2
+    assert "tip_friction" not in data["fixed"]  # the file's data is not changed
+    assert parse_setting("filter_params.tuning=Low") == (["filter_params", "tuning"], "Low")
+    assert parse_setting("tunings=[\"Low\", \"High\"]") == (["tunings"], ["Low", "High"])
+    with pytest.raises(ValueError, match="fixed.duration must be > 0 s, got -1.0|duration must be > 0 s"):
+        load_study(path, ["fixed.duration=-1"])
+    with pytest.raises(ValueError, match="has no parameter 'no_such'"):
+        load_study(path, ["fixed.no_such=1"])
+    with pytest.raises(ValueError, match=re.escape("draws is not a table")):
+        load_study(path, ["draws.x=1"])
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        load_study(path, ["fixed.duration"])
+
+
+def test_the_parameter_page_is_the_one_the_tool_writes():
+    spec = importlib.util.spec_from_file_location("parameter_table", ROOT / "tools" / "parameter_table.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    text = tool.page()
+    assert (ROOT / "docs" / "parameters.md").read_text(encoding="utf-8") == text, \
+        "docs/parameters.md is out of date: python tools/parameter_table.py"
+    for scenario in registry().values():
+        for name in scenario.parameters():
+            assert f"| `{name}` | {DOCS[name].meaning}" in text.replace("\\|", "|")
+    for key, name in HARDWARE_KEYS.items():
+        assert f"| `{key}` | `{name}` |" in text
+
+
+def test_the_run_configuration_example_is_a_valid_run():
+    config = load_run_config(ROOT / "docs" / "examples" / "run.toml")
+    kwargs = registry()[config.scenario].validate(config.params)
+    assert kwargs["filter_params"] == "a_E=5.0;b_E=5.0;gamma=5.0" and kwargs["tunings"] == "custom"
