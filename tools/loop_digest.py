@@ -3,7 +3,7 @@
 bit-identical.
 
 Runs paper_sim (tunings None, Low, High; pressure limits off and on) and mujoco_contact
-(None, Low, High) for short durations through the scenario API, loads each run's saved time
+(None, Low, High; the ideal plate, and the flexure plate with tip friction) for short durations through the scenario API, loads each run's saved time
 series and prints, per run, the SHA-256 of every column's bytes (dtype and shape included)
 except the wall-time columns (`WALL_TIME_COLUMNS`: they differ between any two runs), and
 the columns' units. Compare the JSON line of two trees:
@@ -53,6 +53,8 @@ def main() -> None:
         "paper_sim": dict(duration=args.paper_s, amplitude=150.0, frequency=0.5),
         "paper_sim-limits": dict(duration=args.paper_s, amplitude=150.0, frequency=0.5, pressure_limits=True),
         "mujoco_contact": dict(duration=args.mujoco_s, amplitude=150.0, frequency=0.25, t0=0.5),
+        "mujoco_contact-flexure": dict(duration=args.mujoco_s, amplitude=150.0, frequency=0.25, t0=0.5, tip_friction=0.5,
+                                       plate="flexure"),
     }
     result: dict[str, dict[str, str]] = {}
     with tempfile.TemporaryDirectory() as tmp, data_only(), contextlib.redirect_stdout(io.StringIO()):
