@@ -74,6 +74,7 @@ class SafetyMonitor:
         if not (math.isfinite(hold_s) and hold_s >= 0.0):
             raise ValueError(f"hold_s must be a finite time >= 0 s (0 vents at once), got {hold_s}")
         self.n_segments = n_segments
+        self._shape = (n_segments,)
         self.hold_s = float(hold_s)
         self._last_run: np.ndarray | None = None
         self._hold_since: float | None = None
@@ -95,16 +96,18 @@ class SafetyMonitor:
         if not (math.isfinite(t) and t >= self._t):
             raise ValueError(f"t must be finite and non-decreasing, got {t} after {self._t}")
         self._t = t
+        if flags is NO_FLAGS and self._vent_reasons is None and type(u_cmd) is np.ndarray and u_cmd.shape == self._shape:
+            u = u_cmd.astype(float)  # a copy: the monitor keeps it
+            if all(map(math.isfinite, u.tolist())):  # the common case: RUN, nothing raised
+                self._hold_since = None
+                self._last_run = u
+                return SafetyDecision(SafeAction.RUN, u, ())
         u = None if u_cmd is None else np.array(u_cmd, dtype=float)  # a copy: the monitor keeps it
         if u is not None and u.shape != (self.n_segments,):
             raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")
         finite = u is not None and all(map(math.isfinite, u.tolist()))
         if not finite and not flags.command_nonfinite:
             flags = replace(flags, command_nonfinite=True)
-        if flags is NO_FLAGS and self._vent_reasons is None:  # the common case: RUN, nothing raised
-            self._hold_since = None
-            self._last_run = u
-            return SafetyDecision(SafeAction.RUN, u, ())
         reasons = flags.raised()
         if flags.interrupted or flags.link_lost:
             return self._vent(reasons)

@@ -261,11 +261,17 @@ class CBFFilter:
         return targets[int(np.argmin(((targets - ref) ** 2).sum(axis=1)))].tolist()
 
     def __call__(self, estimate: Estimate, u_nom) -> FilterOutput:
-        """The plug-in call: `step` at x = [estimate.q; estimate.qd], as a FilterOutput."""
-        r = self.step(np.concatenate((estimate.q, estimate.qd)), u_nom)
-        diagnostics = {"b": r.b, "B": r.B, "constraint": r.constraint, "active": r.active, "recovery": r.recovery,
-                       "slack": r.slack, "solve_us": r.solve_us}
-        return FilterOutput(r.u, r.action, r.infeasible, r.rho_pred, diagnostics, CBF_DIAGNOSTIC_UNITS)
+        """The plug-in call: `step` at x = [estimate.q; estimate.qd], as a FilterOutput (built
+        straight from the step's floats: no CBFResult in between)."""
+        x = as_vector("x", np.concatenate((estimate.q, estimate.qd)), 2 * self.n, NonFiniteStateError)
+        u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
+        u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = self._step_floats(
+            x.tolist(), u_nom.tolist())
+        diagnostics = {"b": np.array(b), "B": np.array(big_b), "constraint": np.array(constraint),
+                       "active": np.zeros(len(b), dtype=bool) if active is None else active, "recovery": recovery,
+                       "slack": slack, "solve_us": solve_us}
+        return FilterOutput(u_nom if u is None else np.array(u), action, infeasible, rho_pred, diagnostics,
+                            CBF_DIAGNOSTIC_UNITS)
 
     def filter_batch(self, estimates: EstimateBatch, u_nom) -> BatchOutput:
         """B states at once: `controllers.cbf_batch.cbf_qp_batch` (the "disabled", "nominal" and
@@ -287,8 +293,17 @@ class CBFFilter:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""
         x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
+        u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = self._step_floats(
+            x.tolist(), u_nom.tolist())
+        return CBFResult(u_nom if u is None else np.array(u), u_nom, np.array(b), np.array(big_b), np.array(constraint),
+                         np.zeros(len(b), dtype=bool) if active is None else active,
+                         infeasible, recovery, action, rho_pred, solve_us, slack)
+
+    def _step_floats(self, xs: list[float], u_list: list[float]) -> tuple:
+        """`step` on checked Python floats (x = xs, u_nom = u_list): (u, b, B, constraint, active,
+        infeasible, recovery, action, rho_pred, solve_us, slack) with u None when it is u_nom,
+        b, B, constraint lists over the rows of P and active None when no QP's active set applies."""
         # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
-        xs, u_list = x.tolist(), u_nom.tolist()
         q = xs[: self.n]
         ev = self.dynamics.evaluate_floats(q, xs[self.n :])
         barrier = barrier_rows(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
@@ -323,10 +338,8 @@ class CBFFilter:
                 solve_us = (time.perf_counter() - t0) * 1e6
         constraint = [lfb + dot_lists(lgb, u) - gamma / big_b if ok else math.inf
                       for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
-        return CBFResult(u_nom if u is u_list else np.array(u), u_nom, np.array([row[0] for row in barrier]),
-                            np.array([row[2] for row in barrier]), np.array(constraint),
-                            np.zeros(len(barrier), dtype=bool) if active is None else active,
-                            infeasible, recovery, action, rho_pred, solve_us, slack)
+        return (None if u is u_list else u, [row[0] for row in barrier], [row[2] for row in barrier], constraint, active,
+                infeasible, recovery, action, rho_pred, solve_us, slack)
 
     def _violates(self, u: list[float], u_nom: list[float], rows: list[list[float]], rhs: list[float],
                   cbf_rows: list[int]) -> bool:

@@ -33,6 +33,7 @@ derived quantity belongs to the reported state):
 from __future__ import annotations
 
 import dataclasses
+import math
 import platform
 import re
 from pathlib import Path
@@ -265,8 +266,10 @@ class MujocoPlant:
         """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce)."""
         model, data = self.model, self.data
         contacts = PlateContacts.empty(self.n_facets)
-        tangential = np.zeros((self.n_facets, 3))
-        strongest = np.zeros(self.n_facets)
+        # Python floats (numpy's per-call overhead dominates on 3-vectors), the same operations in the same order
+        tangential = [[0.0, 0.0, 0.0] for _ in range(self.n_facets)]
+        strongest = [0.0] * self.n_facets
+        touched = False
         for c in range(data.ncon):
             contact = data.contact[c]
             geoms = (contact.geom1, contact.geom2)
@@ -275,15 +278,20 @@ class MujocoPlant:
                 if k is None or model.body_rootid[model.geom_bodyid[other]] != self._base:
                     continue
                 mujoco.mj_contactForce(model, data, c, self._contact_force)
-                frame = contact.frame.reshape(3, 3)
-                normal = self._contact_force[0]
+                normal, f1, f2 = self._contact_force[:3].tolist()
+                frame = contact.frame.tolist()  # rows: normal (from geom1 to geom2), two tangents
                 contacts.normal[k] += normal
-                tangential[k] += self._contact_force[1] * frame[1] + self._contact_force[2] * frame[2]
+                summed = tangential[k]
+                for j in range(3):
+                    summed[j] += f1 * frame[3 + j] + f2 * frame[6 + j]
+                touched = True
                 if normal > strongest[k]:
                     strongest[k] = normal
-                    toward_plate = frame[0] if side == 1 else -frame[0]  # frame[0] points from geom1 to geom2
-                    contacts.point[k] = (contact.pos + 0.5 * contact.dist * toward_plate)[:2]
-        contacts.tangential[:] = np.linalg.norm(tangential, axis=1)
+                    sign = 1.0 if side == 1 else -1.0  # toward the plate
+                    half_dist, pos = 0.5 * contact.dist, contact.pos.tolist()
+                    contacts.point[k] = [pos[j] + half_dist * (sign * frame[j]) for j in range(2)]
+        if touched:  # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
+            contacts.tangential[:] = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential]
         return contacts
 
 
