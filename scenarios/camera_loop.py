@@ -42,7 +42,7 @@ import numpy as np
 
 from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import per_segment
+from controllers.params import RobotParams, per_segment
 from perception.detect import TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
@@ -98,6 +98,11 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
     if not path.is_file():
         raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {spec!r} (no such file)")
     return PlaneCalibration.load(path)
+
+
+def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
+    """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
+    return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
 
 
 def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarray]) -> dict:
@@ -158,6 +163,7 @@ def camera_loop(
     seed: int = 0,
     q0_std: float = 0.0,
     true_robot: str = "",
+    damping_scale: float = 1.0,
     tip_friction: float = 0.0,
     plate: str = "ideal",
     sheet_clamp_at: float = FlexureParams.clamp_at,
@@ -172,20 +178,25 @@ def camera_loop(
     """Run each tuning for `duration` s through the camera path; write summary.json, time series and frames.
 
     The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
-    `true_robot`'s when given (same number of segments); `tip_friction`, `plate` and the
-    `sheet_*` parameters as in `mujoco_contact` (a flexure's gauge gives ρ_meas)."""
+    `true_robot`'s when given (same number of segments); `damping_scale` multiplies every
+    segment's damping d_i of both arms (the controller knows it), so the arm's time constant
+    d_i/k_i scales with it (the operating-envelope study, studies/hardware_envelope.toml);
+    `tip_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (a
+    flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
     if not duration > 0:
         raise ValueError(f"duration must be > 0 s, got {duration}")
     if not (math.isfinite(saved_frames_hz) and saved_frames_hz >= 0):
         raise ValueError(f"saved_frames_hz must be finite and >= 0 Hz (0: none), got {saved_frames_hz}")
+    if not (math.isfinite(damping_scale) and damping_scale > 0):
+        raise ValueError(f"damping_scale must be finite and > 0, got {damping_scale}")
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
     timing.ticks_per_control(tick)
-    model_robot = load_robot(robot)
+    model_robot = scale_damping(load_robot(robot), damping_scale)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     env = safe_set.environment
-    arm = load_robot(true_robot) if true_robot else model_robot
+    arm = scale_damping(load_robot(true_robot), damping_scale) if true_robot else model_robot
     if arm.n_segments != model_robot.n_segments:
         raise ValueError(f"true_robot has {arm.n_segments} segments, the controller's robot {model_robot.n_segments}; "
                          "they must have the same number")
