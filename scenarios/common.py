@@ -40,13 +40,21 @@ def data_only() -> Iterator[None]:
         _REPORT_AND_RECORDING.reset(token)
 
 
+# Named robot files (`load_robot`); each file's "about" says what its constants are and why.
+ROBOT_PRESETS: dict[str, Path] = {
+    "hardware-like": Path(__file__).resolve().parents[1] / "models" / "robots" / "hardware_like.json",
+}
+
+
 def load_robot(spec: str) -> RobotParams:
-    """'' or 'reference' → the SPEC §3 reference arm; otherwise a JSON file written by RobotParams.save."""
+    """'' or 'reference' → the SPEC §3 reference arm; a name of `ROBOT_PRESETS` → that
+    file; otherwise a JSON file written by RobotParams.save."""
     if spec in ("", "reference"):
         return reference_robot()
-    path = Path(spec)
+    path = ROBOT_PRESETS.get(spec, Path(spec))
     if not path.is_file():
-        raise ValueError(f"robot must be 'reference' or a robot JSON file, got {spec!r} (no such file)")
+        raise ValueError(f"robot must be 'reference', one of {', '.join(ROBOT_PRESETS)} or a robot JSON file, "
+                         f"got {spec!r} (no such file)")
     return RobotParams.load(path)
 
 

@@ -111,10 +111,10 @@ def figure(cells: dict, path: Path) -> None:
                 ok = ordering_holds(rho) if panel == ORDERING else (rho[panel] >= 0.0 if panel in rho else None)
                 if ok is not None:
                     grid[i, j] = float(ok)
-                label = "" if panel == ORDERING or panel not in rho else f"{rho[panel]:+.2f}"
+                label = "" if panel == ORDERING or panel not in rho else f"{rho[panel]:+.3f}"
                 if panel == ORDERING and ok is not None:
                     label = "yes" if ok else "no"
-                ax.text(j, i, label, ha="center", va="center", fontsize=7)
+                ax.text(j, i, label, ha="center", va="center", fontsize=6.5)
         ax.imshow(grid, cmap="RdYlGn", vmin=-0.3, vmax=1.3, aspect="auto")
         ax.set_xticks(range(len(dks)), [f"{d:.2g}" for d in dks], fontsize=7)
         ax.set_xlabel("arm time constant d/k [s]", fontsize=8)
@@ -145,8 +145,10 @@ def main() -> None:
     figure(cells, args.figure)
     found = boundaries(cells)
     for b in found:
-        print(f"{b['control_rate_Hz']:g} Hz, τ_p {b['tau_p_s']:g} s, {b['tuning']}: holds from d/k = "
-              f"{b['holds_from_dk_s']} s, violates at {b['violates_at_dk_s']} s")
+        held, broke = b["holds_from_dk_s"], b["violates_at_dk_s"]
+        print(f"{b['control_rate_Hz']:g} Hz, τ_p {b['tau_p_s']:g} s, {b['tuning']}: "
+              f"{'holds at no grid d/k' if held is None else f'holds from d/k = {held:.3g} s up'}"
+              f"{'' if broke is None else f', last violated at d/k = {broke:.3g} s'}")
     print(f"figure: {args.figure}")
     print(json.dumps({"cells": len(cells), "boundaries": found}))
 
