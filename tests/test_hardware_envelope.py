@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -77,3 +78,25 @@ def test_envelope_studies_are_the_documented_grids(suffix, rate, tunings):
     assert sorted({study.sample(i).values["tau_p"] for i in range(study.n_samples)}) == [0.05, 0.2]
     # τ_p varies slowest, so the first half of the samples is the τ_p = 0.05 s row.
     assert {study.sample(i).values["tau_p"] for i in range(study.n_samples // 2)} == {0.05}
+
+
+def _map_tool():
+    spec = importlib.util.spec_from_file_location("hardware_envelope_map", ROOT / "tools" / "hardware_envelope_map.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_map_ordering_and_boundaries_on_a_hand_made_grid():
+    tool = _map_tool()
+    assert tool.ordering_holds({"None": -0.78, "HW-Low": 0.594, "HW-High": 0.767}) is True
+    assert tool.ordering_holds({"None": -0.37, "HW-Low": 0.070, "HW-High": 0.0007}) is False  # Low > High
+    assert tool.ordering_holds({"None": -0.5, "HW-Low": 0.1}) is None
+    # One row (10 Hz, τ_p 0.05 s): HW-High holds at 2.8 and 7 s, HW-Low at 0.44 s and 7 s only.
+    cells = {(10.0, 0.05, 0.44): {"None": -0.5, "HW-Low": 0.01, "HW-High": -0.02},
+             (10.0, 0.05, 2.8): {"None": -0.4, "HW-Low": -0.01, "HW-High": 0.02},
+             (10.0, 0.05, 7.0): {"None": -0.2, "HW-Low": 0.01, "HW-High": 0.02}}
+    found = {b["tuning"]: b for b in tool.boundaries(cells)}
+    assert (found["HW-High"]["holds_from_dk_s"], found["HW-High"]["violates_at_dk_s"]) == (2.8, 0.44)
+    assert (found["HW-Low"]["holds_from_dk_s"], found["HW-Low"]["violates_at_dk_s"]) == (7.0, 2.8)
+    assert (found[tool.ORDERING]["holds_from_dk_s"], found[tool.ORDERING]["violates_at_dk_s"]) == (7.0, 2.8)
