@@ -19,8 +19,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # The preset's documented constants (models/robots/hardware_like.json "about", docs/hardware_envelope.md).
 HARDWARE_LIKE_STIFFNESS = 1.0       # N·m/rad, k_i (the reference arm's)
-HARDWARE_LIKE_DAMPING = 4.76        # N·m·s/rad, d_i = 68 × the reference 0.07
-HARDWARE_LIKE_TIME_CONSTANT = 4.76  # s, d_i / k_i
+HARDWARE_LIKE_DAMPING = 2.8         # N·m·s/rad, d_i = 40 × the reference 0.07
+HARDWARE_LIKE_TIME_CONSTANT = 2.8   # s, d_i / k_i
 HARDWARE_LIKE_TAU_P = 0.05          # s, pressure lag: camera_loop's default
 
 
@@ -55,6 +55,7 @@ def test_hardware_like_preset_loads_with_its_documented_constants():
     assert about["damping_d_Nms_per_rad"] == HARDWARE_LIKE_DAMPING
     assert about["stiffness_k_Nm_per_rad"] == HARDWARE_LIKE_STIFFNESS
     assert about["tau_p_s"] == HARDWARE_LIKE_TAU_P
+    assert (about["control_rate_Hz"], about["frame_rate_fps"]) == (50.0, 50.0)  # where the ordering was measured
     assert "not calibrated" in about["why"].lower()
 
 
