@@ -41,6 +41,7 @@ import cv2
 import mujoco
 import numpy as np
 
+from controllers.params import RobotParams
 from controllers.safety_filter import FilterContext
 from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
@@ -76,7 +77,7 @@ BOUNDS = {
     "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "tick": positive("s"),
     "max_hold_s": positive("s"), "qd_filter_tau": non_negative("s"), "width": Bound(16, CAMERA_RESOLUTION[0], unit="px"),
     "height": Bound(16, CAMERA_RESOLUTION[1], unit="px"), "saved_frames_hz": non_negative("Hz (0: none)"),
-    "tip_friction": non_negative("(Coulomb μ)"),
+    "tip_friction": non_negative("(Coulomb μ)"), "damping_scale": positive("(× d_i)"),
 }
 
 TABLE = (
@@ -114,6 +115,11 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
         return calibrate(TagDetector(backend).detect(image), calibration_board(config))
     path = existing_file("calibration", spec, "'board', 'truth' or a calibration JSON file")
     return read_parameter_file("calibration", path, PlaneCalibration.load)
+
+
+def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
+    """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
+    return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
 
 
 def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarray]) -> dict:
@@ -194,6 +200,7 @@ def camera_loop(
     seed: int = 0,
     q0_std: float = 0.0,
     true_robot: str = "",
+    damping_scale: float = 1.0,
     tip_friction: float = 0.0,
     plate: str = "ideal",
     sheet_clamp_at: float = FlexureParams.clamp_at,
@@ -208,17 +215,20 @@ def camera_loop(
     """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
 
     The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
-    `true_robot`'s when given (same number of segments); `tip_friction`, `plate` and the
-    `sheet_*` parameters as in `mujoco_contact` (a flexure's gauge gives ρ_meas)."""
+    `true_robot`'s when given (same number of segments); `damping_scale` multiplies every
+    segment's damping d_i of both arms (the controller knows it), so the arm's time constant
+    d_i/k_i scales with it (the operating-envelope study, studies/hardware_envelope.toml);
+    `tip_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (a
+    flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
     check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    model_robot = load_robot(robot)
+    model_robot = scale_damping(load_robot(robot), damping_scale)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     check_duration(duration, tick, model_robot.n_segments, safe_set)
     env = safe_set.environment
-    arm = load_robot(true_robot) if true_robot else model_robot
+    arm = scale_damping(load_robot(true_robot), damping_scale) if true_robot else model_robot
     config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
                             links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
                             tip_friction=tip_friction, plate=plate, flexure=flexure_params(params))

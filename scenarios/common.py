@@ -146,11 +146,20 @@ def data_only() -> Iterator[None]:
         _REPORT_AND_RECORDING.reset(token)
 
 
+# Named robot files (`load_robot`); each file's "about" says what its constants are and why.
+ROBOT_PRESETS: dict[str, Path] = {
+    "hardware-like": Path(__file__).resolve().parents[1] / "models" / "robots" / "hardware_like.json",
+}
+
+
 def load_robot(spec: str) -> RobotParams:
-    """'' or 'reference' → the docs/model.md#rppr-dynamics reference arm; otherwise a JSON file written by RobotParams.save."""
+    """'' or 'reference' → the docs/model.md#rppr-dynamics reference arm; a name of
+    `ROBOT_PRESETS` → that file; otherwise a JSON file written by RobotParams.save."""
     if spec in ("", "reference"):
         return reference_robot()
-    path = existing_file("robot", spec, "'reference' or a robot JSON file")
+    if spec in ROBOT_PRESETS:
+        return read_parameter_file("robot", ROBOT_PRESETS[spec], RobotParams.load)
+    path = existing_file("robot", spec, f"'reference', one of {', '.join(ROBOT_PRESETS)} or a robot JSON file")
     return read_parameter_file("robot", path, RobotParams.load)
 
 

@@ -61,7 +61,7 @@ DOCS: dict[str, ParameterDoc] = {
     "control_rate": ParameterDoc("rate of the controller's calls (zero-order hold between)", "Hz", "> 0"),
     # the controller's model
     "robot": ParameterDoc("the controller's robot model", "",
-                          "'reference' or a robot JSON file (docs/file-formats.md#robot-json)"),
+                          "'reference', a preset of models/robots (hardware-like) or a robot JSON file (docs/file-formats.md#robot-json)"),
     "environment": ParameterDoc("the facets H r <= h of the free space", "",
                                 "'paper' or an environment JSON file (docs/file-formats.md#environment-json)"),
     "f_max": ParameterDoc("force limit F_max per facet", "N"),
@@ -77,6 +77,8 @@ DOCS: dict[str, ParameterDoc] = {
                                "'' (the controller's robot) or a robot JSON file, same number of segments"),
     "true_stiffness_scale": ParameterDoc(_TRUE_ARM + "stiffness k as a multiple of the robot's", ""),
     "true_damping_scale": ParameterDoc(_TRUE_ARM + "damping d as a multiple of the robot's", ""),
+    "damping_scale": ParameterDoc("damping d of both the controller's robot and the true arm, as a multiple of the "
+                                  "robot's (the arm's time constants d/k scale with it; the controller knows it)", ""),
     "true_gain_scale": ParameterDoc(_TRUE_ARM + "actuator gain λ as a multiple of the robot's", ""),
     "true_length_scale": ParameterDoc(_TRUE_ARM + "segment lengths as a multiple of the robot's (inertias by its square)", ""),
     "facet_offset": ParameterDoc("the true plates moved along their outward normals (> 0: farther from the base)", "m"),
