@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -29,6 +29,15 @@ from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 
 Series = tuple[dict[str, np.ndarray], dict[str, str]]  # time series by key, and their units
+
+
+class LiveRows(Protocol):
+    """A live view of a run's rows (softcbf_mj.recording.LiveRun): the loops call `send`
+    every `period_steps` rows with the number of rows recorded so far."""
+
+    period_steps: int
+
+    def send(self, recorder: Recorder, n_rows: int) -> None: ...
 
 
 def exact_state(state: PlantState) -> Estimate:
@@ -110,10 +119,13 @@ def run_closed_loop(
     q0: np.ndarray,
     estimator: Callable[[PlantState], Estimate] = exact_state,
     progress: Progress | None = None,
+    live: LiveRows | None = None,
 ) -> Series:
     """Run for `duration` s from rest at q0; return the time series and their units (`plant_series`).
 
-    `safe_set` is the controller's (ρ_meas uses its ψ and n_max).
+    `safe_set` is the controller's (ρ_meas uses its ψ and n_max). `live` (e.g.
+    softcbf_mj.recording.LiveRun) is sent the rows recorded so far every `live.period_steps`
+    steps and at the end.
     """
     n_steps = check_duration(duration, plant.control_dt, plant.n_segments, safe_set)
     recorder = Recorder(n_steps, plant.n_segments, plant_columns(plant.n_segments, safe_set.n_facets))
@@ -126,6 +138,10 @@ def run_closed_loop(
         state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
+        if live is not None and k % live.period_steps == 0:
+            live.send(recorder, k + 1)
+    if live is not None:
+        live.send(recorder, n_steps)
     if progress is not None:
         progress.close()
     return plant_series(recorder, safe_set)

@@ -49,14 +49,23 @@ left; on the right the time series ρ, force vs F_max, u vs u_nom and the flags,
 every run. rerun draws plot legends inside the plot, so they are hidden (the legend view
 and hovering name every line).
 
-`live_viewer()` (the CLI's `--spawn`): while it is active and a display is present,
-each `write_recording` also streams the runs it has not streamed yet to a spawned
-viewer, so the viewer shows every tuning as soon as it finishes.
+Live view. `live_viewer()` (the CLI's `--spawn`) spawns a viewer when a display is present
+and makes its stream the live stream (`live_stream(stream)`: any sink, e.g. a memory
+recording in the tests); without a display it says so and nothing is streamed. While a
+live stream is active, `live_run(scene, label, index, control_dt)` gives the loops a
+`LiveRun`: every LIVE_PERIOD_S of the loop's time the loop hands it the recorder, and it
+sends the rows recorded since its last call, one `send_columns` per entity, with the
+entities, styles, colours and geometry decimation of the finished recording (so the
+viewer's time series grow while the run runs; camera frames go in through
+`LiveRun.frame`). When the run is finished, `write_recording` streams to the live stream
+what it still lacks: the tip's whole path and the saved camera frames of runs streamed
+live, everything of runs that were not (each run's rows reach the stream once).
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import shutil
 import sys
@@ -65,13 +74,16 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from softcbf_mj.palette import LIMIT_COLOR, rgb, run_color
+from closedloop.record import Recorder
 from softcbf_mj.report import (
+    BOX_MARGIN_M,
     FACET_COLOR,
     NOMINAL_COLOR,
     P_COLOR,
@@ -89,6 +101,7 @@ APP_ID = "softcbf_mj"
 RECORDING_FILE = "recording.rrd"
 TIMELINE = "sim_time"
 GEOMETRY_HZ = 50.0
+LIVE_PERIOD_S = 0.05  # a LiveRun sends its new rows every LIVE_PERIOD_S of the loop's time (s)
 MEDIA_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
 MIRROR_Y = rr.Transform3D(scale=[1.0, -1.0, 1.0])
 PLATE_HALF_LENGTH_M = 0.05  # half-length (m) of the plate surfaces drawn
@@ -132,6 +145,25 @@ def _shades(color: str, count: int) -> list[list[int]]:
 
 def _log_run(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: Mapping[str, np.ndarray],
              frames_dir: Path, frames: Sequence[Mapping]) -> None:
+    t = np.asarray(s["t"], dtype=float)
+    _log_run_rows(rec, scene, label, color, s, np.arange(0, len(t), _decimation(t)), styles=True)
+    _log_tip_trace(rec, label, color, s)
+    if frames:
+        _log_frames(rec, run_path(label), frames_dir, frames)
+
+
+def _log_tip_trace(rec: rr.RecordingStream, label: str, color: str, s: Mapping[str, np.ndarray]) -> None:
+    """The tip's whole path (static), at the geometry's rate."""
+    t = np.asarray(s["t"], dtype=float)
+    tips = np.asarray(s["segment_ends"], dtype=float)[:: _decimation(t), -1]
+    rec.log(f"{run_path(label)}/scene/tip_trace", rr.LineStrips2D([tips], colors=rgb(color, 0.4),
+                                                                 radii=rr.Radius.ui_points(1.0)), static=True)
+
+
+def _log_run_rows(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: Mapping[str, np.ndarray],
+                  k: np.ndarray, styles: bool) -> None:
+    """Rows `s` of a run: every row's scalars, and the geometry of rows `k` (indices into `s`);
+    with `styles`, also the entities' static styles (once per run and stream)."""
     root = run_path(label)
     t = np.asarray(s["t"], dtype=float)
     time = [rr.TimeColumn(TIMELINE, duration=t)]
@@ -154,34 +186,34 @@ def _log_run(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: M
                                _shades(color, p), "smooth"),
     }
     for name, (names, values, colors, style) in scalars.items():
-        rec.log(f"{root}/{name}", rr.SeriesLines(names=names, colors=colors, **SERIES_STYLES[style]), static=True)
+        if styles:
+            rec.log(f"{root}/{name}", rr.SeriesLines(names=names, colors=colors, **SERIES_STYLES[style]), static=True)
         rec.send_columns(f"{root}/{name}", indexes=time, columns=rr.Scalars.columns(scalars=values))
 
-    k = np.arange(0, len(t), _decimation(t))
     geo_time = [rr.TimeColumn(TIMELINE, duration=t[k])]
     ends = np.asarray(s["segment_ends"], dtype=float)[k]
     q = np.asarray(s["q"], dtype=float)[k]
-    run_rgb = rgb(color)
-    rec.log(f"{root}/scene", MIRROR_Y, static=True)
-    rec.log(f"{root}/scene/arm", rr.LineStrips2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(3.0)), static=True)
-    arms = arm_polyline(q, scene.lengths, ends[:, 0])
-    rec.send_columns(f"{root}/scene/arm", indexes=geo_time, columns=rr.LineStrips2D.columns(strips=arms))
     n_tags = ends.shape[1]
-    rec.log(f"{root}/scene/tags", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(5.0),
-                                                         labels=[f"tag {i}" for i in range(n_tags)]), static=True)
+    plates = _plate_strips(scene, s, k)
+    if styles:
+        run_rgb = rgb(color)
+        rec.log(f"{root}/scene", MIRROR_Y, static=True)
+        rec.log(f"{root}/scene/arm", rr.LineStrips2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(3.0)),
+                static=True)
+        rec.log(f"{root}/scene/tags", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(5.0),
+                                                             labels=[f"tag {i}" for i in range(n_tags)]), static=True)
+        rec.log(f"{root}/scene/tip", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(4.0)), static=True)
+        rec.log(f"{root}/scene/plate",
+                rr.LineStrips2D.from_fields(colors=rgb(PLATE_COLOR), radii=rr.Radius.ui_points(3.0)), static=True)
+    if not len(k):
+        return
+    rec.send_columns(f"{root}/scene/arm", indexes=geo_time,
+                     columns=rr.LineStrips2D.columns(strips=arm_polyline(q, scene.lengths, ends[:, 0])))
     rec.send_columns(f"{root}/scene/tags", indexes=geo_time,
                      columns=rr.Points2D.columns(positions=ends.reshape(-1, 2)).partition([n_tags] * len(k)))
-    rec.log(f"{root}/scene/tip", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(4.0)), static=True)
     rec.send_columns(f"{root}/scene/tip", indexes=geo_time, columns=rr.Points2D.columns(positions=ends[:, -1]))
-    rec.log(f"{root}/scene/tip_trace", rr.LineStrips2D([ends[:, -1]], colors=rgb(color, 0.4),
-                                                      radii=rr.Radius.ui_points(1.0)), static=True)
-    plates = _plate_strips(scene, s, k)
-    rec.log(f"{root}/scene/plate", rr.LineStrips2D.from_fields(colors=rgb(PLATE_COLOR), radii=rr.Radius.ui_points(3.0)),
-            static=True)
     rec.send_columns(f"{root}/scene/plate", indexes=geo_time,
                      columns=rr.LineStrips2D.columns(strips=plates.reshape(-1, 2, 2)).partition([plates.shape[1]] * len(k)))
-    if frames:
-        _log_frames(rec, root, frames_dir, frames)
 
 
 def _plate_strips(scene: Scene, s: Mapping[str, np.ndarray], k: np.ndarray) -> np.ndarray:
@@ -257,13 +289,64 @@ def _blueprint(labels: Sequence[str], cameras: Sequence[str], box: tuple[float, 
 
 @dataclass
 class _Live:
-    """A viewer spawned by `live_viewer` and the runs already streamed to it."""
+    """The stream of a live viewer (`live_viewer`, `live_stream`): the runs finished in it
+    (`write_recording` streamed them, or a `LiveRun` streamed them while they ran) and the
+    runs a `LiveRun` streamed while they ran."""
 
     stream: rr.RecordingStream
-    sent: set[str] = field(default_factory=set)
+    sent: list[str] = field(default_factory=list)
+    streamed_live: set[str] = field(default_factory=set)
 
 
 _LIVE: ContextVar[_Live | None] = ContextVar("softcbf_mj_live_viewer", default=None)
+
+
+class LiveRun:
+    """One run streamed to the live viewer while it runs, with the entities and styles of
+    the finished recording (`_log_run_rows`: the scalars every row, the geometry every
+    `_decimation`-th row of the run, counted from its first row).
+
+    A loop calls `send(recorder, n_rows)` every `period_steps` rows (LIVE_PERIOD_S of the
+    loop's time) and once at its end; each call sends the rows not sent yet in one
+    `send_columns` per entity. The plates are drawn at the deepest tip approach of each
+    batch (the finished recording: of the whole run). The tip's whole path and the camera
+    frames saved to the run folder follow when `write_recording` records the finished run.
+    """
+
+    def __init__(self, live: _Live, scene: Scene, label: str, color: str, control_dt: float) -> None:
+        if not (math.isfinite(control_dt) and control_dt > 0):
+            raise ValueError(f"control_dt must be finite and > 0 s, got {control_dt}")
+        self._live, self.scene, self.label, self.color = live, scene, label, color
+        self.period_steps = max(1, int(round(LIVE_PERIOD_S / control_dt)))
+        self._decimation = max(1, int(round(1.0 / (GEOMETRY_HZ * control_dt))))
+        self.rows_sent = 0
+        live.streamed_live.add(label)
+
+    def send(self, recorder: Recorder, n_rows: int) -> None:
+        """Stream rows rows_sent .. n_rows - 1 of `recorder` (those of the loop's rows so far)."""
+        first = self.rows_sent
+        if n_rows <= first:
+            return
+        s = recorder.columns(n_rows, first)
+        force = np.asarray(s["contact_force"], dtype=float)
+        s["tip"] = np.asarray(s["segment_ends"])[:, -1]
+        s["rho_meas"] = np.min((self.scene.n_max - self.scene.stiffness.penetration(force)) / self.scene.n_max, axis=-1)
+        k = np.arange(-first % self._decimation, n_rows - first, self._decimation)
+        stream = self._live.stream
+        if first == 0:
+            base, reach = np.asarray(s["segment_ends"])[0, 0], float(np.sum(self.scene.lengths)) + BOX_MARGIN_M
+            box = (base[0] - reach, base[0] + reach, base[1] - reach, base[1] + reach)
+            labels = [*self._live.sent, self.label]
+            stream.send_blueprint(_blueprint(labels, [], box))
+            _log_scene(stream, self.scene, box)
+            stream.log(LEGEND_ENTITY, rr.TextDocument(legend_markdown(labels), media_type=rr.MediaType.MARKDOWN), static=True)
+        _log_run_rows(stream, self.scene, self.label, self.color, s, k, styles=first == 0)
+        self.rows_sent = n_rows
+
+    def frame(self, t: float, image: bytes, media_type: str) -> None:
+        """One encoded camera image (e.g. JPEG) taken at the loop's time t (s)."""
+        self._live.stream.send_columns(f"{run_path(self.label)}/camera/image", indexes=[rr.TimeColumn(TIMELINE, duration=[t])],
+                                       columns=rr.EncodedImage.columns(blob=[image], media_type=[media_type]))
 
 
 def display_available() -> bool:
@@ -291,9 +374,10 @@ def viewer_command(recording: str | Path) -> str:
 
 @contextlib.contextmanager
 def live_viewer() -> Iterator[str]:
-    """While active, `write_recording` also streams each newly finished run to a spawned
-    viewer; yields a one-line message saying whether the viewer was spawned (it is not
-    without a display or a `rerun` executable)."""
+    """While active, runs stream to a spawned viewer as they run (`live_run`) and
+    `write_recording` streams what they did not (`live_stream`); yields a one-line message
+    saying whether the viewer was spawned (it is not without a display or a `rerun`
+    executable; then nothing is streamed)."""
     executable = viewer_executable()
     if not display_available():
         yield "viewer not spawned: no display (DISPLAY and WAYLAND_DISPLAY are unset); open recording.rrd later with `python -m rerun`"
@@ -303,13 +387,34 @@ def live_viewer() -> Iterator[str]:
         return
     stream = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
     rr.spawn(recording=stream, executable_path=executable)
-    token = _LIVE.set(_Live(stream))
     try:
-        yield "viewer spawned: each tuning appears in it when it finishes"
+        with live_stream(stream):
+            yield "viewer spawned: each run streams to it while it runs"
     finally:
-        _LIVE.reset(token)
         stream.flush()
         stream.disconnect()
+
+
+@contextlib.contextmanager
+def live_stream(stream: rr.RecordingStream) -> Iterator[None]:
+    """While active, `live_run` streams runs to `stream` as they run and `write_recording`
+    streams each newly finished run's rest to it (any sink: a spawned viewer, a gRPC
+    server, a binary stream)."""
+    token = _LIVE.set(_Live(stream))
+    try:
+        yield
+    finally:
+        _LIVE.reset(token)
+
+
+def live_run(scene_record: Mapping[str, Any] | None, label: str, index: int, control_dt: float) -> LiveRun | None:
+    """A `LiveRun` of run `label` (the `index`-th of its folder; its colour `run_color(label,
+    index)`) in the scene of summary.json's "scene" record, if a live stream is active
+    (`live_viewer`, `live_stream`) and the scene is known; else None."""
+    live = _LIVE.get()
+    if live is None or scene_record is None:
+        return None
+    return LiveRun(live, Scene.from_record(scene_record), label, run_color(label, index), control_dt)
 
 
 def _recording_id(folder: RunFolder) -> uuid.UUID:
@@ -351,7 +456,15 @@ def write_recording(run_dir: str | Path) -> Path:
     live = _LIVE.get()
     if live is not None:
         new = [label for label in folder.labels if label not in live.sent]
-        _log(live.stream, folder, scene, series, new, box)
+        whole = [label for label in new if label not in live.streamed_live]
+        if whole:
+            _log(live.stream, folder, scene, series, whole, box)
+        for label in new:
+            if label in live.streamed_live:  # its rows are there: the tip's path and the saved frames remain
+                color = run_color(label, folder.labels.index(label))
+                _log_tip_trace(live.stream, label, color, series[label])
+                if folder.frames(label):
+                    _log_frames(live.stream, run_path(label), frames_folder(folder.path, label), folder.frames(label))
         live.stream.send_blueprint(blueprint)
-        live.sent.update(new)
+        live.sent.extend(new)
     return path

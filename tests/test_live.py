@@ -1,0 +1,66 @@
+"""Live streaming of runs while they run (softcbf_mj.recording.LiveRun, live_stream): a sink
+read in the middle of a run already holds that run's rows up to then, with the entities of
+the finished recording; the finished run is not streamed twice."""
+
+import collections
+
+import numpy as np
+import rerun as rr
+
+from scenarios import get
+from softcbf_mj import recording
+from softcbf_mj.recording import APP_ID, LIVE_PERIOD_S, RECORDING_FILE, live_stream
+
+DT = 1e-3  # paper_sim's control period (s)
+RUN = dict(duration=0.5, tunings="None,Low", amplitude=150.0, frequency=0.5, progress=False)
+
+
+def sim_times(blobs: list[bytes], path) -> dict[str, np.ndarray]:
+    """sim_time (s) of every temporal row per entity in the rrd byte strings `blobs` (each written to `path`)."""
+    times = collections.defaultdict(list)
+    for data in blobs:
+        path.write_bytes(data)
+        for chunk in rr.chunk.RrdReader(path).stream().collect().stream():
+            if not chunk.is_static and "sim_time" in chunk.timeline_names:
+                times[chunk.entity_path].extend(chunk.to_record_batch().column("sim_time").cast("int64").to_numpy() * 1e-9)
+    return {entity: np.sort(t) for entity, t in times.items()}
+
+
+def test_a_spawned_stream_carries_the_run_before_it_ends(monkeypatch, tmp_path):
+    stream = rr.RecordingStream(APP_ID)
+    sink = stream.memory_recording()
+    midway = {}  # label -> what the sink held when the run had sent 0.25 s: rrd drains so far
+    received: list[bytes] = []
+    real_send = recording.LiveRun.send
+
+    def send(self, recorder, n_rows):
+        real_send(self, recorder, n_rows)
+        if self.label not in midway and n_rows * DT >= 0.25:
+            received.append(sink.drain_as_bytes())
+            midway[self.label] = list(received)
+
+    monkeypatch.setattr(recording.LiveRun, "send", send)
+    with live_stream(stream):
+        (tmp_path / "run").mkdir()
+        get("paper_sim").run(tmp_path / "run", **RUN)
+        received.append(sink.drain_as_bytes())
+    assert set(midway) == {"None", "Low"}
+    period = round(LIVE_PERIOD_S / DT)
+    for label in ("None", "Low"):
+        seen = sim_times(midway[label], tmp_path / "mid.rrd")
+        rho = seen[f"/runs/{label}/rho"]
+        # every row up to the first send at or after 0.25 s, and none of the run's later rows
+        assert len(rho) == len(np.unique(rho)) and rho[0] == 0.0
+        assert 0.25 <= rho[-1] + DT < 0.25 + period * DT and rho[-1] < RUN["duration"] - DT
+        assert np.allclose(np.diff(rho), DT)
+        assert seen[f"/runs/{label}/scene/arm"][-1] <= rho[-1]
+    # the whole stream: each run once (no row twice), every step, the same entities as the file
+    final = sim_times(received, tmp_path / "all.rrd")
+    saved = sim_times([(tmp_path / "run" / RECORDING_FILE).read_bytes()], tmp_path / "file.rrd")
+    assert set(final) == set(saved)
+    for entity, t in saved.items():
+        assert np.array_equal(final[entity], t), entity
+
+
+def test_no_stream_without_a_live_viewer(tmp_path):
+    assert recording.live_run({"unused": 1}, "None", 0, DT) is None
