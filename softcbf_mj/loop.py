@@ -33,11 +33,12 @@ Series = tuple[dict[str, np.ndarray], dict[str, str]]  # time series by key, and
 
 class LiveRows(Protocol):
     """A live view of a run's rows (softcbf_mj.recording.LiveRun): the loops call `send`
-    every `period_steps` rows with the number of rows recorded so far."""
+    every `period_steps` rows with the number of rows recorded so far, and at the end
+    with `force=True`."""
 
     period_steps: int
 
-    def send(self, recorder: Recorder, n_rows: int) -> None: ...
+    def send(self, recorder: Recorder, n_rows: int, force: bool = False) -> None: ...
 
 
 def exact_state(state: PlantState) -> Estimate:
@@ -125,7 +126,7 @@ def run_closed_loop(
 
     `safe_set` is the controller's (ρ_meas uses its ψ and n_max). `live` (e.g.
     softcbf_mj.recording.LiveRun) is sent the rows recorded so far every `live.period_steps`
-    steps and at the end.
+    steps and at the end (it decides what to send when).
     """
     n_steps = check_duration(duration, plant.control_dt, plant.n_segments, safe_set)
     recorder = Recorder(n_steps, plant.n_segments, plant_columns(plant.n_segments, safe_set.n_facets))
@@ -141,7 +142,7 @@ def run_closed_loop(
         if live is not None and k % live.period_steps == 0:
             live.send(recorder, k + 1)
     if live is not None:
-        live.send(recorder, n_steps)
+        live.send(recorder, n_steps, force=True)
     if progress is not None:
         progress.close()
     return plant_series(recorder, safe_set)

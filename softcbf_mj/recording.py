@@ -69,6 +69,7 @@ import math
 import os
 import shutil
 import sys
+import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
@@ -101,7 +102,8 @@ APP_ID = "softcbf_mj"
 RECORDING_FILE = "recording.rrd"
 TIMELINE = "sim_time"
 GEOMETRY_HZ = 50.0
-LIVE_PERIOD_S = 0.05  # a LiveRun sends its new rows every LIVE_PERIOD_S of the loop's time (s)
+LIVE_PERIOD_S = 0.05  # a loop offers a LiveRun its new rows every LIVE_PERIOD_S of the loop's time (s)
+LIVE_CPU_PERIOD_S = 0.25  # ... and the LiveRun sends them when this process has used LIVE_CPU_PERIOD_S of CPU time (s)
 MEDIA_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
 MIRROR_Y = rr.Transform3D(scale=[1.0, -1.0, 1.0])
 PLATE_HALF_LENGTH_M = 0.05  # half-length (m) of the plate surfaces drawn
@@ -307,8 +309,14 @@ class LiveRun:
     `_decimation`-th row of the run, counted from its first row).
 
     A loop calls `send(recorder, n_rows)` every `period_steps` rows (LIVE_PERIOD_S of the
-    loop's time) and once at its end; each call sends the rows not sent yet in one
-    `send_columns` per entity. The plates are drawn at the deepest tip approach of each
+    loop's time) and `send(recorder, n_rows, force=True)` at its end; a call sends the rows
+    not sent yet, one `send_columns` per entity, if forced or this process has used
+    LIVE_CPU_PERIOD_S of CPU time (`time.process_time`) since the last send. rerun takes
+    ~0.2 ms of CPU per `send_columns` of few rows, so sending at every offer slowed a 1 kHz
+    loop by 80 %; a CPU-time period bounds the cost to (CPU of one send) /
+    LIVE_CPU_PERIOD_S of the loop's own CPU time whatever the machine's load
+    (tools/bench_live.py). A loop with a core to itself refreshes the viewer
+    1/LIVE_CPU_PERIOD_S times a second; on a busy machine, less often. The plates are drawn at the deepest tip approach of each
     batch (the finished recording: of the whole run). The tip's whole path and the camera
     frames saved to the run folder follow when `write_recording` records the finished run.
     """
@@ -320,13 +328,19 @@ class LiveRun:
         self.period_steps = max(1, int(round(LIVE_PERIOD_S / control_dt)))
         self._decimation = max(1, int(round(1.0 / (GEOMETRY_HZ * control_dt))))
         self.rows_sent = 0
+        self.sends = 0  # the sends so far, and the calling thread's CPU time they took (s)
+        self.send_cpu_s = 0.0
+        self._last_send = -math.inf
         live.streamed_live.add(label)
 
-    def send(self, recorder: Recorder, n_rows: int) -> None:
-        """Stream rows rows_sent .. n_rows - 1 of `recorder` (those of the loop's rows so far)."""
+    def send(self, recorder: Recorder, n_rows: int, force: bool = False) -> None:
+        """Stream rows rows_sent .. n_rows - 1 of `recorder` (the loop's rows so far), if
+        `force` or this process has used LIVE_CPU_PERIOD_S of CPU time since the last send."""
         first = self.rows_sent
-        if n_rows <= first:
+        now = time.process_time()
+        if n_rows <= first or not (force or now - self._last_send >= LIVE_CPU_PERIOD_S):
             return
+        self._last_send, start = now, time.thread_time()
         s = recorder.columns(n_rows, first)
         force = np.asarray(s["contact_force"], dtype=float)
         s["tip"] = np.asarray(s["segment_ends"])[:, -1]
@@ -342,6 +356,8 @@ class LiveRun:
             stream.log(LEGEND_ENTITY, rr.TextDocument(legend_markdown(labels), media_type=rr.MediaType.MARKDOWN), static=True)
         _log_run_rows(stream, self.scene, self.label, self.color, s, k, styles=first == 0)
         self.rows_sent = n_rows
+        self.sends += 1
+        self.send_cpu_s += time.thread_time() - start
 
     def frame(self, t: float, image: bytes, media_type: str) -> None:
         """One encoded camera image (e.g. JPEG) taken at the loop's time t (s)."""

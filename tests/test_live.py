@@ -7,7 +7,17 @@ import collections
 import numpy as np
 import rerun as rr
 
+from closedloop.step import ControlStep
+from controllers.cbf import get_tuning
+from controllers.filter import CBFFilter
+from controllers.nominal import SinusoidNominal
+from controllers.params import reference_robot
+from controllers.safe_set import paper_safe_set
+from controllers.safety_filter import FilterContext
 from scenarios import get
+from scenarios.common import scene_record
+from softcbf_mj.loop import run_closed_loop
+from softcbf_mj.pcc_plant import PCCPlant
 from softcbf_mj import recording
 from softcbf_mj.recording import APP_ID, LIVE_PERIOD_S, RECORDING_FILE, live_stream
 
@@ -33,13 +43,14 @@ def test_a_spawned_stream_carries_the_run_before_it_ends(monkeypatch, tmp_path):
     received: list[bytes] = []
     real_send = recording.LiveRun.send
 
-    def send(self, recorder, n_rows):
-        real_send(self, recorder, n_rows)
+    def send(self, recorder, n_rows, force=False):
+        real_send(self, recorder, n_rows, force)
         if self.label not in midway and n_rows * DT >= 0.25:
             received.append(sink.drain_as_bytes())
             midway[self.label] = list(received)
 
     monkeypatch.setattr(recording.LiveRun, "send", send)
+    monkeypatch.setattr(recording, "LIVE_CPU_PERIOD_S", 0.0)  # send at every offer (every LIVE_PERIOD_S of sim time)
     with live_stream(stream):
         (tmp_path / "run").mkdir()
         get("paper_sim").run(tmp_path / "run", **RUN)
@@ -64,3 +75,25 @@ def test_a_spawned_stream_carries_the_run_before_it_ends(monkeypatch, tmp_path):
 
 def test_no_stream_without_a_live_viewer(tmp_path):
     assert recording.live_run({"unused": 1}, "None", 0, DT) is None
+
+
+def test_sends_wait_for_the_cpu_period_and_the_end_is_sent(monkeypatch):
+    robot, safe_set = reference_robot(), paper_safe_set()
+    sent = []
+    real_log_rows = recording._log_run_rows
+    monkeypatch.setattr(recording, "_log_run_rows", lambda rec, scene, label, color, s, *a, **kw: (
+        sent.append(s["t"].copy()), real_log_rows(rec, scene, label, color, s, *a, **kw)))
+    stream = rr.RecordingStream(APP_ID)
+    sink = stream.memory_recording()
+    for cpu_period, expected_sends in ((1e9, 2), (0.0, 200 // round(LIVE_PERIOD_S / DT) + 1)):
+        monkeypatch.setattr(recording, "LIVE_CPU_PERIOD_S", cpu_period)
+        sent.clear()
+        step = ControlStep(CBFFilter(robot, safe_set, get_tuning("Low")), SinusoidNominal.paper(robot.n_segments),
+                           FilterContext.for_robot(robot, safe_set, DT, False))
+        with live_stream(stream):
+            live = recording.live_run(scene_record(robot, safe_set, 11.16), "Low", 0, DT)
+            log, _ = run_closed_loop(PCCPlant(robot, safe_set), step, safe_set, 0.2, np.zeros(2), live=live)
+        # the first row at once, then every offer the CPU-time period allows, the rest at the end: each row once
+        assert len(sent) == expected_sends and len(sent[0]) == 1
+        assert np.array_equal(np.concatenate(sent), log["t"])
+        sink.drain_as_bytes()
