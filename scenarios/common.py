@@ -32,7 +32,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import numpy as np
 
@@ -43,11 +43,14 @@ from controllers.registry import build_filter, build_nominal, check_filter, chec
 from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
 from controllers.safety_filter import Estimate, FilterContext
-from softcbf_mj.loop import LiveRows, Series, exact_state, run_closed_loop
+from softcbf_mj.loop import Series, exact_state, run_closed_loop
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
+
+if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.recording is imported only when recording
+    from softcbf_mj.recording import LiveRun
 
 T = TypeVar("T")
 
@@ -305,14 +308,14 @@ def run_tuning(
                     extra_units, row)
 
 
-def live_run(summary: SummaryWriter, label: str, control_dt: float) -> LiveRows | None:
+def live_run(summary: SummaryWriter, label: str, control_dt: float, camera: bool = False) -> LiveRun | None:
     """The live stream of run `label` (softcbf_mj.recording.live_run: a viewer spawned by
     `--spawn`), or None: none is active, or the report and recording are off (`data_only`)."""
     if not _REPORT_AND_RECORDING.get():
         return None
     from softcbf_mj.recording import live_run as recording_live_run  # rerun: imported only when recording
 
-    return recording_live_run(summary.data.get("scene"), label, len(summary.data["runs"]), control_dt)
+    return recording_live_run(summary.data.get("scene"), label, len(summary.data["runs"]), control_dt, camera)
 
 
 def filter_enabled(step: ControlStep) -> bool:

@@ -46,7 +46,7 @@ from controllers.safety_filter import Estimate
 from perception.detect import Detection, TagDetector
 from perception.estimator import ArmAngleEstimator
 from perception.tracking import TrackingTagDetector
-from softcbf_mj.loop import Series, plant_columns, plant_series, plant_values
+from softcbf_mj.loop import LiveRows, Series, plant_columns, plant_series, plant_values
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.progress import Progress
 
@@ -155,6 +155,7 @@ def run_camera_loop(
     seed: int = 0,
     frame_hook: FrameHook | None = None,
     progress: Progress | None = None,
+    live: LiveRows | None = None,
 ) -> tuple[Series, dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Run for `duration` s from rest at q0; return ((per-tick time series, units), per-frame log, per-call log).
 
@@ -165,7 +166,8 @@ def run_camera_loop(
 
     `render()` returns the camera image (H, W, 3) uint8 of the plant's current state;
     `frame_hook(j, t, image, detections)` sees every frame that was taken (e.g. to save
-    some). The estimator must be fresh (no frame yet).
+    some). The estimator must be fresh (no frame yet). `live` is sent the rows recorded so far
+    as in `softcbf_mj.loop.run_closed_loop`.
     """
     tick = plant.control_dt
     n_ticks = int(round(duration / tick))
@@ -229,6 +231,10 @@ def run_camera_loop(
         state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
+        if live is not None and k % live.period_steps == 0:
+            live.send(recorder, k + 1)
+    if live is not None:
+        live.send(recorder, n_ticks, force=True)
     if progress is not None:
         progress.close()
     call_t, call_age, call_action = zip(*calls) if calls else ((), (), ())

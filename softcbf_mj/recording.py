@@ -234,7 +234,6 @@ def _plate_strips(scene: Scene, s: Mapping[str, np.ndarray], k: np.ndarray) -> n
 
 def _log_frames(rec: rr.RecordingStream, root: str, frames_dir: Path, frames: Sequence[Mapping]) -> None:
     """Camera images (encoded files, unchanged) and their tag detections at the frames' times."""
-    t = [rr.TimeColumn(TIMELINE, duration=[float(f["t"]) for f in frames])]
     blobs, media = [], []
     for f in frames:
         path = frames_dir / f["file"]
@@ -242,8 +241,14 @@ def _log_frames(rec: rr.RecordingStream, root: str, frames_dir: Path, frames: Se
             raise RunFolderError(f"camera frame {path}: unsupported image type; use one of {', '.join(MEDIA_TYPES)}")
         blobs.append(path.read_bytes())
         media.append(MEDIA_TYPES[path.suffix.lower()])
+    _log_images(rec, root, [float(f["t"]) for f in frames], blobs, media, [f.get("detections", []) for f in frames])
+
+
+def _log_images(rec: rr.RecordingStream, root: str, times: Sequence[float], blobs: Sequence[bytes],
+                media: Sequence[str], detections: Sequence[Sequence[Mapping]]) -> None:
+    """Encoded images at `times` (s) and their detections ({"id", "corners"} each, as in frames.json)."""
+    t = [rr.TimeColumn(TIMELINE, duration=times)]
     rec.send_columns(f"{root}/camera/image", indexes=t, columns=rr.EncodedImage.columns(blob=blobs, media_type=media))
-    detections = [f.get("detections", []) for f in frames]
     counts = [len(d) for d in detections]
     if sum(counts):
         strips = [np.vstack((c, c[:1])) for d in detections for c in (np.asarray(x["corners"], dtype=float) for x in d)]
@@ -292,12 +297,13 @@ def _blueprint(labels: Sequence[str], cameras: Sequence[str], box: tuple[float, 
 @dataclass
 class _Live:
     """The stream of a live viewer (`live_viewer`, `live_stream`): the runs finished in it
-    (`write_recording` streamed them, or a `LiveRun` streamed them while they ran) and the
-    runs a `LiveRun` streamed while they ran."""
+    (`write_recording` streamed them, or a `LiveRun` streamed them while they ran), the
+    runs a `LiveRun` streamed while they ran and those whose camera frames it streamed."""
 
     stream: rr.RecordingStream
     sent: list[str] = field(default_factory=list)
     streamed_live: set[str] = field(default_factory=set)
+    framed_live: set[str] = field(default_factory=set)
 
 
 _LIVE: ContextVar[_Live | None] = ContextVar("softcbf_mj_live_viewer", default=None)
@@ -321,10 +327,10 @@ class LiveRun:
     frames saved to the run folder follow when `write_recording` records the finished run.
     """
 
-    def __init__(self, live: _Live, scene: Scene, label: str, color: str, control_dt: float) -> None:
+    def __init__(self, live: _Live, scene: Scene, label: str, color: str, control_dt: float, camera: bool = False) -> None:
         if not (math.isfinite(control_dt) and control_dt > 0):
             raise ValueError(f"control_dt must be finite and > 0 s, got {control_dt}")
-        self._live, self.scene, self.label, self.color = live, scene, label, color
+        self._live, self.scene, self.label, self.color, self.camera = live, scene, label, color, camera
         self.period_steps = max(1, int(round(LIVE_PERIOD_S / control_dt)))
         self._decimation = max(1, int(round(1.0 / (GEOMETRY_HZ * control_dt))))
         self.rows_sent = 0
@@ -351,7 +357,7 @@ class LiveRun:
             base, reach = np.asarray(s["segment_ends"])[0, 0], float(np.sum(self.scene.lengths)) + BOX_MARGIN_M
             box = (base[0] - reach, base[0] + reach, base[1] - reach, base[1] + reach)
             labels = [*self._live.sent, self.label]
-            stream.send_blueprint(_blueprint(labels, [], box))
+            stream.send_blueprint(_blueprint(labels, [self.label] if self.camera else [], box))
             _log_scene(stream, self.scene, box)
             stream.log(LEGEND_ENTITY, rr.TextDocument(legend_markdown(labels), media_type=rr.MediaType.MARKDOWN), static=True)
         _log_run_rows(stream, self.scene, self.label, self.color, s, k, styles=first == 0)
@@ -359,10 +365,12 @@ class LiveRun:
         self.sends += 1
         self.send_cpu_s += time.thread_time() - start
 
-    def frame(self, t: float, image: bytes, media_type: str) -> None:
-        """One encoded camera image (e.g. JPEG) taken at the loop's time t (s)."""
-        self._live.stream.send_columns(f"{run_path(self.label)}/camera/image", indexes=[rr.TimeColumn(TIMELINE, duration=[t])],
-                                       columns=rr.EncodedImage.columns(blob=[image], media_type=[media_type]))
+    def frame(self, t: float, image: bytes, media_type: str, detections: Sequence[Mapping] = ()) -> None:
+        """One encoded camera image (`media_type`, e.g. "image/jpeg") taken at the loop's time
+        t (s), with its tag detections ({"id", "corners"} each, as in frames.json); sent at
+        once. The finished run's saved frames are then not streamed again."""
+        self._live.framed_live.add(self.label)
+        _log_images(self._live.stream, run_path(self.label), [t], [image], [media_type], [list(detections)])
 
 
 def display_available() -> bool:
@@ -423,14 +431,16 @@ def live_stream(stream: rr.RecordingStream) -> Iterator[None]:
         _LIVE.reset(token)
 
 
-def live_run(scene_record: Mapping[str, Any] | None, label: str, index: int, control_dt: float) -> LiveRun | None:
+def live_run(scene_record: Mapping[str, Any] | None, label: str, index: int, control_dt: float,
+             camera: bool = False) -> LiveRun | None:
     """A `LiveRun` of run `label` (the `index`-th of its folder; its colour `run_color(label,
-    index)`) in the scene of summary.json's "scene" record, if a live stream is active
-    (`live_viewer`, `live_stream`) and the scene is known; else None."""
+    index)`; with `camera`, a camera view for its `LiveRun.frame`s) in the scene of
+    summary.json's "scene" record, if a live stream is active (`live_viewer`,
+    `live_stream`) and the scene is known; else None."""
     live = _LIVE.get()
     if live is None or scene_record is None:
         return None
-    return LiveRun(live, Scene.from_record(scene_record), label, run_color(label, index), control_dt)
+    return LiveRun(live, Scene.from_record(scene_record), label, run_color(label, index), control_dt, camera)
 
 
 def _recording_id(folder: RunFolder) -> uuid.UUID:
@@ -479,7 +489,7 @@ def write_recording(run_dir: str | Path) -> Path:
             if label in live.streamed_live:  # its rows are there: the tip's path and the saved frames remain
                 color = run_color(label, folder.labels.index(label))
                 _log_tip_trace(live.stream, label, color, series[label])
-                if folder.frames(label):
+                if folder.frames(label) and label not in live.framed_live:
                     _log_frames(live.stream, run_path(label), frames_folder(folder.path, label), folder.frames(label))
         live.stream.send_blueprint(blueprint)
         live.sent.extend(new)

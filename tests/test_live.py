@@ -97,3 +97,23 @@ def test_sends_wait_for_the_cpu_period_and_the_end_is_sent(monkeypatch):
         assert len(sent) == expected_sends and len(sent[0]) == 1
         assert np.array_equal(np.concatenate(sent), log["t"])
         sink.drain_as_bytes()
+
+
+def test_the_camera_loop_streams_its_frames_once_and_the_same_entities_as_its_recording(monkeypatch, tmp_path):
+    stream = rr.RecordingStream(APP_ID)
+    sink = stream.memory_recording()
+    from_files = []  # the streams that got frames read back from the run folder
+    real_log_frames = recording._log_frames
+    monkeypatch.setattr(recording, "_log_frames", lambda rec, *a: (from_files.append(rec), real_log_frames(rec, *a)))
+    out = tmp_path / "camera"
+    out.mkdir()
+    with live_stream(stream):
+        get("camera_loop").run(out, duration=0.5, tunings="Low", width=640, height=360, saved_frames_hz=6.4,
+                               progress=False)
+    final = sim_times([sink.drain_as_bytes()], tmp_path / "all.rrd")
+    saved = sim_times([(out / RECORDING_FILE).read_bytes()], tmp_path / "file.rrd")
+    assert len(saved["/runs/Low/camera/image"]) >= 3  # 6.4 Hz of 12.8 fps for 0.5 s
+    assert stream not in from_files and len(from_files) == 1  # the live stream got them as they were taken
+    assert set(final) == set(saved)
+    for entity, t in saved.items():
+        assert np.array_equal(final[entity], t), entity
