@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 import numpy as np
 
@@ -198,3 +199,13 @@ class Recorder:
             start += size
         columns.update({key: value[first_row:rows].copy() for key, value in self._extras.items()})
         return columns
+
+
+class LiveRows(Protocol):
+    """A live view of a run's rows (softcbf_mj.recording.LiveRun): a loop calls `send` every
+    `period_steps` rows with its recorder and the number of rows recorded so far, and once
+    at its end with `force=True`; the view decides what to send when."""
+
+    period_steps: int
+
+    def send(self, recorder: Recorder, n_rows: int, force: bool = False) -> None: ...

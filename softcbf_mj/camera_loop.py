@@ -39,14 +39,14 @@ from typing import Callable
 import numpy as np
 
 from closedloop.monitor import SafetyFlags, SafetyMonitor
-from closedloop.record import Recorder
+from closedloop.record import LiveRows, Recorder
 from closedloop.step import ControlStep, StepRecord
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate
 from perception.detect import Detection, TagDetector
 from perception.estimator import ArmAngleEstimator
 from perception.tracking import TrackingTagDetector
-from softcbf_mj.loop import LiveRows, Series, plant_columns, plant_series, plant_values
+from softcbf_mj.loop import Series, plant_columns, plant_series, plant_values
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.progress import Progress
 

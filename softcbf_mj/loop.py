@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
-from closedloop.record import TIMESERIES_UNITS, Recorder
+from closedloop.record import TIMESERIES_UNITS, LiveRows, Recorder
 from closedloop.step import ControlStep
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate
@@ -29,16 +29,6 @@ from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 
 Series = tuple[dict[str, np.ndarray], dict[str, str]]  # time series by key, and their units
-
-
-class LiveRows(Protocol):
-    """A live view of a run's rows (softcbf_mj.recording.LiveRun): the loops call `send`
-    every `period_steps` rows with the number of rows recorded so far, and at the end
-    with `force=True`."""
-
-    period_steps: int
-
-    def send(self, recorder: Recorder, n_rows: int, force: bool = False) -> None: ...
 
 
 def exact_state(state: PlantState) -> Estimate:

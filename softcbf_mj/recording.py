@@ -71,7 +71,7 @@ import shutil
 import sys
 import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -127,9 +127,11 @@ def run_path(label: str) -> str:
 
 
 def _decimation(t: np.ndarray) -> int:
+    """Every how many rows the geometry is drawn: GEOMETRY_HZ at the median row period (a hardware
+    run's first cycles may be late; `LiveRun` uses the nominal period, which the median matches)."""
     if len(t) < 2:
         return 1
-    return max(1, int(round(1.0 / (GEOMETRY_HZ * float(t[1] - t[0])))))
+    return max(1, int(round(1.0 / (GEOMETRY_HZ * float(np.median(np.diff(t)))))))
 
 
 def _log_scene(rec: rr.RecordingStream, scene: Scene, box: tuple[float, float, float, float]) -> None:
@@ -327,10 +329,12 @@ class LiveRun:
     frames saved to the run folder follow when `write_recording` records the finished run.
     """
 
-    def __init__(self, live: _Live, scene: Scene, label: str, color: str, control_dt: float, camera: bool = False) -> None:
+    def __init__(self, live: _Live, scene: Scene, label: str, color: str, control_dt: float, camera: bool = False,
+                 complete: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None) -> None:
         if not (math.isfinite(control_dt) and control_dt > 0):
             raise ValueError(f"control_dt must be finite and > 0 s, got {control_dt}")
         self._live, self.scene, self.label, self.color, self.camera = live, scene, label, color, camera
+        self.complete = complete
         self.period_steps = max(1, int(round(LIVE_PERIOD_S / control_dt)))
         self._decimation = max(1, int(round(1.0 / (GEOMETRY_HZ * control_dt))))
         self.rows_sent = 0
@@ -348,9 +352,12 @@ class LiveRun:
             return
         self._last_send, start = now, time.thread_time()
         s = recorder.columns(n_rows, first)
-        force = np.asarray(s["contact_force"], dtype=float)
-        s["tip"] = np.asarray(s["segment_ends"])[:, -1]
-        s["rho_meas"] = np.min((self.scene.n_max - self.scene.stiffness.penetration(force)) / self.scene.n_max, axis=-1)
+        if self.complete is not None:
+            s = self.complete(s)
+        else:
+            force = np.asarray(s["contact_force"], dtype=float)
+            s["tip"] = np.asarray(s["segment_ends"])[:, -1]
+            s["rho_meas"] = np.min((self.scene.n_max - self.scene.stiffness.penetration(force)) / self.scene.n_max, axis=-1)
         k = np.arange(-first % self._decimation, n_rows - first, self._decimation)
         stream = self._live.stream
         if first == 0:
@@ -432,15 +439,18 @@ def live_stream(stream: rr.RecordingStream) -> Iterator[None]:
 
 
 def live_run(scene_record: Mapping[str, Any] | None, label: str, index: int, control_dt: float,
-             camera: bool = False) -> LiveRun | None:
+             camera: bool = False, complete: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None,
+             ) -> LiveRun | None:
     """A `LiveRun` of run `label` (the `index`-th of its folder; its colour `run_color(label,
     index)`; with `camera`, a camera view for its `LiveRun.frame`s) in the scene of
     summary.json's "scene" record, if a live stream is active (`live_viewer`,
-    `live_stream`) and the scene is known; else None."""
+    `live_stream`) and the scene is known; else None. The recorder's rows must hold the
+    simulated loops' columns (`softcbf_mj.loop.plant_columns`), or `complete(rows)` must
+    turn them into a run's time series (the hardware loop's: tip and rho_meas included)."""
     live = _LIVE.get()
     if live is None or scene_record is None:
         return None
-    return LiveRun(live, Scene.from_record(scene_record), label, run_color(label, index), control_dt, camera)
+    return LiveRun(live, Scene.from_record(scene_record), label, run_color(label, index), control_dt, camera, complete)
 
 
 def _recording_id(folder: RunFolder) -> uuid.UUID:

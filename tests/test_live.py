@@ -117,3 +117,39 @@ def test_the_camera_loop_streams_its_frames_once_and_the_same_entities_as_its_re
     assert set(final) == set(saved)
     for entity, t in saved.items():
         assert np.array_equal(final[entity], t), entity
+
+
+def test_a_hardware_run_streams_its_cycles_and_frames_while_it_runs(monkeypatch, tmp_path):
+    from pathlib import Path
+
+    from hardware.config import HardwareConfig
+    from softcbf.hardware_cli import run_hardware
+    from softcbf_mj.emulate import EmulatedHardware
+
+    config = HardwareConfig.load(Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml")
+    config = config.with_overrides({"control": {"tuning": "High"}, "run": {"duration_s": 2.0}})
+    monkeypatch.setattr(recording, "LIVE_CPU_PERIOD_S", 0.0)  # send at every offer
+    stream = rr.RecordingStream(APP_ID)
+    sink = stream.memory_recording()
+    midway: list[bytes] = []
+
+    def on_cycle(k, t, action):
+        if not midway and t >= 1.2:
+            midway.append(sink.drain_as_bytes())
+
+    out = tmp_path / "hw"
+    out.mkdir()
+    with live_stream(stream), EmulatedHardware(config) as emulation:
+        run_hardware(config, out, emulation=emulation, on_cycle=on_cycle)
+    seen = sim_times(midway, tmp_path / "mid.rrd")
+    rho, images = seen["/runs/High/rho"], seen["/runs/High/camera/image"]
+    # by 1.2 s of the run: its cycles up to the last offer (every max(LIVE_PERIOD_S, period) s: every 0.1 s cycle here),
+    # and the frames kept so far (2 Hz)
+    period = config.control.period_s
+    assert 1.2 - 3 * period <= rho[-1] <= 1.2 and len(rho) >= 1.2 / period - 3
+    assert len(images) >= 2 and images[-1] <= 1.2
+    rest = sim_times([sink.drain_as_bytes()], tmp_path / "rest.rrd")
+    saved = sim_times([(out / RECORDING_FILE).read_bytes()], tmp_path / "file.rrd")
+    for entity in ("/runs/High/rho", "/runs/High/camera/image", "/runs/High/scene/arm"):
+        np.testing.assert_allclose(np.sort(np.concatenate((seen[entity], rest.get(entity, [])))), saved[entity],
+                                   atol=1e-9, err_msg=entity)
