@@ -176,6 +176,11 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
           f"{row['cycles_run']} run / {row['cycles_hold']} hold / {row['cycles_vent']} vent, link acknowledged "
           f"{row['link_acked_fraction']:.3f}, rho_min_pred {row['rho_min_pred']}, force_max_N {row['force_max_N']}; "
           f"outputs in {out_dir}")
+    recording = out_dir / "recording.rrd"
+    if recording.is_file():
+        from softcbf_mj.recording import viewer_command
+
+        print(f"view the recording with: {viewer_command(recording)}")
     return INTERRUPTED if row["interrupted"] else 0
 
 

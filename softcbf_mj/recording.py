@@ -411,7 +411,8 @@ def live_viewer() -> Iterator[str]:
     executable; then nothing is streamed)."""
     executable = viewer_executable()
     if not display_available():
-        yield "viewer not spawned: no display (DISPLAY and WAYLAND_DISPLAY are unset); open recording.rrd later with `python -m rerun`"
+        yield ("viewer not spawned: no display (DISPLAY and WAYLAND_DISPLAY are unset); open the recording later with "
+               f"`{viewer_command('DIR/' + RECORDING_FILE)}`")
         return
     if executable is None:
         yield "viewer not spawned: no `rerun` executable beside this Python or on PATH (pip install rerun-sdk)"

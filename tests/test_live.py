@@ -153,3 +153,20 @@ def test_a_hardware_run_streams_its_cycles_and_frames_while_it_runs(monkeypatch,
     for entity in ("/runs/High/rho", "/runs/High/camera/image", "/runs/High/scene/arm"):
         np.testing.assert_allclose(np.sort(np.concatenate((seen[entity], rest.get(entity, [])))), saved[entity],
                                    atol=1e-9, err_msg=entity)
+
+
+def test_softcbf_hardware_spawn_without_a_display_says_so_runs_and_names_the_viewer(monkeypatch, tmp_path, capsys):
+    from pathlib import Path
+
+    from softcbf.hardware_cli import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    spawned = []
+    monkeypatch.setattr(recording.rr, "spawn", lambda **kw: spawned.append(kw))
+    example = Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml"
+    out = tmp_path / "hw"
+    assert main([str(example), "--duration", "1", "--out", str(out), "--spawn"]) == 0
+    captured = capsys.readouterr()
+    assert "viewer not spawned: no display" in captured.err and spawned == []
+    assert f"view the recording with: {recording.viewer_command(out / RECORDING_FILE)}" in captured.out
