@@ -324,9 +324,11 @@ class LiveRun:
     loop by 80 %; a CPU-time period bounds the cost to (CPU of one send) /
     LIVE_CPU_PERIOD_S of the loop's own CPU time whatever the machine's load
     (tools/bench_live.py). A loop with a core to itself refreshes the viewer
-    1/LIVE_CPU_PERIOD_S times a second; on a busy machine, less often. The plates are drawn at the deepest tip approach of each
-    batch (the finished recording: of the whole run). The tip's whole path and the camera
-    frames saved to the run folder follow when `write_recording` records the finished run.
+    1/LIVE_CPU_PERIOD_S times a second; on a busy machine, less often. The plates are
+    drawn at the deepest tip approach of each batch (the finished recording: of the whole
+    run). Camera frames go in through `frame` as they are taken; the tip's whole path (and
+    the saved frames of a run that sent none through `frame`) follow when
+    `write_recording` records the finished run.
     """
 
     def __init__(self, live: _Live, scene: Scene, label: str, color: str, control_dt: float, camera: bool = False,
@@ -355,9 +357,9 @@ class LiveRun:
         if self.complete is not None:
             s = self.complete(s)
         else:
-            force = np.asarray(s["contact_force"], dtype=float)
+            contact = np.asarray(s["contact_force"], dtype=float)
             s["tip"] = np.asarray(s["segment_ends"])[:, -1]
-            s["rho_meas"] = np.min((self.scene.n_max - self.scene.stiffness.penetration(force)) / self.scene.n_max, axis=-1)
+            s["rho_meas"] = np.min((self.scene.n_max - self.scene.stiffness.penetration(contact)) / self.scene.n_max, axis=-1)
         k = np.arange(-first % self._decimation, n_rows - first, self._decimation)
         stream = self._live.stream
         if first == 0:
