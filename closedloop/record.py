@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 import numpy as np
 
@@ -187,14 +188,24 @@ class Recorder:
         """The units of every column `columns` returns except the extras."""
         return {key: self._diag_units.get(key) or TIMESERIES_UNITS[key] for key, _, _ in self._layout}
 
-    def columns(self, n_rows: int | None = None) -> dict[str, np.ndarray]:
-        """The first `n_rows` rows (default all) as arrays by key."""
+    def columns(self, n_rows: int | None = None, first_row: int = 0) -> dict[str, np.ndarray]:
+        """Rows first_row .. n_rows - 1 (default: from the first to the last) as arrays by key."""
         rows = self.n_steps if n_rows is None else n_rows
         columns, start = {}, 0
         for key, shape, dtype in self._layout:
             size = math.prod(shape)
-            block = self._floats[:rows, start : start + size].reshape((rows,) + shape)
+            block = self._floats[first_row:rows, start : start + size].reshape((rows - first_row,) + shape)
             columns[key] = np.nan_to_num(block, nan=0.0).astype(dtype) if dtype is not float else block.copy()
             start += size
-        columns.update({key: value[:rows].copy() for key, value in self._extras.items()})
+        columns.update({key: value[first_row:rows].copy() for key, value in self._extras.items()})
         return columns
+
+
+class LiveRows(Protocol):
+    """A live view of a run's rows (softcbf_mj.recording.LiveRun): a loop calls `send` every
+    `period_steps` rows with its recorder and the number of rows recorded so far, and once
+    at its end with `force=True`; the view decides what to send when."""
+
+    period_steps: int
+
+    def send(self, recorder: Recorder, n_rows: int, force: bool = False) -> None: ...

@@ -52,7 +52,7 @@ from typing import Any, Callable
 import numpy as np
 
 from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
-from closedloop.record import Recorder
+from closedloop.record import LiveRows, Recorder
 from closedloop.step import ACTION_CODES, ControlStep
 from controllers.registry import build_filter, build_nominal
 from controllers.safety_filter import Estimate, FilterContext
@@ -60,7 +60,7 @@ from hardware.config import HardwareConfig
 from hardware.link import LinkResult, ValveBoardLink
 from hardware.transport import ByteTransport
 from perception.capture import FrameSource
-from perception.detect import TagDetector
+from perception.detect import Detection, TagDetector
 from perception.estimator import ArmAngleEstimator, ArmEstimate
 from perception.plane import PlaneCalibration
 from perception.tags import arm_tag_ids
@@ -87,12 +87,19 @@ class PerceptionStartupError(StartupError):
     """No complete frame arrived before the start-up timeout."""
 
 
+FrameHook = Callable[[float, np.ndarray, list[Detection]], None]  # (capture time s, image, detections)
+
+
 class PerceptionWorker:
-    """Frames → detections → estimator, in a daemon thread; `query(now)` is the estimate at now."""
+    """Frames → detections → estimator, in a daemon thread; `query(now)` is the estimate at now.
+
+    `frame_hook(t, image, detections)`, when set, sees every frame after its detection, in
+    the perception thread (e.g. to save a few: softcbf.hardware_cli); None by default."""
 
     def __init__(self, source: FrameSource, detector: TagDetector, estimator: ArmAngleEstimator,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.source, self.detector, self.estimator, self.clock = source, detector, estimator, clock
+        self.frame_hook: FrameHook | None = None
         self.frames = 0
         self.frames_complete = 0
         self.empty_reads = 0
@@ -120,6 +127,8 @@ class PerceptionWorker:
                     estimate = self.estimator.update(frame.t, detections)
                 self.frames += 1
                 self.frames_complete += estimate.valid and estimate.t == frame.t
+                if self.frame_hook is not None:
+                    self.frame_hook(frame.t, frame.image, detections)
         except BaseException as exc:  # the loop sees a stale estimate; close() re-raises
             self._error = exc
 
@@ -183,7 +192,13 @@ class HardwareLog:
 
 
 class HardwareLoop:
-    """The control loop of the module docstring; `run()` returns its `HardwareLog`."""
+    """The control loop of the module docstring; `run()` returns its `HardwareLog`.
+
+    `live` (closedloop.record.LiveRows, e.g. softcbf_mj.recording.LiveRun), when set, is
+    sent the recorder every `live.period_steps` cycles and at the end, in the control
+    thread after the cycle's command went out; None by default. `t0` is the clock time of
+    the first cycle (s; None before), the origin of the rows' t.
+    """
 
     def __init__(
         self,
@@ -208,6 +223,8 @@ class HardwareLoop:
         self.perception, self.link, self.step = perception, link, step
         self.period_s, self.duration_s = float(period_s), float(duration_s)
         self.dry_run, self.startup_timeout_s, self.clock, self.on_cycle = dry_run, float(startup_timeout_s), clock, on_cycle
+        self.live: LiveRows | None = None
+        self.t0: float | None = None
         self._stop = threading.Event()
 
     @classmethod
@@ -256,7 +273,7 @@ class HardwareLoop:
         self.perception.start()
         try:
             self._wait_for_perception()
-            t0 = self.clock()
+            t0 = self.t0 = self.clock()
             n_cycles = int(round(self.duration_s / self.period_s))
             for k in range(n_cycles):
                 interrupted = self._stop.is_set()
@@ -274,6 +291,10 @@ class HardwareLoop:
                     break
                 if self.on_cycle is not None:
                     self.on_cycle(k, self.clock() - t0, action)
+                if self.live is not None and k % self.live.period_steps == 0:
+                    self.live.send(record.recorder, k + 1)
+            if self.live is not None:
+                self.live.send(record.recorder, record.cycles, force=True)
         finally:
             if in_main:
                 signal.signal(signal.SIGINT, previous)

@@ -52,7 +52,7 @@ from scenarios import register
 from scenarios.common import (
     COMMON_BOUNDS, PAPER_FILTER, Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
     controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot, non_negative,
-    nominal_arguments, positive, read_parameter_file, save_run, scene_record,
+    live_run, nominal_arguments, positive, read_parameter_file, save_run, scene_record,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from scenarios.ground_truth import check_true_arm, flexure_params
@@ -254,20 +254,24 @@ def camera_loop(
             frame_detector = TrackingTagDetector(tag_detector, arm_tag_ids(n)) if tracking else tag_detector
             saved: list[dict] = []
             folder = frames_folder(out_dir, label)
+            live = live_run(summary, label, tick, camera=save_every > 0)
 
             def keep_frame(j: int, t: float, image: np.ndarray, detections: list) -> None:
                 if not save_every or j % save_every:
                     return
                 folder.mkdir(parents=True, exist_ok=True)
                 name = f"frame_{j:06d}.jpg"
-                cv2.imwrite(str(folder / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+                _, jpeg = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+                (folder / name).write_bytes(jpeg.tobytes())
                 saved.append({"t": t, "file": name,
                               "detections": [{"id": d.tag_id, "corners": d.corners.tolist()} for d in detections]})
+                if live is not None:
+                    live.frame(t, jpeg.tobytes(), "image/jpeg", saved[-1]["detections"])
 
             bar = Progress(f"camera_loop {label}", int(round(duration / tick)), enabled=progress, unit_s=tick)
             start = time.perf_counter()
             series, frames, calls = run_camera_loop(plant, lambda: renderer.render(plant.data), frame_detector, estimator,
-                                                    step, safe_set, duration, q0, timing, seed, keep_frame, bar)
+                                                    step, safe_set, duration, q0, timing, seed, keep_frame, bar, live)
             wall = time.perf_counter() - start
             if saved:
                 save_frames_index(out_dir, label, saved)

@@ -32,7 +32,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import numpy as np
 
@@ -48,6 +48,9 @@ from softcbf_mj.metrics import run_figures
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
+
+if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.recording is imported only when recording
+    from softcbf_mj.recording import LiveRun
 
 T = TypeVar("T")
 
@@ -307,10 +310,21 @@ def run_tuning(
     progress = Progress(f"{summary.data['scenario']} {label}", int(round(duration / plant.control_dt)), enabled=show_progress,
                         unit_s=plant.control_dt)
     start = time.perf_counter()
-    series = run_closed_loop(plant, step, safe_set, duration, q0, estimator=estimator, progress=progress)
+    series = run_closed_loop(plant, step, safe_set, duration, q0, estimator=estimator, progress=progress,
+                             live=live_run(summary, label, plant.control_dt))
     wall = time.perf_counter() - start
     return save_run(out_dir, summary, label, series, wall, plant.control_dt, filter_enabled(step), extra_figures,
                     extra_units, row)
+
+
+def live_run(summary: SummaryWriter, label: str, control_dt: float, camera: bool = False) -> LiveRun | None:
+    """The live stream of run `label` (softcbf_mj.recording.live_run: a viewer spawned by
+    `--spawn`), or None: none is active, or the report and recording are off (`data_only`)."""
+    if not _REPORT_AND_RECORDING.get():
+        return None
+    from softcbf_mj.recording import live_run as recording_live_run  # rerun: imported only when recording
+
+    return recording_live_run(summary.data.get("scene"), label, len(summary.data["runs"]), control_dt, camera)
 
 
 def filter_enabled(step: ControlStep) -> bool:

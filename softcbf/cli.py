@@ -20,8 +20,8 @@ arguments, spelt with dashes (`--pressure-limits true`); `--filter-param NAME=VA
 runs/<scenario>-<YYYYmmdd-HHMMSS> (-2, -3, ... when runs start in the same second). The
 run folder gets config.json, summary.json, timeseries/*.npz, plots/*.png, report.md and
 recording.rrd (softcbf_mj.runio), the report and the recording rebuilt after every
-finished tuning. `--spawn` streams each finished tuning to a rerun viewer when a display
-is present, and says so when it skips it. `python -m scenarios` is the same `run`
+finished tuning. `--spawn` streams each tuning to a rerun viewer while it runs when a
+display is present, and says so when it skips it. `python -m scenarios` is the same `run`
 (docs/run-outputs.md spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
 `--config FILE` takes the scenario and its parameters from a run configuration file
 (`scenarios.config_file`: a TOML file, or a run folder's config.json, which replays that
@@ -126,7 +126,7 @@ def _run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", help="output folder (default runs/<scenario>-<time>; refused if it exists and is not empty)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the contents of an existing run folder (one written by softcbf)")
-    parser.add_argument("--spawn", action="store_true", help="stream each finished tuning to a rerun viewer (needs a display)")
+    parser.add_argument("--spawn", action="store_true", help="stream each tuning to a rerun viewer while it runs (needs a display)")
 
 
 def _run(args: argparse.Namespace, extra: list[str]) -> int:

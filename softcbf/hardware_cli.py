@@ -2,7 +2,7 @@
 
     softcbf hardware CONFIG [--port PORT|emulated] [--camera SOURCE|virtual] [--tuning NAME]
                             [--filter SPEC] [--filter-param NAME=VALUE ...]
-                            [--duration S] [--dry-run] [--out DIR] [--overwrite]
+                            [--duration S] [--dry-run] [--out DIR] [--overwrite] [--spawn]
 
 CONFIG is a `hardware.config` file (TOML or JSON; examples/hardware_emulated.toml); the
 options override its `link.port`, `camera.source`, `control.tuning`, `control.filter`
@@ -19,7 +19,12 @@ the run-output fields from `softcbf_mj.metrics.run_figures` at the control rate 
 loop's counts), timeseries/<tuning>.npz (one row per control cycle, recorded by the
 recorder every loop shares, `closedloop.record`: the control step's columns, the
 filter's diagnostics and the hardware loop's own columns, all with units),
-plots, report.md and recording.rrd. Ground truth: on the emulator q, q̇, the segment
+plots, report.md, recording.rrd and frames/<tuning>/ (a camera frame every
+1/SAVED_FRAMES_HZ s of the run, JPEG, with its tag detections: `FrameKeeper`; the
+recording shows them). `--spawn` streams the run to a rerun viewer while it runs
+(softcbf_mj.recording.live_viewer; without a display it says so and streams nothing):
+the controller's view (the estimated arm, the command, ρ_pred; no contact force) and
+the kept frames as they are taken. Ground truth: on the emulator q, q̇, the segment
 ends, the pressure acting and the plate force are the emulator's true values at each
 cycle's time, and timeseries/<tuning>_emulator.npz holds its full 1 kHz record
 (`softcbf_mj.valve_emulator.RECORD_UNITS`), from which `force_max_emulator_N` and
@@ -57,6 +62,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Callable
 
+import cv2
 import numpy as np
 
 from controllers.pcc import segment_ends
@@ -70,10 +76,14 @@ from closedloop.record import TIMESERIES_UNITS
 from controllers.registry import build_filter, build_nominal, parse_params
 from controllers.registry import label as run_label
 from softcbf_mj.metrics import run_figures
-from softcbf_mj.runio import OutputDirError, SummaryWriter, prepare_out_dir, remove_if_unused, save_timeseries
+from softcbf_mj.runio import (
+    OutputDirError, SummaryWriter, frames_folder, prepare_out_dir, remove_if_unused, save_frames_index, save_timeseries,
+)
 
 HELP = "run the controller on the valve board and camera (or --port emulated --camera virtual)"
 SCENARIO = "hardware"
+SAVED_FRAMES_HZ = 2.0  # camera frames kept for the recording, per second of the run
+JPEG_QUALITY = 90
 USAGE_ERROR, INTERRUPTED = 2, 130
 
 
@@ -90,6 +100,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dry-run", action="store_true", help="run everything but send zero pressure")
     parser.add_argument("--out", type=Path, help="output folder (default runs/hardware-<time>)")
     parser.add_argument("--overwrite", action="store_true", help="replace the contents of an existing --out folder")
+    parser.add_argument("--spawn", action="store_true", help="stream the run to a rerun viewer while it runs (needs a display)")
 
 
 def configure(args: argparse.Namespace) -> HardwareConfig:
@@ -144,7 +155,14 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
         with started_loop(config) as (loop, emulation):
             out_dir = prepare_out_dir(args.out or Path("runs") / f"{SCENARIO}-{time.strftime('%Y%m%d-%H%M%S')}",
                                       args.overwrite)
-            row = run_loop(config, loop, emulation, out_dir)
+            if args.spawn:
+                from softcbf_mj.recording import live_viewer
+
+                with live_viewer() as message:
+                    print(message, file=sys.stderr)
+                    row = run_loop(config, loop, emulation, out_dir)
+            else:
+                row = run_loop(config, loop, emulation, out_dir)
     except (ConfigError, StartupError, OutputDirError) as exc:
         if out_dir is not None:
             remove_if_unused(out_dir)  # made for a run that did not start
@@ -158,6 +176,11 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
           f"{row['cycles_run']} run / {row['cycles_hold']} hold / {row['cycles_vent']} vent, link acknowledged "
           f"{row['link_acked_fraction']:.3f}, rho_min_pred {row['rho_min_pred']}, force_max_N {row['force_max_N']}; "
           f"outputs in {out_dir}")
+    recording = out_dir / "recording.rrd"
+    if recording.is_file():
+        from softcbf_mj.recording import viewer_command
+
+        print(f"view the recording with: {viewer_command(recording)}")
     return INTERRUPTED if row["interrupted"] else 0
 
 
@@ -227,16 +250,68 @@ def run_hardware(config: HardwareConfig, out_dir: Path, *, emulation: Any = None
 
 
 def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir: Path, report: bool = True) -> dict[str, Any]:
-    """Run a started loop and write the run folder `out_dir`; return the summary row."""
+    """Run a started loop and write the run folder `out_dir`; return the summary row.
+
+    With `report`, camera frames are kept (`FrameKeeper`) for the recording, and while a
+    live viewer is active (softcbf_mj.recording.live_viewer: `--spawn`) the run streams to
+    it as it runs: the controller's view (the estimate's arm, no contact force) — the
+    finished recording.rrd has the emulator's ground truth where there is one."""
+    keeper = live = None
+    if report:
+        from softcbf_mj.recording import live_run  # rerun: imported only when recording
+
+        label = run_label(config.plugin_spec(config.control.filter), config.control.filter_arguments())
+        safe_set = loop.step.context.safe_set
+        live = live_run(_scene(config, safe_set, emulation), label, 0, loop.period_s, camera=True,
+                        complete=lambda rows: _series(config, rows, safe_set, None))
+        loop.live = live
+        keeper = loop.perception.frame_hook = FrameKeeper(out_dir, label, loop, live)
     start = time.perf_counter()
     log = loop.run()
     wall = time.perf_counter() - start
+    if keeper is not None and keeper.saved:
+        save_frames_index(out_dir, keeper.label, keeper.saved)
     return write_run(config, out_dir, log, loop, wall, emulation, report)
 
 
-def _series(config: HardwareConfig, log: HardwareLog, safe_set, emulation: Any) -> tuple[dict, dict]:
-    """The run's time series: the recorder's columns plus the simulations' plant keys (TIMESERIES_UNITS)."""
-    c = log.columns()
+class FrameKeeper:
+    """A `hardware.runner.PerceptionWorker.frame_hook` that keeps one camera frame every
+    1/SAVED_FRAMES_HZ s of the run (JPEG, quality JPEG_QUALITY) in DIR/frames/<label>/ with
+    its detections (`saved`: the entries of frames.json, `softcbf_mj.runio`; times s since
+    the loop's first cycle), and sends each to `live` (a LiveRun) when there is one."""
+
+    def __init__(self, out_dir: Path, label: str, loop: HardwareLoop, live: Any = None) -> None:
+        self.folder, self.label, self.loop, self.live = frames_folder(out_dir, label), label, loop, live
+        self.saved: list[dict[str, Any]] = []
+        self._next_t = 0.0
+
+    def __call__(self, t_capture: float, image: np.ndarray, detections: list) -> None:
+        t0 = self.loop.t0
+        if t0 is None or t_capture - t0 < self._next_t:
+            return
+        t = t_capture - t0
+        self._next_t = t + 1.0 / SAVED_FRAMES_HZ
+        ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if not ok:
+            return
+        self.folder.mkdir(parents=True, exist_ok=True)
+        name = f"frame_{len(self.saved):06d}.jpg"
+        (self.folder / name).write_bytes(jpeg.tobytes())
+        found = [{"id": d.tag_id, "corners": d.corners.tolist()} for d in detections]
+        self.saved.append({"t": t, "file": name, "detections": found})
+        if self.live is not None:
+            self.live.frame(t, jpeg.tobytes(), "image/jpeg", found)
+
+
+def _scene(config: HardwareConfig, safe_set, emulation: Any) -> dict[str, Any]:
+    """summary.json's "scene" of a run: the plates' stiffness is the emulator's, or the configured environment's."""
+    plate_k = config.emulator.plate_stiffness_N_per_m if emulation is not None else config.environment.stiffness_N_per_m
+    return scene_record(config.robot_params(), safe_set, plate_k)
+
+
+def _series(config: HardwareConfig, c: dict[str, np.ndarray], safe_set, emulation: Any) -> dict[str, np.ndarray]:
+    """The run's time series from the recorder's columns `c`: those plus the simulations' plant keys
+    (TIMESERIES_UNITS) — the emulator's ground truth, or (emulation None) the estimate's arm, no contact force."""
     lengths = config.robot_params().array("lengths")
     series = dict(c)
     if emulation is not None:
@@ -249,20 +324,20 @@ def _series(config: HardwareConfig, log: HardwareLog, safe_set, emulation: Any) 
                       contact_force=np.full((len(c["t"]), safe_set.n_facets), np.nan))
     series["tip"] = series["segment_ends"][:, -1]
     series["rho_meas"] = np.min(safe_set.margin_from_force(series["contact_force"]), axis=-1) if len(c["t"]) else np.zeros(0)
-    units = {**TIMESERIES_UNITS, **log.units(), "plate_displacement_m": "m"}
-    return series, {k: units[k] for k in series}
+    return series
 
 
 def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: HardwareLoop, wall_s: float,
               emulation: Any, report: bool = True) -> dict[str, Any]:
     """summary.json, the time series, the report and the recording of one hardware run."""
     safe_set = loop.step.context.safe_set
-    plate_k = config.emulator.plate_stiffness_N_per_m if emulation is not None else config.environment.stiffness_N_per_m
     params = {**config.to_dict(), "emulated": emulation is not None}
-    summary = SummaryWriter(out_dir, SCENARIO, params, scene_record(config.robot_params(), safe_set, plate_k))
+    summary = SummaryWriter(out_dir, SCENARIO, params, _scene(config, safe_set, emulation))
     ctl = config.control
     label = run_label(config.plugin_spec(ctl.filter), ctl.filter_arguments())
-    series, units = _series(config, log, safe_set, emulation)
+    series = _series(config, log.columns(), safe_set, emulation)
+    all_units = {**TIMESERIES_UNITS, **log.units(), "plate_displacement_m": "m"}
+    units = {key: all_units[key] for key in series}
     counts = log.summary()
     row: dict[str, Any] = {"tuning": label, "filter": ctl.filter, "filter_params": ctl.filter_arguments(),
                            "nominal": ctl.nominal, "nominal_params": ctl.nominal_arguments()}

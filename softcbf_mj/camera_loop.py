@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 
 from closedloop.monitor import SafetyFlags, SafetyMonitor
-from closedloop.record import Recorder
+from closedloop.record import LiveRows, Recorder
 from closedloop.step import ControlStep, StepRecord
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate
@@ -155,6 +155,7 @@ def run_camera_loop(
     seed: int = 0,
     frame_hook: FrameHook | None = None,
     progress: Progress | None = None,
+    live: LiveRows | None = None,
 ) -> tuple[Series, dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Run for `duration` s from rest at q0; return ((per-tick time series, units), per-frame log, per-call log).
 
@@ -165,7 +166,8 @@ def run_camera_loop(
 
     `render()` returns the camera image (H, W, 3) uint8 of the plant's current state;
     `frame_hook(j, t, image, detections)` sees every frame that was taken (e.g. to save
-    some). The estimator must be fresh (no frame yet).
+    some). The estimator must be fresh (no frame yet). `live` is sent the rows recorded so far
+    as in `softcbf_mj.loop.run_closed_loop`.
     """
     tick = plant.control_dt
     n_ticks = int(round(duration / tick))
@@ -229,6 +231,10 @@ def run_camera_loop(
         state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
+        if live is not None and k % live.period_steps == 0:
+            live.send(recorder, k + 1)
+    if live is not None:
+        live.send(recorder, n_ticks, force=True)
     if progress is not None:
         progress.close()
     call_t, call_age, call_action = zip(*calls) if calls else ((), (), ())

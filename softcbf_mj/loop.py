@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from closedloop.record import TIMESERIES_UNITS, Recorder
+from closedloop.record import TIMESERIES_UNITS, LiveRows, Recorder
 from closedloop.step import ControlStep
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate
@@ -110,10 +110,13 @@ def run_closed_loop(
     q0: np.ndarray,
     estimator: Callable[[PlantState], Estimate] = exact_state,
     progress: Progress | None = None,
+    live: LiveRows | None = None,
 ) -> Series:
     """Run for `duration` s from rest at q0; return the time series and their units (`plant_series`).
 
-    `safe_set` is the controller's (ρ_meas uses its ψ and n_max).
+    `safe_set` is the controller's (ρ_meas uses its ψ and n_max). `live` (e.g.
+    softcbf_mj.recording.LiveRun) is sent the rows recorded so far every `live.period_steps`
+    steps and at the end (it decides what to send when).
     """
     n_steps = check_duration(duration, plant.control_dt, plant.n_segments, safe_set)
     recorder = Recorder(n_steps, plant.n_segments, plant_columns(plant.n_segments, safe_set.n_facets))
@@ -126,6 +129,10 @@ def run_closed_loop(
         state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
+        if live is not None and k % live.period_steps == 0:
+            live.send(recorder, k + 1)
+    if live is not None:
+        live.send(recorder, n_steps, force=True)
     if progress is not None:
         progress.close()
     return plant_series(recorder, safe_set)

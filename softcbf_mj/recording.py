@@ -49,29 +49,42 @@ left; on the right the time series ρ, force vs F_max, u vs u_nom and the flags,
 every run. rerun draws plot legends inside the plot, so they are hidden (the legend view
 and hovering name every line).
 
-`live_viewer()` (the CLI's `--spawn`): while it is active and a display is present,
-each `write_recording` also streams the runs it has not streamed yet to a spawned
-viewer, so the viewer shows every tuning as soon as it finishes.
+Live view. `live_viewer()` (the CLI's `--spawn`) spawns a viewer when a display is present
+and makes its stream the live stream (`live_stream(stream)`: any sink, e.g. a memory
+recording in the tests); without a display it says so and nothing is streamed. While a
+live stream is active, `live_run(scene, label, index, control_dt)` gives the loops a
+`LiveRun`: every LIVE_PERIOD_S of the loop's time the loop hands it the recorder, and it
+sends the rows recorded since its last call, one `send_columns` per entity, with the
+entities, styles, colours and geometry decimation of the finished recording (so the
+viewer's time series grow while the run runs; camera frames go in through
+`LiveRun.frame`). When the run is finished, `write_recording` streams to the live stream
+what it still lacks: the tip's whole path and the saved camera frames of runs streamed
+live, everything of runs that were not (each run's rows reach the stream once).
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import shutil
 import sys
+import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from softcbf_mj.palette import LIMIT_COLOR, rgb, run_color
+from closedloop.record import Recorder
 from softcbf_mj.report import (
+    BOX_MARGIN_M,
     FACET_COLOR,
     NOMINAL_COLOR,
     P_COLOR,
@@ -89,6 +102,8 @@ APP_ID = "softcbf_mj"
 RECORDING_FILE = "recording.rrd"
 TIMELINE = "sim_time"
 GEOMETRY_HZ = 50.0
+LIVE_PERIOD_S = 0.05  # a loop offers a LiveRun its new rows every LIVE_PERIOD_S of the loop's time (s)
+LIVE_CPU_PERIOD_S = 0.25  # ... and the LiveRun sends them when this process has used LIVE_CPU_PERIOD_S of CPU time (s)
 MEDIA_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
 MIRROR_Y = rr.Transform3D(scale=[1.0, -1.0, 1.0])
 PLATE_HALF_LENGTH_M = 0.05  # half-length (m) of the plate surfaces drawn
@@ -112,9 +127,11 @@ def run_path(label: str) -> str:
 
 
 def _decimation(t: np.ndarray) -> int:
+    """Every how many rows the geometry is drawn: GEOMETRY_HZ at the median row period (a hardware
+    run's first cycles may be late; `LiveRun` uses the nominal period, which the median matches)."""
     if len(t) < 2:
         return 1
-    return max(1, int(round(1.0 / (GEOMETRY_HZ * float(t[1] - t[0])))))
+    return max(1, int(round(1.0 / (GEOMETRY_HZ * float(np.median(np.diff(t)))))))
 
 
 def _log_scene(rec: rr.RecordingStream, scene: Scene, box: tuple[float, float, float, float]) -> None:
@@ -132,6 +149,25 @@ def _shades(color: str, count: int) -> list[list[int]]:
 
 def _log_run(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: Mapping[str, np.ndarray],
              frames_dir: Path, frames: Sequence[Mapping]) -> None:
+    t = np.asarray(s["t"], dtype=float)
+    _log_run_rows(rec, scene, label, color, s, np.arange(0, len(t), _decimation(t)), styles=True)
+    _log_tip_trace(rec, label, color, s)
+    if frames:
+        _log_frames(rec, run_path(label), frames_dir, frames)
+
+
+def _log_tip_trace(rec: rr.RecordingStream, label: str, color: str, s: Mapping[str, np.ndarray]) -> None:
+    """The tip's whole path (static), at the geometry's rate."""
+    t = np.asarray(s["t"], dtype=float)
+    tips = np.asarray(s["segment_ends"], dtype=float)[:: _decimation(t), -1]
+    rec.log(f"{run_path(label)}/scene/tip_trace", rr.LineStrips2D([tips], colors=rgb(color, 0.4),
+                                                                 radii=rr.Radius.ui_points(1.0)), static=True)
+
+
+def _log_run_rows(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: Mapping[str, np.ndarray],
+                  k: np.ndarray, styles: bool) -> None:
+    """Rows `s` of a run: every row's scalars, and the geometry of rows `k` (indices into `s`);
+    with `styles`, also the entities' static styles (once per run and stream)."""
     root = run_path(label)
     t = np.asarray(s["t"], dtype=float)
     time = [rr.TimeColumn(TIMELINE, duration=t)]
@@ -154,34 +190,34 @@ def _log_run(rec: rr.RecordingStream, scene: Scene, label: str, color: str, s: M
                                _shades(color, p), "smooth"),
     }
     for name, (names, values, colors, style) in scalars.items():
-        rec.log(f"{root}/{name}", rr.SeriesLines(names=names, colors=colors, **SERIES_STYLES[style]), static=True)
+        if styles:
+            rec.log(f"{root}/{name}", rr.SeriesLines(names=names, colors=colors, **SERIES_STYLES[style]), static=True)
         rec.send_columns(f"{root}/{name}", indexes=time, columns=rr.Scalars.columns(scalars=values))
 
-    k = np.arange(0, len(t), _decimation(t))
     geo_time = [rr.TimeColumn(TIMELINE, duration=t[k])]
     ends = np.asarray(s["segment_ends"], dtype=float)[k]
     q = np.asarray(s["q"], dtype=float)[k]
-    run_rgb = rgb(color)
-    rec.log(f"{root}/scene", MIRROR_Y, static=True)
-    rec.log(f"{root}/scene/arm", rr.LineStrips2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(3.0)), static=True)
-    arms = arm_polyline(q, scene.lengths, ends[:, 0])
-    rec.send_columns(f"{root}/scene/arm", indexes=geo_time, columns=rr.LineStrips2D.columns(strips=arms))
     n_tags = ends.shape[1]
-    rec.log(f"{root}/scene/tags", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(5.0),
-                                                         labels=[f"tag {i}" for i in range(n_tags)]), static=True)
+    plates = _plate_strips(scene, s, k)
+    if styles:
+        run_rgb = rgb(color)
+        rec.log(f"{root}/scene", MIRROR_Y, static=True)
+        rec.log(f"{root}/scene/arm", rr.LineStrips2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(3.0)),
+                static=True)
+        rec.log(f"{root}/scene/tags", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(5.0),
+                                                             labels=[f"tag {i}" for i in range(n_tags)]), static=True)
+        rec.log(f"{root}/scene/tip", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(4.0)), static=True)
+        rec.log(f"{root}/scene/plate",
+                rr.LineStrips2D.from_fields(colors=rgb(PLATE_COLOR), radii=rr.Radius.ui_points(3.0)), static=True)
+    if not len(k):
+        return
+    rec.send_columns(f"{root}/scene/arm", indexes=geo_time,
+                     columns=rr.LineStrips2D.columns(strips=arm_polyline(q, scene.lengths, ends[:, 0])))
     rec.send_columns(f"{root}/scene/tags", indexes=geo_time,
                      columns=rr.Points2D.columns(positions=ends.reshape(-1, 2)).partition([n_tags] * len(k)))
-    rec.log(f"{root}/scene/tip", rr.Points2D.from_fields(colors=run_rgb, radii=rr.Radius.ui_points(4.0)), static=True)
     rec.send_columns(f"{root}/scene/tip", indexes=geo_time, columns=rr.Points2D.columns(positions=ends[:, -1]))
-    rec.log(f"{root}/scene/tip_trace", rr.LineStrips2D([ends[:, -1]], colors=rgb(color, 0.4),
-                                                      radii=rr.Radius.ui_points(1.0)), static=True)
-    plates = _plate_strips(scene, s, k)
-    rec.log(f"{root}/scene/plate", rr.LineStrips2D.from_fields(colors=rgb(PLATE_COLOR), radii=rr.Radius.ui_points(3.0)),
-            static=True)
     rec.send_columns(f"{root}/scene/plate", indexes=geo_time,
                      columns=rr.LineStrips2D.columns(strips=plates.reshape(-1, 2, 2)).partition([plates.shape[1]] * len(k)))
-    if frames:
-        _log_frames(rec, root, frames_dir, frames)
 
 
 def _plate_strips(scene: Scene, s: Mapping[str, np.ndarray], k: np.ndarray) -> np.ndarray:
@@ -200,7 +236,6 @@ def _plate_strips(scene: Scene, s: Mapping[str, np.ndarray], k: np.ndarray) -> n
 
 def _log_frames(rec: rr.RecordingStream, root: str, frames_dir: Path, frames: Sequence[Mapping]) -> None:
     """Camera images (encoded files, unchanged) and their tag detections at the frames' times."""
-    t = [rr.TimeColumn(TIMELINE, duration=[float(f["t"]) for f in frames])]
     blobs, media = [], []
     for f in frames:
         path = frames_dir / f["file"]
@@ -208,8 +243,14 @@ def _log_frames(rec: rr.RecordingStream, root: str, frames_dir: Path, frames: Se
             raise RunFolderError(f"camera frame {path}: unsupported image type; use one of {', '.join(MEDIA_TYPES)}")
         blobs.append(path.read_bytes())
         media.append(MEDIA_TYPES[path.suffix.lower()])
+    _log_images(rec, root, [float(f["t"]) for f in frames], blobs, media, [f.get("detections", []) for f in frames])
+
+
+def _log_images(rec: rr.RecordingStream, root: str, times: Sequence[float], blobs: Sequence[bytes],
+                media: Sequence[str], detections: Sequence[Sequence[Mapping]]) -> None:
+    """Encoded images at `times` (s) and their detections ({"id", "corners"} each, as in frames.json)."""
+    t = [rr.TimeColumn(TIMELINE, duration=times)]
     rec.send_columns(f"{root}/camera/image", indexes=t, columns=rr.EncodedImage.columns(blob=blobs, media_type=media))
-    detections = [f.get("detections", []) for f in frames]
     counts = [len(d) for d in detections]
     if sum(counts):
         strips = [np.vstack((c, c[:1])) for d in detections for c in (np.asarray(x["corners"], dtype=float) for x in d)]
@@ -257,13 +298,88 @@ def _blueprint(labels: Sequence[str], cameras: Sequence[str], box: tuple[float, 
 
 @dataclass
 class _Live:
-    """A viewer spawned by `live_viewer` and the runs already streamed to it."""
+    """The stream of a live viewer (`live_viewer`, `live_stream`): the runs finished in it
+    (`write_recording` streamed them, or a `LiveRun` streamed them while they ran), the
+    runs a `LiveRun` streamed while they ran and those whose camera frames it streamed."""
 
     stream: rr.RecordingStream
-    sent: set[str] = field(default_factory=set)
+    sent: list[str] = field(default_factory=list)
+    streamed_live: set[str] = field(default_factory=set)
+    framed_live: set[str] = field(default_factory=set)
 
 
 _LIVE: ContextVar[_Live | None] = ContextVar("softcbf_mj_live_viewer", default=None)
+
+
+class LiveRun:
+    """One run streamed to the live viewer while it runs, with the entities and styles of
+    the finished recording (`_log_run_rows`: the scalars every row, the geometry every
+    `_decimation`-th row of the run, counted from its first row).
+
+    A loop calls `send(recorder, n_rows)` every `period_steps` rows (LIVE_PERIOD_S of the
+    loop's time) and `send(recorder, n_rows, force=True)` at its end; a call sends the rows
+    not sent yet, one `send_columns` per entity, if forced or this process has used
+    LIVE_CPU_PERIOD_S of CPU time (`time.process_time`) since the last send. rerun takes
+    ~0.2 ms of CPU per `send_columns` of few rows, so sending at every offer slowed a 1 kHz
+    loop by 80 %; a CPU-time period bounds the cost to (CPU of one send) /
+    LIVE_CPU_PERIOD_S of the loop's own CPU time whatever the machine's load
+    (tools/bench_live.py). A loop with a core to itself refreshes the viewer
+    1/LIVE_CPU_PERIOD_S times a second; on a busy machine, less often. The plates are
+    drawn at the deepest tip approach of each batch (the finished recording: of the whole
+    run). Camera frames go in through `frame` as they are taken; the tip's whole path (and
+    the saved frames of a run that sent none through `frame`) follow when
+    `write_recording` records the finished run.
+    """
+
+    def __init__(self, live: _Live, scene: Scene, label: str, color: str, control_dt: float, camera: bool = False,
+                 complete: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None) -> None:
+        if not (math.isfinite(control_dt) and control_dt > 0):
+            raise ValueError(f"control_dt must be finite and > 0 s, got {control_dt}")
+        self._live, self.scene, self.label, self.color, self.camera = live, scene, label, color, camera
+        self.complete = complete
+        self.period_steps = max(1, int(round(LIVE_PERIOD_S / control_dt)))
+        self._decimation = max(1, int(round(1.0 / (GEOMETRY_HZ * control_dt))))
+        self.rows_sent = 0
+        self.sends = 0  # the sends so far, and the calling thread's CPU time they took (s)
+        self.send_cpu_s = 0.0
+        self._last_send = -math.inf
+        live.streamed_live.add(label)
+
+    def send(self, recorder: Recorder, n_rows: int, force: bool = False) -> None:
+        """Stream rows rows_sent .. n_rows - 1 of `recorder` (the loop's rows so far), if
+        `force` or this process has used LIVE_CPU_PERIOD_S of CPU time since the last send."""
+        first = self.rows_sent
+        now = time.process_time()
+        if n_rows <= first or not (force or now - self._last_send >= LIVE_CPU_PERIOD_S):
+            return
+        self._last_send, start = now, time.thread_time()
+        s = recorder.columns(n_rows, first)
+        if self.complete is not None:
+            s = self.complete(s)
+        else:
+            contact = np.asarray(s["contact_force"], dtype=float)
+            s["tip"] = np.asarray(s["segment_ends"])[:, -1]
+            s["rho_meas"] = np.min((self.scene.n_max - self.scene.stiffness.penetration(contact)) / self.scene.n_max, axis=-1)
+        k = np.arange(-first % self._decimation, n_rows - first, self._decimation)
+        stream = self._live.stream
+        if first == 0:
+            base, reach = np.asarray(s["segment_ends"])[0, 0], float(np.sum(self.scene.lengths)) + BOX_MARGIN_M
+            box = (base[0] - reach, base[0] + reach, base[1] - reach, base[1] + reach)
+            labels = [*self._live.sent, self.label]
+            stream.send_blueprint(_blueprint(labels, [self.label] if self.camera else [], box))
+            _log_scene(stream, self.scene, box)
+            stream.log(LEGEND_ENTITY, rr.TextDocument(legend_markdown(labels), media_type=rr.MediaType.MARKDOWN), static=True)
+        _log_run_rows(stream, self.scene, self.label, self.color, s, k, styles=first == 0)
+        self.rows_sent = n_rows
+        self.sends += 1
+        self.send_cpu_s += time.thread_time() - start
+
+    def frame(self, t: float, image: bytes, media_type: str, detections: Sequence[Mapping] = ()) -> None:
+        """One encoded camera image (`media_type`, e.g. "image/jpeg") taken at the loop's time
+        t (s), with its tag detections ({"id", "corners"} each, as in frames.json); sent at
+        once. The finished run's saved frames are then not streamed again."""
+        self._live.framed_live.add(self.label)
+        _log_images(self._live.stream, run_path(self.label), [t], [image], [media_type], [list(detections)])
 
 
 def display_available() -> bool:
@@ -291,25 +407,53 @@ def viewer_command(recording: str | Path) -> str:
 
 @contextlib.contextmanager
 def live_viewer() -> Iterator[str]:
-    """While active, `write_recording` also streams each newly finished run to a spawned
-    viewer; yields a one-line message saying whether the viewer was spawned (it is not
-    without a display or a `rerun` executable)."""
+    """While active, runs stream to a spawned viewer as they run (`live_run`) and
+    `write_recording` streams what they did not (`live_stream`); yields a one-line message
+    saying whether the viewer was spawned (it is not without a display or a `rerun`
+    executable; then nothing is streamed)."""
     executable = viewer_executable()
     if not display_available():
-        yield "viewer not spawned: no display (DISPLAY and WAYLAND_DISPLAY are unset); open recording.rrd later with `python -m rerun`"
+        yield ("viewer not spawned: no display (DISPLAY and WAYLAND_DISPLAY are unset); open the recording later with "
+               f"`{viewer_command('DIR/' + RECORDING_FILE)}`")
         return
     if executable is None:
         yield "viewer not spawned: no `rerun` executable beside this Python or on PATH (pip install rerun-sdk)"
         return
     stream = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
     rr.spawn(recording=stream, executable_path=executable)
-    token = _LIVE.set(_Live(stream))
     try:
-        yield "viewer spawned: each tuning appears in it when it finishes"
+        with live_stream(stream):
+            yield "viewer spawned: each run streams to it while it runs"
     finally:
-        _LIVE.reset(token)
         stream.flush()
         stream.disconnect()
+
+
+@contextlib.contextmanager
+def live_stream(stream: rr.RecordingStream) -> Iterator[None]:
+    """While active, `live_run` streams runs to `stream` as they run and `write_recording`
+    streams each newly finished run's rest to it (any sink: a spawned viewer, a gRPC
+    server, a binary stream)."""
+    token = _LIVE.set(_Live(stream))
+    try:
+        yield
+    finally:
+        _LIVE.reset(token)
+
+
+def live_run(scene_record: Mapping[str, Any] | None, label: str, index: int, control_dt: float,
+             camera: bool = False, complete: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None,
+             ) -> LiveRun | None:
+    """A `LiveRun` of run `label` (the `index`-th of its folder; its colour `run_color(label,
+    index)`; with `camera`, a camera view for its `LiveRun.frame`s) in the scene of
+    summary.json's "scene" record, if a live stream is active (`live_viewer`,
+    `live_stream`) and the scene is known; else None. The recorder's rows must hold the
+    simulated loops' columns (`softcbf_mj.loop.plant_columns`), or `complete(rows)` must
+    turn them into a run's time series (the hardware loop's: tip and rho_meas included)."""
+    live = _LIVE.get()
+    if live is None or scene_record is None:
+        return None
+    return LiveRun(live, Scene.from_record(scene_record), label, run_color(label, index), control_dt, camera, complete)
 
 
 def _recording_id(folder: RunFolder) -> uuid.UUID:
@@ -351,7 +495,15 @@ def write_recording(run_dir: str | Path) -> Path:
     live = _LIVE.get()
     if live is not None:
         new = [label for label in folder.labels if label not in live.sent]
-        _log(live.stream, folder, scene, series, new, box)
+        whole = [label for label in new if label not in live.streamed_live]
+        if whole:
+            _log(live.stream, folder, scene, series, whole, box)
+        for label in new:
+            if label in live.streamed_live:  # its rows are there: the tip's path and the saved frames remain
+                color = run_color(label, folder.labels.index(label))
+                _log_tip_trace(live.stream, label, color, series[label])
+                if folder.frames(label) and label not in live.framed_live:
+                    _log_frames(live.stream, run_path(label), frames_folder(folder.path, label), folder.frames(label))
         live.stream.send_blueprint(blueprint)
-        live.sent.update(new)
+        live.sent.extend(new)
     return path

@@ -50,6 +50,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -123,6 +124,11 @@ class Scene:
         if data is None:
             raise RunFolderError(f"{folder.path / 'summary.json'} has no 'scene' (folders written before scenarios "
                                  "recorded it lack it): run the scenario again to get its report and recording")
+        return cls.from_record(data)
+
+    @classmethod
+    def from_record(cls, data: Mapping[str, Any]) -> "Scene":
+        """The scene of summary.json's "scene" record (`scenarios.common.scene_record`)."""
         arr = np.asarray
         return cls(arr(data["segment_lengths_m"], float), arr(data["facets"]["H"], float), arr(data["facets"]["h"], float),
                    arr(data["plates"]["H"], float), arr(data["plates"]["h"], float),

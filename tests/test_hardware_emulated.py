@@ -21,7 +21,7 @@ from hardware.runner import ACTION_CODES
 from closedloop.monitor import SafeAction
 from hardware.transport import LineFaults
 from softcbf_mj.emulate import EmulatedHardware
-from softcbf.hardware_cli import run_hardware
+from softcbf.hardware_cli import SAVED_FRAMES_HZ, run_hardware
 from softcbf_mj.runio import load_timeseries, read_run_folder
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml"
@@ -78,6 +78,14 @@ def test_high_tuning_keeps_the_true_plate_force_below_f_max_and_writes_the_run_f
         assert key in row
     store = rr.chunk.RrdReader(str(tmp_path / "run" / "recording.rrd")).stream().collect()
     assert "/runs/High/force" in {str(p) for p in store.schema().entity_paths()}
+    # camera frames kept at SAVED_FRAMES_HZ over the 7 s run, each in the recording at its time
+    frames = folder.frames("High")
+    times = np.array([f["t"] for f in frames])
+    assert 7.0 * SAVED_FRAMES_HZ - 2 <= len(frames) <= 7.0 * SAVED_FRAMES_HZ + 1
+    assert np.all(np.diff(times) >= 1.0 / SAVED_FRAMES_HZ) and all(len(f["detections"]) >= 1 for f in frames)
+    images = [c for c in store.stream() if c.entity_path == "/runs/High/camera/image"]
+    logged = np.sort(np.concatenate([c.to_record_batch().column("sim_time").cast("int64").to_numpy() for c in images]))
+    np.testing.assert_allclose(logged * 1e-9, times, atol=1e-9)
 
 
 def test_perception_blackout_holds_within_one_cycle_then_vents(tmp_path):
