@@ -89,6 +89,7 @@ class Recorder:
         self._diag_layout: list[tuple[str, tuple[int, ...], bool]] | None = None  # key, shape, bool
         self._diag_units: dict[str, str] = {}
         self._diag_called: list = []
+        self._diag_plan: list[tuple[str, tuple[int, ...], bool]] = []
         self._cached_step: StepRecord | None = None
         self._row_called: list = []
         self._row_held: list | None = None
@@ -128,16 +129,19 @@ class Recorder:
         self._cached_step, self._row_held = step, None
         output = step.output
         if output is not None:
-            u = output.u if isinstance(output.u, np.ndarray) else np.asarray(output.u, dtype=float)
-            self._held_filter = [*u.tolist(), float(output.rho_pred)]
+            u = output.u
+            self._held_filter = [*(u if type(u) is np.ndarray else np.asarray(u, dtype=float)).tolist(),
+                                 float(output.rho_pred)]
             if output.diagnostics or self._diag_layout is not None:
                 if self._diag_layout is None:
                     self._add_diagnostics(output)
                 self._diag_called = self._flatten(output)
+            infeasible = bool(output.infeasible)
+        else:
+            infeasible = False
         held = self._held_filter
-        self._row_called = [*step.u_nom.tolist(), *held[:-1], *step.u.tolist(), held[-1],
-                            output is not None and bool(output.infeasible), step.filter_us, ACTION_CODES[step.action],
-                            *self._diag_called]
+        self._row_called = [*step.u_nom.tolist(), *held[:-1], *step.u.tolist(), held[-1], infeasible, step.filter_us,
+                            ACTION_CODES[step.action], *self._diag_called]
 
     def _held_row(self) -> list:
         """A row without the filter's call: no infeasible, no filter time, scalar boolean diagnostics False."""
@@ -161,6 +165,7 @@ class Recorder:
         self._diag_layout = [(key, np.shape(value), np.asarray(value).dtype == bool)
                              for key, value in output.diagnostics.items()]
         self._diag_units = {key: str(output.diagnostic_units[key]) for key in output.diagnostics}
+        self._diag_plan = [(key, shape, len(shape) == 1) for key, shape, _ in self._diag_layout]  # key, shape, 1-D
         self._layout += [(key, shape, bool if is_bool else float) for key, shape, is_bool in self._diag_layout]
         size = sum(math.prod(s) for _, s, _ in self._diag_layout)
         self._floats = np.hstack((self._floats, np.full((self.n_steps, size), math.nan)))
@@ -170,11 +175,11 @@ class Recorder:
         diagnostics = output.diagnostics
         flat: list = []
         try:
-            for key, shape, _ in self._diag_layout:
+            for key, shape, vector in self._diag_plan:
                 value = diagnostics[key]
                 if not shape:
                     flat.append(value)
-                elif len(shape) == 1 and type(value) is np.ndarray and value.shape == shape:
+                elif vector and type(value) is np.ndarray and value.shape == shape:
                     flat += value.tolist()
                 else:
                     flat += np.asarray(value, dtype=float).reshape(shape).ravel().tolist()

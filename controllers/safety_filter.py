@@ -46,9 +46,10 @@ from controllers.safe_set import ForceSafeSet
 USER_ACTION = "user"  # the action label of a bare-array return
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False, slots=True)
 class Estimate:
-    """The controller's view of the state: t and t_capture (s), q (N,) rad, qd (N,) rad/s."""
+    """The controller's view of the state: t and t_capture (s), q (N,) rad, qd (N,) rad/s.
+    Made every control call, so not frozen (cheaper to build); nothing modifies it once made."""
 
     t: float
     q: np.ndarray

@@ -209,4 +209,4 @@ class PCCPlant:
         self._p = p if self._lag is not None else u_list
         self._k += 1
         self._t = self._k * self.control_dt
-        return self._state(np.array(self._p))
+        return self._state(u if self._lag is None else np.array(self._p))  # ideal valve: p = u
