@@ -3,7 +3,7 @@
 A nominal controller is any callable `(t, q, qd) -> u_nom` with t in s, q and qd of
 shape (N,) in rad and rad/s, and u_nom of shape (N,) in hPa. Scenarios pass one to
 the closed loop; the filter never needs to know which one it is. `sinusoid` and
-`tip_tracker` are the registry's factories ("sinusoid", "tip-tracker").
+`tip_tracker` and `step` are the registry's factories ("sinusoid", "tip-tracker", "step").
 """
 
 from __future__ import annotations
@@ -107,3 +107,33 @@ def tip_tracker(context: FilterContext, x_m: float = 0.2, y_m: float = 0.15, dam
 tip_tracker.parameter_docs = {"x_m": "target tip x [m]", "y_m": "target tip y [m]",
                               "damping_ratio_gain": "velocity damping k_d, u -= k_d qd / lambda [N m s/rad]",
                               "mu": "damped-least-squares damping [m]"}
+
+
+@dataclass(frozen=True)
+class StepNominal:
+    """A step command: u_nom = 0 for t < t_step, then the constant `level` (N,) hPa."""
+
+    level: tuple[float, ...]
+    t_step: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not all(math.isfinite(v) for v in self.level) or not math.isfinite(self.t_step):
+            raise ValueError(f"level and t_step must be finite, got {self.level}, {self.t_step}")
+        object.__setattr__(self, "_level", np.array(self.level, dtype=float))
+
+    def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        return self._level.copy() if t >= self.t_step else np.zeros_like(self._level)
+
+
+def step(context: FilterContext, seed: int = 0, low_hPa: float = 60.0, high_hPa: float = 300.0,
+         t_step: float = 0.0) -> StepNominal:
+    """A seeded step: one constant level per segment drawn from U(low_hPa, high_hPa) by
+    numpy.random.default_rng(seed), held from t_step on (0 before)."""
+    if not (math.isfinite(low_hPa) and math.isfinite(high_hPa) and low_hPa <= high_hPa):
+        raise ValueError(f"low_hPa <= high_hPa (finite) required, got low_hPa={low_hPa}, high_hPa={high_hPa}")
+    levels = np.random.default_rng(seed).uniform(low_hPa, high_hPa, context.robot.n_segments)
+    return StepNominal(tuple(levels.tolist()), t_step)
+
+
+step.parameter_docs = {"seed": "seed of the levels' generator [1]", "low_hPa": "lowest level [hPa]",
+                       "high_hPa": "highest level [hPa]", "t_step": "time of the step [s]"}

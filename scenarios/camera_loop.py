@@ -32,6 +32,7 @@ frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -42,6 +43,7 @@ import mujoco
 import numpy as np
 
 from controllers.params import RobotParams
+from controllers.safe_set import Environment
 from controllers.safety_filter import FilterContext
 from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
 from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
@@ -78,6 +80,7 @@ BOUNDS = {
     "max_hold_s": positive("s"), "qd_filter_tau": non_negative("s"), "width": Bound(16, CAMERA_RESOLUTION[0], unit="px"),
     "height": Bound(16, CAMERA_RESOLUTION[1], unit="px"), "saved_frames_hz": non_negative("Hz (0: none)"),
     "tip_friction": non_negative("(Coulomb μ)"), "damping_scale": positive("(× d_i)"),
+    "true_gain_scale": Bound(1e-3, 1e3, unit="(1: the model's gains)"), "facet_offset": Bound(-1.0, 1.0, unit="m"),
 }
 
 TABLE = (
@@ -201,6 +204,8 @@ def camera_loop(
     q0_std: float = 0.0,
     true_robot: str = "",
     damping_scale: float = 1.0,
+    true_gain_scale: float = 1.0,
+    facet_offset: float = 0.0,
     tip_friction: float = 0.0,
     plate: str = "ideal",
     sheet_clamp_at: float = FlexureParams.clamp_at,
@@ -215,10 +220,13 @@ def camera_loop(
     """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
 
     The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
-    `true_robot`'s when given (same number of segments); `damping_scale` multiplies every
-    segment's damping d_i of both arms (the controller knows it), so the arm's time constant
-    d_i/k_i scales with it (the operating-envelope study, studies/hardware_envelope.toml);
-    `tip_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (a
+    `true_robot`'s when given (same number of segments), its actuator gains λ multiplied by
+    `true_gain_scale`; `damping_scale` multiplies every segment's damping d_i of both arms
+    (the controller knows it), so the arm's time constant d_i/k_i scales with it (the
+    operating-envelope study, studies/hardware_envelope.toml); `facet_offset`,
+    `tip_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (the true
+    plates moved by `facet_offset` m along their outward normals, > 0 farther from the
+    base, the controller keeping the unmoved facets; a
     flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
@@ -229,7 +237,10 @@ def camera_loop(
     check_duration(duration, tick, model_robot.n_segments, safe_set)
     env = safe_set.environment
     arm = scale_damping(load_robot(true_robot), damping_scale) if true_robot else model_robot
-    config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(env.h), plate_stiffness=plate_stiffness,
+    if true_gain_scale != 1.0:
+        arm = dataclasses.replace(arm, gains=tuple(g * true_gain_scale for g in arm.gains))
+    true_h = env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])
+    config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(true_h), plate_stiffness=plate_stiffness,
                             links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
                             tip_friction=tip_friction, plate=plate, flexure=flexure_params(params))
     true_plate_stiffness = calibrate_flexure(config).stiffness_N_per_m if plate == "flexure" else plate_stiffness
@@ -246,7 +257,8 @@ def camera_loop(
     save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
 
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
-        summary = SummaryWriter(out_dir, "camera_loop", params, scene=scene_record(arm, safe_set, true_plate_stiffness))
+        summary = SummaryWriter(out_dir, "camera_loop", params,
+                                scene=scene_record(arm, safe_set, true_plate_stiffness, Environment(env.H, true_h)))
         for run in runs:
             label = run.label
             step = control_step(run, nominal, nominal_kwargs, context, timing.monitor(n))

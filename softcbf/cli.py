@@ -9,6 +9,7 @@
     softcbf report STUDY_DIR                       a study folder's report.md and plots/
     softcbf study run STUDY_FILE --out DIR | report DIR   robustness studies (softcbf.study)
     softcbf hardware --config FILE ...             the hardware mode (softcbf.hardware_cli)
+    softcbf bench --out DIR [--filters SPEC,...] [--quick]   the filter benchmark battery (softcbf.bench)
     softcbf --version
 
 `run` runs a registered scenario (`scenarios.registry`, through `scenarios.run.run_scenario`): its parameters are its keyword
@@ -65,7 +66,7 @@ from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
 from scenarios.config_file import load_run_config
 from scenarios.run import INTERRUPTED, USAGE_ERROR, UsageError, UsageParser, describe, run_scenario
-from softcbf import hardware_cli
+from softcbf import bench, hardware_cli
 from softcbf_mj.runio import RunFolderError, versions
 from softcbf.study import cli as study_cli
 
@@ -202,6 +203,7 @@ register_command("report", "rebuild a run or study folder's plots and report.md 
 register_command("study", "robustness studies of model mismatch: softcbf study run STUDY_FILE --out DIR | report DIR",
                  study_cli.add_arguments, study_cli.run_command)
 register_command("hardware", hardware_cli.HELP, hardware_cli.add_arguments, hardware_cli.run_command)
+register_command("bench", bench.HELP, bench.add_arguments, bench.run_command)
 
 
 def version_line() -> str:

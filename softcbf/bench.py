@@ -1,0 +1,436 @@
+"""`softcbf bench`: every selected safety filter over one fixed battery (docs/beyond-the-paper.md#filter-benchmark).
+
+    softcbf bench --out DIR [--filters SPEC,SPEC,...] [--quick] [--cases NAME,...] [--mismatch-draws N] [--workers N]
+
+Battery (`CASES`, in this order; each case runs registered scenarios with fixed parameters):
+
+| case             | scenario / plant                         | rate   | what                                                    |
+|------------------|------------------------------------------|--------|---------------------------------------------------------|
+| paper_sim_150    | paper_sim (PCC, exact state)             | 1 kHz  | the paper's sinusoid at ±150 hPa, 0.01 Hz, 100 s        |
+| step             | paper_sim (PCC, exact state)             | 1 kHz  | `STEP_STARTS` = 20 steps from rest, nominal "step" seeded 0…19: a constant u_nom ~ U(60, 300) hPa per segment, 5 s each |
+| mujoco_contact   | mujoco_contact at its defaults           | 1 kHz  | the paper's sinusoid (80 hPa, 0.01 Hz), 100 s           |
+| camera_loop      | camera_loop at its defaults              | 10 Hz  | rendered AprilTags at 12.8 fps, 100 s                   |
+| camera_stiff_close | camera_loop                            | 10 Hz  | true plate 10 % stiffer (12.276 N/m) and 1 mm closer (facet_offset −1 mm), 100 s |
+| hardware_emulator | `softcbf hardware` on the emulator      | 10 Hz  | examples/hardware_emulated.toml with the reference arm (robot.params "reference"), 20 s in real time |
+| camera_mismatch  | a study (softcbf.study) on camera_loop   | 10 Hz  | `MISMATCH_DRAWS` = 100 Monte Carlo draws (seed 2026): true plate stiffness U(±10 %), actuator gain scale U(0.9, 1.1), facet offset U(±1 mm); 30 s from t0 = 15 s (the first contact), as studies/paper_tunings_plate_errors.toml |
+
+The step case runs on paper_sim (the PCC plant at 1 kHz with the exact state): a step is
+a test of the filter's own response to a sudden, large command, which the camera path's
+latency would mix with perception effects that the camera cases already cover.
+`--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s, the steps to 3 starts of
+0.5 s, the mismatch study to 2 draws of 1 s and skips the emulator (it runs in real
+time after a start-up of several seconds); bench.json says "quick": true and lists the
+skipped cases with the reason.
+
+Filters. `--filters` is a comma list of specs `NAME` or `NAME(param=value,...)` (NAME: a
+registry spec, `controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
+FILE.py:Factory, package.module:Factory), e.g. `"e-erg(contact_aware=true),paper-cbf(tuning=HW-High)"`;
+default "e-erg,paper-cbf". Parameters not given take the per-case defaults of
+`case_filter_params`: paper-cbf the tuning its case is about (`PAPER_TUNINGS`: "Low" in
+the 1 kHz cases, "HW-High" in the 10 Hz camera cases: the paper's tables I and II);
+e-erg contact_aware=true with the true plate stiffness in [0.9, 1.1] × the model's
+(`EERG_PARAMS`: the mismatch study's interval, which also holds the stiff-plate case);
+other filters their own defaults.
+
+Figures per (filter, case): ρ_meas min, t_violation, F max from the scenario's summary row
+(the emulator: F max and t_violation from its 1 kHz ground truth, ρ_meas at the control
+cycles); u_dev_rms_hPa, blocked_s, switches_per_s, filter_us_median and filter_us_p99 from
+`controllers.filter_metrics.governor_figures` over the filter's call rows of the run's time
+series (u: the command sent). Cases of several runs (step, camera_mismatch) pool them:
+ρ_meas min and F max over the runs, t_violation_s and blocked_s summed, u_dev_rms the RMS
+over every run's calls, switches_per_s the mean over runs, the compute time quantiles
+over every call; violation_probability = k/n runs with ρ_meas < 0 and its 95 % Wilson
+interval (`softcbf.study.analysis`), draws = n; single runs have null there. wall_s: the
+case's wall time.
+
+Outputs: DIR/bench.json (`{"battery", "quick", "filters", "skipped", "results"}`; every
+result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png, and each
+case's run or study folder under DIR/cases/<filter label>/<case>/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import shutil
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controllers.filter_metrics import governor_figures
+from controllers.registry import FILTERS, check_filter, resolve
+from softcbf_mj.runio import load_timeseries, read_run_folder, safe_name
+
+RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
+               "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s")
+DEFAULT_FILTERS = "e-erg,paper-cbf"
+PAPER_TUNINGS = {"1kHz": "Low", "camera": "HW-High"}
+EERG_PARAMS = {"contact_aware": "true", "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
+STEP_STARTS, STEP_DURATION_S = 20, 5.0
+MISMATCH_DRAWS, MISMATCH_SEED = 100, 2026
+ASSUMED_PLATE_N_PER_M = 11.16
+QUICK_DURATION_S = 1.0
+QUICK_STEP_STARTS, QUICK_STEP_DURATION_S, QUICK_MISMATCH_DRAWS = 3, 0.5, 2
+EMULATOR_CONFIG = Path(__file__).resolve().parent.parent / "examples" / "hardware_emulated.toml"
+EMULATOR_DURATION_S = 20.0
+BENCH_FILE, TABLE_FILE, PLOT_FILE = "bench.json", "bench.md", "plots/bench.png"
+
+
+@dataclass(frozen=True)
+class FilterSpec:
+    """A filter under test: a registry spec and the parameters given for it ({name: text})."""
+
+    name: str
+    params: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        args = ",".join(f"{k}={v}" for k, v in self.params.items())
+        return f"{self.name}({args})" if args else self.name
+
+
+def parse_filters(text: str) -> list[FilterSpec]:
+    """`"NAME,NAME(param=value,...),..."` → filter specs (module docstring); ValueError naming the bad item."""
+    items, depth, start = [], 0, 0
+    for i, char in enumerate(text + ","):
+        depth += {"(": 1, ")": -1}.get(char, 0)
+        if depth < 0:
+            raise ValueError(f"--filters has an unmatched ')' at position {i}: {text!r}")
+        if char == "," and depth == 0:
+            items.append(text[start:i].strip())
+            start = i + 1
+    if depth:
+        raise ValueError(f"--filters has an unclosed '(': {text!r}")
+    specs = []
+    for item in items:
+        match = re.fullmatch(r"([^()]+?)\s*(?:\((.*)\))?", item)
+        if not item or match is None:
+            raise ValueError(f"--filters takes NAME or NAME(param=value,...) separated by commas, got {item!r} in {text!r}")
+        params = {}
+        for pair in filter(None, (p.strip() for p in (match.group(2) or "").split(","))):
+            name, sep, value = pair.partition("=")
+            if not sep or not name.strip():
+                raise ValueError(f"filter parameters must be name=value, got {pair!r} in {item!r}")
+            params[name.strip()] = value.strip()
+        resolve(match.group(1), FILTERS)
+        specs.append(FilterSpec(match.group(1), params))
+    labels = [s.label for s in specs]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"--filters names a filter twice: {text!r}")
+    return specs
+
+
+@dataclass(frozen=True)
+class Case:
+    """One battery case: its name, the loop rate class ("1kHz" or "camera"), how it runs
+    (`run(case, spec, folder, options) -> figures`) and its fixed scenario parameters
+    ("scenario": the registered scenario when it is not the case's name)."""
+
+    name: str
+    rate: str
+    run: Callable[["Case", FilterSpec, Path, "RunOptions"], dict[str, Any]]
+    scenario_params: dict[str, Any] = field(default_factory=dict)
+
+
+def case_filter_params(spec: FilterSpec, case: Case) -> dict[str, str]:
+    """The filter's parameters in `case`: the per-case defaults (module docstring) updated with the spec's own."""
+    defaults = {"paper-cbf": {"tuning": PAPER_TUNINGS[case.rate]}, "e-erg": dict(EERG_PARAMS)}.get(spec.name, {})
+    return {**defaults, **spec.params}
+
+
+def _joined(params: Mapping[str, str]) -> str:
+    return ";".join(f"{k}={v}" for k, v in params.items())
+
+
+def _call_rows(path: Path) -> dict[str, np.ndarray]:
+    """A run's time series restricted to the filter's call rows (t, u, u_nom, filter_us, rho_meas)."""
+    series, _ = load_timeseries(path)
+    calls = np.isfinite(series["filter_us"])
+    return {k: np.asarray(series[k])[calls] for k in ("t", "u", "u_nom", "filter_us")}
+
+
+def _run_figures(folder: Path) -> list[tuple[dict[str, Any], dict[str, np.ndarray]]]:
+    """(summary row, call rows) of every run in a run folder."""
+    run_folder = read_run_folder(folder)
+    return [(row, _call_rows(folder / row["timeseries"])) for row in run_folder.runs]
+
+
+def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarray]]],
+                   force_key: str = "force_max_N", violation_key: str = "t_violation_s") -> dict[str, Any]:
+    """The figures of one case from its runs' summary rows and call rows (module docstring: pooling)."""
+    from softcbf.study.analysis import wilson_interval
+
+    if not runs:
+        raise ValueError("a case needs at least one run")
+    per_run = [governor_figures(c["t"], c["u"], c["u_nom"], c["filter_us"]) for _, c in runs]
+    calls = np.concatenate([np.asarray(c["filter_us"], dtype=float) for _, c in runs])
+    weights = np.array([c["t"].size for _, c in runs], dtype=float)
+    rho = [float(r["rho_min_meas"]) for r, _ in runs]
+    out = {
+        "rho_min_meas": min(rho),
+        "t_violation_s": float(sum(float(r[violation_key]) for r, _ in runs)),
+        "force_max_N": max(float(r[force_key]) for r, _ in runs),
+        "violation_probability": None, "violation_ci95": None, "draws": None,
+        "u_dev_rms_hPa": float(math.sqrt(np.average([f["u_dev_rms_hPa"] ** 2 for f in per_run], weights=weights))),
+        "blocked_s": float(sum(f["blocked_s"] for f in per_run)),
+        "switches_per_s": float(np.mean([f["switches_per_s"] for f in per_run])),
+        "filter_us_median": float(np.median(calls)),
+        "filter_us_p99": float(np.percentile(calls, 99)),
+    }
+    if len(runs) > 1:
+        violations = sum(r < 0 for r in rho)
+        out.update(violation_probability=violations / len(runs), violation_ci95=list(wilson_interval(violations, len(runs))),
+                   draws=len(runs))
+    return out
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a case runs: quick (CI) or full, local worker processes of the study, mismatch draws (None: `MISMATCH_DRAWS`)."""
+
+    quick: bool = False
+    workers: int = 1
+    mismatch_draws: int | None = None
+
+
+def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
+    from scenarios import get
+
+    params = {k: v for k, v in case.scenario_params.items() if k != "scenario"}
+    params.update(filter=spec.name, filter_params=_joined(case_filter_params(spec, case)), progress=False)
+    if options.quick:
+        params["duration"] = QUICK_DURATION_S
+    out.mkdir(parents=True)
+    get(case.scenario_params.get("scenario", case.name)).run(out, **params)
+    return pooled_figures(_run_figures(out))
+
+
+def _step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
+    from scenarios import get
+
+    starts, duration = (QUICK_STEP_STARTS, QUICK_STEP_DURATION_S) if options.quick else (STEP_STARTS, STEP_DURATION_S)
+    runs = []
+    for seed in range(starts):
+        folder = out / f"seed-{seed:02d}"
+        folder.mkdir(parents=True)
+        get("paper_sim").run(folder, duration=duration, filter=spec.name, filter_params=_joined(case_filter_params(spec, case)),
+                             nominal="step", nominal_params=f"seed={seed};low_hPa=60;high_hPa=300", progress=False)
+        runs += _run_figures(folder)
+    return pooled_figures(runs)
+
+
+def _emulator_config(folder: Path) -> Path:
+    """examples/hardware_emulated.toml with the reference arm (its [robot] table dropped)."""
+    text = EMULATOR_CONFIG.read_text(encoding="utf-8")
+    text = re.sub(r"(?ms)^\[robot\]\n.*?(?=^\[)", "", text)
+    config = folder / "hardware_reference_arm.toml"
+    config.write_text(text, encoding="utf-8")
+    return config
+
+
+def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
+    from softcbf import hardware_cli
+
+    out.mkdir(parents=True)
+    config = _emulator_config(out)
+    argv = [str(config), "--port", "emulated", "--camera", "virtual", "--filter", spec.name,
+            "--duration", str(EMULATOR_DURATION_S), "--out", str(out / "run")]
+    for name, value in case_filter_params(spec, case).items():
+        argv += ["--filter-param", f"{name}={value}"]
+    code = hardware_cli.main(argv)
+    if code != 0:
+        raise RuntimeError(f"softcbf hardware {' '.join(argv)} exited with {code}")
+    return pooled_figures(_run_figures(out / "run"), force_key="force_max_emulator_N", violation_key="t_violation_emulator_s")
+
+
+def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float = 30.0):
+    """The camera_mismatch case's `softcbf.study.definition.Study` for `spec` (module docstring)."""
+    from softcbf.study.definition import Distribution, Study
+
+    k = ASSUMED_PLATE_N_PER_M
+    fixed = {"t0": 15.0, "duration": duration, "saved_frames_hz": 0.0, "progress": False,
+             "assumed_plate_stiffness": k, "filter_params": _joined(case_filter_params(spec, case))}
+    vary = (Distribution("plate_stiffness", "uniform", low=0.9 * k, high=1.1 * k),
+            Distribution("true_gain_scale", "uniform", low=0.9, high=1.1),
+            Distribution("facet_offset", "uniform", low=-1e-3, high=1e-3))
+    return Study(name=f"bench_camera_mismatch_{safe_name(spec.name)}", scenario="camera_loop", tunings=(spec.name,),
+                 tuning_parameter="filter", vary=vary, fixed=fixed, draws=draws, seed=MISMATCH_SEED,
+                 description="softcbf bench: camera_loop with plate stiffness ±10 %, actuator gain ±10 %, facet offset ±1 mm")
+
+
+def study_figures(folder: Path) -> dict[str, Any]:
+    """A mismatch study folder (run with keep_runs) → the case's figures over its ok samples."""
+    from softcbf.study.store import StudyStore
+
+    store = StudyStore.open(folder)
+    rows = [r for r in store.load_rows() if r["status"] == "ok"]
+    if not rows:
+        raise RuntimeError(f"study {folder} has no finished sample")
+    runs = []
+    for row in rows:
+        runs += _run_figures(store.run_dir(int(row["sample"])))
+    return pooled_figures(runs)
+
+
+def _mismatch_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
+    from softcbf.study.execute import run_study
+
+    draws = QUICK_MISMATCH_DRAWS if options.quick else (options.mismatch_draws or MISMATCH_DRAWS)
+    study = mismatch_study(spec, case, draws, QUICK_DURATION_S if options.quick else 30.0)
+    run_study(study, out, workers=options.workers, keep_runs=True, progress=False)
+    return study_figures(out)
+
+
+CASES: tuple[Case, ...] = (
+    Case("paper_sim_150", "1kHz", _scenario_case, {"scenario": "paper_sim", "amplitude": 150.0}),
+    Case("step", "1kHz", _step_case),
+    Case("mujoco_contact", "1kHz", _scenario_case),
+    Case("camera_loop", "camera", _scenario_case, {"saved_frames_hz": 0.0}),
+    Case("camera_stiff_close", "camera", _scenario_case,
+         {"scenario": "camera_loop", "plate_stiffness": 1.1 * ASSUMED_PLATE_N_PER_M, "facet_offset": -1e-3, "saved_frames_hz": 0.0}),
+    Case("hardware_emulator", "camera", _emulator_case),
+    Case("camera_mismatch", "camera", _mismatch_case),
+)
+QUICK_SKIPPED = {"hardware_emulator": "--quick: the emulator runs in real time after a start-up of several seconds"}
+
+
+def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOptions = RunOptions(),
+              cases: Sequence[str] | None = None) -> dict[str, Any]:
+    """Run `filters` over the battery (or the named `cases`) into `out` (a case's folder is
+    replaced); write and return bench.json's content (updated after every case)."""
+    out = Path(out)
+    names = [c.name for c in CASES]
+    selected = list(cases) if cases else names
+    unknown = [c for c in selected if c not in names]
+    if unknown:
+        raise ValueError(f"unknown case(s) {', '.join(unknown)}; the battery: {', '.join(names)}")
+    if options.mismatch_draws is not None and options.mismatch_draws < 1:
+        raise ValueError(f"--mismatch-draws must be >= 1, got {options.mismatch_draws}")
+    if options.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {options.workers}")
+    if not filters:
+        raise ValueError("--filters names no filter")
+    for spec in filters:
+        for case in CASES:
+            check_filter(spec.name, case_filter_params(spec, case))
+    skipped = {name: reason for name, reason in QUICK_SKIPPED.items() if options.quick and name in selected}
+    bench = {"battery": names, "quick": options.quick, "filters": [s.label for s in filters], "skipped": skipped, "results": []}
+    for spec in filters:
+        for case in CASES:
+            if case.name not in selected or case.name in skipped:
+                continue
+            folder = out / "cases" / safe_name(spec.label) / case.name
+            if folder.exists():
+                shutil.rmtree(folder)
+            start = time.perf_counter()
+            row = {"filter": spec.label, "case": case.name, **case.run(case, spec, folder, options),
+                   "wall_s": time.perf_counter() - start}
+            bench["results"].append({k: row[k] for k in RESULT_KEYS})
+            write_outputs(out, bench)
+            print(f"bench: {spec.label} x {case.name}: rho_min_meas {row['rho_min_meas']:.4f}, "
+                  f"t_violation {row['t_violation_s']:.3f} s, {row['wall_s']:.1f} s", flush=True)
+    write_outputs(out, bench)
+    return bench
+
+
+TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_min_meas", ".4f"),
+         ("t_viol [s]", "t_violation_s", ".3f"), ("F max [N]", "force_max_N", ".4f"),
+         ("P(viol) [95 % CI] (n)", None, ""), ("u_dev RMS [hPa]", "u_dev_rms_hPa", ".1f"), ("blocked [s]", "blocked_s", ".2f"),
+         ("switches [1/s]", "switches_per_s", ".2f"), ("filter med [µs]", "filter_us_median", ".0f"),
+         ("filter p99 [µs]", "filter_us_p99", ".0f"), ("wall [s]", "wall_s", ".0f"))
+
+
+def _cell(row: Mapping[str, Any], key: str | None, spec: str) -> str:
+    if key is None:
+        p = row["violation_probability"]
+        if p is None:
+            return "–"
+        lo, hi = row["violation_ci95"]
+        return f"{p:.3f} [{lo:.3f}, {hi:.3f}] ({row['draws']})"
+    value = row[key]
+    return format(value, spec) if isinstance(value, float) and math.isfinite(value) else str(value)
+
+
+def table_markdown(bench: Mapping[str, Any]) -> str:
+    """bench.md: the results as one Markdown table, the quick flag and the skipped cases."""
+    lines = [f"# Filter benchmark{' (quick: shortened for CI, not the battery)' if bench['quick'] else ''}", "",
+             f"Battery: {', '.join(bench['battery'])}. Filters: {', '.join(bench['filters'])}.", "",
+             "| " + " | ".join(h for h, _, _ in TABLE) + " |", "|" + "---|" * len(TABLE)]
+    lines += ["| " + " | ".join(_cell(r, k, s) for _, k, s in TABLE) + " |" for r in bench["results"]]
+    lines += [f"\nSkipped: {name}: {reason}" for name, reason in bench["skipped"].items()]
+    return "\n".join(lines) + "\n"
+
+
+PLOTTED = (("rho_min_meas", "ρ_meas min"), ("force_max_N", "F max [N]"), ("u_dev_rms_hPa", "|u − u_nom| RMS [hPa]"),
+           ("filter_us_p99", "filter p99 [µs]"))
+
+
+def write_plot(path: Path, bench: Mapping[str, Any]) -> None:
+    """One bar panel per figure of `PLOTTED`: cases along x, one bar per filter."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cases = [c for c in bench["battery"] if any(r["case"] == c for r in bench["results"])]
+    filters = bench["filters"]
+    fig, axes = plt.subplots(len(PLOTTED), 1, figsize=(9, 2.4 * len(PLOTTED)), sharex=True)
+    width = 0.8 / max(1, len(filters))
+    for ax, (key, title) in zip(axes, PLOTTED):
+        for j, name in enumerate(filters):
+            values = {r["case"]: r[key] for r in bench["results"] if r["filter"] == name}
+            x = [i + j * width for i, c in enumerate(cases) if c in values]
+            ax.bar(x, [values[c] for c in cases if c in values], width, label=name)
+        if key == "rho_min_meas":
+            ax.axhline(0.0, color="k", lw=0.8)
+        if key == "filter_us_p99":
+            ax.set_yscale("log")
+        ax.set_ylabel(title)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xticks([i + 0.4 - width / 2 for i in range(len(cases))], cases, rotation=20, fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_outputs(out: Path, bench: Mapping[str, Any]) -> None:
+    """DIR/bench.json, DIR/bench.md and DIR/plots/bench.png from `bench`."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / BENCH_FILE).write_text(json.dumps(bench, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    (out / TABLE_FILE).write_text(table_markdown(bench), encoding="utf-8")
+    if bench["results"]:
+        write_plot(out / PLOT_FILE, bench)
+
+
+HELP = "run safety filters over the fixed benchmark battery: softcbf bench --out DIR [--filters SPEC,...] [--quick]"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, required=True, help="output folder (bench.json, bench.md, plots/, cases/)")
+    parser.add_argument("--filters", default=DEFAULT_FILTERS, help=f"NAME or NAME(param=value,...), comma separated (default {DEFAULT_FILTERS})")
+    parser.add_argument("--quick", action="store_true", help="short durations and 2 mismatch draws, emulator skipped (CI)")
+    parser.add_argument("--cases", default="", help=f"run only these cases (comma separated; default all: {', '.join(c.name for c in CASES)})")
+    parser.add_argument("--mismatch-draws", type=int, default=None, help=f"draws of the mismatch study (default {MISMATCH_DRAWS})")
+    parser.add_argument("--workers", type=int, default=1, help="local processes of the mismatch study (default 1)")
+
+
+def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int:
+    """Handler of `softcbf bench`: 0 done, 2 usage error (one line on stderr)."""
+    import sys
+
+    try:
+        filters = parse_filters(args.filters)
+        cases = [c.strip() for c in args.cases.split(",") if c.strip()]
+        run_bench(args.out, filters, RunOptions(args.quick, args.workers, args.mismatch_draws), cases)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"bench: {args.out / BENCH_FILE}, {args.out / TABLE_FILE}, {args.out / PLOT_FILE}")
+    return 0
