@@ -13,6 +13,14 @@ annotated type (an int is accepted for a float and becomes one); every float is 
 then the scenario's own `check(kwargs)` (given to `register`), which the scenario's run
 also calls first, checks the ranges and the files and names it refers to. Errors are
 `ValueError`s that name the parameter, the valid range and the value received.
+
+Batch form (optional, studies: docs/studies.md#batches). `register(..., batch=BatchForm(key, run))`
+lets a study run many samples of the scenario in one batched closed loop:
+`key(kwargs)` is what samples must share to run in one batch (hashable; None: this
+sample cannot be batched), `run(kwargs_list, nthread)` runs the validated keyword
+arguments of samples with one key together and returns one row of run figures per
+sample (`softcbf_mj.batch_loop.BatchRun.run`), equal to the single run's fields of the
+same names.
 """
 
 from __future__ import annotations
@@ -22,9 +30,18 @@ import inspect
 import math
 import typing
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Hashable, Mapping, Sequence
 
 _MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop")
+
+
+@dataclass(frozen=True)
+class BatchForm:
+    """A scenario's batch form (module docstring): `key(kwargs) -> Hashable | None`,
+    `run(kwargs_list, nthread) -> list[dict]` (one row of run figures per sample)."""
+
+    key: Callable[[Mapping[str, Any]], Hashable | None]
+    run: Callable[[Sequence[Mapping[str, Any]], int], list[dict[str, Any]]]
 
 
 @dataclass(frozen=True)
@@ -33,6 +50,7 @@ class Scenario:
     description: str
     run: Callable[..., dict]
     check: Callable[[Mapping[str, Any]], None] | None = None
+    batch: "BatchForm | None" = None
 
     def parameters(self) -> dict[str, inspect.Parameter]:
         """Keyword parameters of the scenario, by name (out_dir excluded)."""
@@ -71,14 +89,14 @@ _REGISTRY: dict[str, Scenario] = {}
 
 
 def register(name: str, description: str, check: Callable[[Mapping[str, Any]], None] | None = None,
-             ) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
-    """Decorator: register `fn` as scenario `name` with a one-line description and its
-    parameter check `check(kwargs)` (raises ValueError; `Scenario.validate`)."""
+             batch: BatchForm | None = None) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
+    """Decorator: register `fn` as scenario `name` with a one-line description, its
+    parameter check `check(kwargs)` (raises ValueError; `Scenario.validate`) and its batch form."""
 
     def wrap(fn: Callable[..., dict]) -> Callable[..., dict]:
         if name in _REGISTRY:
             raise ValueError(f"scenario {name!r} is registered twice")
-        _REGISTRY[name] = Scenario(name, description, fn, check)
+        _REGISTRY[name] = Scenario(name, description, fn, check, batch)
         return fn
 
     return wrap
