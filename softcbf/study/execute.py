@@ -42,7 +42,8 @@ check (`StudyStore.scan`: unreadable, or its row digest does not match) is run a
 
 Memory: the sample indices are streamed (`range` filtered by the stored parts), so the
 driver holds the stored indices, the window, the retries and at most `BATCH_BUFFER` × B
-samples waiting for their batch, never a list of the study's size: `draws = 10**12` starts its first sample at once.
+samples waiting for their batch, never a list of the study's size: `draws = 10**12`
+starts its first task at once.
 
 Orphans: a local worker exits within `PARENT_POLL_S` when its driver dies, even by
 SIGKILL (which runs no clean-up): a daemon thread in every worker compares
@@ -72,7 +73,7 @@ from softcbf.study.store import StudyStore
 MAX_ATTEMPTS = 2  # local pool breaks a sample may be in flight for before it is recorded as failed
 PARENT_POLL_S = 0.5  # how often a local worker checks that its driver is alive, s
 ORPHAN_EXIT_CODE = 70  # a local worker's exit status when its driver died
-DEFAULT_BATCH_SIZE = 128  # samples per batch when the scenario has a batch form (MuJoCo: ≈ the throughput plateau)
+DEFAULT_BATCH_SIZE = 128  # samples per batch where the scenario has a batch form (tools/bench_batch.py)
 BATCH_BUFFER = 8  # batches' worth of samples the driver may hold while their groups fill
 
 
