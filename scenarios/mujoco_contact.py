@@ -39,10 +39,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from controllers.params import RobotParams
-from controllers.registry import build_filter, build_nominal
 from controllers.safe_set import Environment, ForceSafeSet
 from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
+from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
     PAPER_FILTER, Bound, ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
     controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning,
@@ -51,7 +51,6 @@ from scenarios.common import (
 from scenarios.ground_truth import check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
-from softcbf_mj.batch_loop import per_simulation_nominal, run_batch_closed_loop
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
@@ -191,26 +190,19 @@ def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:
 def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> list[dict[str, Any]]:
     """Run `mujoco_contact` samples that share `contact_batch_key` (each one tuning) in one
     batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
-    `BatchRun.run` figures per sample, plus wall_s (the batch's wall time / B) and batch_size."""
+    run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
     keys = {contact_batch_key(p) for p in samples}
     if len(keys) != 1 or None in keys:
         raise ValueError(f"samples of one batch must share contact_batch_key and use the ideal plate, got {len(keys)} keys")
     setups = [contact_setup(p) for p in samples]
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
-    first, params = setups[0], samples[0]
+    first = setups[0]
     plant = MujocoBatchPlant.from_configs([ArmModelConfig(**s.truth) for s in setups], control_dt=CONTROL_DT,
                                           nthread=nthread)
-    nominal = per_simulation_nominal([build_nominal(params["nominal"], s.nominal_kwargs, s.context) for s in setups])
-    run = first.runs[0]
-    one = build_filter(run.filter, run.filter_params, first.context)
-    filters = one if callable(getattr(one, "filter_batch", None)) else [
-        build_filter(run.filter, run.filter_params, s.context) for s in setups]
-    result = run_batch_closed_loop(plant, filters, nominal, first.safe_set, params["duration"],
-                                   np.array([s.q0 for s in setups]), first.context.u_min, first.context.u_max)
-    return [{**result.run(b), "wall_s": result.wall_s / len(setups), "batch_size": len(setups)}
-            for b in range(len(setups))]
-
+    return run_batch_tuning(plant, first.runs[0], first.context, samples[0]["nominal"],
+                            [s.nominal_kwargs for s in setups], first.safe_set, samples[0]["duration"],
+                            np.array([s.q0 for s in setups]))
 
 
 @register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
