@@ -18,6 +18,14 @@ Documentation. Every parameter's meaning and unit are declared once for all scen
 (`scenarios.parameters.DOCS`); its valid values are the scenario's `bounds` entry (given
 to `register`; a range such as "> 0 N") or, without one, the declared valid values
 (`Scenario.valid`).
+
+Batch form (optional, studies: docs/studies.md#batches). `register(..., batch=BatchForm(key, run))`
+lets a study run many samples of the scenario in one batched closed loop:
+`key(kwargs)` is what samples must share to run in one batch (hashable; None: this
+sample cannot be batched), `run(kwargs_list, nthread)` runs the validated keyword
+arguments of samples with one key together and returns one row of run figures per
+sample (`softcbf_mj.batch_loop.BatchRun.run`), equal to the single run's fields of the
+same names.
 """
 
 from __future__ import annotations
@@ -27,11 +35,20 @@ import inspect
 import math
 import typing
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Hashable, Mapping, Sequence
 
 from scenarios.parameters import parameter_doc
 
 _MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop")
+
+
+@dataclass(frozen=True)
+class BatchForm:
+    """A scenario's batch form (module docstring): `key(kwargs) -> Hashable | None`,
+    `run(kwargs_list, nthread) -> list[dict]` (one row of run figures per sample)."""
+
+    key: Callable[[Mapping[str, Any]], Hashable | None]
+    run: Callable[[Sequence[Mapping[str, Any]], int], list[dict[str, Any]]]
 
 
 @dataclass(frozen=True)
@@ -41,6 +58,7 @@ class Scenario:
     run: Callable[..., dict]
     check: Callable[[Mapping[str, Any]], None] | None = None
     bounds: Mapping[str, Any] = field(default_factory=dict)  # name → range (scenarios.common.Bound: str() says it)
+    batch: "BatchForm | None" = None
 
     def parameters(self) -> dict[str, inspect.Parameter]:
         """Keyword parameters of the scenario, by name (out_dir excluded)."""
@@ -89,15 +107,17 @@ _REGISTRY: dict[str, Scenario] = {}
 
 
 def register(name: str, description: str, check: Callable[[Mapping[str, Any]], None] | None = None,
-             bounds: Mapping[str, Any] | None = None) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
+             bounds: Mapping[str, Any] | None = None,
+             batch: BatchForm | None = None) -> Callable[[Callable[..., dict]], Callable[..., dict]]:
     """Decorator: register `fn` as scenario `name` with a one-line description, its
-    parameter check `check(kwargs)` (raises ValueError; `Scenario.validate`) and the ranges
-    that check holds its numeric parameters to (`bounds`, for the documentation)."""
+    parameter check `check(kwargs)` (raises ValueError; `Scenario.validate`), the ranges
+    that check holds its numeric parameters to (`bounds`, for the documentation) and its
+    batch form."""
 
     def wrap(fn: Callable[..., dict]) -> Callable[..., dict]:
         if name in _REGISTRY:
             raise ValueError(f"scenario {name!r} is registered twice")
-        _REGISTRY[name] = Scenario(name, description, fn, check, dict(bounds or {}))
+        _REGISTRY[name] = Scenario(name, description, fn, check, dict(bounds or {}), batch)
         return fn
 
     return wrap

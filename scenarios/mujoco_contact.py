@@ -33,16 +33,18 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from controllers.params import RobotParams
-from controllers.safe_set import Environment
+from controllers.safe_set import Environment, ForceSafeSet
 from controllers.safety_filter import FilterContext
-from scenarios import register
+from scenarios import BatchForm, register
+from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    COMMON_BOUNDS, PAPER_FILTER, Bound, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
+    COMMON_BOUNDS, PAPER_FILTER, ControllerRun, Bound, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
     controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning,
     scene_record,
 )
@@ -52,6 +54,7 @@ from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
+from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
@@ -104,8 +107,106 @@ def check_parameters(params: Mapping[str, Any]) -> None:
     steps_per_control(CONTROL_DT, params["physics_dt"])
 
 
+@dataclass(frozen=True, eq=False)
+class ContactSetup:
+    """What one `mujoco_contact` sample builds before its closed loop (`contact_setup`).
+
+    truth: the keyword arguments of the true arm's `ArmModelConfig` (with `MujocoPlant.from_config`'s
+    control_dt apart); true_plates: the true plates' facets at rest; runs: the controllers under test;
+    q0 (N,) rad; context: what the filters and the nominal are told.
+    """
+
+    safe_set: ForceSafeSet
+    true_robot: RobotParams
+    truth: dict[str, Any]
+    true_plate_stiffness: float
+    true_plates: Environment
+    runs: list[ControllerRun]
+    nominal_kwargs: dict[str, object]
+    q0: np.ndarray
+    context: FilterContext
+
+
+def contact_setup(params: Mapping[str, Any]) -> ContactSetup:
+    """Check `params` (all of `mujoco_contact`'s keyword arguments) and build the sample's
+    controller model, true arm and plates, controllers, nominal parameters and q0: the
+    construction shared by the single run (`mujoco_contact`) and the batch form (`run_contact_batch`)."""
+    check_parameters(params)
+    model_robot = load_robot(params["robot"])
+    safe_set = build_safe_set(params["environment"], params["assumed_plate_stiffness"], params["f_max"],
+                              params["row_scaling"])
+    check_duration(params["duration"], CONTROL_DT, model_robot.n_segments, safe_set)
+    env = safe_set.environment
+    ref = load_robot(params["true_robot"]) if params["true_robot"] else model_robot
+    length_scale = params["true_length_scale"]
+    true_robot_params = RobotParams(
+        lengths=ref.array("lengths") * length_scale, masses=ref.masses,
+        stiffness=ref.array("stiffness") * params["true_stiffness_scale"],
+        damping=ref.array("damping") * params["true_damping_scale"],
+        gains=ref.array("gains") * params["true_gain_scale"], u_min=ref.u_min, u_max=ref.u_max,
+        inertias=ref.array("inertias") * length_scale**2,
+    )
+    # True facets: row k of H turned by facet_angle; the line through the foot of the
+    # perpendicular (h_k/‖H_k‖ + facet_offset) n̂_k. Exact (bit-identical) at 0 and 0.
+    cos_a, sin_a = math.cos(params["facet_angle"]), math.sin(params["facet_angle"])
+    true_H = np.column_stack((env.H[:, 0] * cos_a - env.H[:, 1] * sin_a, env.H[:, 0] * sin_a + env.H[:, 1] * cos_a))
+    true_h = (env.h + params["facet_offset"] * np.hypot(env.H[:, 0], env.H[:, 1])) * cos_a
+    truth = dict(robot=true_robot_params, H=true_H, h=true_h, plate_stiffness=params["plate_stiffness"],
+                 links_per_segment=params["links_per_segment"], tau_p=params["tau_p"], physics_dt=params["physics_dt"])
+    if params["gravity"]:
+        truth["gravity"] = (0.0, -params["gravity"], 0.0)
+    if params["tip_friction"]:
+        truth["tip_friction"] = params["tip_friction"]
+    true_plate_stiffness = params["plate_stiffness"]
+    if params["plate"] != "ideal":
+        truth.update(plate=params["plate"], flexure=flexure_params(params))
+        true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
+    runs = controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"])
+    nominal_kwargs = nominal_arguments(params["nominal"], params["nominal_params"], amplitude=params["amplitude"],
+                                       frequency=params["frequency"], t0=params["t0"])
+    q0 = initial_configuration(ref.n_segments, params["seed"], params["q0_std"])  # the true arm's segments
+    context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, params["pressure_limits"], command_delay=0.0,
+                                      actuator_tau=params["tau_p"])
+    return ContactSetup(safe_set, true_robot_params, truth, true_plate_stiffness, Environment(true_H, true_h), runs,
+                        nominal_kwargs, q0, context)
+
+
+BATCH_VARYING = frozenset({
+    "plate_stiffness", "facet_offset", "facet_angle", "true_stiffness_scale", "true_damping_scale", "true_gain_scale",
+    "true_length_scale", "seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "progress",
+})
+"""Parameters that may differ between the samples of one batch (per-simulation models, q0, nominal)."""
+
+
+def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:
+    """What the samples of one batch share: every parameter but `BATCH_VARYING` (scenario
+    structure, duration, physics step, filter, its parameters and the controller's model).
+    None for the flexure plate (no batch form: its calibration is per model)."""
+    if params["plate"] != "ideal":
+        return None
+    return tuple(sorted((k, v) for k, v in params.items() if k not in BATCH_VARYING))
+
+
+def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> list[dict[str, Any]]:
+    """Run `mujoco_contact` samples that share `contact_batch_key` (each one tuning) in one
+    batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
+    run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
+    keys = {contact_batch_key(p) for p in samples}
+    if len(keys) != 1 or None in keys:
+        raise ValueError(f"samples of one batch must share contact_batch_key and use the ideal plate, got {len(keys)} keys")
+    setups = [contact_setup(p) for p in samples]
+    if any(len(s.runs) != 1 for s in setups):
+        raise ValueError("each sample of a batch must run exactly one tuning")
+    first = setups[0]
+    plant = MujocoBatchPlant.from_configs([ArmModelConfig(**s.truth) for s in setups], control_dt=CONTROL_DT,
+                                          nthread=nthread)
+    return run_batch_tuning(plant, first.runs[0], first.context, samples[0]["nominal"],
+                            [s.nominal_kwargs for s in setups], first.safe_set, samples[0]["duration"],
+                            np.array([s.q0 for s in setups]))
+
+
 @register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
-          check_parameters, {**COMMON_BOUNDS, **BOUNDS})
+          check_parameters, {**COMMON_BOUNDS, **BOUNDS}, BatchForm(contact_batch_key, run_contact_batch))
 def mujoco_contact(
     out_dir: Path,
     *,
@@ -173,48 +274,18 @@ def mujoco_contact(
     """
     params = dict(locals())
     params.pop("out_dir")
-    check_parameters(params)
-    model_robot = load_robot(robot)
-    safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
-    check_duration(duration, CONTROL_DT, model_robot.n_segments, safe_set)
-    env = safe_set.environment
-    ref = load_robot(true_robot) if true_robot else model_robot
-    true_robot_params = RobotParams(
-        lengths=ref.array("lengths") * true_length_scale, masses=ref.masses,
-        stiffness=ref.array("stiffness") * true_stiffness_scale, damping=ref.array("damping") * true_damping_scale,
-        gains=ref.array("gains") * true_gain_scale, u_min=ref.u_min, u_max=ref.u_max,
-        inertias=ref.array("inertias") * true_length_scale**2,
-    )
-    # True facets: row k of H turned by facet_angle; the line through the foot of the
-    # perpendicular (h_k/‖H_k‖ + facet_offset) n̂_k. Exact (bit-identical) at 0 and 0.
-    cos_a, sin_a = math.cos(facet_angle), math.sin(facet_angle)
-    true_H = np.column_stack((env.H[:, 0] * cos_a - env.H[:, 1] * sin_a, env.H[:, 0] * sin_a + env.H[:, 1] * cos_a))
-    true_h = (env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])) * cos_a
-    truth = dict(robot=true_robot_params, H=true_H, h=true_h, plate_stiffness=plate_stiffness,
-                 links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt)
-    if gravity:
-        truth["gravity"] = (0.0, -gravity, 0.0)
-    if tip_friction:
-        truth["tip_friction"] = tip_friction
-    true_plate_stiffness = plate_stiffness
-    if plate != "ideal":
-        truth.update(plate=plate, flexure=flexure_params(params))
-        true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
-    plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **truth)
-    runs = controller_runs(filter, filter_params, tunings, qp_backend)
-    nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency, t0=t0)
-    n = plant.n_segments
-    q0 = initial_configuration(n, seed, q0_std)
-    context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, pressure_limits, command_delay=0.0, actuator_tau=tau_p)
+    setup = contact_setup(params)
+    safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.true_plate_stiffness, setup.nominal_kwargs
+    plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **setup.truth)
 
     def figures(log: dict[str, np.ndarray]) -> dict:
         return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log)}
 
     summary = SummaryWriter(out_dir, "mujoco_contact", params,
-                            scene_record(true_robot_params, safe_set, true_plate_stiffness, Environment(true_H, true_h)))
-    for run in runs:
-        run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, context), safe_set,
-                   duration, q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
+                            scene_record(setup.true_robot, safe_set, true_plate_stiffness, setup.true_plates))
+    for run in setup.runs:
+        run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, setup.context),
+                   safe_set, duration, setup.q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
                    row=controller_row(run, nominal, nominal_kwargs))
     print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
           f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "

@@ -1,11 +1,14 @@
 """Command line of robustness studies: `python -m softcbf.study run|report`.
 
     python -m softcbf.study run STUDY_FILE --out DIR [--workers N | --scheduler tcp://host:8786]
-                                   [--resume] [--samples N] [--keep-runs] [--no-progress] [--set KEY=VALUE ...]
+                                   [--resume] [--samples N] [--batch-size N] [--keep-runs] [--no-progress] [--set KEY=VALUE ...]
     python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
 draw-major, so N = draws × tunings runs whole draws) into DIR, one Parquet part per sample;
+`--batch-size N` runs up to N samples that share a model structure in one batched
+closed loop (default 128 where the scenario has a batch form, e.g. mujoco_contact;
+1: every sample alone, with all of the scenario's figures; docs/studies.md#batches);
 `--resume` continues a study folder; Ctrl-C stops it and leaves every finished sample
 stored. It ends with the report. `--set fixed.duration=10` (repeatable) sets a dotted key
 of the study file (`softcbf.study.definition.load_study`) without copying the file.
@@ -33,7 +36,8 @@ def _run(args: argparse.Namespace) -> int:
     try:
         study = load_study(args.study_file, args.set)
         outcome = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-                            samples=args.samples, keep_runs=args.keep_runs, progress=not args.no_progress)
+                            samples=args.samples, keep_runs=args.keep_runs, progress=not args.no_progress,
+                            batch_size=args.batch_size)
         print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already "
               f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
               + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
@@ -70,6 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     backend.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786 (instead of the local pool)")
     run.add_argument("--resume", action="store_true", help="continue the study stored in --out")
     run.add_argument("--samples", type=int, help="run only samples 0..N-1 (draw-major); --resume runs the rest later")
+    run.add_argument("--batch-size", type=int, help="samples per batched closed loop (default 128 where the scenario "
+                                                    "has a batch form; 1: every sample alone)")
     run.add_argument("--keep-runs", action="store_true", help="keep every sample's scenario outputs in DIR/runs/")
     run.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

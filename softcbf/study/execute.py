@@ -10,7 +10,19 @@ Backends, both driven through the `concurrent.futures` executor interface:
   `client.get_executor(pure=False)`. Every worker needs this package and the same
   versions installed (the rows record the versions only once, in study.json).
 
-The driver keeps a window of submitted samples (local: one per worker; Dask: two per
+Batches (docs/studies.md#batches). With `batch_size` B > 1 (default `DEFAULT_BATCH_SIZE`
+when the scenario has a batch form, else 1) the driver groups the streamed samples by
+their batch key (`runner.batch_key`: what one batched closed loop must share, e.g. the
+tuning, duration and physics step; the drawn plant parameters, q0 and nominal may
+differ) and submits each group of B as one task (`runner.run_batch`, MuJoCo on
+`cores // workers` threads locally, 1 on Dask); a group is submitted when it holds B
+samples, when the driver holds `BATCH_BUFFER` × B unsubmitted samples (the largest
+group goes), or at the end of the stream. A sample whose key is None runs alone
+(`runner.run_sample`), as does every sample with B = 1. A task is a unit of work and of
+failure: its rows are stored when it finishes, a task cut short (a killed driver or
+worker) stores nothing and its samples run again, whole, on resume or retry.
+
+The driver keeps a window of submitted tasks (local: one per worker; Dask: two per
 worker thread), writes each finished sample's row itself, once (`StudyStore.write`,
 named by the sample index: a task that Dask reruns after a worker death cannot add a
 second row), and updates the progress line (samples done, failed, ETA) on stderr.
@@ -19,9 +31,9 @@ Failures: an exception inside the scenario is a row with status "error" (`runner
 Dask task whose worker dies is rescheduled by Dask; after Dask gives up
 (`distributed.scheduler.allowed-failures`) the sample is a row with the error. A local
 worker that dies breaks the whole process pool: the driver starts a new pool and
-resubmits the samples that were in flight; a sample in flight at `MAX_ATTEMPTS` pool
-breaks is recorded as an error (it is the likely culprit, though an innocent sample
-sharing both breaks would be recorded too).
+resubmits the tasks that were in flight; a sample in flight at `MAX_ATTEMPTS` pool
+breaks is recorded as an error with the rest of its task (it is the likely culprit,
+though an innocent sample or batch sharing both breaks would be recorded too).
 
 Resume: samples with a sound part in the folder are skipped, so an interrupted study
 (Ctrl-C, a killed driver, a lost cluster) continues with `resume=True`; nothing is lost
@@ -29,8 +41,9 @@ beyond the samples then running, and nothing is stored twice. A part that fails 
 check (`StudyStore.scan`: unreadable, or its row digest does not match) is run again.
 
 Memory: the sample indices are streamed (`range` filtered by the stored parts), so the
-driver holds the stored indices, the window and the retries, never a list of the
-study's size: `draws = 10**12` starts its first sample at once.
+driver holds the stored indices, the window, the retries and at most `BATCH_BUFFER` × B
+samples waiting for their batch, never a list of the study's size: `draws = 10**12`
+starts its first task at once.
 
 Orphans: a local worker exits within `PARENT_POLL_S` when its driver dies, even by
 SIGKILL (which runs no clean-up): a daemon thread in every worker compares
@@ -49,16 +62,27 @@ from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExe
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Hashable, Iterator
 
+from scenarios import get as get_scenario
 from softcbf_mj.progress import Progress
 from softcbf.study.definition import Study
-from softcbf.study.runner import failed_row, run_sample
+from softcbf.study.runner import batch_key, failed_row, run_batch, run_sample
 from softcbf.study.store import StudyStore
 
 MAX_ATTEMPTS = 2  # local pool breaks a sample may be in flight for before it is recorded as failed
 PARENT_POLL_S = 0.5  # how often a local worker checks that its driver is alive, s
 ORPHAN_EXIT_CODE = 70  # a local worker's exit status when its driver died
+DEFAULT_BATCH_SIZE = 128  # samples per batch where the scenario has a batch form (tools/bench_batch.py)
+BATCH_BUFFER = 8  # batches' worth of samples the driver may hold while their groups fill
+
+
+@dataclass(frozen=True)
+class Task:
+    """Samples submitted as one unit: `indices` run in one batch (`batched`) or, alone, one sample."""
+
+    indices: tuple[int, ...]
+    batched: bool
 
 
 @dataclass(frozen=True)
@@ -98,6 +122,35 @@ def pending_indices(limit: int, done: set[int]) -> Iterator[int]:
     return (i for i in range(limit) if i not in done)
 
 
+def group_tasks(indices: Iterator[int], key: Callable[[int], Hashable | None], batch_size: int,
+                buffer: int) -> Iterator[Task]:
+    """Tasks of the streamed `indices`: samples with equal non-None `key` in batches of up to
+    `batch_size`, the others alone; at most `buffer` samples are held (then the largest group goes)."""
+    groups: dict[Hashable, list[int]] = {}
+    held = 0
+    for index in indices:
+        group_key = key(index) if batch_size > 1 else None
+        if group_key is None:
+            yield Task((index,), False)
+            continue
+        group = groups.setdefault(group_key, [])
+        group.append(index)
+        held += 1
+        if len(group) == batch_size or held >= buffer:
+            largest = group_key if len(group) == batch_size else max(groups, key=lambda k: len(groups[k]))
+            held -= len(groups[largest])
+            yield Task(tuple(groups.pop(largest)), True)
+    for group in groups.values():
+        yield Task(tuple(group), True)
+
+
+def run_task(study: Study, task: Task, keep_dir: str | None, nthread: int) -> list[dict[str, Any]]:
+    """In a worker: the rows of `task` (`run_batch`, or `run_sample` for a sample alone)."""
+    if task.batched:
+        return run_batch(study, list(task.indices), nthread)
+    return [run_sample(study, task.indices[0], keep_dir)]
+
+
 def run_study(
     study: Study,
     out_dir: str | Path,
@@ -109,25 +162,34 @@ def run_study(
     samples: int | None = None,
     keep_runs: bool = False,
     progress: bool = True,
+    batch_size: int | None = None,
 ) -> StudyOutcome:
     """Run the study's samples 0 … `samples`−1 (default: all) that the folder does not hold yet.
 
     `workers`: local processes (default: all cores); ignored with Dask. `scheduler`: a
     Dask scheduler address; `client`: a `distributed.Client` to use (not closed here).
-    `keep_runs` keeps each scenario's own outputs under DIR/runs/.
+    `keep_runs` keeps each scenario's own outputs under DIR/runs/ (and runs every sample
+    alone). `batch_size`: samples per batch (module docstring; 1: every sample alone).
     """
     if scheduler is not None and client is not None:
         raise ValueError("give a Dask scheduler address or a client, not both")
     if workers is not None and (workers < 1 or scheduler is not None or client is not None):
         raise ValueError(f"workers must be >= 1 and is for the local pool only, got workers={workers} "
                          f"with scheduler={scheduler!r}")
+    if batch_size is None:
+        batch_size = DEFAULT_BATCH_SIZE if get_scenario(study.scenario).batch is not None else 1
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1 (1: every sample alone), got {batch_size}")
+    if keep_runs:
+        batch_size = 1  # a batch writes no per-sample outputs
     limit = study.n_samples if samples is None else samples
     if not 1 <= limit <= study.n_samples:
         raise ValueError(f"samples must lie in [1, {study.n_samples}] (the study's draws × tunings), got {samples}")
     store = StudyStore.create(out_dir, study, resume=resume)
     done, corrupted = store.scan()
-    fresh = pending_indices(limit, done)
-    retry: collections.deque[int] = collections.deque()  # samples of a broken pool, run before fresh ones
+    fresh = group_tasks(pending_indices(limit, done), lambda i: batch_key(study, i), batch_size,
+                        BATCH_BUFFER * batch_size)
+    retry: collections.deque[Task] = collections.deque()  # tasks of a broken pool, run before fresh ones
     skipped = sum(1 for i in done if i < limit)
     n_todo = limit - skipped
 
@@ -140,17 +202,19 @@ def run_study(
         backend = "dask"
         n_workers = max(1, sum(client.nthreads().values()))
         window = 2 * n_workers
+        nthread = 1
         executor: Executor = client.get_executor(pure=False)
     else:
         backend = "local"
         n_workers = workers or os.cpu_count() or 1
         window = n_workers
+        nthread = max(1, (os.cpu_count() or 1) // n_workers)
         executor = _local_pool(n_workers)
 
     start = time.perf_counter()
     ran = failed = 0
     bar = Progress(f"study {study.name}", max(n_todo, 1), enabled=progress and n_todo > 0)
-    pending: dict[Future, int] = {}
+    pending: dict[Future, Task] = {}
     attempts: collections.Counter[int] = collections.Counter()
 
     def record(row: dict[str, Any]) -> None:
@@ -163,37 +227,41 @@ def run_study(
     try:
         while True:
             while len(pending) < window:
-                index = retry.popleft() if retry else next(fresh, None)
-                if index is None:
+                task = retry.popleft() if retry else next(fresh, None)
+                if task is None:
                     break
-                keep = str(store.run_dir(index)) if keep_runs else None
-                pending[executor.submit(run_sample, study, index, keep)] = index
+                keep = str(store.run_dir(task.indices[0])) if keep_runs else None
+                pending[executor.submit(run_task, study, task, keep, nthread)] = task
             if not pending:
                 break
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-            broken: list[int] = []
+            broken: list[Task] = []
             for future in finished:
-                index = pending.pop(future)
+                task = pending.pop(future)
                 try:
-                    row = future.result()
+                    rows = future.result()
                 except BrokenProcessPool:
-                    broken.append(index)
+                    broken.append(task)
                     continue
-                except Exception as exc:  # noqa: BLE001 - e.g. Dask's KilledWorker: the sample failed, the study goes on
-                    row = failed_row(study, index, f"{type(exc).__name__}: {exc}")
-                record(row)
+                except Exception as exc:  # noqa: BLE001 - e.g. Dask's KilledWorker: the task failed, the study goes on
+                    rows = [failed_row(study, index, f"{type(exc).__name__}: {exc}") for index in task.indices]
+                for row in rows:
+                    record(row)
             if broken:
                 broken += list(pending.values())  # the whole pool is gone
                 pending.clear()
                 executor.shutdown(wait=True, cancel_futures=True)
                 executor = _local_pool(n_workers)
-                for index in sorted(broken, reverse=True):
-                    attempts[index] += 1
-                    if attempts[index] >= MAX_ATTEMPTS:
-                        record(failed_row(study, index, f"the worker process died {attempts[index]} times while "
-                                                        "running this sample (crash or kill outside Python)"))
+                for task in sorted(broken, key=lambda t: t.indices[0], reverse=True):
+                    for index in task.indices:
+                        attempts[index] += 1
+                    tries = max(attempts[index] for index in task.indices)
+                    if tries >= MAX_ATTEMPTS:
+                        for index in task.indices:
+                            record(failed_row(study, index, f"the worker process died {tries} times while running "
+                                                            "this sample or its batch (crash or kill outside Python)"))
                     else:
-                        retry.appendleft(index)
+                        retry.appendleft(task)
     except BaseException:
         for future in pending:
             future.cancel()

@@ -14,6 +14,17 @@ Cost: besides the closed loop, a sample pays for building the scenario (for
 to the temporary folder (`scenarios.common.data_only()` skips the per-run report and
 recording, 1–3 s per run); `tools/bench_study.py` measures the total against the loop's
 `wall_s`.
+
+Batches. `batch_key(study, index)` is the key of the scenario's batch form for sample
+`index` (None: the scenario has no batch form or the sample does not batch), and
+`run_batch(study, indices, nthread)` runs samples sharing one key in one batched
+closed loop (`scenarios.BatchForm`): one row per sample, with the batch form's run
+figures (rho_min_pred, rho_min_meas, force_max_N, t_violation_s, infeasible_steps,
+u_peak_abs_hPa, refused_steps, sim_s; wall_s and sample_wall_s are the batch's wall
+time / B; batch_size), equal to the single run's fields of the same names; the single
+run's other figures (chatter, contact figures, …) are not computed. If the batch
+raises (e.g. one sample's parameters fail their check), each of its samples is run
+alone (`run_sample`), so an error is recorded against the sample that has it.
 """
 
 from __future__ import annotations
@@ -50,6 +61,35 @@ def sample_row(sample: Sample) -> dict[str, Any]:
 def failed_row(study: Study, index: int, error: str) -> dict[str, Any]:
     """The row of a sample whose worker failed outside the scenario (e.g. the process died)."""
     return {**sample_row(study.sample(index)), "status": "error", "error": error, "sample_wall_s": None, "worker": None}
+
+
+def batch_key(study: Study, index: int) -> Any:
+    """The batch-form key of sample `index` (samples with equal keys batch together); None if it does not
+    batch (no batch form, or its parameters fail their check: it then runs alone and records the error)."""
+    scenario = get_scenario(study.scenario)
+    if scenario.batch is None:
+        return None
+    try:
+        return scenario.batch.key(scenario.validate(study.sample(index).kwargs))
+    except ValueError:
+        return None
+
+
+def run_batch(study: Study, indices: list[int], nthread: int = 1) -> list[dict[str, Any]]:
+    """The rows of samples `indices` (one batch key) run together (module docstring), in that order."""
+    start = time.perf_counter()
+    scenario = get_scenario(study.scenario)
+    samples = [study.sample(i) for i in indices]
+    try:
+        if scenario.batch is None:
+            raise ValueError(f"scenario {study.scenario!r} has no batch form")
+        runs = scenario.batch.run([scenario.validate(s.kwargs) for s in samples], nthread)
+    except Exception:  # noqa: BLE001 - run alone, so the error lands on the sample that has it
+        return [run_sample(study, i) for i in indices]
+    wall = (time.perf_counter() - start) / len(indices)
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    return [{**sample_row(s), "status": "ok", "error": "", **run, "sample_wall_s": wall, "worker": worker}
+            for s, run in zip(samples, runs)]
 
 
 def run_sample(study: Study, index: int, keep_dir: str | None = None) -> dict[str, Any]:

@@ -1,0 +1,41 @@
+"""The closed loop of a scenario's batch form (docs/studies.md#batches): B samples of one tuning at once.
+
+`run_batch_tuning` runs, for samples b = 0 … B−1 that share the controller under test
+(one `ControllerRun`, one `FilterContext` but for the nominal's parameters), the plant
+`plant` (a `BatchPlant` of B simulations, simulation b built from sample b) from q0_b
+with the nominal controller built from sample b's parameters (`per_simulation_nominal`),
+through `run_batch_closed_loop` with the context's pressure limits, and returns one row
+per sample: `BatchRun.run(b)` (the docs/run-outputs.md figures of the same names as the
+single run's, `tests/test_study_batch.py`), `wall_s` (the batch's wall time / B) and
+`batch_size` (B). The filter is built once when it has `filter_batch` (the paper's CBF:
+`controllers.cbf_batch`), else once per simulation (B independent histories).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from controllers.registry import build_filter, build_nominal
+from controllers.safe_set import ForceSafeSet
+from controllers.safety_filter import FilterContext
+from scenarios.common import ControllerRun
+from softcbf_mj.batch_loop import per_simulation_nominal, run_batch_closed_loop
+from softcbf_mj.plant import BatchPlant
+
+
+def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterContext, nominal: str,
+                     nominal_kwargs: Sequence[dict[str, object]], safe_set: ForceSafeSet, duration: float,
+                     q0: np.ndarray) -> list[dict[str, Any]]:
+    """One row of run figures per simulation of `plant` (module docstring); q0 (B, N) rad."""
+    n_sims = plant.n_sims
+    if len(nominal_kwargs) != n_sims or np.shape(q0) != (n_sims, plant.n_segments):
+        raise ValueError(f"nominal_kwargs and q0 must hold one entry per simulation ({n_sims}), got "
+                         f"{len(nominal_kwargs)} and q0 of shape {np.shape(q0)}")
+    one = build_filter(run.filter, run.filter_params, context)
+    filters = one if callable(getattr(one, "filter_batch", None)) else [
+        build_filter(run.filter, run.filter_params, context) for _ in range(n_sims)]
+    nominals = per_simulation_nominal([build_nominal(nominal, kwargs, context) for kwargs in nominal_kwargs])
+    result = run_batch_closed_loop(plant, filters, nominals, safe_set, duration, q0, context.u_min, context.u_max)
+    return [{**result.run(b), "wall_s": result.wall_s / n_sims, "batch_size": n_sims} for b in range(n_sims)]

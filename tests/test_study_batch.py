@@ -1,0 +1,97 @@
+"""Studies run batches (docs/studies.md#batches): batched rows equal single-run rows; tasks group by key.
+
+The study runs `mujoco_contact` for 0.3 s from the sinusoid's peak (t0 = 25 s), so the
+arm presses on the plate, with the true arm, plate and q0 drawn per sample.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from scenarios import get as get_scenario
+from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study
+from softcbf.study.execute import Task, group_tasks
+from softcbf.study.runner import batch_key
+
+BATCH_FIGURES = ("rho_min_pred", "rho_min_meas", "force_max_N", "t_violation_s", "infeasible_steps", "u_peak_abs_hPa",
+                 "sim_s")
+
+
+@pytest.fixture(scope="module")
+def mismatch() -> Study:
+    return Study("mismatch", "mujoco_contact", ("None", "HW-High"), draws=3, seed=7,
+                 fixed={"t0": 25.0, "duration": 0.3, "q0_std": 0.05},
+                 vary=(Distribution("plate_stiffness", "uniform", low=8.0, high=18.0),
+                       Distribution("facet_offset", "uniform", low=-0.003, high=0.002),
+                       Distribution("true_stiffness_scale", "uniform", low=0.9, high=1.1),
+                       Distribution("true_gain_scale", "uniform", low=0.9, high=1.1)))
+
+
+def test_batched_study_rows_equal_the_single_run_rows(mismatch, tmp_path):
+    single = run_study(mismatch, tmp_path / "single", workers=1, batch_size=1, progress=False)
+    batched = run_study(mismatch, tmp_path / "batched", workers=1, progress=False)  # default: batches
+    assert (single.ran, single.failed, batched.ran, batched.failed) == (6, 0, 6, 0)
+    rows_single = StudyStore.open(tmp_path / "single").load_rows()
+    rows_batched = StudyStore.open(tmp_path / "batched").load_rows()
+    assert [r["batch_size"] for r in rows_batched] == [3] * 6  # one batch per tuning
+    assert all("batch_size" not in r or r["batch_size"] is None for r in rows_single)
+    assert min(r["force_max_N"] for r in rows_single) > 0  # the samples touch the plate
+    assert any(r["rho_min_meas"] < 0 for r in rows_single) and any(r["rho_min_meas"] > 0 for r in rows_single)
+    for one, many in zip(rows_single, rows_batched):
+        assert {k: v for k, v in one.items() if k.startswith("param.") or k in ("sample", "draw", "tuning")} == \
+               {k: v for k, v in many.items() if k.startswith("param.") or k in ("sample", "draw", "tuning")}
+        for name in BATCH_FIGURES:
+            if one[name] is None:
+                assert many[name] is None, name
+            else:
+                assert math.isclose(many[name], one[name], rel_tol=0.0, abs_tol=1e-9), (one["sample"], name)
+    assert not set(rows_batched[0]) - set(rows_single[0]) - {"batch_size", "refused_steps"} - WALL_CLOCK_COLUMNS
+
+
+def test_samples_batch_by_what_they_must_share(mismatch):
+    keys = [batch_key(mismatch, i) for i in range(mismatch.n_samples)]
+    assert keys[0] == keys[2] == keys[4] != keys[1] == keys[3] == keys[5]  # tunings alternate, draws share
+    flexure = Study("flex", "mujoco_contact", ("Low",), draws=1, fixed={"plate": "flexure"})
+    assert batch_key(flexure, 0) is None
+    broken = Study("broken", "mujoco_contact", ("Low",), draws=2, seed=7,  # seed 7: tau_p 0.035, -0.097 s
+                   vary=(Distribution("tau_p", "normal", mean=0.02, std=0.05),))
+    assert batch_key(broken, 0) is not None
+    assert batch_key(broken, 1) is None  # fails its check: runs alone and records the error
+    assert get_scenario("camera_loop").batch is None
+
+
+def test_group_tasks_batches_by_key_holds_a_bounded_buffer_and_flushes_at_the_end():
+    key = {0: "a", 1: "b", 2: "a", 3: None, 4: "a", 5: "b", 6: "a", 7: "b"}.get
+    tasks = list(group_tasks(iter(range(8)), key, batch_size=2, buffer=100))
+    assert tasks == [Task((0, 2), True), Task((3,), False), Task((1, 5), True), Task((4, 6), True), Task((7,), True)]
+    free = list(group_tasks(iter(range(8)), key, batch_size=3, buffer=100))
+    assert free == [Task((3,), False), Task((0, 2, 4), True), Task((1, 5, 7), True), Task((6,), True)]
+    held = list(group_tasks(iter(range(8)), key, batch_size=3, buffer=3))  # 3 held: the largest group goes
+    assert held == [Task((0, 2), True), Task((3,), False), Task((1, 5), True), Task((4, 6), True), Task((7,), True)]
+    assert sorted(i for t in held for i in t.indices) == list(range(8))
+    assert [t.indices for t in group_tasks(iter(range(4)), key, batch_size=1, buffer=1)] == [(0,), (1,), (2,), (3,)]
+
+
+def test_batch_size_must_be_positive(mismatch, tmp_path):
+    with pytest.raises(ValueError, match="batch_size must be >= 1 .* got 0"):
+        run_study(mismatch, tmp_path / "s", batch_size=0, progress=False)
+
+
+def test_paper_sim_batches_equal_its_single_runs(tmp_path):
+    study = Study("pcc", "paper_sim", ("None", "Low"), draws=3, seed=3,
+                  fixed={"duration": 0.3, "q0_std": 0.1, "pressure_limits": True},
+                  vary=(Distribution("amplitude", "uniform", low=60.0, high=150.0),))
+    run_study(study, tmp_path / "single", workers=1, batch_size=1, progress=False)
+    run_study(study, tmp_path / "batched", workers=1, progress=False)
+    rows_single = StudyStore.open(tmp_path / "single").load_rows()
+    rows_batched = StudyStore.open(tmp_path / "batched").load_rows()
+    assert [r["batch_size"] for r in rows_batched] == [3] * 6 and all(r["status"] == "ok" for r in rows_single)
+    assert len({r["u_peak_abs_hPa"] for r in rows_single}) == 6  # the draws differ
+    for one, many in zip(rows_single, rows_batched):
+        for name in BATCH_FIGURES:
+            if one[name] is None:
+                assert many[name] is None, name
+            else:
+                assert math.isclose(many[name], one[name], rel_tol=0.0, abs_tol=1e-9), (one["sample"], name)
