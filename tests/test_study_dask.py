@@ -79,7 +79,8 @@ def client():
         yield c
 
 
-def test_dask_gives_the_same_rows_as_the_local_pool(client, local_rows, tmp_path):
+def test_dask_gives_the_same_rows_as_the_local_pool(local_rows, client, tmp_path):
+    # local_rows first: its killer picks among this process's children, which must not yet include the cluster's workers
     outcome = run_study(STUDY, tmp_path / "s", client=client, progress=False)
     assert (outcome.backend, outcome.workers, outcome.ran, outcome.failed) == ("dask", 2, 8, 0)
     rows = assert_complete(tmp_path / "s")
@@ -87,7 +88,7 @@ def test_dask_gives_the_same_rows_as_the_local_pool(client, local_rows, tmp_path
     assert len({r["worker"] for r in rows}) == 2  # both workers took part
 
 
-def test_dask_worker_killed_mid_study_every_sample_once(client, local_rows, tmp_path):
+def test_dask_worker_killed_mid_study_every_sample_once(local_rows, client, tmp_path):
     out = tmp_path / "s"
     killer = kill_after_first_part(out, lambda: list(client.run(os.getpid).values()))
     outcome = run_study(STUDY, out, client=client, progress=False)
