@@ -77,7 +77,9 @@ def test_faulty_line_never_applies_twice_or_mismatches():
     counts = line.fault_counts
     assert min(counts.dropped_in, counts.corrupted_in, counts.corrupted_out, counts.duplicated_out, counts.reordered_out) > 0
     # Each SEQ was applied at most once, in order, and every acknowledged command was applied.
-    applied = line.board.applied()
+    # (the board's watchdog may also vent when a slow machine stalls the line past its
+    # timeout: that entry applies no SEQ, so only setpoint entries are counted)
+    applied = [a for a in line.board.applied() if a.reason == "setpoint"]
     assert line.board.stats.setpoints_applied == len(applied) <= 80
     assert line.board.stats.duplicates > 0
     applied_u = [a.u[0] for a in applied]
