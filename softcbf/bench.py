@@ -1,6 +1,6 @@
 """`softcbf bench`: every selected safety filter over one fixed battery (docs/beyond-the-paper.md#filter-benchmark).
 
-    softcbf bench --out DIR [--filters SPEC,SPEC,...] [--quick] [--cases NAME,...] [--mismatch-draws N] [--workers N]
+    softcbf bench --out DIR [--filters SPEC,SPEC,...] [--quick] [--cases NAME,...] [--mismatch-draws N] [--workers N] [--resume]
 
 Battery (`CASES`, in this order; each case runs registered scenarios with fixed parameters):
 
@@ -42,6 +42,13 @@ over every run's calls, switches_per_s the mean over runs, the compute time quan
 over every call; violation_probability = k/n runs with ρ_meas < 0 and its 95 % Wilson
 interval (`softcbf.study.analysis`), draws = n; single runs have null there. wall_s: the
 case's wall time.
+
+Resume. The full battery takes hours (the mismatch study dominates). `--resume` continues
+an interrupted `softcbf bench` in the same DIR: a (filter, case) whose row is in DIR/bench.json
+keeps it and is not run again (its row must come from a run with the same quick flag and
+mismatch draws); a mismatch study whose folder exists continues where it stopped (the study
+machinery refuses a folder of another study definition); any other case runs again from
+scratch. Without `--resume` every selected case runs again and replaces its folder.
 
 Outputs: DIR/bench.json (`{"battery", "quick", "filters", "skipped", "results"}`; every
 result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png, and each
@@ -197,6 +204,7 @@ class RunOptions:
     quick: bool = False
     workers: int = 1
     mismatch_draws: int | None = None
+    resume: bool = False
 
 
 def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -283,7 +291,8 @@ def _mismatch_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
 
     draws = QUICK_MISMATCH_DRAWS if options.quick else (options.mismatch_draws or MISMATCH_DRAWS)
     study = mismatch_study(spec, case, draws, QUICK_DURATION_S if options.quick else 30.0)
-    run_study(study, out, workers=options.workers, keep_runs=True, progress=False)
+    run_study(study, out, workers=options.workers, keep_runs=True, progress=not options.quick,
+              resume=options.resume and out.exists())
     return study_figures(out)
 
 
@@ -320,13 +329,20 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
         for case in CASES:
             check_filter(spec.name, case_filter_params(spec, case))
     skipped = {name: reason for name, reason in QUICK_SKIPPED.items() if options.quick and name in selected}
-    bench = {"battery": names, "quick": options.quick, "filters": [s.label for s in filters], "skipped": skipped, "results": []}
+    draws = QUICK_MISMATCH_DRAWS if options.quick else (options.mismatch_draws or MISMATCH_DRAWS)
+    bench = {"battery": names, "quick": options.quick, "mismatch_draws": draws, "filters": [s.label for s in filters],
+             "skipped": skipped, "results": []}
+    done = stored_results(out, bench) if options.resume else {}
     for spec in filters:
         for case in CASES:
             if case.name not in selected or case.name in skipped:
                 continue
+            if (spec.label, case.name) in done:
+                bench["results"].append(done[spec.label, case.name])
+                print(f"bench: {spec.label} x {case.name}: kept from {out / BENCH_FILE} (--resume)", flush=True)
+                continue
             folder = out / "cases" / safe_name(spec.label) / case.name
-            if folder.exists():
+            if folder.exists() and not (options.resume and case.run is _mismatch_case):
                 shutil.rmtree(folder)
             start = time.perf_counter()
             row = {"filter": spec.label, "case": case.name, **case.run(case, spec, folder, options),
@@ -337,6 +353,24 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
                   f"t_violation {row['t_violation_s']:.3f} s, {row['wall_s']:.1f} s", flush=True)
     write_outputs(out, bench)
     return bench
+
+
+def stored_results(out: Path, bench: Mapping[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
+    """The rows of out/bench.json that `--resume` keeps: {(filter label, case): row} ({} when there is no file);
+    ValueError when that file came from a run with another quick flag or number of mismatch draws."""
+    path = out / BENCH_FILE
+    if not path.exists():
+        return {}
+    try:
+        stored = json.loads(path.read_text(encoding="utf-8"))
+        rows = {(r["filter"], r["case"]): {k: r[k] for k in RESULT_KEYS} for r in stored["results"]}
+        quick, draws = stored["quick"], stored.get("mismatch_draws")
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"--resume: {path} is not a bench.json of softcbf bench ({exc})") from None
+    if quick != bench["quick"] or draws != bench["mismatch_draws"]:
+        raise ValueError(f"--resume: {path} holds a run with quick={quick}, mismatch draws {draws}; "
+                         f"this one has quick={bench['quick']}, mismatch draws {bench['mismatch_draws']}")
+    return rows
 
 
 TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_min_meas", ".4f"),
@@ -419,6 +453,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cases", default="", help=f"run only these cases (comma separated; default all: {', '.join(c.name for c in CASES)})")
     parser.add_argument("--mismatch-draws", type=int, default=None, help=f"draws of the mismatch study (default {MISMATCH_DRAWS})")
     parser.add_argument("--workers", type=int, default=1, help="local processes of the mismatch study (default 1)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue a bench in --out: keep its finished (filter, case) rows, continue its mismatch studies")
 
 
 def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int:
@@ -428,7 +464,7 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
     try:
         filters = parse_filters(args.filters)
         cases = [c.strip() for c in args.cases.split(",") if c.strip()]
-        run_bench(args.out, filters, RunOptions(args.quick, args.workers, args.mismatch_draws), cases)
+        run_bench(args.out, filters, RunOptions(args.quick, args.workers, args.mismatch_draws, args.resume), cases)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

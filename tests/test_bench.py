@@ -130,3 +130,42 @@ def test_quick_bench_writes_the_contract(tmp_path):
 def test_unknown_case_is_a_usage_error(tmp_path, capsys):
     assert main(["bench", "--out", str(tmp_path / "b"), "--quick", "--cases", "nope"]) == 2
     assert "unknown case(s) nope" in capsys.readouterr().err
+
+
+def test_resume_keeps_finished_rows_and_continues_the_mismatch_study(tmp_path):
+    out = tmp_path / "bench"
+    argv = ["bench", "--out", str(out), "--quick", "--filters", "none", "--cases", "paper_sim_150,camera_mismatch"]
+    assert main(argv) == 0
+    first = json.loads((out / "bench.json").read_text())
+    sentinel = out / "cases" / "none" / "paper_sim_150" / "sentinel"
+    sentinel.write_text("kept")
+    study = out / "cases" / "none" / "camera_mismatch"
+    parts = sorted((study / "results").glob("sample-*.parquet"))
+    assert len(parts) == 2
+    kept_part = parts[0].stat().st_mtime_ns
+    parts[1].unlink()  # an interrupted study: one sample stored, the other not
+    interrupted = dict(first, results=[r for r in first["results"] if r["case"] != "camera_mismatch"])
+    (out / "bench.json").write_text(json.dumps(interrupted))
+
+    assert main(argv + ["--resume"]) == 0
+    resumed = json.loads((out / "bench.json").read_text())
+    assert sentinel.read_text() == "kept"  # the finished case did not run again
+    assert parts[0].stat().st_mtime_ns == kept_part and parts[1].exists()  # only the missing sample ran
+    timing = ("filter_us_median", "filter_us_p99", "wall_s")
+    figures = [[{k: v for k, v in r.items() if k not in timing} for r in b["results"]] for b in (first, resumed)]
+    assert figures[0] == figures[1]  # the same figures as the uninterrupted bench
+    assert resumed["results"][0] == first["results"][0]  # the kept row, timing included
+
+    assert main(argv[:-1] + ["paper_sim_150"]) == 0  # without --resume the case runs again, replacing its folder
+    assert not sentinel.exists()
+
+
+def test_resume_refuses_a_bench_of_another_kind(tmp_path, capsys):
+    out = tmp_path / "bench"
+    out.mkdir()
+    (out / "bench.json").write_text(json.dumps({"quick": True, "mismatch_draws": 2, "results": []}))
+    assert main(["bench", "--out", str(out), "--filters", "none", "--cases", "paper_sim_150", "--resume"]) == 2
+    assert "quick=True" in capsys.readouterr().err
+    (out / "bench.json").write_text("{}")
+    assert main(["bench", "--out", str(out), "--filters", "none", "--cases", "paper_sim_150", "--resume"]) == 2
+    assert "not a bench.json" in capsys.readouterr().err
