@@ -120,14 +120,25 @@ HEADER = ("      B  threads  samples/h  ×serial  ×serial   ceiling/h  fraction
           "                             (wall)    (CPU)               (wall)     (CPU)")
 
 
-def _batched(b: int, nthread: int, plant, filt, nominal, safe_set, duration: float, q0: np.ndarray, limits: tuple,
-             repeats: int, serial: Timing, n_serial: int, serial_runs: list[dict]) -> tuple[dict, float]:
-    """Loop and replay of one batch; its row and max |Δρ_meas| against the serial runs it shares."""
-    run, loop = best_of(repeats, lambda: run_batch_closed_loop(plant, filt, nominal, safe_set, duration, q0, *limits,
-                                                               record_commands=True))
-    _, ceiling = best_of(repeats, lambda: replay_commands(plant, run.commands, q0))
-    diff = max([abs(run.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]) for s in range(min(b, n_serial))])
-    return _row(b, nthread, loop, ceiling, serial, n_serial), diff
+def compare(title: str, args: argparse.Namespace, serial_pass, batches, safe_set, q0: np.ndarray) -> dict:
+    """The serial pass, then each batched set-up of `batches` ((B, threads, plant, filter, limits)) on the
+    first B samples: prints the table, returns the serial rates, the rows and max |Δρ_meas| against the
+    serial runs they share."""
+    serial_runs, serial = best_of(args.repeats, serial_pass)
+    print(title)
+    print(f"  serial ({args.serial} samples): {args.serial / serial.wall * HOUR:10.0f} samples/h, "
+          f"{args.serial / serial.cpu * HOUR:10.0f} per CPU-hour")
+    print(HEADER)
+    rows, check = [], 0.0
+    for b, nthread, plant, filt, limits in batches:
+        run, loop = best_of(args.repeats, lambda: run_batch_closed_loop(
+            plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], *limits, record_commands=True))
+        _, ceiling = best_of(args.repeats, lambda: replay_commands(plant, run.commands, q0[:b]))
+        rows.append(_row(b, nthread, loop, ceiling, serial, args.serial))
+        check = max([check] + [abs(run.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]) for s in range(min(b, args.serial))])
+    print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
+    return {"serial_samples_per_hour": args.serial / serial.wall * HOUR,
+            "serial_samples_per_cpu_hour": args.serial / serial.cpu * HOUR, "batched": rows, "max_abs_rho_meas_diff": check}
 
 
 def bench_mujoco(args: argparse.Namespace) -> dict:
@@ -141,23 +152,10 @@ def bench_mujoco(args: argparse.Namespace) -> dict:
                                        args.duration, q), 1e-3, True, 0.0)
                 for config, q in zip(configs[: args.serial], q0)]
 
-    serial_runs, serial = best_of(args.repeats, serial_pass)
-    print(f"mujoco_contact-type: {args.duration:g} s per sample, n = {args.links}, dt = {args.physics_dt:g} s, HW-High, ±150 hPa")
-    print(f"  serial ({args.serial} samples): {args.serial / serial.wall * HOUR:10.0f} samples/h, "
-          f"{args.serial / serial.cpu * HOUR:10.0f} per CPU-hour")
-    print(HEADER)
-    rows, check = [], 0.0
-    for nthread in (1, 2):
-        for b in args.batches:
-            plant = MujocoBatchPlant.from_configs(configs[:b], nthread=nthread)
-            filt = CBFFilter(params, safe_set, tuning)
-            row, diff = _batched(b, nthread, plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], limits,
-                                 args.repeats, serial, args.serial, serial_runs)
-            rows.append(row)
-            check = max(check, diff)
-    print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
-    return {"serial_samples_per_hour": args.serial / serial.wall * HOUR,
-            "serial_samples_per_cpu_hour": args.serial / serial.cpu * HOUR, "batched": rows, "max_abs_rho_meas_diff": check}
+    batches = ((b, nthread, MujocoBatchPlant.from_configs(configs[:b], nthread=nthread), CBFFilter(params, safe_set, tuning), limits)
+               for nthread in (1, 2) for b in args.batches)
+    return compare(f"mujoco_contact-type: {args.duration:g} s per sample, n = {args.links}, dt = {args.physics_dt:g} s, "
+                   "HW-High, ±150 hPa", args, serial_pass, batches, safe_set, q0)
 
 
 def bench_pcc(args: argparse.Namespace) -> dict:
@@ -174,22 +172,13 @@ def bench_pcc(args: argparse.Namespace) -> dict:
             runs.append(run_figures(serial_log(plant, controller, safe_set, False, args.duration, q), 1e-3, True, 0.0))
         return runs
 
-    serial_runs, serial = best_of(args.repeats, serial_pass)
-    print(f"\npaper_sim-type: {args.duration:g} s per sample, PCC ROS2 1 ms, Low, no pressure limits")
-    print(f"  serial ({args.serial} samples): {args.serial / serial.wall * HOUR:10.0f} samples/h, "
-          f"{args.serial / serial.cpu * HOUR:10.0f} per CPU-hour")
-    print(HEADER)
-    rows, check = [], 0.0
-    for b in args.pcc_batches:
-        plant = PCCBatchPlant(params, safe_set, b)
-        filt = CBFFilter(params, safe_set, tuning, pressure_limits=False, batch_dynamics=plant.dynamics)
-        row, diff = _batched(b, 1, plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], (None, None),
-                             args.repeats, serial, args.serial, serial_runs)
-        rows.append(row)
-        check = max(check, diff)
-    print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
-    return {"serial_samples_per_hour": args.serial / serial.wall * HOUR,
-            "serial_samples_per_cpu_hour": args.serial / serial.cpu * HOUR, "batched": rows, "max_abs_rho_meas_diff": check}
+    def batches():
+        for b in args.pcc_batches:
+            plant = PCCBatchPlant(params, safe_set, b)
+            yield b, 1, plant, CBFFilter(params, safe_set, tuning, pressure_limits=False, batch_dynamics=plant.dynamics), (None, None)
+
+    return compare(f"\npaper_sim-type: {args.duration:g} s per sample, PCC ROS2 1 ms, Low, no pressure limits",
+                   args, serial_pass, batches(), safe_set, q0)
 
 
 def main() -> None:
