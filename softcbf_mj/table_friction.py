@@ -26,9 +26,10 @@ stiction, a net in-plane force F < μ m_k g on a link lets it slide steadily at
 ‖v‖ = v_s φ / √(1 − φ²), φ = F / (μ m_k g) (e.g. 0.58 mm/s at half the break-away force),
 so an arm held by friction against its own elastic forces drifts slowly towards
 equilibrium instead of sticking. v_s = 1 mm/s is small against the arm's sliding speeds
-in a pressure step (≈ 0.1 m/s at the tip) but NOT against the paper's 0.01 Hz sinusoid
-(a few mm/s at the tip, less inboard), where the friction is partly in this viscous
-regime (slope μ m_k g / v_s).
+in a pressure step (peak tip speed 0.14, 0.54, 1.0 m/s for 20, 80, 150 hPa on segment 1
+without friction) but NOT against the paper's 0.01 Hz sinusoid (median tip speed 2.5–5 mm/s
+in `mujoco_contact`, less inboard), where the friction is partly in this viscous regime
+(slope μ m_k g / v_s).
 
 Stability (explicit force, physics step dt). The force is evaluated at the start of each
 physics step (after `mj_step1`) and held through it (`mj_step2`). Its velocity Jacobian
