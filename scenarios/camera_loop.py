@@ -57,7 +57,7 @@ from scenarios.common import (
     live_run, nominal_arguments, positive, read_parameter_file, save_run, scene_record,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-from scenarios.ground_truth import check_true_arm, flexure_params
+from scenarios.ground_truth import TABLE_FRICTION, check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
@@ -79,7 +79,7 @@ BOUNDS = {
     "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "tick": positive("s"),
     "max_hold_s": positive("s"), "qd_filter_tau": non_negative("s"), "width": Bound(16, CAMERA_RESOLUTION[0], unit="px"),
     "height": Bound(16, CAMERA_RESOLUTION[1], unit="px"), "saved_frames_hz": non_negative("Hz (0: none)"),
-    "tip_friction": non_negative("(Coulomb μ)"), "damping_scale": positive("(× d_i)"),
+    "tip_friction": non_negative("(Coulomb μ)"), "table_friction": TABLE_FRICTION, "damping_scale": positive("(× d_i)"),
     "true_gain_scale": Bound(1e-3, 1e3, unit="(1: the model's gains)"), "facet_offset": Bound(-1.0, 1.0, unit="m"),
 }
 
@@ -207,6 +207,7 @@ def camera_loop(
     true_gain_scale: float = 1.0,
     facet_offset: float = 0.0,
     tip_friction: float = 0.0,
+    table_friction: float = 0.0,
     plate: str = "ideal",
     sheet_clamp_at: float = FlexureParams.clamp_at,
     sheet_free_end_at: float = FlexureParams.free_end_at,
@@ -224,7 +225,7 @@ def camera_loop(
     `true_gain_scale`; `damping_scale` multiplies every segment's damping d_i of both arms
     (the controller knows it), so the arm's time constant d_i/k_i scales with it (the
     operating-envelope study, studies/hardware_envelope.toml); `facet_offset`,
-    `tip_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (the true
+    `tip_friction`, `table_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (the true
     plates moved by `facet_offset` m along their outward normals, > 0 farther from the
     base, the controller keeping the unmoved facets; a
     flexure's gauge gives ρ_meas)."""
@@ -242,7 +243,8 @@ def camera_loop(
     true_h = env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])
     config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(true_h), plate_stiffness=plate_stiffness,
                             links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
-                            tip_friction=tip_friction, plate=plate, flexure=flexure_params(params))
+                            tip_friction=tip_friction, plate=plate, flexure=flexure_params(params),
+                            table_friction=table_friction)
     true_plate_stiffness = calibrate_flexure(config).stiffness_N_per_m if plate == "flexure" else plate_stiffness
     plant = MujocoPlant(build_model(config), tick)
     n = plant.n_segments

@@ -8,9 +8,12 @@ from collections.abc import Mapping
 from typing import Any
 
 from controllers.params import RobotParams
-from scenarios.common import check_choice, load_robot
+from scenarios.common import Bound, check_choice, load_robot
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
+
+TABLE_FRICTION = Bound(0.0, 2.0, unit="(Coulomb μ, arm on the table)")
+"""The bound of a scenario's `table_friction` (`softcbf_mj.table_friction`; the physics step may lower it)."""
 
 
 def flexure_params(params: Mapping[str, Any]) -> FlexureParams:
@@ -23,7 +26,9 @@ def flexure_params(params: Mapping[str, Any]) -> FlexureParams:
 
 def check_true_arm(params: Mapping[str, Any], model_robot: RobotParams) -> None:
     """The checks of a MuJoCo scenario's ground truth: plate kind, sheet, true robot (the same
-    number of segments as the controller's) and the model settings (ArmModelConfig's checks)."""
+    number of segments as the controller's) and the model settings (ArmModelConfig's checks, among
+    them `table_friction` against `gravity` and the physics step; a scenario without `gravity` has
+    the arm on the table)."""
     check_choice("plate", params["plate"], PLATE_KINDS)
     if params["true_robot"]:
         true_robot = load_robot(params["true_robot"])
@@ -32,4 +37,5 @@ def check_true_arm(params: Mapping[str, Any], model_robot: RobotParams) -> None:
                              f"{model_robot.n_segments}; they must have the same number")
     ArmModelConfig(plate_stiffness=params["plate_stiffness"], links_per_segment=params["links_per_segment"],
                    tau_p=params["tau_p"], physics_dt=params["physics_dt"], tip_friction=params["tip_friction"],
-                   plate=params["plate"], flexure=flexure_params(params))
+                   plate=params["plate"], flexure=flexure_params(params), table_friction=params["table_friction"],
+                   gravity=(0.0, -params.get("gravity", 0.0), 0.0))

@@ -26,7 +26,9 @@ add the plant's extras `plate_displacement_m`, `force_solver_N` and `force_tange
 (and `warning_*` counts if any). With `plate="flexure"` (docs/beyond-the-paper.md#flexure-plate) the measured force is
 the sheet's gauge reading and the run also records where along the sheet the arm touches
 and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
-`contact_s_m`, `contact_stiffness_N_per_m`). Results and the benchmark: models/softcbf_arm/README.md.
+`contact_s_m`, `contact_stiffness_N_per_m`). With `table_friction` μ > 0 the arm's links slide on the
+table with Coulomb friction (`softcbf_mj.table_friction`; time series `table_friction_power_W`);
+such samples have no batch form. Results and the benchmark: models/softcbf_arm/README.md.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from scenarios.common import (
     controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning,
     scene_record,
 )
-from scenarios.ground_truth import check_true_arm, flexure_params
+from scenarios.ground_truth import TABLE_FRICTION, check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
@@ -69,6 +71,7 @@ BOUNDS = {
     "true_damping_scale": SCALE, "true_gain_scale": SCALE, "true_length_scale": SCALE,
     "facet_offset": Bound(-1.0, 1.0, unit="m"), "facet_angle": Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"),
     "gravity": non_negative("m/s² (along -y)"), "tip_friction": non_negative("(Coulomb μ)"),
+    "table_friction": TABLE_FRICTION,
 }
 
 TABLE = (
@@ -157,6 +160,8 @@ def contact_setup(params: Mapping[str, Any]) -> ContactSetup:
         truth["gravity"] = (0.0, -params["gravity"], 0.0)
     if params["tip_friction"]:
         truth["tip_friction"] = params["tip_friction"]
+    if params["table_friction"]:
+        truth["table_friction"] = params["table_friction"]
     true_plate_stiffness = params["plate_stiffness"]
     if params["plate"] != "ideal":
         truth.update(plate=params["plate"], flexure=flexure_params(params))
@@ -181,8 +186,9 @@ BATCH_VARYING = frozenset({
 def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:
     """What the samples of one batch share: every parameter but `BATCH_VARYING` (scenario
     structure, duration, physics step, filter, its parameters and the controller's model).
-    None for the flexure plate (no batch form: its calibration is per model)."""
-    if params["plate"] != "ideal":
+    None for the flexure plate (no batch form: its calibration is per model) and with table
+    friction (`MujocoBatchPlant` refuses it)."""
+    if params["plate"] != "ideal" or params["table_friction"]:
         return None
     return tuple(sorted((k, v) for k, v in params.items() if k not in BATCH_VARYING))
 
@@ -241,6 +247,7 @@ def mujoco_contact(
     true_robot: str = "",
     gravity: float = 0.0,
     tip_friction: float = 0.0,
+    table_friction: float = 0.0,
     plate: str = "ideal",
     sheet_clamp_at: float = FlexureParams.clamp_at,
     sheet_free_end_at: float = FlexureParams.free_end_at,
@@ -259,7 +266,9 @@ def mujoco_contact(
     `true_gain_scale` and `true_length_scale` (inertias by the length scale squared, as
     for a rod; defaults 1: the robot itself). `gravity` (m/s², ≥ 0) acts along −y (the
     arm's plane vertical, +y up; 0: the arm lies on a table). `tip_friction` is the
-    Coulomb μ between the arm and the plates (0: frictionless). `plate` "ideal" is the
+    Coulomb μ between the arm and the plates (0: frictionless). `table_friction` is the
+    Coulomb μ between the arm's links and the table it lies on (0: off; refused with
+    `gravity`; `softcbf_mj.table_friction`). `plate` "ideal" is the
     slide-spring plate of `plate_stiffness`; "flexure" the clamped ABS sheet in a force
     gauge (docs/beyond-the-paper.md#flexure-plate, `softcbf_mj.flexure`: `sheet_*` are its clamp and free-end positions
     along the facet, thickness, width (m), Young's modulus (Pa), links and the calibration point as a

@@ -85,6 +85,8 @@ DOCS: dict[str, ParameterDoc] = {
     "facet_angle": ParameterDoc("the true plates turned counter-clockwise about the foot of the perpendicular", "rad"),
     "gravity": ParameterDoc("gravity along -y (0: the arm lies on a table)", "m/s²"),
     "tip_friction": ParameterDoc("Coulomb friction coefficient μ between the arm and the plates", ""),
+    "table_friction": ParameterDoc("Coulomb friction coefficient μ between the arm's links and the table it lies on "
+                                   "(0: off; not with gravity)", ""),
     "plate": ParameterDoc("kind of true plate", "", "ideal (slide spring), flexure (clamped sheet in a force gauge)"),
     "sheet_clamp_at": ParameterDoc(_SHEET + "clamp position along the facet", "m", "finite"),
     "sheet_free_end_at": ParameterDoc(_SHEET + "free-end position along the facet", "m", "finite, != sheet_clamp_at"),

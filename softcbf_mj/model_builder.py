@@ -68,7 +68,8 @@ matte material (no specular highlight). The calibration scene adds a board of ta
 
 Options: `implicitfast` (joint damping integrated implicitly), dense Jacobian (MuJoCo
 4.0.0 sparse-solver bug), gravity off by default (the arm lies on a table; `gravity`
-sets it, e.g. (0, −9.81, 0) for an arm in a vertical plane). The defaults n = 10
+sets it, e.g. (0, −9.81, 0) for an arm in a vertical plane; `table_friction` instead makes the
+links slide on the table with Coulomb friction, `softcbf_mj.table_friction`). The defaults n = 10
 and physics step 0.1 ms come from `tools/convergence_study.py` (models/softcbf_arm/README.md).
 
 Units: SI (m, kg, s, rad, N); pressure in hPa.
@@ -90,6 +91,7 @@ import numpy as np
 
 from controllers.params import RobotParams, per_segment, reference_robot
 from softcbf_mj.flexure import FlexureParams
+from softcbf_mj.table_friction import TABLE_FRICTION_NUMERIC, check_table_friction
 from perception.plane import TagBoard, fovy_intrinsics
 from perception.tags import arm_tag_ids, tag_image, textured_size
 
@@ -172,6 +174,7 @@ class ArmModelConfig:
     | flexure             | FlexureParams()          | —     | docs/beyond-the-paper.md (softcbf_mj.flexure) |
     | tip_friction        | 0.0                      | —     | docs/beyond-the-paper.md (0: frictionless) |
     | gravity             | (0, 0, 0)                | m/s²  | chosen (arm on a table)                 |
+    | table_friction      | 0.0                      | —     | docs/ground-truth.md (0: off)           |
 
     `tag_size` is the black square of each AprilTag; its texture (with the white quiet
     zone) spans `textured_size(tag_size)`, at most half the shortest segment so that
@@ -181,7 +184,10 @@ class ArmModelConfig:
     is then unused). `tip_friction` μ ≥ 0 is the Coulomb friction between the arm and the
     plates (μ > 0: condim 3; μ = 0 keeps the frictionless condim 1 model exactly).
     `gravity` (m/s², world frame; the arm moves in the x-y plane): e.g. (0, −9.81, 0) for
-    an arm in a vertical plane with +y up.
+    an arm in a vertical plane with +y up. `table_friction` μ ≥ 0 is the Coulomb friction
+    between the arm's links and the table it lies on (`softcbf_mj.table_friction`; 0: off,
+    the model unchanged; > 0: the model carries μ as its custom numeric `table_friction`,
+    which `MujocoPlant` applies; refused with gravity and beyond the explicit stability limit).
     """
 
     robot: RobotParams = field(default_factory=reference_robot)
@@ -201,6 +207,7 @@ class ArmModelConfig:
     flexure: FlexureParams | tuple[FlexureParams, ...] = field(default_factory=FlexureParams)
     tip_friction: float = 0.0
     gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    table_friction: float = 0.0
 
     def __post_init__(self) -> None:
         H = np.atleast_2d(np.asarray(self.H, dtype=float)) if np.size(self.H) else np.zeros((0, 2))
@@ -257,6 +264,7 @@ class ArmModelConfig:
         if len(gravity) != 3 or not all(math.isfinite(g) for g in gravity):
             raise ValueError(f"gravity must be 3 finite numbers (m/s²), got {self.gravity!r}")
         object.__setattr__(self, "gravity", gravity)
+        check_table_friction(self.table_friction, self.physics_dt, gravity)
         if self.contact_timeconst < 2 * self.physics_dt:
             raise ValueError(
                 f"contact_timeconst ({self.contact_timeconst:g} s) must be >= 2 physics_dt "
@@ -586,6 +594,8 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     spec.option.integrator = mujoco.mjtIntegrator.__members__[f"mjINT_{config.integrator.upper()}"]
     spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # docs/ground-truth.md: MuJoCo 4.0.0 sparse-solver bug
     spec.option.gravity = _r6v(config.gravity)
+    if config.table_friction > 0:  # read back by softcbf_mj.table_friction.table_friction_of
+        spec.add_numeric(name=TABLE_FRICTION_NUMERIC, data=[_r6(config.table_friction)])
     spec.assets = tag_textures(arm_tag_ids(config.robot.n_segments))
     _add_defaults(spec, config)
     _add_arm(spec, config)

@@ -30,6 +30,11 @@ control period, on `nthread` threads, then numpy reads of bound arrays:
   `MujocoPlant` sums with `mj_contactForce` (equal to rounding, tested; contacts live
   in MuJoCo's arena, which the batch cannot bind); `warnings` (B, K) counts per
   MuJoCo warning (columns `WARNING_NAMES`, cumulative).
+
+Arm-table friction (`softcbf_mj.table_friction`, a model with `table_friction` μ > 0) is
+refused: it needs Python between the physics steps of every simulation (`MujocoPlant`
+takes them one by one), which the batch's single `Batch.step` call per control period
+does not allow; run such models on `MujocoPlant`.
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ import numpy as np
 from softcbf_mj.model_builder import ArmModelConfig, build_model
 from softcbf_mj.mujoco_plant import WARNINGS, MujocoPlant
 from softcbf_mj.plant import BatchPlantState, steps_per_control
+from softcbf_mj.table_friction import table_friction_of
 
 EXTRAS_UNITS: dict[str, str] = {
     "plate_displacement_m": "m",
@@ -98,6 +104,10 @@ class MujocoBatchPlant:
             raise ValueError(f"nthread must be an integer >= 0 (0: all CPUs), got {nthread}")
         self.layout = layout = MujocoPlant(model, control_dt)
         self.model = model
+        with_friction = [b for b, m in enumerate(per_simulation or [model]) if table_friction_of(m) > 0]
+        if with_friction:
+            raise ValueError(f"MujocoBatchPlant does not model arm-table friction (table_friction > 0 in simulations "
+                             f"{with_friction}); run such models on MujocoPlant")
         self.n_sims, self.n_segments, self.n_facets = int(n_sims), layout.n_segments, layout.n_facets
         self.control_dt, self.physics_dt = layout.control_dt, layout.physics_dt
         self.steps_per_control = steps_per_control(self.control_dt, self.physics_dt)

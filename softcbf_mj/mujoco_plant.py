@@ -28,6 +28,13 @@ derived quantity belongs to the reported state):
   (`SheetInModel.stiffness`: the hinge chain in series with the gauge; NaN without contact).
   Contact points are the sheet's surface points of MuJoCo's contacts (midpoint moved by
   half the penetration).
+
+Table friction (`softcbf_mj.table_friction`: the model's custom numeric `table_friction` μ > 0,
+`ArmModelConfig.table_friction`): each physics step is then taken from Python as `mj_step1`, the
+friction forces on the arm's links from the velocities just computed (`data.xfrc_applied`),
+`mj_step2`; the extras add `table_friction_power_W` (W, ≤ 0), the friction power Σ_k f_k · v_k
+averaged over the control period's physics steps. Without it (μ = 0, the default) a control
+period is one `mj_step(…, nstep=steps_per_control)` call, as before.
 """
 
 from __future__ import annotations
@@ -46,6 +53,7 @@ import softcbf_mj
 from softcbf_mj.flexure import SheetInModel
 from softcbf_mj.model_builder import ArmModelConfig, build_model
 from softcbf_mj.plant import PlantState, steps_per_control
+from softcbf_mj.table_friction import TableFriction, table_friction_of
 
 MUJOCO_VERSION: str = mujoco.__version__
 # Short names of MuJoCo's warnings (inertia, contactfull, …, badctrl) by index into data.warning.
@@ -62,6 +70,7 @@ EXTRAS_UNITS: dict[str, str] = {
     "force_tangential_N": "N",
     "contact_s_m": "m (from the sheet's clamp; NaN: no contact)",
     "contact_stiffness_N_per_m": "N/m (NaN: no contact)",
+    "table_friction_power_W": "W (arm-table friction power, mean over the control period, <= 0)",
     **{f"warning_{name}": "count (cumulative)" for name in WARNINGS.values()},
 }
 
@@ -92,7 +101,8 @@ class MujocoPlant:
     Ids and addresses the state is read from (public for the batched plant,
     `softcbf_mj.mujoco_batch_plant`): `actuator_ids` and `tendon_ids` (N,), `site_ids`
     (N,: `base`, `seg1_end` … `seg{N-1}_end`), `tip_geom`, `plate_qpos` and `plate_dofs`
-    (P,), `act_adr` (N,: −1 where the actuator has no pressure dynamics).
+    (P,), `act_adr` (N,: −1 where the actuator has no pressure dynamics). `table_friction`:
+    the arm-table friction (`TableFriction`) when the model carries μ > 0, else None.
     The model is read by name: actuators `seg{i}_pressure`, tendons `seg{i}_bend`, hinges
     `seg{i}_j{j}`, sites `base` and `seg{i}_end`, geom `tip`, per facet an ideal plate
     (joint `plate{k}_slide`) or a flexure (joint `plate{k}_gauge`, `SheetInModel`), whose
@@ -146,6 +156,9 @@ class MujocoPlant:
         self.gains = model.actuator_gear[self.actuator_ids, 0].copy()
         self.act_adr = model.actuator_actadr[self.actuator_ids].copy()  # -1: no pressure dynamics
         self._contact_force = np.zeros(6)
+        mu = table_friction_of(model)
+        self.table_friction = TableFriction(model, mu) if mu > 0 else None
+        self._friction_power = 0.0  # W, mean over the last control period
         self.reset(np.zeros(n))
 
     # -- construction -------------------------------------------------------------
@@ -199,6 +212,7 @@ class MujocoPlant:
         dynamic = self.act_adr >= 0
         self.data.act[self.act_adr[dynamic]] = u0[dynamic]
         mujoco.mj_forward(self.model, self.data)
+        self._friction_power = 0.0
         return self.state()
 
     def step(self, u: np.ndarray) -> PlantState:
@@ -207,9 +221,18 @@ class MujocoPlant:
         u is NOT clipped here: MuJoCo clamps it to each actuator's ctrlrange (the
         pressure limits of `RobotParams`), and `u_applied` reports what acted.
         """
-        self.data.ctrl[self.actuator_ids] = self._vector(u, "u")
-        mujoco.mj_step(self.model, self.data, nstep=self.steps_per_control)
-        mujoco.mj_forward(self.model, self.data)
+        model, data, friction = self.model, self.data, self.table_friction
+        data.ctrl[self.actuator_ids] = self._vector(u, "u")
+        if friction is None:
+            mujoco.mj_step(model, data, nstep=self.steps_per_control)
+        else:
+            energy_rate = 0.0
+            for _ in range(self.steps_per_control):
+                mujoco.mj_step1(model, data)
+                energy_rate += friction.apply(data)
+                mujoco.mj_step2(model, data)
+            self._friction_power = energy_rate / self.steps_per_control
+        mujoco.mj_forward(model, data)
         return self.state()
 
     def state(self) -> PlantState:
@@ -239,6 +262,8 @@ class MujocoPlant:
                     stiffness[k] = float(sheet.stiffness(where[k]))
             extras["contact_s_m"] = where
             extras["contact_stiffness_N_per_m"] = stiffness
+        if self.table_friction is not None:
+            extras["table_friction_power_W"] = self._friction_power
         counts = data.warning.number
         for index in np.flatnonzero(counts):
             extras[f"warning_{WARNINGS[index]}"] = float(counts[index])
