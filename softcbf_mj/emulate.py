@@ -50,15 +50,15 @@ class EmulatedHardware:
         emu = config.emulator
         plant = MujocoPlant.from_config(
             control_dt=CONTROL_DT, robot=robot, H=np.array(env.H), h=np.array(env.h),
-            plate_stiffness=emu.plate_stiffness_N_per_m, tau_p=emu.tau_p_s, links_per_segment=emu.links_per_segment,
-            physics_dt=emu.physics_dt_s,
+            plate_stiffness=emu.plate_stiffness, tau_p=emu.tau_p, links_per_segment=emu.links_per_segment,
+            physics_dt=emu.physics_dt,
         )
         plant.reset(per_segment(emu.q0_rad, plant.n_segments, "emulator.q0_rad"))
         self.config = config
         self.emulator = ValveEmulator(plant, clock)
         self.board = ValveBoard(plant.n_segments, robot.u_min, robot.u_max, watchdog_s=config.safety.watchdog_s,
                                 plant_hook=self.emulator)
-        self.camera = VirtualCamera(self.emulator, config.camera.fps, config.camera.width, config.camera.height)
+        self.camera = VirtualCamera(self.emulator, config.camera.frame_rate, config.camera.width, config.camera.height)
         self.emulator.start()
         self.line = PtyBoardLine(self.board, clock=clock)
 

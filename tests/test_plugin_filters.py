@@ -220,8 +220,7 @@ def test_example_filter_runs_on_the_hardware_emulator(tmp_path):
     from softcbf_mj.emulate import EmulatedHardware
 
     config = HardwareConfig.load(REPO / "examples" / "hardware_emulated.toml").with_overrides(
-        {"control": {"filter": f"{EXAMPLE_FILTER}:ClipFilter", "filter_params": {"limit_hPa": 40.0}},
-         "run": {"duration_s": 2.0}})
+        {"filter": f"{EXAMPLE_FILTER}:ClipFilter", "filter_params": {"limit_hPa": 40.0}, "duration": 2.0})
     with EmulatedHardware(config) as emulation:
         (tmp_path / "hw").mkdir()
         row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)
