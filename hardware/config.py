@@ -205,11 +205,11 @@ def _shared(name: str, value: Any) -> Any:
 
 def _check_shared_settings(section: Any) -> None:
     """Every shared setting of a section checked by the vocabulary and stored normalised
-    (None: not configured; a table of filter or nominal parameters is the filter's to check;
+    (None: not configured; the table of filter or nominal parameters is the filter's to check;
     a per-segment list only where the field holds `Scalars`)."""
     for f in dataclasses.fields(section):
         value = getattr(section, f.name)
-        if f.name not in SETTINGS or value is None or isinstance(value, Mapping):
+        if f.name not in SETTINGS or value is None or (isinstance(value, Mapping) and f.default_factory is dict):
             continue
         if isinstance(value, (list, tuple)) and f.type != "Scalars":
             raise ConfigError(f"{f.name} must be a single value, got {value!r}")
@@ -454,8 +454,8 @@ def current_spelling(data: Mapping[str, Any], source: str = NOUN) -> dict[str, A
             continue
         for key in [k for k in table if f"{section}.{k}" in LEGACY_KEYS]:
             name = LEGACY_KEYS[f"{section}.{key}"]
-            _require(name not in out, name, f"is given twice: as {name} and as its former spelling {section}.{key}; "
-                                            f"keep {name}")
+            given = name in out and not (name == section and isinstance(out[name], dict))  # [robot] params → robot
+            _require(not given, name, f"is given twice: as {name} and as its former spelling {section}.{key}; keep {name}")
             out[name] = table.pop(key)
             renamed.append(f"{section}.{key} -> {name}")
     if renamed:

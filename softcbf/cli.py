@@ -65,7 +65,7 @@ import softcbf_mj
 from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
 from scenarios.config_file import load_run_config
-from scenarios.run import USAGE_ERROR, UsageError, UsageParser, describe, exit_code, run_scenario
+from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario
 from softcbf import bench, hardware_cli
 from softcbf_mj.runio import RunFolderError, versions
 from softcbf.study import cli as study_cli

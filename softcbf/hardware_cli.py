@@ -143,8 +143,9 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
         if value is not None:
             changes[name] = _from_working_directory(value) if name in PATH_SETTINGS else value
     config = HardwareConfig.load(args.config)
-    if args.filter is not None:
-        changes["filter_params"] = {}  # another filter: the file's parameters were for the file's filter
+    for name in ("filter", "nominal"):
+        if getattr(args, name) is not None:
+            changes[f"{name}_params"] = {}  # another controller: the file's parameters were for the file's
     for name, option in TABLE_SETTINGS.items():
         items = getattr(args, f"{name}_items")
         if items:

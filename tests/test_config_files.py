@@ -15,7 +15,8 @@ import pytest
 from hardware.config import LEGACY_KEYS, SHARED_KEYS, default_values
 from scenarios import registry
 from scenarios.config_file import load_run_config
-from softcbf.cli import USAGE_ERROR, main
+from scenarios.run import USAGE_ERROR
+from softcbf.cli import main
 from softcbf.study.definition import apply_settings, load_study, parse_setting
 from softcbf_mj.runio import load_timeseries
 from vocabulary.settings import SETTINGS, setting
