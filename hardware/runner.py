@@ -11,7 +11,7 @@ Two threads share one monotonic clock (s):
          older than the estimator's max_hold_s),
       2. runs the control step the simulations run (`closedloop.step.ControlStep`, at
          t = now − t_0): u_nom = nominal(t, q, q̇), u = filter(estimate, u_nom) — any
-         registered or user filter (`controllers.registry`, config `control.filter`) —,
+         registered or user filter (`controllers.registry`, config `filter`) —,
          admission (clipped to the limits; non-finite or raised: command_nonfinite), and
          the safety monitor (`closedloop.monitor`) with flags perception_stale, link_lost
          (the previous exchange failed) and interrupted (Ctrl-C or `stop()`),
@@ -73,7 +73,7 @@ LOOP_FLAGS = ("est_stale", "link_acked", "link_lost")
 
 
 def controller_context(config: HardwareConfig) -> FilterContext:
-    """What the configured filter is told: the robot model, P, the limits when control.pressure_limits, the period."""
+    """What the configured filter is told: the robot model, P, the limits when pressure_limits, the period."""
     return FilterContext.for_robot(config.robot_params(), config.safe_set(), config.control.period_s,
                                    config.control.pressure_limits)
 

@@ -163,8 +163,8 @@ def check_controller(config: HardwareConfig) -> None:
     """Build the configured filter and nominal once; ConfigError naming the key if either is refused."""
     context = controller_context(config)
     ctl = config.control
-    for key, build, spec, params in (("control.filter", build_filter, ctl.filter, ctl.filter_arguments()),
-                                     ("control.nominal", build_nominal, ctl.nominal, ctl.nominal_arguments())):
+    for key, build, spec, params in (("filter", build_filter, ctl.filter, ctl.filter_arguments()),
+                                     ("nominal", build_nominal, ctl.nominal, ctl.nominal_arguments())):
         try:
             build(config.plugin_spec(spec), params, context)
         except (ValueError, TypeError) as exc:

@@ -243,4 +243,4 @@ def test_hardware_cli_takes_a_filter_and_refuses_a_bad_parameter(tmp_path, capsy
     assert config.control.filter == f"{EXAMPLE_FILTER}:ClipFilter" and config.control.filter_arguments() == {"limit_hPa": "60"}
     assert hardware_main([str(example), "--filter", f"{EXAMPLE_FILTER}:ClipFilter", "--filter-param", "limit=1",
                           "--out", str(tmp_path / "o")]) == 2
-    assert "control.filter: unknown parameter(s) limit for ClipFilter" in capsys.readouterr().err
+    assert "filter: unknown parameter(s) limit for ClipFilter" in capsys.readouterr().err
