@@ -211,7 +211,7 @@ def _check_shared_settings(section: Any) -> None:
         value = getattr(section, f.name)
         if f.name not in SETTINGS or value is None or (isinstance(value, Mapping) and f.default_factory is dict):
             continue
-        if isinstance(value, (list, tuple)) and f.type != "Scalars":
+        if isinstance(value, (list, tuple)) and f.type not in ("Scalars", Scalars):  # annotations are strings here
             raise ConfigError(f"{f.name} must be a single value, got {value!r}")
         object.__setattr__(section, f.name, _shared(f.name, value))
 
@@ -443,7 +443,7 @@ def default_values() -> dict[str, Any]:
     return out
 
 
-def current_spelling(data: Mapping[str, Any], source: str = NOUN) -> dict[str, Any]:
+def _current_spelling(data: Mapping[str, Any], source: str = NOUN) -> dict[str, Any]:
     """`data` with every former spelling (`LEGACY_KEYS`) moved to its setting's name at the top
     level, and one warning line on stderr naming them; ConfigError for a setting given twice."""
     out = {key: dict(value) if key in _SECTIONS and isinstance(value, Mapping) else value for key, value in data.items()}
@@ -533,9 +533,9 @@ class HardwareConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], base_dir: str | Path = ".", source: str = NOUN) -> "HardwareConfig":
-        """A configuration from a mapping in the file's shape (former spellings read, `current_spelling`)."""
+        """A configuration from a mapping in the file's shape (former spellings read, with a warning: `LEGACY_KEYS`)."""
         _require(isinstance(data, Mapping), "the configuration", f"must be a table of settings, got {type(data).__name__}")
-        return cls(**_sections(current_spelling(data, source)), base_dir=Path(base_dir))
+        return cls(**_sections(_current_spelling(data, source)), base_dir=Path(base_dir))
 
     @classmethod
     def load(cls, path: str | Path) -> "HardwareConfig":
@@ -548,7 +548,7 @@ class HardwareConfig:
         """A copy with settings changed, `changes` in the file's shape ({"duration": 2.0, "link": {"port": ...}}:
         command-line options), validated again."""
         data = self.to_dict()
-        for key, value in current_spelling(changes, "the overrides").items():
+        for key, value in _current_spelling(changes, "the overrides").items():
             if key in _SECTIONS and isinstance(value, Mapping) and isinstance(data.get(key), Mapping):
                 data[key] = {**data[key], **value}
             else:
