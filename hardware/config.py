@@ -1,95 +1,118 @@
 """The hardware run's configuration: one validated file (TOML or JSON) with every setting.
 
-`HardwareConfig.load(path)` reads a `.toml` (tomllib) or `.json` file whose top level
-holds the sections below (every key optional, defaults in the table); unknown sections
-or keys, wrong types and out-of-range values raise `ConfigError` naming the key
-(`camera.fps`), what was received and the fix. `HardwareConfig.from_dict(data)` does the
-same for a mapping; `with_overrides({section: {key: value}})` applies command-line options.
+One vocabulary. A setting the hardware run shares with the simulations has the name it
+has everywhere (`vocabulary.settings`: the command line's `--f-max`, a run configuration's
+`f_max`, a study's `fixed.f_max`) and sits at the top level of the file, with the same
+unit, range and check (`vocabulary.settings.check_value`: "f_max must be > 0 N, got -1.0"):
+
+    f_max = 0.16                 # N
+    control_rate = 10.0          # Hz
+    filter = "paper-cbf"
+    duration = 60.0              # s
+    [filter_params]
+    slack_weight = 1e4
+
+Settings only the hardware run has stay in their sections (`[camera] source`, `[link]`,
+`[safety] watchdog_s`, `[environment] H, h`, `[pressure]`, `[emulator] q0_rad`, ...).
+`HardwareConfig.load(path)` reads a `.toml` or `.json` file (`vocabulary.files`);
+`from_dict(data)` a mapping of the same shape; `with_overrides(changes)` applies changes of
+that shape (command-line options); `to_dict()` gives it back (config.json of the run
+folder, loadable again). Unknown keys, wrong types and out-of-range values raise
+`ConfigError` naming the key, what was received and the fix.
+
+Shared settings (top level; meaning, unit and range: docs/parameters.md):
+
+| key                     | default          | unit   | hardware notes                                                  |
+|-------------------------|------------------|--------|-----------------------------------------------------------------|
+| robot                   | "reference"      | –      | "reference" (docs/model.md#rppr-dynamics) or a RobotParams JSON (RobotParams.save, tools/calibrate.py) |
+| assumed_plate_stiffness | 11.16            | N/m    | the controller's ψ(n) = k n                                     |
+| f_max                   | 0.16             | N      | force limit per facet                                           |
+| row_scaling             | "paper"          | –      | P's row scaling ("paper" or "unit")                             |
+| filter                  | "paper-cbf"      | –      | the safety filter (controllers.registry): a built-in name, FILE.py:Factory (relative to this file) or package.module:Factory |
+| filter_params           | {}               | –      | its parameters, a table {name = value} (`softcbf list` lists them) |
+| nominal                 | "sinusoid"       | –      | the nominal controller (controllers.registry), likewise         |
+| nominal_params          | {}               | –      | its parameters; the sinusoid's default to amplitude, frequency, control.phase_rad |
+| control_rate            | 10.0             | Hz     | control loop rate (the paper's 10 Hz)                           |
+| pressure_limits         | true             | –      | the filter's QP holds the pressure box                          |
+| qp_backend              | "native"         | –      | controllers.qp backend                                          |
+| amplitude               | 80.0             | hPa    | nominal u_nom,j = A sin(2π f t + φ) (scalar or per segment)     |
+| frequency               | 0.01             | Hz     | its frequency                                                   |
+| calibration             | none             | –      | PlaneCalibration JSON (tools/calibrate_camera.py); required unless camera.source is "virtual" |
+| detector                | "opencv"         | –      | TagDetector backend: "opencv" or "pupil"                        |
+| max_hold_s              | 0.3              | s      | an estimate older than this is stale (perception.estimator)     |
+| qd_filter_tau           | 0.0              | s      | first-order low pass of q̇ (0: raw finite differences)           |
+| frame_rate              | 12.8             | Hz     | virtual camera only: frame rate (docs/ground-truth.md: the hardware's ~12.8) |
+| width, height           | 480, 270         | px     | virtual camera only: image size                                 |
+| hold_s                  | 0.5              | s      | HOLD lasts this long before VENT (closedloop.monitor)           |
+| duration                | 100.0            | s      | length of the run after the first estimate                      |
+| plate_stiffness         | 11.16            | N/m    | emulator only: the emulated plate's true spring                 |
+| tau_p                   | 0.05             | s      | emulator only: the valves' first-order time constant (docs/ground-truth.md) |
+| links_per_segment       | 5                | –      | emulator only: rigid links per segment of the MuJoCo rod (simulations: 10) |
+| physics_dt              | 2e-4             | s      | emulator only: MuJoCo step (simulations: 1e-4); 5 links at 0.2 ms run ≈ 9× real time, 10 at 0.1 ms ≈ 3× |
+
+Hardware-only settings (in their sections):
 
 | key                                   | default          | unit   | what                                                            |
 |---------------------------------------|------------------|--------|-----------------------------------------------------------------|
 | camera.source                         | 0                | –      | OpenCV VideoCapture source (device index, video file, stream URL) or "virtual" (the emulator's MuJoCo camera) |
-| camera.calibration                    | none             | –      | PlaneCalibration JSON (tools/calibrate_camera.py); required unless source is "virtual" |
 | camera.tag_size_m                     | 0.03             | m      | black square of the AprilTags                                   |
-| camera.detector                       | "opencv"         | –      | TagDetector backend: "opencv" or "pupil"                        |
-| camera.max_hold_s                     | 0.3              | s      | an estimate older than this is stale (perception.estimator)     |
-| camera.qd_filter_tau_s                | 0.0              | s      | first-order low pass of q̇ (0: raw finite differences)           |
 | camera.startup_timeout_s              | 5.0              | s      | wait at most this long for the first complete frame             |
-| camera.fps                            | 12.8             | 1/s    | virtual camera only: frame rate (docs/ground-truth.md: the hardware's ~12.8) |
-| camera.width, camera.height           | 480, 270         | px     | virtual camera only: image size                                 |
-| robot.params                          | "reference"      | –      | "reference" (docs/model.md#rppr-dynamics) or a RobotParams JSON (RobotParams.save, tools/calibrate.py) |
 | environment.H, environment.h          | [[0.36, 1]], [0.15] | –, m | facets of the free space H r ≤ h (the paper's plate)            |
-| environment.stiffness_N_per_m         | 11.16            | N/m    | the controller's ψ(n) = k n                                     |
-| environment.f_max_N                   | 0.16             | N      | force limit per facet                                           |
-| environment.row_scaling               | "paper"          | –      | P's row scaling ("paper" or "unit")                             |
 | pressure.u_min_hPa, pressure.u_max_hPa | the robot's     | hPa    | pressure limits (scalar or one per segment); replace the robot's, so the filter, the laptop's clamp and the board read one value |
-| control.filter                        | "paper-cbf"      | –      | the safety filter (controllers.registry): a built-in name, FILE.py:Factory (relative to this file) or package.module:Factory |
-| control.filter_params                 | {}               | –      | its parameters, a table {name = value} (`softcbf list` lists them) |
 | control.tuning                        | "HW-High"        | –      | paper-cbf's tuning: None, Low, High, HW-Low, HW-High (controllers.cbf), or "custom" with filter_params a_E, b_E, gamma; filter_params.tuning wins |
-| control.nominal                       | "sinusoid"       | –      | the nominal controller (controllers.registry), likewise         |
-| control.nominal_params                | {}               | –      | its parameters; the sinusoid's default to amplitude_hPa, frequency_hz, phase_rad below |
-| control.rate_hz                       | 10.0             | 1/s    | control loop rate (the paper's 10 Hz)                           |
-| control.pressure_limits               | true             | –      | the filter's QP holds the pressure box                          |
-| control.qp_backend                    | "native"         | –      | controllers.qp backend                                          |
-| control.amplitude_hPa                 | 80.0             | hPa    | nominal u_nom,j = A sin(2π f t + φ) (scalar or per segment)      |
-| control.frequency_hz                  | 0.01             | 1/s    | its frequency                                                   |
-| control.phase_rad                     | 0.0              | rad    | its phase (scalar or per segment)                               |
-| safety.hold_s                         | 0.5              | s      | HOLD lasts this long before VENT (closedloop.monitor)              |
+| control.phase_rad                     | 0.0              | rad    | the nominal sinusoid's phase (scalar or per segment)            |
 | safety.watchdog_s                     | 0.15             | s      | the board's watchdog (the emulated board's; the firmware's own on hardware) |
 | link.port                             | "/dev/ttyACM0"   | –      | serial port of the valve board, or "emulated"                   |
 | link.baudrate                         | 115200           | baud   | serial line rate                                                |
 | link.ack_timeout_s, link.retries, link.lost_after | 0.02, 2, 1 | s, –, – | hardware.link                                              |
-| run.duration_s                        | 100.0            | s      | length of the run after the first estimate                      |
 | run.dry_run                           | false            | –      | run everything but send zero pressure                           |
-| emulator.plate_stiffness_N_per_m      | 11.16            | N/m    | the emulated plate's true spring                                |
-| emulator.tau_p_s                      | 0.05             | s      | the emulated valves' first-order time constant (docs/ground-truth.md)        |
 | emulator.q0_rad                       | 0.0              | rad    | the emulated arm's initial bend (scalar or per segment)         |
-| emulator.links_per_segment            | 5                | –      | rigid links per segment of the MuJoCo rod (simulations: 10)      |
-| emulator.physics_dt_s                 | 2e-4             | s      | MuJoCo step (simulations: 1e-4); 5 links at 0.2 ms run ≈ 9× real time, 10 at 0.1 ms ≈ 3× |
 
-Plausibility bounds. A value outside its bound is refused with the unit and the likely
+Former spellings. A file written before the one vocabulary (`environment.f_max_N`,
+`control.rate_hz`, `camera.fps`, `run.duration_s`, ...: `LEGACY_KEYS`, the one table that
+knows them) still loads, to the same configuration, with one warning line on stderr that
+names the new keys; a setting given in both spellings is refused.
+
+Plausibility bounds. A value beyond its bound is refused with the unit and the likely
 unit mistake in the message ("safety.watchdog_s must be <= 5 s (a plausibility bound;
-a time in ms? 150 ms = 0.15 s), got 150"):
+a value in ms? 150 ms = 0.15 s), got 150.0"): the shared settings' bounds are the
+vocabulary's (duration <= 86400 s, tau_p <= 5 s, hold_s, max_hold_s, qd_filter_tau <= 10 s,
+physics_dt <= 1e-3 s, control_rate <= 1e4 Hz, frame_rate <= 1000 Hz, amplitude within
+±3276.7 hPa, the protocol's range); the hardware-only ones:
 
 | key                                  | bound                | a value beyond it is likely  |
 |--------------------------------------|----------------------|------------------------------|
 | safety.watchdog_s                    | ≤ 5 s                | milliseconds                 |
-| safety.hold_s                        | ≤ 10 s               | milliseconds                 |
 | link.ack_timeout_s                   | ≤ 1 s                | milliseconds                 |
-| camera.max_hold_s, camera.qd_filter_tau_s | ≤ 10 s          | milliseconds                 |
 | camera.startup_timeout_s             | ≤ 600 s              | milliseconds                 |
 | camera.tag_size_m                    | ≤ 0.5 m              | millimetres                  |
-| control.rate_hz                      | ≤ 1000 1/s           | a period in ms               |
-| control.amplitude_hPa, pressure.*    | within ±3276.7 hPa (the protocol's range, `hardware.protocol`) | pascals |
-| run.duration_s                       | ≤ 86400 s            | milliseconds                 |
-| emulator.tau_p_s                     | ≤ 5 s                | milliseconds                 |
-| emulator.physics_dt_s                | 1e-5 … 1e-3 s, dividing the emulated board's 2 ms command period | milliseconds |
+| pressure.*                           | within ±3276.7 hPa (the protocol's range, `hardware.protocol`) | pascals |
 | emulator.q0_rad                      | within ±π rad        | degrees                      |
 
 Pressure limits must hold 0 hPa (u_min ≤ 0 ≤ u_max per segment): VENT, the safe action,
-sets 0 hPa, and the emulated valves start there.
+sets 0 hPa, and the emulated valves start there. physics_dt must divide the emulated
+board's 2 ms command period.
 
-Files. Relative paths in the file — robot.params, camera.calibration and a camera.source
-that is a file (not a device index, "virtual", a URL with "://" or a GStreamer pipeline
-with "!") — are relative to the configuration file's folder (`base_dir`), so a
-configuration runs the same from any working directory. robot.params and
-camera.calibration are read at load (a missing or malformed file is a ConfigError); the
-camera and the serial port are opened at start-up (`softcbf.hardware_cli`).
+Files. Relative paths in the file — robot, calibration and a camera.source that is a file
+(not a device index, "virtual", a URL with "://" or a GStreamer pipeline with "!") — are
+relative to the configuration file's folder (`base_dir`), so a configuration runs the same
+from any working directory. robot and calibration are read at load (a missing or malformed
+file is a ConfigError); the camera and the serial port are opened at start-up
+(`softcbf.hardware_cli`).
 
-Timing rules checked at load (period T = 1 / control.rate_hz): the link's worst
-exchange (1 + retries) · ack_timeout_s must end inside T, so that a safe action sent in
-a cycle arrives in that cycle; the board's watchdog must exceed T (or it vents between
-commands) and camera.max_hold_s must exceed one frame period of the virtual camera; the
-nominal sinusoid's control.frequency_hz must stay below half the control rate;
-link.port "emulated" and camera.source "virtual" go together.
+Timing rules checked at load (period T = 1 / control_rate): the link's worst exchange
+(1 + retries) · ack_timeout_s must end inside T, so that a safe action sent in a cycle
+arrives in that cycle; the board's watchdog must exceed T (or it vents between commands)
+and max_hold_s must exceed one frame period of the virtual camera; the nominal
+sinusoid's frequency must stay below half the control rate; link.port "emulated" and
+camera.source "virtual" go together.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import tomllib
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -102,6 +125,8 @@ from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
 from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
 from perception.plane import PlaneCalibration
+from vocabulary.files import read_settings_file
+from vocabulary.settings import SETTINGS, Bound, SettingError, check_number, check_value, positive
 
 VIRTUAL_CAMERA = "virtual"
 EMULATED_PORT = "emulated"
@@ -109,8 +134,37 @@ DETECTORS = ("opencv", "pupil")
 ROW_SCALINGS = ("paper", "unit")
 Scalars = float | tuple[float, ...]
 EMULATOR_COMMAND_PERIOD_S = 2e-3  # s, the emulated board's command resolution (softcbf_mj.emulate)
-# The unit mistake a value beyond a plausibility bound most likely is: unit → (wrong unit, factor to the right one).
-_LIKELY_MISTAKE = {"s": ("ms", 1e-3), "hPa": ("Pa", 1e-2), "m": ("mm", 1e-3), "rad": ("°", math.pi / 180)}
+NOUN = "hardware configuration"
+
+LEGACY_KEYS: dict[str, str] = {
+    "robot.params": "robot",
+    "environment.stiffness_N_per_m": "assumed_plate_stiffness",
+    "environment.f_max_N": "f_max",
+    "environment.row_scaling": "row_scaling",
+    "control.filter": "filter",
+    "control.filter_params": "filter_params",
+    "control.nominal": "nominal",
+    "control.nominal_params": "nominal_params",
+    "control.rate_hz": "control_rate",
+    "control.pressure_limits": "pressure_limits",
+    "control.qp_backend": "qp_backend",
+    "control.amplitude_hPa": "amplitude",
+    "control.frequency_hz": "frequency",
+    "camera.calibration": "calibration",
+    "camera.detector": "detector",
+    "camera.max_hold_s": "max_hold_s",
+    "camera.qd_filter_tau_s": "qd_filter_tau",
+    "camera.fps": "frame_rate",
+    "camera.width": "width",
+    "camera.height": "height",
+    "safety.hold_s": "hold_s",
+    "run.duration_s": "duration",
+    "emulator.plate_stiffness_N_per_m": "plate_stiffness",
+    "emulator.tau_p_s": "tau_p",
+    "emulator.links_per_segment": "links_per_segment",
+    "emulator.physics_dt_s": "physics_dt",
+}
+"""A former spelling, "section.key", → the setting's name (module docstring: Former spellings)."""
 
 
 class ConfigError(ValueError):
@@ -122,33 +176,44 @@ def _require(ok: bool, key: str, message: str) -> None:
         raise ConfigError(f"{key} {message}")
 
 
-def _number(key: str, value: Any, low: float = -math.inf, *, above: bool = False, high: float | None = None,
-            unit: str = "") -> float:
-    """A finite real ≥ low (> low with `above`) and, when given, ≤ the plausibility bound `high` (in `unit`)."""
-    _require(isinstance(value, (int, float)) and not isinstance(value, bool), key, f"must be a number, got {value!r}")
-    _require(math.isfinite(value), key, f"must be finite, got {value!r}")
-    _require(value > low if above else value >= low, key,
-             f"must be {'>' if above else '>='} {low:g}{' ' + unit if unit else ''}, got {value!r}")
-    if high is not None:
-        _require(abs(value) <= high if low == -math.inf else value <= high, key,
-                 f"must be {'within ±' if low == -math.inf else '<= '}{high:g} {unit} ({_plausibility_hint(value, unit)}), "
-                 f"got {value!r}")
-    return float(value)
+def _number(key: str, value: Any, bound: Bound, plausible: float | None = None, unit: str = "") -> float:
+    """A hardware-only number checked like a setting (`vocabulary.settings.check_number`)."""
+    try:
+        return float(check_number(key, value, bound, plausible=plausible, unit=unit))
+    except SettingError as exc:
+        raise ConfigError(str(exc)) from None
 
 
-def _plausibility_hint(value: float, unit: str) -> str:
-    if unit not in _LIKELY_MISTAKE:
-        return "a plausibility bound"
-    wrong, factor = _LIKELY_MISTAKE[unit]
-    return f"a plausibility bound; a value in {wrong}? {value:g} {wrong} = {value * factor:.4g} {unit}"
-
-
-def _numbers(key: str, value: Any, *, high: float | None = None, unit: str = "") -> Scalars:
-    """A finite number or a list of them (one per segment), each within ±`high` when given."""
+def _numbers(key: str, value: Any, plausible: float | None = None, unit: str = "") -> Scalars:
+    """A finite number or a non-empty list of them (one per segment), each within ±`plausible` when given."""
     if isinstance(value, (list, tuple)):
         _require(len(value) > 0, key, "must be a number or a non-empty list of numbers, got []")
-        return tuple(_number(f"{key}[{i}]", v, high=high, unit=unit) for i, v in enumerate(value))
-    return _number(key, value, high=high, unit=unit)
+        return tuple(_number(f"{key}[{i}]", v, Bound(), plausible, unit) for i, v in enumerate(value))
+    return _number(key, value, Bound(), plausible, unit)
+
+
+def _shared(name: str, value: Any) -> Any:
+    """A shared setting's value checked by the vocabulary (a per-segment list: each value)."""
+    try:
+        if isinstance(value, (list, tuple)):
+            _require(len(value) > 0, name, "must be a number or a non-empty list of numbers, got []")
+            return tuple(check_value(name, v, f"{name}[{i}]") for i, v in enumerate(value))
+        return check_value(name, value)
+    except SettingError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _check_shared_settings(section: Any) -> None:
+    """Every shared setting of a section checked by the vocabulary and stored normalised
+    (None: not configured; the table of filter or nominal parameters is the filter's to check;
+    a per-segment list only where the field holds `Scalars`)."""
+    for f in dataclasses.fields(section):
+        value = getattr(section, f.name)
+        if f.name not in SETTINGS or value is None or (isinstance(value, Mapping) and f.default_factory is dict):
+            continue
+        if isinstance(value, (list, tuple)) and f.type not in ("Scalars", Scalars):  # annotations are strings here
+            raise ConfigError(f"{f.name} must be a single value, got {value!r}")
+        object.__setattr__(section, f.name, _shared(f.name, value))
 
 
 def _choice(key: str, value: Any, valid: tuple[str, ...]) -> str:
@@ -168,33 +233,27 @@ class CameraConfig:
     tag_size_m: float = 0.03
     detector: str = "opencv"
     max_hold_s: float = 0.3
-    qd_filter_tau_s: float = 0.0
+    qd_filter_tau: float = 0.0
     startup_timeout_s: float = 5.0
-    fps: float = 12.8
+    frame_rate: float = 12.8
     width: int = 480
     height: int = 270
 
     def __post_init__(self) -> None:
+        _check_shared_settings(self)
         ok = (isinstance(self.source, int) and not isinstance(self.source, bool) and self.source >= 0) or (
             isinstance(self.source, str) and self.source != "")
         _require(ok, "camera.source", f'must be a device index >= 0, a video file, a stream URL or "virtual", got {self.source!r}')
-        _require(self.calibration is None or (isinstance(self.calibration, str) and self.calibration != ""),
-                 "camera.calibration", f"must be the path of a plane calibration JSON, got {self.calibration!r}")
-        _require(self.is_virtual or self.calibration is not None, "camera.calibration",
+        _require(self.calibration is None or self.calibration != "",
+                 "calibration", f"must be the path of a plane calibration JSON, got {self.calibration!r}")
+        _require(self.is_virtual or self.calibration is not None, "calibration",
                  "is required for a real camera: fit one with tools/calibrate_camera.py and give its JSON path")
-        _number("camera.tag_size_m", self.tag_size_m, 0, above=True, high=0.5, unit="m")
-        _choice("camera.detector", self.detector, DETECTORS)
-        _number("camera.max_hold_s", self.max_hold_s, 0, above=True, high=10.0, unit="s")
-        _number("camera.qd_filter_tau_s", self.qd_filter_tau_s, 0, high=10.0, unit="s")
-        _number("camera.startup_timeout_s", self.startup_timeout_s, 0, above=True, high=600.0, unit="s")
-        _number("camera.fps", self.fps, 0, above=True, high=1000.0, unit="1/s")
-        for name in ("width", "height"):
-            value = getattr(self, name)
-            _require(isinstance(value, int) and not isinstance(value, bool) and value >= 8, f"camera.{name}",
-                     f"must be an integer >= 8 px, got {value!r}")
+        _number("camera.tag_size_m", self.tag_size_m, positive("m"), 0.5, "m")
+        _choice("detector", self.detector, DETECTORS)
+        _number("camera.startup_timeout_s", self.startup_timeout_s, positive("s"), 600.0, "s")
         if self.is_virtual:
-            _require(self.max_hold_s > 1.0 / self.fps, "camera.max_hold_s",
-                     f"must exceed one frame period (1/fps = {1.0 / self.fps:.3g} s), got {self.max_hold_s}; "
+            _require(self.max_hold_s > 1.0 / self.frame_rate, "max_hold_s",
+                     f"must exceed one frame period (1/frame_rate = {1.0 / self.frame_rate:.3g} s), got {self.max_hold_s}; "
                      "otherwise every estimate goes stale between frames")
 
     @property
@@ -209,22 +268,23 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class RobotConfig:
-    params: str = "reference"
+    robot: str = "reference"
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.params, str) and self.params != "", "robot.params",
-                 f'must be "reference" or the path of a RobotParams JSON, got {self.params!r}')
+        _check_shared_settings(self)
+        _require(self.robot != "", "robot", f'must be "reference" or the path of a RobotParams JSON, got {self.robot!r}')
 
 
 @dataclass(frozen=True)
 class EnvironmentConfig:
     H: tuple[tuple[float, ...], ...] = ((0.36, 1.0),)
     h: tuple[float, ...] = (0.15,)
-    stiffness_N_per_m: float = 11.16
-    f_max_N: float = 0.16
+    assumed_plate_stiffness: float = 11.16
+    f_max: float = 0.16
     row_scaling: str = "paper"
 
     def __post_init__(self) -> None:
+        _check_shared_settings(self)
         try:
             Environment(np.asarray(self.H, dtype=float), np.asarray(self.h, dtype=float))
         except (ValueError, TypeError) as exc:
@@ -234,9 +294,7 @@ class EnvironmentConfig:
         for k, value in enumerate(self.h):
             _require(value > 0, f"environment.h[{k}]", f"must be > 0 m: the arm's base (the origin) must lie inside the free "
                      f"space H r <= h, got {value:g}")
-        _number("environment.stiffness_N_per_m", self.stiffness_N_per_m, 0, above=True)
-        _number("environment.f_max_N", self.f_max_N, 0, above=True)
-        _choice("environment.row_scaling", self.row_scaling, ROW_SCALINGS)
+        _choice("row_scaling", self.row_scaling, ROW_SCALINGS)
 
 
 @dataclass(frozen=True)
@@ -247,8 +305,7 @@ class PressureConfig:
     def __post_init__(self) -> None:
         for name in ("u_min_hPa", "u_max_hPa"):
             if getattr(self, name) is not None:
-                object.__setattr__(self, name, _numbers(f"pressure.{name}", getattr(self, name), high=PRESSURE_RANGE_HPA,
-                                                        unit="hPa"))
+                object.__setattr__(self, name, _numbers(f"pressure.{name}", getattr(self, name), PRESSURE_RANGE_HPA, "hPa"))
 
 
 @dataclass(frozen=True)
@@ -256,23 +313,22 @@ class ControlConfig:
     filter: str = "paper-cbf"
     filter_params: dict = field(default_factory=dict)
     tuning: str = "HW-High"
-    rate_hz: float = 10.0
+    control_rate: float = 10.0
     pressure_limits: bool = True
     qp_backend: str = "native"
-    amplitude_hPa: Scalars = 80.0
-    frequency_hz: float = 0.01
+    amplitude: Scalars = 80.0
+    frequency: float = 0.01
     phase_rad: Scalars = 0.0
     nominal: str = "sinusoid"
     nominal_params: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        _check_shared_settings(self)
         for key in ("filter", "nominal"):
-            value = getattr(self, key)
-            _require(isinstance(value, str) and value.strip() != "", f"control.{key}",
-                     f"must be a name or FILE.py:Factory (softcbf list), got {value!r}")
+            _require(getattr(self, key).strip() != "", key, f"must be a name or FILE.py:Factory (softcbf list), got {getattr(self, key)!r}")
         for key in ("filter_params", "nominal_params"):
             value = getattr(self, key)
-            _require(isinstance(value, Mapping) and all(isinstance(k, str) for k in value), f"control.{key}",
+            _require(isinstance(value, Mapping) and all(isinstance(k, str) for k in value), key,
                      f"must be a table of name = value, got {value!r}")
         _require(isinstance(self.tuning, str), "control.tuning", f"must be a tuning name or custom, got {self.tuning!r}")
         if self.filter == "paper-cbf" and self.tuning.strip().lower() != "custom":
@@ -280,17 +336,12 @@ class ControlConfig:
                 get_tuning(self.tuning)
             except ValueError as exc:
                 raise ConfigError(f"control.tuning: {exc}") from None
-        _number("control.rate_hz", self.rate_hz, 0, above=True, high=1000.0, unit="1/s")
-        _require(isinstance(self.pressure_limits, bool), "control.pressure_limits", f"must be true or false, got {self.pressure_limits!r}")
-        _choice("control.qp_backend", self.qp_backend, tuple(available_backends()))
-        object.__setattr__(self, "amplitude_hPa", _numbers("control.amplitude_hPa", self.amplitude_hPa,
-                                                           high=PRESSURE_RANGE_HPA, unit="hPa"))
-        _number("control.frequency_hz", self.frequency_hz, 0, above=True)
+        _choice("qp_backend", self.qp_backend, tuple(available_backends()))
         object.__setattr__(self, "phase_rad", _numbers("control.phase_rad", self.phase_rad))
 
     @property
     def period_s(self) -> float:
-        return 1.0 / self.rate_hz
+        return 1.0 / self.control_rate
 
     def filter_arguments(self) -> dict[str, Any]:
         """The filter's parameters: for paper-cbf, tuning and qp_backend from this section unless filter_params set them."""
@@ -301,10 +352,9 @@ class ControlConfig:
     def nominal_arguments(self) -> dict[str, Any]:
         """The nominal's parameters: for the sinusoid, amplitude, frequency and phase from this section unless set."""
         if self.nominal == "sinusoid":
-            return {"amplitude": self.amplitude_hPa, "frequency": self.frequency_hz, "phase": self.phase_rad,
+            return {"amplitude": self.amplitude, "frequency": self.frequency, "phase": self.phase_rad,
                     **self.nominal_params}
         return dict(self.nominal_params)
-
 
 
 @dataclass(frozen=True)
@@ -313,8 +363,8 @@ class SafetyConfig:
     watchdog_s: float = 0.15
 
     def __post_init__(self) -> None:
-        _number("safety.hold_s", self.hold_s, 0, high=10.0, unit="s")
-        _number("safety.watchdog_s", self.watchdog_s, 0, above=True, high=5.0, unit="s")
+        _check_shared_settings(self)
+        _number("safety.watchdog_s", self.watchdog_s, positive("s"), 5.0, "s")
 
 
 @dataclass(frozen=True)
@@ -332,7 +382,7 @@ class LinkConfig:
             value = getattr(self, name)
             _require(isinstance(value, int) and not isinstance(value, bool) and value >= low, f"link.{name}",
                      f"must be an integer >= {low}, got {value!r}")
-        _number("link.ack_timeout_s", self.ack_timeout_s, 0, above=True, high=1.0, unit="s")
+        _number("link.ack_timeout_s", self.ack_timeout_s, positive("s"), 1.0, "s")
 
     @property
     def is_emulated(self) -> bool:
@@ -345,63 +395,99 @@ class LinkConfig:
 
 @dataclass(frozen=True)
 class RunConfig:
-    duration_s: float = 100.0
+    duration: float = 100.0
     dry_run: bool = False
 
     def __post_init__(self) -> None:
-        _number("run.duration_s", self.duration_s, 0, above=True, high=86400.0, unit="s")
+        _check_shared_settings(self)
         _require(isinstance(self.dry_run, bool), "run.dry_run", f"must be true or false, got {self.dry_run!r}")
 
 
 @dataclass(frozen=True)
 class EmulatorConfig:
-    plate_stiffness_N_per_m: float = 11.16
-    tau_p_s: float = 0.05
+    plate_stiffness: float = 11.16
+    tau_p: float = 0.05
     q0_rad: Scalars = 0.0
     links_per_segment: int = 5
-    physics_dt_s: float = 2e-4
+    physics_dt: float = 2e-4
 
     def __post_init__(self) -> None:
-        _number("emulator.plate_stiffness_N_per_m", self.plate_stiffness_N_per_m, 0, above=True)
-        _number("emulator.tau_p_s", self.tau_p_s, 0, high=5.0, unit="s")
-        object.__setattr__(self, "q0_rad", _numbers("emulator.q0_rad", self.q0_rad, high=math.pi, unit="rad"))
-        _require(isinstance(self.links_per_segment, int) and not isinstance(self.links_per_segment, bool)
-                 and self.links_per_segment >= 1, "emulator.links_per_segment",
-                 f"must be an integer >= 1, got {self.links_per_segment!r}")
-        _number("emulator.physics_dt_s", self.physics_dt_s, 1e-5, high=1e-3, unit="s")
-        ratio = EMULATOR_COMMAND_PERIOD_S / self.physics_dt_s
-        _require(abs(ratio - round(ratio)) <= 1e-9 * ratio, "emulator.physics_dt_s",
+        _check_shared_settings(self)
+        object.__setattr__(self, "q0_rad", _numbers("emulator.q0_rad", self.q0_rad, math.pi, "rad"))
+        ratio = EMULATOR_COMMAND_PERIOD_S / self.physics_dt
+        _require(abs(ratio - round(ratio)) <= 1e-9 * ratio, "physics_dt",
                  f"must divide the emulated board's command period {EMULATOR_COMMAND_PERIOD_S:g} s into whole steps "
-                 f"(e.g. 1e-4, 2e-4, 5e-4, 1e-3 s), got {self.physics_dt_s!r}")
+                 f"(e.g. 1e-4, 2e-4, 5e-4, 1e-3 s), got {self.physics_dt!r}")
 
 
 _SECTIONS = {
     "camera": CameraConfig, "robot": RobotConfig, "environment": EnvironmentConfig, "pressure": PressureConfig,
     "control": ControlConfig, "safety": SafetyConfig, "link": LinkConfig, "run": RunConfig, "emulator": EmulatorConfig,
 }
+SHARED_KEYS: dict[str, str] = {f.name: section for section, cls in _SECTIONS.items()
+                               for f in dataclasses.fields(cls) if f.name in SETTINGS}
+"""The settings the hardware run shares with the simulations (top-level keys), each → the section that holds it."""
+
+
+def _own_keys(section: str) -> list[str]:
+    return [f.name for f in dataclasses.fields(_SECTIONS[section]) if f.name not in SETTINGS]
 
 
 def default_values() -> dict[str, Any]:
-    """Every key of the configuration, "section.key", with its default (the module table)."""
+    """Every key of the configuration with its default: shared settings by name, the others "section.key"."""
     out: dict[str, Any] = {}
     for name, cls in _SECTIONS.items():
         for f in dataclasses.fields(cls):
-            out[f"{name}.{f.name}"] = f.default_factory() if f.default is dataclasses.MISSING else f.default
+            out[f.name if f.name in SETTINGS else f"{name}.{f.name}"] = (
+                f.default_factory() if f.default is dataclasses.MISSING else f.default)
     return out
 
 
-def _section(name: str, data: Any) -> Any:
-    cls = _SECTIONS[name]
-    _require(isinstance(data, Mapping), f"[{name}]", f"must be a table of keys, got {data!r}")
-    valid = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(data) - set(valid))
-    _require(not unknown, f"[{name}]", f"has unknown key(s) {unknown}; valid keys: {', '.join(valid)}")
-    return cls(**data)
+def _current_spelling(data: Mapping[str, Any], source: str = NOUN) -> dict[str, Any]:
+    """`data` with every former spelling (`LEGACY_KEYS`) moved to its setting's name at the top
+    level, and one warning line on stderr naming them; ConfigError for a setting given twice."""
+    out = {key: dict(value) if key in _SECTIONS and isinstance(value, Mapping) else value for key, value in data.items()}
+    renamed = []
+    for section in _SECTIONS:
+        table = out.get(section)
+        if not isinstance(table, dict):
+            continue
+        for key in [k for k in table if f"{section}.{k}" in LEGACY_KEYS]:
+            name = LEGACY_KEYS[f"{section}.{key}"]
+            given = name in out and not (name == section and isinstance(out[name], dict))  # [robot] params → robot
+            _require(not given, name, f"is given twice: as {name} and as its former spelling {section}.{key}; keep {name}")
+            out[name] = table.pop(key)
+            renamed.append(f"{section}.{key} -> {name}")
+    if renamed:
+        print(f"warning: {source}: former key(s) {', '.join(renamed)}; the keys now have the names they have everywhere "
+              "(top level, docs/parameters.md): rename them", file=sys.stderr)
+    return out
+
+
+def _sections(data: Mapping[str, Any]) -> dict[str, Any]:
+    """The section objects of a configuration in the file's shape (module docstring)."""
+    _require(isinstance(data, Mapping), "the configuration", f"must be a table of settings, got {type(data).__name__}")
+    fields: dict[str, dict[str, Any]] = {}
+    unknown = sorted(key for key in data if key not in SHARED_KEYS and key not in _SECTIONS)
+    _require(not unknown, "the configuration", f"has unknown key(s) or section(s) {unknown}; settings: "
+             f"{', '.join(SHARED_KEYS)} (docs/parameters.md); sections: {', '.join(_SECTIONS)}")
+    for key, value in data.items():
+        if key in SHARED_KEYS:
+            fields.setdefault(SHARED_KEYS[key], {})[key] = value
+            continue
+        _require(isinstance(value, Mapping), f"[{key}]", f"must be a table of keys, got {value!r}")
+        shared = sorted(set(value) & set(SHARED_KEYS))
+        _require(not shared, f"[{key}]", f"holds {shared}: settings shared with the simulations are top-level keys")
+        valid = _own_keys(key)
+        unknown = sorted(set(value) - set(valid))
+        _require(not unknown, f"[{key}]", f"has unknown key(s) {unknown}; valid keys: {', '.join(valid) or 'none'}")
+        fields.setdefault(key, {}).update(value)
+    return {name: _SECTIONS[name](**given) for name, given in fields.items()}
 
 
 @dataclass(frozen=True)
 class HardwareConfig:
-    """Every setting of a hardware run (see the module table); `base_dir` resolves relative file paths."""
+    """Every setting of a hardware run (see the module tables); `base_dir` resolves relative file paths."""
 
     camera: CameraConfig = field(default_factory=CameraConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
@@ -425,13 +511,13 @@ class HardwareConfig:
         _require(self.safety.watchdog_s > period, "safety.watchdog_s",
                  f"must exceed the control period {period:g} s (got {self.safety.watchdog_s:g} s), "
                  "or the board vents between two commands; 1.5 periods is the default")
-        _require(self.control.frequency_hz < self.control.rate_hz / 2, "control.frequency_hz",
-                 f"must be below half the control rate ({self.control.rate_hz / 2:g} 1/s), got {self.control.frequency_hz:g}")
+        _require(self.control.frequency < self.control.control_rate / 2, "frequency",
+                 f"must be below half the control rate ({self.control.control_rate / 2:g} Hz), got {self.control.frequency:g}")
         _require(self.link.is_emulated == self.camera.is_virtual, "link.port",
                  f'"{EMULATED_PORT}" and camera.source "{VIRTUAL_CAMERA}" go together (the virtual camera renders the '
                  f"emulated arm; a real camera sees the real one), got port {self.link.port!r}, camera {self.camera.source!r}")
         n = self.robot_params().n_segments  # fail at load on a bad robot file or pressure limits
-        for key, value in (("control.amplitude_hPa", self.control.amplitude_hPa), ("control.phase_rad", self.control.phase_rad),
+        for key, value in (("amplitude", self.control.amplitude), ("control.phase_rad", self.control.phase_rad),
                            ("emulator.q0_rad", self.emulator.q0_rad)):
             try:
                 per_segment(value, n, key)
@@ -446,43 +532,41 @@ class HardwareConfig:
     # -- loading ------------------------------------------------------------------
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], base_dir: str | Path = ".") -> "HardwareConfig":
-        _require(isinstance(data, Mapping), "the configuration", f"must be a table of sections, got {type(data).__name__}")
-        unknown = sorted(set(data) - set(_SECTIONS))
-        _require(not unknown, "the configuration", f"has unknown section(s) {unknown}; valid: {', '.join(_SECTIONS)}")
-        sections = {name: _section(name, data[name]) for name in _SECTIONS if name in data}
-        return cls(**sections, base_dir=Path(base_dir))
+    def from_dict(cls, data: Mapping[str, Any], base_dir: str | Path = ".", source: str = NOUN) -> "HardwareConfig":
+        """A configuration from a mapping in the file's shape (former spellings read, with a warning: `LEGACY_KEYS`)."""
+        _require(isinstance(data, Mapping), "the configuration", f"must be a table of settings, got {type(data).__name__}")
+        return cls(**_sections(_current_spelling(data, source)), base_dir=Path(base_dir))
 
     @classmethod
     def load(cls, path: str | Path) -> "HardwareConfig":
         """Read a .toml or .json file; relative paths inside it are relative to its folder."""
         path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"configuration file {path} does not exist (see examples/hardware_emulated.toml)")
-        text = path.read_text(encoding="utf-8")
-        try:
-            if path.suffix == ".toml":
-                data = tomllib.loads(text)
-            elif path.suffix == ".json":
-                data = json.loads(text)
-            else:
-                raise ConfigError(f"configuration file {path} must end in .toml or .json, got {path.suffix!r}")
-        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-            raise ConfigError(f"{path} is not valid {path.suffix[1:].upper()}: {exc}") from None
-        return cls.from_dict(data, path.parent)
+        data = read_settings_file(path, NOUN, ConfigError, missing_hint="see examples/hardware_emulated.toml")
+        return cls.from_dict(data, path.parent, f"{NOUN} {path}")
 
-    def with_overrides(self, changes: Mapping[str, Mapping[str, Any]]) -> "HardwareConfig":
-        """A copy with fields changed, {section: {key: value}} (command-line options), validated again."""
-        sections = {}
-        for section, fields in changes.items():
-            if section not in _SECTIONS:
-                raise ConfigError(f"unknown section {section!r}; valid: {', '.join(_SECTIONS)}")
-            sections[section] = _section(section, {**dataclasses.asdict(getattr(self, section)), **fields})
-        return dataclasses.replace(self, **sections)
+    def with_overrides(self, changes: Mapping[str, Any]) -> "HardwareConfig":
+        """A copy with settings changed, `changes` in the file's shape ({"duration": 2.0, "link": {"port": ...}}:
+        command-line options), validated again."""
+        data = self.to_dict()
+        for key, value in _current_spelling(changes, "the overrides").items():
+            if key in _SECTIONS and isinstance(value, Mapping) and isinstance(data.get(key), Mapping):
+                data[key] = {**data[key], **value}
+            else:
+                data[key] = value
+        return type(self).from_dict(data, self.base_dir)
 
     def to_dict(self) -> dict[str, Any]:
-        """The sections as plain data (for config.json of the run folder)."""
-        return {name: dataclasses.asdict(getattr(self, name)) for name in _SECTIONS}
+        """The configuration in the file's shape: shared settings at the top level, then the sections'
+        own keys (for config.json of the run folder; `from_dict` reads it back)."""
+        out: dict[str, Any] = {}
+        for name in _SECTIONS:
+            values = dataclasses.asdict(getattr(self, name))
+            out.update({key: value for key, value in values.items() if key in SETTINGS})
+        for name in _SECTIONS:
+            own = {key: value for key, value in dataclasses.asdict(getattr(self, name)).items() if key not in SETTINGS}
+            if own:
+                out[name] = own
+        return out
 
     def plugin_spec(self, spec: str) -> str:
         """A filter or nominal spec with its FILE.py made relative to this file's folder (names unchanged)."""
@@ -502,33 +586,33 @@ class HardwareConfig:
         return str(self.resolve(source)) if self.camera.is_file else source
 
     def plane_calibration(self) -> PlaneCalibration | None:
-        """The camera.calibration file's image → plane map (None when none is configured)."""
+        """The calibration file's image → plane map (None when none is configured)."""
         if self.camera.calibration is None:
             return None
         path = self.resolve(self.camera.calibration)
         if not path.is_file():
-            raise ConfigError(f"camera.calibration must be a plane calibration JSON file, got {self.camera.calibration!r} "
+            raise ConfigError(f"calibration must be a plane calibration JSON file, got {self.camera.calibration!r} "
                               f"(no file {path}; relative paths are relative to the configuration's folder)")
         try:
             return PlaneCalibration.load(path)
         except (ValueError, KeyError, TypeError, OSError) as exc:
-            raise ConfigError(f"camera.calibration {path}: {type(exc).__name__}: {exc}".splitlines()[0]) from None
+            raise ConfigError(f"calibration {path}: {type(exc).__name__}: {exc}".splitlines()[0]) from None
 
     # -- the objects the run needs --------------------------------------------------
 
     def robot_params(self) -> RobotParams:
         """The controller's robot with the configured pressure limits (their one source of truth)."""
-        spec = self.robot.params
+        spec = self.robot.robot
         if spec == "reference":
             robot = reference_robot()
         else:
             path = self.resolve(spec)
             if not path.is_file():
-                raise ConfigError(f'robot.params must be "reference" or a RobotParams JSON file, got {spec!r} (no file {path})')
+                raise ConfigError(f'robot must be "reference" or a RobotParams JSON file, got {spec!r} (no file {path})')
             try:
                 robot = RobotParams.load(path)
             except (ValueError, KeyError) as exc:
-                raise ConfigError(f"robot.params {path}: {exc}") from None
+                raise ConfigError(f"robot {path}: {exc}") from None
         n, changes = robot.n_segments, {}
         for name, key in (("u_min", "u_min_hPa"), ("u_max", "u_max_hPa")):
             value = getattr(self.pressure, key)
@@ -550,5 +634,5 @@ class HardwareConfig:
 
     def safe_set(self) -> ForceSafeSet:
         env = self.environment
-        return ForceSafeSet(Environment(np.array(env.H), np.array(env.h)), LinearStiffness(env.stiffness_N_per_m),
-                            env.f_max_N, row_scaling=env.row_scaling)
+        return ForceSafeSet(Environment(np.array(env.H), np.array(env.h)), LinearStiffness(env.assumed_plate_stiffness),
+                            env.f_max, row_scaling=env.row_scaling)

@@ -11,7 +11,7 @@ Two threads share one monotonic clock (s):
          older than the estimator's max_hold_s),
       2. runs the control step the simulations run (`closedloop.step.ControlStep`, at
          t = now − t_0): u_nom = nominal(t, q, q̇), u = filter(estimate, u_nom) — any
-         registered or user filter (`controllers.registry`, config `control.filter`) —,
+         registered or user filter (`controllers.registry`, config `filter`) —,
          admission (clipped to the limits; non-finite or raised: command_nonfinite), and
          the safety monitor (`closedloop.monitor`) with flags perception_stale, link_lost
          (the previous exchange failed) and interrupted (Ctrl-C or `stop()`),
@@ -73,7 +73,7 @@ LOOP_FLAGS = ("est_stale", "link_acked", "link_lost")
 
 
 def controller_context(config: HardwareConfig) -> FilterContext:
-    """What the configured filter is told: the robot model, P, the limits when control.pressure_limits, the period."""
+    """What the configured filter is told: the robot model, P, the limits when pressure_limits, the period."""
     return FilterContext.for_robot(config.robot_params(), config.safe_set(), config.control.period_s,
                                    config.control.pressure_limits)
 
@@ -236,7 +236,7 @@ class HardwareLoop:
         robot = config.robot_params()
         n, cam, ctl, lk = robot.n_segments, config.camera, config.control, config.link
         estimator = ArmAngleEstimator(n, calibration, cam.tag_size_m, max_hold_s=cam.max_hold_s,
-                                      qd_filter_tau=cam.qd_filter_tau_s)
+                                      qd_filter_tau=cam.qd_filter_tau)
         perception = PerceptionWorker(source, TagDetector(cam.detector, arm_tag_ids(n)), estimator, clock)
         link = ValveBoardLink(transport, n, robot.u_min, robot.u_max, ack_timeout_s=lk.ack_timeout_s,
                               retries=lk.retries, clock=clock, lost_after=lk.lost_after, baudrate=lk.baudrate)
@@ -244,7 +244,7 @@ class HardwareLoop:
         step = ControlStep(build_filter(config.plugin_spec(ctl.filter), ctl.filter_arguments(), context),
                            build_nominal(config.plugin_spec(ctl.nominal), ctl.nominal_arguments(), context), context,
                            SafetyMonitor(n, config.safety.hold_s))
-        return cls(perception, link, step, ctl.period_s, config.run.duration_s, dry_run=config.run.dry_run,
+        return cls(perception, link, step, ctl.period_s, config.run.duration, dry_run=config.run.dry_run,
                    startup_timeout_s=cam.startup_timeout_s, clock=clock, on_cycle=on_cycle)
 
     def stop(self) -> None:

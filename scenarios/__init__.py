@@ -15,9 +15,10 @@ also calls first, checks the ranges and the files and names it refers to. Errors
 `ValueError`s that name the parameter, the valid range and the value received.
 
 Documentation. Every parameter's meaning and unit are declared once for all scenarios
-(`scenarios.parameters.DOCS`); its valid values are the scenario's `bounds` entry (given
-to `register`; a range such as "> 0 N") or, without one, the declared valid values
-(`Scenario.valid`).
+(`vocabulary.settings.SETTINGS`, shared with the hardware file and the studies), and so
+is its valid range, which `check_bounds` (scenarios.common) holds every value to; a
+scenario's `bounds` (given to `register`) narrow that range for it (camera_loop's image
+size <= its render's), and `Scenario.valid` shows the scenario's range, else the declared one.
 
 Batch form (optional, studies: docs/studies.md#batches). `register(..., batch=BatchForm(key, run))`
 lets a study run many samples of the scenario in one batched closed loop:
@@ -37,7 +38,7 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any, Callable, Hashable, Mapping, Sequence
 
-from scenarios.parameters import parameter_doc
+from vocabulary.settings import setting
 
 _MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop")
 
@@ -85,14 +86,10 @@ class Scenario:
         raise ValueError(f"parameter {name!r} takes {annotation.__name__} values, got {value!r}")
 
     def valid(self, name: str) -> str:
-        """Parameter `name`'s valid values: its bound, else the declared ones, else by its type."""
+        """Parameter `name`'s valid values: the scenario's narrower bound, else the declared ones (vocabulary.settings)."""
         if name in self.bounds:
             return str(self.bounds[name])
-        declared = parameter_doc(name).valid
-        if declared:
-            return declared
-        annotation = typing.get_type_hints(self.run)[name]
-        return {float: "finite", int: "any integer", bool: "true, false"}.get(annotation, "any")
+        return setting(name).valid_values
 
     def validate(self, params: Mapping[str, Any]) -> dict[str, Any]:
         """The full keyword arguments (defaults updated with `params`), checked without running (module docstring)."""

@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from scenarios import registry
-from scenarios.run import INTERRUPTED, USAGE_ERROR, UsageError, describe, run_scenario
+from scenarios.run import UsageError, describe, exit_code, run_scenario
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,16 +30,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not args.name:
         parser.error("give a scenario name or --list")
-    try:
+
+    def run() -> int:
         if args.out is None and args.name in registry():
             raise UsageError("--out DIR is required to run a scenario")
         return run_scenario(args.name, rest, args.out, args.overwrite, args.spawn)
-    except UsageError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return USAGE_ERROR
-    except KeyboardInterrupt:
-        print("\ninterrupted", file=sys.stderr)
-        return INTERRUPTED
+
+    return exit_code(run)
 
 
 if __name__ == "__main__":

@@ -52,12 +52,12 @@ from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    COMMON_BOUNDS, PAPER_FILTER, Bound, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
-    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot, non_negative,
-    live_run, nominal_arguments, positive, read_parameter_file, save_run, scene_record,
+    PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
+    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot,
+    live_run, nominal_arguments, read_parameter_file, save_run, scene_record,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-from scenarios.ground_truth import TABLE_FRICTION, check_true_arm, flexure_params
+from scenarios.ground_truth import check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
@@ -71,17 +71,10 @@ from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
+from vocabulary.settings import Bound
 
 
-BOUNDS = {
-    "duration": positive("s"), "frequency": non_negative("Hz"), "links_per_segment": Bound(1, 100),
-    "tau_p": non_negative("s"), "physics_dt": Bound(1e-6, unit="s"), "plate_stiffness": positive("N/m"),
-    "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "tick": positive("s"),
-    "max_hold_s": positive("s"), "qd_filter_tau": non_negative("s"), "width": Bound(16, CAMERA_RESOLUTION[0], unit="px"),
-    "height": Bound(16, CAMERA_RESOLUTION[1], unit="px"), "saved_frames_hz": non_negative("Hz (0: none)"),
-    "tip_friction": non_negative("(Coulomb μ)"), "table_friction": TABLE_FRICTION, "damping_scale": positive("(× d_i)"),
-    "true_gain_scale": Bound(1e-3, 1e3, unit="(1: the model's gains)"), "facet_offset": Bound(-1.0, 1.0, unit="m"),
-}
+BOUNDS = {"width": Bound(16, CAMERA_RESOLUTION[0], unit="px"), "height": Bound(16, CAMERA_RESOLUTION[1], unit="px")}  # the render's
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -161,7 +154,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
 
 
 @register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop",
-          check_parameters, {**COMMON_BOUNDS, **BOUNDS})
+          check_parameters, BOUNDS)
 def camera_loop(
     out_dir: Path,
     *,

@@ -48,62 +48,23 @@ from softcbf_mj.metrics import run_figures
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
+from vocabulary.settings import Bound, SettingError, check_value
 
 if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.recording is imported only when recording
     from softcbf_mj.recording import LiveRun
 
 T = TypeVar("T")
 
-@dataclass(frozen=True)
-class Bound:
-    """The valid range of a numeric parameter: `low` <= value <= `high` (None: unbounded),
-    `<` instead of `<=` where open; `unit` for the message. Values are always finite."""
-
-    low: float | None = None
-    high: float | None = None
-    low_open: bool = False
-    high_open: bool = False
-    unit: str = ""
-
-    def __contains__(self, value: float) -> bool:
-        if isinstance(value, float) and not math.isfinite(value):
-            return False
-        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
-            return False
-        return self.high is None or (value < self.high if self.high_open else value <= self.high)
-
-    def __str__(self) -> str:
-        unit = f" {self.unit}" if self.unit else ""
-        if self.low is not None and self.high is not None:
-            return f"in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}{unit}"
-        if self.low is not None:
-            return f"{'>' if self.low_open else '>='} {self.low:g}{unit}"
-        if self.high is not None:
-            return f"{'<' if self.high_open else '<='} {self.high:g}{unit}"
-        return "finite"
-
-
-def positive(unit: str = "") -> Bound:
-    """> 0 (and finite)."""
-    return Bound(0.0, low_open=True, unit=unit)
-
-
-def non_negative(unit: str = "") -> Bound:
-    """>= 0 (and finite)."""
-    return Bound(0.0, unit=unit)
-
-
-def check_bounds(params: Mapping[str, Any], bounds: Mapping[str, Bound]) -> None:
-    """Every float parameter finite, and every parameter named in `bounds` within its
-    bound; ValueError "NAME must be BOUND, got VALUE" for the first that is not."""
+def check_bounds(params: Mapping[str, Any], bounds: Mapping[str, Bound] | None = None) -> None:
+    """Every numeric parameter within its declared range (`vocabulary.settings.check_value`:
+    finite, its bound, its plausibility bound) and then within the scenario's narrower
+    `bounds`; SettingError (a ValueError) "NAME must be BOUND, got VALUE" for the first that is not."""
     for name, value in params.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             continue
-        bound = bounds.get(name, Bound())
-        if isinstance(value, float) and not math.isfinite(value):  # ints are finite (and may exceed any float)
-            raise ValueError(f"{name} must be finite{f' and {bound}' if name in bounds else ''}, got {value!r}")
-        if value not in bound:
-            raise ValueError(f"{name} must be {bound}, got {value!r}")
+        value = check_value(name, value)
+        if bounds and name in bounds and value not in bounds[name]:
+            raise SettingError(f"{name} must be {bounds[name]}, got {value!r}")
 
 
 def check_choice(name: str, value: str, valid: Sequence[str]) -> None:
@@ -235,18 +196,13 @@ def controller_row(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, o
             "nominal_params": {k: v for k, v in nominal_kwargs.items()}}
 
 
-COMMON_BOUNDS = {"duration": positive("s"), "q0_std": Bound(0.0, math.pi, unit="rad"), "seed": Bound(0)}
-"""Bounds of the parameters every scenario has."""
-
-
 def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffness: str = "plate_stiffness") -> RobotParams:
     """The checks shared by every scenario, made before anything is built (`Scenario.validate`):
-    COMMON_BOUNDS (duration, q0_std, seed), the controller under test (filter, filter_params,
+    the controller under test (filter, filter_params,
     tunings, nominal, nominal_params: the specs resolve and take the parameters, nothing is
     built: `controllers.registry.check_filter`), the controller's robot, its force-safe
     set (environment, f_max, row_scaling and the stiffness parameter `assumed_plate_stiffness`)
     and qp_backend. Returns the controller's robot."""
-    check_bounds(params, COMMON_BOUNDS)
     try:
         for run in controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"]):
             check_filter(run.filter, run.filter_params)

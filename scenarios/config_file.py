@@ -25,12 +25,12 @@ parameters, when the run checks them); errors are ValueErrors naming the file an
 
 from __future__ import annotations
 
-import json
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from vocabulary.files import read_settings_file
 
 SCENARIO_KEY = "scenario"
 TABLE_PARAMETERS = ("filter_params", "nominal_params")  # "name=value;..." strings, also given as tables
@@ -70,19 +70,7 @@ def _from_run_folder(path: Path, data: Mapping[str, Any]) -> RunConfig:
 def load_run_config(path: str | Path) -> RunConfig:
     """Read a run configuration file (module docstring); ValueError naming the file and the key."""
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"run configuration {path} does not exist (a .toml file, or a run folder's config.json)")
-    text = path.read_text(encoding="utf-8")
-    try:
-        if path.suffix == ".toml":
-            data = tomllib.loads(text)
-        elif path.suffix == ".json":
-            data = json.loads(text)
-        else:
-            raise ValueError(f"run configuration {path} must end in .toml or .json, got {path.suffix!r}")
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"run configuration {path} is not valid {path.suffix[1:].upper()}: {exc}") from None
-    if not isinstance(data, Mapping) or not isinstance(data.get(SCENARIO_KEY), str):
-        raise ValueError(f"run configuration {path} needs scenario = \"NAME\" (softcbf list), "
-                         f"got {data.get(SCENARIO_KEY) if isinstance(data, Mapping) else data!r}")
+    data = read_settings_file(path, "run configuration", missing_hint="a .toml file, or a run folder's config.json")
+    if not isinstance(data.get(SCENARIO_KEY), str):
+        raise ValueError(f"run configuration {path} needs scenario = \"NAME\" (softcbf list), got {data.get(SCENARIO_KEY)!r}")
     return (_from_toml if path.suffix == ".toml" else _from_run_folder)(path, data)

@@ -8,11 +8,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from controllers.params import RobotParams
-from scenarios.common import Bound, check_choice, load_robot
+from scenarios.common import check_choice, load_robot
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
 
-TABLE_FRICTION = Bound(0.0, 2.0, unit="(Coulomb μ, arm on the table)")
 """The bound of a scenario's `table_friction` (`softcbf_mj.table_friction`; the physics step may lower it)."""
 
 

@@ -46,11 +46,11 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    COMMON_BOUNDS, PAPER_FILTER, ControllerRun, Bound, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
-    controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning,
+    PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
+    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning,
     scene_record,
 )
-from scenarios.ground_truth import TABLE_FRICTION, check_true_arm, flexure_params
+from scenarios.ground_truth import check_true_arm, flexure_params
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
@@ -60,19 +60,11 @@ from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
+from vocabulary.settings import Bound
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
 
-SCALE = Bound(1e-3, 1e3, unit="(1: the reference robot)")  # beyond, the arm's numbers overflow
-BOUNDS = {
-    "duration": positive("s"), "frequency": non_negative("Hz"), "links_per_segment": Bound(1, 100),
-    "tau_p": non_negative("s"), "physics_dt": Bound(1e-6, CONTROL_DT, unit="s"), "plate_stiffness": positive("N/m"),
-    "assumed_plate_stiffness": positive("N/m"), "f_max": positive("N"), "true_stiffness_scale": SCALE,
-    "true_damping_scale": SCALE, "true_gain_scale": SCALE, "true_length_scale": SCALE,
-    "facet_offset": Bound(-1.0, 1.0, unit="m"), "facet_angle": Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"),
-    "gravity": non_negative("m/s² (along -y)"), "tip_friction": non_negative("(Coulomb μ)"),
-    "table_friction": TABLE_FRICTION,
-}
+BOUNDS = {"physics_dt": Bound(1e-6, CONTROL_DT, unit="s")}  # narrower than the vocabulary's: it divides the control period
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -212,7 +204,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) ->
 
 
 @register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
-          check_parameters, {**COMMON_BOUNDS, **BOUNDS}, BatchForm(contact_batch_key, run_contact_batch))
+          check_parameters, BOUNDS, BatchForm(contact_batch_key, run_contact_batch))
 def mujoco_contact(
     out_dir: Path,
     *,

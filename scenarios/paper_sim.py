@@ -26,8 +26,8 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    COMMON_BOUNDS, PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
-    controller_runs, initial_configuration, load_robot, non_negative, nominal_arguments, positive, run_tuning, scene_record,
+    PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
+    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, scene_record,
 )
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
@@ -51,13 +51,10 @@ TABLE = (
 )
 
 
-BOUNDS = {"duration": positive("s"), "frequency": non_negative("Hz"), "f_max": positive("N"),
-          "plate_stiffness": positive("N/m"), "control_rate": positive("Hz")}
-
 
 def check_parameters(params: Mapping[str, Any]) -> None:
     """The checks `paper_sim` makes before it builds anything (`scenarios.Scenario.validate`)."""
-    check_bounds(params, BOUNDS)
+    check_bounds(params)
     check_controller_parameters(params, "plate_stiffness")
     check_choice("integrator", params["integrator"], INTEGRATORS)
 
@@ -121,7 +118,7 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> l
 
 
 @register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High",
-          check_parameters, {**COMMON_BOUNDS, **BOUNDS}, BatchForm(paper_batch_key, run_paper_batch))
+          check_parameters, batch=BatchForm(paper_batch_key, run_paper_batch))
 def paper_sim(
     out_dir: Path,
     *,

@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from scenarios import Scenario, get
-from scenarios.parameters import parameter_doc
+from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
@@ -41,6 +41,20 @@ PLUGIN_PARAMS = ("filter_params", "nominal_params")  # scenario parameters also 
 
 class UsageError(Exception):
     """Bad command-line input; the message names the parameter and the valid values."""
+
+
+def exit_code(command: Callable[[], int]) -> int:
+    """`command()`'s exit code, or USAGE_ERROR after "error: MESSAGE" on stderr for a
+    UsageError, or INTERRUPTED after "interrupted" for Ctrl-C: the exit codes of every
+    command line (`softcbf`, `python -m scenarios`)."""
+    try:
+        return command()
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+        return INTERRUPTED
 
 
 class UsageParser(argparse.ArgumentParser):
@@ -67,19 +81,37 @@ def _converter(annotation: object) -> Callable[[str], object]:
     raise TypeError(f"scenario parameter type {annotation!r} is not supported on the command line")
 
 
-def _option(name: str) -> str:
+def option_type(annotation: type) -> Callable[[str], object]:
+    """The argparse `type` of a command-line option for a setting of type `annotation` (bool,
+    int, float, str; a bool takes true/false, yes/no, on/off, 1/0): an unreadable value is an
+    argparse error "expected float, got 'x'"."""
+    convert, type_name = _converter(annotation), annotation.__name__
+
+    def typed(text: str) -> object:
+        try:
+            return convert(text)
+        except ValueError as exc:
+            detail = str(exc) if convert is _parse_bool else f"expected {type_name}"
+            raise argparse.ArgumentTypeError(f"{detail}, got {text!r}") from None
+
+    typed.__name__ = type_name
+    return typed
+
+
+def option_name(name: str) -> str:
+    """The command-line option of setting `name`: f_max → --f-max."""
     return f"--{name.replace('_', '-')}"
 
 
 def describe(scenario: Scenario) -> str:
     """The scenario's name, one-line description and parameters: option, type, default and
-    unit, then meaning and valid values (scenarios.parameters)."""
+    unit, then meaning and valid values (vocabulary.settings)."""
     hints = typing.get_type_hints(scenario.run)
     lines = [f"{scenario.name}: {scenario.description}"]
     for name, p in scenario.parameters().items():
-        doc = parameter_doc(name)
+        doc = setting(name)
         unit = f" [{doc.unit}]" if doc.unit else ""
-        lines.append(f"    {_option(name)} {hints[name].__name__} (default {p.default!r}){unit}: {doc.meaning}; "
+        lines.append(f"    {option_name(name)} {hints[name].__name__} (default {p.default!r}){unit}: {doc.meaning}; "
                      f"valid: {scenario.valid(name)}")
     return "\n".join(lines)
 
@@ -100,18 +132,8 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
         raise UsageError(str(exc)) from None
     parser = UsageParser(prog=f"scenario {scenario.name}", add_help=False, allow_abbrev=False)
     for name, p in params.items():
-        convert, type_name = _converter(hints[name]), hints[name].__name__
-
-        def typed(text: str, _convert=convert, _type: str = type_name) -> object:
-            try:
-                return _convert(text)
-            except ValueError as exc:
-                detail = str(exc) if _convert is _parse_bool else f"expected {_type}"
-                raise argparse.ArgumentTypeError(f"{detail}, got {text!r}") from None
-
-        typed.__name__ = type_name
-        parser.add_argument(_option(name), dest=name, type=typed, default=given.get(name, p.default))
-    repeated = {name: _option(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
+        parser.add_argument(option_name(name), dest=name, type=option_type(hints[name]), default=given.get(name, p.default))
+    repeated = {name: option_name(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
     for name, option in repeated.items():
         parser.add_argument(option, dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE")
     if "filter_params" in repeated and "tuning" not in params:  # --tuning X: the filter's tuning (one run), docs/extending.md
@@ -121,7 +143,7 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
     except UsageError as exc:
         raise UsageError(str(exc).removeprefix(f"{parser.prog}: argument ")) from None
     if unknown:
-        valid = ", ".join([*(_option(n) for n in params), *repeated.values()])
+        valid = ", ".join([*(option_name(n) for n in params), *repeated.values()])
         raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
     values = vars(known)
     for name, option in repeated.items():

@@ -11,7 +11,7 @@ Battery (`CASES`, in this order; each case runs registered scenarios with fixed 
 | mujoco_contact   | mujoco_contact at its defaults           | 1 kHz  | the paper's sinusoid (80 hPa, 0.01 Hz), 100 s           |
 | camera_loop      | camera_loop at its defaults              | 10 Hz  | rendered AprilTags at 12.8 fps, 100 s                   |
 | camera_stiff_close | camera_loop                            | 10 Hz  | true plate 10 % stiffer (12.276 N/m) and 1 mm closer (facet_offset −1 mm), 100 s |
-| hardware_emulator | `softcbf hardware` on the emulator      | 10 Hz  | examples/hardware_emulated.toml with the reference arm (robot.params "reference"), 20 s in real time |
+| hardware_emulator | `softcbf hardware` on the emulator      | 10 Hz  | examples/hardware_emulated.toml with the reference arm (--robot reference), 20 s in real time |
 | camera_mismatch  | a study (softcbf.study) on camera_loop   | 10 Hz  | `MISMATCH_DRAWS` = 100 Monte Carlo draws (seed 2026): true plate stiffness U(±10 %), actuator gain scale U(0.9, 1.1), facet offset U(±1 mm); 30 s from t0 = 15 s (the first contact), as studies/paper_tunings_plate_errors.toml |
 
 The step case runs on paper_sim (the PCC plant at 1 kHz with the exact state): a step is
@@ -233,21 +233,11 @@ def _step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> 
     return pooled_figures(runs)
 
 
-def _emulator_config(folder: Path) -> Path:
-    """examples/hardware_emulated.toml with the reference arm (its [robot] table dropped)."""
-    text = EMULATOR_CONFIG.read_text(encoding="utf-8")
-    text = re.sub(r"(?ms)^\[robot\]\n.*?(?=^\[)", "", text)
-    config = folder / "hardware_reference_arm.toml"
-    config.write_text(text, encoding="utf-8")
-    return config
-
-
 def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
     from softcbf import hardware_cli
 
     out.mkdir(parents=True)
-    config = _emulator_config(out)
-    argv = [str(config), "--port", "emulated", "--camera", "virtual", "--filter", spec.name,
+    argv = [str(EMULATOR_CONFIG), "--robot", "reference", "--port", "emulated", "--camera", "virtual", "--filter", spec.name,
             "--duration", str(EMULATOR_DURATION_S), "--out", str(out / "run")]
     for name, value in case_filter_params(spec, case).items():
         argv += ["--filter-param", f"{name}={value}"]

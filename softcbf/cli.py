@@ -65,7 +65,7 @@ import softcbf_mj
 from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
 from scenarios.config_file import load_run_config
-from scenarios.run import INTERRUPTED, USAGE_ERROR, UsageError, UsageParser, describe, run_scenario
+from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario
 from softcbf import bench, hardware_cli
 from softcbf_mj.runio import RunFolderError, versions
 from softcbf.study import cli as study_cli
@@ -228,18 +228,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `softcbf`; returns the exit code (0, 2 usage error, 130 interrupted)."""
     parser = build_parser()
-    try:
+
+    def run() -> int:
         args, extra = parser.parse_known_args(argv)
         command = COMMANDS[args.command]
         if extra and not command.extra_args:
             raise UsageError(f"softcbf {command.name}: unrecognised arguments: {' '.join(extra)}")
         return command.handler(args, extra)
-    except UsageError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return USAGE_ERROR
-    except KeyboardInterrupt:
-        print("\ninterrupted", file=sys.stderr)
-        return INTERRUPTED
+
+    return exit_code(run)
 
 
 if __name__ == "__main__":

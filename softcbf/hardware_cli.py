@@ -1,12 +1,16 @@
 """`softcbf hardware`: run the controller on the arm (or on the emulator) and write a run folder.
 
     softcbf hardware CONFIG [--port PORT|emulated] [--camera SOURCE|virtual] [--tuning NAME]
-                            [--filter SPEC] [--filter-param NAME=VALUE ...]
-                            [--duration S] [--dry-run] [--out DIR] [--overwrite] [--spawn]
+                            [--filter SPEC] [--filter-param NAME=VALUE ...] [--f-max N] [--duration S] ...
+                            [--dry-run] [--out DIR] [--overwrite] [--spawn]
 
 CONFIG is a `hardware.config` file (TOML or JSON; examples/hardware_emulated.toml); the
-options override its `link.port`, `camera.source`, `control.tuning`, `control.filter`
-(`--filter-param` adds to `control.filter_params`), `run.duration_s` and `run.dry_run`.
+options override its `link.port`, `camera.source`, `control.tuning` and `run.dry_run`,
+and every setting it shares with the simulations by the option `softcbf run` has for it
+(`hardware.config.SHARED_KEYS`: `--f-max`, `--control-rate`, `--filter`, `--duration`,
+`--frame-rate`, `--tau-p`, ...; `--filter-param` and `--nominal-param` add to the file's
+tables, a `--filter` other than the file's starts from an empty table); a file named on
+the command line (`--robot`, `--calibration`, `--camera`) is relative to the working directory.
 The filter and the nominal controller are built once at start-up to check them (an
 unknown name or parameter is a usage error). `--port emulated --camera virtual` runs the whole hardware path against
 `softcbf_mj.emulate.EmulatedHardware` (MuJoCo arm and plate behind a pty valve board,
@@ -67,11 +71,14 @@ import numpy as np
 
 from controllers.pcc import segment_ends
 from closedloop.monitor import SafeAction
-from hardware.config import EMULATED_PORT, VIRTUAL_CAMERA, ConfigError, HardwareConfig, camera_source_is_file
+from hardware.config import (
+    EMULATED_PORT, SHARED_KEYS, VIRTUAL_CAMERA, ConfigError, HardwareConfig, camera_source_is_file,
+)
 from hardware.runner import HardwareLog, HardwareLoop, StartupError, controller_context
 from hardware.transport import open_serial
 from perception.capture import VideoCaptureSource
 from scenarios.common import scene_record
+from scenarios.run import INTERRUPTED, USAGE_ERROR, option_name, option_type
 from closedloop.record import TIMESERIES_UNITS
 from controllers.registry import build_filter, build_nominal, parse_params
 from controllers.registry import label as run_label
@@ -79,12 +86,16 @@ from softcbf_mj.metrics import run_figures
 from softcbf_mj.runio import (
     OutputDirError, SummaryWriter, frames_folder, prepare_out_dir, remove_if_unused, save_frames_index, save_timeseries,
 )
+from vocabulary.settings import setting
 
 HELP = "run the controller on the valve board and camera (or --port emulated --camera virtual)"
 SCENARIO = "hardware"
 SAVED_FRAMES_HZ = 2.0  # camera frames kept for the recording, per second of the run
 JPEG_QUALITY = 90
-USAGE_ERROR, INTERRUPTED = 2, 130
+
+
+PATH_SETTINGS = ("robot", "calibration")  # a file named on the command line is relative to the working directory
+TABLE_SETTINGS = {"filter_params": "--filter-param", "nominal_params": "--nominal-param"}  # tables, added to by NAME=VALUE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -92,20 +103,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", help=f"valve board serial port, or {EMULATED_PORT!r} (overrides link.port)")
     parser.add_argument("--camera", help=f"camera device index, video file or URL, or {VIRTUAL_CAMERA!r} (overrides camera.source)")
     parser.add_argument("--tuning", help="CBF tuning (overrides control.tuning)")
-    parser.add_argument("--filter", help="safety filter: a name (softcbf list), FILE.py:Factory or package.module:Factory "
-                                         "(overrides control.filter)")
-    parser.add_argument("--filter-param", action="append", default=[], metavar="NAME=VALUE",
-                        help="a filter parameter (repeatable; added to control.filter_params)")
-    parser.add_argument("--duration", type=float, help="run length in s (overrides run.duration_s)")
+    for name in SHARED_KEYS:  # the settings shared with `softcbf run`, by the same options
+        if name in TABLE_SETTINGS:
+            parser.add_argument(TABLE_SETTINGS[name], dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE",
+                                help=f"one of {name} (repeatable; added to the file's {name})")
+            continue
+        doc = setting(name)
+        unit = f" [{doc.unit}]" if doc.unit else ""
+        parser.add_argument(option_name(name), dest=name, type=option_type(doc.kind), metavar=doc.kind.__name__.upper(),
+                            help=f"{doc.meaning}{unit}; valid: {doc.valid_values} (overrides the file's {name})")
     parser.add_argument("--dry-run", action="store_true", help="run everything but send zero pressure")
     parser.add_argument("--out", type=Path, help="output folder (default runs/hardware-<time>)")
     parser.add_argument("--overwrite", action="store_true", help="replace the contents of an existing --out folder")
     parser.add_argument("--spawn", action="store_true", help="stream the run to a rerun viewer while it runs (needs a display)")
 
 
+def _from_working_directory(spec: str) -> str:
+    """A file named on the command line as an absolute path (the configuration's own are relative to its folder)."""
+    path = Path(spec)
+    return str(path.absolute()) if path.is_file() else spec
+
+
 def configure(args: argparse.Namespace) -> HardwareConfig:
-    """The configuration file with the command line's overrides applied."""
-    changes: dict[str, dict[str, Any]] = {"link": {}, "camera": {}, "control": {}, "run": {}}
+    """The configuration file with the command line's overrides applied (in the file's shape)."""
+    changes: dict[str, Any] = {"link": {}, "camera": {}, "control": {}, "run": {}}
     if args.port is not None:
         changes["link"]["port"] = args.port
     if args.camera is not None:
@@ -115,21 +136,24 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
         changes["camera"]["source"] = source
     if args.tuning is not None:
         changes["control"]["tuning"] = args.tuning
-    if args.duration is not None:
-        changes["run"]["duration_s"] = args.duration
     if args.dry_run:
         changes["run"]["dry_run"] = True
+    for name in SHARED_KEYS:
+        value = getattr(args, name, None)
+        if value is not None:
+            changes[name] = _from_working_directory(value) if name in PATH_SETTINGS else value
     config = HardwareConfig.load(args.config)
-    if args.filter is not None:
-        changes["control"]["filter"] = args.filter
-        changes["control"]["filter_params"] = {}
-    if args.filter_param:
-        try:
-            extra = parse_params(";".join(args.filter_param))
-        except ValueError as exc:
-            raise ConfigError(f"--filter-param: {exc}") from None
-        base = changes["control"].get("filter_params", config.control.filter_params)
-        changes["control"]["filter_params"] = {**base, **extra}
+    for name in ("filter", "nominal"):
+        if getattr(args, name) is not None:
+            changes[f"{name}_params"] = {}  # another controller: the file's parameters were for the file's
+    for name, option in TABLE_SETTINGS.items():
+        items = getattr(args, f"{name}_items")
+        if items:
+            try:
+                extra = parse_params(";".join(items))
+            except ValueError as exc:
+                raise ConfigError(f"{option}: {exc}") from None
+            changes[name] = {**changes.get(name, getattr(config.control, name)), **extra}
     config = config.with_overrides(changes)
     check_controller(config)
     return config
@@ -139,8 +163,8 @@ def check_controller(config: HardwareConfig) -> None:
     """Build the configured filter and nominal once; ConfigError naming the key if either is refused."""
     context = controller_context(config)
     ctl = config.control
-    for key, build, spec, params in (("control.filter", build_filter, ctl.filter, ctl.filter_arguments()),
-                                     ("control.nominal", build_nominal, ctl.nominal, ctl.nominal_arguments())):
+    for key, build, spec, params in (("filter", build_filter, ctl.filter, ctl.filter_arguments()),
+                                     ("nominal", build_nominal, ctl.nominal, ctl.nominal_arguments())):
         try:
             build(config.plugin_spec(spec), params, context)
         except (ValueError, TypeError) as exc:
@@ -169,7 +193,7 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
         print(f"error: {exc}", file=sys.stderr)
         return USAGE_ERROR
     except KeyboardInterrupt:  # outside the loop (which turns Ctrl-C into its vent cycle): start-up or writing
-        print(f"\ninterrupted outside the control loop; a loop that had started vented the valves on its way out"
+        print("\ninterrupted outside the control loop; a loop that had started vented the valves on its way out"
               + (f"; outputs so far in {out_dir}" if out_dir is not None else ""), file=sys.stderr)
         return INTERRUPTED
     print(f"hardware run ({row['tuning']}{', dry run' if config.run.dry_run else ''}): {row['cycles']} cycles, "
@@ -305,7 +329,7 @@ class FrameKeeper:
 
 def _scene(config: HardwareConfig, safe_set, emulation: Any) -> dict[str, Any]:
     """summary.json's "scene" of a run: the plates' stiffness is the emulator's, or the configured environment's."""
-    plate_k = config.emulator.plate_stiffness_N_per_m if emulation is not None else config.environment.stiffness_N_per_m
+    plate_k = config.emulator.plate_stiffness if emulation is not None else config.environment.assumed_plate_stiffness
     return scene_record(config.robot_params(), safe_set, plate_k)
 
 

@@ -2,20 +2,20 @@
 
 `EmulatedHardware(config)` builds, from a `hardware.config.HardwareConfig`:
 
-- the true arm and plates: `MujocoPlant` (2 ms command period; `emulator.links_per_segment`
-  links per segment stepped at `emulator.physics_dt_s`, chosen for real time: 5 links at
+- the true arm and plates: `MujocoPlant` (2 ms command period; `links_per_segment`
+  links per segment stepped at `physics_dt`, chosen for real time: 5 links at
   0.2 ms run ≈ 9× real time here against ≈ 3× for the simulations' 10 at 0.1 ms, and hold
   (120, 120) hPa against the plate for 1 s with a plate force 0.3 % below theirs,
   0.5146 vs 0.5162 N) of `config.robot_params()` — the controller's robot, its pressure limits
   as the actuators' ctrlrange — against plates on `config.environment`'s facets with the
-  true spring `emulator.plate_stiffness_N_per_m`, valves with `emulator.tau_p_s`, at rest
+  true spring `plate_stiffness`, valves with `tau_p`, at rest
   at `emulator.q0_rad`;
 - `ValveEmulator` running that plant in real time as the board's plant hook;
 - `ValveBoard` (the firmware logic: clamp to the same limits, watchdog
   `safety.watchdog_s`) behind a `PtyBoardLine`: `port_name` is a pseudo-terminal the
   laptop side opens with pyserial, exactly as a USB serial port; `line.faults` injects
   link faults (`LineFaults.cut()`);
-- `VirtualCamera` rendering the arm at `camera.fps`, `camera.width` × `camera.height`
+- `VirtualCamera` rendering the arm at `frame_rate`, `width` × `height`
   (`camera.blackout` covers the lens), with its exact plane calibration.
 
 Everything runs on one monotonic clock (`time.monotonic` by default). Use it as a context
@@ -50,15 +50,15 @@ class EmulatedHardware:
         emu = config.emulator
         plant = MujocoPlant.from_config(
             control_dt=CONTROL_DT, robot=robot, H=np.array(env.H), h=np.array(env.h),
-            plate_stiffness=emu.plate_stiffness_N_per_m, tau_p=emu.tau_p_s, links_per_segment=emu.links_per_segment,
-            physics_dt=emu.physics_dt_s,
+            plate_stiffness=emu.plate_stiffness, tau_p=emu.tau_p, links_per_segment=emu.links_per_segment,
+            physics_dt=emu.physics_dt,
         )
         plant.reset(per_segment(emu.q0_rad, plant.n_segments, "emulator.q0_rad"))
         self.config = config
         self.emulator = ValveEmulator(plant, clock)
         self.board = ValveBoard(plant.n_segments, robot.u_min, robot.u_max, watchdog_s=config.safety.watchdog_s,
                                 plant_hook=self.emulator)
-        self.camera = VirtualCamera(self.emulator, config.camera.fps, config.camera.width, config.camera.height)
+        self.camera = VirtualCamera(self.emulator, config.camera.frame_rate, config.camera.width, config.camera.height)
         self.emulator.start()
         self.line = PtyBoardLine(self.board, clock=clock)
 

@@ -18,7 +18,8 @@ from matplotlib.figure import Figure
 import scenarios.common
 import softcbf_mj
 from scenarios import registry
-from softcbf.cli import INTERRUPTED, USAGE_ERROR, main
+from scenarios.run import INTERRUPTED, USAGE_ERROR
+from softcbf.cli import main
 from softcbf_mj.report import FIGURE_SIZES_IN
 from softcbf_mj.runio import RUN_MARKER, load_timeseries, read_run_folder
 
@@ -209,10 +210,13 @@ def test_default_folders_of_runs_started_in_the_same_second_differ(tmp_path, mon
         (["paper_sim", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
         (["mujoco_contact", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
         (["camera_loop", "--duration", "inf"], "duration must be finite and > 0 s, got inf"),
-        (["paper_sim", "--duration", "1e6"], "duration 1e+06 s (1000000000 steps of 0.001 s) needs 566.2 GiB for its time series"),
-        (["mujoco_contact", "--duration", "1e6"], "duration 1e+06 s (1000000000 steps of 0.001 s) needs"),
-        (["camera_loop", "--duration", "1e6"], "duration 1e+06 s (500000000 steps of 0.002 s) needs"),
-        (["paper_sim", "--q0-std", "nan"], "q0_std must be finite, got nan"),  # L5
+        (["paper_sim", "--duration", "8e4", "--control-rate", "1e4"],
+         "duration 80000 s (800000000 steps of 0.0001 s) needs 453.0 GiB for its time series"),
+        (["mujoco_contact", "--duration", "1e6"], "duration must be <= 86400 s (a plausibility bound; a value in ms? "
+                                                  "1e+06 ms = 1000 s), got 1000000.0"),
+        (["camera_loop", "--duration", "8e4", "--tick", "1e-4", "--physics-dt", "1e-4"],
+         "duration 80000 s (800000000 steps of 0.0001 s) needs"),
+        (["paper_sim", "--q0-std", "nan"], "q0_std must be finite and in [0, 3.14159] rad, got nan"),  # L5
         (["paper_sim", "--control-rate", "1e-3", "--duration", ".5"],
          "duration must cover at least one control period (1000 s), got 0.5 s"),  # L6
         (["paper_sim", "--control-rate", "inf"], "control_rate must be finite and > 0 Hz, got inf"),  # L6

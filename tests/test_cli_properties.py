@@ -32,7 +32,8 @@ import scenarios.camera_loop
 import scenarios.mujoco_contact
 import scenarios.paper_sim
 from scenarios import registry
-from softcbf.cli import INTERRUPTED, USAGE_ERROR, main
+from scenarios.run import INTERRUPTED, USAGE_ERROR
+from softcbf.cli import main
 from softcbf_mj.runio import RUN_MARKER
 
 SCENARIOS = sorted(registry())

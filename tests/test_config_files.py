@@ -1,6 +1,6 @@
 """Parameters that explain themselves and configuration files with one vocabulary:
-scenarios.parameters (every parameter documented, the hardware keys mapped onto the same
-quantities), `softcbf run NAME --help`, `softcbf run --config FILE.toml|config.json`
+vocabulary.settings (every parameter documented; the hardware file's shared keys are
+parameter names, its former spellings mapped onto them), `softcbf run NAME --help`, `softcbf run --config FILE.toml|config.json`
 (overrides, bit-for-bit replay) and `softcbf study run FILE --set KEY=VALUE`."""
 
 import importlib.util
@@ -12,64 +12,73 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hardware import config as hardware_config
+from hardware.config import LEGACY_KEYS, SHARED_KEYS, default_values
 from scenarios import registry
 from scenarios.config_file import load_run_config
-from scenarios.parameters import DOCS, HARDWARE_KEYS, hardware_key, parameter_doc
-from softcbf.cli import USAGE_ERROR, main
+from scenarios.run import USAGE_ERROR
+from softcbf.cli import main
 from softcbf.study.definition import apply_settings, load_study, parse_setting
 from softcbf_mj.runio import load_timeseries
+from vocabulary.settings import SETTINGS, setting
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--duration", "0.3", "--tunings", "Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
 TIMING_COLUMNS = ("filter_us", "solve_us")  # wall-clock measurements, not outputs of the simulation
-# Hardware key suffix → the unit its scenario parameter must be documented in.
+# Former hardware key suffix → the unit its setting must be documented in.
 SUFFIX_UNITS = (("_N_per_m", "N/m"), ("_N", "N"), ("_s", "s"), ("_hz", "Hz"), ("_hPa", "hPa"))
 # Hardware defaults that differ from camera_loop's (the MuJoCo twin of the hardware run) on purpose.
-HARDWARE_DEFAULTS_DIFFER = {"camera.width": "the real camera's 480 px vs the render's 1280",
-                            "camera.height": "270 px vs 720", "control.filter_params": "a table vs a string",
-                            "control.nominal_params": "a table vs a string"}
+HARDWARE_DEFAULTS_DIFFER = {"width": "the real camera's 480 px vs the render's 1280", "height": "270 px vs 720",
+                            "filter_params": "a table vs a string", "nominal_params": "a table vs a string",
+                            "calibration": "a JSON file (none: the virtual camera's exact map) vs 'board'"}
 
 
 def test_every_scenario_parameter_is_documented_and_every_entry_is_used():
     used = set()
     for scenario in registry().values():
         for name in scenario.parameters():
-            doc = parameter_doc(name)
+            doc = setting(name)
             assert doc.meaning and scenario.valid(name), (scenario.name, name)
             used.add(name)
-    assert set(DOCS) == used
+    assert set(SETTINGS) == used
 
 
 def test_bounded_parameters_are_documented_in_their_bound_s_unit():
     for scenario in registry().values():
         for name, bound in scenario.bounds.items():
-            unit = parameter_doc(name).unit
+            unit = setting(name).unit
             assert bound.unit.split(" ")[0] in ("", unit) or bound.unit.startswith("("), (scenario.name, name, bound.unit)
             assert scenario.valid(name) == str(bound)
 
 
-def test_valid_values_come_from_the_bound_then_the_declaration_then_the_type():
-    paper = registry()["paper_sim"]
+def test_valid_values_come_from_the_scenario_s_narrower_bound_then_the_declaration():
+    paper, camera = registry()["paper_sim"], registry()["camera_loop"]
     assert paper.valid("f_max") == "> 0 N" and paper.valid("q0_std") == "in [0, 3.14159] rad"
-    assert paper.valid("integrator") == "ros2, rk4, euler" and paper.valid("amplitude") == "finite"
+    assert paper.valid("integrator") == "ros2, rk4, euler"
+    assert paper.valid("amplitude") == "finite, plausibly within ±3276.7 hPa"
+    assert camera.valid("width") == "in [16, 1280] px" and setting("width").valid_values == ">= 8 px"
     with pytest.raises(KeyError, match="no_such"):
-        parameter_doc("no_such")
+        setting("no_such")
 
 
 def _unit_of_suffix(key: str) -> str | None:
     return next((unit for suffix, unit in SUFFIX_UNITS if key.endswith(suffix)), None)
 
 
-def test_hardware_keys_name_existing_keys_and_the_same_quantities():
-    hardware_defaults = hardware_config.default_values()
+def test_the_hardware_file_spells_every_shared_setting_by_its_parameter_name():
+    hardware_defaults = default_values()
     scenario_defaults = registry()["camera_loop"].defaults()
-    for key, parameter in HARDWARE_KEYS.items():
-        assert key in hardware_defaults and parameter in DOCS and hardware_key(parameter) == key, key
+    # every key of the hardware file is a documented parameter name or a hardware-only "section.key"
+    for key in hardware_defaults:
+        assert key in SETTINGS or ("." in key and key.split(".")[1] not in SETTINGS), key
+    assert set(SHARED_KEYS) == {key for key in hardware_defaults if key in SETTINGS}
+    # no second spelling left but the table of former keys, which names each shared setting once
+    assert not set(LEGACY_KEYS) & set(hardware_defaults) and sorted(LEGACY_KEYS.values()) == sorted(SHARED_KEYS)
+    for key, name in LEGACY_KEYS.items():
         unit = _unit_of_suffix(key)
-        assert unit is None or DOCS[parameter].unit == unit, (key, parameter, DOCS[parameter].unit)
-        if key not in HARDWARE_DEFAULTS_DIFFER:
-            assert hardware_defaults[key] == scenario_defaults[parameter], (key, parameter)
+        assert unit is None or SETTINGS[name].unit == unit, (key, name, SETTINGS[name].unit)
+    for name in SHARED_KEYS:
+        if name not in HARDWARE_DEFAULTS_DIFFER:
+            assert hardware_defaults[name] == scenario_defaults[name], name
 
 
 def test_list_and_run_help_show_meaning_unit_and_valid_values(capsys):
@@ -81,7 +90,7 @@ def test_list_and_run_help_show_meaning_unit_and_valid_values(capsys):
     assert "--config FILE" in out
     for name in registry()["paper_sim"].parameters():
         line = next(line for line in out.splitlines() if line.startswith(f"    --{name.replace('_', '-')} "))
-        assert f": {DOCS[name].meaning}; valid: " in line
+        assert f": {SETTINGS[name].meaning}; valid: " in line
     assert "mujoco_contact" not in out
     assert main(["run", "--config", str(ROOT / "docs" / "examples" / "run.toml"), "--help"]) == 0
     out = capsys.readouterr().out
@@ -182,8 +191,8 @@ def test_the_parameter_page_is_the_one_the_tool_writes():
         "docs/parameters.md is out of date: python tools/parameter_table.py"
     for scenario in registry().values():
         for name in scenario.parameters():
-            assert f"| `{name}` | {DOCS[name].meaning}" in text.replace("\\|", "|")
-    for key, name in HARDWARE_KEYS.items():
+            assert f"| `{name}` | {SETTINGS[name].meaning}" in text.replace("\\|", "|")
+    for key, name in LEGACY_KEYS.items():
         assert f"| `{key}` | `{name}` |" in text
 
 

@@ -69,7 +69,7 @@ def test_study_example_is_a_3_by_3_grid():
 def test_hardware_example_loads_and_resolves_its_robot_file():
     config = HardwareConfig.load(EXAMPLES / "hardware.toml")
     assert config.robot_params() == RobotParams.load(EXAMPLES / "robot.json")
-    assert config.control.tuning == "HW-High" and config.control.rate_hz == 10.0
+    assert config.control.tuning == "HW-High" and config.control.control_rate == 10.0
 
 
 def test_example_filters_keep_to_the_contract():

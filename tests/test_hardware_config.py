@@ -22,7 +22,7 @@ EXAMPLE = REPO / "examples" / "hardware_emulated.toml"
 def test_example_loads_and_builds_the_robot_safe_set_and_limits():
     config = HardwareConfig.load(EXAMPLE)
     assert config.link.is_emulated and config.camera.is_virtual
-    assert (config.control.tuning, config.control.rate_hz, config.control.period_s) == ("High", 10.0, 0.1)
+    assert (config.control.tuning, config.control.control_rate, config.control.period_s) == ("High", 10.0, 0.1)
     robot = config.robot_params()
     ref = reference_robot()
     assert robot.damping == pytest.approx(tuple(20 * d for d in ref.damping), rel=1e-9)
@@ -33,39 +33,43 @@ def test_example_loads_and_builds_the_robot_safe_set_and_limits():
 
 def test_json_and_toml_give_the_same_config_and_limits_replace_the_robots(tmp_path):
     data = tomllib.loads(EXAMPLE.read_text(encoding="utf-8"))
-    data["robot"]["params"] = str(EXAMPLE.parent / data["robot"]["params"])
+    data["robot"] = str(EXAMPLE.parent / data["robot"])
     data["pressure"] = {"u_min_hPa": [-100.0, -120.0], "u_max_hPa": 90.0}
     path = tmp_path / "hw.json"
     path.write_text(json.dumps(data), encoding="utf-8")
     config = HardwareConfig.load(path)
     assert config.robot_params().u_min == (-100.0, -120.0) and config.robot_params().u_max == (90.0, 90.0)
-    assert config.to_dict()["control"] == HardwareConfig.load(EXAMPLE).to_dict()["control"]
+    example = HardwareConfig.load(EXAMPLE).to_dict()
+    assert {k: v for k, v in config.to_dict().items() if k not in ("robot", "pressure")} == \
+        {k: v for k, v in example.items() if k not in ("robot", "pressure")}
+    assert HardwareConfig.from_dict(json.loads(json.dumps(example)), EXAMPLE.parent).to_dict() == example  # config.json reads back
 
 
 def test_defaults_need_a_calibration_for_a_real_camera(tmp_path):
-    with pytest.raises(ConfigError, match=r"camera.calibration is required for a real camera: fit one with tools/calibrate_camera.py"):
+    with pytest.raises(ConfigError, match=r"calibration is required for a real camera: fit one with tools/calibrate_camera.py"):
         HardwareConfig()
     PlaneCalibration(np.eye(3)).save(tmp_path / "cal.json")
-    config = HardwareConfig.from_dict({"camera": {"source": 2, "calibration": "cal.json"}}, tmp_path)
+    config = HardwareConfig.from_dict({"calibration": "cal.json", "camera": {"source": 2}}, tmp_path)
     assert config.camera.source == 2 and config.link.port == "/dev/ttyACM0" and config.control.tuning == "HW-High"
 
 
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"camera": {"fps": -1.0}}, r"camera.fps must be > 0 1/s, got -1.0"),
-        ({"camera": {"zoom": 2}}, r"\[camera\] has unknown key\(s\) \['zoom'\]; valid keys: source, calibration"),
-        ({"cameras": {}}, r"unknown section\(s\) \['cameras'\]"),
+        ({"frame_rate": -1}, r"frame_rate must be > 0 Hz, got -1.0"),
+        ({"camera": {"frame_rate": 12.8}}, r"\[camera\] holds \['frame_rate'\]: settings shared with the simulations are top-level"),
+        ({"camera": {"zoom": 2}}, r"\[camera\] has unknown key\(s\) \['zoom'\]; valid keys: source, tag_size_m, startup_timeout_s"),
+        ({"cameras": {}}, r"unknown key\(s\) or section\(s\) \['cameras'\]"),
         ({"control": {"tuning": "Bogus"}}, r"control.tuning: unknown tuning 'Bogus'; valid: None, Low, High"),
-        ({"control": {"rate_hz": 20.0}, "link": {"ack_timeout_s": 0.02, "retries": 2}},
+        ({"control_rate": 20.0, "link": {"ack_timeout_s": 0.02, "retries": 2}},
          r"link.ack_timeout_s × \(1 \+ link.retries\) = 0.06 s must be shorter than the control period 0.05 s"),
         ({"safety": {"watchdog_s": 0.1}}, r"safety.watchdog_s must exceed the control period 0.1 s \(got 0.1 s\)"),
         ({"link": {"port": "/dev/ttyUSB0"}}, r'link.port "emulated" and camera.source "virtual" go together'),
         ({"pressure": {"u_min_hPa": 10.0, "u_max_hPa": 5.0}}, r"pressure limits: u_min\[0\] must be < u_max\[0\]"),
         ({"pressure": {"u_min_hPa": [1.0, 2.0, 3.0]}}, r"pressure.u_min_hPa must be a scalar or have 2 values"),
         ({"environment": {"h": [0.1, 0.2]}}, r"environment.H, environment.h must describe facets"),
-        ({"robot": {"params": "missing.json"}}, r"robot.params must be \"reference\" or a RobotParams JSON file, got 'missing.json'"),
-        ({"camera": {"max_hold_s": 0.05}}, r"camera.max_hold_s must exceed one frame period"),
+        ({"robot": "missing.json"}, r"robot must be \"reference\" or a RobotParams JSON file, got 'missing.json'"),
+        ({"max_hold_s": 0.05}, r"max_hold_s must exceed one frame period"),
         ({"run": {"dry_run": "yes"}}, r"run.dry_run must be true or false, got 'yes'"),
         ({"link": {"retries": 1.5}}, r"link.retries must be an integer >= 0, got 1.5"),
     ],
@@ -119,4 +123,4 @@ def test_emulator_defaults_are_the_camera_scenarios_rod():
     from hardware.config import EmulatorConfig
     from softcbf_mj.model_builder import CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT
 
-    assert (EmulatorConfig().links_per_segment, EmulatorConfig().physics_dt_s) == (CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
+    assert (EmulatorConfig().links_per_segment, EmulatorConfig().physics_dt) == (CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)

@@ -52,10 +52,10 @@ def _run(config: HardwareConfig, out: Path, fault=None, report: bool = False):
 
 
 def test_high_tuning_keeps_the_true_plate_force_below_f_max_and_writes_the_run_folder(tmp_path):
-    config = _config(control={"tuning": "High"}, run={"duration_s": 7.0})
+    config = _config(control={"tuning": "High"}, duration=7.0)
     row, series, emulation = _run(config, tmp_path / "run", report=True)
     truth = emulation.emulator.record()
-    f_max = config.environment.f_max_N
+    f_max = config.environment.f_max
     assert 0.05 < truth["contact_force"].max() < f_max  # the arm presses the plate, below F_max (measured 0.135 N)
     assert row["force_max_emulator_N"] == pytest.approx(truth["contact_force"].max(), rel=1e-12)
     assert row["t_violation_emulator_s"] == 0.0 and row["force_max_N"] < f_max
@@ -89,7 +89,7 @@ def test_high_tuning_keeps_the_true_plate_force_below_f_max_and_writes_the_run_f
 
 
 def test_perception_blackout_holds_within_one_cycle_then_vents(tmp_path):
-    config = _config(camera={"max_hold_s": 0.2}, safety={"hold_s": 0.3}, run={"duration_s": 2.5})
+    config = _config(max_hold_s=0.2, hold_s=0.3, duration=2.5)
 
     def blackout(emulation):
         emulation.camera.blackout = True
@@ -116,13 +116,13 @@ def test_perception_blackout_holds_within_one_cycle_then_vents(tmp_path):
 
 
 def test_link_cut_vents_the_board_by_its_watchdog_and_the_laptop_within_one_cycle(tmp_path):
-    config = _config(run={"duration_s": 2.0})
+    config = _config(duration=2.0)
 
     def cut(emulation):
         emulation.line.faults = LineFaults.cut()
 
     row, s, emulation = _run(config, tmp_path / "run", cut)
-    period, t = config.control.period_s, s["t_clock"]
+    t = s["t_clock"]
     failed = np.flatnonzero(~s["link_acked"])
     assert failed.size and t[failed[0]] - FAULT_AT_S >= 0 and np.all(s["action"][: failed[0] + 1] == RUN)
     # the laptop: the cycle after the first failed exchange vents, and every later one

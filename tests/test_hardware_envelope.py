@@ -35,7 +35,7 @@ def test_scale_damping_multiplies_every_d_i_and_nothing_else():
 
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf")])
 def test_camera_loop_refuses_a_damping_scale_that_is_not_positive_and_finite(tmp_path, value):
-    with pytest.raises(ValueError, match=r"damping_scale must be (finite and )?> 0 \(× d_i\), got"):
+    with pytest.raises(ValueError, match=r"damping_scale must be (finite and )?> 0, got"):
         get("camera_loop").run(tmp_path, damping_scale=value, duration=0.1, progress=False)
 
 

@@ -4,6 +4,7 @@ and a property test over random configurations (hypothesis)."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import os
@@ -40,27 +41,31 @@ def real(tmp_path) -> Path:
     writer.release()
     PlaneCalibration(np.eye(3)).save(folder / "cal.json")
     (folder / "not_a_video.avi").write_text("no frames here", encoding="utf-8")
-    (folder / "hw.toml").write_text('[camera]\nsource = "clip.avi"\ncalibration = "cal.json"\nstartup_timeout_s = 0.3\n'
+    (folder / "hw.toml").write_text('calibration = "cal.json"\n[camera]\nsource = "clip.avi"\nstartup_timeout_s = 0.3\n'
                                     '[link]\nport = "/dev/ttyNOPE"\n', encoding="utf-8")
     return folder / "hw.toml"
 
 
-def _emulated(tmp_path: Path, section: str, key: str, value: str) -> Path:
-    """The emulated example with `[section] key = value` (the robot file next to it)."""
+def _nested(changes: dict[str, object]) -> dict[str, object]:
+    """{"section.key": value, "name": value} in the configuration file's shape."""
+    out: dict[str, dict] = {}
+    for key, value in changes.items():
+        section, _, name = key.rpartition(".")
+        (out.setdefault(section, {}) if section else out)[name] = value
+    return out
+
+
+def _emulated(tmp_path: Path, key: str, value: str) -> Path:
+    """The emulated example with `key` ("section.key" or a top-level setting) set to the TOML value `value`, as JSON."""
     data = tomllib.loads(EXAMPLE.read_text(encoding="utf-8"))
-    lines = []
-    for name, table in data.items():
-        lines.append(f"[{name}]")
-        table = {**table, key: None} if name == section else table
-        for k, v in table.items():
-            if v is None:
-                lines.append(f"{k} = {value}")
-            elif name == "robot" and k == "params":
-                lines.append(f'{k} = "{EXAMPLE.parent / v}"')
-            else:
-                lines.append(f"{k} = {repr(v).lower() if isinstance(v, bool) else repr(v).replace(chr(39), chr(34))}")
-    path = tmp_path / f"{section}_{key}.toml"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    data["robot"] = str(EXAMPLE.parent / data["robot"])
+    for section, table in _nested({key: tomllib.loads(f"v = {value}")["v"]}).items():
+        if isinstance(table, dict):
+            data[section].update(table)
+        else:
+            data[section] = table
+    path = tmp_path / f"{key}.json"
+    path.write_text(json.dumps(data), encoding="utf-8")
     return path
 
 
@@ -89,15 +94,15 @@ def test_hardware_that_does_not_open_is_one_line_exit_2_and_no_folder(real, tmp_
     assert not out.exists()
 
 
-@pytest.mark.parametrize(("section", "key", "value", "message"), [
-    ("pressure", "u_max_hPa", "5000.0", r"pressure.u_max_hPa must be within ±3276.7 hPa .*got 5000.0"),
-    ("pressure", "u_min_hPa", "10.0", r"pressure limits must hold 0 hPa, the vented state .*u_min=10, u_max=150"),
-    ("emulator", "physics_dt_s", "0.5", r"emulator.physics_dt_s must be <= 0.001 s .*got 0.5"),
-    ("emulator", "physics_dt_s", "3e-4", r"emulator.physics_dt_s must divide the emulated board's command period"),
+@pytest.mark.parametrize(("key", "value", "message"), [
+    ("pressure.u_max_hPa", "5000.0", r"pressure.u_max_hPa must be within ±3276.7 hPa .*got 5000.0"),
+    ("pressure.u_min_hPa", "10.0", r"pressure limits must hold 0 hPa, the vented state .*u_min=10, u_max=150"),
+    ("physics_dt", "0.5", r"physics_dt must be <= 0.001 s .*got 0.5"),
+    ("physics_dt", "3e-4", r"physics_dt must divide the emulated board's command period"),
 ])
-def test_settings_the_link_or_the_emulator_would_refuse_are_refused_at_load(tmp_path, capfd, section, key, value, message):
+def test_settings_the_link_or_the_emulator_would_refuse_are_refused_at_load(tmp_path, capfd, key, value, message):
     out = tmp_path / "out"
-    code, err = _run_cli(capfd, [str(_emulated(tmp_path, section, key, value)), "--out", str(out)])
+    code, err = _run_cli(capfd, [str(_emulated(tmp_path, key, value)), "--out", str(out)])
     assert code == 2 and err.count("\n") == 1
     assert err.startswith("error: ") and re.search(message, err)
     assert not out.exists()
@@ -106,7 +111,7 @@ def test_settings_the_link_or_the_emulator_would_refuse_are_refused_at_load(tmp_
 def test_a_missing_calibration_file_is_refused_at_load(real, tmp_path, capfd):
     real.write_text(real.read_text(encoding="utf-8").replace('"cal.json"', '"nope.json"'), encoding="utf-8")
     code, err = _run_cli(capfd, [str(real), "--out", str(tmp_path / "out")])
-    assert code == 2 and err == (f"error: camera.calibration must be a plane calibration JSON file, got 'nope.json' "
+    assert code == 2 and err == (f"error: calibration must be a plane calibration JSON file, got 'nope.json' "
                                  f"(no file {real.parent / 'nope.json'}; relative paths are relative to the "
                                  "configuration's folder)\n")
     assert not (tmp_path / "out").exists()
@@ -169,30 +174,31 @@ def test_a_camera_file_on_the_command_line_is_relative_to_the_working_directory(
 def test_device_indices_urls_and_the_virtual_camera_are_not_paths(tmp_path):
     PlaneCalibration(np.eye(3)).save(tmp_path / "cal.json")
     for source in (0, "rtsp://host/stream", "v4l2src ! appsink"):
-        config = HardwareConfig.from_dict({"camera": {"source": source, "calibration": "cal.json"}}, tmp_path)
+        config = HardwareConfig.from_dict({"calibration": "cal.json", "camera": {"source": source}}, tmp_path)
         assert config.camera_source() == source
 
 
 # -- H3: plausibility bounds with units -----------------------------------------
 
 
-@pytest.mark.parametrize(("section", "key", "value", "message"), [
-    ("safety", "watchdog_s", 150, r"safety.watchdog_s must be <= 5 s \(a plausibility bound; a value in ms\? 150 ms = 0.15 s\), "
-                                  r"got 150"),
-    ("safety", "hold_s", 500, r"safety.hold_s must be <= 10 s \(.*500 ms = 0.5 s\)"),
-    ("link", "ack_timeout_s", 20, r"link.ack_timeout_s must be <= 1 s \(.*20 ms = 0.02 s\)"),
-    ("camera", "max_hold_s", 300, r"camera.max_hold_s must be <= 10 s"),
-    ("camera", "tag_size_m", 30, r"camera.tag_size_m must be <= 0.5 m \(.*a value in mm\? 30 mm = 0.03 m\)"),
-    ("control", "amplitude_hPa", 8000.0, r"control.amplitude_hPa must be within ±3276.7 hPa \(.*8000 Pa = 80 hPa\)"),
-    ("control", "rate_hz", 10000.0, r"control.rate_hz must be <= 1000 1/s"),
-    ("control", "frequency_hz", 6.0, r"control.frequency_hz must be below half the control rate \(5 1/s\), got 6"),
-    ("run", "duration_s", 1e6, r"run.duration_s must be <= 86400 s"),
-    ("emulator", "tau_p_s", 50, r"emulator.tau_p_s must be <= 5 s \(.*50 ms = 0.05 s\)"),
-    ("emulator", "q0_rad", 30, r"emulator.q0_rad must be within ±3.14159 rad \(.*a value in °\? 30 ° = 0.5236 rad\)"),
+@pytest.mark.parametrize(("key", "value", "message"), [
+    ("safety.watchdog_s", 150, r"safety.watchdog_s must be <= 5 s \(a plausibility bound; a value in ms\? 150 ms = 0.15 s\), "
+                               r"got 150.0"),
+    ("hold_s", 500, r"hold_s must be <= 10 s \(.*500 ms = 0.5 s\)"),
+    ("link.ack_timeout_s", 20, r"link.ack_timeout_s must be <= 1 s \(.*20 ms = 0.02 s\)"),
+    ("max_hold_s", 300, r"max_hold_s must be <= 10 s"),
+    ("camera.tag_size_m", 30, r"camera.tag_size_m must be <= 0.5 m \(.*a value in mm\? 30 mm = 0.03 m\)"),
+    ("amplitude", 8000.0, r"amplitude must be within ±3276.7 hPa \(.*8000 Pa = 80 hPa\)"),
+    ("amplitude", [80.0, 8000.0], r"amplitude\[1\] must be within ±3276.7 hPa"),
+    ("control_rate", 1e6, r"control_rate must be <= 10000 Hz \(a plausibility bound\), got 1000000.0"),
+    ("frequency", 6.0, r"frequency must be below half the control rate \(5 Hz\), got 6"),
+    ("duration", 1e6, r"duration must be <= 86400 s"),
+    ("tau_p", 50, r"tau_p must be <= 5 s \(.*50 ms = 0.05 s\)"),
+    ("emulator.q0_rad", 30, r"emulator.q0_rad must be within ±3.14159 rad \(.*a value in °\? 30 ° = 0.5236 rad\)"),
 ])
-def test_unit_mistakes_are_refused_with_the_unit(section, key, value, message):
+def test_unit_mistakes_are_refused_with_the_unit(key, value, message):
     with pytest.raises(ConfigError, match=message):
-        HardwareConfig.load(EXAMPLE).with_overrides({section: {key: value}})
+        HardwareConfig.load(EXAMPLE).with_overrides(_nested({key: value}))
 
 
 # -- property: random configurations ---------------------------------------------
@@ -210,25 +216,25 @@ def seconds(low: float, high: float) -> st.SearchStrategy:
 
 
 pressures = st.one_of(st.floats(-400, 400), st.lists(st.floats(-400, 400), min_size=1, max_size=3), st.floats(-6000, 6000))
-SECTIONS = {
-    "camera": {"max_hold_s": seconds(0.0, 2.0), "qd_filter_tau_s": seconds(0.0, 1.0), "startup_timeout_s": seconds(0.0, 10.0),
-               "tag_size_m": mostly(st.floats(0.0, 0.1)), "fps": mostly(st.floats(0.0, 60.0)),
-               "width": mostly(st.integers(0, 2000)), "detector": mostly(st.sampled_from(["opencv", "pupil", "x"]))},
-    "environment": {"stiffness_N_per_m": mostly(st.floats(-1.0, 50.0)), "f_max_N": mostly(st.floats(-0.1, 1.0)),
-                    "h": mostly(st.lists(st.floats(-0.2, 0.4), min_size=1, max_size=2))},
-    "pressure": {"u_min_hPa": mostly(pressures), "u_max_hPa": mostly(pressures)},
-    "control": {"tuning": mostly(st.sampled_from(["None", "Low", "High", "HW-Low", "HW-High", "Medium"])),
-                "rate_hz": mostly(st.floats(0.0, 2000.0)), "amplitude_hPa": mostly(pressures),
-                "frequency_hz": mostly(st.floats(0.0, 10.0)), "phase_rad": mostly(st.floats(-10.0, 10.0))},
-    "safety": {"hold_s": seconds(0.0, 2.0), "watchdog_s": seconds(0.0, 1.0)},
-    "link": {"ack_timeout_s": seconds(0.0, 0.1), "retries": mostly(st.integers(-1, 5)), "lost_after": mostly(st.integers(0, 3))},
-    "run": {"duration_s": seconds(0.0, 100.0), "dry_run": mostly(st.booleans())},
-    "emulator": {"tau_p_s": seconds(0.0, 0.2), "q0_rad": mostly(st.one_of(st.floats(-4.0, 4.0), st.floats(-60, 60))),
-                 "physics_dt_s": mostly(st.sampled_from([1e-4, 2e-4, 3e-4, 5e-4, 1e-3, 2e-3, 0.5, 0.0])),
-                 "links_per_segment": mostly(st.integers(0, 12)), "plate_stiffness_N_per_m": mostly(st.floats(-1.0, 50.0))},
+KEYS = {  # "section.key" or a top-level setting → its values, mostly plausible
+    "max_hold_s": seconds(0.0, 2.0), "qd_filter_tau": seconds(0.0, 1.0), "camera.startup_timeout_s": seconds(0.0, 10.0),
+    "camera.tag_size_m": mostly(st.floats(0.0, 0.1)), "frame_rate": mostly(st.floats(0.0, 60.0)),
+    "width": mostly(st.integers(0, 2000)), "detector": mostly(st.sampled_from(["opencv", "pupil", "x"])),
+    "assumed_plate_stiffness": mostly(st.floats(-1.0, 50.0)), "f_max": mostly(st.floats(-0.1, 1.0)),
+    "environment.h": mostly(st.lists(st.floats(-0.2, 0.4), min_size=1, max_size=2)),
+    "pressure.u_min_hPa": mostly(pressures), "pressure.u_max_hPa": mostly(pressures),
+    "control.tuning": mostly(st.sampled_from(["None", "Low", "High", "HW-Low", "HW-High", "Medium"])),
+    "control_rate": mostly(st.floats(0.0, 2000.0)), "amplitude": mostly(pressures),
+    "frequency": mostly(st.floats(0.0, 10.0)), "control.phase_rad": mostly(st.floats(-10.0, 10.0)),
+    "hold_s": seconds(0.0, 2.0), "safety.watchdog_s": seconds(0.0, 1.0),
+    "link.ack_timeout_s": seconds(0.0, 0.1), "link.retries": mostly(st.integers(-1, 5)), "link.lost_after": mostly(st.integers(0, 3)),
+    "duration": seconds(0.0, 100.0), "run.dry_run": mostly(st.booleans()),
+    "tau_p": seconds(0.0, 0.2), "emulator.q0_rad": mostly(st.one_of(st.floats(-4.0, 4.0), st.floats(-60, 60))),
+    "physics_dt": mostly(st.sampled_from([1e-4, 2e-4, 3e-4, 5e-4, 1e-3, 2e-3, 0.5, 0.0])),
+    "links_per_segment": mostly(st.integers(0, 12)), "plate_stiffness": mostly(st.floats(-1.0, 50.0)),
 }
-configs = st.lists(st.sampled_from(sorted(SECTIONS)), unique=True, max_size=3).flatmap(  # a few sections changed
-    lambda names: st.fixed_dictionaries({name: st.fixed_dictionaries({}, optional=SECTIONS[name]) for name in names}))
+configs = st.lists(st.sampled_from(sorted(KEYS)), unique=True, max_size=6).flatmap(  # a few settings changed
+    lambda names: st.fixed_dictionaries({name: KEYS[name] for name in names})).map(_nested)
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -250,14 +256,14 @@ def test_random_configurations_are_refused_with_config_error_or_run_ready(change
     assert all(lo <= 0.0 <= hi for lo, hi in zip(limits.u_min, limits.u_max))
     period = config.control.period_s
     assert config.link.worst_exchange_s < period < config.safety.watchdog_s <= 5.0
-    assert config.control.frequency_hz < config.control.rate_hz / 2 and config.run.duration_s / period >= 0
+    assert config.control.frequency < config.control.control_rate / 2 and config.run.duration / period >= 0
     SafetyMonitor(n, config.safety.hold_s)
-    for value in (config.control.amplitude_hPa, config.control.phase_rad, config.emulator.q0_rad):
+    for value in (config.control.amplitude, config.control.phase_rad, config.emulator.q0_rad):
         assert np.all(np.isfinite(per_segment(value, n, "value")))
     assert config.safe_set().n_max > 0
     emu, env = config.emulator, config.environment
-    ArmModelConfig(robot=robot, H=env.H, h=env.h, plate_stiffness=emu.plate_stiffness_N_per_m,
-                   links_per_segment=emu.links_per_segment, tau_p=emu.tau_p_s, physics_dt=emu.physics_dt_s)
-    assert steps_per_control(EMULATOR_COMMAND_PERIOD_S, emu.physics_dt_s) * emu.physics_dt_s == pytest.approx(
+    ArmModelConfig(robot=robot, H=env.H, h=env.h, plate_stiffness=emu.plate_stiffness,
+                   links_per_segment=emu.links_per_segment, tau_p=emu.tau_p, physics_dt=emu.physics_dt)
+    assert steps_per_control(EMULATOR_COMMAND_PERIOD_S, emu.physics_dt) * emu.physics_dt == pytest.approx(
         EMULATOR_COMMAND_PERIOD_S, rel=1e-9)
-    assert math.isfinite(config.camera.max_hold_s) and config.camera.max_hold_s > 1.0 / config.camera.fps
+    assert math.isfinite(config.camera.max_hold_s) and config.camera.max_hold_s > 1.0 / config.camera.frame_rate

@@ -3,6 +3,7 @@
 Layers, bottom to top (a package may import its own modules and lower layers only;
 packages on one layer do not import each other):
 
+    0  vocabulary                the settings: names, units, ranges and their check (standard library only)
     0  controllers, perception   the controller under test (numpy, QP solvers) / the camera pipeline (OpenCV)
     1  closedloop                the one control step, safety monitor and recorder (numpy)
     2  hardware                  the valve-board link and the hardware loop
@@ -25,8 +26,9 @@ import pytest
 from controllers.filter import CBFFilter
 
 REPO = Path(__file__).resolve().parents[1]
-LAYERS = {"controllers": 0, "perception": 0, "closedloop": 1, "hardware": 2, "softcbf_mj": 3, "scenarios": 4, "softcbf": 5}
+LAYERS = {"vocabulary": 0, "controllers": 0, "perception": 0, "closedloop": 1, "hardware": 2, "softcbf_mj": 3, "scenarios": 4, "softcbf": 5}
 FORBIDDEN = {  # third-party modules a package must not import
+    "vocabulary": ("numpy", "mujoco", "cv2", "rerun", "matplotlib"),
     "controllers": ("mujoco", "cv2", "rerun", "matplotlib"),
     "perception": ("mujoco", "rerun", "matplotlib"),
     "closedloop": ("mujoco", "cv2", "rerun", "matplotlib"),

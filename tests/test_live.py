@@ -127,7 +127,7 @@ def test_a_hardware_run_streams_its_cycles_and_frames_while_it_runs(monkeypatch,
     from softcbf_mj.emulate import EmulatedHardware
 
     config = HardwareConfig.load(Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml")
-    config = config.with_overrides({"control": {"tuning": "High"}, "run": {"duration_s": 2.0}})
+    config = config.with_overrides({"control": {"tuning": "High"}, "duration": 2.0})
     monkeypatch.setattr(recording, "LIVE_CPU_PERIOD_S", 0.0)  # send at every offer
     stream = rr.RecordingStream(APP_ID)
     sink = stream.memory_recording()

@@ -82,7 +82,7 @@ def test_mismatch_changes_the_measured_force(built, tmp_path):
 
 
 @pytest.mark.parametrize("param, value, message", [
-    ("true_stiffness_scale", 0.0, r"true_stiffness_scale must be in \[0.001, 1000\] \(1: the reference robot\), got 0.0"),
+    ("true_stiffness_scale", 0.0, r"true_stiffness_scale must be in \[0.001, 1000\], got 0.0"),
     ("true_length_scale", float("nan"), r"true_length_scale must be finite and in \[0.001, 1000\]"),
     ("facet_angle", 2.0, r"facet_angle must be in \(-1.5708, 1.5708\) rad, got 2.0"),
     ("facet_offset", 1e300, r"facet_offset must be in \[-1, 1\] m, got 1e\+300"),

@@ -220,8 +220,7 @@ def test_example_filter_runs_on_the_hardware_emulator(tmp_path):
     from softcbf_mj.emulate import EmulatedHardware
 
     config = HardwareConfig.load(REPO / "examples" / "hardware_emulated.toml").with_overrides(
-        {"control": {"filter": f"{EXAMPLE_FILTER}:ClipFilter", "filter_params": {"limit_hPa": 40.0}},
-         "run": {"duration_s": 2.0}})
+        {"filter": f"{EXAMPLE_FILTER}:ClipFilter", "filter_params": {"limit_hPa": 40.0}, "duration": 2.0})
     with EmulatedHardware(config) as emulation:
         (tmp_path / "hw").mkdir()
         row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)
@@ -244,4 +243,4 @@ def test_hardware_cli_takes_a_filter_and_refuses_a_bad_parameter(tmp_path, capsy
     assert config.control.filter == f"{EXAMPLE_FILTER}:ClipFilter" and config.control.filter_arguments() == {"limit_hPa": "60"}
     assert hardware_main([str(example), "--filter", f"{EXAMPLE_FILTER}:ClipFilter", "--filter-param", "limit=1",
                           "--out", str(tmp_path / "o")]) == 2
-    assert "control.filter: unknown parameter(s) limit for ClipFilter" in capsys.readouterr().err
+    assert "filter: unknown parameter(s) limit for ClipFilter" in capsys.readouterr().err

@@ -9,8 +9,9 @@ import pytest
 
 from scenarios import get, registry
 from scenarios.__main__ import main
-from scenarios.common import Bound, check_bounds, data_only, non_negative, positive
+from scenarios.common import check_bounds, data_only
 from softcbf_mj.runio import load_timeseries
+from vocabulary.settings import Bound
 
 SPEC_RUN_FIELDS = {
     "tuning": str,
@@ -120,16 +121,18 @@ def test_in_process_main_matches_the_module_cli(tmp_path, capsys):
 
 
 def test_check_parameters_names_the_parameter_its_bound_and_the_value():
-    bounds = {"duration": positive("s"), "offset": Bound(-1.0, 1.0, unit="m"), "rate": Bound(0.0, 1.0, high_open=True),
-              "seed": non_negative()}
-    check_bounds({"duration": 1e-9, "offset": -1.0, "rate": 0.0, "seed": 0, "flag": True, "name": "x"}, bounds)
+    bounds = {"width": Bound(16, 1280, unit="px")}  # a scenario's narrower range
+    check_bounds({"duration": 1e-9, "facet_offset": -1.0, "drop_rate": 0.0, "seed": 0, "width": 16, "progress": True,
+                  "filter": "x"}, bounds)
     for params, message in [
         ({"duration": 0.0}, "duration must be > 0 s, got 0.0"),
         ({"duration": float("inf")}, "duration must be finite and > 0 s, got inf"),
-        ({"offset": 1.5}, "offset must be in [-1, 1] m, got 1.5"),
-        ({"rate": 1.0}, "rate must be in [0, 1), got 1.0"),
+        ({"duration": 1e5}, "duration must be <= 86400 s (a plausibility bound; a value in ms? 100000 ms = 100 s), got 100000.0"),
+        ({"facet_offset": 1.5}, "facet_offset must be in [-1, 1] m, got 1.5"),
+        ({"drop_rate": 1.0}, "drop_rate must be in [0, 1), got 1.0"),
         ({"seed": -1}, "seed must be >= 0, got -1"),
-        ({"other": float("nan")}, "other must be finite, got nan"),  # every float, bounded or not
+        ({"t0": float("nan")}, "t0 must be finite, got nan"),  # every float, bounded or not
+        ({"width": 8}, "width must be in [16, 1280] px, got 8"),  # the vocabulary's >= 8 px, then the scenario's
     ]:
         with pytest.raises(ValueError) as exc:
             check_bounds(params, bounds)

@@ -221,7 +221,7 @@ def test_a_failing_sample_is_recorded_and_the_study_goes_on(tmp_path):
     assert (outcome.ran, outcome.failed) == (4, 2)
     for row in rows:
         if row["param.tau_p"] < 0:
-            assert row["status"] == "error" and row["error"].startswith("ValueError: tau_p must be >= 0")
+            assert row["status"] == "error" and row["error"].startswith("SettingError: tau_p must be >= 0 s")
             assert row["force_max_N"] is None
         else:
             assert row["status"] == "ok" and row["force_max_N"] > 0

@@ -3,11 +3,12 @@
     python tools/parameter_table.py            write docs/parameters.md
     python tools/parameter_table.py --check    exit 1 (and say so) when docs/parameters.md is not up to date
 
-The tables come from the code: scenario parameters from `scenarios.parameters.DOCS` and
-each scenario's signature and bounds (`scenarios.Scenario.valid`), filter and nominal
-parameters from the built-in factories' `parameter_docs` (`controllers.registry`), and
-the hardware keys from `scenarios.parameters.HARDWARE_KEYS`. tests/test_config_files.py
-checks the page is the one this tool writes. Ends with one JSON line (the counts).
+The tables come from the code: scenario parameters from `vocabulary.settings.SETTINGS`
+and each scenario's signature and bounds (`scenarios.Scenario.valid`), which of them the
+hardware file takes from `hardware.config.SHARED_KEYS`, filter and nominal parameters from
+the built-in factories' `parameter_docs` (`controllers.registry`), and the hardware file's
+former spellings from `hardware.config.LEGACY_KEYS`. tests/test_config_files.py checks
+the page is the one this tool writes. Ends with one JSON line (the counts).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from controllers import registry as controllers_registry  # noqa: E402
+from hardware.config import LEGACY_KEYS, SHARED_KEYS  # noqa: E402
 from scenarios import registry  # noqa: E402
-from scenarios.parameters import DOCS, HARDWARE_KEYS  # noqa: E402
+from vocabulary.settings import SETTINGS  # noqa: E402
 
 PAGE = ROOT / "docs" / "parameters.md"
 INTRO = """# Parameters
@@ -34,9 +36,12 @@ check it is up to date). `softcbf list` and `softcbf run SCENARIO --help` show t
 A name means the same quantity everywhere: on the command line (`--f-max 0.2`, dashes for
 underscores), in a run configuration file (`f_max = 0.2`,
 [file-formats.md](file-formats.md#run-configuration-toml)), in a study (`[fixed]`
-`f_max = 0.2`, `--set fixed.f_max=0.2`, [studies.md](studies.md)). The hardware
-configuration keeps its unit-suffixed keys; [the last table](#hardware-configuration-keys)
-maps them onto these names.
+`f_max = 0.2`, `--set fixed.f_max=0.2`, [studies.md](studies.md)) and in the hardware
+configuration (`f_max = 0.2` at its top level, `softcbf hardware FILE --f-max 0.2`,
+[hardware.md](hardware.md); the column "hardware" marks the settings it takes), with one
+unit, one valid range and one check (`vocabulary.settings.check_value`). The hardware
+file's former unit-suffixed keys still load, with a warning ([the last
+table](#former-hardware-configuration-keys)).
 """
 
 
@@ -46,18 +51,18 @@ def _cell(value: object) -> str:
 
 def scenario_table() -> list[str]:
     scenarios = registry()
-    names = list(DOCS)
+    names = list(SETTINGS)
     lines = ["## Scenario parameters", "",
              f"Defaults per scenario ({', '.join(scenarios)}); \"–\" where the scenario has no such parameter.", "",
-             "| parameter | meaning | unit | valid | " + " | ".join(scenarios) + " |",
-             "|---|---|---|---|" + "---|" * len(scenarios)]
+             "| parameter | meaning | unit | valid | " + " | ".join(scenarios) + " | hardware |",
+             "|---|---|---|---|" + "---|" * (len(scenarios) + 1)]
     for name in names:
-        doc = DOCS[name]
+        doc = SETTINGS[name]
         having = [s for s in scenarios.values() if name in s.parameters()]
         valid = sorted({s.valid(name) for s in having})
         defaults = [repr(s.defaults()[name]) if s in having else "–" for s in scenarios.values()]
         lines.append(f"| `{name}` | {_cell(doc.meaning)} | {doc.unit or '–'} | {_cell('; '.join(valid))} | "
-                     + " | ".join(_cell(d) for d in defaults) + " |")
+                     + " | ".join(_cell(d) for d in defaults) + f" | {'yes' if name in SHARED_KEYS else '–'} |")
     return lines
 
 
@@ -79,10 +84,11 @@ def factory_tables(title: str, factories: dict) -> list[str]:
 
 
 def hardware_table() -> list[str]:
-    lines = ["## Hardware configuration keys", "",
-             "The keys of the hardware configuration ([hardware.md](hardware.md)) that set the same quantity as a "
-             "scenario parameter:", "", "| hardware key | scenario parameter | unit |", "|---|---|---|"]
-    lines += [f"| `{key}` | `{name}` | {DOCS[name].unit or '–'} |" for key, name in HARDWARE_KEYS.items()]
+    lines = ["## Former hardware configuration keys", "",
+             "The hardware configuration ([hardware.md](hardware.md)) once spelled these settings in its sections; "
+             "a file that still does loads as if it used the names, with one warning line naming them:", "",
+             "| former key | setting | unit |", "|---|---|---|"]
+    lines += [f"| `{key}` | `{name}` | {SETTINGS[name].unit or '–'} |" for key, name in LEGACY_KEYS.items()]
     return lines
 
 
@@ -107,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     elif not up_to_date:
         PAGE.write_text(text, encoding="utf-8")
         print(f"wrote {PAGE}")
-    print(json.dumps({"scenario_parameters": len(DOCS), "hardware_keys": len(HARDWARE_KEYS),
+    print(json.dumps({"scenario_parameters": len(SETTINGS), "hardware_settings": len(SHARED_KEYS),
                       "filters": len(controllers_registry.FILTERS), "nominals": len(controllers_registry.NOMINALS),
                       "up_to_date": up_to_date or not args.check}))
     return 0 if up_to_date or not args.check else 1

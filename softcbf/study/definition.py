@@ -51,7 +51,7 @@ Sizes: draws × tunings ≤ 2⁶³ − 1 (sample indices are int64), grid `point
 `MAX_GRID_POINTS`; nothing of the size of the sample count is ever built
 (`softcbf.study.execute` streams the indices).
 
-Study file (TOML; `load_study`):
+Study file (TOML, or the same tables as JSON; `load_study`, read by `vocabulary.files`):
 
     name = "plate_errors"
     scenario = "mujoco_contact"
@@ -88,6 +88,7 @@ from typing import Any, Callable
 import numpy as np
 
 from scenarios import get as get_scenario
+from vocabulary.files import read_settings_file
 
 SAMPLINGS = ("monte_carlo", "grid")
 KINDS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"), "choice": ("values",)}
@@ -429,12 +430,7 @@ def load_study(path: str | Path, settings: Sequence[str] = ()) -> Study:
     """Read a study file (TOML, module docstring) with the command line's `settings`
     ("dotted.key=VALUE", applied before the checks); errors name the file."""
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"study file {path} does not exist")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"study file {path} is not valid TOML: {exc}") from None
+    data = read_settings_file(path, "study file")
     try:
         return Study.from_dict(apply_settings(data, settings))
     except ValueError as exc:

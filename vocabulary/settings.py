@@ -1,0 +1,271 @@
+"""Every setting, declared once: its name, meaning, SI unit, valid values and plausibility bound.
+
+A setting's name means the same quantity wherever it is given: `f_max` is the force limit
+F_max per facet in N on the command line (`--f-max`), in a run configuration file
+(`f_max = 0.16`), in a study (`fixed.f_max`, `vary.f_max`) and in the hardware file
+(`f_max = 0.16`, top level). `SETTINGS[name]` is a `Setting`:
+
+- `meaning`: what it sets, in a phrase; `unit`: SI unit ("" for a dimensionless number,
+  a name or a switch);
+- `kind`: float, int, bool or str (the value's type; an int is accepted for a float and
+  becomes one);
+- `bound`: the valid range of a number (`Bound`, None for a non-number); a float outside
+  it, or not finite, is refused;
+- `plausible`: a plausibility bound |value| <= plausible in `unit` (None: none): a value
+  beyond it is almost surely given in the wrong unit, and the refusal names the likely
+  mistake (`LIKELY_MISTAKES`: seconds given in ms, hPa in Pa, m in mm, rad in degrees):
+  "tau_p must be <= 5 s (a plausibility bound; a value in ms? 50 ms = 0.05 s), got 50.0";
+- `valid`: the valid values a range does not say (names, files, switches).
+
+`check_value(name, value)` is the one check of a setting's value, wherever it comes
+from; it returns the value normalised (an int given for a float becomes a float) or
+raises `SettingError` (a ValueError) whose message names the setting, the bound with its
+unit and the value: "f_max must be > 0 N, got -1.0". `check_number` is the same check for
+a number that is not a shared setting (a hardware-only key such as safety.watchdog_s).
+A scenario may hold a setting to a narrower range of its own (`scenarios.register`'s
+bounds, e.g. camera_loop's image size <= its render's); it checks that after this one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+
+class SettingError(ValueError):
+    """A setting's value is refused; the message names the setting, the bound with its unit and the value."""
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The valid range of a number: `low` <= value <= `high` (None: unbounded), `<` instead
+    of `<=` where open; `unit` for the message. Floats must also be finite."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    unit: str = ""
+
+    def __contains__(self, value: float) -> bool:
+        if isinstance(value, float) and not math.isfinite(value):
+            return False
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return False
+        return self.high is None or (value < self.high if self.high_open else value <= self.high)
+
+    def __str__(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        if self.low is not None and self.high is not None:
+            return f"in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}{unit}"
+        if self.low is not None:
+            return f"{'>' if self.low_open else '>='} {self.low:g}{unit}"
+        if self.high is not None:
+            return f"{'<' if self.high_open else '<='} {self.high:g}{unit}"
+        return "finite"
+
+
+def positive(unit: str = "") -> Bound:
+    """> 0 (and finite)."""
+    return Bound(0.0, low_open=True, unit=unit)
+
+
+def non_negative(unit: str = "") -> Bound:
+    """>= 0 (and finite)."""
+    return Bound(0.0, unit=unit)
+
+
+def finite(unit: str = "") -> Bound:
+    """Any finite number."""
+    return Bound(unit=unit)
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting's declaration (module docstring)."""
+
+    meaning: str
+    unit: str = ""
+    kind: type = str
+    bound: Bound | None = None
+    plausible: float | None = None
+    valid: str = ""
+
+    @property
+    def valid_values(self) -> str:
+        """The valid values in words: the range (and the plausibility bound), else `valid`."""
+        if self.bound is None:
+            return self.valid
+        text = str(self.bound)
+        if self.plausible is not None:
+            one_sided = self.bound.low is not None and self.bound.low >= 0
+            text += f", plausibly {'<= ' if one_sided else 'within ±'}{self.plausible:g}{' ' + self.unit if self.unit else ''}"
+        return f"{text} {self.valid}" if self.valid else text
+
+
+# The unit mistake a value beyond a plausibility bound most likely is: unit → (wrong unit, factor to the right one).
+LIKELY_MISTAKES = {"s": ("ms", 1e-3), "hPa": ("Pa", 1e-2), "m": ("mm", 1e-3), "rad": ("°", math.pi / 180)}
+PRESSURE_RANGE_HPA = 3276.7  # hPa, the valve protocol's range (hardware.protocol; tests/test_vocabulary.py)
+
+
+def _number(meaning: str, unit: str, bound: Bound, plausible: float | None = None, valid: str = "") -> Setting:
+    return Setting(meaning, unit, float, bound, plausible, valid)
+
+
+def _integer(meaning: str, unit: str, bound: Bound) -> Setting:
+    return Setting(meaning, unit, int, bound)
+
+
+def _switch(meaning: str) -> Setting:
+    return Setting(meaning, "", bool, valid="true, false")
+
+
+def _text(meaning: str, valid: str) -> Setting:
+    return Setting(meaning, "", str, valid=valid)
+
+
+_SHEET = "flexure sheet (plate = 'flexure', docs/beyond-the-paper.md#flexure-plate): "
+_TRUE_ARM = "the MuJoCo arm's "
+_SCALE = Bound(1e-3, 1e3)  # a multiple of the robot's: beyond, the arm's numbers overflow
+
+SETTINGS: dict[str, Setting] = {
+    # the run
+    "duration": _number("simulated time of each run (one per tuning); the hardware run's length after the first estimate",
+                        "s", positive("s"), 86400.0),
+    "seed": _integer("random seed of the initial pose noise and the camera's noise and drops", "", Bound(0)),
+    "q0_std": _number("std of the Gaussian noise on the straight initial pose, per segment", "rad",
+                      Bound(0.0, math.pi, unit="rad")),
+    "progress": _switch("show a progress line on stderr"),
+    # the controller under test (scenarios.common, controllers.registry)
+    "tunings": _text("runs of paper-cbf: comma list of its presets, one run each",
+                     "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)"),
+    "filter": _text("the safety filter under test",
+                    "paper-cbf, none, qsg, e-erg, FILE.py:Factory, package.module:Factory (softcbf list)"),
+    "filter_params": _text("the filter's parameters, name=value;name=value (--filter-param NAME=VALUE; "
+                           "a table [filter_params] in a file)", "the filter's parameters (softcbf list)"),
+    "nominal": _text("the nominal controller", "sinusoid, tip-tracker, FILE.py:Factory, package.module:Factory"),
+    "nominal_params": _text("the nominal's parameters, name=value;name=value (--nominal-param NAME=VALUE; "
+                            "a table [nominal_params] in a file)", "the nominal's parameters (softcbf list)"),
+    "amplitude": _number("sinusoid nominal: amplitude A of u_nom,j = A sin(2π f (t + t0))", "hPa",
+                         finite("hPa"), PRESSURE_RANGE_HPA),
+    "frequency": _number("sinusoid nominal: frequency f", "Hz", non_negative("Hz")),
+    "t0": _number("sinusoid nominal: time offset (> 0 starts later in the cycle)", "s", finite("s")),
+    "pressure_limits": _switch("the filter's QP holds the robot's pressure box"),
+    "qp_backend": _text("QP solver of the filter", "native, daqp, qpsolvers:daqp, qpsolvers:quadprog, "
+                                                    "qpsolvers:osqp (those installed)"),
+    "control_rate": _number("rate of the controller's calls (zero-order hold between)", "Hz", positive("Hz"), 1e4),
+    # the controller's model
+    "robot": _text("the controller's robot model",
+                   "'reference', a preset of models/robots (hardware-like) or a robot JSON file (docs/file-formats.md#robot-json)"),
+    "environment": _text("the facets H r <= h of the free space",
+                         "'paper' or an environment JSON file (docs/file-formats.md#environment-json)"),
+    "f_max": _number("force limit F_max per facet", "N", positive("N")),
+    "row_scaling": _text("scaling of the rows of the force-safe set P", "paper, unit"),
+    "assumed_plate_stiffness": _number("the controller's plate spring ψ(n) = k n", "N/m", positive("N/m")),
+    # the plant (ground truth)
+    "plate_stiffness": _number("the true plate's spring (paper_sim: also the controller's ψ)", "N/m", positive("N/m")),
+    "integrator": _text("integrator of the PCC plant", "ros2, rk4, euler"),
+    "links_per_segment": _integer(_TRUE_ARM + "rigid links per segment", "", Bound(1, 100)),
+    "tau_p": _number("valve pressure time constant of the MuJoCo actuators (first order)", "s", non_negative("s"), 5.0),
+    "physics_dt": _number("MuJoCo time step (divides the control or tick period)", "s", Bound(1e-6, unit="s"), 1e-3),
+    "true_robot": _text(_TRUE_ARM + "robot when it differs from the controller's",
+                        "'' (the controller's robot) or a robot JSON file, same number of segments"),
+    "true_stiffness_scale": _number(_TRUE_ARM + "stiffness k as a multiple of the robot's", "", _SCALE),
+    "true_damping_scale": _number(_TRUE_ARM + "damping d as a multiple of the robot's", "", _SCALE),
+    "damping_scale": _number("damping d of both the controller's robot and the true arm, as a multiple of the "
+                             "robot's (the arm's time constants d/k scale with it; the controller knows it)", "", positive()),
+    "true_gain_scale": _number(_TRUE_ARM + "actuator gain λ as a multiple of the robot's", "", _SCALE),
+    "true_length_scale": _number(_TRUE_ARM + "segment lengths as a multiple of the robot's (inertias by its square)", "",
+                                 _SCALE),
+    "facet_offset": _number("the true plates moved along their outward normals (> 0: farther from the base)", "m",
+                            Bound(-1.0, 1.0, unit="m")),
+    "facet_angle": _number("the true plates turned counter-clockwise about the foot of the perpendicular", "rad",
+                           Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad")),
+    "gravity": _number("gravity along -y (0: the arm lies on a table)", "m/s²", non_negative("m/s²")),
+    "tip_friction": _number("Coulomb friction coefficient μ between the arm and the plates", "", non_negative()),
+    "table_friction": _number("Coulomb friction coefficient μ between the arm's links and the table it lies on "
+                              "(0: off; not with gravity)", "", Bound(0.0, 2.0)),
+    "plate": _text("kind of true plate", "ideal (slide spring), flexure (clamped sheet in a force gauge)"),
+    "sheet_clamp_at": _number(_SHEET + "clamp position along the facet", "m", finite("m")),
+    "sheet_free_end_at": _number(_SHEET + "free-end position along the facet", "m", finite("m"), valid="(!= sheet_clamp_at)"),
+    "sheet_thickness": _number(_SHEET + "thickness", "m", positive("m")),
+    "sheet_width": _number(_SHEET + "width", "m", positive("m")),
+    "sheet_youngs_modulus": _number(_SHEET + "Young's modulus", "Pa", positive("Pa")),
+    "sheet_links": _integer(_SHEET + "rigid links of the sheet", "", Bound(1)),
+    "sheet_calibration_fraction": _number(_SHEET + "calibration point as a fraction of its length from the clamp", "",
+                                          Bound(0.0, 1.0, low_open=True)),
+    # the camera path (camera_loop, the hardware's camera)
+    "tick": _number("plant tick: exposures, deliveries and controller calls fall on it; the time series' step", "s",
+                    positive("s")),
+    "frame_rate": _number("camera frame rate (hardware: the virtual camera's)", "Hz", positive("Hz"), 1000.0),
+    "latency": _number("exposure → detections available to the controller", "s", non_negative("s")),
+    "drop_rate": _number("fraction of frames lost (seeded)", "", Bound(0.0, 1.0, high_open=True)),
+    "pixel_noise": _number("std of the Gaussian image noise", "grey levels", non_negative("grey levels")),
+    "hold_s": _number("the safety monitor holds the last command this long before it vents", "s", non_negative("s"), 10.0),
+    "max_hold_s": _number("an estimate older than this is stale", "s", positive("s"), 10.0),
+    "qd_filter_tau": _number("first-order low pass of the estimated q̇ (0: raw finite differences)", "s",
+                             non_negative("s"), 10.0),
+    "width": _integer("camera image width (hardware: the virtual camera's)", "px", Bound(8, unit="px")),
+    "height": _integer("camera image height (hardware: the virtual camera's)", "px", Bound(8, unit="px")),
+    "calibration": _text("the image-to-plane map",
+                         "board (fit from a render of the tag board), truth (MuJoCo's exact map), "
+                         "or a calibration JSON file (tools/calibrate_camera.py)"),
+    "detector": _text("AprilTag detector backend", "opencv, pupil"),
+    "tracking": _switch("detect tags in windows around their last positions (false: whole frame)"),
+    "saved_frames_hz": _number("rate of camera frames saved to frames/<run>/ (0: none)", "Hz", non_negative("Hz")),
+}
+
+
+def setting(name: str) -> Setting:
+    """The declaration of setting `name`; KeyError naming it when none is declared."""
+    if name not in SETTINGS:
+        raise KeyError(f"setting {name!r} is not declared in vocabulary.settings.SETTINGS")
+    return SETTINGS[name]
+
+
+def _plausibility_hint(value: float, unit: str) -> str:
+    if unit not in LIKELY_MISTAKES:
+        return "a plausibility bound"
+    wrong, factor = LIKELY_MISTAKES[unit]
+    return f"a plausibility bound; a value in {wrong}? {value:g} {wrong} = {value * factor:.4g} {unit}"
+
+
+def check_number(key: str, value: Any, bound: Bound, *, plausible: float | None = None, unit: str = "",
+                 integer: bool = False) -> float | int:
+    """`value` as a number within `bound` and, when given, |value| <= `plausible` (in `unit`):
+    a float (an int given for it becomes one) or, with `integer`, an int; SettingError
+    "KEY must be BOUND, got VALUE" (module docstring) naming `key` otherwise."""
+    if integer:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SettingError(f"{key} must be an integer {bound}, got {value!r}")
+    else:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SettingError(f"{key} must be a number {bound}, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            described = str(bound)
+            raise SettingError(f"{key} must be finite{'' if described == 'finite' else ' and ' + described}, got {value!r}")
+    if value not in bound:
+        raise SettingError(f"{key} must be {bound}, got {value!r}")
+    if plausible is not None and abs(value) > plausible:
+        one_sided = bound.low is not None and bound.low >= 0
+        raise SettingError(f"{key} must be {'<= ' if one_sided else 'within ±'}{plausible:g} {unit} "
+                           f"({_plausibility_hint(value, unit)}), got {value!r}")
+    return value
+
+
+def check_value(name: str, value: Any, key: str | None = None) -> Any:
+    """Setting `name`'s `value` checked against its declaration (module docstring) and
+    normalised; SettingError naming `key` (default `name`; e.g. "amplitude[1]" for one
+    segment's value), the bound with its unit and the value."""
+    declared = setting(name)
+    key = name if key is None else key
+    if declared.bound is not None:
+        return check_number(key, value, declared.bound, plausible=declared.plausible, unit=declared.unit,
+                            integer=declared.kind is int)
+    if not isinstance(value, declared.kind) or (declared.kind is not bool and isinstance(value, bool)):
+        raise SettingError(f"{key} must be {'true or false' if declared.kind is bool else 'a ' + declared.kind.__name__}"
+                           f"{' (' + declared.valid + ')' if declared.valid and declared.kind is not bool else ''}, "
+                           f"got {value!r}")
+    return value
