@@ -94,6 +94,16 @@ step_fraction (σ along the ray to the target; NaN in recovery), blocked (1 when
 target was not reached), violation (1 when the held command failed its certificate at
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
+
+Compute time (issue 13, tools/bench_governors.py). A camera-rate call is mostly step 2,
+50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor` runs
+them on scalars for N = 2); a 1 kHz call mostly step 1 (the quasi-static governor's QP
+iterations when u_nom's rest shape leaves P; `QuasiStaticGovernor.command`) and the
+certificates of step 3 (Γ̲ look-ups, 36 per governed call). Each command's certificate is
+computed once per call, the rays are walked on Python floats (numpy's elementwise
+arithmetic, the same floats), and the state's energy and ρ skip the array kinematics when
+the tip is clear of the plate (`state_energy`). None of this changes a command: the
+commands of commit 45eacd9, bit for bit (tests/test_energy_governor_references.py).
 """
 
 from __future__ import annotations
@@ -229,10 +239,6 @@ class EnergyGovernor:
         """min_j (Γ̲_j(u) + c_j) (J)."""
         return min(g + c for g, c in zip(self.table.values(u), self._credit))
 
-    def certificate_margin(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
-        """Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at the state."""
-        return self.escape(u) - (1.0 + self.kappa) * self.energy(kinetic_and_plate, q, p, u) - self.energy_margin
-
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
         the tip's margin ρ in P (`ForceSafeSet.margin_at`, 1 outside the plate)).
@@ -287,7 +293,7 @@ class EnergyGovernor:
                 known = terms[u] = (self.energy(base, q_list, p_list, u), self.escape(u))
             return known
 
-        def margin(u: tuple) -> float:  # `certificate_margin`
+        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂
             energy, gamma = certificate(u)
             return gamma - (1.0 + self.kappa) * energy - self.energy_margin
 

@@ -38,6 +38,8 @@ limit: u = u_nom, no QP), "governed" (the QP ran and converged), "backtrack" (se
 above), "rate_dropped" (feasible only without the rate limit; infeasible flagged),
 "vent" (infeasible; u = 0 clipped). Diagnostics (per call): the smallest rest-shape
 margin min_j (b_j(q_u) − δ_j)/‖H'_j‖ in m, the iterations and the QP solve time.
+`command` is `govern` without the diagnostics (the energy governor's target): it accepts a
+clearly nominal u_nom from the scalar kinematics alone (`_decide`), the same command.
 """
 
 from __future__ import annotations
