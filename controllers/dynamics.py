@@ -40,7 +40,7 @@ import numpy as np
 
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
-from controllers.pcc import StepKinematics, kinematics_unchecked, step_kinematics, kinematic_structure
+from controllers.pcc import StepKinematics, body_terms_2, kinematics_unchecked, step_kinematics, kinematic_structure
 
 
 class DynamicsEval:
@@ -271,6 +271,34 @@ class PCCDynamics:
         """
         core = self.model_terms(q, qd)
         return self.acceleration_from_terms(core, u), core.mass
+
+    def acceleration_and_mass_2(self, q0: float, q1: float, v0: float, v1: float, u0: float, u1: float) -> tuple:
+        """`acceleration_and_mass_unchecked` for N = 2 on scalars, with M⁻¹ and the tip terms:
+        (q̈_0, q̈_1, M_00, M_01, M_11, (M⁻¹)_00, (M⁻¹)_01, (M⁻¹)_11, r, J_r[0], J_r[1])
+        in rad/s², kg·m², 1/(kg·m²), m (x + i·y), m/rad.
+
+        For integrators that evaluate the model many times per call (the governors' state
+        predictor): `pcc.body_terms_2`, then `_mass_and_force_2`, `spd_inverse` and
+        `acceleration_from_terms` written out, the same operations in the same order (so the
+        same floats, tested), without the containers and the memo.
+        """
+        (m0, m1), (d0, d1), (k0, k1), (g0, g1), (length0, length1) = self._scalars
+        ((r00, r01), (_, r11)) = self._mass_rot
+        h0, j10, h1, acc0, acc1, tip, jac0, jac1 = body_terms_2(q0, q1, v0, v1, length0, length1)
+        a_re, a_im = m0 * h0.real, m0 * h0.imag  # body 1: J_c1 = [h0, 0]
+        f0 = d0 * v0 + k0 * q0 + (a_re * acc0.real + a_im * acc0.imag)
+        m00 = r00 + (a_re * h0.real + a_im * h0.imag)
+        a_re, a_im = m1 * j10.real, m1 * j10.imag  # body 2: J_c2 = [j10, h1]
+        f0 += a_re * acc1.real + a_im * acc1.imag
+        m00 += a_re * j10.real + a_im * j10.imag
+        m01 = r01 + (a_re * h1.real + a_im * h1.imag)
+        a_re, a_im = m1 * h1.real, m1 * h1.imag
+        f1 = d1 * v1 + k1 * q1 + (a_re * acc1.real + a_im * acc1.imag)
+        m11 = r11 + (a_re * h1.real + a_im * h1.imag)
+        det = m00 * m11 - m01 * m01
+        i00, i01, i11 = m11 / det, -m01 / det, m00 / det
+        tau0, tau1 = g0 * u0 - f0, g1 * u1 - f1
+        return i00 * tau0 + i01 * tau1, i01 * tau0 + i11 * tau1, m00, m01, m11, i00, i01, i11, tip, jac0, jac1
 
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""

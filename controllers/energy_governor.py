@@ -94,6 +94,16 @@ step_fraction (σ along the ray to the target; NaN in recovery), blocked (1 when
 target was not reached), violation (1 when the held command failed its certificate at
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
+
+Compute time (issue 13, tools/bench_governors.py). A camera-rate call is mostly step 2,
+50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor` runs
+them on scalars for N = 2); a 1 kHz call mostly step 1 (the quasi-static governor's QP
+iterations when u_nom's rest shape leaves P; `QuasiStaticGovernor.command`) and the
+certificates of step 3 (Γ̲ look-ups, 36 per governed call). Each command's certificate is
+computed once per call, the rays are walked on Python floats (numpy's elementwise
+arithmetic, the same floats), and the state's energy and ρ skip the array kinematics when
+the tip is clear of the plate (`state_energy`). None of this changes a command: the
+commands of commit 45eacd9, bit for bit (tests/test_energy_governor_references.py).
 """
 
 from __future__ import annotations
@@ -107,11 +117,14 @@ import numpy as np
 from controllers.dynamics import PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.escape_energy import EscapeEnergyTable
-from controllers.pcc import kinematics
+from controllers.pcc import kinematics, kinematics_unchecked
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
+
+TIP_TOLERANCE_M = 1e-9
+"""A scalar tip this far outside every facet (m) has the array path's tip outside too (`EnergyGovernor.state_energy`)."""
 
 DIAGNOSTIC_UNITS = {
     "W_J": "J", "Gamma_J": "J", "margin_J": "J", "step_fraction": "1", "blocked": "bool (1: the target was not reached)",
@@ -202,7 +215,9 @@ class EnergyGovernor:
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()
         self._box = None if context.u_min is None else (context.u_min, context.u_max)
-        self._rest = np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)
+        self._rest_list = tuple((np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)).tolist())
+        self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
+        self._free_plate_energy = self._plate_weight * float(np.sum(law.energy([0.0] * len(self._facets))))  # n = 0 everywhere
         self._grid = self.table.grid_commands()
         self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
 
@@ -224,19 +239,35 @@ class EnergyGovernor:
         """min_j (Γ̲_j(u) + c_j) (J)."""
         return min(g + c for g, c in zip(self.table.values(u), self._credit))
 
-    def certificate_margin(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
-        """Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at the state."""
-        return self.escape(u) - (1.0 + self.kappa) * self.energy(kinetic_and_plate, q, p, u) - self.energy_margin
-
-    def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, complex]:
+    def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
-        the tip r(q) as x + i·y in m)."""
-        tip = kinematics(q, self.dynamics.lengths, order=0).points[-1]
-        kinetic = self.dynamics.kinetic_energy(q, qd)
+        the tip's margin ρ in P (`ForceSafeSet.margin_at`, 1 outside the plate)).
+
+        The tip r(q) is taken from `pcc.kinematics` (array path). For N = 2 a scalar tip
+        (`PCCDynamics.acceleration_and_mass_2`, which also gives M) decides first: when it lies
+        more than TIP_TOLERANCE_M outside every facet, so does the array path's tip (they differ
+        by rounding, ≤ 1e-15 m: tests/test_energy_governor.py), every penetration is 0, ρ = 1 and
+        the plate term is its value at n = 0, the same floats without the array path.
+        """
+        if self.n != 2:
+            tip = kinematics(q, self.dynamics.lengths, order=0).points[-1]
+            return self._plate_and_margin(self.dynamics.kinetic_energy(q, qd), tip)
+        qd = np.asarray(qd, dtype=float)
+        q0, q1 = (float(v) for v in q)
+        _, _, m00, m01, m11, _, _, _, tip, _, _ = self.dynamics.acceleration_and_mass_2(q0, q1, 0.0, 0.0, 0.0, 0.0)
+        kinetic = 0.5 * float(qd @ np.array([[m00, m01], [m01, m11]]) @ qd)  # `PCCDynamics.kinetic_energy`'s floats
+        x, y = tip.real, tip.imag
+        if max(nx * x + ny * y - d for nx, ny, d in self._facets) < -TIP_TOLERANCE_M:
+            return kinetic + self._free_plate_energy if self._plate_weight else kinetic, 1.0
+        return self._plate_and_margin(kinetic, kinematics_unchecked(np.asarray(q, dtype=float), self.dynamics.lengths, 0).points[-1])
+
+    def _plate_and_margin(self, kinetic: float, tip: complex) -> tuple[float, float]:
+        """`state_energy` from the kinetic energy (J) and the tip r (m)."""
+        rho = self.context.safe_set.margin_at(tip.real, tip.imag)
         if not self._plate_weight:
-            return kinetic, tip
+            return kinetic, rho
         nominal = self.context.safe_set
-        return kinetic + self._plate_weight * float(np.sum(nominal.stiffness.energy(nominal.penetration_at(tip.real, tip.imag)))), tip
+        return kinetic + self._plate_weight * float(np.sum(nominal.stiffness.energy(nominal.penetration_at(tip.real, tip.imag)))), rho
 
     # -- the filter -------------------------------------------------------------------
     def __call__(self, estimate: Estimate, u_nom) -> FilterOutput:
@@ -247,43 +278,52 @@ class EnergyGovernor:
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
         t_apply = float(estimate.t) + self.command_delay
         t_capture = min(float(estimate.t_capture), t_apply)
-        target = self.target_governor.govern(u_nom).u
+        target = self.target_governor.command(u_nom)
         u_prev = self.predictor.command_at(t_apply)
         if t_capture < self.predictor.oldest_time:
             return self._finish(u_prev, "stale", True, math.nan, {}, t_apply, t_capture, t0)
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
-        base, tip = self.state_energy(q_hat, qd_hat)
+        base, rho = self.state_energy(q_hat, qd_hat)
         q_list, p_list = q_hat.tolist(), p_hat.tolist()
+        terms: dict[tuple, tuple[float, float]] = {}  # u → (W, Γ) at x̂: each command's certificate is computed once
 
-        def margin(u: np.ndarray) -> float:
-            return self.certificate_margin(base, q_list, p_list, u.tolist())
+        def certificate(u: tuple) -> tuple[float, float]:
+            known = terms.get(u)
+            if known is None:
+                known = terms[u] = (self.energy(base, q_list, p_list, u), self.escape(u))
+            return known
 
-        held_ok = margin(u_prev) + self.energy_margin >= 0.0
+        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂
+            energy, gamma = certificate(u)
+            return gamma - (1.0 + self.kappa) * energy - self.energy_margin
+
+        # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
+        held, aim = tuple(u_prev.tolist()), tuple(target.tolist())
+        held_ok = margin(held) + self.energy_margin >= 0.0
         infeasible, sigma = False, 1.0
-        if margin(target) >= 0.0:
-            u, action = target, "free"
+        if margin(aim) >= 0.0:
+            u, action = aim, "free"
         elif held_ok:
-            u, sigma, best = u_prev, 0.0, float(np.sum((u_prev - target) ** 2))
-            for goal in (target, self._rest, u_nom if self._box is None else np.clip(u_nom, *self._box)):
+            u, sigma, best = held, 0.0, sum((a - t) * (a - t) for a, t in zip(held, aim))
+            nominal = u_nom if self._box is None else np.clip(u_nom, *self._box)
+            for k, goal in enumerate((aim, self._rest_list, tuple(nominal.tolist()))):
                 lo, hi = 0.0, 1.0
                 for _ in range(self.bisection_steps):
                     mid = 0.5 * (lo + hi)
-                    if margin(u_prev + mid * (goal - u_prev)) >= 0.0:
+                    if margin(tuple(a + mid * (g - a) for a, g in zip(held, goal))) >= 0.0:
                         lo = mid
                     else:
                         hi = mid
-                sigma = lo if goal is target else sigma
-                candidate = u_prev + lo * (goal - u_prev)
-                distance = float(np.sum((candidate - target) ** 2))
+                sigma = lo if k == 0 else sigma
+                candidate = tuple(a + lo * (g - a) for a, g in zip(held, goal))
+                distance = sum((c - t) * (c - t) for c, t in zip(candidate, aim))
                 if distance < best:
                     u, best = candidate, distance
-            action = "hold" if u is u_prev else "governed"
+            action = "hold" if u is held else "governed"
         else:
             u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
-            action, sigma = "recover", math.nan
-        rho = self.context.safe_set.margin_at(tip.real, tip.imag)
-        energy = self.energy(base, q_list, p_list, u.tolist())
-        gamma = self.escape(u.tolist())
+            u, action, sigma = tuple(u.tolist()), "recover", math.nan
+        energy, gamma = certificate(u)
         diagnostics = {"W_J": energy, "Gamma_J": gamma, "margin_J": gamma - (1.0 + self.kappa) * energy - self.energy_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
         return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)

@@ -271,6 +271,45 @@ def step_kinematics_2(q: Sequence[float], qd: Sequence[float], lengths: Sequence
                           [0.5 * bias0, bias0 + 0.5 * bias1], tip, gv1 + gv0, bias0 + bias1, [jac0, jac1], [jac_dot0, jac_dot1])
 
 
+def body_terms_2(q0: float, q1: float, v0: float, v1: float, length0: float,
+                 length1: float) -> tuple[complex, complex, complex, complex, complex, complex, complex, complex]:
+    """The parts of `step_kinematics_2` that the mass matrix, the bias forces and a tip force
+    need, for integrators that evaluate the model many times per call (the governors' state
+    predictor): (J_c1[0], J_c2[0], J_c2[1], J̇_c1 q̇, J̇_c2 q̇, r, J_r[0], J_r[1]).
+
+    The same operations in the same order as `step_kinematics_2` (so the same floats,
+    tested), less the unused terms (ℓ''', J̇_r, ṙ) and the containers; both series of ℓ
+    are evaluated in one Horner loop when both angles take the series branch.
+    """
+    if abs(q0) < _SERIES_SWITCH and abs(q1) < _SERIES_SWITCH:
+        x0, x1 = q0 * q0, q1 * q1
+        a0 = a1 = a2 = b0 = b1 = b2 = 0.0
+        for c0, c1, c2, _ in _HORNER_ROWS:  # `_sinc_half`'s recurrences for a = 0..2, both angles
+            a0 = a0 * x0 + c0
+            a1 = a1 * x0 + c1
+            a2 = a2 * x0 + c2
+            b0 = b0 * x1 + c0
+            b1 = b1 * x1 + c1
+            b2 = b2 * x1 + c2
+        a0, a1, a2 = length0 * a0, length0 * (a1 * q0), length0 * a2  # ℓ_1, ℓ_1', ℓ_1''
+        b0, b1, b2 = length1 * b0, length1 * (b1 * q1), length1 * b2  # ℓ_2, ℓ_2', ℓ_2''
+    else:
+        s0, s1, s2, _ = _sinc_half(q0)
+        a0, a1, a2 = length0 * s0, length0 * s1, length0 * s2
+        s0, s1, s2, _ = _sinc_half(q1)
+        b0, b1, b2 = length1 * s0, length1 * s1, length1 * s2
+    w0, w1 = 0.5 * v0, v0 + 0.5 * v1
+    z0, z1 = cmath.exp(1j * (0.5 * q0)), cmath.exp(1j * (q0 + 0.5 * q1))
+    g0, g1 = a0 * z0, b0 * z1
+    gd0, gd1 = a1 * z0, b1 * z1
+    bias0 = (a2 * v0 * v0 - a0 * w0 * w0 + 2j * a1 * v0 * w0) * z0
+    bias1 = (b2 * v1 * v1 - b0 * w1 * w1 + 2j * b1 * v1 * w1) * z1
+    shift1 = 1j * (0.5 * g1)
+    jac0 = gd0 + 1j * (0.5 * g0 + g1)
+    return (0.5 * gd0 + 0.25j * g0, jac0 - shift1, 0.5 * gd1 + 0.25j * g1, 0.5 * bias0, bias0 + 0.5 * bias1,
+            g0 + g1, jac0, gd1 + shift1)
+
+
 def _checked(q, lengths) -> tuple[np.ndarray, np.ndarray]:
     q = as_vector("q", q, None, NonFiniteStateError)
     lengths = as_vector("lengths", lengths, q.shape[0], ControllerInputError)

@@ -38,6 +38,8 @@ limit: u = u_nom, no QP), "governed" (the QP ran and converged), "backtrack" (se
 above), "rate_dropped" (feasible only without the rate limit; infeasible flagged),
 "vent" (infeasible; u = 0 clipped). Diagnostics (per call): the smallest rest-shape
 margin min_j (b_j(q_u) − δ_j)/‖H'_j‖ in m, the iterations and the QP solve time.
+`command` is `govern` without the diagnostics (the energy governor's target): it accepts a
+clearly nominal u_nom from the scalar kinematics alone (`_decide`), the same command.
 """
 
 from __future__ import annotations
@@ -48,12 +50,15 @@ import time
 import numpy as np
 
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
-from controllers.pcc import kinematics
-from controllers.qp import DEFAULT_BACKEND, available_backends, solve_qp
+from controllers.pcc import kinematics, kinematics_unchecked, step_kinematics
+from controllers.qp import DEFAULT_BACKEND, available_backends, solve_lists
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 
 RESIDUAL_TOL_M = 1e-6
 """Rest-shape rows may miss the margin by this much (m, Euclidean) at the returned command."""
+
+NOMINAL_TOL_M = 1e-9
+"""Rest margins from the scalar kinematics farther than this from 0 (m) decide "nominal" alone (`_decide`)."""
 
 _BACKTRACK_HALVINGS = 30
 
@@ -95,6 +100,8 @@ class QuasiStaticGovernor:
         self._row_norms = np.hypot(H[:, 0], H[:, 1])
         self._H, self._h = H, np.array(context.safe_set.h_prime, dtype=float)
         self._delta = self.margin_m * self._row_norms
+        self._length_list = self.lengths.tolist()
+        self._row_list = list(zip(H[:, 0].tolist(), H[:, 1].tolist(), self._h.tolist(), self._delta.tolist(), self._row_norms.tolist()))
         self._u_prev: np.ndarray | None = None
         self._row_cache: dict[tuple, tuple] = {}
 
@@ -121,7 +128,7 @@ class QuasiStaticGovernor:
         if key in self._row_cache:
             return self._row_cache[key]
         q_bar = self.rest_shape(u)
-        kin = kinematics(q_bar, self.lengths, order=1)
+        kin = kinematics_unchecked(q_bar, self.lengths, 1)  # q̄ = K⁻¹Λu: checked through u
         tip, jac = kin.points[-1], kin.jac[-1]
         hj = self._H @ np.vstack((jac.real, jac.imag))  # H'_j J_r(q̄): (P', N)
         b = self._h - self._H @ np.array([tip.real, tip.imag])
@@ -145,13 +152,18 @@ class QuasiStaticGovernor:
         lb, ub = self._bounds(rate)
         u = u_nom if self._u_prev is None else self._u_prev  # warm start: the last command
         u = u if lb is None else np.clip(u, lb, ub)
+        # `solve_qp`'s solver on the lists it would build (its checks hold by construction: u_nom and the
+        # rows are finite; lb ≤ ub, as FilterContext has u_min < u_max and the rate window is centred on
+        # u_prev, inside the box): the same solution without the conversions.
+        u0, lb_list, ub_list = u_nom.tolist(), None if lb is None else lb.tolist(), None if ub is None else ub.tolist()
         for iteration in range(1, self.max_iterations + 1):
             _, A, c = self._rest_rows(u)
-            solution = solve_qp(u_nom, A, c, lb, ub, backend=self.qp_backend)
-            if not solution.feasible:
+            solution = solve_lists(u0, A.tolist(), c.tolist(), lb_list, ub_list, self.qp_backend)[0]
+            if solution is None:
                 return None, iteration
-            moved = float(np.max(np.abs(solution.u - u)))
-            u = solution.u
+            solution = np.array(solution)
+            moved = float(np.max(np.abs(solution - u)))
+            u = solution
             if moved <= self.tolerance:
                 break
         return u, iteration
@@ -172,15 +184,19 @@ class QuasiStaticGovernor:
                 hi = mid
         return start + lo * (u - start)
 
-    def govern(self, u_nom) -> FilterOutput:
-        """The QSG's command for u_nom (N,) hPa; it does not need the state."""
-        u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
-        t0 = time.perf_counter()
+    def _decide(self, u_nom: np.ndarray) -> tuple[np.ndarray, str, bool, np.ndarray | None, int]:
+        """(u, action, infeasible, the rest margins at u or None, iterations) for a checked u_nom;
+        records u as the previous command. Whether u_nom is nominal (in the box, rest margins ≥ 0)
+        is read from `_scalar_rest_margin` when it is farther than NOMINAL_TOL_M from 0 (None: u_nom
+        was accepted that way), from `rest_margins` otherwise."""
         lb, ub = self._bounds(True)
         inside = lb is None or bool(np.all((lb <= u_nom) & (u_nom <= ub)))
-        margins = self.rest_margins(u_nom)
+        scalar = self._scalar_rest_margin(u_nom) if inside else -math.inf
+        if scalar > NOMINAL_TOL_M:
+            self._u_prev = np.array(u_nom, dtype=float)
+            return u_nom, "nominal", False, None, 0
         iterations, infeasible = 0, False
-        if inside and np.min(margins) >= 0.0:
+        if scalar >= -NOMINAL_TOL_M and np.min(self.rest_margins(u_nom)) >= 0.0:
             u, action = u_nom, "nominal"
         else:
             u, iterations = self._iterate(u_nom, rate=True)
@@ -195,9 +211,33 @@ class QuasiStaticGovernor:
                 action, infeasible = "vent", True
             elif np.min(self.rest_margins(u)) < -RESIDUAL_TOL_M:
                 u, action = self._backtrack(u), "backtrack"
-            margins = self.rest_margins(u)
-            infeasible = infeasible or float(np.min(margins)) < -RESIDUAL_TOL_M
+        margins = self.rest_margins(u)
+        infeasible = infeasible or float(np.min(margins)) < -RESIDUAL_TOL_M
         self._u_prev = np.array(u, dtype=float)
+        return u, action, infeasible, margins, iterations
+
+    def _scalar_rest_margin(self, u: np.ndarray) -> float:
+        """min_j of `rest_margins(u)` (m) from the scalar kinematics (`pcc.step_kinematics`): within
+        rounding of it (the two tips differ by ≤ 1e-15 m, far below NOMINAL_TOL_M; tested)."""
+        q_bar = (self.static_gain * u).tolist()  # `rest_shape`'s floats
+        tip = step_kinematics(q_bar, [0.0] * self.n, self._length_list).tip
+        x, y = tip.real, tip.imag
+        return min((h - (a * x + b * y) - delta) / norm for a, b, h, delta, norm in self._row_list)
+
+    def command(self, u_nom: np.ndarray) -> np.ndarray:
+        """`govern(u_nom).u` without the diagnostics (u_nom: (N,) hPa, checked finite by the caller).
+
+        The same command and the same state change as `govern`; cheaper when u_nom is clearly
+        nominal (the energy governor's target at 1 kHz).
+        """
+        return np.array(self._decide(u_nom)[0], dtype=float)
+
+    def govern(self, u_nom) -> FilterOutput:
+        """The QSG's command for u_nom (N,) hPa; it does not need the state."""
+        u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
+        t0 = time.perf_counter()
+        u, action, infeasible, margins, iterations = self._decide(u_nom)
+        margins = self.rest_margins(u) if margins is None else margins
         solve_us = (time.perf_counter() - t0) * 1e6
         return FilterOutput(
             np.array(u, dtype=float), action, infeasible,

@@ -20,7 +20,9 @@ public `PCCDynamics.acceleration_and_mass_unchecked` (Python floats: numpy's per
 overhead would dominate at N ≈ 2), with steps of at most `step_s` (default 1 ms;
 each interval of constant u is split into equal steps) and, per step, p held at its exact
 mean over the step (the PCC plant's rule). tests/test_energy_governor.py compares it
-with a fine integration.
+with a fine integration. For N = 2 the loop runs on scalars through
+`PCCDynamics.acceleration_and_mass_2` (the same operations, so the same floats:
+tests/test_fast_paths.py), about 4× faster: the integration is most of a camera-rate call.
 
 The history keeps, per command, its application time and the exact pressure then, and
 drops records older than `horizon_s` (default 2 s) before the latest application time
@@ -126,6 +128,11 @@ class StatePredictor:
         q, qd = [float(v) for v in q], [float(v) for v in qd]
         p, pieces = self._pieces(t_start, t_end)
         p = p.tolist()
+        return (self._predict_2 if self.n == 2 else self._predict_n)(q, qd, p, pieces)
+
+    def _predict_n(self, q: list[float], qd: list[float], p: list[float],
+                   pieces: list[tuple[float, float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`predict`'s loop for any N: p held at its mean over each step, one `_ros2` step."""
         for a, b, u in pieces:
             steps = max(1, math.ceil((b - a) / self.step_s - 1e-9))
             h = (b - a) / steps
@@ -137,6 +144,66 @@ class StatePredictor:
                 p = [v + (pi - v) * decay for v, pi in zip(u, p)]
                 q, qd = self._ros2(q, qd, acting, h)
         return np.array(q), np.array(qd), np.array(p)
+
+    def _predict_2(self, q: list[float], qd: list[float], p: list[float],
+                   pieces: list[tuple[float, float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`predict`'s loop for N = 2 on scalars: `_ros2` and `_acceleration_and_mass` written out
+        over `PCCDynamics.acceleration_and_mass_2`, the same operations in the same order (so the
+        same floats, tested), with the step's constants (γh, γhK, γhD + γ²h²K, ½h) computed
+        once per interval instead of once per step."""
+        accel, plate = self.dynamics.acceleration_and_mass_2, self.plate
+        (k0, k1), (d0, d1) = self._stiffness, self._damping
+        (q0, q1), (v0, v1), (p0, p1) = q, qd, p
+        for a, b, u in pieces:
+            steps = max(1, math.ceil((b - a) / self.step_s - 1e-9))
+            h = (b - a) / steps
+            decay = math.exp(-h / self.tau) if self.tau > 0 else 0.0
+            mean = self.tau / h * -math.expm1(-h / self.tau) if self.tau > 0 else 0.0
+            u0, u1 = u.tolist()
+            gh = _GAMMA * h
+            c0, c1 = gh * k0, gh * k1  # γhK
+            e0, e1 = gh * d0 + gh * gh * k0, gh * d1 + gh * gh * k1  # γhD + γ²h²K
+            half_h = 0.5 * h
+            for _ in range(steps):
+                w0, w1 = u0 + (p0 - u0) * mean, u1 + (p1 - u1) * mean  # the acting (mean) pressure
+                p0, p1 = u0 + (p0 - u0) * decay, u1 + (p1 - u1) * decay
+                # stage 1 at (q, q̇): W = I − γhJ̃ solved through its Schur complement M + γhD + γ²h²K
+                a0, a1, m00, m01, m11, i00, i01, i11, tip, jac0, jac1 = accel(q0, q1, v0, v1, w0, w1)
+                if plate is not None:
+                    a0, a1 = self._plate_acceleration_2(a0, a1, i00, i01, i11, tip, jac0, jac1)
+                s00, s01, s11 = m00 + e0, m01 + 0.0, m11 + e1
+                det = s00 * s11 - s01 * s01
+                t00, t01, t11 = s11 / det, -s01 / det, s00 / det
+                r0, r1 = (m00 * a0 + m01 * a1) - c0 * v0, (m01 * a0 + m11 * a1) - c1 * v1
+                y0, y1 = t00 * r0 + t01 * r1, t01 * r0 + t11 * r1  # k1 (velocity part)
+                x0, x1 = v0 + gh * y0, v1 + gh * y1  # k1 (position part)
+                # stage 2 at (q, q̇) + h k1
+                z0, z1 = v0 + h * y0, v1 + h * y1
+                b0, b1, _, _, _, i00, i01, i11, tip, jac0, jac1 = accel(q0 + h * x0, q1 + h * x1, z0, z1, w0, w1)
+                if plate is not None:
+                    b0, b1 = self._plate_acceleration_2(b0, b1, i00, i01, i11, tip, jac0, jac1)
+                f0, f1, g0, g1 = z0 - 2.0 * x0, z1 - 2.0 * x1, b0 - 2.0 * y0, b1 - 2.0 * y1
+                r0, r1 = (m00 * g0 + m01 * g1) - c0 * f0, (m01 * g0 + m11 * g1) - c1 * f1
+                n0, n1 = t00 * r0 + t01 * r1, t01 * r0 + t11 * r1  # k2 (velocity part)
+                q0, q1 = q0 + half_h * (3.0 * x0 + (f0 + gh * n0)), q1 + half_h * (3.0 * x1 + (f1 + gh * n1))
+                v0, v1 = v0 + half_h * (3.0 * y0 + n0), v1 + half_h * (3.0 * y1 + n1)
+        return np.array([q0, q1]), np.array([v0, v1]), np.array([p0, p1])
+
+    def _plate_acceleration_2(self, a0: float, a1: float, i00: float, i01: float, i11: float, tip: complex,
+                              jac0: complex, jac1: complex) -> tuple[float, float]:
+        """`_acceleration_and_mass`'s plate push for N = 2 on scalars (the same floats)."""
+        x, y = tip.real, tip.imag
+        if not any(self.plate.penetration_at(x, y)):
+            return a0, a1
+        forces = self.plate.force_at(x, y).tolist()
+        if not any(forces):
+            return a0, a1
+        t0 = t1 = 0.0
+        for f, (nx, ny) in zip(forces, self._normals):
+            t0 += f * (nx * jac0.real + ny * jac0.imag)
+            t1 += f * (nx * jac1.real + ny * jac1.imag)
+        t0, t1 = -t0, -t1
+        return a0 + (i00 * t0 + i01 * t1), a1 + (i01 * t0 + i11 * t1)
 
     def _ros2(self, q: list[float], qd: list[float], u: list[float], h: float) -> tuple[list[float], list[float]]:
         """One ROS2 step of length h with the pressure u held (see the module docstring), on Python floats."""

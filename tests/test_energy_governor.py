@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from controllers.dynamics import PCCDynamics
-from controllers.energy_governor import EnergyGovernor
+from controllers import pcc
+from controllers.energy_governor import TIP_TOLERANCE_M, EnergyGovernor
 from controllers.escape_energy import EscapeEnergyTable
 from controllers.filter_metrics import governor_figures
 from controllers.params import reference_robot, uniform_robot
@@ -249,6 +250,30 @@ def test_contact_aware_terms_and_robust_n_max():
     aware_base, _ = aware.state_energy(q, np.zeros(2))
     assert plain_base == 0.0
     assert aware_base == pytest.approx(1.1 * 0.5 * 11.16 * n**2)
+
+
+def test_state_energy_is_the_array_path_in_and_out_of_contact():
+    """`state_energy`'s scalar tip (the early exit clear of the plate) against the array path's:
+    they differ by ≤ 1e-15 m (TIP_TOLERANCE_M is 1e-9 m), and the energy and ρ are the floats of
+    ½q̇ᵀM(q)q̇ (+ hi·ΣE(n)) and margin_at at the array path's tip, in contact and out of it."""
+    plain = EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), grid_hPa=10.0)
+    aware = EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), contact_aware=True, stiffness_lo_ratio=0.9,
+                           stiffness_hi_ratio=1.1, grid_hPa=10.0)
+    lengths = ROBOT.array("lengths")
+    rng = np.random.default_rng(4)
+    touching, worst = 0, 0.0
+    for q in np.vstack((rng.uniform(-2.5, 2.5, (300, 2)), rng.uniform(0.3, 1.2, (300, 2)))):
+        qd = rng.normal(0.0, 2.0, 2)
+        tip = pcc.kinematics(q, lengths, order=0).points[-1]
+        worst = max(worst, abs(tip - pcc.step_kinematics(q.tolist(), [0.0, 0.0], lengths.tolist()).tip))
+        n = SAFE.penetration_at(tip.real, tip.imag)
+        touching += any(n)
+        kinetic = plain.dynamics.kinetic_energy(q, qd)
+        assert plain.state_energy(q, qd) == (kinetic, SAFE.margin_at(tip.real, tip.imag))
+        assert aware.state_energy(q, qd) == (kinetic + 1.1 * float(np.sum(SAFE.stiffness.energy(n))),
+                                             SAFE.margin_at(tip.real, tip.imag))
+    assert worst <= 1e-15 and TIP_TOLERANCE_M >= 1e6 * worst
+    assert 50 < touching < 550  # both branches
 
 
 @pytest.mark.parametrize("params, message", [

@@ -17,6 +17,7 @@ from controllers.params import reference_robot, uniform_robot
 from controllers.safe_set import Environment, ForceSafeSet, PowerLawStiffness, paper_safe_set
 from derivative_cases import SPECIAL_ANGLES, configurations, lengths
 from controllers.safety_filter import FilterContext
+from controllers.state_predictor import StatePredictor
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.pcc_plant import PCCPlant
 
@@ -43,6 +44,50 @@ def test_unrolled_two_segment_mass_and_force_give_the_same_floats():
     for q, qd in _states(2):
         kin = pcc.step_kinematics(q, qd, dyn.lengths.tolist())
         assert dyn._mass_and_force_2(kin, q, qd) == dyn._mass_and_force(kin, q, qd), (q, qd)
+
+
+def test_two_segment_model_on_scalars_gives_the_same_floats():
+    """`pcc.body_terms_2` is `step_kinematics_2`'s parts, `acceleration_and_mass_2` is
+    `acceleration_and_mass_unchecked` (with M⁻¹ and the tip terms), bit for bit."""
+    rng = np.random.default_rng(11)
+    for dyn in (PCCDynamics(ROBOT), PCCDynamics(uniform_robot(2).replace(lengths=tuple(lengths(2)), masses=(0.2, 0.07)))):
+        lens = dyn.lengths.tolist()
+        for q, qd in _states(2):
+            kin = pcc.step_kinematics_2(q, qd, lens)
+            assert pcc.body_terms_2(*q, *qd, *lens) == (*kin.centre_jac[0], *kin.centre_jac[1], *kin.centre_bias_acc,
+                                                        kin.tip, *kin.tip_jac), (q, qd)
+            u = rng.uniform(-200.0, 200.0, 2).tolist()
+            acc, mass = dyn.acceleration_and_mass_unchecked(q, qd, u)
+            inverse = dyn.model_terms(q, qd).mass_inv
+            assert inverse[1][0] == inverse[0][1] and mass[1][0] == mass[0][1]
+            assert dyn.acceleration_and_mass_2(*q, *qd, *u) == (*acc, mass[0][0], mass[0][1], mass[1][1], inverse[0][0],
+                                                                inverse[0][1], inverse[1][1], kin.tip, *kin.tip_jac), (q, qd)
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.05])
+@pytest.mark.parametrize("plate", [False, True])
+def test_two_segment_prediction_gives_the_floats_of_the_general_loop(tau, plate):
+    """StatePredictor: the N = 2 loop on scalars against the general one, over random command
+    histories, from states that push into the plate (its force path taken) and that do not."""
+    rng = np.random.default_rng(5)
+    predictor = StatePredictor(PCCDynamics(ROBOT), tau, plate=SAFE if plate else None)
+    pushed = 0
+    for _ in range(60):
+        predictor.reset()
+        t = 0.0
+        for _ in range(4):
+            t += rng.uniform(0.003, 0.05)
+            predictor.record(t, rng.uniform(-150.0, 150.0, 2))
+        t_start, t_end = rng.uniform(0.0, t), t + rng.uniform(0.0, 0.03)
+        q, qd = rng.uniform(0.2, 1.6, 2).tolist(), rng.normal(0.0, 2.0, 2).tolist()
+        p, pieces = predictor._pieces(t_start, t_end)
+        general = predictor._predict_n(q, qd, p.tolist(), pieces)
+        scalar = predictor._predict_2(q, qd, p.tolist(), pieces)
+        assert all(a.tolist() == b.tolist() for a, b in zip(general, scalar)), (q, qd, t_start, t_end)
+        tip = pcc.step_kinematics_2(general[0].tolist(), [0.0, 0.0], ROBOT.array("lengths").tolist()).tip
+        pushed += any(SAFE.penetration_at(tip.real, tip.imag))
+    if plate:
+        assert pushed > 10  # predictions that end in the plate: its push was exercised
 
 
 def test_scalar_sinc_matches_the_series_matrix_and_is_the_array_path():

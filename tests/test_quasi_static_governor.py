@@ -10,7 +10,7 @@ import pytest
 
 from controllers.params import reference_robot
 from controllers.pcc import tip_positions
-from controllers.quasi_static_governor import RESIDUAL_TOL_M, QuasiStaticGovernor
+from controllers.quasi_static_governor import NOMINAL_TOL_M, RESIDUAL_TOL_M, QuasiStaticGovernor
 from controllers.safe_set import paper_safe_set
 from controllers.safety_filter import Estimate, FilterContext
 
@@ -130,3 +130,19 @@ def test_worst_step_overshoots_with_an_ideal_valve_but_settles_inside():
     assert rec.rho.min() < -0.03
     assert rec.rho[-1] >= 0.0
     assert np.all(np.abs(rec.u) <= 150.0)
+
+
+def test_command_is_govern_and_the_scalar_margin_is_the_array_one():
+    """`command` gives `govern`'s command and leaves the same state behind (a rate-limited
+    governor, random u_nom near and far from P's boundary); `_scalar_rest_margin` is within
+    1e-15 m of min(`rest_margins`) (NOMINAL_TOL_M, 1e-9 m, decides "nominal" without the latter)."""
+    rng = np.random.default_rng(8)
+    full, fast = make(rate_limit_hPa_per_s=2000.0), make(rate_limit_hPa_per_s=2000.0)
+    nominal, worst = 0, 0.0
+    for u_nom in rng.uniform(-220.0, 220.0, (300, 2)):
+        out = full.govern(u_nom)
+        assert fast.command(u_nom).tolist() == out.u.tolist()  # and so the rate window of the next call
+        nominal += out.action == "nominal"
+        worst = max(worst, abs(full._scalar_rest_margin(u_nom) - np.min(full.rest_margins(u_nom))))
+    assert 20 < nominal < 280
+    assert worst <= 1e-15 and NOMINAL_TOL_M >= 1e6 * worst
