@@ -17,8 +17,13 @@ cycle of its cause:
 
 A HOLD that ends (its flags clear) before `hold_s` returns to RUN; the next one gets a
 full `hold_s` again. VENT means u = 0 hPa and the loop sends the protocol's VENT frame.
-A latched vent clears only by `reset()`, which refuses while a flag is raised. The class
-does no I/O and reads no clock, so it is tested exactly.
+A latched vent clears only by `reset()`, which refuses while a flag is raised, or by
+`restart()` before a new run (its clock starts again). The class does no I/O and reads
+no clock, so it is tested exactly.
+
+A caller that has admitted u_cmd itself (the control step: a new finite (N,) float
+array, clipped) says so with `admitted=True`; the monitor then keeps u_cmd as it is
+instead of checking and copying it. What it decides is the same.
 """
 
 from __future__ import annotations
@@ -85,6 +90,14 @@ class SafetyMonitor:
     def vent_latched(self) -> bool:
         return self._vent_reasons is not None
 
+    def restart(self) -> None:
+        """Before a new run: no command sent yet, no hold, no latched vent, and the clock
+        starts again (t may go back to the new run's first time)."""
+        self._last_run = None
+        self._hold_since = None
+        self._vent_reasons = None
+        self._t = -math.inf
+
     def reset(self, flags: SafetyFlags = SafetyFlags()) -> None:
         """Clear a latched vent; refused (ValueError) while any of `flags` is raised."""
         if flags.raised():
@@ -92,16 +105,25 @@ class SafetyMonitor:
         self._vent_reasons = None
         self._hold_since = None
 
-    def step(self, t: float, u_cmd: np.ndarray | None, flags: SafetyFlags = NO_FLAGS) -> SafetyDecision:
+    def step(self, t: float, u_cmd: np.ndarray | None, flags: SafetyFlags = NO_FLAGS,
+             admitted: bool = False) -> SafetyDecision:
+        """The decision at time t (s) for the command u_cmd (module table). `admitted`: the
+        caller guarantees that u_cmd, when not None, is a finite (N,) float array that
+        nothing modifies afterwards (the monitor keeps it without a copy)."""
         if not (math.isfinite(t) and t >= self._t):
             raise ValueError(f"t must be finite and non-decreasing, got {t} after {self._t}")
         self._t = t
-        if flags is NO_FLAGS and self._vent_reasons is None and type(u_cmd) is np.ndarray and u_cmd.shape == self._shape:
-            u = u_cmd.astype(float)  # a copy: the monitor keeps it
-            if all(map(math.isfinite, u.tolist())):  # the common case: RUN, nothing raised
+        if flags is NO_FLAGS and self._vent_reasons is None:  # the common case: RUN, nothing raised
+            if admitted and u_cmd is not None:
                 self._hold_since = None
-                self._last_run = u
-                return SafetyDecision(SafeAction.RUN, u, ())
+                self._last_run = u_cmd
+                return SafetyDecision(SafeAction.RUN, u_cmd, ())
+            if type(u_cmd) is np.ndarray and u_cmd.shape == self._shape:
+                u = u_cmd.astype(float)  # a copy: the monitor keeps it
+                if all(map(math.isfinite, u.tolist())):
+                    self._hold_since = None
+                    self._last_run = u
+                    return SafetyDecision(SafeAction.RUN, u, ())
         u = None if u_cmd is None else np.array(u_cmd, dtype=float)  # a copy: the monitor keeps it
         if u is not None and u.shape != (self.n_segments,):
             raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")

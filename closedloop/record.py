@@ -29,7 +29,7 @@ from typing import Protocol
 import numpy as np
 
 from closedloop.step import ACTION_CODES, StepRecord
-from controllers.safety_filter import FilterOutput
+from controllers.safety_filter import DiagnosticLayout, FilterOutput, FlatDiagnostics
 
 TIMESERIES_UNITS = {
     "t": "s (the loop's control time: simulated, or since the hardware run started)",
@@ -84,15 +84,14 @@ class Recorder:
             ("infeasible", (), bool), ("filter_us", (), float), ("action", (), np.int8),
         ]
         self._floats = np.full((n_steps, sum(math.prod(s) for _, s, _ in self._layout)), math.nan)
-        self._n_loop = len(loop_columns) + len(loop_flags)
-        self._held_filter = [math.nan] * (n + 1)  # u_filter, rho_pred of the output in force
+        self._step: StepRecord | None = None  # the step whose filter values below are in force
+        self._u_filter, self._rho_pred, self._infeasible = [math.nan] * n, math.nan, False  # of the output in force
         self._diag_layout: list[tuple[str, tuple[int, ...], bool]] | None = None  # key, shape, bool
         self._diag_units: dict[str, str] = {}
-        self._diag_called: list = []
-        self._diag_plan: list[tuple[str, tuple[int, ...], bool]] = []
-        self._cached_step: StepRecord | None = None
-        self._row_called: list = []
-        self._row_held: list | None = None
+        self._diag_plan: list[tuple[str, tuple[int, ...], bool]] = []  # key, shape, 1-D
+        self._flat_layout: DiagnosticLayout | None = None  # FlatDiagnostics of this layout are copied as they are
+        self._diag: list = []  # the diagnostics in force, flattened
+        self._row_held: list | None = None  # the step's columns on rows without its call
         self._extras: dict[str, np.ndarray] = {}
 
     @staticmethod
@@ -110,13 +109,14 @@ class Recorder:
         """Row k: the loop's values (floats, then flags, in their declared order), the step in
         force and whether this row made the call; `extras`: further float columns by key
         (a plant's own signals; the caller declares their units)."""
-        if step is not self._cached_step:
-            self._cache(step)
-        if called and step.output is not None:
-            self._floats[k] = [*values, *flags, *self._row_called]
+        if step is not self._step:
+            self._take_output(step)
+        if called and step.output is not None:  # the row in one pass (the common case: every row of the simulated loop)
+            self._floats[k] = [*values, *flags, *step.u_nom.tolist(), *self._u_filter, *step.u.tolist(), self._rho_pred,
+                               self._infeasible, step.filter_us, ACTION_CODES[step.action], *self._diag]
         else:
             if self._row_held is None:
-                self._row_held = self._held_row()
+                self._row_held = self._held_row(step)
             self._floats[k] = [*values, *flags, *self._row_held]
         if extras:
             for key, value in extras.items():
@@ -124,37 +124,36 @@ class Recorder:
                     self._extras[key] = np.zeros((self.n_steps,) + np.shape(value))
                 self._extras[key][k] = value
 
-    def _cache(self, step: StepRecord) -> None:
-        """The row of a new step (its output's values, or the last output's when it has none)."""
-        self._cached_step, self._row_held = step, None
+    def _take_output(self, step: StepRecord) -> None:
+        """A new step: its output's values are in force from now on (the last output's when it has none)."""
+        self._step, self._row_held = step, None
         output = step.output
-        if output is not None:
-            u = output.u
-            self._held_filter = [*(u if type(u) is np.ndarray else np.asarray(u, dtype=float)).tolist(),
-                                 float(output.rho_pred)]
-            if output.diagnostics or self._diag_layout is not None:
-                if self._diag_layout is None:
-                    self._add_diagnostics(output)
-                self._diag_called = self._flatten(output)
-            infeasible = bool(output.infeasible)
-        else:
-            infeasible = False
-        held = self._held_filter
-        self._row_called = [*step.u_nom.tolist(), *held[:-1], *step.u.tolist(), held[-1], infeasible, step.filter_us,
-                            ACTION_CODES[step.action], *self._diag_called]
+        if output is None:
+            self._infeasible = False
+            return
+        u = output.u
+        self._u_filter = (u if type(u) is np.ndarray else np.asarray(u, dtype=float)).tolist()
+        self._rho_pred, self._infeasible = float(output.rho_pred), bool(output.infeasible)
+        diagnostics = output.diagnostics
+        if type(diagnostics) is FlatDiagnostics and diagnostics.layout is self._flat_layout:
+            self._diag = diagnostics.values
+        elif diagnostics or self._diag_layout is not None:
+            if self._diag_layout is None:
+                self._add_diagnostics(output)
+            self._diag = self._flatten(output)
 
-    def _held_row(self) -> list:
-        """A row without the filter's call: no infeasible, no filter time, scalar boolean diagnostics False."""
-        row = list(self._row_called)
-        n = self.n_segments
-        row[3 * n + 1], row[3 * n + 2] = False, math.nan  # infeasible, filter_us (after u_nom, u_filter, u, rho_pred)
+    def _held_row(self, step: StepRecord) -> list:
+        """The step's columns on a row without its call: the output in force, no infeasible, no
+        filter time, scalar boolean diagnostics False."""
+        diag = list(self._diag)
         if self._diag_layout is not None:
-            i = 3 * n + 4  # after action
+            i = 0
             for _, shape, is_bool in self._diag_layout:
                 if not shape and is_bool:
-                    row[i] = False
+                    diag[i] = False
                 i += math.prod(shape)
-        return row
+        return [*step.u_nom.tolist(), *self._u_filter, *step.u.tolist(), self._rho_pred, False, math.nan,
+                ACTION_CODES[step.action], *diag]
 
     def _add_diagnostics(self, output: FilterOutput) -> None:
         """Columns for the filter's diagnostics, NaN on the rows before its first output."""
@@ -166,6 +165,10 @@ class Recorder:
                              for key, value in output.diagnostics.items()]
         self._diag_units = {key: str(output.diagnostic_units[key]) for key in output.diagnostics}
         self._diag_plan = [(key, shape, len(shape) == 1) for key, shape, _ in self._diag_layout]  # key, shape, 1-D
+        flat = output.diagnostics
+        if type(flat) is FlatDiagnostics and self._diag_layout == [
+                (key, shape, key in flat.layout.booleans) for key, shape in flat.layout.shapes.items()]:
+            self._flat_layout = flat.layout
         self._layout += [(key, shape, bool if is_bool else float) for key, shape, is_bool in self._diag_layout]
         size = sum(math.prod(s) for _, s, _ in self._diag_layout)
         self._floats = np.hstack((self._floats, np.full((self.n_steps, size), math.nan)))

@@ -13,7 +13,8 @@ q (N,) rad, qd (N,) rad/s) and what it observed (`SafetyFlags`), and sends the
    limits [u_min, u_max] of the `FilterContext` (no clipping when they are None);
    a nominal controller or filter that raises `ControllerInputError` (a non-finite
    estimate or u_nom) is refused the same way;
-4. safety monitor (`closedloop.monitor.SafetyMonitor`): RUN (the admitted command), HOLD
+4. safety monitor (`closedloop.monitor.SafetyMonitor`): RUN (the admitted command, which
+   the monitor is told is admitted: it keeps it without checking or copying it again), HOLD
    or VENT;
 5. the record: what the filter returned (`output`, None when it was not called or
    raised), what was sent (`u`), the monitor's action and reasons, the filter's time.
@@ -78,8 +79,10 @@ class ControlStep:
         self._hi = context.u_max.tolist() if bounded else None
 
     def reset(self) -> None:
-        """Before a run: the filter's own `reset()`, when it has one."""
+        """Before a run: the filter's own `reset()`, when it has one, and the monitor's `restart()`
+        (its clock, hold and latched vent start again)."""
         reset_filter(self.filter)
+        self.monitor.restart()
 
     def __call__(self, estimate: Estimate, flags: SafetyFlags = NO_FLAGS) -> StepRecord:
         u_nom, output, command, filter_us = self._nan_n, None, None, math.nan
@@ -92,11 +95,12 @@ class ControlStep:
                 command = self.admit(output.u)
         except ControllerInputError:
             output = None
-        decision = self.monitor.step(estimate.t, command, flags)
+        decision = self.monitor.step(estimate.t, command, flags, admitted=True)
         return StepRecord(estimate, u_nom, output, decision.u, decision.action, decision.reasons, filter_us)
 
     def admit(self, u_filter: np.ndarray) -> np.ndarray | None:
-        """u_filter (N,) hPa clipped to the limits; None when it is not finite."""
+        """u_filter (N,) hPa clipped to the limits, as a new float array (the monitor keeps it);
+        None when it is not finite."""
         u = np.asarray(u_filter, dtype=float)
         if u.shape != (self.n,):
             raise ValueError(f"the filter returned a command of shape {u.shape}, expected ({self.n},) hPa")
@@ -104,7 +108,7 @@ class ControlStep:
         if not all(map(math.isfinite, values)):
             return None
         if self._lo is None:
-            return u
+            return u.copy()  # u may be the filter's own array
         return np.array([min(max(v, lo), hi) for v, lo, hi in zip(values, self._lo, self._hi)])
 
     def wait(self, estimate: Estimate) -> StepRecord:

@@ -89,7 +89,8 @@ from controllers.params import RobotParams
 from controllers.pcc import step_kinematics
 from controllers.qp import DEFAULT_BACKEND, available_backends, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
+from controllers.safety_filter import (BatchOutput, DiagnosticLayout, Estimate, EstimateBatch, FilterContext, FilterOutput,
+                                      FlatDiagnostics)
 
 REST_GRID_POINTS = 1024
 """Grid size (at most) of the rest-target search over the pressure box (`CBFFilter.rest_targets`)."""
@@ -180,6 +181,10 @@ class CBFFilter:
         self._ub_list = list(params.u_max) if self.pressure_limits else None
         self._static_gain = (params.array("gains") / params.array("stiffness")).tolist()  # K⁻¹Λ, rad/hPa
         self._rest_targets: np.ndarray | None = None
+        p = len(self._rows)
+        self.diagnostic_layout = DiagnosticLayout(
+            {"b": (p,), "B": (p,), "constraint": (p,), "active": (p,), "recovery": (), "slack": (), "solve_us": ()},
+            CBF_DIAGNOSTIC_UNITS, frozenset({"active", "recovery"}))
 
     @property
     def enabled(self) -> bool:
@@ -262,14 +267,14 @@ class CBFFilter:
 
     def __call__(self, estimate: Estimate, u_nom) -> FilterOutput:
         """The plug-in call: `step` at x = [estimate.q; estimate.qd], as a FilterOutput (built
-        straight from the step's floats: no CBFResult in between)."""
+        straight from the step's floats: no CBFResult in between) whose diagnostics are
+        `FlatDiagnostics` in `diagnostic_layout` (the keys of CBF_DIAGNOSTIC_UNITS)."""
         x = as_vector("x", np.concatenate((estimate.q, estimate.qd)), 2 * self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
         u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = self._step_floats(
             x.tolist(), u_nom.tolist())
-        diagnostics = {"b": np.array(b), "B": np.array(big_b), "constraint": np.array(constraint),
-                       "active": np.zeros(len(b), dtype=bool) if active is None else active, "recovery": recovery,
-                       "slack": slack, "solve_us": solve_us}
+        diagnostics = FlatDiagnostics(self.diagnostic_layout, [*b, *big_b, *constraint, *(
+            [False] * len(b) if active is None else active), recovery, slack, solve_us])
         return FilterOutput(u_nom if u is None else np.array(u), action, infeasible, rho_pred, diagnostics,
                             CBF_DIAGNOSTIC_UNITS)
 
@@ -296,13 +301,14 @@ class CBFFilter:
         u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = self._step_floats(
             x.tolist(), u_nom.tolist())
         return CBFResult(u_nom if u is None else np.array(u), u_nom, np.array(b), np.array(big_b), np.array(constraint),
-                         np.zeros(len(b), dtype=bool) if active is None else active,
+                         np.zeros(len(b), dtype=bool) if active is None else np.array(active, dtype=bool),
                          infeasible, recovery, action, rho_pred, solve_us, slack)
 
     def _step_floats(self, xs: list[float], u_list: list[float]) -> tuple:
         """`step` on checked Python floats (x = xs, u_nom = u_list): (u, b, B, constraint, active,
         infeasible, recovery, action, rho_pred, solve_us, slack) with u None when it is u_nom,
-        b, B, constraint lists over the rows of P and active None when no QP's active set applies."""
+        b, B, constraint lists over the rows of P and active a list of bools over them (None when no
+        QP's active set applies)."""
         # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
         q = xs[: self.n]
         ev = self.dynamics.evaluate_floats(q, xs[self.n :])
@@ -349,7 +355,7 @@ class CBFFilter:
 
     def _qp_command(self, ev: DynamicsEval, q: list[float], u_list: list[float], rows: list[list[float]],
                     rhs: list[float], barrier: list[tuple], cbf_rows: list[int], recovery: bool,
-                    unevaluable: bool) -> tuple[list[float], str, np.ndarray | None, bool, float]:
+                    unevaluable: bool) -> tuple[list[float], str, list[bool] | None, bool, float]:
         """The QP branches ("qp", "recovery", "slack", "vent"): (u, action, active, infeasible, slack)."""
         if not unevaluable:
             u, qp_active, _, _ = solve_lists(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
@@ -358,7 +364,7 @@ class CBFFilter:
                 # post-check); only a clip that moved u (by rounding) needs the rows checked again.
                 clipped = self._clip(u)
                 if clipped == u or not self._violates(clipped, u_list, rows, rhs, cbf_rows):
-                    return clipped, ("recovery" if recovery else "qp"), np.array(qp_active), False, 0.0
+                    return clipped, ("recovery" if recovery else "qp"), qp_active, False, 0.0
         hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(barrier)]
         u, slack = self._slack_qp(u_list, rows, rhs, hard)
         action = "slack"

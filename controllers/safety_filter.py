@@ -13,7 +13,10 @@ command that is sent:
 - `FilterOutput.diagnostics` is the place for everything specific to one filter (the
   CBF's b, B and active rows, a governor's certificate); `diagnostic_units` declares the
   unit of each key, and the recorder stores them as time-series columns. Nothing
-  outside a filter's own module reads a filter-specific field by name.
+  outside a filter's own module reads a filter-specific field by name. Any mapping
+  will do; a filter called every control step may return `FlatDiagnostics`, its values
+  as one flat list in a `DiagnosticLayout` made once (a key's array is built only when
+  read), which the recorder copies into its row without unpacking it.
 - Filters may keep state (their own command history); `reset()`, when present, is
   called before each run. `filter_batch`, when present, filters B states at once
   (`EstimateBatch`, u_nom (B, N) → `BatchOutput`); loops that run batches fall back to a
@@ -101,9 +104,68 @@ class FilterOutput:
     diagnostic_units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.diagnostics and not self.diagnostics.keys() <= self.diagnostic_units.keys():
+        diagnostics = self.diagnostics
+        if type(diagnostics) is FlatDiagnostics and diagnostics.layout.units is self.diagnostic_units:
+            return  # the layout checked its units once
+        if diagnostics and not diagnostics.keys() <= self.diagnostic_units.keys():
             missing = set(self.diagnostics) - set(self.diagnostic_units)
             raise ValueError(f"diagnostic_units must declare a unit for every diagnostic, missing {sorted(missing)}")
+
+
+class DiagnosticLayout:
+    """The keys of a filter's diagnostics, fixed over a run: their shapes, which are boolean,
+    and their units, in the order of a flat list of their values (each key's values row-major).
+    Made once per filter; `FlatDiagnostics` of the same layout are recorded without unpacking."""
+
+    __slots__ = ("shapes", "booleans", "units", "size", "_slices")
+
+    def __init__(self, shapes: Mapping[str, tuple[int, ...]], units: Mapping[str, str],
+                 booleans: frozenset[str] = frozenset()) -> None:
+        missing = sorted(set(shapes) - set(units))
+        if missing:
+            raise ValueError(f"units must declare a unit for every diagnostic, missing {missing}")
+        unknown = sorted(set(booleans) - set(shapes))
+        if unknown:
+            raise ValueError(f"booleans must be keys of shapes, got {unknown}")
+        self.shapes = {key: tuple(int(d) for d in shape) for key, shape in shapes.items()}
+        self.booleans, self.units = frozenset(booleans), units
+        self._slices: dict[str, tuple[int, int]] = {}
+        start = 0
+        for key, shape in self.shapes.items():
+            self._slices[key] = (start, start + math.prod(shape))
+            start += math.prod(shape)
+        self.size = start  # number of flat values
+
+    def value(self, key: str, values: list) -> object:
+        """The value of `key` in the flat `values`: the scalar itself for shape (), else an
+        array of its shape (bool or float)."""
+        start, stop = self._slices[key]
+        shape = self.shapes[key]
+        if not shape:
+            return values[start]
+        return np.array(values[start:stop], dtype=bool if key in self.booleans else float).reshape(shape)
+
+
+class FlatDiagnostics(Mapping):
+    """A filter's diagnostics as one flat list `values` in `layout`'s order (DiagnosticLayout):
+    a read-only mapping whose arrays are built when read. Made every control call; nothing
+    modifies it once returned."""
+
+    __slots__ = ("layout", "values")
+
+    def __init__(self, layout: DiagnosticLayout, values: list) -> None:
+        if len(values) != layout.size:
+            raise ValueError(f"values must hold the layout's {layout.size} values, got {len(values)}")
+        self.layout, self.values = layout, values
+
+    def __getitem__(self, key: str) -> object:
+        return self.layout.value(key, self.values)
+
+    def __iter__(self):
+        return iter(self.layout.shapes)
+
+    def __len__(self) -> int:
+        return len(self.layout.shapes)
 
 
 @dataclass(frozen=True, eq=False)

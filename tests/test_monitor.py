@@ -83,3 +83,36 @@ def test_reset_refused_while_flagged_and_validation():
         m.step(1.0, [1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="hold_s must be a finite time >= 0 s"):
         SafetyMonitor(2, hold_s=-0.1)
+
+
+def test_restart_starts_the_clock_again_and_clears_hold_and_vent():
+    m = SafetyMonitor(2, hold_s=0.5)
+    _run(m, 0.0, 3)
+    m.step(0.3, U, SafetyFlags(link_lost=True))
+    assert m.vent_latched
+    m.restart()
+    assert not m.vent_latched
+    # the clock starts again at the new run's first time, and nothing was sent in this run: a stale
+    # estimate vents at once instead of holding the last run's command
+    assert m.step(0.0, U, SafetyFlags(perception_stale=True)).action is SafeAction.VENT
+    m.restart()
+    (d,) = _run(m, 0.0, 1)
+    assert d.action is SafeAction.RUN and np.array_equal(d.u, U)
+
+
+SEQUENCE = [(SafetyFlags(), U), (SafetyFlags(perception_stale=True), U + 1), (SafetyFlags(), U + 2), (SafetyFlags(), None),
+            (SafetyFlags(), U + 3), (SafetyFlags(interrupted=True), U + 4), (SafetyFlags(), U + 5)]
+
+
+def test_admitted_commands_get_the_same_decisions_and_are_kept_without_a_copy():
+    checked, trusted = SafetyMonitor(2, hold_s=0.5), SafetyMonitor(2, hold_s=0.5)
+    for k, (flags, u) in enumerate(SEQUENCE):
+        a = checked.step(k * DT, u, flags)
+        b = trusted.step(k * DT, None if u is None else u.copy(), flags, admitted=True)
+        assert (a.action, a.reasons) == (b.action, b.reasons), k
+        np.testing.assert_array_equal(a.u, b.u)
+    u = U.copy()
+    d = SafetyMonitor(2).step(0.0, u, admitted=True)
+    assert d.action is SafeAction.RUN and d.u is u  # trusted: not copied
+    d = SafetyMonitor(2).step(0.0, u)
+    assert d.u is not u and np.array_equal(d.u, u)  # checked: the monitor keeps its own copy

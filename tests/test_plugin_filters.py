@@ -11,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from closedloop.monitor import SafeAction, SafetyMonitor
+from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
 from closedloop.step import ControlStep
 from controllers.cbf import get_tuning
 from controllers.filter import CBFFilter, paper_cbf
 from controllers.params import reference_robot
 from controllers.registry import FILTERS, NOMINALS, build_filter, build_nominal, label, parameters, parse_params
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.safety_filter import DiagnosticLayout, Estimate, FilterContext, FilterOutput, FlatDiagnostics
 from softcbf.cli import list_text, main
 from softcbf_mj.runio import load_timeseries, read_run_folder
 
@@ -129,6 +129,85 @@ def test_step_clips_refuses_non_finite_commands_and_records_both():
     assert third.action is SafeAction.RUN and np.array_equal(third.u, [20.0, 30.0])
     with pytest.raises(ValueError, match=r"shape \(3,\)"):
         ControlStep(Scripted([[1.0, 2.0, 3.0]]), lambda t, q, qd: np.zeros(2), CONTEXT)(_estimate())
+
+
+def test_step_reset_restarts_the_monitor_for_a_new_run():
+    step = ControlStep(Scripted([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]), lambda t, q, qd: np.zeros(2), CONTEXT,
+                       SafetyMonitor(2, hold_s=0.5))
+    step(_estimate(0.0))
+    step(_estimate(1.0))
+    step.monitor.step(1.0, None, SafetyFlags(interrupted=True))  # the run ends vented
+    step.reset()  # a new run: its clock starts at 0 s again
+    again = step(_estimate(0.0))
+    assert again.action is SafeAction.RUN and np.array_equal(again.u, [5.0, 6.0]) and not step.monitor.vent_latched
+
+
+def test_step_keeps_its_own_copy_of_a_command_the_filter_may_reuse():
+    buffer = np.array([1.0, 2.0])
+
+    def reuse(estimate, u_nom):
+        return buffer
+
+    unbounded = FilterContext.for_robot(ROBOT, SAFE, 1e-3, pressure_limits=False)
+    first = ControlStep(reuse, lambda t, q, qd: np.zeros(2), unbounded)(_estimate(0.0))
+    buffer[:] = np.nan  # the filter overwrites its array after the call
+    assert np.array_equal(first.u, [1.0, 2.0])
+
+
+FLAT_LAYOUT = DiagnosticLayout({"gain": (), "rows": (2, 2), "hit": (), "mask": (3,)},
+                               {"gain": "1", "rows": "m", "hit": "bool", "mask": "bool"}, frozenset({"hit", "mask"}))
+FLAT_VALUES = [[2.0, 1.0, 2.0, 3.0, 4.0, True, True, False, True], [0.5, -1.0, -2.0, -3.0, -4.0, False, False, True, False]]
+
+
+class FlatScripted:
+    """Scripted commands with FlatDiagnostics (`as_dict`: the same diagnostics as a plain dict)."""
+
+    def __init__(self, as_dict):
+        self.calls, self.as_dict = 0, as_dict
+
+    def __call__(self, estimate, u_nom):
+        values = FLAT_VALUES[self.calls % 2]
+        self.calls += 1
+        flat = FlatDiagnostics(FLAT_LAYOUT, values)
+        diagnostics = {key: flat[key] for key in flat} if self.as_dict else flat
+        return FilterOutput(np.array([values[0], -values[0]]), diagnostics=diagnostics, diagnostic_units=FLAT_LAYOUT.units)
+
+
+def test_flat_diagnostics_read_as_their_arrays_and_check_their_layout():
+    flat = FlatDiagnostics(FLAT_LAYOUT, FLAT_VALUES[0])
+    assert list(flat) == ["gain", "rows", "hit", "mask"] and len(flat) == 4 and "rows" in flat and "b" not in flat
+    assert flat["gain"] == 2.0 and flat["hit"] is True
+    assert flat["rows"].dtype == float and flat["rows"].tolist() == [[1.0, 2.0], [3.0, 4.0]]
+    assert flat["mask"].dtype == bool and flat["mask"].tolist() == [True, False, True]
+    with pytest.raises(ValueError, match="values must hold the layout's 9 values, got 8"):
+        FlatDiagnostics(FLAT_LAYOUT, FLAT_VALUES[0][:-1])
+    with pytest.raises(ValueError, match=r"units must declare a unit for every diagnostic, missing \['mask'\]"):
+        DiagnosticLayout({"mask": (3,)}, {})
+    with pytest.raises(ValueError, match=r"booleans must be keys of shapes, got \['hit'\]"):
+        DiagnosticLayout({"gain": ()}, {"gain": "1"}, frozenset({"hit"}))
+
+
+def test_recorder_stores_flat_diagnostics_as_it_stores_a_plain_mapping():
+    from closedloop.record import Recorder
+
+    runs = []
+    for as_dict in (False, True):
+        step = ControlStep(FlatScripted(as_dict), lambda t, q, qd: np.ones(2), CONTEXT)
+        recorder = Recorder(5, 2, {"t": ()})
+        for k, called in enumerate([True, False, True, True, False]):
+            record = step(_estimate(0.1 * k)) if called else record
+            recorder.record(k, record, called, [0.1 * k])
+        runs.append((recorder.columns(), recorder.units()))
+    (flat, flat_units), (plain, plain_units) = runs
+    assert flat_units == plain_units and flat.keys() == plain.keys()
+    for key in plain:
+        assert flat[key].dtype == plain[key].dtype, key
+        if key != "filter_us":  # a measured time
+            np.testing.assert_array_equal(flat[key], plain[key], err_msg=key)
+    assert np.isnan(flat["filter_us"]).tolist() == [False, True, False, False, True]
+    assert flat["hit"].tolist() == [True, False, False, True, False]  # an event on its call's row only
+    assert flat["mask"].tolist() == [[True, False, True]] * 2 + [[False, True, False]] + [[True, False, True]] * 2
+    assert flat["rows"][2].tolist() == [[-1.0, -2.0], [-3.0, -4.0]] and flat["gain"].tolist() == [2.0, 2.0, 0.5, 2.0, 2.0]
 
 
 def test_recorder_keeps_diagnostics_with_their_units_and_counts_events_per_call():

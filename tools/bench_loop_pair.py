@@ -3,10 +3,12 @@ comparisons between two trees (e.g. before and after the control step became a p
 
 Runs each scenario `--repeat` times (short: `--paper-s`, `--mujoco-s` simulated s, the
 tunings Low and High, data only) and prints, per scenario and tuning, the best of the
-repeats of the scenarios' own `realtime_factor` (simulated s over the loop's wall time)
-and of the CPU time of the whole scenario call per control step (µs, set-up included;
-the minimum is the least disturbed by other processes on a shared machine). Uses only
-the scenario registry, so it runs on either tree:
+repeats of the scenarios' own `realtime_factor` (simulated s over the loop's wall time),
+of the CPU time of the whole scenario call per control step (`cpu_us_per_step`, µs,
+set-up and saving included) and of the CPU time of the closed loop alone per control
+step (`loop_cpu_us_per_step`, µs: `scenarios.common.run_closed_loop`, through which both
+trees run the loop, is timed in place). The minimum is the least disturbed by other
+processes on a shared machine. Uses only the scenario registry, so it runs on either tree:
 
     farm-bench -n 5 --vs "sh -c 'PYTHONPATH=OLD exec python tools/bench_loop_pair.py >>/tmp/B 2>&1'" \
         -- sh -c 'PYTHONPATH=NEW exec python tools/bench_loop_pair.py >>/tmp/A 2>&1'
@@ -25,8 +27,31 @@ import tempfile
 import time
 from pathlib import Path
 
+import scenarios.common
 from scenarios import get
 from scenarios.common import data_only
+
+
+class LoopTimer:
+    """Wraps `scenarios.common.run_closed_loop` while in use, adding up its CPU time (s) in `cpu_s`."""
+
+    def __init__(self) -> None:
+        self.cpu_s = 0.0
+        self.loop = scenarios.common.run_closed_loop
+
+    def __enter__(self) -> "LoopTimer":
+        def timed(*args, **kwargs):
+            start = time.process_time()
+            try:
+                return self.loop(*args, **kwargs)
+            finally:
+                self.cpu_s += time.process_time() - start
+
+        scenarios.common.run_closed_loop = timed
+        return self
+
+    def __exit__(self, *exc) -> None:
+        scenarios.common.run_closed_loop = self.loop
 
 
 def main() -> None:
@@ -45,14 +70,19 @@ def main() -> None:
                     folder = Path(tmp) / f"{scenario}-{tuning}-{rep}"
                     folder.mkdir()
                     cpu = time.process_time()
-                    summary = get(scenario).run(folder, tunings=tuning, progress=False, **params)
+                    with LoopTimer() as loop:
+                        summary = get(scenario).run(folder, tunings=tuning, progress=False, **params)
                     cpu = time.process_time() - cpu
                     row = summary["runs"][0]
-                    best = out.setdefault(f"{scenario}/{tuning}", {"realtime_factor": 0.0, "cpu_us_per_step": math.inf})
+                    steps = round(row["sim_s"] / 1e-3)
+                    best = out.setdefault(f"{scenario}/{tuning}", {"realtime_factor": 0.0, "cpu_us_per_step": math.inf,
+                                                                   "loop_cpu_us_per_step": math.inf})
                     best["realtime_factor"] = max(best["realtime_factor"], row["realtime_factor"])
-                    best["cpu_us_per_step"] = min(best["cpu_us_per_step"], cpu / round(row["sim_s"] / 1e-3) * 1e6)
+                    best["cpu_us_per_step"] = min(best["cpu_us_per_step"], cpu / steps * 1e6)
+                    best["loop_cpu_us_per_step"] = min(best["loop_cpu_us_per_step"], loop.cpu_s / steps * 1e6)
     for key, best in out.items():
-        print(f"{key:20s} RTF {best['realtime_factor']:.2f}  CPU {best['cpu_us_per_step']:.1f} us/step")
+        print(f"{key:20s} RTF {best['realtime_factor']:.2f}  CPU {best['cpu_us_per_step']:.1f} us/step  "
+              f"loop CPU {best['loop_cpu_us_per_step']:.1f} us/step")
     print(json.dumps(out))
 
 
