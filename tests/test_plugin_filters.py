@@ -194,8 +194,10 @@ def test_recorder_stores_flat_diagnostics_as_it_stores_a_plain_mapping():
     for as_dict in (False, True):
         step = ControlStep(FlatScripted(as_dict), lambda t, q, qd: np.ones(2), CONTEXT)
         recorder = Recorder(5, 2, {"t": ()})
+        record = None
         for k, called in enumerate([True, False, True, True, False]):
-            record = step(_estimate(0.1 * k)) if called else record
+            if called:
+                record = step(_estimate(0.1 * k))
             recorder.record(k, record, called, [0.1 * k])
         runs.append((recorder.columns(), recorder.units()))
     (flat, flat_units), (plain, plain_units) = runs
