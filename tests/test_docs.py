@@ -153,3 +153,14 @@ def test_code_cites_docs_not_the_external_specification():
         assert (DOCS / page).is_file(), page
         if anchor:
             assert anchor in _anchors(DOCS / page), (page, anchor)
+
+
+def test_no_file_refers_to_a_path_outside_the_repository():
+    """README, docs, docstrings and configurations name no path beside or above the clone (the
+    shared specification's folder, a developer's machine); CHANGELOG.md keeps its history."""
+    outside = ("../" + "shared", "/" + "work/", "/" + "root/", "/" + "home/")
+    files = subprocess.run(["git", "ls-files", "*.py", "*.md", "*.toml", "*.json"], cwd=ROOT, capture_output=True,
+                           text=True, check=True).stdout.split()
+    offending = [(name, path) for name in files if name != "CHANGELOG.md" and (ROOT / name).is_file()
+                 for path in outside if path in (ROOT / name).read_text(encoding="utf-8")]
+    assert offending == []
