@@ -33,7 +33,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
 import numpy as np  # noqa: E402
 
+from matplotlib.colors import ListedColormap  # noqa: E402
+
 from softcbf.study.store import StudyStore  # noqa: E402
+from softcbf_mj.palette import BLUE, VERMILLION, rgb  # noqa: E402
 
 REFERENCE_TIME_CONSTANT_S = 0.07  # d/k of the reference arm (controllers.params)
 TUNINGS = ("None", "HW-Low", "HW-High")
@@ -67,8 +70,14 @@ def ordering_holds(rho: dict[str, float]) -> bool | None:
     return rho["None"] < 0.0 < rho["HW-Low"] < rho["HW-High"]
 
 
+# violated (0) and holds (1), from the project's colour-blind-safe palette, light enough for black labels
+HOLDS_CMAP = ListedColormap([[c / 255 for c in rgb(VERMILLION, 0.45)], [c / 255 for c in rgb(BLUE, 0.55)]])
+
+
 def boundaries(cells: dict) -> list[dict]:
-    """Per (loop rate, τ_p, tuning): the smallest d/k from which it holds at every larger grid d/k."""
+    """Per (loop rate, τ_p, tuning): the smallest d/k from which it holds at every larger grid d/k
+    (`holds_from_dk_s`), the largest d/k below that where it is violated, and every d/k where it holds
+    (`holds_at_dk_s`: the ordering is not monotone in d/k)."""
     out = []
     for rate, tau_p in sorted({(r, t) for r, t, _ in cells}):
         dks = sorted(d for r, t, d in cells if (r, t) == (rate, tau_p))
@@ -83,7 +92,8 @@ def boundaries(cells: dict) -> list[dict]:
             violating = [d for d, h in zip(dks[:first], holds[:first]) if h is False]
             out.append({"control_rate_Hz": rate, "tau_p_s": tau_p, "tuning": tuning,
                         "holds_from_dk_s": dks[first] if first < len(dks) else None,
-                        "violates_at_dk_s": violating[-1] if violating else None})
+                        "violates_at_dk_s": violating[-1] if violating else None,
+                        "holds_at_dk_s": [d for d, h in zip(dks, holds) if h is True]})
     return out
 
 
@@ -115,13 +125,13 @@ def figure(cells: dict, path: Path) -> None:
                 if panel == ORDERING and ok is not None:
                     label = "yes" if ok else "no"
                 ax.text(j, i, label, ha="center", va="center", fontsize=6.5)
-        ax.imshow(grid, cmap="RdYlGn", vmin=-0.3, vmax=1.3, aspect="auto")
+        ax.imshow(grid, cmap=HOLDS_CMAP, vmin=0.0, vmax=1.0, aspect="auto")
         ax.set_xticks(range(len(dks)), [f"{d:.2g}" for d in dks], fontsize=7)
         ax.set_xlabel("arm time constant d/k [s]", fontsize=8)
         ax.set_title(panel if panel == ORDERING else f"{panel}: ρ_meas min (paper {PAPER_TABLE_II[panel]:+.3f})",
                      fontsize=8)
     axes[0].set_yticks(range(len(rows)), [f"{r:g} Hz, τ_p {t:g} s" for r, t in rows], fontsize=7)
-    fig.suptitle("camera_loop, paper's hardware tunings: green = ρ_meas min ≥ 0 (F ≤ F_max), red = violated "
+    fig.suptitle("camera_loop, paper's hardware tunings: blue = ρ_meas min ≥ 0 (F ≤ F_max), vermillion = violated "
                  "(deterministic grid: P(violation) = 0 or 1 per cell)", fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -145,9 +155,10 @@ def main() -> None:
     figure(cells, args.figure)
     found = boundaries(cells)
     for b in found:
-        held, broke = b["holds_from_dk_s"], b["violates_at_dk_s"]
-        print(f"{b['control_rate_Hz']:g} Hz, τ_p {b['tau_p_s']:g} s, {b['tuning']}: "
-              f"{'holds at no grid d/k' if held is None else f'holds from d/k = {held:.3g} s up'}"
+        held, broke, at = b["holds_from_dk_s"], b["violates_at_dk_s"], b["holds_at_dk_s"]
+        where = (f"holds from d/k = {held:.3g} s up" if held is not None else
+                 "holds at d/k = " + ", ".join(f"{d:.3g}" for d in at) + " s only" if at else "holds at no grid d/k")
+        print(f"{b['control_rate_Hz']:g} Hz, τ_p {b['tau_p_s']:g} s, {b['tuning']}: {where}"
               f"{'' if broke is None else f', last violated at d/k = {broke:.3g} s'}")
     print(f"figure: {args.figure}")
     print(json.dumps({"cells": len(cells), "boundaries": found}))
