@@ -123,6 +123,9 @@ from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
 
+ESCAPE_MEMORY = 4096
+"""Most Γ̲ look-ups remembered across calls (`EnergyGovernor.escape_cached`)."""
+
 TIP_TOLERANCE_M = 1e-9
 """A scalar tip this far outside every facet (m) has the array path's tip outside too (`EnergyGovernor.state_energy`)."""
 
@@ -130,6 +133,33 @@ DIAGNOSTIC_UNITS = {
     "W_J": "J", "Gamma_J": "J", "margin_J": "J", "step_fraction": "1", "blocked": "bool (1: the target was not reached)",
     "violation": "bool (1: the held command failed its certificate)", "prediction_s": "s", "solve_us": "µs",
 }
+
+
+ROUNDING_SLACK = 1e-12
+"""Relative slack (of Σ_i (|a_i| + |g_i| + |t_i|)², hPa²) for the rounding of the ray distances (`ray_may_come_nearer`)."""
+
+
+def ray_may_come_nearer(start: tuple, goal: tuple, direction: tuple, aim: tuple, best: float, sigma_min: float) -> bool:
+    """Whether a point a + σ·d of the ray from a = `start` towards g = `goal` (d = `direction`
+    = g − a as floats), σ ∈ [sigma_min, 1], may have a squared distance to t = `aim` below
+    `best` (hPa²) as the governor computes it (per entry a + σd, then Σ (c − t)²).
+
+    The exact distance Q(σ) = Σ_i (e_i + σ d_i)², e = a − t, is a convex quadratic with its
+    least value on [sigma_min, 1] at σ* = clip(−e·d/|d|², sigma_min, 1). Each float step
+    (d, σd, a + σd, c − t, its square, the sum) errs by at most one rounding u = 2⁻⁵³ of
+    entries bounded by M_i = |a_i| + |g_i| + |t_i|, so the computed distance and the computed
+    Q(σ*) each lie within about 30u Σ M_i² of the exact ones; ROUNDING_SLACK Σ M_i² is over
+    300 times that. False therefore proves that no σ in the range gives a computed distance
+    below `best`. σ = 0 gives a itself, which the caller has already counted. d = 0: False.
+    """
+    offset = [a - t for a, t in zip(start, aim)]
+    curvature = sum(d * d for d in direction)
+    if curvature == 0.0:
+        return False
+    nearest = min(max(-sum(e * d for e, d in zip(offset, direction)) / curvature, sigma_min), 1.0)
+    lowest = sum((e + nearest * d) ** 2 for e, d in zip(offset, direction))
+    scale = sum((abs(a) + abs(g) + abs(t)) ** 2 for a, g, t in zip(start, goal, aim))
+    return lowest <= best + ROUNDING_SLACK * scale
 
 
 def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
@@ -219,12 +249,16 @@ class EnergyGovernor:
         self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
         self._free_plate_energy = self._plate_weight * float(np.sum(law.energy([0.0] * len(self._facets))))  # n = 0 everywhere
         self._grid = self.table.grid_commands()
+        self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_cached`)
+        self._escape_origin: tuple | None = None
         self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
 
     def reset(self) -> None:
         """Forget the command history (vented valves, p = 0) and the target governor's warm start."""
         self.predictor.reset()
         self.target_governor.reset()
+        self._escape_known.clear()
+        self._escape_origin = None
 
     # -- certificate ------------------------------------------------------------------
     def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
@@ -238,6 +272,21 @@ class EnergyGovernor:
     def escape(self, u) -> float:
         """min_j (Γ̲_j(u) + c_j) (J)."""
         return min(g + c for g, c in zip(self.table.values(u), self._credit))
+
+    def escape_cached(self, u: tuple, origin: tuple) -> float:
+        """`escape(u)` (J), remembered across calls for as long as the held command is `origin`.
+
+        Γ̲ depends on the command alone (not on the state), and while the governor holds u_prev
+        ("hold", or a target already reached) each call walks the same rays from it: the look-ups
+        repeat. The memory is emptied when the held command changes, and at ESCAPE_MEMORY entries.
+        """
+        if origin != self._escape_origin or len(self._escape_known) >= ESCAPE_MEMORY:
+            self._escape_known.clear()
+            self._escape_origin = origin
+        gamma = self._escape_known.get(u)
+        if gamma is None:
+            gamma = self._escape_known[u] = self.escape(u)
+        return gamma
 
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
@@ -285,20 +334,14 @@ class EnergyGovernor:
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
         base, rho = self.state_energy(q_hat, qd_hat)
         q_list, p_list = q_hat.tolist(), p_hat.tolist()
-        terms: dict[tuple, tuple[float, float]] = {}  # u → (W, Γ) at x̂: each command's certificate is computed once
-
-        def certificate(u: tuple) -> tuple[float, float]:
-            known = terms.get(u)
-            if known is None:
-                known = terms[u] = (self.energy(base, q_list, p_list, u), self.escape(u))
-            return known
-
-        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂
-            energy, gamma = certificate(u)
-            return gamma - (1.0 + self.kappa) * energy - self.energy_margin
-
         # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
         held, aim = tuple(u_prev.tolist()), tuple(target.tolist())
+
+        inflation, energy, escape = 1.0 + self.kappa, self.energy, self.escape_cached
+
+        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂
+            return escape(u, held) - inflation * energy(base, q_list, p_list, u) - self.energy_margin
+
         held_ok = margin(held) + self.energy_margin >= 0.0
         infeasible, sigma = False, 1.0
         if margin(aim) >= 0.0:
@@ -307,15 +350,18 @@ class EnergyGovernor:
             u, sigma, best = held, 0.0, sum((a - t) * (a - t) for a, t in zip(held, aim))
             nominal = u_nom if self._box is None else np.clip(u_nom, *self._box)
             for k, goal in enumerate((aim, self._rest_list, tuple(nominal.tolist()))):
+                direction = tuple(g - a for a, g in zip(held, goal))
+                if k and not ray_may_come_nearer(held, goal, direction, aim, best, 0.5**self.bisection_steps):
+                    continue  # no end point of this ray can win: its search cannot change u
                 lo, hi = 0.0, 1.0
                 for _ in range(self.bisection_steps):
                     mid = 0.5 * (lo + hi)
-                    if margin(tuple(a + mid * (g - a) for a, g in zip(held, goal))) >= 0.0:
+                    if margin(tuple(a + mid * d for a, d in zip(held, direction))) >= 0.0:
                         lo = mid
                     else:
                         hi = mid
                 sigma = lo if k == 0 else sigma
-                candidate = tuple(a + lo * (g - a) for a, g in zip(held, goal))
+                candidate = tuple(a + lo * d for a, d in zip(held, direction))
                 distance = sum((c - t) * (c - t) for c, t in zip(candidate, aim))
                 if distance < best:
                     u, best = candidate, distance
@@ -323,8 +369,8 @@ class EnergyGovernor:
         else:
             u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             u, action, sigma = tuple(u.tolist()), "recover", math.nan
-        energy, gamma = certificate(u)
-        diagnostics = {"W_J": energy, "Gamma_J": gamma, "margin_J": gamma - (1.0 + self.kappa) * energy - self.energy_margin,
+        w, gamma = energy(base, q_list, p_list, u), escape(u, held)
+        diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": gamma - inflation * w - self.energy_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
         return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
 
