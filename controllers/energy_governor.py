@@ -124,7 +124,7 @@ from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
 
 ESCAPE_MEMORY = 4096
-"""Most Γ̲ look-ups remembered across calls (`EnergyGovernor.escape_cached`)."""
+"""Most Γ̲ look-ups remembered across calls (`EnergyGovernor.escape_memory`)."""
 
 TIP_TOLERANCE_M = 1e-9
 """A scalar tip this far outside every facet (m) has the array path's tip outside too (`EnergyGovernor.state_energy`)."""
@@ -244,12 +244,13 @@ class EnergyGovernor:
         self._k = robot.array("stiffness").tolist()
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()
+        self._energy_2 = (*self._k, *self._a, *self._beta) if self.n == 2 else None
         self._box = None if context.u_min is None else (context.u_min, context.u_max)
         self._rest_list = tuple((np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)).tolist())
         self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
         self._free_plate_energy = self._plate_weight * float(np.sum(law.energy([0.0] * len(self._facets))))  # n = 0 everywhere
         self._grid = self.table.grid_commands()
-        self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_cached`)
+        self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
         self._escape_origin: tuple | None = None
         self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
 
@@ -262,7 +263,14 @@ class EnergyGovernor:
 
     # -- certificate ------------------------------------------------------------------
     def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
-        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J)."""
+        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J).
+
+        N = 2 unrolled (a bisection evaluates it ~40 times per call): the loop's floats."""
+        if self.n == 2:
+            k0, k1, a0, a1, beta0, beta1 = self._energy_2
+            e0, e1 = q[0] - a0 * u[0], q[1] - a1 * u[1]
+            total = kinetic_and_plate + 0.5 * (k0 * e0 * e0 + beta0 * (p[0] - u[0]) ** 2)
+            return total + 0.5 * (k1 * e1 * e1 + beta1 * (p[1] - u[1]) ** 2)
         total = kinetic_and_plate
         for k, a, beta, qi, pi, ui in zip(self._k, self._a, self._beta, q, p, u):
             e = qi - a * ui
@@ -273,20 +281,18 @@ class EnergyGovernor:
         """min_j (Γ̲_j(u) + c_j) (J)."""
         return min(g + c for g, c in zip(self.table.values(u), self._credit))
 
-    def escape_cached(self, u: tuple, origin: tuple) -> float:
-        """`escape(u)` (J), remembered across calls for as long as the held command is `origin`.
+    def escape_memory(self, origin: tuple) -> dict[tuple, float]:
+        """The memory u → `escape(u)` (J) of the calls that held the command `origin` (hPa).
 
         Γ̲ depends on the command alone (not on the state), and while the governor holds u_prev
         ("hold", or a target already reached) each call walks the same rays from it: the look-ups
-        repeat. The memory is emptied when the held command changes, and at ESCAPE_MEMORY entries.
+        repeat. The memory is emptied when the held command changes, and when a call starts
+        with ESCAPE_MEMORY entries (a call adds at most 3 bisection_steps + 3).
         """
         if origin != self._escape_origin or len(self._escape_known) >= ESCAPE_MEMORY:
             self._escape_known.clear()
             self._escape_origin = origin
-        gamma = self._escape_known.get(u)
-        if gamma is None:
-            gamma = self._escape_known[u] = self.escape(u)
-        return gamma
+        return self._escape_known
 
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
@@ -337,10 +343,16 @@ class EnergyGovernor:
         # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
         held, aim = tuple(u_prev.tolist()), tuple(target.tolist())
 
-        inflation, energy, escape = 1.0 + self.kappa, self.energy, self.escape_cached
+        inflation, energy, known = 1.0 + self.kappa, self.energy, self.escape_memory(held)
+
+        def escape(u: tuple) -> float:  # `escape(u)` through the memory
+            gamma = known.get(u)
+            if gamma is None:
+                gamma = known[u] = self.escape(u)
+            return gamma
 
         def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂
-            return escape(u, held) - inflation * energy(base, q_list, p_list, u) - self.energy_margin
+            return escape(u) - inflation * energy(base, q_list, p_list, u) - self.energy_margin
 
         held_ok = margin(held) + self.energy_margin >= 0.0
         infeasible, sigma = False, 1.0
@@ -369,7 +381,7 @@ class EnergyGovernor:
         else:
             u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             u, action, sigma = tuple(u.tolist()), "recover", math.nan
-        w, gamma = energy(base, q_list, p_list, u), escape(u, held)
+        w, gamma = energy(base, q_list, p_list, u), escape(u)
         diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": gamma - inflation * w - self.energy_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
         return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
