@@ -139,6 +139,13 @@ ROUNDING_SLACK = 1e-12
 """Relative slack (of Σ_i (|a_i| + |g_i| + |t_i|)², hPa²) for the rounding of the ray distances (`ray_may_come_nearer`)."""
 
 
+def ray_point(start: tuple, direction: tuple, sigma: float) -> tuple:
+    """start + σ·direction per entry (hPa), numpy's elementwise floats; N = 2 unrolled."""
+    if len(start) == 2:
+        return (start[0] + sigma * direction[0], start[1] + sigma * direction[1])
+    return tuple(a + sigma * d for a, d in zip(start, direction))
+
+
 def ray_may_come_nearer(start: tuple, goal: tuple, direction: tuple, aim: tuple, best: float, sigma_min: float) -> bool:
     """Whether a point a + σ·d of the ray from a = `start` towards g = `goal` (d = `direction`
     = g − a as floats), σ ∈ [sigma_min, 1], may have a squared distance to t = `aim` below
@@ -345,14 +352,11 @@ class EnergyGovernor:
 
         inflation, energy, known = 1.0 + self.kappa, self.energy, self.escape_memory(held)
 
-        def escape(u: tuple) -> float:  # `escape(u)` through the memory
+        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂; Γ through the memory
             gamma = known.get(u)
             if gamma is None:
                 gamma = known[u] = self.escape(u)
-            return gamma
-
-        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂
-            return escape(u) - inflation * energy(base, q_list, p_list, u) - self.energy_margin
+            return gamma - inflation * energy(base, q_list, p_list, u) - self.energy_margin
 
         held_ok = margin(held) + self.energy_margin >= 0.0
         infeasible, sigma = False, 1.0
@@ -368,12 +372,12 @@ class EnergyGovernor:
                 lo, hi = 0.0, 1.0
                 for _ in range(self.bisection_steps):
                     mid = 0.5 * (lo + hi)
-                    if margin(tuple(a + mid * d for a, d in zip(held, direction))) >= 0.0:
+                    if margin(ray_point(held, direction, mid)) >= 0.0:
                         lo = mid
                     else:
                         hi = mid
                 sigma = lo if k == 0 else sigma
-                candidate = tuple(a + lo * d for a, d in zip(held, direction))
+                candidate = ray_point(held, direction, lo)
                 distance = sum((c - t) * (c - t) for c, t in zip(candidate, aim))
                 if distance < best:
                     u, best = candidate, distance
@@ -381,7 +385,7 @@ class EnergyGovernor:
         else:
             u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             u, action, sigma = tuple(u.tolist()), "recover", math.nan
-        w, gamma = energy(base, q_list, p_list, u), escape(u)
+        w, gamma = energy(base, q_list, p_list, u), known[u] if u in known else self.escape(u)
         diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": gamma - inflation * w - self.energy_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
         return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
