@@ -95,15 +95,20 @@ target was not reached), violation (1 when the held command failed its certifica
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
 
-Compute time (issue 13, tools/bench_governors.py). A camera-rate call is mostly step 2,
-50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor` runs
-them on scalars for N = 2); a 1 kHz call mostly step 1 (the quasi-static governor's QP
-iterations when u_nom's rest shape leaves P; `QuasiStaticGovernor.command`) and the
-certificates of step 3 (Γ̲ look-ups, 36 per governed call). Each command's certificate is
-computed once per call, the rays are walked on Python floats (numpy's elementwise
-arithmetic, the same floats), and the state's energy and ρ skip the array kinematics when
-the tip is clear of the plate (`state_energy`). None of this changes a command: the
-commands of commit 45eacd9, bit for bit (tests/test_energy_governor_references.py).
+Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
+call is mostly step 2, 50–120 ROS2 steps over the estimate's age and the delay
+(`controllers.state_predictor` runs them on scalars for N = 2); a 1 kHz call mostly step 1
+(the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
+`QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
+cycles through a few), the state's energy (step 2's end) and the certificates of step 3
+(Γ̲ look-ups and energies, up to 3 bisection_steps + 2 per call). The rays are walked on
+Python floats (numpy's elementwise arithmetic, the same floats; `ray_point`), Γ̲ (a function
+of the command alone) is remembered across the calls that hold the same u_prev
+(`escape_memory`: a "hold" call repeats its predecessor's look-ups), a ray is skipped when no
+end point of it can come nearer the target than the best so far (`ray_may_come_nearer`,
+with a rounding slack), and the state's energy and ρ skip the array kinematics when the tip
+is clear of the plate (`state_energy`). None of this changes a command: the commands of
+commit 45eacd9 (the step case: of 266e431), bit for bit (tests/test_energy_governor_references.py).
 """
 
 from __future__ import annotations
