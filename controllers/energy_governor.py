@@ -95,15 +95,20 @@ target was not reached), violation (1 when the held command failed its certifica
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
 
-Compute time (issue 13, tools/bench_governors.py). A camera-rate call is mostly step 2,
-50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor` runs
-them on scalars for N = 2); a 1 kHz call mostly step 1 (the quasi-static governor's QP
-iterations when u_nom's rest shape leaves P; `QuasiStaticGovernor.command`) and the
-certificates of step 3 (Γ̲ look-ups, 36 per governed call). Each command's certificate is
-computed once per call, the rays are walked on Python floats (numpy's elementwise
-arithmetic, the same floats), and the state's energy and ρ skip the array kinematics when
-the tip is clear of the plate (`state_energy`). None of this changes a command: the
-commands of commit 45eacd9, bit for bit (tests/test_energy_governor_references.py).
+Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
+call is mostly step 2, 50–120 ROS2 steps over the estimate's age and the delay
+(`controllers.state_predictor` runs them on scalars for N = 2); a 1 kHz call mostly step 1
+(the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
+`QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
+cycles through a few), the state's energy (step 2's end) and the certificates of step 3
+(Γ̲ look-ups and energies, up to 3 bisection_steps + 2 per call). The rays are walked on
+Python floats (numpy's elementwise arithmetic, the same floats; `ray_point`), Γ̲ (a function
+of the command alone) is remembered across the calls that hold the same u_prev
+(`escape_memory`: a "hold" call repeats its predecessor's look-ups), a ray is skipped when no
+end point of it can come nearer the target than the best so far (`ray_may_come_nearer`,
+with a rounding slack), and the state's energy and ρ skip the array kinematics when the tip
+is clear of the plate (`state_energy`). None of this changes a command: the commands of
+commit 45eacd9 (the step case: of 266e431), bit for bit (tests/test_energy_governor_references.py).
 """
 
 from __future__ import annotations
@@ -123,6 +128,9 @@ from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
 
+ESCAPE_MEMORY = 4096
+"""Most Γ̲ look-ups remembered across calls (`EnergyGovernor.escape_memory`)."""
+
 TIP_TOLERANCE_M = 1e-9
 """A scalar tip this far outside every facet (m) has the array path's tip outside too (`EnergyGovernor.state_energy`)."""
 
@@ -130,6 +138,40 @@ DIAGNOSTIC_UNITS = {
     "W_J": "J", "Gamma_J": "J", "margin_J": "J", "step_fraction": "1", "blocked": "bool (1: the target was not reached)",
     "violation": "bool (1: the held command failed its certificate)", "prediction_s": "s", "solve_us": "µs",
 }
+
+
+ROUNDING_SLACK = 1e-12
+"""Relative slack (of Σ_i (|a_i| + |g_i| + |t_i|)², hPa²) for the rounding of the ray distances (`ray_may_come_nearer`)."""
+
+
+def ray_point(start: tuple, direction: tuple, sigma: float) -> tuple:
+    """start + σ·direction per entry (hPa), numpy's elementwise floats; N = 2 unrolled."""
+    if len(start) == 2:
+        return (start[0] + sigma * direction[0], start[1] + sigma * direction[1])
+    return tuple(a + sigma * d for a, d in zip(start, direction))
+
+
+def ray_may_come_nearer(start: tuple, goal: tuple, direction: tuple, aim: tuple, best: float, sigma_min: float) -> bool:
+    """Whether a point a + σ·d of the ray from a = `start` towards g = `goal` (d = `direction`
+    = g − a as floats), σ ∈ [sigma_min, 1], may have a squared distance to t = `aim` below
+    `best` (hPa²) as the governor computes it (per entry a + σd, then Σ (c − t)²).
+
+    The exact distance Q(σ) = Σ_i (e_i + σ d_i)², e = a − t, is a convex quadratic with its
+    least value on [sigma_min, 1] at σ* = clip(−e·d/|d|², sigma_min, 1). Each float step
+    (d, σd, a + σd, c − t, its square, the sum) errs by at most one rounding u = 2⁻⁵³ of
+    entries bounded by M_i = |a_i| + |g_i| + |t_i|, so the computed distance and the computed
+    Q(σ*) each lie within about 30u Σ M_i² of the exact ones; ROUNDING_SLACK Σ M_i² is over
+    300 times that. False therefore proves that no σ in the range gives a computed distance
+    below `best`. σ = 0 gives a itself, which the caller has already counted. d = 0: False.
+    """
+    offset = [a - t for a, t in zip(start, aim)]
+    curvature = sum(d * d for d in direction)
+    if curvature == 0.0:
+        return False
+    nearest = min(max(-sum(e * d for e, d in zip(offset, direction)) / curvature, sigma_min), 1.0)
+    lowest = sum((e + nearest * d) ** 2 for e, d in zip(offset, direction))
+    scale = sum((abs(a) + abs(g) + abs(t)) ** 2 for a, g, t in zip(start, goal, aim))
+    return lowest <= best + ROUNDING_SLACK * scale
 
 
 def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
@@ -214,21 +256,33 @@ class EnergyGovernor:
         self._k = robot.array("stiffness").tolist()
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()
+        self._energy_2 = (*self._k, *self._a, *self._beta) if self.n == 2 else None
         self._box = None if context.u_min is None else (context.u_min, context.u_max)
         self._rest_list = tuple((np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)).tolist())
         self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
         self._free_plate_energy = self._plate_weight * float(np.sum(law.energy([0.0] * len(self._facets))))  # n = 0 everywhere
         self._grid = self.table.grid_commands()
+        self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
+        self._escape_origin: tuple | None = None
         self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
 
     def reset(self) -> None:
         """Forget the command history (vented valves, p = 0) and the target governor's warm start."""
         self.predictor.reset()
         self.target_governor.reset()
+        self._escape_known.clear()
+        self._escape_origin = None
 
     # -- certificate ------------------------------------------------------------------
     def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
-        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J)."""
+        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J).
+
+        N = 2 unrolled (a bisection evaluates it ~40 times per call): the loop's floats."""
+        if self.n == 2:
+            k0, k1, a0, a1, beta0, beta1 = self._energy_2
+            e0, e1 = q[0] - a0 * u[0], q[1] - a1 * u[1]
+            total = kinetic_and_plate + 0.5 * (k0 * e0 * e0 + beta0 * (p[0] - u[0]) ** 2)
+            return total + 0.5 * (k1 * e1 * e1 + beta1 * (p[1] - u[1]) ** 2)
         total = kinetic_and_plate
         for k, a, beta, qi, pi, ui in zip(self._k, self._a, self._beta, q, p, u):
             e = qi - a * ui
@@ -238,6 +292,19 @@ class EnergyGovernor:
     def escape(self, u) -> float:
         """min_j (Γ̲_j(u) + c_j) (J)."""
         return min(g + c for g, c in zip(self.table.values(u), self._credit))
+
+    def escape_memory(self, origin: tuple) -> dict[tuple, float]:
+        """The memory u → `escape(u)` (J) of the calls that held the command `origin` (hPa).
+
+        Γ̲ depends on the command alone (not on the state), and while the governor holds u_prev
+        ("hold", or a target already reached) each call walks the same rays from it: the look-ups
+        repeat. The memory is emptied when the held command changes, and when a call starts
+        with ESCAPE_MEMORY entries (a call adds at most 3 bisection_steps + 3).
+        """
+        if origin != self._escape_origin or len(self._escape_known) >= ESCAPE_MEMORY:
+            self._escape_known.clear()
+            self._escape_origin = origin
+        return self._escape_known
 
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
@@ -285,20 +352,17 @@ class EnergyGovernor:
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
         base, rho = self.state_energy(q_hat, qd_hat)
         q_list, p_list = q_hat.tolist(), p_hat.tolist()
-        terms: dict[tuple, tuple[float, float]] = {}  # u → (W, Γ) at x̂: each command's certificate is computed once
-
-        def certificate(u: tuple) -> tuple[float, float]:
-            known = terms.get(u)
-            if known is None:
-                known = terms[u] = (self.energy(base, q_list, p_list, u), self.escape(u))
-            return known
-
-        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂
-            energy, gamma = certificate(u)
-            return gamma - (1.0 + self.kappa) * energy - self.energy_margin
-
         # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
         held, aim = tuple(u_prev.tolist()), tuple(target.tolist())
+
+        inflation, energy, known = 1.0 + self.kappa, self.energy, self.escape_memory(held)
+
+        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂; Γ through the memory
+            gamma = known.get(u)
+            if gamma is None:
+                gamma = known[u] = self.escape(u)
+            return gamma - inflation * energy(base, q_list, p_list, u) - self.energy_margin
+
         held_ok = margin(held) + self.energy_margin >= 0.0
         infeasible, sigma = False, 1.0
         if margin(aim) >= 0.0:
@@ -307,15 +371,18 @@ class EnergyGovernor:
             u, sigma, best = held, 0.0, sum((a - t) * (a - t) for a, t in zip(held, aim))
             nominal = u_nom if self._box is None else np.clip(u_nom, *self._box)
             for k, goal in enumerate((aim, self._rest_list, tuple(nominal.tolist()))):
+                direction = tuple(g - a for a, g in zip(held, goal))
+                if k and not ray_may_come_nearer(held, goal, direction, aim, best, 0.5**self.bisection_steps):
+                    continue  # no end point of this ray can win: its search cannot change u
                 lo, hi = 0.0, 1.0
                 for _ in range(self.bisection_steps):
                     mid = 0.5 * (lo + hi)
-                    if margin(tuple(a + mid * (g - a) for a, g in zip(held, goal))) >= 0.0:
+                    if margin(ray_point(held, direction, mid)) >= 0.0:
                         lo = mid
                     else:
                         hi = mid
                 sigma = lo if k == 0 else sigma
-                candidate = tuple(a + lo * (g - a) for a, g in zip(held, goal))
+                candidate = ray_point(held, direction, lo)
                 distance = sum((c - t) * (c - t) for c, t in zip(candidate, aim))
                 if distance < best:
                     u, best = candidate, distance
@@ -323,8 +390,8 @@ class EnergyGovernor:
         else:
             u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             u, action, sigma = tuple(u.tolist()), "recover", math.nan
-        energy, gamma = certificate(u)
-        diagnostics = {"W_J": energy, "Gamma_J": gamma, "margin_J": gamma - (1.0 + self.kappa) * energy - self.energy_margin,
+        w, gamma = energy(base, q_list, p_list, u), known[u] if u in known else self.escape(u)
+        diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": gamma - inflation * w - self.energy_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
         return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
 

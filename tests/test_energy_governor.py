@@ -13,7 +13,7 @@ import pytest
 
 from controllers.dynamics import PCCDynamics
 from controllers import pcc
-from controllers.energy_governor import TIP_TOLERANCE_M, EnergyGovernor
+from controllers.energy_governor import TIP_TOLERANCE_M, EnergyGovernor, ray_may_come_nearer
 from controllers.escape_energy import EscapeEnergyTable
 from controllers.filter_metrics import governor_figures
 from controllers.params import reference_robot, uniform_robot
@@ -354,3 +354,34 @@ def test_contact_aware_on_a_plate_that_pushes_back():
         base = gov.dynamics.kinetic_energy(rec.q[i], rec.qd[i]) + ratio * float(np.sum(SAFE.stiffness.energy(n)))
         slack.append(gov.escape(u.tolist()) - gov.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
     assert min(slack) >= 0.0
+
+
+def _ray_distances(start, goal, aim, steps):
+    """The governor's computed squared distances to `aim` of the ray's points σ = j 2^-steps, j = 1 … 2^steps."""
+    direction = tuple(g - a for a, g in zip(start, goal))
+    points = (tuple(a + sigma * d for a, d in zip(start, direction)) for sigma in (j * 0.5**steps for j in range(1, 2**steps + 1)))
+    return direction, [sum((c - t) * (c - t) for c, t in zip(point, aim)) for point in points]
+
+
+def test_ray_skip_keeps_every_ray_with_a_nearer_point():
+    """`ray_may_come_nearer` may only answer False when no bisection end point σ ∈ [2^-s, 1] of the
+    ray has a computed distance below `best`: with best just above the least computed distance
+    (relative 1e-15, within rounding of it) it must answer True, on random rays, rays through the
+    aim and rays tangent to a circle about it; it answers False for rays that move away."""
+    rng = np.random.default_rng(13)
+    steps = 8
+    rays = [tuple(map(tuple, rng.uniform(-300.0, 300.0, (3, 2)))) for _ in range(200)]
+    for _ in range(100):  # through the aim, and tangent: (start − aim) ⟂ direction
+        start, aim = rng.uniform(-300.0, 300.0, 2), rng.uniform(-300.0, 300.0, 2)
+        rays.append((tuple(start), tuple(aim + rng.uniform(0.0, 2.0) * (aim - start)), tuple(aim)))
+        normal = np.array([-(start - aim)[1], (start - aim)[0]])
+        rays.append((tuple(start), tuple(start + rng.uniform(-1.0, 1.0) * normal), tuple(aim)))
+    for start, goal, aim in rays:
+        direction, distances = _ray_distances(start, goal, aim, steps)
+        best = min(distances) * (1.0 + 1e-15)
+        assert ray_may_come_nearer(start, goal, direction, aim, best, 0.5**steps), (start, goal, aim)
+    start, goal, aim = (100.0, 50.0), (0.0, 0.0), (200.0, 120.0)
+    direction, distances = _ray_distances(start, goal, aim, steps)
+    held = sum((a - t) ** 2 for a, t in zip(start, aim))
+    assert min(distances) > held and not ray_may_come_nearer(start, goal, direction, aim, held, 0.5**steps)
+    assert not ray_may_come_nearer(start, start, (0.0, 0.0), aim, held, 0.5**steps)  # d = 0: every point is the start

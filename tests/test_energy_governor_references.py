@@ -1,9 +1,10 @@
 """The energy governor (e-erg) and the quasi-static governor (qsg) command what they commanded
-before their speed-ups (commit 45eacd9), in closed loop on the tests' PCC loop, on a plate that
-pushes back, through a detected violation and in the mujoco_contact scenario.
+before their speed-ups (commit 45eacd9; the benchmark's step case: commit 266e431), in closed
+loop on the tests' PCC loop, on a plate that pushes back, through a detected violation, in the
+mujoco_contact scenario and in paper_sim's step case.
 
-tests/data/eerg_references_45eacd9.npz holds every call's command and action (tools/eerg_references.py:
-the cases, and how the file was made on a copy of 45eacd9). Here each loop case runs over the first
+tests/data/eerg_references_45eacd9.npz and eerg_references_step_266e431.npz hold every call's command
+and action (tools/eerg_references.py: the cases, and how the files were made). Here each loop case runs over the first
 half of its duration (the loops are causal: its calls are a prefix of the stored ones; every case
 governs in that half); `python tools/eerg_references.py` checks the full durations. Tolerance
 1e-9 hPa (the speed-ups keep the arithmetic: measured 0), actions exactly.
@@ -19,7 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("eerg_references", REPO / "tools" / "eerg_references.py")
 references = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(references)
-REFERENCE = np.load(REPO / "tests" / "data" / "eerg_references_45eacd9.npz")
+REFERENCE = references.load_references()
 SCALE = 0.5
 
 
@@ -46,5 +47,6 @@ def test_recovery_commands_match_the_reference():
     _assert_matches("recovery", arrays)
 
 
-def test_mujoco_contact_commands_match_the_reference():
-    _assert_matches("mujoco_contact", references.run_mujoco_case())
+@pytest.mark.parametrize("case", list(references.SCENARIO_CASES))
+def test_scenario_commands_match_the_reference(case):
+    _assert_matches(case, references.run_scenario_case(case))

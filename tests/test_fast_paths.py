@@ -197,3 +197,21 @@ def test_packed_recording_matches_a_plain_one():
     for key in COMPARED:
         assert log[key].shape == ref[key].shape and log[key].dtype == ref[key].dtype, key
         np.testing.assert_array_equal(log[key], ref[key], err_msg=key)
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.05])
+def test_unrolled_two_segment_certificate_energy_gives_the_loops_floats(tau):
+    """`EnergyGovernor.energy` for N = 2 (unrolled) against the per-segment loop it stands in for."""
+    from controllers.energy_governor import EnergyGovernor
+
+    gov = EnergyGovernor(FilterContext.for_robot(ROBOT, SAFE, 1e-3, actuator_tau=tau))
+    k, a, beta = ROBOT.array("stiffness").tolist(), (ROBOT.array("gains") / ROBOT.array("stiffness")).tolist(), gov.beta.tolist()
+    assert any(beta) == (tau > 0)
+    rng = np.random.default_rng(11)
+    for _ in range(500):
+        base, q, p, u = float(rng.uniform(0.0, 0.1)), rng.uniform(-3, 3, 2).tolist(), rng.uniform(-300, 300, 2).tolist(), tuple(rng.uniform(-300, 300, 2).tolist())
+        total = base
+        for ki, ai, bi, qi, pi, ui in zip(k, a, beta, q, p, u):
+            e = qi - ai * ui
+            total += 0.5 * (ki * e * e + bi * (pi - ui) ** 2)
+        assert gov.energy(base, q, p, u) == total

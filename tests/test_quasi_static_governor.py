@@ -146,3 +146,23 @@ def test_command_is_govern_and_the_scalar_margin_is_the_array_one():
         worst = max(worst, abs(full._scalar_rest_margin(u_nom) - np.min(full.rest_margins(u_nom))))
     assert 20 < nominal < 280
     assert worst <= 1e-15 and NOMINAL_TOL_M >= 1e6 * worst
+
+
+
+@pytest.mark.parametrize("u_nom", [[200.0, 200.0], [300.0, 120.0], [-250.0, 260.0]])
+def test_remembered_commands_are_govern_for_a_held_nominal(u_nom):
+    """A held u_nom whose rest shape leaves P: `command` (which returns a remembered command when
+    u_nom and the previous command repeat those of a recent call) gives `govern`'s commands bit
+    for bit over 400 calls, and after `reset` its first one again; the commands repeat (so the
+    remembered path runs: 400 calls, fewer than 50 distinct commands)."""
+    full, fast = make(), make()
+    u_nom = np.array(u_nom)
+    commands = []
+    for _ in range(400):
+        expected, got = full.govern(u_nom).u, fast.command(u_nom)
+        assert got.view(np.uint64).tolist() == expected.view(np.uint64).tolist()
+        commands.append(tuple(got.view(np.uint64).tolist()))
+    assert full.govern(u_nom).action == "governed"
+    fast.reset()
+    assert tuple(fast.command(u_nom).view(np.uint64).tolist()) == commands[0]
+    assert len(set(commands)) < 50

@@ -5,18 +5,24 @@ Cases: the tools/bench_governors.py cases (the tests' PCC loop, tests/governor_l
 exact state; 10 Hz camera timing with sinusoids and the worst step), the contact-aware
 variant with the benchmark's plate bounds [0.9, 1.1] (softcbf/bench.py) on the PCC plant and
 on a plate that pushes back, a random-steps run, a detected violation and its recovery, and
-the mujoco_contact scenario at 1 kHz with the contact-aware e-erg. Stored per case: every
-call's command (calls, N) hPa and action (an index into ACTIONS); the mujoco case stores the
-recorded command column u. The stored file was generated from commit 45eacd9 (before the
-speed-ups) with this script on a copy of that commit:
+the scenario cases (SCENARIO_CASES): mujoco_contact at 1 kHz with the contact-aware e-erg, and
+the filter benchmark's step case (softcbf/bench.py: paper_sim at 1 kHz, nominal "step", the
+benchmark's plate bounds) for two seeds, where e-erg bisects at nearly every call. Stored per
+case: every call's command (calls, N) hPa and action (an index into ACTIONS); the scenario
+cases store the recorded command column u. The stored files: every case but the step cases
+from commit 45eacd9 (before the first speed-ups), the step cases from commit 266e431 (the
+first speed-ups, before the second), each with this script on a copy of that commit:
 
     git archive 45eacd9 | tar -x -C /tmp/eerg_ref
     PYTHONPATH=/tmp/eerg_ref python tools/eerg_references.py --write tests/data/eerg_references_45eacd9.npz
+    python tools/eerg_references.py --cases "paper_sim step seed 0,paper_sim step seed 3" \
+        --write tests/data/eerg_references_step_266e431.npz    # this script on 266e431's controllers
 
-Without --write it compares the current tree with a stored file (default: that one):
-prints each case's max |Δu| (hPa) and the number of differing actions; ends with one JSON
-line. --scale s < 1 runs every case over the first fraction s of its duration (the loops
-are causal, so a shorter run's calls are a prefix of the stored ones).
+Without --write it compares the current tree with the stored files (default: REFERENCE_FILES,
+merged): prints each case's max |Δu| (hPa) and the number of differing actions; ends with
+one JSON line. --scale s < 1 runs every case over the first fraction s of its duration (the
+loops are causal, so a shorter run's calls are a prefix of the stored ones); --cases runs
+only the named cases.
 """
 
 from __future__ import annotations
@@ -31,7 +37,8 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_FILE = REPO / "tests" / "data" / "eerg_references_45eacd9.npz"
+REFERENCE_FILES = (REPO / "tests" / "data" / "eerg_references_45eacd9.npz",
+                   REPO / "tests" / "data" / "eerg_references_step_266e431.npz")
 ACTIONS = ("free", "governed", "hold", "recover", "stale", "nominal", "backtrack", "rate_dropped", "vent", "")  # e-erg, qsg
 BENCH_PLATE = {"contact_aware": True, "stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1}
 
@@ -58,9 +65,15 @@ LOOP_CASES = {
     "qsg 1kHz sin8": ("qsg", {}, 1e-3, 0.0, (0.0, 0.0), 0.0, _sinusoid(8.0), 4.0, 0, None),
     "qsg cam sin8": ("qsg", {}, 0.1, 0.02, (0.03, 0.1), 0.05, _sinusoid(8.0), 12.0, 0, None),
 }
-MUJOCO_CASE = ("mujoco_contact", dict(duration=1.5, filter="e-erg",
-                                      filter_params="contact_aware=true;stiffness_lo_ratio=0.9;stiffness_hi_ratio=1.1",
-                                      amplitude=150.0, frequency=0.25, t0=1.0))
+BENCH_PLATE_PARAMS = "contact_aware=true;stiffness_lo_ratio=0.9;stiffness_hi_ratio=1.1"
+# name: (scenario, its run parameters; "duration" in s)
+SCENARIO_CASES = {
+    "mujoco_contact": ("mujoco_contact", dict(duration=1.5, filter="e-erg", filter_params=BENCH_PLATE_PARAMS,
+                                              amplitude=150.0, frequency=0.25, t0=1.0)),
+    **{f"paper_sim step seed {seed}": ("paper_sim", dict(duration=2.0, filter="e-erg", filter_params=BENCH_PLATE_PARAMS,
+                                                         nominal="step", nominal_params=f"seed={seed};low_hPa=60;high_hPa=300"))
+       for seed in (0, 3)},
+}
 
 
 def _action_index(out) -> int:
@@ -104,13 +117,13 @@ def run_recovery_case() -> dict[str, np.ndarray]:
     return {"u": np.array([o.u for o in outs]), "action": np.array([_action_index(o) for o in outs])}
 
 
-def run_mujoco_case(scale: float = 1.0) -> dict[str, np.ndarray]:
-    """MUJOCO_CASE over `scale` × its duration: {"u": the recorded command column (steps, N)}."""
+def run_scenario_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
+    """One SCENARIO_CASES case over `scale` × its duration: {"u": the recorded command column (steps, N)}."""
     from scenarios import get
     from scenarios.common import data_only
     from softcbf_mj.runio import load_timeseries
 
-    scenario, params = MUJOCO_CASE
+    scenario, params = SCENARIO_CASES[name]
     params = {**params, "duration": params["duration"] * scale}
     with tempfile.TemporaryDirectory() as tmp, data_only():
         summary = get(scenario).run(Path(tmp), progress=False, **params)
@@ -119,14 +132,32 @@ def run_mujoco_case(scale: float = 1.0) -> dict[str, np.ndarray]:
     return {"u": np.asarray(series["u"], dtype=float)}
 
 
-def run_all(scale: float = 1.0) -> dict[str, np.ndarray]:
-    """Every case: keys "<case>/u" and "<case>/action" (not for the mujoco case)."""
-    arrays = {}
-    for name in LOOP_CASES:
-        arrays.update({f"{name}/{k}": v for k, v in run_loop_case(name, scale).items()})
-    arrays.update({f"recovery/{k}": v for k, v in run_recovery_case().items()})
-    arrays.update({f"mujoco_contact/{k}": v for k, v in run_mujoco_case(scale).items()})
-    return arrays
+CASES = (*LOOP_CASES, "recovery", *SCENARIO_CASES)
+
+
+def run_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
+    """One case of CASES (the recovery case always in full)."""
+    if name in LOOP_CASES:
+        return run_loop_case(name, scale)
+    if name in SCENARIO_CASES:
+        return run_scenario_case(name, scale)
+    if name == "recovery":
+        return run_recovery_case()
+    raise ValueError(f"case must be one of {list(CASES)}, got {name!r}")
+
+
+def run_all(scale: float = 1.0, cases=CASES) -> dict[str, np.ndarray]:
+    """The given cases: keys "<case>/u" and "<case>/action" (not for the scenario cases)."""
+    return {f"{name}/{k}": v for name in cases for k, v in run_case(name, scale).items()}
+
+
+def load_references(files=REFERENCE_FILES) -> dict[str, np.ndarray]:
+    """The stored files' arrays, merged (each key in one file)."""
+    merged = {}
+    for file in files:
+        with np.load(file) as stored:
+            merged.update({key: stored[key] for key in stored.files})
+    return merged
 
 
 def compare(arrays: dict[str, np.ndarray], reference) -> dict[str, dict]:
@@ -146,15 +177,17 @@ def compare(arrays: dict[str, np.ndarray], reference) -> dict[str, dict]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", metavar="FILE", help="store the current tree's commands in FILE (.npz)")
-    parser.add_argument("--reference", default=str(DEFAULT_FILE), help="stored file to compare with")
+    parser.add_argument("--reference", nargs="+", default=[str(f) for f in REFERENCE_FILES], help="stored files to compare with")
     parser.add_argument("--scale", type=float, default=1.0, help="fraction of each case's duration (compare only)")
+    parser.add_argument("--cases", default=",".join(CASES), help="comma list of the cases to run (default: all)")
     args = parser.parse_args()
+    cases = [c.strip() for c in args.cases.split(",") if c.strip()]
     if args.write:
-        arrays = run_all()
+        arrays = run_all(cases=cases)
         np.savez_compressed(args.write, **arrays)
         print(json.dumps({"file": args.write, "arrays": {k: list(v.shape) for k, v in arrays.items()}}))
         return 0
-    result = compare(run_all(args.scale), np.load(args.reference))
+    result = compare(run_all(args.scale, cases), load_references(args.reference))
     for case, entry in result.items():
         print(f"{case:28s} calls {entry['calls']:6d}  max |du| {entry['max_du_hPa']:.3g} hPa  "
               f"actions differing {entry.get('action_differences', 0)}")
