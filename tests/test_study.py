@@ -184,11 +184,14 @@ def test_same_study_and_seed_give_identical_rows_on_one_worker(reference, tiny, 
 
 
 def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_path):
-    """SIGINT to the CLI mid-study (1 worker, samples of 1 s sim), then --resume."""
+    """SIGINT to the CLI mid-study (1 worker, samples of 1 s sim run one by one), then --resume."""
     study_file = tmp_path / "slow.toml"
     study_file.write_text(TINY_TOML.replace("duration = 0.3", "duration = 1.0"), encoding="utf-8")
     out = tmp_path / "study"
-    cmd = [sys.executable, "-m", "softcbf.study", "run", str(study_file), "--out", str(out), "--workers", "1"]
+    # --batch-size 1: parts appear one at a time (a batch of 3 would store all three at once and
+    # could end the study before the signal arrives on a loaded machine)
+    cmd = [sys.executable, "-m", "softcbf.study", "run", str(study_file), "--out", str(out), "--workers", "1",
+           "--batch-size", "1"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not len(list((out / "results").glob("sample-*.parquet"))) >= 2 and time.monotonic() < deadline:
