@@ -186,7 +186,10 @@ def test_same_study_and_seed_give_identical_rows_on_one_worker(reference, tiny, 
 def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_path):
     """SIGINT to the CLI mid-study (1 worker, samples of 1 s sim run one by one), then --resume."""
     study_file = tmp_path / "slow.toml"
-    study_file.write_text(TINY_TOML.replace("duration = 0.3", "duration = 1.0"), encoding="utf-8")
+    # 12 samples of 1 s: after the first two, ten remain to be interrupted even on a loaded machine
+    study_file.write_text(TINY_TOML.replace("duration = 0.3", "duration = 1.0").replace("draws = 3", "draws = 6"),
+                          encoding="utf-8")
+    n = 12
     out = tmp_path / "study"
     # --batch-size 1: parts appear one at a time (a batch of 3 would store all three at once and
     # could end the study before the signal arrives on a loaded machine)
@@ -202,16 +205,16 @@ def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_pat
     store = StudyStore.open(out)
     stopped, corrupted = store.scan()
     assert corrupted == []
-    assert 2 <= len(stopped) < 6
-    (out / "results" / ".sample-0000005.x.tmp").write_bytes(b"PAR1 torn")  # a part cut by a crash: ignored
+    assert 2 <= len(stopped) < n
+    (out / "results" / f".sample-{n - 1:07d}.x.tmp").write_bytes(b"PAR1 torn")  # a part cut by a crash: ignored
     with pytest.raises(OutputDirError, match="pass --resume"):
         run_study(store.study, out, workers=1, progress=False)
     outcome = run_study(store.study, out, workers=2, resume=True, progress=False)
-    assert outcome.skipped == len(stopped) and outcome.ran == 6 - len(stopped)
+    assert outcome.skipped == len(stopped) and outcome.ran == n - len(stopped)
     rows = store.load_rows()
-    assert [r["sample"] for r in rows] == list(range(6)) and all(r["status"] == "ok" for r in rows)
+    assert [r["sample"] for r in rows] == list(range(n)) and all(r["status"] == "ok" for r in rows)
     study = load_study(study_file)
-    assert [r["param.facet_offset"] for r in rows] == [study.sample(i).values["facet_offset"] for i in range(6)]
+    assert [r["param.facet_offset"] for r in rows] == [study.sample(i).values["facet_offset"] for i in range(n)]
 
 
 def test_a_failing_sample_is_recorded_and_the_study_goes_on(tmp_path):
