@@ -194,9 +194,16 @@ class PCCDynamics:
 
     def _mass_and_force_2(self, kin: StepKinematics, q: list[float], qd: list[float]) -> tuple[list[list[float]], list[float]]:
         """`_mass_and_force` for N = 2 unrolled: the same operations in the same order (tested)."""
-        (m0, m1), (d0, d1), (k0, k1) = self._scalars[:3]
-        ((r00, r01), (_, r11)), (q0, q1), (v0, v1) = self._mass_rot, q, qd
         ((h0,), (j10, h1)), (acc0, acc1) = kin.centre_jac, kin.centre_bias_acc
+        m00, m01, m11, f0, f1 = self._mass_force_terms_2(q[0], q[1], qd[0], qd[1], h0, j10, h1, acc0, acc1)
+        return [[m00, m01], [m01, m11]], [f0, f1]
+
+    def _mass_force_terms_2(self, q0: float, q1: float, v0: float, v1: float, h0: complex, j10: complex, h1: complex,
+                            acc0: complex, acc1: complex) -> tuple[float, float, float, float, float]:
+        """(M_00, M_01, M_11, f_0, f_1) for N = 2 from the bodies' centre Jacobians and bias accelerations
+        (x + i·y): the rotational mass plus Σ m_b J_bᵀJ_b, and D q̇ + K q + Σ m_b J_bᵀ J̇_b q̇."""
+        (m0, m1), (d0, d1), (k0, k1) = self._scalars[:3]
+        ((r00, r01), (_, r11)) = self._mass_rot
         a_re, a_im = m0 * h0.real, m0 * h0.imag  # body 1: J_c1 = [h0, 0]
         f0 = d0 * v0 + k0 * q0 + (a_re * acc0.real + a_im * acc0.imag)
         m00 = r00 + (a_re * h0.real + a_im * h0.imag)
@@ -207,7 +214,7 @@ class PCCDynamics:
         a_re, a_im = m1 * h1.real, m1 * h1.imag
         f1 = d1 * v1 + k1 * q1 + (a_re * acc1.real + a_im * acc1.imag)
         m11 = r11 + (a_re * h1.real + a_im * h1.imag)
-        return [[m00, m01], [m01, m11]], [f0, f1]
+        return m00, m01, m11, f0, f1
 
     def evaluate_floats(self, q: list[float], qd: list[float]) -> DynamicsEval:
         """`evaluate` on Python float lists; no input checks."""
@@ -278,23 +285,13 @@ class PCCDynamics:
         in rad/s², kg·m², 1/(kg·m²), m (x + i·y), m/rad.
 
         For integrators that evaluate the model many times per call (the governors' state
-        predictor): `pcc.body_terms_2`, then `_mass_and_force_2`, `spd_inverse` and
-        `acceleration_from_terms` written out, the same operations in the same order (so the
-        same floats, tested), without the containers and the memo.
+        predictor): `pcc.body_terms_2` and the mass and force terms of `_mass_and_force_2`, then
+        `spd_inverse` and `acceleration_from_terms` written out, the same operations in the same
+        order (so the same floats, tested), without the containers and the memo.
         """
-        (m0, m1), (d0, d1), (k0, k1), (g0, g1), (length0, length1) = self._scalars
-        ((r00, r01), (_, r11)) = self._mass_rot
+        (g0, g1), (length0, length1) = self._scalars[3:]
         h0, j10, h1, acc0, acc1, tip, jac0, jac1 = body_terms_2(q0, q1, v0, v1, length0, length1)
-        a_re, a_im = m0 * h0.real, m0 * h0.imag  # body 1: J_c1 = [h0, 0]
-        f0 = d0 * v0 + k0 * q0 + (a_re * acc0.real + a_im * acc0.imag)
-        m00 = r00 + (a_re * h0.real + a_im * h0.imag)
-        a_re, a_im = m1 * j10.real, m1 * j10.imag  # body 2: J_c2 = [j10, h1]
-        f0 += a_re * acc1.real + a_im * acc1.imag
-        m00 += a_re * j10.real + a_im * j10.imag
-        m01 = r01 + (a_re * h1.real + a_im * h1.imag)
-        a_re, a_im = m1 * h1.real, m1 * h1.imag
-        f1 = d1 * v1 + k1 * q1 + (a_re * acc1.real + a_im * acc1.imag)
-        m11 = r11 + (a_re * h1.real + a_im * h1.imag)
+        m00, m01, m11, f0, f1 = self._mass_force_terms_2(q0, q1, v0, v1, h0, j10, h1, acc0, acc1)
         det = m00 * m11 - m01 * m01
         i00, i01, i11 = m11 / det, -m01 / det, m00 / det
         tau0, tau1 = g0 * u0 - f0, g1 * u1 - f1
