@@ -195,7 +195,14 @@ def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_pat
     # could end the study before the signal arrives on a loaded machine)
     cmd = [sys.executable, "-m", "softcbf.study", "run", str(study_file), "--out", str(out), "--workers", "1",
            "--batch-size", "1"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # as from a terminal: a job started in the background of a script (CI under nohup, `cmd &`)
+    # inherits SIGINT ignored, and the child would keep ignoring it; a handler here resets to the
+    # default on exec, so the child's Python raises KeyboardInterrupt as after a Ctrl-C
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     deadline = time.monotonic() + 60
     while not len(list((out / "results").glob("sample-*.parquet"))) >= 2 and time.monotonic() < deadline:
         time.sleep(0.05)
