@@ -95,3 +95,15 @@ def test_paper_sim_batches_equal_its_single_runs(tmp_path):
                 assert many[name] is None, name
             else:
                 assert math.isclose(many[name], one[name], rel_tol=0.0, abs_tol=1e-9), (one["sample"], name)
+
+
+def test_progress_counts_whole_batches(mismatch, tmp_path, capsys):
+    """The progress line moves once per finished batch: a line per row would show a batch's
+    first row alone, and extrapolate the ETA from one sample of a task that finished several."""
+    study = Study("progress", "mujoco_contact", ("None",), draws=4, seed=7, fixed=mismatch.fixed,
+                  vary=mismatch.vary)
+    outcome = run_study(study, tmp_path / "s", workers=1, batch_size=2)
+    assert (outcome.ran, outcome.failed) == (4, 0)
+    counts = [line.split(" done")[0].rsplit(" ", 1)[1] for line in capsys.readouterr().err.splitlines()
+              if "[study progress]" in line]
+    assert counts == ["2/4", "4/4"]

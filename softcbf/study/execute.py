@@ -217,11 +217,14 @@ def run_study(
     pending: dict[Future, Task] = {}
     attempts: collections.Counter[int] = collections.Counter()
 
-    def record(row: dict[str, Any]) -> None:
+    def record(rows: list[dict[str, Any]]) -> None:
+        """Store a task's rows, then update the progress line once (per row, a batch's first row
+        would extrapolate the ETA from one sample of a task that finished many)."""
         nonlocal ran, failed
-        store.write(row)
-        ran += 1
-        failed += row["status"] != "ok"
+        for row in rows:
+            store.write(row)
+            ran += 1
+            failed += row["status"] != "ok"
         bar.update(ran, f"{ran}/{n_todo} done, {failed} failed")
 
     try:
@@ -245,8 +248,7 @@ def run_study(
                     continue
                 except Exception as exc:  # noqa: BLE001 - e.g. Dask's KilledWorker: the task failed, the study goes on
                     rows = [failed_row(study, index, f"{type(exc).__name__}: {exc}") for index in task.indices]
-                for row in rows:
-                    record(row)
+                record(rows)
             if broken:
                 broken += list(pending.values())  # the whole pool is gone
                 pending.clear()
@@ -257,9 +259,9 @@ def run_study(
                         attempts[index] += 1
                     tries = max(attempts[index] for index in task.indices)
                     if tries >= MAX_ATTEMPTS:
-                        for index in task.indices:
-                            record(failed_row(study, index, f"the worker process died {tries} times while running "
-                                                            "this sample or its batch (crash or kill outside Python)"))
+                        record([failed_row(study, index, f"the worker process died {tries} times while running "
+                                                         "this sample or its batch (crash or kill outside Python)")
+                                for index in task.indices])
                     else:
                         retry.appendleft(task)
     except BaseException:
