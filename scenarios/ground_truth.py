@@ -12,8 +12,6 @@ from scenarios.common import check_choice, load_robot
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
 
-"""The bound of a scenario's `table_friction` (`softcbf_mj.table_friction`; the physics step may lower it)."""
-
 
 def flexure_params(params: Mapping[str, Any]) -> FlexureParams:
     """The flexure sheet of a scenario's `sheet_*` parameters (checked by FlexureParams)."""
