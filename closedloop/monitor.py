@@ -12,7 +12,7 @@ cycle of its cause:
 | `interrupted` (Ctrl-C)                             | VENT now, latched                                        |
 | `link_lost`                                        | VENT now, latched (the board's watchdog vents as well)   |
 | a vent is latched                                  | VENT until `reset()`                                     |
-| `perception_stale` or `command_nonfinite` (or u_cmd None / non-finite) | HOLD the last command sent with RUN; VENT, latched, once the hold has lasted `hold_s` (at once if nothing was ever sent) |
+| `perception_stale`, `command_nonfinite` (or u_cmd None / non-finite) or `filter_fault` | HOLD the last command sent with RUN; VENT, latched, once the hold has lasted `hold_s` (at once if nothing was ever sent) |
 | none                                               | RUN: u = u_cmd                                           |
 
 A HOLD that ends (its flags clear) before `hold_s` returns to RUN; the next one gets a
@@ -51,6 +51,7 @@ class SafetyFlags:
     link_lost: bool = False  # `ValveBoardLink.link_lost`
     command_nonfinite: bool = False  # the controller raised NonFiniteCommandError or gave NaN/inf
     interrupted: bool = False  # Ctrl-C or another stop request
+    filter_fault: bool = False  # the filter or nominal raised or returned what the contract refuses (closedloop.step)
 
     def raised(self) -> tuple[str, ...]:
         """Names of the flags that are set, in field order."""
@@ -128,14 +129,14 @@ class SafetyMonitor:
         if u is not None and u.shape != (self.n_segments,):
             raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")
         finite = u is not None and all(map(math.isfinite, u.tolist()))
-        if not finite and not flags.command_nonfinite:
+        if not finite and not flags.command_nonfinite and not flags.filter_fault:
             flags = replace(flags, command_nonfinite=True)
         reasons = flags.raised()
         if flags.interrupted or flags.link_lost:
             return self._vent(reasons)
         if self._vent_reasons is not None:
             return SafetyDecision(SafeAction.VENT, np.zeros(self.n_segments), self._vent_reasons)
-        if flags.perception_stale or flags.command_nonfinite:
+        if flags.perception_stale or flags.command_nonfinite or flags.filter_fault:
             if self._hold_since is None:
                 self._hold_since = t
             if self._last_run is None or t - self._hold_since >= self.hold_s:

@@ -10,7 +10,9 @@ A row holds:
   filter_us;
 - the filter's diagnostics (`FilterOutput.diagnostics`), one column per key with the
   unit the filter declares in `diagnostic_units` (`units()`); their shapes are fixed by
-  the first output of the run.
+  the first output of the run (the control step's `OutputCheck` has checked that they
+  keep them, stay within `DIAGNOSTIC_FLOATS_MAX` floats and take no loop column's name; an
+  output without diagnostics, e.g. a bare array, records NaN in them).
 
 Rows between control calls (a multi-rate loop passes `called=False`) repeat the step in
 force. The filter's columns (u_filter, rho_pred, diagnostics) hold the last output the
@@ -28,37 +30,10 @@ from typing import Protocol
 
 import numpy as np
 
+from closedloop.columns import TIMESERIES_UNITS
 from closedloop.step import ACTION_CODES, StepRecord
 from controllers.safety_filter import DiagnosticLayout, FilterOutput, FlatDiagnostics
 
-TIMESERIES_UNITS = {
-    "t": "s (the loop's control time: simulated, or since the hardware run started)",
-    "q": "rad (true)",
-    "qd": "rad/s (true)",
-    "q_est": "rad",
-    "qd_est": "rad/s",
-    "tip": "m (true)",
-    "segment_ends": "m (true)",
-    "u_nom": "hPa",
-    "u_filter": "hPa (the filter's return, before clipping)",
-    "u": "hPa (the command sent: clipped, or the safety monitor's hold / vent)",
-    "u_applied": "hPa (at the plant's valves)",
-    "contact_force": "N (measured)",
-    "rho_pred": "1 (the filter's predicted margin; NaN: no prediction)",
-    "rho_meas": "1 (from the measured contact force)",
-    "infeasible": "bool (the filter said so, on its call's row)",
-    "action": "0 run, 1 hold, 2 vent (the safety monitor)",
-    "filter_us": "us (the filter call's wall time; NaN on rows without a call)",
-    "t_clock": "s (monotonic clock)",
-    "est_age_s": "s (t - t_capture of the estimate)",
-    "est_stale": "bool",
-    "u_sent": "hPa (what the link sent)",
-    "u_measured": "hPa (the board's measured pressure)",
-    "link_acked": "bool",
-    "link_latency_s": "s",
-    "link_lost": "bool",
-    "late_s": "s (cycle start after its scheduled time)",
-}
 
 
 class Recorder:
@@ -137,10 +112,12 @@ class Recorder:
         diagnostics = output.diagnostics
         if type(diagnostics) is FlatDiagnostics and diagnostics.layout is self._flat_layout:
             self._diag = diagnostics.values
-        elif diagnostics or self._diag_layout is not None:
+        elif diagnostics:
             if self._diag_layout is None:
                 self._add_diagnostics(output)
             self._diag = self._flatten(output)
+        elif self._diag_layout is not None:  # an output without diagnostics (a bare array): NaN this row
+            self._diag = [math.nan] * len(self._diag)
 
     def _held_row(self, step: StepRecord) -> list:
         """The step's columns on a row without its call: the output in force, no infeasible, no
@@ -157,10 +134,6 @@ class Recorder:
 
     def _add_diagnostics(self, output: FilterOutput) -> None:
         """Columns for the filter's diagnostics, NaN on the rows before its first output."""
-        taken = {key for key, _, _ in self._layout}
-        clash = sorted(set(output.diagnostics) & (set(TIMESERIES_UNITS) | taken))
-        if clash:
-            raise ValueError(f"filter diagnostics must not reuse the loop's column names, got {clash}")
         self._diag_layout = [(key, np.shape(value), np.asarray(value).dtype == bool)
                              for key, value in output.diagnostics.items()]
         self._diag_units = {key: str(output.diagnostic_units[key]) for key in output.diagnostics}
@@ -177,19 +150,14 @@ class Recorder:
         """The diagnostics' values on the call's row, flattened in their layout's order."""
         diagnostics = output.diagnostics
         flat: list = []
-        try:
-            for key, shape, vector in self._diag_plan:
-                value = diagnostics[key]
-                if not shape:
-                    flat.append(value)
-                elif vector and type(value) is np.ndarray and value.shape == shape:
-                    flat += value.tolist()
-                else:
-                    flat += np.asarray(value, dtype=float).reshape(shape).ravel().tolist()
-        except (KeyError, ValueError):
-            raise ValueError(f"filter diagnostics must keep their keys and shapes over a run: first "
-                             f"{[(key, shape) for key, shape, _ in self._diag_layout]}, now "
-                             f"{[(key, np.shape(value)) for key, value in diagnostics.items()]}") from None
+        for key, shape, vector in self._diag_plan:
+            value = diagnostics[key]
+            if not shape:
+                flat.append(value)
+            elif vector and type(value) is np.ndarray and value.shape == shape:
+                flat += value.tolist()
+            else:
+                flat += np.asarray(value, dtype=float).reshape(shape).ravel().tolist()
         return flat
 
     def units(self) -> dict[str, str]:

@@ -29,6 +29,7 @@ import importlib
 import importlib.util
 import inspect
 import sys
+import traceback
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -77,11 +78,36 @@ def resolve(spec: str, builtins: Mapping[str, Callable]) -> Callable:
     return factory
 
 
+class PluginLoadError(ValueError):
+    """A filter or nominal controller cannot be loaded or built: its file or module does not
+    import, its factory is not callable or raises, or its parameters are missing or unknown.
+    The message is one line naming the spec and, where user code raised, file:line."""
+
+
+def _where(exc: BaseException, path: Path | None = None) -> str:
+    """"file:line: " of the user code behind `exc`: a SyntaxError's own position, else the deepest
+    traceback frame in `path` (when given) or the deepest frame; "" when there is none."""
+    if isinstance(exc, SyntaxError) and exc.filename:
+        return f"{exc.filename}:{exc.lineno}: "
+    frames = traceback.extract_tb(exc.__traceback__)
+    if path is not None:
+        inside = [f for f in frames if Path(f.filename) == path]
+        frames = inside or frames
+    return f"{frames[-1].filename}:{frames[-1].lineno}: " if frames else ""
+
+
+def _load_error(what: str, exc: BaseException, path: Path | None = None) -> PluginLoadError:
+    text = str(exc).strip().splitlines()
+    return PluginLoadError(f"{what}: {_where(exc, path)}{type(exc).__name__}: {text[0] if text else ''}")
+
+
 def _import(name: str) -> types.ModuleType:
     try:
         return importlib.import_module(name)
     except ImportError as exc:
-        raise ValueError(f"cannot import module {name!r}: {exc}") from None
+        raise PluginLoadError(f"cannot import module {name!r}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - the module's own code raised while it was imported
+        raise _load_error(f"module {name!r} raised while it was imported", exc) from None
 
 
 def _load_file(path: Path) -> types.ModuleType:
@@ -97,6 +123,9 @@ def _load_file(path: Path) -> types.ModuleType:
     sys.modules[name] = module
     try:
         spec.loader.exec_module(module)
+    except Exception as exc:  # noqa: BLE001 - syntax, import and any error of the file's own code
+        del sys.modules[name]
+        raise _load_error(f"cannot load {str(path)!r}", exc, resolved) from None
     except BaseException:
         del sys.modules[name]
         raise
@@ -104,7 +133,11 @@ def _load_file(path: Path) -> types.ModuleType:
 
 
 def _signature(factory: Callable) -> inspect.Signature:
-    return inspect.signature(factory)
+    try:
+        return inspect.signature(factory)
+    except (ValueError, TypeError) as exc:  # a builtin without a signature, a callable object without __call__'s
+        raise PluginLoadError(f"{getattr(factory, '__name__', repr(factory))} cannot be a factory: its signature "
+                              f"cannot be read ({exc})") from None
 
 
 def _hints(factory: Callable) -> dict[str, object]:
@@ -178,6 +211,12 @@ def arguments(factory: Callable, params: Mapping[str, object]) -> dict[str, obje
     name = getattr(factory, "__name__", repr(factory))
     if unknown:
         raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {name}; valid: {', '.join(sorted(accepted)) or 'none'}")
+    missing = [n for n, p in signature.parameters.items()
+               if n != CONTEXT and p.default is p.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+               and n not in params]
+    if missing:
+        raise PluginLoadError(f"missing required parameter(s) {', '.join(missing)} for {name} "
+                              f"(give them with --filter-param / --nominal-param NAME=VALUE)")
     hints = _hints(factory)
     kwargs = {}
     for key, value in params.items():
@@ -191,7 +230,18 @@ def build(factory: Callable, params: Mapping[str, object], context: FilterContex
     kwargs = arguments(factory, params)
     if CONTEXT in _signature(factory).parameters:
         kwargs[CONTEXT] = context
-    return factory(**kwargs)
+    try:
+        return factory(**kwargs)
+    except Exception as exc:  # noqa: BLE001 - the factory is user code: a load-time fault (exit 2)
+        raise _load_error(f"{getattr(factory, '__name__', repr(factory))}({', '.join(kwargs)}) raised", exc,
+                          _source_file(factory)) from None
+
+
+def _source_file(factory: Callable) -> Path | None:
+    try:
+        return Path(inspect.getsourcefile(factory)).resolve()
+    except (TypeError, OSError):
+        return None
 
 
 def check_filter(spec: str, params: Mapping[str, object]) -> None:

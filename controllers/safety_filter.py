@@ -31,6 +31,16 @@ command that is sent:
 
 Whatever a filter returns, the control step clips it to the limits and refuses
 non-finite commands (`closedloop.step`); a filter need not repeat that.
+
+What a loop accepts (the plug-in boundary is a trust boundary, SPEC §16). A filter is
+somebody else's code, so the control step hands it read-only copies (the estimate's q and
+q̇, u_nom, the context's limits) and converts its return once (`OutputCheck`): a bare
+return must be n real numbers (an ndarray, list or tuple; not bool, complex or object
+values), a FilterOutput must have such a u, a str action, a bool infeasible, a real
+rho_pred (NaN for none) and diagnostics of str keys and real values, at most
+DIAGNOSTIC_FLOATS_MAX floats, with the same keys and shapes every call. Anything else
+raises `FilterReturnError`, which the control step treats like an exception from the
+filter: a filter fault (hold, then vent, and the run stops; `closedloop.step`).
 """
 
 from __future__ import annotations
@@ -190,6 +200,11 @@ class FilterContext:
     constant (0: ideal valve; None: unknown); dynamics: the plant's evaluation object of
     `robot`'s PCC model when the plant integrates exactly that model (the PCC plant), so a
     filter may share its evaluations at the state the plant reports; None otherwise.
+
+    The context is handed to code the testbed did not write: u_min and u_max are read-only
+    copies (an in-place change raises ValueError), and `limits` holds the same limits as
+    tuples of floats, which is what the control step clips to (`closedloop.step`), so
+    nothing a filter does to the context can widen them.
     """
 
     robot: RobotParams
@@ -200,6 +215,7 @@ class FilterContext:
     command_delay: float | None = None
     actuator_tau: float | None = None
     dynamics: PCCDynamics | None = None
+    limits: tuple[tuple[float, ...], tuple[float, ...]] | None = field(default=None, init=False, repr=False)
 
     @classmethod
     def for_robot(cls, robot: RobotParams, safe_set: ForceSafeSet, control_dt: float, pressure_limits: bool = True,
@@ -217,8 +233,9 @@ class FilterContext:
             lo, hi = np.asarray(self.u_min, dtype=float), np.asarray(self.u_max, dtype=float)
             if lo.shape != (n,) or hi.shape != (n,) or not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
                 raise ValueError(f"u_min < u_max must be finite arrays of shape ({n},) hPa, got {self.u_min} and {self.u_max}")
-            object.__setattr__(self, "u_min", lo)
-            object.__setattr__(self, "u_max", hi)
+            object.__setattr__(self, "u_min", _read_only_copy(lo))
+            object.__setattr__(self, "u_max", _read_only_copy(hi))
+            object.__setattr__(self, "limits", (tuple(lo.tolist()), tuple(hi.tolist())))
         if not (math.isfinite(self.control_dt) and self.control_dt > 0):
             raise ValueError(f"control_dt must be finite and > 0 s, got {self.control_dt}")
         for name in ("command_delay", "actuator_tau"):
@@ -250,11 +267,138 @@ class PassThroughFilter:
         return u_nom
 
 
-def as_output(result: FilterOutput | np.ndarray) -> FilterOutput:
-    """A filter's return value as a FilterOutput (a bare array becomes FilterOutput(u))."""
-    if isinstance(result, FilterOutput):
-        return result
-    return FilterOutput(np.asarray(result, dtype=float))
+class FilterReturnError(TypeError):
+    """A filter or nominal controller returned something the contract does not allow (module
+    docstring: "What a loop accepts"); the control step treats it as a filter fault."""
+
+
+DIAGNOSTIC_FLOATS_MAX = 256  # floats of diagnostics one call may return (the recorder keeps them every row)
+_REAL_SCALARS = (float, bool, np.float64, np.float32, np.int64, np.int32, np.bool_)  # types of real scalars a float holds
+_INT_MAX = 2**1023  # a Python int beyond this is no float
+
+
+def _read_only_copy(values: np.ndarray) -> np.ndarray:
+    out = np.array(values, dtype=float)
+    out.flags.writeable = False
+    return out
+
+
+def real_vector(value: object, n: int, what: str) -> np.ndarray:
+    """`value` as a new float array of shape (n,): an ndarray, list or tuple of n real numbers
+    (int or float; not bool, complex, object or str); FilterReturnError naming `what` otherwise.
+    Non-finite entries are kept (the control step refuses them as commands)."""
+    if type(value) is np.ndarray:
+        array = value
+    elif isinstance(value, (np.ndarray, list, tuple)):
+        try:
+            array = np.asarray(value)
+        except (ValueError, TypeError, OverflowError) as exc:
+            raise FilterReturnError(f"{what} must be {n} real numbers, got an unreadable {type(value).__name__}: "
+                                    f"{exc}") from None
+    else:
+        raise FilterReturnError(f"{what} must be an array of {n} real numbers (hPa), got {type(value).__name__}")
+    if array.dtype.kind not in "fiu":
+        raise FilterReturnError(f"{what} must hold real numbers (float or int), got dtype {array.dtype}")
+    if array.shape != (n,):
+        raise FilterReturnError(f"{what} must have shape ({n},), got {array.shape}")
+    return array.astype(float)
+
+
+def _real_scalar(value: object) -> bool:
+    """A real number a float can hold: float, bool, a numpy real, or an int within ±2**1023."""
+    if type(value) in _REAL_SCALARS:
+        return True
+    if isinstance(value, int):
+        return -_INT_MAX < value < _INT_MAX
+    return isinstance(value, (float, np.integer, np.floating))
+
+
+class OutputCheck:
+    """The one conversion of a filter's return, at the plug-in boundary (module docstring,
+    "What a loop accepts"): `check(result)` is a FilterOutput whose u is a new float array
+    of shape (n_segments,), or raises FilterReturnError.
+
+    - a bare return must be `real_vector`;
+    - a FilterOutput: u likewise; action a str; infeasible a bool; rho_pred a real number
+      (NaN: no prediction; not ±inf); diagnostics a mapping of str keys to real numbers or
+      arrays of real numbers, at most DIAGNOSTIC_FLOATS_MAX floats in all, whose keys and
+      shapes stay those of the first output with diagnostics (the recorder's columns; an
+      output without any, e.g. a bare return, is allowed and records NaN), and none of
+      whose keys is in `reserved` (the loop's own column names).
+
+    One instance per control step (it remembers the first diagnostics' layout)."""
+
+    def __init__(self, n_segments: int, reserved: frozenset[str] = frozenset()) -> None:
+        self.n, self.reserved = n_segments, reserved
+        self.shapes: dict[str, tuple[int, ...]] | None = None  # the diagnostics' layout, from the first output
+        self._flat_layout: DiagnosticLayout | None = None  # a FlatDiagnostics layout already checked
+
+    def __call__(self, result: object) -> FilterOutput:
+        if type(result) is not FilterOutput:
+            if isinstance(result, FilterOutput):
+                raise FilterReturnError(f"a filter must return FilterOutput itself, not a subclass "
+                                        f"({type(result).__name__})")
+            return FilterOutput(real_vector(result, self.n, "the filter's command"))
+        u = real_vector(result.u, self.n, "FilterOutput.u")
+        if type(result.action) is not str:
+            raise FilterReturnError(f"FilterOutput.action must be a str, got {type(result.action).__name__}")
+        if type(result.infeasible) not in (bool, np.bool_):
+            raise FilterReturnError(f"FilterOutput.infeasible must be a bool, got {type(result.infeasible).__name__}")
+        rho = result.rho_pred
+        if not _real_scalar(rho) or isinstance(rho, bool) or math.isinf(rho):
+            raise FilterReturnError(f"FilterOutput.rho_pred must be a real number or NaN (no prediction), got {rho!r}"
+                                    if _real_scalar(rho) else f"FilterOutput.rho_pred must be a real number or NaN "
+                                    f"(no prediction), got {type(rho).__name__}")
+        self._check_diagnostics(result.diagnostics)
+        return FilterOutput(u, result.action, bool(result.infeasible), float(rho), result.diagnostics,
+                            result.diagnostic_units)
+
+    def _check_diagnostics(self, diagnostics: object) -> None:
+        if type(diagnostics) is FlatDiagnostics:
+            layout = diagnostics.layout
+            if layout is not self._flat_layout:
+                self._check_layout(dict(layout.shapes))
+                self._flat_layout = layout
+            values = diagnostics.values
+            if len(values) != layout.size or not all(type(v) in _REAL_SCALARS or _real_scalar(v) for v in values):
+                raise FilterReturnError(f"FlatDiagnostics.values must be {layout.size} real numbers")
+            return
+        if not isinstance(diagnostics, Mapping):
+            raise FilterReturnError(f"FilterOutput.diagnostics must be a mapping, got {type(diagnostics).__name__}")
+        if not diagnostics:  # none this call (as a bare return): the recorder keeps NaN
+            return
+        shapes = {}
+        for key, value in diagnostics.items():
+            if type(key) is not str:
+                raise FilterReturnError(f"diagnostic keys must be str, got {key!r}")
+            if _real_scalar(value):
+                shapes[key] = ()
+                continue
+            if not isinstance(value, (np.ndarray, list, tuple)):
+                raise FilterReturnError(f"diagnostic {key!r} must be a real number or an array of them, got "
+                                        f"{type(value).__name__}")
+            try:
+                array = np.asarray(value)
+            except (ValueError, TypeError, OverflowError):
+                raise FilterReturnError(f"diagnostic {key!r} must be a real number or an array of them") from None
+            if array.dtype.kind not in "fiub":
+                raise FilterReturnError(f"diagnostic {key!r} must hold real numbers or bools, got dtype {array.dtype}")
+            shapes[key] = array.shape
+        self._check_layout(shapes)
+
+    def _check_layout(self, shapes: dict[str, tuple[int, ...]]) -> None:
+        if self.shapes is None:
+            clash = sorted(set(shapes) & self.reserved)
+            if clash:
+                raise FilterReturnError(f"filter diagnostics must not reuse the loop's column names, got {clash}")
+            size = sum(math.prod(shape) for shape in shapes.values())
+            if size > DIAGNOSTIC_FLOATS_MAX:
+                raise FilterReturnError(f"filter diagnostics hold {size} floats a call, more than the "
+                                        f"{DIAGNOSTIC_FLOATS_MAX} a time-series row may keep")
+            self.shapes = shapes
+        elif shapes != self.shapes:
+            raise FilterReturnError(f"filter diagnostics must keep their keys and shapes over a run: first "
+                                    f"{sorted(self.shapes.items())}, now {sorted(shapes.items())}")
 
 
 def reset_filter(safety_filter: SafetyFilter) -> None:
@@ -274,7 +418,8 @@ def filter_batch(safety_filter: SafetyFilter, estimates: EstimateBatch, u_nom: n
     own = getattr(safety_filter, "filter_batch", None)
     if callable(own):
         return own(estimates, u_nom)
-    outputs = [as_output(safety_filter(estimates[i], u_nom[i])) for i in range(len(estimates))]
+    check = OutputCheck(np.shape(u_nom)[1])
+    outputs = [check(safety_filter(estimates[i], u_nom[i])) for i in range(len(estimates))]
     return BatchOutput(
         np.array([np.asarray(o.u, dtype=float) for o in outputs]).reshape(np.shape(u_nom)),
         np.array([o.action for o in outputs]),

@@ -23,6 +23,14 @@ Two threads share one monotonic clock (s):
   hold has lasted `hold_s` (`closedloop.monitor`); the board's own watchdog vents when
   commands stop arriving (a cut cable).
 
+A cycle that ends past the next cycle's slot (a filter or link stall) skips the cycles whose
+slots have passed (`cycles_skipped`) instead of firing them back to back. A filter fault
+(closedloop.step: the filter or nominal raised or returned what the contract refuses) holds,
+then vents, and the run ends at that vent cycle; an error of the loop itself ends it at
+once (`HardwareLog.error`); either way every cycle before is kept and the valves vent.
+The summary counts the loop's VENT cycles and the board's watchdog vents (`watchdog_vents`,
+from its ACKs).
+
 Start: the loop waits (up to `startup_timeout_s`) for the first complete frame, so q is
 finite from the first cycle on; without one it vents and raises `PerceptionStartupError`
 (a `StartupError`, like a camera or port that does not open: one line naming the setting).
@@ -45,6 +53,7 @@ import math
 import signal
 import threading
 import time
+import traceback
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -53,7 +62,7 @@ import numpy as np
 
 from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
 from closedloop.record import LiveRows, Recorder
-from closedloop.step import ACTION_CODES, ControlStep
+from closedloop.step import ACTION_CODES, ControlStep, FilterFault
 from controllers.registry import build_filter, build_nominal
 from controllers.safety_filter import Estimate, FilterContext
 from hardware.config import HardwareConfig
@@ -162,6 +171,10 @@ class HardwareLog:
     perception_stats: dict[str, Any] = field(default_factory=dict)
     final_vent_acked: bool | None = None
     interrupted: bool = False
+    skipped: int = 0  # scheduled cycles skipped after a stall (`HardwareLoop._next_cycle`)
+    fault: FilterFault | None = None  # the filter fault the run ended on (closedloop.step)
+    error: str | None = None  # an error of the loop itself (one line); the rows before it are kept
+    error_traceback: str = ""
 
     @classmethod
     def for_cycles(cls, n_cycles: int, n_segments: int) -> "HardwareLog":
@@ -182,6 +195,8 @@ class HardwareLog:
         return {
             "cycles": self.cycles,
             **{f"cycles_{a.value}": actions.get(code, 0) for a, code in ACTION_CODES.items()},
+            "cycles_skipped": self.skipped,
+            "watchdog_vents": int(self.link_stats.get("watchdog_reports", 0)),
             "flags": dict(self.reasons),
             "cycle_late_max_s": float(c["late_s"].max()) if self.cycles else 0.0,
             "final_vent_acked": self.final_vent_acked,
@@ -275,7 +290,8 @@ class HardwareLoop:
             self._wait_for_perception()
             t0 = self.t0 = self.clock()
             n_cycles = int(round(self.duration_s / self.period_s))
-            for k in range(n_cycles):
+            k = 0
+            while k < n_cycles:
                 interrupted = self._stop.is_set()
                 try:
                     delay = t0 + k * self.period_s - self.clock()
@@ -289,23 +305,39 @@ class HardwareLoop:
                 if interrupted:
                     record.interrupted = True
                     break
+                if self.step.stopped:  # a filter fault has vented: the run ends here (closedloop.step)
+                    break
                 if self.on_cycle is not None:
                     self.on_cycle(k, self.clock() - t0, action)
-                if self.live is not None and k % self.live.period_steps == 0:
-                    self.live.send(record.recorder, k + 1)
+                if self.live is not None and (record.cycles - 1) % self.live.period_steps == 0:
+                    self.live.send(record.recorder, record.cycles)
+                k = self._next_cycle(k, t0, record)
             if self.live is not None:
                 self.live.send(record.recorder, record.cycles, force=True)
+        except Exception as exc:  # noqa: BLE001 - kept with the rows so far; the valves vent below
+            record.error = f"{type(exc).__name__}: {exc}".splitlines()[0]
+            record.error_traceback = "".join(traceback.format_exception(exc))
         finally:
             if in_main:
                 signal.signal(signal.SIGINT, previous)
             final = self.link.vent()
             record.final_vent_acked = final.ok
             record.link_stats = self.link.stats().to_dict()
+            record.fault = self.step.fault
             try:
                 self.perception.close()
             finally:
                 record.perception_stats = self.perception.stats()
         return record
+
+    def _next_cycle(self, k: int, t0: float, record: HardwareLog) -> int:
+        """The cycle after k: k + 1, or, when the loop is already past that cycle's slot (a
+        stall: a slow filter, a blocked link), the cycle whose slot it is in now; the cycles
+        in between are skipped (counted in `cycles_skipped`), not fired back to back."""
+        now_slot = math.floor((self.clock() - t0) / self.period_s)
+        following = max(k + 1, now_slot)
+        record.skipped += following - (k + 1)
+        return following
 
     def _cycle(self, k: int, t0: float, interrupted: bool, record: HardwareLog) -> SafeAction:
         now, est = self.perception.query()
@@ -324,6 +356,6 @@ class HardwareLoop:
         values = [t_run, now, *np.asarray(est.q, dtype=float).tolist(), *np.asarray(est.qd, dtype=float).tolist(),
                   est.age_s, *np.asarray(sent.sent, dtype=float).tolist(), *measured,
                   math.nan if sent.latency_s is None else sent.latency_s, max(0.0, now - (t0 + k * self.period_s))]
-        record.recorder.record(k, step, True, values, [est.stale, sent.ok, sent.link_lost])
-        record.cycles = k + 1
+        record.recorder.record(record.cycles, step, True, values, [est.stale, sent.ok, sent.link_lost])
+        record.cycles += 1
         return step.action

@@ -3,12 +3,13 @@
 `run_batch_tuning` runs, for samples b = 0 … B−1 that share the controller under test
 (one `ControllerRun`, one `FilterContext` but for the nominal's parameters), the plant
 `plant` (a `BatchPlant` of B simulations, simulation b built from sample b) from q0_b
-with the nominal controller built from sample b's parameters (`per_simulation_nominal`),
-through `run_batch_closed_loop` with the context's pressure limits, and returns one row
-per sample: `BatchRun.run(b)` (the docs/run-outputs.md figures of the same names as the
-single run's, `tests/test_study_batch.py`), `wall_s` (the batch's wall time / B) and
-`batch_size` (B). The filter is built once when it has `filter_batch` (the paper's CBF:
-`controllers.cbf_batch`), else once per simulation (B independent histories).
+with the nominal controller built from sample b's parameters, through
+`run_batch_closed_loop` (one control step per simulation, as a single run's), and returns
+one row per sample: `BatchRun.run(b)` (the docs/run-outputs.md figures of the same names as
+the single run's, with a filter fault's fields, `tests/test_study_batch.py`), `wall_s`
+(the batch's wall time / B) and `batch_size` (B). The filter is built once when it has
+`filter_batch` (the paper's CBF: `controllers.cbf_batch`), else once per simulation (B
+independent histories: a user's filter runs inside the batch, the physics batched).
 """
 
 from __future__ import annotations
@@ -18,15 +19,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from controllers.registry import build_filter, build_nominal
-from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import FilterContext
 from scenarios.common import ControllerRun
-from softcbf_mj.batch_loop import per_simulation_nominal, run_batch_closed_loop
+from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.plant import BatchPlant
 
 
 def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterContext, nominal: str,
-                     nominal_kwargs: Sequence[dict[str, object]], safe_set: ForceSafeSet, duration: float,
+                     nominal_kwargs: Sequence[dict[str, object]], duration: float,
                      q0: np.ndarray) -> list[dict[str, Any]]:
     """One row of run figures per simulation of `plant` (module docstring); q0 (B, N) rad."""
     n_sims = plant.n_sims
@@ -36,6 +36,6 @@ def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterConte
     one = build_filter(run.filter, run.filter_params, context)
     filters = one if callable(getattr(one, "filter_batch", None)) else [
         build_filter(run.filter, run.filter_params, context) for _ in range(n_sims)]
-    nominals = per_simulation_nominal([build_nominal(nominal, kwargs, context) for kwargs in nominal_kwargs])
-    result = run_batch_closed_loop(plant, filters, nominals, safe_set, duration, q0, context.u_min, context.u_max)
+    nominals = [build_nominal(nominal, kwargs, context) for kwargs in nominal_kwargs]
+    result = run_batch_closed_loop(plant, filters, nominals, context, duration, q0)
     return [{**result.run(b), "wall_s": result.wall_s / n_sims, "batch_size": n_sims} for b in range(n_sims)]

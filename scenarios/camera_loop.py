@@ -54,7 +54,7 @@ from scenarios import register
 from scenarios.common import (
     PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
     controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot,
-    live_run, nominal_arguments, read_parameter_file, save_run, scene_record,
+    live_run, nominal_arguments, read_parameter_file, save_run, scene_record, stop_after,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from scenarios.ground_truth import check_true_arm, flexure_params
@@ -291,8 +291,10 @@ def camera_loop(
                 out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
                 return out
 
-            save_run(out_dir, summary, label, series, wall, tick, filter_enabled(step), figures, EXTRAS_UNITS,
-                     controller_row(run, nominal, nominal_kwargs))
+            row = save_run(out_dir, summary, label, series, wall, tick, filter_enabled(step), figures, EXTRAS_UNITS,
+                           controller_row(run, nominal, nominal_kwargs), step.fault)
+            if stop_after(row):
+                break
     print(f"camera_loop: {duration:g} s, camera {width}x{height} at {frame_rate:g} fps, loop {control_rate:g} Hz, "
           f"latency {latency * 1e3:g} ms, drop rate {drop_rate:g}, pixel noise {pixel_noise:g}, calibration {calibration!r}, "
           f"F_max {f_max:g} N; outputs in {out_dir}")

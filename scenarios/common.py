@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, Callable, TypeVar
 import numpy as np
 
 from closedloop.monitor import SafetyMonitor
-from closedloop.step import ControlStep
+from closedloop.step import ControlStep, FilterFault, write_fault_log
 from controllers.params import RobotParams, reference_robot
 from controllers.registry import build_filter, build_nominal, check_filter, check_nominal, label, parse_params
 from controllers.qp import available_backends
@@ -270,7 +270,7 @@ def run_tuning(
                              live=live_run(summary, label, plant.control_dt))
     wall = time.perf_counter() - start
     return save_run(out_dir, summary, label, series, wall, plant.control_dt, filter_enabled(step), extra_figures,
-                    extra_units, row)
+                    extra_units, row, step.fault)
 
 
 def live_run(summary: SummaryWriter, label: str, control_dt: float, camera: bool = False) -> LiveRun | None:
@@ -281,6 +281,12 @@ def live_run(summary: SummaryWriter, label: str, control_dt: float, camera: bool
     from softcbf_mj.recording import live_run as recording_live_run  # rerun: imported only when recording
 
     return recording_live_run(summary.data.get("scene"), label, len(summary.data["runs"]), control_dt, camera)
+
+
+def stop_after(row: Mapping[str, Any]) -> bool:
+    """True when the run of summary row `row` ended on a filter fault: the scenario runs no
+    further tunings (SPEC §16: the run stops after the vent; the command exits 1)."""
+    return bool(row.get("fault"))
 
 
 def filter_enabled(step: ControlStep) -> bool:
@@ -299,15 +305,24 @@ def save_run(
     extra_figures: Callable[[dict[str, np.ndarray]], dict[str, Any]] | None = None,
     extra_units: dict[str, str] | None = None,
     row_fields: dict[str, Any] | None = None,
+    fault: FilterFault | None = None,
 ) -> dict[str, Any]:
     """Save a finished run `label`: its figures (`run_figures` plus `extra_figures(log)`),
     its time series (`series`: columns and units, plus `extra_units` for the plant's
     extras) and its summary.json row (with `row_fields`, e.g. `controller_row`); then
     rebuild the report and the recording from the folder (so an interrupted scenario
-    leaves both for its finished runs; not within `data_only()`). Returns the row."""
+    leaves both for its finished runs; not within `data_only()`). Returns the row.
+
+    `fault`: the filter fault the run ended on (`ControlStep.fault`): the row gains `fault`
+    (`FilterFault.to_json`) and its scalars `fault_type`, `fault_where`, `fault_message` (for
+    study tables), and the traceback goes to the folder's `fault_LABEL.log`. A scenario
+    stops after such a run (`stop_after`)."""
     log, units = series
     row: dict[str, Any] = {"tuning": label}
     row.update(row_fields or {})
+    if fault is not None:
+        row.update(fault=fault.to_json(), fault_type=fault.type, fault_where=fault.where, fault_message=fault.message)
+        write_fault_log(out_dir, label, fault)
     row.update(run_figures(log, control_dt, filtered, wall_s))
     if extra_figures is not None:
         row.update(extra_figures(log))

@@ -47,7 +47,7 @@ from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
     PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
-    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning,
+    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, stop_after,
     scene_record,
 )
 from scenarios.ground_truth import check_true_arm, flexure_params
@@ -199,7 +199,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) ->
     plant = MujocoBatchPlant.from_configs([ArmModelConfig(**s.truth) for s in setups], control_dt=CONTROL_DT,
                                           nthread=nthread)
     return run_batch_tuning(plant, first.runs[0], first.context, samples[0]["nominal"],
-                            [s.nominal_kwargs for s in setups], first.safe_set, samples[0]["duration"],
+                            [s.nominal_kwargs for s in setups], samples[0]["duration"],
                             np.array([s.q0 for s in setups]))
 
 
@@ -285,9 +285,11 @@ def mujoco_contact(
     summary = SummaryWriter(out_dir, "mujoco_contact", params,
                             scene_record(setup.true_robot, safe_set, true_plate_stiffness, setup.true_plates))
     for run in setup.runs:
-        run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, setup.context),
-                   safe_set, duration, setup.q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
-                   row=controller_row(run, nominal, nominal_kwargs))
+        row = run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, setup.context),
+                         safe_set, duration, setup.q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
+                         row=controller_row(run, nominal, nominal_kwargs))
+        if stop_after(row):
+            break
     print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
           f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
           f"{plate} plate {true_plate_stiffness:.4g} N/m{' (calibrated)' if plate != 'ideal' else ''} "

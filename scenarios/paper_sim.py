@@ -27,7 +27,7 @@ from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
     PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
-    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, scene_record,
+    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, stop_after, scene_record,
 )
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
@@ -113,7 +113,7 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> l
     plant = PCCBatchPlant(first.robot, first.safe_set, len(setups), control_dt=first.control_dt,
                           integrator=params["integrator"])
     return run_batch_tuning(plant, first.runs[0], first.context(params["pressure_limits"]), params["nominal"],
-                            [s.nominal_kwargs for s in setups], first.safe_set, params["duration"],
+                            [s.nominal_kwargs for s in setups], params["duration"],
                             np.array([s.q0 for s in setups]))
 
 
@@ -151,8 +151,10 @@ def paper_sim(
     for run in setup.runs:
         plant = PCCPlant(setup.robot, setup.safe_set, control_dt=setup.control_dt, integrator=integrator)
         step = control_step(run, nominal, setup.nominal_kwargs, setup.context(pressure_limits, plant.dynamics))
-        run_tuning(out_dir, summary, run.label, plant, step, setup.safe_set, duration, setup.q0, progress,
-                   row=controller_row(run, nominal, setup.nominal_kwargs))
+        row = run_tuning(out_dir, summary, run.label, plant, step, setup.safe_set, duration, setup.q0, progress,
+                         row=controller_row(run, nominal, setup.nominal_kwargs))
+        if stop_after(row):
+            break
     print(f"paper_sim: {duration:g} s, pressure limits {'on' if pressure_limits else 'off'}; outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))
     return summary.data

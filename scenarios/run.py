@@ -10,7 +10,9 @@ written, locks the run folder (`softcbf_mj.runio`), and on failure or Ctrl-C bef
 first finished run leaves no output behind (the folders it created are removed, one that
 existed is emptied); Ctrl-C after a finished run keeps the finished runs and brings the
 report and the recording up to them (a second Ctrl-C skips that and says what to run).
-Usage errors raise `UsageError` (exit code `USAGE_ERROR`); interrupts return `INTERRUPTED`.
+Usage errors raise `UsageError` (exit code `USAGE_ERROR`); interrupts return `INTERRUPTED`;
+a run that ended on a filter fault (closedloop.step) keeps its folder and returns
+`FILTER_FAULT` (1) after one line naming the fault.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import typing
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from closedloop.step import describe_fault, fault_log_name
 from scenarios import Scenario, get
 from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
@@ -32,6 +35,7 @@ from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_
 # matplotlib take seconds to import, which usage errors should not pay.
 
 USAGE_ERROR = 2
+FILTER_FAULT = 1  # a run ended on a filter fault (closedloop.step); its record is kept
 INTERRUPTED = 130
 DEFAULT_RUNS_DIR = Path("runs")
 _TRUE = ("1", "true", "yes", "on")
@@ -272,7 +276,7 @@ def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, cr
         with live_viewer() if spawn else contextlib.nullcontext("") as message:
             if message:
                 print(message, file=sys.stderr)
-            scenario.run(out_dir, **params)
+            summary = scenario.run(out_dir, **params)
     except BaseException as exc:
         done = _finished_runs(out_dir)
         if not done:
@@ -286,6 +290,11 @@ def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, cr
             raise UsageError(str(exc)) from None
         raise
     print(_outputs_summary(out_dir))
+    fault = summary.get("fault") if isinstance(summary, dict) else None
+    if fault:
+        print(f"error: run {fault['run']!r}: {describe_fault(fault)}; the record up to it is in {out_dir} "
+              f"(traceback: {fault_log_name(fault['run'])})", file=sys.stderr)
+        return FILTER_FAULT
     return 0
 
 

@@ -45,8 +45,12 @@ setting (`StartupError`), exit code 2, and no folder (nor, with --overwrite, a r
 one). A loop that then sees no complete frame within camera.startup_timeout_s vents and
 ends the same way, removing the folder it had made.
 
-Exit codes as `softcbf`: 0 done, 2 usage error (bad configuration or option, hardware
-that does not start), 130 interrupted (Ctrl-C: the loop vents within one cycle and the
+Exit codes as `softcbf`: 0 done, 1 a filter fault or an error of the control loop (the
+filter or nominal raised or returned what the contract refuses: the loop held, then
+vented and stopped; every cycle before is in the folder, summary.json's row has `fault`,
+the traceback is in fault_<tuning>.log, or error.log for an error of the loop itself),
+2 usage error (bad configuration or option, hardware that does not start, a filter file
+that does not load), 130 interrupted (Ctrl-C: the loop vents within one cycle and the
 folder is still written).
 
 Mount: `register_command("hardware", HELP, add_arguments, run_command)` in softcbf/cli.py;
@@ -78,8 +82,9 @@ from hardware.runner import HardwareLog, HardwareLoop, StartupError, controller_
 from hardware.transport import open_serial
 from perception.capture import VideoCaptureSource
 from scenarios.common import scene_record
-from scenarios.run import INTERRUPTED, USAGE_ERROR, option_name, option_type
+from scenarios.run import FILTER_FAULT, INTERRUPTED, USAGE_ERROR, option_name, option_type
 from closedloop.record import TIMESERIES_UNITS
+from closedloop.step import describe_fault, fault_log_name, write_fault_log
 from controllers.registry import build_filter, build_nominal, parse_params
 from controllers.registry import label as run_label
 from softcbf_mj.metrics import run_figures
@@ -92,6 +97,7 @@ HELP = "run the controller on the valve board and camera (or --port emulated --c
 SCENARIO = "hardware"
 SAVED_FRAMES_HZ = 2.0  # camera frames kept for the recording, per second of the run
 JPEG_QUALITY = 90
+ERROR_LOG = "error.log"  # the run folder's traceback of an error of the control loop itself
 
 
 PATH_SETTINGS = ("robot", "calibration")  # a file named on the command line is relative to the working directory
@@ -196,16 +202,38 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
         print("\ninterrupted outside the control loop; a loop that had started vented the valves on its way out"
               + (f"; outputs so far in {out_dir}" if out_dir is not None else ""), file=sys.stderr)
         return INTERRUPTED
-    print(f"hardware run ({row['tuning']}{', dry run' if config.run.dry_run else ''}): {row['cycles']} cycles, "
-          f"{row['cycles_run']} run / {row['cycles_hold']} hold / {row['cycles_vent']} vent, link acknowledged "
-          f"{row['link_acked_fraction']:.3f}, rho_min_pred {row['rho_min_pred']}, force_max_N {row['force_max_N']}; "
-          f"outputs in {out_dir}")
+    print(result_line(row, config, out_dir))
     recording = out_dir / "recording.rrd"
     if recording.is_file():
         from softcbf_mj.recording import viewer_command
 
         print(f"view the recording with: {viewer_command(recording)}")
+    if row.get("fault"):
+        print(f"error: {describe_fault(row['fault'])}; the {row['cycles']} cycles up to the vent are in {out_dir} "
+              f"(traceback: {fault_log_name(row['tuning'])})", file=sys.stderr)
+        return FILTER_FAULT
+    if row.get("error"):
+        print(f"error: the control loop stopped: {row['error']}; the {row['cycles']} cycles before it are in "
+              f"{out_dir} (traceback: {ERROR_LOG})", file=sys.stderr)
+        return FILTER_FAULT
     return INTERRUPTED if row["interrupted"] else 0
+
+
+def _figure(value: Any, fmt: str) -> str:
+    return "n/a" if value is None else format(value, fmt)
+
+
+def result_line(row: dict[str, Any], config: HardwareConfig, out_dir: Path) -> str:
+    """The one line a hardware run ends with: cycles and actions, vents, link quality, the
+    predicted margin and the force against F_max with a violation flag."""
+    f_max = config.safe_set().f_max
+    force = row.get("force_max_N")
+    flag = "" if force is None else (" VIOLATION: above F_max" if force > f_max else " (within F_max)")
+    return (f"hardware run ({row['tuning']}{', dry run' if config.run.dry_run else ''}): {row['cycles']} cycles "
+            f"({row['cycles_run']} run / {row['cycles_hold']} hold / {row['cycles_vent']} vent, "
+            f"{row['cycles_skipped']} skipped), board watchdog vents {row['watchdog_vents']}, link acknowledged "
+            f"{row['link_acked_fraction']:.3f}, rho_min_pred {_figure(row.get('rho_min_pred'), '.3f')}, "
+            f"force max {_figure(force, '.4f')} N of F_max {f_max:g} N{flag}; outputs in {out_dir}")
 
 
 @contextlib.contextmanager
@@ -373,6 +401,13 @@ def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: Har
                link_latency_p99_ms=link["latency_p99_s"] * 1e3, link=link, perception=counts["perception"],
                dry_run=config.run.dry_run)
     row["timeseries"] = str(save_timeseries(out_dir, label, series, units).relative_to(out_dir))
+    if log.fault is not None:
+        row.update(fault=log.fault.to_json(), fault_type=log.fault.type, fault_where=log.fault.where,
+                   fault_message=log.fault.message)
+        write_fault_log(out_dir, label, log.fault)
+    if log.error is not None:
+        row["error"] = log.error
+        (out_dir / ERROR_LOG).write_text(log.error_traceback, encoding="utf-8")
     if emulation is not None:
         from softcbf_mj.valve_emulator import RECORD_UNITS
 

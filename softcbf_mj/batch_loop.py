@@ -1,12 +1,21 @@
 """The closed loop over B simulations at once (docs/safety-filter.md, docs/beyond-the-paper.md#batched-ground-truth): many samples of a study per call.
 
-Each control step k (t_k = k·Δt), for all B simulations together:
-    plant state (B) → estimates (the exact state: q, q̇, t_capture = t) → nominal (B, N)
-    → safety filter → command (non-finite rows refused, limits clipped) → plant step.
-The filter runs as `controllers.safety_filter.filter_batch(filter, estimates, u_nom)`
-(its own `filter_batch`, e.g. the paper's CBF through `controllers.cbf_batch`, or a
-per-state loop over `__call__` for a stateless filter), or, for a stateful filter
-without `filter_batch`, as B separate instances called once per simulation each.
+Each simulation b has its own control step (`closedloop.step.ControlStep` with its own
+`SafetyMonitor`), the one every serial loop runs, so a sample's commands, holds, vents and
+filter faults are those of a single run. Each control step k (t_k = k·Δt), for all B
+simulations together:
+    plant state (B) → estimates (the exact state: q, q̇, t_capture = t)
+    → step b: nominal, filter, admission (clip, non-finite → hold then vent), monitor
+    → commands (B, N) → plant step.
+The filter is either one filter with `filter_batch` (e.g. the paper's CBF through
+`controllers.cbf_batch`), called once for all simulations whose step calls it this period
+(`ControlStep.prepare`, then `ControlStep.finish` on each row of its `BatchOutput`; an
+exception in it is a filter fault of each of those simulations), or one stateless filter
+without it (called per simulation), or B instances, one per simulation (B histories).
+
+A filter fault (closedloop.step) ends simulation b's run at the row of its vent, as it ends
+a serial run: its figures stop there (`BatchRun.rows`), its row gains the fault's fields,
+and the batch goes on for the others (b's plant is sent 0 hPa, the vent, until the end).
 
 The loop keeps no time series: it updates per-simulation running figures with the
 definitions of `softcbf_mj.metrics.run_figures` over the same rows (the states at
@@ -17,10 +26,10 @@ step is not a row, as in `softcbf_mj.loop.run_closed_loop`):
   contact force, through the controller's force-safe set (`ForceSafeSet.margin_from_force`);
 - force_max_N: max over rows and facets of F; t_violation_s: Δt · #rows with ρ_meas < 0;
 - infeasible_steps: #rows whose filter call said infeasible; u_peak_abs_hPa: max |u|
-  of the command sent (after the loop's clipping, as the serial log's `u`,
+  of the command sent (after the step's clipping, as the serial log's `u`,
   `closedloop.record`);
-- refused_steps (batch only): #rows whose command had a non-finite entry and was
-  replaced by the safe action (0 hPa, clipped to the limits).
+- refused_steps (batch only): #rows the safety monitor did not RUN (a refused command or a
+  filter fault: HOLD or VENT).
 `record_commands=True` also returns the commands sent, (T, B, N) hPa, e.g. to replay
 them open loop (tools/bench_batch.py measures the physics alone that way).
 """
@@ -30,37 +39,26 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
+from closedloop.monitor import SafeAction, SafetyMonitor
+from closedloop.step import ControlStep, FilterFault, StepRecord
+from controllers.errors import ControllerInputError
 from controllers.nominal import NominalController
-from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import (BatchOutput, EstimateBatch, SafetyFilter, as_output, filter_batch,
-                                       reset_filter)
+from controllers.safety_filter import Estimate, EstimateBatch, FilterContext, FilterOutput, SafetyFilter
 from softcbf_mj.plant import BatchPlant
-
-BatchNominal = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""Nominal commands of B simulations: (t (B,) s, q (B, N) rad, q̇ (B, N) rad/s) → u_nom (B, N) hPa."""
-
-
-def broadcast_nominal(nominal: NominalController) -> BatchNominal:
-    """A nominal controller whose formula is elementwise in t, q, q̇ (e.g. `SinusoidNominal`),
-    evaluated for all B simulations in one call with t as a (B, 1) column."""
-    return lambda t, q, qd: np.broadcast_to(nominal(t[:, None], q, qd), q.shape)
-
-
-def per_simulation_nominal(nominals: Sequence[NominalController]) -> BatchNominal:
-    """One nominal controller per simulation (B of them), each called on its own row."""
-    return lambda t, q, qd: np.array([nominal(float(ti), qi, qdi) for nominal, ti, qi, qdi in zip(nominals, t, q, qd)])
 
 
 @dataclass(frozen=True, eq=False)
 class BatchRun:
     """Per-simulation figures of a batched run (module docstring); arrays of shape (B,).
 
-    `commands`: the commands sent, (T, B, N) hPa, when recorded. `wall_s`: the run's wall
-    time, shared by all simulations; `sim_s`: simulated time per simulation.
+    `rows`: the rows each simulation's figures cover (T, or fewer after a filter fault);
+    `faults`: each simulation's filter fault (None: none). `commands`: the commands sent,
+    (T, B, N) hPa, when recorded. `wall_s`: the run's wall time, shared by all simulations;
+    `control_dt`: s, the control period.
     """
 
     rho_min_pred: np.ndarray
@@ -70,14 +68,17 @@ class BatchRun:
     infeasible_steps: np.ndarray
     u_peak_abs_hPa: np.ndarray
     refused_steps: np.ndarray
+    rows: np.ndarray
+    faults: tuple[FilterFault | None, ...]
     wall_s: float
-    sim_s: float
+    control_dt: float
     commands: np.ndarray | None = None
 
     def run(self, b: int) -> dict[str, Any]:
-        """Simulation b's figures under the docs/run-outputs.md names (rho_min_pred None when never predicted)."""
+        """Simulation b's figures under the docs/run-outputs.md names (rho_min_pred None when never
+        predicted; sim_s the time its rows cover), with the fault's fields as a single run's row has them."""
         rho_pred = float(self.rho_min_pred[b])
-        return {
+        row = {
             "rho_min_pred": None if math.isnan(rho_pred) else rho_pred,
             "rho_min_meas": float(self.rho_min_meas[b]),
             "force_max_N": float(self.force_max_N[b]),
@@ -85,54 +86,78 @@ class BatchRun:
             "infeasible_steps": int(self.infeasible_steps[b]),
             "u_peak_abs_hPa": float(self.u_peak_abs_hPa[b]),
             "refused_steps": int(self.refused_steps[b]),
-            "sim_s": self.sim_s,
+            "sim_s": int(self.rows[b]) * self.control_dt,
         }
+        fault = self.faults[b]
+        if fault is not None:
+            row.update(fault=fault.to_json(), fault_type=fault.type, fault_where=fault.where,
+                       fault_message=fault.message)
+        return row
 
 
-def _filter_all(safety_filter: SafetyFilter | Sequence[SafetyFilter], estimates: EstimateBatch,
-                u_nom: np.ndarray) -> BatchOutput:
-    if not isinstance(safety_filter, Sequence):
-        return filter_batch(safety_filter, estimates, u_nom)
-    outputs = [as_output(f(estimates[b], u_nom[b])) for b, f in enumerate(safety_filter)]
-    return BatchOutput(np.array([np.asarray(o.u, dtype=float) for o in outputs]).reshape(u_nom.shape),
-                       np.array([o.action for o in outputs]), np.array([bool(o.infeasible) for o in outputs]),
-                       np.array([float(o.rho_pred) for o in outputs]))
+def _batch_rows(steps: Sequence[ControlStep], safety_filter: SafetyFilter, estimates: list[Estimate],
+                active: np.ndarray) -> list[StepRecord | None]:
+    """One control step of the active simulations through the shared filter's `filter_batch`."""
+    prepared = [steps[b].prepare(estimates[b]) if active[b] else (None, None) for b in range(len(steps))]
+    called = [b for b, (view, _) in enumerate(prepared) if view is not None]
+    results: dict[int, object] = {}
+    filter_us = math.nan
+    if called:
+        views = [prepared[b][0] for b in called]
+        batch = EstimateBatch(np.array([v.t for v in views]), np.array([v.q for v in views]),
+                              np.array([v.qd for v in views]), np.array([v.t_capture for v in views]))
+        start = time.perf_counter()
+        try:
+            out = safety_filter.filter_batch(batch, np.array([prepared[b][1] for b in called]))
+            filter_us = (time.perf_counter() - start) * 1e6 / len(called)
+            for i, b in enumerate(called):
+                results[b] = FilterOutput(out.u[i], str(out.action[i]), bool(out.infeasible[i]), float(out.rho_pred[i]))
+        except ControllerInputError:
+            results = {}
+        except Exception as exc:  # noqa: BLE001 - a filter fault of every simulation it was called for
+            for b in called:
+                steps[b].fault = FilterFault.from_exception(exc, "filter_batch", estimates[b].t)
+    return [steps[b].finish(estimates[b], prepared[b][1], results.get(b), filter_us if b in results else math.nan)
+            if active[b] else None for b in range(len(steps))]
 
 
 def run_batch_closed_loop(
     plant: BatchPlant,
     safety_filter: SafetyFilter | Sequence[SafetyFilter],
-    nominal: BatchNominal,
-    safe_set: ForceSafeSet,
+    nominal: NominalController | Sequence[NominalController],
+    context: FilterContext,
     duration: float,
     q0: np.ndarray,
-    u_min: np.ndarray | None = None,
-    u_max: np.ndarray | None = None,
     record_commands: bool = False,
 ) -> BatchRun:
     """Run all B simulations for `duration` s from rest at q0 (B, N) rad; return their figures.
 
     safety_filter: one filter for all (see the module docstring) or B instances, one per
-    simulation (each `reset()` first, if it has one). safe_set: the controller's, for
-    ρ_meas. u_min, u_max: (N,) or (B, N) hPa limits the loop clips every command to
-    (None: no clipping, as the paper's simulation).
+    simulation; nominal: one nominal controller for all or B, one per simulation. `context`
+    is the controllers' (its limits are what every step clips to, its safe set gives ρ_meas).
+    Each simulation's control step is reset first (its filter's `reset()`, its monitor).
     """
     n_steps = int(round(duration / plant.control_dt))
     if n_steps < 1:
         raise ValueError(f"duration must cover at least one control period ({plant.control_dt} s), got {duration}")
-    if (u_min is None) != (u_max is None):
-        raise ValueError("u_min and u_max must both be given or both be None")
-    n_sims = plant.n_sims
-    if isinstance(safety_filter, Sequence):
-        if len(safety_filter) != n_sims:
-            raise ValueError(f"safety_filter must be one filter or n_sims = {n_sims} instances, got {len(safety_filter)}")
-        for f in safety_filter:
-            reset_filter(f)
-    else:
-        reset_filter(safety_filter)
-    safe_u = np.zeros((n_sims, plant.n_segments))
-    if u_min is not None:
-        safe_u = np.clip(safe_u, u_min, u_max)
+    n_sims, n = plant.n_sims, plant.n_segments
+    per_sim_filters = isinstance(safety_filter, Sequence)
+    filters = list(safety_filter) if per_sim_filters else [safety_filter] * n_sims
+    nominals = list(nominal) if isinstance(nominal, Sequence) else [nominal] * n_sims
+    if len(filters) != n_sims or len(nominals) != n_sims:
+        raise ValueError(f"safety_filter and nominal must be one or n_sims = {n_sims} each, got {len(filters)} "
+                         f"and {len(nominals)}")
+    shared_batch = not per_sim_filters and callable(getattr(safety_filter, "filter_batch", None))
+    steps = [ControlStep(f, nom, context, SafetyMonitor(n)) for f, nom in zip(filters, nominals)]
+    if per_sim_filters:
+        for step in steps:
+            step.reset()
+    else:  # one shared filter: its reset() once, every monitor anew
+        steps[0].reset()
+        for step in steps[1:]:
+            step.monitor.restart()
+            step.fault = steps[0].fault
+    safe_set = context.safe_set
     rho_pred = np.full(n_sims, np.inf)
     rho_meas = np.full(n_sims, np.inf)
     force_max = np.full(n_sims, -np.inf)
@@ -140,33 +165,43 @@ def run_batch_closed_loop(
     infeasible = np.zeros(n_sims, dtype=int)
     refused = np.zeros(n_sims, dtype=int)
     u_peak = np.zeros(n_sims)
-    commands = np.empty((n_steps, n_sims, plant.n_segments)) if record_commands else None
+    rows = np.zeros(n_sims, dtype=int)
+    active = np.ones(n_sims, dtype=bool)
+    commands = np.zeros((n_steps, n_sims, n)) if record_commands else None
+    sent = np.zeros((n_sims, n))
     start = time.perf_counter()
     state = plant.reset(q0)
     for k in range(n_steps):
-        estimates = EstimateBatch(state.t, state.q, state.qd, state.t)
-        u_nom = nominal(state.t, state.q, state.qd)
-        out = _filter_all(safety_filter, estimates, u_nom)
-        u = np.asarray(out.u, dtype=float)
-        finite = np.all(np.isfinite(u), axis=1)
-        sent = np.where(finite[:, None], u, safe_u)
-        if u_min is not None:
-            sent = np.clip(sent, u_min, u_max)
-        rho_pred = np.fmin(rho_pred, out.rho_pred)
+        estimates = [Estimate(float(state.t[b]), state.q[b], state.qd[b], float(state.t[b])) for b in range(n_sims)]
+        if shared_batch:
+            records = _batch_rows(steps, safety_filter, estimates, active)
+        else:
+            records = [steps[b](estimates[b]) if active[b] else None for b in range(n_sims)]
         margin = np.min(safe_set.margin_from_force(state.contact_forces), axis=1)
-        rho_meas = np.minimum(rho_meas, margin)
-        force_max = np.maximum(force_max, np.max(state.contact_forces, axis=1))
-        violations += margin < 0.0
-        infeasible += out.infeasible
-        refused += ~finite
-        u_peak = np.fmax(u_peak, np.max(np.abs(sent), axis=1))
+        force = np.max(state.contact_forces, axis=1)
+        for b, record in enumerate(records):
+            if record is None:
+                sent[b] = 0.0
+                continue
+            sent[b] = record.u
+            output = record.output
+            if output is not None:
+                rho_pred[b] = min(rho_pred[b], output.rho_pred) if not math.isnan(output.rho_pred) else rho_pred[b]
+                infeasible[b] += output.infeasible
+            refused[b] += record.action is not SafeAction.RUN
+        rho_meas = np.where(active, np.minimum(rho_meas, margin), rho_meas)
+        force_max = np.where(active, np.maximum(force_max, force), force_max)
+        violations += active & (margin < 0.0)
+        u_peak = np.where(active, np.fmax(u_peak, np.max(np.abs(sent), axis=1)), u_peak)
+        rows += active
         if commands is not None:
             commands[k] = sent
+        active &= ~np.array([step.stopped for step in steps])
         state = plant.step(sent)
     wall = time.perf_counter() - start
     rho_pred[np.isinf(rho_pred)] = np.nan  # never predicted
-    return BatchRun(rho_pred, rho_meas, force_max, violations * plant.control_dt, infeasible, u_peak, refused,
-                    wall, n_steps * plant.control_dt, commands)
+    return BatchRun(rho_pred, rho_meas, force_max, violations * plant.control_dt, infeasible, u_peak, refused, rows,
+                    tuple(step.fault for step in steps), wall, plant.control_dt, commands)
 
 
 def replay_commands(plant: BatchPlant, commands: np.ndarray, q0: np.ndarray) -> float:

@@ -187,6 +187,7 @@ def run_camera_loop(
 
     step.reset()
     state = plant.reset(q0)
+    n_rows = n_ticks
     for k in range(n_ticks):
         t = state.t
         # 1. exposure
@@ -228,16 +229,19 @@ def run_camera_loop(
                 record = step(Estimate(t, q_hat, qd_hat, est.t), SafetyFlags(perception_stale=est.stale))
                 calls.append((t, est.age_s, record.action.value))
         recorder.record(k, record, called, plant_values(state, np.asarray(est.q), np.asarray(est.qd)), extras=state.extras)
+        if step.stopped:  # a filter fault has vented: the run ends on this tick (closedloop.step)
+            n_rows = k + 1
+            break
         state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
         if live is not None and k % live.period_steps == 0:
             live.send(recorder, k + 1)
     if live is not None:
-        live.send(recorder, n_ticks, force=True)
+        live.send(recorder, n_rows, force=True)
     if progress is not None:
         progress.close()
     call_t, call_age, call_action = zip(*calls) if calls else ((), (), ())
     call_log = {"t": np.array(call_t, dtype=float), "age_s": np.array(call_age, dtype=float),
                 "action": np.array(call_action, dtype="U4")}
-    return plant_series(recorder, safe_set), frames.columns(), call_log
+    return plant_series(recorder, safe_set, n_rows), frames.columns(), call_log

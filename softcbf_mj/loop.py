@@ -114,7 +114,9 @@ def run_closed_loop(
 ) -> Series:
     """Run for `duration` s from rest at q0; return the time series and their units (`plant_series`).
 
-    `safe_set` is the controller's (ρ_meas uses its ψ and n_max). `live` (e.g.
+    `safe_set` is the controller's (ρ_meas uses its ψ and n_max). A filter fault ends the
+    run at the row of its vent (`ControlStep.stopped`; the series then have fewer rows and
+    `step.fault` says why). `live` (e.g.
     softcbf_mj.recording.LiveRun) is sent the rows recorded so far every `live.period_steps`
     steps and at the end (it decides what to send when).
     """
@@ -122,17 +124,21 @@ def run_closed_loop(
     recorder = Recorder(n_steps, plant.n_segments, plant_columns(plant.n_segments, safe_set.n_facets))
     step.reset()
     state = plant.reset(q0)
+    n_rows = n_steps
     for k in range(n_steps):
         est = estimator(state)
         record = step(est)
         recorder.record(k, record, True, plant_values(state, est.q, est.qd), extras=state.extras)
+        if step.stopped:  # a filter fault has vented: the run ends on this row (closedloop.step)
+            n_rows = k + 1
+            break
         state = plant.step(record.u)
         if progress is not None and k % 500 == 0:
             progress.update(k)
         if live is not None and k % live.period_steps == 0:
             live.send(recorder, k + 1)
     if live is not None:
-        live.send(recorder, n_steps, force=True)
+        live.send(recorder, n_rows, force=True)
     if progress is not None:
         progress.close()
-    return plant_series(recorder, safe_set)
+    return plant_series(recorder, safe_set, n_rows)

@@ -355,7 +355,12 @@ class SummaryWriter:
         write_json(self.path, self.data)
 
     def add_run(self, run: Mapping[str, Any]) -> None:
+        """Append a run's row and rewrite the file; a row with a `fault` (a run that ended on a
+        filter fault, closedloop.step) also sets the summary's top-level `fault` (the first
+        one, with the run's label as "run")."""
         self.data["runs"].append(dict(run))
+        if run.get("fault") and "fault" not in self.data:
+            self.data["fault"] = {"run": run.get("tuning"), **run["fault"]}
         write_json(self.path, self.data)
 
 

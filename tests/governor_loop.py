@@ -20,7 +20,7 @@ import numpy as np
 
 from controllers.params import RobotParams
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate, FilterContext, as_output
+from controllers.safety_filter import Estimate, FilterContext, OutputCheck
 from softcbf_mj.pcc_plant import PCCPlant
 
 TICK = 1e-3
@@ -54,6 +54,7 @@ def run_loop(safety_filter, robot: RobotParams, safe_set: ForceSafeSet, u_nom: C
     rng = np.random.default_rng(seed)
     plant = PCCPlant(robot, safe_set, control_dt=TICK, tau_p=tau_p) if plant is None else plant
     n = robot.n_segments
+    check = OutputCheck(n)
     state = plant.reset(np.zeros(n))
     if hasattr(safety_filter, "reset"):
         safety_filter.reset()
@@ -69,7 +70,7 @@ def run_loop(safety_filter, robot: RobotParams, safe_set: ForceSafeSet, u_nom: C
             last_nom = np.asarray(u_nom(k * TICK), dtype=float)
             est = Estimate(k * TICK, history_q[j], history_qd[j], j * TICK)
             t0, c0 = time.perf_counter(), time.process_time()
-            out = as_output(safety_filter(est, last_nom))
+            out = check(safety_filter(est, last_nom))
             call_us.append((time.perf_counter() - t0) * 1e6)
             call_cpu_us.append((time.process_time() - c0) * 1e6)
             pending.append((k + delay_ticks, out.u))

@@ -16,7 +16,7 @@ from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
 from controllers.safety_filter import FilterContext
-from softcbf_mj.batch_loop import broadcast_nominal, per_simulation_nominal, run_batch_closed_loop
+from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.model_builder import ArmModelConfig
@@ -68,9 +68,8 @@ def test_pcc_batch_loop_equals_serial_loops(tuning, pressure_limits, per_sim_fil
         return CBFFilter(params, safe_set, TUNINGS[tuning], pressure_limits=pressure_limits)
 
     filt = [controller() for _ in range(6)] if per_sim_filters else controller()
-    limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
-    batch = run_batch_closed_loop(plant, filt, broadcast_nominal(PEAK), safe_set, duration, q0, *limits,
-                                  record_commands=True)
+    context = FilterContext.for_robot(params, safe_set, plant.control_dt, pressure_limits)
+    batch = run_batch_closed_loop(plant, filt, PEAK, context, duration, q0, record_commands=True)
     logs = [_serial(PCCPlant(r, safe_set), controller(), PEAK, safe_set, pressure_limits, duration, q0[b])
             for b, r in enumerate(robots)]
     _compare(batch, logs, plant.control_dt, True)
@@ -88,8 +87,8 @@ def test_mujoco_batch_loop_equals_serial_loops():
     duration = 0.6
     plant = MujocoBatchPlant.from_configs(configs, nthread=2)
     controller = CBFFilter(params, safe_set, TUNINGS["HW-High"])
-    batch = run_batch_closed_loop(plant, controller, per_simulation_nominal(nominals), safe_set,
-                                  duration, q0, np.array(params.u_min), np.array(params.u_max), record_commands=True)
+    context = FilterContext.for_robot(params, safe_set, plant.control_dt)
+    batch = run_batch_closed_loop(plant, controller, nominals, context, duration, q0, record_commands=True)
     logs = [_serial(MujocoPlant.from_config(c), CBFFilter(params, safe_set, TUNINGS["HW-High"]), nominal, safe_set, True,
                     duration, q0[b]) for b, (c, nominal) in enumerate(zip(configs, nominals))]
     _compare(batch, logs, plant.control_dt, True)
@@ -97,15 +96,19 @@ def test_mujoco_batch_loop_equals_serial_loops():
     assert np.all(batch.force_max_N > 0), "every sample must press the plate"
 
 
-def test_non_finite_commands_are_refused():
+def test_non_finite_commands_are_held_as_in_a_single_run():
+    """A NaN command is refused as the serial step refuses it: the last admitted command is held."""
     safe_set = paper_safe_set()
     plant = PCCBatchPlant(reference_robot(), safe_set, 2)
 
     def broken(estimate, u_nom):
         return np.array([np.nan, 0.0]) if estimate.t >= 0.005 else u_nom
 
-    run = run_batch_closed_loop(plant, broken, broadcast_nominal(PEAK), safe_set, 0.01, np.zeros((2, 2)),
-                                np.array([-150.0, -150.0]), np.array([150.0, 150.0]), record_commands=True)
+    context = FilterContext.for_robot(reference_robot(), safe_set, plant.control_dt)
+    run = run_batch_closed_loop(plant, broken, PEAK, context, 0.01, np.zeros((2, 2)), record_commands=True)
     np.testing.assert_array_equal(run.refused_steps, [5, 5])
-    np.testing.assert_array_equal(run.commands[5:], 0.0)
+    np.testing.assert_array_equal(run.commands[5:], np.broadcast_to(run.commands[4], run.commands[5:].shape))
+    assert np.all(run.commands[4] != 0.0)
     assert run.run(0)["rho_min_pred"] is None  # a bare-array filter predicts nothing
+    serial = _serial(PCCPlant(reference_robot(), safe_set), broken, PEAK, safe_set, True, 0.01, np.zeros(2))
+    np.testing.assert_array_equal(run.commands[:, 0], serial["u"])

@@ -127,8 +127,10 @@ def test_step_clips_refuses_non_finite_commands_and_records_both():
     assert second.action is SafeAction.HOLD and "command_nonfinite" in second.reasons and np.array_equal(second.u, first.u)
     third = step(_estimate(0.2))
     assert third.action is SafeAction.RUN and np.array_equal(third.u, [20.0, 30.0])
-    with pytest.raises(ValueError, match=r"shape \(3,\)"):
-        ControlStep(Scripted([[1.0, 2.0, 3.0]]), lambda t, q, qd: np.zeros(2), CONTEXT)(_estimate())
+    wrong = ControlStep(Scripted([[1.0, 2.0, 3.0]]), lambda t, q, qd: np.zeros(2), CONTEXT)
+    record = wrong(_estimate())
+    assert record.action is SafeAction.VENT and record.reasons == ("filter_fault",)  # nothing admitted yet: vent at once
+    assert wrong.stopped and wrong.fault.where == "filter return" and "shape (2,), got (3,)" in wrong.fault.message
 
 
 def test_step_reset_restarts_the_monitor_for_a_new_run():

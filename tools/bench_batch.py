@@ -50,7 +50,7 @@ from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
 from controllers.safety_filter import FilterContext
-from softcbf_mj.batch_loop import broadcast_nominal, replay_commands, run_batch_closed_loop
+from softcbf_mj.batch_loop import replay_commands, run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig
@@ -121,7 +121,7 @@ HEADER = ("      B  threads  samples/h  ×serial  ×serial   ceiling/h  fraction
 
 
 def compare(title: str, args: argparse.Namespace, serial_pass, batches, safe_set, q0: np.ndarray) -> dict:
-    """The serial pass, then each batched set-up of `batches` ((B, threads, plant, filter, limits)) on the
+    """The serial pass, then each batched set-up of `batches` ((B, threads, plant, filter, pressure limits on)) on the
     first B samples: prints the table, returns the serial rates, the rows and max |Δρ_meas| against the
     serial runs they share."""
     serial_runs, serial = best_of(args.repeats, serial_pass)
@@ -130,9 +130,10 @@ def compare(title: str, args: argparse.Namespace, serial_pass, batches, safe_set
           f"{args.serial / serial.cpu * HOUR:10.0f} per CPU-hour")
     print(HEADER)
     rows, check = [], 0.0
-    for b, nthread, plant, filt, limits in batches:
+    for b, nthread, plant, filt, pressure_limits in batches:
+        context = FilterContext.for_robot(reference_robot(), safe_set, plant.control_dt, pressure_limits)
         run, loop = best_of(args.repeats, lambda: run_batch_closed_loop(
-            plant, filt, broadcast_nominal(PEAK), safe_set, args.duration, q0[:b], *limits, record_commands=True))
+            plant, filt, PEAK, context, args.duration, q0[:b], record_commands=True))
         _, ceiling = best_of(args.repeats, lambda: replay_commands(plant, run.commands, q0[:b]))
         rows.append(_row(b, nthread, loop, ceiling, serial, args.serial))
         check = max([check] + [abs(run.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]) for s in range(min(b, args.serial))])
@@ -143,7 +144,7 @@ def compare(title: str, args: argparse.Namespace, serial_pass, batches, safe_set
 
 def bench_mujoco(args: argparse.Namespace) -> dict:
     params, safe_set = reference_robot(), paper_safe_set()
-    tuning, limits = TUNINGS["HW-High"], (np.array(params.u_min), np.array(params.u_max))
+    tuning, limits = TUNINGS["HW-High"], True
     n_max = max(max(args.batches), args.serial)
     configs, q0 = mujoco_samples(n_max, args.links, args.physics_dt)
 
@@ -175,7 +176,7 @@ def bench_pcc(args: argparse.Namespace) -> dict:
     def batches():
         for b in args.pcc_batches:
             plant = PCCBatchPlant(params, safe_set, b)
-            yield b, 1, plant, CBFFilter(params, safe_set, tuning, pressure_limits=False, batch_dynamics=plant.dynamics), (None, None)
+            yield b, 1, plant, CBFFilter(params, safe_set, tuning, pressure_limits=False, batch_dynamics=plant.dynamics), False
 
     return compare(f"\npaper_sim-type: {args.duration:g} s per sample, PCC ROS2 1 ms, Low, no pressure limits",
                    args, serial_pass, batches(), safe_set, q0)

@@ -12,7 +12,8 @@
   discount 0 is `terminated`, LAST with discount 1 (`episode_steps` reached) `truncated`;
   info holds the env step's `StepStats` (periods, violation_periods, rho_meas_min,
   force_max_N, vented), the time t (s), the safety monitor's last action and the filter's
-  last action label ("" when it was not called). A step after the episode's end raises:
+  last action label ("" when it was not called) and `fault` (the filter fault that ended the
+  episode, `closedloop.step.FilterFault.to_json`, or None). A step after the episode's end raises:
   call reset();
 - `render()` (render_mode "rgb_array"): the overhead camera's frame (H, W, 3) uint8 RGB
   at the config's image_size.
@@ -108,6 +109,7 @@ class GymArmEnv(gymnasium.Env):
             "t": physics.time(),
             "monitor_action": record.action.value if record is not None else "",
             "filter_action": record.output.action if record is not None and record.output is not None else "",
+            "fault": physics.fault.to_json() if physics.fault is not None else None,
         }
 
 

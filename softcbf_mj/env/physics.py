@@ -38,7 +38,7 @@ import numpy as np
 from dm_control.rl import control
 
 from closedloop.monitor import DEFAULT_HOLD_S, SafeAction, SafetyMonitor
-from closedloop.step import ControlStep, StepRecord
+from closedloop.step import ControlStep, FilterFault, StepRecord
 from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from perception.detect import Detection, TagDetector
 from perception.tags import arm_tag_ids
@@ -141,6 +141,8 @@ class ArmPhysics(control.Physics):
             rho_min = min(rho_min, rho)
             force_max = max(force_max, float(np.max(self.state.contact_forces, initial=0.0)))
             vented = vented or record.action is SafeAction.VENT
+            if self.control_step.stopped:  # a filter fault has vented: the episode ends (closedloop.step)
+                break
         self.stats = StepStats(periods, violations, rho_min, force_max, vented)
 
     # -- the environment's view -------------------------------------------------------
@@ -160,6 +162,11 @@ class ArmPhysics(control.Physics):
     def rho_meas(self) -> float:
         """ρ_meas (1) of the current state: min over facets of the margin from the plate force."""
         return float(np.min(self.safe_set.margin_from_force(self.state.contact_forces)))
+
+    @property
+    def fault(self) -> FilterFault | None:
+        """The episode's filter fault (closedloop.step), None without one: the episode has ended."""
+        return self.control_step.fault
 
     @property
     def vent_latched(self) -> bool:

@@ -170,8 +170,8 @@ class ArmTask(control.Task):
     def get_termination(self, physics: ArmPhysics) -> float | None:
         if self.reward.terminate_on_violation and physics.stats.violation_periods > 0:
             return 0.0
-        if self.reward.terminate_on_vent and physics.vent_latched:
-            return 0.0
+        if physics.vent_latched and (self.reward.terminate_on_vent or physics.fault is not None):
+            return 0.0  # a filter fault always ends the episode at its vent
         if self.steps >= self.episode_steps:
             return 1.0
         return None
