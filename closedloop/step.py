@@ -23,8 +23,9 @@ q (N,) rad, qd (N,) rad/s) and what it observed (`SafetyFlags`), and sends the
 6. the record: what the filter returned (`output`, None when it was not called or
    raised), what was sent (`u`), the monitor's action and reasons, the filter's time.
 
-Filter faults (SPEC §16). Any other exception from the nominal, the filter or its
-`reset()`, and any return the contract refuses (`FilterReturnError`), is a filter fault:
+Filter faults (docs/safety-filter.md#the-plug-in-boundary-is-a-trust-boundary). Any other
+exception from the nominal, the filter or its `reset()`, and any return the contract
+refuses (`FilterReturnError`), is a filter fault:
 the step keeps the first one (`fault`, a `FilterFault` with its traceback), calls no user
 code again, and raises the monitor's `filter_fault` flag on every later call: HOLD the last
 admitted command for the monitor's hold, then VENT (at once if nothing was admitted yet).

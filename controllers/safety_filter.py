@@ -32,7 +32,7 @@ command that is sent:
 Whatever a filter returns, the control step clips it to the limits and refuses
 non-finite commands (`closedloop.step`); a filter need not repeat that.
 
-What a loop accepts (the plug-in boundary is a trust boundary, SPEC §16). A filter is
+What a loop accepts (the plug-in boundary is a trust boundary, docs/safety-filter.md#the-plug-in-boundary-is-a-trust-boundary). A filter is
 somebody else's code, so the control step hands it read-only copies (the estimate's q and
 q̇, u_nom, the context's limits) and converts its return once (`OutputCheck`): a bare
 return must be n real numbers (an ndarray, list or tuple; not bool, complex or object

@@ -314,6 +314,8 @@ class HardwareLoop:
                 k = self._next_cycle(k, t0, record)
             if self.live is not None:
                 self.live.send(record.recorder, record.cycles, force=True)
+        except StartupError:
+            raise  # no first frame: nothing ran (the command's exit 2)
         except Exception as exc:  # noqa: BLE001 - kept with the rows so far; the valves vent below
             record.error = f"{type(exc).__name__}: {exc}".splitlines()[0]
             record.error_traceback = "".join(traceback.format_exception(exc))

@@ -285,7 +285,7 @@ def live_run(summary: SummaryWriter, label: str, control_dt: float, camera: bool
 
 def stop_after(row: Mapping[str, Any]) -> bool:
     """True when the run of summary row `row` ended on a filter fault: the scenario runs no
-    further tunings (SPEC §16: the run stops after the vent; the command exits 1)."""
+    further tunings (docs/safety-filter.md: the run stops after the vent; the command exits 1)."""
     return bool(row.get("fault"))
 
 

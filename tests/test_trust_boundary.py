@@ -1,4 +1,4 @@
-"""The plug-in boundary is a trust boundary (SPEC §16, issue 22): whatever a filter or nominal does,
+"""The plug-in boundary is a trust boundary (docs/safety-filter.md, issue 22): whatever a filter or nominal does,
 the control step keeps the limits, the record and the run.
 
 Each defect found on 3713bd0 has a test here (N1 widening the clip, N2 rewriting the record, N3 a
@@ -465,3 +465,25 @@ def test_hardware_loop_skips_the_cycles_a_stall_missed(tmp_path, tmp_path_factor
     assert 4 <= row["cycles_skipped"] <= 6 and row["cycles"] + row["cycles_skipped"] == 20
     gaps = np.diff(series["t_clock"])
     assert np.all(gaps[5:] > 0.05)  # no burst: after the stall the cycles keep their period
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(how=st.sampled_from(MISBEHAVIOURS), at=st.integers(1, 20))
+def test_property_environment_keeps_its_promises(how, at):
+    import gymnasium
+
+    import softcbf_mj.env  # noqa: F401  (registers the environment)
+
+    env = gymnasium.make("softcbf_mj/SoftArm-v0", filter="test_trust_boundary:Misbehaving",
+                         filter_params={"how": how, "at": at, "burst": 5}, hold_s=0.01)
+    env.reset(seed=0)
+    terminated, info = False, {}
+    for _ in range(60):
+        _, _, terminated, truncated, info = env.step(np.array([150.0, 150.0]))
+        u = env.unwrapped.physics.last_record.u
+        assert np.all(np.isfinite(u)) and np.all(np.abs(u) <= LIMIT), how
+        if terminated or truncated:
+            break
+    env.close()
+    fatal = how not in ("nan", "inf", "huge", "slow")
+    assert (info["fault"] is not None) == fatal and (terminated if fatal else True), (how, info)
