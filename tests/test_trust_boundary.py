@@ -463,6 +463,7 @@ def test_hardware_loop_skips_the_cycles_a_stall_missed(tmp_path, tmp_path_factor
         row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)
     series, _ = load_timeseries(tmp_path / "hw" / row["timeseries"])
     assert 4 <= row["cycles_skipped"] <= 6 and row["cycles"] + row["cycles_skipped"] == 20
+    assert row["watchdog_vents"] == 1  # the board's watchdog vented during the stall and said so in its next ACK
     gaps = np.diff(series["t_clock"])
     assert np.all(gaps[5:] > 0.05)  # no burst: after the stall the cycles keep their period
 
