@@ -107,3 +107,23 @@ def test_progress_counts_whole_batches(mismatch, tmp_path, capsys):
     counts = [line.split(" done")[0].rsplit(" ", 1)[1] for line in capsys.readouterr().err.splitlines()
               if "[study progress]" in line]
     assert counts == ["2/4", "4/4"]
+
+
+def test_a_three_segment_study_batches_and_equals_its_single_runs(tmp_path):
+    from controllers.params import uniform_robot
+
+    robot = tmp_path / "three.json"
+    uniform_robot(3).save(robot)
+    study = Study("three", "mujoco_contact", ("Low",), draws=3, seed=3,
+                  fixed={"robot": str(robot), "t0": 25.0, "duration": 0.2, "links_per_segment": 4},
+                  vary=(Distribution("plate_stiffness", "uniform", low=9.0, high=13.0),))
+    single = run_study(study, tmp_path / "single", workers=1, batch_size=1, progress=False)
+    batched = run_study(study, tmp_path / "batched", workers=1, progress=False)
+    assert (single.failed, batched.failed) == (0, 0)
+    rows_single = StudyStore.open(tmp_path / "single").load_rows()
+    rows_batched = StudyStore.open(tmp_path / "batched").load_rows()
+    assert [r["batch_size"] for r in rows_batched] == [3] * 3
+    for one, many in zip(rows_single, rows_batched):
+        for name in BATCH_FIGURES:
+            assert many[name] == pytest.approx(one[name], rel=0.0, abs=1e-9) if one[name] is not None else \
+                many[name] is None, name
