@@ -8,8 +8,15 @@ estimate's age: the paper's design).
 
 Every control step, with x = [q; q̇] (rad, rad/s) and u_nom (N,) hPa:
 
-    u* = argmin ‖u − u_nom‖²  s.t.  L_gB_i u ≤ γ/B_i − L_fB_i   (every row i of P)
-                                    u_min ≤ u ≤ u_max            (when pressure_limits)
+    u* = argmin ‖u − ū‖²  s.t.  L_gB_i u ≤ γ/B_i − L_fB_i   (every row i of P)
+                                u_min ≤ u ≤ u_max            (when pressure_limits)
+
+with ū = clip(u_nom, u_min, u_max), u_nom saturated to the box, when pressure_limits (ū =
+u_nom otherwise). The box is a hard row, so a u_nom beyond it can only be met at its
+saturation; and the QP's rounding grows with |ū| (`controllers.qp.tolerances`): before the
+saturation, u_nom = (1e17, 1e17) hPa made the native solver return a command violating its CBF
+row by 124 /s labelled "qp", and daqp a "slack" command flagged infeasible on a feasible problem.
+Below, "u_nom" in the branches means ū.
 
 Defined behaviour in every state (the result says which branch ran, in `action`):
 - "disabled": tuning None (a_E = b_E = γ = 0): u = u_nom, clipped to the limits when
@@ -290,6 +297,8 @@ class CBFFilter:
         if self._batch_dynamics is None:
             self._batch_dynamics = BatchDynamics(self.params)
         lo, hi = (np.array(self.params.u_min), np.array(self.params.u_max)) if self.pressure_limits else (None, None)
+        if self.pressure_limits:
+            u_nom = np.clip(u_nom, lo, hi)  # saturated, as `__call__` does
         out = cbf_qp_batch(self._batch_dynamics, self.safe_set, self.tuning, estimates.q, estimates.qd, u_nom, lo, hi,
                            fallback=lambda i: self(estimates[i], u_nom[i]))
         return BatchOutput(out.u, out.action, out.infeasible, out.rho_pred)
@@ -310,6 +319,9 @@ class CBFFilter:
         b, B, constraint lists over the rows of P and active a list of bools over them (None when no
         QP's active set applies)."""
         # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
+        given = u_list
+        if self.pressure_limits and not all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list)):
+            u_list = self._clip(u_list)  # saturated u_nom (module docstring)
         q = xs[: self.n]
         ev = self.dynamics.evaluate_floats(q, xs[self.n :])
         barrier = barrier_rows(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
@@ -320,10 +332,10 @@ class CBFFilter:
         gamma = self.tuning.gamma
         u, action, active, infeasible, slack, solve_us = u_list, "nominal", None, False, 0.0, 0.0
         if not self.enabled:
-            u, action = self._clip(u_list), "disabled"
+            u, action = u_list, "disabled"
         else:
             rows, rhs, cbf_rows, unevaluable = [], [], [], False
-            feasible = not self.pressure_limits or all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list))
+            feasible = True  # u_list is inside the box
             for i, (ok, (b_i, _, big_b, lfb, lgb)) in enumerate(zip(defined, barrier)):
                 if ok:
                     row, c = lgb, gamma / big_b - lfb
@@ -344,7 +356,7 @@ class CBFFilter:
                 solve_us = (time.perf_counter() - t0) * 1e6
         constraint = [lfb + dot_lists(lgb, u) - gamma / big_b if ok else math.inf
                       for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
-        return (None if u is u_list else u, [row[0] for row in barrier], [row[2] for row in barrier], constraint, active,
+        return (None if u is given else u, [row[0] for row in barrier], [row[2] for row in barrier], constraint, active,
                 infeasible, recovery, action, rho_pred, solve_us, slack)
 
     def _violates(self, u: list[float], u_nom: list[float], rows: list[list[float]], rhs: list[float],

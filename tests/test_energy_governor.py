@@ -5,6 +5,7 @@ against a fine integration, and closed loops on the PCC plant at 10 Hz with came
 
 import inspect
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -276,17 +277,50 @@ def test_state_energy_is_the_array_path_in_and_out_of_contact():
     assert 50 < touching < 550  # both branches
 
 
+BAD_PARAMETERS = [
+    ({"kappa": -0.1}, "kappa must be in [0, 1000], got -0.1"),
+    ({"kappa": -1}, "kappa must be in [0, 1000], got -1.0"),
+    ({"margin_m": -0.5}, "margin_m must be >= 0 m, got -0.5"),
+    ({"energy_margin_J": math.inf}, "energy_margin_J must be finite and >= 0 J, got inf"),
+    ({"stiffness_lo_ratio": 1.2, "stiffness_hi_ratio": 1.1}, "stiffness_lo_ratio must be <= stiffness_hi_ratio = 1.1, got 1.2"),
+    ({"stiffness_hi_ratio": 0.0}, "stiffness_hi_ratio must be in [0.001, 1000], got 0.0"),
+    ({"bisection_steps": 0}, "bisection_steps must be in [1, 52], got 0"),
+    ({"bisection_steps": 2.5}, "bisection_steps must be an integer in [1, 52], got 2.5"),
+    ({"command_delay_s": -0.01}, "command_delay_s must be in [0, 1] s, got -0.01"),
+    ({"command_delay_s": 100.0}, "command_delay_s must be in [0, 1] s, got 100.0"),
+    ({"command_delay_s": 1e6}, "command_delay_s must be in [0, 1] s, got 1000000.0"),
+    ({"actuator_tau_s": math.nan}, "actuator_tau_s must be finite and in [0, 10] s, got nan"),
+    ({"grid_hPa": 0.0}, "grid_hPa must be > 0 hPa, got 0.0"),
+    ({"predictor_step_s": 1e-9}, "predictor_step_s must be in [0.0001, 0.01] s, got 1e-09"),
+    ({"contact_aware": 2}, "contact_aware must be true or false, got 2"),
+]
+
+
+@pytest.mark.parametrize("params, message", BAD_PARAMETERS)
+def test_bad_parameters_are_refused_before_and_at_construction(params, message):
+    """The same declared bound refuses the value in `check_filter` (nothing built: a study checks
+    its runs this way before any sample runs) and in the constructor, with the same message."""
+    from controllers.registry import check_filter
+
+    pattern = re.escape(message)
+    with pytest.raises(ValueError, match=pattern):
+        check_filter("e-erg", params)
+    with pytest.raises(ValueError, match=pattern):
+        EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), **params)
+
+
 @pytest.mark.parametrize("params, message", [
-    ({"kappa": -0.1}, "kappa must be finite and >= 0, got -0.1"),
-    ({"energy_margin_J": math.inf}, "energy_margin_J must be finite and >= 0"),
-    ({"stiffness_lo_ratio": 1.2, "stiffness_hi_ratio": 1.1}, "stiffness_lo_ratio <= stiffness_hi_ratio"),
-    ({"bisection_steps": 0}, "bisection_steps must be an integer >= 1, got 0"),
-    ({"command_delay_s": -0.01}, "command_delay_s must be finite and >= 0 s, got -0.01"),
-    ({"grid_hPa": 0.0}, "grid_hPa must be finite and > 0"),
+    ({"grid_hPa": 1e-6}, r"grid_hPa must be >= 0\.5871 hPa over the box \[300\.0, 300\.0\] hPa wide \(at most 262144 "
+                         r"table commands\), got 1e-06 \(9e\+16 commands\)"),
+    ({"energy_margin_J": 1e300}, r"energy_margin_J must be < 0\.72 J \(½ k_min reach², the escape energy the table "
+                                 r"resolves\), got 1e\+300"),
 ])
-def test_bad_parameters_are_refused(params, message):
+def test_parameters_bounded_by_the_context_are_refused_at_construction(params, message):
+    """grid_hPa = 1e-6 asked for 639 PiB; ε = 1e300 certified nothing but reported "hold" as certified."""
     with pytest.raises(ValueError, match=message):
         EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), **params)
+    with pytest.raises(ValueError, match="command_delay_s \\(the context's\\) must be in \\[0, 1\\] s, got 5.0"):
+        EnergyGovernor(context(ROBOT, SAFE, PERIOD, 5.0, 0.05))
 
 
 def test_bad_models_are_refused():
