@@ -49,7 +49,14 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   x ≤ 0.2 m, q = 0, u_nom = 0, PCC plant, limits on): the tip, 29.7 mm outside P, is
   inside after 0.126 s with Low and HW-High (before: "slack" with u = 0 for 3000 of 3000
   steps, never inside); afterwards u_nom = 0 keeps pulling the rest shape outside and the
-  tip cycles around P's boundary (b ≥ −3.0 mm Low, −4.2 mm HW-High). `infeasible` is
+  tip cycles around P's boundary (b ≥ −3.0 mm Low, −4.2 mm HW-High; 91 % / 96 % of the
+  steps after re-entry have b < 0, most of them "recovery"). That is the CBF's exit, not the
+  recovery's: started at rest with its rest shape 1, 5 or 10 mm inside P and u_nom = 0, the
+  CBF alone ("qp", "slack" under the box, one "nominal") lets the tip out within 11–39 ms
+  and down to b = −3.1…−10.0 mm, before any recovery step (tests/test_filter.py). Near
+  rest L_gB ∝ ḃ vanishes (docs/model.md#control-barrier-function), so the CBF acts only once
+  the tip moves outwards, too late at 1 kHz within ±150 hPa; keeping the tip inside after
+  re-entry would need a different barrier after re-entry, not a different recovery. `infeasible` is
   flagged if the target violates a defined CBF row or a CBF row is not finite (below).
   With no target inside P the slack QP without hard rows runs, as below.
 - "slack": the rows and the bounds cannot all hold (infeasible), or a CBF row is not
@@ -87,17 +94,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import B_MIN, TUNINGS, Tuning, barrier_rows, get_tuning
+from controllers.cbf import B_MIN, TUNING_PARAMETERS, TUNINGS, Tuning, barrier_rows, get_tuning
 from controllers.cbf_batch import SCALAR_BELOW, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
-from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_real, as_vector
+from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.params import RobotParams
 from controllers.pcc import step_kinematics
-from controllers.qp import DEFAULT_BACKEND, available_backends, dot_lists, row_norm, solve_lists, tolerances
+from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import (BatchOutput, DiagnosticLayout, Estimate, EstimateBatch, FilterContext, FilterOutput,
                                       FlatDiagnostics)
+from vocabulary.settings import Bound
+
+PARAMETERS = {
+    "tuning": FilterParameter(f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below)", "", str),
+    **TUNING_PARAMETERS,
+    "qp_backend": FilterParameter(f"QP solver ({', '.join(available_backends())})", "", str),
+    "recovery_margin": FilterParameter("quasi-static recovery: rest shape inside P by this much", "m",
+                                       bound=Bound(0.0, unit="m")),
+    "slack_weight": FilterParameter("infeasible rows: cost of 1 hPa of violation vs 1 hPa of deviation, squared "
+                                    "(beyond 1e12 the slack's column 1/√w is below the solvers' tolerances)", "1",
+                                    bound=Bound(0.0, 1e12, low_open=True)),
+}
+"""The paper-cbf filter's parameters, declared once (`controllers.filter_parameters`): `check_paper_cbf`
+(its `check_arguments`) and the constructors check them (a_E, b_E, gamma through `Tuning`)."""
 
 REST_GRID_POINTS = 1024
 """Grid size (at most) of the rest-target search over the pressure box (`CBFFilter.rest_targets`)."""
@@ -159,13 +181,9 @@ class CBFFilter:
         dynamics: PCCDynamics | None = None,
         batch_dynamics: BatchDynamics | None = None,
     ) -> None:
-        if qp_backend not in available_backends():
-            raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
-        slack_weight, recovery_margin = as_real("slack_weight", slack_weight), as_real("recovery_margin", recovery_margin, "m")
-        if not (math.isfinite(slack_weight) and slack_weight > 0):
-            raise ValueError(f"slack_weight must be > 0, got {slack_weight}")
-        if not (math.isfinite(recovery_margin) and recovery_margin >= 0):
-            raise ValueError(f"recovery_margin must be >= 0 m, got {recovery_margin}")
+        check_backend(qp_backend)
+        checked = check_parameters(PARAMETERS, {"recovery_margin": recovery_margin, "slack_weight": slack_weight})
+        recovery_margin, slack_weight = checked["recovery_margin"], checked["slack_weight"]
         if dynamics is not None and dynamics.params != params:
             raise ValueError("dynamics must be a PCCDynamics of the same params as the filter")
         if batch_dynamics is not None and batch_dynamics.params != params:
@@ -430,6 +448,8 @@ def paper_cbf(
     The pressure limits are the robot model's own when `context.bounded`; `context.dynamics`
     (the plant's evaluation of the same model), when given, is shared.
     """
+    check_paper_cbf({"tuning": tuning, "a_E": a_E, "b_E": b_E, "gamma": gamma, "qp_backend": qp_backend,
+                     "recovery_margin": recovery_margin, "slack_weight": slack_weight})
     chosen = paper_tuning(tuning, a_E, b_E, gamma)
     return CBFFilter(context.robot, context.safe_set, chosen, pressure_limits=context.bounded, qp_backend=qp_backend,
                      recovery_margin=recovery_margin, slack_weight=slack_weight, dynamics=context.dynamics)
@@ -445,21 +465,12 @@ def paper_cbf_label(params: dict[str, object]) -> str:
 
 def check_paper_cbf(arguments: dict[str, object]) -> None:
     """What `paper_cbf` would refuse of its (converted) `arguments`, checked without building
-    it: the tuning (`paper_tuning`) and the QP backend."""
+    it: the declared bounds (`PARAMETERS`), the tuning (`paper_tuning`) and the QP backend."""
+    check_parameters(PARAMETERS, arguments)
     paper_tuning(str(arguments.get("tuning", "Low")), arguments.get("a_E"), arguments.get("b_E"), arguments.get("gamma"))
-    backend = arguments.get("qp_backend", DEFAULT_BACKEND)
-    if backend not in available_backends():
-        raise ValueError(f"qp_backend must be one of {', '.join(available_backends())}, got {backend!r}")
+    check_backend(arguments.get("qp_backend", DEFAULT_BACKEND))
 
 
 paper_cbf.run_label = paper_cbf_label
 paper_cbf.check_arguments = check_paper_cbf
-paper_cbf.parameter_docs = {
-    "tuning": f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below) [-]",
-    "a_E": "custom tuning: weight of the velocity term a_E b_E bdot^2 / (1 + b_E bdot^2) of B [1]",
-    "b_E": "custom tuning: velocity scale of that term [s^2/m^2, bdot in row-scaled m/s]",
-    "gamma": "custom tuning: class-K gain of the constraint L_fB + L_gB u <= gamma/B [1/s]",
-    "qp_backend": f"QP solver ({', '.join(available_backends())}) [-]",
-    "recovery_margin": "quasi-static recovery: rest shape inside P by this much [m]",
-    "slack_weight": "infeasible rows: cost of 1 hPa of violation vs 1 hPa of deviation, squared [1]",
-}
+paper_cbf.parameter_docs = parameter_docs(PARAMETERS)
