@@ -315,8 +315,6 @@ class CBFFilter:
         if self._batch_dynamics is None:
             self._batch_dynamics = BatchDynamics(self.params)
         lo, hi = (np.array(self.params.u_min), np.array(self.params.u_max)) if self.pressure_limits else (None, None)
-        if self.pressure_limits:
-            u_nom = np.clip(u_nom, lo, hi)  # saturated, as `__call__` does
         out = cbf_qp_batch(self._batch_dynamics, self.safe_set, self.tuning, estimates.q, estimates.qd, u_nom, lo, hi,
                            fallback=lambda i: self(estimates[i], u_nom[i]))
         return BatchOutput(out.u, out.action, out.infeasible, out.rho_pred)
