@@ -39,8 +39,17 @@ plate does not push back (nothing stops the tip at n_max).
 κ (`kappa`, default 0.5) inflates the whole energy against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
 the absolute margin a new command must keep. The held command, certified when it was
-issued, counts as failed only when it has lost all of ε ((1 + κ)W > Γ): a hysteresis
-that keeps integration round-off from reading as a violation.
+issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ, tested as
+Γ − (1 + κ)W > 0, not as (Γ − (1 + κ)W − ε) + ε ≥ 0, which for ε = 1e300 held any W): a
+hysteresis that keeps integration round-off from reading as a violation.
+
+Times (refused with ControllerInputError, which the control step treats as a refused
+command: hold, then vent; the governor's state is unchanged): NaN or infinite t or
+t_capture, |t| or |t_capture| > TIME_LIMIT_S, an estimate from the future (t_capture > t),
+and t going backwards across calls (t + δ before the latest recorded application time;
+`reset` starts afresh). An estimate the predictor cannot reach — older than its history,
+or with t_a − t_c > PREDICTION_HORIZON_S (2 s) — is "stale" at once (before, one 1000 s old
+was integrated over 10⁶ steps: 8–20 s per call).
 
 Each call (estimate captured at t_c, called at t, the command acting from t_a = t + δ,
 δ = `command_delay_s` or the context's command delay):
@@ -89,7 +98,9 @@ guarantee.
 
 Diagnostics per call (units in `DIAGNOSTIC_UNITS`): W_J (the certified energy of the
 returned command at x̂, plate term included when contact-aware, before κ), Gamma_J
-(min_j Γ̲_j + c_j at it), margin_J (Gamma_J − (1+κ)W_J − ε; ≥ 0 when certified),
+(min_j Γ̲_j + c_j at it), margin_J (Gamma_J − (1+κ)W_J − ε, and Gamma_J − (1+κ)W_J for
+"hold", the held command's test: ≥ 0 for "free", "governed" and "hold"; < 0 only in an
+infeasible "recover"),
 step_fraction (σ along the ray to the target; NaN in recovery), blocked (1 when the
 target was not reached), violation (1 when the held command failed its certificate at
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
@@ -240,8 +251,9 @@ class EnergyGovernor:
 
     Actions: "free" (σ = 1: the target is certified), "governed" (a certified step along
     one of the rays), "hold" (no step nearer the target), "recover" (the held command failed; infeasible when no candidate is
-    certified), "stale" (the estimate is older than the predictor's history: the held
-    command is kept, infeasible).
+    certified), "stale" (the predictor cannot reach the estimate: older than its history or
+    than PREDICTION_HORIZON_S; the held command is kept, infeasible). Bad times raise
+    ControllerInputError (module docstring).
     """
 
     parameter_docs = parameter_docs(PARAMETERS)

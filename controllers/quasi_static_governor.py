@@ -213,10 +213,10 @@ class QuasiStaticGovernor:
         records u as the previous command. Whether u_nom is nominal (in the box, rest margins ≥ 0)
         is read from `_scalar_rest_margin` when it is farther than NOMINAL_TOL_M from 0 (None: u_nom
         was accepted that way), from `rest_margins` otherwise."""
-        if self._nominal_range is not None and not np.all((self._nominal_range[0] <= u_nom) & (u_nom <= self._nominal_range[1])):
-            u_nom = np.clip(u_nom, *self._nominal_range)  # NOMINAL_RANGE_WIDTHS
         lb, ub = self._bounds(True)
         inside = lb is None or bool(np.all((lb <= u_nom) & (u_nom <= ub)))
+        if not inside and self._nominal_range is not None:  # (inside the box is inside the range: no cost there)
+            u_nom = np.clip(u_nom, *self._nominal_range)  # NOMINAL_RANGE_WIDTHS
         scalar = self._scalar_rest_margin(u_nom) if inside else -math.inf
         if scalar > NOMINAL_TOL_M:
             self._u_prev = np.array(u_nom, dtype=float)
