@@ -99,8 +99,8 @@ guarantee.
 Diagnostics per call (units in `DIAGNOSTIC_UNITS`): W_J (the certified energy of the
 returned command at x̂, plate term included when contact-aware, before κ), Gamma_J
 (min_j Γ̲_j + c_j at it), margin_J (Gamma_J − (1+κ)W_J − ε, and Gamma_J − (1+κ)W_J for
-"hold", the held command's test: ≥ 0 for "free", "governed" and "hold"; < 0 only in an
-infeasible "recover"),
+"hold", the held command's test: ≥ 0 for "free", "governed" and "hold"; < 0 beyond
+rounding only in an infeasible "recover"),
 step_fraction (σ along the ray to the target; NaN in recovery), blocked (1 when the
 target was not reached), violation (1 when the held command failed its certificate at
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us

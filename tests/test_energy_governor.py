@@ -174,6 +174,22 @@ def test_predictor_agrees_with_a_fine_integration(tau):
         predictor.record(0.1, np.zeros(2))
 
 
+def test_the_predictor_caps_its_span_at_the_horizon():
+    """A prediction over more than horizon_s is refused (it cost ⌈span/step_s⌉ model steps: 10⁶ for an
+    estimate 1000 s old from the vented start), and `can_predict` says so beforehand."""
+    predictor = StatePredictor(PCCDynamics(ROBOT), 0.05, horizon_s=2.0)
+    rest = np.zeros(2)
+    assert predictor.oldest_time == -math.inf and predictor.latest_time == -math.inf
+    assert predictor.can_predict(0.0, 2.0) and not predictor.can_predict(0.0, 2.0 + 1e-9)
+    assert not predictor.can_predict(1.0, 0.5) and not predictor.can_predict(math.nan, 1.0)
+    with pytest.raises(ValueError, match="t_end - t_start must be <= horizon_s = 2.0 s, got 1000.0 s"):
+        predictor.predict(0.0, rest, rest, 1000.0)
+    for k in range(40):
+        predictor.record(0.1 * k, np.full(2, 10.0))
+    assert predictor.latest_time == pytest.approx(3.9) and not predictor.can_predict(1.0, 2.0)  # before the history
+    assert predictor.oldest_time <= 3.9 - 2.0 and predictor.can_predict(3.9 - 2.0, 3.9)
+
+
 # -- closed loops on the PCC plant --------------------------------------------------------
 @pytest.mark.parametrize("tau", [0.0, 0.05])
 def test_worst_step_stays_in_P_and_the_certificate_holds_at_the_true_state(tau, governor_lag, governor_ideal):
