@@ -187,7 +187,8 @@ def test_the_predictor_caps_its_span_at_the_horizon():
     for k in range(40):
         predictor.record(0.1 * k, np.full(2, 10.0))
     assert predictor.latest_time == pytest.approx(3.9) and not predictor.can_predict(1.0, 2.0)  # before the history
-    assert predictor.oldest_time <= 3.9 - 2.0 and predictor.can_predict(3.9 - 2.0, 3.9)
+    latest = predictor.latest_time
+    assert predictor.oldest_time <= latest - 2.0 and predictor.can_predict(latest - 1.5, latest)
 
 
 # -- closed loops on the PCC plant --------------------------------------------------------
