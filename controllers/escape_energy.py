@@ -80,12 +80,17 @@ class EscapeEnergyTable:
         u_lo, u_hi = np.asarray(u_lo, dtype=float), np.asarray(u_hi, dtype=float)
         if u_lo.shape != (n,) or u_hi.shape != (n,) or not np.all(u_lo < u_hi):
             raise ValueError(f"u_lo < u_hi must have shape ({n},) hPa, got {u_lo} and {u_hi}")
-        sizes = [math.ceil((hi - lo) / grid_hPa) + 1 for lo, hi in zip(u_lo.tolist(), u_hi.tolist())]
-        if math.prod(sizes) > MAX_TABLE_COMMANDS:
-            widths = (u_hi - u_lo).tolist()
+        widths = (u_hi - u_lo).tolist()
+        cells = [w / grid_hPa for w in widths]  # inf for a subnormal grid_hPa
+        count = math.prod(c + 1.0 for c in cells)
+        if not count <= MAX_TABLE_COMMANDS:  # (a float bound first: ceil(inf) would raise)
             finest = max(widths) / (math.floor(MAX_TABLE_COMMANDS ** (1.0 / n)) - 1)
             raise ValueError(f"grid_hPa must be >= {finest:.4g} hPa over the box {widths} hPa wide (at most "
-                             f"{MAX_TABLE_COMMANDS} table commands), got {grid_hPa!r} ({math.prod(sizes):.3g} commands)")
+                             f"{MAX_TABLE_COMMANDS} table commands), got {grid_hPa!r} ({count:.3g} commands)")
+        sizes = [math.ceil(c) + 1 for c in cells]
+        if math.prod(sizes) > MAX_TABLE_COMMANDS:
+            raise ValueError(f"grid_hPa must be larger over the box {widths} hPa wide (at most {MAX_TABLE_COMMANDS} "
+                             f"table commands), got {grid_hPa!r} ({math.prod(sizes)} commands)")
         self.n = n
         self.stiffness = robot.array("stiffness")
         self.static_gain = robot.array("gains") / self.stiffness  # K⁻¹Λ, rad/hPa
