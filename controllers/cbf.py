@@ -24,7 +24,6 @@ and zero L_f B, L_g B: recovery there is the filter's decision, not this module'
 from __future__ import annotations
 
 import math
-import numbers
 import sys
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -33,9 +32,22 @@ from typing import NamedTuple
 import numpy as np
 
 from controllers.dynamics import DynamicsEval
-from controllers.errors import ControllerInputError, NonFiniteCommandError, as_real, as_vector
+from controllers.errors import ControllerInputError, NonFiniteCommandError, as_vector
+from controllers.filter_parameters import FilterParameter
+from vocabulary.settings import Bound
 
 B_MIN = math.sqrt(sys.float_info.min)  # ≈ 1.5e-154: smallest b treated as inside P
+
+TUNING_PARAMETERS = {
+    "a_E": FilterParameter("custom tuning: weight of the velocity term a_E b_E bdot^2 / (1 + b_E bdot^2) of B", "1",
+                           bound=Bound(0.0), optional=True),
+    "b_E": FilterParameter("custom tuning: velocity scale of that term (bdot in row-scaled m/s)", "s^2/m^2",
+                           bound=Bound(0.0, unit="s^2/m^2"), optional=True),
+    "gamma": FilterParameter("custom tuning: class-K gain of the constraint L_fB + L_gB u <= gamma/B", "1/s",
+                             bound=Bound(0.0, unit="1/s"), optional=True),
+}
+"""The bounds of a tuning's numbers (`controllers.filter_parameters`), declared once: `Tuning` and the
+paper-cbf filter's parameters (None there: a preset's) check them. Also 2 a_E b_E must be finite."""
 
 
 @dataclass(frozen=True)
@@ -55,14 +67,9 @@ class Tuning:
         if not isinstance(self.name, str) or not self.name.strip():
             raise ValueError(f"name must be a non-empty string, got {self.name!r}")
         for field in ("a_E", "b_E", "gamma"):
-            value = getattr(self, field)
-            if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise ValueError(f"{field} must be a number >= 0, got {value!r}")
-            value = as_real(field, value)
-            if not math.isfinite(value):
-                raise ValueError(f"{field} must be finite and >= 0, got {value!r}")
-            if value < 0:
-                raise ValueError(f"{field} must be >= 0, got {value!r}")
+            value = TUNING_PARAMETERS[field].check(field, getattr(self, field))
+            if value is None:
+                raise ValueError(f"{field} must be a number {TUNING_PARAMETERS[field].bound}, got None")
             object.__setattr__(self, field, value)
         if not math.isfinite(2.0 * self.a_E * self.b_E):
             raise ValueError(f"a_E·b_E must be finite (2 a_E b_E enters ∂B/∂ḃ), got a_E = {self.a_E:g}, b_E = {self.b_E:g}")

@@ -6,6 +6,8 @@ commands u_nom (B, 2) hPa, every state gets what `CBFFilter` computes:
     u*_b = argmin ‖u − u_nom,b‖²  s.t.  L_gB_i(x_b) u ≤ γ/B_i(x_b) − L_fB_i(x_b)   (rows i of P)
                                         u_min ≤ u ≤ u_max                        (when bounded)
 
+with u_nom first saturated to [u_min, u_max] when bounded (as `CBFFilter` does).
+
 Barrier terms: b, ḃ, B, L_fB, L_gB per row (`controllers.cbf`) from the tip terms of
 `controllers.dynamics_batch.BatchDynamics`, in the scalar path's operation order, so
 b, ḃ, B, L_fB, L_gB are the scalar filter's floats (log1p is the math module's, per state). Branches, as `CBFFilter` takes them:
@@ -188,10 +190,11 @@ def cbf_qp_batch(
     resolved = np.ones(n, dtype=bool)
     lo = np.asarray(u_min, dtype=float) if bounded else None
     hi = np.asarray(u_max, dtype=float) if bounded else None
+    if bounded:
+        u_nom = np.clip(u_nom, lo, hi)  # saturated, as `CBFFilter` saturates it (module docstring)
+        u = u_nom.copy()
     if tuning.disabled:
         action[:] = "disabled"
-        if bounded:
-            u = np.clip(u_nom, lo, hi)
         return CBFBatchResult(u, action.astype(str), infeasible, rho_pred, b_all, resolved)
 
     A = np.stack(lgb_rows, axis=1) if lgb_rows else np.empty((n, 0, 2))  # (B, P, 2)

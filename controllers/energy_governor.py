@@ -39,8 +39,17 @@ plate does not push back (nothing stops the tip at n_max).
 κ (`kappa`, default 0.5) inflates the whole energy against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
 the absolute margin a new command must keep. The held command, certified when it was
-issued, counts as failed only when it has lost all of ε ((1 + κ)W > Γ): a hysteresis
-that keeps integration round-off from reading as a violation.
+issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ, tested as
+Γ − (1 + κ)W > 0, not as (Γ − (1 + κ)W − ε) + ε ≥ 0, which for ε = 1e300 held any W): a
+hysteresis that keeps integration round-off from reading as a violation.
+
+Times (refused with ControllerInputError, which the control step treats as a refused
+command: hold, then vent; the governor's state is unchanged): NaN or infinite t or
+t_capture, |t| or |t_capture| > TIME_LIMIT_S, an estimate from the future (t_capture > t),
+and t going backwards across calls (t + δ before the latest recorded application time;
+`reset` starts afresh). An estimate the predictor cannot reach — older than its history,
+or with t_a − t_c > PREDICTION_HORIZON_S (2 s) — is "stale" at once (before, one 1000 s old
+was integrated over 10⁶ steps: 8–20 s per call).
 
 Each call (estimate captured at t_c, called at t, the command acting from t_a = t + δ,
 δ = `command_delay_s` or the context's command delay):
@@ -89,7 +98,9 @@ guarantee.
 
 Diagnostics per call (units in `DIAGNOSTIC_UNITS`): W_J (the certified energy of the
 returned command at x̂, plate term included when contact-aware, before κ), Gamma_J
-(min_j Γ̲_j + c_j at it), margin_J (Gamma_J − (1+κ)W_J − ε; ≥ 0 when certified),
+(min_j Γ̲_j + c_j at it), margin_J (Gamma_J − (1+κ)W_J − ε, and Gamma_J − (1+κ)W_J for
+"hold", the held command's test: ≥ 0 for "free", "governed" and "hold"; < 0 beyond
+rounding only in an infeasible "recover"),
 step_fraction (σ along the ray to the target; NaN in recovery), blocked (1 when the
 target was not reached), violation (1 when the held command failed its certificate at
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
@@ -120,13 +131,16 @@ from dataclasses import replace
 import numpy as np
 
 from controllers.dynamics import PCCDynamics
-from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.escape_energy import EscapeEnergyTable
+from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.pcc import kinematics, kinematics_unchecked
+from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
+from vocabulary.settings import Bound
 
 ESCAPE_MEMORY = 4096
 """Most Γ̲ look-ups remembered across calls (`EnergyGovernor.escape_memory`)."""
@@ -139,6 +153,53 @@ DIAGNOSTIC_UNITS = {
     "violation": "bool (1: the held command failed its certificate)", "prediction_s": "s", "solve_us": "µs",
 }
 
+
+PREDICTION_HORIZON_S = 2.0
+"""The state predictor's horizon (s): an estimate whose prediction span t_a − t_c exceeds it is "stale"."""
+
+MAX_COMMAND_DELAY_S = 0.5 * PREDICTION_HORIZON_S
+"""Largest command delay δ (s): half the horizon, so an estimate up to that old can still be predicted."""
+
+TIME_LIMIT_S = 1e9
+"""Largest |t| and |t_capture| (s) a call accepts (32 years): far beyond, the delay and the estimate's age vanish in rounding."""
+
+STIFFNESS_RATIOS = Bound(0.0, 1e3)
+"""Valid plate stiffness ratios (1): a multiple of the model's ψ; hi must also be ≥ 1e-3 (P then grows 1000-fold)."""
+
+PARAMETERS = {
+    "margin_m": FilterParameter("rest-shape tip margin of the target (quasi-static governor) inside P", "m",
+                                bound=QSG_PARAMETERS["margin_m"].bound),
+    "kappa": FilterParameter("relative inflation of the certified energy against estimate/prediction errors", "1",
+                             bound=Bound(0.0, 1e3)),
+    "energy_margin_J": FilterParameter("absolute certificate margin ε; below ½ k_min (1.2 rad)², the escape energy "
+                                       "the table resolves (checked at construction)", "J", bound=Bound(0.0, unit="J")),
+    "contact_aware": FilterParameter("credit the plate's stored energy at the boundary (the plate pushes back)", "", bool),
+    "stiffness_lo_ratio": FilterParameter("lowest true plate stiffness as a multiple of the model's ψ (<= hi)", "1",
+                                          bound=STIFFNESS_RATIOS),
+    "stiffness_hi_ratio": FilterParameter("highest true plate stiffness as a multiple of the model's ψ "
+                                          "(n_max = ψ⁻¹(F_max/hi))", "1", bound=Bound(1e-3, 1e3)),
+    "command_delay_s": FilterParameter("call → command acting at the valves (None: the context's, unknown = 0)", "s",
+                                       bound=Bound(0.0, MAX_COMMAND_DELAY_S, unit="s"), optional=True),
+    "actuator_tau_s": FilterParameter("valve pressure time constant τ_p (None: the context's, unknown = 0)", "s",
+                                      bound=Bound(0.0, 10.0, unit="s"), optional=True),
+    "grid_hPa": FilterParameter("command spacing of the escape-energy table; at most "
+                                "controllers.escape_energy.MAX_TABLE_COMMANDS commands over the box "
+                                "(checked at construction)", "hPa", bound=Bound(0.0, low_open=True, unit="hPa")),
+    "predictor_step_s": FilterParameter("largest integration step of the state predictor", "s",
+                                        bound=Bound(1e-4, 1e-2, unit="s")),
+    "bisection_steps": FilterParameter("halvings of the step towards the target (beyond 52 a double's σ stops changing)",
+                                       "1", int, Bound(1, 52)),
+}
+"""The E-ERG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them.
+
+Computational bounds: command_delay_s ≤ MAX_COMMAND_DELAY_S keeps a prediction within the horizon
+(δ = 100 s took 2 s per call: 10⁵ integration steps); predictor_step_s ≥ 1e-4 s caps a prediction at
+PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's table ≤ MAX_TABLE_COMMANDS commands
+(1e-6 hPa asked for 639 PiB). Physical ones: κ ≥ 0 (an inflation; ≤ 1000: beyond, it is no estimate error),
+ε ≥ 0 and below the table's saturation ½ k_min reach² (`EscapeEnergyTable.saturation_J`, 0.72 J on the
+reference arm: a larger ε certifies no step at all), the stiffness ratios
+0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, τ_p ≤ 10 s.
+"""
 
 ROUNDING_SLACK = 1e-12
 """Relative slack (of Σ_i (|a_i| + |g_i| + |t_i|)², hPa²) for the rounding of the ray distances (`ray_may_come_nearer`)."""
@@ -190,51 +251,36 @@ class EnergyGovernor:
 
     Actions: "free" (σ = 1: the target is certified), "governed" (a certified step along
     one of the rays), "hold" (no step nearer the target), "recover" (the held command failed; infeasible when no candidate is
-    certified), "stale" (the estimate is older than the predictor's history: the held
-    command is kept, infeasible).
+    certified), "stale" (the predictor cannot reach the estimate: older than its history or
+    than PREDICTION_HORIZON_S; the held command is kept, infeasible). Bad times raise
+    ControllerInputError (module docstring).
     """
 
-    parameter_docs = {
-        "margin_m": "rest-shape tip margin of the target (quasi-static governor) inside P [m]",
-        "kappa": "relative inflation of the certified energy against estimate/prediction errors [1]",
-        "energy_margin_J": "absolute certificate margin ε [J]",
-        "contact_aware": "credit the plate's stored energy at the boundary (the plate pushes back) [bool]",
-        "stiffness_lo_ratio": "lowest true plate stiffness as a multiple of the model's ψ [1]",
-        "stiffness_hi_ratio": "highest true plate stiffness as a multiple of the model's ψ (n_max = ψ⁻¹(F_max/hi)) [1]",
-        "command_delay_s": "call → command acting at the valves (None: the context's, unknown = 0) [s]",
-        "actuator_tau_s": "valve pressure time constant τ_p (None: the context's, unknown = 0) [s]",
-        "grid_hPa": "command spacing of the escape-energy table [hPa]",
-        "predictor_step_s": "largest integration step of the state predictor [s]",
-        "bisection_steps": "halvings of the step towards the target [1]",
-    }
+    parameter_docs = parameter_docs(PARAMETERS)
 
     def __init__(self, context: FilterContext, margin_m: float = 5e-3, kappa: float = 0.5, energy_margin_J: float = 1e-5,
                  contact_aware: bool = False, stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0,
                  command_delay_s: float | None = None, actuator_tau_s: float | None = None, grid_hPa: float = 2.5,
                  predictor_step_s: float = 1e-3, bisection_steps: int = 12) -> None:
-        for name, value in (("kappa", kappa), ("energy_margin_J", energy_margin_J)):
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value}")
-        if not (math.isfinite(stiffness_lo_ratio) and math.isfinite(stiffness_hi_ratio) and 0 <= stiffness_lo_ratio <= stiffness_hi_ratio and stiffness_hi_ratio > 0):
-            raise ValueError(f"plate stiffness ratios must satisfy 0 <= stiffness_lo_ratio <= stiffness_hi_ratio, hi > 0, "
-                             f"got lo = {stiffness_lo_ratio}, hi = {stiffness_hi_ratio}")
-        if isinstance(bisection_steps, bool) or int(bisection_steps) != bisection_steps or bisection_steps < 1:
-            raise ValueError(f"bisection_steps must be an integer >= 1, got {bisection_steps}")
-        delay = context.command_delay if command_delay_s is None else command_delay_s
-        tau = context.actuator_tau if actuator_tau_s is None else actuator_tau_s
+        checked = self.check_arguments({
+            "margin_m": margin_m, "kappa": kappa, "energy_margin_J": energy_margin_J, "contact_aware": contact_aware,
+            "stiffness_lo_ratio": stiffness_lo_ratio, "stiffness_hi_ratio": stiffness_hi_ratio,
+            "command_delay_s": command_delay_s, "actuator_tau_s": actuator_tau_s, "grid_hPa": grid_hPa,
+            "predictor_step_s": predictor_step_s, "bisection_steps": bisection_steps})
+        delay = context.command_delay if command_delay_s is None else checked["command_delay_s"]
+        tau = context.actuator_tau if actuator_tau_s is None else checked["actuator_tau_s"]
         delay, tau = (0.0 if delay is None else float(delay)), (0.0 if tau is None else float(tau))
-        for name, value in (("command_delay_s", delay), ("actuator_tau_s", tau)):
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0 s, got {value}")
+        for name, value in (("command_delay_s", delay), ("actuator_tau_s", tau)):  # the context's, when not given
+            PARAMETERS[name].check(f"{name} (the context's)", value)
         law = context.safe_set.stiffness
         if not callable(getattr(law, "energy", None)):
             raise ValueError(f"the plate's stiffness law {type(law).__name__} has no energy(n); "
                              "use LinearStiffness or PowerLawStiffness")
-        self.kappa, self.energy_margin = float(kappa), float(energy_margin_J)
-        self.contact_aware = bool(contact_aware)
-        self.stiffness_lo, self.stiffness_hi = float(stiffness_lo_ratio), float(stiffness_hi_ratio)
+        self.kappa, self.energy_margin = checked["kappa"], checked["energy_margin_J"]
+        self.contact_aware = checked["contact_aware"]
+        self.stiffness_lo, self.stiffness_hi = checked["stiffness_lo_ratio"], checked["stiffness_hi_ratio"]
         self.command_delay, self.actuator_tau = delay, tau
-        self.bisection_steps = int(bisection_steps)
+        self.bisection_steps = checked["bisection_steps"]
         self.context = context
         robot = context.robot
         self.n = robot.n_segments
@@ -251,8 +297,8 @@ class EnergyGovernor:
         self._plate_weight = self.stiffness_hi if self.contact_aware else 0.0
         self._credit = [0.0 if corner else credit for corner in self.safe_set.is_vertex_correction.tolist()]
         self.dynamics = PCCDynamics(robot)
-        self.predictor = StatePredictor(self.dynamics, tau, step_s=predictor_step_s,
-                                        plate=context.safe_set if self.contact_aware else None)
+        self.predictor = StatePredictor(self.dynamics, tau, step_s=checked["predictor_step_s"],
+                                        horizon_s=PREDICTION_HORIZON_S, plate=context.safe_set if self.contact_aware else None)
         self._k = robot.array("stiffness").tolist()
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()
@@ -265,6 +311,21 @@ class EnergyGovernor:
         self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
         self._escape_origin: tuple | None = None
         self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
+        if not self.energy_margin < self.table.saturation_J:
+            raise ValueError(f"energy_margin_J must be < {self.table.saturation_J:.6g} J (½ k_min reach², the escape "
+                             f"energy the table resolves), got {self.energy_margin!r}")
+
+    @staticmethod
+    def check_arguments(arguments: dict[str, object]) -> dict[str, object]:
+        """What the constructor refuses of `arguments` (by name), checked without a context: the
+        declared bounds (`PARAMETERS`) and stiffness_lo_ratio ≤ stiffness_hi_ratio; returns the
+        checked values. (The context's delay and time constant, the table's size and ε against
+        the table are checked at construction.)"""
+        checked = check_parameters(PARAMETERS, arguments)
+        lo, hi = checked.get("stiffness_lo_ratio", 1.0), checked.get("stiffness_hi_ratio", 1.0)
+        if lo > hi:
+            raise ValueError(f"stiffness_lo_ratio must be <= stiffness_hi_ratio = {hi!r}, got {lo!r}")
+        return checked
 
     def reset(self) -> None:
         """Forget the command history (vented valves, p = 0) and the target governor's warm start."""
@@ -343,11 +404,17 @@ class EnergyGovernor:
         q = as_vector("q", estimate.q, self.n, NonFiniteStateError)
         qd = as_vector("qd", estimate.qd, self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
-        t_apply = float(estimate.t) + self.command_delay
-        t_capture = min(float(estimate.t_capture), t_apply)
+        t, t_capture = float(estimate.t), float(estimate.t_capture)
+        if not -TIME_LIMIT_S <= t_capture <= t <= TIME_LIMIT_S:  # also False for NaN
+            raise ControllerInputError(f"the estimate's times must satisfy -{TIME_LIMIT_S:g} <= t_capture <= t <= "
+                                       f"{TIME_LIMIT_S:g} s, got t_capture = {t_capture!r}, t = {t!r}")
+        t_apply = t + self.command_delay
+        if t_apply < self.predictor.latest_time:
+            raise ControllerInputError(f"t must not go backwards: got t = {t!r} s after a call at "
+                                       f"t = {self.predictor.latest_time - self.command_delay!r} s (reset first)")
         target = self.target_governor.command(u_nom)
         u_prev = self.predictor.command_at(t_apply)
-        if t_capture < self.predictor.oldest_time:
+        if not self.predictor.can_predict(t_capture, t_apply):
             return self._finish(u_prev, "stale", True, math.nan, {}, t_apply, t_capture, t0)
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
         base, rho = self.state_energy(q_hat, qd_hat)
@@ -355,17 +422,18 @@ class EnergyGovernor:
         # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
         held, aim = tuple(u_prev.tolist()), tuple(target.tolist())
 
-        inflation, energy, known = 1.0 + self.kappa, self.energy, self.escape_memory(held)
+        inflation, energy, known, eps = 1.0 + self.kappa, self.energy, self.escape_memory(held), self.energy_margin
 
-        def margin(u: tuple) -> float:  # Γ − (1 + κ) W − ε (J): ≥ 0 when u is certified at x̂; Γ through the memory
+        def margin(u: tuple) -> float:  # Γ − (1 + κ) W (J): ≥ ε when u is certified at x̂ (≥ 0: the held u); Γ through the memory
             gamma = known.get(u)
             if gamma is None:
                 gamma = known[u] = self.escape(u)
-            return gamma - inflation * energy(base, q_list, p_list, u) - self.energy_margin
+            return gamma - inflation * energy(base, q_list, p_list, u)
 
-        held_ok = margin(held) + self.energy_margin >= 0.0
+        held_margin = margin(held)
+        held_ok = held_margin > 0.0  # Γ = W = 0 (the arm at rest on or beyond P's boundary) certifies nothing
         infeasible, sigma = False, 1.0
-        if margin(aim) >= 0.0:
+        if margin(aim) >= eps:
             u, action = aim, "free"
         elif held_ok:
             u, sigma, best = held, 0.0, sum((a - t) * (a - t) for a, t in zip(held, aim))
@@ -377,7 +445,7 @@ class EnergyGovernor:
                 lo, hi = 0.0, 1.0
                 for _ in range(self.bisection_steps):
                     mid = 0.5 * (lo + hi)
-                    if margin(ray_point(held, direction, mid)) >= 0.0:
+                    if margin(ray_point(held, direction, mid)) >= eps:
                         lo = mid
                     else:
                         hi = mid
@@ -391,7 +459,9 @@ class EnergyGovernor:
             u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             u, action, sigma = tuple(u.tolist()), "recover", math.nan
         w, gamma = energy(base, q_list, p_list, u), known[u] if u in known else self.escape(u)
-        diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": gamma - inflation * w - self.energy_margin,
+        # the held command keeps its certificate down to Γ − (1 + κ)W = 0 (the hysteresis), a new one needs ε
+        certified_margin = held_margin if action == "hold" else gamma - inflation * w - eps
+        diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": certified_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
         return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
 

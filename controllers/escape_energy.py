@@ -14,7 +14,7 @@ unsafe set S_j = {z : g_j ≥ 0}. A distance function is 1-Lipschitz, so
 
 The table (N ≤ 2 segments; the q-space search below is a grid):
 1. Commands: a regular grid over the box [u_lo, u_hi] with spacing ≤ `grid_hPa` (default
-   5 hPa: 61 × 61 points for ±150 hPa).
+   2.5 hPa: 121 × 121 points for ±150 hPa; at most MAX_TABLE_COMMANDS points, else refused).
 2. q-space: a regular grid with spacing Δq_i = `q_spacing_rad`/√k_i (uniform in z) over the rest
    shapes' box widened by `reach_rad` (default 1.2 rad) on every side; g_j on every point.
 3. Band: the nearest point z* of S_j to z_u lies on g_j = 0; the grid point s nearest to
@@ -25,6 +25,11 @@ The table (N ≤ 2 segments; the q-space search below is a grid):
    Beyond the q-grid's box nothing is searched: there the distance is at least the
    distance e(u) from z_u to the box's outside. Hence, at every command grid point,
        d_j ≥ d̲_j = max(0, min(min_{s∈B_j} ‖z_u − z_s‖ − h_z, e(u)))   (0 when g_j(q_u) ≥ 0).
+   A row out of the arm's reach, ‖H'_j‖ Σ_i L_i < h'_j (the tip lies within Σ L_i of the base,
+   so g_j < 0 for every q), has no unsafe set: Γ_j = +inf exactly (`values` returns inf for it,
+   `distance` holds inf). A reachable row whose line the q-grid's box never meets (beyond the
+   rest shapes' reach_rad) has an empty band: its minimum is +inf and d̲_j = e(u), the same
+   saturation as every row far from its line.
 4. Between grid points, two bounds from the cell's corners c (values Γ̲_c = ½ d̲_c²):
    a. Semiconcavity: ½‖u‖²_w − Γ_j(u) = max_{z∈S_j} (z·z_u − ½|z|²) is convex in u (a max of
       affine functions of z_u, which is linear in u), so it lies below the bilinear
@@ -55,6 +60,9 @@ from controllers.pcc import tip_positions
 from controllers.safe_set import ForceSafeSet
 
 MAX_SEGMENTS = 2
+MAX_TABLE_COMMANDS = 2**18
+"""Most command grid points G (`grid_hPa`'s bound): building takes ≈ 1 s per 15 000 on the reference arm
+(measured: 14 641 in 0.96 s, 361 201 in 11 s) and the governor's recovery scans all G."""
 _CHUNK = 512  # command grid points per distance block (memory: _CHUNK × band size floats)
 
 
@@ -72,21 +80,38 @@ class EscapeEnergyTable:
         u_lo, u_hi = np.asarray(u_lo, dtype=float), np.asarray(u_hi, dtype=float)
         if u_lo.shape != (n,) or u_hi.shape != (n,) or not np.all(u_lo < u_hi):
             raise ValueError(f"u_lo < u_hi must have shape ({n},) hPa, got {u_lo} and {u_hi}")
+        widths = (u_hi - u_lo).tolist()
+        cells = [w / grid_hPa for w in widths]  # inf for a subnormal grid_hPa
+        count = math.prod(c + 1.0 for c in cells)
+        if not count <= MAX_TABLE_COMMANDS:  # (a float bound first: ceil(inf) would raise)
+            finest = max(widths) / (math.floor(MAX_TABLE_COMMANDS ** (1.0 / n)) - 1)
+            raise ValueError(f"grid_hPa must be >= {finest:.4g} hPa over the box {widths} hPa wide (at most "
+                             f"{MAX_TABLE_COMMANDS} table commands), got {grid_hPa!r} ({count:.3g} commands)")
+        sizes = [math.ceil(c) + 1 for c in cells]
+        if math.prod(sizes) > MAX_TABLE_COMMANDS:
+            raise ValueError(f"grid_hPa must be larger over the box {widths} hPa wide (at most {MAX_TABLE_COMMANDS} "
+                             f"table commands), got {grid_hPa!r} ({math.prod(sizes)} commands)")
         self.n = n
         self.stiffness = robot.array("stiffness")
         self.static_gain = robot.array("gains") / self.stiffness  # K⁻¹Λ, rad/hPa
         self.weights = robot.array("gains") ** 2 / self.stiffness  # w, J per hPa²
-        self.axes = [np.linspace(lo, hi, int(math.ceil((hi - lo) / grid_hPa)) + 1) for lo, hi in zip(u_lo, u_hi)]
+        self.axes = [np.linspace(lo, hi, size) for lo, hi, size in zip(u_lo, u_hi, sizes)]
         self.spacing = np.array([a[1] - a[0] for a in self.axes])
         self.reach_rad = float(reach_rad)
         commands = self.grid_commands()
         self.distance = self._distances(robot, safe_set, commands, float(q_spacing_rad))  # (P', G) J^{1/2}
         self._shape = tuple(len(a) for a in self.axes)
-        self._flat_rows = [d.tolist() for d in self.distance]  # C order: flat index Σ_i index_i · stride_i
+        # C order: flat index Σ_i index_i · stride_i; None for a row out of reach (Γ_j = +inf)
+        self._flat_rows = [d.tolist() if np.isfinite(d[0]) else None for d in self.distance]
         self._strides = [int(np.prod(self._shape[i + 1:])) for i in range(self.n)]
         self._lo = u_lo.tolist()
         self._step = self.spacing.tolist()
         self._w = self.weights.tolist()
+
+    @property
+    def saturation_J(self) -> float:
+        """½ min_i k_i reach_rad² (J): the escape energy the table resolves at least (Γ̲ saturates near it)."""
+        return 0.5 * float(np.min(self.stiffness)) * self.reach_rad**2
 
     def grid_commands(self) -> np.ndarray:
         """The command grid: (G, N) hPa, G = Π_i G_i, C order over the axes."""
@@ -116,11 +141,12 @@ class EscapeEnergyTable:
         h_z = 0.5 * float(np.linalg.norm(root_k * dq))
         z_rest = rest * root_k
         outside = np.min(root_k * np.minimum(rest - lo, hi - rest), axis=1)  # e(u), J^{1/2}
-        distance = np.empty((H.shape[0], len(commands)))
-        for j in range(H.shape[0]):
+        distance = np.full((H.shape[0], len(commands)), np.inf)
+        reachable = np.hypot(H[:, 0], H[:, 1]) * float(np.sum(lengths)) >= h  # else g_j < 0 on the whole workspace
+        for j in np.flatnonzero(reachable).tolist():
             band = q[np.abs(g[:, j]) <= lipschitz[j] * h_q] * root_k
-            nearest = np.full(len(commands), np.inf)
-            for start in range(0, len(commands), _CHUNK):
+            nearest = np.full(len(commands), np.inf)  # an empty band (the row's line beyond the q-grid's reach): d ≥ e(u)
+            for start in range(0, len(commands) if len(band) else 0, _CHUNK):
                 block = z_rest[start:start + _CHUNK]
                 d2 = np.sum(block * block, axis=1)[:, None] - 2.0 * block @ band.T + np.sum(band * band, axis=1)
                 nearest[start:start + _CHUNK] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
@@ -147,8 +173,9 @@ class EscapeEnergyTable:
         i1 = min(max(int((u1 - lo1) // step1), 0), size1 - 2)
         o0, o1 = u0 - (lo0 + i0 * step0), u1 - (lo1 + i1 * step1)
         inside = 0.0 <= o0 <= step0 and 0.0 <= o1 <= step1
-        a0, b0 = w0 * o0 * o0, w0 * (o0 - step0) ** 2
-        a1, b1 = w1 * o1 * o1, w1 * (o1 - step1) ** 2
+        r0, r1 = o0 - step0, o1 - step1  # x * x, not x ** 2 (the same float, but inf instead of OverflowError)
+        a0, b0 = w0 * o0 * o0, w0 * (r0 * r0)
+        a1, b1 = w1 * o1 * o1, w1 * (r1 * r1)
         d00, d10, d01, d11 = math.sqrt(a0 + a1), math.sqrt(b0 + a1), math.sqrt(a0 + b1), math.sqrt(b0 + b1)
         t0, t1 = o0 / step0, o1 / step1
         curvature = 0.5 * (w0 * o0 * (step0 - o0) + w1 * o1 * (step1 - o1))
@@ -156,6 +183,9 @@ class EscapeEnergyTable:
         k10, k01, k11 = k00 + size1, k00 + 1, k00 + size1 + 1
         result = []
         for table in self._flat_rows:
+            if table is None:
+                result.append(math.inf)
+                continue
             e00, e10, e01, e11 = table[k00], table[k10], table[k01], table[k11]
             cone = max(e00 - d00, e10 - d10, e01 - d01, e11 - d11)
             best = 0.5 * cone * cone if cone > 0.0 else 0.0
@@ -176,11 +206,14 @@ class EscapeEnergyTable:
             flat += i * stride
             curvature += 0.5 * w * o * (step - o)
             t = o / step
-            dims.append(((0, w * o * o, 1.0 - t), (stride, w * (o - step) ** 2, t)))
+            dims.append(((0, w * o * o, 1.0 - t), (stride, w * ((o - step) * (o - step)), t)))
         corners = [(sum(c[0] for c in combo), math.sqrt(sum(c[1] for c in combo)), math.prod(c[2] for c in combo))
                    for combo in itertools.product(*dims)]
         result = []
         for table in self._flat_rows:
+            if table is None:
+                result.append(math.inf)
+                continue
             cone = max(table[flat + k] - dist for k, dist, _ in corners)
             best = 0.5 * cone * cone if cone > 0.0 else 0.0
             if inside:

@@ -8,8 +8,15 @@ estimate's age: the paper's design).
 
 Every control step, with x = [q; q̇] (rad, rad/s) and u_nom (N,) hPa:
 
-    u* = argmin ‖u − u_nom‖²  s.t.  L_gB_i u ≤ γ/B_i − L_fB_i   (every row i of P)
-                                    u_min ≤ u ≤ u_max            (when pressure_limits)
+    u* = argmin ‖u − ū‖²  s.t.  L_gB_i u ≤ γ/B_i − L_fB_i   (every row i of P)
+                                u_min ≤ u ≤ u_max            (when pressure_limits)
+
+with ū = clip(u_nom, u_min, u_max), u_nom saturated to the box, when pressure_limits (ū =
+u_nom otherwise). The box is a hard row, so a u_nom beyond it can only be met at its
+saturation; and the QP's rounding grows with |ū| (`controllers.qp.tolerances`): before the
+saturation, u_nom = (1e17, 1e17) hPa made the native solver return a command violating its CBF
+row by 124 /s labelled "qp", and daqp a "slack" command flagged infeasible on a feasible problem.
+Below, "u_nom" in the branches means ū.
 
 Defined behaviour in every state (the result says which branch ran, in `action`):
 - "disabled": tuning None (a_E = b_E = γ = 0): u = u_nom, clipped to the limits when
@@ -42,7 +49,14 @@ Defined behaviour in every state (the result says which branch ran, in `action`)
   x ≤ 0.2 m, q = 0, u_nom = 0, PCC plant, limits on): the tip, 29.7 mm outside P, is
   inside after 0.126 s with Low and HW-High (before: "slack" with u = 0 for 3000 of 3000
   steps, never inside); afterwards u_nom = 0 keeps pulling the rest shape outside and the
-  tip cycles around P's boundary (b ≥ −3.0 mm Low, −4.2 mm HW-High). `infeasible` is
+  tip cycles around P's boundary (b ≥ −3.0 mm Low, −4.2 mm HW-High; 91 % / 96 % of the
+  steps after re-entry have b < 0, most of them "recovery"). That is the CBF's exit, not the
+  recovery's: started at rest with its rest shape 1, 5 or 10 mm inside P and u_nom = 0, the
+  CBF alone ("qp", "slack" under the box, one "nominal") lets the tip out within 11–39 ms
+  and down to b = −3.1…−10.0 mm, before any recovery step (tests/test_filter.py). Near
+  rest L_gB ∝ ḃ vanishes (docs/model.md#control-barrier-function), so the CBF acts only once
+  the tip moves outwards, too late at 1 kHz within ±150 hPa; keeping the tip inside after
+  re-entry would need a different barrier after re-entry, not a different recovery. `infeasible` is
   flagged if the target violates a defined CBF row or a CBF row is not finite (below).
   With no target inside P the slack QP without hard rows runs, as below.
 - "slack": the rows and the bounds cannot all hold (infeasible), or a CBF row is not
@@ -80,17 +94,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import B_MIN, TUNINGS, Tuning, barrier_rows, get_tuning
+from controllers.cbf import B_MIN, TUNING_PARAMETERS, TUNINGS, Tuning, barrier_rows, get_tuning
 from controllers.cbf_batch import SCALAR_BELOW, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
-from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_real, as_vector
+from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.params import RobotParams
 from controllers.pcc import step_kinematics
-from controllers.qp import DEFAULT_BACKEND, available_backends, dot_lists, row_norm, solve_lists, tolerances
+from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import (BatchOutput, DiagnosticLayout, Estimate, EstimateBatch, FilterContext, FilterOutput,
                                       FlatDiagnostics)
+from vocabulary.settings import Bound
+
+PARAMETERS = {
+    "tuning": FilterParameter(f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below)", "", str),
+    **TUNING_PARAMETERS,
+    "qp_backend": FilterParameter(f"QP solver ({', '.join(available_backends())})", "", str),
+    "recovery_margin": FilterParameter("quasi-static recovery: rest shape inside P by this much", "m",
+                                       bound=Bound(0.0, unit="m")),
+    "slack_weight": FilterParameter("infeasible rows: cost of 1 hPa of violation vs 1 hPa of deviation, squared "
+                                    "(beyond 1e12 the slack's column 1/√w is below the solvers' tolerances)", "1",
+                                    bound=Bound(0.0, 1e12, low_open=True)),
+}
+"""The paper-cbf filter's parameters, declared once (`controllers.filter_parameters`): `check_paper_cbf`
+(its `check_arguments`) and the constructors check them (a_E, b_E, gamma through `Tuning`)."""
 
 REST_GRID_POINTS = 1024
 """Grid size (at most) of the rest-target search over the pressure box (`CBFFilter.rest_targets`)."""
@@ -152,13 +181,9 @@ class CBFFilter:
         dynamics: PCCDynamics | None = None,
         batch_dynamics: BatchDynamics | None = None,
     ) -> None:
-        if qp_backend not in available_backends():
-            raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
-        slack_weight, recovery_margin = as_real("slack_weight", slack_weight), as_real("recovery_margin", recovery_margin, "m")
-        if not (math.isfinite(slack_weight) and slack_weight > 0):
-            raise ValueError(f"slack_weight must be > 0, got {slack_weight}")
-        if not (math.isfinite(recovery_margin) and recovery_margin >= 0):
-            raise ValueError(f"recovery_margin must be >= 0 m, got {recovery_margin}")
+        check_backend(qp_backend)
+        checked = check_parameters(PARAMETERS, {"recovery_margin": recovery_margin, "slack_weight": slack_weight})
+        recovery_margin, slack_weight = checked["recovery_margin"], checked["slack_weight"]
         if dynamics is not None and dynamics.params != params:
             raise ValueError("dynamics must be a PCCDynamics of the same params as the filter")
         if batch_dynamics is not None and batch_dynamics.params != params:
@@ -311,6 +336,9 @@ class CBFFilter:
         b, B, constraint lists over the rows of P and active a list of bools over them (None when no
         QP's active set applies)."""
         # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
+        given = u_list
+        if self.pressure_limits and not all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list)):
+            u_list = self._clip(u_list)  # saturated u_nom (module docstring)
         q = xs[: self.n]
         ev = self.dynamics.evaluate_floats(q, xs[self.n :])
         barrier = barrier_rows(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
@@ -321,10 +349,10 @@ class CBFFilter:
         gamma = self.tuning.gamma
         u, action, active, infeasible, slack, solve_us = u_list, "nominal", None, False, 0.0, 0.0
         if not self.enabled:
-            u, action = self._clip(u_list), "disabled"
+            u, action = u_list, "disabled"
         else:
             rows, rhs, cbf_rows, unevaluable = [], [], [], False
-            feasible = not self.pressure_limits or all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list))
+            feasible = True  # u_list is inside the box
             for i, (ok, (b_i, _, big_b, lfb, lgb)) in enumerate(zip(defined, barrier)):
                 if ok:
                     row, c = lgb, gamma / big_b - lfb
@@ -345,7 +373,7 @@ class CBFFilter:
                 solve_us = (time.perf_counter() - t0) * 1e6
         constraint = [lfb + dot_lists(lgb, u) - gamma / big_b if ok else math.inf
                       for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
-        return (None if u is u_list else u, [row[0] for row in barrier], [row[2] for row in barrier], constraint, active,
+        return (None if u is given else u, [row[0] for row in barrier], [row[2] for row in barrier], constraint, active,
                 infeasible, recovery, action, rho_pred, solve_us, slack)
 
     def _violates(self, u: list[float], u_nom: list[float], rows: list[list[float]], rhs: list[float],
@@ -419,6 +447,8 @@ def paper_cbf(
     The pressure limits are the robot model's own when `context.bounded`; `context.dynamics`
     (the plant's evaluation of the same model), when given, is shared.
     """
+    check_paper_cbf({"tuning": tuning, "a_E": a_E, "b_E": b_E, "gamma": gamma, "qp_backend": qp_backend,
+                     "recovery_margin": recovery_margin, "slack_weight": slack_weight})
     chosen = paper_tuning(tuning, a_E, b_E, gamma)
     return CBFFilter(context.robot, context.safe_set, chosen, pressure_limits=context.bounded, qp_backend=qp_backend,
                      recovery_margin=recovery_margin, slack_weight=slack_weight, dynamics=context.dynamics)
@@ -434,21 +464,12 @@ def paper_cbf_label(params: dict[str, object]) -> str:
 
 def check_paper_cbf(arguments: dict[str, object]) -> None:
     """What `paper_cbf` would refuse of its (converted) `arguments`, checked without building
-    it: the tuning (`paper_tuning`) and the QP backend."""
+    it: the declared bounds (`PARAMETERS`), the tuning (`paper_tuning`) and the QP backend."""
+    check_parameters(PARAMETERS, arguments)
     paper_tuning(str(arguments.get("tuning", "Low")), arguments.get("a_E"), arguments.get("b_E"), arguments.get("gamma"))
-    backend = arguments.get("qp_backend", DEFAULT_BACKEND)
-    if backend not in available_backends():
-        raise ValueError(f"qp_backend must be one of {', '.join(available_backends())}, got {backend!r}")
+    check_backend(arguments.get("qp_backend", DEFAULT_BACKEND))
 
 
 paper_cbf.run_label = paper_cbf_label
 paper_cbf.check_arguments = check_paper_cbf
-paper_cbf.parameter_docs = {
-    "tuning": f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below) [-]",
-    "a_E": "custom tuning: weight of the velocity term a_E b_E bdot^2 / (1 + b_E bdot^2) of B [1]",
-    "b_E": "custom tuning: velocity scale of that term [s^2/m^2, bdot in row-scaled m/s]",
-    "gamma": "custom tuning: class-K gain of the constraint L_fB + L_gB u <= gamma/B [1/s]",
-    "qp_backend": f"QP solver ({', '.join(available_backends())}) [-]",
-    "recovery_margin": "quasi-static recovery: rest shape inside P by this much [m]",
-    "slack_weight": "infeasible rows: cost of 1 hPa of violation vs 1 hPa of deviation, squared [1]",
-}
+paper_cbf.parameter_docs = parameter_docs(PARAMETERS)

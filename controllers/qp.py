@@ -281,6 +281,13 @@ def available_backends() -> list[str]:
     return list(_BACKENDS)
 
 
+def check_backend(name: object) -> str:
+    """`name` if it is an available backend; ValueError "qp_backend must be one of …, got …" otherwise."""
+    if not isinstance(name, str) or name not in _BACKENDS:
+        raise ValueError(f"qp_backend must be one of {', '.join(_BACKENDS)}, got {name!r}")
+    return name
+
+
 def _finite_list(name: str, value: ArrayLike, shape: tuple[int, ...] | None) -> list:
     arr = np.asarray(value, dtype=float)
     if shape is not None and arr.shape != shape:

@@ -17,7 +17,8 @@ solves that QP (`controllers.qp.solve_qp`), and moves q̄ to the solution's rest
 starting from the rest shape of the previous call's command (warm start; u_nom at the
 first call), clipped to the box. It stops when the command moves by less than
 `tolerance_hPa` (default 1e-2 hPa) between iterations, or after `max_iterations`
-(default 20). At a fixed point q̄ = q_u*, so the linearised rows are
+(default 20). With a box, a u_nom beyond ±NOMINAL_RANGE_WIDTHS box widths of it is clipped
+there first (the QP's rounding; every realisable nominal is far inside). At a fixed point q̄ = q_u*, so the linearised rows are
 the true rows: b_j(q_u*) ≥ δ_j holds to the QP's tolerance. After the loop the true rows
 are checked at the returned command; a command whose rest shape misses the margin by
 more than `RESIDUAL_TOL_M` (non-convergence) is replaced by the best command on the
@@ -50,9 +51,11 @@ import time
 import numpy as np
 
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
+from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.pcc import kinematics, kinematics_unchecked, step_kinematics
-from controllers.qp import DEFAULT_BACKEND, available_backends, solve_lists
+from controllers.qp import DEFAULT_BACKEND, check_backend, solve_lists
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from vocabulary.settings import Bound
 
 RESIDUAL_TOL_M = 1e-6
 """Rest-shape rows may miss the margin by this much (m, Euclidean) at the returned command."""
@@ -65,35 +68,41 @@ NOMINAL_TOL_M = 1e-9
 
 _BACKTRACK_HALVINGS = 30
 
+NOMINAL_RANGE_WIDTHS = 1e6
+"""With a box, u_nom is first clipped to it widened by this many box widths on each side (3e8 hPa for ±150 hPa):
+within, the QP's rounding floor (1e-13·|u_nom|, `controllers.qp.tolerances`) stays below its acceptance tolerance;
+beyond, u_nom = 1e17 hPa gave (30, 144) hPa instead of (44.6, 150) and 1e300 a command of 1.5e284 hPa."""
+
+MAX_ITERATIONS = 1000
+"""Most linearise-and-solve iterations per call (`max_iterations`): each is a QP solve (≈ 10–50 µs)."""
+
+PARAMETERS = {
+    "margin_m": FilterParameter("rest-shape tip margin inside each row of P", "m", bound=Bound(0.0, unit="m")),
+    "rate_limit_hPa_per_s": FilterParameter("largest command change per second, |u − u_prev| ≤ r·T (None: no limit)",
+                                            "hPa/s", bound=Bound(0.0, low_open=True, unit="hPa/s"), optional=True),
+    "max_iterations": FilterParameter("linearise-and-solve iterations per call", "1", int, Bound(1, MAX_ITERATIONS)),
+    "tolerance_hPa": FilterParameter("stop iterating when the command moves less than this", "hPa",
+                                     bound=Bound(0.0, low_open=True, unit="hPa")),
+    "qp_backend": FilterParameter("QP solver of controllers.qp", "", str),
+}
+"""The QSG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them."""
+
 
 class QuasiStaticGovernor:
     """The QSG as a safety filter (see the module docstring for the maths and the actions)."""
 
-    parameter_docs = {
-        "margin_m": "rest-shape tip margin inside each row of P [m]",
-        "rate_limit_hPa_per_s": "largest command change per second, |u − u_prev| ≤ r·T (None: no limit) [hPa/s]",
-        "max_iterations": "linearise-and-solve iterations per call [1]",
-        "tolerance_hPa": "stop iterating when the command moves less than this [hPa]",
-        "qp_backend": "QP solver of controllers.qp [name]",
-    }
+    parameter_docs = parameter_docs(PARAMETERS)
 
     def __init__(self, context: FilterContext, margin_m: float = 1e-3, rate_limit_hPa_per_s: float | None = None,
                  max_iterations: int = 20, tolerance_hPa: float = 1e-2, qp_backend: str = DEFAULT_BACKEND) -> None:
-        if not (math.isfinite(margin_m) and margin_m >= 0):
-            raise ValueError(f"margin_m must be finite and >= 0 m, got {margin_m}")
-        if rate_limit_hPa_per_s is not None and not (math.isfinite(rate_limit_hPa_per_s) and rate_limit_hPa_per_s > 0):
-            raise ValueError(f"rate_limit_hPa_per_s must be finite and > 0 hPa/s (or None: no limit), got {rate_limit_hPa_per_s}")
-        if isinstance(max_iterations, bool) or int(max_iterations) != max_iterations or max_iterations < 1:
-            raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations}")
-        if not (math.isfinite(tolerance_hPa) and tolerance_hPa > 0):
-            raise ValueError(f"tolerance_hPa must be finite and > 0 hPa, got {tolerance_hPa}")
-        if qp_backend not in available_backends():
-            raise ValueError(f"qp_backend must be one of {available_backends()}, got {qp_backend!r}")
+        checked = self.check_arguments({"margin_m": margin_m, "rate_limit_hPa_per_s": rate_limit_hPa_per_s,
+                                        "max_iterations": max_iterations, "tolerance_hPa": tolerance_hPa,
+                                        "qp_backend": qp_backend})
         self.context = context
-        self.margin_m = float(margin_m)
-        self.rate_limit = None if rate_limit_hPa_per_s is None else float(rate_limit_hPa_per_s)
-        self.max_iterations = int(max_iterations)
-        self.tolerance = float(tolerance_hPa)
+        self.margin_m = checked["margin_m"]
+        self.rate_limit = checked["rate_limit_hPa_per_s"]
+        self.max_iterations = checked["max_iterations"]
+        self.tolerance = checked["tolerance_hPa"]
         self.qp_backend = qp_backend
         robot = context.robot
         self.n = robot.n_segments
@@ -105,9 +114,19 @@ class QuasiStaticGovernor:
         self._delta = self.margin_m * self._row_norms
         self._length_list = self.lengths.tolist()
         self._row_list = list(zip(H[:, 0].tolist(), H[:, 1].tolist(), self._h.tolist(), self._delta.tolist(), self._row_norms.tolist()))
+        lo, hi = context.u_min, context.u_max
+        self._nominal_range = None if lo is None else (lo - NOMINAL_RANGE_WIDTHS * (hi - lo), hi + NOMINAL_RANGE_WIDTHS * (hi - lo))
         self._u_prev: np.ndarray | None = None
         self._row_cache: dict[tuple, tuple] = {}
         self._commands: dict[bytes, np.ndarray] = {}  # `command`'s recent (input bytes → command), COMMAND_MEMORY at most
+
+    @staticmethod
+    def check_arguments(arguments: dict[str, object]) -> dict[str, object]:
+        """What the constructor refuses of `arguments` (by name), checked without a context:
+        the declared bounds (`PARAMETERS`) and the QP backend; returns the checked values."""
+        checked = check_parameters(PARAMETERS, arguments)
+        check_backend(arguments.get("qp_backend", DEFAULT_BACKEND))
+        return checked
 
     def reset(self) -> None:
         """Forget the previous command (the rate limit and the warm start then start afresh)."""
@@ -196,6 +215,8 @@ class QuasiStaticGovernor:
         was accepted that way), from `rest_margins` otherwise."""
         lb, ub = self._bounds(True)
         inside = lb is None or bool(np.all((lb <= u_nom) & (u_nom <= ub)))
+        if not inside and self._nominal_range is not None:  # (inside the box is inside the range: no cost there)
+            u_nom = np.clip(u_nom, *self._nominal_range)  # NOMINAL_RANGE_WIDTHS
         scalar = self._scalar_rest_margin(u_nom) if inside else -math.inf
         if scalar > NOMINAL_TOL_M:
             self._u_prev = np.array(u_nom, dtype=float)

@@ -25,8 +25,13 @@ with a fine integration. For N = 2 the loop runs on scalars through
 tests/test_fast_paths.py), about 4× faster: the integration is most of a camera-rate call.
 
 The history keeps, per command, its application time and the exact pressure then, and
-drops records older than `horizon_s` (default 2 s) before the latest application time
-(an estimate older than that cannot be predicted: `oldest_time`); look-ups bisect it.
+drops records older than `horizon_s` (default 2 s) before the latest application time;
+look-ups bisect it. `horizon_s` also caps a prediction's span: `can_predict(t_start, t_end)`
+holds when t_end − t_start ≤ horizon_s and the history reaches back to t_start
+(`oldest_time`), and `predict` refuses anything else. So a prediction costs at most
+⌈horizon_s/step_s⌉ steps per interval of constant command (2000 at the defaults): an
+estimate 1000 s old is refused at once instead of being integrated over 10⁶ steps
+(the energy governor calls it "stale").
 """
 
 from __future__ import annotations
@@ -94,6 +99,15 @@ class StatePredictor:
         """The earliest time (s) the predictor knows the command and pressure at (−inf after reset)."""
         return self._times[0]
 
+    @property
+    def latest_time(self) -> float:
+        """The application time (s) of the latest recorded command (−inf after reset): `record` refuses earlier ones."""
+        return self._times[-1]
+
+    def can_predict(self, t_start: float, t_end: float) -> bool:
+        """Whether `predict` can go from t_start to t_end (s): oldest_time ≤ t_start ≤ t_end ≤ t_start + horizon_s."""
+        return self._times[0] <= t_start <= t_end <= t_start + self.horizon_s
+
     def command_at(self, t: float) -> np.ndarray:
         """The command acting at the valves at time t (s): (N,) hPa."""
         return self._commands[max(bisect.bisect_right(self._times, t) - 1, 0)]
@@ -125,6 +139,8 @@ class StatePredictor:
 
     def predict(self, t_start: float, q, qd, t_end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, p) at t_end from (q, q̇) at t_start (≤ t_end) through the recorded commands."""
+        if not t_end - t_start <= self.horizon_s:
+            raise ValueError(f"t_end - t_start must be <= horizon_s = {self.horizon_s} s, got {t_end - t_start} s")
         q, qd = [float(v) for v in q], [float(v) for v in qd]
         p, pieces = self._pieces(t_start, t_end)
         p = p.tolist()

@@ -7,6 +7,7 @@ relative here (b ≥ 0.02, so B's curvature is bounded); a wrong term is off by 
 
 import dataclasses
 import math
+import re
 import warnings
 
 import numpy as np
@@ -49,18 +50,19 @@ def test_get_tuning_lists_valid_names(name):
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"gamma": -1}, "gamma must be >= 0, got -1"),
+        ({"gamma": -1}, "gamma must be >= 0 1/s, got -1.0"),
         ({"a_E": -0.5}, "a_E must be >= 0, got -0.5"),
-        ({"b_E": math.nan}, "b_E must be finite and >= 0, got nan"),
-        ({"gamma": math.inf}, "gamma must be finite and >= 0, got inf"),
+        ({"b_E": math.nan}, "b_E must be finite and >= 0 s^2/m^2, got nan"),
+        ({"gamma": math.inf}, "gamma must be finite and >= 0 1/s, got inf"),
         ({"a_E": "2"}, "a_E must be a number >= 0, got '2'"),
-        ({"b_E": True}, "b_E must be a number >= 0, got True"),
+        ({"b_E": True}, "b_E must be a number >= 0 s^2/m^2, got True"),
+        ({"a_E": None}, "a_E must be a number >= 0, got None"),
         ({"name": ""}, "name must be a non-empty string"),
     ],
 )
 def test_tuning_validation(kwargs, message):
     args = {"name": "t", "a_E": 1.0, "b_E": 1.0, "gamma": 1.0, **kwargs}
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError, match=re.escape(message)):
         Tuning(**args)
 
 

@@ -5,7 +5,9 @@ against a fine integration, and closed loops on the PCC plant at 10 Hz with came
 
 import inspect
 import math
+import re
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,7 @@ from controllers.escape_energy import EscapeEnergyTable
 from controllers.filter_metrics import governor_figures
 from controllers.params import reference_robot, uniform_robot
 from controllers.pcc import tip_positions
-from controllers.safe_set import ForceSafeSet, paper_environment, paper_safe_set
+from controllers.safe_set import Environment, ForceSafeSet, paper_environment, paper_safe_set
 from controllers.safety_filter import Estimate, FilterContext
 from controllers.state_predictor import StatePredictor
 from softcbf_mj.pcc_plant import PCCPlant
@@ -172,6 +174,23 @@ def test_predictor_agrees_with_a_fine_integration(tau):
         predictor.record(0.1, np.zeros(2))
 
 
+def test_the_predictor_caps_its_span_at_the_horizon():
+    """A prediction over more than horizon_s is refused (it cost ⌈span/step_s⌉ model steps: 10⁶ for an
+    estimate 1000 s old from the vented start), and `can_predict` says so beforehand."""
+    predictor = StatePredictor(PCCDynamics(ROBOT), 0.05, horizon_s=2.0)
+    rest = np.zeros(2)
+    assert predictor.oldest_time == -math.inf and predictor.latest_time == -math.inf
+    assert predictor.can_predict(0.0, 2.0) and not predictor.can_predict(0.0, 2.0 + 1e-9)
+    assert not predictor.can_predict(1.0, 0.5) and not predictor.can_predict(math.nan, 1.0)
+    with pytest.raises(ValueError, match="t_end - t_start must be <= horizon_s = 2.0 s, got 1000.0 s"):
+        predictor.predict(0.0, rest, rest, 1000.0)
+    for k in range(40):
+        predictor.record(0.1 * k, np.full(2, 10.0))
+    assert predictor.latest_time == pytest.approx(3.9) and not predictor.can_predict(1.0, 2.0)  # before the history
+    latest = predictor.latest_time
+    assert predictor.oldest_time <= latest - 2.0 and predictor.can_predict(latest - 1.5, latest)
+
+
 # -- closed loops on the PCC plant --------------------------------------------------------
 @pytest.mark.parametrize("tau", [0.0, 0.05])
 def test_worst_step_stays_in_P_and_the_certificate_holds_at_the_true_state(tau, governor_lag, governor_ideal):
@@ -276,17 +295,50 @@ def test_state_energy_is_the_array_path_in_and_out_of_contact():
     assert 50 < touching < 550  # both branches
 
 
+BAD_PARAMETERS = [
+    ({"kappa": -0.1}, "kappa must be in [0, 1000], got -0.1"),
+    ({"kappa": -1}, "kappa must be in [0, 1000], got -1.0"),
+    ({"margin_m": -0.5}, "margin_m must be >= 0 m, got -0.5"),
+    ({"energy_margin_J": math.inf}, "energy_margin_J must be finite and >= 0 J, got inf"),
+    ({"stiffness_lo_ratio": 1.2, "stiffness_hi_ratio": 1.1}, "stiffness_lo_ratio must be <= stiffness_hi_ratio = 1.1, got 1.2"),
+    ({"stiffness_hi_ratio": 0.0}, "stiffness_hi_ratio must be in [0.001, 1000], got 0.0"),
+    ({"bisection_steps": 0}, "bisection_steps must be in [1, 52], got 0"),
+    ({"bisection_steps": 2.5}, "bisection_steps must be an integer in [1, 52], got 2.5"),
+    ({"command_delay_s": -0.01}, "command_delay_s must be in [0, 1] s, got -0.01"),
+    ({"command_delay_s": 100.0}, "command_delay_s must be in [0, 1] s, got 100.0"),
+    ({"command_delay_s": 1e6}, "command_delay_s must be in [0, 1] s, got 1000000.0"),
+    ({"actuator_tau_s": math.nan}, "actuator_tau_s must be finite and in [0, 10] s, got nan"),
+    ({"grid_hPa": 0.0}, "grid_hPa must be > 0 hPa, got 0.0"),
+    ({"predictor_step_s": 1e-9}, "predictor_step_s must be in [0.0001, 0.01] s, got 1e-09"),
+    ({"contact_aware": 2}, "contact_aware must be true or false, got 2"),
+]
+
+
+@pytest.mark.parametrize("params, message", BAD_PARAMETERS)
+def test_bad_parameters_are_refused_before_and_at_construction(params, message):
+    """The same declared bound refuses the value in `check_filter` (nothing built: a study checks
+    its runs this way before any sample runs) and in the constructor, with the same message."""
+    from controllers.registry import check_filter
+
+    pattern = re.escape(message)
+    with pytest.raises(ValueError, match=pattern):
+        check_filter("e-erg", params)
+    with pytest.raises(ValueError, match=pattern):
+        EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), **params)
+
+
 @pytest.mark.parametrize("params, message", [
-    ({"kappa": -0.1}, "kappa must be finite and >= 0, got -0.1"),
-    ({"energy_margin_J": math.inf}, "energy_margin_J must be finite and >= 0"),
-    ({"stiffness_lo_ratio": 1.2, "stiffness_hi_ratio": 1.1}, "stiffness_lo_ratio <= stiffness_hi_ratio"),
-    ({"bisection_steps": 0}, "bisection_steps must be an integer >= 1, got 0"),
-    ({"command_delay_s": -0.01}, "command_delay_s must be finite and >= 0 s, got -0.01"),
-    ({"grid_hPa": 0.0}, "grid_hPa must be finite and > 0"),
+    ({"grid_hPa": 1e-6}, r"grid_hPa must be >= 0\.5871 hPa over the box \[300\.0, 300\.0\] hPa wide \(at most 262144 "
+                         r"table commands\), got 1e-06 \(9e\+16 commands\)"),
+    ({"energy_margin_J": 1e300}, r"energy_margin_J must be < 0\.72 J \(½ k_min reach², the escape energy the table "
+                                 r"resolves\), got 1e\+300"),
 ])
-def test_bad_parameters_are_refused(params, message):
+def test_parameters_bounded_by_the_context_are_refused_at_construction(params, message):
+    """grid_hPa = 1e-6 asked for 639 PiB; ε = 1e300 certified nothing but reported "hold" as certified."""
     with pytest.raises(ValueError, match=message):
         EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), **params)
+    with pytest.raises(ValueError, match="command_delay_s \\(the context's\\) must be in \\[0, 1\\] s, got 5.0"):
+        EnergyGovernor(context(ROBOT, SAFE, PERIOD, 5.0, 0.05))
 
 
 def test_bad_models_are_refused():
@@ -385,3 +437,101 @@ def test_ray_skip_keeps_every_ray_with_a_nearer_point():
     held = sum((a - t) ** 2 for a, t in zip(start, aim))
     assert min(distances) > held and not ray_may_come_nearer(start, goal, direction, aim, held, 0.5**steps)
     assert not ray_may_come_nearer(start, start, (0.0, 0.0), aim, held, 0.5**steps)  # d = 0: every point is the start
+
+
+# -- issue 22 N5/N6: bad times, old estimates, certificates consistent with their diagnostics ----
+@pytest.mark.parametrize("t, t_capture", [(math.nan, 0.0), (0.0, math.nan), (0.0, 1.0), (math.inf, 0.0),
+                                          (1e300, 1e300), (0.0, -math.inf)])
+def test_nan_future_and_absurd_times_are_refused_without_changing_the_governor(governor_lag, t, t_capture):
+    """NaN t or t_capture and estimates from the future were labelled certified ("free"/"governed");
+    t = 1e300 was accepted and every later call raised until reset. Now all are refused with
+    ControllerInputError, and the next valid call runs as if the refused one had not happened."""
+    from controllers.errors import ControllerInputError
+
+    gov = governor_lag
+    gov.reset()
+    rest, u_nom = np.zeros(2), np.array([50.0, 50.0])
+    before = gov(Estimate(0.0, rest, rest, 0.0), u_nom)
+    with pytest.raises(ControllerInputError, match="t_capture <= t <= 1e\\+09 s"):
+        gov(Estimate(t, rest, rest, t_capture), u_nom)
+    after = gov(Estimate(0.1, rest, rest, 0.05), u_nom)
+    gov.reset()
+    gov(Estimate(0.0, rest, rest, 0.0), u_nom)
+    clean = gov(Estimate(0.1, rest, rest, 0.05), u_nom)
+    assert after.action == clean.action and after.u.tolist() == clean.u.tolist() and before.action != "stale"
+
+
+def test_time_going_backwards_is_refused(governor_lag):
+    from controllers.errors import ControllerInputError
+
+    gov = governor_lag
+    gov.reset()
+    rest, u_nom = np.zeros(2), np.array([50.0, 50.0])
+    gov(Estimate(1.0, rest, rest, 1.0), u_nom)
+    with pytest.raises(ControllerInputError, match="t must not go backwards: got t = 0.5 s after a call at t = 1.0 s"):
+        gov(Estimate(0.5, rest, rest, 0.5), u_nom)
+    assert gov(Estimate(1.0, rest, rest, 1.0), u_nom).action != "stale"  # the same time again is fine
+
+
+@pytest.mark.parametrize("age", [2.5, 1000.0, 1e8])
+def test_an_estimate_older_than_the_horizon_is_stale_at_once(governor_lag, age):
+    """An estimate 1000 s old took 8–20 s per call (10⁶ prediction steps from the vented start),
+    although the docstring promised "stale". Now any estimate whose prediction span t_a − t_c exceeds
+    the predictor's horizon is "stale" (held command, infeasible), in well under a millisecond of prediction."""
+    from controllers.energy_governor import PREDICTION_HORIZON_S
+
+    gov = governor_lag
+    gov.reset()
+    rest = np.zeros(2)
+    out = gov(Estimate(age, rest, rest, 0.0), np.array([50.0, 50.0]))
+    assert age + DELAY > PREDICTION_HORIZON_S
+    assert out.action == "stale" and out.infeasible and out.u.tolist() == [0.0, 0.0]
+    assert out.diagnostics["solve_us"] < 0.5e6 and out.diagnostics["prediction_s"] == pytest.approx(age + DELAY)
+
+
+def test_the_largest_command_delay_stays_cheap():
+    """command_delay_s = 100 s took 19.7 s for 10 calls; 1e6 s more than 90 s. Both are refused now
+    (test_bad_parameters_are_refused_before_and_at_construction); the largest accepted delay costs a
+    prediction over at most the horizon: 10 calls at the default 1 ms predictor step well under 2 s."""
+    from controllers.energy_governor import MAX_COMMAND_DELAY_S
+
+    gov = EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), command_delay_s=MAX_COMMAND_DELAY_S)
+    rest = np.zeros(2)
+    started = time.perf_counter()
+    actions = [gov(Estimate(0.1 * k, rest, rest, 0.1 * k - 0.05), np.array([80.0, 80.0])).action for k in range(10)]
+    assert time.perf_counter() - started < 2.0 and "stale" not in actions
+
+
+@pytest.mark.parametrize("params", [{}, {"energy_margin_J": 0.3}, {"kappa": 50.0}])
+def test_no_certificate_is_contradicted_by_its_own_margin(governor_lag, params):
+    """energy_margin_J = 1e300 returned "hold", not infeasible, with margin_J = −1e300: the held command's
+    hysteresis test (Γ − (1+κ)W − ε) + ε ≥ 0 absorbed any W. Now the held command is tested as
+    Γ − (1+κ)W > 0 and margin_J reports that for "hold" (ε for new commands): over a governed loop
+    every "free", "governed" and "hold" has margin_J ≥ 0, and every negative margin is flagged infeasible."""
+    gov = EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), **params) if params else governor_lag
+    rec = run_loop(gov, ROBOT, SAFE, lambda t: np.array([150.0, 150.0]) * math.sin(2 * math.pi * t / 4.0), 4.0)
+    actions = {o.action for o in rec.outputs}
+    assert actions & {"hold", "governed"}, actions
+    for out in rec.outputs:
+        margin = out.diagnostics["margin_J"]
+        if out.action in ("free", "governed", "hold"):
+            assert margin >= 0.0 and not out.infeasible, (out.action, margin)
+        elif out.action == "recover":
+            assert out.infeasible or margin >= -1e-12, margin
+
+
+def test_facets_out_of_reach_have_no_escape_energy_limit():
+    """Issue 24: a facet whose line lies beyond the arm's reach crashed the table (`zero-size array to
+    reduction operation minimum`). Such a row has no unsafe set: Γ = +inf; beside a reachable facet
+    the governor behaves as with that facet alone (the same commands), and alone it passes the target."""
+    far = ForceSafeSet(Environment(np.array([[1.0, 0.0], [0.36, 1.0]]), np.array([10.0, 0.15])),
+                       SAFE.stiffness, SAFE.f_max, row_scaling="paper")
+    table = EscapeEnergyTable(ROBOT, far, ROBOT.array("u_min"), ROBOT.array("u_max"))
+    assert np.all(np.isinf(table.distance[0])) and math.isinf(table.values([0.0, 0.0])[0])
+    alone = EscapeEnergyTable(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"))
+    np.testing.assert_array_equal(table.distance[1], alone.distance[0])
+    only_far = ForceSafeSet(Environment(np.array([[1.0, 0.0]]), np.array([10.0])), SAFE.stiffness, SAFE.f_max,
+                            row_scaling="paper")
+    gov = EnergyGovernor(context(ROBOT, only_far, PERIOD, DELAY, 0.05))
+    out = gov(Estimate(0.0, np.zeros(2), np.zeros(2), 0.0), np.array([150.0, 150.0]))
+    assert out.action == "free" and out.u.tolist() == [150.0, 150.0] and math.isinf(out.diagnostics["Gamma_J"])

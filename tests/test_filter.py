@@ -1,6 +1,7 @@
 """The CBF-QP safety filter: every branch, bounds, flags, bad input, and behaviour over time."""
 
 import math
+import re
 import warnings
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from controllers.cbf import Tuning, barrier_terms, get_tuning
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
 from controllers.filter import CBF_DIAGNOSTIC_UNITS, ACTIONS, CBFFilter
-from controllers.safety_filter import Estimate
+from controllers.safety_filter import Estimate, FilterContext
 from controllers.params import reference_robot
 from controllers.pcc import tip_position
 from controllers.qp import available_backends
@@ -122,7 +123,7 @@ def test_nonfinite_command_and_wrong_shapes_raise():
 def test_configuration_errors_name_field_and_value():
     with pytest.raises(ValueError, match="qp_backend must be one of"):
         CBFFilter(ROBOT, SAFE, get_tuning("Low"), qp_backend="matlab")
-    with pytest.raises(ValueError, match="slack_weight must be > 0, got -1"):
+    with pytest.raises(ValueError, match=r"slack_weight must be in \(0, 1e\+12\], got -1.0"):
         CBFFilter(ROBOT, SAFE, get_tuning("Low"), slack_weight=-1)
     with pytest.raises(ValueError, match="recovery_margin must be >= 0 m, got -0.1"):
         CBFFilter(ROBOT, SAFE, get_tuning("Low"), recovery_margin=-0.1)
@@ -199,6 +200,41 @@ def test_huge_finite_nominal_does_not_switch_the_barrier_off():
     np.testing.assert_allclose(ref.u, [150.0, 70.97419257], atol=1e-6)
 
 
+@pytest.mark.parametrize("backend", available_backends())
+def test_a_nominal_beyond_the_box_is_saturated_before_the_qp(backend):
+    """Issue 22 C1 residual: from |u_nom| ≈ 1e17 hPa the native solver returned a command violating the
+    barrier row (by 124 /s) labelled "qp", and daqp "slack" flagged infeasible on a feasible problem: the
+    QP's rounding floor grows with |u_nom|. Saturated to the box first, every backend gives the command of
+    u_nom = (150, 150) hPa, the row holding, for any u_nom beyond the box along (1, 1)."""
+    filt = CBFFilter(ROBOT, SAFE, get_tuning("Low"), pressure_limits=True, qp_backend=backend)
+    x = np.array([0.2, 0.3, 0.5, 0.5])
+    ref = filt.step(x, np.array([150.0, 150.0]))
+    assert ref.action == "qp" and not ref.infeasible
+    for big in (1e3, 1e12, 1e17, 1e300):
+        res = filt.step(x, np.array([big, big]))
+        assert res.action == "qp" and not res.infeasible, big
+        assert res.u.tolist() == ref.u.tolist() and res.constraint[0] <= 1e-9
+        np.testing.assert_array_equal(res.u_nom, [big, big])  # the result still reports the u_nom it was given
+    below = filt.step(x, np.array([-1e17, -1e17]))
+    assert below.action == "nominal" and below.u.tolist() == [-150.0, -150.0]  # the saturation satisfies the row
+
+
+def test_paper_cbf_parameters_are_refused_before_and_at_construction():
+    """The declared bounds (controllers.filter.PARAMETERS) refuse in check_filter (nothing built) and in the factory."""
+    from controllers.filter import paper_cbf
+    from controllers.registry import check_filter
+
+    context = FilterContext.for_robot(ROBOT, SAFE, 1e-3)
+    for params, message in (({"recovery_margin": -0.5}, "recovery_margin must be >= 0 m, got -0.5"),
+                            ({"slack_weight": 0.0}, "slack_weight must be in (0, 1e+12], got 0.0"),
+                            ({"tuning": "custom", "a_E": 1.0, "b_E": -1.0, "gamma": 1.0}, "b_E must be >= 0 s^2/m^2, got -1.0"),
+                            ({"qp_backend": "matlab"}, "qp_backend must be one of native")):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            check_filter("paper-cbf", params)
+        with pytest.raises(ValueError, match=re.escape(message)):
+            paper_cbf(context, **params)
+
+
 @pytest.mark.parametrize("backend", [b for b in available_backends() if b != "native"])
 def test_least_violation_qp_falls_back_to_native_before_venting(backend):
     """C2: qpsolvers:osqp never solved the slack QP (z_s ≈ 6.6e5 against a 1e-3 coefficient: "primal
@@ -243,6 +279,31 @@ def test_recovery_cannot_deadlock_when_its_row_vanishes(tuning):
     inside_at = int(np.argmax(b > 0))
     assert b[inside_at] > 0 and inside_at < 200, inside_at
     assert b[inside_at:].min() >= -5e-3
+
+
+@pytest.mark.parametrize("tuning", ["Low", "HW-High"])
+def test_after_reentry_the_cbf_not_the_recovery_lets_the_tip_out(tuning):
+    """Issue 22 C3 (documented, not fixed): after the recovery above, most steps sit slightly outside P.
+    The exit is the CBF's: from rest with its rest shape 5 mm inside P and u_nom = 0, the CBF alone lets
+    the tip out within 40 ms (measured: 30 / 25 ms; b down to −7.5 / −8.3 mm over 3 s), no recovery step before."""
+    safe = vertical_wall_safe_set()
+    direction = np.array([-98.5, -40.7]) / np.hypot(98.5, 40.7)  # the recovery's command direction at the wall
+    gain = ROBOT.array("gains") / ROBOT.array("stiffness")
+    lo, hi = 0.0, 300.0
+    for _ in range(50):  # the command along `direction` whose rest tip is 5 mm inside P
+        mid = 0.5 * (lo + hi)
+        inside = safe.h_prime[0] - safe.H_prime[0] @ tip_position(gain * mid * direction, LENGTHS) >= 5e-3
+        lo, hi = (lo, mid) if inside else (mid, hi)
+    plant, filt = PCCPlant(ROBOT, safe), CBFFilter(ROBOT, safe, get_tuning(tuning), pressure_limits=True)
+    state = plant.reset(gain * hi * direction)
+    actions = []
+    for _ in range(40):
+        res = filt.step(np.concatenate((state.q, state.qd)), np.zeros(2))
+        actions.append(res.action)
+        if res.b[0] <= 0.0:
+            break
+        state = plant.step(res.u)
+    assert res.b[0] <= 0.0 and "recovery" not in actions[:-1] and set(actions[:-1]) <= {"qp", "slack", "nominal"}
 
 
 def test_unevaluable_rows_are_flagged_infeasible_never_dropped():

@@ -29,6 +29,7 @@ bounds, e.g. camera_loop's image size <= its render's); it checks that after thi
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -242,6 +243,8 @@ def check_number(key: str, value: Any, bound: Bound, *, plausible: float | None 
     else:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise SettingError(f"{key} must be a number {bound}, got {value!r}")
+        if isinstance(value, int) and abs(value) > sys.float_info.max:
+            raise SettingError(f"{key} must be a finite number {bound}, got an integer of {len(str(abs(value)))} digits")
         value = float(value)
         if not math.isfinite(value):
             described = str(bound)
