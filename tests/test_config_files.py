@@ -227,6 +227,52 @@ def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path,
     assert not np.array_equal(load_timeseries(other / "timeseries" / "Low.npz")[0]["q"], a["q"])
 
 
+TINY = ["--duration", "0.01", "--tunings", "None", "--progress", "false"]
+
+
+def _warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("warning: ")]
+
+
+def test_a_replay_on_other_versions_or_with_another_seed_warns_one_line_each(tmp_path, capsys):
+    """N9: a config.json replay ignored a mismatched seed or version and promised a bit-identical run."""
+    first = tmp_path / "first"
+    assert main(["run", "paper_sim", *TINY, "--seed", "3", "--out", str(first)]) == 0
+    config = first / "config.json"
+    capsys.readouterr()
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "same"), "--seed", "3"]) == 0
+    assert _warnings(capsys.readouterr().err) == []  # the same versions, the recorded seed: a faithful replay
+    recorded = json.loads(config.read_text(encoding="utf-8"))
+    running = recorded["versions"]
+    recorded["versions"] = {**running, "mujoco": "3.1.0", "numpy": "1.26.4"}
+    config.write_text(json.dumps(recorded), encoding="utf-8")
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "other"), "--seed", "4"]) == 0
+    assert _warnings(capsys.readouterr().err) == [
+        f"warning: {config} was recorded with mujoco 3.1.0, this is mujoco {running['mujoco']}: the replay may not be "
+        "bit-identical to the recorded run",
+        f"warning: {config} was recorded with numpy 1.26.4, this is numpy {running['numpy']}: the replay may not be "
+        "bit-identical to the recorded run",
+        f"warning: --seed 4 overrides the seed 3 recorded in {config}: the replay will not be bit-identical to the "
+        "recorded run"]
+    del recorded["versions"]
+    config.write_text(json.dumps(recorded), encoding="utf-8")
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "unknown")]) == 0
+    assert _warnings(capsys.readouterr().err) == [
+        f"warning: {config} records no versions: the replay may not be bit-identical to the recorded run"]
+    recorded["versions"] = "4.0.0"
+    config.write_text(json.dumps(recorded), encoding="utf-8")
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "bad")]) == USAGE_ERROR
+    assert '"versions" must be an object' in capsys.readouterr().err
+
+
+def test_a_toml_run_configuration_gives_no_replay_warning(tmp_path, capsys):
+    config = tmp_path / "run.toml"
+    config.write_text('scenario = "paper_sim"\nduration = 0.01\ntunings = "None"\nprogress = false\nseed = 1\n',
+                      encoding="utf-8")
+    assert main(["run", "--config", str(config), "--seed", "2", "--out", str(tmp_path / "run")]) == 0
+    assert _warnings(capsys.readouterr().err) == []
+
+
 def test_study_settings_set_dotted_keys_before_the_checks(tmp_path):
     path = ROOT / "studies" / "paper_tunings_plate_errors.toml"
     data = tomllib.loads(path.read_text(encoding="utf-8"))
