@@ -21,6 +21,13 @@ Two formats, told apart by the suffix:
 Command-line parameters given with `--config` override the file's. `load_run_config`
 checks the file's shape (unknown keys are the scenario's to refuse, with its list of
 parameters, when the run checks them); errors are ValueErrors naming the file and the key.
+
+A replay is bit-identical only with the recorded seed on the recorded versions (MuJoCo's
+results, numpy's generators and the solvers change between releases). `replay_warnings`
+says, one line each, where a replay departs from that: every version config.json records
+(softcbf_mj, mujoco, python, numpy, ..., platform; `softcbf_mj.runio.versions`) that
+differs from the running one, a config.json that records none, and a seed that the
+command line changes.
 """
 
 from __future__ import annotations
@@ -42,6 +49,8 @@ class RunConfig:
 
     scenario: str
     params: dict[str, Any]
+    versions: dict[str, Any] | None = None  # a run folder's config.json: the versions it recorded (None: a TOML file)
+    path: Path | None = None
 
 
 def joined(name: str, value: Any) -> Any:
@@ -56,7 +65,7 @@ def _from_toml(path: Path, data: Mapping[str, Any]) -> RunConfig:
     for key, value in params.items():
         if isinstance(value, (Mapping, list)):
             raise ValueError(f"run configuration {path}: {key} must be a single value, got {value!r}")
-    return RunConfig(data[SCENARIO_KEY], params)
+    return RunConfig(data[SCENARIO_KEY], params, path=path)
 
 
 def _from_run_folder(path: Path, data: Mapping[str, Any]) -> RunConfig:
@@ -64,7 +73,26 @@ def _from_run_folder(path: Path, data: Mapping[str, Any]) -> RunConfig:
     if not isinstance(params, Mapping):
         raise ValueError(f"run configuration {path}: a run folder's config.json needs a \"params\" object "
                          f"(docs/run-outputs.md), got {params!r}")
-    return RunConfig(data[SCENARIO_KEY], dict(params))
+    versions = data.get("versions", {})
+    if not isinstance(versions, Mapping):
+        raise ValueError(f"run configuration {path}: \"versions\" must be an object {{name: version}}, got {versions!r}")
+    return RunConfig(data[SCENARIO_KEY], dict(params), dict(versions), path)
+
+
+def replay_warnings(config: RunConfig, params: Mapping[str, Any], running: Mapping[str, Any]) -> list[str]:
+    """The warnings of a replay of `config` (a run folder's config.json; none for a TOML file) with the final
+    parameters `params` on the `running` versions (module docstring), one line each."""
+    if config.versions is None:
+        return []
+    if not config.versions:
+        return [f"warning: {config.path} records no versions: the replay may not be bit-identical to the recorded run"]
+    lines = [f"warning: {config.path} was recorded with {name} {recorded}, this is {name} {running.get(name)}: "
+             "the replay may not be bit-identical to the recorded run"
+             for name, recorded in config.versions.items() if running.get(name) != recorded]
+    if "seed" in config.params and params.get("seed") != config.params["seed"]:
+        lines.append(f"warning: --seed {params.get('seed')} overrides the seed {config.params['seed']} recorded in "
+                     f"{config.path}: the replay will not be bit-identical to the recorded run")
+    return lines
 
 
 def load_run_config(path: str | Path) -> RunConfig:

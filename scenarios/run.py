@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from closedloop.step import describe_fault, fault_log_name
+from controllers.registry import parse_params
 from scenarios import Scenario, get
 from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
@@ -135,8 +136,9 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     parser = UsageParser(prog=f"scenario {scenario.name}", add_help=False, allow_abbrev=False)
-    for name, p in params.items():
-        parser.add_argument(option_name(name), dest=name, type=option_type(hints[name]), default=given.get(name, p.default))
+    for name, p in params.items():  # a plug-in's parameter string: None when the command line does not give it
+        default = None if name in PLUGIN_PARAMS else given.get(name, p.default)
+        parser.add_argument(option_name(name), dest=name, type=option_type(hints[name]), default=default)
     repeated = {name: option_name(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
     for name, option in repeated.items():
         parser.add_argument(option, dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE")
@@ -151,11 +153,34 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
         raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
     values = vars(known)
     for name, option in repeated.items():
-        items = values.pop(f"{name}_items")
-        if any("=" not in item for item in items):
-            raise UsageError(f"{option} takes NAME=VALUE, got {' '.join(i for i in items if '=' not in i)}")
-        values[name] = ";".join(part for part in (values[name], *items) if part)
+        items, text = values.pop(f"{name}_items"), values[name]
+        given_here = ([(option_name(name), text)] if text else []) + [(option, item) for item in items]
+        try:
+            command_line_params(given_here)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        values[name] = ";".join(part for part in (given.get(name, params[name].default) if text is None else text, *items)
+                                if part)
     return values
+
+
+def command_line_params(items: Sequence[tuple[str, str]]) -> dict[str, str]:
+    """The plug-in parameters one command line gives, as (option, "NAME=VALUE") pairs (several
+    joined by ';' in one item: "a=1;b=2"), as {name: value}. ValueError naming the option for an
+    item that is not NAME=VALUE, or for a NAME given twice (the last would silently win)."""
+    out: dict[str, str] = {}
+    for option, text in items:
+        for part in filter(str.strip, text.split(";")) if text.strip() else [text]:
+            if "=" not in part:
+                raise ValueError(f"{option} takes NAME=VALUE, got {part.strip()!r}")
+            try:
+                ((key, value),) = parse_params(part).items()
+            except ValueError as exc:
+                raise ValueError(f"{option}: {exc}") from None
+            if key in out:
+                raise ValueError(f"{option} {key} is given twice ({key}={out[key]}, then {key}={value}); give it once")
+            out[key] = value
+    return out
 
 
 def _outputs_summary(out_dir: Path) -> str:

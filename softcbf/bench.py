@@ -60,6 +60,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import shutil
 import time
@@ -72,7 +73,11 @@ import numpy as np
 
 from controllers.filter_metrics import governor_figures
 from controllers.registry import FILTERS, check_filter, resolve
-from softcbf_mj.runio import load_timeseries, read_run_folder, safe_name
+from softcbf_mj.runio import (
+    RUN_MARKER, OutputDirError, load_timeseries, prepare_out_dir, read_run_folder, release_out_dir, remove_if_unused,
+    safe_name,
+)
+from vocabulary.settings import Bound, check_number, non_negative
 
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
                "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s")
@@ -124,6 +129,8 @@ def parse_filters(text: str) -> list[FilterSpec]:
             name, sep, value = pair.partition("=")
             if not sep or not name.strip():
                 raise ValueError(f"filter parameters must be name=value, got {pair!r} in {item!r}")
+            if name.strip() in params:
+                raise ValueError(f"filter parameter {name.strip()} is given twice in {item!r}; give it once")
             params[name.strip()] = value.strip()
         resolve(match.group(1), FILTERS)
         specs.append(FilterSpec(match.group(1), params))
@@ -199,12 +206,14 @@ def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarr
 
 @dataclass(frozen=True)
 class RunOptions:
-    """How a case runs: quick (CI) or full, local worker processes of the study, mismatch draws (None: `MISMATCH_DRAWS`)."""
+    """How a case runs: quick (CI) or full, local worker processes of the study, mismatch draws (None: `MISMATCH_DRAWS`);
+    and what happens to a bench folder in --out (`prepare_bench_dir`): resume it, or overwrite it."""
 
     quick: bool = False
     workers: int = 1
     mismatch_draws: int | None = None
     resume: bool = False
+    overwrite: bool = False
 
 
 def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -301,11 +310,17 @@ QUICK_SKIPPED = {"hardware_emulator": "--quick: the emulator runs in real time a
 
 def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOptions = RunOptions(),
               cases: Sequence[str] | None = None) -> dict[str, Any]:
-    """Run `filters` over the battery (or the named `cases`) into `out` (a case's folder is
-    replaced); write and return bench.json's content (updated after every case)."""
+    """Run `filters` over the battery (or the named `cases`; None: all) into the bench folder `out`
+    (`prepare_bench_dir`: a new or empty folder, or with `options.resume` / `options.overwrite` a
+    bench folder; locked while the bench runs; a case's folder is replaced); write and return
+    bench.json's content (updated after every case). Everything is checked before the folder is
+    touched; a fresh bench that stops before its first row leaves nothing behind."""
     out = Path(out)
     names = [c.name for c in CASES]
-    selected = list(cases) if cases else names
+    selected = names if cases is None else list(cases)
+    if not selected or not all(selected):
+        raise ValueError(f"--cases must name at least one case and no empty one, got {','.join(selected)!r}; "
+                         f"the battery: {', '.join(names)}")
     unknown = [c for c in selected if c not in names]
     if unknown:
         raise ValueError(f"unknown case(s) {', '.join(unknown)}; the battery: {', '.join(names)}")
@@ -322,7 +337,25 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
     draws = QUICK_MISMATCH_DRAWS if options.quick else (options.mismatch_draws or MISMATCH_DRAWS)
     bench = {"battery": names, "quick": options.quick, "mismatch_draws": draws, "filters": [s.label for s in filters],
              "skipped": skipped, "results": []}
-    done = stored_results(out, bench) if options.resume else {}
+    created = not os.path.lexists(out)
+    prepare_bench_dir(out, options)
+    fresh = not (out / BENCH_FILE).is_file()
+    try:
+        done = stored_results(out, bench) if options.resume else {}
+        if fresh:
+            write_outputs(out, bench)  # a bench folder from the start: a bench that stops can be resumed
+        _run_cases(out, bench, filters, selected, skipped, done, options)
+    except BaseException:
+        if fresh and not bench["results"]:
+            _discard(out, created)
+        raise
+    finally:
+        release_out_dir(out)
+    return bench
+
+
+def _run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], selected: Sequence[str],
+               skipped: Mapping[str, str], done: Mapping[tuple[str, str], dict[str, Any]], options: RunOptions) -> None:
     for spec in filters:
         for case in CASES:
             if case.name not in selected or case.name in skipped:
@@ -342,25 +375,152 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
             print(f"bench: {spec.label} x {case.name}: rho_min_meas {row['rho_min_meas']:.4f}, "
                   f"t_violation {row['t_violation_s']:.3f} s, {row['wall_s']:.1f} s", flush=True)
     write_outputs(out, bench)
-    return bench
+
+
+def is_bench_folder(path: str | Path) -> bool:
+    """Whether `path` is a folder written by `softcbf bench`: it holds a bench.json."""
+    return (Path(path) / BENCH_FILE).is_file()
+
+
+def prepare_bench_dir(out: Path, options: RunOptions) -> Path:
+    """Take the bench folder `out` and lock it for this process (softcbf_mj.runio, as `softcbf run`'s run folders:
+    a second bench into it is refused while this one runs). A new or empty folder is made a bench folder; one that
+    holds anything must be a bench folder (`is_bench_folder`) and is continued with `options.resume` (nothing
+    deleted) or replaced with `options.overwrite` (its contents deleted, never the working folder, one above it
+    or home), and is refused otherwise. ValueError naming the folder and the fix; nothing is deleted then."""
+    if options.resume and options.overwrite:
+        raise ValueError("--resume continues the bench in --out and --overwrite replaces it: give one of them")
+    try:
+        try:
+            holds = out.is_dir() and any(entry.name != RUN_MARKER for entry in out.iterdir())
+        except OSError as exc:
+            raise OutputDirError(f"cannot read the bench folder {out}: {exc.strerror or exc}") from None
+        if not holds:
+            return prepare_out_dir(out)
+        if not is_bench_folder(out):
+            raise ValueError(f"{out} is not empty and is not a bench folder (it has no {BENCH_FILE}); "
+                             "choose another --out (--overwrite only replaces a bench folder)")
+        if not (options.resume or options.overwrite):
+            raise ValueError(f"{out} holds a bench ({BENCH_FILE}); pass --resume to continue it or --overwrite "
+                             "to replace it, or choose another --out")
+        prepare_out_dir(out, keep=True)  # marks a bench folder written before the marker existed as softcbf's
+        if options.overwrite:
+            try:
+                prepare_out_dir(out, overwrite=True)
+            except OutputDirError:
+                release_out_dir(out)
+                raise
+        return out
+    except OutputDirError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def _discard(out: Path, created: bool) -> None:
+    """Remove what a fresh bench that stopped before its first row wrote (and the folder, when it made it)."""
+    shutil.rmtree(out / "cases", ignore_errors=True)
+    shutil.rmtree((out / PLOT_FILE).parent, ignore_errors=True)
+    for name in (BENCH_FILE, TABLE_FILE):
+        (out / name).unlink(missing_ok=True)
+    if created:
+        remove_if_unused(out)
 
 
 def stored_results(out: Path, bench: Mapping[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
     """The rows of out/bench.json that `--resume` keeps: {(filter label, case): row} ({} when there is no file);
-    ValueError when that file came from a run with another quick flag or number of mismatch draws."""
+    ValueError when that file is not a bench.json (`check_bench_json`) or came from a run with another quick flag
+    or number of mismatch draws."""
     path = out / BENCH_FILE
     if not path.exists():
         return {}
     try:
         stored = json.loads(path.read_text(encoding="utf-8"))
-        rows = {(r["filter"], r["case"]): {k: r[k] for k in RESULT_KEYS} for r in stored["results"]}
-        quick, draws = stored["quick"], stored.get("mismatch_draws")
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"--resume: {path} is not a bench.json of softcbf bench ({exc})") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"--resume: {path} cannot be read as JSON ({exc})") from None
+    try:
+        check_bench_json(stored)
+    except ValueError as exc:
+        raise ValueError(f"--resume: {path} is not a bench.json of softcbf bench: {exc}") from None
+    quick, draws = stored["quick"], stored["mismatch_draws"]
     if quick != bench["quick"] or draws != bench["mismatch_draws"]:
         raise ValueError(f"--resume: {path} holds a run with quick={quick}, mismatch draws {draws}; "
                          f"this one has quick={bench['quick']}, mismatch draws {bench['mismatch_draws']}")
-    return rows
+    return {(r["filter"], r["case"]): {k: r[k] for k in RESULT_KEYS} for r in stored["results"]}
+
+
+_FRACTION = Bound(0.0, 1.0)
+ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields (SPEC §11), each checked by key and value
+    "filter": lambda key, v: _check_text(key, v),
+    "case": lambda key, v: _check_text(key, v, [c.name for c in CASES]),
+    "rho_min_meas": lambda key, v: _check_finite(key, v),
+    **{name: (lambda key, v: check_number(key, v, non_negative()))
+       for name in ("t_violation_s", "force_max_N", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median",
+                    "filter_us_p99", "wall_s")},
+    "violation_probability": lambda key, v: v is None or check_number(key, v, _FRACTION),
+    "violation_ci95": lambda key, v: v is None or _check_interval(key, v),
+    "draws": lambda key, v: v is None or check_number(key, v, Bound(1), integer=True),
+}
+
+
+def _check_finite(key: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{key} must be a finite number, got {value!r}")
+
+
+def _check_text(key: str, value: Any, known: Sequence[str] | None = None) -> None:
+    if not isinstance(value, str) or not value or (known is not None and value not in known):
+        raise ValueError(f"{key} must be {'one of ' + ', '.join(known) if known else 'a non-empty string'}, got {value!r}")
+
+
+def _check_interval(key: str, value: Any) -> None:
+    if not (isinstance(value, list) and len(value) == 2):
+        raise ValueError(f"{key} must be null or [lo, hi], got {value!r}")
+    lo, hi = (check_number(f"{key}[{i}]", v, _FRACTION) for i, v in enumerate(value))
+    if lo > hi:
+        raise ValueError(f"{key} must have lo <= hi, got {value!r}")
+
+
+def check_bench_json(data: Any) -> None:
+    """ValueError naming the first field of `data` (a parsed bench.json) that does not hold the module docstring's
+    schema: "battery" and "filters" lists of names, "quick" true/false, "mismatch_draws" an integer >= 1, "skipped"
+    {case: reason}, "results" rows with every `RESULT_KEYS` field of its type (numbers finite, counts, durations,
+    RMS and compute times >= 0, probabilities in [0, 1]; the three violation fields null together), a known case,
+    a filter of "filters", each (filter, case) once."""
+    if not isinstance(data, dict):
+        raise ValueError(f"it must be a JSON object, got {type(data).__name__}")
+    missing = [k for k in ("battery", "quick", "mismatch_draws", "filters", "skipped", "results") if k not in data]
+    if missing:
+        raise ValueError(f"it lacks {', '.join(missing)}")
+    for key in ("battery", "filters"):
+        if not isinstance(data[key], list):
+            raise ValueError(f"{key} must be a list of names, got {data[key]!r}")
+        for i, name in enumerate(data[key]):
+            _check_text(f"{key}[{i}]", name)
+    if not isinstance(data["quick"], bool):
+        raise ValueError(f"quick must be true or false, got {data['quick']!r}")
+    check_number("mismatch_draws", data["mismatch_draws"], Bound(1), integer=True)
+    if not (isinstance(data["skipped"], dict) and all(isinstance(v, str) for v in data["skipped"].values())):
+        raise ValueError(f"skipped must be an object {{case: reason}}, got {data['skipped']!r}")
+    if not isinstance(data["results"], list):
+        raise ValueError(f"results must be a list of rows, got {data['results']!r}")
+    seen = set()
+    for i, row in enumerate(data["results"]):
+        where = f"results[{i}]"
+        if not isinstance(row, dict):
+            raise ValueError(f"{where} must be an object, got {row!r}")
+        missing = [k for k in RESULT_KEYS if k not in row]
+        if missing:
+            raise ValueError(f"{where} lacks {', '.join(missing)}")
+        for key in RESULT_KEYS:
+            ROW_SCHEMA[key](f"{where}.{key}", row[key])
+        if row["filter"] not in data["filters"]:
+            raise ValueError(f"{where}.filter {row['filter']!r} is not one of its filters ({', '.join(data['filters'])})")
+        nulls = [row[k] is None for k in ("violation_probability", "violation_ci95", "draws")]
+        if any(nulls) and not all(nulls):
+            raise ValueError(f"{where}: violation_probability, violation_ci95 and draws must be null together, got "
+                             f"{row['violation_probability']!r}, {row['violation_ci95']!r}, {row['draws']!r}")
+        if (row["filter"], row["case"]) in seen:
+            raise ValueError(f"{where}: ({row['filter']}, {row['case']}) has a row already")
+        seen.add((row["filter"], row["case"]))
 
 
 TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_min_meas", ".4f"),
@@ -440,11 +600,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output folder (bench.json, bench.md, plots/, cases/)")
     parser.add_argument("--filters", default=DEFAULT_FILTERS, help=f"NAME or NAME(param=value,...), comma separated (default {DEFAULT_FILTERS})")
     parser.add_argument("--quick", action="store_true", help="short durations and 2 mismatch draws, emulator skipped (CI)")
-    parser.add_argument("--cases", default="", help=f"run only these cases (comma separated; default all: {', '.join(c.name for c in CASES)})")
+    parser.add_argument("--cases", default=None, help=f"run only these cases (comma separated; default all: {', '.join(c.name for c in CASES)})")
     parser.add_argument("--mismatch-draws", type=int, default=None, help=f"draws of the mismatch study (default {MISMATCH_DRAWS})")
     parser.add_argument("--workers", type=int, default=1, help="local processes of the mismatch study (default 1)")
     parser.add_argument("--resume", action="store_true",
                         help="continue a bench in --out: keep its finished (filter, case) rows, continue its mismatch studies")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the contents of a bench folder in --out (one holding a bench.json)")
 
 
 def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int:
@@ -453,8 +615,9 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
 
     try:
         filters = parse_filters(args.filters)
-        cases = [c.strip() for c in args.cases.split(",") if c.strip()]
-        run_bench(args.out, filters, RunOptions(args.quick, args.workers, args.mismatch_draws, args.resume), cases)
+        cases = None if args.cases is None else [c.strip() for c in args.cases.split(",")]
+        run_bench(args.out, filters, RunOptions(args.quick, args.workers, args.mismatch_draws, args.resume, args.overwrite),
+                  cases)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -26,8 +26,10 @@ display is present, and says so when it skips it. `python -m scenarios` is the s
 (docs/run-outputs.md spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
 `--config FILE` takes the scenario and its parameters from a run configuration file
 (`scenarios.config_file`: a TOML file, or a run folder's config.json, which replays that
-run); parameters on the command line override the file's, and a SCENARIO given as well
-must be the file's. `softcbf run SCENARIO --help` lists the scenario's parameters with
+run, with one warning line on stderr for each recorded version that differs from the
+running one and for a --seed that changes the recorded seed: such a replay is not
+bit-identical); parameters on the command line override the file's, and a SCENARIO given
+as well must be the file's. `softcbf run SCENARIO --help` lists the scenario's parameters with
 their meaning, unit, default and valid values (docs/parameters.md).
 
 The run folder is locked while a run writes it (softcbf_mj.runio: a second run into it is
@@ -64,8 +66,8 @@ from pathlib import Path
 import softcbf_mj
 from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
-from scenarios.config_file import load_run_config
-from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario
+from scenarios.config_file import load_run_config, replay_warnings
+from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
 from softcbf import bench, hardware_cli
 from softcbf_mj.runio import RunFolderError, versions
 from softcbf.study import cli as study_cli
@@ -147,6 +149,13 @@ def _run(args: argparse.Namespace, extra: list[str]) -> int:
         return _run_help(args, name)
     if name is None:
         raise UsageError("softcbf run: give a scenario name (softcbf list) or --config FILE")
+    if args.config is not None and config.versions is not None:  # a replay: say where it departs from the recorded run
+        try:
+            params = scenario_parameters(get_scenario(name), tokens, base)
+        except KeyError as exc:
+            raise UsageError(exc.args[0]) from None
+        for line in replay_warnings(config, params, versions()):
+            print(line, file=sys.stderr)
     return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base)
 
 

@@ -82,10 +82,10 @@ from hardware.runner import HardwareLog, HardwareLoop, StartupError, controller_
 from hardware.transport import open_serial
 from perception.capture import VideoCaptureSource
 from scenarios.common import scene_record
-from scenarios.run import FILTER_FAULT, INTERRUPTED, USAGE_ERROR, option_name, option_type
+from scenarios.run import FILTER_FAULT, INTERRUPTED, USAGE_ERROR, command_line_params, option_name, option_type
 from closedloop.record import TIMESERIES_UNITS
 from closedloop.step import describe_fault, fault_log_name, write_fault_log
-from controllers.registry import build_filter, build_nominal, parse_params
+from controllers.registry import build_filter, build_nominal
 from controllers.registry import label as run_label
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.runio import (
@@ -156,9 +156,9 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
         items = getattr(args, f"{name}_items")
         if items:
             try:
-                extra = parse_params(";".join(items))
+                extra = command_line_params([(option, item) for item in items])
             except ValueError as exc:
-                raise ConfigError(f"{option}: {exc}") from None
+                raise ConfigError(str(exc)) from None
             changes[name] = {**changes.get(name, getattr(config.control, name)), **extra}
     config = config.with_overrides(changes)
     check_controller(config)

@@ -161,14 +161,16 @@ def _empty(folder: Path, keep: str) -> None:
             entry.unlink()
 
 
-def prepare_out_dir(path: str | Path, overwrite: bool = False) -> Path:
+def prepare_out_dir(path: str | Path, overwrite: bool = False, keep: bool = False) -> Path:
     """Create (or take, when empty) the run folder `path`, mark it and lock it for this
     process (see the module docstring); return it.
 
     A folder holding anything but the marker is refused unless `overwrite`, and then only
     when it is a run folder (`is_run_folder`) and not the working folder, one above it or
-    home: its contents are deleted. Raises OutputDirError (never OSError) naming the
-    folder and what is wrong, before deleting anything.
+    home: its contents are deleted. With `keep` such a folder is taken as it is (marked,
+    locked, nothing deleted: a bench continued with --resume, whose caller has checked that
+    the folder is its own). Raises OutputDirError (never OSError) naming the folder and
+    what is wrong, before deleting anything.
     """
     if str(path) == "":
         raise OutputDirError("--out must name a folder, got ''")
@@ -182,7 +184,7 @@ def prepare_out_dir(path: str | Path, overwrite: bool = False) -> Path:
     except OSError as exc:
         raise OutputDirError(f"cannot write the run folder {out}: {exc.strerror or exc}") from None
     try:
-        if any(entry.name != RUN_MARKER for entry in out.iterdir()):
+        if not keep and any(entry.name != RUN_MARKER for entry in out.iterdir()):
             if not overwrite:
                 raise OutputDirError(f"{out} exists and is not empty; choose another --out or pass --overwrite")
             if not run_folder:

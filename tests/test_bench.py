@@ -2,6 +2,8 @@
 
 import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -9,10 +11,12 @@ import pytest
 from controllers.nominal import step
 from controllers.registry import NOMINALS
 from scenarios import get
-from softcbf.bench import (CASES, EERG_PARAMS, PLOT_FILE, RESULT_KEYS, FilterSpec, case_filter_params, parse_filters,
-                           pooled_figures)
+import softcbf.bench
+from softcbf.bench import (CASES, EERG_PARAMS, PLOT_FILE, RESULT_KEYS, ROW_SCHEMA, Case, FilterSpec, RunOptions,
+                           case_filter_params, check_bench_json, parse_filters, pooled_figures, run_bench)
 from softcbf.cli import main
 from softcbf.study.analysis import wilson_interval
+from softcbf_mj.runio import RUN_MARKER
 
 CASE = {c.name: c for c in CASES}
 
@@ -26,7 +30,8 @@ def test_filter_specs_with_parameters_and_nested_commas():
 
 @pytest.mark.parametrize("text, message", [
     ("e-erg(kappa=0.1", "unclosed"), ("e-erg)", "unmatched"), ("no-such-filter", "unknown name"),
-    ("e-erg(kappa)", "name=value"), ("none,none", "twice"), ("none,,qsg", "NAME or NAME"),
+    ("e-erg(kappa)", "name=value"), ("none,none", "twice"), ("none,,qsg", "NAME or NAME"), ("", "NAME or NAME"),
+    ("e-erg(kappa=0.1,kappa=0.2)", "filter parameter kappa is given twice"),  # N8: the last value won
 ])
 def test_bad_filter_specs_are_refused_by_name(text, message):
     with pytest.raises(ValueError, match=message):
@@ -105,6 +110,7 @@ def test_quick_bench_writes_the_contract(tmp_path):
     assert set(bench["skipped"]) == {"hardware_emulator"} and "real time" in bench["skipped"]["hardware_emulator"]
     assert [(r["filter"], r["case"]) for r in bench["results"]] == [
         ("none", "paper_sim_150"), ("none", "step"), ("paper-cbf", "paper_sim_150"), ("paper-cbf", "step")]
+    check_bench_json(bench)  # what --resume accepts
     for row in bench["results"]:
         assert tuple(row) == RESULT_KEYS
         for key in RESULT_KEYS[2:]:
@@ -156,16 +162,164 @@ def test_resume_keeps_finished_rows_and_continues_the_mismatch_study(tmp_path):
     assert figures[0] == figures[1]  # the same figures as the uninterrupted bench
     assert resumed["results"][0] == first["results"][0]  # the kept row, timing included
 
-    assert main(argv[:-1] + ["paper_sim_150"]) == 0  # without --resume the case runs again, replacing its folder
-    assert not sentinel.exists()
+    assert main(argv[:-1] + ["paper_sim_150"]) == 2  # a bench folder needs --resume or --overwrite
+    assert sentinel.exists()
+    assert main(argv[:-1] + ["paper_sim_150", "--overwrite"]) == 0  # --overwrite replaces the bench folder's contents
+    assert not sentinel.exists() and not study.exists()
+
+
+def _bench_json(**row) -> dict:
+    """A bench.json as a quick `softcbf bench --filters none --cases paper_sim_150` writes it, its row updated with `row`."""
+    stored = {"filter": "none", "case": "paper_sim_150", "rho_min_meas": 1.0, "t_violation_s": 0.0, "force_max_N": 0.0,
+              "violation_probability": None, "violation_ci95": None, "draws": None, "u_dev_rms_hPa": 0.0,
+              "blocked_s": 0.0, "switches_per_s": 0.0, "filter_us_median": 12.0, "filter_us_p99": 30.0, "wall_s": 3.0}
+    return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
+            "results": [{**stored, **row}]}
+
+
+QUICK_NONE = ["--quick", "--filters", "none", "--cases", "paper_sim_150"]
 
 
 def test_resume_refuses_a_bench_of_another_kind(tmp_path, capsys):
     out = tmp_path / "bench"
     out.mkdir()
-    (out / "bench.json").write_text(json.dumps({"quick": True, "mismatch_draws": 2, "results": []}))
+    (out / "bench.json").write_text(json.dumps(_bench_json()))
     assert main(["bench", "--out", str(out), "--filters", "none", "--cases", "paper_sim_150", "--resume"]) == 2
     assert "quick=True" in capsys.readouterr().err
     (out / "bench.json").write_text("{}")
     assert main(["bench", "--out", str(out), "--filters", "none", "--cases", "paper_sim_150", "--resume"]) == 2
     assert "not a bench.json" in capsys.readouterr().err
+
+
+def test_resume_keeps_a_valid_row_without_running_it(tmp_path, capsys):
+    out = tmp_path / "bench"
+    out.mkdir()
+    (out / "bench.json").write_text(json.dumps(_bench_json()))
+    assert main(["bench", "--out", str(out), *QUICK_NONE, "--resume"]) == 0
+    assert "kept from" in capsys.readouterr().out
+    assert json.loads((out / "bench.json").read_text()) == _bench_json()
+    assert not (out / "cases").exists()
+
+
+GARBAGE = [  # N7: --resume kept rows of any value (a string ρ, NaN, a negative time, an unknown case...)
+    (lambda b: b["results"][0].update(rho_min_meas="abc"), "results[0].rho_min_meas must be a finite number, got 'abc'"),
+    (lambda b: b["results"][0].update(rho_min_meas=float("nan")), "results[0].rho_min_meas must be a finite number"),
+    (lambda b: b["results"][0].update(force_max_N=float("inf")), "results[0].force_max_N must be finite"),
+    (lambda b: b["results"][0].update(t_violation_s=-1.0), "results[0].t_violation_s must be >= 0, got -1.0"),
+    (lambda b: b["results"][0].update(wall_s=True), "results[0].wall_s must be a number"),
+    (lambda b: b["results"][0].update(filter_us_p99=None), "results[0].filter_us_p99 must be a number"),
+    (lambda b: b["results"][0].update(violation_probability=1.5, violation_ci95=[0.1, 0.9], draws=3),
+     "results[0].violation_probability must be in [0, 1], got 1.5"),
+    (lambda b: b["results"][0].update(violation_probability=0.5, violation_ci95=[0.9, 0.1], draws=2),
+     "results[0].violation_ci95 must have lo <= hi"),
+    (lambda b: b["results"][0].update(violation_probability=0.5, violation_ci95=[0.1, 0.9], draws=0),
+     "results[0].draws must be >= 1, got 0"),
+    (lambda b: b["results"][0].update(violation_probability=0.5), "must be null together"),
+    (lambda b: b["results"][0].update(case="nope"), "results[0].case must be one of paper_sim_150"),
+    (lambda b: b["results"][0].update(filter="qsg"), "results[0].filter 'qsg' is not one of its filters"),
+    (lambda b: b["results"][0].pop("blocked_s"), "results[0] lacks blocked_s"),
+    (lambda b: b["results"].append(dict(b["results"][0])), "results[1]: (none, paper_sim_150) has a row already"),
+    (lambda b: b.update(results={}), "results must be a list of rows"),
+    (lambda b: b.update(quick="yes"), "quick must be true or false, got 'yes'"),
+    (lambda b: b.update(mismatch_draws=2.0), "mismatch_draws must be an integer >= 1, got 2.0"),
+    (lambda b: b.update(filters="none"), "filters must be a list of names"),
+    (lambda b: b.pop("skipped"), "it lacks skipped"),
+]
+
+
+@pytest.mark.parametrize("spoil, message", GARBAGE)
+def test_resume_refuses_a_bench_json_of_garbage_values_naming_the_field(tmp_path, capsys, spoil, message):
+    out = tmp_path / "bench"
+    out.mkdir()
+    bench = _bench_json()
+    spoil(bench)
+    (out / "bench.json").write_text(json.dumps(bench))
+    before = (out / "bench.json").read_text()
+    assert main(["bench", "--out", str(out), *QUICK_NONE, "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: --resume: {out / 'bench.json'} is not a bench.json"), err
+    assert message in err
+    assert (out / "bench.json").read_text() == before and not (out / "cases").exists()
+
+
+def test_every_result_field_has_a_schema_entry():
+    assert set(ROW_SCHEMA) == set(RESULT_KEYS)
+    check_bench_json(_bench_json())
+    check_bench_json(_bench_json(violation_probability=0.0, violation_ci95=[0.0, 0.56], draws=3))
+
+
+@pytest.mark.parametrize("make, options", [
+    ("a user's folder", []), ("a user's folder", ["--overwrite"]), ("a user's folder", ["--resume"]),
+    ("a run folder", ["--overwrite"]),
+])
+def test_bench_refuses_a_folder_that_is_not_a_bench_folder(tmp_path, capsys, make, options):
+    """N7: `softcbf bench --out` wrote into any folder (a user's, a run folder)."""
+    out = tmp_path / "folder"
+    out.mkdir()
+    if make == "a run folder":
+        (out / RUN_MARKER).write_text("")
+        (out / "summary.json").write_text(json.dumps({"scenario": "paper_sim", "params": {}, "runs": []}))
+    (out / "keep.txt").write_text("data")
+    before = sorted(p.name for p in out.iterdir())
+    assert main(["bench", "--out", str(out), *QUICK_NONE, *options]) == 2
+    err = capsys.readouterr().err
+    assert f"{out} is not empty and is not a bench folder (it has no bench.json)" in err and err.count("\n") == 1
+    assert sorted(p.name for p in out.iterdir()) == before and (out / "keep.txt").read_text() == "data"
+
+
+def test_a_bench_folder_needs_resume_or_overwrite_and_is_locked_while_a_bench_runs(tmp_path, capsys):
+    out = tmp_path / "bench"
+    out.mkdir()
+    (out / "bench.json").write_text(json.dumps(_bench_json()))
+    assert main(["bench", "--out", str(out), *QUICK_NONE]) == 2
+    assert "holds a bench (bench.json); pass --resume to continue it or --overwrite" in capsys.readouterr().err
+    assert main(["bench", "--out", str(out), *QUICK_NONE, "--resume", "--overwrite"]) == 2
+    assert "give one of them" in capsys.readouterr().err
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.runio import prepare_out_dir\n"
+                               "prepare_out_dir(sys.argv[1], keep=True); print('locked', flush=True); time.sleep(600)",
+                               str(out)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        for flag in ("--resume", "--overwrite"):
+            assert main(["bench", "--out", str(out), *QUICK_NONE, flag]) == 2
+            assert f"{out} is in use by another run (process {holder.pid})" in capsys.readouterr().err
+        assert json.loads((out / "bench.json").read_text()) == _bench_json()
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_overwrite_never_empties_the_working_folder(tmp_path, capsys, monkeypatch):
+    (tmp_path / "bench.json").write_text(json.dumps(_bench_json()))
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench", "--out", ".", *QUICK_NONE, "--overwrite"]) == 2
+    assert "it is the working folder" in capsys.readouterr().err
+    assert (tmp_path / "bench.json").is_file()
+
+
+def _refuse_to_run(case, spec, folder, options):
+    raise RuntimeError(f"case {case.name} ran")
+
+
+@pytest.mark.parametrize("cases", ["", ",", "paper_sim_150,,step"])
+def test_an_empty_case_list_is_a_usage_error_not_the_whole_battery(tmp_path, capsys, monkeypatch, cases):
+    """N7: `--cases ""` ran the whole battery."""
+    monkeypatch.setattr(softcbf.bench, "CASES", tuple(Case(c.name, c.rate, _refuse_to_run) for c in CASES))
+    assert main(["bench", "--out", str(tmp_path / "b"), "--quick", "--filters", "none", "--cases", cases]) == 2
+    assert "--cases must name at least one case" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="--cases must name at least one case"):
+        run_bench(tmp_path / "b", [FilterSpec("none")], RunOptions(quick=True), cases=[])
+    assert not (tmp_path / "b").exists()
+
+
+def test_a_fresh_bench_that_fails_before_its_first_row_leaves_nothing(tmp_path, monkeypatch):
+    monkeypatch.setattr(softcbf.bench, "CASES", tuple(Case(c.name, c.rate, _refuse_to_run) for c in CASES))
+    with pytest.raises(RuntimeError, match="case paper_sim_150 ran"):
+        run_bench(tmp_path / "new", [FilterSpec("none")], RunOptions(quick=True), cases=["paper_sim_150"])
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RuntimeError, match="case paper_sim_150 ran"):
+        run_bench(tmp_path / "empty", [FilterSpec("none")], RunOptions(quick=True), cases=["paper_sim_150"])
+    assert [p.name for p in (tmp_path / "empty").iterdir()] == [RUN_MARKER]  # as empty as it was: not refused next time
+    with pytest.raises(RuntimeError, match="case paper_sim_150 ran"):
+        run_bench(tmp_path / "empty", [FilterSpec("none")], RunOptions(quick=True), cases=["paper_sim_150"])

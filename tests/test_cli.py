@@ -433,3 +433,49 @@ def test_console_script_runs():
     res = subprocess.run([sys.executable, "-m", "scenarios", "nosuch", "--out", "x"], capture_output=True, text=True,
                          timeout=120)
     assert res.returncode == USAGE_ERROR and "unknown scenario 'nosuch'" in res.stderr
+
+
+DUPLICATES = [  # N8: the same NAME twice silently took the last value
+    (["--filter-param", "slack_weight=1e4", "--filter-param", "slack_weight=1e5"],
+     "--filter-param slack_weight is given twice (slack_weight=1e4, then slack_weight=1e5); give it once"),
+    (["--filter-param", "slack_weight=1e4;slack_weight=1e5"], "--filter-param slack_weight is given twice"),
+    (["--filter-params", "slack_weight=1e4", "--filter-param", "slack_weight=1e5"], "slack_weight is given twice"),
+    (["--tuning", "Low", "--filter-param", "tuning=High"], "--filter-param tuning is given twice (tuning=Low, then tuning=High)"),
+    (["--tuning", "Low", "--tuning", "High"], "tuning is given twice"),
+    (["--nominal-param", "frequency=0.1", "--nominal-param", "frequency=0.2"],
+     "--nominal-param frequency is given twice (frequency=0.1, then frequency=0.2)"),
+]
+
+
+@pytest.mark.parametrize("entry", ["softcbf", "scenarios"])
+@pytest.mark.parametrize("tokens, message", DUPLICATES)
+def test_a_plugin_parameter_given_twice_is_refused_naming_it(tmp_path, capsys, entry, tokens, message):
+    import scenarios.__main__
+
+    out = tmp_path / "run"
+    argv = ["paper_sim", "--duration", "0.01", "--tunings", "None", "--progress", "false", *tokens, "--out", str(out)]
+    assert (main(["run", *argv]) if entry == "softcbf" else scenarios.__main__.main(argv)) == USAGE_ERROR
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+    assert not out.exists()
+
+
+def test_a_config_file_s_plugin_parameters_are_overridden_not_duplicates(tmp_path, capsys):
+    """A parameter of the run configuration file and the same one on the command line: the command line wins."""
+    config = tmp_path / "run.toml"
+    config.write_text('scenario = "paper_sim"\nduration = 0.01\ntunings = "None"\nprogress = false\n'
+                      '[filter_params]\nslack_weight = 1e4\n', encoding="utf-8")
+    out = tmp_path / "run"
+    assert main(["run", "--config", str(config), "--filter-param", "slack_weight=1e5", "--out", str(out)]) == 0
+    assert read_run_folder(out).summary["params"]["filter_params"] == "slack_weight=10000.0;slack_weight=1e5"
+    assert read_run_folder(out).runs[0]["filter_params"]["slack_weight"] == "1e5"
+
+
+def test_hardware_refuses_a_plugin_parameter_given_twice(tmp_path, capsys):
+    out = tmp_path / "hw"
+    assert main(["hardware", str(ROOT / "examples" / "hardware_emulated.toml"), "--port", "emulated", "--camera", "virtual",
+                 "--filter", "paper-cbf", "--filter-param", "slack_weight=1e4", "--filter-param", "slack_weight=1e5",
+                 "--duration", "0.5", "--dry-run", "--out", str(out)]) == USAGE_ERROR
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--filter-param slack_weight is given twice" in err, err
+    assert not out.exists()

@@ -125,7 +125,7 @@ def test_random_command_lines_are_checked_without_a_traceback(command):
 
 EXTREME_BUT_VALID = {
     "amplitude": st.sampled_from(["0", "-150", "1e4", "1e300"]),
-    "frequency": st.sampled_from(["0", "1e-9", "400", "1e6"]),
+    "frequency": st.sampled_from(["1e-9", "400", "1e6"]),
     "f_max": st.sampled_from(["1e-9", "1e3"]),
     "plate_stiffness": st.sampled_from(["1e-6", "1e9"]),
     "control_rate": st.sampled_from(["150", "1e5"]),

@@ -60,6 +60,75 @@ def test_valid_values_come_from_the_scenario_s_narrower_bound_then_the_declarati
         setting("no_such")
 
 
+# Scenario parameters whose bound value is valid only with another parameter set to suit it (a cross-parameter
+# check, named in its own message): the control period must be a whole number of camera_loop's ticks, and
+# table friction's explicit integration is stable only below 2 v_s / (g dt) (docs/parameters.md).
+BOUND_COMPANIONS = {("camera_loop", "control_rate"): {"tick": 1e-4, "physics_dt": 1e-4},
+                    ("camera_loop", "table_friction"): {"physics_dt": 1e-4}}
+SINUSOID_CONTEXT = None
+
+
+def _accepts(scenario, name: str, value) -> tuple[bool, str]:
+    """Whether the checks a run makes before it runs accept parameter `name` = `value`: the scenario's own
+    (`Scenario.validate`) and, where the scenario hands its sinusoid parameters to the nominal, the nominal's
+    own check when it is built (the cause of issue 27: `--frequency 0` passed the first and failed the second)."""
+    from controllers.params import reference_robot
+    from controllers.registry import NOMINALS, build_nominal, parameters
+    from controllers.safe_set import paper_safe_set
+    from controllers.safety_filter import FilterContext
+    from scenarios.common import nominal_arguments
+
+    try:
+        kwargs = scenario.validate({**BOUND_COMPANIONS.get((scenario.name, name), {}), name: value})
+        sinusoid = {p.name: kwargs[p.name] for p in parameters(NOMINALS["sinusoid"]) if p.name in kwargs}
+        context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
+        build_nominal(kwargs["nominal"], nominal_arguments(kwargs["nominal"], kwargs["nominal_params"], **sinusoid), context)
+    except ValueError as exc:
+        return False, str(exc)
+    return True, ""
+
+
+def _printed_bound_values(scenario, name: str):
+    """(value, accepted as printed) at each end of the bound `softcbf list` prints for the parameter, and just beyond."""
+    bound = scenario.bounds.get(name) or setting(name).bound
+    if bound is None:
+        return
+    assert str(bound) in scenario.valid(name)
+    integer = setting(name).kind is int
+
+    def beyond(value, direction):
+        return value + direction if integer else float(np.nextafter(value, direction * np.inf))
+
+    ends = [(bound.low, bound.low_open, -1), (bound.high, bound.high_open, +1)]
+    plausible = setting(name).plausible if name not in scenario.bounds else None
+    if plausible is not None:
+        assert f"{plausible:g}" in scenario.valid(name)
+        ends += [(plausible, False, +1)] + ([(-plausible, False, -1)] if bound.low is None or bound.low < 0 else [])
+    for value, is_open, direction in ends:
+        if value is None or (integer and value != int(value)):
+            continue
+        value = int(value) if integer else float(value)
+        yield value, not is_open
+        yield beyond(value, direction), False
+
+
+@pytest.mark.parametrize("scenario_name", sorted(registry()))
+def test_every_printed_bound_value_is_accepted_or_refused_exactly_as_printed(scenario_name):
+    """Issue 27: `softcbf list` printed frequency ">= 0 Hz" and `--frequency 0` was refused. At each printed bound
+    (and plausibility bound) the value itself is accepted where the bound is closed and refused where it is open,
+    and the value just beyond it is refused, naming the parameter."""
+    scenario = registry()[scenario_name]
+    wrong, checked = [], 0
+    for name in scenario.parameters():
+        for value, expected in _printed_bound_values(scenario, name):
+            accepted, message = _accepts(scenario, name, value)
+            checked += 1
+            if accepted != expected or (not accepted and name not in message):
+                wrong.append(f"--{name.replace('_', '-')} {value!r}: printed '{scenario.valid(name)}', "
+                             f"{'accepted' if accepted else 'refused: ' + message}")
+    assert checked >= 20 and not wrong, "\n".join(wrong)
+
+
 def _unit_of_suffix(key: str) -> str | None:
     return next((unit for suffix, unit in SUFFIX_UNITS if key.endswith(suffix)), None)
 
@@ -156,6 +225,52 @@ def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path,
     other = tmp_path / "other"
     assert main(["run", "--config", str(first / "config.json"), "--seed", "4", "--out", str(other)]) == 0
     assert not np.array_equal(load_timeseries(other / "timeseries" / "Low.npz")[0]["q"], a["q"])
+
+
+TINY = ["--duration", "0.01", "--tunings", "None", "--progress", "false"]
+
+
+def _warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("warning: ")]
+
+
+def test_a_replay_on_other_versions_or_with_another_seed_warns_one_line_each(tmp_path, capsys):
+    """N9: a config.json replay ignored a mismatched seed or version and promised a bit-identical run."""
+    first = tmp_path / "first"
+    assert main(["run", "paper_sim", *TINY, "--seed", "3", "--out", str(first)]) == 0
+    config = first / "config.json"
+    capsys.readouterr()
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "same"), "--seed", "3"]) == 0
+    assert _warnings(capsys.readouterr().err) == []  # the same versions, the recorded seed: a faithful replay
+    recorded = json.loads(config.read_text(encoding="utf-8"))
+    running = recorded["versions"]
+    recorded["versions"] = {**running, "mujoco": "3.1.0", "numpy": "1.26.4"}
+    config.write_text(json.dumps(recorded), encoding="utf-8")
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "other"), "--seed", "4"]) == 0
+    assert _warnings(capsys.readouterr().err) == [
+        f"warning: {config} was recorded with mujoco 3.1.0, this is mujoco {running['mujoco']}: the replay may not be "
+        "bit-identical to the recorded run",
+        f"warning: {config} was recorded with numpy 1.26.4, this is numpy {running['numpy']}: the replay may not be "
+        "bit-identical to the recorded run",
+        f"warning: --seed 4 overrides the seed 3 recorded in {config}: the replay will not be bit-identical to the "
+        "recorded run"]
+    del recorded["versions"]
+    config.write_text(json.dumps(recorded), encoding="utf-8")
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "unknown")]) == 0
+    assert _warnings(capsys.readouterr().err) == [
+        f"warning: {config} records no versions: the replay may not be bit-identical to the recorded run"]
+    recorded["versions"] = "4.0.0"
+    config.write_text(json.dumps(recorded), encoding="utf-8")
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "bad")]) == USAGE_ERROR
+    assert '"versions" must be an object' in capsys.readouterr().err
+
+
+def test_a_toml_run_configuration_gives_no_replay_warning(tmp_path, capsys):
+    config = tmp_path / "run.toml"
+    config.write_text('scenario = "paper_sim"\nduration = 0.01\ntunings = "None"\nprogress = false\nseed = 1\n',
+                      encoding="utf-8")
+    assert main(["run", "--config", str(config), "--seed", "2", "--out", str(tmp_path / "run")]) == 0
+    assert _warnings(capsys.readouterr().err) == []
 
 
 def test_study_settings_set_dotted_keys_before_the_checks(tmp_path):

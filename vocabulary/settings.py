@@ -150,7 +150,7 @@ SETTINGS: dict[str, Setting] = {
                             "a table [nominal_params] in a file)", "the nominal's parameters (softcbf list)"),
     "amplitude": _number("sinusoid nominal: amplitude A of u_nom,j = A sin(2π f (t + t0))", "hPa",
                          finite("hPa"), PRESSURE_RANGE_HPA),
-    "frequency": _number("sinusoid nominal: frequency f", "Hz", non_negative("Hz")),
+    "frequency": _number("sinusoid nominal: frequency f", "Hz", positive("Hz")),
     "t0": _number("sinusoid nominal: time offset (> 0 starts later in the cycle)", "s", finite("s")),
     "pressure_limits": _switch("the filter's QP holds the robot's pressure box"),
     "qp_backend": _text("QP solver of the filter", "native, daqp, qpsolvers:daqp, qpsolvers:quadprog, "
