@@ -488,3 +488,26 @@ def test_property_environment_keeps_its_promises(how, at):
     env.close()
     fatal = how not in ("nan", "inf", "huge", "slow")
     assert (info["fault"] is not None) == fatal and (terminated if fatal else True), (how, info)
+
+
+def test_hardware_loop_error_keeps_the_cycles_before_it_and_vents(tmp_path, monkeypatch):
+    from hardware.config import HardwareConfig
+    from hardware.link import ValveBoardLink
+    from softcbf.hardware_cli import ERROR_LOG, run_hardware
+    from softcbf_mj.emulate import EmulatedHardware
+
+    original, calls = ValveBoardLink.send_setpoints, []
+
+    def failing(self, u):
+        calls.append(1)
+        if len(calls) == 10:
+            raise OSError("the serial port vanished")
+        return original(self, u)
+
+    monkeypatch.setattr(ValveBoardLink, "send_setpoints", failing)
+    config = HardwareConfig.load(REPO / "examples" / "hardware_emulated.toml").with_overrides({"duration": 3.0})
+    with EmulatedHardware(config) as emulation:
+        (tmp_path / "hw").mkdir()
+        row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)
+    assert row["error"] == "OSError: the serial port vanished" and row["cycles"] == 9
+    assert "Traceback" in (tmp_path / "hw" / ERROR_LOG).read_text() and row["final_vent_acked"]
