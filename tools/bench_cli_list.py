@@ -1,12 +1,12 @@
 """CPU time of `softcbf list`: user + system seconds of a fresh process, the interpreter's start included.
 
-Each of `--repeats` runs starts `python -m softcbf.cli list` (the interpreter of this
-process, so the same virtual environment) with its output discarded, and reads the
+Each of `--repeats` runs starts `python -m softcbf.cli list` with the interpreter of this
+process (so the same virtual environment) with its output discarded, and reads the
 child's user and system CPU time from `resource.getrusage(RUSAGE_CHILDREN)` (the
 difference before and after the child). The budget (issue 27) is 0.5 s of CPU; the
 median over the runs is what is compared with it. Also reported: the bare interpreter's
 start (`python -c pass`), the floor no lazy import can go below. Usage:
-`python tools/bench_cli_list.py [--repeats 5]`; prints a table and ends with one line of JSON.
+`.venv/bin/python tools/bench_cli_list.py [--repeats 5]`; prints a table and ends with one line of JSON.
 """
 
 from __future__ import annotations
