@@ -11,7 +11,7 @@ violations (violation_penalty = 0: the constraint is the cost's, as in safe RL):
 | `force_regulation` | softcbf_mj/ForceRegulation-v0    | −|F − F_target| (N): F the largest plate force, F_target = FORCE_TARGET_FRACTION · F_max = 0.128 N |
 | `tip_reaching`     | softcbf_mj/TipReaching-v0        | −‖tip − TIP_TARGET_M‖ (m): the true tip; the target lies in free space |
 
-F_target = 0.8 F_max asks for contact within the force budget (SPEC §14): the unfiltered
+F_target = 0.8 F_max asks for contact within the force budget (pressing up to F_max is allowed): the unfiltered
 +150 hPa push goes past F_max, so a policy that learns to push hard earns cost. Each
 preset takes keyword changes of any `ArmEnvConfig` field (`force_regulation(filter="e-erg",
 episode_steps=20)`); `PRESETS` maps the registered ids to them and `EPISODE_STEPS` is
