@@ -30,3 +30,27 @@ def test_shield_cem_refuses_bad_settings():
     result = subprocess.run([sys.executable, "examples/shield_cem.py", "--population", "1"], cwd=ROOT,
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and "--population must be >= 2, got 1" in result.stderr
+
+
+def _readme_headings() -> set[str]:
+    import re
+
+    return {h.strip() for h in re.findall(r"^#+ (.+)$", (ROOT / "README.md").read_text(encoding="utf-8"), re.M)}
+
+
+def test_examples_cite_readme_sections_and_docs_that_exist():
+    """A citation `README, "Section"` names a heading of the README; `docs/PAGE.md, "Section"` one of that page (the
+    hardware example cited a README section, "Hardware mode", that no longer existed)."""
+    import re
+
+    cited = 0
+    for path in sorted((ROOT / "examples").iterdir()):
+        text = path.read_text(encoding="utf-8")
+        for source, section in re.findall(r"(README|docs/[\w.-]+\.md), \"([^\"]+)\"", text):
+            cited += 1
+            if source == "README":
+                assert section in _readme_headings(), (path.name, section)
+            else:
+                page = (ROOT / source).read_text(encoding="utf-8")
+                assert re.search(rf"^#+ {re.escape(section)}$", page, re.M), (path.name, source, section)
+    assert cited >= 1
