@@ -39,8 +39,8 @@ def _readme_headings() -> set[str]:
 
 
 def test_examples_cite_readme_sections_and_docs_that_exist():
-    """A citation `README, "Section"` names a heading of the README, and one of a docs page the same for that page (the
-    hardware example cited a README section, "Hardware mode", that no longer existed)."""
+    """A citation `README, "Section"` names a heading of the README; a docs page cited with a section names one of that
+    page's headings (the hardware example cited a README section, "Hardware mode", that no longer existed)."""
     import re
 
     cited = 0
