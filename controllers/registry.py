@@ -36,16 +36,44 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from controllers.energy_governor import EnergyGovernor
-from controllers.filter import paper_cbf
-from controllers.nominal import NominalController, sinusoid, step, tip_tracker
-from controllers.quasi_static_governor import QuasiStaticGovernor
-from controllers.safety_filter import FilterContext, PassThroughFilter, SafetyFilter
+from controllers.safety_filter import FilterContext, SafetyFilter
 
-FILTERS: dict[str, Callable[..., SafetyFilter]] = {
-    "paper-cbf": paper_cbf, "none": PassThroughFilter, "qsg": QuasiStaticGovernor, "e-erg": EnergyGovernor,
-}
-NOMINALS: dict[str, Callable[..., NominalController]] = {"sinusoid": sinusoid, "tip-tracker": tip_tracker, "step": step}
+if typing.TYPE_CHECKING:
+    from controllers.nominal import NominalController
+
+
+class Factories(Mapping[str, Callable]):
+    """The built-in factories by name, each imported from its "module:attribute" home at its first lookup.
+
+    A read-only mapping (`in`, iteration and `len` import nothing), so that importing the
+    registry, and commands that use one built-in, do not import every filter's module."""
+
+    def __init__(self, homes: Mapping[str, str]) -> None:
+        self._homes, self._loaded = dict(homes), {}
+
+    def __getitem__(self, name: str) -> Callable:
+        if name not in self._loaded:
+            module, _, attribute = self._homes[name].partition(":")
+            self._loaded[name] = getattr(importlib.import_module(module), attribute)
+        return self._loaded[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._homes
+
+    def __iter__(self) -> typing.Iterator[str]:
+        return iter(self._homes)
+
+    def __len__(self) -> int:
+        return len(self._homes)
+
+
+FILTERS: Mapping[str, Callable[..., SafetyFilter]] = Factories({
+    "paper-cbf": "controllers.filter:paper_cbf", "none": "controllers.safety_filter:PassThroughFilter",
+    "qsg": "controllers.quasi_static_governor:QuasiStaticGovernor", "e-erg": "controllers.energy_governor:EnergyGovernor",
+})
+NOMINALS: Mapping[str, Callable[..., NominalController]] = Factories({
+    "sinusoid": "controllers.nominal:sinusoid", "tip-tracker": "controllers.nominal:tip_tracker", "step": "controllers.nominal:step",
+})
 CONTEXT = "context"
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 

@@ -7,9 +7,9 @@ sequences (the policy's generator is seeded per episode). Reported per filter, o
 episodes, from the state at the end of every control period: the periods with
 ρ_meas < 0 (plate force above F_max = 0.16 N), the largest plate force and the least ρ_meas.
 
-    python examples/random_policy_env.py                       # none, paper-cbf Low (and e-erg where the
+    .venv/bin/python examples/random_policy_env.py             # none, paper-cbf Low (and e-erg where the
                                                                # registry has it), 5 episodes of 10 s
-    python examples/random_policy_env.py --filter examples/clip_filter.py:ClipFilter \\
+    .venv/bin/python examples/random_policy_env.py --filter examples/clip_filter.py:ClipFilter \\
         --filter-params "limit_hPa=100"                        # any filter spec of controllers.registry
 """
 

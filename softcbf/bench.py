@@ -448,7 +448,7 @@ def stored_results(out: Path, bench: Mapping[str, Any]) -> dict[tuple[str, str],
 
 
 _FRACTION = Bound(0.0, 1.0)
-ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields (SPEC §11), each checked by key and value
+ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields (docs/beyond-the-paper.md#filter-benchmark), each checked by key and value
     "filter": lambda key, v: _check_text(key, v),
     "case": lambda key, v: _check_text(key, v, [c.name for c in CASES]),
     "rho_min_meas": lambda key, v: _check_finite(key, v),
@@ -551,12 +551,13 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-PLOTTED = (("rho_min_meas", "ρ_meas min"), ("force_max_N", "F max [N]"), ("u_dev_rms_hPa", "|u − u_nom| RMS [hPa]"),
+PLOTTED = (("rho_min_meas", "ρ_meas min [1]"), ("force_max_N", "F max [N]"), ("u_dev_rms_hPa", "|u − u_nom| RMS [hPa]"),
            ("filter_us_p99", "filter p99 [µs]"))
 
 
 def write_plot(path: Path, bench: Mapping[str, Any]) -> None:
-    """One bar panel per figure of `PLOTTED`: cases along x, one bar per filter."""
+    """One bar panel per figure of `PLOTTED` (each label with its unit; ρ is dimensionless, [1]): cases along x, one
+    bar per filter; the legend outside the panels, right of the top one, so no bar hides behind it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -564,7 +565,7 @@ def write_plot(path: Path, bench: Mapping[str, Any]) -> None:
 
     cases = [c for c in bench["battery"] if any(r["case"] == c for r in bench["results"])]
     filters = bench["filters"]
-    fig, axes = plt.subplots(len(PLOTTED), 1, figsize=(9, 2.4 * len(PLOTTED)), sharex=True)
+    fig, axes = plt.subplots(len(PLOTTED), 1, figsize=(11, 2.4 * len(PLOTTED)), sharex=True, layout="constrained")
     width = 0.8 / max(1, len(filters))
     for ax, (key, title) in zip(axes, PLOTTED):
         for j, name in enumerate(filters):
@@ -576,9 +577,8 @@ def write_plot(path: Path, bench: Mapping[str, Any]) -> None:
         if key == "filter_us_p99":
             ax.set_yscale("log")
         ax.set_ylabel(title)
-    axes[0].legend(fontsize=8)
+    axes[0].legend(fontsize=8, title="filter", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     axes[-1].set_xticks([i + 0.4 - width / 2 for i in range(len(cases))], cases, rotation=20, fontsize=8)
-    fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)

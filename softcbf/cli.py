@@ -52,28 +52,34 @@ A subcommand is one `register_command(name, help, add_arguments, handler)` call:
 `add_arguments(parser)` declares its options, `handler(args, extra) -> exit code` runs
 it (`extra`: tokens the parser did not know, passed only with `extra_args=True`); a
 handler raises `UsageError` for bad input. `add_arguments` may be None (no options).
+`help` may be a function returning the text, and `lazy(module, name)` stands for the
+function `name` of `module`, imported when first called: `hardware`, `bench` and `study`
+are registered so, and `main` builds only the subcommand it runs (the others get their
+name, and their help only for `softcbf --help`), so `softcbf list` imports neither OpenCV
+nor the hardware mode nor the governors' benchmark (tools/bench_cli_list.py measures its CPU time).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import softcbf_mj
 from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
 from scenarios.config_file import load_run_config, replay_warnings
 from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
-from softcbf import bench, hardware_cli
 from softcbf_mj.runio import RunFolderError, versions
-from softcbf.study import cli as study_cli
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
-# matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay.
+# matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay;
+# softcbf.hardware_cli (OpenCV, the hardware mode), softcbf.bench and softcbf.study.cli through `lazy`.
 
 
 @dataclass(frozen=True)
@@ -81,17 +87,30 @@ class Command:
     """A `softcbf` subcommand (see the module docstring for the fields)."""
 
     name: str
-    help: str
+    help: str | Callable[[], str]
     add_arguments: Callable[[argparse.ArgumentParser], None] | None
     handler: Callable[[argparse.Namespace, list[str]], int]
     extra_args: bool = False
     add_help: bool = True  # False: the command declares its own -h/--help
 
+    def help_text(self) -> str:
+        return self.help if isinstance(self.help, str) else self.help()
+
 
 COMMANDS: dict[str, Command] = {}
 
 
-def register_command(name: str, help: str, add_arguments: Callable[[argparse.ArgumentParser], None] | None,
+def lazy(module: str, name: str) -> Callable[..., Any]:
+    """The function `name` of `module`, imported at its first call (module docstring)."""
+
+    def call(*args: Any) -> Any:
+        return getattr(importlib.import_module(module), name)(*args)
+
+    call.__qualname__ = f"lazy({module}.{name})"
+    return call
+
+
+def register_command(name: str, help: str | Callable[[], str], add_arguments: Callable[[argparse.ArgumentParser], None] | None,
                      handler: Callable[[argparse.Namespace, list[str]], int], extra_args: bool = False,
                      add_help: bool = True) -> Command:
     """Add subcommand `name` to `softcbf` (see the module docstring)."""
@@ -210,9 +229,11 @@ register_command("run", "run a scenario: softcbf run SCENARIO [--PARAM VALUE ...
 register_command("report", "rebuild a run or study folder's plots and report.md (and a run's recording.rrd) from its saved data",
                  _report_args, _report)
 register_command("study", "robustness studies of model mismatch: softcbf study run STUDY_FILE --out DIR | report DIR",
-                 study_cli.add_arguments, study_cli.run_command)
-register_command("hardware", hardware_cli.HELP, hardware_cli.add_arguments, hardware_cli.run_command)
-register_command("bench", bench.HELP, bench.add_arguments, bench.run_command)
+                 lazy("softcbf.study.cli", "add_arguments"), lazy("softcbf.study.cli", "run_command"))
+register_command("hardware", lambda: importlib.import_module("softcbf.hardware_cli").HELP,
+                 lazy("softcbf.hardware_cli", "add_arguments"), lazy("softcbf.hardware_cli", "run_command"))
+register_command("bench", lambda: importlib.import_module("softcbf.bench").HELP,
+                 lazy("softcbf.bench", "add_arguments"), lazy("softcbf.bench", "run_command"))
 
 
 def version_line() -> str:
@@ -221,12 +242,29 @@ def version_line() -> str:
             f"numpy {v['numpy']}, Python {v['python']})")
 
 
-def build_parser() -> argparse.ArgumentParser:
+class VersionAction(argparse.Action):
+    """`--version`: print `version_line()` (read only when asked: it reads every package's metadata) and exit."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help="show the versions and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(version_line())
+        parser.exit()
+
+
+def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
+    """The `softcbf` parser; with `selected` (a command name) only that subcommand gets its options and help."""
     parser = argparse.ArgumentParser(prog="softcbf", description="softcbf-mj: scenarios, reports and recordings.")
-    parser.add_argument("--version", action="version", version=version_line())
+    parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=UsageParser)
     for command in COMMANDS.values():
-        subparser = sub.add_parser(command.name, help=command.help, description=command.help, allow_abbrev=False,
+        if selected is not None and command.name != selected:
+            sub.add_parser(command.name, allow_abbrev=False, add_help=command.add_help)  # a name only: never parsed
+            continue
+        text = command.help_text()
+        subparser = sub.add_parser(command.name, help=text, description=text, allow_abbrev=False,
                                    add_help=command.add_help)
         if command.add_arguments is not None:
             command.add_arguments(subparser)
@@ -236,7 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `softcbf`; returns the exit code (0, 2 usage error, 130 interrupted)."""
-    parser = build_parser()
+    tokens = sys.argv[1:] if argv is None else list(argv)
+    first = next((token for token in tokens if not token.startswith("-")), None)  # the command (the top level has no values)
+    parser = build_parser(first if first in COMMANDS else None)
 
     def run() -> int:
         args, extra = parser.parse_known_args(argv)

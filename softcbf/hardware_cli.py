@@ -10,7 +10,9 @@ and every setting it shares with the simulations by the option `softcbf run` has
 (`hardware.config.SHARED_KEYS`: `--f-max`, `--control-rate`, `--filter`, `--duration`,
 `--frame-rate`, `--tau-p`, ...; `--filter-param` and `--nominal-param` add to the file's
 tables, a `--filter` other than the file's starts from an empty table); a file named on
-the command line (`--robot`, `--calibration`, `--camera`) is relative to the working directory.
+the command line (`--robot`, `--calibration`, `--camera`, and the FILE.py of `--filter` and
+`--nominal` FILE.py:Factory) is relative to the working directory, one named in the file
+relative to the file's folder.
 The filter and the nominal controller are built once at start-up to check them (an
 unknown name or parameter is a usage error). `--port emulated --camera virtual` runs the whole hardware path against
 `softcbf_mj.emulate.EmulatedHardware` (MuJoCo arm and plate behind a pty valve board,
@@ -101,6 +103,7 @@ ERROR_LOG = "error.log"  # the run folder's traceback of an error of the control
 
 
 PATH_SETTINGS = ("robot", "calibration")  # a file named on the command line is relative to the working directory
+PLUGIN_SETTINGS = ("filter", "nominal")  # likewise the FILE.py of a FILE.py:Factory spec
 TABLE_SETTINGS = {"filter_params": "--filter-param", "nominal_params": "--nominal-param"}  # tables, added to by NAME=VALUE
 
 
@@ -130,6 +133,12 @@ def _from_working_directory(spec: str) -> str:
     return str(path.absolute()) if path.is_file() else spec
 
 
+def _plugin_from_working_directory(spec: str) -> str:
+    """A FILE.py:Factory spec named on the command line with FILE.py made absolute (names and modules unchanged)."""
+    where, sep, name = spec.rpartition(":")
+    return f"{Path(where).absolute()}:{name}" if sep and where.endswith(".py") else spec
+
+
 def configure(args: argparse.Namespace) -> HardwareConfig:
     """The configuration file with the command line's overrides applied (in the file's shape)."""
     changes: dict[str, Any] = {"link": {}, "camera": {}, "control": {}, "run": {}}
@@ -147,7 +156,11 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
     for name in SHARED_KEYS:
         value = getattr(args, name, None)
         if value is not None:
-            changes[name] = _from_working_directory(value) if name in PATH_SETTINGS else value
+            if name in PATH_SETTINGS:
+                value = _from_working_directory(value)
+            elif name in PLUGIN_SETTINGS:
+                value = _plugin_from_working_directory(value)
+            changes[name] = value
     config = HardwareConfig.load(args.config)
     for name in ("filter", "nominal"):
         if getattr(args, name) is not None:

@@ -19,7 +19,10 @@ folder alone (summary.json with its "scene", config.json, the time series).
 | report.md             |                          | the summary table, the plots, parameters, scene, versions   |
 
 `figure_format` is one of FIGURE_FORMATS (png, svg, pdf); `dpi` sets the raster
-resolution (png pixels = inches × dpi; in svg/pdf it only scales embedded rasters).
+resolution (png pixels = inches × dpi; in svg/pdf it only scales embedded rasters). The
+figures it rebuilds replace their copies in the other formats: after report.md is written,
+plots/<name>.<other format> of each rebuilt name is removed (other files in plots/ are
+left alone), so the folder never shows a stale overview.png beside a fresh overview.svg.
 
 Signals (units as in the time series: s, m, N, hPa): ρ_meas, ρ_pred, the tip r and u, u_nom
 (N,) are read directly. Measured force F = max_i contact_force_i (the most loaded facet);
@@ -448,4 +451,8 @@ def write_report(run_dir: str | Path, figure_format: str = "png", dpi: float = D
     text = _markdown(folder, scene, plots)
     with atomic_path(report) as tmp:
         tmp.write_text(text, encoding="utf-8")
+    for name in plots:  # the rebuilt figures replace their copies in the other formats
+        for other in FIGURE_FORMATS:
+            if other != figure_format:
+                (plots_dir / f"{name}.{other}").unlink(missing_ok=True)
     return {**plots, "report": report}

@@ -16,15 +16,18 @@ of the scenarios (`closedloop.step.ControlStep`: the filter `filter` with `filte
 built once per environment by `controllers.registry.build_filter`, told
 `FilterContext.for_robot(robot, safe_set, control_dt, pressure_limits, command_delay=0,
 actuator_tau=tau_p)`, and reset before every episode; admission; a fresh `SafetyMonitor`
-holding `hold_s` per episode). The filter sees the exact state (`exact_state`).
-Actions, observations, reward and seeds: `softcbf_mj.env.task`; stepping:
-`softcbf_mj.env.physics`.
+holding `hold_s` per episode). The filter sees the exact state (`exact_state`), or with
+`state_noise_std` = (σ_q rad, σ_q̇ rad/s) ≠ 0 the noisy state (`physics.NoisyState`); the
+observation's estimate keys are that same estimate.
+Actions, observations (`observation`: "estimate" or "privileged"), reward, cost and seeds:
+`softcbf_mj.env.task`; stepping: `softcbf_mj.env.physics`; the task presets:
+`softcbf_mj.env.presets`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -34,12 +37,13 @@ from closedloop.monitor import DEFAULT_HOLD_S
 from controllers.params import RobotParams, reference_robot
 from controllers.registry import build_filter
 from controllers.safe_set import ForceSafeSet, paper_safe_set
-from controllers.safety_filter import FilterContext, SafetyFilter
-from softcbf_mj.env.physics import ArmPhysics
-from softcbf_mj.env.task import ArmTask, RewardConfig
+from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
+from softcbf_mj.env.physics import ArmPhysics, NoisyState
+from softcbf_mj.env.task import COSTS, OBSERVATIONS, ArmTask, RewardConfig
+from softcbf_mj.loop import exact_state
 from softcbf_mj.model_builder import CAMERA_RESOLUTION, DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
 from softcbf_mj.mujoco_plant import MujocoPlant
-from softcbf_mj.plant import steps_per_control
+from softcbf_mj.plant import PlantState, steps_per_control
 
 DEFAULT_CONTROL_DT = 1e-3  # s, the paper's 1 kHz (as scenarios/mujoco_contact.py)
 MIN_IMAGE_PX = 8  # the tag detector's smallest image side
@@ -65,7 +69,10 @@ class ArmEnvConfig:
     | pressure_limits  | True                 | —    | the control step clips to [u_min, u_max]                  |
     | hold_s           | 0.5                  | s    | the safety monitor's hold before it vents                 |
     | q0_std           | 0.0                  | rad  | initial bending angles ~ N(0, q0_std²)                    |
+    | state_noise_std  | (0.0, 0.0)           | rad, rad/s | noise of the estimate's q and q̇ (0: exact state)   |
+    | observation      | "estimate"           | —    | "estimate" (what the controller sees) or "privileged"     |
     | reward           | RewardConfig()       | —    | reward and termination (softcbf_mj.env.task)              |
+    | cost             | "violation"          | —    | the cost's definition: "violation" or "force_excess"      |
     | camera           | False                | —    | observation "image"                                       |
     | tag_detections   | False                | —    | observations "tag_corners", "tag_seen"                    |
     | image_size       | (320, 180)           | px   | (W, H) of the camera's frames, <= 1280 × 720              |
@@ -85,7 +92,10 @@ class ArmEnvConfig:
     pressure_limits: bool = True
     hold_s: float = DEFAULT_HOLD_S
     q0_std: float = 0.0
+    state_noise_std: tuple[float, float] = (0.0, 0.0)
+    observation: str = "estimate"
     reward: RewardConfig = field(default_factory=RewardConfig)
+    cost: str = "violation"
     camera: bool = False
     tag_detections: bool = False
     image_size: tuple[int, int] = (320, 180)
@@ -107,6 +117,14 @@ class ArmEnvConfig:
                              f"[{MIN_IMAGE_PX}, {CAMERA_RESOLUTION[1]}] px, got {self.image_size!r}")
         object.__setattr__(self, "image_size", size)
         object.__setattr__(self, "filter_params", dict(self.filter_params))
+        noise = tuple(float(v) for v in self.state_noise_std)
+        if len(noise) != 2 or not all(math.isfinite(v) and v >= 0 for v in noise):
+            raise ValueError(f"state_noise_std must be (q_std rad, qd_std rad/s), finite and >= 0, got {self.state_noise_std!r}")
+        object.__setattr__(self, "state_noise_std", noise)
+        if self.observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {', '.join(OBSERVATIONS)}, got {self.observation!r}")
+        if self.cost not in COSTS:
+            raise ValueError(f"cost must be one of {', '.join(COSTS)}, got {self.cost!r}")
 
     @property
     def env_dt(self) -> float:
@@ -124,6 +142,10 @@ class ArmEnvConfig:
         return MujocoPlant.from_config(control_dt=self.control_dt, robot=self.robot, H=env.H, h=env.h,
                                        plate_stiffness=self.plate_stiffness, links_per_segment=self.links_per_segment,
                                        tau_p=self.tau_p, physics_dt=self.physics_dt)
+
+    def estimator(self) -> Callable[[PlantState], Estimate]:
+        """The controller's estimator: the exact state, or the noisy state of state_noise_std."""
+        return NoisyState(*self.state_noise_std) if any(self.state_noise_std) else exact_state
 
     def safety_filter(self, context: FilterContext) -> SafetyFilter:
         """The filter `filter` with `filter_params`, told `context` (the registry's convention)."""
@@ -144,7 +166,8 @@ def make_environment(config: ArmEnvConfig | None = None, seed: int | None = None
     config = replace(config or ArmEnvConfig(), **changes)
     plant = config.plant()
     context = config.context()
-    physics = ArmPhysics(plant, config.safety_filter(context), context, config.hold_s, image_size=config.image_size)
+    physics = ArmPhysics(plant, config.safety_filter(context), context, config.hold_s, config.estimator(),
+                         image_size=config.image_size)
     task = ArmTask(plant.u_min, plant.u_max, plant.n_facets, config.episode_steps, config.reward, config.q0_std,
-                   config.camera, config.tag_detections, config.image_size, seed)
+                   config.camera, config.tag_detections, config.image_size, seed, config.observation, config.cost)
     return ArmEnvironment(physics, task, n_sub_steps=config.action_repeat)

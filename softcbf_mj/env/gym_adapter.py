@@ -1,29 +1,46 @@
 """A Gymnasium adapter of the arm's dm_control environment (`softcbf_mj.env.environment`).
 
-`GymArmEnv(config=None, render_mode=None, **changes)` wraps `make_environment(config,
-**changes)`:
+`GymArmEnv(config=None, render_mode=None, normalise=False, **changes)` wraps
+`make_environment(config, **changes)`:
 
 - spaces: the action `Box(u_min, u_max, (N,), float64)` hPa; the observation a `Dict` of
   `Box`es with the dm_env specs' shapes, dtypes and bounds (unbounded where the spec is),
-  keys and units as `softcbf_mj.env.task.OBSERVATION_UNITS`;
-- `reset(seed=…)`: a seed re-seeds the task's initial states (q0 ~ N(0, q0_std²)) and
-  `np_random`; `reset()` without one continues the generator;
-- `step(u_nom)` → (observation, reward, terminated, truncated, info): dm_env's LAST with
+  keys and units as `softcbf_mj.env.task.OBSERVATION_UNITS` (the mode, "estimate" or
+  "privileged", is the config's `observation`);
+- `normalise=True`: the action is a ∈ [−1, 1]^N, u_nom = u_min + (a + 1)/2 · (u_max − u_min)
+  (a non-finite a stays non-finite: the control step refuses it); every float observation
+  is divided by its scale (`task.ArmTask.scales`) and clipped to [−1, 1], its
+  Box [−1, 1] (image and tag_seen keep their uint8 boxes); info["clipped"] names the keys
+  that were clipped at this step (empty when none), so saturation is never silent. With it,
+  Gymnasium's `check_env` passes without a warning;
+- `reset(seed=…)`: a seed re-seeds the task's initial states (q0 ~ N(0, q0_std²), and the
+  estimate's noise) and `np_random`; `reset()` without one continues the generator;
+- `step(action)` → (observation, reward, terminated, truncated, info): dm_env's LAST with
   discount 0 is `terminated`, LAST with discount 1 (`episode_steps` reached) `truncated`;
-  info holds the env step's `StepStats` (periods, violation_periods, rho_meas_min,
-  force_max_N, vented), the time t (s), the safety monitor's last action and the filter's
-  last action label ("" when it was not called) and `fault` (the filter fault that ended the
-  episode, `closedloop.step.FilterFault.to_json`, or None). A step after the episode's end raises:
-  call reset();
+  info holds "cost" (the env step's cost, `softcbf_mj.env.task`: Safety-Gymnasium's
+  convention, read by its `SafetyGymnasium2Gymnasium`-style consumers and TorchRL as
+  info["cost"]), the env step's `StepStats` (periods, violation_periods, rho_meas_min,
+  force_max_N, force_excess, vented), the time t (s), the safety monitor's last action,
+  the filter's last action label ("" when it was not called) and `fault` (the filter fault
+  that ended the episode, `closedloop.step.FilterFault.to_json`, or None). A step after the
+  episode's end raises: call reset();
 - `render()` (render_mode "rgb_array"): the overhead camera's frame (H, W, 3) uint8 RGB
   at the config's image_size.
 
-Gymnasium's registry knows it as `ENV_ID` ("softcbf_mj/SoftArm-v0"), keywords as `GymArmEnv`'s.
+`SafetyGymnasiumStep(env)` is the other convention: its `step` returns Safety-Gymnasium's
+6-tuple (observation, reward, cost, terminated, truncated, info), cost = info["cost"].
+
+Gymnasium's registry knows `ENV_ID` ("softcbf_mj/SoftArm-v0": the bare task, reward only
+from a `RewardConfig` target, max_episode_steps = ArmEnvConfig's episode_steps, 1000) and
+the presets of `softcbf_mj.env.presets` ("softcbf_mj/ForceRegulation-v0",
+"softcbf_mj/TipReaching-v0", max_episode_steps = presets.EPISODE_STEPS); keywords as
+`GymArmEnv`'s.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any
 
 import dm_env
@@ -34,6 +51,7 @@ from gymnasium import spaces
 
 from softcbf_mj.env.environment import ArmEnvConfig, make_environment
 from softcbf_mj.env.physics import ArmPhysics
+from softcbf_mj.env.presets import EPISODE_STEPS, PRESETS
 from softcbf_mj.env.task import ArmTask
 
 ENV_ID = "softcbf_mj/SoftArm-v0"
@@ -56,15 +74,28 @@ class GymArmEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, config: ArmEnvConfig | None = None, render_mode: str | None = None, **changes: Any) -> None:
+    def __init__(self, config: ArmEnvConfig | None = None, render_mode: str | None = None, normalise: bool = False,
+                 **changes: Any) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if not isinstance(normalise, bool):
+            raise ValueError(f"normalise must be True or False, got {normalise!r}")
         self.config = dataclasses.replace(config or ArmEnvConfig(), **changes)
         self.environment = make_environment(self.config)
-        self.render_mode = render_mode
+        self.render_mode, self.normalise = render_mode, normalise
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.env_dt}
-        self.action_space = box(self.environment.action_spec())
-        self.observation_space = spaces.Dict({key: box(spec) for key, spec in self.environment.observation_spec().items()})
+        action = self.environment.action_spec()
+        self.u_low, self.u_high = np.array(action.minimum, dtype=float), np.array(action.maximum, dtype=float)
+        observation = self.environment.observation_spec()
+        self.scales = self.task.scales(self.config.robot.array("lengths"), self.config.safe_set.f_max) if normalise else {}
+        if normalise:
+            self.action_space = spaces.Box(-1.0, 1.0, action.shape, np.float64)
+            self.observation_space = spaces.Dict({key: spaces.Box(-1.0, 1.0, spec.shape, np.float64) if key in self.scales
+                                                  else box(spec) for key, spec in observation.items()})
+        else:
+            self.action_space = box(action)
+            self.observation_space = spaces.Dict({key: box(spec) for key, spec in observation.items()})
+        self._clipped: tuple[str, ...] = ()
         self._done = True
 
     @property
@@ -81,16 +112,32 @@ class GymArmEnv(gymnasium.Env):
             self.task.seed(seed)
         time_step = self.environment.reset()
         self._done = False
-        return dict(time_step.observation), self._info()
+        return self._observe(time_step.observation), self._info()
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         if self._done:
             raise RuntimeError("the episode has ended (or never started): call reset() before step()")
-        time_step = self.environment.step(np.asarray(action, dtype=float))
+        time_step = self.environment.step(self.u_nom(action))
         terminated = time_step.step_type is dm_env.StepType.LAST and time_step.discount == 0.0
         truncated = time_step.step_type is dm_env.StepType.LAST and not terminated
         self._done = terminated or truncated
-        return dict(time_step.observation), float(time_step.reward), terminated, truncated, self._info()
+        return self._observe(time_step.observation), float(time_step.reward), terminated, truncated, self._info()
+
+    def u_nom(self, action: np.ndarray) -> np.ndarray:
+        """The nominal command (N,) hPa of `action` (the action itself unless normalised; module docstring)."""
+        a = np.asarray(action, dtype=float)
+        return self.u_low + 0.5 * (a + 1.0) * (self.u_high - self.u_low) if self.normalise else a
+
+    def _observe(self, observation: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The dm_env observation, normalised and clipped when asked (module docstring); sets the clipped keys."""
+        out, clipped = dict(observation), []
+        for key, scale in self.scales.items():
+            value = out[key] / scale
+            if np.any(np.abs(value) > 1.0):
+                clipped.append(key)
+            out[key] = np.clip(value, -1.0, 1.0)
+        self._clipped = tuple(clipped)
+        return out
 
     def render(self) -> np.ndarray | None:
         """The overhead camera's frame (H, W, 3) uint8 RGB (render_mode "rgb_array"); None without a render mode."""
@@ -105,7 +152,9 @@ class GymArmEnv(gymnasium.Env):
         physics = self.physics
         record = physics.last_record
         return {
+            "cost": self.task.cost(physics),
             **dataclasses.asdict(physics.stats),
+            "clipped": self._clipped,
             "t": physics.time(),
             "monitor_action": record.action.value if record is not None else "",
             "filter_action": record.output.action if record is not None and record.output is not None else "",
@@ -113,4 +162,14 @@ class GymArmEnv(gymnasium.Env):
         }
 
 
-gymnasium.register(ENV_ID, entry_point=GymArmEnv)
+class SafetyGymnasiumStep(gymnasium.Wrapper):
+    """Safety-Gymnasium's step convention: (observation, reward, cost, terminated, truncated, info), cost = info["cost"]."""
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, float, bool, bool, dict[str, Any]]:
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        return observation, reward, float(info["cost"]), terminated, truncated, info
+
+
+gymnasium.register(ENV_ID, entry_point=GymArmEnv, max_episode_steps=ArmEnvConfig().episode_steps)
+for preset_id, preset in PRESETS.items():
+    gymnasium.register(preset_id, entry_point=GymArmEnv, kwargs={"config": preset()}, max_episode_steps=EPISODE_STEPS)

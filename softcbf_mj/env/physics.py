@@ -9,6 +9,12 @@ exactly as `softcbf_mj.loop.run_closed_loop` runs one:
     record    = control_step(estimate)                 nominal → filter → admission → monitor
     state_k+1 = plant.step(record.u)                   u (N,) hPa held for Δ (zero-order hold)
 
+The estimate of a state is made once, when the state is reached (`estimate()` returns it),
+so the observation shows exactly what the filter is handed next. `NoisyState(q_std,
+qd_std)` is the noisy-state estimator: the true q (rad) and q̇ (rad/s) plus independent
+Gaussian noise N(0, q_std²), N(0, qd_std²) per segment, drawn from its generator
+(`reseed(seed)`; the task reseeds it every episode); q_std = qd_std = 0 is `exact_state`.
+
 The nominal controller of the control step is the policy's action: `set_control(u_nom)`
 (N,) hPa sets the command that `HeldCommand` returns at every period until the next call,
 so the filter still runs once per control period when the environment repeats an action
@@ -18,19 +24,27 @@ not refused here: the control step refuses it (HOLD, then VENT), as in every loo
 Per `step(n)` the physics keeps `StepStats` over its n periods, from the state at each
 period's end: the number of periods with ρ_meas < 0 (ρ_meas = min over facets of the
 safe set's `margin_from_force` of the plate's spring force, 1), the least ρ_meas, the
-largest plate force (N) and whether the safety monitor vented. The filter is built once
+largest plate force (N), the mean force excess (1: the mean over the periods of
+max_i max(0, F_i − F_max)/F_max, F_max the safe set's) and whether the safety monitor vented.
+`rho_pred()` is the model's margin (1) of the current estimate: min over facets of the safe
+set's `margin` at the PCC tip r(q̂) (`tip_pred()`, m) — what a controller can compute. The filter is built once
 (`controllers.registry.build_filter`, by the environment); every `reset()` makes a new
 `ControlStep` around it with a fresh `SafetyMonitor` (`hold_s`) and calls the filter's
 `reset()` (the plug-in contract: called before each run).
 
 The optional camera renders the model's `overhead` camera (`softcbf_mj.render`) at
 `image_size` (W, H) px; `tag_detections` runs `perception.detect.TagDetector` on that
-image for the arm's tags 0..N.
+image for the arm's tags 0..N. The renderer's GL context is freed by `close()`, or at the
+latest when the physics is collected or the interpreter exits (`weakref.finalize`: freed
+later, during interpreter shutdown, MuJoCo's OSMesa context raised an obscure ctypes error).
+No usable OpenGL backend (MUJOCO_GL unset without OSMesa, or set to glfw without a display)
+is a `softcbf_mj.render.RenderBackendError` naming MUJOCO_GL=osmesa and MUJOCO_GL=egl.
 """
 
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 from typing import Callable
 
@@ -39,6 +53,7 @@ from dm_control.rl import control
 
 from closedloop.monitor import DEFAULT_HOLD_S, SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, StepRecord
+from controllers.pcc import tip_position
 from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from perception.detect import Detection, TagDetector
 from perception.tags import arm_tag_ids
@@ -58,19 +73,40 @@ class HeldCommand:
         return self.u_nom
 
 
+class NoisyState:
+    """The noisy-state estimator (module docstring): q + N(0, q_std²) rad, q̇ + N(0, qd_std²) rad/s, t_capture = t."""
+
+    def __init__(self, q_std: float, qd_std: float, seed: int | None = None) -> None:
+        for name, value, unit in (("q_std", q_std, "rad"), ("qd_std", qd_std, "rad/s")):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0 {unit}, got {value}")
+        self.q_std, self.qd_std = float(q_std), float(qd_std)
+        self.random = np.random.default_rng(seed)
+
+    def reseed(self, seed: int | None) -> None:
+        self.random = np.random.default_rng(seed)
+
+    def __call__(self, state: PlantState) -> Estimate:
+        n = len(state.q)
+        return Estimate(state.t, state.q + self.random.normal(0.0, self.q_std, n),
+                        state.qd + self.random.normal(0.0, self.qd_std, n), state.t)
+
+
 @dataclass(frozen=True)
 class StepStats:
     """What happened over the control periods of one `ArmPhysics.step(n)` (module docstring).
 
     periods: n; violation_periods: periods whose end state has ρ_meas < 0; rho_meas_min
     (1) and force_max_N (N) over their end states (+inf and 0 before any period);
-    vented: the safety monitor sent VENT in one of them.
+    force_excess (1): the mean over them of max_i max(0, F_i − F_max)/F_max (0 before any
+    period); vented: the safety monitor sent VENT in one of them.
     """
 
     periods: int = 0
     violation_periods: int = 0
     rho_meas_min: float = math.inf
     force_max_N: float = 0.0
+    force_excess: float = 0.0
     vented: bool = False
 
 
@@ -93,10 +129,12 @@ class ArmPhysics(control.Physics):
         self.safe_set, self.hold_s, self.image_size = context.safe_set, hold_s, image_size
         self.command = HeldCommand(plant.n_segments)
         self.control_step = self.new_control_step()
-        self.state = plant.reset(np.zeros(plant.n_segments))
+        self.lengths = context.robot.array("lengths")
+        self.reset_state(np.zeros(plant.n_segments))
         self.last_record: StepRecord | None = None
         self.stats = StepStats()
         self._renderer: OffscreenRenderer | None = None
+        self._free_renderer: weakref.finalize | None = None
         self._detector: TagDetector | None = None
 
     # -- dm_control Physics -------------------------------------------------------
@@ -130,20 +168,24 @@ class ArmPhysics(control.Physics):
     def step(self, n_sub_steps: int = 1) -> None:
         """Run `n_sub_steps` control periods (module docstring); their `StepStats` in `stats`."""
         periods = violations = 0
-        rho_min, force_max, vented = math.inf, 0.0, False
+        rho_min, force_max, excess, vented = math.inf, 0.0, 0.0, False
+        f_max = self.safe_set.f_max
         for _ in range(n_sub_steps):
-            record = self.control_step(self.estimator(self.state))
+            record = self.control_step(self._estimate)
             self.state = self.plant.step(record.u)
+            self._estimate = self.estimator(self.state)
             self.last_record = record
             rho = self.rho_meas()
+            force = float(np.max(self.state.contact_forces, initial=0.0))
             periods += 1
             violations += rho < 0.0
             rho_min = min(rho_min, rho)
-            force_max = max(force_max, float(np.max(self.state.contact_forces, initial=0.0)))
+            force_max = max(force_max, force)
+            excess += max(0.0, force - f_max) / f_max
             vented = vented or record.action is SafeAction.VENT
             if self.control_step.stopped:  # a filter fault has vented: the episode ends (closedloop.step)
                 break
-        self.stats = StepStats(periods, violations, rho_min, force_max, vented)
+        self.stats = StepStats(periods, violations, rho_min, force_max, excess / periods, vented)
 
     # -- the environment's view -------------------------------------------------------
 
@@ -152,12 +194,21 @@ class ArmPhysics(control.Physics):
         return ControlStep(self.filter, self.command, self.context, SafetyMonitor(self.plant.n_segments, self.hold_s))
 
     def reset_state(self, q0: np.ndarray) -> None:
-        """Rest at bending angles q0 (N,) rad (the plant's `reset`)."""
+        """Rest at bending angles q0 (N,) rad (the plant's `reset`), and its estimate."""
         self.state = self.plant.reset(q0)
+        self._estimate = self.estimator(self.state)
 
     def estimate(self) -> Estimate:
-        """The controller's view of the current state (what the filter sees next)."""
-        return self.estimator(self.state)
+        """The controller's view of the current state (what the filter sees next; made once per state)."""
+        return self._estimate
+
+    def tip_pred(self) -> np.ndarray:
+        """The model's tip r(q̂) (2,) m: PCC kinematics of the estimate."""
+        return tip_position(self._estimate.q, self.lengths)
+
+    def rho_pred(self) -> float:
+        """ρ_pred (1): min over facets of the safe set's margin at the model's tip r(q̂)."""
+        return float(self.safe_set.margin(self.tip_pred()))
 
     def rho_meas(self) -> float:
         """ρ_meas (1) of the current state: min over facets of the margin from the plate force."""
@@ -177,6 +228,7 @@ class ArmPhysics(control.Physics):
         """The overhead camera's image (H, W, 3) uint8 RGB of the current state."""
         if self._renderer is None:
             self._renderer = OffscreenRenderer(self.plant.model, "overhead", *self.image_size)
+            self._free_renderer = weakref.finalize(self, self._renderer.close)  # before interpreter shutdown
         return self._renderer.render(self.plant.data)
 
     def detect_tags(self, image: np.ndarray) -> list[Detection]:
@@ -187,6 +239,6 @@ class ArmPhysics(control.Physics):
 
     def close(self) -> None:
         """Free the renderer's GL context (rendering again makes a new one)."""
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        if self._free_renderer is not None:
+            self._free_renderer()  # OffscreenRenderer.close, once
+            self._renderer = self._free_renderer = None

@@ -6,32 +6,60 @@ every control period (`softcbf_mj.env.physics`). With the filter "none" the acti
 command sent, after the same clipping and monitoring.
 
 Observations (`OBSERVATION_UNITS`; float64 unless said otherwise), after the env step's
-last control period:
+last control period. Two modes (`observation`):
 
-| key          | shape        | unit | what                                                            |
-|--------------|--------------|------|-----------------------------------------------------------------|
-| q            | (N,)         | rad  | the controller's estimate of the bending angles                 |
-| qd           | (N,)         | rad/s| the estimate of their rates                                     |
-| tip          | (2,)         | m    | the tip r (x, y), true (the MuJoCo tip sphere's centre)         |
-| contact_force| (P,)         | N    | the plate's spring force per facet, measured                    |
-| rho_meas     | (1,)         | 1    | ρ_meas = min over facets of the margin from contact_force       |
-| u            | (N,)         | hPa  | the command sent in the last control period (0 after reset)     |
-| image        | (H, W, 3)    | 0–255| optional (`camera`): the overhead camera, uint8 RGB             |
-| tag_corners  | (N+1, 4, 2)  | px   | optional (`tag_detections`): corners of arm tags 0..N (0: unseen)|
-| tag_seen     | (N+1,)       | 0/1  | optional (`tag_detections`): uint8, tag i found in the image    |
+- "estimate" (the default): what the controller under test sees — the estimate it is
+  handed (the exact state, or the noisy state of `state_noise_std`; the camera's frame and
+  tag detections when asked for), the command sent and the model's predictions;
+- "privileged": the same plus the ground truth the controller never sees (the true state,
+  the true tip, the plate's force, ρ_meas) — for critics, reward shaping and analysis.
+
+| key          | shape        | unit | mode       | what                                                            |
+|--------------|--------------|------|------------|-----------------------------------------------------------------|
+| q            | (N,)         | rad  | both       | the controller's estimate of the bending angles                 |
+| qd           | (N,)         | rad/s| both       | the estimate of their rates                                     |
+| u            | (N,)         | hPa  | both       | the command sent in the last control period (0 after reset)     |
+| tip_pred     | (2,)         | m    | both       | the model's tip r(q̂): PCC kinematics of the estimate            |
+| rho_pred     | (1,)         | 1    | both       | the model's margin: min over facets of ρ at tip_pred            |
+| q_true       | (N,)         | rad  | privileged | the true bending angles (sums of each segment's hinge angles)   |
+| qd_true      | (N,)         | rad/s| privileged | their true rates                                                |
+| tip          | (2,)         | m    | privileged | the tip r (x, y), true (the MuJoCo tip sphere's centre)         |
+| contact_force| (P,)         | N    | privileged | the plate's spring force per facet, measured                    |
+| rho_meas     | (1,)         | 1    | privileged | ρ_meas = min over facets of the margin from contact_force       |
+| image        | (H, W, 3)    | 0–255| both       | optional (`camera`): the overhead camera, uint8 RGB             |
+| tag_corners  | (N+1, 4, 2)  | px   | both       | optional (`tag_detections`): corners of arm tags 0..N (0: unseen)|
+| tag_seen     | (N+1,)       | 0/1  | both       | optional (`tag_detections`): uint8, tag i found in the image    |
+
+`ArmTask.scales` gives each float key's scale for the Gymnasium adapter's normalised
+option (observation / scale, clipped to [−1, 1]): q π rad, qd `QD_SCALE` rad/s, u the
+largest |pressure limit|, tip and tip_pred the arm's length Σ L_i (never clipped: the tip
+lies within it), ρ 1 (ρ < −1, a force above 2 F_max, saturates), contact_force 2 F_max;
+tag corners by the image's width and height.
 
 Reward per env step (`RewardConfig`), from the state at its end and its control periods:
 
-    reward = − tracking_weight · ‖tip − target_tip_m‖  − violation_penalty · (periods with ρ_meas < 0)
+    reward = − tracking_weight · ‖tip − target_tip_m‖            (when target_tip_m is set; m)
+             − force_weight · |F − target_force_N|             (when target_force_N is set; F = max over facets of contact_force, N)
+             − violation_penalty · (periods with ρ_meas < 0)
 
-(the tracking term only when `target_tip_m` is set). Termination (dm_env: LAST with
-discount 0): a period with ρ_meas < 0 when `terminate_on_violation`; a latched vent of
-the safety monitor when `terminate_on_vent`. Truncation (LAST with discount 1): after
-`episode_steps` env steps.
+Cost per env step (`cost`, Safety-Gymnasium's convention: the Gymnasium adapter's
+info["cost"], ≥ 0, 0 while force-safe), one of `COSTS`:
+
+    "violation"     the fraction of the env step's control periods whose end state has
+                    ρ_meas < 0 (a plate force above F_max): 0 or 1 with action_repeat 1;
+                    Σ cost · env_dt over an episode is its time in violation (s);
+    "force_excess"  the mean over those periods of max_i max(0, F_i − F_max)/F_max
+                    (1: how far above the limit, 1 = twice F_max; 0 while F ≤ F_max).
+
+Termination (dm_env: LAST with discount 0): a period with ρ_meas < 0 when
+`terminate_on_violation`; a latched vent of the safety monitor when `terminate_on_vent`.
+Truncation (LAST with discount 1): after `episode_steps` env steps.
 
 Seeds: the initial bending angles are q0 ~ N(0, q0_std²) per segment (rad) from the
-task's `numpy.random.Generator` (`seed(seed)`); with q0_std = 0 the arm starts straight
-and an episode depends on its actions only (MuJoCo and the filters are deterministic).
+task's `numpy.random.Generator` (`seed(seed)`), then the estimator's noise generator is
+seeded from it (when the estimator is a `NoisyState`); with q0_std = 0 and no noise the
+arm starts straight and an episode depends on its actions only (MuJoCo and the filters
+are deterministic).
 """
 
 from __future__ import annotations
@@ -44,19 +72,37 @@ import numpy as np
 from dm_control.rl import control
 from dm_env import specs
 
-from softcbf_mj.env.physics import ArmPhysics
+from softcbf_mj.env.physics import ArmPhysics, NoisyState, StepStats
 
 OBSERVATION_UNITS = {
     "q": "rad (the controller's estimate)",
     "qd": "rad/s (the controller's estimate)",
-    "tip": "m (true tip x, y)",
-    "contact_force": "N (plate spring force per facet, measured)",
-    "rho_meas": "1 (min over facets of the margin from contact_force)",
     "u": "hPa (command sent in the last control period)",
+    "tip_pred": "m (the model's tip x, y: PCC kinematics of the estimate)",
+    "rho_pred": "1 (the model's margin at tip_pred, min over facets)",
+    "q_true": "rad (true bending angles, privileged)",
+    "qd_true": "rad/s (true rates, privileged)",
+    "tip": "m (true tip x, y, privileged)",
+    "contact_force": "N (plate spring force per facet, measured, privileged)",
+    "rho_meas": "1 (min over facets of the margin from contact_force, privileged)",
     "image": "0-255 (overhead camera, RGB uint8)",
     "tag_corners": "px (arm tags 0..N, corners TL, TR, BR, BL; 0 when unseen)",
     "tag_seen": "0/1 (uint8: arm tag i found in the image)",
 }
+OBSERVATIONS = ("estimate", "privileged")
+ESTIMATE_KEYS = ("q", "qd", "u", "tip_pred", "rho_pred")
+PRIVILEGED_KEYS = ("q_true", "qd_true", "tip", "contact_force", "rho_meas")
+COSTS = ("violation", "force_excess")
+QD_SCALE = 50.0  # rad/s, the normalised option's scale of qd (module docstring)
+
+
+def step_cost(stats: StepStats, definition: str) -> float:
+    """The cost (>= 0) of an env step with `stats` under `definition` (one of COSTS; module docstring)."""
+    if definition == "violation":
+        return stats.violation_periods / stats.periods if stats.periods else 0.0
+    if definition == "force_excess":
+        return stats.force_excess
+    raise ValueError(f"cost must be one of {', '.join(COSTS)}, got {definition!r}")
 
 
 @dataclass(frozen=True)
@@ -64,12 +110,16 @@ class RewardConfig:
     """The reward and termination of the task (module docstring).
 
     target_tip_m: (x, y) m or None (no tracking term); tracking_weight: reward per m of
-    tip distance (1/m, >= 0); violation_penalty: per control period with ρ_meas < 0
-    (>= 0); terminate_on_violation, terminate_on_vent: end the episode (discount 0).
+    tip distance (1/m, >= 0); target_force_N: the plate force to regulate (N, >= 0) or
+    None (no force term); force_weight: reward per N of force error (1/N, >= 0);
+    violation_penalty: per control period with ρ_meas < 0 (>= 0); terminate_on_violation,
+    terminate_on_vent: end the episode (discount 0).
     """
 
     target_tip_m: tuple[float, float] | None = None
     tracking_weight: float = 1.0
+    target_force_N: float | None = None
+    force_weight: float = 1.0
     violation_penalty: float = 1.0
     terminate_on_violation: bool = False
     terminate_on_vent: bool = True
@@ -80,43 +130,80 @@ class RewardConfig:
             if len(target) != 2 or not all(map(math.isfinite, target)):
                 raise ValueError(f"target_tip_m must be a finite (x, y) in m or None, got {self.target_tip_m!r}")
             object.__setattr__(self, "target_tip_m", target)
-        for name in ("tracking_weight", "violation_penalty"):
+        if self.target_force_N is not None and not (math.isfinite(self.target_force_N) and self.target_force_N >= 0):
+            raise ValueError(f"target_force_N must be finite and >= 0 N or None, got {self.target_force_N}")
+        for name in ("tracking_weight", "force_weight", "violation_penalty"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value}")
 
 
 class ArmTask(control.Task):
-    """Actions, observations, reward and termination of the arm (module docstring).
+    """Actions, observations, reward, cost and termination of the arm (module docstring).
 
     u_min, u_max: (N,) hPa, the action box; episode_steps: env steps per episode (>= 1);
-    q0_std: rad (>= 0); camera, tag_detections: the optional observations; seed: the
-    initial generator's seed (None: from the operating system).
+    q0_std: rad (>= 0); observation: one of OBSERVATIONS; cost: one of COSTS; camera,
+    tag_detections: the optional observations; seed: the initial generator's seed (None:
+    from the operating system).
     """
 
     def __init__(self, u_min: np.ndarray, u_max: np.ndarray, n_facets: int, episode_steps: int,
                  reward: RewardConfig = RewardConfig(), q0_std: float = 0.0, camera: bool = False,
-                 tag_detections: bool = False, image_size: tuple[int, int] = (320, 180), seed: int | None = None) -> None:
+                 tag_detections: bool = False, image_size: tuple[int, int] = (320, 180), seed: int | None = None,
+                 observation: str = "estimate", cost: str = "violation") -> None:
         if isinstance(episode_steps, bool) or not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1:
             raise ValueError(f"episode_steps must be an integer >= 1, got {episode_steps!r}")
         if not (math.isfinite(q0_std) and q0_std >= 0):
             raise ValueError(f"q0_std must be finite and >= 0 rad, got {q0_std}")
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {', '.join(OBSERVATIONS)}, got {observation!r}")
+        if cost not in COSTS:
+            raise ValueError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
         self.u_min, self.u_max = np.array(u_min, dtype=float), np.array(u_max, dtype=float)
         self.n_segments, self.n_facets = len(self.u_min), int(n_facets)
         self.episode_steps, self.reward, self.q0_std = int(episode_steps), reward, float(q0_std)
         self.camera, self.tag_detections, self.image_size = camera, tag_detections, image_size
+        self.observation, self.cost_definition = observation, cost
         self.random = np.random.default_rng(seed)
         self.steps = 0
 
     def seed(self, seed: int | None) -> None:
-        """A new generator for the initial states of the following episodes."""
+        """A new generator for the initial states (and the estimate's noise) of the following episodes."""
         self.random = np.random.default_rng(seed)
+
+    def keys(self) -> tuple[str, ...]:
+        """The float observation keys of this mode, in order (module docstring)."""
+        return ESTIMATE_KEYS + (PRIVILEGED_KEYS if self.observation == "privileged" else ())
+
+    def scales(self, lengths: np.ndarray, f_max: float) -> dict[str, np.ndarray]:
+        """Each observation key's scale for the normalised option (module docstring), broadcast to its shape."""
+        u = float(np.max(np.maximum(np.abs(self.u_min), np.abs(self.u_max))))
+        reach = float(np.sum(lengths))
+        scale = {"q": math.pi, "qd": QD_SCALE, "u": u, "tip_pred": reach, "rho_pred": 1.0, "q_true": math.pi,
+                 "qd_true": QD_SCALE, "tip": reach, "contact_force": 2.0 * f_max, "rho_meas": 1.0}
+        width, height = self.image_size
+        shapes = self.shapes()
+        out = {key: np.full(shapes[key], scale[key]) for key in self.keys()}
+        if self.tag_detections:
+            out["tag_corners"] = np.broadcast_to(np.array([float(width), float(height)]), shapes["tag_corners"]).copy()
+        return out
+
+    def shapes(self) -> dict[str, tuple[int, ...]]:
+        n, p = self.n_segments, self.n_facets
+        return {"q": (n,), "qd": (n,), "u": (n,), "tip_pred": (2,), "rho_pred": (1,), "q_true": (n,), "qd_true": (n,),
+                "tip": (2,), "contact_force": (p,), "rho_meas": (1,), "tag_corners": (n + 1, 4, 2), "tag_seen": (n + 1,)}
+
+    def cost(self, physics: ArmPhysics) -> float:
+        """The last env step's cost (module docstring)."""
+        return step_cost(physics.stats, self.cost_definition)
 
     # -- dm_control Task --------------------------------------------------------------
 
     def initialize_episode(self, physics: ArmPhysics) -> None:
         self.steps = 0
         q0 = self.random.normal(0.0, self.q0_std, self.n_segments) if self.q0_std > 0 else np.zeros(self.n_segments)
+        if isinstance(physics.estimator, NoisyState):
+            physics.estimator.reseed(int(self.random.integers(2**63)))
         physics.reset_state(q0)
 
     def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
@@ -129,27 +216,29 @@ class ArmTask(control.Task):
         return specs.BoundedArray((self.n_segments,), np.float64, self.u_min, self.u_max, name="u_nom [hPa]")
 
     def observation_spec(self, physics: ArmPhysics) -> OrderedDict[str, specs.Array]:
-        n, p = self.n_segments, self.n_facets
-        shapes = OrderedDict(q=(n,), qd=(n,), tip=(2,), contact_force=(p,), rho_meas=(1,), u=(n,))
+        shapes = self.shapes()
         spec: OrderedDict[str, specs.Array] = OrderedDict(
-            (key, specs.Array(shape, np.float64, name=f"{key} [{OBSERVATION_UNITS[key]}]")) for key, shape in shapes.items()
+            (key, specs.Array(shapes[key], np.float64, name=f"{key} [{OBSERVATION_UNITS[key]}]")) for key in self.keys()
         )
         width, height = self.image_size
         if self.camera:
             spec["image"] = specs.BoundedArray((height, width, 3), np.uint8, 0, 255, name=f"image [{OBSERVATION_UNITS['image']}]")
         if self.tag_detections:
-            spec["tag_corners"] = specs.Array((n + 1, 4, 2), np.float64, name=f"tag_corners [{OBSERVATION_UNITS['tag_corners']}]")
-            spec["tag_seen"] = specs.BoundedArray((n + 1,), np.uint8, 0, 1, name=f"tag_seen [{OBSERVATION_UNITS['tag_seen']}]")
+            spec["tag_corners"] = specs.Array(shapes["tag_corners"], np.float64, name=f"tag_corners [{OBSERVATION_UNITS['tag_corners']}]")
+            spec["tag_seen"] = specs.BoundedArray(shapes["tag_seen"], np.uint8, 0, 1, name=f"tag_seen [{OBSERVATION_UNITS['tag_seen']}]")
         return spec
 
     def get_observation(self, physics: ArmPhysics) -> OrderedDict[str, np.ndarray]:
         estimate, state = physics.estimate(), physics.state
         u = physics.last_record.u if physics.last_record is not None else np.zeros(self.n_segments)
         observation = OrderedDict(
-            q=np.array(estimate.q, dtype=float), qd=np.array(estimate.qd, dtype=float), tip=np.array(state.tip, dtype=float),
-            contact_force=np.array(state.contact_forces, dtype=float), rho_meas=np.array([physics.rho_meas()]),
-            u=np.array(u, dtype=float),
+            q=np.array(estimate.q, dtype=float), qd=np.array(estimate.qd, dtype=float), u=np.array(u, dtype=float),
+            tip_pred=np.array(physics.tip_pred(), dtype=float), rho_pred=np.array([physics.rho_pred()]),
         )
+        if self.observation == "privileged":
+            observation.update(q_true=np.array(state.q, dtype=float), qd_true=np.array(state.qd, dtype=float),
+                               tip=np.array(state.tip, dtype=float), contact_force=np.array(state.contact_forces, dtype=float),
+                               rho_meas=np.array([physics.rho_meas()]))
         if self.camera or self.tag_detections:
             image = physics.render_image()
             if self.camera:
@@ -165,6 +254,9 @@ class ArmTask(control.Task):
         config, reward = self.reward, 0.0
         if config.target_tip_m is not None:
             reward -= config.tracking_weight * float(np.hypot(*(physics.state.tip - np.array(config.target_tip_m))))
+        if config.target_force_N is not None:
+            force = float(np.max(physics.state.contact_forces, initial=0.0))
+            reward -= config.force_weight * abs(force - config.target_force_N)
         return reward - config.violation_penalty * physics.stats.violation_periods
 
     def get_termination(self, physics: ArmPhysics) -> float | None:

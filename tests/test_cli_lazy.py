@@ -1,0 +1,61 @@
+"""`softcbf list` imports only what it lists (issue 27): not the hardware mode, the bench or the studies' command
+line, and the registry imports a built-in's module only when it is looked up. CPU time: tools/bench_cli_list.py."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+LAZY = ("softcbf.hardware_cli", "hardware.runner", "softcbf.bench", "softcbf.study.cli")
+
+
+def modules_after(code: str) -> set[str]:
+    result = subprocess.run([sys.executable, "-c", code + "\nimport json, sys; print(json.dumps(sorted(sys.modules)))"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return set(json.loads(result.stdout.strip().splitlines()[-1]))
+
+
+def test_list_imports_no_other_subcommand():
+    loaded = modules_after("import contextlib, io\nfrom softcbf.cli import main\n"
+                           "with contextlib.redirect_stdout(io.StringIO()):\n    assert main(['list']) == 0")
+    assert loaded.isdisjoint(LAZY), sorted(loaded & set(LAZY))
+    assert "controllers.energy_governor" in loaded  # list describes every filter
+
+
+@pytest.mark.parametrize("argv, module", [(["hardware", "--help"], "softcbf.hardware_cli"), (["bench", "--help"], "softcbf.bench"),
+                                          (["study", "run", "--help"], "softcbf.study.cli")])
+def test_a_lazy_subcommand_still_parses_its_own_options(argv, module, capsys):
+    from softcbf.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 0 and "usage: softcbf" in capsys.readouterr().out
+    assert module in sys.modules
+
+
+def test_top_level_help_names_every_subcommand_with_its_help(capsys):
+    from softcbf.cli import COMMANDS, main
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    for command in COMMANDS.values():
+        assert command.name in out and " ".join(command.help_text().split())[:30] in out
+
+
+def test_the_registry_imports_a_builtin_at_its_first_lookup():
+    loaded = modules_after("from controllers.registry import FILTERS, NOMINALS\n"
+                           "assert 'e-erg' in FILTERS and list(FILTERS) == ['paper-cbf', 'none', 'qsg', 'e-erg']\n"
+                           "assert len(NOMINALS) == 3 and FILTERS['qsg'].__name__ == 'QuasiStaticGovernor'")
+    assert "controllers.quasi_static_governor" in loaded
+    assert "controllers.energy_governor" not in loaded and "controllers.filter" not in loaded
+    from controllers.registry import FILTERS
+
+    with pytest.raises(KeyError):
+        FILTERS["nosuch"]
+    with pytest.raises(TypeError):
+        FILTERS["none"] = object  # read-only: the built-ins are fixed

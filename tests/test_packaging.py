@@ -1,0 +1,90 @@
+"""Packaging (issue 27): the docs site builds with --strict (a broken link fails), and `python -m build` makes an
+sdist and a wheel whose wheel, installed alone into a fresh environment, runs `softcbf list` and a short run.
+
+Marked `packaging` (deselect with `-m "not packaging"`); about 15 s on the project's 2-core machine."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tarfile
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+pytestmark = pytest.mark.packaging
+
+
+def mkdocs(config: Path, site: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "mkdocs"), "build", "--strict", "-f", str(config), "-d", str(site)],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_docs_site_builds_strictly_and_a_broken_link_fails(tmp_path):
+    result = mkdocs(ROOT / "mkdocs.yml", tmp_path / "site")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert (tmp_path / "site" / "environment" / "index.html").is_file()
+    assert (tmp_path / "site" / "figures" / "shield_cem.png").is_file()
+    broken = tmp_path / "broken"
+    shutil.copytree(ROOT / "docs", broken / "docs")
+    shutil.copy(ROOT / "mkdocs.yml", broken / "mkdocs.yml")
+    page = broken / "docs" / "environment.md"
+    page.write_text(page.read_text(encoding="utf-8") + "\nSee [nowhere](no-such-page.md).\n", encoding="utf-8")
+    result = mkdocs(broken / "mkdocs.yml", tmp_path / "broken_site")
+    assert result.returncode != 0 and "no-such-page.md" in result.stderr
+
+
+def test_sdist_and_wheel_build_and_the_wheel_runs_alone(tmp_path):
+    dist = tmp_path / "dist"
+    result = subprocess.run([sys.executable, "-m", "build", "--no-isolation", "--outdir", str(dist), str(ROOT)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    (sdist,), (wheel,) = sorted(dist.glob("*.tar.gz")), sorted(dist.glob("*.whl"))
+    with tarfile.open(sdist) as archive:
+        names = archive.getnames()
+    assert any(n.endswith("/pyproject.toml") for n in names) and any(n.endswith("/softcbf_mj/env/presets.py") for n in names)
+    with zipfile.ZipFile(wheel) as archive:
+        assert "softcbf/cli.py" in archive.namelist() and "softcbf_mj/env/presets.py" in archive.namelist()
+    # A fresh environment with only the wheel (no editable checkout); its dependencies come from this environment's
+    # site-packages through a .pth file (appended after the wheel's own, so the wheel's modules win).
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
+    python = venv / "bin" / "python"
+    purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                             capture_output=True, text=True, check=True).stdout.strip()
+    Path(purelib, "dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n", encoding="utf-8")
+    install = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps", str(wheel)],
+                             capture_output=True, text=True, timeout=300)
+    assert install.returncode == 0, install.stderr[-3000:]
+    work = tmp_path / "elsewhere"  # not the checkout: nothing of it on sys.path
+    work.mkdir()
+    where = subprocess.run([str(python), "-c", "import softcbf_mj, softcbf, scenarios; print(softcbf_mj.__file__)"],
+                           cwd=work, capture_output=True, text=True, timeout=120)
+    assert where.returncode == 0 and where.stdout.strip().startswith(purelib), (where.stdout, where.stderr)
+    listing = subprocess.run([str(venv / "bin" / "softcbf"), "list"], cwd=work, capture_output=True, text=True, timeout=120)
+    assert listing.returncode == 0, listing.stderr[-3000:]
+    assert "paper_sim" in listing.stdout and "e-erg" in listing.stdout
+    run = subprocess.run([str(venv / "bin" / "softcbf"), "run", "paper_sim", "--duration", "0.2", "--progress", "false",
+                          "--out", str(work / "run")], cwd=work, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert (work / "run" / "summary.json").is_file()
+
+
+def test_citation_file_names_this_version_and_the_paper():
+    import tomllib
+
+    import yaml
+
+    citation = yaml.safe_load((ROOT / "CITATION.cff").read_text(encoding="utf-8"))
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    assert citation["cff-version"] == "1.2.0" and citation["type"] == "software"
+    assert str(citation["version"]) == project["version"] and citation["license"] == project["license"]
+    assert all(key in citation for key in ("message", "title", "authors"))
+    (paper,) = citation["references"]
+    assert paper["journal"] == "IEEE Robotics and Automation Letters" and paper["year"] == 2025
+    assert "Control Barrier Functions" in paper["title"]
