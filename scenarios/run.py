@@ -5,7 +5,8 @@
 over the defaults or the `base` values of a run configuration file (scenarios.config_file;
 spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
 repeatable, add to `filter_params` and `nominal_params`; `--tuning NAME` is
-`--filter-param tuning=NAME`). `run_scenario` checks every parameter before anything is
+`--filter-param tuning=NAME`; a NAME given twice on one command line is refused,
+`command_line_params`, while one of `base` is overridden). `run_scenario` checks every parameter before anything is
 written, locks the run folder (`softcbf_mj.runio`), and on failure or Ctrl-C before the
 first finished run leaves no output behind (the folders it created are removed, one that
 existed is emptied); Ctrl-C after a finished run keeps the finished runs and brings the

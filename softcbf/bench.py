@@ -1,6 +1,7 @@
 """`softcbf bench`: every selected safety filter over one fixed battery (docs/beyond-the-paper.md#filter-benchmark).
 
-    softcbf bench --out DIR [--filters SPEC,SPEC,...] [--quick] [--cases NAME,...] [--mismatch-draws N] [--workers N] [--resume]
+    softcbf bench --out DIR [--filters SPEC,SPEC,...] [--quick] [--cases NAME,...] [--mismatch-draws N] [--workers N]
+                  [--resume | --overwrite]
 
 Battery (`CASES`, in this order; each case runs registered scenarios with fixed parameters):
 
@@ -43,12 +44,25 @@ over every call; violation_probability = k/n runs with ρ_meas < 0 and its 95 % 
 interval (`softcbf.study.analysis`), draws = n; single runs have null there. wall_s: the
 case's wall time.
 
+The bench folder (`prepare_bench_dir`, as `softcbf run`'s run folders, softcbf_mj.runio). DIR
+is new or empty, or it is a bench folder (it holds bench.json) and `--resume` continues it or
+`--overwrite` replaces its contents; any other non-empty folder (a user's, a run folder) is
+refused, also with `--overwrite`, as is overwriting the working folder, one above it or home.
+DIR is locked while the bench runs (a second bench into it is refused). A fresh bench writes
+bench.json with no rows first (so a bench that stops later can be resumed) and, when it stops
+before its first row, removes what it wrote. `--cases` and `--filters` must name at least one
+case / filter (an empty list is refused, not read as the whole battery), and a filter's
+parameter may be given once.
+
 Resume. The full battery takes hours (the mismatch study dominates). `--resume` continues
 an interrupted `softcbf bench` in the same DIR: a (filter, case) whose row is in DIR/bench.json
 keeps it and is not run again (its row must come from a run with the same quick flag and
 mismatch draws); a mismatch study whose folder exists continues where it stopped (the study
 machinery refuses a folder of another study definition); any other case runs again from
-scratch. Without `--resume` every selected case runs again and replaces its folder.
+scratch. bench.json is checked first (`check_bench_json`: SPEC §11's fields and types, numbers
+finite, times, RMS and compute times >= 0, probabilities in [0, 1], known cases, filters of its
+own list, each (filter, case) once); a file that fails is refused with one line naming the
+field, and nothing runs.
 
 Outputs: DIR/bench.json (`{"battery", "quick", "filters", "skipped", "results"}`; every
 result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png, and each

@@ -9,10 +9,10 @@ options override its `link.port`, `camera.source`, `control.tuning` and `run.dry
 and every setting it shares with the simulations by the option `softcbf run` has for it
 (`hardware.config.SHARED_KEYS`: `--f-max`, `--control-rate`, `--filter`, `--duration`,
 `--frame-rate`, `--tau-p`, ...; `--filter-param` and `--nominal-param` add to the file's
-tables, a `--filter` other than the file's starts from an empty table); a file named on
-the command line (`--robot`, `--calibration`, `--camera`, and the FILE.py of `--filter` and
-`--nominal` FILE.py:Factory) is relative to the working directory, one named in the file
-relative to the file's folder.
+tables, each NAME once (`scenarios.run.command_line_params`), a `--filter` other than the
+file's starts from an empty table); a file named on the command line (`--robot`,
+`--calibration`, `--camera`, and the FILE.py of `--filter` and `--nominal` FILE.py:Factory)
+is relative to the working directory, one named in the file relative to the file's folder.
 The filter and the nominal controller are built once at start-up to check them (an
 unknown name or parameter is a usage error). `--port emulated --camera virtual` runs the whole hardware path against
 `softcbf_mj.emulate.EmulatedHardware` (MuJoCo arm and plate behind a pty valve board,

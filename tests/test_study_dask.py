@@ -18,6 +18,8 @@ from pathlib import Path
 import distributed
 import pytest
 
+import softcbf.study.execute
+from softcbf.cli import main
 from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study
 
 STUDY = Study("kill", "mujoco_contact", ("None", "Low"), draws=4, seed=11, fixed={"t0": 25.0, "duration": 0.6},
@@ -96,3 +98,54 @@ def test_dask_worker_killed_mid_study_every_sample_once(local_rows, client, tmp_
     assert "killed" in killer.state and outcome.ran == STUDY.n_samples
     rows = assert_complete(out)
     assert comparable(rows) == comparable(local_rows)  # rescheduled samples reproduce exactly
+
+
+STUDY_FILE = """name = "unreachable"
+scenario = "paper_sim"
+seed = 1
+tunings = ["None"]
+draws = 1
+[fixed]
+duration = 0.01
+[vary.plate_stiffness]
+dist = "uniform"
+low = 10.0
+high = 12.0
+"""
+
+
+@pytest.mark.parametrize("address, reason", [
+    ("tcp://127.0.0.1:1", "Timed out trying to connect to tcp://127.0.0.1:1 after 1 s"),
+    ("tcp://nowhere.invalid:1", "Timed out trying to connect"),
+    ("http://host:8786", "unknown address scheme 'http'"),
+    ("tcp://", "missing port number"),
+])
+def test_a_scheduler_that_does_not_answer_is_one_line_exit_2_and_no_folder(tmp_path, capfd, monkeypatch, address, reason):
+    """N12: `softcbf study run FILE --scheduler tcp://nowhere:1` gave a traceback after Dask's 30 s."""
+    monkeypatch.setattr(softcbf.study.execute, "SCHEDULER_CONNECT_TIMEOUT_S", 1.0, raising=False)
+    study = tmp_path / "study.toml"
+    study.write_text(STUDY_FILE, encoding="utf-8")
+    start = time.perf_counter()
+    assert main(["study", "run", str(study), "--scheduler", address, "--out", str(tmp_path / "out")]) == 2
+    assert time.perf_counter() - start < 10.0
+    err = capfd.readouterr().err
+    assert err.startswith(f"error: cannot connect to the Dask scheduler {address!r}: ") and err.count("\n") == 1, err
+    assert reason in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_default_connect_timeout_is_short():
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match="after 5 s"):
+        softcbf.study.execute.connect_scheduler("tcp://127.0.0.1:1")
+    assert time.perf_counter() - start < 10.0
+
+
+def test_a_scheduler_address_runs_the_study(local_rows, client, tmp_path):
+    """The address is tried, then used; at 3713bd0 this raised 'IOLoop is closed' at the end (the executor was
+    shut down after its client closed)."""
+    outcome = run_study(STUDY, tmp_path / "s", scheduler=client.scheduler.address, samples=2, progress=False)
+    assert (outcome.backend, outcome.ran, outcome.failed) == ("dask", 2, 0)
+    rows = StudyStore.open(tmp_path / "s").load_rows()
+    assert [(r["sample"], r["status"]) for r in rows] == [(0, "ok"), (1, "ok")]
+    assert [r["rho_min_meas"] for r in rows] == [r["rho_min_meas"] for r in local_rows[:2]]

@@ -8,7 +8,10 @@ Backends, both driven through the `concurrent.futures` executor interface:
 - Dask: `distributed.Client(scheduler)` for a cluster address such as
   "tcp://host:8786", or a `Client` passed in (e.g. on a `LocalCluster`), through Dask's
   `client.get_executor(pure=False)`. Every worker needs this package and the same
-  versions installed (the rows record the versions only once, in study.json).
+  versions installed (the rows record the versions only once, in study.json). The
+  address is tried first, within `SCHEDULER_CONNECT_TIMEOUT_S`, before the study folder
+  is made: a malformed or unreachable address is a ValueError naming it and the reason
+  (`connect_scheduler`; Dask's own default waits 30 s).
 
 Batches (docs/studies.md#batches). With `batch_size` B > 1 (default `DEFAULT_BATCH_SIZE`
 when the scenario has a batch form, else 1) the driver groups the streamed samples by
@@ -75,6 +78,31 @@ PARENT_POLL_S = 0.5  # how often a local worker checks that its driver is alive,
 ORPHAN_EXIT_CODE = 70  # a local worker's exit status when its driver died
 DEFAULT_BATCH_SIZE = 128  # samples per batch where the scenario has a batch form (tools/bench_batch.py)
 BATCH_BUFFER = 8  # batches' worth of samples the driver may hold while their groups fill
+SCHEDULER_CONNECT_TIMEOUT_S = 5.0  # how long a Dask scheduler address is tried before the study is refused, s
+
+
+def connect_scheduler(address: str, timeout: float | None = None) -> Any:
+    """A `distributed.Client` on the scheduler at `address`; ValueError "cannot connect to the Dask scheduler
+    ADDRESS: REASON" when the address is malformed or nothing answers there within `timeout` s (default
+    `SCHEDULER_CONNECT_TIMEOUT_S`). The address is
+    tried with one bare connection first: a Client that fails to start blocks for twice its timeout when it is
+    collected and prints a traceback, so no Client is made for an address that does not answer."""
+    import asyncio
+
+    from distributed import Client
+    from distributed.comm import connect
+
+    async def probe() -> None:
+        comm = await connect(address, timeout=timeout)
+        await comm.close()
+
+    timeout = SCHEDULER_CONNECT_TIMEOUT_S if timeout is None else timeout
+    hint = "start one there (dask scheduler) or give its address, e.g. tcp://host:8786"
+    try:
+        asyncio.run(probe())
+        return Client(address, timeout=timeout)
+    except (OSError, ValueError, TypeError) as exc:  # Dask: OSError (timed out, refused), ValueError (bad address)
+        raise ValueError(f"cannot connect to the Dask scheduler {address!r}: {exc}; {hint}") from None
 
 
 @dataclass(frozen=True)
@@ -185,31 +213,34 @@ def run_study(
     limit = study.n_samples if samples is None else samples
     if not 1 <= limit <= study.n_samples:
         raise ValueError(f"samples must lie in [1, {study.n_samples}] (the study's draws × tunings), got {samples}")
-    store = StudyStore.create(out_dir, study, resume=resume)
-    done, corrupted = store.scan()
-    fresh = group_tasks(pending_indices(limit, done), lambda i: batch_key(study, i), batch_size,
-                        BATCH_BUFFER * batch_size)
-    retry: collections.deque[Task] = collections.deque()  # tasks of a broken pool, run before fresh ones
-    skipped = sum(1 for i in done if i < limit)
-    n_todo = limit - skipped
+    own_client = connect_scheduler(scheduler) if scheduler is not None else None  # before the folder is made
+    if own_client is not None:
+        client = own_client
+    try:  # the client made here is closed on every way out
+        store = StudyStore.create(out_dir, study, resume=resume)
+        done, corrupted = store.scan()
+        fresh = group_tasks(pending_indices(limit, done), lambda i: batch_key(study, i), batch_size,
+                            BATCH_BUFFER * batch_size)
+        retry: collections.deque[Task] = collections.deque()  # tasks of a broken pool, run before fresh ones
+        skipped = sum(1 for i in done if i < limit)
+        n_todo = limit - skipped
 
-    own_client = None
-    if scheduler is not None:
-        from distributed import Client
-
-        client = own_client = Client(scheduler)
-    if client is not None:
-        backend = "dask"
-        n_workers = max(1, sum(client.nthreads().values()))
-        window = 2 * n_workers
-        nthread = 1
-        executor: Executor = client.get_executor(pure=False)
-    else:
-        backend = "local"
-        n_workers = workers or os.cpu_count() or 1
-        window = n_workers
-        nthread = max(1, (os.cpu_count() or 1) // n_workers)
-        executor = _local_pool(n_workers)
+        if client is not None:
+            backend = "dask"
+            n_workers = max(1, sum(client.nthreads().values()))
+            window = 2 * n_workers
+            nthread = 1
+            executor: Executor = client.get_executor(pure=False)
+        else:
+            backend = "local"
+            n_workers = workers or os.cpu_count() or 1
+            window = n_workers
+            nthread = max(1, (os.cpu_count() or 1) // n_workers)
+            executor = _local_pool(n_workers)
+    except BaseException:
+        if own_client is not None:
+            own_client.close()
+        raise
 
     start = time.perf_counter()
     ran = failed = 0
@@ -264,6 +295,7 @@ def run_study(
                                 for index in task.indices])
                     else:
                         retry.appendleft(task)
+        executor.shutdown(wait=True)  # before its client closes (a Dask executor needs the client's loop)
     except BaseException:
         for future in pending:
             future.cancel()
@@ -272,7 +304,6 @@ def run_study(
     finally:
         if own_client is not None:
             own_client.close()
-    executor.shutdown(wait=True)
     bar.close()
     return StudyOutcome(study.n_samples, skipped, ran, failed, time.perf_counter() - start, backend, n_workers,
                         len(corrupted))
