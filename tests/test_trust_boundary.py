@@ -316,7 +316,7 @@ def test_a_faulty_filter_gives_the_same_commands_and_figures_batched_and_serial(
 
 
 MISBEHAVIOURS = ("raise", "nan", "inf", "huge", "shape", "type", "mutate_q", "mutate_u_nom", "complex", "rho_bad",
-                 "diagnostics_change", "slow")
+                 "diagnostics_change", "huge_diagnostics", "slow")
 
 
 class Misbehaving:
@@ -352,6 +352,8 @@ class Misbehaving:
             return FilterOutput(benign.u, rho_pred=math.inf)
         if how == "diagnostics_change":
             return FilterOutput(benign.u, diagnostics={"e": 1.0}, diagnostic_units={"e": "1"})
+        if how == "huge_diagnostics":
+            return FilterOutput(benign.u, diagnostics={"d": np.zeros(100_000)}, diagnostic_units={"d": "1"})
         if how == "slow":
             time.sleep(0.002)
         return benign
