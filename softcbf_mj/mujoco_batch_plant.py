@@ -18,6 +18,11 @@ them in the batch, which changes nothing (tested) but keeps the per-simulation m
 consistent if a caller writes an input field afterwards. So no builder formula is
 repeated here: whatever `build_model` does for a config, simulation b does.
 
+`reset(q0, ..., ids=[b, ...])` resets only those simulations (`Batch.reset` and
+`Batch.forward` on their ids), each as `MujocoPlant.reset` would, the others keeping their
+state and time (tested against a fresh `MujocoPlant` and a batch never reset): the vector
+environment (`softcbf_mj.env.vector`) restarts one arm's episode that way.
+
 The hot path has no per-simulation Python: one `Batch.step(nstep, stage=ACC)` call per
 control period, on `nthread` threads, then numpy reads of bound arrays:
 - q_b, q̇_b: `ten_length`, `ten_velocity` of the tendons `seg{i}_bend` (rad, rad/s);
@@ -177,7 +182,7 @@ class MujocoBatchPlant:
         if np.any(outside):
             raise ValueError(f"u0 must lie within each simulation's ctrlrange, got {u0[np.any(outside, axis=1)].tolist()} hPa outside")
         layout = self.layout
-        sims = None if ids is None else index
+        sims = None if ids is None else np.sort(index)  # mujoco.batch takes sorted ids
         self.batch.reset(ids=sims, stage=_STAGE_NONE)
         for i, (qpos_adr, dof_adr) in enumerate(zip(layout.hinge_qpos, layout.hinge_dofs)):
             self._qpos[np.ix_(index, qpos_adr)] = (q0[:, i] / len(qpos_adr))[:, None]

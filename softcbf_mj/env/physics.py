@@ -174,7 +174,7 @@ class ArmControl:
         """The plant reached `state` under `record.u` (one control period): the estimate of
         `state`, and the period in the env step's `StepStats` (module docstring)."""
         self.state = state
-        self._estimate = self.estimator(state)
+        self._estimate, self._tip_pred = self.estimator(state), None
         self.last_record = record
         rho = self.rho_meas()
         force = float(np.max(state.contact_forces, initial=0.0))
@@ -196,15 +196,18 @@ class ArmControl:
     def reset_state(self, q0: np.ndarray) -> None:
         """Rest at bending angles q0 (N,) rad (`reset_plant`), and its estimate."""
         self.state = self.reset_plant(q0)
-        self._estimate = self.estimator(self.state)
+        self._estimate, self._tip_pred = self.estimator(self.state), None
 
     def estimate(self) -> Estimate:
         """The controller's view of the current state (what the filter sees next; made once per state)."""
         return self._estimate
 
     def tip_pred(self) -> np.ndarray:
-        """The model's tip r(q̂) (2,) m: PCC kinematics of the estimate."""
-        return tip_position(self._estimate.q, self.lengths)
+        """The model's tip r(q̂) (2,) m: PCC kinematics of the estimate (computed once per estimate; a read-only array)."""
+        if self._tip_pred is None:
+            self._tip_pred = tip_position(self._estimate.q, self.lengths)
+            self._tip_pred.flags.writeable = False
+        return self._tip_pred
 
     def rho_pred(self) -> float:
         """ρ_pred (1): min over facets of the safe set's margin at the model's tip r(q̂)."""
