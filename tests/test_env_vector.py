@@ -199,6 +199,47 @@ def test_a_filter_fault_ends_only_that_sub_envs_episode(tmp_path):
     assert [f["where"] for f in got[-1]["fault"]] == ["filter_batch", "filter_batch"]
 
 
+COUNTING = textwrap.dedent('''
+    import numpy as np
+    from controllers.safety_filter import BatchOutput
+
+    class Counting:
+        """Passes u_nom through; counts its instances' reset() calls."""
+
+        resets = 0
+
+        def reset(self):
+            type(self).resets += 1
+
+        def __call__(self, estimate, u_nom):
+            return u_nom
+
+    class CountingBatch(Counting):
+        resets = 0
+
+        def filter_batch(self, estimates, u_nom):
+            n = len(u_nom)
+            return BatchOutput(np.array(u_nom), np.array(["nominal"] * n), np.zeros(n, dtype=bool), np.full(n, np.nan))
+''')
+
+
+def test_per_arm_filters_reset_every_episode_a_shared_one_at_reset_only(tmp_path):
+    path = tmp_path / "counting.py"
+    path.write_text(COUNTING, encoding="utf-8")
+    for name, after_reset, after_autoreset in (("Counting", 2, 4), ("CountingBatch", 1, 1)):
+        envs = ArmVectorEnv(2, filter=f"{path}:{name}", episode_steps=2, **FAST)
+        counter = type(envs.arms[0].filter)
+        assert (envs.shared_filter is not None) == (name == "CountingBatch")
+        counter.resets = 0
+        envs.reset(seed=0)
+        assert counter.resets == after_reset, name
+        for _ in range(3):  # the episodes end at step 2, both arms autoreset at step 3
+            envs.step(np.zeros((2, 2)))
+        assert counter.resets == after_autoreset, name
+        envs.reset()
+        assert counter.resets == after_autoreset + after_reset, name
+
+
 def test_bad_input_is_refused():
     with pytest.raises(ValueError, match="num_envs must be an integer >= 1, got 0"):
         ArmVectorEnv(0, **FAST)

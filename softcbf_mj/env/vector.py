@@ -75,7 +75,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 
-from closedloop.step import StepRecord
+from closedloop.step import FilterFault, StepRecord
 from softcbf_mj.batch_loop import batch_rows
 from softcbf_mj.env.environment import ArmEnvConfig
 from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, scaled_observation, step_info
@@ -143,21 +143,24 @@ class ArmVectorEnv(VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed must be None, an integer or num_envs = {self.num_envs} seeds, got {len(seeds)}")
         super().reset(seed=seeds[0])
-        results = [self._reset_arm(b, seeds[b]) for b in range(self.num_envs)]
-        if self.shared_filter is not None:  # its reset() once, for all arms (module docstring)
-            self.arms[0].control_step.reset()
-            for arm in self.arms[1:]:
-                arm.control_step.fault = self.arms[0].control_step.fault
+        shared = self.shared_filter is not None
+        results = [self._reset_arm(0, seeds[0], reset_filter=True)]  # a shared filter's reset() once, for all arms
+        fault = self.arms[0].control_step.fault if shared else None  # a fault of that reset is every arm's
+        results += [self._reset_arm(b, seeds[b], reset_filter=not shared, fault=fault) for b in range(1, self.num_envs)]
         self._autoreset[:] = False
         self._started = True
         return self._batch([obs for obs, _ in results]), self._infos([info for _, info in results])
 
-    def _reset_arm(self, b: int, seed: int | None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Sub-environment b's new episode, as dm_control's `Environment.reset` and `GymArmEnv.reset`."""
+    def _reset_arm(self, b: int, seed: int | None, reset_filter: bool,
+                   fault: FilterFault | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Sub-environment b's new episode, as dm_control's `Environment.reset` and `GymArmEnv.reset`: its
+        filter's `reset()` when `reset_filter`; `fault`: the fault of a shared filter's reset, if any."""
         task, arm = self.tasks[b], self.arms[b]
         if seed is not None:
             task.seed(seed)
-        arm.reset(reset_filter=self.shared_filter is None)
+        arm.reset(reset_filter=reset_filter)
+        if fault is not None:
+            arm.control_step.fault = fault
         task.initialize_episode(arm)
         arm.after_reset()
         observation, clipped = scaled_observation(task.get_observation(arm), self.scales)
@@ -195,7 +198,7 @@ class ArmVectorEnv(VectorEnv):
                 self.max_episode_steps is not None and task.steps >= self.max_episode_steps)
             infos[b] = step_info(task, arm, clipped)
         for b in np.flatnonzero(resetting):
-            observations[b], infos[b] = self._reset_arm(b, None)
+            observations[b], infos[b] = self._reset_arm(b, None, reset_filter=self.shared_filter is None)
         self._autoreset = terminated | truncated
         return self._batch(observations), rewards, terminated, truncated, self._infos(infos)
 
@@ -236,8 +239,9 @@ class ArmVectorEnv(VectorEnv):
             values = [info[key] for info in infos]
             if isinstance(first, (bool, int, float, np.number)):
                 out[key] = np.array(values, dtype=type(first))
-            else:
+            else:  # element by element: numpy would unpack tuples of equal length into a 2-d array
                 out[key] = np.empty(self.num_envs, dtype=object)
-                out[key][:] = values
+                for b, value in enumerate(values):
+                    out[key][b] = value
             out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
         return out
