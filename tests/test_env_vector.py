@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space
+from gymnasium.wrappers.vector import RecordEpisodeStatistics
 
-from softcbf_mj.env import ENV_ID, PRESETS, GymArmEnv
+from softcbf_mj.env import ENV_ID, PRESETS, GymArmEnv, RewardConfig
 from softcbf_mj.env.vector import ArmVectorEnv
 
 FAST = {"control_dt": 0.01, "physics_dt": 2e-4, "links_per_segment": 5}  # a coarse, quick arm (as tests/test_env.py)
@@ -127,6 +128,23 @@ def test_next_step_autoreset_ignores_the_action_and_returns_the_reset():
     np.testing.assert_array_equal(reseeded["q"], first["q"])
     single = GymArmEnv(**FAST, episode_steps=2, q0_std=0.1)
     np.testing.assert_array_equal(single.reset(seed=5)[0]["q"], first["q"][1])  # sub-env b gets seed + b
+
+
+def test_gymnasiums_episode_statistics_wrapper_sees_the_same_episodes():
+    """Gymnasium 1.4 has no checker for vector envs; its RecordEpisodeStatistics wrapper relies on
+    next-step autoreset: the same episode returns and lengths as over SyncVectorEnv."""
+    kwargs = {**FAST, "episode_steps": 3, "q0_std": 0.1, "reward": RewardConfig(target_tip_m=(0.2, 0.0))}
+    episodes = {}
+    for mode in ("vector_entry_point", "sync"):
+        envs = RecordEpisodeStatistics(gymnasium.make_vec(ENV_ID, num_envs=2, vectorization_mode=mode, **kwargs))
+        envs.reset(seed=0)
+        episodes[mode] = []
+        for k, actions in enumerate(_actions(2, 8)):
+            info = envs.step(actions)[-1]
+            if "episode" in info:
+                episodes[mode].append((k, info["episode"]["r"].tolist(), info["episode"]["l"].tolist()))
+    assert [k for k, *_ in episodes["sync"]] == [2, 6]
+    assert episodes["vector_entry_point"] == episodes["sync"]
 
 
 def test_batched_filter_is_called_once_for_all_arms_and_matches_single_envs():
