@@ -16,17 +16,22 @@ Steps per second = B · steps / wall s of the step loop (resets at construction 
 the best of `--repeats` runs, the two run in turn within each repeat so that the load of a
 shared machine falls on both; also per CPU s of this process (all its threads). The
 largest |Δ| between the two's observations, rewards and costs over the run is printed: the
-vector environment must return what the single ones do.
+vector environment must return what the single ones do. "physics" is the vector
+environment's batch plant alone, from rest, each action sent unfiltered (MuJoCo clamps it
+to the pressure box) for action_repeat control periods, on each thread count: about the
+ceiling of the vector environment, whose arms cost at least their physics (not exactly:
+the filter changes the commands, so the contacts differ).
 
 Usage: `.venv/bin/python tools/bench_vector_env.py [--num-envs 32] [--ids softcbf_mj/SoftArm-v0,softcbf_mj/ForceRegulation-v0]
 [--steps 200,4] [--nthreads 1,2] [--repeats 2]`; prints a table per id and ends with one line of JSON
-(`ratio` = vector / sync steps per second, per id and thread count).
+(`ratio` = vector / sync steps per second, `physics_ratio` = the physics ceiling / sync, per id and thread count).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import time
@@ -56,6 +61,17 @@ def max_difference(a: dict[str, list[np.ndarray]], b: dict[str, list[np.ndarray]
     return max(float(np.max(np.abs(np.array(a[key]) - np.array(b[key])))) for key in a)
 
 
+def physics(env: Any, actions: np.ndarray) -> tuple[float, float]:
+    """(wall s, CPU s) of the vector env's batch plant alone, each action (B, N) hPa held for action_repeat periods."""
+    plant, repeat = env.unwrapped.plant, env.unwrapped.config.action_repeat
+    plant.reset(np.zeros((plant.n_sims, plant.n_segments)))
+    wall, cpu = time.perf_counter(), time.process_time()
+    for action in actions:
+        for _ in range(repeat):
+            plant.step(action)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
 def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
     kwargs = {"filter": args.filter, "filter_params": dict(p.split("=", 1) for p in args.filter_params.split(";") if p),
               "q0_std": 0.05}
@@ -75,6 +91,7 @@ def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
             wall, cpu, out = run(env, actions)
             best[f"vector_{n}"] = min(best.get(f"vector_{n}", (wall, cpu)), (wall, cpu))
             check = max(check, max_difference(out, reference))
+            best[f"physics_{n}"] = min(best.get(f"physics_{n}", (math.inf, math.inf)), physics(env, actions))
     sync.close()
     for env in vectors.values():
         env.close()
@@ -87,9 +104,14 @@ def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
     rows = []
     for n in args.nthreads:
         rate, cpu_rate = rates[f"vector_{n}"]
+        ceiling, ceiling_cpu = rates[f"physics_{n}"]
         rows.append({"nthread": n, "steps_per_s": rate, "steps_per_cpu_s": cpu_rate, "ratio": rate / sync_rate,
-                     "ratio_cpu": cpu_rate / sync_cpu})
+                     "ratio_cpu": cpu_rate / sync_cpu, "physics_steps_per_s": ceiling,
+                     "physics_steps_per_cpu_s": ceiling_cpu, "physics_ratio": ceiling / sync_rate,
+                     "physics_ratio_cpu": ceiling_cpu / sync_cpu})
         print(f"  {'vector':>10} {n:7d} {rate:10.0f} {cpu_rate:12.0f} {rate / sync_rate:7.2f} {cpu_rate / sync_cpu:9.2f}")
+        print(f"  {'physics':>10} {n:7d} {ceiling:10.0f} {ceiling_cpu:12.0f} {ceiling / sync_rate:7.2f} "
+              f"{ceiling_cpu / sync_cpu:9.2f}")
     print(f"  max |Δ| vector vs sync (observations, rewards, costs): {check:.2e}")
     return {"id": env_id, "steps": steps, "sync_steps_per_s": sync_rate, "sync_steps_per_cpu_s": sync_cpu,
             "vector": rows, "max_abs_difference": check}
