@@ -95,9 +95,12 @@ class BatchRun:
         return row
 
 
-def _batch_rows(steps: Sequence[ControlStep], safety_filter: SafetyFilter, estimates: list[Estimate],
-                active: np.ndarray) -> list[StepRecord | None]:
-    """One control step of the active simulations through the shared filter's `filter_batch`."""
+def batch_rows(steps: Sequence[ControlStep], safety_filter: SafetyFilter, estimates: list[Estimate],
+               active: np.ndarray) -> list[StepRecord | None]:
+    """One control step of the active simulations (`active` (B,) bool; None for the others)
+    through the shared filter's `filter_batch`, called once for those whose step calls it
+    (`ControlStep.prepare`, then `ControlStep.finish` per row; module docstring). Also the
+    vector environment's (`softcbf_mj.env.vector`)."""
     prepared = [steps[b].prepare(estimates[b]) if active[b] else (None, None) for b in range(len(steps))]
     called = [b for b, (view, _) in enumerate(prepared) if view is not None]
     results: dict[int, object] = {}
@@ -174,7 +177,7 @@ def run_batch_closed_loop(
     for k in range(n_steps):
         estimates = [Estimate(float(state.t[b]), state.q[b], state.qd[b], float(state.t[b])) for b in range(n_sims)]
         if shared_batch:
-            records = _batch_rows(steps, safety_filter, estimates, active)
+            records = batch_rows(steps, safety_filter, estimates, active)
         else:
             records = [steps[b](estimates[b]) if active[b] else None for b in range(n_sims)]
         margin = np.min(safe_set.margin_from_force(state.contact_forces), axis=1)

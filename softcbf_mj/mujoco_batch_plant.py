@@ -18,6 +18,11 @@ them in the batch, which changes nothing (tested) but keeps the per-simulation m
 consistent if a caller writes an input field afterwards. So no builder formula is
 repeated here: whatever `build_model` does for a config, simulation b does.
 
+`reset(q0, ..., ids=[b, ...])` resets only those simulations (`Batch.reset` and
+`Batch.forward` on their ids), each as `MujocoPlant.reset` would, the others keeping their
+state and time (tested against a fresh `MujocoPlant` and a batch never reset): the vector
+environment (`softcbf_mj.env.vector`) restarts one arm's episode that way.
+
 The hot path has no per-simulation Python: one `Batch.step(nstep, stage=ACC)` call per
 control period, on `nthread` threads, then numpy reads of bound arrays:
 - q_b, q̇_b: `ten_length`, `ten_velocity` of the tendons `seg{i}_bend` (rad, rad/s);
@@ -148,8 +153,8 @@ class MujocoBatchPlant:
         models = [build_model(config) for config in configs]
         return cls(models[0], len(models), control_dt, nthread, per_simulation=models)
 
-    def _matrix(self, value: np.ndarray | None, name: str, default: float = 0.0) -> np.ndarray:
-        shape = (self.n_sims, self.n_segments)
+    def _matrix(self, value: np.ndarray | None, name: str, default: float = 0.0, rows: int | None = None) -> np.ndarray:
+        shape = (self.n_sims if rows is None else rows, self.n_segments)
         if value is None:
             return np.full(shape, default)
         arr = np.asarray(value, dtype=float)
@@ -159,21 +164,33 @@ class MujocoBatchPlant:
             raise ValueError(f"{name} must be finite, got {arr.tolist()}")
         return arr
 
-    def reset(self, q0: np.ndarray, qd0: np.ndarray | None = None, u0: np.ndarray | None = None) -> BatchPlantState:
-        """`MujocoPlant.reset` of every simulation: q0, qd0 (rad, rad/s) and u0 (hPa), each (B, N)."""
-        q0, qd0, u0 = self._matrix(q0, "q0"), self._matrix(qd0, "qd0"), self._matrix(u0, "u0")
-        outside = (u0 < self.u_min) | (u0 > self.u_max)
+    def reset(self, q0: np.ndarray, qd0: np.ndarray | None = None, u0: np.ndarray | None = None,
+              ids: Sequence[int] | None = None) -> BatchPlantState:
+        """`MujocoPlant.reset` of every simulation, or of the simulations `ids` only (the others
+        keep their state and time): q0, qd0 (rad, rad/s) and u0 (hPa), each (B, N), or
+        (len(ids), N) rows in the order of `ids`. Returns every simulation's state."""
+        if ids is None:
+            index = np.arange(self.n_sims)
+        else:
+            index = np.array(ids, dtype=int).reshape(-1)
+            if len(index) == 0 or np.any((index < 0) | (index >= self.n_sims)) or len(set(index.tolist())) != len(index):
+                raise ValueError(f"ids must be distinct simulations in [0, {self.n_sims - 1}], at least one, got {ids!r}")
+        rows = len(index)
+        q0, qd0, u0 = (self._matrix(q0, "q0", rows=rows), self._matrix(qd0, "qd0", rows=rows),
+                       self._matrix(u0, "u0", rows=rows))
+        outside = (u0 < self.u_min[index]) | (u0 > self.u_max[index])
         if np.any(outside):
             raise ValueError(f"u0 must lie within each simulation's ctrlrange, got {u0[np.any(outside, axis=1)].tolist()} hPa outside")
         layout = self.layout
-        self.batch.reset(stage=_STAGE_NONE)
+        sims = None if ids is None else np.sort(index)  # mujoco.batch takes sorted ids
+        self.batch.reset(ids=sims, stage=_STAGE_NONE)
         for i, (qpos_adr, dof_adr) in enumerate(zip(layout.hinge_qpos, layout.hinge_dofs)):
-            self._qpos[:, qpos_adr] = (q0[:, i] / len(qpos_adr))[:, None]
-            self._qvel[:, dof_adr] = (qd0[:, i] / len(dof_adr))[:, None]
-        self._ctrl[:, layout.actuator_ids] = u0
+            self._qpos[np.ix_(index, qpos_adr)] = (q0[:, i] / len(qpos_adr))[:, None]
+            self._qvel[np.ix_(index, dof_adr)] = (qd0[:, i] / len(dof_adr))[:, None]
+        self._ctrl[np.ix_(index, layout.actuator_ids)] = u0
         dynamic = layout.act_adr >= 0
-        self._act[:, layout.act_adr[dynamic]] = u0[:, dynamic]
-        self.batch.forward()
+        self._act[np.ix_(index, layout.act_adr[dynamic])] = u0[:, dynamic]
+        self.batch.forward(ids=sims)
         return self.state()
 
     def step(self, u: np.ndarray) -> BatchPlantState:

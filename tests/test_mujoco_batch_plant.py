@@ -81,3 +81,38 @@ def test_one_model_for_all_and_input_checks():
         MujocoBatchPlant(plant.model, 0)
     with pytest.raises(ValueError, match=r"differ in \['opt.timestep'\]"):
         MujocoBatchPlant.from_configs([config, dataclasses.replace(config, physics_dt=1e-4)])
+
+
+def test_reset_of_some_simulations_equals_a_fresh_plant_and_leaves_the_others_alone():
+    """reset(ids=...) mid-run: the reset simulations restart as a fresh MujocoPlant (bit for bit, warm
+    start and time included), the others go on as if nothing happened."""
+    configs = _configs()
+    batch = MujocoBatchPlant.from_configs(configs)
+    untouched = MujocoBatchPlant.from_configs(configs)  # the same batch, never reset mid-run
+    rng = np.random.default_rng(5)
+    commands = _commands(rng, 300, len(configs))
+    q0 = rng.normal(0.0, 0.2, (len(configs), 2))
+    batch.reset(q0)
+    untouched.reset(q0)
+    for u in commands[:200]:
+        batch.step(u)
+        untouched.step(u)
+    assert np.any(batch.state().contact_forces[[1, 3], 0] > 0), "the reset simulations must be in contact before"
+    q_new, qd_new, u_new = rng.normal(0.0, 0.2, (2, 2)), rng.normal(0.0, 0.5, (2, 2)), rng.uniform(-100, 100, (2, 2))
+    states = batch.reset(q_new, qd_new, u_new, ids=[3, 1])  # rows in the order of ids
+    fresh = {3: MujocoPlant.from_config(configs[3]), 1: MujocoPlant.from_config(configs[1])}
+    rows = {b: fresh[b].reset(q_new[i], qd_new[i], u_new[i]) for i, b in enumerate((3, 1))}
+    others = untouched.state()
+    for u in commands[200:]:
+        for b in range(len(configs)):
+            got = states.row(b)
+            want = rows[b] if b in rows else others.row(b)
+            for name in ("t", "q", "qd", "segment_ends", "contact_forces", "u_applied"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=f"sim {b} {name}")
+        states, others = batch.step(u), untouched.step(u)
+        rows = {b: fresh[b].step(u[b]) for b in rows}
+    for bad in ([], [4], [1, 1], [-1]):
+        with pytest.raises(ValueError, match=r"ids must be distinct simulations in \[0, 3\]"):
+            batch.reset(np.zeros((max(len(bad), 1), 2)), ids=bad)
+    with pytest.raises(ValueError, match=r"q0 must have shape \(1, 2\)"):
+        batch.reset(np.zeros((4, 2)), ids=[0])

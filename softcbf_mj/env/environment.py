@@ -147,6 +147,11 @@ class ArmEnvConfig:
         """The controller's estimator: the exact state, or the noisy state of state_noise_std."""
         return NoisyState(*self.state_noise_std) if any(self.state_noise_std) else exact_state
 
+    def task(self, plant: MujocoPlant, seed: int | None = None) -> ArmTask:
+        """The task of this configuration on `plant`'s action box and plates; `seed` seeds its initial states."""
+        return ArmTask(plant.u_min, plant.u_max, plant.n_facets, self.episode_steps, self.reward, self.q0_std,
+                       self.camera, self.tag_detections, self.image_size, seed, self.observation, self.cost)
+
     def safety_filter(self, context: FilterContext) -> SafetyFilter:
         """The filter `filter` with `filter_params`, told `context` (the registry's convention)."""
         return build_filter(self.filter, self.filter_params, context)
@@ -168,6 +173,4 @@ def make_environment(config: ArmEnvConfig | None = None, seed: int | None = None
     context = config.context()
     physics = ArmPhysics(plant, config.safety_filter(context), context, config.hold_s, config.estimator(),
                          image_size=config.image_size)
-    task = ArmTask(plant.u_min, plant.u_max, plant.n_facets, config.episode_steps, config.reward, config.q0_std,
-                   config.camera, config.tag_detections, config.image_size, seed, config.observation, config.cost)
-    return ArmEnvironment(physics, task, n_sub_steps=config.action_repeat)
+    return ArmEnvironment(physics, config.task(plant, seed), n_sub_steps=config.action_repeat)

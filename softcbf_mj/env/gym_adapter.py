@@ -34,7 +34,9 @@ Gymnasium's registry knows `ENV_ID` ("softcbf_mj/SoftArm-v0": the bare task, rew
 from a `RewardConfig` target, max_episode_steps = ArmEnvConfig's episode_steps, 1000) and
 the presets of `softcbf_mj.env.presets` ("softcbf_mj/ForceRegulation-v0",
 "softcbf_mj/TipReaching-v0", max_episode_steps = presets.EPISODE_STEPS); keywords as
-`GymArmEnv`'s.
+`GymArmEnv`'s. Each id's `vector_entry_point` is `softcbf_mj.env.vector.ArmVectorEnv`, B
+arms on one batch plant: `gymnasium.make_vec(id, num_envs=B)` builds it (its default
+vectorization mode when an id has one; vectorization_mode="sync" gives `SyncVectorEnv`).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ from dm_env import specs
 from gymnasium import spaces
 
 from softcbf_mj.env.environment import ArmEnvConfig, make_environment
-from softcbf_mj.env.physics import ArmPhysics
+from softcbf_mj.env.physics import ArmControl, ArmPhysics
 from softcbf_mj.env.presets import EPISODE_STEPS, PRESETS
 from softcbf_mj.env.task import ArmTask
 
@@ -69,6 +71,52 @@ def box(spec: specs.Array) -> spaces.Box:
     return spaces.Box(low.astype(dtype), high.astype(dtype), spec.shape, dtype)
 
 
+def gym_spaces(task: ArmTask, physics: ArmControl, config: ArmEnvConfig, normalise: bool
+               ) -> tuple[spaces.Box, spaces.Dict, dict[str, np.ndarray]]:
+    """(action space, observation space, the observation keys' scales) of one arm (module
+    docstring); the scales are empty unless `normalise`."""
+    action = task.action_spec(physics)
+    observation = task.observation_spec(physics)
+    scales = task.scales(config.robot.array("lengths"), config.safe_set.f_max) if normalise else {}
+    if normalise:
+        return (spaces.Box(-1.0, 1.0, action.shape, np.float64),
+                spaces.Dict({key: spaces.Box(-1.0, 1.0, spec.shape, np.float64) if key in scales else box(spec)
+                             for key, spec in observation.items()}), scales)
+    return box(action), spaces.Dict({key: box(spec) for key, spec in observation.items()}), scales
+
+
+def nominal_command(action: np.ndarray, u_low: np.ndarray, u_high: np.ndarray, normalise: bool) -> np.ndarray:
+    """The nominal command (N,) hPa of `action` (the action itself unless normalised; module docstring)."""
+    a = np.asarray(action, dtype=float)
+    return u_low + 0.5 * (a + 1.0) * (u_high - u_low) if normalise else a
+
+
+def scaled_observation(observation: Mapping[str, np.ndarray], scales: Mapping[str, np.ndarray]
+                       ) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
+    """(the observation normalised and clipped by `scales`, the keys that were clipped; module docstring)."""
+    out, clipped = dict(observation), []
+    for key, scale in scales.items():
+        value = out[key] / scale
+        if np.any(np.abs(value) > 1.0):
+            clipped.append(key)
+        out[key] = np.clip(value, -1.0, 1.0)
+    return out, tuple(clipped)
+
+
+def step_info(task: ArmTask, physics: ArmControl, clipped: tuple[str, ...]) -> dict[str, Any]:
+    """The info of an env step or reset (module docstring); `clipped`: the observation keys clipped."""
+    record = physics.last_record
+    return {
+        "cost": task.cost(physics),
+        **vars(physics.stats),  # StepStats' fields in order (a flat dataclass: asdict's deep copy costs 10x)
+        "clipped": clipped,
+        "t": physics.state.t,
+        "monitor_action": record.action.value if record is not None else "",
+        "filter_action": record.output.action if record is not None and record.output is not None else "",
+        "fault": physics.fault.to_json() if physics.fault is not None else None,
+    }
+
+
 class GymArmEnv(gymnasium.Env):
     """The arm environment through Gymnasium's API (module docstring)."""
 
@@ -84,17 +132,8 @@ class GymArmEnv(gymnasium.Env):
         self.environment = make_environment(self.config)
         self.render_mode, self.normalise = render_mode, normalise
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.env_dt}
-        action = self.environment.action_spec()
-        self.u_low, self.u_high = np.array(action.minimum, dtype=float), np.array(action.maximum, dtype=float)
-        observation = self.environment.observation_spec()
-        self.scales = self.task.scales(self.config.robot.array("lengths"), self.config.safe_set.f_max) if normalise else {}
-        if normalise:
-            self.action_space = spaces.Box(-1.0, 1.0, action.shape, np.float64)
-            self.observation_space = spaces.Dict({key: spaces.Box(-1.0, 1.0, spec.shape, np.float64) if key in self.scales
-                                                  else box(spec) for key, spec in observation.items()})
-        else:
-            self.action_space = box(action)
-            self.observation_space = spaces.Dict({key: box(spec) for key, spec in observation.items()})
+        self.u_low, self.u_high = self.task.u_min, self.task.u_max
+        self.action_space, self.observation_space, self.scales = gym_spaces(self.task, self.physics, self.config, normalise)
         self._clipped: tuple[str, ...] = ()
         self._done = True
 
@@ -124,19 +163,12 @@ class GymArmEnv(gymnasium.Env):
         return self._observe(time_step.observation), float(time_step.reward), terminated, truncated, self._info()
 
     def u_nom(self, action: np.ndarray) -> np.ndarray:
-        """The nominal command (N,) hPa of `action` (the action itself unless normalised; module docstring)."""
-        a = np.asarray(action, dtype=float)
-        return self.u_low + 0.5 * (a + 1.0) * (self.u_high - self.u_low) if self.normalise else a
+        """The nominal command (N,) hPa of `action` (`nominal_command`)."""
+        return nominal_command(action, self.u_low, self.u_high, self.normalise)
 
     def _observe(self, observation: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """The dm_env observation, normalised and clipped when asked (module docstring); sets the clipped keys."""
-        out, clipped = dict(observation), []
-        for key, scale in self.scales.items():
-            value = out[key] / scale
-            if np.any(np.abs(value) > 1.0):
-                clipped.append(key)
-            out[key] = np.clip(value, -1.0, 1.0)
-        self._clipped = tuple(clipped)
+        """The dm_env observation, normalised and clipped when asked (`scaled_observation`); sets the clipped keys."""
+        out, self._clipped = scaled_observation(observation, self.scales)
         return out
 
     def render(self) -> np.ndarray | None:
@@ -149,17 +181,7 @@ class GymArmEnv(gymnasium.Env):
         self.physics.close()
 
     def _info(self) -> dict[str, Any]:
-        physics = self.physics
-        record = physics.last_record
-        return {
-            "cost": self.task.cost(physics),
-            **dataclasses.asdict(physics.stats),
-            "clipped": self._clipped,
-            "t": physics.time(),
-            "monitor_action": record.action.value if record is not None else "",
-            "filter_action": record.output.action if record is not None and record.output is not None else "",
-            "fault": physics.fault.to_json() if physics.fault is not None else None,
-        }
+        return step_info(self.task, self.physics, self._clipped)
 
 
 class SafetyGymnasiumStep(gymnasium.Wrapper):
@@ -170,6 +192,9 @@ class SafetyGymnasiumStep(gymnasium.Wrapper):
         return observation, reward, float(info["cost"]), terminated, truncated, info
 
 
-gymnasium.register(ENV_ID, entry_point=GymArmEnv, max_episode_steps=ArmEnvConfig().episode_steps)
+VECTOR_ENTRY_POINT = "softcbf_mj.env.vector:ArmVectorEnv"  # imported by gymnasium.make_vec (it imports this module)
+gymnasium.register(ENV_ID, entry_point=GymArmEnv, vector_entry_point=VECTOR_ENTRY_POINT,
+                   max_episode_steps=ArmEnvConfig().episode_steps)
 for preset_id, preset in PRESETS.items():
-    gymnasium.register(preset_id, entry_point=GymArmEnv, kwargs={"config": preset()}, max_episode_steps=EPISODE_STEPS)
+    gymnasium.register(preset_id, entry_point=GymArmEnv, vector_entry_point=VECTOR_ENTRY_POINT,
+                       kwargs={"config": preset()}, max_episode_steps=EPISODE_STEPS)

@@ -9,6 +9,12 @@ exactly as `softcbf_mj.loop.run_closed_loop` runs one:
     record    = control_step(estimate)                 nominal → filter → admission → monitor
     state_k+1 = plant.step(record.u)                   u (N,) hPa held for Δ (zero-order hold)
 
+What does not depend on how the plant is stepped is `ArmControl` (ArmPhysics is one):
+the control step, the estimate, the statistics below (`begin_step`, `end_period(record,
+state)` per period, `end_step`) and the episode's reset; `softcbf_mj.env.vector` runs B
+`ArmControl`s over one `MujocoBatchPlant`, so that the task (`softcbf_mj.env.task`)
+reads the same state from both.
+
 The estimate of a state is made once, when the state is reached (`estimate()` returns it),
 so the observation shows exactly what the filter is handed next. `NoisyState(q_std,
 qd_std)` is the noisy-state estimator: the true q (rad) and q̇ (rad/s) plus independent
@@ -45,7 +51,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -110,101 +116,98 @@ class StepStats:
     vented: bool = False
 
 
-class ArmPhysics(control.Physics):
-    """MujocoPlant + ControlStep, stepped one control period at a time (module docstring).
+class ArmControl:
+    """One arm's control step and its bookkeeping, whatever steps its plant (module docstring).
 
+    The state the environment reads (`state`, `estimate()`, `last_record`, `stats`,
+    `fault`, `vent_latched`, ρ_meas, ρ_pred) and what an env step does with it, for a plant
+    of n_segments and n_facets that `reset_plant(q0)` (q0 (N,) rad) puts at rest and
+    whose state after each control period is handed to `end_period`: `ArmPhysics` steps
+    its own `MujocoPlant`; `softcbf_mj.env.vector` steps B of them on one batch plant.
     safety_filter: built for `context` (whose safe set gives ρ_meas and whose limits the
-    control step clips to); hold_s: the safety monitor's hold (s); image_size (W, H) px
-    sizes the camera's frames.
+    control step clips to); hold_s: the safety monitor's hold (s).
     """
 
-    def __init__(self, plant: MujocoPlant, safety_filter: SafetyFilter, context: FilterContext,
-                 hold_s: float = DEFAULT_HOLD_S, estimator: Callable[[PlantState], Estimate] = exact_state,
-                 image_size: tuple[int, int] = (320, 180)) -> None:
-        if context.safe_set.n_facets != plant.n_facets:
-            raise ValueError(f"the safe set has {context.safe_set.n_facets} facets, the MuJoCo scene {plant.n_facets} plates")
-        if context.robot.n_segments != plant.n_segments:
-            raise ValueError(f"the context's robot has {context.robot.n_segments} segments, the MuJoCo arm {plant.n_segments}")
-        self.plant, self.filter, self.context, self.estimator = plant, safety_filter, context, estimator
-        self.safe_set, self.hold_s, self.image_size = context.safe_set, hold_s, image_size
-        self.command = HeldCommand(plant.n_segments)
+    def __init__(self, n_segments: int, n_facets: int, safety_filter: SafetyFilter, context: FilterContext,
+                 hold_s: float, estimator: Callable[[PlantState], Estimate],
+                 reset_plant: Callable[[np.ndarray], PlantState]) -> None:
+        if context.safe_set.n_facets != n_facets:
+            raise ValueError(f"the safe set has {context.safe_set.n_facets} facets, the MuJoCo scene {n_facets} plates")
+        if context.robot.n_segments != n_segments:
+            raise ValueError(f"the context's robot has {context.robot.n_segments} segments, the MuJoCo arm {n_segments}")
+        self.n_segments, self.reset_plant = n_segments, reset_plant
+        self.filter, self.context, self.estimator = safety_filter, context, estimator
+        self.safe_set, self.hold_s = context.safe_set, hold_s
+        self.command = HeldCommand(n_segments)
         self.control_step = self.new_control_step()
         self.lengths = context.robot.array("lengths")
-        self.reset_state(np.zeros(plant.n_segments))
+        self.reset_state(np.zeros(n_segments))
         self.last_record: StepRecord | None = None
         self.stats = StepStats()
-        self._renderer: OffscreenRenderer | None = None
-        self._free_renderer: weakref.finalize | None = None
-        self._detector: TagDetector | None = None
-
-    # -- dm_control Physics -------------------------------------------------------
-
-    def timestep(self) -> float:
-        """The control period Δ (s): one physics step of the environment."""
-        return self.plant.control_dt
-
-    def time(self) -> float:
-        """The simulated time (s) since the episode's start."""
-        return self.state.t
+        self._tally = StepStats()
 
     def set_control(self, control: np.ndarray) -> None:
         """The policy's action u_nom (N,) hPa, held until the next call."""
         u_nom = np.array(control, dtype=float)
-        if u_nom.shape != (self.plant.n_segments,):
-            raise ValueError(f"the action u_nom must have shape ({self.plant.n_segments},) hPa, got {u_nom.shape}")
+        if u_nom.shape != (self.n_segments,):
+            raise ValueError(f"the action u_nom must have shape ({self.n_segments},) hPa, got {u_nom.shape}")
         self.command.u_nom = u_nom
 
-    def reset(self) -> None:
-        """A new episode: a new control step (the filter reset, a fresh monitor), u_nom = 0, the arm straight at rest."""
-        self.command.u_nom = np.zeros(self.plant.n_segments)
+    def reset(self, reset_filter: bool = True) -> None:
+        """A new episode: a new control step (a fresh monitor; the filter's `reset()` unless
+        `reset_filter` is False, for a filter shared with other arms), u_nom = 0, the arm straight at rest."""
+        self.command.u_nom = np.zeros(self.n_segments)
         self.control_step = self.new_control_step()
-        self.control_step.reset()
-        self.reset_state(np.zeros(self.plant.n_segments))
+        if reset_filter:
+            self.control_step.reset()
+        self.reset_state(np.zeros(self.n_segments))
 
     def after_reset(self) -> None:
         self.last_record = None
         self.stats = StepStats()
 
-    def step(self, n_sub_steps: int = 1) -> None:
-        """Run `n_sub_steps` control periods (module docstring); their `StepStats` in `stats`."""
-        periods = violations = 0
-        rho_min, force_max, excess, vented = math.inf, 0.0, 0.0, False
-        f_max = self.safe_set.f_max
-        for _ in range(n_sub_steps):
-            record = self.control_step(self._estimate)
-            self.state = self.plant.step(record.u)
-            self._estimate = self.estimator(self.state)
-            self.last_record = record
-            rho = self.rho_meas()
-            force = float(np.max(self.state.contact_forces, initial=0.0))
-            periods += 1
-            violations += rho < 0.0
-            rho_min = min(rho_min, rho)
-            force_max = max(force_max, force)
-            excess += max(0.0, force - f_max) / f_max
-            vented = vented or record.action is SafeAction.VENT
-            if self.control_step.stopped:  # a filter fault has vented: the episode ends (closedloop.step)
-                break
-        self.stats = StepStats(periods, violations, rho_min, force_max, excess / periods, vented)
+    def begin_step(self) -> None:
+        """Before an env step's control periods: its `StepStats` start from none."""
+        self._tally = StepStats()
 
-    # -- the environment's view -------------------------------------------------------
+    def end_period(self, record: StepRecord, state: PlantState) -> None:
+        """The plant reached `state` under `record.u` (one control period): the estimate of
+        `state`, and the period in the env step's `StepStats` (module docstring)."""
+        self.state = state
+        self._estimate, self._tip_pred = self.estimator(state), None
+        self.last_record = record
+        rho = self.rho_meas()
+        force = float(np.max(state.contact_forces, initial=0.0))
+        tally = self._tally
+        self._tally = StepStats(tally.periods + 1, tally.violation_periods + (rho < 0.0), min(tally.rho_meas_min, rho),
+                                max(tally.force_max_N, force),
+                                tally.force_excess + max(0.0, force - self.safe_set.f_max) / self.safe_set.f_max,
+                                tally.vented or record.action is SafeAction.VENT)
+
+    def end_step(self) -> None:
+        """After an env step's periods: `stats` (force_excess their mean)."""
+        tally = self._tally
+        self.stats = replace(tally, force_excess=tally.force_excess / tally.periods) if tally.periods else tally
 
     def new_control_step(self) -> ControlStep:
         """The control step of an episode: the filter, the held action as nominal, a fresh safety monitor."""
-        return ControlStep(self.filter, self.command, self.context, SafetyMonitor(self.plant.n_segments, self.hold_s))
+        return ControlStep(self.filter, self.command, self.context, SafetyMonitor(self.n_segments, self.hold_s))
 
     def reset_state(self, q0: np.ndarray) -> None:
-        """Rest at bending angles q0 (N,) rad (the plant's `reset`), and its estimate."""
-        self.state = self.plant.reset(q0)
-        self._estimate = self.estimator(self.state)
+        """Rest at bending angles q0 (N,) rad (`reset_plant`), and its estimate."""
+        self.state = self.reset_plant(q0)
+        self._estimate, self._tip_pred = self.estimator(self.state), None
 
     def estimate(self) -> Estimate:
         """The controller's view of the current state (what the filter sees next; made once per state)."""
         return self._estimate
 
     def tip_pred(self) -> np.ndarray:
-        """The model's tip r(q̂) (2,) m: PCC kinematics of the estimate."""
-        return tip_position(self._estimate.q, self.lengths)
+        """The model's tip r(q̂) (2,) m: PCC kinematics of the estimate (computed once per estimate; a read-only array)."""
+        if self._tip_pred is None:
+            self._tip_pred = tip_position(self._estimate.q, self.lengths)
+            self._tip_pred.flags.writeable = False
+        return self._tip_pred
 
     def rho_pred(self) -> float:
         """ρ_pred (1): min over facets of the safe set's margin at the model's tip r(q̂)."""
@@ -223,6 +226,44 @@ class ArmPhysics(control.Physics):
     def vent_latched(self) -> bool:
         """The safety monitor has latched a vent (the episode cannot recover)."""
         return self.control_step.monitor.vent_latched
+
+
+class ArmPhysics(ArmControl, control.Physics):
+    """MujocoPlant + ControlStep (`ArmControl`), stepped one control period at a time (module docstring).
+
+    image_size (W, H) px sizes the camera's frames; the other arguments as `ArmControl`'s.
+    """
+
+    def __init__(self, plant: MujocoPlant, safety_filter: SafetyFilter, context: FilterContext,
+                 hold_s: float = DEFAULT_HOLD_S, estimator: Callable[[PlantState], Estimate] = exact_state,
+                 image_size: tuple[int, int] = (320, 180)) -> None:
+        self.plant, self.image_size = plant, image_size
+        super().__init__(plant.n_segments, plant.n_facets, safety_filter, context, hold_s, estimator, plant.reset)
+        self._renderer: OffscreenRenderer | None = None
+        self._free_renderer: weakref.finalize | None = None
+        self._detector: TagDetector | None = None
+
+    # -- dm_control Physics -------------------------------------------------------
+
+    def timestep(self) -> float:
+        """The control period Δ (s): one physics step of the environment."""
+        return self.plant.control_dt
+
+    def time(self) -> float:
+        """The simulated time (s) since the episode's start."""
+        return self.state.t
+
+    def step(self, n_sub_steps: int = 1) -> None:
+        """Run `n_sub_steps` control periods (module docstring); their `StepStats` in `stats`."""
+        self.begin_step()
+        for _ in range(n_sub_steps):
+            record = self.control_step(self._estimate)
+            self.end_period(record, self.plant.step(record.u))
+            if self.control_step.stopped:  # a filter fault has vented: the episode ends (closedloop.step)
+                break
+        self.end_step()
+
+    # -- the camera -------------------------------------------------------------------
 
     def render_image(self) -> np.ndarray:
         """The overhead camera's image (H, W, 3) uint8 RGB of the current state."""

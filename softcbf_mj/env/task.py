@@ -72,7 +72,7 @@ import numpy as np
 from dm_control.rl import control
 from dm_env import specs
 
-from softcbf_mj.env.physics import ArmPhysics, NoisyState, StepStats
+from softcbf_mj.env.physics import ArmControl, NoisyState, StepStats
 
 OBSERVATION_UNITS = {
     "q": "rad (the controller's estimate)",
@@ -144,7 +144,9 @@ class ArmTask(control.Task):
     u_min, u_max: (N,) hPa, the action box; episode_steps: env steps per episode (>= 1);
     q0_std: rad (>= 0); observation: one of OBSERVATIONS; cost: one of COSTS; camera,
     tag_detections: the optional observations; seed: the initial generator's seed (None:
-    from the operating system).
+    from the operating system). The methods read an `ArmControl` (the single env's
+    `ArmPhysics`, or one arm of the vector env); the camera's observations need an
+    `ArmPhysics` (its renderer).
     """
 
     def __init__(self, u_min: np.ndarray, u_max: np.ndarray, n_facets: int, episode_steps: int,
@@ -193,29 +195,29 @@ class ArmTask(control.Task):
         return {"q": (n,), "qd": (n,), "u": (n,), "tip_pred": (2,), "rho_pred": (1,), "q_true": (n,), "qd_true": (n,),
                 "tip": (2,), "contact_force": (p,), "rho_meas": (1,), "tag_corners": (n + 1, 4, 2), "tag_seen": (n + 1,)}
 
-    def cost(self, physics: ArmPhysics) -> float:
+    def cost(self, physics: ArmControl) -> float:
         """The last env step's cost (module docstring)."""
         return step_cost(physics.stats, self.cost_definition)
 
     # -- dm_control Task --------------------------------------------------------------
 
-    def initialize_episode(self, physics: ArmPhysics) -> None:
+    def initialize_episode(self, physics: ArmControl) -> None:
         self.steps = 0
         q0 = self.random.normal(0.0, self.q0_std, self.n_segments) if self.q0_std > 0 else np.zeros(self.n_segments)
         if isinstance(physics.estimator, NoisyState):
             physics.estimator.reseed(int(self.random.integers(2**63)))
         physics.reset_state(q0)
 
-    def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
+    def before_step(self, action: np.ndarray, physics: ArmControl) -> None:
         physics.set_control(action)
 
-    def after_step(self, physics: ArmPhysics) -> None:
+    def after_step(self, physics: ArmControl) -> None:
         self.steps += 1
 
-    def action_spec(self, physics: ArmPhysics) -> specs.BoundedArray:
+    def action_spec(self, physics: ArmControl) -> specs.BoundedArray:
         return specs.BoundedArray((self.n_segments,), np.float64, self.u_min, self.u_max, name="u_nom [hPa]")
 
-    def observation_spec(self, physics: ArmPhysics) -> OrderedDict[str, specs.Array]:
+    def observation_spec(self, physics: ArmControl) -> OrderedDict[str, specs.Array]:
         shapes = self.shapes()
         spec: OrderedDict[str, specs.Array] = OrderedDict(
             (key, specs.Array(shapes[key], np.float64, name=f"{key} [{OBSERVATION_UNITS[key]}]")) for key in self.keys()
@@ -228,7 +230,7 @@ class ArmTask(control.Task):
             spec["tag_seen"] = specs.BoundedArray(shapes["tag_seen"], np.uint8, 0, 1, name=f"tag_seen [{OBSERVATION_UNITS['tag_seen']}]")
         return spec
 
-    def get_observation(self, physics: ArmPhysics) -> OrderedDict[str, np.ndarray]:
+    def get_observation(self, physics: ArmControl) -> OrderedDict[str, np.ndarray]:
         estimate, state = physics.estimate(), physics.state
         u = physics.last_record.u if physics.last_record is not None else np.zeros(self.n_segments)
         observation = OrderedDict(
@@ -250,7 +252,7 @@ class ArmTask(control.Task):
                 observation["tag_corners"], observation["tag_seen"] = corners, seen
         return observation
 
-    def get_reward(self, physics: ArmPhysics) -> float:
+    def get_reward(self, physics: ArmControl) -> float:
         config, reward = self.reward, 0.0
         if config.target_tip_m is not None:
             reward -= config.tracking_weight * float(np.hypot(*(physics.state.tip - np.array(config.target_tip_m))))
@@ -259,7 +261,7 @@ class ArmTask(control.Task):
             reward -= config.force_weight * abs(force - config.target_force_N)
         return reward - config.violation_penalty * physics.stats.violation_periods
 
-    def get_termination(self, physics: ArmPhysics) -> float | None:
+    def get_termination(self, physics: ArmControl) -> float | None:
         if self.reward.terminate_on_violation and physics.stats.violation_periods > 0:
             return 0.0
         if physics.vent_latched and (self.reward.terminate_on_vent or physics.fault is not None):

@@ -1,0 +1,142 @@
+"""Steps per second of the vector environment on the batch plant against `SyncVectorEnv` of the single environment.
+
+Both are made by Gymnasium from the same registered id with the same keywords (the
+filter `--filter` with `--filter-params`, q0_std 0.05 rad):
+- vector: `gymnasium.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point",
+  nthread=n)` (`softcbf_mj.env.vector.ArmVectorEnv`: one `MujocoBatchPlant` on n threads of
+  `mujoco.batch`, one control step per arm, a filter with `filter_batch` called once per
+  control period for all arms), for n in `--nthreads`;
+- sync: `gymnasium.make_vec(id, num_envs=B, vectorization_mode="sync")`: B
+  `gymnasium.make(id)` (GymArmEnv with Gymnasium's TimeLimit, OrderEnforcing and
+  PassiveEnvChecker wrappers), stepped in turn.
+Each is reset with seed 0 and then stepped `--steps` times with the same actions (uniform
+in the action box, seeded; the first `--push` steps push segment 1 at its upper limit so
+that the arm reaches the plate and the filter acts); autoresets happen as they come.
+Steps per second = B · steps / wall s of the step loop (resets at construction excluded),
+the best of `--repeats` runs, the two run in turn within each repeat so that the load of a
+shared machine falls on both; also per CPU s of this process (all its threads). The
+largest |Δ| between the two's observations, rewards and costs over the run is printed: the
+vector environment must return what the single ones do. "physics" is the vector
+environment's batch plant alone, from rest, each action sent unfiltered (MuJoCo clamps it
+to the pressure box) for action_repeat control periods, on each thread count: about the
+ceiling of the vector environment, whose arms cost at least their physics (not exactly:
+the filter changes the commands, so the contacts differ).
+
+Usage: `.venv/bin/python tools/bench_vector_env.py [--num-envs 32] [--ids softcbf_mj/SoftArm-v0,softcbf_mj/ForceRegulation-v0]
+[--steps 200,4] [--nthreads 1,2] [--repeats 2]`; prints a table per id and ends with one line of JSON
+(`ratio` = vector / sync steps per second, `physics_ratio` = the physics ceiling / sync, per id and thread count).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import time
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+import softcbf_mj.env  # noqa: F401 - registers the ids
+
+
+def run(env: Any, actions: np.ndarray) -> tuple[float, float, dict[str, list[np.ndarray]]]:
+    """(wall s, CPU s) of stepping `env` through `actions` (T, B, N) after a seeded reset, and what it returned."""
+    env.reset(seed=0)
+    out: dict[str, list[np.ndarray]] = {"obs": [], "reward": [], "cost": []}
+    wall, cpu = time.perf_counter(), time.process_time()
+    for action in actions:
+        observation, reward, _, _, info = env.step(action)
+        out["obs"].append(np.concatenate([np.asarray(v, dtype=float).reshape(len(action), -1)
+                                          for v in observation.values()], axis=1))
+        out["reward"].append(reward)
+        out["cost"].append(np.asarray(info["cost"], dtype=float))
+    return time.perf_counter() - wall, time.process_time() - cpu, out
+
+
+def max_difference(a: dict[str, list[np.ndarray]], b: dict[str, list[np.ndarray]]) -> float:
+    return max(float(np.max(np.abs(np.array(a[key]) - np.array(b[key])))) for key in a)
+
+
+def physics(env: Any, actions: np.ndarray) -> tuple[float, float]:
+    """(wall s, CPU s) of the vector env's batch plant alone, each action (B, N) hPa held for action_repeat periods."""
+    plant, repeat = env.unwrapped.plant, env.unwrapped.config.action_repeat
+    plant.reset(np.zeros((plant.n_sims, plant.n_segments)))
+    wall, cpu = time.perf_counter(), time.process_time()
+    for action in actions:
+        for _ in range(repeat):
+            plant.step(action)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
+    kwargs = {"filter": args.filter, "filter_params": dict(p.split("=", 1) for p in args.filter_params.split(";") if p),
+              "q0_std": 0.05}
+    sync = gymnasium.make_vec(env_id, num_envs=args.num_envs, vectorization_mode="sync", **kwargs)
+    vectors = {n: gymnasium.make_vec(env_id, num_envs=args.num_envs, vectorization_mode="vector_entry_point",
+                                     nthread=n, **kwargs) for n in args.nthreads}
+    space = sync.single_action_space
+    rng = np.random.default_rng(1)
+    actions = rng.uniform(space.low, space.high, (steps, args.num_envs, space.shape[0]))
+    actions[:args.push, :, 0] = space.high[0]
+    best: dict[str, tuple[float, float]] = {}
+    check = 0.0
+    for _ in range(args.repeats):
+        wall, cpu, reference = run(sync, actions)
+        best["sync"] = min(best.get("sync", (wall, cpu)), (wall, cpu))
+        for n, env in vectors.items():
+            wall, cpu, out = run(env, actions)
+            best[f"vector_{n}"] = min(best.get(f"vector_{n}", (wall, cpu)), (wall, cpu))
+            check = max(check, max_difference(out, reference))
+            best[f"physics_{n}"] = min(best.get(f"physics_{n}", (math.inf, math.inf)), physics(env, actions))
+    sync.close()
+    for env in vectors.values():
+        env.close()
+    total = steps * args.num_envs
+    rates = {name: (total / wall, total / cpu) for name, (wall, cpu) in best.items()}
+    print(f"{env_id} ({args.filter}, B = {args.num_envs}, {steps} steps of {sync.metadata['render_fps'] and 1.0 / sync.metadata['render_fps']:.3g} s):")
+    print(f"  {'env':>10} {'threads':>7} {'steps/s':>10} {'steps/CPU-s':>12} {'ratio':>7} {'ratio/CPU':>9}")
+    sync_rate, sync_cpu = rates["sync"]
+    print(f"  {'sync':>10} {1:7d} {sync_rate:10.0f} {sync_cpu:12.0f} {1.0:7.2f} {1.0:9.2f}")
+    rows = []
+    for n in args.nthreads:
+        rate, cpu_rate = rates[f"vector_{n}"]
+        ceiling, ceiling_cpu = rates[f"physics_{n}"]
+        rows.append({"nthread": n, "steps_per_s": rate, "steps_per_cpu_s": cpu_rate, "ratio": rate / sync_rate,
+                     "ratio_cpu": cpu_rate / sync_cpu, "physics_steps_per_s": ceiling,
+                     "physics_steps_per_cpu_s": ceiling_cpu, "physics_ratio": ceiling / sync_rate,
+                     "physics_ratio_cpu": ceiling_cpu / sync_cpu})
+        print(f"  {'vector':>10} {n:7d} {rate:10.0f} {cpu_rate:12.0f} {rate / sync_rate:7.2f} {cpu_rate / sync_cpu:9.2f}")
+        print(f"  {'physics':>10} {n:7d} {ceiling:10.0f} {ceiling_cpu:12.0f} {ceiling / sync_rate:7.2f} "
+              f"{ceiling_cpu / sync_cpu:9.2f}")
+    print(f"  max |Δ| vector vs sync (observations, rewards, costs): {check:.2e}")
+    return {"id": env_id, "steps": steps, "sync_steps_per_s": sync_rate, "sync_steps_per_cpu_s": sync_cpu,
+            "vector": rows, "max_abs_difference": check}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--num-envs", type=int, default=32)
+    parser.add_argument("--ids", default="softcbf_mj/SoftArm-v0,softcbf_mj/ForceRegulation-v0")
+    parser.add_argument("--steps", default="200,4", help="env steps per id (comma-separated, one per id)")
+    parser.add_argument("--push", type=int, default=1, help="first steps that push segment 1 at its limit")
+    parser.add_argument("--filter", default="paper-cbf")
+    parser.add_argument("--filter-params", default="tuning=Low", help="name=value;name=value")
+    parser.add_argument("--nthreads", default="1,2")
+    parser.add_argument("--repeats", type=int, default=2)
+    args = parser.parse_args()
+    args.nthreads = [int(n) for n in args.nthreads.split(",")]
+    ids, steps = args.ids.split(","), [int(s) for s in args.steps.split(",")]
+    if len(steps) != len(ids):
+        raise SystemExit(f"--steps must give one count per id ({len(ids)}), got {len(steps)}")
+    results = [bench(env_id, args, n) for env_id, n in zip(ids, steps)]
+    print(json.dumps({"bench": "vector_env", "num_envs": args.num_envs, "filter": args.filter,
+                      "filter_params": args.filter_params, "cpus": os.cpu_count(), "python": platform.python_version(),
+                      "results": results}))
+
+
+if __name__ == "__main__":
+    main()
