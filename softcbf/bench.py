@@ -59,7 +59,7 @@ an interrupted `softcbf bench` in the same DIR: a (filter, case) whose row is in
 keeps it and is not run again (its row must come from a run with the same quick flag and
 mismatch draws); a mismatch study whose folder exists continues where it stopped (the study
 machinery refuses a folder of another study definition); any other case runs again from
-scratch. bench.json is checked first (`check_bench_json`: SPEC §11's fields and types, numbers
+scratch. bench.json is checked first (`check_bench_json`: the fields and types of docs/beyond-the-paper.md#filter-benchmark, numbers
 finite, times, RMS and compute times >= 0, probabilities in [0, 1], known cases, filters of its
 own list, each (filter, case) once); a file that fails is refused with one line naming the
 field, and nothing runs.
