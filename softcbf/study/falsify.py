@@ -39,7 +39,8 @@ number of evaluations (`report.write_report`, plots/best_so_far) and the evaluat
 first violation.
 
 Resume: optuna keeps the trials in its storage (SQLite in DIR/optuna.db by default, or a
-server database's URL, which is never written to the folder), the parts keep the rows. On
+server database's URL, which is never written to the folder; the optuna study's name, unique
+per falsification, is kept in falsify.json, so a folder may move), the parts keep the rows. On
 resume the trials asked but never told (the driver died) are run again (run_study skips the
 ones already stored) and told, then the search goes on up to the budget, which may grow.
 One driver per folder. A resume must give the same study, objective, sampler, seed and
@@ -72,6 +73,7 @@ import math
 import os
 import shutil
 import sys
+import uuid
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -197,8 +199,7 @@ def _sampler(name: str, seed: int, population: int) -> optuna.samplers.BaseSampl
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         if name == "cmaes":
             return optuna.samplers.CmaEsSampler(seed=seed, popsize=population, warn_independent_sampling=False)
-        return optuna.samplers.TPESampler(seed=seed, multivariate=True, constant_liar=True,
-                                          warn_independent_sampling=False)
+        return optuna.samplers.TPESampler(seed=seed, multivariate=True, constant_liar=True)
 
 
 def _candidate(params: dict[str, Any], study: Study) -> Candidate:
@@ -226,7 +227,8 @@ def _summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
     return out
 
 
-def _check_folder(root: Path, settings: dict[str, Any], resume: bool) -> None:
+def _check_folder(root: Path, settings: dict[str, Any], resume: bool) -> dict[str, Any]:
+    """The stored falsify.json of a folder to resume (checked against `settings`), {} for a new folder."""
     state = root / FALSIFY_FILE
     if resume:
         if not state.is_file():
@@ -236,10 +238,11 @@ def _check_folder(root: Path, settings: dict[str, Any], resume: bool) -> None:
         if differ:
             raise OutputDirError(f"{root} holds a falsification with other {', '.join(differ)} (e.g. {differ[0]} = "
                                  f"{stored.get(differ[0])!r}, now {settings[differ[0]]!r}); --resume needs the same")
-        return
+        return stored
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         hint = "pass --resume to continue it" if state.is_file() else "choose another --out"
         raise OutputDirError(f"{root} exists and is not empty; {hint}")
+    return {}
 
 
 def falsify(
@@ -284,9 +287,10 @@ def falsify(
     root = Path(out_dir)
     settings = {"objective": objective, "sampler": sampler, "seed": study.seed, "population": population,
                 "study": study.to_dict()}
-    _check_folder(root, settings, resume)
+    stored = _check_folder(root, settings, resume)
     root.mkdir(parents=True, exist_ok=True)
-    state: dict[str, Any] = {**settings, "budget": budget, "status": "running",
+    name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
+    state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
                              "storage": "server database (--storage)" if storage else STORAGE_FILE}
     write_json(root / FALSIFY_FILE, state)
 
@@ -301,7 +305,7 @@ def falsify(
     run = {"workers": workers, "client": client, "batch_size": batch_size, "progress": False}
     optuna.logging.set_verbosity(logging.WARNING)
     url = storage or f"sqlite:///{(root / STORAGE_FILE).resolve()}"
-    search = optuna.create_study(study_name=f"softcbf-falsify:{root.resolve()}", storage=url, direction="minimize",
+    search = optuna.create_study(study_name=name, storage=url, direction="minimize",
                                  sampler=_sampler(sampler, study.seed, population), load_if_exists=resume)
     search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
     try:
@@ -309,6 +313,10 @@ def falsify(
         if [t.number for t in trials] != list(range(len(trials))):
             raise OutputDirError(f"the optuna study of {root} has gaps in its trial numbers; it was changed outside "
                                  "falsify (one driver per folder)")
+        parts = StudyStore(search_dir, study).part_paths()
+        if len(parts) > len(trials):
+            raise OutputDirError(f"{root} holds {len(parts)} evaluations but its optuna storage {len(trials)} trials "
+                                 f"of study {name!r}: resume with the --storage that the search started with")
         candidates = [_candidate(t.params, study) for t in trials]
         pending: list[FrozenTrial | optuna.Trial] = [t for t in trials if t.state == TrialState.RUNNING]
         evaluated = _rows(search_dir, range(len(trials)))  # evaluation index → row, as they are told
@@ -349,7 +357,7 @@ def falsify(
                       f"{done['best']!r}" + (f", first violation at evaluation {done['first_violation']}"
                                              if done["first_violation"] else ""), file=sys.stderr, flush=True)
         result = _summary([evaluated[i] for i in sorted(evaluated)], objective)
-        base = _run_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run) \
+        base = uniform_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run) \
             if baseline else []
         base_summary = _summary(base, objective)
         worst = None
@@ -381,7 +389,7 @@ def _refuse_unknown_objective(rows: dict[int, dict[str, Any]], objective: str) -
                          f"{', '.join(numeric)}")
 
 
-def _run_baseline(study: Study, folder: Path, budget: int, chunk: int | None, run: dict[str, Any]) -> list[dict]:
+def uniform_baseline(study: Study, folder: Path, budget: int, chunk: int | None, run: dict[str, Any]) -> list[dict]:
     """Uniform draws of the box: the study's Monte Carlo samples 0 … budget−1 (module docstring)."""
     draws = math.ceil(budget / len(study.tunings))
     uniform = dataclasses.replace(study, sampling="monte_carlo", draws=draws)
