@@ -42,7 +42,7 @@ def box(**overrides) -> Study:
 
 
 def test_clopper_pearson_known_values_and_the_zero_violation_closed_form():
-    assert clopper_pearson_upper(0, 300) == pytest.approx(0.0099, abs=5e-5)  # SPEC §15: 300 draws → 1.0 %
+    assert clopper_pearson_upper(0, 300) == pytest.approx(0.0099, abs=5e-5)  # 0 violations in 300 draws: P < 1.0 % at 95 %
     for n in (1, 2, 10, 100, 300, 1000, 10**5):
         assert clopper_pearson_upper(0, n) == pytest.approx(1 - 0.05 ** (1 / n), rel=1e-12)
         assert clopper_pearson_interval(0, n) == pytest.approx((0.0, 1 - 0.025 ** (1 / n)), rel=1e-12)
@@ -270,3 +270,14 @@ def test_cli_until_bound_refuses_samples_and_a_bad_target(tmp_path, capsys):
     assert "--until-bound chooses the number of samples itself" in capsys.readouterr().err
     assert softcbf_main(["study", "run", str(study_file), "--out", str(tmp_path / "s"), "--until-bound", "1.5"]) == 2
     assert "must lie in (0, 1), got 1.5" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["paper_low_plate_corner", "mismatch_box_camera", "mismatch_box_contact"])
+def test_shipped_boxes_load_and_are_searchable(name):
+    study = load_study(ROOT / "studies" / f"{name}.toml")
+    space = search_space(study)
+    assert set(space) == {d.parameter for d in study.vary} and study.objective == "rho_min_meas"
+    if name == "paper_low_plate_corner":
+        assert (space["plate_stiffness"].low, space["plate_stiffness"].high) == (9.5, 11.4)
+        assert (space["facet_offset"].low, space["facet_offset"].high) == (-0.0015, 0.0015)
+        assert (study.fixed["t0"], study.fixed["duration"], study.tunings) == (15.0, 12.0, ("Low",))

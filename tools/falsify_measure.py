@@ -1,19 +1,22 @@
 """Falsification against uniform random search on a box where violations are rare (issue 26, docs/studies.md).
 
     .venv/bin/python tools/falsify_measure.py [--study studies/paper_low_plate_corner.toml] [--seeds 1,2,3,4,5]
-                                              [--samplers cmaes,tpe] [--budget 40] [--random-cap 150]
+                                              [--searches cmaes:vertices,tpe:vertices,tpe:random,cmaes:random]
+                                              [--budget 40] [--random-cap 150]
                                               [--workers 2] [--out DIR]
 
-Per sampler and seed: `softcbf.study.falsify.falsify(study, budget, seed, baseline=0,
-stop_on_violation=True)`, the number of evaluations to its first violation (ρ_min_meas < 0;
-none within the budget: "> budget"). Per seed, uniform random search: the study's Monte Carlo
+Per search (sampler:initial design) and seed: `softcbf.study.falsify.falsify(study, budget,
+seed, sampler, initial, baseline=0, stop_on_violation=True)`, the number of evaluations to its
+first violation (ρ_min_meas < 0; none within the budget: "> budget"). The first search is the
+default (cmaes:vertices); it runs first, then random search, then the others. Per seed, uniform
+random search: the study's Monte Carlo
 draws with that seed (`falsify.uniform_baseline`, in chunks of `--chunk`, stopping at the first
 violation, at most `--random-cap` draws; none: "> cap"). Then the first falsification that found
 a violation is replayed with `softcbf run --config DIR/worst/config.json` and its ρ_min_meas
 compared, bit for bit, with the worst-case run folder's and with the search's batched row.
 
 Medians count a search without a violation as +∞ and a random search without one as cap + 1,
-both in the direction that makes the claim harder. Done when (issue 26): the default sampler
+both in the direction that makes the claim harder. Done when (issue 26): the default search
 finds a violation within 40 evaluations in at least 4 of 5 seeds, and its median is at most
 half of random search's. Prints a table and the verdict; ends with one JSON line.
 """
@@ -45,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--study", type=Path, default=ROOT / "studies" / "paper_low_plate_corner.toml")
     parser.add_argument("--seeds", default="1,2,3,4,5")
-    parser.add_argument("--samplers", default="cmaes,tpe")
+    parser.add_argument("--searches", default="cmaes:vertices,tpe:vertices,tpe:random,cmaes:random")
     parser.add_argument("--budget", type=int, default=40, help="evaluations per search (default 40)")
     parser.add_argument("--random-cap", type=int, default=150, help="draws per random search at most (default 150)")
     parser.add_argument("--chunk", type=int, default=12, help="random draws per round (default 12)")
@@ -53,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="keep the folders here (default: a temporary folder)")
     args = parser.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",")]
-    samplers = args.samplers.split(",")
+    samplers = args.searches.split(",")
     study = load_study(args.study)
     with tempfile.TemporaryDirectory(prefix="falsify-measure-") as tmp:
         out = args.out or Path(tmp)
@@ -65,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
                [(s, seed) for s in samplers[1:] for seed in seeds]
         for sampler, seed in runs:
             start = time.perf_counter()
-            folder = out / f"{sampler}-seed{seed}"
+            folder = out / f"{sampler.replace(':', '-')}-seed{seed}"
             if sampler == "random":
                 seeded = load_study(args.study, [f"seed={seed}"])
                 rows = uniform_baseline(seeded, folder, args.random_cap, args.chunk,
@@ -74,8 +77,9 @@ def main(argv: list[str] | None = None) -> int:
                 best = min((r["rho_min_meas"] for r in rows if r.get("rho_min_meas") is not None), default=None)
                 n = len(rows)
             else:
-                result = falsify(study, folder, budget=args.budget, sampler=sampler, seed=seed, baseline=0,
-                                 stop_on_violation=True, workers=args.workers, progress=False)
+                name, initial = sampler.split(":")
+                result = falsify(study, folder, budget=args.budget, sampler=name, initial=initial, seed=seed,
+                                 baseline=0, stop_on_violation=True, workers=args.workers, progress=False)
                 first, best, n = result["first_violation"], result["best"]["value"], result["evaluations"]
                 if replay is None and first is not None:
                     config = folder / "worst" / "config.json"
@@ -89,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
                               "search_row_equal": replayed == best, "params": result["best"]["params"]}
             walls[f"{sampler}-{seed}"] = time.perf_counter() - start
             found.setdefault(sampler, {})[seed] = first
-            print(f"{sampler:7s} seed {seed}: first violation at evaluation {first if first else '>' + str(n)} "
+            print(f"{sampler:14s} seed {seed}: first violation at evaluation {first if first else '>' + str(n)} "
                   f"({n} evaluations, best rho_min_meas {best:.4f}, {walls[f'{sampler}-{seed}']:.0f} s)", flush=True)
 
     def medians(sampler: str, cap: int) -> float:

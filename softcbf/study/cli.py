@@ -4,6 +4,7 @@
                                    [--resume] [--samples N] [--batch-size N] [--keep-runs] [--no-progress] [--set KEY=VALUE ...]
                                    [--until-bound 0.01]
     python -m softcbf.study falsify STUDY_FILE --out DIR [--budget 100] [--sampler cmaes|tpe] [--population N]
+                                   [--initial vertices|random]
                                    [--seed S] [--baseline N] [--stop-on-violation] [--storage URL]
                                    [--workers N | --scheduler tcp://host:8786] [--resume] [--batch-size N] [--set ...]
     python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
@@ -83,6 +84,7 @@ def _falsify(args: argparse.Namespace) -> int:
     try:
         study = load_study(args.study_file, args.set)
         result = falsify(study, args.out, budget=args.budget, sampler=args.sampler, population=args.population,
+                         initial=args.initial,
                          seed=args.seed, baseline=args.baseline, stop_on_violation=args.stop_on_violation,
                          storage=args.storage, resume=args.resume, workers=args.workers, scheduler=args.scheduler,
                          batch_size=args.batch_size, progress=not args.no_progress)
@@ -141,6 +143,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     falsify.add_argument("--budget", type=int, default=100, help="evaluations of the search (default 100)")
     falsify.add_argument("--sampler", choices=("cmaes", "tpe"), default="cmaes", help="optuna sampler (default cmaes)")
     falsify.add_argument("--population", type=int, help="candidates per generation (default 4 + 3 ln d, CMA-ES's)")
+    falsify.add_argument("--initial", choices=("vertices", "random"), default="vertices",
+                         help="generation 0: the box's vertices (default; all 2^d when they fit in the population) "
+                              "or the sampler's random start")
     falsify.add_argument("--seed", type=int, help="seed of the sampler, the scenario seeds and the baseline "
                                                   "(default the study's)")
     falsify.add_argument("--baseline", type=int, help="uniform draws of the box beside the search (default --budget; 0: none)")

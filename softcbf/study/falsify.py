@@ -1,4 +1,4 @@
-"""Falsification: search a study's parameter box for its worst case (SPEC §15, docs/studies.md#falsification).
+"""Falsification: search a study's parameter box for its worst case (docs/studies.md#falsification).
 
 Problem. A study file's `[vary]` table spans a box X = Π_j X_j: a uniform distribution's
 [low, high] (searched on its own scale), a loguniform one's [low, high] (searched on ln x),
@@ -11,6 +11,15 @@ tuning; `Study.sample_of`), run on the study engine, and J(x) is the sample's ro
 counterexample: the measured force exceeded F_max; "-NAME" maximises NAME). Falsification
 approximates J* = min_{x ∈ X} J(x) and the x that attains it within a budget of N
 evaluations. J is deterministic in x (the scenario's own seed is fixed per evaluation, below).
+
+Initial design (`initial`, default "vertices"): failures hide in corners (an error's effect is
+often monotone, so the worst case sits at a vertex of the box), so generation 0 holds the
+vertices of the box's continuous coordinates, all 2^d in a seeded random order when they fit
+in the population, else `population` distinct ones drawn at random (seeded); the categorical
+coordinates and the rest of the generation come from the sampler. Where the effects are
+monotone this finds the worst corner at once; where they are not it costs the sampler one
+generation (TPE learns from it; CMA-ES starts from the centre either way). "random": the
+sampler's own start (CMA-ES and TPE draw their first trials at random).
 
 Search: optuna's ask-and-tell interface with a well-kept sampler: CMA-ES (`cmaes`, default:
 covariance-matrix adaptation on the box mapped to [0, 1]^d, starting at its centre with
@@ -67,6 +76,7 @@ Outputs of a falsification folder DIR:
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -79,6 +89,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import optuna
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution
 from optuna.trial import FrozenTrial, TrialState
@@ -97,7 +108,9 @@ BASELINE_DIR = "random"
 WORST_DIR = "worst"
 STORAGE_FILE = "optuna.db"
 TUNING_COORDINATE = "@tuning"  # the tuning's coordinate in the search space (no scenario parameter has an @)
-SETTINGS = ("objective", "sampler", "seed", "population", "study")  # what a resume must repeat
+INITIALS = ("vertices", "random")
+VERTEX_STREAM = 1  # the vertex design's generator: SeedSequence([seed, VERTEX_STREAM])
+SETTINGS = ("objective", "sampler", "seed", "population", "initial", "study")  # what a resume must repeat
 
 
 @dataclass(frozen=True)
@@ -181,6 +194,23 @@ def default_population(study: Study) -> int:
     return 4 + int(3 * math.log(len(search_space(study))))
 
 
+def vertex_design(space: dict[str, BaseDistribution], population: int, seed: int) -> list[dict[str, float]]:
+    """Generation 0's vertices of the box's continuous coordinates (module docstring), in evaluation order."""
+    names = [name for name, d in space.items() if isinstance(d, FloatDistribution)]
+    if not names:
+        return []
+    rng = np.random.default_rng(np.random.SeedSequence([seed, VERTEX_STREAM]))
+    if 2 ** len(names) <= population:
+        patterns = [tuple(p) for p in itertools.product((0, 1), repeat=len(names))]
+        patterns = [patterns[i] for i in rng.permutation(len(patterns))]
+    else:
+        chosen: dict[tuple[int, ...], None] = {}
+        while len(chosen) < population:
+            chosen[tuple(int(b) for b in rng.integers(0, 2, len(names)))] = None
+        patterns = list(chosen)
+    return [{n: (space[n].high if bit else space[n].low) for n, bit in zip(names, pattern)} for pattern in patterns]
+
+
 def objective_value(row: dict[str, Any], objective: str) -> float | None:
     """The metric `objective` names ("NAME" or "-NAME") in an ok row, as stored (None: failed or not finite)."""
     value = row.get(objective.removeprefix("-")) if row.get("status") == "ok" else None
@@ -252,6 +282,7 @@ def falsify(
     budget: int,
     sampler: str = "cmaes",
     population: int | None = None,
+    initial: str = "vertices",
     seed: int | None = None,
     baseline: int | None = None,
     stop_on_violation: bool = False,
@@ -273,6 +304,8 @@ def falsify(
         raise ValueError(f"budget must be an integer >= 1 (evaluations), got {budget!r}")
     if sampler not in SAMPLERS:
         raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
+    if initial not in INITIALS:
+        raise ValueError(f"initial must be one of {', '.join(INITIALS)}, got {initial!r}")
     if scheduler is not None and client is not None:
         raise ValueError("give a Dask scheduler address or a client, not both")
     study = study if seed is None or seed == study.seed else dataclasses.replace(study, seed=seed)
@@ -286,7 +319,7 @@ def falsify(
     objective = study.objective
     root = Path(out_dir)
     settings = {"objective": objective, "sampler": sampler, "seed": study.seed, "population": population,
-                "study": study.to_dict()}
+                "initial": initial, "study": study.to_dict()}
     stored = _check_folder(root, settings, resume)
     root.mkdir(parents=True, exist_ok=True)
     name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
@@ -309,7 +342,10 @@ def falsify(
                                  sampler=_sampler(sampler, study.seed, population), load_if_exists=resume)
     search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
     try:
-        trials = search.get_trials(deepcopy=False)
+        if initial == "vertices" and not search.get_trials(deepcopy=False):  # a fresh search
+            for vertex in vertex_design(space, population, study.seed):
+                search.enqueue_trial(vertex)
+        trials = [t for t in search.get_trials(deepcopy=False) if t.state != TrialState.WAITING]  # WAITING: enqueued
         if [t.number for t in trials] != list(range(len(trials))):
             raise OutputDirError(f"the optuna study of {root} has gaps in its trial numbers; it was changed outside "
                                  "falsify (one driver per folder)")

@@ -1,4 +1,4 @@
-"""Sequential stop of a study: draw until P(violation) is bounded or a violation is found (SPEC §15).
+"""Sequential stop of a study: draw until P(violation) is bounded or a violation is found (docs/studies.md#sequential-stop).
 
 Rule (`softcbf study run FILE --until-bound TARGET`). The study runs its draws in rounds
 (`execute.run_study` with resume, so each round adds draws to the same folder). After a
