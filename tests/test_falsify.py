@@ -21,7 +21,7 @@ from softcbf.study import Distribution, Study, StudyStore, load_study
 from softcbf.study.analysis import (Proportion, binomial_cdf, clopper_pearson_interval, clopper_pearson_upper,
                                     wilson_interval)
 from softcbf.study.falsify import (TUNING_COORDINATE, Candidate, CandidateStudy, default_population, falsify,
-                                   objective_value, search_space)
+                                   objective_value, search_space, vertex_design)
 from softcbf.study.report import write_report
 from softcbf.study.sequential import draws_needed, run_until_bound
 from softcbf_mj.runio import OutputDirError
@@ -114,6 +114,23 @@ def test_search_space_is_the_vary_box_with_the_tuning_as_a_coordinate():
         search_space(box(vary=()))
 
 
+def test_vertex_design_holds_every_vertex_that_fits_else_distinct_ones():
+    study = box(tunings=("None", "Low"), vary=(
+        Distribution("plate_stiffness", "uniform", low=8.0, high=18.0),
+        Distribution("tau_p", "loguniform", low=0.01, high=0.1),
+        Distribution("links_per_segment", "choice", values=(4, 5))))
+    space = search_space(study)
+    vertices = vertex_design(space, 6, seed=3)
+    assert sorted((v["plate_stiffness"], v["tau_p"]) for v in vertices) == [(8, 0.01), (8, 0.1), (18, 0.01), (18, 0.1)]
+    assert vertex_design(space, 6, seed=3) == vertices and vertex_design(space, 6, seed=4) != vertices  # seeded order
+    big = box(vary=tuple(Distribution(n, "uniform", low=0.5, high=2.0) for n in
+                         ("true_stiffness_scale", "true_damping_scale", "true_gain_scale", "true_length_scale")))
+    some = vertex_design(search_space(big), 6, seed=1)  # 16 vertices, 6 of them
+    assert len(some) == 6 and len({tuple(v.values()) for v in some}) == 6
+    assert all(x in (0.5, 2.0) for v in some for x in v.values())
+    assert vertex_design({"links_per_segment": space["links_per_segment"]}, 6, seed=1) == []
+
+
 def test_candidate_study_runs_candidate_e_as_sample_e_with_draw_e_seed():
     study = box()
     candidates = [Candidate({"plate_stiffness": 9.0, "facet_offset": 0.001}, "Low"),
@@ -171,6 +188,8 @@ def test_falsify_stores_every_evaluation_and_finds_the_best(searched):
     out, result = searched
     rows = StudyStore.open(out / "search").load_rows()
     assert [r["sample"] for r in rows] == list(range(8)) and all(r["status"] == "ok" for r in rows)
+    assert [{"plate_stiffness": r["param.plate_stiffness"], "facet_offset": r["param.facet_offset"]}
+            for r in rows[:4]] == vertex_design(search_space(box()), 4, 5)  # generation 0: the 4 vertices
     assert all(r["batch_size"] == 2 for r in rows)  # a generation of 4 shared out over 2 workers
     best = min(rows, key=lambda r: r["rho_min_meas"])
     assert result["best"] == {"value": best["rho_min_meas"], "tuning": "Low", "evaluation": best["sample"] + 1,

@@ -98,7 +98,7 @@ from softcbf.study.analysis import violated
 from softcbf.study.definition import Sample, Study, draw_generator
 from softcbf.study.execute import run_study
 from softcbf.study.runner import run_sample
-from softcbf.study.store import StudyStore, part_name, read_part
+from softcbf.study.store import PARAM_PREFIX, StudyStore, part_name, read_part
 from softcbf_mj.runio import OutputDirError, write_json
 
 SAMPLERS = ("cmaes", "tpe")
@@ -252,7 +252,7 @@ def _summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
                            "evaluations": len(rows), "failed": len(rows) - len(ok), "first_violation": first}
     if ok:
         value, row = min(ok, key=lambda vr: minimised(vr[0], objective))
-        out.update(best=value, params={k.removeprefix("param."): v for k, v in row.items() if k.startswith("param.")},
+        out.update(best=value, params={k.removeprefix(PARAM_PREFIX): v for k, v in row.items() if k.startswith(PARAM_PREFIX)},
                    tuning=row["tuning"], evaluation=int(row["sample"]) + 1)
     return out
 
@@ -365,7 +365,6 @@ def falsify(
                     break
                 if len(candidates) >= budget:
                     break
-                pending = []
                 for _ in range(min(population, budget - len(candidates))):
                     trial = search.ask(space)
                     if trial.number != len(candidates):
