@@ -245,10 +245,26 @@ def test_resume_continues_the_same_search_up_to_a_larger_budget(searched, client
     assert again["best"]["value"] == min(r["rho_min_meas"] for r in rows)
 
 
+def test_a_storage_url_is_used_and_never_written_and_resume_needs_it(client, tmp_path):
+    url = f"sqlite:///{tmp_path / 'server.db'}"
+    result = falsify(box(), tmp_path / "f", budget=2, population=2, sampler="tpe", baseline=0, storage=url,
+                     client=client, progress=False)
+    assert result["evaluations"] == 2 and not (tmp_path / "f" / "optuna.db").exists()
+    assert url not in (tmp_path / "f" / "falsify.json").read_text() and result["storage"] == "server database (--storage)"
+    with pytest.raises(OutputDirError, match="holds 2 evaluations but its optuna storage 0 trials"):
+        falsify(box(), tmp_path / "f", budget=4, population=2, sampler="tpe", baseline=0, resume=True, client=client,
+                progress=False)
+    again = falsify(box(), tmp_path / "f", budget=4, population=2, sampler="tpe", baseline=0, storage=url,
+                    resume=True, client=client, progress=False)
+    assert again["evaluations"] == 4
+
+
 def test_a_misspelt_objective_is_refused_after_the_first_generation(client, tmp_path):
     with pytest.raises(ValueError, match="objective 'rho_min_mes': the scenario's rows have no column"):
-        falsify(box(objective="rho_min_mes"), tmp_path / "f", budget=2, population=2, baseline=0, client=client,
-                progress=False)
+        falsify(box(objective="rho_min_mes"), tmp_path / "f", budget=2, population=2, sampler="tpe", baseline=0,
+                client=client, progress=False)
+    with pytest.raises(ValueError, match="population must be >= 4 with sampler cmaes"):
+        falsify(box(), tmp_path / "g", budget=2, population=3, progress=False)
 
 
 def test_cli_falsify_stops_on_violation_and_writes_the_report(tmp_path, capsys):
@@ -257,7 +273,7 @@ def test_cli_falsify_stops_on_violation_and_writes_the_report(tmp_path, capsys):
                           '[fixed]\nt0 = 25.0\nduration = 0.3\n'
                           '[vary.plate_stiffness]\ndist = "uniform"\nlow = 14.0\nhigh = 18.0\n', encoding="utf-8")
     code = softcbf_main(["study", "falsify", str(study_file), "--out", str(tmp_path / "f"), "--budget", "6",
-                         "--population", "2", "--stop-on-violation", "--workers", "1", "--no-progress"])
+                         "--population", "2", "--sampler", "tpe", "--stop-on-violation", "--workers", "1", "--no-progress"])
     assert code == 0
     result = json.loads((tmp_path / "f" / "falsify.json").read_text())
     # unfiltered against a stiffer plate at the sinusoid's peak: the first evaluation violates

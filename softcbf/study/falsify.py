@@ -109,6 +109,7 @@ WORST_DIR = "worst"
 STORAGE_FILE = "optuna.db"
 TUNING_COORDINATE = "@tuning"  # the tuning's coordinate in the search space (no scenario parameter has an @)
 INITIALS = ("vertices", "random")
+CMAES_MIN_POPULATION = 4  # CMA-ES's μ = ⌊population / 2⌋ parents must be >= 2 (its covariance update divides by them)
 VERTEX_STREAM = 1  # the vertex design's generator: SeedSequence([seed, VERTEX_STREAM])
 SETTINGS = ("objective", "sampler", "seed", "population", "initial", "study")  # what a resume must repeat
 
@@ -313,6 +314,9 @@ def falsify(
     population = default_population(study) if population is None else population
     if isinstance(population, bool) or not isinstance(population, int) or population < 1:
         raise ValueError(f"population must be an integer >= 1 (candidates per generation), got {population!r}")
+    if sampler == "cmaes" and population < CMAES_MIN_POPULATION:
+        raise ValueError(f"population must be >= {CMAES_MIN_POPULATION} with sampler cmaes (CMA-ES recombines the best "
+                         f"half, which needs two), got {population}; or use sampler tpe")
     baseline = budget if baseline is None else baseline
     if isinstance(baseline, bool) or not isinstance(baseline, int) or baseline < 0:
         raise ValueError(f"baseline must be an integer >= 0 (uniform draws; 0: none), got {baseline!r}")

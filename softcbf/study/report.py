@@ -288,14 +288,15 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
              + (", ".join(f"{k} = {v!r}" for k, v in study["fixed"].items()) or "none") + f". Box: {box}.", "",
              f"Objective: minimise `{objective}`" + (" (i.e. maximise it without the minus)" if objective.startswith("-")
                                                     else "") + f"; sampler {state['sampler']}, population "
-             f"{state['population']}, seed {state['seed']}, budget {state['budget']}; status {state['status']}"
+             f"{state['population']}, generation 0 {state.get('initial', 'random')}, seed {state['seed']}, budget "
+             f"{state['budget']}; status {state['status']}"
              + (f", stopped at the {state['stopped']}" if state.get("stopped") else "") + ".", "",
              "| | evaluations | failed | best | at evaluation | tuning | parameters | first violation |",
              "|---|---|---|---|---|---|---|---|"]
     best = state.get("best") or {}
     base = state.get("random_baseline") or {}
     for label, s, value in (("search", {**state, **best}, best.get("value")), ("uniform random", base, base.get("best"))):
-        if s.get("evaluations") is None:
+        if not s.get("evaluations"):
             continue
         params = ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v!r}"
                            for k, v in (s.get("params") or {}).items()) or "–"
