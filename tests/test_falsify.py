@@ -316,3 +316,16 @@ def test_shipped_boxes_load_and_are_searchable(name):
         assert (space["plate_stiffness"].low, space["plate_stiffness"].high) == (9.5, 11.4)
         assert (space["facet_offset"].low, space["facet_offset"].high) == (-0.0015, 0.0015)
         assert (study.fixed["t0"], study.fixed["duration"], study.tunings) == (15.0, 12.0, ("Low",))
+
+
+def test_cli_until_bound_prints_the_bound_it_reached(tmp_path, capsys):
+    study_file = tmp_path / "safe.toml"
+    study_file.write_text('name = "safe"\nscenario = "mujoco_contact"\ntunings = ["Low"]\ndraws = 20\nseed = 5\n'
+                          '[fixed]\nt0 = 0.0\nduration = 0.3\n'
+                          '[vary.plate_stiffness]\ndist = "uniform"\nlow = 10.0\nhigh = 12.0\n', encoding="utf-8")
+    assert softcbf_main(["study", "run", str(study_file), "--out", str(tmp_path / "s"), "--until-bound", "0.5",
+                         "--workers", "1", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    bound = clopper_pearson_upper(0, 5)
+    assert f"Low: 0/5 violations; P(violation) < {bound:.4g} at 95 % (one-sided Clopper–Pearson)" in out
+    assert f"| {bound:.4f} |" in (tmp_path / "s" / "report.md").read_text(encoding="utf-8")
