@@ -19,7 +19,8 @@ import pytest
 
 from softcbf_mj.runio import OutputDirError
 from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, load_study, run_study
-from softcbf.study.analysis import Proportion, crossing, sensitivity, tuning_summary, wilson_interval
+from softcbf.study.analysis import (Proportion, clopper_pearson_interval, clopper_pearson_upper, crossing, sensitivity,
+                                    tuning_summary, wilson_interval)
 from softcbf.study.report import assumed_value, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -246,7 +247,9 @@ def test_report_writes_markdown_plots_and_one_parquet(reference, tiny):
     text = path.read_text(encoding="utf-8")
     for s in tuning_summary(rows, ["None", "Low"]):
         v = s["violation"]
-        assert f"| {s['tuning']} | 3 | 0 | {v.k}/{v.n} | {v.p:.3f} | [{v.low:.3f}, {v.high:.3f}] |" in text
+        exact = clopper_pearson_interval(v.k, v.n)
+        assert (f"| {s['tuning']} | 3 | 0 | {v.k}/{v.n} | {v.p:.3f} | [{v.low:.3f}, {v.high:.3f}] "
+                f"| [{exact[0]:.3f}, {exact[1]:.3f}] | {clopper_pearson_upper(v.k, v.n):.4f} |") in text
     assert "| plate_stiffness |" in text and "| facet_offset |" in text
     for name in ("rho_min_meas", "force_max_N", "violation_plate_stiffness", "violation_facet_offset"):
         assert (out / "plots" / f"{name}.png").stat().st_size > 1000

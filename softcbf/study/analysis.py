@@ -12,6 +12,19 @@ Violation probability p = k/n with the Wilson score interval at confidence level
 
 which stays inside [0, 1] and is informative at k = 0 (upper bound ≈ 3.84/(n + 3.84)).
 
+Beside it, the exact Clopper–Pearson bounds, which hold their confidence for every n and
+p (Wilson's only approximately; it is the shorter interval). With X ~ Bin(n, p) and
+F(k; n, p) = P(X ≤ k) = Σ_{i ≤ k} C(n, i) pⁱ (1 − p)ⁿ⁻ⁱ, strictly decreasing in p for k < n:
+
+    two-sided at 1 − α:  low = p with P(X ≥ k; p) = α/2 (0 at k = 0),
+                         high = p with F(k; n, p) = α/2 (1 at k = n)
+    one-sided at 1 − α:  upper = p with F(k; n, p) = α   (1 at k = n)
+
+the Beta quantiles B⁻¹(α/2; k, n − k + 1) and B⁻¹(1 − α/2; k + 1, n − k). At k = 0 the
+one-sided bound is 1 − α^(1/n): 0 violations in 300 draws bound P(violation) below
+0.99 % at 95 %, the figure a lab can publish. The bounds are solved by bisection on p
+(to the last bit of a float) with F summed in log space (`binomial_cdf`).
+
 Sensitivity. For a numeric varied parameter the range of its drawn values is cut into
 `bins` equal-width bins (grid values: one bin per grid value); per tuning and bin,
 p and its Wilson interval of the samples in that bin, marginalised over every other
@@ -32,6 +45,7 @@ import numpy as np
 from softcbf.study.store import PARAM_PREFIX
 
 QUANTILES = (0.0, 0.05, 0.5, 0.95, 1.0)
+BISECTION_STEPS = 200  # more than enough to pin a bound in (0, 1) to the last bit of a float64
 
 
 def wilson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -53,6 +67,65 @@ def wilson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, fl
     return low, high
 
 
+def _check_counts(k: int, n: int, confidence: float) -> None:
+    if not (0 <= k <= n):
+        raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
+
+
+def binomial_cdf(k: int, n: int, p: float) -> float:
+    """F(k; n, p) = P(X <= k) for X ~ Bin(n, p), summed in log space (exact to rounding for any n)."""
+    if not (0 <= k <= n):
+        raise ValueError(f"need 0 <= k <= n, got k={k}, n={n}")
+    if not 0.0 <= p <= 1.0:
+        raise ValueError(f"p must lie in [0, 1], got {p}")
+    if k == n or p == 0.0:
+        return 1.0
+    if p == 1.0:
+        return 0.0
+    i = np.arange(1, k + 1, dtype=float)
+    log_choose = np.concatenate(([0.0], np.cumsum(np.log(n - i + 1.0) - np.log(i))))
+    log_terms = log_choose + np.arange(k + 1) * math.log(p) + (n - np.arange(k + 1)) * math.log1p(-p)
+    top = float(log_terms.max())
+    return min(1.0, math.exp(top) * float(np.exp(log_terms - top).sum()))
+
+
+def _p_where_cdf_is(k: int, n: int, target: float) -> float:
+    """The p in (0, 1) with F(k; n, p) = target (F falls strictly from 1 to 0 in p for k < n), by bisection."""
+    low, high = 0.0, 1.0
+    for _ in range(BISECTION_STEPS):
+        mid = 0.5 * (low + high)
+        if mid in (low, high):
+            break
+        if binomial_cdf(k, n, mid) > target:
+            low = mid
+        else:
+            high = mid
+    return 0.5 * (low + high)
+
+
+def clopper_pearson_interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Exact two-sided Clopper–Pearson interval (low, high) for k successes in n trials (module docstring);
+    (0, 1) when n = 0."""
+    _check_counts(k, n, confidence)
+    if n == 0:
+        return 0.0, 1.0
+    tail = (1.0 - confidence) / 2.0
+    low = 0.0 if k == 0 else _p_where_cdf_is(k - 1, n, 1.0 - tail)
+    high = 1.0 if k == n else _p_where_cdf_is(k, n, tail)
+    return low, high
+
+
+def clopper_pearson_upper(k: int, n: int, confidence: float = 0.95) -> float:
+    """Exact one-sided upper Clopper–Pearson bound on p for k successes in n trials: 1 − (1 − confidence)^(1/n)
+    at k = 0 (module docstring); 1 when n = 0."""
+    _check_counts(k, n, confidence)
+    if n == 0 or k == n:
+        return 1.0
+    return _p_where_cdf_is(k, n, 1.0 - confidence)
+
+
 def violated(row: Mapping[str, Any]) -> bool | None:
     """Whether an ok row's measured force exceeded F_max (None when it has no measured ρ or failed)."""
     rho = row.get("rho_min_meas")
@@ -63,22 +136,33 @@ def violated(row: Mapping[str, Any]) -> bool | None:
 
 @dataclass(frozen=True)
 class Proportion:
-    """k of n with its Wilson interval."""
+    """k of n with its Wilson interval (low, high) at `confidence`, and its exact Clopper–Pearson bounds."""
 
     k: int
     n: int
     low: float
     high: float
+    confidence: float = 0.95
 
     @property
     def p(self) -> float | None:
         return self.k / self.n if self.n else None
 
+    @property
+    def exact(self) -> tuple[float, float]:
+        """The two-sided Clopper–Pearson interval at `confidence`."""
+        return clopper_pearson_interval(self.k, self.n, self.confidence)
+
+    @property
+    def upper(self) -> float:
+        """The one-sided Clopper–Pearson upper bound at `confidence` (what "P < … at 95 %" states)."""
+        return clopper_pearson_upper(self.k, self.n, self.confidence)
+
     @classmethod
     def of(cls, flags: Iterable[bool | None], confidence: float = 0.95) -> "Proportion":
         values = [f for f in flags if f is not None]
         k = sum(values)
-        return cls(k, len(values), *wilson_interval(k, len(values), confidence))
+        return cls(k, len(values), *wilson_interval(k, len(values), confidence), confidence)
 
 
 def _quantiles(values: Sequence[float]) -> dict[str, float] | None:

@@ -1,7 +1,12 @@
-"""Command line of robustness studies: `python -m softcbf.study run|report`.
+"""Command line of robustness studies: `python -m softcbf.study run|falsify|report`.
 
     python -m softcbf.study run STUDY_FILE --out DIR [--workers N | --scheduler tcp://host:8786]
                                    [--resume] [--samples N] [--batch-size N] [--keep-runs] [--no-progress] [--set KEY=VALUE ...]
+                                   [--until-bound 0.01]
+    python -m softcbf.study falsify STUDY_FILE --out DIR [--budget 100] [--sampler cmaes|tpe] [--population N]
+                                   [--initial vertices|random]
+                                   [--seed S] [--baseline N] [--stop-on-violation] [--storage URL]
+                                   [--workers N | --scheduler tcp://host:8786] [--resume] [--batch-size N] [--set ...]
     python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
@@ -12,7 +17,13 @@ closed loop (default 128 where the scenario has a batch form, e.g. mujoco_contac
 `--resume` continues a study folder; Ctrl-C stops it and leaves every finished sample
 stored. It ends with the report. `--set fixed.duration=10` (repeatable) sets a dotted key
 of the study file (`softcbf.study.definition.load_study`) without copying the file.
-`report` (re)writes DIR/report.md and DIR/plots/.
+`--until-bound P` is the sequential stop (`softcbf.study.sequential`): it draws in chunks
+until every tuning's one-sided 95 % Clopper–Pearson bound on P(violation) is below P or
+that tuning has violated (at most the file's draws).
+`falsify` searches the file's [vary] box for the minimum of its objective (default
+ρ_min_meas) with optuna's CMA-ES or TPE, beside a uniform baseline of the same budget, into
+DIR (`softcbf.study.falsify`: DIR/falsify.json, DIR/worst/, …); it ends with the report.
+`report` (re)writes DIR/report.md and DIR/plots/ (of a study folder or a falsification folder).
 `softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf.cli).
 """
 
@@ -35,9 +46,23 @@ def _run(args: argparse.Namespace) -> int:
 
     try:
         study = load_study(args.study_file, args.set)
-        outcome = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-                            samples=args.samples, keep_runs=args.keep_runs, progress=not args.no_progress,
-                            batch_size=args.batch_size)
+        options = {"workers": args.workers, "scheduler": args.scheduler, "resume": args.resume,
+                   "keep_runs": args.keep_runs, "progress": not args.no_progress, "batch_size": args.batch_size}
+        if args.until_bound is not None:
+            from softcbf.study.sequential import run_until_bound
+
+            if args.samples is not None:
+                raise ValueError("--until-bound chooses the number of samples itself; give it or --samples, not both")
+            sequential = run_until_bound(study, args.out, args.until_bound, **options)
+            outcome = sequential.outcome
+            for tuning, p in sequential.violation.items():
+                verdict = (f"P(violation) < {p.upper:.4g} at 95 % (one-sided Clopper–Pearson)"
+                           if sequential.bounded[tuning] else
+                           "violated: no bound below the target" if p.k else
+                           f"not bounded: the study's draws ran out at P < {p.upper:.4g}")
+                print(f"{tuning}: {p.k}/{p.n} violations; {verdict}")
+        else:
+            outcome = run_study(study, args.out, samples=args.samples, **options)
         print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already "
               f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
               + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
@@ -47,6 +72,33 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished samples are stored in {args.out}; continue with --resume", file=sys.stderr)
+        return 130
+    return 0
+
+
+def _falsify(args: argparse.Namespace) -> int:
+    from softcbf.study.definition import load_study
+    from softcbf.study.falsify import falsify
+    from softcbf.study.report import write_report
+
+    try:
+        study = load_study(args.study_file, args.set)
+        result = falsify(study, args.out, budget=args.budget, sampler=args.sampler, population=args.population,
+                         initial=args.initial,
+                         seed=args.seed, baseline=args.baseline, stop_on_violation=args.stop_on_violation,
+                         storage=args.storage, resume=args.resume, workers=args.workers, scheduler=args.scheduler,
+                         batch_size=args.batch_size, progress=not args.no_progress)
+        best, base = result["best"], result["random_baseline"]
+        print(f"falsify {study.name}: best {result['objective']} = {best['value']!r} at evaluation "
+              f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}, {best['params']}); first violation: "
+              f"{result['first_violation'] or 'none'}; uniform baseline: best {base['best']!r} in "
+              f"{base['evaluations']}, first violation: {base['first_violation'] or 'none'}; folder {args.out}")
+        print(f"report: {write_report(args.out)}")
+    except (ValueError, OutputDirError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished evaluations are stored in {args.out}; continue with --resume", file=sys.stderr)
         return 130
     return 0
 
@@ -64,7 +116,7 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Declare the `run` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf.study`)."""
+    """Declare the `run`, `falsify` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf.study`)."""
     commands = parser.add_subparsers(dest="study_command", required=True)
     run = commands.add_parser("run", help="run a study file into a study folder")
     run.add_argument("study_file", type=Path, help="study definition (TOML), e.g. studies/paper_tunings_plate_errors.toml")
@@ -81,14 +133,52 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="set a dotted key of the study file, e.g. fixed.duration=10 "
                           "(TOML value; repeatable; --resume needs the same)")
+    run.add_argument("--until-bound", type=_probability, metavar="P",
+                     help="sequential stop: draw until every tuning's one-sided 95 %% Clopper–Pearson bound on "
+                          "P(violation) is below P, or it violated (at most the file's draws)")
     run.set_defaults(study_handler=_run)
-    report = commands.add_parser("report", help="write report.md and plots/ for a study folder")
-    report.add_argument("dir", type=Path, help="study folder")
+    falsify = commands.add_parser("falsify", help="search a study file's [vary] box for its worst case")
+    falsify.add_argument("study_file", type=Path, help="study definition (TOML), e.g. studies/paper_low_plate_corner.toml")
+    falsify.add_argument("--out", type=Path, required=True, help="falsification folder (refused if not empty, unless --resume)")
+    falsify.add_argument("--budget", type=int, default=100, help="evaluations of the search (default 100)")
+    falsify.add_argument("--sampler", choices=("cmaes", "tpe"), default="cmaes", help="optuna sampler (default cmaes)")
+    falsify.add_argument("--population", type=int, help="candidates per generation (default 4 + 3 ln d, CMA-ES's)")
+    falsify.add_argument("--initial", choices=("vertices", "random"), default="vertices",
+                         help="generation 0: the box's vertices (default; all 2^d when they fit in the population) "
+                              "or the sampler's random start")
+    falsify.add_argument("--seed", type=int, help="seed of the sampler, the scenario seeds and the baseline "
+                                                  "(default the study's)")
+    falsify.add_argument("--baseline", type=int, help="uniform draws of the box beside the search (default --budget; 0: none)")
+    falsify.add_argument("--stop-on-violation", action="store_true",
+                         help="stop the search and the baseline at their first violation (rho_min_meas < 0)")
+    falsify.add_argument("--storage", help="optuna storage URL, e.g. postgresql://host/db (default SQLite in --out)")
+    backend = falsify.add_mutually_exclusive_group()
+    backend.add_argument("--workers", type=int, help="local worker processes (default: every core)")
+    backend.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786 (instead of the local pool)")
+    falsify.add_argument("--resume", action="store_true", help="continue the falsification stored in --out")
+    falsify.add_argument("--batch-size", type=int, help="samples per batched closed loop (default: a generation "
+                                                        "shared out over the workers)")
+    falsify.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+    falsify.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                         help="set a dotted key of the study file, e.g. vary.plate_stiffness.high=12 (repeatable)")
+    falsify.set_defaults(study_handler=_falsify)
+    report = commands.add_parser("report", help="write report.md and plots/ for a study or falsification folder")
+    report.add_argument("dir", type=Path, help="study folder, or a falsification folder (study falsify)")
     report.add_argument("--level", type=float, default=0.05, help="violation probability to locate (default 0.05)")
     report.add_argument("--bins", type=int, default=6, help="bins per varied parameter (default 6)")
     report.add_argument("--figure-format", choices=("png", "svg", "pdf"), default="png", help="plot file format (default png)")
     report.add_argument("--dpi", type=float, default=110.0, help="raster resolution of the plots (default 110)")
     report.set_defaults(study_handler=_report)
+
+
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number in (0, 1), got {text!r}") from None
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"must lie in (0, 1), got {text}")
+    return value
 
 
 def run_command(args: argparse.Namespace, extra: list[str]) -> int:

@@ -15,7 +15,10 @@ A study runs one registered scenario (`scenarios`, docs/run-outputs.md) many tim
   "filter"` and list the filter specs in `tunings` (each with its own defaults; fix
   the paper filter's `tunings` to one preset);
 - `sampling`: "monte_carlo" (`draws` seeded draws) or "grid" (the Cartesian product of
-  every distribution's grid, the first parameter varying slowest); `seed`.
+  every distribution's grid, the first parameter varying slowest); `seed`;
+- `objective` (default "rho_min_meas"): the summary metric (a column of the rows) that
+  `softcbf study falsify` minimises over the box of `vary`; "-NAME" maximises NAME
+  (e.g. "-force_max_N"). A Monte Carlo or grid run ignores it.
 
 Samples. One sample is one parameter draw run with one tuning, i.e. one run of the
 scenario and one row of results. Sample index i ∈ [0, draws · T) with T tunings is
@@ -96,7 +99,8 @@ SEED_PARAMETER = "seed"  # the scenario parameter that receives scenario_seed
 FILTER_PARAM_PREFIX = "filter_param."  # vary."filter_param.NAME": one parameter of the filter
 FILTER_PARAMS = "filter_params"  # the scenario parameter they are folded into
 _STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description",
-               "filter", "filter_params"}
+               "filter", "filter_params", "objective"}
+DEFAULT_OBJECTIVE = "rho_min_meas"  # the summary metric `study falsify` minimises (softcbf.study.falsify)
 MAX_SAMPLES = 2**63 - 1  # sample indices are int64 columns
 MAX_GRID_POINTS = 1_000_000  # per distribution: its grid is held in memory
 
@@ -214,6 +218,13 @@ def fold_values(fixed: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]
     return kwargs
 
 
+def draw_generator(seed: int, draw: int) -> tuple[np.random.Generator, int]:
+    """Draw `draw`'s generator, `numpy.random.default_rng(SeedSequence([seed, draw]))`, after it drew the
+    draw's `scenario_seed` (an integer in [0, 2**31)), and that seed (module docstring)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, draw]))
+    return rng, int(rng.integers(2**31))
+
+
 def _named(where: str, check: Callable[..., Any], *args: Any) -> Any:
     """`check(*args)`, with a ValueError's message prefixed by `where` (the study key it came from)."""
     try:
@@ -236,13 +247,17 @@ class Study:
     seed: int = 0
     tuning_parameter: str = "tunings"
     description: str = ""
+    objective: str = DEFAULT_OBJECTIVE
 
     def __post_init__(self) -> None:
-        for key in ("name", "scenario", "tuning_parameter", "description"):
+        for key in ("name", "scenario", "tuning_parameter", "description", "objective"):
             if not isinstance(getattr(self, key), str):
                 raise ValueError(f"{key} must be a string, got {getattr(self, key)!r}")
         if not self.name:
             raise ValueError("a study needs a name")
+        if not self.objective.removeprefix("-"):
+            raise ValueError(f'objective must name a summary metric such as "rho_min_meas" (minimised) or '
+                             f'"-force_max_N" (maximised), got {self.objective!r}')
         try:
             scenario = get_scenario(self.scenario)
         except KeyError as exc:
@@ -332,8 +347,7 @@ class Study:
         if not 0 <= index < self.n_samples:
             raise IndexError(f"sample index must lie in [0, {self.n_samples}), got {index}")
         draw, t = divmod(index, len(self.tunings))
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, draw]))
-        scenario_seed = int(rng.integers(2**31))
+        rng, scenario_seed = draw_generator(self.seed, draw)
         if self.sampling == "grid":
             values, rest = {}, draw
             for d in reversed(self.vary):  # the first parameter varies slowest
@@ -342,21 +356,27 @@ class Study:
             values = {d.parameter: values[d.parameter] for d in self.vary}
         else:
             values = {d.parameter: d.draw(rng) for d in self.vary}
+        return self.sample_of(index, draw, self.tunings[t], scenario_seed, values)
+
+    def sample_of(self, index: int, draw: int, tuning: str, scenario_seed: int, values: dict[str, Any]) -> Sample:
+        """Sample `index` that runs the drawn `values` with `tuning` and `scenario_seed`: the scenario's keyword
+        arguments are the fixed values, `values` (filter_param.NAME folded in), the tuning, the seed (where the
+        scenario has one and the study neither fixes nor varies it) and progress off."""
         kwargs = fold_values(self.fixed, values)
-        kwargs[self.tuning_parameter] = self.tunings[t]
+        kwargs[self.tuning_parameter] = tuning
         parameters = get_scenario(self.scenario).parameters()
         if SEED_PARAMETER in parameters and SEED_PARAMETER not in kwargs:
             kwargs[SEED_PARAMETER] = scenario_seed
         if "progress" in parameters:
             kwargs["progress"] = False
-        return Sample(index, draw, self.tunings[t], scenario_seed, values, kwargs)
+        return Sample(index, draw, tuning, scenario_seed, values, kwargs)
 
     def to_dict(self) -> dict[str, Any]:
         """The study as its file's keys (JSON/TOML-able); `from_dict` reads it back."""
         out: dict[str, Any] = {"name": self.name, "description": self.description, "scenario": self.scenario,
                                "seed": self.seed, "sampling": self.sampling, "tunings": list(self.tunings),
                                "tuning_parameter": self.tuning_parameter, "fixed": dict(self.fixed),
-                               "vary": {d.parameter: d.to_dict() for d in self.vary}}
+                               "vary": {d.parameter: d.to_dict() for d in self.vary}, "objective": self.objective}
         if self.draws is not None:
             out["draws"] = self.draws
         return out
@@ -396,7 +416,8 @@ class Study:
         return cls(name=data["name"], scenario=data["scenario"], tunings=data["tunings"], vary=tuple(vary),
                    fixed=fixed, sampling=data.get("sampling", "monte_carlo"),
                    draws=data.get("draws"), seed=data.get("seed", 0),
-                   tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""))
+                   tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""),
+                   objective=data.get("objective", DEFAULT_OBJECTIVE))
 
 
 def parse_setting(text: str) -> tuple[list[str], Any]:

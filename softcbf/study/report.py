@@ -16,6 +16,19 @@
     DIR/results.parquet                every row in one file (`StudyStore.compact`); load it with
                                        `pandas.read_parquet("DIR/results.parquet")`
 
+Per tuning the table gives the violation probability's 95 % Wilson interval, the exact
+two-sided Clopper–Pearson interval and the one-sided 95 % Clopper–Pearson upper bound (the
+"P(violation) < … at 95 %" a lab can publish; `softcbf.study.analysis`).
+
+A falsification folder (DIR/falsify.json, `softcbf.study.falsify`) gets its own report:
+
+    DIR/report.md                      the objective, the search's and the uniform baseline's best value,
+                                       where (parameters, tuning, evaluation) and their first violation; the
+                                       worst case's replay; the baseline's violation probability (its draws
+                                       are uniform, so it estimates P over the box; the search's are not)
+    DIR/plots/best_so_far.<fmt>        best-so-far objective against evaluations, search and baseline,
+                                       first violations marked, 0 marked for a ρ objective
+
 `figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. Colours: tunings take
 their run colours (softcbf_mj.palette, Okabe–Ito), as in run reports; legends sit outside
 the axes. Plots use matplotlib's Agg canvas (no display needed, no global backend change).
@@ -23,6 +36,7 @@ the axes. Plots use matplotlib's Agg canvas (no display needed, no global backen
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -30,8 +44,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from scenarios import get as get_scenario
-from softcbf.study.analysis import crossing, sensitivity, tuning_summary, varied_parameters
-from softcbf.study.store import StudyStore
+from softcbf.study.analysis import Proportion, crossing, sensitivity, tuning_summary, varied_parameters, violated
+from softcbf.study.falsify import BASELINE_DIR, FALSIFY_FILE, SEARCH_DIR, WORST_DIR, minimised, objective_value
+from softcbf.study.store import STUDY_FILE, StudyStore
 from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, run_color
 from softcbf_mj.report import FIGURE_FORMATS, save_figure
 
@@ -146,6 +161,8 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
         raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
     if not dpi > 0:
         raise ValueError(f"dpi must be > 0, got {dpi}")
+    if (Path(root) / FALSIFY_FILE).is_file() and not (Path(root) / STUDY_FILE).is_file():
+        return write_falsify_report(root, figure_format, dpi)
     store = StudyStore.open(root)
     study = store.study
     rows = store.load_rows()
@@ -175,14 +192,18 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
               f"{len(rows)} of {study.n_samples} samples stored ({study.n_draws} draws × {len(tunings)} tunings). "
               f"Fixed: {fixed}. Varied: "
               + (", ".join(f"`{d.parameter}` {d.to_dict()}" for d in study.vary) or "nothing") + ".", "",
-              "Violation: measured force > F_max at some step (ρ_min_meas < 0); 95 % Wilson intervals.", "",
-              "| tuning | samples | failed | violations | P(violation) | 95 % CI | ρ_min_meas min / median / max "
-              "| F max [N] median / p95 / max |",
-              "|---|---|---|---|---|---|---|---|"]
+              "Violation: measured force > F_max at some step (ρ_min_meas < 0). Intervals at 95 %: Wilson, exact "
+              "Clopper–Pearson, and the one-sided Clopper–Pearson upper bound (P(violation) < bound at 95 %; "
+              "with 0 violations in n samples it is 1 − 0.05^(1/n)).", "",
+              "| tuning | samples | failed | violations | P(violation) | Wilson 95 % | Clopper–Pearson 95 % "
+              "| P < (one-sided 95 %) | ρ_min_meas min / median / max | F max [N] median / p95 / max |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for s in summary:
         v, rho, force = s["violation"], s["rho_min_meas"] or {}, s["force_max_N"] or {}
+        exact = v.exact
         lines.append(f"| {s['tuning']} | {s['samples']} | {s['failed']} | {v.k}/{v.n} | {_fmt(v.p, '.3f')} "
-                     f"| [{v.low:.3f}, {v.high:.3f}] | {_fmt(rho.get('q00'))} / {_fmt(rho.get('q50'))} / "
+                     f"| [{v.low:.3f}, {v.high:.3f}] | [{exact[0]:.3f}, {exact[1]:.3f}] | {v.upper:.4f} "
+                     f"| {_fmt(rho.get('q00'))} / {_fmt(rho.get('q50'))} / "
                      f"{_fmt(rho.get('q100'))} | {_fmt(force.get('q50'))} / {_fmt(force.get('q95'))} / "
                      f"{_fmt(force.get('q100'))} |")
     lines += ["", f"![rho](plots/rho_min_meas.{ext}) ![force](plots/force_max_N.{ext})", "",
@@ -208,5 +229,105 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
             lines.append(f"- sample {r['sample']} (draw {r['draw']}, {r['tuning']}): {first}")
         lines.append("")
     path = store.root / REPORT_FILE
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path
+
+
+def _best_so_far(rows: Sequence[Mapping[str, Any]], objective: str) -> tuple[list[int], list[float]]:
+    """(evaluation counts, best objective so far) over the rows in evaluation order; failed rows keep the best."""
+    x, y, best = [], [], None
+    for row in rows:
+        value = objective_value(dict(row), objective)
+        if value is not None and (best is None or minimised(value, objective) < minimised(best, objective)):
+            best = value
+        if best is not None:
+            x.append(int(row["sample"]) + 1)
+            y.append(best)
+    return x, y
+
+
+def _best_so_far_plot(curves: Mapping[str, Sequence[Mapping[str, Any]]], objective: str, path: Path,
+                      figure_format: str, dpi: float) -> None:
+    fig = _figure((7.5, 4), dpi)
+    ax = fig.add_subplot()
+    for i, (label, rows) in enumerate(curves.items()):
+        x, y = _best_so_far(rows, objective)
+        colour = run_color(label, i)
+        ax.step(x, y, where="post", color=colour, label=label)
+        first = next((r for r in rows if violated(r)), None)
+        if first is not None:
+            ax.plot([int(first["sample"]) + 1], [objective_value(dict(first), objective)], "o", color=colour,
+                    label=f"{label}: first violation at {int(first['sample']) + 1}")
+    if objective.removeprefix("-").startswith("rho"):
+        ax.axhline(0.0, color=LIMIT_COLOR, ls="--", lw=1.2, label="ρ = 0 (F = F_max)")
+    ax.set_xlabel("evaluations")
+    ax.set_ylabel(f"best {objective.removeprefix('-')} so far" + (" (maximised)" if objective.startswith("-") else ""))
+    ax.grid(alpha=0.3)
+    fig.legend(loc="outside right upper", fontsize=8)
+    save_figure(fig, path, figure_format, dpi)
+
+
+def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: float = DPI) -> Path:
+    """Write a falsification folder's report.md and plots/best_so_far.<figure_format> (module docstring)."""
+    root = Path(root)
+    state = json.loads((root / FALSIFY_FILE).read_text(encoding="utf-8"))
+    objective = state["objective"]
+    curves = {}
+    for label, folder in (("search (" + state["sampler"] + ")", SEARCH_DIR), ("uniform random", BASELINE_DIR)):
+        if (root / folder / STUDY_FILE).is_file():
+            curves[label] = StudyStore.open(root / folder).load_rows()
+    if not any(curves.values()):
+        raise ValueError(f"{root} holds no evaluations yet; run `study falsify` first")
+    plots = root / PLOTS_DIR
+    plots.mkdir(exist_ok=True)
+    _best_so_far_plot(curves, objective, plots / f"best_so_far.{figure_format}", figure_format, dpi)
+    study = state["study"]
+    box = ", ".join(f"`{name}` {spec}" for name, spec in study["vary"].items()) or "none"
+    lines = [f"# Falsification of study `{study['name']}`", "",
+             f"Scenario `{study['scenario']}`, tunings {study['tunings']}; fixed: "
+             + (", ".join(f"{k} = {v!r}" for k, v in study["fixed"].items()) or "none") + f". Box: {box}.", "",
+             f"Objective: minimise `{objective}`" + (" (i.e. maximise it without the minus)" if objective.startswith("-")
+                                                    else "") + f"; sampler {state['sampler']}, population "
+             f"{state['population']}, generation 0 {state.get('initial', 'random')}, seed {state['seed']}, budget "
+             f"{state['budget']}; status {state['status']}"
+             + (f", stopped at the {state['stopped']}" if state.get("stopped") else "") + ".", "",
+             "| | evaluations | failed | best | at evaluation | tuning | parameters | first violation |",
+             "|---|---|---|---|---|---|---|---|"]
+    best = state.get("best") or {}
+    base = state.get("random_baseline") or {}
+    for label, s, value in (("search", {**state, **best}, best.get("value")), ("uniform random", base, base.get("best"))):
+        if not s.get("evaluations"):
+            continue
+        params = ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v!r}"
+                           for k, v in (s.get("params") or {}).items()) or "–"
+        lines.append(f"| {label} | {s['evaluations']} | {s['failed']} | {_fmt(value, '.6g')} | "
+                     f"{_fmt(s.get('evaluation'), 'd')} | {s.get('tuning') or '–'} | {params} | "
+                     f"{_fmt(s.get('first_violation'), 'd')} |")
+    lines += ["", f"![best so far](plots/best_so_far.{figure_format})", ""]
+    worst = state.get("worst")
+    if worst:
+        same = worst["value"] == best.get("value")
+        lines += ["## Worst case", "",
+                  f"`{WORST_DIR}/` is a run folder of evaluation {worst['evaluation']} run alone: "
+                  f"{objective.removeprefix('-')} = {_fmt(worst['value'], '.6g')} "
+                  + ("(equal to the search's row, bit for bit)" if same else
+                     f"(the search's row has {_fmt(best.get('value'), '.6g')}: NOT replayed)")
+                  + f". Replay: `softcbf run --config {root / WORST_DIR / 'config.json'}`.", ""]
+    baseline_rows = curves.get("uniform random") or []
+    if baseline_rows:
+        lines += ["## The uniform baseline as an estimate", "",
+                  "Its draws are uniform over the box, so it estimates P(violation) over the box (the search's "
+                  "evaluations are chosen, not drawn, and estimate nothing):", "",
+                  "| tuning | violations | P(violation) | Wilson 95 % | Clopper–Pearson 95 % | P < (one-sided 95 %) |",
+                  "|---|---|---|---|---|---|"]
+        for tuning in study["tunings"]:
+            v = Proportion.of(violated(r) for r in baseline_rows if r["tuning"] == tuning)
+            exact = v.exact
+            lines.append(f"| {tuning} | {v.k}/{v.n} | {_fmt(v.p, '.3f')} | [{v.low:.3f}, {v.high:.3f}] | "
+                         f"[{exact[0]:.3f}, {exact[1]:.3f}] | {v.upper:.4f} |")
+        lines.append("")
+    lines += [f"Rows: `{SEARCH_DIR}/` and `{BASELINE_DIR}/` are study folders (one Parquet part per evaluation; "
+              "`softcbf study report` on either gives its own distributions); falsify.json holds the figures above.", ""]
+    path = root / REPORT_FILE
     path.write_text("\n".join(lines), encoding="utf-8")
     return path

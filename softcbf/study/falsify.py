@@ -1,0 +1,453 @@
+"""Falsification: search a study's parameter box for its worst case (docs/studies.md#falsification).
+
+Problem. A study file's `[vary]` table spans a box X = Π_j X_j: a uniform distribution's
+[low, high] (searched on its own scale), a loguniform one's [low, high] (searched on ln x),
+a choice's finite set of values; with T > 1 tunings the tuning is one more, categorical,
+coordinate. A normal distribution has no box and is refused. Filter parameters
+(`vary."filter_param.NAME"`) are coordinates like any other, so the same search tunes a
+filter. An evaluation of x ∈ X is one sample of the study (the fixed values, x and the
+tuning; `Study.sample_of`), run on the study engine, and J(x) is the sample's row's
+`objective` column (a summary metric; default ρ_min_meas [-], so J(x) < 0 is a
+counterexample: the measured force exceeded F_max; "-NAME" maximises NAME). Falsification
+approximates J* = min_{x ∈ X} J(x) and the x that attains it within a budget of N
+evaluations. J is deterministic in x (the scenario's own seed is fixed per evaluation, below).
+
+Initial design (`initial`, default "vertices"): failures hide in corners (an error's effect is
+often monotone, so the worst case sits at a vertex of the box), so generation 0 holds the
+vertices of the box's continuous coordinates, all 2^d in a seeded random order when they fit
+in the population, else `population` distinct ones drawn at random (seeded); the categorical
+coordinates and the rest of the generation come from the sampler. Where the effects are
+monotone this finds the worst corner at once; where they are not it costs the sampler one
+generation (TPE learns from it; CMA-ES starts from the centre either way). "random": the
+sampler's own start (CMA-ES and TPE draw their first trials at random).
+
+Search: optuna's ask-and-tell interface with a well-kept sampler: CMA-ES (`cmaes`, default:
+covariance-matrix adaptation on the box mapped to [0, 1]^d, starting at its centre with
+σ0 = 1/6; categorical coordinates are drawn at random) or TPE (`tpe`, multivariate, with a
+constant liar for candidates in flight). Generation g asks `population` candidates (default
+the CMA-ES population 4 + ⌊3 ln d⌋ for d coordinates), runs them together (below) and tells
+each its J; a sample that failed (status "error", or no finite objective) is told as a failed
+trial, which the sampler skips. The search stops after N evaluations or, with
+`stop_on_violation`, after the generation in which an evaluation violated (ρ_min_meas < 0,
+`analysis.violated`, whatever the objective).
+
+Evaluation on the study engine (no second engine): `CandidateStudy` is the study whose sample
+e is candidate e (evaluation e = optuna trial e; draw e; the scenario seed of the study's
+draw e, `definition.draw_generator`), and each generation is `execute.run_study` of the
+candidates so far into DIR/search with resume, so it runs only the new ones, batched by the
+scenario's batch form (`batch_size`, default ⌈population / workers⌉ so every worker gets a
+batch), on the local pool or Dask, and stores one Parquet part per evaluation
+(softcbf.study.store). A generation's cost is one pool start plus ⌈population / workers⌉
+samples of batched closed loop per worker.
+
+Baseline: the same budget of uniform draws of the box, i.e. the study's own Monte Carlo
+samples with its seed (every distribution is uniform over its box, log-uniform for
+loguniform), run into DIR/random (an ordinary study folder; with `stop_on_violation` in chunks
+of `population`, stopping at the first violation). Both report best-so-far J against the
+number of evaluations (`report.write_report`, plots/best_so_far) and the evaluation of their
+first violation.
+
+Resume: optuna keeps the trials in its storage (SQLite in DIR/optuna.db by default, or a
+server database's URL, which is never written to the folder; the optuna study's name, unique
+per falsification, is kept in falsify.json, so a folder may move), the parts keep the rows. On
+resume the trials asked but never told (the driver died) are run again (run_study skips the
+ones already stored) and told, then the search goes on up to the budget, which may grow.
+One driver per folder. A resume must give the same study, objective, sampler, seed and
+population (DIR/falsify.json records them).
+
+Outputs of a falsification folder DIR:
+
+    DIR/falsify.json     {"objective", "best": {"value", "params", "tuning", "evaluation"},
+                          "evaluations", "failed", "first_violation", "random_baseline":
+                          {"best", "params", "tuning", "evaluations", "failed",
+                          "first_violation"}, "worst": {...}, the settings, "stopped"}; best.value
+                          is the metric's own value (for "-NAME" the largest NAME); evaluations
+                          are counted from 1, first_violation is the count at the first violation
+                          (null: none)
+    DIR/search/          study folder of the evaluations (sample = evaluation − 1)
+    DIR/random/          study folder of the baseline
+    DIR/worst/           run folder of the best evaluation (run alone, with the scenario's
+                         report): `softcbf run --config DIR/worst/config.json` replays it bit
+                         for bit; falsify.json's worst.value is that run's J, equal to best.value
+    DIR/optuna.db        optuna's storage (the default SQLite one)
+    DIR/report.md, DIR/plots/best_so_far.<fmt>   written by `softcbf study report DIR`
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import logging
+import math
+import os
+import shutil
+import sys
+import uuid
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution
+from optuna.trial import FrozenTrial, TrialState
+
+from softcbf.study.analysis import violated
+from softcbf.study.definition import Sample, Study, draw_generator
+from softcbf.study.execute import run_study
+from softcbf.study.runner import run_sample
+from softcbf.study.store import PARAM_PREFIX, StudyStore, part_name, read_part
+from softcbf_mj.runio import OutputDirError, write_json
+
+SAMPLERS = ("cmaes", "tpe")
+FALSIFY_FILE = "falsify.json"
+SEARCH_DIR = "search"
+BASELINE_DIR = "random"
+WORST_DIR = "worst"
+STORAGE_FILE = "optuna.db"
+TUNING_COORDINATE = "@tuning"  # the tuning's coordinate in the search space (no scenario parameter has an @)
+INITIALS = ("vertices", "random")
+CMAES_MIN_POPULATION = 4  # CMA-ES's μ = ⌊population / 2⌋ parents must be >= 2 (its covariance update divides by them)
+VERTEX_STREAM = 1  # the vertex design's generator: SeedSequence([seed, VERTEX_STREAM])
+SETTINGS = ("objective", "sampler", "seed", "population", "initial", "study")  # what a resume must repeat
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One point of the box: a value per varied parameter, and the tuning it runs with."""
+
+    values: dict[str, Any]
+    tuning: str
+
+
+@dataclass(frozen=True)
+class CandidateStudy(Study):
+    """The study whose sample e is `candidates[e]` (module docstring): draw e, the scenario seed of draw e.
+
+    Its checks: the study's own (`Study`), then every candidate names each varied parameter once, holds a value
+    within that parameter's box and a tuning of the study. `to_dict` is the study's, so its folder resumes."""
+
+    candidates: tuple[Candidate, ...] = ()
+
+    def __post_init__(self) -> None:
+        checked = Study(**{f.name: getattr(self, f.name) for f in dataclasses.fields(Study)})
+        for f in dataclasses.fields(Study):
+            object.__setattr__(self, f.name, getattr(checked, f.name))
+        object.__setattr__(self, "candidates", tuple(self.candidates))
+        space = {d.parameter: d for d in self.vary}
+        for e, candidate in enumerate(self.candidates):
+            if set(candidate.values) != set(space):
+                raise ValueError(f"candidate {e} gives {sorted(candidate.values)}, the study varies {sorted(space)}")
+            if candidate.tuning not in self.tunings:
+                raise ValueError(f"candidate {e}: tuning must be one of {list(self.tunings)}, got {candidate.tuning!r}")
+            for name, value in candidate.values.items():
+                d = space[name]
+                inside = value in d.values if d.kind == "choice" else d.low <= value <= d.high
+                if not inside:
+                    raise ValueError(f"candidate {e}: {name} must lie in its box {box_text(d)}, got {value!r}")
+
+    @classmethod
+    def of(cls, study: Study, candidates: list[Candidate] | tuple[Candidate, ...]) -> "CandidateStudy":
+        return cls(**{f.name: getattr(study, f.name) for f in dataclasses.fields(Study)}, candidates=tuple(candidates))
+
+    @property
+    def n_draws(self) -> int:
+        return len(self.candidates)
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.candidates)
+
+    def sample(self, index: int) -> Sample:
+        if not 0 <= index < len(self.candidates):
+            raise IndexError(f"evaluation index must lie in [0, {len(self.candidates)}), got {index}")
+        candidate = self.candidates[index]
+        _, scenario_seed = draw_generator(self.seed, index)
+        return self.sample_of(index, index, candidate.tuning, scenario_seed, dict(candidate.values))
+
+
+def box_text(d: Any) -> str:
+    return f"{list(d.values)}" if d.kind == "choice" else f"[{d.low:g}, {d.high:g}]"
+
+
+def search_space(study: Study) -> dict[str, BaseDistribution]:
+    """The box of `study` as optuna distributions (module docstring); ValueError naming what has no box."""
+    space: dict[str, BaseDistribution] = {}
+    for d in study.vary:
+        if d.kind == "choice":
+            space[d.parameter] = CategoricalDistribution(d.values)
+        elif d.kind in ("uniform", "loguniform"):
+            space[d.parameter] = FloatDistribution(d.low, d.high, log=d.kind == "loguniform")
+        else:
+            raise ValueError(f"vary.{d.parameter}: falsify searches a box and dist {d.kind!r} has no bounds; "
+                             "give it dist = 'uniform' with low and high")
+    if len(study.tunings) > 1:
+        space[TUNING_COORDINATE] = CategoricalDistribution(study.tunings)
+    if not space:
+        raise ValueError("falsify needs a box to search: the study varies no parameter and has one tuning")
+    return space
+
+
+def default_population(study: Study) -> int:
+    """CMA-ES's default population 4 + ⌊3 ln d⌋ for the d coordinates of the study's box."""
+    return 4 + int(3 * math.log(len(search_space(study))))
+
+
+def vertex_design(space: dict[str, BaseDistribution], population: int, seed: int) -> list[dict[str, float]]:
+    """Generation 0's vertices of the box's continuous coordinates (module docstring), in evaluation order."""
+    names = [name for name, d in space.items() if isinstance(d, FloatDistribution)]
+    if not names:
+        return []
+    rng = np.random.default_rng(np.random.SeedSequence([seed, VERTEX_STREAM]))
+    if 2 ** len(names) <= population:
+        patterns = [tuple(p) for p in itertools.product((0, 1), repeat=len(names))]
+        patterns = [patterns[i] for i in rng.permutation(len(patterns))]
+    else:
+        chosen: dict[tuple[int, ...], None] = {}
+        while len(chosen) < population:
+            chosen[tuple(int(b) for b in rng.integers(0, 2, len(names)))] = None
+        patterns = list(chosen)
+    return [{n: (space[n].high if bit else space[n].low) for n, bit in zip(names, pattern)} for pattern in patterns]
+
+
+def objective_value(row: dict[str, Any], objective: str) -> float | None:
+    """The metric `objective` names ("NAME" or "-NAME") in an ok row, as stored (None: failed or not finite)."""
+    value = row.get(objective.removeprefix("-")) if row.get("status") == "ok" else None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+def minimised(value: float, objective: str) -> float:
+    """The value the search minimises: the metric, or its negative for "-NAME"."""
+    return -value if objective.startswith("-") else value
+
+
+def _sampler(name: str, seed: int, population: int) -> optuna.samplers.BaseSampler:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        if name == "cmaes":
+            return optuna.samplers.CmaEsSampler(seed=seed, popsize=population, warn_independent_sampling=False)
+        return optuna.samplers.TPESampler(seed=seed, multivariate=True, constant_liar=True)
+
+
+def _candidate(params: dict[str, Any], study: Study) -> Candidate:
+    values = {d.parameter: params[d.parameter] for d in study.vary}
+    return Candidate(values, params.get(TUNING_COORDINATE, study.tunings[0]))
+
+
+def _rows(store_dir: Path, indices: range) -> dict[int, dict[str, Any]]:
+    """The stored rows of samples `indices` of a study folder (each part read and checked once)."""
+    results = Path(store_dir) / "results"
+    return {i: read_part(results / part_name(i)).to_pylist()[0] for i in indices if (results / part_name(i)).is_file()}
+
+
+def _summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
+    """Best row (by the searched sense), failures and the evaluation count at the first violation."""
+    scored = [(objective_value(r, objective), r) for r in rows]
+    ok = [(v, r) for v, r in scored if v is not None]
+    first = next((int(r["sample"]) + 1 for r in rows if violated(r)), None)
+    out: dict[str, Any] = {"best": None, "params": None, "tuning": None, "evaluation": None,
+                           "evaluations": len(rows), "failed": len(rows) - len(ok), "first_violation": first}
+    if ok:
+        value, row = min(ok, key=lambda vr: minimised(vr[0], objective))
+        out.update(best=value, params={k.removeprefix(PARAM_PREFIX): v for k, v in row.items() if k.startswith(PARAM_PREFIX)},
+                   tuning=row["tuning"], evaluation=int(row["sample"]) + 1)
+    return out
+
+
+def _check_folder(root: Path, settings: dict[str, Any], resume: bool) -> dict[str, Any]:
+    """The stored falsify.json of a folder to resume (checked against `settings`), {} for a new folder."""
+    state = root / FALSIFY_FILE
+    if resume:
+        if not state.is_file():
+            raise OutputDirError(f"{root} is not a falsification folder (no {FALSIFY_FILE}); drop --resume to start one")
+        stored = json.loads(state.read_text(encoding="utf-8"))
+        differ = [k for k in SETTINGS if stored.get(k) != settings[k]]
+        if differ:
+            raise OutputDirError(f"{root} holds a falsification with other {', '.join(differ)} (e.g. {differ[0]} = "
+                                 f"{stored.get(differ[0])!r}, now {settings[differ[0]]!r}); --resume needs the same")
+        return stored
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        hint = "pass --resume to continue it" if state.is_file() else "choose another --out"
+        raise OutputDirError(f"{root} exists and is not empty; {hint}")
+    return {}
+
+
+def falsify(
+    study: Study,
+    out_dir: str | Path,
+    *,
+    budget: int,
+    sampler: str = "cmaes",
+    population: int | None = None,
+    initial: str = "vertices",
+    seed: int | None = None,
+    baseline: int | None = None,
+    stop_on_violation: bool = False,
+    storage: str | None = None,
+    resume: bool = False,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    batch_size: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Search `study`'s box for the minimum of its objective (module docstring); returns falsify.json's content.
+
+    `budget`: evaluations of the search; `baseline`: uniform draws (default `budget`, 0: none); `seed`: of the
+    sampler, the evaluations' scenario seeds and the baseline (default the study's); `storage`: optuna storage
+    URL (default SQLite in DIR); `workers`, `scheduler`, `client`, `batch_size`: as `run_study`.
+    """
+    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+        raise ValueError(f"budget must be an integer >= 1 (evaluations), got {budget!r}")
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
+    if initial not in INITIALS:
+        raise ValueError(f"initial must be one of {', '.join(INITIALS)}, got {initial!r}")
+    if scheduler is not None and client is not None:
+        raise ValueError("give a Dask scheduler address or a client, not both")
+    study = study if seed is None or seed == study.seed else dataclasses.replace(study, seed=seed)
+    space = search_space(study)
+    population = default_population(study) if population is None else population
+    if isinstance(population, bool) or not isinstance(population, int) or population < 1:
+        raise ValueError(f"population must be an integer >= 1 (candidates per generation), got {population!r}")
+    if sampler == "cmaes" and population < CMAES_MIN_POPULATION:
+        raise ValueError(f"population must be >= {CMAES_MIN_POPULATION} with sampler cmaes (CMA-ES recombines the best "
+                         f"half, which needs two), got {population}; or use sampler tpe")
+    baseline = budget if baseline is None else baseline
+    if isinstance(baseline, bool) or not isinstance(baseline, int) or baseline < 0:
+        raise ValueError(f"baseline must be an integer >= 0 (uniform draws; 0: none), got {baseline!r}")
+    objective = study.objective
+    root = Path(out_dir)
+    settings = {"objective": objective, "sampler": sampler, "seed": study.seed, "population": population,
+                "initial": initial, "study": study.to_dict()}
+    stored = _check_folder(root, settings, resume)
+    root.mkdir(parents=True, exist_ok=True)
+    name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
+    state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
+                             "storage": "server database (--storage)" if storage else STORAGE_FILE}
+    write_json(root / FALSIFY_FILE, state)
+
+    own_client = None
+    if scheduler is not None:
+        from distributed import Client
+
+        client = own_client = Client(scheduler)
+    if batch_size is None:
+        n_workers = sum(client.nthreads().values()) if client is not None else (workers or os.cpu_count() or 1)
+        batch_size = max(1, math.ceil(population / max(1, n_workers)))
+    run = {"workers": workers, "client": client, "batch_size": batch_size, "progress": False}
+    optuna.logging.set_verbosity(logging.WARNING)
+    url = storage or f"sqlite:///{(root / STORAGE_FILE).resolve()}"
+    search = optuna.create_study(study_name=name, storage=url, direction="minimize",
+                                 sampler=_sampler(sampler, study.seed, population), load_if_exists=resume)
+    search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
+    try:
+        if initial == "vertices" and not search.get_trials(deepcopy=False):  # a fresh search
+            for vertex in vertex_design(space, population, study.seed):
+                search.enqueue_trial(vertex)
+        trials = [t for t in search.get_trials(deepcopy=False) if t.state != TrialState.WAITING]  # WAITING: enqueued
+        if [t.number for t in trials] != list(range(len(trials))):
+            raise OutputDirError(f"the optuna study of {root} has gaps in its trial numbers; it was changed outside "
+                                 "falsify (one driver per folder)")
+        parts = StudyStore(search_dir, study).part_paths()
+        if len(parts) > len(trials):
+            raise OutputDirError(f"{root} holds {len(parts)} evaluations but its optuna storage {len(trials)} trials "
+                                 f"of study {name!r}: resume with the --storage that the search started with")
+        candidates = [_candidate(t.params, study) for t in trials]
+        pending: list[FrozenTrial | optuna.Trial] = [t for t in trials if t.state == TrialState.RUNNING]
+        evaluated = _rows(search_dir, range(len(trials)))  # evaluation index → row, as they are told
+        violation = any(violated(r) for r in evaluated.values())
+        stopped = "budget"
+        while True:
+            if not pending:
+                if stop_on_violation and violation:
+                    stopped = "violation"
+                    break
+                if len(candidates) >= budget:
+                    break
+                for _ in range(min(population, budget - len(candidates))):
+                    trial = search.ask(space)
+                    if trial.number != len(candidates):
+                        raise OutputDirError(f"optuna gave trial {trial.number} for evaluation {len(candidates)}: the "
+                                             f"study in its storage was changed outside falsify (one driver per folder)")
+                    candidates.append(_candidate(trial.params, study))
+                    pending.append(trial)
+            run_study(CandidateStudy.of(study, candidates), search_dir, resume=True, samples=len(candidates), **run)
+            rows = _rows(search_dir, range(pending[0].number, pending[-1].number + 1))
+            evaluated.update(rows)
+            for trial in pending:
+                row = rows.get(trial.number, {})
+                value = objective_value(row, objective)
+                violation = violation or bool(violated(row))
+                if value is None:
+                    search.tell(trial.number, state=TrialState.FAIL)
+                else:
+                    search.tell(trial.number, minimised(value, objective))
+            if all(objective_value(r, objective) is None for r in rows.values()) and len(candidates) == len(pending):
+                _refuse_unknown_objective(rows, objective)
+            pending = []
+            if progress:
+                done = _summary([evaluated[i] for i in sorted(evaluated)], objective)
+                print(f"falsify {study.name}: {len(candidates)}/{budget} evaluations, best {objective} "
+                      f"{done['best']!r}" + (f", first violation at evaluation {done['first_violation']}"
+                                             if done["first_violation"] else ""), file=sys.stderr, flush=True)
+        result = _summary([evaluated[i] for i in sorted(evaluated)], objective)
+        base = uniform_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run) \
+            if baseline else []
+        base_summary = _summary(base, objective)
+        worst = None
+        if result["evaluation"] is not None:
+            worst = _replay_worst(CandidateStudy.of(study, candidates), result["evaluation"] - 1, root / WORST_DIR,
+                                  objective)
+    finally:
+        if own_client is not None:
+            own_client.close()
+    state.update(status="done", stopped=stopped, evaluations=result["evaluations"], failed=result["failed"],
+                 first_violation=result["first_violation"],
+                 best={"value": result["best"], "params": result["params"], "tuning": result["tuning"],
+                       "evaluation": result["evaluation"]},
+                 random_baseline={k: base_summary[k] for k in ("best", "params", "tuning", "evaluation", "evaluations",
+                                                              "failed", "first_violation")},
+                 worst=worst)
+    write_json(root / FALSIFY_FILE, state)
+    return state
+
+
+def _refuse_unknown_objective(rows: dict[int, dict[str, Any]], objective: str) -> None:
+    """Every sample of the first generation ran but none has the objective's column: a misspelt metric."""
+    ok = [r for r in rows.values() if r.get("status") == "ok"]
+    name = objective.removeprefix("-")
+    if ok and all(name not in r for r in ok):
+        numeric = sorted(k for k, v in ok[0].items() if isinstance(v, (int, float)) and not isinstance(v, bool)
+                         and k not in ("sample", "draw", "scenario_seed") and not k.startswith("param."))
+        raise ValueError(f"objective {objective!r}: the scenario's rows have no column {name!r}; numeric columns: "
+                         f"{', '.join(numeric)}")
+
+
+def uniform_baseline(study: Study, folder: Path, budget: int, chunk: int | None, run: dict[str, Any]) -> list[dict]:
+    """Uniform draws of the box: the study's Monte Carlo samples 0 … budget−1 (module docstring)."""
+    draws = math.ceil(budget / len(study.tunings))
+    uniform = dataclasses.replace(study, sampling="monte_carlo", draws=draws)
+    rows: dict[int, dict[str, Any]] = {}
+    done = 0
+    while done < budget:
+        start, done = done, (budget if chunk is None else min(budget, done + chunk))
+        run_study(uniform, folder, resume=True, samples=done, **run)
+        new = _rows(folder, range(start, done))
+        rows.update(new)
+        if chunk is not None and any(violated(r) for r in new.values()):
+            break
+    return [rows[i] for i in sorted(rows)]
+
+
+def _replay_worst(study: CandidateStudy, index: int, folder: Path, objective: str) -> dict[str, Any]:
+    """Run evaluation `index` alone into `folder` (a full run folder, replaced if there) and return its J."""
+    if folder.exists():
+        shutil.rmtree(folder)
+    row = run_sample(study, index, str(folder))
+    return {"dir": WORST_DIR, "evaluation": index + 1, "value": objective_value(row, objective),
+            "status": row["status"], "replay": f"softcbf run --config {WORST_DIR}/config.json"}
