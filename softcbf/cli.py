@@ -6,8 +6,9 @@
     softcbf run --config FILE.toml|RUN_DIR/config.json [--PARAM VALUE ...] [--out DIR]
     softcbf run SCENARIO --help                    the scenario's parameters: meaning, unit, valid values
     softcbf report RUN_DIR [--no-recording]        rebuild plots/, report.md and recording.rrd
-    softcbf report STUDY_DIR                       a study folder's report.md and plots/
-    softcbf study run STUDY_FILE --out DIR | report DIR   robustness studies (softcbf.study)
+    softcbf report STUDY_DIR                       a study (or falsification) folder's report.md and plots/
+    softcbf study run STUDY_FILE --out DIR | falsify STUDY_FILE --out DIR | report DIR
+                                                   robustness studies and worst-case search (softcbf.study)
     softcbf hardware --config FILE ...             the hardware mode (softcbf.hardware_cli)
     softcbf bench --out DIR [--filters SPEC,...] [--quick]   the filter benchmark battery (softcbf.bench)
     softcbf --version
@@ -199,9 +200,9 @@ def _report_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _report(args: argparse.Namespace, extra: list[str]) -> int:
-    from softcbf.study.store import STUDY_FILE
+    from softcbf.study.store import FALSIFY_FILE, STUDY_FILE
 
-    if (args.run_dir / STUDY_FILE).is_file():
+    if (args.run_dir / STUDY_FILE).is_file() or (args.run_dir / FALSIFY_FILE).is_file():
         from softcbf.study.report import write_report as write_study_report
 
         print(f"study report: {write_study_report(args.run_dir, figure_format=args.figure_format, dpi=args.dpi)}")
@@ -228,7 +229,8 @@ register_command("run", "run a scenario: softcbf run SCENARIO [--PARAM VALUE ...
                  _run_args, _run, extra_args=True, add_help=False)
 register_command("report", "rebuild a run or study folder's plots and report.md (and a run's recording.rrd) from its saved data",
                  _report_args, _report)
-register_command("study", "robustness studies of model mismatch: softcbf study run STUDY_FILE --out DIR | report DIR",
+register_command("study", "robustness studies of model mismatch: softcbf study run STUDY_FILE --out DIR | "
+                 "falsify STUDY_FILE --out DIR | report DIR",
                  lazy("softcbf.study.cli", "add_arguments"), lazy("softcbf.study.cli", "run_command"))
 register_command("hardware", lambda: importlib.import_module("softcbf.hardware_cli").HELP,
                  lazy("softcbf.hardware_cli", "add_arguments"), lazy("softcbf.hardware_cli", "run_command"))

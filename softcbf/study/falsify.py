@@ -98,11 +98,10 @@ from softcbf.study.analysis import violated
 from softcbf.study.definition import Sample, Study, draw_generator
 from softcbf.study.execute import run_study
 from softcbf.study.runner import run_sample
-from softcbf.study.store import PARAM_PREFIX, StudyStore, part_name, read_part
+from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, part_name, read_part
 from softcbf_mj.runio import OutputDirError, write_json
 
 SAMPLERS = ("cmaes", "tpe")
-FALSIFY_FILE = "falsify.json"
 SEARCH_DIR = "search"
 BASELINE_DIR = "random"
 WORST_DIR = "worst"

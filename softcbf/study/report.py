@@ -45,8 +45,8 @@ from matplotlib.figure import Figure
 
 from scenarios import get as get_scenario
 from softcbf.study.analysis import Proportion, crossing, sensitivity, tuning_summary, varied_parameters, violated
-from softcbf.study.falsify import BASELINE_DIR, FALSIFY_FILE, SEARCH_DIR, WORST_DIR, minimised, objective_value
-from softcbf.study.store import STUDY_FILE, StudyStore
+from softcbf.study.falsify import BASELINE_DIR, SEARCH_DIR, WORST_DIR, minimised, objective_value
+from softcbf.study.store import FALSIFY_FILE, STUDY_FILE, StudyStore
 from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, run_color
 from softcbf_mj.report import FIGURE_FORMATS, save_figure
 

@@ -59,6 +59,7 @@ from softcbf_mj.runio import OutputDirError, versions, write_json
 from softcbf.study.definition import Study
 
 STUDY_FILE = "study.json"
+FALSIFY_FILE = "falsify.json"  # a falsification folder's figures (softcbf.study.falsify)
 RESULTS_DIR = "results"
 COMPACT_FILE = "results.parquet"
 RUNS_DIR = "runs"
