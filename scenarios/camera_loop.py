@@ -46,32 +46,30 @@ from controllers.params import RobotParams
 from controllers.safe_set import Environment
 from controllers.safety_filter import FilterContext
 from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
-from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
+from perception.estimator import ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
 from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
+    build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
     controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot,
     live_run, nominal_arguments, read_parameter_file, save_run, scene_record, stop_after,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from scenarios.ground_truth import check_true_arm, flexure_params
-from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import (
-    CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, CAMERA_RESOLUTION, DEFAULT_TAU_P, ArmModelConfig, build_model,
-    calibration_board,
+    CAMERA_RESOLUTION, ArmModelConfig, build_model, calibration_board,
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
-from vocabulary.settings import Bound
+from vocabulary.settings import Bound, default
 
 
 BOUNDS = {"width": Bound(16, CAMERA_RESOLUTION[0], unit="px"), "height": Bound(16, CAMERA_RESOLUTION[1], unit="px")}  # the render's
@@ -158,58 +156,58 @@ def check_parameters(params: Mapping[str, Any]) -> None:
 def camera_loop(
     out_dir: Path,
     *,
-    duration: float = 100.0,
-    tunings: str = "None,HW-Low,HW-High",
-    filter: str = PAPER_FILTER,
-    filter_params: str = "",
-    nominal: str = "sinusoid",
-    nominal_params: str = "",
-    amplitude: float = 80.0,
-    frequency: float = 0.01,
-    t0: float = 0.0,
-    pressure_limits: bool = True,
-    robot: str = "reference",
-    environment: str = "paper",
-    links_per_segment: int = CAMERA_LINKS_PER_SEGMENT,
-    tau_p: float = DEFAULT_TAU_P,
-    physics_dt: float = CAMERA_PHYSICS_DT,
-    plate_stiffness: float = 11.16,
-    assumed_plate_stiffness: float = 11.16,
-    f_max: float = 0.16,
-    row_scaling: str = "paper",
-    qp_backend: str = "native",
-    tick: float = 2e-3,
-    frame_rate: float = 12.8,
-    control_rate: float = 10.0,
-    latency: float = CameraTiming.latency,
-    drop_rate: float = 0.0,
-    pixel_noise: float = 0.0,
-    hold_s: float = CameraTiming.hold_s,
-    max_hold_s: float = DEFAULT_MAX_HOLD_S,
-    qd_filter_tau: float = 0.0,
-    width: int = 1280,
-    height: int = 720,
-    calibration: str = "board",
-    detector: str = "opencv",
-    tracking: bool = True,
-    saved_frames_hz: float = 0.5,
-    seed: int = 0,
-    q0_std: float = 0.0,
-    true_robot: str = "",
-    damping_scale: float = 1.0,
-    true_gain_scale: float = 1.0,
-    facet_offset: float = 0.0,
-    tip_friction: float = 0.0,
-    table_friction: float = 0.0,
-    plate: str = "ideal",
-    sheet_clamp_at: float = FlexureParams.clamp_at,
-    sheet_free_end_at: float = FlexureParams.free_end_at,
-    sheet_thickness: float = FlexureParams.thickness,
-    sheet_width: float = FlexureParams.width,
-    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
-    sheet_links: int = FlexureParams.links,
-    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
-    progress: bool = True,
+    duration: float = default("duration", "camera_loop"),
+    tunings: str = default("tunings", "camera_loop"),
+    filter: str = default("filter", "camera_loop"),
+    filter_params: str = default("filter_params", "camera_loop"),
+    nominal: str = default("nominal", "camera_loop"),
+    nominal_params: str = default("nominal_params", "camera_loop"),
+    amplitude: float = default("amplitude", "camera_loop"),
+    frequency: float = default("frequency", "camera_loop"),
+    t0: float = default("t0", "camera_loop"),
+    pressure_limits: bool = default("pressure_limits", "camera_loop"),
+    robot: str = default("robot", "camera_loop"),
+    environment: str = default("environment", "camera_loop"),
+    links_per_segment: int = default("links_per_segment", "camera_loop"),
+    tau_p: float = default("tau_p", "camera_loop"),
+    physics_dt: float = default("physics_dt", "camera_loop"),
+    plate_stiffness: float = default("plate_stiffness", "camera_loop"),
+    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "camera_loop"),
+    f_max: float = default("f_max", "camera_loop"),
+    row_scaling: str = default("row_scaling", "camera_loop"),
+    qp_backend: str = default("qp_backend", "camera_loop"),
+    tick: float = default("tick", "camera_loop"),
+    frame_rate: float = default("frame_rate", "camera_loop"),
+    control_rate: float = default("control_rate", "camera_loop"),
+    latency: float = default("latency", "camera_loop"),
+    drop_rate: float = default("drop_rate", "camera_loop"),
+    pixel_noise: float = default("pixel_noise", "camera_loop"),
+    hold_s: float = default("hold_s", "camera_loop"),
+    max_hold_s: float = default("max_hold_s", "camera_loop"),
+    qd_filter_tau: float = default("qd_filter_tau", "camera_loop"),
+    width: int = default("width", "camera_loop"),
+    height: int = default("height", "camera_loop"),
+    calibration: str = default("calibration", "camera_loop"),
+    detector: str = default("detector", "camera_loop"),
+    tracking: bool = default("tracking", "camera_loop"),
+    saved_frames_hz: float = default("saved_frames_hz", "camera_loop"),
+    seed: int = default("seed", "camera_loop"),
+    q0_std: float = default("q0_std", "camera_loop"),
+    true_robot: str = default("true_robot", "camera_loop"),
+    damping_scale: float = default("damping_scale", "camera_loop"),
+    true_gain_scale: float = default("true_gain_scale", "camera_loop"),
+    facet_offset: float = default("facet_offset", "camera_loop"),
+    tip_friction: float = default("tip_friction", "camera_loop"),
+    table_friction: float = default("table_friction", "camera_loop"),
+    plate: str = default("plate", "camera_loop"),
+    sheet_clamp_at: float = default("sheet_clamp_at", "camera_loop"),
+    sheet_free_end_at: float = default("sheet_free_end_at", "camera_loop"),
+    sheet_thickness: float = default("sheet_thickness", "camera_loop"),
+    sheet_width: float = default("sheet_width", "camera_loop"),
+    sheet_youngs_modulus: float = default("sheet_youngs_modulus", "camera_loop"),
+    sheet_links: int = default("sheet_links", "camera_loop"),
+    sheet_calibration_fraction: float = default("sheet_calibration_fraction", "camera_loop"),
+    progress: bool = default("progress", "camera_loop"),
 ) -> dict:
     """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
 

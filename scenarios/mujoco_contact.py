@@ -46,21 +46,20 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
+    ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
     controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, stop_after,
     scene_record,
 )
 from scenarios.ground_truth import check_true_arm, flexure_params
-from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
+from softcbf_mj.model_builder import ArmModelConfig
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
-from vocabulary.settings import Bound
+from vocabulary.settings import Bound, default
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
 
@@ -208,47 +207,47 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) ->
 def mujoco_contact(
     out_dir: Path,
     *,
-    duration: float = 100.0,
-    tunings: str = "None,Low,High",
-    filter: str = PAPER_FILTER,
-    filter_params: str = "",
-    nominal: str = "sinusoid",
-    nominal_params: str = "",
-    amplitude: float = 80.0,
-    frequency: float = 0.01,
-    t0: float = 0.0,
-    pressure_limits: bool = True,
-    robot: str = "reference",
-    environment: str = "paper",
-    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
-    tau_p: float = DEFAULT_TAU_P,
-    physics_dt: float = DEFAULT_PHYSICS_DT,
-    plate_stiffness: float = 11.16,
-    assumed_plate_stiffness: float = 11.16,
-    f_max: float = 0.16,
-    row_scaling: str = "paper",
-    qp_backend: str = "native",
-    seed: int = 0,
-    q0_std: float = 0.0,
-    true_stiffness_scale: float = 1.0,
-    true_damping_scale: float = 1.0,
-    true_gain_scale: float = 1.0,
-    true_length_scale: float = 1.0,
-    facet_offset: float = 0.0,
-    facet_angle: float = 0.0,
-    true_robot: str = "",
-    gravity: float = 0.0,
-    tip_friction: float = 0.0,
-    table_friction: float = 0.0,
-    plate: str = "ideal",
-    sheet_clamp_at: float = FlexureParams.clamp_at,
-    sheet_free_end_at: float = FlexureParams.free_end_at,
-    sheet_thickness: float = FlexureParams.thickness,
-    sheet_width: float = FlexureParams.width,
-    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
-    sheet_links: int = FlexureParams.links,
-    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
-    progress: bool = True,
+    duration: float = default("duration", "mujoco_contact"),
+    tunings: str = default("tunings", "mujoco_contact"),
+    filter: str = default("filter", "mujoco_contact"),
+    filter_params: str = default("filter_params", "mujoco_contact"),
+    nominal: str = default("nominal", "mujoco_contact"),
+    nominal_params: str = default("nominal_params", "mujoco_contact"),
+    amplitude: float = default("amplitude", "mujoco_contact"),
+    frequency: float = default("frequency", "mujoco_contact"),
+    t0: float = default("t0", "mujoco_contact"),
+    pressure_limits: bool = default("pressure_limits", "mujoco_contact"),
+    robot: str = default("robot", "mujoco_contact"),
+    environment: str = default("environment", "mujoco_contact"),
+    links_per_segment: int = default("links_per_segment", "mujoco_contact"),
+    tau_p: float = default("tau_p", "mujoco_contact"),
+    physics_dt: float = default("physics_dt", "mujoco_contact"),
+    plate_stiffness: float = default("plate_stiffness", "mujoco_contact"),
+    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "mujoco_contact"),
+    f_max: float = default("f_max", "mujoco_contact"),
+    row_scaling: str = default("row_scaling", "mujoco_contact"),
+    qp_backend: str = default("qp_backend", "mujoco_contact"),
+    seed: int = default("seed", "mujoco_contact"),
+    q0_std: float = default("q0_std", "mujoco_contact"),
+    true_stiffness_scale: float = default("true_stiffness_scale", "mujoco_contact"),
+    true_damping_scale: float = default("true_damping_scale", "mujoco_contact"),
+    true_gain_scale: float = default("true_gain_scale", "mujoco_contact"),
+    true_length_scale: float = default("true_length_scale", "mujoco_contact"),
+    facet_offset: float = default("facet_offset", "mujoco_contact"),
+    facet_angle: float = default("facet_angle", "mujoco_contact"),
+    true_robot: str = default("true_robot", "mujoco_contact"),
+    gravity: float = default("gravity", "mujoco_contact"),
+    tip_friction: float = default("tip_friction", "mujoco_contact"),
+    table_friction: float = default("table_friction", "mujoco_contact"),
+    plate: str = default("plate", "mujoco_contact"),
+    sheet_clamp_at: float = default("sheet_clamp_at", "mujoco_contact"),
+    sheet_free_end_at: float = default("sheet_free_end_at", "mujoco_contact"),
+    sheet_thickness: float = default("sheet_thickness", "mujoco_contact"),
+    sheet_width: float = default("sheet_width", "mujoco_contact"),
+    sheet_youngs_modulus: float = default("sheet_youngs_modulus", "mujoco_contact"),
+    sheet_links: int = default("sheet_links", "mujoco_contact"),
+    sheet_calibration_fraction: float = default("sheet_calibration_fraction", "mujoco_contact"),
+    progress: bool = default("progress", "mujoco_contact"),
 ) -> dict:
     """Run each controller (tuning) for `duration` s; write summary.json and one time series per run.
 
