@@ -32,7 +32,6 @@ frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -42,8 +41,6 @@ import cv2
 import mujoco
 import numpy as np
 
-from controllers.params import RobotParams
-from controllers.safe_set import Environment
 from controllers.safety_filter import FilterContext
 from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
 from perception.estimator import ArmAngleEstimator
@@ -53,12 +50,11 @@ from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
     build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
-    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot,
+    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration,
     live_run, nominal_arguments, read_parameter_file, save_run, scene_record, stop_after,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-from scenarios.ground_truth import check_true_arm, flexure_params
-from softcbf_mj.flexure_calibration import calibrate_flexure
+from scenarios.ground_truth import build_truth, check_true_arm, controller_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import (
@@ -109,11 +105,6 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
         return calibrate(TagDetector(backend).detect(image), calibration_board(config))
     path = existing_file("calibration", spec, "'board', 'truth' or a calibration JSON file")
     return read_parameter_file("calibration", path, PlaneCalibration.load)
-
-
-def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
-    """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
-    return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
 
 
 def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarray]) -> dict:
@@ -195,8 +186,13 @@ def camera_loop(
     q0_std: float = default("q0_std", "camera_loop"),
     true_robot: str = default("true_robot", "camera_loop"),
     damping_scale: float = default("damping_scale", "camera_loop"),
+    true_stiffness_scale: float = default("true_stiffness_scale", "camera_loop"),
+    true_damping_scale: float = default("true_damping_scale", "camera_loop"),
     true_gain_scale: float = default("true_gain_scale", "camera_loop"),
+    true_length_scale: float = default("true_length_scale", "camera_loop"),
     facet_offset: float = default("facet_offset", "camera_loop"),
+    facet_angle: float = default("facet_angle", "camera_loop"),
+    gravity: float = default("gravity", "camera_loop"),
     tip_friction: float = default("tip_friction", "camera_loop"),
     table_friction: float = default("table_friction", "camera_loop"),
     plate: str = default("plate", "camera_loop"),
@@ -212,31 +208,22 @@ def camera_loop(
     """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
 
     The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
-    `true_robot`'s when given (same number of segments), its actuator gains λ multiplied by
-    `true_gain_scale`; `damping_scale` multiplies every segment's damping d_i of both arms
-    (the controller knows it), so the arm's time constant d_i/k_i scales with it (the
-    operating-envelope study, studies/hardware_envelope.toml); `facet_offset`,
-    `tip_friction`, `table_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (the true
-    plates moved by `facet_offset` m along their outward normals, > 0 farther from the
-    base, the controller keeping the unmoved facets; a
-    flexure's gauge gives ρ_meas)."""
+    `true_robot`'s when given (same number of segments); `damping_scale` multiplies every
+    segment's damping d_i of both arms (the controller knows it), so the arm's time constant
+    d_i/k_i scales with it (the operating-envelope study, studies/hardware_envelope.toml).
+    The ground truth's settings are `mujoco_contact`'s (`scenarios.ground_truth`): the
+    `true_*_scale` factors of the arm, the true plates moved by `facet_offset` and turned by
+    `facet_angle` (the controller keeping the unmoved facets), `gravity`, `tip_friction`,
+    `table_friction`, `plate` and the `sheet_*` parameters (a flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
     check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    model_robot = scale_damping(load_robot(robot), damping_scale)
+    model_robot = controller_robot(params)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     check_duration(duration, tick, model_robot.n_segments, safe_set)
-    env = safe_set.environment
-    arm = scale_damping(load_robot(true_robot), damping_scale) if true_robot else model_robot
-    if true_gain_scale != 1.0:
-        arm = dataclasses.replace(arm, gains=tuple(g * true_gain_scale for g in arm.gains))
-    true_h = env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])
-    config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(true_h), plate_stiffness=plate_stiffness,
-                            links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
-                            tip_friction=tip_friction, plate=plate, flexure=flexure_params(params),
-                            table_friction=table_friction)
-    true_plate_stiffness = calibrate_flexure(config).stiffness_N_per_m if plate == "flexure" else plate_stiffness
+    truth = build_truth(params, model_robot, safe_set.environment)
+    config = truth.config
     plant = MujocoPlant(build_model(config), tick)
     n = plant.n_segments
     tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
@@ -251,7 +238,7 @@ def camera_loop(
 
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
         summary = SummaryWriter(out_dir, "camera_loop", params,
-                                scene=scene_record(arm, safe_set, true_plate_stiffness, Environment(env.H, true_h)))
+                                scene=scene_record(truth.robot, safe_set, truth.plate_stiffness, truth.plates))
         for run in runs:
             label = run.label
             step = control_step(run, nominal, nominal_kwargs, context, timing.monitor(n))
