@@ -54,7 +54,7 @@ from scenarios.common import (
     live_run, nominal_arguments, read_parameter_file, save_run, scene_record, stop_after,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-from scenarios.ground_truth import build_truth, check_true_arm, controller_robot
+from scenarios.ground_truth import GroundTruthSettings, build_truth, check_true_arm, controller_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import (
@@ -138,7 +138,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
     if params["calibration"] not in ("board", "truth") and not Path(params["calibration"]).is_file():
         raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {params['calibration']!r} "
                          "(no such file)")
-    check_true_arm(params, model_robot)
+    check_true_arm(GroundTruthSettings.of(params), model_robot)
     steps_per_control(params["tick"], params["physics_dt"])
 
 
@@ -222,7 +222,7 @@ def camera_loop(
     model_robot = controller_robot(params)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     check_duration(duration, tick, model_robot.n_segments, safe_set)
-    truth = build_truth(params, model_robot, safe_set.environment)
+    truth = build_truth(GroundTruthSettings.of(params), model_robot, safe_set.environment)
     config = truth.config
     plant = MujocoPlant(build_model(config), tick)
     n = plant.n_segments

@@ -18,7 +18,8 @@ The settings (vocabulary.settings; every MuJoCo scenario takes them all, docs/pa
   clamped sheet of the `sheet_*` settings, softcbf_mj.flexure), whose stiffness at its
   calibration point (`calibrate_flexure`, N/m) is the scene's plate stiffness.
 
-`check_true_arm` checks these without building anything (`scenarios.Scenario.validate`);
+`GroundTruthSettings.of(params)` picks them from a scenario's keyword arguments, a frozen
+section; `check_true_arm` checks them without building anything (`scenarios.Scenario.validate`);
 `build_truth` builds them: a `Truth` whose `config` (`ArmModelConfig`) both the single run's
 `MujocoPlant` and the batch's `MujocoBatchPlant` take.
 """
@@ -27,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -40,14 +41,6 @@ from softcbf_mj.flexure_calibration import calibrate_flexure
 from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
 
 
-def flexure_params(params: Mapping[str, Any]) -> FlexureParams:
-    """The flexure sheet of a scenario's `sheet_*` parameters (checked by FlexureParams)."""
-    return FlexureParams(clamp_at=params["sheet_clamp_at"], free_end_at=params["sheet_free_end_at"],
-                         thickness=params["sheet_thickness"], width=params["sheet_width"],
-                         youngs_modulus=params["sheet_youngs_modulus"], links=params["sheet_links"],
-                         calibration_fraction=params["sheet_calibration_fraction"])
-
-
 def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
     """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
     return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
@@ -58,20 +51,67 @@ def controller_robot(params: Mapping[str, Any]) -> RobotParams:
     return scale_damping(load_robot(params["robot"]), params["damping_scale"])
 
 
-def check_true_arm(params: Mapping[str, Any], model_robot: RobotParams) -> None:
+@dataclass(frozen=True)
+class GroundTruthSettings:
+    """The ground-truth settings every MuJoCo scenario takes (module docstring; units:
+    vocabulary.settings), picked from a scenario's keyword arguments by `of`."""
+
+    plate_stiffness: float
+    links_per_segment: int
+    tau_p: float
+    physics_dt: float
+    true_robot: str
+    damping_scale: float
+    true_stiffness_scale: float
+    true_damping_scale: float
+    true_gain_scale: float
+    true_length_scale: float
+    facet_offset: float
+    facet_angle: float
+    gravity: float
+    tip_friction: float
+    table_friction: float
+    plate: str
+    sheet_clamp_at: float
+    sheet_free_end_at: float
+    sheet_thickness: float
+    sheet_width: float
+    sheet_youngs_modulus: float
+    sheet_links: int
+    sheet_calibration_fraction: float
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def of(cls, params: Mapping[str, Any]) -> GroundTruthSettings:
+        """The ground-truth settings among a scenario's keyword arguments `params`."""
+        return cls(**{name: params[name] for name in cls.names()})
+
+    @property
+    def flexure(self) -> FlexureParams:
+        """The flexure sheet of the `sheet_*` settings (checked by FlexureParams)."""
+        return FlexureParams(clamp_at=self.sheet_clamp_at, free_end_at=self.sheet_free_end_at,
+                             thickness=self.sheet_thickness, width=self.sheet_width,
+                             youngs_modulus=self.sheet_youngs_modulus, links=self.sheet_links,
+                             calibration_fraction=self.sheet_calibration_fraction)
+
+
+def check_true_arm(settings: GroundTruthSettings, model_robot: RobotParams) -> None:
     """The checks of a MuJoCo scenario's ground truth: plate kind, sheet, true robot (the same
     number of segments as the controller's) and the model settings (ArmModelConfig's checks, among
     them `table_friction` against `gravity` and the physics step)."""
-    check_choice("plate", params["plate"], PLATE_KINDS)
-    if params["true_robot"]:
-        true_robot = load_robot(params["true_robot"])
+    check_choice("plate", settings.plate, PLATE_KINDS)
+    if settings.true_robot:
+        true_robot = load_robot(settings.true_robot)
         if true_robot.n_segments != model_robot.n_segments:
             raise ValueError(f"true_robot has {true_robot.n_segments} segments, the controller's robot "
                              f"{model_robot.n_segments}; they must have the same number")
-    ArmModelConfig(plate_stiffness=params["plate_stiffness"], links_per_segment=params["links_per_segment"],
-                   tau_p=params["tau_p"], physics_dt=params["physics_dt"], tip_friction=params["tip_friction"],
-                   plate=params["plate"], flexure=flexure_params(params), table_friction=params["table_friction"],
-                   gravity=(0.0, -params["gravity"], 0.0))
+    ArmModelConfig(plate_stiffness=settings.plate_stiffness, links_per_segment=settings.links_per_segment,
+                   tau_p=settings.tau_p, physics_dt=settings.physics_dt, tip_friction=settings.tip_friction,
+                   plate=settings.plate, flexure=settings.flexure, table_friction=settings.table_friction,
+                   gravity=(0.0, -settings.gravity, 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -92,29 +132,27 @@ class Truth:
         return self.config.robot
 
 
-def build_truth(params: Mapping[str, Any], model_robot: RobotParams, environment: Environment) -> Truth:
-    """The ground truth of a MuJoCo scenario's checked `params` (module docstring), for the
+def build_truth(settings: GroundTruthSettings, model_robot: RobotParams, environment: Environment) -> Truth:
+    """The ground truth of a MuJoCo scenario's checked `settings` (module docstring), for the
     controller's robot `model_robot` (`controller_robot`) and facets `environment`."""
-    ref = scale_damping(load_robot(params["true_robot"]), params["damping_scale"]) if params["true_robot"] else model_robot
-    length_scale = params["true_length_scale"]
+    g = settings
+    ref = scale_damping(load_robot(g.true_robot), g.damping_scale) if g.true_robot else model_robot
     arm = RobotParams(
-        lengths=ref.array("lengths") * length_scale, masses=ref.masses,
-        stiffness=ref.array("stiffness") * params["true_stiffness_scale"],
-        damping=ref.array("damping") * params["true_damping_scale"],
-        gains=ref.array("gains") * params["true_gain_scale"], u_min=ref.u_min, u_max=ref.u_max,
-        inertias=ref.array("inertias") * length_scale**2,
+        lengths=ref.array("lengths") * g.true_length_scale, masses=ref.masses,
+        stiffness=ref.array("stiffness") * g.true_stiffness_scale, damping=ref.array("damping") * g.true_damping_scale,
+        gains=ref.array("gains") * g.true_gain_scale, u_min=ref.u_min, u_max=ref.u_max,
+        inertias=ref.array("inertias") * g.true_length_scale**2,
     )
     H, h = environment.H, environment.h
-    cos_a, sin_a = math.cos(params["facet_angle"]), math.sin(params["facet_angle"])
+    cos_a, sin_a = math.cos(g.facet_angle), math.sin(g.facet_angle)
     true_H = np.column_stack((H[:, 0] * cos_a - H[:, 1] * sin_a, H[:, 0] * sin_a + H[:, 1] * cos_a))
-    true_h = (h + params["facet_offset"] * np.hypot(H[:, 0], H[:, 1])) * cos_a
-    model: dict[str, Any] = dict(robot=arm, H=true_H, h=true_h, plate_stiffness=params["plate_stiffness"],
-                                 links_per_segment=params["links_per_segment"], tau_p=params["tau_p"],
-                                 physics_dt=params["physics_dt"], tip_friction=params["tip_friction"],
-                                 plate=params["plate"], flexure=flexure_params(params),
-                                 table_friction=params["table_friction"])
-    if params["gravity"]:  # else ArmModelConfig's (0, 0, 0), not (0, -0.0, 0)
-        model["gravity"] = (0.0, -params["gravity"], 0.0)
+    true_h = (h + g.facet_offset * np.hypot(H[:, 0], H[:, 1])) * cos_a
+    model: dict[str, Any] = dict(robot=arm, H=true_H, h=true_h, plate_stiffness=g.plate_stiffness,
+                                 links_per_segment=g.links_per_segment, tau_p=g.tau_p, physics_dt=g.physics_dt,
+                                 tip_friction=g.tip_friction, plate=g.plate, flexure=g.flexure,
+                                 table_friction=g.table_friction)
+    if g.gravity:  # else ArmModelConfig's (0, 0, 0), not (0, -0.0, 0)
+        model["gravity"] = (0.0, -g.gravity, 0.0)
     config = ArmModelConfig(**model)
-    stiffness = calibrate_flexure(config).stiffness_N_per_m if params["plate"] == "flexure" else params["plate_stiffness"]
+    stiffness = calibrate_flexure(config).stiffness_N_per_m if g.plate == "flexure" else g.plate_stiffness
     return Truth(config, Environment(true_H, true_h), stiffness)

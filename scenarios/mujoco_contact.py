@@ -48,7 +48,7 @@ from scenarios.common import (
     controller_runs, initial_configuration, nominal_arguments, run_tuning, stop_after,
     scene_record,
 )
-from scenarios.ground_truth import Truth, build_truth, check_true_arm, controller_robot
+from scenarios.ground_truth import GroundTruthSettings, Truth, build_truth, check_true_arm, controller_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import build_model
@@ -94,7 +94,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
     """The checks `mujoco_contact` makes before it builds anything (`scenarios.Scenario.validate`)."""
     check_bounds(params, BOUNDS)
     model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
-    check_true_arm(params, model_robot)
+    check_true_arm(GroundTruthSettings.of(params), model_robot)
     steps_per_control(CONTROL_DT, params["physics_dt"])
 
 
@@ -123,7 +123,7 @@ def contact_setup(params: Mapping[str, Any]) -> ContactSetup:
     safe_set = build_safe_set(params["environment"], params["assumed_plate_stiffness"], params["f_max"],
                               params["row_scaling"])
     check_duration(params["duration"], CONTROL_DT, model_robot.n_segments, safe_set)
-    truth = build_truth(params, model_robot, safe_set.environment)
+    truth = build_truth(GroundTruthSettings.of(params), model_robot, safe_set.environment)
     runs = controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"])
     nominal_kwargs = nominal_arguments(params["nominal"], params["nominal_params"], amplitude=params["amplitude"],
                                        frequency=params["frequency"], t0=params["t0"])

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
 
 import numpy as np
 import pytest
@@ -13,40 +12,20 @@ import pytest
 from controllers.params import reference_robot
 from controllers.safe_set import paper_environment
 from scenarios import get
-from scenarios.ground_truth import build_truth, check_true_arm, controller_robot
-from vocabulary.settings import DEFAULT_OVERRIDES
+from scenarios.ground_truth import GroundTruthSettings, build_truth, controller_robot
+from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS
 
 MUJOCO_SCENARIOS = ("mujoco_contact", "camera_loop")
 
 
-class Recording(Mapping):
-    """A mapping that records which keys are read."""
-
-    def __init__(self, data):
-        self.data, self.read = dict(data), set()
-
-    def __getitem__(self, key):
-        self.read.add(key)
-        return self.data[key]
-
-    def __iter__(self):
-        return iter(self.data)
-
-    def __len__(self):
-        return len(self.data)
-
-
-def ground_truth_settings() -> set[str]:
-    """The settings the ground truth's check and build read."""
-    params = Recording(get("mujoco_contact").defaults())
-    robot = controller_robot(params)
-    check_true_arm(params, robot)
-    build_truth(params, robot, paper_environment())
-    return params.read
+def test_the_ground_truth_settings_are_settings_of_the_vocabulary():
+    assert set(GroundTruthSettings.names()) <= set(SETTINGS)
+    with pytest.raises(KeyError, match="facet_angle"):  # a scenario without one of them cannot build the truth
+        GroundTruthSettings.of({k: v for k, v in get("mujoco_contact").defaults().items() if k != "facet_angle"})
 
 
 def test_both_mujoco_scenarios_take_every_ground_truth_setting_with_one_default():
-    settings = ground_truth_settings()
+    settings = set(GroundTruthSettings.names())
     assert {"true_stiffness_scale", "true_damping_scale", "true_length_scale", "true_gain_scale", "damping_scale",
             "facet_offset", "facet_angle", "gravity", "tip_friction", "table_friction", "plate"} <= settings
     for name in MUJOCO_SCENARIOS:
@@ -76,7 +55,7 @@ def test_build_truth_scales_the_arm_and_moves_the_plates():
     model = controller_robot(params)
     ref = reference_robot()
     np.testing.assert_allclose(model.array("damping"), 3.0 * ref.array("damping"), rtol=1e-15)
-    truth = build_truth(params, model, paper_environment())
+    truth = build_truth(GroundTruthSettings.of(params), model, paper_environment())
     arm = truth.robot
     np.testing.assert_allclose(arm.array("stiffness"), 1.5 * ref.array("stiffness"), rtol=1e-15)
     np.testing.assert_allclose(arm.array("damping"), 0.5 * 3.0 * ref.array("damping"), rtol=1e-15)

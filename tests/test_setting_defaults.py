@@ -18,8 +18,6 @@ from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS, check_value, defaul
 REPO = Path(__file__).resolve().parents[1]
 # The modules that configure a run: none may type a setting's default (they take `default(name, context)`).
 CONFIGURATION = sorted((REPO / "scenarios").glob("*.py")) + [REPO / "hardware" / "config.py"]
-# Still typing literal defaults, for a follow-up (issue 25): not scanned here.
-PENDING = ("softcbf_mj/env/environment.py", "softcbf/bench.py")
 
 
 def _distinctive(value: object) -> bool:
