@@ -126,7 +126,7 @@ from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
 from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
 from perception.plane import PlaneCalibration
 from vocabulary.files import read_settings_file
-from vocabulary.settings import SETTINGS, Bound, SettingError, check_number, check_value, positive
+from vocabulary.settings import SETTINGS, Bound, SettingError, check_number, check_value, default, positive
 
 VIRTUAL_CAMERA = "virtual"
 EMULATED_PORT = "emulated"
@@ -229,15 +229,15 @@ def camera_source_is_file(source: int | str) -> bool:
 @dataclass(frozen=True)
 class CameraConfig:
     source: int | str = 0
-    calibration: str | None = None
+    calibration: str | None = default("calibration", "hardware")
     tag_size_m: float = 0.03
-    detector: str = "opencv"
-    max_hold_s: float = 0.3
-    qd_filter_tau: float = 0.0
+    detector: str = default("detector", "hardware")
+    max_hold_s: float = default("max_hold_s", "hardware")
+    qd_filter_tau: float = default("qd_filter_tau", "hardware")
     startup_timeout_s: float = 5.0
-    frame_rate: float = 12.8
-    width: int = 480
-    height: int = 270
+    frame_rate: float = default("frame_rate", "hardware")
+    width: int = default("width", "hardware")
+    height: int = default("height", "hardware")
 
     def __post_init__(self) -> None:
         _check_shared_settings(self)
@@ -268,7 +268,7 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class RobotConfig:
-    robot: str = "reference"
+    robot: str = default("robot", "hardware")
 
     def __post_init__(self) -> None:
         _check_shared_settings(self)
@@ -279,9 +279,9 @@ class RobotConfig:
 class EnvironmentConfig:
     H: tuple[tuple[float, ...], ...] = ((0.36, 1.0),)
     h: tuple[float, ...] = (0.15,)
-    assumed_plate_stiffness: float = 11.16
-    f_max: float = 0.16
-    row_scaling: str = "paper"
+    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "hardware")
+    f_max: float = default("f_max", "hardware")
+    row_scaling: str = default("row_scaling", "hardware")
 
     def __post_init__(self) -> None:
         _check_shared_settings(self)
@@ -310,16 +310,16 @@ class PressureConfig:
 
 @dataclass(frozen=True)
 class ControlConfig:
-    filter: str = "paper-cbf"
+    filter: str = default("filter", "hardware")
     filter_params: dict = field(default_factory=dict)
     tuning: str = "HW-High"
-    control_rate: float = 10.0
-    pressure_limits: bool = True
-    qp_backend: str = "native"
-    amplitude: Scalars = 80.0
-    frequency: float = 0.01
+    control_rate: float = default("control_rate", "hardware")
+    pressure_limits: bool = default("pressure_limits", "hardware")
+    qp_backend: str = default("qp_backend", "hardware")
+    amplitude: Scalars = default("amplitude", "hardware")
+    frequency: float = default("frequency", "hardware")
     phase_rad: Scalars = 0.0
-    nominal: str = "sinusoid"
+    nominal: str = default("nominal", "hardware")
     nominal_params: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -359,7 +359,7 @@ class ControlConfig:
 
 @dataclass(frozen=True)
 class SafetyConfig:
-    hold_s: float = 0.5
+    hold_s: float = default("hold_s", "hardware")
     watchdog_s: float = 0.15
 
     def __post_init__(self) -> None:
@@ -395,7 +395,7 @@ class LinkConfig:
 
 @dataclass(frozen=True)
 class RunConfig:
-    duration: float = 100.0
+    duration: float = default("duration", "hardware")
     dry_run: bool = False
 
     def __post_init__(self) -> None:
@@ -405,11 +405,11 @@ class RunConfig:
 
 @dataclass(frozen=True)
 class EmulatorConfig:
-    plate_stiffness: float = 11.16
-    tau_p: float = 0.05
+    plate_stiffness: float = default("plate_stiffness", "hardware")
+    tau_p: float = default("tau_p", "hardware")
     q0_rad: Scalars = 0.0
-    links_per_segment: int = 5
-    physics_dt: float = 2e-4
+    links_per_segment: int = default("links_per_segment", "hardware")
+    physics_dt: float = default("physics_dt", "hardware")
 
     def __post_init__(self) -> None:
         _check_shared_settings(self)

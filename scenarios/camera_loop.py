@@ -32,7 +32,6 @@ frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -42,36 +41,31 @@ import cv2
 import mujoco
 import numpy as np
 
-from controllers.params import RobotParams
-from controllers.safe_set import Environment
 from controllers.safety_filter import FilterContext
 from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
-from perception.estimator import DEFAULT_MAX_HOLD_S, ArmAngleEstimator
+from perception.estimator import ArmAngleEstimator
 from perception.plane import PlaneCalibration, calibrate
 from perception.tracking import TrackingTagDetector
 from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
-    PAPER_FILTER, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
-    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration, load_robot,
+    build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
+    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration,
     live_run, nominal_arguments, read_parameter_file, save_run, scene_record, stop_after,
 )
 from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-from scenarios.ground_truth import check_true_arm, flexure_params
-from softcbf_mj.flexure import FlexureParams
-from softcbf_mj.flexure_calibration import calibrate_flexure
+from scenarios.ground_truth import GroundTruthSettings, build_truth, check_true_arm, controller_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.model_builder import (
-    CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT, CAMERA_RESOLUTION, DEFAULT_TAU_P, ArmModelConfig, build_model,
-    calibration_board,
+    CAMERA_RESOLUTION, ArmModelConfig, build_model, calibration_board,
 )
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
-from vocabulary.settings import Bound
+from vocabulary.settings import Bound, default
 
 
 BOUNDS = {"width": Bound(16, CAMERA_RESOLUTION[0], unit="px"), "height": Bound(16, CAMERA_RESOLUTION[1], unit="px")}  # the render's
@@ -113,11 +107,6 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
     return read_parameter_file("calibration", path, PlaneCalibration.load)
 
 
-def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
-    """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
-    return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
-
-
 def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarray]) -> dict:
     taken = ~frames["dropped"]
     complete = frames["complete"]
@@ -149,7 +138,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
     if params["calibration"] not in ("board", "truth") and not Path(params["calibration"]).is_file():
         raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {params['calibration']!r} "
                          "(no such file)")
-    check_true_arm(params, model_robot)
+    check_true_arm(GroundTruthSettings.of(params), model_robot)
     steps_per_control(params["tick"], params["physics_dt"])
 
 
@@ -158,87 +147,83 @@ def check_parameters(params: Mapping[str, Any]) -> None:
 def camera_loop(
     out_dir: Path,
     *,
-    duration: float = 100.0,
-    tunings: str = "None,HW-Low,HW-High",
-    filter: str = PAPER_FILTER,
-    filter_params: str = "",
-    nominal: str = "sinusoid",
-    nominal_params: str = "",
-    amplitude: float = 80.0,
-    frequency: float = 0.01,
-    t0: float = 0.0,
-    pressure_limits: bool = True,
-    robot: str = "reference",
-    environment: str = "paper",
-    links_per_segment: int = CAMERA_LINKS_PER_SEGMENT,
-    tau_p: float = DEFAULT_TAU_P,
-    physics_dt: float = CAMERA_PHYSICS_DT,
-    plate_stiffness: float = 11.16,
-    assumed_plate_stiffness: float = 11.16,
-    f_max: float = 0.16,
-    row_scaling: str = "paper",
-    qp_backend: str = "native",
-    tick: float = 2e-3,
-    frame_rate: float = 12.8,
-    control_rate: float = 10.0,
-    latency: float = CameraTiming.latency,
-    drop_rate: float = 0.0,
-    pixel_noise: float = 0.0,
-    hold_s: float = CameraTiming.hold_s,
-    max_hold_s: float = DEFAULT_MAX_HOLD_S,
-    qd_filter_tau: float = 0.0,
-    width: int = 1280,
-    height: int = 720,
-    calibration: str = "board",
-    detector: str = "opencv",
-    tracking: bool = True,
-    saved_frames_hz: float = 0.5,
-    seed: int = 0,
-    q0_std: float = 0.0,
-    true_robot: str = "",
-    damping_scale: float = 1.0,
-    true_gain_scale: float = 1.0,
-    facet_offset: float = 0.0,
-    tip_friction: float = 0.0,
-    table_friction: float = 0.0,
-    plate: str = "ideal",
-    sheet_clamp_at: float = FlexureParams.clamp_at,
-    sheet_free_end_at: float = FlexureParams.free_end_at,
-    sheet_thickness: float = FlexureParams.thickness,
-    sheet_width: float = FlexureParams.width,
-    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
-    sheet_links: int = FlexureParams.links,
-    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
-    progress: bool = True,
+    duration: float = default("duration", "camera_loop"),
+    tunings: str = default("tunings", "camera_loop"),
+    filter: str = default("filter", "camera_loop"),
+    filter_params: str = default("filter_params", "camera_loop"),
+    nominal: str = default("nominal", "camera_loop"),
+    nominal_params: str = default("nominal_params", "camera_loop"),
+    amplitude: float = default("amplitude", "camera_loop"),
+    frequency: float = default("frequency", "camera_loop"),
+    t0: float = default("t0", "camera_loop"),
+    pressure_limits: bool = default("pressure_limits", "camera_loop"),
+    robot: str = default("robot", "camera_loop"),
+    environment: str = default("environment", "camera_loop"),
+    links_per_segment: int = default("links_per_segment", "camera_loop"),
+    tau_p: float = default("tau_p", "camera_loop"),
+    physics_dt: float = default("physics_dt", "camera_loop"),
+    plate_stiffness: float = default("plate_stiffness", "camera_loop"),
+    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "camera_loop"),
+    f_max: float = default("f_max", "camera_loop"),
+    row_scaling: str = default("row_scaling", "camera_loop"),
+    qp_backend: str = default("qp_backend", "camera_loop"),
+    tick: float = default("tick", "camera_loop"),
+    frame_rate: float = default("frame_rate", "camera_loop"),
+    control_rate: float = default("control_rate", "camera_loop"),
+    latency: float = default("latency", "camera_loop"),
+    drop_rate: float = default("drop_rate", "camera_loop"),
+    pixel_noise: float = default("pixel_noise", "camera_loop"),
+    hold_s: float = default("hold_s", "camera_loop"),
+    max_hold_s: float = default("max_hold_s", "camera_loop"),
+    qd_filter_tau: float = default("qd_filter_tau", "camera_loop"),
+    width: int = default("width", "camera_loop"),
+    height: int = default("height", "camera_loop"),
+    calibration: str = default("calibration", "camera_loop"),
+    detector: str = default("detector", "camera_loop"),
+    tracking: bool = default("tracking", "camera_loop"),
+    saved_frames_hz: float = default("saved_frames_hz", "camera_loop"),
+    seed: int = default("seed", "camera_loop"),
+    q0_std: float = default("q0_std", "camera_loop"),
+    true_robot: str = default("true_robot", "camera_loop"),
+    damping_scale: float = default("damping_scale", "camera_loop"),
+    true_stiffness_scale: float = default("true_stiffness_scale", "camera_loop"),
+    true_damping_scale: float = default("true_damping_scale", "camera_loop"),
+    true_gain_scale: float = default("true_gain_scale", "camera_loop"),
+    true_length_scale: float = default("true_length_scale", "camera_loop"),
+    facet_offset: float = default("facet_offset", "camera_loop"),
+    facet_angle: float = default("facet_angle", "camera_loop"),
+    gravity: float = default("gravity", "camera_loop"),
+    tip_friction: float = default("tip_friction", "camera_loop"),
+    table_friction: float = default("table_friction", "camera_loop"),
+    plate: str = default("plate", "camera_loop"),
+    sheet_clamp_at: float = default("sheet_clamp_at", "camera_loop"),
+    sheet_free_end_at: float = default("sheet_free_end_at", "camera_loop"),
+    sheet_thickness: float = default("sheet_thickness", "camera_loop"),
+    sheet_width: float = default("sheet_width", "camera_loop"),
+    sheet_youngs_modulus: float = default("sheet_youngs_modulus", "camera_loop"),
+    sheet_links: int = default("sheet_links", "camera_loop"),
+    sheet_calibration_fraction: float = default("sheet_calibration_fraction", "camera_loop"),
+    progress: bool = default("progress", "camera_loop"),
 ) -> dict:
     """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
 
     The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
-    `true_robot`'s when given (same number of segments), its actuator gains λ multiplied by
-    `true_gain_scale`; `damping_scale` multiplies every segment's damping d_i of both arms
-    (the controller knows it), so the arm's time constant d_i/k_i scales with it (the
-    operating-envelope study, studies/hardware_envelope.toml); `facet_offset`,
-    `tip_friction`, `table_friction`, `plate` and the `sheet_*` parameters as in `mujoco_contact` (the true
-    plates moved by `facet_offset` m along their outward normals, > 0 farther from the
-    base, the controller keeping the unmoved facets; a
-    flexure's gauge gives ρ_meas)."""
+    `true_robot`'s when given (same number of segments); `damping_scale` multiplies every
+    segment's damping d_i of both arms (the controller knows it), so the arm's time constant
+    d_i/k_i scales with it (the operating-envelope study, studies/hardware_envelope.toml).
+    The ground truth's settings are `mujoco_contact`'s (`scenarios.ground_truth`): the
+    `true_*_scale` factors of the arm, the true plates moved by `facet_offset` and turned by
+    `facet_angle` (the controller keeping the unmoved facets), `gravity`, `tip_friction`,
+    `table_friction`, `plate` and the `sheet_*` parameters (a flexure's gauge gives ρ_meas)."""
     params = dict(locals())
     params.pop("out_dir")
     check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    model_robot = scale_damping(load_robot(robot), damping_scale)
+    model_robot = controller_robot(params)
     safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
     check_duration(duration, tick, model_robot.n_segments, safe_set)
-    env = safe_set.environment
-    arm = scale_damping(load_robot(true_robot), damping_scale) if true_robot else model_robot
-    if true_gain_scale != 1.0:
-        arm = dataclasses.replace(arm, gains=tuple(g * true_gain_scale for g in arm.gains))
-    true_h = env.h + facet_offset * np.hypot(env.H[:, 0], env.H[:, 1])
-    config = ArmModelConfig(robot=arm, H=tuple(map(tuple, env.H)), h=tuple(true_h), plate_stiffness=plate_stiffness,
-                            links_per_segment=links_per_segment, tau_p=tau_p, physics_dt=physics_dt,
-                            tip_friction=tip_friction, plate=plate, flexure=flexure_params(params),
-                            table_friction=table_friction)
-    true_plate_stiffness = calibrate_flexure(config).stiffness_N_per_m if plate == "flexure" else plate_stiffness
+    truth = build_truth(GroundTruthSettings.of(params), model_robot, safe_set.environment)
+    config = truth.config
     plant = MujocoPlant(build_model(config), tick)
     n = plant.n_segments
     tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
@@ -253,7 +238,7 @@ def camera_loop(
 
     with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
         summary = SummaryWriter(out_dir, "camera_loop", params,
-                                scene=scene_record(arm, safe_set, true_plate_stiffness, Environment(env.H, true_h)))
+                                scene=scene_record(truth.robot, safe_set, truth.plate_stiffness, truth.plates))
         for run in runs:
             label = run.label
             step = control_step(run, nominal, nominal_kwargs, context, timing.monitor(n))

@@ -196,12 +196,13 @@ def controller_row(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, o
             "nominal_params": {k: v for k, v in nominal_kwargs.items()}}
 
 
-def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffness: str = "plate_stiffness") -> RobotParams:
+def check_controller_parameters(params: Mapping[str, Any], stiffness_setting: str) -> RobotParams:
     """The checks shared by every scenario, made before anything is built (`Scenario.validate`):
     the controller under test (filter, filter_params,
     tunings, nominal, nominal_params: the specs resolve and take the parameters, nothing is
     built: `controllers.registry.check_filter`), the controller's robot, its force-safe
-    set (environment, f_max, row_scaling and the stiffness parameter `assumed_plate_stiffness`)
+    set (environment, f_max, row_scaling and the stiffness the controller assumes: the parameter
+    named `stiffness_setting`, "assumed_plate_stiffness" or paper_sim's "plate_stiffness")
     and qp_backend. Returns the controller's robot."""
     try:
         for run in controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"]):
@@ -213,7 +214,7 @@ def check_controller_parameters(params: Mapping[str, Any], assumed_plate_stiffne
     except ValueError as exc:
         raise ValueError(f"nominal {params['nominal']!r}: {exc}") from None
     robot = load_robot(params["robot"])
-    build_safe_set(params["environment"], params[assumed_plate_stiffness], params["f_max"], params["row_scaling"])
+    build_safe_set(params["environment"], params[stiffness_setting], params["f_max"], params["row_scaling"])
     check_choice("qp_backend", params["qp_backend"], available_backends())
     return robot
 

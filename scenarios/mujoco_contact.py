@@ -33,34 +33,30 @@ such samples have no batch form. Results and the benchmark: models/softcbf_arm/R
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from controllers.params import RobotParams
-from controllers.safe_set import Environment, ForceSafeSet
+from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
-    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, stop_after,
+    ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
+    controller_runs, initial_configuration, nominal_arguments, run_tuning, stop_after,
     scene_record,
 )
-from scenarios.ground_truth import check_true_arm, flexure_params
-from softcbf_mj.flexure import FlexureParams
-from softcbf_mj.flexure_calibration import calibrate_flexure
+from scenarios.ground_truth import GroundTruthSettings, Truth, build_truth, check_true_arm, controller_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P, ArmModelConfig
+from softcbf_mj.model_builder import build_model
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
-from vocabulary.settings import Bound
+from vocabulary.settings import Bound, default
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
 
@@ -98,7 +94,7 @@ def check_parameters(params: Mapping[str, Any]) -> None:
     """The checks `mujoco_contact` makes before it builds anything (`scenarios.Scenario.validate`)."""
     check_bounds(params, BOUNDS)
     model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
-    check_true_arm(params, model_robot)
+    check_true_arm(GroundTruthSettings.of(params), model_robot)
     steps_per_control(CONTROL_DT, params["physics_dt"])
 
 
@@ -106,16 +102,12 @@ def check_parameters(params: Mapping[str, Any]) -> None:
 class ContactSetup:
     """What one `mujoco_contact` sample builds before its closed loop (`contact_setup`).
 
-    truth: the keyword arguments of the true arm's `ArmModelConfig` (with `MujocoPlant.from_config`'s
-    control_dt apart); true_plates: the true plates' facets at rest; runs: the controllers under test;
-    q0 (N,) rad; context: what the filters and the nominal are told.
+    truth: the MuJoCo ground truth (`scenarios.ground_truth.build_truth`); runs: the controllers
+    under test; q0 (N,) rad; context: what the filters and the nominal are told.
     """
 
     safe_set: ForceSafeSet
-    true_robot: RobotParams
-    truth: dict[str, Any]
-    true_plate_stiffness: float
-    true_plates: Environment
+    truth: Truth
     runs: list[ControllerRun]
     nominal_kwargs: dict[str, object]
     q0: np.ndarray
@@ -124,48 +116,21 @@ class ContactSetup:
 
 def contact_setup(params: Mapping[str, Any]) -> ContactSetup:
     """Check `params` (all of `mujoco_contact`'s keyword arguments) and build the sample's
-    controller model, true arm and plates, controllers, nominal parameters and q0: the
+    controller model, ground truth, controllers, nominal parameters and q0: the
     construction shared by the single run (`mujoco_contact`) and the batch form (`run_contact_batch`)."""
     check_parameters(params)
-    model_robot = load_robot(params["robot"])
+    model_robot = controller_robot(params)
     safe_set = build_safe_set(params["environment"], params["assumed_plate_stiffness"], params["f_max"],
                               params["row_scaling"])
     check_duration(params["duration"], CONTROL_DT, model_robot.n_segments, safe_set)
-    env = safe_set.environment
-    ref = load_robot(params["true_robot"]) if params["true_robot"] else model_robot
-    length_scale = params["true_length_scale"]
-    true_robot_params = RobotParams(
-        lengths=ref.array("lengths") * length_scale, masses=ref.masses,
-        stiffness=ref.array("stiffness") * params["true_stiffness_scale"],
-        damping=ref.array("damping") * params["true_damping_scale"],
-        gains=ref.array("gains") * params["true_gain_scale"], u_min=ref.u_min, u_max=ref.u_max,
-        inertias=ref.array("inertias") * length_scale**2,
-    )
-    # True facets: row k of H turned by facet_angle; the line through the foot of the
-    # perpendicular (h_k/‖H_k‖ + facet_offset) n̂_k. Exact (bit-identical) at 0 and 0.
-    cos_a, sin_a = math.cos(params["facet_angle"]), math.sin(params["facet_angle"])
-    true_H = np.column_stack((env.H[:, 0] * cos_a - env.H[:, 1] * sin_a, env.H[:, 0] * sin_a + env.H[:, 1] * cos_a))
-    true_h = (env.h + params["facet_offset"] * np.hypot(env.H[:, 0], env.H[:, 1])) * cos_a
-    truth = dict(robot=true_robot_params, H=true_H, h=true_h, plate_stiffness=params["plate_stiffness"],
-                 links_per_segment=params["links_per_segment"], tau_p=params["tau_p"], physics_dt=params["physics_dt"])
-    if params["gravity"]:
-        truth["gravity"] = (0.0, -params["gravity"], 0.0)
-    if params["tip_friction"]:
-        truth["tip_friction"] = params["tip_friction"]
-    if params["table_friction"]:
-        truth["table_friction"] = params["table_friction"]
-    true_plate_stiffness = params["plate_stiffness"]
-    if params["plate"] != "ideal":
-        truth.update(plate=params["plate"], flexure=flexure_params(params))
-        true_plate_stiffness = calibrate_flexure(ArmModelConfig(**truth)).stiffness_N_per_m
+    truth = build_truth(GroundTruthSettings.of(params), model_robot, safe_set.environment)
     runs = controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"])
     nominal_kwargs = nominal_arguments(params["nominal"], params["nominal_params"], amplitude=params["amplitude"],
                                        frequency=params["frequency"], t0=params["t0"])
-    q0 = initial_configuration(ref.n_segments, params["seed"], params["q0_std"])  # the true arm's segments
+    q0 = initial_configuration(truth.robot.n_segments, params["seed"], params["q0_std"])  # the true arm's segments
     context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, params["pressure_limits"], command_delay=0.0,
                                       actuator_tau=params["tau_p"])
-    return ContactSetup(safe_set, true_robot_params, truth, true_plate_stiffness, Environment(true_H, true_h), runs,
-                        nominal_kwargs, q0, context)
+    return ContactSetup(safe_set, truth, runs, nominal_kwargs, q0, context)
 
 
 BATCH_VARYING = frozenset({
@@ -196,7 +161,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) ->
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
     first = setups[0]
-    plant = MujocoBatchPlant.from_configs([ArmModelConfig(**s.truth) for s in setups], control_dt=CONTROL_DT,
+    plant = MujocoBatchPlant.from_configs([s.truth.config for s in setups], control_dt=CONTROL_DT,
                                           nthread=nthread)
     return run_batch_tuning(plant, first.runs[0], first.context, samples[0]["nominal"],
                             [s.nominal_kwargs for s in setups], samples[0]["duration"],
@@ -208,52 +173,54 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) ->
 def mujoco_contact(
     out_dir: Path,
     *,
-    duration: float = 100.0,
-    tunings: str = "None,Low,High",
-    filter: str = PAPER_FILTER,
-    filter_params: str = "",
-    nominal: str = "sinusoid",
-    nominal_params: str = "",
-    amplitude: float = 80.0,
-    frequency: float = 0.01,
-    t0: float = 0.0,
-    pressure_limits: bool = True,
-    robot: str = "reference",
-    environment: str = "paper",
-    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT,
-    tau_p: float = DEFAULT_TAU_P,
-    physics_dt: float = DEFAULT_PHYSICS_DT,
-    plate_stiffness: float = 11.16,
-    assumed_plate_stiffness: float = 11.16,
-    f_max: float = 0.16,
-    row_scaling: str = "paper",
-    qp_backend: str = "native",
-    seed: int = 0,
-    q0_std: float = 0.0,
-    true_stiffness_scale: float = 1.0,
-    true_damping_scale: float = 1.0,
-    true_gain_scale: float = 1.0,
-    true_length_scale: float = 1.0,
-    facet_offset: float = 0.0,
-    facet_angle: float = 0.0,
-    true_robot: str = "",
-    gravity: float = 0.0,
-    tip_friction: float = 0.0,
-    table_friction: float = 0.0,
-    plate: str = "ideal",
-    sheet_clamp_at: float = FlexureParams.clamp_at,
-    sheet_free_end_at: float = FlexureParams.free_end_at,
-    sheet_thickness: float = FlexureParams.thickness,
-    sheet_width: float = FlexureParams.width,
-    sheet_youngs_modulus: float = FlexureParams.youngs_modulus,
-    sheet_links: int = FlexureParams.links,
-    sheet_calibration_fraction: float = FlexureParams.calibration_fraction,
-    progress: bool = True,
+    duration: float = default("duration", "mujoco_contact"),
+    tunings: str = default("tunings", "mujoco_contact"),
+    filter: str = default("filter", "mujoco_contact"),
+    filter_params: str = default("filter_params", "mujoco_contact"),
+    nominal: str = default("nominal", "mujoco_contact"),
+    nominal_params: str = default("nominal_params", "mujoco_contact"),
+    amplitude: float = default("amplitude", "mujoco_contact"),
+    frequency: float = default("frequency", "mujoco_contact"),
+    t0: float = default("t0", "mujoco_contact"),
+    pressure_limits: bool = default("pressure_limits", "mujoco_contact"),
+    robot: str = default("robot", "mujoco_contact"),
+    environment: str = default("environment", "mujoco_contact"),
+    links_per_segment: int = default("links_per_segment", "mujoco_contact"),
+    tau_p: float = default("tau_p", "mujoco_contact"),
+    physics_dt: float = default("physics_dt", "mujoco_contact"),
+    plate_stiffness: float = default("plate_stiffness", "mujoco_contact"),
+    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "mujoco_contact"),
+    f_max: float = default("f_max", "mujoco_contact"),
+    row_scaling: str = default("row_scaling", "mujoco_contact"),
+    qp_backend: str = default("qp_backend", "mujoco_contact"),
+    seed: int = default("seed", "mujoco_contact"),
+    q0_std: float = default("q0_std", "mujoco_contact"),
+    damping_scale: float = default("damping_scale", "mujoco_contact"),
+    true_stiffness_scale: float = default("true_stiffness_scale", "mujoco_contact"),
+    true_damping_scale: float = default("true_damping_scale", "mujoco_contact"),
+    true_gain_scale: float = default("true_gain_scale", "mujoco_contact"),
+    true_length_scale: float = default("true_length_scale", "mujoco_contact"),
+    facet_offset: float = default("facet_offset", "mujoco_contact"),
+    facet_angle: float = default("facet_angle", "mujoco_contact"),
+    true_robot: str = default("true_robot", "mujoco_contact"),
+    gravity: float = default("gravity", "mujoco_contact"),
+    tip_friction: float = default("tip_friction", "mujoco_contact"),
+    table_friction: float = default("table_friction", "mujoco_contact"),
+    plate: str = default("plate", "mujoco_contact"),
+    sheet_clamp_at: float = default("sheet_clamp_at", "mujoco_contact"),
+    sheet_free_end_at: float = default("sheet_free_end_at", "mujoco_contact"),
+    sheet_thickness: float = default("sheet_thickness", "mujoco_contact"),
+    sheet_width: float = default("sheet_width", "mujoco_contact"),
+    sheet_youngs_modulus: float = default("sheet_youngs_modulus", "mujoco_contact"),
+    sheet_links: int = default("sheet_links", "mujoco_contact"),
+    sheet_calibration_fraction: float = default("sheet_calibration_fraction", "mujoco_contact"),
+    progress: bool = default("progress", "mujoco_contact"),
 ) -> dict:
     """Run each controller (tuning) for `duration` s; write summary.json and one time series per run.
 
     `robot` is the controller's model and, unless `true_robot` names another robot file,
-    the MuJoCo arm's (any number of segments). The MuJoCo arm's k, d, λ and L are then
+    the MuJoCo arm's (any number of segments); `damping_scale` multiplies the damping of
+    both (the controller knows it). The MuJoCo arm's k, d, λ and L are then
     multiplied by `true_stiffness_scale`, `true_damping_scale`,
     `true_gain_scale` and `true_length_scale` (inertias by the length scale squared, as
     for a rod; defaults 1: the robot itself). `gravity` (m/s², ≥ 0) acts along −y (the
@@ -276,14 +243,14 @@ def mujoco_contact(
     params = dict(locals())
     params.pop("out_dir")
     setup = contact_setup(params)
-    safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.true_plate_stiffness, setup.nominal_kwargs
-    plant = MujocoPlant.from_config(control_dt=CONTROL_DT, **setup.truth)
+    safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.truth.plate_stiffness, setup.nominal_kwargs
+    plant = MujocoPlant(build_model(setup.truth.config), CONTROL_DT)
 
     def figures(log: dict[str, np.ndarray]) -> dict:
         return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log)}
 
     summary = SummaryWriter(out_dir, "mujoco_contact", params,
-                            scene_record(setup.true_robot, safe_set, true_plate_stiffness, setup.true_plates))
+                            scene_record(setup.truth.robot, safe_set, true_plate_stiffness, setup.truth.plates))
     for run in setup.runs:
         row = run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, setup.context),
                          safe_set, duration, setup.q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,

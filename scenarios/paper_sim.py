@@ -26,7 +26,7 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    PAPER_FILTER, ControllerRun, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
+    ControllerRun, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
     controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, stop_after, scene_record,
 )
 from softcbf_mj.loop import check_duration
@@ -34,6 +34,7 @@ from softcbf_mj.metrics import format_table
 from softcbf_mj.pcc_batch_plant import PCCBatchPlant
 from softcbf_mj.pcc_plant import INTEGRATORS, PCCPlant
 from softcbf_mj.runio import SummaryWriter
+from vocabulary.settings import default
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -122,26 +123,26 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> l
 def paper_sim(
     out_dir: Path,
     *,
-    duration: float = 100.0,
-    tunings: str = "None,Low,High",
-    filter: str = PAPER_FILTER,
-    filter_params: str = "",
-    nominal: str = "sinusoid",
-    nominal_params: str = "",
-    amplitude: float = 80.0,
-    frequency: float = 0.01,
-    pressure_limits: bool = False,
-    environment: str = "paper",
-    f_max: float = 0.16,
-    plate_stiffness: float = 11.16,
-    row_scaling: str = "paper",
-    robot: str = "reference",
-    integrator: str = "ros2",
-    control_rate: float = 1000.0,
-    qp_backend: str = "native",
-    seed: int = 0,
-    q0_std: float = 0.0,
-    progress: bool = True,
+    duration: float = default("duration", "paper_sim"),
+    tunings: str = default("tunings", "paper_sim"),
+    filter: str = default("filter", "paper_sim"),
+    filter_params: str = default("filter_params", "paper_sim"),
+    nominal: str = default("nominal", "paper_sim"),
+    nominal_params: str = default("nominal_params", "paper_sim"),
+    amplitude: float = default("amplitude", "paper_sim"),
+    frequency: float = default("frequency", "paper_sim"),
+    pressure_limits: bool = default("pressure_limits", "paper_sim"),
+    environment: str = default("environment", "paper_sim"),
+    f_max: float = default("f_max", "paper_sim"),
+    plate_stiffness: float = default("plate_stiffness", "paper_sim"),
+    row_scaling: str = default("row_scaling", "paper_sim"),
+    robot: str = default("robot", "paper_sim"),
+    integrator: str = default("integrator", "paper_sim"),
+    control_rate: float = default("control_rate", "paper_sim"),
+    qp_backend: str = default("qp_backend", "paper_sim"),
+    seed: int = default("seed", "paper_sim"),
+    q0_std: float = default("q0_std", "paper_sim"),
+    progress: bool = default("progress", "paper_sim"),
 ) -> dict:
     """Run each controller (tuning) for `duration` s; write summary.json and one time series per run."""
     params = dict(locals())

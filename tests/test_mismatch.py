@@ -3,6 +3,7 @@ their defaults build exactly the unchanged model (the same MJCF, so a bit-identi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,15 +19,15 @@ SHORT = dict(duration=0.3, t0=25.0, tunings="None", progress=False)
 
 @pytest.fixture
 def built(monkeypatch):
-    """Run the scenario with the plant construction recorded: returns run(**params) -> (config changes, summary)."""
+    """Run the scenario with the plant's model recorded: returns run(**params) -> (its ArmModelConfig's fields, summary)."""
     calls = []
-    original = mc.MujocoPlant.from_config
+    original = mc.build_model
 
-    def spy(config=None, control_dt=1e-3, **changes):
-        calls.append(changes)
-        return original(config, control_dt, **changes)
+    def spy(config, *args, **kwargs):
+        calls.append({f.name: getattr(config, f.name) for f in dataclasses.fields(config)})
+        return original(config, *args, **kwargs)
 
-    monkeypatch.setattr(mc.MujocoPlant, "from_config", staticmethod(spy))
+    monkeypatch.setattr(mc, "build_model", spy)
 
     def run(tmp_path, **params):
         tmp_path.mkdir(parents=True, exist_ok=True)
@@ -38,7 +39,7 @@ def built(monkeypatch):
 
 def test_defaults_build_the_reference_arm_and_the_paper_plate_exactly(built, tmp_path):
     changes, _ = built(tmp_path)
-    config = ArmModelConfig(**{k: changes[k] for k in ("robot", "H", "h", "plate_stiffness")})
+    config = ArmModelConfig(**changes)
     assert config.robot == reference_robot()
     assert config.H == ((0.36, 1.0),) and config.h == (0.15,)
     assert arm_xml(config) == arm_xml(ArmModelConfig())  # the same model, hence the same run

@@ -15,7 +15,18 @@ F_max per facet in N on the command line (`--f-max`), in a run configuration fil
   beyond it is almost surely given in the wrong unit, and the refusal names the likely
   mistake (`LIKELY_MISTAKES`: seconds given in ms, hPa in Pa, m in mm, rad in degrees):
   "tau_p must be <= 5 s (a plausibility bound; a value in ms? 50 ms = 0.05 s), got 50.0";
-- `valid`: the valid values a range does not say (names, files, switches).
+- `valid`: the valid values a range does not say (names, files, switches);
+- `default`: the value a run takes when none is given (of `kind`, within `bound`).
+
+One home per default. `default(name, context)` is the default every configuration surface
+takes: the scenario signatures (`plate_stiffness: float = default("plate_stiffness",
+"mujoco_contact")`; the CLI, `softcbf list` and `--help` read `inspect.signature`) and the
+hardware file's fields (context "hardware"). Where a context needs another default (paper_sim
+runs without the pressure box at 1 kHz, camera_loop and the hardware emulator on a coarser
+rod), `DEFAULT_OVERRIDES` says so, the one table of such overrides; no other module types a
+setting's default (tests/test_setting_defaults.py). The physical-constant modules below
+(softcbf_mj.model_builder, softcbf_mj.flexure, softcbf_mj.camera_loop.CameraTiming,
+perception.estimator) keep their documented constants, which that test holds equal to these.
 
 `check_value(name, value)` is the one check of a setting's value, wherever it comes
 from; it returns the value normalised (an int given for a float becomes a float) or
@@ -92,6 +103,7 @@ class Setting:
     bound: Bound | None = None
     plausible: float | None = None
     valid: str = ""
+    default: Any = None
 
     @property
     def valid_values(self) -> str:
@@ -110,22 +122,24 @@ LIKELY_MISTAKES = {"s": ("ms", 1e-3), "hPa": ("Pa", 1e-2), "m": ("mm", 1e-3), "r
 PRESSURE_RANGE_HPA = 3276.7  # hPa, the valve protocol's range (hardware.protocol; tests/test_vocabulary.py)
 
 
-def _number(meaning: str, unit: str, bound: Bound, plausible: float | None = None, valid: str = "") -> Setting:
-    return Setting(meaning, unit, float, bound, plausible, valid)
+def _number(meaning: str, unit: str, bound: Bound, plausible: float | None = None, valid: str = "", *,
+            default: float) -> Setting:
+    return Setting(meaning, unit, float, bound, plausible, valid, default)
 
 
-def _integer(meaning: str, unit: str, bound: Bound) -> Setting:
-    return Setting(meaning, unit, int, bound)
+def _integer(meaning: str, unit: str, bound: Bound, *, default: int) -> Setting:
+    return Setting(meaning, unit, int, bound, default=default)
 
 
-def _switch(meaning: str) -> Setting:
-    return Setting(meaning, "", bool, valid="true, false")
+def _switch(meaning: str, *, default: bool) -> Setting:
+    return Setting(meaning, "", bool, valid="true, false", default=default)
 
 
-def _text(meaning: str, valid: str) -> Setting:
-    return Setting(meaning, "", str, valid=valid)
+def _text(meaning: str, valid: str, *, default: str) -> Setting:
+    return Setting(meaning, "", str, valid=valid, default=default)
 
 
+PAPER_PLATE_STIFFNESS = 11.16  # N/m, the paper's calibrated plate: the true plate's and the controller's default
 _SHEET = "flexure sheet (plate = 'flexure', docs/beyond-the-paper.md#flexure-plate): "
 _TRUE_ARM = "the MuJoCo arm's "
 _SCALE = Bound(1e-3, 1e3)  # a multiple of the robot's: beyond, the arm's numbers overflow
@@ -133,90 +147,123 @@ _SCALE = Bound(1e-3, 1e3)  # a multiple of the robot's: beyond, the arm's number
 SETTINGS: dict[str, Setting] = {
     # the run
     "duration": _number("simulated time of each run (one per tuning); the hardware run's length after the first estimate",
-                        "s", positive("s"), 86400.0),
-    "seed": _integer("random seed of the initial pose noise and the camera's noise and drops", "", Bound(0)),
+                        "s", positive("s"), 86400.0, default=100.0),
+    "seed": _integer("random seed of the initial pose noise and the camera's noise and drops", "", Bound(0), default=0),
     "q0_std": _number("std of the Gaussian noise on the straight initial pose, per segment", "rad",
-                      Bound(0.0, math.pi, unit="rad")),
-    "progress": _switch("show a progress line on stderr"),
+                      Bound(0.0, math.pi, unit="rad"), default=0.0),
+    "progress": _switch("show a progress line on stderr", default=True),
     # the controller under test (scenarios.common, controllers.registry)
     "tunings": _text("runs of paper-cbf: comma list of its presets, one run each",
-                     "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)"),
+                     "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)", default="None,Low,High"),
     "filter": _text("the safety filter under test",
-                    "paper-cbf, none, qsg, e-erg, FILE.py:Factory, package.module:Factory (softcbf list)"),
+                    "paper-cbf, none, qsg, e-erg, FILE.py:Factory, package.module:Factory (softcbf list)", default="paper-cbf"),
     "filter_params": _text("the filter's parameters, name=value;name=value (--filter-param NAME=VALUE; "
-                           "a table [filter_params] in a file)", "the filter's parameters (softcbf list)"),
-    "nominal": _text("the nominal controller", "sinusoid, tip-tracker, FILE.py:Factory, package.module:Factory"),
+                           "a table [filter_params] in a file)", "the filter's parameters (softcbf list)", default=""),
+    "nominal": _text("the nominal controller", "sinusoid, tip-tracker, FILE.py:Factory, package.module:Factory",
+                     default="sinusoid"),
     "nominal_params": _text("the nominal's parameters, name=value;name=value (--nominal-param NAME=VALUE; "
-                            "a table [nominal_params] in a file)", "the nominal's parameters (softcbf list)"),
+                            "a table [nominal_params] in a file)", "the nominal's parameters (softcbf list)", default=""),
     "amplitude": _number("sinusoid nominal: amplitude A of u_nom,j = A sin(2π f (t + t0))", "hPa",
-                         finite("hPa"), PRESSURE_RANGE_HPA),
-    "frequency": _number("sinusoid nominal: frequency f", "Hz", positive("Hz")),
-    "t0": _number("sinusoid nominal: time offset (> 0 starts later in the cycle)", "s", finite("s")),
-    "pressure_limits": _switch("the filter's QP holds the robot's pressure box"),
+                         finite("hPa"), PRESSURE_RANGE_HPA, default=80.0),
+    "frequency": _number("sinusoid nominal: frequency f", "Hz", positive("Hz"), default=0.01),
+    "t0": _number("sinusoid nominal: time offset (> 0 starts later in the cycle)", "s", finite("s"), default=0.0),
+    "pressure_limits": _switch("the filter's QP holds the robot's pressure box", default=True),
     "qp_backend": _text("QP solver of the filter", "native, daqp, qpsolvers:daqp, qpsolvers:quadprog, "
-                                                    "qpsolvers:osqp (those installed)"),
-    "control_rate": _number("rate of the controller's calls (zero-order hold between)", "Hz", positive("Hz"), 1e4),
+                                                    "qpsolvers:osqp (those installed)", default="native"),
+    "control_rate": _number("rate of the controller's calls (zero-order hold between)", "Hz", positive("Hz"), 1e4, default=10.0),
     # the controller's model
     "robot": _text("the controller's robot model",
-                   "'reference', a preset of models/robots (hardware-like) or a robot JSON file (docs/file-formats.md#robot-json)"),
+                   "'reference', a preset of models/robots (hardware-like) or a robot JSON file (docs/file-formats.md#robot-json)",
+                   default="reference"),
     "environment": _text("the facets H r <= h of the free space",
-                         "'paper' or an environment JSON file (docs/file-formats.md#environment-json)"),
-    "f_max": _number("force limit F_max per facet", "N", positive("N")),
-    "row_scaling": _text("scaling of the rows of the force-safe set P", "paper, unit"),
-    "assumed_plate_stiffness": _number("the controller's plate spring ψ(n) = k n", "N/m", positive("N/m")),
+                         "'paper' or an environment JSON file (docs/file-formats.md#environment-json)", default="paper"),
+    "f_max": _number("force limit F_max per facet", "N", positive("N"), default=0.16),
+    "row_scaling": _text("scaling of the rows of the force-safe set P", "paper, unit", default="paper"),
+    "assumed_plate_stiffness": _number("the controller's plate spring ψ(n) = k n", "N/m", positive("N/m"),
+                                       default=PAPER_PLATE_STIFFNESS),
     # the plant (ground truth)
-    "plate_stiffness": _number("the true plate's spring (paper_sim: also the controller's ψ)", "N/m", positive("N/m")),
-    "integrator": _text("integrator of the PCC plant", "ros2, rk4, euler"),
-    "links_per_segment": _integer(_TRUE_ARM + "rigid links per segment", "", Bound(1, 100)),
-    "tau_p": _number("valve pressure time constant of the MuJoCo actuators (first order)", "s", non_negative("s"), 5.0),
-    "physics_dt": _number("MuJoCo time step (divides the control or tick period)", "s", Bound(1e-6, unit="s"), 1e-3),
+    "plate_stiffness": _number("the true plate's spring (paper_sim: also the controller's ψ)", "N/m", positive("N/m"),
+                               default=PAPER_PLATE_STIFFNESS),
+    "integrator": _text("integrator of the PCC plant", "ros2, rk4, euler", default="ros2"),
+    "links_per_segment": _integer(_TRUE_ARM + "rigid links per segment", "", Bound(1, 100), default=10),
+    "tau_p": _number("valve pressure time constant of the MuJoCo actuators (first order)", "s", non_negative("s"), 5.0,
+                     default=0.05),
+    "physics_dt": _number("MuJoCo time step (divides the control or tick period)", "s", Bound(1e-6, unit="s"), 1e-3,
+                          default=1e-4),
     "true_robot": _text(_TRUE_ARM + "robot when it differs from the controller's",
-                        "'' (the controller's robot) or a robot JSON file, same number of segments"),
-    "true_stiffness_scale": _number(_TRUE_ARM + "stiffness k as a multiple of the robot's", "", _SCALE),
-    "true_damping_scale": _number(_TRUE_ARM + "damping d as a multiple of the robot's", "", _SCALE),
+                        "'' (the controller's robot) or a robot JSON file, same number of segments", default=""),
+    "true_stiffness_scale": _number(_TRUE_ARM + "stiffness k as a multiple of the robot's", "", _SCALE, default=1.0),
+    "true_damping_scale": _number(_TRUE_ARM + "damping d as a multiple of the robot's", "", _SCALE, default=1.0),
     "damping_scale": _number("damping d of both the controller's robot and the true arm, as a multiple of the "
-                             "robot's (the arm's time constants d/k scale with it; the controller knows it)", "", positive()),
-    "true_gain_scale": _number(_TRUE_ARM + "actuator gain λ as a multiple of the robot's", "", _SCALE),
+                             "robot's (the arm's time constants d/k scale with it; the controller knows it)", "", positive(),
+                             default=1.0),
+    "true_gain_scale": _number(_TRUE_ARM + "actuator gain λ as a multiple of the robot's", "", _SCALE, default=1.0),
     "true_length_scale": _number(_TRUE_ARM + "segment lengths as a multiple of the robot's (inertias by its square)", "",
-                                 _SCALE),
+                                 _SCALE, default=1.0),
     "facet_offset": _number("the true plates moved along their outward normals (> 0: farther from the base)", "m",
-                            Bound(-1.0, 1.0, unit="m")),
+                            Bound(-1.0, 1.0, unit="m"), default=0.0),
     "facet_angle": _number("the true plates turned counter-clockwise about the foot of the perpendicular", "rad",
-                           Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad")),
-    "gravity": _number("gravity along -y (0: the arm lies on a table)", "m/s²", non_negative("m/s²")),
-    "tip_friction": _number("Coulomb friction coefficient μ between the arm and the plates", "", non_negative()),
+                           Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"), default=0.0),
+    "gravity": _number("gravity along -y (0: the arm lies on a table)", "m/s²", non_negative("m/s²"), default=0.0),
+    "tip_friction": _number("Coulomb friction coefficient μ between the arm and the plates", "", non_negative(), default=0.0),
     "table_friction": _number("Coulomb friction coefficient μ between the arm's links and the table it lies on "
-                              "(0: off; not with gravity)", "", Bound(0.0, 2.0)),
-    "plate": _text("kind of true plate", "ideal (slide spring), flexure (clamped sheet in a force gauge)"),
-    "sheet_clamp_at": _number(_SHEET + "clamp position along the facet", "m", finite("m")),
-    "sheet_free_end_at": _number(_SHEET + "free-end position along the facet", "m", finite("m"), valid="(!= sheet_clamp_at)"),
-    "sheet_thickness": _number(_SHEET + "thickness", "m", positive("m")),
-    "sheet_width": _number(_SHEET + "width", "m", positive("m")),
-    "sheet_youngs_modulus": _number(_SHEET + "Young's modulus", "Pa", positive("Pa")),
-    "sheet_links": _integer(_SHEET + "rigid links of the sheet", "", Bound(1)),
+                              "(0: off; not with gravity)", "", Bound(0.0, 2.0), default=0.0),
+    "plate": _text("kind of true plate", "ideal (slide spring), flexure (clamped sheet in a force gauge)", default="ideal"),
+    "sheet_clamp_at": _number(_SHEET + "clamp position along the facet", "m", finite("m"), default=-0.055),
+    "sheet_free_end_at": _number(_SHEET + "free-end position along the facet", "m", finite("m"), valid="(!= sheet_clamp_at)",
+                                 default=-0.205),
+    "sheet_thickness": _number(_SHEET + "thickness", "m", positive("m"), default=1.23044e-3),
+    "sheet_width": _number(_SHEET + "width", "m", positive("m"), default=0.04),
+    "sheet_youngs_modulus": _number(_SHEET + "Young's modulus", "Pa", positive("Pa"), default=2.0e9),
+    "sheet_links": _integer(_SHEET + "rigid links of the sheet", "", Bound(1), default=10),
     "sheet_calibration_fraction": _number(_SHEET + "calibration point as a fraction of its length from the clamp", "",
-                                          Bound(0.0, 1.0, low_open=True)),
+                                          Bound(0.0, 1.0, low_open=True), default=1.0),
     # the camera path (camera_loop, the hardware's camera)
     "tick": _number("plant tick: exposures, deliveries and controller calls fall on it; the time series' step", "s",
-                    positive("s")),
-    "frame_rate": _number("camera frame rate (hardware: the virtual camera's)", "Hz", positive("Hz"), 1000.0),
-    "latency": _number("exposure → detections available to the controller", "s", non_negative("s")),
-    "drop_rate": _number("fraction of frames lost (seeded)", "", Bound(0.0, 1.0, high_open=True)),
-    "pixel_noise": _number("std of the Gaussian image noise", "grey levels", non_negative("grey levels")),
-    "hold_s": _number("the safety monitor holds the last command this long before it vents", "s", non_negative("s"), 10.0),
-    "max_hold_s": _number("an estimate older than this is stale", "s", positive("s"), 10.0),
+                    positive("s"), default=2e-3),
+    "frame_rate": _number("camera frame rate (hardware: the virtual camera's)", "Hz", positive("Hz"), 1000.0, default=12.8),
+    "latency": _number("exposure → detections available to the controller", "s", non_negative("s"), default=0.03),
+    "drop_rate": _number("fraction of frames lost (seeded)", "", Bound(0.0, 1.0, high_open=True), default=0.0),
+    "pixel_noise": _number("std of the Gaussian image noise", "grey levels", non_negative("grey levels"), default=0.0),
+    "hold_s": _number("the safety monitor holds the last command this long before it vents", "s", non_negative("s"), 10.0,
+                      default=0.5),
+    "max_hold_s": _number("an estimate older than this is stale", "s", positive("s"), 10.0, default=0.3),
     "qd_filter_tau": _number("first-order low pass of the estimated q̇ (0: raw finite differences)", "s",
-                             non_negative("s"), 10.0),
-    "width": _integer("camera image width (hardware: the virtual camera's)", "px", Bound(8, unit="px")),
-    "height": _integer("camera image height (hardware: the virtual camera's)", "px", Bound(8, unit="px")),
+                             non_negative("s"), 10.0, default=0.0),
+    "width": _integer("camera image width (hardware: the virtual camera's)", "px", Bound(8, unit="px"), default=1280),
+    "height": _integer("camera image height (hardware: the virtual camera's)", "px", Bound(8, unit="px"), default=720),
     "calibration": _text("the image-to-plane map",
                          "board (fit from a render of the tag board), truth (MuJoCo's exact map), "
-                         "or a calibration JSON file (tools/calibrate_camera.py)"),
-    "detector": _text("AprilTag detector backend", "opencv, pupil"),
-    "tracking": _switch("detect tags in windows around their last positions (false: whole frame)"),
-    "saved_frames_hz": _number("rate of camera frames saved to frames/<run>/ (0: none)", "Hz", non_negative("Hz")),
+                         "or a calibration JSON file (tools/calibrate_camera.py)", default="board"),
+    "detector": _text("AprilTag detector backend", "opencv, pupil", default="opencv"),
+    "tracking": _switch("detect tags in windows around their last positions (false: whole frame)", default=True),
+    "saved_frames_hz": _number("rate of camera frames saved to frames/<run>/ (0: none)", "Hz", non_negative("Hz"), default=0.5),
 }
 
+
+DEFAULT_OVERRIDES: dict[str, dict[str, Any]] = {
+    # the paper's simulation (§V): no pressure box, as in the paper; its 1 kHz controller
+    "paper_sim": {"pressure_limits": False, "control_rate": 1000.0},
+    "mujoco_contact": {},
+    # the paper's hardware experiment in MuJoCo: the hardware tunings; a coarser rod for a 2 ms tick
+    # (softcbf_mj.model_builder.CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
+    "camera_loop": {"tunings": "None,HW-Low,HW-High", "links_per_segment": 5, "physics_dt": 2e-4},
+    # the hardware file: the emulator's coarser rod (5 links at 0.2 ms run ≈ 9× real time), a smaller
+    # virtual camera, and no calibration (None: required unless the camera is virtual)
+    "hardware": {"links_per_segment": 5, "physics_dt": 2e-4, "width": 480, "height": 270, "calibration": None},
+}
+"""Where one context (a scenario's name, or "hardware" for the hardware file) needs another default
+than the declared one: context → {setting: default}. The one place a default differs by context."""
+
+
+def default(name: str, context: str) -> Any:
+    """Setting `name`'s default in `context` (a key of `DEFAULT_OVERRIDES`): the context's override,
+    else the declared default (`Setting.default`); KeyError naming an undeclared setting or context."""
+    declared = setting(name)
+    if context not in DEFAULT_OVERRIDES:
+        raise KeyError(f"context {context!r} is not a key of vocabulary.settings.DEFAULT_OVERRIDES "
+                       f"({', '.join(DEFAULT_OVERRIDES)})")
+    return DEFAULT_OVERRIDES[context].get(name, declared.default)
 
 def setting(name: str) -> Setting:
     """The declaration of setting `name`; KeyError naming it when none is declared."""

@@ -1,0 +1,144 @@
+"""Each setting's default has one home: `vocabulary.settings` (`Setting.default`, and
+`DEFAULT_OVERRIDES` where a context needs another); the scenario signatures and the hardware
+file derive theirs from it, and no other configuration module types a literal default."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import math
+from pathlib import Path
+
+import pytest
+
+import scenarios
+from hardware.config import SHARED_KEYS, default_values
+from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS, check_value, default
+
+REPO = Path(__file__).resolve().parents[1]
+# The modules that configure a run: none may type a setting's default (they take `default(name, context)`).
+CONFIGURATION = sorted((REPO / "scenarios").glob("*.py")) + [REPO / "hardware" / "config.py"]
+
+
+def _distinctive(value: object) -> bool:
+    """A default that is hard to type by chance: a number whose mantissa has two or more
+    significant digits (11.16, 0.16, 12.8, 1.23044e-3; not 0, 1, 0.5, 80, 1e-4)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value == 0:
+        return False
+    mantissa = f"{abs(value):.12e}".split("e")[0].rstrip("0").rstrip(".")
+    return len(mantissa.replace(".", "")) >= 2
+
+
+DISTINCTIVE = {float(s.default) for s in SETTINGS.values() if _distinctive(s.default)} | {
+    float(v) for overrides in DEFAULT_OVERRIDES.values() for v in overrides.values() if _distinctive(v)}
+
+
+def literal_defaults(source: str, path: str = "<source>") -> list[str]:
+    """Where `source` types a setting's default as a literal: a parameter default or a
+    class field named like a setting, a setting's keyword argument, or any number
+    equal to a distinctive default (`DISTINCTIVE`); "PATH:LINE what" each."""
+    found = []
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        pairs: list[tuple[str, ast.expr]] = []
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            a = node.args
+            positional = a.posonlyargs + a.args
+            pairs += [(arg.arg, d) for arg, d in zip(positional[len(positional) - len(a.defaults):], a.defaults)]
+            pairs += [(arg.arg, d) for arg, d in zip(a.kwonlyargs, a.kw_defaults) if d is not None]
+        elif isinstance(node, ast.ClassDef):
+            pairs += [(st.target.id, st.value) for st in node.body if isinstance(st, ast.AnnAssign)
+                      and isinstance(st.target, ast.Name) and st.value is not None]
+        elif isinstance(node, ast.Call):
+            pairs += [(k.arg, k.value) for k in node.keywords if k.arg is not None]
+        for name, value in pairs:
+            if name in SETTINGS and isinstance(value, ast.Constant) and value.value is not None:
+                found.append(f"{path}:{value.lineno} {name} = {value.value!r}")
+        if (isinstance(node, ast.Constant) and not isinstance(node.value, bool) and isinstance(node.value, (int, float))
+                and float(node.value) in DISTINCTIVE):
+            found.append(f"{path}:{node.lineno} the literal {node.value!r}, a setting's default")
+    return found
+
+
+def test_the_scan_finds_literal_defaults():
+    """The scan sees each way of typing a default (so the next test can fail)."""
+    source = ("def run(out_dir, *, f_max: float = 0.5, duration=3.0, label='x'):\n    pass\n"
+              "class Config:\n    tau_p: float = 0.02\n    other: float = 0.02\n"
+              "build(plate_stiffness=9.0)\nK = 11.16\n")
+    found = literal_defaults(source)
+    assert [f.split(" ", 1)[1] for f in found] == [
+        "f_max = 0.5", "duration = 3.0", "tau_p = 0.02", "plate_stiffness = 9.0", "the literal 11.16, a setting's default"]
+    assert literal_defaults("def run(*, f_max: float = default('f_max', 'paper_sim')):\n    pass\n") == []
+
+
+def test_no_configuration_module_types_a_literal_default():
+    found = [hit for path in CONFIGURATION
+             for hit in literal_defaults(path.read_text(encoding="utf-8"), str(path.relative_to(REPO)))]
+    assert found == [], "literal defaults (use vocabulary.settings.default(name, context)):\n" + "\n".join(found)
+
+
+@pytest.mark.parametrize("name", list(SETTINGS))
+def test_every_setting_has_a_valid_default(name):
+    declared = SETTINGS[name]
+    assert declared.default is not None, f"{name} has no default"
+    assert type(declared.default) is declared.kind, (name, declared.default)
+    assert check_value(name, declared.default) == declared.default
+
+
+def test_overrides_name_settings_and_differ_from_the_declared_default():
+    assert set(DEFAULT_OVERRIDES) == set(scenarios.registry()) | {"hardware"}
+    for context, overrides in DEFAULT_OVERRIDES.items():
+        for name, value in overrides.items():
+            assert name in SETTINGS, (context, name)
+            assert value != SETTINGS[name].default, f"{context}.{name}: the override repeats the declared default"
+            if value is not None:  # None: no default (the hardware's calibration is required for a real camera)
+                assert check_value(name, value) == value, (context, name)
+    with pytest.raises(KeyError, match="context 'paper-sim' is not a key"):
+        default("f_max", "paper-sim")
+    with pytest.raises(KeyError, match="setting 'f_maxx' is not declared"):
+        default("f_maxx", "paper_sim")
+
+
+@pytest.mark.parametrize("name", sorted(scenarios.registry()))
+def test_scenario_defaults_are_the_vocabulary_s(name):
+    """What the CLI, `softcbf list` and `--help` read (`inspect.signature`) is the vocabulary's default."""
+    scenario = scenarios.get(name)
+    defaults = scenario.defaults()
+    assert set(defaults) <= set(SETTINGS)
+    for param, value in defaults.items():
+        expected = default(param, name)
+        assert value == expected and type(value) is type(expected), (name, param, value, expected)
+
+
+def test_hardware_defaults_are_the_vocabulary_s():
+    values = default_values()
+    for name in SHARED_KEYS:
+        if name in ("filter_params", "nominal_params"):  # tables in the hardware file (default {}), strings elsewhere
+            assert values[name] == {}
+            continue
+        assert values[name] == default(name, "hardware"), name
+
+
+def test_physical_constant_modules_agree_with_the_vocabulary():
+    """The physical-constant modules below the scenarios keep their documented constants; they
+    must be the vocabulary's defaults (one value, two layers: follow-up to derive them)."""
+    from perception.estimator import DEFAULT_MAX_HOLD_S
+    from softcbf_mj import model_builder
+    from softcbf_mj.camera_loop import CameraTiming
+    from softcbf_mj.flexure import FlexureParams
+
+    sheet = FlexureParams()
+    for field in ("clamp_at", "free_end_at", "thickness", "width", "youngs_modulus", "links", "calibration_fraction"):
+        assert default(f"sheet_{field}", "mujoco_contact") == getattr(sheet, field), field
+    assert default("plate_stiffness", "mujoco_contact") == model_builder.PAPER_PLATE_STIFFNESS
+    assert default("links_per_segment", "mujoco_contact") == model_builder.DEFAULT_LINKS_PER_SEGMENT
+    assert default("physics_dt", "mujoco_contact") == model_builder.DEFAULT_PHYSICS_DT
+    assert default("tau_p", "mujoco_contact") == model_builder.DEFAULT_TAU_P
+    assert default("links_per_segment", "camera_loop") == model_builder.CAMERA_LINKS_PER_SEGMENT
+    assert default("physics_dt", "camera_loop") == model_builder.CAMERA_PHYSICS_DT
+    assert (default("width", "camera_loop"), default("height", "camera_loop")) == model_builder.CAMERA_RESOLUTION
+    assert default("max_hold_s", "camera_loop") == DEFAULT_MAX_HOLD_S
+    timing = CameraTiming()
+    for field in dataclasses.fields(CameraTiming):
+        assert default(field.name, "camera_loop") == getattr(timing, field.name), field.name
+    assert math.isclose(default("f_max", "paper_sim") / default("plate_stiffness", "paper_sim"), 0.16 / 11.16)
