@@ -5,17 +5,19 @@ Per tree and tuning, in one process (after a warm-up call of the scenario):
 - t_loop: CPU s of the closed loop of `mujoco_contact` as the scenario runs it (its
   `scenarios.common.run_closed_loop`, timed in place by `bench_loop_pair.LoopTimer`; data
   only), `--duration` s from `--t0` s (defaults 10 s from 15 s: the arm is in contact from
-  ≈ 16 s to ≈ 45 s of the 100 s sinusoid, so the window is mostly contact);
-- t_mj_step: CPU s of bare `mj_step(nstep = control period / physics step)` over the
-  commands u the loop sent, on the same model (`bench_mujoco_contact.replay_mj_step`);
+  ≈ 16 s to ≈ 45 s of the 100 s sinusoid, so the window is mostly contact); its wall s is
+  the run's own `wall_s`;
+- t_mj_step: CPU (and wall) s of bare `mj_step(nstep = control period / physics step)` over
+  the commands u the loop sent, on the same model (`bench_mujoco_contact.replay_mj_step`);
 - t_plant: the same commands through `MujocoPlant.step` (physics, `mj_forward`, the state;
   `bench_mujoco_contact.replay_plant`);
-- filter_us: the loop's mean filter time (µs, its own `filter_us` column).
+- filter_us: the loop's mean filter time (µs, its own `filter_us` column: wall clock).
 
 Figures: fraction = t_mj_step / t_loop (the loop's speed as a fraction of bare mj_step's:
-1 would be a loop that costs nothing beyond the physics), and per control step (µs) physics
-t_mj_step / T, plant overhead (t_plant − t_mj_step) / T, filter, and the rest of the loop
-(t_loop − t_plant) / T − filter.
+1 would be a loop that costs nothing beyond the physics; in CPU time, and in wall time in
+brackets), and per control step (CPU µs) physics t_mj_step / T, plant overhead
+(t_plant − t_mj_step) / T and controller and loop (t_loop − t_plant) / T: the nominal, the
+filter, the control step, the recorder; the filter's wall-clock share alongside.
 
 Each measurement is a fresh process with its tree first on PYTHONPATH (this tree; with
 `--against TREE`, e.g. an export of the commit before, also TREE): the trees' processes
@@ -47,11 +49,12 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parents[1]  # this tree
 TARGET_FRACTION = 0.5  # issue 23: the serial loop at >= 0.5 of bare mj_step
+TIMES = ("t_loop", "t_mj_step", "t_plant", "wall_loop", "wall_mj_step", "wall_plant")  # CPU s, wall s
 
 
 def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[str, float | str]]:
-    """In the measuring process: per tuning, t_loop, t_mj_step, t_plant (CPU s), steps, filter_us
-    and the SHA-256 of the commands u (module docstring)."""
+    """In the measuring process: per tuning, t_loop, t_mj_step, t_plant (CPU s, and wall s as
+    `wall_*`), steps, filter_us and the SHA-256 of the commands u (module docstring)."""
     import numpy as np
     from bench_loop_pair import LoopTimer
     from bench_mujoco_contact import replay_mj_step, replay_plant
@@ -61,6 +64,11 @@ def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[st
     from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
     from softcbf_mj.mujoco_plant import MujocoPlant
     from softcbf_mj.runio import load_timeseries
+
+    def timed(replay) -> tuple[float, float]:  # (CPU s, wall s) of one whole replay
+        start = time.process_time()
+        wall = replay()
+        return time.process_time() - start, wall
 
     scenario = get("mujoco_contact")
     plant = MujocoPlant.from_config(control_dt=CONTROL_DT, links_per_segment=DEFAULT_LINKS_PER_SEGMENT,
@@ -77,10 +85,11 @@ def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[st
             log, _ = load_timeseries(folder / summary["runs"][0]["timeseries"])
             u = np.ascontiguousarray(log["u"])
             steps = len(u)
-            t_mj_step = replay_mj_step(plant, u, 1, block=steps, clock=time.process_time)
-            t_plant = replay_plant(plant, u, 1, block=steps, clock=time.process_time)[0]
-            out[tuning] = {"t_loop": loop.cpu_s, "t_mj_step": t_mj_step, "t_plant": t_plant, "steps": steps,
-                           "filter_us": float(np.nanmean(log["filter_us"])),
+            t_mj_step, wall_mj_step = timed(lambda: replay_mj_step(plant, u, 1, block=steps))
+            t_plant, wall_plant = timed(lambda: replay_plant(plant, u, 1, block=steps)[0])
+            out[tuning] = {"t_loop": loop.cpu_s, "t_mj_step": t_mj_step, "t_plant": t_plant,
+                           "wall_loop": summary["runs"][0]["wall_s"], "wall_mj_step": wall_mj_step,
+                           "wall_plant": wall_plant, "steps": steps, "filter_us": float(np.nanmean(log["filter_us"])),
                            "u_sha256": hashlib.sha256(u.tobytes()).hexdigest()[:16]}
     return out
 
@@ -97,12 +106,12 @@ def run_child(tree: Path, tunings: list[str], duration: float, t0: float) -> dic
 
 
 def figures(best: dict[str, float]) -> dict[str, float]:
-    """The fraction and the per-step breakdown (µs) of one tree's and tuning's best times."""
+    """The fractions and the per-step breakdown (CPU µs) of one tree's and tuning's best times."""
     steps = best["steps"]
-    return {"fraction": best["t_mj_step"] / best["t_loop"], "us_loop": best["t_loop"] / steps * 1e6,
-            "us_physics": best["t_mj_step"] / steps * 1e6,
-            "us_plant_overhead": (best["t_plant"] - best["t_mj_step"]) / steps * 1e6, "us_filter": best["filter_us"],
-            "us_loop_rest": (best["t_loop"] - best["t_plant"]) / steps * 1e6 - best["filter_us"]}
+    return {"fraction": best["t_mj_step"] / best["t_loop"], "fraction_wall": best["wall_mj_step"] / best["wall_loop"],
+            "us_loop": best["t_loop"] / steps * 1e6, "us_physics": best["t_mj_step"] / steps * 1e6,
+            "us_plant_overhead": (best["t_plant"] - best["t_mj_step"]) / steps * 1e6,
+            "us_controller_and_loop": (best["t_loop"] - best["t_plant"]) / steps * 1e6, "us_filter_wall": best["filter_us"]}
 
 
 def main() -> None:
@@ -133,7 +142,7 @@ def main() -> None:
         for name, tree in trees.items():
             for tuning, got in run_child(tree, tunings, args.duration, args.t0).items():
                 kept = best[name].setdefault(tuning, dict(got))
-                for key in ("t_loop", "t_mj_step", "t_plant"):
+                for key in TIMES:
                     kept[key] = min(kept[key], got[key])
                 if got["u_sha256"] != kept["u_sha256"]:
                     raise RuntimeError(f"{name} tree, {tuning}: the commands differ between repeats")
@@ -142,13 +151,14 @@ def main() -> None:
                     "target_fraction": TARGET_FRACTION, "trees": {name: str(tree) for name, tree in trees.items()},
                     "runs": {}}
     print(f"mujoco_contact, {args.duration:g} s from t0 = {args.t0:g} s, CPU time, min of {args.repeats}; µs per control step")
-    print("  tree     tuning   fraction  loop   physics  plant ovh  filter  loop rest")
+    print("  tree     tuning   fraction (wall)  loop  physics  plant ovh  controller+loop  (filter, wall)")
     for tuning in tunings:
         entry = {name: figures(best[name][tuning]) for name in trees}
         for name in trees:
             f = entry[name]
-            print(f"  {name:8s} {tuning:7s} {f['fraction']:8.3f} {f['us_loop']:6.0f} {f['us_physics']:8.0f} "
-                  f"{f['us_plant_overhead']:10.0f} {f['us_filter']:7.0f} {f['us_loop_rest']:10.0f}")
+            print(f"  {name:8s} {tuning:7s} {f['fraction']:8.3f} ({f['fraction_wall']:.3f}) {f['us_loop']:5.0f} "
+                  f"{f['us_physics']:8.0f} {f['us_plant_overhead']:10.0f} {f['us_controller_and_loop']:16.0f} "
+                  f"{f['us_filter_wall']:15.0f}")
         if "against" in trees:
             entry["speedup"] = best["against"][tuning]["t_loop"] / best["this"][tuning]["t_loop"]
             entry["commands_identical"] = best["against"][tuning]["u_sha256"] == best["this"][tuning]["u_sha256"]
