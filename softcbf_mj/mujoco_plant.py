@@ -169,8 +169,8 @@ class MujocoPlant:
         self._facet_of_geom = [plate_roots.get(root, -1) for root in roots]  # per geom: its plate's facet, -1: none
         self._on_arm = [root == base for root in roots]  # per geom: part of the arm (below `base`)
         # index arrays of the state's reads (a list index is converted on every read)
-        self._site_index, self._tendon_index = np.array(self.site_ids), np.array(self.tendon_ids)
-        self._actuator_index = np.array(self.actuator_ids)
+        self._site_xy = np.array([(3 * i, 3 * i + 1) for i in self.site_ids]).ravel()  # into site_xpos.ravel()
+        self._tendon_index, self._actuator_index = np.array(self.tendon_ids), np.array(self.actuator_ids)
 
         self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
         self.u_max = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
@@ -269,10 +269,11 @@ class MujocoPlant:
     def state(self) -> PlantState:
         """The state of the current data (after `mj_forward`, if you edited it)."""
         data = self.data
-        ends = np.empty((self.n_segments + 1, 2))
-        ends[:-1] = data.site_xpos[self._site_index, :2]
-        ends[-1] = data.geom_xpos[self.tip_geom, :2]
+        ends = np.empty(2 * self.n_segments + 2)  # x, y of the sites, then of the tip
+        ends[:-2] = data.site_xpos.ravel()[self._site_xy]
+        ends[-2:] = data.geom_xpos[self.tip_geom, :2]
         spring = data.qpos[self.plate_qpos]  # (a copy) the plate's Δ or the gauge's x_g, m
+        force = self.plate_stiffness * spring
         contacts = self._plate_contacts()
         displacement = spring.copy() if self.sheets else spring
         extras: dict[str, float | np.ndarray] = {
@@ -304,8 +305,8 @@ class MujocoPlant:
             t=data.time,
             q=data.ten_length[self._tendon_index],
             qd=data.ten_velocity[self._tendon_index],
-            segment_ends=ends,
-            contact_forces=np.maximum(0.0, self.plate_stiffness * spring),
+            segment_ends=ends.reshape(self.n_segments + 1, 2),
+            contact_forces=np.maximum(0.0, force, out=force),
             u_applied=data.actuator_force[self._actuator_index],
             extras=extras,
         )
