@@ -377,7 +377,7 @@ class MujocoPlant:
                 points[k] = [pos[j] + half_dist * (sign * frame[j]) for j in range(2)]
         # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
         norms = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential] if touched else [0.0] * n_facets
-        return PlateContacts(np.array(normal_sum), np.array(norms), np.array(points))
+        return PlateContacts(np.array(normal_sum), np.array(norms), np.array(points).reshape(n_facets, 2))
 
 
 @dataclasses.dataclass
