@@ -293,9 +293,10 @@ def test_a_control_period_is_bit_identical_to_mujocos_own_steps(changes):
 
 
 @pytest.mark.parametrize("edit", ["qpos", "qvel", "nan"])
-def test_edits_of_the_data_between_steps_are_seen(edit):
+def test_edits_of_the_data_between_steps_are_seen(edit, tmp_path, monkeypatch):
     """qpos or qvel changed after the last step (no mj_forward), or a NaN that makes MuJoCo's
     check reset the data: the next period is still mj_step's from the edited data."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes the NaN's warning to MUJOCO_LOG.TXT here
     plant = MujocoPlant.from_config()
     u = np.array([140.0, 140.0])
     for _ in range(300):
