@@ -51,6 +51,7 @@ def test_figures_by_hand():
 
 
 @pytest.mark.parametrize("args, message", [(["--duration", "0"], "--duration must be finite and > 0"),
+                                           (["--tunings", ","], "--tunings must name at least one tuning"),
                                            (["--repeats", "0"], "--repeats must be >= 1"),
                                            (["--against", "/nonexistent"], "--against must be a tree of this project")])
 def test_bad_arguments_are_refused_by_name(args, message):
