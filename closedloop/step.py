@@ -138,7 +138,7 @@ class StepRecord:
 
 
 def _read_only(values: np.ndarray) -> np.ndarray:
-    values.flags.writeable = False
+    values.setflags(write=False)  # as `flags.writeable = False`, without building a flags object
     return values
 
 

@@ -33,8 +33,21 @@ Table friction (`softcbf_mj.table_friction`: the model's custom numeric `table_f
 `ArmModelConfig.table_friction`): each physics step is then taken from Python as `mj_step1`, the
 friction forces on the arm's links from the velocities just computed (`data.xfrc_applied`),
 `mj_step2`; the extras add `table_friction_power_W` (W, ≤ 0), the friction power Σ_k f_k · v_k
-averaged over the control period's physics steps. Without it (μ = 0, the default) a control
-period is one `mj_step(…, nstep=steps_per_control)` call, as before.
+averaged over the control period's physics steps. Without it (μ = 0, the default) the control
+period's physics steps after the first are one `mj_step(…, nstep=steps_per_control − 1)` call.
+
+The first physics step of a period reuses the reported state's `mj_forward`. `mj_step` is
+`mj_step1` (the checks `mj_checkPos`, `mj_checkVel`, then the position and velocity stages:
+kinematics, collision, constraint rows, passive forces — most of a forward's cost) followed by
+`mj_step2` (actuation with the new ctrl, acceleration, constraint solver, integration), exactly
+so for the Euler, implicit and implicitfast integrators (MuJoCo's docs). The stages read qpos,
+qvel and the mocap poses, not ctrl, so at the start of a period they are those the reporting
+`mj_forward` computed: the first step runs the checks and `mj_step2` only, and gives what
+`mj_step` gives, bit for bit (tests/test_mujoco_plant.py). Should qpos, qvel or the mocap
+poses differ from what that forward saw (the data was edited between steps, or a check reset
+it), the stages are computed again (`mj_step1`). With RK4 (not split by MuJoCo) and no table
+friction every physics step is `mj_step`. Assumed: no `mjcb_control` callback, and the model is
+not changed between steps without an `mj_forward`.
 """
 
 from __future__ import annotations
@@ -62,6 +75,10 @@ WARNINGS: dict[int, str] = {
     for name, value in mujoco.mjtWarning.__members__.items()
     if name.startswith("mjWARN_")
 }
+
+# Integrators whose physics step MuJoCo splits exactly into mj_step1 + mj_step2 (not RK4).
+SPLIT_INTEGRATORS = frozenset(int(i) for i in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_IMPLICIT,
+                                               mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
 
 # Units of the `PlantState.extras` this plant reports (for run records).
 EXTRAS_UNITS: dict[str, str] = {
@@ -147,9 +164,13 @@ class MujocoPlant:
         self.plate_stiffness = np.array([model.jnt_stiffness[jnt.id] for jnt in plate_joints])
         self.sheets = {k - 1: SheetInModel.from_model(model, k) for k, flexure in enumerate(flexures, 1) if flexure}
         plate_roots = {model.body(f"plate{k}").id: k - 1 for k in range(1, p + 1)}
-        self._plate_of_geom = {g: plate_roots[model.body_rootid[model.geom_bodyid[g]]] for g in range(model.ngeom)
-                               if model.body_rootid[model.geom_bodyid[g]] in plate_roots}
-        self._base = model.body("base").id
+        roots = model.body_rootid[model.geom_bodyid].tolist()  # per geom: the root body of its body
+        base = model.body("base").id
+        self._facet_of_geom = [plate_roots.get(root, -1) for root in roots]  # per geom: its plate's facet, -1: none
+        self._on_arm = [root == base for root in roots]  # per geom: part of the arm (below `base`)
+        # index arrays of the state's reads (a list index is converted on every read)
+        self._site_xy = np.array([(3 * i, 3 * i + 1) for i in self.site_ids]).ravel()  # into site_xpos.ravel()
+        self._tendon_index, self._actuator_index = np.array(self.tendon_ids), np.array(self.actuator_ids)
 
         self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
         self.u_max = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
@@ -159,6 +180,9 @@ class MujocoPlant:
         mu = table_friction_of(model)
         self.table_friction = TableFriction(model, mu) if mu > 0 else None
         self._friction_power = 0.0  # W, mean over the last control period
+        # mj_step1 + mj_step2 is mj_step for these integrators (MuJoCo's docs; RK4 is not split)
+        self._split_steps = int(model.opt.integrator) in SPLIT_INTEGRATORS
+        self._forwarded: tuple[bytes, ...] = ()  # `_stage_inputs` at the last `_forward`
         self.reset(np.zeros(n))
 
     # -- construction -------------------------------------------------------------
@@ -211,7 +235,7 @@ class MujocoPlant:
         self.data.ctrl[self.actuator_ids] = u0
         dynamic = self.act_adr >= 0
         self.data.act[self.act_adr[dynamic]] = u0[dynamic]
-        mujoco.mj_forward(self.model, self.data)
+        self._forward()
         self._friction_power = 0.0
         return self.state()
 
@@ -222,28 +246,36 @@ class MujocoPlant:
         pressure limits of `RobotParams`), and `u_applied` reports what acted.
         """
         model, data, friction = self.model, self.data, self.table_friction
-        data.ctrl[self.actuator_ids] = self._vector(u, "u")
-        if friction is None:
+        data.ctrl[self._actuator_index] = self._vector(u, "u")
+        if friction is None and not self._split_steps:
             mujoco.mj_step(model, data, nstep=self.steps_per_control)
+        elif friction is None:
+            self._first_step1()
+            mujoco.mj_step2(model, data)
+            mujoco.mj_step(model, data, nstep=self.steps_per_control - 1)
         else:
             energy_rate = 0.0
-            for _ in range(self.steps_per_control):
-                mujoco.mj_step1(model, data)
+            for substep in range(self.steps_per_control):
+                if substep == 0:
+                    self._first_step1()
+                else:
+                    mujoco.mj_step1(model, data)
                 energy_rate += friction.apply(data)
                 mujoco.mj_step2(model, data)
             self._friction_power = energy_rate / self.steps_per_control
-        mujoco.mj_forward(model, data)
+        self._forward()
         return self.state()
 
     def state(self) -> PlantState:
         """The state of the current data (after `mj_forward`, if you edited it)."""
         data = self.data
-        ends = np.empty((self.n_segments + 1, 2))
-        ends[:-1] = data.site_xpos[self.site_ids, :2]
-        ends[-1] = data.geom_xpos[self.tip_geom, :2]
-        spring = data.qpos[self.plate_qpos].copy()  # the plate's Δ or the gauge's x_g, m
+        ends = np.empty(2 * self.n_segments + 2)  # x, y of the sites, then of the tip
+        ends[:-2] = data.site_xpos.ravel()[self._site_xy]
+        ends[-2:] = data.geom_xpos[self.tip_geom, :2]
+        spring = data.qpos[self.plate_qpos]  # (a copy) the plate's Δ or the gauge's x_g, m
+        force = self.plate_stiffness * spring
         contacts = self._plate_contacts()
-        displacement = spring.copy()
+        displacement = spring.copy() if self.sheets else spring
         extras: dict[str, float | np.ndarray] = {
             "plate_displacement_m": displacement,
             "force_solver_N": contacts.normal,
@@ -264,60 +296,88 @@ class MujocoPlant:
             extras["contact_stiffness_N_per_m"] = stiffness
         if self.table_friction is not None:
             extras["table_friction_power_W"] = self._friction_power
-        counts = data.warning.number
-        for index in np.flatnonzero(counts):
-            extras[f"warning_{WARNINGS[index]}"] = float(counts[index])
+        counts = data.warning.number.tolist()
+        if any(counts):
+            for index, count in enumerate(counts):
+                if count:
+                    extras[f"warning_{WARNINGS[index]}"] = float(count)
         return PlantState(
-            t=float(data.time),
-            q=data.ten_length[self.tendon_ids].copy(),
-            qd=data.ten_velocity[self.tendon_ids].copy(),
-            segment_ends=ends,
-            contact_forces=np.maximum(0.0, self.plate_stiffness * spring),
-            u_applied=data.actuator_force[self.actuator_ids].copy(),
+            t=data.time,
+            q=data.ten_length[self._tendon_index],
+            qd=data.ten_velocity[self._tendon_index],
+            segment_ends=ends.reshape(self.n_segments + 1, 2),
+            contact_forces=np.maximum(0.0, force, out=force),
+            u_applied=data.actuator_force[self._actuator_index],
             extras=extras,
         )
 
     # -- internals ----------------------------------------------------------------
 
+    def _forward(self) -> None:
+        """`mj_forward` of the state to report, and a note of the inputs it saw (`_first_step1`)."""
+        data = self.data
+        mujoco.mj_forward(self.model, data)
+        self._forwarded = self._stage_inputs()
+
+    def _stage_inputs(self) -> tuple[bytes, ...]:
+        """What MuJoCo's position and velocity stages read from the data: qpos, qvel, the mocap poses."""
+        data = self.data
+        return data.qpos.tobytes(), data.qvel.tobytes(), data.mocap_pos.tobytes(), data.mocap_quat.tobytes()
+
+    def _first_step1(self) -> None:
+        """`mj_step1` of a control period's first physics step (module docstring): its checks,
+        and its position and velocity stages only if their inputs have changed since `_forward`."""
+        model, data = self.model, self.data
+        mujoco.mj_checkPos(model, data)
+        mujoco.mj_checkVel(model, data)
+        if self._stage_inputs() != self._forwarded:  # edited, or reset by a check: compute them
+            mujoco.mj_step1(model, data)
+
     def _vector(self, value: np.ndarray, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
         if arr.shape != (self.n_segments,):
             raise ValueError(f"{name} must have shape ({self.n_segments},), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
+        if not all(map(math.isfinite, arr.tolist())):  # Python floats: faster than numpy for N ~ 2
             raise ValueError(f"{name} must be finite, got {arr.tolist()}")
         return arr
 
     def _plate_contacts(self) -> "PlateContacts":
         """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce)."""
-        model, data = self.model, self.data
-        contacts = PlateContacts.empty(self.n_facets)
-        # Python floats (numpy's per-call overhead dominates on 3-vectors), the same operations in the same order
-        tangential = [[0.0, 0.0, 0.0] for _ in range(self.n_facets)]
-        strongest = [0.0] * self.n_facets
+        model, data, n_facets = self.model, self.data, self.n_facets
+        ncon = data.ncon
+        if ncon == 0:
+            return PlateContacts.empty(n_facets)
+        # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
+        # struct of one contact), the same operations in the same order as summing per contact
+        facet_of, on_arm = self._facet_of_geom, self._on_arm
+        normal_sum = [0.0] * n_facets
+        tangential = [[0.0, 0.0, 0.0] for _ in range(n_facets)]
+        strongest = [0.0] * n_facets
+        points = [[math.nan, math.nan] for _ in range(n_facets)]
         touched = False
-        for c in range(data.ncon):
-            contact = data.contact[c]
-            geoms = (contact.geom1, contact.geom2)
-            for side, (plate_geom, other) in enumerate((geoms, geoms[::-1])):
-                k = self._plate_of_geom.get(plate_geom)
-                if k is None or model.body_rootid[model.geom_bodyid[other]] != self._base:
-                    continue
-                mujoco.mj_contactForce(model, data, c, self._contact_force)
-                normal, f1, f2 = self._contact_force[:3].tolist()
-                frame = contact.frame.tolist()  # rows: normal (from geom1 to geom2), two tangents
-                contacts.normal[k] += normal
-                summed = tangential[k]
-                for j in range(3):
-                    summed[j] += f1 * frame[3 + j] + f2 * frame[6 + j]
-                touched = True
-                if normal > strongest[k]:
-                    strongest[k] = normal
-                    sign = 1.0 if side == 1 else -1.0  # toward the plate
-                    half_dist, pos = 0.5 * contact.dist, contact.pos.tolist()
-                    contacts.point[k] = [pos[j] + half_dist * (sign * frame[j]) for j in range(2)]
-        if touched:  # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
-            contacts.tangential[:] = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential]
-        return contacts
+        force, contact = self._contact_force, data.contact
+        for c, (geom1, geom2) in enumerate(contact.geom[:ncon].tolist()):
+            if facet_of[geom1] >= 0 and on_arm[geom2]:
+                k, sign = facet_of[geom1], -1.0  # sign: the frame's normal (from geom1 to geom2) toward the plate
+            elif facet_of[geom2] >= 0 and on_arm[geom1]:
+                k, sign = facet_of[geom2], 1.0
+            else:
+                continue
+            mujoco.mj_contactForce(model, data, c, force)
+            normal, f1, f2 = force[:3].tolist()
+            frame = contact.frame[c].tolist()  # rows: normal (from geom1 to geom2), two tangents
+            normal_sum[k] += normal
+            summed = tangential[k]
+            for j in range(3):
+                summed[j] += f1 * frame[3 + j] + f2 * frame[6 + j]
+            touched = True
+            if normal > strongest[k]:
+                strongest[k] = normal
+                half_dist, pos = 0.5 * float(contact.dist[c]), contact.pos[c].tolist()
+                points[k] = [pos[j] + half_dist * (sign * frame[j]) for j in range(2)]
+        # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
+        norms = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential] if touched else [0.0] * n_facets
+        return PlateContacts(np.array(normal_sum), np.array(norms), np.array(points).reshape(n_facets, 2))
 
 
 @dataclasses.dataclass

@@ -239,6 +239,80 @@ def test_same_inputs_give_identical_arrays():
             np.testing.assert_array_equal(a[key], other[key], err_msg=key)
 
 
+def _reference_data(plant: MujocoPlant) -> mujoco.MjData:
+    """A second MjData of the plant's model in the plant's current state (inputs copied, then mj_forward)."""
+    data = mujoco.MjData(plant.model)
+    for field in ("qpos", "qvel", "act", "ctrl", "xfrc_applied", "qacc_warmstart"):
+        getattr(data, field)[:] = getattr(plant.data, field)
+    data.time = plant.data.time
+    mujoco.mj_forward(plant.model, data)
+    return data
+
+
+def _reference_period(plant: MujocoPlant, data: mujoco.MjData, u: np.ndarray) -> None:
+    """One control period as MuJoCo's own steps take it: mj_step (mj_step1, friction, mj_step2
+    with table friction), then mj_forward."""
+    data.ctrl[:] = u
+    if plant.table_friction is None:
+        mujoco.mj_step(plant.model, data, nstep=plant.steps_per_control)
+    else:
+        for _ in range(plant.steps_per_control):
+            mujoco.mj_step1(plant.model, data)
+            plant.table_friction.apply(data)
+            mujoco.mj_step2(plant.model, data)
+    mujoco.mj_forward(plant.model, data)
+
+
+def _assert_same_data(plant: MujocoPlant, data: mujoco.MjData, k: int) -> None:
+    for field in ("qpos", "qvel", "act", "qacc", "qacc_warmstart", "actuator_force", "efc_force", "site_xpos"):
+        assert getattr(plant.data, field).tobytes() == getattr(data, field).tobytes(), (k, field)
+    assert plant.data.time == data.time and plant.data.ncon == data.ncon, k
+
+
+@pytest.mark.parametrize("changes", [{}, dict(tau_p=0.0), dict(plate="flexure", tip_friction=0.5),
+                                     dict(table_friction=0.3), dict(integrator="Euler"),
+                                     dict(integrator="RK4", links_per_segment=2, **NO_PLATE)],
+                         ids=["ideal", "no-pressure-lag", "flexure", "table-friction", "Euler", "RK4"])
+def test_a_control_period_is_bit_identical_to_mujocos_own_steps(changes):
+    """The first physics step of a period reuses the reporting mj_forward (module docstring):
+    every quantity of the data, through contact, equals mj_step's bit for bit (RK4, not split,
+    steps by mj_step: the rod is stable under it only when short and free)."""
+    plant = MujocoPlant.from_config(**changes)
+    rng = np.random.default_rng(3)
+    plant.reset(np.zeros(2))
+    data = _reference_data(plant)
+    force = 0.0
+    for k in range(200 if plant.n_facets == 0 else 400):
+        u = rng.uniform(80.0, 150.0, size=2)
+        state = plant.step(u)
+        _reference_period(plant, data, u)
+        _assert_same_data(plant, data, k)
+        force = max(force, *state.extras["force_solver_N"], 0.0)
+    assert not any(key.startswith("warning_") for key in state.extras)  # a stable run
+    assert (force > 0) == (plant.n_facets > 0)  # the run reaches the plate
+
+
+@pytest.mark.parametrize("edit", ["qpos", "qvel", "nan"])
+def test_edits_of_the_data_between_steps_are_seen(edit, tmp_path, monkeypatch):
+    """qpos or qvel changed after the last step (no mj_forward), or a NaN that makes MuJoCo's
+    check reset the data: the next period is still mj_step's from the edited data."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes the NaN's warning to MUJOCO_LOG.TXT here
+    plant = MujocoPlant.from_config()
+    u = np.array([140.0, 140.0])
+    for _ in range(300):
+        plant.step(u)
+    data = _reference_data(plant)
+    for target in (plant.data, data):
+        if edit == "nan":
+            target.qvel[plant.hinge_dofs[0][0]] = np.nan
+        else:
+            getattr(target, edit)[plant.hinge_dofs[1][-1]] += 0.05
+    for k in range(20):
+        plant.step(u)
+        _reference_period(plant, data, u)
+        _assert_same_data(plant, data, k)
+
+
 def test_warnings_are_reported():
     plant = MujocoPlant.from_config()
     plant.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = 2

@@ -35,6 +35,7 @@ import platform
 import tempfile
 import time
 from pathlib import Path
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -53,45 +54,48 @@ def _plant(n: int, dt: float) -> MujocoPlant:
     return MujocoPlant.from_config(control_dt=CONTROL_DT, links_per_segment=n, physics_dt=dt)
 
 
-def _blocks(steps: int) -> list[slice]:
-    return [slice(k, min(k + BLOCK, steps)) for k in range(0, steps, BLOCK)]
+def _blocks(steps: int, block: int) -> list[slice]:
+    return [slice(k, min(k + block, steps)) for k in range(0, steps, block)]
 
 
-def replay_plant(plant: MujocoPlant, u: np.ndarray, repeats: int) -> tuple[float, np.ndarray, np.ndarray]:
-    """(wall s, tip (T, 2) m, plate force (T, P) N) of `MujocoPlant.step` over the commands u (T, N).
+def replay_plant(plant: MujocoPlant, u: np.ndarray, repeats: int, block: int = BLOCK,
+                 clock: Callable[[], float] = time.perf_counter) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, tip (T, 2) m, plate force (T, P) N) of `MujocoPlant.step` over the commands u (T, N).
 
-    Wall time: the sum over blocks of BLOCK steps of each block's best time over `repeats`
-    identical replays (filters out other jobs' interference on a shared machine).
+    Time (`clock`, default wall): the sum over blocks of `block` steps of each block's best
+    time over `repeats` identical replays (filters out other jobs' interference on a shared
+    machine; `block` = T: the best whole replay).
     """
-    blocks = _blocks(len(u))
+    blocks = _blocks(len(u), block)
     best = np.full(len(blocks), np.inf)
     tip, force = np.empty((len(u), 2)), np.empty((len(u), plant.n_facets))
     for _ in range(repeats):
         plant.reset(np.zeros(plant.n_segments))
-        for b, block in enumerate(blocks):
-            start = time.perf_counter()
-            for k in range(block.start, block.stop):
+        for b, steps in enumerate(blocks):
+            start = clock()
+            for k in range(steps.start, steps.stop):
                 state = plant.step(u[k])
                 tip[k], force[k] = state.segment_ends[-1], state.contact_forces
-            best[b] = min(best[b], time.perf_counter() - start)
+            best[b] = min(best[b], clock() - start)
     return float(best.sum()), tip, force
 
 
-def replay_mj_step(plant: MujocoPlant, u: np.ndarray, repeats: int) -> float:
-    """Wall s of bare `mj_step` (nstep per control period) over the commands u (T, N), timed as in `replay_plant`."""
+def replay_mj_step(plant: MujocoPlant, u: np.ndarray, repeats: int, block: int = BLOCK,
+                   clock: Callable[[], float] = time.perf_counter) -> float:
+    """s of bare `mj_step` (nstep per control period) over the commands u (T, N), timed as in `replay_plant`."""
     model, data = plant.model, mujoco.MjData(plant.model)
     if model.nu != u.shape[1]:
         raise ValueError(f"the model has {model.nu} actuators, the commands {u.shape[1]} columns")
-    blocks = _blocks(len(u))
+    blocks = _blocks(len(u), block)
     best = np.full(len(blocks), np.inf)
     for _ in range(repeats):
         mujoco.mj_resetData(model, data)
-        for b, block in enumerate(blocks):
-            start = time.perf_counter()
-            for command in u[block]:
+        for b, steps in enumerate(blocks):
+            start = clock()
+            for command in u[steps]:
                 data.ctrl[:] = command
                 mujoco.mj_step(model, data, nstep=plant.steps_per_control)
-            best[b] = min(best[b], time.perf_counter() - start)
+            best[b] = min(best[b], clock() - start)
     return float(best.sum())
 
 

@@ -1,0 +1,177 @@
+"""The serial MuJoCo loop's speed as a fraction of bare `mj_step`, optionally side by side with
+another tree (issue 23, item 4: ≥ 0.5 on mujoco_contact, and never slower than before).
+
+Per tree and tuning, in one process (after a warm-up call of the scenario):
+- t_loop: CPU s of the closed loop of `mujoco_contact` as the scenario runs it (its
+  `scenarios.common.run_closed_loop`, timed in place by `bench_loop_pair.LoopTimer`; data
+  only), `--duration` s from `--t0` s (defaults 10 s from 15 s: the arm is in contact from
+  ≈ 16 s to ≈ 45 s of the 100 s sinusoid, so the window is mostly contact); its wall s is
+  the run's own `wall_s`;
+- t_mj_step: CPU (and wall) s of bare `mj_step(nstep = control period / physics step)` over
+  the commands u the loop sent, on the same model (`bench_mujoco_contact.replay_mj_step`);
+- t_plant: the same commands through `MujocoPlant.step` (physics, `mj_forward`, the state;
+  `bench_mujoco_contact.replay_plant`);
+- filter_us: the loop's mean filter time (µs, its own `filter_us` column: wall clock).
+
+Figures: fraction = t_mj_step / t_loop (the loop's speed as a fraction of bare mj_step's:
+1 would be a loop that costs nothing beyond the physics; in CPU time, and in wall time in
+brackets), and per control step (CPU µs) physics t_mj_step / T, plant overhead
+(t_plant − t_mj_step) / T and controller and loop (t_loop − t_plant) / T: the nominal, the
+filter, the control step, the recorder; the filter's wall-clock share alongside.
+
+Each measurement is a fresh process with its tree first on PYTHONPATH (this tree; with
+`--against TREE`, e.g. an export of the commit before, also TREE): the trees' processes
+alternate `--repeats` times and every time is the minimum over the repeats (CPU time, the
+least disturbed by other jobs on a shared machine). With `--against`: speedup =
+t_loop(TREE) / t_loop(this tree) per tuning, and whether both trees sent bit-identical
+commands. Usage:
+
+    git archive 8ba33d0 | tar -x -C /tmp/base
+    .venv/bin/python tools/bench_serial_loop.py --against /tmp/base [--duration 10] [--tunings None,Low]
+
+Prints a table and ends with one line of JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import io
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parents[1]  # this tree
+TARGET_FRACTION = 0.5  # issue 23: the serial loop at >= 0.5 of bare mj_step
+TIMES = ("t_loop", "t_mj_step", "t_plant", "wall_loop", "wall_mj_step", "wall_plant")  # CPU s, wall s
+
+
+def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[str, float | str]]:
+    """In the measuring process: per tuning, t_loop, t_mj_step, t_plant (CPU s, and wall s as
+    `wall_*`), steps, filter_us and the SHA-256 of the commands u (module docstring)."""
+    import numpy as np
+    from bench_loop_pair import LoopTimer
+    from bench_mujoco_contact import replay_mj_step, replay_plant
+    from scenarios import get
+    from scenarios.common import data_only
+    from scenarios.mujoco_contact import CONTROL_DT
+    from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
+    from softcbf_mj.mujoco_plant import MujocoPlant
+    from softcbf_mj.runio import load_timeseries
+
+    def timed(replay) -> tuple[float, float]:  # (CPU s, wall s) of one whole replay
+        start = time.process_time()
+        wall = replay()
+        return time.process_time() - start, wall
+
+    scenario = get("mujoco_contact")
+    plant = MujocoPlant.from_config(control_dt=CONTROL_DT, links_per_segment=DEFAULT_LINKS_PER_SEGMENT,
+                                    physics_dt=DEFAULT_PHYSICS_DT)
+    out: dict[str, dict[str, float | str]] = {}
+    with tempfile.TemporaryDirectory() as tmp, data_only(), contextlib.redirect_stdout(io.StringIO()):
+        (Path(tmp) / "warm").mkdir()
+        scenario.run(Path(tmp) / "warm", duration=0.05, t0=t0, tunings=",".join(tunings), progress=False)
+        for tuning in tunings:
+            folder = Path(tmp) / tuning
+            folder.mkdir()
+            with LoopTimer() as loop:
+                summary = scenario.run(folder, duration=duration, t0=t0, tunings=tuning, progress=False)
+            log, _ = load_timeseries(folder / summary["runs"][0]["timeseries"])
+            u = np.ascontiguousarray(log["u"])
+            steps = len(u)
+            t_mj_step, wall_mj_step = timed(lambda: replay_mj_step(plant, u, 1, block=steps))
+            t_plant, wall_plant = timed(lambda: replay_plant(plant, u, 1, block=steps)[0])
+            out[tuning] = {"t_loop": loop.cpu_s, "t_mj_step": t_mj_step, "t_plant": t_plant,
+                           "wall_loop": summary["runs"][0]["wall_s"], "wall_mj_step": wall_mj_step,
+                           "wall_plant": wall_plant, "steps": steps, "filter_us": float(np.nanmean(log["filter_us"])),
+                           "u_sha256": hashlib.sha256(u.tobytes()).hexdigest()[:16]}
+    return out
+
+
+def run_child(tree: Path, tunings: list[str], duration: float, t0: float) -> dict:
+    """`measure` in a fresh process with `tree` first on PYTHONPATH."""
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    done = subprocess.run([sys.executable, __file__, "--child", "--tunings", ",".join(tunings),
+                           "--duration", str(duration), "--t0", str(t0)],
+                          env=env, cwd=tree, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"the measurement on {tree} failed (exit {done.returncode}):\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def figures(best: dict[str, float]) -> dict[str, float]:
+    """The fractions and the per-step breakdown (CPU µs) of one tree's and tuning's best times."""
+    steps = best["steps"]
+    return {"fraction": best["t_mj_step"] / best["t_loop"], "fraction_wall": best["wall_mj_step"] / best["wall_loop"],
+            "us_loop": best["t_loop"] / steps * 1e6, "us_physics": best["t_mj_step"] / steps * 1e6,
+            "us_plant_overhead": (best["t_plant"] - best["t_mj_step"]) / steps * 1e6,
+            "us_controller_and_loop": (best["t_loop"] - best["t_plant"]) / steps * 1e6, "us_filter_wall": best["filter_us"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--duration", type=float, default=10.0, help="simulated s per tuning (> 0)")
+    parser.add_argument("--t0", type=float, default=15.0, help="phase offset of the sinusoid (s)")
+    parser.add_argument("--tunings", default="None,Low", help="comma-separated tunings of mujoco_contact")
+    parser.add_argument("--repeats", type=int, default=3, help="measuring processes per tree (>= 1); the minimum is kept")
+    parser.add_argument("--against", type=Path, default=None, help="another tree (e.g. the commit before) to compare with")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    tunings = [t.strip() for t in args.tunings.split(",") if t.strip()]
+    if not tunings:
+        parser.error(f"--tunings must name at least one tuning, got {args.tunings!r}")
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        parser.error(f"--duration must be finite and > 0 s, got {args.duration}")
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
+    if args.child:
+        print(json.dumps(measure(tunings, args.duration, args.t0)))
+        return
+    trees = {"this": HERE}
+    if args.against is not None:
+        if not (args.against / "scenarios" / "mujoco_contact.py").is_file():
+            parser.error(f"--against must be a tree of this project (with scenarios/mujoco_contact.py), got {args.against}")
+        trees["against"] = args.against.resolve()
+
+    best: dict[str, dict[str, dict]] = {name: {} for name in trees}
+    for _ in range(args.repeats):
+        for name, tree in trees.items():
+            for tuning, got in run_child(tree, tunings, args.duration, args.t0).items():
+                kept = best[name].setdefault(tuning, dict(got))
+                for key in (*TIMES, "filter_us"):
+                    kept[key] = min(kept[key], got[key])
+                if got["u_sha256"] != kept["u_sha256"]:
+                    raise RuntimeError(f"{name} tree, {tuning}: the commands differ between repeats")
+
+    report: dict = {"duration_s": args.duration, "t0_s": args.t0, "repeats": args.repeats, "clock": "process CPU time",
+                    "target_fraction": TARGET_FRACTION, "trees": {name: str(tree) for name, tree in trees.items()},
+                    "runs": {}}
+    print(f"mujoco_contact, {args.duration:g} s from t0 = {args.t0:g} s, CPU time, min of {args.repeats}; µs per control step")
+    print("  tree     tuning   fraction (wall)  loop  physics  plant ovh  controller+loop  (filter, wall)")
+    for tuning in tunings:
+        entry = {name: figures(best[name][tuning]) for name in trees}
+        for name in trees:
+            f = entry[name]
+            print(f"  {name:8s} {tuning:7s} {f['fraction']:8.3f} ({f['fraction_wall']:.3f}) {f['us_loop']:5.0f} "
+                  f"{f['us_physics']:8.0f} {f['us_plant_overhead']:10.0f} {f['us_controller_and_loop']:16.0f} "
+                  f"{f['us_filter_wall']:15.0f}")
+        if "against" in trees:
+            entry["speedup"] = best["against"][tuning]["t_loop"] / best["this"][tuning]["t_loop"]
+            entry["commands_identical"] = best["against"][tuning]["u_sha256"] == best["this"][tuning]["u_sha256"]
+            print(f"  {tuning}: loop speed-up {entry['speedup']:.3f}x against {trees['against']}; commands "
+                  f"{'bit-identical' if entry['commands_identical'] else 'DIFFER'}")
+        report["runs"][tuning] = entry
+    worst = min(report["runs"][t]["this"]["fraction"] for t in tunings)
+    report["fraction_min"] = worst
+    print(f"  worst fraction {worst:.3f} (target >= {TARGET_FRACTION:g}: {'met' if worst >= TARGET_FRACTION else 'NOT met'})")
+    print(json.dumps(report))
+
+
+if __name__ == "__main__":
+    main()
