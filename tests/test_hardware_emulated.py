@@ -62,7 +62,9 @@ def test_high_tuning_keeps_the_true_plate_force_below_f_max_and_writes_the_run_f
     # a late frame on the loaded machine may make a cycle HOLD (measured 0–1 of 70); nothing vents
     assert np.count_nonzero(series["action"] == HOLD) <= 3 and not np.any(series["action"] == VENT)
     assert set(row["flags"]) <= {"perception_stale"} and row["link_acked_fraction"] == 1.0
-    assert row["cycles"] == 70 and row["cycles_run"] + row["cycles_hold"] == 70 and row["final_vent_acked"]
+    # 70 scheduled cycles; a stall of the loaded machine skips cycles rather than bursting them
+    assert row["cycles"] + row["cycles_skipped"] == 70 and row["cycles_skipped"] <= 3
+    assert row["cycles_run"] + row["cycles_hold"] == row["cycles"] and row["final_vent_acked"]
     # the board applied what the loop sent (±half a fixed-point count), within the pressure limits
     t_applied, u_applied = emulation.board.applied_arrays()
     assert np.all(np.abs(u_applied) <= 150.0)
