@@ -466,10 +466,10 @@ def test_hardware_loop_skips_the_cycles_a_stall_missed(tmp_path, tmp_path_factor
         (tmp_path / "hw").mkdir()
         row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)
     series, _ = load_timeseries(tmp_path / "hw" / row["timeseries"])
-    assert 4 <= row["cycles_skipped"] <= 6 and row["cycles"] + row["cycles_skipped"] == 20
-    assert row["watchdog_vents"] == 1  # the board's watchdog vented during the stall and said so in its next ACK
+    assert 4 <= row["cycles_skipped"] <= 8 and row["cycles"] + row["cycles_skipped"] == 20
+    assert row["watchdog_vents"] >= 1  # the board's watchdog vented during the stall and said so in its next ACK
     gaps = np.diff(series["t_clock"])
-    assert np.all(gaps[5:] > 0.05)  # no burst: after the stall the cycles keep their period
+    assert np.sum(gaps < 0.02) <= 1  # no burst (the old loop fired the missed cycles ~1 ms apart)
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
