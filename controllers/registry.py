@@ -3,7 +3,7 @@
 A spec names a factory (a class or a function):
 - a built-in's name (`FILTERS`, `NOMINALS`), e.g. "paper-cbf", "none", "qsg" (the
   quasi-static governor), "e-erg" (the energy-certified reference governor), "sinusoid",
-  "tip-tracker", "step";
+  "tip-tracker", "step", "force-target";
 - `path/to/file.py:Factory` (the file is imported as a module of its own; the path is
   relative to the working directory);
 - `package.module:Factory` (imported from sys.path).
@@ -38,14 +38,16 @@ from pathlib import Path
 
 from controllers.energy_governor import EnergyGovernor
 from controllers.filter import paper_cbf
-from controllers.nominal import NominalController, sinusoid, step, tip_tracker
+from controllers.nominal import NominalController, force_target, sinusoid, step, tip_tracker
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safety_filter import FilterContext, PassThroughFilter, SafetyFilter
 
 FILTERS: dict[str, Callable[..., SafetyFilter]] = {
     "paper-cbf": paper_cbf, "none": PassThroughFilter, "qsg": QuasiStaticGovernor, "e-erg": EnergyGovernor,
 }
-NOMINALS: dict[str, Callable[..., NominalController]] = {"sinusoid": sinusoid, "tip-tracker": tip_tracker, "step": step}
+NOMINALS: dict[str, Callable[..., NominalController]] = {
+    "sinusoid": sinusoid, "tip-tracker": tip_tracker, "step": step, "force-target": force_target,
+}
 CONTEXT = "context"
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 

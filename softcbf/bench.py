@@ -80,7 +80,8 @@ from softcbf_mj.runio import (
 from vocabulary.settings import Bound, check_number, non_negative
 
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
-               "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s")
+               "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s",
+               "force_asked_N", "force_delivered_N", "force_delivered_ratio", "force_budget_used", "f_max_N")
 DEFAULT_FILTERS = "e-erg,paper-cbf"
 PAPER_TUNINGS = {"1kHz": "Low", "camera": "HW-High"}
 EERG_PARAMS = {"contact_aware": "true", "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
@@ -91,7 +92,35 @@ QUICK_DURATION_S = 1.0
 QUICK_STEP_STARTS, QUICK_STEP_DURATION_S, QUICK_MISMATCH_DRAWS = 3, 0.5, 2
 EMULATOR_CONFIG = Path(__file__).resolve().parent.parent / "examples" / "hardware_emulated.toml"
 EMULATOR_DURATION_S = 20.0
-BENCH_FILE, TABLE_FILE, PLOT_FILE = "bench.json", "bench.md", "plots/bench.png"
+BENCH_FILE, TABLE_FILE, PLOT_FILE, FORCE_PLOT_FILE = "bench.json", "bench.md", "plots/bench.png", "plots/force_budget.png"
+PUSH_PLANTS = ("mujoco_contact", "camera_loop")
+PUSH_RATIOS = (0.3, 0.6, 0.9, 1.2)
+FORCE_TARGET_RATIO = 0.6
+PUSH_DURATION_S = 6.0
+
+
+def plant_parameters(plant: str) -> dict[str, Any]:
+    """A contact task's scenario parameters besides the nominal: the plant at its defaults (camera_loop saves no frames)."""
+    return {"saved_frames_hz": 0.0} if plant == "camera_loop" else {}
+
+
+def steady_force(force: np.ndarray) -> float:
+    """The steady measured force of a push (N): the mean over the last third of the run's samples of the
+    largest facet force per sample (`force`: (T,) or (T, plates) N)."""
+    force = np.asarray(force, dtype=float)
+    per_sample = force.max(axis=1) if force.ndim == 2 else force
+    if per_sample.size == 0:
+        raise ValueError("a push needs at least one force sample")
+    return float(np.mean(per_sample[-max(1, per_sample.size // 3):]))
+
+
+def steady_force_of_folder(folder: Path) -> float:
+    """`steady_force` of the one run in a run folder (its time series' `contact_force`)."""
+    run_folder = read_run_folder(folder)
+    if len(run_folder.runs) != 1:
+        raise ValueError(f"{folder} holds {len(run_folder.runs)} runs; a push is one run")
+    series, _ = load_timeseries(folder / run_folder.runs[0]["timeseries"])
+    return steady_force(series["contact_force"])
 
 
 @dataclass(frozen=True)
@@ -150,6 +179,8 @@ class Case:
     rate: str
     run: Callable[["Case", FilterSpec, Path, "RunOptions"], dict[str, Any]]
     scenario_params: dict[str, Any] = field(default_factory=dict)
+    asked_N: float | None = None
+    """A contact task's asked force (N): the unfiltered plant's steady measured force (`PUSHES`); None: no force asked."""
 
 
 def case_filter_params(spec: FilterSpec, case: Case) -> dict[str, str]:
@@ -175,9 +206,15 @@ def _run_figures(folder: Path) -> list[tuple[dict[str, Any], dict[str, np.ndarra
     return [(row, _call_rows(folder / row["timeseries"])) for row in run_folder.runs]
 
 
-def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarray]]],
+def _f_max(folder: Path) -> float:
+    """The force limit F_max (N) of a scenario's run folder (its parameters' f_max)."""
+    return float(read_run_folder(folder).summary["params"]["f_max"])
+
+
+def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarray]]], f_max: float,
                    force_key: str = "force_max_N", violation_key: str = "t_violation_s") -> dict[str, Any]:
-    """The figures of one case from its runs' summary rows and call rows (module docstring: pooling)."""
+    """The figures of one case from its runs' summary rows and call rows (module docstring: pooling); `f_max`
+    (N): the case's force limit (force_budget_used = F max / f_max)."""
     from softcbf.study.analysis import wilson_interval
 
     if not runs:
@@ -186,10 +223,11 @@ def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarr
     calls = np.concatenate([np.asarray(c["filter_us"], dtype=float) for _, c in runs])
     weights = np.array([c["t"].size for _, c in runs], dtype=float)
     rho = [float(r["rho_min_meas"]) for r, _ in runs]
+    force_max = max(float(r[force_key]) for r, _ in runs)
     out = {
         "rho_min_meas": min(rho),
         "t_violation_s": float(sum(float(r[violation_key]) for r, _ in runs)),
-        "force_max_N": max(float(r[force_key]) for r, _ in runs),
+        "force_max_N": force_max, "f_max_N": f_max, "force_budget_used": force_max / f_max,
         "violation_probability": None, "violation_ci95": None, "draws": None,
         "u_dev_rms_hPa": float(math.sqrt(np.average([f["u_dev_rms_hPa"] ** 2 for f in per_run], weights=weights))),
         "blocked_s": float(sum(f["blocked_s"] for f in per_run)),
@@ -225,7 +263,12 @@ def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
         params["duration"] = QUICK_DURATION_S
     out.mkdir(parents=True)
     get(case.scenario_params.get("scenario", case.name)).run(out, **params)
-    return pooled_figures(_run_figures(out))
+    figures = pooled_figures(_run_figures(out), _f_max(out))
+    if case.asked_N is None:
+        return figures
+    delivered = steady_force_of_folder(out)
+    return {**figures, "force_delivered_N": delivered,
+            "force_delivered_ratio": delivered / min(case.asked_N, figures["f_max_N"])}
 
 
 def _step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -239,7 +282,7 @@ def _step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> 
         get("paper_sim").run(folder, duration=duration, filter=spec.name, filter_params=_joined(case_filter_params(spec, case)),
                              nominal="step", nominal_params=f"seed={seed};low_hPa=60;high_hPa=300", progress=False)
         runs += _run_figures(folder)
-    return pooled_figures(runs)
+    return pooled_figures(runs, _f_max(folder))
 
 
 def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -253,7 +296,10 @@ def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
     code = hardware_cli.main(argv)
     if code != 0:
         raise RuntimeError(f"softcbf hardware {' '.join(argv)} exited with {code}")
-    return pooled_figures(_run_figures(out / "run"), force_key="force_max_emulator_N", violation_key="t_violation_emulator_s")
+    from hardware.config import HardwareConfig
+
+    return pooled_figures(_run_figures(out / "run"), HardwareConfig.load(EMULATOR_CONFIG).safe_set().f_max,
+                          force_key="force_max_emulator_N", violation_key="t_violation_emulator_s")
 
 
 def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float = 30.0):
@@ -282,7 +328,7 @@ def study_figures(folder: Path) -> dict[str, Any]:
     runs = []
     for row in rows:
         runs += _run_figures(store.run_dir(int(row["sample"])))
-    return pooled_figures(runs)
+    return pooled_figures(runs, _f_max(store.run_dir(int(rows[0]["sample"]))))
 
 
 def _mismatch_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -305,6 +351,41 @@ CASES: tuple[Case, ...] = (
     Case("hardware_emulator", "camera", _emulator_case),
     Case("camera_mismatch", "camera", _mismatch_case),
 )
+PUSHES: dict[str, dict[str, tuple[str, float]]] = {  # plant → {case suffix: (nominal_params, asked N)}: tools/force_levels.py
+    "mujoco_contact": {
+        "push_030": ("seed=0;low_hPa=56.983;high_hPa=56.983", 0.04823),
+        "push_060": ("seed=0;low_hPa=62.516;high_hPa=62.516", 0.09584),
+        "push_090": ("seed=0;low_hPa=68.215;high_hPa=68.215", 0.14400),
+        "push_120": ("seed=0;low_hPa=74.018;high_hPa=74.018", 0.19200),
+        "push_150hPa": ("seed=0;low_hPa=150;high_hPa=150", 0.63757),
+        "force_target": ("target_N=0.096", 0.0941),
+    },
+    "camera_loop": {
+        "push_030": ("seed=0;low_hPa=57.015;high_hPa=57.015", 0.04823),
+        "push_060": ("seed=0;low_hPa=62.551;high_hPa=62.551", 0.09583),
+        "push_090": ("seed=0;low_hPa=68.258;high_hPa=68.258", 0.14400),
+        "push_120": ("seed=0;low_hPa=74.07;high_hPa=74.07", 0.19200),
+        "push_150hPa": ("seed=0;low_hPa=150;high_hPa=150", 0.63433),
+        "force_target": ("target_N=0.096", 0.09405),
+    },
+}
+"""The contact tasks (SPEC §14): per plant, the constant pushes asking 0.3, 0.6, 0.9 and 1.2 F_max (nominal "step" with
+low_hPa = high_hPa = the level found by tools/force_levels.py), the full 150 hPa push and the force-target nominal
+(target 0.6 F_max of the model's predicted force); asked: the unfiltered plant's steady measured force (`steady_force`
+of a 3 s push, the tool's output, copied here)."""
+PUSH_PREFIX = {"mujoco_contact": "mujoco", "camera_loop": "camera"}
+
+
+def push_cases() -> tuple[Case, ...]:
+    """The contact-task cases of `PUSHES`: `PUSH_DURATION_S` from rest (quick: `QUICK_DURATION_S`)."""
+    return tuple(
+        Case(f"{PUSH_PREFIX[plant]}_{suffix}", "1kHz" if plant == "mujoco_contact" else "camera", _scenario_case,
+             {"scenario": plant, "duration": PUSH_DURATION_S, "nominal": "force-target" if suffix == "force_target" else "step",
+              "nominal_params": nominal_params, **plant_parameters(plant)}, asked)
+        for plant, tasks in PUSHES.items() for suffix, (nominal_params, asked) in tasks.items())
+
+
+CASES = CASES + push_cases()
 QUICK_SKIPPED = {"hardware_emulator": "--quick: the emulator runs in real time after a start-up of several seconds"}
 
 
@@ -368,7 +449,8 @@ def _run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], 
             if folder.exists() and not (options.resume and case.run is _mismatch_case):
                 shutil.rmtree(folder)
             start = time.perf_counter()
-            row = {"filter": spec.label, "case": case.name, **case.run(case, spec, folder, options),
+            row = {"filter": spec.label, "case": case.name, "force_asked_N": case.asked_N, "force_delivered_N": None,
+                   "force_delivered_ratio": None, **case.run(case, spec, folder, options),
                    "wall_s": time.perf_counter() - start}
             bench["results"].append({k: row[k] for k in RESULT_KEYS})
             write_outputs(out, bench)
@@ -458,6 +540,10 @@ ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields
     "violation_probability": lambda key, v: v is None or check_number(key, v, _FRACTION),
     "violation_ci95": lambda key, v: v is None or _check_interval(key, v),
     "draws": lambda key, v: v is None or check_number(key, v, Bound(1), integer=True),
+    **{name: (lambda key, v: v is None or check_number(key, v, non_negative()))
+       for name in ("force_asked_N", "force_delivered_N", "force_delivered_ratio")},
+    "force_budget_used": lambda key, v: check_number(key, v, non_negative()),
+    "f_max_N": lambda key, v: check_number(key, v, Bound(0.0, low_open=True, unit="N")),
 }
 
 
@@ -527,7 +613,9 @@ TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_mi
          ("t_viol [s]", "t_violation_s", ".3f"), ("F max [N]", "force_max_N", ".4f"),
          ("P(viol) [95 % CI] (n)", None, ""), ("u_dev RMS [hPa]", "u_dev_rms_hPa", ".1f"), ("blocked [s]", "blocked_s", ".2f"),
          ("switches [1/s]", "switches_per_s", ".2f"), ("filter med [µs]", "filter_us_median", ".0f"),
-         ("filter p99 [µs]", "filter_us_p99", ".0f"), ("wall [s]", "wall_s", ".0f"))
+         ("filter p99 [µs]", "filter_us_p99", ".0f"), ("wall [s]", "wall_s", ".0f"), ("F asked [N]", "force_asked_N", ".4f"),
+         ("F delivered [N]", "force_delivered_N", ".4f"), ("delivered / min(asked, F_max)", "force_delivered_ratio", ".3f"),
+         ("F max / F_max", "force_budget_used", ".3f"))
 
 
 def _cell(row: Mapping[str, Any], key: str | None, spec: str) -> str:
@@ -538,6 +626,8 @@ def _cell(row: Mapping[str, Any], key: str | None, spec: str) -> str:
         lo, hi = row["violation_ci95"]
         return f"{p:.3f} [{lo:.3f}, {hi:.3f}] ({row['draws']})"
     value = row[key]
+    if value is None:
+        return "–"
     return format(value, spec) if isinstance(value, float) and math.isfinite(value) else str(value)
 
 
@@ -548,7 +638,42 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
              "| " + " | ".join(h for h, _, _ in TABLE) + " |", "|" + "---|" * len(TABLE)]
     lines += ["| " + " | ".join(_cell(r, k, s) for _, k, s in TABLE) + " |" for r in bench["results"]]
     lines += [f"\nSkipped: {name}: {reason}" for name, reason in bench["skipped"].items()]
+    if any(r["force_delivered_N"] is not None for r in bench["results"]):
+        lines += ["", "Contact tasks: force delivered against force asked, every filter (SPEC §14):", "",
+                  f"![delivered against asked]({FORCE_PLOT_FILE})"]
     return "\n".join(lines) + "\n"
+
+
+def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
+    """The contact tasks' delivered force against the asked force (both / F_max), one panel per plant of `PUSHES`,
+    one line per filter; the dashed line is min(asked, F_max), the dotted ones the goals (SPEC §14)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(PUSHES), figsize=(5 * len(PUSHES), 4), sharey=True, squeeze=False)
+    for ax, plant in zip(axes[0], PUSHES):
+        prefix = PUSH_PREFIX[plant] + "_"
+        for name in bench["filters"]:
+            rows = sorted((r for r in bench["results"] if r["filter"] == name and r["case"].startswith(prefix)
+                           and r["force_delivered_N"] is not None), key=lambda r: r["force_asked_N"])
+            if rows:
+                ax.plot([r["force_asked_N"] / r["f_max_N"] for r in rows],
+                        [r["force_delivered_N"] / r["f_max_N"] for r in rows], "o-", label=name)
+        top = max([4.0] + [r["force_asked_N"] / r["f_max_N"] for r in bench["results"]
+                           if r["case"].startswith(prefix) and r["force_asked_N"] is not None])
+        ax.plot([0.0, 1.0, top], [0.0, 1.0, 1.0], "k--", lw=0.8, label="min(asked, F_max)")
+        ax.plot([0.0, 0.8, 0.8, top], [0.0, 0.76, 0.8, 0.8], "k:", lw=0.8, label="goal")
+        ax.set_xscale("symlog", linthresh=1.0)
+        ax.set_title(plant)
+        ax.set_xlabel("asked / F_max")
+    axes[0][0].set_ylabel("delivered / F_max (mean over the last third)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 PLOTTED = (("rho_min_meas", "ρ_meas min"), ("force_max_N", "F max [N]"), ("u_dev_rms_hPa", "|u − u_nom| RMS [hPa]"),
@@ -591,6 +716,8 @@ def write_outputs(out: Path, bench: Mapping[str, Any]) -> None:
     (out / TABLE_FILE).write_text(table_markdown(bench), encoding="utf-8")
     if bench["results"]:
         write_plot(out / PLOT_FILE, bench)
+    if any(r["force_delivered_N"] is not None for r in bench["results"]):
+        write_force_plot(out / FORCE_PLOT_FILE, bench)
 
 
 HELP = "run safety filters over the fixed benchmark battery: softcbf bench --out DIR [--filters SPEC,...] [--quick]"
