@@ -36,7 +36,42 @@ W_u + E_true ≤ Γ_j + c_j along the motion, hence the tip stays in P. The plai
 is not sound where the plate pushes back while the tip is in contact (the plate's
 stored energy can return to the arm), and the contact-aware one is not sound where the
 plate does not push back (nothing stops the tip at n_max).
-κ (`kappa`, default 0.5) inflates the whole energy against estimate and prediction
+Contact certificate (`certificate="contact"`, the `c-erg` filter; issue 24). The parked
+certificate above delivers about half the force budget on a plate (measured: 0.45–0.50 F_max
+on mujoco_contact): its target's rest shape parks `margin_m` inside P, and its Γ(u) is 0 for
+every rest shape beyond P, although the arm pressing a plate rests well inside P with its rest
+shape beyond it. Three changes make the equilibrium at P's boundary reachable:
+(a) Γ to the boundary: the arm starts strictly inside P (checked at x̂: every row H'_j r(q̂) < h'_j,
+    else nothing is certified), so to leave P its tip must cross some row's boundary g_j = 0
+    first. Γ^∂_j(u) = min {½(q − q_u)ᵀK(q − q_u) : g_j(q) = 0} is then the barrier, > 0 also for a
+    rest shape beyond P. Γ̲^∂_j = the larger of the boundary table (`EscapeEnergyTable(boundary=True)`,
+    N ≤ 2) and the grid-free second-order bound (`BoundaryDistanceBound`: exact to second order
+    near the boundary, where the table's looseness, ≈ 2.6 h_z in distance, halved Γ: 1.06e-4 J
+    against 2.39e-4 J at 70 hPa on both segments of the reference arm).
+(b) The plate's energy per facet, with lo on the difference only. With the true plate energy
+    E_true,i(n_i) (conservative, ψ_true ∈ [lo ψ, hi ψ]), V = W_u + Σ_i E_true,i never grows (u
+    held). At the first exit through facet row j, n_j = n_max, so V ≥ Γ^∂_j(u) + E_true,j(n_max).
+    For n_j ≤ n_max, E_true,j(n_max) − E_true,j(n_j) = ∫_{n_j}^{n_max} ψ_true ≥ lo (E(n_max) − E(n_j)),
+    and E_true,i ≤ hi E(n_i), so V(x̂) < Γ^∂_j + E_true,j(n_max) follows from
+        W_u(x̂) + hi Σ_{i≠j} E(n_i) < Γ^∂_j(u) + lo (E(n_max) − E(n_j)).
+    Per row: o_j = lo (E(n_max) − E(n_j)) − hi Σ_{i≠j} E(n_i) for a facet row, o_j = −hi Σ_i E(n_i)
+    for a vertex-correction row (no facet is at n_max on it); without `contact_aware` o_j = 0.
+    The parked variant's hi E(n) in W against lo E(n_max) in Γ costs (hi − lo) E(n_max) at the
+    plate; this one costs lo's share of the last bit of penetration only. For the exact model
+    (lo = hi = 1) and a rest state, Γ^∂_j + E(n_max) − (W_u + E(n)) is the gap between the arm-plate
+    energy's minimum on the boundary and at the equilibrium: > 0 for every equilibrium strictly
+    inside P, so the governor can approach the boundary.
+(c) κ inflates the kinetic energy alone: (1 + κ)·½q̇ᵀMq̇ + ½(q − q_u)ᵀK(q − q_u) + ½Σβ(p − u)² + ε ≤
+    min_j (Γ̲^∂_j(u) + o_j). κ stands for the velocity's estimation error (finite differences); a
+    whole-energy inflation would ask (1 + κ) W ≤ Γ + ... at a contact equilibrium, where W is
+    the arm's elastic energy against the plate: never certified near the boundary.
+The target is u_nom itself (clipped to the box); the rays are those to it and to 0 hPa. The
+recovery (step 4) ranks the table's grid commands, u_prev and u_nom by the same margin; with x̂
+outside P (no certificate holds) it takes the command nearest u_nom whose rest shape lies inside P.
+Measured (mujoco_contact, push asking 1.2 F_max, 6 s; `softcbf bench`): exact model 0.946 F_max;
+plate stiffness within ±10 % (n_max = ψ⁻¹(F_max/1.1)): 0.841 F_max, ρ_meas 0.159.
+
+κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
 the absolute margin a new command must keep. The held command, certified when it was
 issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ, tested as
@@ -584,3 +619,25 @@ class EnergyGovernor:
         full["prediction_s"] = t_apply - t_capture
         full["solve_us"] = (time.perf_counter() - t0) * 1e6
         return FilterOutput(u, action, infeasible, rho, full, DIAGNOSTIC_UNITS)
+
+
+class ContactEnergyGovernor(EnergyGovernor):
+    """Recommended for contact tasks: the energy governor with the contact certificate (c-erg; e-erg with certificate=contact, contact_aware=true).
+
+    The target is u_nom itself; a command is certified when the arm's energy about its rest shape,
+    with the plate's stored energy counted per facet, stays below the least energy to P's boundary
+    (module docstring, "contact certificate"). The plate's stiffness interval [lo, hi] × ψ
+    (`stiffness_lo_ratio`, `stiffness_hi_ratio`) keeps F_true ≤ F_max for any true plate within it.
+    """
+
+    parameter_docs = {name: doc for name, doc in EnergyGovernor.parameter_docs.items() if name not in ("margin_m", "certificate")}
+
+    def __init__(self, context: FilterContext, kappa: float = 0.5, energy_margin_J: float = 1e-5, contact_aware: bool = True,
+                 stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0, command_delay_s: float | None = None,
+                 actuator_tau_s: float | None = None, grid_hPa: float = 2.5, predictor_step_s: float = 1e-3,
+                 bisection_steps: int = 12, escape_spacing_rad: float = 4e-3) -> None:
+        super().__init__(context, kappa=kappa, energy_margin_J=energy_margin_J, contact_aware=contact_aware,
+                         stiffness_lo_ratio=stiffness_lo_ratio, stiffness_hi_ratio=stiffness_hi_ratio,
+                         command_delay_s=command_delay_s, actuator_tau_s=actuator_tau_s, grid_hPa=grid_hPa,
+                         predictor_step_s=predictor_step_s, bisection_steps=bisection_steps, certificate="contact",
+                         escape_spacing_rad=escape_spacing_rad)

@@ -152,8 +152,8 @@ class ForceTargetNominal:
 
         u_nom = clip(k_p e + k_i I, u_lo, u_hi) · 1   (hPa on every segment),
 
-    conditional integration (anti-windup: I does not grow while u sits at a limit and e pushes it
-    further). Before contact F̂ = 0, so the integral ramps the pressure at k_i·target_N hPa/s
+    with I clamped after each step to [(u_lo − k_p e)/k_i, (u_hi − k_p e)/k_i] (anti-windup: the
+    integral holds no more than the limits need, so a sign change of e moves u at once). Before contact F̂ = 0, so the integral ramps the pressure at k_i·target_N hPa/s
     until the tip presses; at steady state F̂ = target_N. Gains: the reference arm's measured
     steady gain on the paper plate is ≈ 8.4 mN/hPa beyond first contact (tools/force_levels.py: 0.048 N
     at 57.0 hPa, 0.192 N at 74.0 hPa on both segments), so k_i = 300 hPa/(N·s) closes the integral loop
@@ -182,9 +182,10 @@ class ForceTargetNominal:
         error = self.target - self.predicted_force(q)
         dt = 0.0 if self.t_prev is None else max(float(t) - self.t_prev, 0.0)
         self.t_prev = float(t)
-        raw = self.kp * error + self.ki * (self.integral + error * dt)
-        if self.lo < raw < self.hi or (raw >= self.hi and error < 0.0) or (raw <= self.lo and error > 0.0):
-            self.integral += error * dt
+        self.integral += error * dt
+        if self.ki > 0.0:  # clamping: the integral holds no more than the limits need
+            proportional = self.kp * error
+            self.integral = min(max(self.integral, (self.lo - proportional) / self.ki), (self.hi - proportional) / self.ki)
         u = min(max(self.kp * error + self.ki * self.integral, self.lo), self.hi)
         return np.full(self.n, u)
 

@@ -2,7 +2,8 @@
 
 A spec names a factory (a class or a function):
 - a built-in's name (`FILTERS`, `NOMINALS`), e.g. "paper-cbf", "none", "qsg" (the
-  quasi-static governor), "e-erg" (the energy-certified reference governor), "sinusoid",
+  quasi-static governor), "e-erg" (the energy-certified reference governor), "c-erg" (its
+  contact certificate, recommended for contact tasks), "sinusoid",
   "tip-tracker", "step", "force-target";
 - `path/to/file.py:Factory` (the file is imported as a module of its own; the path is
   relative to the working directory);
@@ -36,7 +37,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from controllers.energy_governor import EnergyGovernor
+from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
 from controllers.filter import paper_cbf
 from controllers.nominal import NominalController, force_target, sinusoid, step, tip_tracker
 from controllers.quasi_static_governor import QuasiStaticGovernor
@@ -44,6 +45,7 @@ from controllers.safety_filter import FilterContext, PassThroughFilter, SafetyFi
 
 FILTERS: dict[str, Callable[..., SafetyFilter]] = {
     "paper-cbf": paper_cbf, "none": PassThroughFilter, "qsg": QuasiStaticGovernor, "e-erg": EnergyGovernor,
+    "c-erg": ContactEnergyGovernor,
 }
 NOMINALS: dict[str, Callable[..., NominalController]] = {
     "sinusoid": sinusoid, "tip-tracker": tip_tracker, "step": step, "force-target": force_target,

@@ -85,6 +85,7 @@ RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N",
 DEFAULT_FILTERS = "e-erg,paper-cbf"
 PAPER_TUNINGS = {"1kHz": "Low", "camera": "HW-High"}
 EERG_PARAMS = {"contact_aware": "true", "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
+CERG_PARAMS = {"stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
 STEP_STARTS, STEP_DURATION_S = 20, 5.0
 MISMATCH_DRAWS, MISMATCH_SEED = 100, 2026
 ASSUMED_PLATE_N_PER_M = 11.16
@@ -185,7 +186,8 @@ class Case:
 
 def case_filter_params(spec: FilterSpec, case: Case) -> dict[str, str]:
     """The filter's parameters in `case`: the per-case defaults (module docstring) updated with the spec's own."""
-    defaults = {"paper-cbf": {"tuning": PAPER_TUNINGS[case.rate]}, "e-erg": dict(EERG_PARAMS)}.get(spec.name, {})
+    defaults = {"paper-cbf": {"tuning": PAPER_TUNINGS[case.rate]}, "e-erg": dict(EERG_PARAMS),
+                "c-erg": dict(CERG_PARAMS)}.get(spec.name, {})
     return {**defaults, **spec.params}
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from controllers.energy_governor import EnergyGovernor
+from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
 from controllers.escape_energy import MAX_SEGMENTS
 from controllers.filter import paper_cbf
 from controllers.params import uniform_robot
@@ -75,6 +75,7 @@ def test_every_builtin_filter_builds_and_runs_on_accepted_environments(case):
     filters = {"paper-cbf": paper_cbf(context, "Low"), "qsg": QuasiStaticGovernor(context)}
     if n <= MAX_SEGMENTS:
         filters["e-erg"] = EnergyGovernor(context, grid_hPa=15.0)
+        filters["c-erg"] = ContactEnergyGovernor(context, grid_hPa=15.0, stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.1)
     for name, safety_filter in filters.items():
         for k, (q, qd, u_nom) in enumerate(calls):
             t = 0.1 * k
