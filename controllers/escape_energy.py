@@ -64,7 +64,7 @@ import math
 import numpy as np
 
 from controllers.params import RobotParams
-from controllers.pcc import tip_jacobian, tip_position, tip_positions
+from controllers.pcc import step_kinematics, tip_positions
 from controllers.safe_set import ForceSafeSet
 
 MAX_SEGMENTS = 2
@@ -273,12 +273,24 @@ class BoundaryDistanceBound:
         before = np.concatenate(([0.0], np.cumsum(1.0 / stiffness)[:-1]))  # Σ_{k<i} 1/k_k
         self.curvature = norms * float(np.sum(self.lengths * (before + 1.0 / (3.0 * stiffness))))  # C_j, m/J
         self.reachable = norms * float(np.sum(self.lengths)) >= self.h
+        self._gain, self._lengths = self.static_gain.tolist(), self.lengths.tolist()
+        self._zeros, self._inverse_root_k = [0.0] * len(self._gain), self.inverse_root_k.tolist()
+        self._rows = list(zip(self.H[:, 0].tolist(), self.H[:, 1].tolist(), self.h.tolist(), self.curvature.tolist(),
+                              self.reachable.tolist()))
 
     def values(self, u) -> list[float]:
-        """½ δ_j(u)² for every row j (J); u: (N,) hPa."""
-        q = self.static_gain * np.asarray(u, dtype=float)
-        g = self.H @ tip_position(q, self.lengths) - self.h
-        slope = np.linalg.norm((self.H @ tip_jacobian(q, self.lengths)) * self.inverse_root_k, axis=1)
-        size = np.abs(g)
-        delta = 2.0 * size / (slope + np.sqrt(slope * slope + 2.0 * self.curvature * size))
-        return np.where(self.reachable, 0.5 * delta * delta, np.inf).tolist()
+        """½ δ_j(u)² for every row j (J); u: (N,) hPa. Python floats on `pcc.step_kinematics` (the tip and
+        its Jacobian; numpy's per-call overhead would dominate: this runs several times per filter call)."""
+        q = [g * float(v) for g, v in zip(self._gain, u)]
+        kin = step_kinematics(q, self._zeros, self._lengths)
+        x, y = kin.tip.real, kin.tip.imag
+        out = []
+        for (hx, hy, h, c, reachable) in self._rows:
+            if not reachable:
+                out.append(math.inf)
+                continue
+            size = abs(hx * x + hy * y - h)
+            slope = math.sqrt(sum(((hx * d.real + hy * d.imag) * s) ** 2 for d, s in zip(kin.tip_jac, self._inverse_root_k)))
+            delta = 2.0 * size / (slope + math.sqrt(slope * slope + 2.0 * c * size)) if size > 0.0 else 0.0
+            out.append(0.5 * delta * delta)
+        return out

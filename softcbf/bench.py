@@ -30,7 +30,9 @@ default "e-erg,paper-cbf". Parameters not given take the per-case defaults of
 the 1 kHz cases, "HW-High" in the 10 Hz camera cases: the paper's tables I and II);
 e-erg contact_aware=true with the true plate stiffness in [0.9, 1.1] × the model's
 (`EERG_PARAMS`: the mismatch study's interval, which also holds the stiff-plate case);
-other filters their own defaults.
+c-erg the same interval (`CERG_PARAMS`) and contact_aware as the plant is: false on the PCC
+plant (paper_sim_150, step: the tip passes through the plate, which pushes back nowhere), true
+on the MuJoCo plants (the plate on its spring); other filters their own defaults.
 
 Figures per (filter, case): ρ_meas min, t_violation, F max from the scenario's summary row
 (the emulator: F max and t_violation from its 1 kHz ground truth, ρ_meas at the control
@@ -186,8 +188,9 @@ class Case:
 
 def case_filter_params(spec: FilterSpec, case: Case) -> dict[str, str]:
     """The filter's parameters in `case`: the per-case defaults (module docstring) updated with the spec's own."""
+    pushes_back = case.scenario_params.get("scenario", "") != "paper_sim" and case.name != "step"
     defaults = {"paper-cbf": {"tuning": PAPER_TUNINGS[case.rate]}, "e-erg": dict(EERG_PARAMS),
-                "c-erg": dict(CERG_PARAMS)}.get(spec.name, {})
+                "c-erg": {**CERG_PARAMS, "contact_aware": "true" if pushes_back else "false"}}.get(spec.name, {})
     return {**defaults, **spec.params}
 
 
