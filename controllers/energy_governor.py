@@ -224,12 +224,12 @@ PARAMETERS = {
                                         bound=Bound(1e-4, 1e-2, unit="s")),
     "bisection_steps": FilterParameter("halvings of the step towards the target (beyond 52 a double's σ stops changing)",
                                        "1", int, Bound(1, 52)),
-    "escape_spacing_rad": FilterParameter("q-space spacing of the escape-energy table (per √k_i); finer: a tighter Γ̲ "
-                                          "near P's boundary, a slower build (2.4 s at 4e-3, 6.7 s at 2e-3 on the "
-                                          "reference arm)", "rad", bound=Bound(5e-4, 0.05, unit="rad")),
     "certificate": FilterParameter("'park' (the target parks margin_m inside P, Γ over the unsafe set) or 'contact' "
                                    "(the target is u_nom, Γ to P's boundary, the plate's energy counted per facet, κ on "
                                    "the kinetic energy: module docstring)", "", str),
+    "escape_spacing_rad": FilterParameter("q-space spacing of the escape-energy table (per √k_i); finer: a tighter Γ̲ "
+                                          "near P's boundary, a slower build (2.4 s at 4e-3, 6.7 s at 2e-3 on the "
+                                          "reference arm)", "rad", bound=Bound(5e-4, 0.05, unit="rad")),
 }
 """The E-ERG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them.
 

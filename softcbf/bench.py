@@ -14,10 +14,22 @@ Battery (`CASES`, in this order; each case runs registered scenarios with fixed 
 | hardware_emulator | `softcbf hardware` on the emulator      | 10 Hz  | examples/hardware_emulated.toml with the reference arm (--robot reference), 20 s in real time |
 | camera_mismatch  | a study (softcbf.study) on camera_loop   | 10 Hz  | `MISMATCH_DRAWS` = 100 Monte Carlo draws (seed 2026): true plate stiffness U(±10 %), actuator gain scale U(0.9, 1.1), facet offset U(±1 mm); 30 s from t0 = 15 s (the first contact), as studies/paper_tunings_plate_errors.toml |
 
+| mujoco_push_030 … _120, mujoco_push_150hPa, mujoco_force_target | mujoco_contact | 1 kHz | contact tasks (SPEC §14, `PUSHES`): a constant push from rest asking 0.3, 0.6, 0.9, 1.2 F_max, the full 150 hPa push, the force-target nominal (target 0.6 F_max); `PUSH_DURATION_S` = 6 s |
+| camera_push_030 … _120, camera_push_150hPa, camera_force_target | camera_loop | 10 Hz | the same contact tasks on the camera loop |
+
+Contact tasks. "Asking for F" means the unfiltered plant's steady measured force is F (the
+mean over the last third of the push, `steady_force`); the step levels (the same on both
+segments) are found once by tools/force_levels.py and stored with the cases (`PUSHES`: the
+nominal's parameters and the asked force). Their rows hold `force_asked_N` and
+`force_delivered_N` (the run's steady measured force), `force_delivered_ratio` = delivered /
+min(asked, F_max); every row holds `force_budget_used` = F max / F_max and `f_max_N` (the
+scenario's F_max); the other cases have null in the three force_* fields of a push.
+bench.md links plots/force_budget.png: delivered against asked, per plant, every filter.
+
 The step case runs on paper_sim (the PCC plant at 1 kHz with the exact state): a step is
 a test of the filter's own response to a sudden, large command, which the camera path's
 latency would mix with perception effects that the camera cases already cover.
-`--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s, the steps to 3 starts of
+`--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s (the contact tasks' pushes too), the steps to 3 starts of
 0.5 s, the mismatch study to 2 draws of 1 s and skips the emulator (it runs in real
 time after a start-up of several seconds); bench.json says "quick": true and lists the
 skipped cases with the reason.
@@ -53,7 +65,8 @@ machinery refuses a folder of another study definition); any other case runs aga
 scratch. Without `--resume` every selected case runs again and replaces its folder.
 
 Outputs: DIR/bench.json (`{"battery", "quick", "filters", "skipped", "results"}`; every
-result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png, and each
+result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png,
+DIR/plots/force_budget.png (with contact tasks), and each
 case's run or study folder under DIR/cases/<filter label>/<case>/.
 """
 

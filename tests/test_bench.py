@@ -328,3 +328,36 @@ def test_a_fresh_bench_that_fails_before_its_first_row_leaves_nothing(tmp_path, 
     assert [p.name for p in (tmp_path / "empty").iterdir()] == [RUN_MARKER]  # as empty as it was: not refused next time
     with pytest.raises(RuntimeError, match="case paper_sim_150 ran"):
         run_bench(tmp_path / "empty", [FilterSpec("none")], RunOptions(quick=True), cases=["paper_sim_150"])
+
+
+def test_contact_tasks_are_in_the_battery_with_their_asked_force():
+    """Issue 24: every plant has the four constant pushes (their asked force within 0.2 % F_max of the ratio:
+    tools/force_levels.py's tolerance), the 150 hPa push and the force-target nominal."""
+    from softcbf.bench import PUSH_PREFIX, PUSH_RATIOS, PUSHES
+
+    for plant, prefix in PUSH_PREFIX.items():
+        for ratio in PUSH_RATIOS:
+            case = CASE[f"{prefix}_push_{round(ratio * 100):03d}"]
+            assert case.scenario_params["scenario"] == plant and case.scenario_params["nominal"] == "step"
+            assert abs(case.asked_N - ratio * 0.16) <= 2e-3 * 0.16
+        assert CASE[f"{prefix}_push_150hPa"].asked_N > 0.16 and "150" in CASE[f"{prefix}_push_150hPa"].scenario_params["nominal_params"]
+        assert CASE[f"{prefix}_force_target"].scenario_params["nominal"] == "force-target"
+    assert all(CASE[c.name].asked_N is None for c in CASES if "push" not in c.name and "force_target" not in c.name)
+    assert set(PUSHES) == set(PUSH_PREFIX)
+
+
+def test_quick_contact_task_rows_hold_the_force_budget(tmp_path):
+    """The unfiltered push asking 0.6 F_max delivers its request (ratio 1 within 2 %: the push settles within 0.5 s);
+    bench.md links the delivered-against-asked plot."""
+    from softcbf.bench import FORCE_PLOT_FILE
+
+    out = tmp_path / "bench"
+    assert main(["bench", "--out", str(out), "--quick", "--filters", "none", "--cases", "mujoco_push_060"]) == 0
+    bench = json.loads((out / "bench.json").read_text())
+    check_bench_json(bench)
+    (row,) = bench["results"]
+    assert row["force_asked_N"] == CASE["mujoco_push_060"].asked_N and row["f_max_N"] == 0.16
+    assert row["force_delivered_ratio"] == pytest.approx(1.0, abs=0.02)
+    assert row["force_delivered_ratio"] == row["force_delivered_N"] / row["force_asked_N"]
+    assert row["force_budget_used"] == row["force_max_N"] / 0.16
+    assert FORCE_PLOT_FILE in (out / "bench.md").read_text() and (out / FORCE_PLOT_FILE).stat().st_size > 1000
