@@ -65,7 +65,9 @@ shape beyond it. Three changes make the equilibrium at P's boundary reachable:
     min_j (Γ̲^∂_j(u) + o_j). κ stands for the velocity's estimation error (finite differences); a
     whole-energy inflation would ask (1 + κ) W ≤ Γ + ... at a contact equilibrium, where W is
     the arm's elastic energy against the plate: never certified near the boundary.
-The target is u_nom itself (clipped to the box); the rays are those to it and to 0 hPa. The
+Any number of segments: for N > 2 (no q-space table) Γ̲^∂ is the second-order bound alone and the
+recovery's candidates are u_prev, u_nom and 0 hPa (tests/test_contact_governor.py: N = 3 and 4 on
+the PCC plant). The target is u_nom itself (clipped to the box); the rays are those to it and to 0 hPa. The
 recovery (step 4) ranks the table's grid commands, u_prev and u_nom by the same margin; with x̂
 outside P (no certificate holds) it takes the command nearest u_nom whose rest shape lies inside P.
 Measured (mujoco_contact, push asking 1.2 F_max, 6 s; `softcbf bench`): exact model 0.946 F_max;
@@ -167,7 +169,7 @@ import numpy as np
 
 from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
-from controllers.escape_energy import BoundaryDistanceBound, EscapeEnergyTable
+from controllers.escape_energy import MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.pcc import kinematics, kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
@@ -344,8 +346,9 @@ class EnergyGovernor:
         u_lo = robot.array("u_min") if context.u_min is None else context.u_min
         u_hi = robot.array("u_max") if context.u_max is None else context.u_max
         self.beta = pressure_lag_weights(context, tau)
+        gridded = not self.contact or self.n <= MAX_SEGMENTS  # the contact certificate needs no table for N > 2
         self.table = EscapeEnergyTable(robot, self.safe_set, u_lo, u_hi, grid_hPa=grid_hPa, boundary=self.contact,
-                                       q_spacing_rad=checked["escape_spacing_rad"])
+                                       q_spacing_rad=checked["escape_spacing_rad"]) if gridded else None
         self.boundary_bound = BoundaryDistanceBound(robot, self.safe_set) if self.contact else None
         credit = self.stiffness_lo * float(law.energy(self.safe_set.n_max)) if self.contact_aware else 0.0
         self._n_facets = nominal.n_facets
@@ -364,11 +367,17 @@ class EnergyGovernor:
         self._rest_list = tuple((np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)).tolist())
         self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
         self._free_plate_energy = self._plate_weight * float(np.sum(law.energy([0.0] * len(self._facets))))  # n = 0 everywhere
-        self._grid = self.table.grid_commands()
+        if self.table is None:  # N > 2, contact certificate: the recovery's candidates are u_prev, u_nom and 0 hPa
+            self._grid = np.array([self._rest_list])
+            self._grid_values = np.array([self.boundary_bound.values(self._rest_list)]).T
+            self._grid_rest_inside = np.array([self.rest_inside(self._grid[0])])
+        else:
+            self._grid = self.table.grid_commands()
+            self._grid_values, self._grid_rest_inside = self.table.grid_values(), self.table.rest_inside
         self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
         self._escape_origin: tuple | None = None
-        self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
-        if not self.energy_margin < self.table.saturation_J:
+        self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
+        if self.table is not None and not self.energy_margin < self.table.saturation_J:
             raise ValueError(f"energy_margin_J must be < {self.table.saturation_J:.6g} J (½ k_min reach², the escape "
                              f"energy the table resolves), got {self.energy_margin!r}")
 
@@ -431,6 +440,8 @@ class EnergyGovernor:
         """Γ̲^∂_j(u) for every row (J): the larger of the boundary table's and the second-order bound's
         (`controllers.escape_energy`; both are lower bounds of the least elastic energy to P's boundary),
         the second only where some row's table value is below BOUND_BELOW_J (any of the two is a valid bound)."""
+        if self.table is None:
+            return self.boundary_bound.values(u)
         table = self.table.values(u)
         if min(table) >= BOUND_BELOW_J:  # far from the boundary: the table is the tighter bound, skip the other
             return table
@@ -605,7 +616,7 @@ class EnergyGovernor:
         else, with x̂ inside P, the largest margin among the candidates whose rest shape lies inside P; else (x̂
         outside P, where no certificate holds) the one of those nearest the target; the target if there is none."""
         candidates = np.vstack((self._grid, u_prev, target))
-        rows = np.hstack((self.table.grid_values(), np.array([self.boundary_escape(u_prev), self.boundary_escape(target)]).T))
+        rows = np.hstack((self._grid_values, np.array([self.boundary_escape(u_prev), self.boundary_escape(target)]).T))
         gamma = np.min(rows + np.array(offsets)[:, None], axis=0)
         k, a, beta = np.array(self._k), np.array(self._a), self.beta
         energy = base + 0.5 * np.sum(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2, axis=1)
@@ -613,7 +624,7 @@ class EnergyGovernor:
         distance = np.sum((candidates - target) ** 2, axis=1)
         if inside and np.any(margins >= 0.0):
             return candidates[int(np.argmin(np.where(margins >= 0.0, distance, np.inf)))].copy(), False
-        resting_inside = np.concatenate((self.table.rest_inside, [self.rest_inside(u_prev), self.rest_inside(target)]))
+        resting_inside = np.concatenate((self._grid_rest_inside, [self.rest_inside(u_prev), self.rest_inside(target)]))
         if not np.any(resting_inside):
             return target.copy(), True
         score = margins if inside else -distance

@@ -113,6 +113,7 @@ PUSH_PLANTS = ("mujoco_contact", "camera_loop")
 PUSH_RATIOS = (0.3, 0.6, 0.9, 1.2)
 FORCE_TARGET_RATIO = 0.6
 PUSH_DURATION_S = 6.0
+FORCE_PLOT_TOP = 1.5
 
 
 def plant_parameters(plant: str) -> dict[str, Any]:
@@ -664,7 +665,8 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
 
 def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
     """The contact tasks' delivered force against the asked force (both / F_max), one panel per plant of `PUSHES`,
-    one line per filter; the dashed line is min(asked, F_max), the dotted ones the goals (SPEC §14)."""
+    one line per filter; the dashed line is min(asked, F_max), the dotted ones the goals (SPEC §14); a delivered force
+    above FORCE_PLOT_TOP × F_max is drawn at the top with its value."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -677,13 +679,19 @@ def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
             rows = sorted((r for r in bench["results"] if r["filter"] == name and r["case"].startswith(prefix)
                            and r["force_delivered_N"] is not None), key=lambda r: r["force_asked_N"])
             if rows:
-                ax.plot([r["force_asked_N"] / r["f_max_N"] for r in rows],
-                        [r["force_delivered_N"] / r["f_max_N"] for r in rows], "o-", label=name)
+                x = [r["force_asked_N"] / r["f_max_N"] for r in rows]
+                y = [r["force_delivered_N"] / r["f_max_N"] for r in rows]
+                line, = ax.plot(x, [min(v, FORCE_PLOT_TOP) for v in y], "o-", label=name)
+                for xi, yi in zip(x, y):
+                    if yi > FORCE_PLOT_TOP:  # beyond the axis: drawn at its top with the value
+                        ax.annotate(f"{yi:.2f}", (xi, FORCE_PLOT_TOP), textcoords="offset points", xytext=(3, -10),
+                                    fontsize=7, color=line.get_color())
         top = max([4.0] + [r["force_asked_N"] / r["f_max_N"] for r in bench["results"]
                            if r["case"].startswith(prefix) and r["force_asked_N"] is not None])
         ax.plot([0.0, 1.0, top], [0.0, 1.0, 1.0], "k--", lw=0.8, label="min(asked, F_max)")
         ax.plot([0.0, 0.8, 0.8, top], [0.0, 0.76, 0.8, 0.8], "k:", lw=0.8, label="goal")
         ax.set_xscale("symlog", linthresh=1.0)
+        ax.set_ylim(0.0, FORCE_PLOT_TOP * 1.02)
         ax.set_title(plant)
         ax.set_xlabel("asked / F_max")
     axes[0][0].set_ylabel("delivered / F_max (mean over the last third)")

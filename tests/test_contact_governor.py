@@ -165,3 +165,22 @@ def test_force_target_regulates_the_predicted_force_without_windup():
     assert nominal(20.0, q_deep, free)[0] < top
     with pytest.raises(ValueError, match="target_N must be finite and >= 0, got -1"):
         force_target(ctx, target_N=-1.0)
+
+
+@pytest.mark.parametrize("n, offset", [(3, 0.15), (4, 0.25)])
+def test_contact_certificate_without_a_grid_holds_three_and_four_segments(n, offset):
+    """N > 2 (no q-space table: the second-order boundary bound alone) on the PCC plant, 10 Hz camera timing:
+    a push at 150 hPa on every segment (unfiltered: deep beyond P) stays inside P and ends pressing near its
+    boundary; a retreating one is passed unchanged."""
+    from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
+
+    robot = uniform_robot(n)
+    safe = ForceSafeSet(Environment(np.array([[0.36, 1.0]]), np.array([offset])), LinearStiffness(11.16), 0.16, "paper")
+    gov = ContactEnergyGovernor(context(robot, safe, PERIOD, DELAY, 0.05), contact_aware=False)
+    assert gov.table is None
+    free = run_loop(lambda e, u: u, robot, safe, lambda t: np.full(n, 150.0), 3.0, PERIOD, DELAY, tau_p=0.05, seed=3)
+    rec = run_loop(gov, robot, safe, lambda t: np.full(n, 150.0), 3.0, PERIOD, DELAY, tau_p=0.05, seed=3)
+    assert free.rho.min() < -1.0
+    assert rec.rho.min() > 0.0 and rec.rho[-1] < 0.5
+    back = run_loop(gov, robot, safe, lambda t: np.full(n, -150.0), 1.0, PERIOD, DELAY, tau_p=0.05, seed=3)
+    assert np.allclose(back.commands[-1], -150.0) and back.rho.min() > 0.0
