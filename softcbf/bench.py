@@ -665,7 +665,8 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
 
 def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
     """The contact tasks' delivered force against the asked force (both / F_max), one panel per plant of `PUSHES`,
-    one line per filter; the dashed line is min(asked, F_max), the dotted ones the goals (SPEC §14); a delivered force
+    one line per filter through its pushes, a cross for its force-target case; the dashed line is min(asked, F_max),
+    the dotted ones the goals (SPEC §14); a delivered force
     above FORCE_PLOT_TOP × F_max is drawn at the top with its value."""
     import matplotlib
 
@@ -679,9 +680,15 @@ def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
             rows = sorted((r for r in bench["results"] if r["filter"] == name and r["case"].startswith(prefix)
                            and r["force_delivered_N"] is not None), key=lambda r: r["force_asked_N"])
             if rows:
+                pushes = [r for r in rows if "_push_" in r["case"]]
+                line, = ax.plot([r["force_asked_N"] / r["f_max_N"] for r in pushes],
+                                [min(r["force_delivered_N"] / r["f_max_N"], FORCE_PLOT_TOP) for r in pushes], "o-", label=name)
+                for r in rows:
+                    if "_push_" not in r["case"]:  # the force-target nominal: a cross of the same colour
+                        ax.plot(r["force_asked_N"] / r["f_max_N"], min(r["force_delivered_N"] / r["f_max_N"], FORCE_PLOT_TOP),
+                                "x", color=line.get_color(), ms=8)
                 x = [r["force_asked_N"] / r["f_max_N"] for r in rows]
                 y = [r["force_delivered_N"] / r["f_max_N"] for r in rows]
-                line, = ax.plot(x, [min(v, FORCE_PLOT_TOP) for v in y], "o-", label=name)
                 for xi, yi in zip(x, y):
                     if yi > FORCE_PLOT_TOP:  # beyond the axis: drawn at its top with the value
                         ax.annotate(f"{yi:.2f}", (xi, FORCE_PLOT_TOP), textcoords="offset points", xytext=(3, -10),
