@@ -14,7 +14,7 @@ Battery (`CASES`, in this order; each case runs registered scenarios with fixed 
 | hardware_emulator | `softcbf hardware` on the emulator      | 10 Hz  | examples/hardware_emulated.toml with the reference arm (--robot reference), 20 s in real time |
 | camera_mismatch  | a study (softcbf.study) on camera_loop   | 10 Hz  | `MISMATCH_DRAWS` = 100 Monte Carlo draws (seed 2026): true plate stiffness U(±10 %), actuator gain scale U(0.9, 1.1), facet offset U(±1 mm); 30 s from t0 = 15 s (the first contact), as studies/paper_tunings_plate_errors.toml |
 
-| mujoco_push_030 … _120, mujoco_push_150hPa, mujoco_force_target | mujoco_contact | 1 kHz | contact tasks (SPEC §14, `PUSHES`): a constant push from rest asking 0.3, 0.6, 0.9, 1.2 F_max, the full 150 hPa push, the force-target nominal (target 0.6 F_max); `PUSH_DURATION_S` = 6 s |
+| mujoco_push_030 … _120, mujoco_push_150hPa, mujoco_force_target | mujoco_contact | 1 kHz | contact tasks (docs/beyond-the-paper.md#contact-tasks, `PUSHES`): a constant push from rest asking 0.3, 0.6, 0.9, 1.2 F_max, the full 150 hPa push, the force-target nominal (target 0.6 F_max); `PUSH_DURATION_S` = 6 s |
 | camera_push_030 … _120, camera_push_150hPa, camera_force_target | camera_loop | 10 Hz | the same contact tasks on the camera loop |
 
 Contact tasks. "Asking for F" means the unfiltered plant's steady measured force is F (the
@@ -388,7 +388,7 @@ PUSHES: dict[str, dict[str, tuple[str, float]]] = {  # plant → {case suffix: (
         "force_target": ("target_N=0.096", 0.09405),
     },
 }
-"""The contact tasks (SPEC §14): per plant, the constant pushes asking 0.3, 0.6, 0.9 and 1.2 F_max (nominal "step" with
+"""The contact tasks (docs/beyond-the-paper.md#contact-tasks): per plant, the constant pushes asking 0.3, 0.6, 0.9 and 1.2 F_max (nominal "step" with
 low_hPa = high_hPa = the level found by tools/force_levels.py), the full 150 hPa push and the force-target nominal
 (target 0.6 F_max of the model's predicted force); asked: the unfiltered plant's steady measured force (`steady_force`
 of a 3 s push, the tool's output, copied here)."""
@@ -549,7 +549,7 @@ def stored_results(out: Path, bench: Mapping[str, Any]) -> dict[tuple[str, str],
 
 
 _FRACTION = Bound(0.0, 1.0)
-ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields (SPEC §11), each checked by key and value
+ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields (docs/beyond-the-paper.md#filter-benchmark), each checked by key and value
     "filter": lambda key, v: _check_text(key, v),
     "case": lambda key, v: _check_text(key, v, [c.name for c in CASES]),
     "rho_min_meas": lambda key, v: _check_finite(key, v),
@@ -658,7 +658,7 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
     lines += ["| " + " | ".join(_cell(r, k, s) for _, k, s in TABLE) + " |" for r in bench["results"]]
     lines += [f"\nSkipped: {name}: {reason}" for name, reason in bench["skipped"].items()]
     if any(r["force_delivered_N"] is not None for r in bench["results"]):
-        lines += ["", "Contact tasks: force delivered against force asked, every filter (SPEC §14):", "",
+        lines += ["", "Contact tasks: force delivered against force asked, every filter:", "",
                   f"![delivered against asked]({FORCE_PLOT_FILE})"]
     return "\n".join(lines) + "\n"
 
@@ -666,7 +666,7 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
 def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
     """The contact tasks' delivered force against the asked force (both / F_max), one panel per plant of `PUSHES`,
     one line per filter through its pushes, a cross for its force-target case; the dashed line is min(asked, F_max),
-    the dotted ones the goals (SPEC §14); a delivered force
+    the dotted ones the goals (docs/beyond-the-paper.md#contact-tasks); a delivered force
     above FORCE_PLOT_TOP × F_max is drawn at the top with its value."""
     import matplotlib
 

@@ -1,4 +1,4 @@
-"""The step levels of the benchmark's contact tasks (softcbf/bench.py `PUSH_LEVELS_HPA`, SPEC §14).
+"""The step levels of the benchmark's contact tasks (softcbf/bench.py `PUSHES`, docs/beyond-the-paper.md#contact-tasks).
 
 "A push asking for F" is a constant step command u_nom = (L, …, L) hPa from rest whose
 unfiltered plant settles at the measured force F (N). This script finds L once per plant
@@ -8,13 +8,14 @@ nominal; the printed values are pasted into softcbf/bench.py, where they are sto
 cases (the bench never searches them itself).
 
 Procedure: the steady force of a level is `softcbf.bench.steady_force` (the mean measured
-force over the last third) of a push as long as the bench's (PROBE_S = `PUSH_DURATION_S`, 6 s: the unfiltered arm
-settles within 0.5 s under a step,
-measured, mujoco_contact at 100 hPa: 0.3902 N from t = 0.75 s on, to 4 digits; the force-target
-nominal needs ≈ 4 s: its integral ramps the pressure to first contact). Beyond first
-contact the steady force rises monotonically with L; the level is found by the secant method
-on F(L) − F started from 60 and 100 hPa, kept inside [0, 150] hPa, until |F(L) − F| ≤
-TOLERANCE · F_max (0.2 %) or MAX_PROBES probes (then it stops with an error).
+force over the last third) of a push as long as the bench's (PROBE_S = `PUSH_DURATION_S`,
+6 s). Under a step the unfiltered arm settles within 0.5 s (mujoco_contact at 100 hPa:
+0.3902 N from t = 0.75 s on, to 4 digits); the force-target nominal needs ≈ 4 s (its integral
+ramps the pressure to first contact; a 3 s probe read 0.074 N where 6 s read 0.094 N).
+Beyond first contact the steady force rises monotonically with L; the level is found by the
+secant method on F(L) − F started from 60 and 100 hPa, kept inside [0, 150] hPa, until
+|F(L) − F| ≤ TOLERANCE · F_max (0.2 %) or MAX_PROBES probes (then it stops with an error).
+Run 2026-12-03 (≈ 6 min): the values in `PUSHES`.
 
     PYTHONPATH=. python tools/force_levels.py            # every plant, prints one JSON object
     PYTHONPATH=. python tools/force_levels.py --plants mujoco_contact
