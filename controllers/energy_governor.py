@@ -36,7 +36,44 @@ W_u + E_true ≤ Γ_j + c_j along the motion, hence the tip stays in P. The plai
 is not sound where the plate pushes back while the tip is in contact (the plate's
 stored energy can return to the arm), and the contact-aware one is not sound where the
 plate does not push back (nothing stops the tip at n_max).
-κ (`kappa`, default 0.5) inflates the whole energy against estimate and prediction
+Contact certificate (`certificate="contact"`, the `c-erg` filter; issue 24). The parked
+certificate above delivers about half the force budget on a plate (measured: 0.45–0.50 F_max
+on mujoco_contact): its target's rest shape parks `margin_m` inside P, and its Γ(u) is 0 for
+every rest shape beyond P, although the arm pressing a plate rests well inside P with its rest
+shape beyond it. Three changes make the equilibrium at P's boundary reachable:
+(a) Γ to the boundary: the arm starts strictly inside P (checked at x̂: every row H'_j r(q̂) < h'_j,
+    else nothing is certified), so to leave P its tip must cross some row's boundary g_j = 0
+    first. Γ^∂_j(u) = min {½(q − q_u)ᵀK(q − q_u) : g_j(q) = 0} is then the barrier, > 0 also for a
+    rest shape beyond P. Γ̲^∂_j = the larger of the boundary table (`EscapeEnergyTable(boundary=True)`,
+    N ≤ 2) and the grid-free second-order bound (`BoundaryDistanceBound`: exact to second order
+    near the boundary, where the table's looseness, ≈ 2.6 h_z in distance, halved Γ: 1.06e-4 J
+    against 2.39e-4 J at 70 hPa on both segments of the reference arm).
+(b) The plate's energy per facet, with lo on the difference only. With the true plate energy
+    E_true,i(n_i) (conservative, ψ_true ∈ [lo ψ, hi ψ]), V = W_u + Σ_i E_true,i never grows (u
+    held). At the first exit through facet row j, n_j = n_max, so V ≥ Γ^∂_j(u) + E_true,j(n_max).
+    For n_j ≤ n_max, E_true,j(n_max) − E_true,j(n_j) = ∫_{n_j}^{n_max} ψ_true ≥ lo (E(n_max) − E(n_j)),
+    and E_true,i ≤ hi E(n_i), so V(x̂) < Γ^∂_j + E_true,j(n_max) follows from
+        W_u(x̂) + hi Σ_{i≠j} E(n_i) < Γ^∂_j(u) + lo (E(n_max) − E(n_j)).
+    Per row: o_j = lo (E(n_max) − E(n_j)) − hi Σ_{i≠j} E(n_i) for a facet row, o_j = −hi Σ_i E(n_i)
+    for a vertex-correction row (no facet is at n_max on it); without `contact_aware` o_j = 0.
+    The parked variant's hi E(n) in W against lo E(n_max) in Γ costs (hi − lo) E(n_max) at the
+    plate; this one costs lo's share of the last bit of penetration only. For the exact model
+    (lo = hi = 1) and a rest state, Γ^∂_j + E(n_max) − (W_u + E(n)) is the gap between the arm-plate
+    energy's minimum on the boundary and at the equilibrium: > 0 for every equilibrium strictly
+    inside P, so the governor can approach the boundary.
+(c) κ inflates the kinetic energy alone: (1 + κ)·½q̇ᵀMq̇ + ½(q − q_u)ᵀK(q − q_u) + ½Σβ(p − u)² + ε ≤
+    min_j (Γ̲^∂_j(u) + o_j). κ stands for the velocity's estimation error (finite differences); a
+    whole-energy inflation would ask (1 + κ) W ≤ Γ + ... at a contact equilibrium, where W is
+    the arm's elastic energy against the plate: never certified near the boundary.
+Any number of segments: for N > 2 (no q-space table) Γ̲^∂ is the second-order bound alone and the
+recovery's candidates are u_prev, u_nom and 0 hPa (tests/test_contact_governor.py: N = 3 and 4 on
+the PCC plant). The target is u_nom itself (clipped to the box); the rays are those to it and to 0 hPa. The
+recovery (step 4) ranks the table's grid commands, u_prev and u_nom by the same margin; with x̂
+outside P (no certificate holds) it takes the command nearest u_nom whose rest shape lies inside P.
+Measured (mujoco_contact, push asking 1.2 F_max, 6 s; `softcbf bench`): exact model 0.946 F_max;
+plate stiffness within ±10 % (n_max = ψ⁻¹(F_max/1.1)): 0.841 F_max, ρ_meas 0.159.
+
+κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
 the absolute margin a new command must keep. The held command, certified when it was
 issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ, tested as
@@ -132,7 +169,7 @@ import numpy as np
 
 from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
-from controllers.escape_energy import EscapeEnergyTable
+from controllers.escape_energy import MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.pcc import kinematics, kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
@@ -189,6 +226,12 @@ PARAMETERS = {
                                         bound=Bound(1e-4, 1e-2, unit="s")),
     "bisection_steps": FilterParameter("halvings of the step towards the target (beyond 52 a double's σ stops changing)",
                                        "1", int, Bound(1, 52)),
+    "certificate": FilterParameter("'park' (the target parks margin_m inside P, Γ over the unsafe set) or 'contact' "
+                                   "(the target is u_nom, Γ to P's boundary, the plate's energy counted per facet, κ on "
+                                   "the kinetic energy: module docstring)", "", str),
+    "escape_spacing_rad": FilterParameter("q-space spacing of the escape-energy table (per √k_i); finer: a tighter Γ̲ "
+                                          "near P's boundary, a slower build (2.4 s at 4e-3, 6.7 s at 2e-3 on the "
+                                          "reference arm)", "rad", bound=Bound(5e-4, 0.05, unit="rad")),
 }
 """The E-ERG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them.
 
@@ -200,6 +243,15 @@ PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's t
 reference arm: a larger ε certifies no step at all), the stiffness ratios
 0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, τ_p ≤ 10 s.
 """
+
+BOUND_BELOW_J = 0.02
+"""The contact certificate evaluates the second-order boundary bound only where the table's least row value is
+below this (J): near the boundary, where the table is loose; beyond ≈ 0.01 J the table is the larger (measured
+on the reference arm: 1.46e-2 against 1.15e-2 J at (32, 69) hPa, 0.10 against 0.057 J at rest), and the
+bound costs ≈ 40 µs of numpy per command."""
+
+CERTIFICATES = ("park", "contact")
+"""The `certificate` values (module docstring: the parked target, and the contact certificate)."""
 
 ROUNDING_SLACK = 1e-12
 """Relative slack (of Σ_i (|a_i| + |g_i| + |t_i|)², hPa²) for the rounding of the ray distances (`ray_may_come_nearer`)."""
@@ -261,8 +313,9 @@ class EnergyGovernor:
     def __init__(self, context: FilterContext, margin_m: float = 5e-3, kappa: float = 0.5, energy_margin_J: float = 1e-5,
                  contact_aware: bool = False, stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0,
                  command_delay_s: float | None = None, actuator_tau_s: float | None = None, grid_hPa: float = 2.5,
-                 predictor_step_s: float = 1e-3, bisection_steps: int = 12) -> None:
-        checked = self.check_arguments({
+                 predictor_step_s: float = 1e-3, bisection_steps: int = 12, certificate: str = "park",
+                 escape_spacing_rad: float = 4e-3) -> None:
+        checked = self.check_arguments({"certificate": certificate, "escape_spacing_rad": escape_spacing_rad,
             "margin_m": margin_m, "kappa": kappa, "energy_margin_J": energy_margin_J, "contact_aware": contact_aware,
             "stiffness_lo_ratio": stiffness_lo_ratio, "stiffness_hi_ratio": stiffness_hi_ratio,
             "command_delay_s": command_delay_s, "actuator_tau_s": actuator_tau_s, "grid_hPa": grid_hPa,
@@ -288,12 +341,19 @@ class EnergyGovernor:
         self.safe_set = nominal if self.stiffness_hi == 1.0 else ForceSafeSet(
             nominal.environment, law, nominal.f_max / self.stiffness_hi, nominal.row_scaling)
         governed = replace(context, safe_set=self.safe_set)
-        self.target_governor = QuasiStaticGovernor(governed, margin_m=margin_m)
+        self.contact = checked["certificate"] == "contact"
+        self.target_governor = None if self.contact else QuasiStaticGovernor(governed, margin_m=margin_m)
         u_lo = robot.array("u_min") if context.u_min is None else context.u_min
         u_hi = robot.array("u_max") if context.u_max is None else context.u_max
         self.beta = pressure_lag_weights(context, tau)
-        self.table = EscapeEnergyTable(robot, self.safe_set, u_lo, u_hi, grid_hPa=grid_hPa)
+        gridded = not self.contact or self.n <= MAX_SEGMENTS  # the contact certificate needs no table for N > 2
+        self.table = EscapeEnergyTable(robot, self.safe_set, u_lo, u_hi, grid_hPa=grid_hPa, boundary=self.contact,
+                                       q_spacing_rad=checked["escape_spacing_rad"]) if gridded else None
+        self.boundary_bound = BoundaryDistanceBound(robot, self.safe_set) if self.contact else None
         credit = self.stiffness_lo * float(law.energy(self.safe_set.n_max)) if self.contact_aware else 0.0
+        self._n_facets = nominal.n_facets
+        self._rows = [(hx, hy, h) for (hx, hy), h in zip(np.asarray(self.safe_set.H_prime).tolist(),
+                                                         np.asarray(self.safe_set.h_prime).tolist())]
         self._plate_weight = self.stiffness_hi if self.contact_aware else 0.0
         self._credit = [0.0 if corner else credit for corner in self.safe_set.is_vertex_correction.tolist()]
         self.dynamics = PCCDynamics(robot)
@@ -307,11 +367,17 @@ class EnergyGovernor:
         self._rest_list = tuple((np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)).tolist())
         self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
         self._free_plate_energy = self._plate_weight * float(np.sum(law.energy([0.0] * len(self._facets))))  # n = 0 everywhere
-        self._grid = self.table.grid_commands()
+        if self.table is None:  # N > 2, contact certificate: the recovery's candidates are u_prev, u_nom and 0 hPa
+            self._grid = np.array([self._rest_list])
+            self._grid_values = np.array([self.boundary_bound.values(self._rest_list)]).T
+            self._grid_rest_inside = np.array([self.rest_inside(self._grid[0])])
+        else:
+            self._grid = self.table.grid_commands()
+            self._grid_values, self._grid_rest_inside = self.table.grid_values(), self.table.rest_inside
         self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
         self._escape_origin: tuple | None = None
-        self._grid_gamma = np.min(self.table.grid_values() + np.array(self._credit)[:, None], axis=0)
-        if not self.energy_margin < self.table.saturation_J:
+        self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
+        if self.table is not None and not self.energy_margin < self.table.saturation_J:
             raise ValueError(f"energy_margin_J must be < {self.table.saturation_J:.6g} J (½ k_min reach², the escape "
                              f"energy the table resolves), got {self.energy_margin!r}")
 
@@ -322,6 +388,8 @@ class EnergyGovernor:
         checked values. (The context's delay and time constant, the table's size and ε against
         the table are checked at construction.)"""
         checked = check_parameters(PARAMETERS, arguments)
+        if checked.get("certificate", "park") not in CERTIFICATES:
+            raise ValueError(f"certificate must be one of {', '.join(CERTIFICATES)}, got {checked['certificate']!r}")
         lo, hi = checked.get("stiffness_lo_ratio", 1.0), checked.get("stiffness_hi_ratio", 1.0)
         if lo > hi:
             raise ValueError(f"stiffness_lo_ratio must be <= stiffness_hi_ratio = {hi!r}, got {lo!r}")
@@ -330,7 +398,8 @@ class EnergyGovernor:
     def reset(self) -> None:
         """Forget the command history (vented valves, p = 0) and the target governor's warm start."""
         self.predictor.reset()
-        self.target_governor.reset()
+        if self.target_governor is not None:
+            self.target_governor.reset()
         self._escape_known.clear()
         self._escape_origin = None
 
@@ -366,6 +435,37 @@ class EnergyGovernor:
             self._escape_known.clear()
             self._escape_origin = origin
         return self._escape_known
+
+    def boundary_escape(self, u) -> list[float]:
+        """Γ̲^∂_j(u) for every row (J): the larger of the boundary table's and the second-order bound's
+        (`controllers.escape_energy`; both are lower bounds of the least elastic energy to P's boundary),
+        the second only where some row's table value is below BOUND_BELOW_J (any of the two is a valid bound)."""
+        if self.table is None:
+            return self.boundary_bound.values(u)
+        table = self.table.values(u)
+        if min(table) >= BOUND_BELOW_J:  # far from the boundary: the table is the tighter bound, skip the other
+            return table
+        return [max(t, b) for t, b in zip(table, self.boundary_bound.values(u))]
+
+    def contact_offsets(self, q: np.ndarray) -> tuple[list[float], bool, float]:
+        """The contact certificate's per-row offsets o_j (J) at q (N,) rad, whether the tip r(q) lies
+        strictly inside P (every row H'_j r < h'_j; module docstring, "contact certificate") and its ρ
+        (`ForceSafeSet.margin_at` of the context's set).
+
+        Facet row j: o_j = lo·(E(n_max) − E(n_j)) − hi Σ_{i≠j} E(n_i); vertex-correction row:
+        o_j = −hi Σ_i E(n_i); n_i the model's facet penetrations at r(q) (m), E = ψ.energy.
+        Without contact_aware every o_j = 0 (the environment does not push back)."""
+        x, y = self._tip(q)
+        inside = all(hx * x + hy * y < h for hx, hy, h in self._rows)
+        nominal = self.context.safe_set
+        rho = nominal.margin_at(x, y)
+        if not self.contact_aware:
+            return [0.0] * len(self._rows), inside, rho
+        energies = np.asarray(nominal.stiffness.energy(nominal.penetration_at(x, y)), dtype=float).tolist()
+        total = self.stiffness_hi * sum(energies)
+        offsets = [credit - self.stiffness_lo * e - self.stiffness_hi * (sum(energies) - e) if j < self._n_facets
+                   else -total for j, (credit, e) in enumerate(zip(self._credit, energies + [0.0] * len(self._rows)))]
+        return offsets, inside, rho
 
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
@@ -412,23 +512,38 @@ class EnergyGovernor:
         if t_apply < self.predictor.latest_time:
             raise ControllerInputError(f"t must not go backwards: got t = {t!r} s after a call at "
                                        f"t = {self.predictor.latest_time - self.command_delay!r} s (reset first)")
-        target = self.target_governor.command(u_nom)
+        nominal = u_nom if self._box is None else np.clip(u_nom, *self._box)
+        target = nominal if self.contact else self.target_governor.command(u_nom)
         u_prev = self.predictor.command_at(t_apply)
         if not self.predictor.can_predict(t_capture, t_apply):
             return self._finish(u_prev, "stale", True, math.nan, {}, t_apply, t_capture, t0)
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
-        base, rho = self.state_energy(q_hat, qd_hat)
         q_list, p_list = q_hat.tolist(), p_hat.tolist()
         # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
         held, aim = tuple(u_prev.tolist()), tuple(target.tolist())
 
         inflation, energy, known, eps = 1.0 + self.kappa, self.energy, self.escape_memory(held), self.energy_margin
+        if self.contact:
+            offsets, inside, rho = self.contact_offsets(q_hat)
+            base = inflation * self.dynamics.kinetic_energy(q_hat, qd_hat)  # (1 + κ)·½q̇ᵀMq̇
+            inflation = 1.0  # κ inflates the kinetic energy alone
 
-        def margin(u: tuple) -> float:  # Γ − (1 + κ) W (J): ≥ ε when u is certified at x̂ (≥ 0: the held u); Γ through the memory
-            gamma = known.get(u)
-            if gamma is None:
-                gamma = known[u] = self.escape(u)
-            return gamma - inflation * energy(base, q_list, p_list, u)
+            def gamma_of(u: tuple) -> float:  # min_j (Γ^∂_j(u) + o_j) (J); -inf when x̂ is not strictly inside P
+                rows = known.get(u)
+                if rows is None:
+                    rows = known[u] = self.boundary_escape(u)
+                return min(g + o for g, o in zip(rows, offsets)) if inside else -math.inf
+        else:
+            base, rho = self.state_energy(q_hat, qd_hat)
+
+            def gamma_of(u: tuple) -> float:  # min_j (Γ_j(u) + c_j) (J) through the memory
+                gamma = known.get(u)
+                if gamma is None:
+                    gamma = known[u] = self.escape(u)
+                return gamma
+
+        def margin(u: tuple) -> float:  # Γ − (1 + κ) W (J): ≥ ε when u is certified at x̂ (≥ 0: the held u)
+            return gamma_of(u) - inflation * energy(base, q_list, p_list, u)
 
         held_margin = margin(held)
         held_ok = held_margin > 0.0  # Γ = W = 0 (the arm at rest on or beyond P's boundary) certifies nothing
@@ -437,8 +552,8 @@ class EnergyGovernor:
             u, action = aim, "free"
         elif held_ok:
             u, sigma, best = held, 0.0, sum((a - t) * (a - t) for a, t in zip(held, aim))
-            nominal = u_nom if self._box is None else np.clip(u_nom, *self._box)
-            for k, goal in enumerate((aim, self._rest_list, tuple(nominal.tolist()))):
+            goals = (aim, self._rest_list) if self.contact else (aim, self._rest_list, tuple(nominal.tolist()))
+            for k, goal in enumerate(goals):
                 direction = tuple(g - a for a, g in zip(held, goal))
                 if k and not ray_may_come_nearer(held, goal, direction, aim, best, 0.5**self.bisection_steps):
                     continue  # no end point of this ray can win: its search cannot change u
@@ -456,9 +571,12 @@ class EnergyGovernor:
                     u, best = candidate, distance
             action = "hold" if u is held else "governed"
         else:
-            u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
+            if self.contact:
+                u, infeasible = self._recover_contact(base, offsets, inside, q_hat, p_hat, u_prev, target)
+            else:
+                u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             u, action, sigma = tuple(u.tolist()), "recover", math.nan
-        w, gamma = energy(base, q_list, p_list, u), known[u] if u in known else self.escape(u)
+        w, gamma = energy(base, q_list, p_list, u), gamma_of(u)
         # the held command keeps its certificate down to Γ − (1 + κ)W = 0 (the hysteresis), a new one needs ε
         certified_margin = held_margin if action == "hold" else gamma - inflation * w - eps
         diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": certified_margin,
@@ -482,6 +600,36 @@ class EnergyGovernor:
             return target.copy(), True
         return candidates[int(np.argmax(np.where(resting_inside, margins, -np.inf)))].copy(), True
 
+    def _tip(self, q: np.ndarray) -> tuple[float, float]:
+        """The model's tip r(q) (m) as Python floats."""
+        tip = kinematics_unchecked(np.asarray(q, dtype=float), self.dynamics.lengths, 0).points[-1]
+        return tip.real, tip.imag
+
+    def rest_inside(self, u: np.ndarray) -> bool:
+        """Whether the rest shape q_u = K⁻¹Λu of the command u (N,) hPa puts the tip strictly inside P."""
+        x, y = self._tip(np.array(self._a) * np.asarray(u, dtype=float))
+        return all(hx * x + hy * y < h for hx, hy, h in self._rows)
+
+    def _recover_contact(self, base: float, offsets: list[float], inside: bool, q_hat: np.ndarray, p_hat: np.ndarray,
+                         u_prev: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The contact certificate's recovery (module docstring, step 4): the certified candidate nearest the target;
+        else, with x̂ inside P, the largest margin among the candidates whose rest shape lies inside P; else (x̂
+        outside P, where no certificate holds) the one of those nearest the target; the target if there is none."""
+        candidates = np.vstack((self._grid, u_prev, target))
+        rows = np.hstack((self._grid_values, np.array([self.boundary_escape(u_prev), self.boundary_escape(target)]).T))
+        gamma = np.min(rows + np.array(offsets)[:, None], axis=0)
+        k, a, beta = np.array(self._k), np.array(self._a), self.beta
+        energy = base + 0.5 * np.sum(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2, axis=1)
+        margins = gamma - energy - self.energy_margin
+        distance = np.sum((candidates - target) ** 2, axis=1)
+        if inside and np.any(margins >= 0.0):
+            return candidates[int(np.argmin(np.where(margins >= 0.0, distance, np.inf)))].copy(), False
+        resting_inside = np.concatenate((self._grid_rest_inside, [self.rest_inside(u_prev), self.rest_inside(target)]))
+        if not np.any(resting_inside):
+            return target.copy(), True
+        score = margins if inside else -distance
+        return candidates[int(np.argmax(np.where(resting_inside, score, -np.inf)))].copy(), True
+
     def _finish(self, u: np.ndarray, action: str, infeasible: bool, rho: float, diagnostics: dict,
                 t_apply: float, t_capture: float, t0: float) -> FilterOutput:
         u = np.array(u, dtype=float)
@@ -492,3 +640,25 @@ class EnergyGovernor:
         full["prediction_s"] = t_apply - t_capture
         full["solve_us"] = (time.perf_counter() - t0) * 1e6
         return FilterOutput(u, action, infeasible, rho, full, DIAGNOSTIC_UNITS)
+
+
+class ContactEnergyGovernor(EnergyGovernor):
+    """Recommended for contact tasks: the energy governor with the contact certificate (c-erg; e-erg with certificate=contact, contact_aware=true).
+
+    The target is u_nom itself; a command is certified when the arm's energy about its rest shape,
+    with the plate's stored energy counted per facet, stays below the least energy to P's boundary
+    (module docstring, "contact certificate"). The plate's stiffness interval [lo, hi] × ψ
+    (`stiffness_lo_ratio`, `stiffness_hi_ratio`) keeps F_true ≤ F_max for any true plate within it.
+    """
+
+    parameter_docs = {name: doc for name, doc in EnergyGovernor.parameter_docs.items() if name not in ("margin_m", "certificate")}
+
+    def __init__(self, context: FilterContext, kappa: float = 0.5, energy_margin_J: float = 1e-5, contact_aware: bool = True,
+                 stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0, command_delay_s: float | None = None,
+                 actuator_tau_s: float | None = None, grid_hPa: float = 2.5, predictor_step_s: float = 1e-3,
+                 bisection_steps: int = 12, escape_spacing_rad: float = 4e-3) -> None:
+        super().__init__(context, kappa=kappa, energy_margin_J=energy_margin_J, contact_aware=contact_aware,
+                         stiffness_lo_ratio=stiffness_lo_ratio, stiffness_hi_ratio=stiffness_hi_ratio,
+                         command_delay_s=command_delay_s, actuator_tau_s=actuator_tau_s, grid_hPa=grid_hPa,
+                         predictor_step_s=predictor_step_s, bisection_steps=bisection_steps, certificate="contact",
+                         escape_spacing_rad=escape_spacing_rad)

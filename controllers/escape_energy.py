@@ -40,7 +40,15 @@ The table (N ≤ 2 segments; the q-space search below is a grid):
    b. Lipschitz, from (*): d_j(u) ≥ max_c (d̲_c − ‖u − u_c‖_w), Γ ≥ ½ max(0, ·)²; valid
       anywhere, so it also covers commands outside the box (the nearest cell's corners).
    Γ̲_j(u) is the larger of the two.
-So Γ̲_j(u) ≤ Γ_j(u) everywhere: the table is conservative. Its looseness in d: h_z
+So Γ̲_j(u) ≤ Γ_j(u) everywhere: the table is conservative.
+
+Boundary variant (`boundary=True`, the e-erg's contact certificate, `controllers.energy_governor`):
+S_j = {z : g_j = 0}, the row's boundary itself, so Γ^∂_j(u) = min {½ (q − q_u)ᵀK(q − q_u) : g_j(q) = 0}
+is > 0 also for a rest shape beyond P (the arm, inside P, must still cross the boundary to leave).
+Steps 3–4 hold unchanged for it: the nearest point of S_j lies on g_j = 0 by definition (the band
+holds a grid point within h_q of it), a distance to any set is 1-Lipschitz, and ½‖u‖²_w − Γ^∂_j is a
+max of affine functions of z_u whatever S_j is; only the rule "0 when g_j(q_u) ≥ 0" is dropped.
+Γ_j ≤ Γ^∂_j (the boundary is part of the closed unsafe set), with equality for a rest shape inside P. Its looseness in d: h_z
 (≈ 2.8e-3 J^{1/2} at the defaults) and the band's extent on the near side of g_j = 0 where
 ‖∇g_j‖ < L_j at the grid points, plus bound 4a's correction between them (measured: see
 tests/test_energy_governor.py; d ≈ 0.1–1 J^{1/2} away from the plate). Γ saturates at ½ k_min reach²
@@ -56,7 +64,7 @@ import math
 import numpy as np
 
 from controllers.params import RobotParams
-from controllers.pcc import tip_positions
+from controllers.pcc import step_kinematics, tip_positions
 from controllers.safe_set import ForceSafeSet
 
 MAX_SEGMENTS = 2
@@ -70,7 +78,7 @@ class EscapeEnergyTable:
     """Γ̲_j(u) ≤ Γ_j(u) for every row j of `safe_set`, tabulated over [u_lo, u_hi] (see the module docstring)."""
 
     def __init__(self, robot: RobotParams, safe_set: ForceSafeSet, u_lo, u_hi, grid_hPa: float = 2.5,
-                 q_spacing_rad: float = 4e-3, reach_rad: float = 1.2) -> None:
+                 q_spacing_rad: float = 4e-3, reach_rad: float = 1.2, boundary: bool = False) -> None:
         n = robot.n_segments
         if n > MAX_SEGMENTS:
             raise ValueError(f"the escape-energy table supports N <= {MAX_SEGMENTS} segments (a q-space grid), got N = {n}")
@@ -98,6 +106,7 @@ class EscapeEnergyTable:
         self.axes = [np.linspace(lo, hi, size) for lo, hi, size in zip(u_lo, u_hi, sizes)]
         self.spacing = np.array([a[1] - a[0] for a in self.axes])
         self.reach_rad = float(reach_rad)
+        self.boundary = bool(boundary)
         commands = self.grid_commands()
         self.distance = self._distances(robot, safe_set, commands, float(q_spacing_rad))  # (P', G) J^{1/2}
         self._shape = tuple(len(a) for a in self.axes)
@@ -151,8 +160,10 @@ class EscapeEnergyTable:
                 d2 = np.sum(block * block, axis=1)[:, None] - 2.0 * block @ band.T + np.sum(band * band, axis=1)
                 nearest[start:start + _CHUNK] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
             d = np.maximum(np.minimum(nearest - h_z, outside), 0.0)
-            d[g_rest[:, j] >= 0.0] = 0.0
+            if not self.boundary:
+                d[g_rest[:, j] >= 0.0] = 0.0
             distance[j] = d
+        self.rest_inside = np.all(g_rest < 0.0, axis=1)  # (G,): the grid command's rest shape lies inside P
         return distance
 
     def values(self, u) -> list[float]:
@@ -220,3 +231,66 @@ class EscapeEnergyTable:
                 best = max(best, sum(0.5 * table[flat + k] ** 2 * weight for k, _, weight in corners) - curvature)
             result.append(best)
         return result
+
+
+class BoundaryDistanceBound:
+    """Γ^∂_j(u) ≥ ½ δ_j(u)² for every row j, any number of segments N, without a grid.
+
+    In z = K^{1/2} q (J^{1/2}) let G_j(z) = H'_j r(K^{-1/2} z) − h'_j, so Γ^∂_j(u) = ½ d_j² with d_j
+    the distance from z_u = K^{1/2} q_u to the curve (surface for N > 2) G_j = 0. A PCC tip is
+    a sum of arcs, r = Σ_i L_i ∫₀¹ e^{i θ_{i,s}} ds (complex, up to the base's fixed rotation) with
+    the angle θ_{i,s} = a_{i,s}·q linear in q (a_{i,s} = (1, …, 1, s, 0, …, 0): the segments
+    before i, then s at i). Hence ∂²r[w, w] = −Σ_i L_i ∫₀¹ (a_{i,s}·w)² e^{iθ} ds and, with
+    w = K^{-1/2} v and (a·w)² ≤ ‖K^{-1/2} a‖² |v|²,
+
+        |∇²G_j[v, v]| ≤ C_j |v|²,   C_j = ‖H'_j‖ Σ_i L_i (Σ_{k<i} 1/k_k + 1/(3 k_i))   (∫₀¹ s² ds = 1/3).
+
+    Let z* be a nearest point of the boundary and δ = z* − z_u. Taylor's theorem with the
+    integral remainder gives |G_j(z*) − G_j(z_u) − ∇G_j(z_u)·δ| ≤ ½ C_j |δ|², and G_j(z*) = 0, so
+    |G_j(z_u)| ≤ ‖∇G_j(z_u)‖ |δ| + ½ C_j |δ|²; the right side grows with |δ|, hence
+
+        d_j ≥ δ_j = 2 |G_j(z_u)| / (‖∇G_j(z_u)‖ + √(‖∇G_j(z_u)‖² + 2 C_j |G_j(z_u)|)),
+
+    the positive root of the quadratic, written without cancellation (C_j = 0: |G|/‖∇G‖), with
+    ∇G_j(z_u) = K^{-1/2} J_r(q_u)ᵀ H'_j exact (`pcc.tip_jacobian`). Valid on both sides of the
+    boundary (a rest shape inside or beyond P). Tight near the boundary (the error is second
+    order: ½ C_j d² against |G|, ≈ 1 % of d at d = 0.02 J^{1/2} on the reference arm), loose far
+    from it (δ_j grows like √(2|G|/C_j)), where the table (`EscapeEnergyTable`, N ≤ 2) is the
+    better bound; the energy governor's contact certificate takes the larger of the two. A row
+    out of the arm's reach (‖H'_j‖ Σ L_i < h'_j) has +inf, as in the table.
+    tests/test_escape_energy_bound.py checks C_j against finite differences of the kinematics and
+    δ_j against a brute-force minimum over the boundary.
+    """
+
+    def __init__(self, robot: RobotParams, safe_set: ForceSafeSet) -> None:
+        self.lengths = robot.array("lengths")
+        stiffness = robot.array("stiffness")
+        self.static_gain = robot.array("gains") / stiffness  # K⁻¹Λ, rad/hPa
+        self.inverse_root_k = 1.0 / np.sqrt(stiffness)
+        self.H = np.array(safe_set.H_prime, dtype=float)
+        self.h = np.array(safe_set.h_prime, dtype=float)
+        norms = np.hypot(self.H[:, 0], self.H[:, 1])
+        before = np.concatenate(([0.0], np.cumsum(1.0 / stiffness)[:-1]))  # Σ_{k<i} 1/k_k
+        self.curvature = norms * float(np.sum(self.lengths * (before + 1.0 / (3.0 * stiffness))))  # C_j, m/J
+        self.reachable = norms * float(np.sum(self.lengths)) >= self.h
+        self._gain, self._lengths = self.static_gain.tolist(), self.lengths.tolist()
+        self._zeros, self._inverse_root_k = [0.0] * len(self._gain), self.inverse_root_k.tolist()
+        self._rows = list(zip(self.H[:, 0].tolist(), self.H[:, 1].tolist(), self.h.tolist(), self.curvature.tolist(),
+                              self.reachable.tolist()))
+
+    def values(self, u) -> list[float]:
+        """½ δ_j(u)² for every row j (J); u: (N,) hPa. Python floats on `pcc.step_kinematics` (the tip and
+        its Jacobian; numpy's per-call overhead would dominate: this runs several times per filter call)."""
+        q = [g * float(v) for g, v in zip(self._gain, u)]
+        kin = step_kinematics(q, self._zeros, self._lengths)
+        x, y = kin.tip.real, kin.tip.imag
+        out = []
+        for (hx, hy, h, c, reachable) in self._rows:
+            if not reachable:
+                out.append(math.inf)
+                continue
+            size = abs(hx * x + hy * y - h)
+            slope = math.sqrt(sum(((hx * d.real + hy * d.imag) * s) ** 2 for d, s in zip(kin.tip_jac, self._inverse_root_k)))
+            delta = 2.0 * size / (slope + math.sqrt(slope * slope + 2.0 * c * size)) if size > 0.0 else 0.0
+            out.append(0.5 * delta * delta)
+        return out

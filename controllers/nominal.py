@@ -3,7 +3,8 @@
 A nominal controller is any callable `(t, q, qd) -> u_nom` with t in s, q and qd of
 shape (N,) in rad and rad/s, and u_nom of shape (N,) in hPa. Scenarios pass one to
 the closed loop; the filter never needs to know which one it is. `sinusoid` and
-`tip_tracker` and `step` are the registry's factories ("sinusoid", "tip-tracker", "step").
+`tip_tracker`, `step` and `force_target` are the registry's factories ("sinusoid", "tip-tracker",
+"step", "force-target").
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 
 from controllers.params import RobotParams, per_segment
 from controllers.pcc import tip_jacobian, tip_position
+from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import FilterContext
 
 
@@ -137,3 +139,65 @@ def step(context: FilterContext, seed: int = 0, low_hPa: float = 60.0, high_hPa:
 
 step.parameter_docs = {"seed": "seed of the levels' generator [1]", "low_hPa": "lowest level [hPa]",
                        "high_hPa": "highest level [hPa]", "t_step": "time of the step [s]"}
+
+
+class ForceTargetNominal:
+    """Regulate the model's predicted contact force to a target, as a lab would write it: a PI law
+    through the pressure (docs/beyond-the-paper.md#contact-tasks).
+
+    The predicted force is F̂ = max_j ψ(n_j(r(q̂))) (N), the largest facet force of the controller's
+    model at the estimate q̂ (N,) rad (ψ, the facets and the PCC tip r from `safe_set` and the
+    lengths (N,) m). With e = target_N − F̂ (N) and I = ∫ e dt (N·s, rectangle rule on the call
+    times; the first call integrates nothing),
+
+        u_nom = clip(k_p e + k_i I, u_lo, u_hi) · 1   (hPa on every segment),
+
+    with I clamped after each step to [(u_lo − k_p e)/k_i, (u_hi − k_p e)/k_i] (anti-windup: the
+    integral holds no more than the limits need, so a sign change of e moves u at once). Before contact F̂ = 0, so the integral ramps the pressure at k_i·target_N hPa/s
+    until the tip presses; at steady state F̂ = target_N. Gains: the reference arm's measured
+    steady gain on the paper plate is ≈ 8.4 mN/hPa beyond first contact (tools/force_levels.py: 0.048 N
+    at 57.0 hPa, 0.192 N at 74.0 hPa on both segments), so k_i = 300 hPa/(N·s) closes the integral loop
+    at ≈ 2.5 rad/s, a decade below the arm's ≈ 20 rad/s first mode and below the camera loop's 10 Hz,
+    and k_p = 50 hPa/N adds ≈ 0.4 of proportional gain. Measured (tools/force_levels.py, unfiltered,
+    target 0.096 N): the measured force settles at 0.094 N on mujoco_contact and camera_loop within 6 s. Stateful (the integral, the last call's time); a new run builds a new one.
+    """
+
+    def __init__(self, safe_set: ForceSafeSet, lengths: np.ndarray, n_segments: int, target_N: float,
+                 kp: float, ki: float, u_lo: float, u_hi: float) -> None:
+        for name, value in (("target_N", target_N), ("kp", kp), ("ki", ki)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        if not (math.isfinite(u_lo) and math.isfinite(u_hi) and u_lo < u_hi):
+            raise ValueError(f"the pressure range must be finite with u_lo < u_hi, got {u_lo!r}, {u_hi!r} hPa")
+        self.safe_set, self.lengths, self.n = safe_set, np.asarray(lengths, dtype=float), n_segments
+        self.target, self.kp, self.ki, self.lo, self.hi = float(target_N), float(kp), float(ki), float(u_lo), float(u_hi)
+        self.integral, self.t_prev = 0.0, None
+
+    def predicted_force(self, q: np.ndarray) -> float:
+        """F̂ = max_j ψ(n_j(r(q))) (N)."""
+        x, y = tip_position(np.asarray(q, dtype=float), self.lengths).tolist()
+        return float(np.max(self.safe_set.force_at(x, y)))
+
+    def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        error = self.target - self.predicted_force(q)
+        dt = 0.0 if self.t_prev is None else max(float(t) - self.t_prev, 0.0)
+        self.t_prev = float(t)
+        self.integral += error * dt
+        if self.ki > 0.0:  # clamping: the integral holds no more than the limits need
+            proportional = self.kp * error
+            self.integral = min(max(self.integral, (self.lo - proportional) / self.ki), (self.hi - proportional) / self.ki)
+        u = min(max(self.kp * error + self.ki * self.integral, self.lo), self.hi)
+        return np.full(self.n, u)
+
+
+def force_target(context: FilterContext, target_N: float = 0.1, kp: float = 50.0, ki: float = 300.0) -> ForceTargetNominal:
+    """Regulate the model's predicted force ψ(n(q̂)) to target_N by a PI law on the pressure (`ForceTargetNominal`);
+    the same pressure on every segment, within the context's pressure limits (±150 hPa when it has none)."""
+    lo = -150.0 if context.u_min is None else float(np.max(context.u_min))
+    hi = 150.0 if context.u_max is None else float(np.min(context.u_max))
+    return ForceTargetNominal(context.safe_set, context.robot.array("lengths"), context.robot.n_segments, target_N, kp, ki,
+                              lo, hi)
+
+
+force_target.parameter_docs = {"target_N": "target of the predicted force max_j psi(n_j); >= 0 [N]",
+                               "kp": "proportional gain; >= 0 [hPa/N]", "ki": "integral gain; >= 0 [hPa/(N s)]"}

@@ -2,8 +2,9 @@
 
 A spec names a factory (a class or a function):
 - a built-in's name (`FILTERS`, `NOMINALS`), e.g. "paper-cbf", "none", "qsg" (the
-  quasi-static governor), "e-erg" (the energy-certified reference governor), "sinusoid",
-  "tip-tracker", "step";
+  quasi-static governor), "e-erg" (the energy-certified reference governor), "c-erg" (its
+  contact certificate, recommended for contact tasks), "sinusoid",
+  "tip-tracker", "step", "force-target";
 - `path/to/file.py:Factory` (the file is imported as a module of its own; the path is
   relative to the working directory);
 - `package.module:Factory` (imported from sys.path).
@@ -70,9 +71,11 @@ class Factories(Mapping[str, Callable]):
 FILTERS: Mapping[str, Callable[..., SafetyFilter]] = Factories({
     "paper-cbf": "controllers.filter:paper_cbf", "none": "controllers.safety_filter:PassThroughFilter",
     "qsg": "controllers.quasi_static_governor:QuasiStaticGovernor", "e-erg": "controllers.energy_governor:EnergyGovernor",
+    "c-erg": "controllers.energy_governor:ContactEnergyGovernor",
 })
 NOMINALS: Mapping[str, Callable[..., NominalController]] = Factories({
     "sinusoid": "controllers.nominal:sinusoid", "tip-tracker": "controllers.nominal:tip_tracker", "step": "controllers.nominal:step",
+    "force-target": "controllers.nominal:force_target",
 })
 CONTEXT = "context"
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")

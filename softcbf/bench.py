@@ -15,10 +15,22 @@ Battery (`CASES`, in this order; each case runs registered scenarios with fixed 
 | hardware_emulator | `softcbf hardware` on the emulator      | 10 Hz  | examples/hardware_emulated.toml with the reference arm (--robot reference), 20 s in real time |
 | camera_mismatch  | a study (softcbf.study) on camera_loop   | 10 Hz  | `MISMATCH_DRAWS` = 100 Monte Carlo draws (seed 2026): true plate stiffness U(±10 %), actuator gain scale U(0.9, 1.1), facet offset U(±1 mm); 30 s from t0 = 15 s (the first contact), as studies/paper_tunings_plate_errors.toml |
 
+| mujoco_push_030 … _120, mujoco_push_150hPa, mujoco_force_target | mujoco_contact | 1 kHz | contact tasks (docs/beyond-the-paper.md#contact-tasks, `PUSHES`): a constant push from rest asking 0.3, 0.6, 0.9, 1.2 F_max, the full 150 hPa push, the force-target nominal (target 0.6 F_max); `PUSH_DURATION_S` = 6 s |
+| camera_push_030 … _120, camera_push_150hPa, camera_force_target | camera_loop | 10 Hz | the same contact tasks on the camera loop |
+
+Contact tasks. "Asking for F" means the unfiltered plant's steady measured force is F (the
+mean over the last third of the push, `steady_force`); the step levels (the same on both
+segments) are found once by tools/force_levels.py and stored with the cases (`PUSHES`: the
+nominal's parameters and the asked force). Their rows hold `force_asked_N` and
+`force_delivered_N` (the run's steady measured force), `force_delivered_ratio` = delivered /
+min(asked, F_max); every row holds `force_budget_used` = F max / F_max and `f_max_N` (the
+scenario's F_max); the other cases have null in the three force_* fields of a push.
+bench.md links plots/force_budget.png: delivered against asked, per plant, every filter.
+
 The step case runs on paper_sim (the PCC plant at 1 kHz with the exact state): a step is
 a test of the filter's own response to a sudden, large command, which the camera path's
 latency would mix with perception effects that the camera cases already cover.
-`--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s, the steps to 3 starts of
+`--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s (the contact tasks' pushes too), the steps to 3 starts of
 0.5 s, the mismatch study to 2 draws of 1 s and skips the emulator (it runs in real
 time after a start-up of several seconds); bench.json says "quick": true and lists the
 skipped cases with the reason.
@@ -31,7 +43,9 @@ default "e-erg,paper-cbf". Parameters not given take the per-case defaults of
 the 1 kHz cases, "HW-High" in the 10 Hz camera cases: the paper's tables I and II);
 e-erg contact_aware=true with the true plate stiffness in [0.9, 1.1] × the model's
 (`EERG_PARAMS`: the mismatch study's interval, which also holds the stiff-plate case);
-other filters their own defaults.
+c-erg the same interval (`CERG_PARAMS`) and contact_aware as the plant is: false on the PCC
+plant (paper_sim_150, step: the tip passes through the plate, which pushes back nowhere), true
+on the MuJoCo plants (the plate on its spring); other filters their own defaults.
 
 Figures per (filter, case): ρ_meas min, t_violation, F max from the scenario's summary row
 (the emulator: F max and t_violation from its 1 kHz ground truth, ρ_meas at the control
@@ -65,7 +79,8 @@ own list, each (filter, case) once); a file that fails is refused with one line 
 field, and nothing runs.
 
 Outputs: DIR/bench.json (`{"battery", "quick", "filters", "skipped", "results"}`; every
-result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png, and each
+result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png,
+DIR/plots/force_budget.png (with contact tasks), and each
 case's run or study folder under DIR/cases/<filter label>/<case>/.
 """
 
@@ -94,10 +109,12 @@ from softcbf_mj.runio import (
 from vocabulary.settings import Bound, check_number, non_negative
 
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
-               "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s")
+               "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s",
+               "force_asked_N", "force_delivered_N", "force_delivered_ratio", "force_budget_used", "f_max_N")
 DEFAULT_FILTERS = "e-erg,paper-cbf"
 PAPER_TUNINGS = {"1kHz": "Low", "camera": "HW-High"}
 EERG_PARAMS = {"contact_aware": "true", "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
+CERG_PARAMS = {"stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
 STEP_STARTS, STEP_DURATION_S = 20, 5.0
 MISMATCH_DRAWS, MISMATCH_SEED = 100, 2026
 ASSUMED_PLATE_N_PER_M = 11.16
@@ -105,7 +122,36 @@ QUICK_DURATION_S = 1.0
 QUICK_STEP_STARTS, QUICK_STEP_DURATION_S, QUICK_MISMATCH_DRAWS = 3, 0.5, 2
 EMULATOR_CONFIG = Path(__file__).resolve().parent.parent / "examples" / "hardware_emulated.toml"
 EMULATOR_DURATION_S = 20.0
-BENCH_FILE, TABLE_FILE, PLOT_FILE = "bench.json", "bench.md", "plots/bench.png"
+BENCH_FILE, TABLE_FILE, PLOT_FILE, FORCE_PLOT_FILE = "bench.json", "bench.md", "plots/bench.png", "plots/force_budget.png"
+PUSH_PLANTS = ("mujoco_contact", "camera_loop")
+PUSH_RATIOS = (0.3, 0.6, 0.9, 1.2)
+FORCE_TARGET_RATIO = 0.6
+PUSH_DURATION_S = 6.0
+FORCE_PLOT_TOP = 1.5
+
+
+def plant_parameters(plant: str) -> dict[str, Any]:
+    """A contact task's scenario parameters besides the nominal: the plant at its defaults (camera_loop saves no frames)."""
+    return {"saved_frames_hz": 0.0} if plant == "camera_loop" else {}
+
+
+def steady_force(force: np.ndarray) -> float:
+    """The steady measured force of a push (N): the mean over the last third of the run's samples of the
+    largest facet force per sample (`force`: (T,) or (T, plates) N)."""
+    force = np.asarray(force, dtype=float)
+    per_sample = force.max(axis=1) if force.ndim == 2 else force
+    if per_sample.size == 0:
+        raise ValueError("a push needs at least one force sample")
+    return float(np.mean(per_sample[-max(1, per_sample.size // 3):]))
+
+
+def steady_force_of_folder(folder: Path) -> float:
+    """`steady_force` of the one run in a run folder (its time series' `contact_force`)."""
+    run_folder = read_run_folder(folder)
+    if len(run_folder.runs) != 1:
+        raise ValueError(f"{folder} holds {len(run_folder.runs)} runs; a push is one run")
+    series, _ = load_timeseries(folder / run_folder.runs[0]["timeseries"])
+    return steady_force(series["contact_force"])
 
 
 @dataclass(frozen=True)
@@ -164,11 +210,15 @@ class Case:
     rate: str
     run: Callable[["Case", FilterSpec, Path, "RunOptions"], dict[str, Any]]
     scenario_params: dict[str, Any] = field(default_factory=dict)
+    asked_N: float | None = None
+    """A contact task's asked force (N): the unfiltered plant's steady measured force (`PUSHES`); None: no force asked."""
 
 
 def case_filter_params(spec: FilterSpec, case: Case) -> dict[str, str]:
     """The filter's parameters in `case`: the per-case defaults (module docstring) updated with the spec's own."""
-    defaults = {"paper-cbf": {"tuning": PAPER_TUNINGS[case.rate]}, "e-erg": dict(EERG_PARAMS)}.get(spec.name, {})
+    pushes_back = case.scenario_params.get("scenario", "") != "paper_sim" and case.name != "step"
+    defaults = {"paper-cbf": {"tuning": PAPER_TUNINGS[case.rate]}, "e-erg": dict(EERG_PARAMS),
+                "c-erg": {**CERG_PARAMS, "contact_aware": "true" if pushes_back else "false"}}.get(spec.name, {})
     return {**defaults, **spec.params}
 
 
@@ -189,9 +239,15 @@ def _run_figures(folder: Path) -> list[tuple[dict[str, Any], dict[str, np.ndarra
     return [(row, _call_rows(folder / row["timeseries"])) for row in run_folder.runs]
 
 
-def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarray]]],
+def _f_max(folder: Path) -> float:
+    """The force limit F_max (N) of a scenario's run folder (its parameters' f_max)."""
+    return float(read_run_folder(folder).summary["params"]["f_max"])
+
+
+def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarray]]], f_max: float,
                    force_key: str = "force_max_N", violation_key: str = "t_violation_s") -> dict[str, Any]:
-    """The figures of one case from its runs' summary rows and call rows (module docstring: pooling)."""
+    """The figures of one case from its runs' summary rows and call rows (module docstring: pooling); `f_max`
+    (N): the case's force limit (force_budget_used = F max / f_max)."""
     from softcbf.study.analysis import wilson_interval
 
     if not runs:
@@ -200,10 +256,11 @@ def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarr
     calls = np.concatenate([np.asarray(c["filter_us"], dtype=float) for _, c in runs])
     weights = np.array([c["t"].size for _, c in runs], dtype=float)
     rho = [float(r["rho_min_meas"]) for r, _ in runs]
+    force_max = max(float(r[force_key]) for r, _ in runs)
     out = {
         "rho_min_meas": min(rho),
         "t_violation_s": float(sum(float(r[violation_key]) for r, _ in runs)),
-        "force_max_N": max(float(r[force_key]) for r, _ in runs),
+        "force_max_N": force_max, "f_max_N": f_max, "force_budget_used": force_max / f_max,
         "violation_probability": None, "violation_ci95": None, "draws": None,
         "u_dev_rms_hPa": float(math.sqrt(np.average([f["u_dev_rms_hPa"] ** 2 for f in per_run], weights=weights))),
         "blocked_s": float(sum(f["blocked_s"] for f in per_run)),
@@ -239,7 +296,12 @@ def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
         params["duration"] = QUICK_DURATION_S
     out.mkdir(parents=True)
     get(case.scenario_params.get("scenario", case.name)).run(out, **params)
-    return pooled_figures(_run_figures(out))
+    figures = pooled_figures(_run_figures(out), _f_max(out))
+    if case.asked_N is None:
+        return figures
+    delivered = steady_force_of_folder(out)
+    return {**figures, "force_delivered_N": delivered,
+            "force_delivered_ratio": delivered / min(case.asked_N, figures["f_max_N"])}
 
 
 def _step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -253,7 +315,7 @@ def _step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> 
         get("paper_sim").run(folder, duration=duration, filter=spec.name, filter_params=_joined(case_filter_params(spec, case)),
                              nominal="step", nominal_params=f"seed={seed};low_hPa=60;high_hPa=300", progress=False)
         runs += _run_figures(folder)
-    return pooled_figures(runs)
+    return pooled_figures(runs, _f_max(folder))
 
 
 def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -267,7 +329,10 @@ def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
     code = hardware_cli.main(argv)
     if code != 0:
         raise RuntimeError(f"softcbf hardware {' '.join(argv)} exited with {code}")
-    return pooled_figures(_run_figures(out / "run"), force_key="force_max_emulator_N", violation_key="t_violation_emulator_s")
+    from hardware.config import HardwareConfig
+
+    return pooled_figures(_run_figures(out / "run"), HardwareConfig.load(EMULATOR_CONFIG).safe_set().f_max,
+                          force_key="force_max_emulator_N", violation_key="t_violation_emulator_s")
 
 
 def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float = 30.0):
@@ -296,7 +361,7 @@ def study_figures(folder: Path) -> dict[str, Any]:
     runs = []
     for row in rows:
         runs += _run_figures(store.run_dir(int(row["sample"])))
-    return pooled_figures(runs)
+    return pooled_figures(runs, _f_max(store.run_dir(int(rows[0]["sample"]))))
 
 
 def _mismatch_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -319,6 +384,41 @@ CASES: tuple[Case, ...] = (
     Case("hardware_emulator", "camera", _emulator_case),
     Case("camera_mismatch", "camera", _mismatch_case),
 )
+PUSHES: dict[str, dict[str, tuple[str, float]]] = {  # plant → {case suffix: (nominal_params, asked N)}: tools/force_levels.py
+    "mujoco_contact": {
+        "push_030": ("seed=0;low_hPa=56.983;high_hPa=56.983", 0.04823),
+        "push_060": ("seed=0;low_hPa=62.516;high_hPa=62.516", 0.09584),
+        "push_090": ("seed=0;low_hPa=68.215;high_hPa=68.215", 0.14400),
+        "push_120": ("seed=0;low_hPa=74.018;high_hPa=74.018", 0.19200),
+        "push_150hPa": ("seed=0;low_hPa=150;high_hPa=150", 0.63757),
+        "force_target": ("target_N=0.096", 0.0941),
+    },
+    "camera_loop": {
+        "push_030": ("seed=0;low_hPa=57.015;high_hPa=57.015", 0.04823),
+        "push_060": ("seed=0;low_hPa=62.551;high_hPa=62.551", 0.09583),
+        "push_090": ("seed=0;low_hPa=68.258;high_hPa=68.258", 0.14400),
+        "push_120": ("seed=0;low_hPa=74.07;high_hPa=74.07", 0.19200),
+        "push_150hPa": ("seed=0;low_hPa=150;high_hPa=150", 0.63433),
+        "force_target": ("target_N=0.096", 0.09405),
+    },
+}
+"""The contact tasks (docs/beyond-the-paper.md#contact-tasks): per plant, the constant pushes asking 0.3, 0.6, 0.9 and 1.2 F_max (nominal "step" with
+low_hPa = high_hPa = the level found by tools/force_levels.py), the full 150 hPa push and the force-target nominal
+(target 0.6 F_max of the model's predicted force); asked: the unfiltered plant's steady measured force (`steady_force`
+of a 3 s push, the tool's output, copied here)."""
+PUSH_PREFIX = {"mujoco_contact": "mujoco", "camera_loop": "camera"}
+
+
+def push_cases() -> tuple[Case, ...]:
+    """The contact-task cases of `PUSHES`: `PUSH_DURATION_S` from rest (quick: `QUICK_DURATION_S`)."""
+    return tuple(
+        Case(f"{PUSH_PREFIX[plant]}_{suffix}", "1kHz" if plant == "mujoco_contact" else "camera", _scenario_case,
+             {"scenario": plant, "duration": PUSH_DURATION_S, "nominal": "force-target" if suffix == "force_target" else "step",
+              "nominal_params": nominal_params, **plant_parameters(plant)}, asked)
+        for plant, tasks in PUSHES.items() for suffix, (nominal_params, asked) in tasks.items())
+
+
+CASES = CASES + push_cases()
 QUICK_SKIPPED = {"hardware_emulator": "--quick: the emulator runs in real time after a start-up of several seconds"}
 
 
@@ -382,7 +482,8 @@ def _run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], 
             if folder.exists() and not (options.resume and case.run is _mismatch_case):
                 shutil.rmtree(folder)
             start = time.perf_counter()
-            row = {"filter": spec.label, "case": case.name, **case.run(case, spec, folder, options),
+            row = {"filter": spec.label, "case": case.name, "force_asked_N": case.asked_N, "force_delivered_N": None,
+                   "force_delivered_ratio": None, **case.run(case, spec, folder, options),
                    "wall_s": time.perf_counter() - start}
             bench["results"].append({k: row[k] for k in RESULT_KEYS})
             write_outputs(out, bench)
@@ -472,6 +573,10 @@ ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields
     "violation_probability": lambda key, v: v is None or check_number(key, v, _FRACTION),
     "violation_ci95": lambda key, v: v is None or _check_interval(key, v),
     "draws": lambda key, v: v is None or check_number(key, v, Bound(1), integer=True),
+    **{name: (lambda key, v: v is None or check_number(key, v, non_negative()))
+       for name in ("force_asked_N", "force_delivered_N", "force_delivered_ratio")},
+    "force_budget_used": lambda key, v: check_number(key, v, non_negative()),
+    "f_max_N": lambda key, v: check_number(key, v, Bound(0.0, low_open=True, unit="N")),
 }
 
 
@@ -541,7 +646,9 @@ TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_mi
          ("t_viol [s]", "t_violation_s", ".3f"), ("F max [N]", "force_max_N", ".4f"),
          ("P(viol) [95 % CI] (n)", None, ""), ("u_dev RMS [hPa]", "u_dev_rms_hPa", ".1f"), ("blocked [s]", "blocked_s", ".2f"),
          ("switches [1/s]", "switches_per_s", ".2f"), ("filter med [µs]", "filter_us_median", ".0f"),
-         ("filter p99 [µs]", "filter_us_p99", ".0f"), ("wall [s]", "wall_s", ".0f"))
+         ("filter p99 [µs]", "filter_us_p99", ".0f"), ("wall [s]", "wall_s", ".0f"), ("F asked [N]", "force_asked_N", ".4f"),
+         ("F delivered [N]", "force_delivered_N", ".4f"), ("delivered / min(asked, F_max)", "force_delivered_ratio", ".3f"),
+         ("F max / F_max", "force_budget_used", ".3f"))
 
 
 def _cell(row: Mapping[str, Any], key: str | None, spec: str) -> str:
@@ -552,6 +659,8 @@ def _cell(row: Mapping[str, Any], key: str | None, spec: str) -> str:
         lo, hi = row["violation_ci95"]
         return f"{p:.3f} [{lo:.3f}, {hi:.3f}] ({row['draws']})"
     value = row[key]
+    if value is None:
+        return "–"
     return format(value, spec) if isinstance(value, float) and math.isfinite(value) else str(value)
 
 
@@ -562,7 +671,56 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
              "| " + " | ".join(h for h, _, _ in TABLE) + " |", "|" + "---|" * len(TABLE)]
     lines += ["| " + " | ".join(_cell(r, k, s) for _, k, s in TABLE) + " |" for r in bench["results"]]
     lines += [f"\nSkipped: {name}: {reason}" for name, reason in bench["skipped"].items()]
+    if any(r["force_delivered_N"] is not None for r in bench["results"]):
+        lines += ["", "Contact tasks: force delivered against force asked, every filter:", "",
+                  f"![delivered against asked]({FORCE_PLOT_FILE})"]
     return "\n".join(lines) + "\n"
+
+
+def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
+    """The contact tasks' delivered force against the asked force (both / F_max), one panel per plant of `PUSHES`,
+    one line per filter through its pushes, a cross for its force-target case; the dashed line is min(asked, F_max),
+    the dotted ones the goals (docs/beyond-the-paper.md#contact-tasks); a delivered force
+    above FORCE_PLOT_TOP × F_max is drawn at the top with its value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(PUSHES), figsize=(5 * len(PUSHES), 4), sharey=True, squeeze=False)
+    for ax, plant in zip(axes[0], PUSHES):
+        prefix = PUSH_PREFIX[plant] + "_"
+        for name in bench["filters"]:
+            rows = sorted((r for r in bench["results"] if r["filter"] == name and r["case"].startswith(prefix)
+                           and r["force_delivered_N"] is not None), key=lambda r: r["force_asked_N"])
+            if rows:
+                pushes = [r for r in rows if "_push_" in r["case"]]
+                line, = ax.plot([r["force_asked_N"] / r["f_max_N"] for r in pushes],
+                                [min(r["force_delivered_N"] / r["f_max_N"], FORCE_PLOT_TOP) for r in pushes], "o-", label=name)
+                for r in rows:
+                    if "_push_" not in r["case"]:  # the force-target nominal: a cross of the same colour
+                        ax.plot(r["force_asked_N"] / r["f_max_N"], min(r["force_delivered_N"] / r["f_max_N"], FORCE_PLOT_TOP),
+                                "x", color=line.get_color(), ms=8)
+                x = [r["force_asked_N"] / r["f_max_N"] for r in rows]
+                y = [r["force_delivered_N"] / r["f_max_N"] for r in rows]
+                for xi, yi in zip(x, y):
+                    if yi > FORCE_PLOT_TOP:  # beyond the axis: drawn at its top with the value
+                        ax.annotate(f"{yi:.2f}", (xi, FORCE_PLOT_TOP), textcoords="offset points", xytext=(3, -10),
+                                    fontsize=7, color=line.get_color())
+        top = max([4.0] + [r["force_asked_N"] / r["f_max_N"] for r in bench["results"]
+                           if r["case"].startswith(prefix) and r["force_asked_N"] is not None])
+        ax.plot([0.0, 1.0, top], [0.0, 1.0, 1.0], "k--", lw=0.8, label="min(asked, F_max)")
+        ax.plot([0.0, 0.8, 0.8, top], [0.0, 0.76, 0.8, 0.8], "k:", lw=0.8, label="goal")
+        ax.set_xscale("symlog", linthresh=1.0)
+        ax.set_ylim(0.0, FORCE_PLOT_TOP * 1.02)
+        ax.set_title(plant)
+        ax.set_xlabel("asked / F_max")
+    axes[0][0].set_ylabel("delivered / F_max (mean over the last third)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 PLOTTED = (("rho_min_meas", "ρ_meas min [1]"), ("force_max_N", "F max [N]"), ("u_dev_rms_hPa", "|u − u_nom| RMS [hPa]"),
@@ -605,6 +763,8 @@ def write_outputs(out: Path, bench: Mapping[str, Any]) -> None:
     (out / TABLE_FILE).write_text(table_markdown(bench), encoding="utf-8")
     if bench["results"]:
         write_plot(out / PLOT_FILE, bench)
+    if any(r["force_delivered_N"] is not None for r in bench["results"]):
+        write_force_plot(out / FORCE_PLOT_FILE, bench)
 
 
 HELP = "run safety filters over the fixed benchmark battery: softcbf bench --out DIR [--filters SPEC,...] [--quick]"

@@ -58,8 +58,9 @@ def test_pooled_figures_of_two_runs_by_hand():
     """Run A: deviation 0, 3 (held 3 hPa above a retreating u_nom: 0.1 s blocked); run B: deviation 1, −1, 1 (2 switches in 0.3 s)."""
     a = ({"rho_min_meas": 0.2, "t_violation_s": 0.0, "force_max_N": 0.1}, _calls([10.0, 8.0], [10.0, 5.0], [10.0, 30.0]))
     b = ({"rho_min_meas": -0.1, "t_violation_s": 0.25, "force_max_N": 0.2}, _calls([1.0, -1.0, 1.0], [0.0, 0.0, 0.0], [20.0, 40.0, 50.0]))
-    fig = pooled_figures([a, b])
+    fig = pooled_figures([a, b], 0.16)
     assert fig["rho_min_meas"] == -0.1 and fig["force_max_N"] == 0.2 and fig["t_violation_s"] == 0.25
+    assert fig["f_max_N"] == 0.16 and fig["force_budget_used"] == pytest.approx(0.2 / 0.16)
     assert fig["u_dev_rms_hPa"] == pytest.approx(math.sqrt((0 + 9 + 1 + 1 + 1) / 5))
     assert fig["blocked_s"] == pytest.approx(0.1)
     assert fig["switches_per_s"] == pytest.approx((0 + 2 / 0.3) / 2)
@@ -67,7 +68,7 @@ def test_pooled_figures_of_two_runs_by_hand():
     assert fig["filter_us_p99"] == pytest.approx(np.percentile([10, 30, 20, 40, 50], 99))
     assert fig["violation_probability"] == 0.5 and fig["draws"] == 2
     assert fig["violation_ci95"] == list(wilson_interval(1, 2))
-    single = pooled_figures([a])
+    single = pooled_figures([a], 0.16)
     assert single["violation_probability"] is None and single["violation_ci95"] is None and single["draws"] is None
 
 
@@ -113,8 +114,10 @@ def test_quick_bench_writes_the_contract(tmp_path):
     check_bench_json(bench)  # what --resume accepts
     for row in bench["results"]:
         assert tuple(row) == RESULT_KEYS
+        assert row["force_asked_N"] is None and row["force_delivered_N"] is None and row["force_delivered_ratio"] is None
         for key in RESULT_KEYS[2:]:
-            if key in ("violation_probability", "violation_ci95", "draws"):
+            if key in ("violation_probability", "violation_ci95", "draws", "force_asked_N", "force_delivered_N",
+                       "force_delivered_ratio"):
                 continue
             assert isinstance(row[key], float) and math.isfinite(row[key]), key
         multi = row["case"] == "step"
@@ -172,7 +175,9 @@ def _bench_json(**row) -> dict:
     """A bench.json as a quick `softcbf bench --filters none --cases paper_sim_150` writes it, its row updated with `row`."""
     stored = {"filter": "none", "case": "paper_sim_150", "rho_min_meas": 1.0, "t_violation_s": 0.0, "force_max_N": 0.0,
               "violation_probability": None, "violation_ci95": None, "draws": None, "u_dev_rms_hPa": 0.0,
-              "blocked_s": 0.0, "switches_per_s": 0.0, "filter_us_median": 12.0, "filter_us_p99": 30.0, "wall_s": 3.0}
+              "blocked_s": 0.0, "switches_per_s": 0.0, "filter_us_median": 12.0, "filter_us_p99": 30.0, "wall_s": 3.0,
+              "force_asked_N": None, "force_delivered_N": None, "force_delivered_ratio": None, "force_budget_used": 0.0,
+              "f_max_N": 0.16}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
             "results": [{**stored, **row}]}
 
@@ -323,3 +328,36 @@ def test_a_fresh_bench_that_fails_before_its_first_row_leaves_nothing(tmp_path, 
     assert [p.name for p in (tmp_path / "empty").iterdir()] == [RUN_MARKER]  # as empty as it was: not refused next time
     with pytest.raises(RuntimeError, match="case paper_sim_150 ran"):
         run_bench(tmp_path / "empty", [FilterSpec("none")], RunOptions(quick=True), cases=["paper_sim_150"])
+
+
+def test_contact_tasks_are_in_the_battery_with_their_asked_force():
+    """Issue 24: every plant has the four constant pushes (their asked force within 0.2 % F_max of the ratio:
+    tools/force_levels.py's tolerance), the 150 hPa push and the force-target nominal."""
+    from softcbf.bench import PUSH_PREFIX, PUSH_RATIOS, PUSHES
+
+    for plant, prefix in PUSH_PREFIX.items():
+        for ratio in PUSH_RATIOS:
+            case = CASE[f"{prefix}_push_{round(ratio * 100):03d}"]
+            assert case.scenario_params["scenario"] == plant and case.scenario_params["nominal"] == "step"
+            assert abs(case.asked_N - ratio * 0.16) <= 2e-3 * 0.16
+        assert CASE[f"{prefix}_push_150hPa"].asked_N > 0.16 and "150" in CASE[f"{prefix}_push_150hPa"].scenario_params["nominal_params"]
+        assert CASE[f"{prefix}_force_target"].scenario_params["nominal"] == "force-target"
+    assert all(CASE[c.name].asked_N is None for c in CASES if "push" not in c.name and "force_target" not in c.name)
+    assert set(PUSHES) == set(PUSH_PREFIX)
+
+
+def test_quick_contact_task_rows_hold_the_force_budget(tmp_path):
+    """The unfiltered push asking 0.6 F_max delivers its request (ratio 1 within 2 %: the push settles within 0.5 s);
+    bench.md links the delivered-against-asked plot."""
+    from softcbf.bench import FORCE_PLOT_FILE
+
+    out = tmp_path / "bench"
+    assert main(["bench", "--out", str(out), "--quick", "--filters", "none", "--cases", "mujoco_push_060"]) == 0
+    bench = json.loads((out / "bench.json").read_text())
+    check_bench_json(bench)
+    (row,) = bench["results"]
+    assert row["force_asked_N"] == CASE["mujoco_push_060"].asked_N and row["f_max_N"] == 0.16
+    assert row["force_delivered_ratio"] == pytest.approx(1.0, abs=0.02)
+    assert row["force_delivered_ratio"] == row["force_delivered_N"] / row["force_asked_N"]
+    assert row["force_budget_used"] == row["force_max_N"] / 0.16
+    assert FORCE_PLOT_FILE in (out / "bench.md").read_text() and (out / FORCE_PLOT_FILE).stat().st_size > 1000

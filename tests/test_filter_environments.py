@@ -6,7 +6,7 @@ Issue 24: e-erg failed while being built when a facet's line lay beyond the arm'
 1–3 facets at any angle (vertical ones included, exactly), their lines from behind the base
 through the base to far beyond the arm's reach (corners where two meet), each kept only when
 `Environment`/`ForceSafeSet` accept it. For N = 1..4 segments (e-erg: N ≤ 2, its q-space
-grid) every filter is built (paper-cbf Low, qsg, e-erg with a coarse table to keep CI fast)
+grid; c-erg: any N) every filter is built (paper-cbf Low, qsg, e-erg and c-erg with a coarse table to keep CI fast)
 and called on random states and nominal commands at increasing times: no exception (there is
 no documented refusal for finite inputs at increasing times), and a finite command within the
 box, with "infeasible" allowed. A few seconds in all.
@@ -20,7 +20,7 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from controllers.energy_governor import EnergyGovernor
+from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
 from controllers.escape_energy import MAX_SEGMENTS
 from controllers.filter import paper_cbf
 from controllers.params import uniform_robot
@@ -72,7 +72,8 @@ def test_every_builtin_filter_builds_and_runs_on_accepted_environments(case):
     robot, safe, calls = case
     n = robot.n_segments
     context = FilterContext(robot, safe, np.full(n, -LIMIT_HPA), np.full(n, LIMIT_HPA), 0.1, 0.02, 0.05)
-    filters = {"paper-cbf": paper_cbf(context, "Low"), "qsg": QuasiStaticGovernor(context)}
+    filters = {"paper-cbf": paper_cbf(context, "Low"), "qsg": QuasiStaticGovernor(context),
+               "c-erg": ContactEnergyGovernor(context, grid_hPa=15.0, stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.1)}
     if n <= MAX_SEGMENTS:
         filters["e-erg"] = EnergyGovernor(context, grid_hPa=15.0)
     for name, safety_filter in filters.items():

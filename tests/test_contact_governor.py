@@ -1,0 +1,186 @@
+"""The contact certificate (c-erg, e-erg certificate="contact", issue 24): the grid-free bound on the
+least energy to P's boundary against finite differences and brute force (N = 2, 3, 4), the
+boundary table, and closed loops on the PCC model whose plate pushes back: it holds F ≤ F_max and
+uses the budget where the parked certificate delivers half of it. Also the force-target nominal."""
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
+from controllers.escape_energy import BoundaryDistanceBound, EscapeEnergyTable
+from controllers.nominal import force_target
+from controllers.params import reference_robot, uniform_robot
+from controllers.pcc import tip_jacobian, tip_position, tip_positions
+from controllers.registry import FILTERS, NOMINALS, parameters
+from controllers.safe_set import paper_safe_set
+from controllers.safety_filter import FilterContext
+
+sys.path.insert(0, str(Path(__file__).parent))
+from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
+
+ROBOT = reference_robot()
+SAFE = paper_safe_set()
+PERIOD, DELAY = 0.1, 0.02
+
+
+def boundary_points(robot, safe, q_lo, q_hi, count, seed=0):
+    """Points on the facet row's boundary g(q) = 0: random q in the box, projected by Newton steps along ∇g."""
+    rng = np.random.default_rng(seed)
+    lengths, H, h = robot.array("lengths"), np.asarray(safe.H_prime[0]), float(safe.h_prime[0])
+    q = rng.uniform(q_lo, q_hi, (count, robot.n_segments))
+    for _ in range(8):
+        g = tip_positions(q, lengths) @ H - h
+        grad = np.array([H @ tip_jacobian(p, lengths) for p in q])
+        q = q - (g / np.sum(grad * grad, axis=1))[:, None] * grad
+    g = tip_positions(q, lengths) @ H - h
+    return q[np.abs(g) < 1e-12]
+
+
+@pytest.mark.parametrize("robot", [ROBOT, uniform_robot(3), uniform_robot(4)], ids=["reference", "N3", "N4"])
+def test_curvature_bound_holds_against_finite_differences(robot):
+    """|∂²G[v, v]| ≤ C |v|² in z = K^{1/2} q for random q and unit v (central differences, step 1e-4)."""
+    bound = BoundaryDistanceBound(robot, SAFE)
+    lengths, H = robot.array("lengths"), np.asarray(SAFE.H_prime[0])
+    inverse_root_k = 1.0 / np.sqrt(robot.array("stiffness"))
+    rng = np.random.default_rng(1)
+    worst = 0.0
+    for _ in range(300):
+        q = rng.uniform(-3.0, 3.0, robot.n_segments)
+        v = rng.normal(size=robot.n_segments)
+        w = inverse_root_k * v / np.linalg.norm(v)
+        s = 1e-4
+        second = (H @ (tip_position(q + s * w, lengths) - 2 * tip_position(q, lengths) + tip_position(q - s * w, lengths))) / s**2
+        worst = max(worst, abs(second) / bound.curvature[0])
+    assert worst <= 1.0 + 1e-5
+    assert worst > 0.3  # the bound is not vacuous
+
+
+@pytest.mark.parametrize("robot", [ROBOT, uniform_robot(3), uniform_robot(4)], ids=["reference", "N3", "N4"])
+def test_boundary_bound_is_never_above_the_least_energy_on_the_boundary(robot):
+    """½δ² ≤ min over points of g = 0 of ½(q − q_u)ᵀK(q − q_u), for commands inside and beyond P."""
+    bound = BoundaryDistanceBound(robot, SAFE)
+    k, gain = robot.array("stiffness"), robot.array("gains") / robot.array("stiffness")
+    points = boundary_points(robot, SAFE, -1.5, 1.5, 20000 if robot.n_segments == 2 else 40000)
+    assert len(points) > 1000
+    rng = np.random.default_rng(2)
+    commands = [np.full(robot.n_segments, level) for level in (0.0, 50.0, 60.0, 70.0, 80.0, 150.0)]
+    commands += list(rng.uniform(-150.0, 150.0, (20, robot.n_segments)))
+    tight = 0
+    for u in commands:
+        least = float(np.min(0.5 * np.sum(k * (points - gain * u) ** 2, axis=1)))
+        value = bound.values(u)[0]
+        assert value <= least * (1 + 1e-9) + 1e-12, (u, value, least)
+        tight += value >= 0.5 * least
+    assert tight >= len(commands) // 3  # close to the minimum near the boundary
+
+
+def test_boundary_table_counts_rest_shapes_beyond_P_and_agrees_inside():
+    """The unsafe-set table has Γ = 0 for a rest shape beyond P; the boundary table a positive lower bound of
+    the least energy to the boundary; for rest shapes inside P both tables are the same."""
+    lo, hi = ROBOT.array("u_min"), ROBOT.array("u_max")
+    unsafe = EscapeEnergyTable(ROBOT, SAFE, lo, hi, grid_hPa=10.0)
+    boundary = EscapeEnergyTable(ROBOT, SAFE, lo, hi, grid_hPa=10.0, boundary=True)
+    inside = unsafe.rest_inside
+    assert np.array_equal(unsafe.distance[:, inside], boundary.distance[:, inside])
+    beyond = ~inside
+    assert np.all(unsafe.distance[:, beyond] == 0.0) and np.mean(boundary.distance[:, beyond] > 0.0) > 0.9
+    points = boundary_points(ROBOT, SAFE, -1.5, 1.5, 20000)
+    k, gain = ROBOT.array("stiffness"), ROBOT.array("gains") / ROBOT.array("stiffness")
+    grid = boundary.grid_commands()
+    for i in np.flatnonzero(beyond)[::50]:
+        least = float(np.min(0.5 * np.sum(k * (points - gain * grid[i]) ** 2, axis=1)))
+        assert boundary.grid_values()[0, i] <= least + 1e-12
+
+
+def push(safety_filter, k_ratio, duration=4.0, level=150.0):
+    plant = PushingPlatePlant(ROBOT, SAFE, 11.16 * k_ratio, 0.05)
+    return run_loop(safety_filter, ROBOT, SAFE, lambda t: np.full(2, level), duration, PERIOD, DELAY, tau_p=0.05,
+                    seed=3, plant=plant)
+
+
+def steady(rec) -> float:
+    force = rec.force.max(axis=1)
+    return float(np.mean(force[-len(force) // 3:]))
+
+
+def test_contact_certificate_uses_the_budget_where_the_parked_one_delivers_half():
+    """The full 150 hPa push on the plate that pushes back (exact model, 10 Hz camera timing): c-erg holds
+    F ≤ F_max and settles at ≥ 0.9 F_max; the parked e-erg (contact_aware) stays near half of it (issue 24)."""
+    ctx = context(ROBOT, SAFE, PERIOD, DELAY, 0.05)
+    contact = push(ContactEnergyGovernor(ctx), 1.0)
+    parked = push(EnergyGovernor(ctx, contact_aware=True), 1.0)
+    assert contact.force.max() <= SAFE.f_max
+    assert steady(contact) >= 0.9 * SAFE.f_max
+    assert steady(parked) < 0.65 * SAFE.f_max
+
+
+@pytest.mark.parametrize("k_ratio, delivered", [(0.9, 0.74), (1.0, 0.8), (1.1, 0.8)])
+def test_contact_certificate_holds_any_plate_in_its_stiffness_interval(k_ratio, delivered):
+    """Told [0.9, 1.1] (n_max = ψ⁻¹(F_max/1.1)): the true plate 10 % softer, exact or stiffer; F ≤ F_max at
+    every tick and ≥ `delivered` F_max at the end (a plate 10 % softer yields at most 0.9/1.1 = 0.82 F_max
+    at n_max; measured 0.78)."""
+    gov = ContactEnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.1)
+    rec = push(gov, k_ratio)
+    assert rec.force.max() <= SAFE.f_max
+    assert steady(rec) >= delivered * SAFE.f_max
+
+
+def test_contact_certificate_passes_a_request_within_the_budget():
+    """A push asking ≈ 0.6 F_max of the unfiltered plant (62 hPa on both segments) is delivered to ≥ 0.95."""
+    ctx = context(ROBOT, SAFE, PERIOD, DELAY, 0.05)
+    free = push(FILTERS["none"](), 1.0, level=62.0)
+    rec = push(ContactEnergyGovernor(ctx, stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.1), 1.0, level=62.0)
+    assert 0.3 * SAFE.f_max < steady(free) < 0.8 * SAFE.f_max
+    assert steady(rec) >= 0.95 * steady(free)
+
+
+def test_certificate_values_are_refused_by_name():
+    with pytest.raises(ValueError, match="certificate must be one of park, contact, got 'tight'"):
+        EnergyGovernor.check_arguments({"certificate": "tight"})
+    assert FILTERS["c-erg"] is ContactEnergyGovernor
+    names = {p.name for p in parameters(ContactEnergyGovernor)}
+    assert names == set(ContactEnergyGovernor.parameter_docs) and "certificate" not in names
+
+
+def test_force_target_regulates_the_predicted_force_without_windup():
+    """Out of contact the integral ramps u at k_i·target_N; at the limit it stops growing, so a negative
+    error lowers u at once; in contact u follows k_p e + k_i ∫e with e = target − ψ(n(q̂))."""
+    ctx = FilterContext.for_robot(ROBOT, SAFE, 0.1)
+    nominal = NOMINALS["force-target"](ctx, target_N=0.1, kp=50.0, ki=300.0)
+    free = np.zeros(2)
+    assert np.allclose(nominal(0.0, free, free), 5.0)  # k_p e, nothing integrated yet
+    assert np.allclose(nominal(0.1, free, free), 5.0 + 300.0 * 0.1 * 0.1)
+    for k in range(2, 200):
+        u = nominal(0.1 * k, free, free)
+    top = float(np.min(ROBOT.array("u_max")))
+    assert nominal.hi == top and np.allclose(u, top) and 50.0 * 0.1 + 300.0 * nominal.integral == pytest.approx(top)
+    # a tip pressing harder than the target: e < 0 lowers u in the same call
+    q_deep = np.full(2, 0.6)
+    excess = nominal.predicted_force(q_deep) - 0.1
+    assert excess > 0
+    assert nominal(20.0, q_deep, free)[0] < top
+    with pytest.raises(ValueError, match="target_N must be finite and >= 0, got -1"):
+        force_target(ctx, target_N=-1.0)
+
+
+@pytest.mark.parametrize("n, offset", [(3, 0.15), (4, 0.25)])
+def test_contact_certificate_without_a_grid_holds_three_and_four_segments(n, offset):
+    """N > 2 (no q-space table: the second-order boundary bound alone) on the PCC plant, 10 Hz camera timing:
+    a push at 150 hPa on every segment (unfiltered: deep beyond P) stays inside P and ends pressing near its
+    boundary; a retreating one is passed unchanged."""
+    from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
+
+    robot = uniform_robot(n)
+    safe = ForceSafeSet(Environment(np.array([[0.36, 1.0]]), np.array([offset])), LinearStiffness(11.16), 0.16, "paper")
+    gov = ContactEnergyGovernor(context(robot, safe, PERIOD, DELAY, 0.05), contact_aware=False)
+    assert gov.table is None
+    free = run_loop(lambda e, u: u, robot, safe, lambda t: np.full(n, 150.0), 3.0, PERIOD, DELAY, tau_p=0.05, seed=3)
+    rec = run_loop(gov, robot, safe, lambda t: np.full(n, 150.0), 3.0, PERIOD, DELAY, tau_p=0.05, seed=3)
+    assert free.rho.min() < -1.0
+    assert rec.rho.min() > 0.0 and rec.rho[-1] < 0.5
+    back = run_loop(gov, robot, safe, lambda t: np.full(n, -150.0), 1.0, PERIOD, DELAY, tau_p=0.05, seed=3)
+    assert np.allclose(back.commands[-1], -150.0) and back.rho.min() > 0.0
