@@ -156,10 +156,10 @@ SETTINGS: dict[str, Setting] = {
     "tunings": _text("runs of paper-cbf: comma list of its presets, one run each",
                      "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)", default="None,Low,High"),
     "filter": _text("the safety filter under test",
-                    "paper-cbf, none, qsg, e-erg, FILE.py:Factory, package.module:Factory (softcbf list)", default="paper-cbf"),
+                    "paper-cbf, none, qsg, e-erg, c-erg, FILE.py:Factory, package.module:Factory (softcbf list)", default="paper-cbf"),
     "filter_params": _text("the filter's parameters, name=value;name=value (--filter-param NAME=VALUE; "
                            "a table [filter_params] in a file)", "the filter's parameters (softcbf list)", default=""),
-    "nominal": _text("the nominal controller", "sinusoid, tip-tracker, FILE.py:Factory, package.module:Factory",
+    "nominal": _text("the nominal controller", "sinusoid, tip-tracker, step, force-target, FILE.py:Factory, package.module:Factory",
                      default="sinusoid"),
     "nominal_params": _text("the nominal's parameters, name=value;name=value (--nominal-param NAME=VALUE; "
                             "a table [nominal_params] in a file)", "the nominal's parameters (softcbf list)", default=""),
