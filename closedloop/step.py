@@ -191,14 +191,16 @@ class ControlStep:
         nominal's return is not N real numbers)."""
         return _read_only(real_vector(self.nominal(view.t, view.q, view.qd), self.n, "the nominal command"))
 
-    def prepare(self, estimate: Estimate) -> tuple[Estimate | None, np.ndarray]:
+    def prepare(self, estimate: Estimate, frozen: bool = False) -> tuple[Estimate | None, np.ndarray]:
         """Steps 1–2 of the module docstring: (the view of `estimate` the filter is to be called
         on, u_nom); the view is None when the filter is not to be called (a fault, now or before,
-        or the nominal refused its input: u_nom is then NaN)."""
+        or the nominal refused its input: u_nom is then NaN). `frozen`: the caller guarantees that
+        estimate.q and estimate.qd are already read-only arrays that nothing writes afterwards (a
+        batched loop's one copy of all its states), so they are handed on without another copy."""
         if self.fault is not None:
             return None, self._nan_n
         try:
-            view = self.view(estimate)
+            view = estimate if frozen else self.view(estimate)
             return view, self.nominal_command(view)
         except ControllerInputError:
             return None, self._nan_n
@@ -221,14 +223,15 @@ class ControlStep:
         return self.finish(estimate, u_nom, result, filter_us, flags)
 
     def finish(self, estimate: Estimate, u_nom: np.ndarray, result: object, filter_us: float,
-               flags: SafetyFlags = NO_FLAGS) -> StepRecord:
+               flags: SafetyFlags = NO_FLAGS, checked: bool = False) -> StepRecord:
         """Steps 3–6 of the module docstring for a filter's raw `result` (None: the filter was
         not called, raised or refused its input), computed by `__call__` or by a loop that
-        called the filter for many states at once (`softcbf_mj.batch_loop`)."""
+        called the filter for many states at once (`softcbf_mj.batch_loop`; `checked`: `result`
+        is a FilterOutput that `checked_batch_outputs` made, converted already)."""
         output = command = None
         if result is not None and self.fault is None:
             try:
-                output = self.check(result)
+                output = result if checked else self.check(result)
             except FilterReturnError as exc:
                 self.fault = FilterFault.from_exception(exc, "filter return", estimate.t, self.filter)
             else:

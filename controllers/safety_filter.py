@@ -354,6 +354,8 @@ class OutputCheck:
                             result.diagnostic_units)
 
     def _check_diagnostics(self, diagnostics: object) -> None:
+        if type(diagnostics) is dict and not diagnostics:  # the common case of a plain output: none
+            return
         if type(diagnostics) is FlatDiagnostics:
             layout = diagnostics.layout
             if layout is not self._flat_layout:
@@ -399,6 +401,31 @@ class OutputCheck:
         elif shapes != self.shapes:
             raise FilterReturnError(f"filter diagnostics must keep their keys and shapes over a run: first "
                                     f"{sorted(self.shapes.items())}, now {sorted(shapes.items())}")
+
+
+def checked_batch_outputs(result: object, n_states: int, n: int) -> list[FilterOutput]:
+    """A `filter_batch` return converted once, as `OutputCheck` converts one call's: a BatchOutput
+    whose u is (n_states, n) real numbers, action n_states str, infeasible n_states bools and
+    rho_pred n_states real numbers (NaN: none; not ±inf); one FilterOutput per state, its u a row
+    of one new float array. FilterReturnError otherwise."""
+    if type(result) is not BatchOutput:
+        raise FilterReturnError(f"filter_batch must return a BatchOutput, got {type(result).__name__}")
+    u = np.asarray(result.u) if isinstance(result.u, (np.ndarray, list, tuple)) else None
+    if u is None or u.dtype.kind not in "fiu" or u.shape != (n_states, n):
+        raise FilterReturnError(f"BatchOutput.u must be ({n_states}, {n}) real numbers, got "
+                                f"{type(result.u).__name__} {getattr(u, 'dtype', '')} {getattr(u, 'shape', '')}")
+    actions = list(result.action) if isinstance(result.action, (np.ndarray, list, tuple)) else []
+    infeasible = np.asarray(result.infeasible)
+    rho = np.asarray(result.rho_pred)
+    if len(actions) != n_states or not all(isinstance(a, str) for a in actions):
+        raise FilterReturnError(f"BatchOutput.action must be {n_states} str")
+    if infeasible.dtype != bool or infeasible.shape != (n_states,):
+        raise FilterReturnError(f"BatchOutput.infeasible must be {n_states} bools, got {infeasible.dtype} {infeasible.shape}")
+    if rho.dtype.kind not in "fiu" or rho.shape != (n_states,) or np.isinf(rho).any():
+        raise FilterReturnError(f"BatchOutput.rho_pred must be {n_states} real numbers or NaN")
+    rows = u.astype(float)
+    return [FilterOutput(rows[i], str(a), bool(f), float(r))
+            for i, (a, f, r) in enumerate(zip(actions, infeasible.tolist(), rho.tolist()))]
 
 
 def reset_filter(safety_filter: SafetyFilter) -> None:

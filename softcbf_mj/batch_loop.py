@@ -47,7 +47,7 @@ from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, StepRecord
 from controllers.errors import ControllerInputError
 from controllers.nominal import NominalController
-from controllers.safety_filter import Estimate, EstimateBatch, FilterContext, FilterOutput, SafetyFilter
+from controllers.safety_filter import Estimate, EstimateBatch, FilterContext, SafetyFilter, checked_batch_outputs
 from softcbf_mj.plant import BatchPlant
 
 
@@ -95,13 +95,23 @@ class BatchRun:
         return row
 
 
+def frozen_estimates(state: Any) -> list[Estimate]:
+    """The exact-state estimates of a batch plant's state (t (B,), q, qd (B, N)): rows of one
+    read-only copy of q and of q̇, made here and written by nothing (`ControlStep.prepare`'s `frozen`)."""
+    q, qd = np.array(state.q, dtype=float), np.array(state.qd, dtype=float)
+    q.flags.writeable = qd.flags.writeable = False
+    t = state.t.tolist()
+    return [Estimate(t[b], q[b], qd[b], t[b]) for b in range(len(t))]
+
+
 def batch_rows(steps: Sequence[ControlStep], safety_filter: SafetyFilter, estimates: list[Estimate],
-               active: np.ndarray) -> list[StepRecord | None]:
+               active: np.ndarray, frozen: bool = False) -> list[StepRecord | None]:
     """One control step of the active simulations (`active` (B,) bool; None for the others)
     through the shared filter's `filter_batch`, called once for those whose step calls it
-    (`ControlStep.prepare`, then `ControlStep.finish` per row; module docstring). Also the
-    vector environment's (`softcbf_mj.env.vector`)."""
-    prepared = [steps[b].prepare(estimates[b]) if active[b] else (None, None) for b in range(len(steps))]
+    (`ControlStep.prepare`, then `ControlStep.finish` per row; module docstring). `frozen`: as
+    `ControlStep.prepare`'s (`frozen_estimates`). Also the vector environment's
+    (`softcbf_mj.env.vector`)."""
+    prepared = [steps[b].prepare(estimates[b], frozen) if active[b] else (None, None) for b in range(len(steps))]
     called = [b for b, (view, _) in enumerate(prepared) if view is not None]
     results: dict[int, object] = {}
     filter_us = math.nan
@@ -110,18 +120,19 @@ def batch_rows(steps: Sequence[ControlStep], safety_filter: SafetyFilter, estima
         batch = EstimateBatch(np.array([v.t for v in views]), np.array([v.q for v in views]),
                               np.array([v.qd for v in views]), np.array([v.t_capture for v in views]))
         start = time.perf_counter()
+        where = "filter_batch"
         try:
             out = safety_filter.filter_batch(batch, np.array([prepared[b][1] for b in called]))
             filter_us = (time.perf_counter() - start) * 1e6 / len(called)
-            for i, b in enumerate(called):
-                results[b] = FilterOutput(out.u[i], str(out.action[i]), bool(out.infeasible[i]), float(out.rho_pred[i]))
+            where = "filter return"
+            results = dict(zip(called, checked_batch_outputs(out, len(called), steps[called[0]].n)))
         except ControllerInputError:
             results = {}
         except Exception as exc:  # noqa: BLE001 - a filter fault of every simulation it was called for
             for b in called:
-                steps[b].fault = FilterFault.from_exception(exc, "filter_batch", estimates[b].t)
-    return [steps[b].finish(estimates[b], prepared[b][1], results.get(b), filter_us if b in results else math.nan)
-            if active[b] else None for b in range(len(steps))]
+                steps[b].fault = FilterFault.from_exception(exc, where, estimates[b].t, safety_filter)
+    return [steps[b].finish(estimates[b], prepared[b][1], results.get(b), filter_us if b in results else math.nan,
+                            checked=True) if active[b] else None for b in range(len(steps))]
 
 
 def run_batch_closed_loop(
@@ -171,27 +182,22 @@ def run_batch_closed_loop(
     rows = np.zeros(n_sims, dtype=int)
     active = np.ones(n_sims, dtype=bool)
     commands = np.zeros((n_steps, n_sims, n)) if record_commands else None
-    sent = np.zeros((n_sims, n))
+    vented = np.zeros(n)  # a stopped simulation's plant: the vent
     start = time.perf_counter()
     state = plant.reset(q0)
     for k in range(n_steps):
-        estimates = [Estimate(float(state.t[b]), state.q[b], state.qd[b], float(state.t[b])) for b in range(n_sims)]
         if shared_batch:
-            records = batch_rows(steps, safety_filter, estimates, active)
+            records = batch_rows(steps, safety_filter, frozen_estimates(state), active, frozen=True)
         else:
+            estimates = [Estimate(float(state.t[b]), state.q[b], state.qd[b], float(state.t[b])) for b in range(n_sims)]
             records = [steps[b](estimates[b]) if active[b] else None for b in range(n_sims)]
         margin = np.min(safe_set.margin_from_force(state.contact_forces), axis=1)
         force = np.max(state.contact_forces, axis=1)
-        for b, record in enumerate(records):
-            if record is None:
-                sent[b] = 0.0
-                continue
-            sent[b] = record.u
-            output = record.output
-            if output is not None:
-                rho_pred[b] = min(rho_pred[b], output.rho_pred) if not math.isnan(output.rho_pred) else rho_pred[b]
-                infeasible[b] += output.infeasible
-            refused[b] += record.action is not SafeAction.RUN
+        sent = np.array([vented if r is None else r.u for r in records])
+        outputs = [None if r is None else r.output for r in records]
+        rho_pred = np.fmin(rho_pred, [math.nan if o is None else o.rho_pred for o in outputs])
+        infeasible += [o is not None and o.infeasible for o in outputs]
+        refused += [r is not None and r.action is not SafeAction.RUN for r in records]
         rho_meas = np.where(active, np.minimum(rho_meas, margin), rho_meas)
         force_max = np.where(active, np.maximum(force_max, force), force_max)
         violations += active & (margin < 0.0)
