@@ -57,7 +57,7 @@ the 1 kHz cases, "HW-High" in the 10 Hz camera cases: the paper's tables I and I
 e-erg contact_aware=true with the true plate stiffness in [0.9, 1.1] × the model's
 (`EERG_PARAMS`: the mismatch study's interval, which also holds the stiff-plate case);
 c-erg the same interval (`CERG_PARAMS`) and contact_aware as the plant is: false on the PCC
-plant (paper_sim_150, step: the tip passes through the plate, which pushes back nowhere), true
+plant (paper_sim_150, step, paper_sim_3seg: the tip passes through the plate, which pushes back nowhere), true
 on the MuJoCo plants (the plate on its spring); other filters their own defaults.
 
 Figures per (filter, case): ρ_meas min, t_violation, F max from the scenario's summary row

@@ -379,6 +379,8 @@ def test_three_segment_preset_is_uniform_robot_3_and_touches_the_paper_facet_fro
         case = CASE[name]
         assert case.scenario_params["scenario"] == plant and case.scenario_params["robot"] == "three-segment"
         assert case.rate == "1kHz" and case.asked_N is None
+        pushes_back = "false" if plant == "paper_sim" else "true"  # the PCC plant's plate pushes back nowhere
+        assert case_filter_params(FilterSpec("c-erg"), case)["contact_aware"] == pushes_back
         get(plant).validate({k: v for k, v in case.scenario_params.items() if k != "scenario"})
 
 
