@@ -113,6 +113,7 @@ def data_only() -> Iterator[None]:
 # Named robot files (`load_robot`); each file's "about" says what its constants are and why.
 ROBOT_PRESETS: dict[str, Path] = {
     "hardware-like": Path(__file__).resolve().parents[1] / "models" / "robots" / "hardware_like.json",
+    "three-segment": Path(__file__).resolve().parents[1] / "models" / "robots" / "three_segment.json",
 }
 
 

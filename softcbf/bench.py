@@ -17,6 +17,19 @@ Battery (`CASES`, in this order; each case runs registered scenarios with fixed 
 
 | mujoco_push_030 … _120, mujoco_push_150hPa, mujoco_force_target | mujoco_contact | 1 kHz | contact tasks (docs/beyond-the-paper.md#contact-tasks, `PUSHES`): a constant push from rest asking 0.3, 0.6, 0.9, 1.2 F_max, the full 150 hPa push, the force-target nominal (target 0.6 F_max); `PUSH_DURATION_S` = 6 s |
 | camera_push_030 … _120, camera_push_150hPa, camera_force_target | camera_loop | 10 Hz | the same contact tasks on the camera loop |
+| paper_sim_3seg   | paper_sim (PCC, exact state), robot "three-segment" | 1 kHz | `THREE_SEGMENT_PUSH_HPA` = 40 hPa on every segment from rest, `PUSH_DURATION_S` = 6 s |
+| mujoco_3seg      | mujoco_contact, robot "three-segment"    | 1 kHz  | the same push on the MuJoCo plant (the plate on its spring) |
+
+The 3-segment cases (`THREE_SEGMENT_CASES`). The arm is models/robots/three_segment.json
+(`controllers.params.uniform_robot(3)`: three reference segments, reach 0.366 m); at rest
+its tip lies 17 mm inside the paper's facet 0.36 x + y ≤ 0.15 m, and the 40 hPa push bends
+it through the plate: unfiltered, ρ_meas −6.6 (paper_sim) and −3.2 (mujoco_contact), F max
+1.22 and 0.67 N against F_max = 0.16 N, in contact from ≈ 0.1 s (1 s runs), so the short
+--quick runs test the filter in contact too. A filter that cannot be built for a case's arm
+(e-erg: its escape-energy table is a q-space grid, N ≤ 2) is not run there: `arm_refusal`
+builds every selected filter once on the case's arm (the paper's safe set at the scenario's
+defaults, 1 kHz) before the bench starts, and bench.json's "skipped" records the pair under
+the key "FILTER x CASE" with the filter's own message.
 
 Contact tasks. "Asking for F" means the unfiltered plant's steady measured force is F (the
 mean over the last third of the push, `steady_force`); the step levels (the same on both
@@ -33,7 +46,7 @@ latency would mix with perception effects that the camera cases already cover.
 `--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s (the contact tasks' pushes too), the steps to 3 starts of
 0.5 s, the mismatch study to 2 draws of 1 s and skips the emulator (it runs in real
 time after a start-up of several seconds); bench.json says "quick": true and lists the
-skipped cases with the reason.
+skipped cases with the reason ("skipped": {case or "FILTER x CASE": reason}).
 
 Filters. `--filters` is a comma list of specs `NAME` or `NAME(param=value,...)` (NAME: a
 registry spec, `controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
@@ -44,7 +57,7 @@ the 1 kHz cases, "HW-High" in the 10 Hz camera cases: the paper's tables I and I
 e-erg contact_aware=true with the true plate stiffness in [0.9, 1.1] × the model's
 (`EERG_PARAMS`: the mismatch study's interval, which also holds the stiff-plate case);
 c-erg the same interval (`CERG_PARAMS`) and contact_aware as the plant is: false on the PCC
-plant (paper_sim_150, step: the tip passes through the plate, which pushes back nowhere), true
+plant (paper_sim_150, step, paper_sim_3seg: the tip passes through the plate, which pushes back nowhere), true
 on the MuJoCo plants (the plate on its spring); other filters their own defaults.
 
 Figures per (filter, case): ρ_meas min, t_violation, F max from the scenario's summary row
@@ -127,6 +140,7 @@ PUSH_PLANTS = ("mujoco_contact", "camera_loop")
 PUSH_RATIOS = (0.3, 0.6, 0.9, 1.2)
 FORCE_TARGET_RATIO = 0.6
 PUSH_DURATION_S = 6.0
+THREE_SEGMENT_ROBOT, THREE_SEGMENT_PUSH_HPA = "three-segment", 40.0
 FORCE_PLOT_TOP = 1.5
 
 
@@ -418,8 +432,43 @@ def push_cases() -> tuple[Case, ...]:
         for plant, tasks in PUSHES.items() for suffix, (nominal_params, asked) in tasks.items())
 
 
-CASES = CASES + push_cases()
+THREE_SEGMENT_CASES: tuple[Case, ...] = tuple(
+    Case(name, "1kHz", _scenario_case,
+         {"scenario": plant, "robot": THREE_SEGMENT_ROBOT, "duration": PUSH_DURATION_S, "nominal": "step",
+          "nominal_params": f"seed=0;low_hPa={THREE_SEGMENT_PUSH_HPA:g};high_hPa={THREE_SEGMENT_PUSH_HPA:g}"})
+    for name, plant in (("paper_sim_3seg", "paper_sim"), ("mujoco_3seg", "mujoco_contact")))
+"""The 3-segment cases (module docstring): a constant push on the "three-segment" arm, on the PCC and the MuJoCo plant."""
+CASES = CASES + push_cases() + THREE_SEGMENT_CASES
 QUICK_SKIPPED = {"hardware_emulator": "--quick: the emulator runs in real time after a start-up of several seconds"}
+
+
+def skip_key(spec: FilterSpec, case: Case) -> str:
+    """bench.json's "skipped" key of a (filter, case) pair that is not run: "FILTER x CASE"."""
+    return f"{spec.label} x {case.name}"
+
+
+def arm_refusal(spec: FilterSpec, case: Case) -> str | None:
+    """Why `spec` cannot run in `case`, a case on another arm than the reference (its scenario parameter "robot"):
+    the filter built on that arm's context (the paper's safe set with the scenario's defaults, 1 kHz, the arm's
+    pressure limits) raises `PluginLoadError` (e-erg on N > 2); its message then, None when it builds or the
+    case runs the scenario's own arm."""
+    from controllers.registry import PluginLoadError, build_filter
+    from controllers.safety_filter import FilterContext
+    from scenarios.common import build_safe_set, load_robot
+    from vocabulary.settings import default
+
+    if "robot" not in case.scenario_params:
+        return None
+    plant = case.scenario_params["scenario"]
+    stiffness = "assumed_plate_stiffness" if plant == "mujoco_contact" else "plate_stiffness"
+    safe_set = build_safe_set(*(case.scenario_params.get(name, default(name, plant))
+                                for name in ("environment", stiffness, "f_max", "row_scaling")))
+    robot = load_robot(case.scenario_params["robot"])
+    try:
+        build_filter(spec.name, case_filter_params(spec, case), FilterContext.for_robot(robot, safe_set, 1e-3))
+    except PluginLoadError as exc:
+        return f"{spec.label} cannot be built for the {robot.n_segments}-segment arm {case.scenario_params['robot']!r}: {exc}"
+    return None
 
 
 def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOptions = RunOptions(),
@@ -448,6 +497,11 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
         for case in CASES:
             check_filter(spec.name, case_filter_params(spec, case))
     skipped = {name: reason for name, reason in QUICK_SKIPPED.items() if options.quick and name in selected}
+    for spec in filters:
+        for case in CASES:
+            reason = arm_refusal(spec, case) if case.name in selected and case.name not in skipped else None
+            if reason is not None:
+                skipped[skip_key(spec, case)] = reason
     draws = QUICK_MISMATCH_DRAWS if options.quick else (options.mismatch_draws or MISMATCH_DRAWS)
     bench = {"battery": names, "quick": options.quick, "mismatch_draws": draws, "filters": [s.label for s in filters],
              "skipped": skipped, "results": []}
@@ -472,7 +526,7 @@ def _run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], 
                skipped: Mapping[str, str], done: Mapping[tuple[str, str], dict[str, Any]], options: RunOptions) -> None:
     for spec in filters:
         for case in CASES:
-            if case.name not in selected or case.name in skipped:
+            if case.name not in selected or case.name in skipped or skip_key(spec, case) in skipped:
                 continue
             if (spec.label, case.name) in done:
                 bench["results"].append(done[spec.label, case.name])
@@ -618,7 +672,7 @@ def check_bench_json(data: Any) -> None:
         raise ValueError(f"quick must be true or false, got {data['quick']!r}")
     check_number("mismatch_draws", data["mismatch_draws"], Bound(1), integer=True)
     if not (isinstance(data["skipped"], dict) and all(isinstance(v, str) for v in data["skipped"].values())):
-        raise ValueError(f"skipped must be an object {{case: reason}}, got {data['skipped']!r}")
+        raise ValueError(f"skipped must be an object {{case or 'FILTER x CASE': reason}}, got {data['skipped']!r}")
     if not isinstance(data["results"], list):
         raise ValueError(f"results must be a list of rows, got {data['results']!r}")
     seen = set()

@@ -361,3 +361,54 @@ def test_quick_contact_task_rows_hold_the_force_budget(tmp_path):
     assert row["force_delivered_ratio"] == row["force_delivered_N"] / row["force_asked_N"]
     assert row["force_budget_used"] == row["force_max_N"] / 0.16
     assert FORCE_PLOT_FILE in (out / "bench.md").read_text() and (out / FORCE_PLOT_FILE).stat().st_size > 1000
+
+
+def test_three_segment_preset_is_uniform_robot_3_and_touches_the_paper_facet_from_rest():
+    from controllers.params import uniform_robot
+    from controllers.pcc import tip_position
+    from controllers.safe_set import paper_environment
+    from scenarios.common import load_robot
+
+    robot = load_robot("three-segment")
+    assert robot == uniform_robot(3)
+    env = paper_environment()
+    tip = tip_position(np.zeros(3), np.array(robot.lengths))
+    gap = (env.offsets[0] - env.normals[0] @ tip) / np.linalg.norm(env.normals[0])  # > 0: inside the facet's half-plane
+    assert 0.0 < gap < 0.02  # 17 mm inside at rest (models/robots/README.md): a push reaches the plate quickly
+    for name, plant in (("paper_sim_3seg", "paper_sim"), ("mujoco_3seg", "mujoco_contact")):
+        case = CASE[name]
+        assert case.scenario_params["scenario"] == plant and case.scenario_params["robot"] == "three-segment"
+        assert case.rate == "1kHz" and case.asked_N is None
+        pushes_back = "false" if plant == "paper_sim" else "true"  # the PCC plant's plate pushes back nowhere
+        assert case_filter_params(FilterSpec("c-erg"), case)["contact_aware"] == pushes_back
+        get(plant).validate({k: v for k, v in case.scenario_params.items() if k != "scenario"})
+
+
+def test_arm_refusal_names_e_erg_on_three_segments_and_nothing_else():
+    from softcbf.bench import arm_refusal
+
+    for name in ("paper_sim_3seg", "mujoco_3seg"):
+        reason = arm_refusal(FilterSpec("e-erg"), CASE[name])
+        assert reason is not None and "3-segment" in reason and "N <= 2" in reason
+        for other in ("c-erg", "qsg", "paper-cbf", "none"):
+            assert arm_refusal(FilterSpec(other), CASE[name]) is None, other
+    assert arm_refusal(FilterSpec("e-erg"), CASE["mujoco_contact"]) is None  # the reference arm: not probed
+
+
+def test_quick_three_segment_cases_skip_e_erg_and_the_unfiltered_arm_makes_contact(tmp_path):
+    out = tmp_path / "bench"
+    argv = ["bench", "--out", str(out), "--quick", "--filters", "e-erg,c-erg,none", "--cases", "paper_sim_3seg,mujoco_3seg"]
+    assert main(argv) == 0
+    bench = json.loads((out / "bench.json").read_text())
+    check_bench_json(bench)
+    assert set(bench["skipped"]) == {"e-erg x paper_sim_3seg", "e-erg x mujoco_3seg"}
+    assert all("N <= 2" in reason for reason in bench["skipped"].values())
+    by = {(r["filter"], r["case"]): r for r in bench["results"]}
+    assert set(by) == {(f, c) for f in ("c-erg", "none") for c in ("paper_sim_3seg", "mujoco_3seg")}
+    for case in ("paper_sim_3seg", "mujoco_3seg"):
+        none, cerg = by["none", case], by["c-erg", case]
+        assert none["force_budget_used"] > 1.0 and none["rho_min_meas"] < 0 and none["t_violation_s"] > 0.5
+        assert cerg["rho_min_meas"] > 0 and cerg["t_violation_s"] == 0.0 and cerg["force_max_N"] > 0.0
+    assert "e-erg x mujoco_3seg" in (out / "bench.md").read_text()
+    assert main(argv + ["--resume"]) == 0  # the skip keys are no case names: --resume accepts its own bench.json
+    assert json.loads((out / "bench.json").read_text())["results"] == bench["results"]

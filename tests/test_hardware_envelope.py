@@ -60,7 +60,7 @@ def test_hardware_like_preset_loads_with_its_documented_constants():
 
 
 def test_unknown_robot_name_lists_the_presets():
-    with pytest.raises(ValueError, match=r"robot must be 'reference', one of hardware-like or a robot JSON file, "
+    with pytest.raises(ValueError, match=r"robot must be 'reference', one of hardware-like, three-segment or a robot JSON file, "
                                          r"got 'hardware-lik' \(no such file\)"):
         load_robot("hardware-lik")
 

@@ -173,7 +173,7 @@ SETTINGS: dict[str, Setting] = {
     "control_rate": _number("rate of the controller's calls (zero-order hold between)", "Hz", positive("Hz"), 1e4, default=10.0),
     # the controller's model
     "robot": _text("the controller's robot model",
-                   "'reference', a preset of models/robots (hardware-like) or a robot JSON file (docs/file-formats.md#robot-json)",
+                   "'reference', a preset of models/robots (hardware-like, three-segment) or a robot JSON file (docs/file-formats.md#robot-json)",
                    default="reference"),
     "environment": _text("the facets H r <= h of the free space",
                          "'paper' or an environment JSON file (docs/file-formats.md#environment-json)", default="paper"),
