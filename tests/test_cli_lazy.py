@@ -1,5 +1,6 @@
 """`softcbf list` imports only what it lists (issue 27): not the hardware mode, the bench or the studies' command
-line, and the registry imports a built-in's module only when it is looked up. CPU time: tools/bench_cli_list.py."""
+line, nor MuJoCo, OpenCV, matplotlib or rerun (the scenario modules import them where a scenario runs), and the
+registry imports a built-in's module only when it is looked up. CPU time: tools/bench_cli_list.py."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import sys
 import pytest
 
 LAZY = ("softcbf.hardware_cli", "hardware.runner", "softcbf.bench", "softcbf.study.cli")
+HEAVY = ("mujoco", "cv2", "OpenGL", "matplotlib", "rerun")  # imported only to run a scenario, render or report
 
 
 def modules_after(code: str) -> set[str]:
@@ -24,6 +26,17 @@ def test_list_imports_no_other_subcommand():
                            "with contextlib.redirect_stdout(io.StringIO()):\n    assert main(['list']) == 0")
     assert loaded.isdisjoint(LAZY), sorted(loaded & set(LAZY))
     assert "controllers.energy_governor" in loaded  # list describes every filter
+
+
+@pytest.mark.parametrize("argv, shown", [(["list"], "mujoco_contact:"), (["run", "mujoco_contact", "--help"], "--f-max float"),
+                                         (["run", "camera_loop", "--help"], "valid: in [16, 1280] px")])
+def test_listing_and_scenario_help_import_no_simulator_nor_opencv(argv, shown):
+    """Every scenario is registered and its parameters described (defaults, ranges) without MuJoCo or OpenCV."""
+    loaded = modules_after("import contextlib, io\nfrom softcbf.cli import main\nout = io.StringIO()\n"
+                           f"with contextlib.redirect_stdout(out):\n    assert main({argv!r}) == 0\n"
+                           f"assert {shown!r} in out.getvalue(), out.getvalue()")
+    assert {"scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop"} <= loaded
+    assert loaded.isdisjoint(HEAVY), sorted(loaded & set(HEAVY))
 
 
 @pytest.mark.parametrize("argv, module", [(["hardware", "--help"], "softcbf.hardware_cli"), (["bench", "--help"], "softcbf.bench"),
