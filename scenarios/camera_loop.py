@@ -224,7 +224,9 @@ def camera_loop(
     `true_*_scale` factors of the arm, the true plates moved by `facet_offset` and turned by
     `facet_angle` (the controller keeping the unmoved facets), `gravity`, `tip_friction`,
     `table_friction`, `plate` and the `sheet_*` parameters (a flexure's gauge gives ρ_meas)."""
-    import cv2  # MuJoCo, OpenCV and perception: imported when run (module docstring)
+    params = dict(locals())  # the parameters: first, before any other local name
+    params.pop("out_dir")
+    import cv2  # MuJoCo, OpenCV and perception: imported when run (module docstring), after `params`
 
     from perception.detect import TagDetector
     from perception.estimator import ArmAngleEstimator
@@ -235,8 +237,6 @@ def camera_loop(
     from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
     from softcbf_mj.render import OffscreenRenderer
 
-    params = dict(locals())
-    params.pop("out_dir")
     check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
     model_robot = controller_robot(params)

@@ -243,11 +243,10 @@ def mujoco_contact(
     from +z) about the foot of the perpendicular from the base; the controller keeps the
     unmoved facets. Model mismatch studies vary these (softcbf.study).
     """
-    from softcbf_mj.model_builder import build_model  # MuJoCo: imported when run (module docstring)
-    from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
-
-    params = dict(locals())
+    params = dict(locals())  # the parameters: first, before any other local name
     params.pop("out_dir")
+    from softcbf_mj.model_builder import build_model  # MuJoCo: imported when run (module docstring), after `params`
+    from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
     setup = contact_setup(params)
     safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.truth.plate_stiffness, setup.nominal_kwargs
     plant = MujocoPlant(build_model(setup.truth.config), CONTROL_DT)

@@ -72,3 +72,26 @@ def test_the_registry_imports_a_builtin_at_its_first_lookup():
         FILTERS["nosuch"]
     with pytest.raises(TypeError):
         FILTERS["none"] = object  # read-only: the built-ins are fixed
+
+
+class Recorded(Exception):
+    """Raised by `record_params` with the parameters a scenario hands to its SummaryWriter."""
+
+
+def record_params(out_dir, scenario, params, *args, **kwargs):
+    raise Recorded(dict(params))
+
+
+@pytest.mark.parametrize("name, params", [("paper_sim", {}), ("mujoco_contact", {}),
+                                          ("camera_loop", {"calibration": "truth", "width": 64, "height": 48})])
+def test_a_run_records_exactly_its_parameters(name, params, tmp_path, monkeypatch):
+    """The names a scenario imports inside its function come after it reads its parameters (`locals()`)."""
+    import importlib
+
+    from scenarios import get
+
+    scenario = get(name)
+    monkeypatch.setattr(importlib.import_module(f"scenarios.{name}"), "SummaryWriter", record_params)
+    with pytest.raises(Recorded) as recorded:
+        scenario.run(tmp_path, **{"duration": 0.01, "progress": False, **params})
+    assert recorded.value.args[0] == scenario.validate({"duration": 0.01, "progress": False, **params})
