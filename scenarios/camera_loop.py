@@ -28,6 +28,12 @@ frame (median, ms), and the loop latency: the age of the estimate at the control
 calls (capture → command, mean and max, s). Time series: the tick-rate series of
 `mujoco_contact` plus one per-frame series `<run>_frames.npz` (`FRAME_UNITS`); a few
 frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
+
+Imports: MuJoCo, OpenCV and the perception pipeline are imported inside the functions that
+check or run the scenario, not at load, so that registering it and reading its parameters
+(`softcbf list`, `softcbf run NAME --help`) stay cheap (issue 27; tests/test_cli_lazy.py). The
+image size's bound is the render's resolution (`softcbf_mj.model_builder.CAMERA_RESOLUTION`),
+which is the scenario's default width and height (tests/test_setting_defaults.py holds them equal).
 """
 
 from __future__ import annotations
@@ -35,40 +41,33 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
-import cv2
-import mujoco
 import numpy as np
 
 from controllers.safety_filter import FilterContext
-from perception.detect import BACKENDS as DETECTOR_BACKENDS, TagDetector
-from perception.estimator import ArmAngleEstimator
-from perception.plane import PlaneCalibration, calibrate
-from perception.tracking import TrackingTagDetector
-from perception.tags import arm_tag_ids
 from scenarios import register
 from scenarios.common import (
     build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
     controller_row, controller_runs, existing_file, filter_enabled, initial_configuration,
     live_run, nominal_arguments, read_parameter_file, save_run, scene_record, stop_after,
 )
-from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
 from scenarios.ground_truth import GroundTruthSettings, build_truth, check_true_arm, controller_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
-from softcbf_mj.model_builder import (
-    CAMERA_RESOLUTION, ArmModelConfig, build_model, calibration_board,
-)
-from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
-from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
 from vocabulary.settings import Bound, default
 
+if TYPE_CHECKING:  # MuJoCo, OpenCV and perception are imported where they are used (module docstring: Imports)
+    from perception.plane import PlaneCalibration
+    from softcbf_mj.model_builder import ArmModelConfig
+    from softcbf_mj.mujoco_plant import MujocoPlant
 
-BOUNDS = {"width": Bound(16, CAMERA_RESOLUTION[0], unit="px"), "height": Bound(16, CAMERA_RESOLUTION[1], unit="px")}  # the render's
+
+BOUNDS = {"width": Bound(16, default("width", "camera_loop"), unit="px"),  # the render's resolution (module docstring)
+          "height": Bound(16, default("height", "camera_loop"), unit="px")}
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -94,6 +93,13 @@ TABLE = (
 def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: int, height: int,
                  backend: str) -> PlaneCalibration:
     """The image-to-plane map: "board" (fit from a render of the calibration board), "truth", or a JSON file."""
+    import mujoco
+
+    from perception.detect import TagDetector
+    from perception.plane import PlaneCalibration, calibrate
+    from softcbf_mj.model_builder import build_model, calibration_board
+    from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
+
     if spec == "truth":
         return ground_truth_calibration(plant.model, plant.data, "overhead", width, height)
     if spec == "board":
@@ -129,6 +135,9 @@ def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarr
 
 def check_parameters(params: Mapping[str, Any]) -> None:
     """The checks `camera_loop` makes before it builds anything (`scenarios.Scenario.validate`)."""
+    from perception.detect import BACKENDS as DETECTOR_BACKENDS
+    from softcbf_mj.camera_loop import CameraTiming
+
     check_bounds(params, BOUNDS)
     model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
     timing = CameraTiming(params["frame_rate"], params["control_rate"], params["latency"], params["drop_rate"],
@@ -215,8 +224,19 @@ def camera_loop(
     `true_*_scale` factors of the arm, the true plates moved by `facet_offset` and turned by
     `facet_angle` (the controller keeping the unmoved facets), `gravity`, `tip_friction`,
     `table_friction`, `plate` and the `sheet_*` parameters (a flexure's gauge gives ρ_meas)."""
-    params = dict(locals())
+    params = dict(locals())  # the parameters: first, before any other local name
     params.pop("out_dir")
+    import cv2  # MuJoCo, OpenCV and perception: imported when run (module docstring), after `params`
+
+    from perception.detect import TagDetector
+    from perception.estimator import ArmAngleEstimator
+    from perception.tags import arm_tag_ids
+    from perception.tracking import TrackingTagDetector
+    from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
+    from softcbf_mj.model_builder import build_model
+    from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+    from softcbf_mj.render import OffscreenRenderer
+
     check_parameters(params)
     timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
     model_robot = controller_robot(params)

@@ -22,6 +22,11 @@ The settings (vocabulary.settings; every MuJoCo scenario takes them all, docs/pa
 section; `check_true_arm` checks them without building anything (`scenarios.Scenario.validate`);
 `build_truth` builds them: a `Truth` whose `config` (`ArmModelConfig`) both the single run's
 `MujocoPlant` and the batch's `MujocoBatchPlant` take.
+
+Imports: MuJoCo (softcbf_mj.flexure, flexure_calibration, model_builder) is imported inside
+the functions that check or build a ground truth, not at load, so that registering the
+scenarios and reading their parameters (`softcbf list`, `softcbf run NAME --help`) stay cheap
+(issue 27; tests/test_cli_lazy.py).
 """
 
 from __future__ import annotations
@@ -29,16 +34,17 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from controllers.params import RobotParams
 from controllers.safe_set import Environment
 from scenarios.common import check_choice, load_robot
-from softcbf_mj.flexure import FlexureParams
-from softcbf_mj.flexure_calibration import calibrate_flexure
-from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
+
+if TYPE_CHECKING:  # MuJoCo's modules are imported where they are used (module docstring: Imports)
+    from softcbf_mj.flexure import FlexureParams
+    from softcbf_mj.model_builder import ArmModelConfig
 
 
 def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
@@ -92,6 +98,8 @@ class GroundTruthSettings:
     @property
     def flexure(self) -> FlexureParams:
         """The flexure sheet of the `sheet_*` settings (checked by FlexureParams)."""
+        from softcbf_mj.flexure import FlexureParams
+
         return FlexureParams(clamp_at=self.sheet_clamp_at, free_end_at=self.sheet_free_end_at,
                              thickness=self.sheet_thickness, width=self.sheet_width,
                              youngs_modulus=self.sheet_youngs_modulus, links=self.sheet_links,
@@ -102,6 +110,8 @@ def check_true_arm(settings: GroundTruthSettings, model_robot: RobotParams) -> N
     """The checks of a MuJoCo scenario's ground truth: plate kind, sheet, true robot (the same
     number of segments as the controller's) and the model settings (ArmModelConfig's checks, among
     them `table_friction` against `gravity` and the physics step)."""
+    from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
+
     check_choice("plate", settings.plate, PLATE_KINDS)
     if settings.true_robot:
         true_robot = load_robot(settings.true_robot)
@@ -135,6 +145,9 @@ class Truth:
 def build_truth(settings: GroundTruthSettings, model_robot: RobotParams, environment: Environment) -> Truth:
     """The ground truth of a MuJoCo scenario's checked `settings` (module docstring), for the
     controller's robot `model_robot` (`controller_robot`) and facets `environment`."""
+    from softcbf_mj.flexure_calibration import calibrate_flexure
+    from softcbf_mj.model_builder import ArmModelConfig
+
     g = settings
     ref = scale_damping(load_robot(g.true_robot), g.damping_scale) if g.true_robot else model_robot
     arm = RobotParams(

@@ -29,6 +29,10 @@ and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
 `contact_s_m`, `contact_stiffness_N_per_m`). With `table_friction` μ > 0 the arm's links slide on the
 table with Coulomb friction (`softcbf_mj.table_friction`; time series `table_friction_power_W`);
 such samples have no batch form. Results and the benchmark: models/softcbf_arm/README.md.
+
+Imports: MuJoCo (the plants, the model builder) is imported inside the functions that run the
+scenario or its batch form, not at load, so that registering the scenario and reading its
+parameters (`softcbf list`, `softcbf run NAME --help`) stay cheap (issue 27; tests/test_cli_lazy.py).
 """
 
 from __future__ import annotations
@@ -51,9 +55,6 @@ from scenarios.common import (
 from scenarios.ground_truth import GroundTruthSettings, Truth, build_truth, check_true_arm, controller_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
-from softcbf_mj.model_builder import build_model
-from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
-from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
 from vocabulary.settings import Bound, default
@@ -154,6 +155,8 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) ->
     """Run `mujoco_contact` samples that share `contact_batch_key` (each one tuning) in one
     batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
     run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
+    from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant  # MuJoCo: imported when run (module docstring)
+
     keys = {contact_batch_key(p) for p in samples}
     if len(keys) != 1 or None in keys:
         raise ValueError(f"samples of one batch must share contact_batch_key and use the ideal plate, got {len(keys)} keys")
@@ -240,8 +243,10 @@ def mujoco_contact(
     from +z) about the foot of the perpendicular from the base; the controller keeps the
     unmoved facets. Model mismatch studies vary these (softcbf.study).
     """
-    params = dict(locals())
+    params = dict(locals())  # the parameters: first, before any other local name
     params.pop("out_dir")
+    from softcbf_mj.model_builder import build_model  # MuJoCo: imported when run (module docstring), after `params`
+    from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
     setup = contact_setup(params)
     safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.truth.plate_stiffness, setup.nominal_kwargs
     plant = MujocoPlant(build_model(setup.truth.config), CONTROL_DT)

@@ -57,7 +57,9 @@ handler raises `UsageError` for bad input. `add_arguments` may be None (no optio
 function `name` of `module`, imported when first called: `hardware`, `bench` and `study`
 are registered so, and `main` builds only the subcommand it runs (the others get their
 name, and their help only for `softcbf --help`), so `softcbf list` imports neither OpenCV
-nor the hardware mode nor the governors' benchmark (tools/bench_cli_list.py measures its CPU time).
+nor the hardware mode nor the governors' benchmark, and the scenario modules import MuJoCo and
+OpenCV only where a scenario is checked or run, so neither `list` nor `run NAME --help` imports
+them (tests/test_cli_lazy.py; tools/bench_cli_list.py measures their CPU time).
 """
 
 from __future__ import annotations

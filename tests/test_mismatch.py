@@ -9,7 +9,10 @@ import math
 import numpy as np
 import pytest
 
-import scenarios.mujoco_contact as mc
+import softcbf_mj.flexure_calibration  # noqa: F401 -- imported before the spy: they keep the real build_model
+import softcbf_mj.model_builder as mb
+import softcbf_mj.mujoco_batch_plant  # noqa: F401
+import softcbf_mj.mujoco_plant  # noqa: F401
 from controllers.params import reference_robot
 from scenarios import get
 from softcbf_mj.model_builder import ArmModelConfig, arm_xml
@@ -21,13 +24,13 @@ SHORT = dict(duration=0.3, t0=25.0, tunings="None", progress=False)
 def built(monkeypatch):
     """Run the scenario with the plant's model recorded: returns run(**params) -> (its ArmModelConfig's fields, summary)."""
     calls = []
-    original = mc.build_model
+    original = mb.build_model  # mujoco_contact imports it when it runs (issue 27), so it calls the spy
 
     def spy(config, *args, **kwargs):
         calls.append({f.name: getattr(config, f.name) for f in dataclasses.fields(config)})
         return original(config, *args, **kwargs)
 
-    monkeypatch.setattr(mc, "build_model", spy)
+    monkeypatch.setattr(mb, "build_model", spy)
 
     def run(tmp_path, **params):
         tmp_path.mkdir(parents=True, exist_ok=True)

@@ -4,8 +4,10 @@ Each of `--repeats` runs starts `python -m softcbf.cli list` with the interprete
 process (so the same virtual environment) with its output discarded, and reads the
 child's user and system CPU time from `resource.getrusage(RUSAGE_CHILDREN)` (the
 difference before and after the child). The budget (issue 27) is 0.5 s of CPU; the
-median over the runs is what is compared with it. Also reported: the bare interpreter's
-start (`python -c pass`), the floor no lazy import can go below. Usage:
+median over the runs is what is compared with it. Also reported: `softcbf run
+mujoco_contact --help` (a scenario's parameters, which import no MuJoCo either:
+tests/test_cli_lazy.py) and the bare interpreter's start (`python -c pass`), the floor no
+lazy import can go below. Usage:
 `.venv/bin/python tools/bench_cli_list.py [--repeats 5]`; prints a table and ends with one line of JSON.
 """
 
@@ -38,7 +40,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
-    commands = {"softcbf list": [sys.executable, "-m", "softcbf.cli", "list"], "python -c pass": [sys.executable, "-c", "pass"]}
+    commands = {"softcbf list": [sys.executable, "-m", "softcbf.cli", "list"],
+                "run NAME --help": [sys.executable, "-m", "softcbf.cli", "run", "mujoco_contact", "--help"],
+                "python -c pass": [sys.executable, "-c", "pass"]}
     figures: dict[str, dict[str, float]] = {}
     for name, command in commands.items():
         runs = [cpu_of(command) for _ in range(args.repeats)]
@@ -53,6 +57,7 @@ def main() -> None:
                       "list_cpu_s_median": figures["softcbf list"]["cpu_s_median"],
                       "list_cpu_s_max": figures["softcbf list"]["cpu_s_max"],
                       "list_wall_s_median": figures["softcbf list"]["wall_s_median"],
+                      "run_help_cpu_s_median": figures["run NAME --help"]["cpu_s_median"],
                       "python_start_cpu_s_median": figures["python -c pass"]["cpu_s_median"]}))
 
 
