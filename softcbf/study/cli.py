@@ -44,7 +44,7 @@ def _run(args: argparse.Namespace) -> int:
     from softcbf.study.execute import run_study
     from softcbf.study.report import write_report
 
-    try:
+    def body() -> None:
         study = load_study(args.study_file, args.set)
         options = {"workers": args.workers, "scheduler": args.scheduler, "resume": args.resume,
                    "keep_runs": args.keep_runs, "progress": not args.no_progress, "batch_size": args.batch_size}
@@ -67,11 +67,20 @@ def _run(args: argparse.Namespace) -> int:
               f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
               + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
         print(f"report: {write_report(args.out)}")
+
+    return _resumable(body, args.out, "samples")
+
+
+def _resumable(body, out: Path, stored: str) -> int:
+    """`body()`'s exit code as a resumable command's: 0, 2 after "error: MESSAGE" for a bad input
+    or folder, 130 after saying that the finished `stored` are in `out` for Ctrl-C."""
+    try:
+        body()
     except (ValueError, OutputDirError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"\ninterrupted: finished samples are stored in {args.out}; continue with --resume", file=sys.stderr)
+        print(f"\ninterrupted: finished {stored} are stored in {out}; continue with --resume", file=sys.stderr)
         return 130
     return 0
 
@@ -81,7 +90,7 @@ def _falsify(args: argparse.Namespace) -> int:
     from softcbf.study.falsify import falsify
     from softcbf.study.report import write_report
 
-    try:
+    def body() -> None:
         study = load_study(args.study_file, args.set)
         result = falsify(study, args.out, budget=args.budget, sampler=args.sampler, population=args.population,
                          initial=args.initial,
@@ -94,13 +103,8 @@ def _falsify(args: argparse.Namespace) -> int:
               f"{result['first_violation'] or 'none'}; uniform baseline: best {base['best']!r} in "
               f"{base['evaluations']}, first violation: {base['first_violation'] or 'none'}; folder {args.out}")
         print(f"report: {write_report(args.out)}")
-    except (ValueError, OutputDirError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"\ninterrupted: finished evaluations are stored in {args.out}; continue with --resume", file=sys.stderr)
-        return 130
-    return 0
+
+    return _resumable(body, args.out, "evaluations")
 
 
 def _report(args: argparse.Namespace) -> int:
