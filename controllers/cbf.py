@@ -34,7 +34,7 @@ import numpy as np
 from controllers.dynamics import DynamicsEval
 from controllers.errors import ControllerInputError, NonFiniteCommandError, as_vector
 from controllers.filter_parameters import FilterParameter
-from vocabulary.settings import Bound
+from controllers.bounds import Bound
 
 B_MIN = math.sqrt(sys.float_info.min)  # ≈ 1.5e-154: smallest b treated as inside P
 

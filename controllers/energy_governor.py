@@ -177,7 +177,7 @@ from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
-from vocabulary.settings import Bound
+from controllers.bounds import Bound
 
 ESCAPE_MEMORY = 4096
 """Most Γ̲ look-ups remembered across calls (`EnergyGovernor.escape_memory`)."""

@@ -106,7 +106,7 @@ from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, d
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import (BatchOutput, DiagnosticLayout, Estimate, EstimateBatch, FilterContext, FilterOutput,
                                       FlatDiagnostics)
-from vocabulary.settings import Bound
+from controllers.bounds import Bound
 
 PARAMETERS = {
     "tuning": FilterParameter(f"preset ({', '.join(TUNINGS)}) or 'custom' (a_E, b_E, gamma below)", "", str),

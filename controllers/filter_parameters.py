@@ -10,7 +10,7 @@ in a dict `name → FilterParameter`. The same table serves three uses:
 - `parameter_docs(table)`: the filter's `parameter_docs` ("meaning; valid range [unit]"),
   which `softcbf list` and docs/parameters.md show.
 
-A range is a `vocabulary.settings.Bound` and the check is `vocabulary.settings.check_number`
+A range is a `controllers.bounds.Bound` and the check is `controllers.bounds.check_number`
 (the settings' own check): a refusal is a `SettingError` (a ValueError) naming the
 parameter, the bound with its unit and the value received, e.g. "kappa must be in
 [0, 1000], got -1.0". A bound is physical (a margin ≥ 0 m, a ratio > 0) or computational
@@ -27,7 +27,7 @@ import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from vocabulary.settings import Bound, SettingError, check_number
+from controllers.bounds import Bound, SettingError, check_number
 
 
 @dataclass(frozen=True)

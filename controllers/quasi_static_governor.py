@@ -55,7 +55,7 @@ from controllers.filter_parameters import FilterParameter, check_parameters, par
 from controllers.pcc import kinematics, kinematics_unchecked, step_kinematics
 from controllers.qp import DEFAULT_BACKEND, check_backend, solve_lists
 from controllers.safety_filter import Estimate, FilterContext, FilterOutput
-from vocabulary.settings import Bound
+from controllers.bounds import Bound
 
 RESIDUAL_TOL_M = 1e-6
 """Rest-shape rows may miss the margin by this much (m, Euclidean) at the returned command."""

@@ -1,5 +1,5 @@
 """The declared filter parameters (controllers.filter_parameters): one check for check_arguments and
-the constructors, through vocabulary.settings.check_number, and the docs built from the same table."""
+the constructors, through controllers.bounds.check_number, and the docs built from the same table."""
 
 import math
 

@@ -3,14 +3,14 @@
 Layers, bottom to top (a package may import its own modules and lower layers only;
 packages on one layer do not import each other):
 
-    0  vocabulary                the settings: names, units, ranges and their check (standard library only)
-    1  controllers, perception   the controller under test (numpy, QP solvers; its filters' parameter bounds
-                                 use the vocabulary's check) / the camera pipeline (OpenCV)
-    2  closedloop                the one control step, safety monitor and recorder (numpy)
-    3  hardware                  the valve-board link and the hardware loop
-    4  softcbf_mj                the MuJoCo testbed: plants, loops, recording, reports
-    5  scenarios                 registered experiments
-    6  softcbf                   the application layer: CLI, hardware CLI, studies
+    0  controllers, perception   the controller under test (numpy, QP solvers; `controllers.bounds`, a
+                                 number's range and its check) / the camera pipeline (OpenCV)
+    1  vocabulary, closedloop    the settings: names, units, ranges (`controllers.bounds`) and their check,
+                                 standard library only / the one control step, safety monitor and recorder
+    2  hardware                  the valve-board link and the hardware loop
+    3  softcbf_mj                the MuJoCo testbed: plants, loops, recording, reports
+    4  scenarios                 registered experiments
+    5  softcbf                   the application layer: CLI, hardware CLI, studies
 
 Every module of every package is parsed (ast), including imports inside functions, with
 no exception: `python -m scenarios` (scenarios/__main__.py) runs `scenarios.run`, the
@@ -27,8 +27,8 @@ import pytest
 from controllers.filter import CBFFilter
 
 REPO = Path(__file__).resolve().parents[1]
-LAYERS = {"vocabulary": 0, "controllers": 1, "perception": 1, "closedloop": 2, "hardware": 3, "softcbf_mj": 4, "scenarios": 5,
-          "softcbf": 6}
+LAYERS = {"controllers": 0, "perception": 0, "vocabulary": 1, "closedloop": 1, "hardware": 2, "softcbf_mj": 3, "scenarios": 4,
+          "softcbf": 5}
 FORBIDDEN = {  # third-party modules a package must not import
     "vocabulary": ("numpy", "mujoco", "cv2", "rerun", "matplotlib"),
     "controllers": ("mujoco", "cv2", "rerun", "matplotlib"),
