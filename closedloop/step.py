@@ -56,7 +56,7 @@ from closedloop.monitor import NO_FLAGS, SafeAction, SafetyFlags, SafetyMonitor
 from controllers.errors import ControllerInputError
 from controllers.nominal import NominalController
 from controllers.safety_filter import (Estimate, FilterContext, FilterOutput, FilterReturnError, OutputCheck,
-                                       SafetyFilter, real_vector, reset_filter)
+                                       SafetyFilter, read_only, real_vector, reset_filter)
 
 ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}  # the time series' `action` column
 STEP_COLUMNS = frozenset({"u_nom", "u_filter", "u", "rho_pred", "infeasible", "filter_us", "action"})
@@ -87,6 +87,12 @@ class FilterFault:
         location = _source_location(culprit) if isinstance(exc, FilterReturnError) else _raise_location(exc)
         return cls(type(exc).__name__, text[0] if text else "", where, location, float(t),
                    "".join(traceback.format_exception(exc)))
+
+    def row_fields(self) -> dict[str, Any]:
+        """What a summary row of a run that ended on this fault gains: `fault` (`to_json`) and its
+        scalars fault_type, fault_where, fault_message (the columns a study's table keeps)."""
+        return {"fault": self.to_json(), "fault_type": self.type, "fault_where": self.where,
+                "fault_message": self.message}
 
     def to_json(self) -> dict[str, Any]:
         """summary.json's `fault` (docs/run-outputs.md): type, message, where, location, t_s."""
@@ -137,11 +143,6 @@ class StepRecord:
     filter_us: float
 
 
-def _read_only(values: np.ndarray) -> np.ndarray:
-    values.setflags(write=False)  # as `flags.writeable = False`, without building a flags object
-    return values
-
-
 class ControlStep:
     """estimate → nominal → filter → admission → monitor → command (module docstring).
 
@@ -158,7 +159,7 @@ class ControlStep:
         if self.monitor.n_segments != self.n:
             raise ValueError(f"monitor has {self.monitor.n_segments} segments, the robot {self.n}")
         self.clock = clock
-        self._nan_n = _read_only(np.full(self.n, math.nan))
+        self._nan_n = read_only(np.full(self.n, math.nan))
         limits = context.limits
         self._lo, self._hi = (None, None) if limits is None else (list(limits[0]), list(limits[1]))
         self.check = OutputCheck(self.n, RESERVED_COLUMNS)
@@ -183,13 +184,13 @@ class ControlStep:
 
     def view(self, estimate: Estimate) -> Estimate:
         """What user code sees of `estimate`: read-only copies of q and q̇ (the loop keeps its own)."""
-        return Estimate(estimate.t, _read_only(np.array(estimate.q, dtype=float)),
-                        _read_only(np.array(estimate.qd, dtype=float)), estimate.t_capture)
+        return Estimate(estimate.t, read_only(np.array(estimate.q, dtype=float)),
+                        read_only(np.array(estimate.qd, dtype=float)), estimate.t_capture)
 
     def nominal_command(self, view: Estimate) -> np.ndarray:
         """u_nom of `view` as a new read-only float array (N,) hPa (FilterReturnError if the
         nominal's return is not N real numbers)."""
-        return _read_only(real_vector(self.nominal(view.t, view.q, view.qd), self.n, "the nominal command"))
+        return read_only(real_vector(self.nominal(view.t, view.q, view.qd), self.n, "the nominal command"))
 
     def prepare(self, estimate: Estimate, frozen: bool = False) -> tuple[Estimate | None, np.ndarray]:
         """Steps 1–2 of the module docstring: (the view of `estimate` the filter is to be called

@@ -233,8 +233,8 @@ class FilterContext:
             lo, hi = np.asarray(self.u_min, dtype=float), np.asarray(self.u_max, dtype=float)
             if lo.shape != (n,) or hi.shape != (n,) or not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()):
                 raise ValueError(f"u_min < u_max must be finite arrays of shape ({n},) hPa, got {self.u_min} and {self.u_max}")
-            object.__setattr__(self, "u_min", _read_only_copy(lo))
-            object.__setattr__(self, "u_max", _read_only_copy(hi))
+            object.__setattr__(self, "u_min", read_only(lo.copy()))
+            object.__setattr__(self, "u_max", read_only(hi.copy()))
             object.__setattr__(self, "limits", (tuple(lo.tolist()), tuple(hi.tolist())))
         if not (math.isfinite(self.control_dt) and self.control_dt > 0):
             raise ValueError(f"control_dt must be finite and > 0 s, got {self.control_dt}")
@@ -277,10 +277,11 @@ _REAL_SCALARS = (float, bool, np.float64, np.float32, np.int64, np.int32, np.boo
 _INT_MAX = 2**1023  # a Python int beyond this is no float
 
 
-def _read_only_copy(values: np.ndarray) -> np.ndarray:
-    out = np.array(values, dtype=float)
-    out.flags.writeable = False
-    return out
+def read_only(values: np.ndarray) -> np.ndarray:
+    """`values`, a new array its caller owns, made read-only (what user code is handed: an
+    in-place change raises ValueError) and returned."""
+    values.setflags(write=False)  # as `flags.writeable = False`, without building a flags object
+    return values
 
 
 def real_vector(value: object, n: int, what: str) -> np.ndarray:

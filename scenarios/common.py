@@ -323,7 +323,7 @@ def save_run(
     row: dict[str, Any] = {"tuning": label}
     row.update(row_fields or {})
     if fault is not None:
-        row.update(fault=fault.to_json(), fault_type=fault.type, fault_where=fault.where, fault_message=fault.message)
+        row.update(fault.row_fields())
         write_fault_log(out_dir, label, fault)
     row.update(run_figures(log, control_dt, filtered, wall_s))
     if extra_figures is not None:

@@ -415,8 +415,7 @@ def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: Har
                dry_run=config.run.dry_run)
     row["timeseries"] = str(save_timeseries(out_dir, label, series, units).relative_to(out_dir))
     if log.fault is not None:
-        row.update(fault=log.fault.to_json(), fault_type=log.fault.type, fault_where=log.fault.where,
-                   fault_message=log.fault.message)
+        row.update(log.fault.row_fields())
         write_fault_log(out_dir, label, log.fault)
     if log.error is not None:
         row["error"] = log.error

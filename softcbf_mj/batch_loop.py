@@ -47,7 +47,8 @@ from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, StepRecord
 from controllers.errors import ControllerInputError
 from controllers.nominal import NominalController
-from controllers.safety_filter import Estimate, EstimateBatch, FilterContext, SafetyFilter, checked_batch_outputs
+from controllers.safety_filter import (Estimate, EstimateBatch, FilterContext, SafetyFilter, checked_batch_outputs,
+                                       read_only)
 from softcbf_mj.plant import BatchPlant
 
 
@@ -90,16 +91,14 @@ class BatchRun:
         }
         fault = self.faults[b]
         if fault is not None:
-            row.update(fault=fault.to_json(), fault_type=fault.type, fault_where=fault.where,
-                       fault_message=fault.message)
+            row.update(fault.row_fields())
         return row
 
 
 def frozen_estimates(state: Any) -> list[Estimate]:
     """The exact-state estimates of a batch plant's state (t (B,), q, qd (B, N)): rows of one
     read-only copy of q and of q̇, made here and written by nothing (`ControlStep.prepare`'s `frozen`)."""
-    q, qd = np.array(state.q, dtype=float), np.array(state.qd, dtype=float)
-    q.flags.writeable = qd.flags.writeable = False
+    q, qd = read_only(np.array(state.q, dtype=float)), read_only(np.array(state.qd, dtype=float))
     t = state.t.tolist()
     return [Estimate(t[b], q[b], qd[b], t[b]) for b in range(len(t))]
 

@@ -60,7 +60,7 @@ from dm_control.rl import control
 from closedloop.monitor import DEFAULT_HOLD_S, SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, StepRecord
 from controllers.pcc import tip_position
-from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
+from controllers.safety_filter import Estimate, FilterContext, SafetyFilter, read_only
 from perception.detect import Detection, TagDetector
 from perception.tags import arm_tag_ids
 from softcbf_mj.loop import exact_state
@@ -205,8 +205,7 @@ class ArmControl:
     def tip_pred(self) -> np.ndarray:
         """The model's tip r(q̂) (2,) m: PCC kinematics of the estimate (computed once per estimate; a read-only array)."""
         if self._tip_pred is None:
-            self._tip_pred = tip_position(self._estimate.q, self.lengths)
-            self._tip_pred.flags.writeable = False
+            self._tip_pred = read_only(tip_position(self._estimate.q, self.lengths))
         return self._tip_pred
 
     def rho_pred(self) -> float:
