@@ -5,7 +5,7 @@ on first use, so `import controllers.params` stays cheap):
 
 - the plug-in contract (`controllers.safety_filter`, docs/safety-filter.md): `SafetyFilter`,
   `Estimate`, `EstimateBatch`, `FilterOutput`, `BatchOutput`, `FilterContext`,
-  `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`, `filter_batch`;
+  `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`;
 - the registry (`controllers.registry`): `FILTERS`, `NOMINALS`, `build_filter`,
   `build_nominal`, `parse_params`, `parameters`, `label`, `describe`;
 - the paper's filter (`controllers.filter`): `CBFFilter`, `CBFResult`, `paper_cbf`;
@@ -26,8 +26,7 @@ import importlib
 
 _HOMES = {
     "controllers.safety_filter": ("SafetyFilter", "Estimate", "EstimateBatch", "FilterOutput", "BatchOutput",
-                                  "FilterContext", "PassThroughFilter", "OutputCheck", "FilterReturnError", "reset_filter",
-                                  "filter_batch"),
+                                  "FilterContext", "PassThroughFilter", "OutputCheck", "FilterReturnError", "reset_filter"),
     "controllers.registry": ("FILTERS", "NOMINALS", "build_filter", "build_nominal", "parse_params", "parameters",
                              "label", "describe"),
     "controllers.filter": ("CBFFilter", "CBFResult", "paper_cbf"),

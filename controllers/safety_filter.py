@@ -19,8 +19,10 @@ command that is sent:
   read), which the recorder copies into its row without unpacking it.
 - Filters may keep state (their own command history); `reset()`, when present, is
   called before each run. `filter_batch`, when present, filters B states at once
-  (`EstimateBatch`, u_nom (B, N) → `BatchOutput`); loops that run batches fall back to a
-  per-state loop over `__call__` for filters without it (`filter_batch` below).
+  (`EstimateBatch`, u_nom (B, N) → `BatchOutput`) and must give the same commands as B
+  calls of `__call__` on B independent copies of the filter (one per simulation: a stateful
+  filter keeps B histories); a batched loop calls it once for all its simulations, and
+  calls a filter without it per simulation (`softcbf_mj.batch_loop`).
 - `FilterContext` is what a filter is told at construction (the registry passes it to
   factories that ask for a `context` argument): the robot model, the force-safe set,
   the pressure limits, the control period and, where known, the command's delay and
@@ -434,23 +436,3 @@ def reset_filter(safety_filter: SafetyFilter) -> None:
     reset = getattr(safety_filter, "reset", None)
     if callable(reset):
         reset()
-
-
-def filter_batch(safety_filter: SafetyFilter, estimates: EstimateBatch, u_nom: np.ndarray) -> BatchOutput:
-    """Filter B states: the filter's own `filter_batch` when it has one, else a loop over `__call__`.
-
-    A filter's `filter_batch` must give the same commands as B calls of `__call__` on B
-    independent copies of the filter (one per simulation: a stateful filter keeps B
-    histories); the fallback is that definition for a stateless filter. u_nom: (B, N) hPa.
-    """
-    own = getattr(safety_filter, "filter_batch", None)
-    if callable(own):
-        return own(estimates, u_nom)
-    check = OutputCheck(np.shape(u_nom)[1])
-    outputs = [check(safety_filter(estimates[i], u_nom[i])) for i in range(len(estimates))]
-    return BatchOutput(
-        np.array([np.asarray(o.u, dtype=float) for o in outputs]).reshape(np.shape(u_nom)),
-        np.array([o.action for o in outputs]),
-        np.array([bool(o.infeasible) for o in outputs]),
-        np.array([float(o.rho_pred) for o in outputs]),
-    )

@@ -54,7 +54,7 @@ Seeds (as `SyncVectorEnv`): `reset(seed=s)` seeds sub-environment b's task with 
 list seeds b with its b-th entry (None: not reseeded), `reset()` lets each continue its
 generator. A filter shared by all arms (one with `filter_batch`) is reset (its `reset()`)
 by `reset()` only, not when one arm's episode restarts: its state, if it keeps one, spans
-all arms (the batch contract of `controllers.safety_filter.filter_batch`); per-arm
+all arms (the `filter_batch` contract, `controllers.safety_filter`); per-arm
 filters are reset at each of their episodes, as in the single environment.
 
 Returns: observations a Dict of (B, ...) arrays (`gymnasium.vector.utils.batch_space` of
