@@ -73,16 +73,15 @@ def _accepts(scenario, name: str, value) -> tuple[bool, str]:
     (`Scenario.validate`) and, where the scenario hands its sinusoid parameters to the nominal, the nominal's
     own check when it is built (the cause of issue 27: `--frequency 0` passed the first and failed the second)."""
     from controllers.params import reference_robot
-    from controllers.registry import NOMINALS, build_nominal, parameters
+    from controllers.registry import build_nominal
     from controllers.safe_set import paper_safe_set
     from controllers.safety_filter import FilterContext
     from scenarios.common import nominal_arguments
 
     try:
-        kwargs = scenario.validate({**BOUND_COMPANIONS.get((scenario.name, name), {}), name: value})
-        sinusoid = {p.name: kwargs[p.name] for p in parameters(NOMINALS["sinusoid"]) if p.name in kwargs}
+        spec = scenario.build({**BOUND_COMPANIONS.get((scenario.name, name), {}), name: value})
         context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
-        build_nominal(kwargs["nominal"], nominal_arguments(kwargs["nominal"], kwargs["nominal_params"], **sinusoid), context)
+        build_nominal(spec.nominal.name, nominal_arguments(spec.nominal), context)
     except ValueError as exc:
         return False, str(exc)
     return True, ""
