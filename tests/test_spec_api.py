@@ -117,3 +117,32 @@ def test_a_setting_added_in_a_fixture_reaches_help_list_toml_and_replay(knob_sce
     with pytest.raises(Exception, match=r"test_knob must be in \[0, 2\] N, got 3.0"):
         knob_scenario.validate({"test_knob": 3.0})
 
+
+WALL_TIME = ("filter_us", "solve_us")  # measured times (µs): they differ between any two runs
+
+
+def test_run_returns_the_outputs_in_memory_and_save_writes_softcbf_run_s_folder(tmp_path, capsys):
+    from scenarios.api import PaperSim, run, save
+    from softcbf_mj.runio import load_timeseries
+
+    spec = PaperSim(run=Run(duration=0.3, progress=False), filter=Filter(tunings="High"),
+                    nominal=Nominal(amplitude=150.0, frequency=0.25))
+    result = run(spec)
+    assert [row["tuning"] for row in result.runs] == ["High"] and result.summary["params"] == spec.flat()
+    assert result.series["High"]["u"].shape == (300, 2) and result.units["High"]["u"].startswith("hPa")
+    saved = save(result, tmp_path / "api")
+    flags = ["--duration", "0.3", "--tunings", "High", "--amplitude", "150", "--frequency", "0.25", "--progress", "false"]
+    assert softcbf_main(["run", "paper_sim", "--out", str(tmp_path / "cli"), *flags]) == 0
+    capsys.readouterr()
+    api_files = sorted(p.relative_to(saved).as_posix() for p in saved.rglob("*") if p.is_file())
+    cli_files = sorted(p.relative_to(tmp_path / "cli").as_posix() for p in (tmp_path / "cli").rglob("*") if p.is_file())
+    assert api_files == cli_files
+    config = [json.loads((folder / "config.json").read_text(encoding="utf-8")) for folder in (saved, tmp_path / "cli")]
+    assert config[0]["params"] == config[1]["params"] == spec.flat()
+    columns = [load_timeseries(folder / "timeseries" / "High.npz") for folder in (saved, tmp_path / "cli")]
+    assert columns[0][1] == columns[1][1] and columns[0][0].keys() == columns[1][0].keys()
+    for key in columns[0][0]:
+        if key not in WALL_TIME:
+            assert (columns[0][0][key] == columns[1][0][key]).all(), key
+    with pytest.raises(TypeError, match="run takes a scenario's spec"):
+        run(Run())
