@@ -2,7 +2,7 @@
 
     from scenarios.api import Filter, MujocoContact, Plate, Run, run, save
 
-    spec = MujocoContact(run=Run(duration=2.0), filter=Filter("e-erg", params={"contact_aware": True}),
+    spec = MujocoContact(run=Run(duration=2.0), filter=Filter("e-erg", contact_aware=True),
                          plate=Plate(stiffness=12.0))
     result = run(spec)                 # the time series and the summary, in memory
     result.runs[0]["rho_min_meas"]     # summary.json's row of the first run
@@ -12,9 +12,9 @@
 A spec is a frozen dataclass of typed sections (scenarios.spec: `Run`, `Filter`, `Nominal`,
 `Model`, `TrueArm`, `Plate`, `Camera`), one per scenario (`PaperSim`, `MujocoContact`,
 `CameraLoop`); every value is checked when the spec is built, the filter's and the nominal's
-parameters (a mapping name → value, or the command line's "name=value;..." text) against
-their declarations (controllers.filter_parameters), so a bad value is refused before anything
-runs. No scenario or setting is named by a string: a field left out takes the scenario's
+parameters (keywords of their sections, a mapping `params={name: value}`, or the command
+line's "name=value;..." text) against their declarations (controllers.filter_parameters), so a
+bad value is refused before anything runs. No scenario or setting is named by a string: a field left out takes the scenario's
 default, and `spec.flat()` gives the flat names that the command line and the files use.
 
 `run(spec)` runs the spec's scenario (the same function `softcbf run` calls) into a temporary

@@ -10,7 +10,8 @@ checked by `check_value` when the section is built (an int given for a float bec
 one; a bad value raises `SettingError` naming the setting, its bound and unit, and the
 value). Fields left out hold `UNSET`, "the scenario's default". A filter's or nominal's
 parameters (`Filter.params`, `Nominal.params`) may be given as a mapping name → value, held as
-the command line's "name=value;..." text (`scenarios.config_file.joined`, as a TOML table is).
+the command line's "name=value;..." text (`scenarios.config_file.joined`, as a TOML table is),
+or as keywords of their own (`Filter("e-erg", contact_aware=True)`: `plugin_section`).
 
 A *spec* is one scenario's whole configuration: a frozen dataclass made by
 `scenario_spec(name, doc, context, sections={attribute: Section}, own={field: setting})`,
@@ -90,6 +91,26 @@ def section(name: str, doc: str, fields: Mapping[str, str]) -> type:
     spec = [(field, setting(key).kind, _setting_field(key)) for field, key in fields.items()]
     return dataclasses.make_dataclass(name, spec, frozen=True, namespace={"__post_init__": _check_given, "__doc__": doc,
                                                                           "__module__": __name__})
+
+
+def plugin_section(name: str, doc: str, fields: Mapping[str, str]) -> type:
+    """A `section` for a plug-in (a filter, a nominal) whose field `params` holds its parameters: a keyword
+    that is not a field is one of them, `Filter("e-erg", contact_aware=True)` = `Filter("e-erg",
+    params={"contact_aware": True})` (the plug-in checks the names and values when the spec is built)."""
+    cls = section(name, doc, fields)
+    generated, names = cls.__init__, {f.name for f in dataclasses.fields(cls)}
+
+    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+        parameters = {k: kwargs.pop(k) for k in list(kwargs) if k not in names}
+        if parameters:
+            if kwargs.get("params", UNSET) is not UNSET:
+                raise TypeError(f"{name}: give the parameters as params={{...}} or as keywords, not both")
+            kwargs["params"] = parameters
+        generated(self, *args, **kwargs)
+
+    __init__.__doc__ = plugin_section.__doc__
+    cls.__init__ = __init__
+    return cls
 
 
 def _fill_unset(value: Any, context: str) -> None:
@@ -196,11 +217,11 @@ def flat_parameters(spec_cls: type) -> dict[str, inspect.Parameter]:
 # The sections every scenario draws on (module docstring); field → setting.
 Run = section("Run", "The run: its length (s), seed, initial pose noise (rad) and progress line.",
               {"duration": "duration", "seed": "seed", "q0_std": "q0_std", "progress": "progress"})
-Filter = section("Filter", "The controller under test: the filter, its parameters, the paper filter's tunings, "
+Filter = plugin_section("Filter", "The controller under test: the filter, its parameters, the paper filter's tunings, "
                            "its QP backend and whether its QP holds the pressure box.",
                  {"name": "filter", "params": "filter_params", "tunings": "tunings", "qp_backend": "qp_backend",
                   "pressure_limits": "pressure_limits"})
-Nominal = section("Nominal", "The nominal controller, its parameters and the sinusoid's amplitude (hPa), "
+Nominal = plugin_section("Nominal", "The nominal controller, its parameters and the sinusoid's amplitude (hPa), "
                              "frequency (Hz) and time offset (s).",
                   {"name": "nominal", "params": "nominal_params", "amplitude": "amplitude", "frequency": "frequency",
                    "t0": "t0"})

@@ -61,6 +61,21 @@ def test_a_section_left_partly_unset_takes_the_scenario_s_defaults():
         registry()["mujoco_contact"].spec(plate=TrueArm())
 
 
+def test_a_plug_in_s_parameters_are_keywords_of_its_section_checked_by_the_plug_in():
+    contact = registry()["mujoco_contact"].spec
+    spec = contact(filter=Filter("e-erg", contact_aware=True, kappa=2.0), plate=Plate(stiffness=12.0))
+    assert spec.filter == Filter("e-erg", params={"contact_aware": True, "kappa": 2.0}, tunings="None,Low,High",
+                                 qp_backend="native", pressure_limits=True)
+    assert spec.flat()["filter_params"] == "contact_aware=True;kappa=2.0" and spec.flat()["plate_stiffness"] == 12.0
+    assert Nominal("sinusoid", phase=0.5).params == "phase=0.5"
+    with pytest.raises(ValueError, match="unknown parameter.s. contact_awar for EnergyGovernor"):
+        contact(filter=Filter("e-erg", contact_awar=True))
+    with pytest.raises(ValueError, match=r"kappa must be in \[0, 1000\], got -1.0"):
+        contact(filter=Filter("e-erg", kappa=-1.0))
+    with pytest.raises(TypeError, match="not both"):
+        Filter("e-erg", params={"kappa": 1.0}, margin_m=0.001)
+
+
 def test_a_spec_runs_its_scenario_s_checks_when_built():
     contact = registry()["mujoco_contact"].spec
     with pytest.raises(ValueError, match="integer multiple of the physics step"):  # it must divide the 1 ms period
