@@ -29,6 +29,12 @@ calls (capture → command, mean and max, s). Time series: the tick-rate series 
 `mujoco_contact` plus one per-frame series `<run>_frames.npz` (`FRAME_UNITS`); a few
 frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
 
+The spec (`CameraLoop`, scenarios.spec) holds `mujoco_contact`'s sections (`run`, `filter`,
+`nominal`, `model`, `arm`, `plate`: the same ground truth, scenarios.ground_truth; `damping_scale`
+multiplies the damping of both arms, so the arm's time constants d_i/k_i scale with it: the
+operating-envelope study, studies/hardware_envelope.toml), the `camera` section and its own
+`assumed_plate_stiffness` (N/m) and `control_rate` (Hz).
+
 Imports: MuJoCo, OpenCV and the perception pipeline are imported inside the functions that
 check or run the scenario, not at load, so that registering it and reading its parameters
 (`softcbf list`, `softcbf run NAME --help`) stay cheap (issue 27; tests/test_cli_lazy.py). The
@@ -40,19 +46,22 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
-    build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step,
-    controller_row, controller_runs, existing_file, filter_enabled, initial_configuration,
-    live_run, nominal_arguments, read_parameter_file, save_run, scene_record, stop_after,
+    ControllerRun, check_choice, check_controller, control_step, controller_row, controller_runs, existing_file,
+    filter_enabled, initial_configuration, live_run, model_safe_set, nominal_arguments, read_parameter_file, save_run,
+    scene_record, stop_after,
 )
-from scenarios.ground_truth import GroundTruthSettings, build_truth, check_true_arm, controller_robot
+from scenarios.ground_truth import Truth, build_truth, check_true_arm, controller_robot
+from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.plant import steps_per_control
@@ -61,9 +70,12 @@ from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, sa
 from vocabulary.settings import Bound, default
 
 if TYPE_CHECKING:  # MuJoCo, OpenCV and perception are imported where they are used (module docstring: Imports)
+    from perception.detect import TagDetector
     from perception.plane import PlaneCalibration
+    from softcbf_mj.camera_loop import CameraTiming
     from softcbf_mj.model_builder import ArmModelConfig
     from softcbf_mj.mujoco_plant import MujocoPlant
+    from softcbf_mj.recording import LiveRun
 
 
 BOUNDS = {"width": Bound(16, default("width", "camera_loop"), unit="px"),  # the render's resolution (module docstring)
@@ -133,175 +145,165 @@ def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarr
     }
 
 
-def check_parameters(params: Mapping[str, Any]) -> None:
-    """The checks `camera_loop` makes before it builds anything (`scenarios.Scenario.validate`)."""
+def check_spec(spec: CameraLoop) -> None:
+    """The checks of a `camera_loop` spec beyond its values' (scenarios.spec): the controller, the camera's
+    timing on the tick, the detector, the calibration file, the ground truth and the physics step."""
     from perception.detect import BACKENDS as DETECTOR_BACKENDS
+
+    model_robot = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
+    camera_timing(spec).ticks_per_control(spec.camera.tick)
+    check_choice("detector", spec.camera.detector, DETECTOR_BACKENDS)
+    if spec.camera.calibration not in ("board", "truth") and not Path(spec.camera.calibration).is_file():
+        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got "
+                         f"{spec.camera.calibration!r} (no such file)")
+    check_true_arm(spec.arm, spec.plate, model_robot)
+    steps_per_control(spec.camera.tick, spec.arm.physics_dt)
+
+
+CameraLoop = scenario_spec(
+    "CameraLoop", "The spec of scenario `camera_loop` (module docstring): `mujoco_contact`'s sections, the camera "
+                  "path and the controller's call rate.",
+    "camera_loop", {"run": Run, "filter": Filter, "nominal": Nominal, "model": Model, "arm": TrueArm, "plate": Plate,
+                    "camera": Camera},
+    {"assumed_plate_stiffness": "assumed_plate_stiffness", "control_rate": "control_rate"}, BOUNDS, check_spec,
+    __name__)
+
+
+def camera_timing(spec: CameraLoop) -> CameraTiming:
+    """The camera path's timing of `spec` (softcbf_mj.camera_loop.CameraTiming, which checks it)."""
     from softcbf_mj.camera_loop import CameraTiming
 
-    check_bounds(params, BOUNDS)
-    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
-    timing = CameraTiming(params["frame_rate"], params["control_rate"], params["latency"], params["drop_rate"],
-                          params["pixel_noise"], params["hold_s"])
-    timing.ticks_per_control(params["tick"])
-    check_choice("detector", params["detector"], DETECTOR_BACKENDS)
-    if params["calibration"] not in ("board", "truth") and not Path(params["calibration"]).is_file():
-        raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got {params['calibration']!r} "
-                         "(no such file)")
-    check_true_arm(GroundTruthSettings.of(params), model_robot)
-    steps_per_control(params["tick"], params["physics_dt"])
+    c = spec.camera
+    return CameraTiming(c.frame_rate, spec.control_rate, c.latency, c.drop_rate, c.pixel_noise, c.hold_s)
 
 
-@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop",
-          check_parameters, BOUNDS)
-def camera_loop(
-    out_dir: Path,
-    *,
-    duration: float = default("duration", "camera_loop"),
-    tunings: str = default("tunings", "camera_loop"),
-    filter: str = default("filter", "camera_loop"),
-    filter_params: str = default("filter_params", "camera_loop"),
-    nominal: str = default("nominal", "camera_loop"),
-    nominal_params: str = default("nominal_params", "camera_loop"),
-    amplitude: float = default("amplitude", "camera_loop"),
-    frequency: float = default("frequency", "camera_loop"),
-    t0: float = default("t0", "camera_loop"),
-    pressure_limits: bool = default("pressure_limits", "camera_loop"),
-    robot: str = default("robot", "camera_loop"),
-    environment: str = default("environment", "camera_loop"),
-    links_per_segment: int = default("links_per_segment", "camera_loop"),
-    tau_p: float = default("tau_p", "camera_loop"),
-    physics_dt: float = default("physics_dt", "camera_loop"),
-    plate_stiffness: float = default("plate_stiffness", "camera_loop"),
-    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "camera_loop"),
-    f_max: float = default("f_max", "camera_loop"),
-    row_scaling: str = default("row_scaling", "camera_loop"),
-    qp_backend: str = default("qp_backend", "camera_loop"),
-    tick: float = default("tick", "camera_loop"),
-    frame_rate: float = default("frame_rate", "camera_loop"),
-    control_rate: float = default("control_rate", "camera_loop"),
-    latency: float = default("latency", "camera_loop"),
-    drop_rate: float = default("drop_rate", "camera_loop"),
-    pixel_noise: float = default("pixel_noise", "camera_loop"),
-    hold_s: float = default("hold_s", "camera_loop"),
-    max_hold_s: float = default("max_hold_s", "camera_loop"),
-    qd_filter_tau: float = default("qd_filter_tau", "camera_loop"),
-    width: int = default("width", "camera_loop"),
-    height: int = default("height", "camera_loop"),
-    calibration: str = default("calibration", "camera_loop"),
-    detector: str = default("detector", "camera_loop"),
-    tracking: bool = default("tracking", "camera_loop"),
-    saved_frames_hz: float = default("saved_frames_hz", "camera_loop"),
-    seed: int = default("seed", "camera_loop"),
-    q0_std: float = default("q0_std", "camera_loop"),
-    true_robot: str = default("true_robot", "camera_loop"),
-    damping_scale: float = default("damping_scale", "camera_loop"),
-    true_stiffness_scale: float = default("true_stiffness_scale", "camera_loop"),
-    true_damping_scale: float = default("true_damping_scale", "camera_loop"),
-    true_gain_scale: float = default("true_gain_scale", "camera_loop"),
-    true_length_scale: float = default("true_length_scale", "camera_loop"),
-    facet_offset: float = default("facet_offset", "camera_loop"),
-    facet_angle: float = default("facet_angle", "camera_loop"),
-    gravity: float = default("gravity", "camera_loop"),
-    tip_friction: float = default("tip_friction", "camera_loop"),
-    table_friction: float = default("table_friction", "camera_loop"),
-    plate: str = default("plate", "camera_loop"),
-    sheet_clamp_at: float = default("sheet_clamp_at", "camera_loop"),
-    sheet_free_end_at: float = default("sheet_free_end_at", "camera_loop"),
-    sheet_thickness: float = default("sheet_thickness", "camera_loop"),
-    sheet_width: float = default("sheet_width", "camera_loop"),
-    sheet_youngs_modulus: float = default("sheet_youngs_modulus", "camera_loop"),
-    sheet_links: int = default("sheet_links", "camera_loop"),
-    sheet_calibration_fraction: float = default("sheet_calibration_fraction", "camera_loop"),
-    progress: bool = default("progress", "camera_loop"),
-) -> dict:
-    """Run each controller (tuning) for `duration` s through the camera path; write summary.json, time series and frames.
+@dataclass(frozen=True, eq=False)
+class CameraSetup:
+    """What a `camera_loop` run builds before its tunings: the ground truth's plant (ticking at the
+    camera's tick) and model, the controller's safe set, runs, nominal parameters and context, q0 (N,) rad,
+    the timing, the tag detector and the image-to-plane map."""
 
-    The MuJoCo arm is `robot`'s (any number of segments, tag i on the end of segment i) or
-    `true_robot`'s when given (same number of segments); `damping_scale` multiplies every
-    segment's damping d_i of both arms (the controller knows it), so the arm's time constant
-    d_i/k_i scales with it (the operating-envelope study, studies/hardware_envelope.toml).
-    The ground truth's settings are `mujoco_contact`'s (`scenarios.ground_truth`): the
-    `true_*_scale` factors of the arm, the true plates moved by `facet_offset` and turned by
-    `facet_angle` (the controller keeping the unmoved facets), `gravity`, `tip_friction`,
-    `table_friction`, `plate` and the `sheet_*` parameters (a flexure's gauge gives ρ_meas)."""
-    params = dict(locals())  # the parameters: first, before any other local name
-    params.pop("out_dir")
-    import cv2  # MuJoCo, OpenCV and perception: imported when run (module docstring), after `params`
+    plant: MujocoPlant
+    truth: Truth
+    safe_set: ForceSafeSet
+    runs: list[ControllerRun]
+    nominal_kwargs: dict[str, object]
+    context: FilterContext
+    q0: np.ndarray
+    timing: CameraTiming
+    detector: TagDetector
+    plane: PlaneCalibration
 
+
+def camera_setup(spec: CameraLoop) -> CameraSetup:
+    """The (checked) `spec`'s plant, controllers and camera pipeline (`CameraSetup`)."""
     from perception.detect import TagDetector
+    from perception.tags import arm_tag_ids
+    from softcbf_mj.model_builder import build_model
+    from softcbf_mj.mujoco_plant import MujocoPlant
+
+    camera = spec.camera
+    model_robot = controller_robot(spec.model)
+    safe_set = model_safe_set(spec.model, spec.assumed_plate_stiffness)
+    check_duration(spec.run.duration, camera.tick, model_robot.n_segments, safe_set)
+    truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)
+    plant = MujocoPlant(build_model(truth.config), camera.tick)
+    n = plant.n_segments
+    plane = _calibration(camera.calibration, plant, truth.config, camera.width, camera.height, camera.detector)
+    # The filter's command takes effect at the next tick after the call; the estimate's own age is the rest.
+    context = FilterContext.for_robot(model_robot, safe_set, 1.0 / spec.control_rate, spec.filter.pressure_limits,
+                                      command_delay=0.0, actuator_tau=spec.arm.tau_p)
+    return CameraSetup(plant, truth, safe_set, controller_runs(spec.filter), nominal_arguments(spec.nominal), context,
+                       initial_configuration(n, spec.run.seed, spec.run.q0_std), camera_timing(spec),
+                       TagDetector(camera.detector, tag_ids=arm_tag_ids(n)), plane)
+
+
+class FrameSaver:
+    """Saves every `every`-th camera frame of run `label` as JPEG with its detections into
+    frames/<label>/ (format: softcbf_mj.runio) and streams it to `live` when given."""
+
+    def __init__(self, out_dir: Path, label: str, every: int, live: LiveRun | None) -> None:
+        self.out_dir, self.label, self.every, self.live = out_dir, label, every, live
+        self.folder = frames_folder(out_dir, label)
+        self.saved: list[dict] = []
+
+    def __call__(self, j: int, t: float, image: np.ndarray, detections: list) -> None:
+        import cv2
+
+        if not self.every or j % self.every:
+            return
+        self.folder.mkdir(parents=True, exist_ok=True)
+        name = f"frame_{j:06d}.jpg"
+        _, jpeg = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
+        (self.folder / name).write_bytes(jpeg.tobytes())
+        self.saved.append({"t": t, "file": name,
+                           "detections": [{"id": d.tag_id, "corners": d.corners.tolist()} for d in detections]})
+        if self.live is not None:
+            self.live.frame(t, jpeg.tobytes(), "image/jpeg", self.saved[-1]["detections"])
+
+    def close(self) -> None:
+        """Write the index of the saved frames (none: nothing)."""
+        if self.saved:
+            save_frames_index(self.out_dir, self.label, self.saved)
+
+
+def run_camera_tuning(out_dir: Path, summary: SummaryWriter, spec: CameraLoop, setup: CameraSetup,
+                      render: Callable[[], np.ndarray], run: ControllerRun) -> dict[str, Any]:
+    """Run controller `run` through the camera path for the spec's duration and `save_run` it; return its row."""
     from perception.estimator import ArmAngleEstimator
     from perception.tags import arm_tag_ids
     from perception.tracking import TrackingTagDetector
-    from softcbf_mj.camera_loop import FRAME_UNITS, CameraTiming, run_camera_loop
-    from softcbf_mj.model_builder import build_model
-    from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
-    from softcbf_mj.render import OffscreenRenderer
+    from softcbf_mj.camera_loop import FRAME_UNITS, run_camera_loop
+    from softcbf_mj.mujoco_plant import EXTRAS_UNITS
 
-    check_parameters(params)
-    timing = CameraTiming(frame_rate, control_rate, latency, drop_rate, pixel_noise, hold_s)
-    model_robot = controller_robot(params)
-    safe_set = build_safe_set(environment, assumed_plate_stiffness, f_max, row_scaling)
-    check_duration(duration, tick, model_robot.n_segments, safe_set)
-    truth = build_truth(GroundTruthSettings.of(params), model_robot, safe_set.environment)
-    config = truth.config
-    plant = MujocoPlant(build_model(config), tick)
-    n = plant.n_segments
-    tag_detector = TagDetector(detector, tag_ids=arm_tag_ids(n))
-    plane = _calibration(calibration, plant, config, width, height, detector)
-    runs = controller_runs(filter, filter_params, tunings, qp_backend)
-    nominal_kwargs = nominal_arguments(nominal, nominal_params, amplitude=amplitude, frequency=frequency, t0=t0)
-    # The filter's command takes effect at the next tick after the call; the estimate's own age is the rest.
-    context = FilterContext.for_robot(model_robot, safe_set, 1.0 / control_rate, pressure_limits, command_delay=0.0,
-                                      actuator_tau=tau_p)
-    q0 = initial_configuration(n, seed, q0_std)
-    save_every = max(1, int(round(frame_rate / saved_frames_hz))) if saved_frames_hz > 0 else 0
+    camera, n, tick = spec.camera, setup.plant.n_segments, spec.camera.tick
+    step = control_step(run, spec.nominal.name, setup.nominal_kwargs, setup.context, setup.timing.monitor(n))
+    estimator = ArmAngleEstimator(n, setup.plane, setup.truth.config.tag_size, max_hold_s=camera.max_hold_s,
+                                  qd_filter_tau=camera.qd_filter_tau)
+    detector = TrackingTagDetector(setup.detector, arm_tag_ids(n)) if camera.tracking else setup.detector
+    every = max(1, int(round(camera.frame_rate / camera.saved_frames_hz))) if camera.saved_frames_hz > 0 else 0
+    saver = FrameSaver(out_dir, run.label, every, live_run(summary, run.label, tick, camera=every > 0))
+    bar = Progress(f"camera_loop {run.label}", int(round(spec.run.duration / tick)), enabled=spec.run.progress,
+                   unit_s=tick)
+    start = time.perf_counter()
+    series, frames, calls = run_camera_loop(setup.plant, render, detector, estimator, step, setup.safe_set,
+                                            spec.run.duration, setup.q0, setup.timing, spec.run.seed, saver, bar,
+                                            saver.live)
+    wall = time.perf_counter() - start
+    saver.close()
+    frames_file = save_timeseries(out_dir, f"{run.label}_frames", frames, FRAME_UNITS)
 
-    with OffscreenRenderer(plant.model, "overhead", width, height) as renderer:
-        summary = SummaryWriter(out_dir, "camera_loop", params,
-                                scene=scene_record(truth.robot, safe_set, truth.plate_stiffness, truth.plates))
-        for run in runs:
-            label = run.label
-            step = control_step(run, nominal, nominal_kwargs, context, timing.monitor(n))
-            estimator = ArmAngleEstimator(n, plane, config.tag_size, max_hold_s=max_hold_s, qd_filter_tau=qd_filter_tau)
-            frame_detector = TrackingTagDetector(tag_detector, arm_tag_ids(n)) if tracking else tag_detector
-            saved: list[dict] = []
-            folder = frames_folder(out_dir, label)
-            live = live_run(summary, label, tick, camera=save_every > 0)
+    def figures(series: dict[str, np.ndarray]) -> dict:
+        out = contact_figures(series, setup.safe_set, tick)
+        out.update(plate_figures(series))
+        out.update(_perception_figures(frames, calls))
+        out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
+        return out
 
-            def keep_frame(j: int, t: float, image: np.ndarray, detections: list) -> None:
-                if not save_every or j % save_every:
-                    return
-                folder.mkdir(parents=True, exist_ok=True)
-                name = f"frame_{j:06d}.jpg"
-                _, jpeg = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
-                (folder / name).write_bytes(jpeg.tobytes())
-                saved.append({"t": t, "file": name,
-                              "detections": [{"id": d.tag_id, "corners": d.corners.tolist()} for d in detections]})
-                if live is not None:
-                    live.frame(t, jpeg.tobytes(), "image/jpeg", saved[-1]["detections"])
+    return save_run(out_dir, summary, run.label, series, wall, tick, filter_enabled(step), figures, EXTRAS_UNITS,
+                    controller_row(run, spec.nominal.name, setup.nominal_kwargs), step.fault)
 
-            bar = Progress(f"camera_loop {label}", int(round(duration / tick)), enabled=progress, unit_s=tick)
-            start = time.perf_counter()
-            series, frames, calls = run_camera_loop(plant, lambda: renderer.render(plant.data), frame_detector, estimator,
-                                                    step, safe_set, duration, q0, timing, seed, keep_frame, bar, live)
-            wall = time.perf_counter() - start
-            if saved:
-                save_frames_index(out_dir, label, saved)
-            frames_file = save_timeseries(out_dir, f"{label}_frames", frames, FRAME_UNITS)
 
-            def figures(series: dict[str, np.ndarray]) -> dict:
-                out = contact_figures(series, safe_set, tick)
-                out.update(plate_figures(series))
-                out.update(_perception_figures(frames, calls))
-                out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
-                return out
+@register("camera_loop", "the paper's hardware experiment in MuJoCo: controller fed by rendered AprilTags at 12.8 fps, 10 Hz loop",
+          CameraLoop)
+def camera_loop(out_dir: Path, spec: CameraLoop) -> dict:
+    """Run each controller (tuning) of `spec` for its duration through the camera path; write summary.json,
+    time series and frames."""
+    from softcbf_mj.render import OffscreenRenderer  # MuJoCo: imported when run (module docstring)
 
-            row = save_run(out_dir, summary, label, series, wall, tick, filter_enabled(step), figures, EXTRAS_UNITS,
-                           controller_row(run, nominal, nominal_kwargs), step.fault)
+    setup = camera_setup(spec)
+    camera = spec.camera
+    with OffscreenRenderer(setup.plant.model, "overhead", camera.width, camera.height) as renderer:
+        summary = SummaryWriter(out_dir, "camera_loop", spec.flat(),
+                                scene=scene_record(setup.truth.robot, setup.safe_set, setup.truth.plate_stiffness,
+                                                   setup.truth.plates))
+        for run in setup.runs:
+            row = run_camera_tuning(out_dir, summary, spec, setup, lambda: renderer.render(setup.plant.data), run)
             if stop_after(row):
                 break
-    print(f"camera_loop: {duration:g} s, camera {width}x{height} at {frame_rate:g} fps, loop {control_rate:g} Hz, "
-          f"latency {latency * 1e3:g} ms, drop rate {drop_rate:g}, pixel noise {pixel_noise:g}, calibration {calibration!r}, "
-          f"F_max {f_max:g} N; outputs in {out_dir}")
+    print(f"camera_loop: {spec.run.duration:g} s, camera {camera.width}x{camera.height} at {camera.frame_rate:g} fps, "
+          f"loop {spec.control_rate:g} Hz, latency {camera.latency * 1e3:g} ms, drop rate {camera.drop_rate:g}, "
+          f"pixel noise {camera.pixel_noise:g}, calibration {camera.calibration!r}, F_max {spec.model.f_max:g} N; "
+          f"outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))
     return summary.data

@@ -2,7 +2,8 @@
 controller runs (filter, its parameters and tunings; the nominal controller), the scene
 record, one run and the saving of a finished run (with its report and recording).
 
-Every scenario takes the controller under test as parameters (docs/extending.md):
+Every scenario takes the controller under test as its spec's `Filter` and `Nominal` sections
+(scenarios.spec; flat names, docs/extending.md):
 - `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
   FILE.py:Factory, package.module:Factory); `filter_params`: "name=value;name=value"
   (the command line's repeated `--filter-param name=value`, joined);
@@ -15,11 +16,11 @@ Every scenario takes the controller under test as parameters (docs/extending.md)
 summary.json's rows keep "tuning" as the run's label and add "filter", "filter_params",
 "nominal" and "nominal_params".
 
-A scenario checks every parameter before it writes anything: its registered check
-(`scenarios.Scenario.validate`, built from `check_bounds`, `check_controller_parameters`,
-`check_choice` and the loaders here, whose errors name the parameter
-and the file) and `softcbf_mj.loop.check_duration`, so that a rejected command leaves no
-output behind and a study refuses a bad file at load.
+A scenario's spec is checked when it is built (scenarios.spec: every value against the
+vocabulary, then the scenario's check, built from `check_controller`, `check_choice` and the
+loaders here, whose errors name the parameter and the file); the scenario adds
+`softcbf_mj.loop.check_duration` before it writes anything, so that a rejected command
+leaves no output behind and a study refuses a bad file at load.
 """
 
 from __future__ import annotations
@@ -48,24 +49,12 @@ from softcbf_mj.metrics import run_figures
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
-from vocabulary.settings import Bound, SettingError, check_value
+from scenarios.spec import Filter, Model, Nominal
 
 if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.recording is imported only when recording
     from softcbf_mj.recording import LiveRun
 
 T = TypeVar("T")
-
-def check_bounds(params: Mapping[str, Any], bounds: Mapping[str, Bound] | None = None) -> None:
-    """Every numeric parameter within its declared range (`vocabulary.settings.check_value`:
-    finite, its bound, its plausibility bound) and then within the scenario's narrower
-    `bounds`; SettingError (a ValueError) "NAME must be BOUND, got VALUE" for the first that is not."""
-    for name, value in params.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            continue
-        value = check_value(name, value)
-        if bounds and name in bounds and value not in bounds[name]:
-            raise SettingError(f"{name} must be {bounds[name]}, got {value!r}")
-
 
 def check_choice(name: str, value: str, valid: Sequence[str]) -> None:
     """ValueError naming the parameter and the valid values unless `value` is one of them."""
@@ -160,28 +149,30 @@ class ControllerRun:
     filter_params: dict[str, str]
 
 
-def controller_runs(filter_spec: str, filter_params: str, tunings: str, qp_backend: str) -> list[ControllerRun]:
-    """The runs of a scenario (module docstring; the scenario's `qp_backend` is the paper
-    filter's unless filter_params set it); errors name the parameter and the valid values."""
-    params = parse_params(filter_params)
-    spec = filter_spec.strip()
-    if spec != PAPER_FILTER:
-        return [ControllerRun(label(spec, params), spec, params)]
-    names = [params["tuning"]] if "tuning" in params else [t.strip() for t in tunings.split(",") if t.strip()]
+def controller_runs(spec: Filter) -> list[ControllerRun]:
+    """The runs of a scenario's controller under test `spec` (module docstring; its `qp_backend`
+    is the paper filter's unless its parameters set it); errors name the parameter and the valid values."""
+    params = parse_params(spec.params)
+    name = spec.name.strip()
+    if name != PAPER_FILTER:
+        return [ControllerRun(label(name, params), name, params)]
+    names = [params["tuning"]] if "tuning" in params else [t.strip() for t in spec.tunings.split(",") if t.strip()]
     if not names:
         raise ValueError("tunings must name at least one tuning, e.g. None,Low,High (or custom with a_E, b_E, gamma)")
     runs = []
-    for name in names:
-        run_params = {"qp_backend": qp_backend, **params, "tuning": name}
-        runs.append(ControllerRun(label(spec, run_params), spec, run_params))
+    for tuning in names:
+        run_params = {"qp_backend": spec.qp_backend, **params, "tuning": tuning}
+        runs.append(ControllerRun(label(name, run_params), name, run_params))
     return runs
 
 
-def nominal_arguments(nominal: str, text: str, **sinusoid: float) -> dict[str, object]:
-    """The nominal controller's parameters: `text` ("name=value;..."), over the scenario's
-    sinusoid parameters (amplitude, frequency, t0) when `nominal` is the sinusoid."""
-    params = parse_params(text)
-    return {**sinusoid, **params} if nominal.strip() == "sinusoid" else params
+def nominal_arguments(spec: Nominal) -> dict[str, object]:
+    """The nominal controller's parameters: its `params` ("name=value;..."), over the
+    sinusoid's amplitude, frequency and t0 when the nominal is the sinusoid."""
+    params = parse_params(spec.params)
+    if spec.name.strip() != "sinusoid":
+        return params
+    return {"amplitude": spec.amplitude, "frequency": spec.frequency, "t0": spec.t0, **params}
 
 
 def control_step(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, object], context: FilterContext,
@@ -197,27 +188,30 @@ def controller_row(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, o
             "nominal_params": {k: v for k, v in nominal_kwargs.items()}}
 
 
-def check_controller_parameters(params: Mapping[str, Any], stiffness_setting: str) -> RobotParams:
-    """The checks shared by every scenario, made before anything is built (`Scenario.validate`):
-    the controller under test (filter, filter_params,
-    tunings, nominal, nominal_params: the specs resolve and take the parameters, nothing is
-    built: `controllers.registry.check_filter`), the controller's robot, its force-safe
-    set (environment, f_max, row_scaling and the stiffness the controller assumes: the parameter
-    named `stiffness_setting`, "assumed_plate_stiffness" or paper_sim's "plate_stiffness")
-    and qp_backend. Returns the controller's robot."""
+def check_controller(filter: Filter, nominal: Nominal, model: Model, assumed_stiffness: float) -> RobotParams:
+    """The checks of a spec's controller shared by every scenario (its spec's `check`): the
+    controller under test (the filter's spec resolves and takes its parameters, the tunings;
+    nothing is built: `controllers.registry.check_filter`), the nominal, the controller's robot,
+    its force-safe set (`model` and the plate stiffness the controller assumes,
+    `assumed_stiffness` N/m) and the QP backend. Returns the controller's robot."""
     try:
-        for run in controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"]):
+        for run in controller_runs(filter):
             check_filter(run.filter, run.filter_params)
     except ValueError as exc:
-        raise ValueError(f"filter {params['filter']!r}: {exc}") from None
+        raise ValueError(f"filter {filter.name!r}: {exc}") from None
     try:
-        check_nominal(params["nominal"], parse_params(params["nominal_params"]))
+        check_nominal(nominal.name, parse_params(nominal.params))
     except ValueError as exc:
-        raise ValueError(f"nominal {params['nominal']!r}: {exc}") from None
-    robot = load_robot(params["robot"])
-    build_safe_set(params["environment"], params[stiffness_setting], params["f_max"], params["row_scaling"])
-    check_choice("qp_backend", params["qp_backend"], available_backends())
+        raise ValueError(f"nominal {nominal.name!r}: {exc}") from None
+    robot = load_robot(model.robot)
+    model_safe_set(model, assumed_stiffness)
+    check_choice("qp_backend", filter.qp_backend, available_backends())
     return robot
+
+
+def model_safe_set(model: Model, assumed_stiffness: float) -> ForceSafeSet:
+    """The controller's force-safe set: `model`'s facets, F_max and row scaling, ψ(n) = `assumed_stiffness` · n."""
+    return build_safe_set(model.environment, assumed_stiffness, model.f_max, model.row_scaling)
 
 
 def initial_configuration(n_segments: int, seed: int, q0_std: float) -> np.ndarray:

@@ -18,9 +18,10 @@ The settings (vocabulary.settings; every MuJoCo scenario takes them all, docs/pa
   clamped sheet of the `sheet_*` settings, softcbf_mj.flexure), whose stiffness at its
   calibration point (`calibrate_flexure`, N/m) is the scene's plate stiffness.
 
-`GroundTruthSettings.of(params)` picks them from a scenario's keyword arguments, a frozen
-section; `check_true_arm` checks them without building anything (`scenarios.Scenario.validate`);
-`build_truth` builds them: a `Truth` whose `config` (`ArmModelConfig`) both the single run's
+They are two sections of a MuJoCo scenario's spec (scenarios.spec): `TrueArm` (the arm, the
+rod, the plates' pose, gravity and friction) and `Plate`, with `damping_scale` in the
+controller's `Model`. `check_true_arm` checks them without building anything (the spec's
+check); `build_truth` builds them: a `Truth` whose `config` (`ArmModelConfig`) both the single run's
 `MujocoPlant` and the batch's `MujocoBatchPlant` take.
 
 Imports: MuJoCo (softcbf_mj.flexure, flexure_calibration, model_builder) is imported inside
@@ -32,8 +33,7 @@ scenarios and reading their parameters (`softcbf list`, `softcbf run NAME --help
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -41,6 +41,7 @@ import numpy as np
 from controllers.params import RobotParams
 from controllers.safe_set import Environment
 from scenarios.common import check_choice, load_robot
+from scenarios.spec import Model, Plate, TrueArm
 
 if TYPE_CHECKING:  # MuJoCo's modules are imported where they are used (module docstring: Imports)
     from softcbf_mj.flexure import FlexureParams
@@ -52,76 +53,36 @@ def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
     return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
 
 
-def controller_robot(params: Mapping[str, Any]) -> RobotParams:
-    """The controller's robot model: `robot` with its damping × `damping_scale` (module docstring)."""
-    return scale_damping(load_robot(params["robot"]), params["damping_scale"])
+def controller_robot(model: Model) -> RobotParams:
+    """The controller's robot model: `model.robot` with its damping × `model.damping_scale` (module docstring)."""
+    return scale_damping(load_robot(model.robot), model.damping_scale)
 
 
-@dataclass(frozen=True)
-class GroundTruthSettings:
-    """The ground-truth settings every MuJoCo scenario takes (module docstring; units:
-    vocabulary.settings), picked from a scenario's keyword arguments by `of`."""
+def flexure(plate: Plate) -> FlexureParams:
+    """The flexure sheet of `plate`'s `sheet_*` settings (checked by FlexureParams)."""
+    from softcbf_mj.flexure import FlexureParams
 
-    plate_stiffness: float
-    links_per_segment: int
-    tau_p: float
-    physics_dt: float
-    true_robot: str
-    damping_scale: float
-    true_stiffness_scale: float
-    true_damping_scale: float
-    true_gain_scale: float
-    true_length_scale: float
-    facet_offset: float
-    facet_angle: float
-    gravity: float
-    tip_friction: float
-    table_friction: float
-    plate: str
-    sheet_clamp_at: float
-    sheet_free_end_at: float
-    sheet_thickness: float
-    sheet_width: float
-    sheet_youngs_modulus: float
-    sheet_links: int
-    sheet_calibration_fraction: float
-
-    @classmethod
-    def names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
-
-    @classmethod
-    def of(cls, params: Mapping[str, Any]) -> GroundTruthSettings:
-        """The ground-truth settings among a scenario's keyword arguments `params`."""
-        return cls(**{name: params[name] for name in cls.names()})
-
-    @property
-    def flexure(self) -> FlexureParams:
-        """The flexure sheet of the `sheet_*` settings (checked by FlexureParams)."""
-        from softcbf_mj.flexure import FlexureParams
-
-        return FlexureParams(clamp_at=self.sheet_clamp_at, free_end_at=self.sheet_free_end_at,
-                             thickness=self.sheet_thickness, width=self.sheet_width,
-                             youngs_modulus=self.sheet_youngs_modulus, links=self.sheet_links,
-                             calibration_fraction=self.sheet_calibration_fraction)
+    return FlexureParams(clamp_at=plate.sheet_clamp_at, free_end_at=plate.sheet_free_end_at,
+                         thickness=plate.sheet_thickness, width=plate.sheet_width,
+                         youngs_modulus=plate.sheet_youngs_modulus, links=plate.sheet_links,
+                         calibration_fraction=plate.sheet_calibration_fraction)
 
 
-def check_true_arm(settings: GroundTruthSettings, model_robot: RobotParams) -> None:
+def check_true_arm(arm: TrueArm, plate: Plate, model_robot: RobotParams) -> None:
     """The checks of a MuJoCo scenario's ground truth: plate kind, sheet, true robot (the same
     number of segments as the controller's) and the model settings (ArmModelConfig's checks, among
     them `table_friction` against `gravity` and the physics step)."""
     from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
 
-    check_choice("plate", settings.plate, PLATE_KINDS)
-    if settings.true_robot:
-        true_robot = load_robot(settings.true_robot)
+    check_choice("plate", plate.kind, PLATE_KINDS)
+    if arm.robot:
+        true_robot = load_robot(arm.robot)
         if true_robot.n_segments != model_robot.n_segments:
             raise ValueError(f"true_robot has {true_robot.n_segments} segments, the controller's robot "
                              f"{model_robot.n_segments}; they must have the same number")
-    ArmModelConfig(plate_stiffness=settings.plate_stiffness, links_per_segment=settings.links_per_segment,
-                   tau_p=settings.tau_p, physics_dt=settings.physics_dt, tip_friction=settings.tip_friction,
-                   plate=settings.plate, flexure=settings.flexure, table_friction=settings.table_friction,
-                   gravity=(0.0, -settings.gravity, 0.0))
+    ArmModelConfig(plate_stiffness=plate.stiffness, links_per_segment=arm.links_per_segment, tau_p=arm.tau_p,
+                   physics_dt=arm.physics_dt, tip_friction=arm.tip_friction, plate=plate.kind, flexure=flexure(plate),
+                   table_friction=arm.table_friction, gravity=(0.0, -arm.gravity, 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,30 +103,30 @@ class Truth:
         return self.config.robot
 
 
-def build_truth(settings: GroundTruthSettings, model_robot: RobotParams, environment: Environment) -> Truth:
-    """The ground truth of a MuJoCo scenario's checked `settings` (module docstring), for the
-    controller's robot `model_robot` (`controller_robot`) and facets `environment`."""
+def build_truth(arm: TrueArm, plate: Plate, model: Model, model_robot: RobotParams, environment: Environment) -> Truth:
+    """The ground truth of a MuJoCo scenario's checked `arm` and `plate` (module docstring), for the
+    controller's `model`, its robot `model_robot` (`controller_robot`) and facets `environment`."""
     from softcbf_mj.flexure_calibration import calibrate_flexure
     from softcbf_mj.model_builder import ArmModelConfig
 
-    g = settings
-    ref = scale_damping(load_robot(g.true_robot), g.damping_scale) if g.true_robot else model_robot
-    arm = RobotParams(
-        lengths=ref.array("lengths") * g.true_length_scale, masses=ref.masses,
-        stiffness=ref.array("stiffness") * g.true_stiffness_scale, damping=ref.array("damping") * g.true_damping_scale,
-        gains=ref.array("gains") * g.true_gain_scale, u_min=ref.u_min, u_max=ref.u_max,
-        inertias=ref.array("inertias") * g.true_length_scale**2,
+    g = arm
+    ref = scale_damping(load_robot(g.robot), model.damping_scale) if g.robot else model_robot
+    true_arm = RobotParams(
+        lengths=ref.array("lengths") * g.length_scale, masses=ref.masses,
+        stiffness=ref.array("stiffness") * g.stiffness_scale, damping=ref.array("damping") * g.damping_scale,
+        gains=ref.array("gains") * g.gain_scale, u_min=ref.u_min, u_max=ref.u_max,
+        inertias=ref.array("inertias") * g.length_scale**2,
     )
     H, h = environment.H, environment.h
     cos_a, sin_a = math.cos(g.facet_angle), math.sin(g.facet_angle)
     true_H = np.column_stack((H[:, 0] * cos_a - H[:, 1] * sin_a, H[:, 0] * sin_a + H[:, 1] * cos_a))
     true_h = (h + g.facet_offset * np.hypot(H[:, 0], H[:, 1])) * cos_a
-    model: dict[str, Any] = dict(robot=arm, H=true_H, h=true_h, plate_stiffness=g.plate_stiffness,
+    built: dict[str, Any] = dict(robot=true_arm, H=true_H, h=true_h, plate_stiffness=plate.stiffness,
                                  links_per_segment=g.links_per_segment, tau_p=g.tau_p, physics_dt=g.physics_dt,
-                                 tip_friction=g.tip_friction, plate=g.plate, flexure=g.flexure,
+                                 tip_friction=g.tip_friction, plate=plate.kind, flexure=flexure(plate),
                                  table_friction=g.table_friction)
     if g.gravity:  # else ArmModelConfig's (0, 0, 0), not (0, -0.0, 0)
-        model["gravity"] = (0.0, -g.gravity, 0.0)
-    config = ArmModelConfig(**model)
-    stiffness = calibrate_flexure(config).stiffness_N_per_m if g.plate == "flexure" else g.plate_stiffness
+        built["gravity"] = (0.0, -g.gravity, 0.0)
+    config = ArmModelConfig(**built)
+    stiffness = calibrate_flexure(config).stiffness_N_per_m if plate.kind == "flexure" else plate.stiffness
     return Truth(config, Environment(true_H, true_h), stiffness)

@@ -30,6 +30,15 @@ and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
 table with Coulomb friction (`softcbf_mj.table_friction`; time series `table_friction_power_W`);
 such samples have no batch form. Results and the benchmark: models/softcbf_arm/README.md.
 
+The spec (`MujocoContact`, scenarios.spec) holds the sections `run`, `filter`, `nominal`,
+`model` (the controller's robot, damping × `damping_scale`, and force-safe set), `arm` and
+`plate` (the ground truth, scenarios.ground_truth: the true arm's k, d, λ and L scaled by
+`true_*_scale`, the true plates moved by `facet_offset` and turned by `facet_angle` while the
+controller keeps the unmoved facets, `gravity`, `tip_friction`, `table_friction`, the ideal
+plate's `plate_stiffness` or the flexure's `sheet_*`, whose calibrated k is recorded as the
+scene's plate stiffness) and its own `assumed_plate_stiffness` (N/m, the controller's ψ).
+Model mismatch studies vary these (softcbf.study).
+
 Imports: MuJoCo (the plants, the model builder) is imported inside the functions that run the
 scenario or its batch form, not at load, so that registering the scenario and reading its
 parameters (`softcbf list`, `softcbf run NAME --help`) stay cheap (issue 27; tests/test_cli_lazy.py).
@@ -48,16 +57,16 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    ControllerRun, build_safe_set, check_bounds, check_controller_parameters, control_step, controller_row,
-    controller_runs, initial_configuration, nominal_arguments, run_tuning, stop_after,
-    scene_record,
+    ControllerRun, check_controller, control_step, controller_row, controller_runs, initial_configuration,
+    model_safe_set, nominal_arguments, run_tuning, scene_record, stop_after,
 )
-from scenarios.ground_truth import GroundTruthSettings, Truth, build_truth, check_true_arm, controller_robot
+from scenarios.ground_truth import Truth, build_truth, check_true_arm, controller_robot
+from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
-from vocabulary.settings import Bound, default
+from vocabulary.settings import Bound
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
 
@@ -91,12 +100,20 @@ TABLE = (
 )
 
 
-def check_parameters(params: Mapping[str, Any]) -> None:
-    """The checks `mujoco_contact` makes before it builds anything (`scenarios.Scenario.validate`)."""
-    check_bounds(params, BOUNDS)
-    model_robot = check_controller_parameters(params, "assumed_plate_stiffness")
-    check_true_arm(GroundTruthSettings.of(params), model_robot)
-    steps_per_control(CONTROL_DT, params["physics_dt"])
+def check_spec(spec: MujocoContact) -> None:
+    """The checks of a `mujoco_contact` spec beyond its values' (scenarios.spec): the controller, the ground
+    truth, the physics step dividing the control period."""
+    model_robot = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
+    check_true_arm(spec.arm, spec.plate, model_robot)
+    steps_per_control(CONTROL_DT, spec.arm.physics_dt)
+
+
+MujocoContact = scenario_spec(
+    "MujocoContact", "The spec of scenario `mujoco_contact` (module docstring): the run, the controller under test, "
+                     "the nominal, the controller's model, the MuJoCo arm and plate, and the plate stiffness the "
+                     "controller assumes.",
+    "mujoco_contact", {"run": Run, "filter": Filter, "nominal": Nominal, "model": Model, "arm": TrueArm, "plate": Plate},
+    {"assumed_plate_stiffness": "assumed_plate_stiffness"}, BOUNDS, check_spec, __name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,23 +132,17 @@ class ContactSetup:
     context: FilterContext
 
 
-def contact_setup(params: Mapping[str, Any]) -> ContactSetup:
-    """Check `params` (all of `mujoco_contact`'s keyword arguments) and build the sample's
-    controller model, ground truth, controllers, nominal parameters and q0: the
-    construction shared by the single run (`mujoco_contact`) and the batch form (`run_contact_batch`)."""
-    check_parameters(params)
-    model_robot = controller_robot(params)
-    safe_set = build_safe_set(params["environment"], params["assumed_plate_stiffness"], params["f_max"],
-                              params["row_scaling"])
-    check_duration(params["duration"], CONTROL_DT, model_robot.n_segments, safe_set)
-    truth = build_truth(GroundTruthSettings.of(params), model_robot, safe_set.environment)
-    runs = controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"])
-    nominal_kwargs = nominal_arguments(params["nominal"], params["nominal_params"], amplitude=params["amplitude"],
-                                       frequency=params["frequency"], t0=params["t0"])
-    q0 = initial_configuration(truth.robot.n_segments, params["seed"], params["q0_std"])  # the true arm's segments
-    context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, params["pressure_limits"], command_delay=0.0,
-                                      actuator_tau=params["tau_p"])
-    return ContactSetup(safe_set, truth, runs, nominal_kwargs, q0, context)
+def contact_setup(spec: MujocoContact) -> ContactSetup:
+    """The (checked) `spec`'s controller model, ground truth, controllers, nominal parameters and q0:
+    the construction shared by the single run (`mujoco_contact`) and the batch form (`run_contact_batch`)."""
+    model_robot = controller_robot(spec.model)
+    safe_set = model_safe_set(spec.model, spec.assumed_plate_stiffness)
+    check_duration(spec.run.duration, CONTROL_DT, model_robot.n_segments, safe_set)
+    truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)
+    q0 = initial_configuration(truth.robot.n_segments, spec.run.seed, spec.run.q0_std)  # the true arm's segments
+    context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, spec.filter.pressure_limits,
+                                      command_delay=0.0, actuator_tau=spec.arm.tau_p)
+    return ContactSetup(safe_set, truth, controller_runs(spec.filter), nominal_arguments(spec.nominal), q0, context)
 
 
 BATCH_VARYING = frozenset({
@@ -152,120 +163,55 @@ def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:
 
 
 def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> list[dict[str, Any]]:
-    """Run `mujoco_contact` samples that share `contact_batch_key` (each one tuning) in one
-    batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
+    """Run `mujoco_contact` samples (flat parameters) that share `contact_batch_key` (each one tuning) in
+    one batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
     run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
     from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant  # MuJoCo: imported when run (module docstring)
 
     keys = {contact_batch_key(p) for p in samples}
     if len(keys) != 1 or None in keys:
         raise ValueError(f"samples of one batch must share contact_batch_key and use the ideal plate, got {len(keys)} keys")
-    setups = [contact_setup(p) for p in samples]
+    specs = [MujocoContact.from_flat(p) for p in samples]
+    setups = [contact_setup(s) for s in specs]
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
     first = setups[0]
     plant = MujocoBatchPlant.from_configs([s.truth.config for s in setups], control_dt=CONTROL_DT,
                                           nthread=nthread)
-    return run_batch_tuning(plant, first.runs[0], first.context, samples[0]["nominal"],
-                            [s.nominal_kwargs for s in setups], samples[0]["duration"],
+    return run_batch_tuning(plant, first.runs[0], first.context, specs[0].nominal.name,
+                            [s.nominal_kwargs for s in setups], specs[0].run.duration,
                             np.array([s.q0 for s in setups]))
 
 
 @register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",
-          check_parameters, BOUNDS, BatchForm(contact_batch_key, run_contact_batch))
-def mujoco_contact(
-    out_dir: Path,
-    *,
-    duration: float = default("duration", "mujoco_contact"),
-    tunings: str = default("tunings", "mujoco_contact"),
-    filter: str = default("filter", "mujoco_contact"),
-    filter_params: str = default("filter_params", "mujoco_contact"),
-    nominal: str = default("nominal", "mujoco_contact"),
-    nominal_params: str = default("nominal_params", "mujoco_contact"),
-    amplitude: float = default("amplitude", "mujoco_contact"),
-    frequency: float = default("frequency", "mujoco_contact"),
-    t0: float = default("t0", "mujoco_contact"),
-    pressure_limits: bool = default("pressure_limits", "mujoco_contact"),
-    robot: str = default("robot", "mujoco_contact"),
-    environment: str = default("environment", "mujoco_contact"),
-    links_per_segment: int = default("links_per_segment", "mujoco_contact"),
-    tau_p: float = default("tau_p", "mujoco_contact"),
-    physics_dt: float = default("physics_dt", "mujoco_contact"),
-    plate_stiffness: float = default("plate_stiffness", "mujoco_contact"),
-    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "mujoco_contact"),
-    f_max: float = default("f_max", "mujoco_contact"),
-    row_scaling: str = default("row_scaling", "mujoco_contact"),
-    qp_backend: str = default("qp_backend", "mujoco_contact"),
-    seed: int = default("seed", "mujoco_contact"),
-    q0_std: float = default("q0_std", "mujoco_contact"),
-    damping_scale: float = default("damping_scale", "mujoco_contact"),
-    true_stiffness_scale: float = default("true_stiffness_scale", "mujoco_contact"),
-    true_damping_scale: float = default("true_damping_scale", "mujoco_contact"),
-    true_gain_scale: float = default("true_gain_scale", "mujoco_contact"),
-    true_length_scale: float = default("true_length_scale", "mujoco_contact"),
-    facet_offset: float = default("facet_offset", "mujoco_contact"),
-    facet_angle: float = default("facet_angle", "mujoco_contact"),
-    true_robot: str = default("true_robot", "mujoco_contact"),
-    gravity: float = default("gravity", "mujoco_contact"),
-    tip_friction: float = default("tip_friction", "mujoco_contact"),
-    table_friction: float = default("table_friction", "mujoco_contact"),
-    plate: str = default("plate", "mujoco_contact"),
-    sheet_clamp_at: float = default("sheet_clamp_at", "mujoco_contact"),
-    sheet_free_end_at: float = default("sheet_free_end_at", "mujoco_contact"),
-    sheet_thickness: float = default("sheet_thickness", "mujoco_contact"),
-    sheet_width: float = default("sheet_width", "mujoco_contact"),
-    sheet_youngs_modulus: float = default("sheet_youngs_modulus", "mujoco_contact"),
-    sheet_links: int = default("sheet_links", "mujoco_contact"),
-    sheet_calibration_fraction: float = default("sheet_calibration_fraction", "mujoco_contact"),
-    progress: bool = default("progress", "mujoco_contact"),
-) -> dict:
-    """Run each controller (tuning) for `duration` s; write summary.json and one time series per run.
-
-    `robot` is the controller's model and, unless `true_robot` names another robot file,
-    the MuJoCo arm's (any number of segments); `damping_scale` multiplies the damping of
-    both (the controller knows it). The MuJoCo arm's k, d, λ and L are then
-    multiplied by `true_stiffness_scale`, `true_damping_scale`,
-    `true_gain_scale` and `true_length_scale` (inertias by the length scale squared, as
-    for a rod; defaults 1: the robot itself). `gravity` (m/s², ≥ 0) acts along −y (the
-    arm's plane vertical, +y up; 0: the arm lies on a table). `tip_friction` is the
-    Coulomb μ between the arm and the plates (0: frictionless). `table_friction` is the
-    Coulomb μ between the arm's links and the table it lies on (0: off; refused with
-    `gravity`; `softcbf_mj.table_friction`). `plate` "ideal" is the
-    slide-spring plate of `plate_stiffness`; "flexure" the clamped ABS sheet in a force
-    gauge (docs/beyond-the-paper.md#flexure-plate, `softcbf_mj.flexure`: `sheet_*` are its clamp and free-end positions
-    along the facet, thickness, width (m), Young's modulus (Pa), links and the calibration point as a
-    fraction of its length from the clamp), whose gauge
-    gives ρ_meas; its calibrated k (`calibrate_flexure`) is recorded as the scene's plate
-    stiffness, the controller keeps `assumed_plate_stiffness`. `plate_stiffness` is the true
-    plate's (N/m), `assumed_plate_stiffness` the controller's. The true plates sit on the
-    `environment` facets moved by `facet_offset` (m) along their outward normals (> 0:
-    farther from the base) and then turned by `facet_angle` (rad, counter-clockwise seen
-    from +z) about the foot of the perpendicular from the base; the controller keeps the
-    unmoved facets. Model mismatch studies vary these (softcbf.study).
-    """
-    params = dict(locals())  # the parameters: first, before any other local name
-    params.pop("out_dir")
-    from softcbf_mj.model_builder import build_model  # MuJoCo: imported when run (module docstring), after `params`
+          MujocoContact, BatchForm(contact_batch_key, run_contact_batch))
+def mujoco_contact(out_dir: Path, spec: MujocoContact) -> dict:
+    """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
+    from softcbf_mj.model_builder import build_model  # MuJoCo: imported when run (module docstring)
     from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
-    setup = contact_setup(params)
+
+    setup = contact_setup(spec)
     safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.truth.plate_stiffness, setup.nominal_kwargs
     plant = MujocoPlant(build_model(setup.truth.config), CONTROL_DT)
 
     def figures(log: dict[str, np.ndarray]) -> dict:
         return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log)}
 
-    summary = SummaryWriter(out_dir, "mujoco_contact", params,
+    summary = SummaryWriter(out_dir, "mujoco_contact", spec.flat(),
                             scene_record(setup.truth.robot, safe_set, true_plate_stiffness, setup.truth.plates))
+    nominal = spec.nominal.name
     for run in setup.runs:
         row = run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, nominal_kwargs, setup.context),
-                         safe_set, duration, setup.q0, progress, extra_figures=figures, extra_units=EXTRAS_UNITS,
-                         row=controller_row(run, nominal, nominal_kwargs))
+                         safe_set, spec.run.duration, setup.q0, spec.run.progress, extra_figures=figures,
+                         extra_units=EXTRAS_UNITS, row=controller_row(run, nominal, nominal_kwargs))
         if stop_after(row):
             break
-    print(f"mujoco_contact: {duration:g} s from t0 = {t0:g} s, controller model {robot!r}, pressure limits "
-          f"{'on' if pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
+    plate = spec.plate.kind
+    print(f"mujoco_contact: {spec.run.duration:g} s from t0 = {spec.nominal.t0:g} s, controller model "
+          f"{spec.model.robot!r}, pressure limits "
+          f"{'on' if spec.filter.pressure_limits else 'off (the MuJoCo ctrlrange still clamps to ±150 hPa)'}, "
           f"{plate} plate {true_plate_stiffness:.4g} N/m{' (calibrated)' if plate != 'ideal' else ''} "
-          f"(assumed {assumed_plate_stiffness:g}), F_max {f_max:g} N, n_max {safe_set.n_max * 1e3:.2f} mm; "
-          f"outputs in {out_dir}")
+          f"(assumed {spec.assumed_plate_stiffness:g}), F_max {spec.model.f_max:g} N, "
+          f"n_max {safe_set.n_max * 1e3:.2f} mm; outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))
     return summary.data

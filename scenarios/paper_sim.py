@@ -1,6 +1,6 @@
 """Scenario `paper_sim`: the paper's simulation (§V, Table I) on the PCC plant.
 
-The paper's sinusoid u_nom,j = A sin(2π f t) drives both segments into one facet;
+The paper's sinusoid u_nom,j = A sin(2π f (t + t0)) drives both segments into one facet;
 the controller sees the exact state at the control rate; None/Low/High tunings of the
 paper's filter by default, any filter and nominal controller by `filter`, `nominal`
 (scenarios.common).
@@ -9,6 +9,11 @@ By default there are no pressure limits, as in the paper (docs/model.md#control-
 Batch form (studies, docs/studies.md#batches): samples that differ only in q0 (`seed`,
 `q0_std`) and the nominal (`amplitude`, `frequency`, `nominal_params`) run together on
 `PCCBatchPlant` (`run_paper_batch`); both paths build a sample with `paper_setup`.
+
+The spec (`PaperSim`, scenarios.spec) holds the sections `run`, `filter`, `nominal` and `model`
+(the controller's robot is also the PCC plant's, its damping × `damping_scale`) and three
+settings of its own: `plate_stiffness` (N/m, the true plate's and the controller's ψ),
+`integrator` and `control_rate` (Hz).
 """
 
 from __future__ import annotations
@@ -26,15 +31,16 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    ControllerRun, build_safe_set, check_bounds, check_choice, check_controller_parameters, control_step, controller_row,
-    controller_runs, initial_configuration, load_robot, nominal_arguments, run_tuning, stop_after, scene_record,
+    ControllerRun, check_choice, check_controller, control_step, controller_row, controller_runs,
+    initial_configuration, model_safe_set, nominal_arguments, run_tuning, scene_record, stop_after,
 )
+from scenarios.ground_truth import controller_robot
+from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
 from softcbf_mj.pcc_batch_plant import PCCBatchPlant
 from softcbf_mj.pcc_plant import INTEGRATORS, PCCPlant
 from softcbf_mj.runio import SummaryWriter
-from vocabulary.settings import default
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -53,11 +59,19 @@ TABLE = (
 
 
 
-def check_parameters(params: Mapping[str, Any]) -> None:
-    """The checks `paper_sim` makes before it builds anything (`scenarios.Scenario.validate`)."""
-    check_bounds(params)
-    check_controller_parameters(params, "plate_stiffness")
-    check_choice("integrator", params["integrator"], INTEGRATORS)
+def check_spec(spec: PaperSim) -> None:
+    """The checks of a `paper_sim` spec beyond its values' (scenarios.spec): the controller, the integrator."""
+    check_controller(spec.filter, spec.nominal, spec.model, spec.plate_stiffness)
+    check_choice("integrator", spec.integrator, INTEGRATORS)
+
+
+PaperSim = scenario_spec(
+    "PaperSim", "The spec of scenario `paper_sim` (module docstring): the run, the controller under test, the nominal, "
+                "the controller's model (also the PCC plant's), the plate's spring (true and assumed), the integrator "
+                "and the control rate.",
+    "paper_sim", {"run": Run, "filter": Filter, "nominal": Nominal, "model": Model},
+    {"plate_stiffness": "plate_stiffness", "integrator": "integrator", "control_rate": "control_rate"},
+    check=check_spec, module=__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,84 +92,59 @@ class PaperSetup:
                                        actuator_tau=0.0, command_delay=0.0, dynamics=dynamics)
 
 
-def paper_setup(params: Mapping[str, Any]) -> PaperSetup:
-    """Check `params` (all of `paper_sim`'s keyword arguments) and build what the single run
-    and the batch form share."""
-    check_parameters(params)
-    robot_params = load_robot(params["robot"])
-    safe_set = build_safe_set(params["environment"], params["plate_stiffness"], params["f_max"], params["row_scaling"])
-    control_dt = 1.0 / params["control_rate"]
-    check_duration(params["duration"], control_dt, robot_params.n_segments, safe_set)
-    runs = controller_runs(params["filter"], params["filter_params"], params["tunings"], params["qp_backend"])
-    nominal_kwargs = nominal_arguments(params["nominal"], params["nominal_params"], amplitude=params["amplitude"],
-                                       frequency=params["frequency"])
-    q0 = initial_configuration(robot_params.n_segments, params["seed"], params["q0_std"])
-    return PaperSetup(robot_params, safe_set, runs, nominal_kwargs, q0, control_dt)
+def paper_setup(spec: PaperSim) -> PaperSetup:
+    """What the single run and the batch form of the (checked) `spec` share."""
+    robot_params = controller_robot(spec.model)
+    safe_set = model_safe_set(spec.model, spec.plate_stiffness)
+    control_dt = 1.0 / spec.control_rate
+    check_duration(spec.run.duration, control_dt, robot_params.n_segments, safe_set)
+    q0 = initial_configuration(robot_params.n_segments, spec.run.seed, spec.run.q0_std)
+    return PaperSetup(robot_params, safe_set, controller_runs(spec.filter), nominal_arguments(spec.nominal), q0,
+                      control_dt)
 
 
-PAPER_BATCH_VARYING = frozenset({"seed", "q0_std", "amplitude", "frequency", "nominal_params", "progress"})
+PAPER_BATCH_VARYING = frozenset({"seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "progress"})
 """Parameters that may differ between the samples of one batch (q0 and the nominal)."""
 
 
 def paper_batch_key(params: Mapping[str, Any]) -> tuple:
-    """What the samples of one batch share: every parameter but `PAPER_BATCH_VARYING`."""
+    """What the samples of one batch share: every flat parameter but `PAPER_BATCH_VARYING`."""
     return tuple(sorted((k, v) for k, v in params.items() if k not in PAPER_BATCH_VARYING))
 
 
 def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> list[dict[str, Any]]:
-    """Run `paper_sim` samples that share `paper_batch_key` (each one tuning) on one `PCCBatchPlant`
-    (numpy, `nthread` unused); one row of run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
+    """Run `paper_sim` samples (flat parameters) that share `paper_batch_key` (each one tuning) on one
+    `PCCBatchPlant` (numpy, `nthread` unused); one row of run figures per sample
+    (`scenarios.batch_form.run_batch_tuning`)."""
     if len({paper_batch_key(p) for p in samples}) != 1:
         raise ValueError("samples of one batch must share paper_batch_key")
-    setups = [paper_setup(p) for p in samples]
+    specs = [PaperSim.from_flat(p) for p in samples]
+    setups = [paper_setup(s) for s in specs]
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
-    first, params = setups[0], samples[0]
+    first, spec = setups[0], specs[0]
     plant = PCCBatchPlant(first.robot, first.safe_set, len(setups), control_dt=first.control_dt,
-                          integrator=params["integrator"])
-    return run_batch_tuning(plant, first.runs[0], first.context(params["pressure_limits"]), params["nominal"],
-                            [s.nominal_kwargs for s in setups], params["duration"],
-                            np.array([s.q0 for s in setups]))
+                          integrator=spec.integrator)
+    return run_batch_tuning(plant, first.runs[0], first.context(spec.filter.pressure_limits), spec.nominal.name,
+                            [s.nominal_kwargs for s in setups], spec.run.duration, np.array([s.q0 for s in setups]))
 
 
 @register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High",
-          check_parameters, batch=BatchForm(paper_batch_key, run_paper_batch))
-def paper_sim(
-    out_dir: Path,
-    *,
-    duration: float = default("duration", "paper_sim"),
-    tunings: str = default("tunings", "paper_sim"),
-    filter: str = default("filter", "paper_sim"),
-    filter_params: str = default("filter_params", "paper_sim"),
-    nominal: str = default("nominal", "paper_sim"),
-    nominal_params: str = default("nominal_params", "paper_sim"),
-    amplitude: float = default("amplitude", "paper_sim"),
-    frequency: float = default("frequency", "paper_sim"),
-    pressure_limits: bool = default("pressure_limits", "paper_sim"),
-    environment: str = default("environment", "paper_sim"),
-    f_max: float = default("f_max", "paper_sim"),
-    plate_stiffness: float = default("plate_stiffness", "paper_sim"),
-    row_scaling: str = default("row_scaling", "paper_sim"),
-    robot: str = default("robot", "paper_sim"),
-    integrator: str = default("integrator", "paper_sim"),
-    control_rate: float = default("control_rate", "paper_sim"),
-    qp_backend: str = default("qp_backend", "paper_sim"),
-    seed: int = default("seed", "paper_sim"),
-    q0_std: float = default("q0_std", "paper_sim"),
-    progress: bool = default("progress", "paper_sim"),
-) -> dict:
-    """Run each controller (tuning) for `duration` s; write summary.json and one time series per run."""
-    params = dict(locals())
-    params.pop("out_dir")
-    setup = paper_setup(params)
-    summary = SummaryWriter(out_dir, "paper_sim", params, scene_record(setup.robot, setup.safe_set, plate_stiffness))
+          PaperSim, BatchForm(paper_batch_key, run_paper_batch))
+def paper_sim(out_dir: Path, spec: PaperSim) -> dict:
+    """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
+    setup = paper_setup(spec)
+    summary = SummaryWriter(out_dir, "paper_sim", spec.flat(), scene_record(setup.robot, setup.safe_set,
+                                                                            spec.plate_stiffness))
     for run in setup.runs:
-        plant = PCCPlant(setup.robot, setup.safe_set, control_dt=setup.control_dt, integrator=integrator)
-        step = control_step(run, nominal, setup.nominal_kwargs, setup.context(pressure_limits, plant.dynamics))
-        row = run_tuning(out_dir, summary, run.label, plant, step, setup.safe_set, duration, setup.q0, progress,
-                         row=controller_row(run, nominal, setup.nominal_kwargs))
+        plant = PCCPlant(setup.robot, setup.safe_set, control_dt=setup.control_dt, integrator=spec.integrator)
+        step = control_step(run, spec.nominal.name, setup.nominal_kwargs,
+                            setup.context(spec.filter.pressure_limits, plant.dynamics))
+        row = run_tuning(out_dir, summary, run.label, plant, step, setup.safe_set, spec.run.duration, setup.q0,
+                         spec.run.progress, row=controller_row(run, spec.nominal.name, setup.nominal_kwargs))
         if stop_after(row):
             break
-    print(f"paper_sim: {duration:g} s, pressure limits {'on' if pressure_limits else 'off'}; outputs in {out_dir}")
+    print(f"paper_sim: {spec.run.duration:g} s, pressure limits {'on' if spec.filter.pressure_limits else 'off'}; "
+          f"outputs in {out_dir}")
     print(format_table(summary.data["runs"], TABLE))
     return summary.data

@@ -1,8 +1,8 @@
 """Running a registered scenario from command-line tokens: the one implementation behind
 `softcbf run` (softcbf/cli.py) and `python -m scenarios` (scenarios/__main__.py).
 
-`scenario_parameters` turns `--name value` tokens into the scenario's keyword arguments
-over the defaults or the `base` values of a run configuration file (scenarios.config_file;
+`scenario_parameters` turns `--name value` tokens into the scenario's flat parameters (its
+spec's settings by name, `scenarios.spec`) over the defaults or the `base` values of a run configuration file (scenarios.config_file;
 spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
 repeatable, add to `filter_params` and `nominal_params`; `--tuning NAME` is
 `--filter-param tuning=NAME`; a NAME given twice on one command line is refused,

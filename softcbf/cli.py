@@ -13,8 +13,8 @@
     softcbf bench --out DIR [--filters SPEC,...] [--quick]   the filter benchmark battery (softcbf.bench)
     softcbf --version
 
-`run` runs a registered scenario (`scenarios.registry`, through `scenarios.run.run_scenario`): its parameters are its keyword
-arguments, spelt with dashes (`--pressure-limits true`); `--filter-param NAME=VALUE` and
+`run` runs a registered scenario (`scenarios.registry`, through `scenarios.run.run_scenario`): its parameters are the
+settings of its spec by their flat names (`scenarios.spec`), spelt with dashes (`--pressure-limits true`); `--filter-param NAME=VALUE` and
 `--nominal-param NAME=VALUE` (repeatable) add to the scenario's `filter_params` and
 `nominal_params` (`scenarios.common`: the controller under test), and `--tuning NAME` is
 `--filter-param tuning=NAME` (one run of that paper-cbf preset, or `--tuning custom

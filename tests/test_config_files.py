@@ -73,16 +73,15 @@ def _accepts(scenario, name: str, value) -> tuple[bool, str]:
     (`Scenario.validate`) and, where the scenario hands its sinusoid parameters to the nominal, the nominal's
     own check when it is built (the cause of issue 27: `--frequency 0` passed the first and failed the second)."""
     from controllers.params import reference_robot
-    from controllers.registry import NOMINALS, build_nominal, parameters
+    from controllers.registry import build_nominal
     from controllers.safe_set import paper_safe_set
     from controllers.safety_filter import FilterContext
     from scenarios.common import nominal_arguments
 
     try:
-        kwargs = scenario.validate({**BOUND_COMPANIONS.get((scenario.name, name), {}), name: value})
-        sinusoid = {p.name: kwargs[p.name] for p in parameters(NOMINALS["sinusoid"]) if p.name in kwargs}
+        spec = scenario.build({**BOUND_COMPANIONS.get((scenario.name, name), {}), name: value})
         context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
-        build_nominal(kwargs["nominal"], nominal_arguments(kwargs["nominal"], kwargs["nominal_params"], **sinusoid), context)
+        build_nominal(spec.nominal.name, nominal_arguments(spec.nominal), context)
     except ValueError as exc:
         return False, str(exc)
     return True, ""
@@ -225,6 +224,37 @@ def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path,
     other = tmp_path / "other"
     assert main(["run", "--config", str(first / "config.json"), "--seed", "4", "--out", str(other)]) == 0
     assert not np.array_equal(load_timeseries(other / "timeseries" / "Low.npz")[0]["q"], a["q"])
+
+
+STORED_RUNS = ROOT / "tests" / "data" / "replay"  # run folders written by e4ce86e: config.json and the time series
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in STORED_RUNS.iterdir()))
+def test_a_stored_config_json_replays_to_its_stored_series(name, tmp_path, capsys):
+    """config.json files written before the scenarios took specs (e4ce86e: paper_sim then had neither t0 nor
+    damping_scale) replay through `softcbf run --config` to the stored series: bit for bit on the recorded
+    versions, to 1e-9 on others (where the replay warns that it may not be bit-identical)."""
+    from softcbf_mj.runio import versions
+
+    stored = STORED_RUNS / name
+    replay = tmp_path / "replay"
+    assert main(["run", "--config", str(stored / "config.json"), "--out", str(replay)]) == 0
+    capsys.readouterr()
+    recorded = json.loads((stored / "config.json").read_text(encoding="utf-8"))
+    params = json.loads((replay / "config.json").read_text(encoding="utf-8"))["params"]
+    assert {k: params[k] for k in recorded["params"]} == recorded["params"]  # the new settings take their defaults
+    exact = recorded["versions"] == versions()
+    files = sorted((stored / "timeseries").glob("*.npz"))
+    assert files
+    for path in files:
+        a, units_a = load_timeseries(path)
+        b, units_b = load_timeseries(replay / "timeseries" / path.name)
+        assert set(a) == set(b) and units_a == units_b
+        for column in sorted(set(a) - set(TIMING_COLUMNS)):
+            if exact:
+                np.testing.assert_array_equal(a[column], b[column], err_msg=column)
+            else:
+                np.testing.assert_allclose(a[column], b[column], rtol=1e-9, atol=1e-12, err_msg=column)
 
 
 TINY = ["--duration", "0.01", "--tunings", "None", "--progress", "false"]

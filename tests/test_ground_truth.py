@@ -3,6 +3,7 @@ that mujoco_contact and camera_loop take the same ground-truth settings, with on
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -12,20 +13,22 @@ import pytest
 from controllers.params import reference_robot
 from controllers.safe_set import paper_environment
 from scenarios import get
-from scenarios.ground_truth import GroundTruthSettings, build_truth, controller_robot
+from scenarios.ground_truth import build_truth, controller_robot
+from scenarios.spec import Model, Plate, TrueArm
 from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS
 
 MUJOCO_SCENARIOS = ("mujoco_contact", "camera_loop")
+GROUND_TRUTH = {f.metadata["setting"] for cls in (TrueArm, Plate) for f in dataclasses.fields(cls)} | {"damping_scale"}
 
 
 def test_the_ground_truth_settings_are_settings_of_the_vocabulary():
-    assert set(GroundTruthSettings.names()) <= set(SETTINGS)
-    with pytest.raises(KeyError, match="facet_angle"):  # a scenario without one of them cannot build the truth
-        GroundTruthSettings.of({k: v for k, v in get("mujoco_contact").defaults().items() if k != "facet_angle"})
+    assert GROUND_TRUTH <= set(SETTINGS)
+    for name in MUJOCO_SCENARIOS:  # both scenarios hold them as the same two sections
+        assert {get(name).spec.SECTIONS[k] for k in ("arm", "plate", "model")} == {TrueArm, Plate, Model}
 
 
 def test_both_mujoco_scenarios_take_every_ground_truth_setting_with_one_default():
-    settings = set(GroundTruthSettings.names())
+    settings = GROUND_TRUTH
     assert {"true_stiffness_scale", "true_damping_scale", "true_length_scale", "true_gain_scale", "damping_scale",
             "facet_offset", "facet_angle", "gravity", "tip_friction", "table_friction", "plate"} <= settings
     for name in MUJOCO_SCENARIOS:
@@ -49,13 +52,13 @@ def test_each_mujoco_scenario_validates_the_ground_truth_settings(name):
 
 
 def test_build_truth_scales_the_arm_and_moves_the_plates():
-    params = {**get("mujoco_contact").defaults(), "true_stiffness_scale": 1.5, "true_damping_scale": 0.5,
-              "true_gain_scale": 2.0, "true_length_scale": 1.1, "damping_scale": 3.0, "facet_offset": -0.002,
-              "facet_angle": 0.1, "gravity": 9.81}
-    model = controller_robot(params)
+    spec = get("mujoco_contact").build({"true_stiffness_scale": 1.5, "true_damping_scale": 0.5, "true_gain_scale": 2.0,
+                                        "true_length_scale": 1.1, "damping_scale": 3.0, "facet_offset": -0.002,
+                                        "facet_angle": 0.1, "gravity": 9.81})
+    model = controller_robot(spec.model)
     ref = reference_robot()
     np.testing.assert_allclose(model.array("damping"), 3.0 * ref.array("damping"), rtol=1e-15)
-    truth = build_truth(GroundTruthSettings.of(params), model, paper_environment())
+    truth = build_truth(spec.arm, spec.plate, spec.model, model, paper_environment())
     arm = truth.robot
     np.testing.assert_allclose(arm.array("stiffness"), 1.5 * ref.array("stiffness"), rtol=1e-15)
     np.testing.assert_allclose(arm.array("damping"), 0.5 * 3.0 * ref.array("damping"), rtol=1e-15)
@@ -65,7 +68,7 @@ def test_build_truth_scales_the_arm_and_moves_the_plates():
     c, s = math.cos(0.1), math.sin(0.1)
     np.testing.assert_allclose(truth.plates.H, [[0.36 * c - s, 0.36 * s + c]], rtol=1e-15)
     np.testing.assert_allclose(truth.plates.h, [(0.15 - 0.002 * math.hypot(0.36, 1.0)) * c], rtol=1e-15)
-    assert truth.config.gravity == (0.0, -9.81, 0.0) and truth.plate_stiffness == params["plate_stiffness"]
+    assert truth.config.gravity == (0.0, -9.81, 0.0) and truth.plate_stiffness == spec.plate.stiffness
 
 
 def test_camera_loop_builds_the_contact_ground_truth(tmp_path):

@@ -9,9 +9,8 @@ import pytest
 
 from scenarios import get, registry
 from scenarios.__main__ import main
-from scenarios.common import check_bounds, data_only
+from scenarios.common import data_only
 from softcbf_mj.runio import load_timeseries
-from vocabulary.settings import Bound
 
 SPEC_RUN_FIELDS = {
     "tuning": str,
@@ -120,10 +119,11 @@ def test_in_process_main_matches_the_module_cli(tmp_path, capsys):
     assert "paper_sim" in capsys.readouterr().out
 
 
-def test_check_parameters_names_the_parameter_its_bound_and_the_value():
-    bounds = {"width": Bound(16, 1280, unit="px")}  # a scenario's narrower range
-    check_bounds({"duration": 1e-9, "facet_offset": -1.0, "drop_rate": 0.0, "seed": 0, "width": 16, "progress": True,
-                  "filter": "x"}, bounds)
+def test_a_spec_names_the_parameter_its_bound_and_the_value():
+    """Building a spec checks every value against the vocabulary, then the scenario's narrower range."""
+    camera = get("camera_loop").spec
+    camera.from_flat({"duration": 1e-9, "facet_offset": -1.0, "drop_rate": 0.0, "seed": 0, "width": 16, "height": 16,
+                  "progress": True, "calibration": "truth"})
     for params, message in [
         ({"duration": 0.0}, "duration must be > 0 s, got 0.0"),
         ({"duration": float("inf")}, "duration must be finite and > 0 s, got inf"),
@@ -132,8 +132,9 @@ def test_check_parameters_names_the_parameter_its_bound_and_the_value():
         ({"drop_rate": 1.0}, "drop_rate must be in [0, 1), got 1.0"),
         ({"seed": -1}, "seed must be >= 0, got -1"),
         ({"t0": float("nan")}, "t0 must be finite, got nan"),  # every float, bounded or not
-        ({"width": 8}, "width must be in [16, 1280] px, got 8"),  # the vocabulary's >= 8 px, then the scenario's
+        ({"width": 4}, "width must be >= 8 px, got 4"),  # the vocabulary's >= 8 px
+        ({"width": 8}, "width must be in [16, 1280] px, got 8"),  # then the scenario's
     ]:
         with pytest.raises(ValueError) as exc:
-            check_bounds(params, bounds)
+            camera.from_flat(params)
         assert str(exc.value) == message

@@ -17,7 +17,8 @@ from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS, check_value, defaul
 
 REPO = Path(__file__).resolve().parents[1]
 # The modules that configure a run: none may type a setting's default (they take `default(name, context)`).
-CONFIGURATION = sorted((REPO / "scenarios").glob("*.py")) + [REPO / "hardware" / "config.py"]
+CONFIGURATION = sorted((REPO / "scenarios").glob("*.py")) + [REPO / "hardware" / "config.py"] + [
+    REPO / "softcbf" / name for name in ("cli.py", "hardware_cli.py")]
 
 
 def _distinctive(value: object) -> bool:
@@ -108,6 +109,20 @@ def test_scenario_defaults_are_the_vocabulary_s(name):
     for param, value in defaults.items():
         expected = default(param, name)
         assert value == expected and type(value) is type(expected), (name, param, value, expected)
+
+
+def test_spec_sections_hold_no_default_of_their_own():
+    """A section's field is UNSET until a spec resolves it to `default(name, context)`: the spec of each
+    scenario takes every default from the vocabulary, the one home."""
+    from scenarios.spec import UNSET
+
+    for name, scenario in scenarios.registry().items():
+        spec = scenario.spec()
+        for attribute, section in scenario.spec.SECTIONS.items():
+            for field in dataclasses.fields(section):
+                assert field.default is UNSET, (section.__name__, field.name)
+                setting = field.metadata["setting"]
+                assert getattr(getattr(spec, attribute), field.name) == default(setting, name), (name, setting)
 
 
 def test_hardware_defaults_are_the_vocabulary_s():

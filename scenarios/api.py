@@ -1,0 +1,107 @@
+"""The Python API: a scenario as a typed spec, run in memory, saved as a run folder (docs/quickstart.md).
+
+    from scenarios.api import Filter, MujocoContact, Plate, Run, run, save
+
+    spec = MujocoContact(run=Run(duration=2.0), filter=Filter("e-erg", contact_aware=True),
+                         plate=Plate(stiffness=12.0))
+    result = run(spec)                 # the time series and the summary, in memory
+    result.runs[0]["rho_min_meas"]     # summary.json's row of the first run
+    result.series["e-erg(...)"]["F"]   # a run's time series, column by column
+    save(result, "runs/contact")       # the run folder `softcbf run` writes
+
+A spec is a frozen dataclass of typed sections (scenarios.spec: `Run`, `Filter`, `Nominal`,
+`Model`, `TrueArm`, `Plate`, `Camera`), one per scenario (`PaperSim`, `MujocoContact`,
+`CameraLoop`); every value is checked when the spec is built, the filter's and the nominal's
+parameters (keywords of their sections, a mapping `params={name: value}`, or the command
+line's "name=value;..." text) against their declarations (controllers.filter_parameters), so a
+bad value is refused before anything runs. No scenario or setting is named by a string: a field left out takes the scenario's
+default, and `spec.flat()` gives the flat names that the command line and the files use.
+
+`run(spec)` runs the spec's scenario (the same function `softcbf run` calls) into a temporary
+folder without the report and the recording (`scenarios.common.data_only`) and returns a
+`Result` holding every file it wrote (bytes, by relative path), summary.json parsed and each
+run's time series loaded (`softcbf_mj.runio.load_timeseries`: columns and units);
+`save(result, out_dir)` writes those files into a new run folder (the same checks and lock as
+`softcbf run --out`) and builds the report and the recording from it, as `softcbf run` does
+after its last run. One implementation of the outputs: the API writes nothing `softcbf run`
+does not (tests/test_spec_api.py compares the two folders).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scenarios import registry
+from scenarios.camera_loop import CameraLoop
+from scenarios.common import data_only
+from scenarios.mujoco_contact import MujocoContact
+from scenarios.paper_sim import PaperSim
+from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm
+from softcbf_mj.runio import SUMMARY_FILE, load_timeseries, prepare_out_dir, release_out_dir
+
+__all__ = ["Camera", "CameraLoop", "Filter", "Model", "MujocoContact", "Nominal", "PaperSim", "Plate", "Result", "Run",
+           "TrueArm", "run", "save"]
+
+TIMESERIES = "timeseries"
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """A finished scenario in memory (module docstring).
+
+    spec: what ran; summary: summary.json (scenario, params, versions, scene, runs); series:
+    time series file stem → {column: array} (a run's label, and `<label>_frames` for the camera's);
+    units: the same stems → {column: unit}; files: every file of the run folder, relative path → bytes.
+    """
+
+    spec: Any
+    summary: dict[str, Any]
+    series: dict[str, dict[str, np.ndarray]]
+    units: dict[str, dict[str, str]]
+    files: dict[str, bytes]
+
+    @property
+    def runs(self) -> list[dict[str, Any]]:
+        """summary.json's rows, one per controller run (docs/run-outputs.md)."""
+        return self.summary["runs"]
+
+
+def run(spec: Any) -> Result:
+    """Run `spec` (a spec of a registered scenario) and return its `Result` (module docstring)."""
+    scenario = registry().get(getattr(type(spec), "CONTEXT", None))
+    if scenario is None or not isinstance(spec, scenario.spec):
+        raise TypeError(f"run takes a scenario's spec ({', '.join(s.spec.__name__ for s in registry().values())}), "
+                        f"got {spec!r}")
+    with tempfile.TemporaryDirectory(prefix="softcbf-") as tmp, data_only():
+        folder = Path(tmp)
+        scenario.function(folder, spec)
+        files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+        loaded = {p.stem: load_timeseries(p) for p in sorted((folder / TIMESERIES).glob("*.npz"))}
+    return Result(spec, json.loads(files[SUMMARY_FILE]), {k: v[0] for k, v in loaded.items()},
+                  {k: dict(v[1]) for k, v in loaded.items()}, files)
+
+
+def save(result: Result, out_dir: str | Path, overwrite: bool = False) -> Path:
+    """Write `result`'s run folder into `out_dir` (refused if it exists and is not empty, unless `overwrite`
+    replaces a run folder's contents: `softcbf_mj.runio.prepare_out_dir`), then its report and recording;
+    returns the folder."""
+    from softcbf_mj.recording import write_recording  # rerun and matplotlib: imported when a folder is saved
+    from softcbf_mj.report import write_report
+
+    out = prepare_out_dir(out_dir, overwrite=overwrite)
+    try:
+        for name, data in result.files.items():
+            path = out / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        write_report(out)
+        write_recording(out)
+    finally:
+        release_out_dir(out)
+    return out

@@ -1,0 +1,251 @@
+"""Scenario specs: typed, frozen configuration sections, derived from the vocabulary and checked once.
+
+A *section* groups the settings one part of a run takes: `Run` (duration, seed, q0 noise,
+progress line), `Filter` (the controller under test), `Nominal` (the nominal controller),
+`Model` (the controller's robot and force-safe set), `TrueArm` and `Plate` (the MuJoCo
+ground truth, `scenarios.ground_truth`) and `Camera` (the camera path). Each is a frozen
+dataclass made by `section(name, doc, {field: setting})`: a field per setting of
+`vocabulary.settings.SETTINGS`, whose type is the setting's `kind` and whose value is
+checked by `check_value` when the section is built (an int given for a float becomes
+one; a bad value raises `SettingError` naming the setting, its bound and unit, and the
+value). Fields left out hold `UNSET`, "the scenario's default". A filter's or nominal's
+parameters (`Filter.params`, `Nominal.params`) may be given as a mapping name → value, held as
+the command line's "name=value;..." text (`scenarios.config_file.joined`, as a TOML table is),
+or as keywords of their own (`Filter("e-erg", contact_aware=True)`: `plugin_section`).
+
+A *spec* is one scenario's whole configuration: a frozen dataclass made by
+`scenario_spec(name, doc, context, sections={attribute: Section}, own={field: setting})`,
+holding one instance of each section it declares plus its own few settings. Building a
+spec resolves every `UNSET` field to `default(setting, context)` (the scenario's default,
+`vocabulary.settings.DEFAULT_OVERRIDES`), holds the scenario's narrower `bounds`, then
+runs the scenario's `check(spec)` (files, names, the filter's parameters, cross-setting
+rules). A spec that exists is therefore valid: nothing downstream checks it again.
+
+Flat names. Every field of a spec is a setting, and a setting appears at most once in a
+spec, so the setting's name is the field's flat name: `--plate-stiffness` on the command
+line, `plate_stiffness = 11.16` in a TOML file, `fixed.plate_stiffness` in a study and
+config.json's "params" all address `spec.plate.stiffness`. `Spec.from_flat({name: value})`
+builds a spec from flat names (unknown names are refused with the list of valid ones),
+`spec.flat()` gives them back in declaration order, and `flat_parameters(Spec)` the
+keyword parameters (annotation = the setting's kind, default = the scenario's) from which
+`scenarios.register` builds the flat entry point `Scenario.run(out_dir, **flat)` and
+the command line, `--help`, `softcbf list`, TOML files, replay and studies read theirs.
+Adding a setting to a section (one entry in the vocabulary, one field here) therefore
+reaches every one of them with no other edit (tests/test_spec_api.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from scenarios.config_file import joined
+from vocabulary.settings import Bound, SettingError, check_value, default, setting
+
+
+class _Unset:
+    """The value of a section field left out: the scenario's default (`default(setting, context)`)."""
+
+    _instance: _Unset | None = None
+
+    def __new__(cls) -> _Unset:
+        if cls._instance is None:
+            cls._instance = super().__new__(cls)
+        return cls._instance
+
+    def __repr__(self) -> str:
+        return "<scenario default>"
+
+    def __reduce__(self) -> str:
+        return "UNSET"
+
+
+UNSET: Any = _Unset()
+
+SETTING = "setting"  # the dataclass field metadata key that names a field's setting
+
+
+def _setting_fields(cls: type) -> dict[str, str]:
+    """Field name → setting name of a section or spec's own settings (not its sections)."""
+    return {f.name: f.metadata[SETTING] for f in dataclasses.fields(cls) if SETTING in f.metadata}
+
+
+def _check_given(self: Any) -> None:
+    """`__post_init__` of a section: every given field checked and normalised (`check_value`; a
+    plug-in's parameters given as a mapping become the "name=value;..." text, `config_file.joined`)."""
+    for name, key in _setting_fields(type(self)).items():
+        value = getattr(self, name)
+        if value is not UNSET:
+            object.__setattr__(self, name, check_value(key, joined(key, value)))
+
+
+def _setting_field(name: str) -> Any:
+    """A dataclass field of setting `name`, `UNSET` unless given."""
+    return dataclasses.field(default=UNSET, metadata={SETTING: name})
+
+
+def section(name: str, doc: str, fields: Mapping[str, str]) -> type:
+    """A frozen section class `name` whose field `f` is setting `fields[f]` (module docstring)."""
+    spec = [(field, setting(key).kind, _setting_field(key)) for field, key in fields.items()]
+    return dataclasses.make_dataclass(name, spec, frozen=True, namespace={"__post_init__": _check_given, "__doc__": doc,
+                                                                          "__module__": __name__})
+
+
+def plugin_section(name: str, doc: str, fields: Mapping[str, str]) -> type:
+    """A `section` for a plug-in (a filter, a nominal) whose field `params` holds its parameters: a keyword
+    that is not a field is one of them, `Filter("e-erg", contact_aware=True)` = `Filter("e-erg",
+    params={"contact_aware": True})` (the plug-in checks the names and values when the spec is built)."""
+    cls = section(name, doc, fields)
+    generated, names = cls.__init__, {f.name for f in dataclasses.fields(cls)}
+
+    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+        parameters = {k: kwargs.pop(k) for k in list(kwargs) if k not in names}
+        if parameters:
+            if kwargs.get("params", UNSET) is not UNSET:
+                raise TypeError(f"{name}: give the parameters as params={{...}} or as keywords, not both")
+            kwargs["params"] = parameters
+        generated(self, *args, **kwargs)
+
+    __init__.__doc__ = plugin_section.__doc__
+    cls.__init__ = __init__
+    return cls
+
+
+def _fill_unset(value: Any, context: str) -> None:
+    """Set `value`'s `UNSET` setting fields to `context`'s defaults, in place (an object under construction,
+    or a fresh copy)."""
+    for f, key in _setting_fields(type(value)).items():
+        if getattr(value, f) is UNSET:
+            object.__setattr__(value, f, default(key, context))
+
+
+def _resolved(value: Any, context: str) -> Any:
+    """A section with its `UNSET` fields set to `context`'s defaults (a copy; the given fields stay checked)."""
+    if all(getattr(value, f) is not UNSET for f in _setting_fields(type(value))):
+        return value
+    copy = object.__new__(type(value))
+    for f in dataclasses.fields(value):
+        object.__setattr__(copy, f.name, getattr(value, f.name))
+    _fill_unset(copy, context)
+    return copy
+
+
+def _build_spec(self: Any) -> None:
+    """`__post_init__` of a spec (module docstring): sections typed and resolved, own settings checked
+    and resolved, the scenario's bounds, then its check."""
+    cls = type(self)
+    for attribute, section_cls in cls.SECTIONS.items():
+        value = getattr(self, attribute)
+        if not isinstance(value, section_cls):
+            raise TypeError(f"{cls.__name__}.{attribute} must be a {section_cls.__name__}, got {value!r}")
+        object.__setattr__(self, attribute, _resolved(value, cls.CONTEXT))
+    _check_given(self)
+    _fill_unset(self, cls.CONTEXT)
+    flat = self.flat()
+    for key, bound in cls.BOUNDS.items():
+        if flat[key] not in bound:
+            raise SettingError(f"{key} must be {bound}, got {flat[key]!r}")
+    if cls.CHECK is not None:
+        cls.CHECK(self)
+
+
+def _paths(cls: type) -> dict[str, tuple[str | None, str]]:
+    """Flat name → (section attribute or None for an own setting, field) of spec class `cls`."""
+    paths: dict[str, tuple[str | None, str]] = {}
+    for attribute, section_cls in cls.SECTIONS.items():
+        for f, key in _setting_fields(section_cls).items():
+            if key in paths:
+                raise ValueError(f"{cls.__name__}: setting {key!r} is declared twice")
+            paths[key] = (attribute, f)
+    for f, key in _setting_fields(cls).items():
+        if key in paths:
+            raise ValueError(f"{cls.__name__}: setting {key!r} is declared twice")
+        paths[key] = (None, f)
+    return paths
+
+
+def _flat(self: Any) -> dict[str, Any]:
+    """Every setting of the spec by its flat name, in declaration order (module docstring)."""
+    return {key: getattr(self if attribute is None else getattr(self, attribute), f)
+            for key, (attribute, f) in type(self).PATHS.items()}
+
+
+def _from_flat(cls: type, values: Mapping[str, Any]) -> Any:
+    """The spec of flat `values` (the others: the scenario's defaults); ValueError for an unknown name."""
+    unknown = [k for k in values if k not in cls.PATHS]
+    if unknown:
+        raise ValueError(f"scenario {cls.CONTEXT!r} has no parameter {unknown[0]!r}; parameters: {', '.join(cls.PATHS)}")
+    grouped: dict[str | None, dict[str, Any]] = {}
+    for key, value in values.items():
+        attribute, f = cls.PATHS[key]
+        grouped.setdefault(attribute, {})[f] = value
+    own = grouped.pop(None, {})
+    return cls(**{attribute: cls.SECTIONS[attribute](**given) for attribute, given in grouped.items()}, **own)
+
+
+def _replace_flat(self: Any, **values: Any) -> Any:
+    """A new spec: this one with the flat settings `values` changed (checked as any spec)."""
+    return type(self).from_flat({**self.flat(), **values})
+
+
+def scenario_spec(name: str, doc: str, context: str, sections: Mapping[str, type], own: Mapping[str, str] | None = None,
+                  bounds: Mapping[str, Bound] | None = None, check: Callable[[Any], None] | None = None,
+                  module: str = __name__) -> type:
+    """The spec class `name` of scenario `context` (module docstring): `sections` attribute → section
+    class, `own` field → setting, `bounds` flat name → the scenario's narrower range, `check(spec)`;
+    `module`: the module that binds the class to `name` (so that a spec pickles)."""
+    spec = [(attribute, section_cls, dataclasses.field(default_factory=section_cls))
+            for attribute, section_cls in sections.items()]
+    spec += [(f, setting(key).kind, _setting_field(key)) for f, key in (own or {}).items()]
+    namespace = {"__post_init__": _build_spec, "__doc__": doc, "__module__": module, "flat": _flat,
+                 "from_flat": classmethod(_from_flat), "replace_flat": _replace_flat, "SECTIONS": dict(sections),
+                 "CONTEXT": context, "BOUNDS": dict(bounds or {}), "CHECK": None if check is None else staticmethod(check)}
+    cls = dataclasses.make_dataclass(name, spec, frozen=True, namespace=namespace)
+    cls.PATHS = _paths(cls)
+    return cls
+
+
+def flat_parameters(spec_cls: type) -> dict[str, inspect.Parameter]:
+    """The flat keyword parameters of spec class `spec_cls`: annotation = the setting's kind, default =
+    the scenario's (`default(name, context)`), in declaration order."""
+    return {key: inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=default(key, spec_cls.CONTEXT),
+                                   annotation=setting(key).kind) for key in spec_cls.PATHS}
+
+
+# The sections every scenario draws on (module docstring); field → setting.
+Run = section("Run", "The run: its length (s), seed, initial pose noise (rad) and progress line.",
+              {"duration": "duration", "seed": "seed", "q0_std": "q0_std", "progress": "progress"})
+Filter = plugin_section("Filter", "The controller under test: the filter, its parameters, the paper filter's tunings, "
+                           "its QP backend and whether its QP holds the pressure box.",
+                 {"name": "filter", "params": "filter_params", "tunings": "tunings", "qp_backend": "qp_backend",
+                  "pressure_limits": "pressure_limits"})
+Nominal = plugin_section("Nominal", "The nominal controller, its parameters and the sinusoid's amplitude (hPa), "
+                             "frequency (Hz) and time offset (s).",
+                  {"name": "nominal", "params": "nominal_params", "amplitude": "amplitude", "frequency": "frequency",
+                   "t0": "t0"})
+Model = section("Model", "The controller's model: its robot (damping × damping_scale), facets, force limit (N) "
+                         "and row scaling of the force-safe set.",
+                {"robot": "robot", "damping_scale": "damping_scale", "environment": "environment", "f_max": "f_max",
+                 "row_scaling": "row_scaling"})
+TrueArm = section("TrueArm", "The MuJoCo arm (scenarios.ground_truth): its robot and scale factors, the rod, "
+                             "the true plates' pose, gravity and friction.",
+                  {"robot": "true_robot", "stiffness_scale": "true_stiffness_scale",
+                   "damping_scale": "true_damping_scale", "gain_scale": "true_gain_scale",
+                   "length_scale": "true_length_scale", "links_per_segment": "links_per_segment", "tau_p": "tau_p",
+                   "physics_dt": "physics_dt", "facet_offset": "facet_offset", "facet_angle": "facet_angle",
+                   "gravity": "gravity", "tip_friction": "tip_friction", "table_friction": "table_friction"})
+Plate = section("Plate", "The true plate: ideal (a slide spring) or flexure (the clamped sheet of the sheet_* "
+                         "settings).",
+                {"kind": "plate", "stiffness": "plate_stiffness", "sheet_clamp_at": "sheet_clamp_at",
+                 "sheet_free_end_at": "sheet_free_end_at", "sheet_thickness": "sheet_thickness",
+                 "sheet_width": "sheet_width", "sheet_youngs_modulus": "sheet_youngs_modulus",
+                 "sheet_links": "sheet_links", "sheet_calibration_fraction": "sheet_calibration_fraction"})
+Camera = section("Camera", "The camera path: plant tick, frame rate, latency, drops, noise, the safety monitor's "
+                           "hold, the estimator, the image, calibration, detector and saved frames.",
+                 {"tick": "tick", "frame_rate": "frame_rate", "latency": "latency", "drop_rate": "drop_rate",
+                  "pixel_noise": "pixel_noise", "hold_s": "hold_s", "max_hold_s": "max_hold_s",
+                  "qd_filter_tau": "qd_filter_tau", "width": "width", "height": "height",
+                  "calibration": "calibration", "detector": "detector", "tracking": "tracking",
+                  "saved_frames_hz": "saved_frames_hz"})
