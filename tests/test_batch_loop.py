@@ -73,8 +73,8 @@ def test_pcc_batch_loop_equals_serial_loops(tuning, pressure_limits, per_sim_fil
     logs = [_serial(PCCPlant(r, safe_set), controller(), PEAK, safe_set, pressure_limits, duration, q0[b])
             for b, r in enumerate(robots)]
     _compare(batch, logs, plant.control_dt, True)
-    assert np.all(batch.force_max_N > 0), "every sample must reach the facet"
-    assert np.all(batch.refused_steps == 0)
+    assert np.all(batch.figures.force_max_N > 0), "every sample must reach the facet"
+    assert np.all(batch.figures.refused == 0)
 
 
 def test_mujoco_batch_loop_equals_serial_loops():
@@ -93,7 +93,7 @@ def test_mujoco_batch_loop_equals_serial_loops():
                     duration, q0[b]) for b, (c, nominal) in enumerate(zip(configs, nominals))]
     _compare(batch, logs, plant.control_dt, True)
     assert len(configs) >= SCALAR_BELOW, "the batch must take the vectorised filter"
-    assert np.all(batch.force_max_N > 0), "every sample must press the plate"
+    assert np.all(batch.figures.force_max_N > 0), "every sample must press the plate"
 
 
 def test_non_finite_commands_are_held_as_in_a_single_run():
@@ -106,7 +106,7 @@ def test_non_finite_commands_are_held_as_in_a_single_run():
 
     context = FilterContext.for_robot(reference_robot(), safe_set, plant.control_dt)
     run = run_batch_closed_loop(plant, broken, PEAK, context, 0.01, np.zeros((2, 2)), record_commands=True)
-    np.testing.assert_array_equal(run.refused_steps, [5, 5])
+    np.testing.assert_array_equal(run.figures.refused, [5, 5])
     np.testing.assert_array_equal(run.commands[5:], np.broadcast_to(run.commands[4], run.commands[5:].shape))
     assert np.all(run.commands[4] != 0.0)
     assert run.run(0)["rho_min_pred"] is None  # a bare-array filter predicts nothing
