@@ -329,6 +329,9 @@ class BatchControlStep:
             raise ValueError(f"safety_filter and nominal must be one or n_sims = {n_sims} each, got "
                              f"{len(self.filters)} and {len(self.nominals)}")
         self.filter = None if self.per_row_filters else safety_filter
+        shared_nominal = None if isinstance(nominal, Sequence) else nominal
+        self.nominal_batch = getattr(shared_nominal, "nominal_batch", None)  # None: the nominal is called per row
+        self.nominal_missing = any(nom is None for nom in self.nominals)
         self.batched = not self.per_row_filters and callable(getattr(safety_filter, "filter_batch", None))
         self.monitor = BatchSafetyMonitor(n_sims, self.n, hold_s)
         limits = context.limits
@@ -386,10 +389,12 @@ class BatchControlStep:
         q_view, qd_view = read_only(np.array(q, dtype=float)), read_only(np.array(qd, dtype=float))
         nominal_ok = live.copy()
         if u_nom is None:
-            if None in self.nominals:
+            if self.nominal_missing:
                 raise ValueError("u_nom must be given: this step was made without a nominal controller")
             nominal = np.full((n_sims, n), math.nan)
-            for b in np.flatnonzero(live).tolist():
+            if self.nominal_batch is not None and live.any():
+                self._call_nominal_batch(live, ts, t, q_view, qd_view, nominal, nominal_ok)
+            for b in (np.flatnonzero(live).tolist() if self.nominal_batch is None else ()):
                 try:
                     nominal[b] = real_vector(self.nominals[b](ts[b], q_view[b], qd_view[b]), n, "the nominal command")
                 except ControllerInputError:
@@ -411,7 +416,7 @@ class BatchControlStep:
         filter_us = np.full(n_sims, math.nan)
         ids = np.flatnonzero(called).tolist()
         if ids and self.batched:
-            self._call_batch(ids, called, ts, tcs, q_view, qd_view, nominal, output, u_filter, rho_pred, infeasible,
+            self._call_batch(ids, called, ts, t, t_capture, q_view, qd_view, nominal, output, u_filter, rho_pred, infeasible,
                              filter_action, filter_us)
         else:
             for b in ids:
@@ -429,13 +434,36 @@ class BatchControlStep:
         return BatchStepRecord(t, q_view, qd_view, t_capture, nominal, output, u_filter, rho_pred, infeasible,
                                filter_action, outputs, decision.u, decision.action, decision.reasons, filter_us)
 
-    def _call_batch(self, ids: list[int], called: np.ndarray, ts: list[float], tcs: list[float], q: np.ndarray,
+    def _call_nominal_batch(self, live: np.ndarray, ts: list[float], t: np.ndarray, q: np.ndarray, qd: np.ndarray,
+                            nominal: np.ndarray, nominal_ok: np.ndarray) -> None:
+        """The shared nominal's `nominal_batch` on the `live` rows, once (`controllers.nominal`): an
+        exception or a return that is not (rows, N) real numbers is a fault of each of those rows."""
+        rows = int(np.count_nonzero(live))
+        try:
+            result = self.nominal_batch(read_only(t[live]), read_only(q[live]), read_only(qd[live]))
+            values = np.asarray(result) if isinstance(result, (np.ndarray, list, tuple)) else None
+            if values is None or values.dtype.kind not in "fiu" or values.shape != (rows, self.n):
+                raise FilterReturnError(f"nominal_batch must return ({rows}, {self.n}) real numbers, got "
+                                        f"{type(result).__name__} {getattr(values, 'dtype', '')} "
+                                        f"{getattr(values, 'shape', '')}")
+        except ControllerInputError:
+            nominal_ok[live] = False
+            return
+        except Exception as exc:  # noqa: BLE001 - a filter fault of every row it was called for
+            for b in np.flatnonzero(live).tolist():
+                self._fault(b, FilterFault.from_exception(exc, "nominal", ts[b]))
+            nominal_ok[live] = False
+            return
+        nominal[live] = values
+
+    def _call_batch(self, ids: list[int], called: np.ndarray, ts: list[float], t: np.ndarray, t_capture: np.ndarray,
+                    q: np.ndarray,
                     qd: np.ndarray, nominal: np.ndarray, output: np.ndarray, u_filter: np.ndarray,
                     rho_pred: np.ndarray, infeasible: np.ndarray, filter_action: list[str | None],
                     filter_us: np.ndarray) -> None:
         """The shared filter's `filter_batch` on the rows `ids`, once; its outputs into the row arrays."""
-        batch = EstimateBatch(read_only(np.array([ts[b] for b in ids])), read_only(q[called]), read_only(qd[called]),
-                              read_only(np.array([tcs[b] for b in ids])))
+        batch = EstimateBatch(read_only(t[called]), read_only(q[called]), read_only(qd[called]),
+                              read_only(t_capture[called]))
         where = "filter_batch"
         try:
             start = self.clock()
@@ -451,8 +479,11 @@ class BatchControlStep:
             return
         output[called], u_filter[called], rho_pred[called], infeasible[called] = True, u, rho, infeasible_rows
         filter_us[called] = per_row_us
-        for b, action in zip(ids, actions):
-            filter_action[b] = action
+        if len(ids) == self.n_sims:
+            filter_action[:] = actions
+        else:
+            for b, action in zip(ids, actions):
+                filter_action[b] = action
 
     def _call_row(self, b: int, view: Estimate, u_nom: np.ndarray, output: np.ndarray, u_filter: np.ndarray,
                   rho_pred: np.ndarray, infeasible: np.ndarray, filter_action: list[str | None],

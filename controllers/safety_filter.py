@@ -418,16 +418,21 @@ def checked_batch_arrays(result: object, n_states: int, n: int) -> tuple[np.ndar
     if u is None or u.dtype.kind not in "fiu" or u.shape != (n_states, n):
         raise FilterReturnError(f"BatchOutput.u must be ({n_states}, {n}) real numbers, got "
                                 f"{type(result.u).__name__} {getattr(u, 'dtype', '')} {getattr(u, 'shape', '')}")
-    actions = list(result.action) if isinstance(result.action, (np.ndarray, list, tuple)) else []
+    action = result.action
+    if type(action) is np.ndarray and action.dtype.kind == "U" and action.shape == (n_states,):
+        actions = action.tolist()  # str already, converted in C
+    else:
+        actions = list(action) if isinstance(action, (np.ndarray, list, tuple)) else []
+        if len(actions) != n_states or not all(isinstance(a, str) for a in actions):
+            raise FilterReturnError(f"BatchOutput.action must be {n_states} str")
+        actions = [str(a) for a in actions]
     infeasible = np.asarray(result.infeasible)
     rho = np.asarray(result.rho_pred)
-    if len(actions) != n_states or not all(isinstance(a, str) for a in actions):
-        raise FilterReturnError(f"BatchOutput.action must be {n_states} str")
     if infeasible.dtype != bool or infeasible.shape != (n_states,):
         raise FilterReturnError(f"BatchOutput.infeasible must be {n_states} bools, got {infeasible.dtype} {infeasible.shape}")
     if rho.dtype.kind not in "fiu" or rho.shape != (n_states,) or np.isinf(rho).any():
         raise FilterReturnError(f"BatchOutput.rho_pred must be {n_states} real numbers or NaN")
-    return u.astype(float), [str(a) for a in actions], infeasible.copy(), rho.astype(float)
+    return u.astype(float), actions, infeasible.copy(), rho.astype(float)
 
 
 def reset_filter(safety_filter: SafetyFilter) -> None:

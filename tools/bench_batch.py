@@ -136,7 +136,7 @@ def compare(title: str, args: argparse.Namespace, serial_pass, batches, safe_set
             plant, filt, PEAK, context, args.duration, q0[:b], record_commands=True))
         _, ceiling = best_of(args.repeats, lambda: replay_commands(plant, run.commands, q0[:b]))
         rows.append(_row(b, nthread, loop, ceiling, serial, args.serial))
-        check = max([check] + [abs(run.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]) for s in range(min(b, args.serial))])
+        check = max([check] + [abs(run.figures.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]) for s in range(min(b, args.serial))])
     print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
     return {"serial_samples_per_hour": args.serial / serial.wall * HOUR,
             "serial_samples_per_cpu_hour": args.serial / serial.cpu * HOUR, "batched": rows, "max_abs_rho_meas_diff": check}
