@@ -23,7 +23,10 @@ the CPU ratios compare the work each way needs, the wall ratios what one gets no
 batch (PCC; MuJoCo on 1 and on 2 threads). The batched figures are checked against the serial ones
 on the common samples (max |Δρ_meas|). Last, the control step alone (`--step-calls` calls, a
 pass-through filter): CPU µs per call of `ControlStep`, of `BatchControlStep` at B = 1 and
-per simulation at the largest PCC batch (`step_us` in the JSON).
+per simulation at the largest PCC batch (`step_us` in the JSON); and for the largest batch of
+each type on one thread, the loop split part by part (`split_us`: the control step without
+its filter, the filter's `filter_batch`, the figures, the plant; CPU µs per simulation and
+period) with the ceiling a loop of no step and figures would reach, plant / (plant + filter).
 
 The machine may be shared: wall times then include other jobs' load, and two threads
 may not get two cores. Ratios measured side by side in one run are the figures to
@@ -55,7 +58,7 @@ from controllers.safe_set import paper_safe_set
 from controllers.safety_filter import BatchOutput, Estimate, FilterContext
 from softcbf_mj.batch_loop import replay_commands, run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.metrics import run_figures
+from softcbf_mj.metrics import RunningFigures, rho_meas, run_figures
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import MujocoPlant
@@ -143,6 +146,8 @@ def compare(title: str, args: argparse.Namespace, serial_pass, batches, safe_set
             plant, filt, PEAK, context, args.duration, q0[:b], record_commands=True))
         _, ceiling = best_of(args.repeats, lambda: replay_commands(plant, run.commands, q0[:b]))
         rows.append(_row(b, nthread, loop, ceiling, serial, args.serial, len(run.commands)))
+        if nthread == 1 and b == max(args.batches if isinstance(plant, MujocoBatchPlant) else args.pcc_batches):
+            rows[-1]["split_us"] = split(plant, filt, context, q0[:b], len(run.commands))
         check = max([check] + [abs(run.figures.rho_min_meas[s] - serial_runs[s]["rho_min_meas"]) for s in range(min(b, args.serial))])
     print(f"  max |Δρ_meas| batched vs serial on common samples: {check:.2e}")
     return {"serial_samples_per_hour": args.serial / serial.wall * HOUR,
@@ -187,6 +192,48 @@ def bench_pcc(args: argparse.Namespace) -> dict:
 
     return compare(f"\npaper_sim-type: {args.duration:g} s per sample, PCC ROS2 1 ms, Low, no pressure limits",
                    args, serial_pass, batches(), safe_set, q0)
+
+
+def split(plant, safety_filter, context: FilterContext, q0: np.ndarray, periods: int) -> dict:
+    """CPU µs per simulation and period of each part of the batched loop (`run_batch_closed_loop`'s
+    body, timed part by part): the batched control step without its filter, the filter's
+    `filter_batch`, the figures (`RunningFigures`) and the plant's step."""
+    n_sims, spent = len(q0), {"filter": 0.0}
+    filter_batch = safety_filter.filter_batch
+
+    def timed(*args):
+        start = time.process_time()
+        try:
+            return filter_batch(*args)
+        finally:
+            spent["filter"] += time.process_time() - start
+
+    safety_filter.filter_batch = timed
+    try:
+        step = BatchControlStep(safety_filter, PEAK, context, n_sims)
+        step.reset()
+        figures, state = RunningFigures(n_sims, plant.control_dt), plant.reset(q0)
+        parts = {"step": 0.0, "figures": 0.0, "plant": 0.0}
+        for _ in range(periods):
+            a = time.process_time()
+            record = step(state.t, state.q, state.qd)
+            b = time.process_time()
+            figures.update(rho_meas(context.safe_set, state.contact_forces)[None], state.contact_forces[None],
+                           record.u[None], record.rho_pred[None], record.infeasible[None], record.action[None])
+            c = time.process_time()
+            state = plant.step(record.u)
+            parts["step"] += b - a
+            parts["figures"] += c - b
+            parts["plant"] += time.process_time() - c
+    finally:
+        del safety_filter.filter_batch  # the bound method again
+    scale = 1e6 / (n_sims * periods)
+    out = {"step_without_filter": (parts["step"] - spent["filter"]) * scale, "filter": spent["filter"] * scale,
+           "figures": parts["figures"] * scale, "plant": parts["plant"] * scale}
+    out["ceiling_without_step_and_figures"] = out["plant"] / (out["plant"] + out["filter"])
+    print(f"  split, CPU µs per simulation and period (B = {n_sims}, {periods} periods): "
+          + ", ".join(f"{key} {value:.2f}" for key, value in out.items()))
+    return out
 
 
 def bench_step(batch: int, calls: int, repeats: int) -> dict:
