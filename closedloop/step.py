@@ -50,8 +50,8 @@ and the monitor (`BatchSafetyMonitor`: the common RUN case in numpy, any other r
 row only; an exception from a call made for many rows (`filter_batch`, `nominal_batch`) is
 the fault of each of them. `ControlStep` stays the serial loops' entry (the simulated,
 camera and hardware loops, the single environment): at B = 1 the batched step costs more
-numpy overhead than the whole scalar step (58 µs against 10 µs a call with a pass-through
-filter, docs/studies.md#batches), and the serial loops must not
+numpy overhead than the whole scalar step (66 µs against 9 µs a call with a pass-through
+filter: `tools/bench_batch.py`'s `step_us`, docs/studies.md#batches), and the serial loops must not
 get slower; the two are held to the same decisions by tests (tests/test_monitor.py,
 tests/test_trust_boundary.py, tests/test_batch_loop.py: bit-identical commands, rows and
 faults).
