@@ -93,7 +93,7 @@ def split(env: Any, actions: np.ndarray) -> dict[str, float]:
         return timed
 
     vec.plant.step = timing("physics", vec.plant.step)
-    vec._periods = timing("periods", vec._periods)
+    vec.run_periods = timing("periods", vec.run_periods)
     shared = vec.shared_filter
     if shared is not None:
         shared.filter_batch = timing("filter", shared.filter_batch)
@@ -104,7 +104,7 @@ def split(env: Any, actions: np.ndarray) -> dict[str, float]:
             env.step(action)
         total = time.process_time() - start
     finally:
-        del vec.plant.step, vec._periods
+        del vec.plant.step, vec.run_periods
         if shared is not None:
             del shared.filter_batch
     scale = 1e6 / (len(actions) * vec.num_envs)

@@ -217,7 +217,7 @@ class ArmVectorEnv(VectorEnv):
         running = np.flatnonzero(~resetting)
         for b in running:
             self.tasks[b].before_step(nominal_command(actions[b], self.u_low, self.u_high, self.normalise), self.arms[b])
-        self._periods(running)
+        self.run_periods(running)
         observations: list[dict[str, np.ndarray] | None] = [None] * self.num_envs
         infos: list[dict[str, Any] | None] = [None] * self.num_envs
         rewards = np.zeros(self.num_envs)
@@ -238,7 +238,7 @@ class ArmVectorEnv(VectorEnv):
         self._autoreset = terminated | truncated
         return self._batch(observations), rewards, terminated, truncated, self._infos(infos)
 
-    def _periods(self, running: np.ndarray) -> None:
+    def run_periods(self, running: np.ndarray) -> None:
         """The env step's control periods of the running arms, all simulations stepped together (module
         docstring); each running arm then holds its end state, its estimate, the last record and its `StepStats`."""
         arms, control, plant, n_sims = self.arms, self.control, self.plant, self.num_envs
