@@ -21,6 +21,12 @@ A latched vent clears only by `reset()`, which refuses while a flag is raised, o
 `restart()` before a new run (its clock starts again). The class does no I/O and reads
 no clock, so it is tested exactly.
 
+`BatchSafetyMonitor` is the same machine for B runs at once (a batched loop's B
+simulations): its state is (B, ...) arrays, the common case (RUN, nothing raised, nothing
+latched) is decided for all rows in numpy, and every other row goes through `decide`, the
+one definition of the table that `SafetyMonitor` calls as well; so row b decides exactly
+what a `SafetyMonitor` of b's run decides (tests/test_monitor.py).
+
 A caller that has admitted u_cmd itself (the control step: a new finite (N,) float
 array, clipped) says so with `admitted=True`; the monitor then keeps u_cmd as it is
 instead of checking and copying it. What it decides is the same.
@@ -71,14 +77,24 @@ class SafetyDecision:
     reasons: tuple[str, ...]
 
 
+ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}  # the time series' `action` column
+NOT_STEPPED = -1  # `BatchDecision.action` of a row that was not stepped
+ACTIONS = (SafeAction.RUN, SafeAction.HOLD, SafeAction.VENT)  # by code
+
+
+def check_monitor_args(n_segments: int, hold_s: float) -> None:
+    """ValueError unless n_segments is an int >= 1 and hold_s a finite time >= 0 s."""
+    if not (isinstance(n_segments, int) and n_segments >= 1):
+        raise ValueError(f"n_segments must be an int >= 1, got {n_segments!r}")
+    if not (math.isfinite(hold_s) and hold_s >= 0.0):
+        raise ValueError(f"hold_s must be a finite time >= 0 s (0 vents at once), got {hold_s}")
+
+
 class SafetyMonitor:
     """Run → hold → vent (see the module table). One instance per run."""
 
     def __init__(self, n_segments: int, hold_s: float = DEFAULT_HOLD_S) -> None:
-        if not (isinstance(n_segments, int) and n_segments >= 1):
-            raise ValueError(f"n_segments must be an int >= 1, got {n_segments!r}")
-        if not (math.isfinite(hold_s) and hold_s >= 0.0):
-            raise ValueError(f"hold_s must be a finite time >= 0 s (0 vents at once), got {hold_s}")
+        check_monitor_args(n_segments, hold_s)
         self.n_segments = n_segments
         self._shape = (n_segments,)
         self.hold_s = float(hold_s)
@@ -128,24 +144,121 @@ class SafetyMonitor:
         u = None if u_cmd is None else np.array(u_cmd, dtype=float)  # a copy: the monitor keeps it
         if u is not None and u.shape != (self.n_segments,):
             raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")
-        finite = u is not None and all(map(math.isfinite, u.tolist()))
-        if not finite and not flags.command_nonfinite and not flags.filter_fault:
-            flags = replace(flags, command_nonfinite=True)
-        reasons = flags.raised()
-        if flags.interrupted or flags.link_lost:
-            return self._vent(reasons)
-        if self._vent_reasons is not None:
-            return SafetyDecision(SafeAction.VENT, np.zeros(self.n_segments), self._vent_reasons)
-        if flags.perception_stale or flags.command_nonfinite or flags.filter_fault:
-            if self._hold_since is None:
-                self._hold_since = t
-            if self._last_run is None or t - self._hold_since >= self.hold_s:
-                return self._vent(reasons)
-            return SafetyDecision(SafeAction.HOLD, self._last_run.copy(), reasons)
-        self._hold_since = None
-        self._last_run = u
-        return SafetyDecision(SafeAction.RUN, u.copy(), reasons)
+        if u is not None and not all(map(math.isfinite, u.tolist())):
+            u = None
+        decision, self._last_run, self._hold_since, self._vent_reasons = decide(
+            t, u, flags, self._last_run, self._hold_since, self._vent_reasons, self.hold_s, self.n_segments)
+        return decision
 
-    def _vent(self, reasons: tuple[str, ...]) -> SafetyDecision:
-        self._vent_reasons = reasons
-        return SafetyDecision(SafeAction.VENT, np.zeros(self.n_segments), reasons)
+
+def decide(t: float, u: np.ndarray | None, flags: SafetyFlags, last_run: np.ndarray | None, hold_since: float | None,
+           vent_reasons: tuple[str, ...] | None, hold_s: float, n_segments: int
+           ) -> tuple[SafetyDecision, np.ndarray | None, float | None, tuple[str, ...] | None]:
+    """The module table for one run, the one definition of the state machine (`SafetyMonitor` and
+    `BatchSafetyMonitor` both call it off their common RUN path): at time t (s), for the command u
+    (a finite (N,) float array the monitor may keep, or None: refused), the raised `flags` and the
+    run's state (the last command sent with RUN, None before any; when the current hold began, s,
+    None when not holding; the latched vent's reasons, None when not latched), the decision and
+    the new state (last_run, hold_since, vent_reasons)."""
+    if u is None and not flags.command_nonfinite and not flags.filter_fault:
+        flags = replace(flags, command_nonfinite=True)
+    reasons = flags.raised()
+    if flags.interrupted or flags.link_lost:
+        return SafetyDecision(SafeAction.VENT, np.zeros(n_segments), reasons), last_run, hold_since, reasons
+    if vent_reasons is not None:
+        return SafetyDecision(SafeAction.VENT, np.zeros(n_segments), vent_reasons), last_run, hold_since, vent_reasons
+    if flags.perception_stale or flags.command_nonfinite or flags.filter_fault:
+        if hold_since is None:
+            hold_since = t
+        if last_run is None or t - hold_since >= hold_s:
+            return SafetyDecision(SafeAction.VENT, np.zeros(n_segments), reasons), last_run, hold_since, reasons
+        return SafetyDecision(SafeAction.HOLD, last_run.copy(), reasons), last_run, hold_since, None
+    return SafetyDecision(SafeAction.RUN, u.copy(), reasons), u, None, None
+
+
+@dataclass(eq=False, slots=True)
+class BatchDecision:
+    """What to send this cycle in each of B runs: action (B,) int8 codes (`ACTION_CODES`;
+    NOT_STEPPED for rows not stepped), u (B, N) hPa (0 on VENT and on rows not stepped) and
+    reasons, B tuples of the raised flags (() on rows not stepped)."""
+
+    action: np.ndarray
+    u: np.ndarray
+    reasons: list[tuple[str, ...]]
+
+
+class BatchSafetyMonitor:
+    """B `SafetyMonitor`s in (B, ...) arrays (module docstring): row b is run b's monitor.
+
+    State per row: last_run (B, N) hPa with has_run (B,) bool (a command was sent with RUN),
+    hold_since (B,) s (NaN: not holding), vent_reasons (B tuples, None: not latched) and the
+    row's clock (B,) s."""
+
+    def __init__(self, n_sims: int, n_segments: int, hold_s: float = DEFAULT_HOLD_S) -> None:
+        check_monitor_args(n_segments, hold_s)
+        if not (isinstance(n_sims, int) and n_sims >= 1):
+            raise ValueError(f"n_sims must be an int >= 1, got {n_sims!r}")
+        self.n_sims, self.n_segments, self.hold_s = n_sims, n_segments, float(hold_s)
+        self.last_run = np.zeros((n_sims, n_segments))
+        self.has_run = np.zeros(n_sims, dtype=bool)
+        self.hold_since = np.full(n_sims, math.nan)
+        self.latched = np.zeros(n_sims, dtype=bool)  # vent_reasons[b] is not None
+        self.vent_reasons: list[tuple[str, ...] | None] = [None] * n_sims
+        self.t = np.full(n_sims, -math.inf)
+
+    def restart(self, rows: np.ndarray | None = None) -> None:
+        """`SafetyMonitor.restart` of the rows in `rows` ((B,) bool; None: all)."""
+        rows = np.ones(self.n_sims, dtype=bool) if rows is None else rows
+        self.has_run[rows] = False
+        self.hold_since[rows] = math.nan
+        self.latched[rows] = False
+        self.t[rows] = -math.inf
+        for b in np.flatnonzero(rows).tolist():
+            self.vent_reasons[b] = None
+
+    def step(self, t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndarray, rows: np.ndarray,
+             flags: list[SafetyFlags] | None = None) -> BatchDecision:
+        """The decision of the runs in `rows` ((B,) bool) at their times t (B,) s: u (B, N) hPa
+        the admitted commands (finite, nothing modifies them afterwards; read on the rows where
+        `admitted` (B,) is True, refused elsewhere), `fault` (B,) bool the `filter_fault` flag
+        and `flags` each row's other flags (None: none raised)."""
+        times = t[rows]
+        if not (np.all(np.isfinite(times)) and np.all(times >= self.t[rows])):
+            raise ValueError(f"t must be finite and non-decreasing in every run, got {times} after {self.t[rows]}")
+        self.t[rows] = times
+        plain = rows & admitted & ~fault & ~self.latched
+        if flags is not None:
+            plain &= np.array([f is NO_FLAGS or not f.raised() for f in flags])
+        sent = np.zeros((self.n_sims, self.n_segments))
+        action = np.full(self.n_sims, NOT_STEPPED, dtype=np.int8)
+        reasons: list[tuple[str, ...]] = [()] * self.n_sims
+        if plain.all():  # the common case: every row RUNs
+            sent[:] = u
+            self.last_run[:] = u
+            self.has_run[:] = True
+            self.hold_since[:] = math.nan
+            action[:] = 0
+            return BatchDecision(action, sent, reasons)
+        sent[plain] = u[plain]
+        self.last_run[plain] = u[plain]
+        self.has_run |= plain
+        self.hold_since[plain] = math.nan
+        action[plain] = 0
+        for b in np.flatnonzero(rows & ~plain).tolist():
+            row_flags = NO_FLAGS if flags is None else flags[b]
+            if fault[b]:
+                row_flags = replace(row_flags, filter_fault=True)
+            hold_since = float(self.hold_since[b])
+            decision, last_run, hold, vent = decide(
+                float(t[b]), u[b].copy() if admitted[b] else None, row_flags,
+                self.last_run[b].copy() if self.has_run[b] else None, None if math.isnan(hold_since) else hold_since,
+                self.vent_reasons[b], self.hold_s, self.n_segments)
+            if last_run is not None:
+                self.last_run[b] = last_run
+                self.has_run[b] = True
+            self.hold_since[b] = math.nan if hold is None else hold
+            self.vent_reasons[b], self.latched[b] = vent, vent is not None
+            sent[b] = decision.u
+            action[b] = ACTION_CODES[decision.action]
+            reasons[b] = decision.reasons
+        return BatchDecision(action, sent, reasons)

@@ -2,7 +2,10 @@
 
 A nominal controller is any callable `(t, q, qd) -> u_nom` with t in s, q and qd of
 shape (N,) in rad and rad/s, and u_nom of shape (N,) in hPa. Scenarios pass one to
-the closed loop; the filter never needs to know which one it is. `sinusoid` and
+the closed loop; the filter never needs to know which one it is. A nominal controller may
+also have `nominal_batch(t, q, qd) -> u_nom` for B states at once (t (B,) s, q and qd
+(B, N), u_nom (B, N) hPa), which must return, bit for bit, the rows of B calls; a batched
+loop calls it once for all its simulations (`closedloop.step.BatchControlStep`). `sinusoid` and
 `tip_tracker`, `step` and `force_target` are the registry's factories ("sinusoid", "tip-tracker",
 "step", "force-target").
 """
@@ -55,6 +58,10 @@ class SinusoidNominal:
 
     def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         return self._amp * np.sin(2.0 * math.pi * self.frequency * t + self._phase)
+
+    def nominal_batch(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """B calls at once: t (B,) s → (B, N) hPa, the same arithmetic element by element."""
+        return self._amp * np.sin((2.0 * math.pi * self.frequency * np.asarray(t, dtype=float))[:, None] + self._phase)
 
 
 @dataclass(frozen=True)

@@ -406,29 +406,33 @@ class OutputCheck:
                                     f"{sorted(self.shapes.items())}, now {sorted(shapes.items())}")
 
 
-def checked_batch_outputs(result: object, n_states: int, n: int) -> list[FilterOutput]:
+def checked_batch_arrays(result: object, n_states: int, n: int) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
     """A `filter_batch` return converted once, as `OutputCheck` converts one call's: a BatchOutput
     whose u is (n_states, n) real numbers, action n_states str, infeasible n_states bools and
-    rho_pred n_states real numbers (NaN: none; not ±inf); one FilterOutput per state, its u a row
-    of one new float array. FilterReturnError otherwise."""
+    rho_pred n_states real numbers (NaN: none; not ±inf), as (u a new (n_states, n) float array,
+    the actions as a list of str, infeasible a new (n_states,) bool array, rho_pred a new
+    (n_states,) float array). FilterReturnError otherwise."""
     if type(result) is not BatchOutput:
         raise FilterReturnError(f"filter_batch must return a BatchOutput, got {type(result).__name__}")
     u = np.asarray(result.u) if isinstance(result.u, (np.ndarray, list, tuple)) else None
     if u is None or u.dtype.kind not in "fiu" or u.shape != (n_states, n):
         raise FilterReturnError(f"BatchOutput.u must be ({n_states}, {n}) real numbers, got "
                                 f"{type(result.u).__name__} {getattr(u, 'dtype', '')} {getattr(u, 'shape', '')}")
-    actions = list(result.action) if isinstance(result.action, (np.ndarray, list, tuple)) else []
+    action = result.action
+    if type(action) is np.ndarray and action.dtype.kind == "U" and action.shape == (n_states,):
+        actions = action.tolist()  # str already, converted in C
+    else:
+        actions = list(action) if isinstance(action, (np.ndarray, list, tuple)) else []
+        if len(actions) != n_states or not all(isinstance(a, str) for a in actions):
+            raise FilterReturnError(f"BatchOutput.action must be {n_states} str")
+        actions = [str(a) for a in actions]
     infeasible = np.asarray(result.infeasible)
     rho = np.asarray(result.rho_pred)
-    if len(actions) != n_states or not all(isinstance(a, str) for a in actions):
-        raise FilterReturnError(f"BatchOutput.action must be {n_states} str")
     if infeasible.dtype != bool or infeasible.shape != (n_states,):
         raise FilterReturnError(f"BatchOutput.infeasible must be {n_states} bools, got {infeasible.dtype} {infeasible.shape}")
     if rho.dtype.kind not in "fiu" or rho.shape != (n_states,) or np.isinf(rho).any():
         raise FilterReturnError(f"BatchOutput.rho_pred must be {n_states} real numbers or NaN")
-    rows = u.astype(float)
-    return [FilterOutput(rows[i], str(a), bool(f), float(r))
-            for i, (a, f, r) in enumerate(zip(actions, infeasible.tolist(), rho.tolist()))]
+    return u.astype(float), actions, infeasible.copy(), rho.astype(float)
 
 
 def reset_filter(safety_filter: SafetyFilter) -> None:

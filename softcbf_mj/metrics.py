@@ -13,6 +13,7 @@ Plus `u_dev_rms_hPa` and `u_dev_max_hPa`, RMS and max |d| over all steps and seg
 
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -87,6 +88,86 @@ def high_frequency_fraction(u: np.ndarray, dt: float, cutoff_hz: float = HF_CUTO
     return float(power[freq > cutoff_hz].sum() / total)
 
 
+def rho_meas(safe_set: ForceSafeSet, contact_forces: np.ndarray) -> np.ndarray:
+    """ρ_meas (1) of measured contact forces (..., P) N: min over facets of the controller's
+    force-safe set's `margin_from_force` (its ψ and n_max), shape (...)."""
+    return np.min(safe_set.margin_from_force(contact_forces), axis=-1)
+
+
+class RunningFigures:
+    """The summary figures every loop keeps, for B runs at once, updated block by block of rows
+    (one control period of a batched loop, a whole serial log, an env step's periods): the one
+    place that defines them. Per run b, over the rows it has been given (`rows`):
+
+    - rho_min_pred: min of the filter's ρ_pred (NaN rows skipped; NaN while none);
+    - rho_min_meas: min of ρ_meas (`rho_meas`; +inf while no row);
+    - force_max_N: max over rows and facets of the contact force, N (`force_floor` while no row:
+      −inf for the run figures, 0 N for the environment's statistics);
+    - violations: #rows with ρ_meas < 0 (t_violation_s = control_dt · violations);
+    - infeasible: #rows whose filter call said infeasible; refused: #rows the safety monitor did
+      not RUN; vented: some row VENTed;
+    - u_peak_abs_hPa: max |u| of the command sent (0 while no row);
+    - force_excess: the sum over rows of max_i max(0, F_i − F_max)/F_max (1; with f_max given).
+    Order does not matter (min, max and counts are exact), so a run's figures are the same
+    whether its rows come one by one or all at once."""
+
+    def __init__(self, n_sims: int, control_dt: float, f_max: float | None = None,
+                 force_floor: float = -math.inf) -> None:
+        self.n_sims, self.control_dt, self.f_max = n_sims, control_dt, f_max
+        self.rows = np.zeros(n_sims, dtype=int)
+        self.rho_min_pred = np.full(n_sims, math.nan)
+        self.rho_min_meas = np.full(n_sims, math.inf)
+        self.force_max_N = np.full(n_sims, float(force_floor))
+        self.violations = np.zeros(n_sims, dtype=int)
+        self.infeasible = np.zeros(n_sims, dtype=int)
+        self.refused = np.zeros(n_sims, dtype=int)
+        self.vented = np.zeros(n_sims, dtype=bool)
+        self.u_peak_abs_hPa = np.zeros(n_sims)
+        self.force_excess = np.zeros(n_sims)
+
+    def update(self, margin: np.ndarray, contact_forces: np.ndarray, u: np.ndarray, rho_pred: np.ndarray,
+               infeasible: np.ndarray, action: np.ndarray | None = None, rows: np.ndarray | None = None) -> None:
+        """T rows of every run: margin ρ_meas (T, B), contact_forces (T, B, P) N, u (T, B, N) hPa
+        sent, rho_pred (T, B) (NaN: none), infeasible (T, B) bool, action (T, B) the monitor's
+        codes (0 RUN, 1 HOLD, 2 VENT; None: not counted); `rows` (T, B) bool: the rows that count (None: all)."""
+        force = np.max(contact_forces, axis=-1)
+        peak = np.max(np.abs(u), axis=-1)
+        if rows is not None:
+            margin = np.where(rows, margin, math.inf)
+            force = np.where(rows, force, -math.inf)
+            peak = np.where(rows, peak, 0.0)
+            rho_pred = np.where(rows, rho_pred, math.nan)
+            infeasible = infeasible & rows
+            action = None if action is None else np.where(rows, action, 0)
+            self.rows += np.count_nonzero(rows, axis=0)
+        else:
+            self.rows += len(margin)
+        self.rho_min_pred = np.fmin(self.rho_min_pred, np.fmin.reduce(rho_pred, axis=0))
+        self.rho_min_meas = np.minimum(self.rho_min_meas, np.min(margin, axis=0))
+        self.force_max_N = np.maximum(self.force_max_N, np.max(force, axis=0))
+        self.violations += np.count_nonzero(margin < 0.0, axis=0)
+        self.infeasible += np.count_nonzero(infeasible, axis=0)
+        if action is not None:
+            self.refused += np.count_nonzero(action != 0, axis=0)
+            self.vented |= np.any(action == 2, axis=0)
+        self.u_peak_abs_hPa = np.fmax(self.u_peak_abs_hPa, np.max(peak, axis=0))
+        if self.f_max is not None:
+            excess = np.max(np.maximum(contact_forces - self.f_max, 0.0), axis=-1) / self.f_max
+            self.force_excess += np.sum(np.where(rows, excess, 0.0) if rows is not None else excess, axis=0)
+
+    def figures(self, b: int) -> dict[str, Any]:
+        """Run b's figures under the docs/run-outputs.md names (rho_min_pred None when never predicted)."""
+        rho_pred = float(self.rho_min_pred[b])
+        return {
+            "rho_min_pred": None if math.isnan(rho_pred) else rho_pred,
+            "rho_min_meas": float(self.rho_min_meas[b]),
+            "force_max_N": float(self.force_max_N[b]),
+            "t_violation_s": float(self.violations[b] * self.control_dt),
+            "infeasible_steps": int(self.infeasible[b]),
+            "u_peak_abs_hPa": float(self.u_peak_abs_hPa[b]),
+        }
+
+
 def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool, wall_s: float) -> dict[str, Any]:
     """The docs/run-outputs.md run fields plus extras, from a `LoopRecorder` log whose rows are `control_dt` s apart.
 
@@ -98,19 +179,22 @@ def run_figures(log: Mapping[str, np.ndarray], control_dt: float, filtered: bool
     sim_s = n_steps * control_dt
     filter_us = log["filter_us"][np.isfinite(log["filter_us"])]  # NaN: no controller call at that step
     filtered = filtered and filter_us.size > 0
-    rho_pred = log["rho_pred"][np.isfinite(log["rho_pred"])]  # NaN: no estimate yet (camera loop start-up)
+    running = RunningFigures(1, control_dt)  # the rows at once; NaN rho_pred: no estimate yet (camera loop start-up)
+    running.update(log["rho_meas"][:, None], log["contact_force"][:, None], log["u"][:, None], log["rho_pred"][:, None],
+                   log["infeasible"][:, None])
+    figures = running.figures(0)
     return {
-        "rho_min_pred": float(np.nanmin(rho_pred)) if rho_pred.size else None,
-        "rho_min_meas": float(np.min(log["rho_meas"])),
-        "force_max_N": float(np.max(log["contact_force"])),
-        "t_violation_s": float(np.count_nonzero(log["rho_meas"] < 0.0) * control_dt),
-        "infeasible_steps": int(np.count_nonzero(log["infeasible"])),
+        "rho_min_pred": figures["rho_min_pred"],
+        "rho_min_meas": figures["rho_min_meas"],
+        "force_max_N": figures["force_max_N"],
+        "t_violation_s": figures["t_violation_s"],
+        "infeasible_steps": figures["infeasible_steps"],
         "recovery_steps": int(np.count_nonzero(log["recovery"])) if "recovery" in log else 0,
         "filter_us_median": float(np.median(filter_us)) if filtered else None,
         "filter_us_p99": float(np.percentile(filter_us, 99)) if filtered else None,
         "wall_s": float(wall_s),
         "sim_s": float(sim_s),
-        "u_peak_abs_hPa": float(np.max(np.abs(log["u"]))),
+        "u_peak_abs_hPa": figures["u_peak_abs_hPa"],
         "active_steps": int(np.count_nonzero(np.any(log["active"], axis=1))) if "active" in log else None,
         "chatter_per_s": chatter_per_s(log["u"], log["u_nom"], sim_s),
         "switches_per_s": switches_per_s(log["u"], log["u_nom"], sim_s),

@@ -73,8 +73,8 @@ def test_pcc_batch_loop_equals_serial_loops(tuning, pressure_limits, per_sim_fil
     logs = [_serial(PCCPlant(r, safe_set), controller(), PEAK, safe_set, pressure_limits, duration, q0[b])
             for b, r in enumerate(robots)]
     _compare(batch, logs, plant.control_dt, True)
-    assert np.all(batch.force_max_N > 0), "every sample must reach the facet"
-    assert np.all(batch.refused_steps == 0)
+    assert np.all(batch.figures.force_max_N > 0), "every sample must reach the facet"
+    assert np.all(batch.figures.refused == 0)
 
 
 def test_mujoco_batch_loop_equals_serial_loops():
@@ -93,7 +93,7 @@ def test_mujoco_batch_loop_equals_serial_loops():
                     duration, q0[b]) for b, (c, nominal) in enumerate(zip(configs, nominals))]
     _compare(batch, logs, plant.control_dt, True)
     assert len(configs) >= SCALAR_BELOW, "the batch must take the vectorised filter"
-    assert np.all(batch.force_max_N > 0), "every sample must press the plate"
+    assert np.all(batch.figures.force_max_N > 0), "every sample must press the plate"
 
 
 def test_non_finite_commands_are_held_as_in_a_single_run():
@@ -106,9 +106,55 @@ def test_non_finite_commands_are_held_as_in_a_single_run():
 
     context = FilterContext.for_robot(reference_robot(), safe_set, plant.control_dt)
     run = run_batch_closed_loop(plant, broken, PEAK, context, 0.01, np.zeros((2, 2)), record_commands=True)
-    np.testing.assert_array_equal(run.refused_steps, [5, 5])
+    np.testing.assert_array_equal(run.figures.refused, [5, 5])
     np.testing.assert_array_equal(run.commands[5:], np.broadcast_to(run.commands[4], run.commands[5:].shape))
     assert np.all(run.commands[4] != 0.0)
     assert run.run(0)["rho_min_pred"] is None  # a bare-array filter predicts nothing
     serial = _serial(PCCPlant(reference_robot(), safe_set), broken, PEAK, safe_set, True, 0.01, np.zeros(2))
     np.testing.assert_array_equal(run.commands[:, 0], serial["u"])
+
+
+def test_a_shared_nominal_batch_gives_the_per_row_calls_bit_for_bit():
+    """SinusoidNominal.nominal_batch (one call per period) against the same nominal called row by row (a list of
+    B instances has no shared nominal_batch): the same commands, bit for bit."""
+    safe_set, robot = paper_safe_set(), reference_robot()
+    context = FilterContext.for_robot(robot, safe_set, 1e-3)
+    q0 = np.array([[0.1, 0.2], [0.3, -0.1], [0.0, 0.0]])
+    push = SinusoidNominal((150.0, 120.0), 0.37, (0.3, 1.1))
+    shared = run_batch_closed_loop(PCCBatchPlant(robot, safe_set, 3), lambda e, u: u, push, context, 0.3, q0,
+                                   record_commands=True)
+    per_row = run_batch_closed_loop(PCCBatchPlant(robot, safe_set, 3), lambda e, u: u, [push] * 3, context, 0.3, q0,
+                                    record_commands=True)
+    np.testing.assert_array_equal(shared.commands, per_row.commands)
+    assert np.any(shared.commands != 0.0)
+
+
+class BrokenBatchNominal:
+    """A nominal whose nominal_batch raises (how = "raise") or returns the wrong shape (how = "shape") from t_bad on."""
+
+    def __init__(self, how: str, t_bad: float) -> None:
+        self.how, self.t_bad = how, t_bad
+
+    def __call__(self, t, q, qd):
+        return np.full(2, 50.0)
+
+    def nominal_batch(self, t, q, qd):
+        if np.any(t >= self.t_bad):
+            if self.how == "raise":
+                raise KeyError("broken nominal")
+            return np.zeros((len(t), 3))
+        return np.full((len(t), 2), 50.0)
+
+
+@pytest.mark.parametrize("how, fault_type", [("raise", "KeyError"), ("shape", "FilterReturnError")])
+def test_a_faulty_nominal_batch_is_a_nominal_fault_of_every_row_it_was_called_for(how, fault_type):
+    safe_set, robot = paper_safe_set(), reference_robot()
+    context = FilterContext.for_robot(robot, safe_set, 1e-3)
+    run = run_batch_closed_loop(PCCBatchPlant(robot, safe_set, 2), lambda e, u: u, BrokenBatchNominal(how, 0.01),
+                                context, 0.1, np.zeros((2, 2)), record_commands=True)
+    for b in range(2):
+        fault = run.faults[b]
+        assert (fault.type, fault.where, fault.t) == (fault_type, "nominal", 0.01)
+        # held for the monitor's hold (0.5 s > the run): every row from the fault on holds the last command
+        np.testing.assert_array_equal(run.commands[10:, b], np.broadcast_to([50.0, 50.0], (90, 2)))
+        assert run.run(b)["refused_steps"] == 90

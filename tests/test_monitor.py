@@ -1,9 +1,13 @@
 """The laptop's safe-action state machine: each flag's action, the hold → vent timing, latching."""
 
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
+from closedloop.monitor import ACTIONS, NOT_STEPPED, BatchSafetyMonitor, SafeAction, SafetyFlags, SafetyMonitor
 
 U = np.array([40.0, -20.0])
 DT = 0.1  # the 10 Hz loop
@@ -116,3 +120,56 @@ def test_admitted_commands_get_the_same_decisions_and_are_kept_without_a_copy():
     assert d.action is SafeAction.RUN and d.u is u  # trusted: not copied
     d = SafetyMonitor(2).step(0.0, u)
     assert d.u is not u and np.array_equal(d.u, u)  # checked: the monitor keeps its own copy
+
+
+FLAG_CHOICES = (SafetyFlags(), SafetyFlags(), SafetyFlags(), SafetyFlags(perception_stale=True),
+                SafetyFlags(command_nonfinite=True), SafetyFlags(filter_fault=True), SafetyFlags(interrupted=True),
+                SafetyFlags(link_lost=True))
+
+
+@settings(max_examples=60, deadline=None)
+@given(events=st.lists(st.tuples(st.integers(0, 2), st.integers(0, 4), st.sampled_from(FLAG_CHOICES),
+                                 st.booleans(), st.integers(0, 3)), min_size=1, max_size=60),
+       hold_s=st.sampled_from([0.0, 0.15, 0.3]))
+def test_property_batch_monitor_row_b_is_the_monitor_of_run_b(events, hold_s):
+    """Each row of a BatchSafetyMonitor decides, bit for bit, what a SafetyMonitor of that run alone decides,
+    whatever the other rows do: random commands (refused or admitted), flags, row subsets and restarts."""
+    n_sims = 3
+    batch = BatchSafetyMonitor(n_sims, 2, hold_s=hold_s)
+    alone = [SafetyMonitor(2, hold_s=hold_s) for _ in range(n_sims)]
+    clock = [0.0] * n_sims
+    for k, (row, u_pick, flags, restart, dt_steps) in enumerate(events):
+        if restart and k % 7 == 0:
+            batch.restart(np.arange(n_sims) == row)
+            alone[row].restart()
+        rows = np.ones(n_sims, dtype=bool)
+        rows[(row + 1) % n_sims] = k % 3 != 0  # some calls step only some rows
+        t = np.array([clock[b] + dt_steps * DT / 2 for b in range(n_sims)])
+        u = np.array([U + 10.0 * u_pick + b for b in range(n_sims)])
+        admitted = np.array([u_pick != 0] * n_sims)
+        fault = np.array([flags.filter_fault if b == row else False for b in range(n_sims)])
+        row_flags = [SafetyFlags(**{**vars(flags), "filter_fault": False}) if b == row else SafetyFlags()
+                     for b in range(n_sims)]
+        got = batch.step(t, u, admitted, fault, rows, row_flags)
+        for b in range(n_sims):
+            if not rows[b]:
+                assert got.action[b] == NOT_STEPPED and got.reasons[b] == () and not got.u[b].any()
+                continue
+            clock[b] = float(t[b])
+            flags_b = row_flags[b] if not fault[b] else SafetyFlags(**{**vars(row_flags[b]), "filter_fault": True})
+            want = alone[b].step(float(t[b]), u[b].copy() if admitted[b] else None, flags_b, admitted=True)
+            assert (ACTIONS[got.action[b]], got.reasons[b]) == (want.action, want.reasons), (k, b)
+            np.testing.assert_array_equal(got.u[b], want.u)
+            assert batch.latched[b] == alone[b].vent_latched
+
+
+def test_batch_monitor_refuses_time_going_back_and_bad_sizes():
+    m = BatchSafetyMonitor(2, 2)
+    rows, no = np.ones(2, dtype=bool), np.zeros(2, dtype=bool)
+    m.step(np.array([1.0, 1.0]), np.zeros((2, 2)), rows, no, rows)
+    with pytest.raises(ValueError, match="non-decreasing"):
+        m.step(np.array([1.0, 0.5]), np.zeros((2, 2)), rows, no, rows)
+    with pytest.raises(ValueError, match="n_sims must be an int >= 1"):
+        BatchSafetyMonitor(0, 2)
+    with pytest.raises(ValueError, match="hold_s must be a finite time"):
+        BatchSafetyMonitor(2, 2, hold_s=math.nan)

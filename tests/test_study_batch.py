@@ -127,3 +127,51 @@ def test_a_three_segment_study_batches_and_equals_its_single_runs(tmp_path):
         for name in BATCH_FIGURES:
             assert many[name] == pytest.approx(one[name], rel=0.0, abs=1e-9) if one[name] is not None else \
                 many[name] is None, name
+
+
+RAISE_ABOVE = 100.0  # hPa
+FAULTY = '''
+import numpy as np
+
+
+class Faulty:
+    """Clips u_nom to +-100 hPa, but returns NaN on calls 10-19, 1e300 hPa on calls 30-39, and raises once the
+    nominal command of the first segment exceeds raise_above hPa."""
+
+    def __init__(self, raise_above: float = 1e9):
+        self.raise_above, self.calls = raise_above, 0
+
+    def __call__(self, estimate, u_nom):
+        self.calls += 1
+        if u_nom[0] > self.raise_above:
+            raise RuntimeError("injected fault")
+        if 10 <= self.calls < 20:
+            return np.array([np.nan, 0.0])
+        if 30 <= self.calls < 40:
+            return np.array([1e300, -1e300])
+        return np.clip(u_nom, -100.0, 100.0)
+'''
+
+
+def test_a_faulty_filter_gives_the_same_summary_rows_in_a_run_and_in_a_batched_study_sample(tmp_path):
+    """Issue 23's fault injection: a user's filter with a NaN burst, huge values and an exception (in the samples
+    whose drawn amplitude exceeds 100 hPa) gives, bit for bit, the same figures and fault fields in each sample run alone as in a batch."""
+    plugin = tmp_path / "faulty.py"
+    plugin.write_text(FAULTY, encoding="utf-8")
+    study = Study("faulty", "paper_sim", ("Low",), draws=4, seed=5,
+                  fixed={"duration": 0.3, "frequency": 1.0, "pressure_limits": True, "filter": f"{plugin}:Faulty",
+                         "filter_params": f"raise_above={RAISE_ABOVE}"},
+                  vary=(Distribution("amplitude", "uniform", low=20.0, high=150.0),))
+    run_study(study, tmp_path / "single", workers=1, batch_size=1, progress=False)
+    run_study(study, tmp_path / "batched", workers=1, progress=False)
+    rows_single = StudyStore.open(tmp_path / "single").load_rows()
+    rows_batched = StudyStore.open(tmp_path / "batched").load_rows()
+    assert [r["batch_size"] for r in rows_batched] == [4] * 4
+    faulted = [r.get("fault_type") == "RuntimeError" for r in rows_single]
+    assert faulted == [r["param.amplitude"] > RAISE_ABOVE for r in rows_single]
+    assert any(faulted) and not all(faulted), "the draws must fault some samples and not others"
+    assert all(r["refused_steps"] >= 10 for r in rows_batched)  # the NaN burst is held in every sample
+    assert all(r["u_peak_abs_hPa"] < 1e3 for r in rows_single)  # 1e300 hPa clipped to the limits
+    for one, many in zip(rows_single, rows_batched):
+        for name in (*BATCH_FIGURES, "fault_type", "fault_where", "fault_message"):
+            assert many.get(name) == one.get(name), (one["sample"], name)

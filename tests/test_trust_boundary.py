@@ -27,10 +27,11 @@ from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import DIAGNOSTIC_FLOATS_MAX, Estimate, FilterContext, FilterOutput
+from controllers.safety_filter import BatchOutput, DIAGNOSTIC_FLOATS_MAX, Estimate, FilterContext, FilterOutput
 from scenarios.run import FILTER_FAULT, USAGE_ERROR, exit_code, run_scenario
 from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
+from softcbf_mj.metrics import run_figures
 from softcbf_mj.pcc_batch_plant import PCCBatchPlant
 from softcbf_mj.pcc_plant import PCCPlant
 from softcbf_mj.runio import load_timeseries
@@ -38,6 +39,7 @@ from softcbf_mj.runio import load_timeseries
 REPO = Path(__file__).resolve().parents[1]
 ROBOT, SAFE = reference_robot(), paper_safe_set()
 LIMIT = 150.0
+BATCH_FIGURES = ("rho_min_pred", "rho_min_meas", "force_max_N", "t_violation_s", "infeasible_steps", "u_peak_abs_hPa")
 PUSH = SinusoidNominal((150.0, 150.0), 0.25, (math.pi / 2, math.pi / 2))  # the full push: the plate within 1 s
 
 HOSTILE = textwrap.dedent('''
@@ -402,6 +404,61 @@ def test_property_batched_loop_is_the_serial_loop_sample_by_sample(hows, at):
         rows = len(log["t"])
         np.testing.assert_array_equal(batch.commands[:rows, b], log["u"], err_msg=how)
         assert batch.rows[b] == rows and (batch.faults[b] is None) == (step.fault is None)
+
+
+class BatchedMisbehaving:
+    """A stateless filter with `filter_batch`: clips u_nom to ±100 hPa, but returns NaN where q_2 < 0 for
+    t in [0.01, 0.03) s, 1e300 hPa for t in [0.1, 0.12) s, a 3-vector (a refused return) where the time is
+    `bad_shape_at` (s) and raises from `raise_at` (s) on."""
+
+    def __init__(self, raise_at: float = math.inf, bad_shape_at: float = math.inf) -> None:
+        self.raise_at, self.bad_shape_at = raise_at, bad_shape_at
+
+    def _rows(self, t: np.ndarray, q: np.ndarray, u_nom: np.ndarray) -> np.ndarray:
+        if np.any(t >= self.raise_at):
+            raise RuntimeError("misbehaving batch")
+        u = np.clip(u_nom, -100.0, 100.0)
+        u[(t >= 0.01) & (t < 0.03) & (q[:, 1] < 0.0), 0] = math.nan
+        u[(t >= 0.1) & (t < 0.12)] = 1e300
+        return u
+
+    def __call__(self, estimate, u_nom):
+        if abs(estimate.t - self.bad_shape_at) < 1e-9:
+            return np.zeros(3)
+        return self._rows(np.array([estimate.t]), estimate.q[None], u_nom[None])[0]
+
+    def filter_batch(self, batch, u_nom):
+        if np.any(np.abs(batch.t - self.bad_shape_at) < 1e-9):
+            return BatchOutput(np.zeros((len(batch), 3)), np.array(["user"] * len(batch)), np.zeros(len(batch), bool),
+                               np.full(len(batch), math.nan))
+        u = self._rows(batch.t, batch.q, u_nom)
+        return BatchOutput(u, np.array(["user"] * len(batch)), np.zeros(len(batch), bool), np.full(len(batch), math.nan))
+
+
+@pytest.mark.parametrize("raise_at, bad_shape_at", [(math.inf, math.inf), (0.3, math.inf), (math.inf, 0.2)])
+def test_filter_batch_faults_and_refusals_are_the_serial_runs_row_by_row(raise_at, bad_shape_at):
+    """One `filter_batch` call for all rows: a NaN row holds only that sample, huge values are clipped in every
+    row, and an exception or refused return is a fault of every row it was called for; each row is, bit for bit,
+    the serial run of the same filter called state by state (commands, figures, fault)."""
+    context = FilterContext.for_robot(ROBOT, SAFE, 1e-3)
+    q0 = np.array([[0.1, 0.2], [0.1, -0.2], [0.0, -0.3]])
+    batch = run_batch_closed_loop(PCCBatchPlant(ROBOT, SAFE, 3), BatchedMisbehaving(raise_at, bad_shape_at), PUSH,
+                                  context, 0.4, q0, record_commands=True)
+    for b in range(3):
+        step = ControlStep(BatchedMisbehaving(raise_at, bad_shape_at), PUSH, context)
+        log, _ = run_closed_loop(PCCPlant(ROBOT, SAFE), step, SAFE, 0.4, q0[b])
+        rows = len(log["t"])
+        assert batch.rows[b] == rows
+        np.testing.assert_array_equal(batch.commands[:rows, b], log["u"])
+        row = run_figures(log, 1e-3, True, 1.0)
+        assert {k: batch.run(b)[k] for k in BATCH_FIGURES} == {k: row[k] for k in BATCH_FIGURES}
+        assert batch.run(b)["refused_steps"] == int(np.count_nonzero(log["action"]))
+        assert (batch.faults[b] is None) == (step.fault is None) == (raise_at == bad_shape_at == math.inf)
+        if step.fault is not None:  # the same fault at the same time (a refused return's message names its contract)
+            assert (batch.faults[b].type, batch.faults[b].t) == (step.fault.type, step.fault.t)
+            assert batch.faults[b].where == ("filter return" if step.fault.where == "filter return" else "filter_batch")
+    held = batch.run(1)["refused_steps"], batch.run(0)["refused_steps"]
+    assert held[0] > 0 and (raise_at < math.inf or bad_shape_at < math.inf or held[1] == 0)  # q_2 < 0 rows only
 
 
 # --- the other loops: the camera loop, the environment, the emulated hardware -------------------

@@ -20,7 +20,10 @@ vector environment must return what the single ones do. "physics" is the vector
 environment's batch plant alone, from rest, each action sent unfiltered (MuJoCo clamps it
 to the pressure box) for action_repeat control periods, on each thread count: about the
 ceiling of the vector environment, whose arms cost at least their physics (not exactly:
-the filter changes the commands, so the contacts differ).
+the filter changes the commands, so the contacts differ). Last, per id, the vector
+environment on the fewest threads split part by part (`split_us`: CPU µs per arm and env
+step of the physics, the filter's `filter_batch`, the rest of the control periods and the
+tasks' work), timed by wrapping those calls.
 
 Usage: `.venv/bin/python tools/bench_vector_env.py [--num-envs 32] [--ids softcbf_mj/SoftArm-v0,softcbf_mj/ForceRegulation-v0]
 [--steps 200,4] [--nthreads 1,2] [--repeats 2]`; prints a table per id and ends with one line of JSON
@@ -72,6 +75,47 @@ def physics(env: Any, actions: np.ndarray) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
+def split(env: Any, actions: np.ndarray) -> dict[str, float]:
+    """CPU µs per arm and env step of the vector environment's parts over `actions` (after a seeded reset):
+    the batch plant's steps, the filter's `filter_batch` (0 without one), the rest of the control periods
+    (the batched control step, the step statistics, the estimates) and everything else (the tasks'
+    observations, rewards, costs and infos, the autoresets)."""
+    vec = env.unwrapped
+    spent = {"physics": 0.0, "filter": 0.0, "periods": 0.0}
+
+    def timing(key: str, call: Any) -> Any:
+        def timed(*a: Any) -> Any:
+            start = time.process_time()
+            try:
+                return call(*a)
+            finally:
+                spent[key] += time.process_time() - start
+        return timed
+
+    vec.plant.step = timing("physics", vec.plant.step)
+    vec.run_periods = timing("periods", vec.run_periods)
+    shared = vec.shared_filter
+    if shared is not None:
+        shared.filter_batch = timing("filter", shared.filter_batch)
+    try:
+        env.reset(seed=0)
+        start = time.process_time()
+        for action in actions:
+            env.step(action)
+        total = time.process_time() - start
+    finally:
+        del vec.plant.step, vec.run_periods
+        if shared is not None:
+            del shared.filter_batch
+    scale = 1e6 / (len(actions) * vec.num_envs)
+    out = {"total": total * scale, "physics": spent["physics"] * scale, "filter": spent["filter"] * scale,
+           "control_rest": (spent["periods"] - spent["physics"] - spent["filter"]) * scale,
+           "task_and_rest": (total - spent["periods"]) * scale}
+    print("  split (vector, 1 thread), CPU µs per arm and env step: "
+          + ", ".join(f"{key} {value:.1f}" for key, value in out.items()))
+    return out
+
+
 def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
     kwargs = {"filter": args.filter, "filter_params": dict(p.split("=", 1) for p in args.filter_params.split(";") if p),
               "q0_std": 0.05}
@@ -92,6 +136,7 @@ def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
             best[f"vector_{n}"] = min(best.get(f"vector_{n}", (wall, cpu)), (wall, cpu))
             check = max(check, max_difference(out, reference))
             best[f"physics_{n}"] = min(best.get(f"physics_{n}", (math.inf, math.inf)), physics(env, actions))
+    parts = split(vectors[min(vectors)], actions)
     sync.close()
     for env in vectors.values():
         env.close()
@@ -114,7 +159,7 @@ def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
               f"{ceiling_cpu / sync_cpu:9.2f}")
     print(f"  max |Δ| vector vs sync (observations, rewards, costs): {check:.2e}")
     return {"id": env_id, "steps": steps, "sync_steps_per_s": sync_rate, "sync_steps_per_cpu_s": sync_cpu,
-            "vector": rows, "max_abs_difference": check}
+            "vector": rows, "max_abs_difference": check, "split_us": parts}
 
 
 def main() -> None:

@@ -12,8 +12,12 @@ exactly as `softcbf_mj.loop.run_closed_loop` runs one:
 What does not depend on how the plant is stepped is `ArmControl` (ArmPhysics is one):
 the control step, the estimate, the statistics below (`begin_step`, `end_period(record,
 state)` per period, `end_step`) and the episode's reset; `softcbf_mj.env.vector` runs B
-`ArmControl`s over one `MujocoBatchPlant`, so that the task (`softcbf_mj.env.task`)
-reads the same state from both.
+`ArmControl`s over one `MujocoBatchPlant` and one `closedloop.step.BatchControlStep` (row b
+arm b's control step), keeps their statistics with `softcbf_mj.metrics.RunningFigures` (the
+same definitions, for all arms at once) and hands each arm its end state, estimate, last
+record and statistics (`end_batched_step`), so that the task (`softcbf_mj.env.task`) reads
+the same state from both. (The single environment keeps the per-period tally below: one
+`RunningFigures` update costs more than a 1 ms env step's tally.)
 
 The estimate of a state is made once, when the state is reached (`estimate()` returns it),
 so the observation shows exactly what the filter is handed next. `NoisyState(q_std,
@@ -154,13 +158,17 @@ class ArmControl:
         self.command.u_nom = u_nom
 
     def reset(self, reset_filter: bool = True) -> None:
-        """A new episode: a new control step (a fresh monitor; the filter's `reset()` unless
-        `reset_filter` is False, for a filter shared with other arms), u_nom = 0, the arm straight at rest."""
+        """A new episode: a new control step (`reset_control`), u_nom = 0, the arm straight at rest."""
         self.command.u_nom = np.zeros(self.n_segments)
+        self.reset_control(reset_filter)
+        self.reset_state(np.zeros(self.n_segments))
+
+    def reset_control(self, reset_filter: bool) -> None:
+        """The episode's control step: a new one (a fresh monitor) and the filter's `reset()` unless
+        `reset_filter` is False. (The vector environment resets its batched step's rows itself.)"""
         self.control_step = self.new_control_step()
         if reset_filter:
             self.control_step.reset()
-        self.reset_state(np.zeros(self.n_segments))
 
     def after_reset(self) -> None:
         self.last_record = None
@@ -188,6 +196,13 @@ class ArmControl:
         """After an env step's periods: `stats` (force_excess their mean)."""
         tally = self._tally
         self.stats = replace(tally, force_excess=tally.force_excess / tally.periods) if tally.periods else tally
+
+    def end_batched_step(self, state: PlantState, estimate: Estimate, record: StepRecord, stats: StepStats) -> None:
+        """An env step whose periods a batched loop ran (`softcbf_mj.env.vector`): the state it left
+        the arm in, that state's estimate, the last period's record and the step's `StepStats`
+        (what `end_period` per period and `end_step` leave)."""
+        self.state, self._estimate, self._tip_pred = state, estimate, None
+        self.last_record, self.stats = record, stats
 
     def new_control_step(self) -> ControlStep:
         """The control step of an episode: the filter, the held action as nominal, a fresh safety monitor."""

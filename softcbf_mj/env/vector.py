@@ -12,8 +12,10 @@ single environment, none is copied here:
 - physics: simulation b of one `MujocoBatchPlant` on the config's model (`nthread`
   threads; 0: all CPUs), bit-identical to b's own `MujocoPlant` (`mujoco.batch`), reset
   alone at b's episode start (`MujocoBatchPlant.reset(ids=[b])`);
-- control: an `ArmControl` (`softcbf_mj.env.physics`: b's `closedloop.step.ControlStep`
-  with its own `SafetyMonitor`, its estimator, its `StepStats`);
+- control: row b of one `closedloop.step.BatchControlStep` (b's control step with its own
+  safety monitor row, bit for bit the `ControlStep` of b's single environment), and an
+  `ArmControl` (`softcbf_mj.env.physics`: b's estimator, state and `StepStats`, the latter
+  kept for all arms at once by `softcbf_mj.metrics.RunningFigures`);
 - task: an `ArmTask` (`softcbf_mj.env.task`: observation, reward, cost, termination and
   b's own generator of initial states);
 - Gymnasium: the spaces, the (normalised) command, the scaled observation and the info of
@@ -26,15 +28,17 @@ filters; with a batched filter the commands are those of `filter_batch`, which
 
 One env step, for every sub-environment that is not being reset ("running"):
 
-    u_nom_b = nominal_command(action_b)                       (N,) hPa, held for the env step
+    u_nom (B, N) = nominal_command(action_b) per arm            hPa, held for the env step
     repeat action_repeat control periods, t_k = k Δ:
-        records = the control step of each running arm at its estimate:
-                  a filter with `filter_batch`: one filter for all, one call for the arms
-                  that call it (`softcbf_mj.batch_loop.batch_rows`); otherwise B filters,
-                  one per arm (built by the registry), called in turn
-        u (B, N) hPa = record.u of the running arms, 0 hPa for the others
+        record = the batched control step of the running arms at their estimates, with
+                 u_nom as their nominal commands: a filter with `filter_batch`: one filter
+                 for all, one call for the arms that call it; otherwise B filters, one per
+                 arm (built by the registry), called in turn
+        u (B, N) hPa = record.u: the running arms' commands, 0 hPa for the others
         state = plant.step(u)                                 one batch call for all B
-        arm b ends its period at state row b (`ArmControl.end_period`)
+        the period in every running arm's `StepStats` (one `RunningFigures` update) and the
+        estimates of the new states (the exact state: the state's arrays; a noisy one: each
+        arm's estimator, its own generator)
     an arm whose control step has stopped (a filter fault's vent, `closedloop.step`)
     stops for the rest of the env step: its episode ends (terminated, info["fault"]), as
     in the single environment; the others go on.
@@ -75,14 +79,40 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 
-from closedloop.step import FilterFault, StepRecord
-from softcbf_mj.batch_loop import batch_rows
+from closedloop.step import BatchControlStep, FilterFault, StepRecord
+from controllers.safety_filter import Estimate
 from softcbf_mj.env.environment import ArmEnvConfig
 from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, scaled_observation, step_info
-from softcbf_mj.env.physics import ArmControl
+from softcbf_mj.env.physics import ArmControl, StepStats
 from softcbf_mj.env.task import ArmTask
+from softcbf_mj.loop import exact_state
+from softcbf_mj.metrics import RunningFigures, rho_meas
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
-from softcbf_mj.plant import PlantState
+from softcbf_mj.plant import BatchPlantState, PlantState
+
+
+class BatchArm(ArmControl):
+    """Sub-environment b's `ArmControl` whose control step is row b of the vector environment's
+    `BatchControlStep` (`control`): its fault and latched vent are that row's; the vector
+    environment resets the row and runs the periods (`ArmControl.end_batched_step`)."""
+
+    def __init__(self, control: BatchControlStep, b: int, *args: Any) -> None:
+        self.batch_control, self.row = control, b
+        super().__init__(*args)
+
+    def new_control_step(self) -> None:  # type: ignore[override] - the batched step's row b is the control step
+        return None
+
+    def reset_control(self, reset_filter: bool) -> None:
+        """Nothing here: the vector environment resets row b of its batched step (`ArmVectorEnv`)."""
+
+    @property
+    def fault(self) -> FilterFault | None:
+        return self.batch_control.faults[self.row]
+
+    @property
+    def vent_latched(self) -> bool:
+        return bool(self.batch_control.monitor.latched[self.row])
 
 
 class ArmVectorEnv(VectorEnv):
@@ -116,8 +146,15 @@ class ArmVectorEnv(VectorEnv):
         self.shared_filter = first if callable(getattr(first, "filter_batch", None)) else None
         filters = [first] + [first if self.shared_filter is not None else config.safety_filter(context)
                              for _ in range(self.num_envs - 1)]
-        self.arms = [ArmControl(layout.n_segments, layout.n_facets, f, context, config.hold_s, config.estimator(),
-                                lambda q0, b=b: self._reset_simulation(b, q0)) for b, f in enumerate(filters)]
+        self.control = BatchControlStep(first if self.shared_filter is not None else filters, None, context,
+                                        self.num_envs, config.hold_s)
+        self.safe_set = context.safe_set
+        n, b_all = layout.n_segments, self.num_envs
+        self._est_t, self._est_tc = np.zeros(b_all), np.zeros(b_all)  # the arms' current estimates, by row
+        self._est_q, self._est_qd = np.zeros((b_all, n)), np.zeros((b_all, n))
+        self.arms = [BatchArm(self.control, b, n, layout.n_facets, f, context, config.hold_s, config.estimator(),
+                              lambda q0, b=b: self._reset_simulation(b, q0)) for b, f in enumerate(filters)]
+        self.exact = all(arm.estimator is exact_state for arm in self.arms)
         self.tasks: list[ArmTask] = [config.task(layout) for _ in range(self.num_envs)]
         self.u_low, self.u_high = self.tasks[0].u_min, self.tasks[0].u_max
         self.single_action_space, self.single_observation_space, self.scales = gym_spaces(
@@ -143,26 +180,27 @@ class ArmVectorEnv(VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed must be None, an integer or num_envs = {self.num_envs} seeds, got {len(seeds)}")
         super().reset(seed=seeds[0])
-        shared = self.shared_filter is not None
-        results = [self._reset_arm(0, seeds[0], reset_filter=True)]  # a shared filter's reset() once, for all arms
-        fault = self.arms[0].control_step.fault if shared else None  # a fault of that reset is every arm's
-        results += [self._reset_arm(b, seeds[b], reset_filter=not shared, fault=fault) for b in range(1, self.num_envs)]
+        self.control.reset()  # every row; a shared filter's reset() once, whose fault is every arm's
+        results = [self._reset_arm(b, seeds[b], reset_row=False) for b in range(self.num_envs)]
         self._autoreset[:] = False
         self._started = True
         return self._batch([obs for obs, _ in results]), self._infos([info for _, info in results])
 
-    def _reset_arm(self, b: int, seed: int | None, reset_filter: bool,
-                   fault: FilterFault | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Sub-environment b's new episode, as dm_control's `Environment.reset` and `GymArmEnv.reset`: its
-        filter's `reset()` when `reset_filter`; `fault`: the fault of a shared filter's reset, if any."""
+    def _reset_arm(self, b: int, seed: int | None, reset_row: bool) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Sub-environment b's new episode, as dm_control's `Environment.reset` and `GymArmEnv.reset`;
+        `reset_row`: row b of the batched step too (an autoreset: its monitor and, for per-arm
+        filters, its filter's `reset()`; a shared filter is reset by `reset()` only)."""
         task, arm = self.tasks[b], self.arms[b]
         if seed is not None:
             task.seed(seed)
-        arm.reset(reset_filter=reset_filter)
-        if fault is not None:
-            arm.control_step.fault = fault
+        if reset_row:
+            self.control.reset(np.arange(self.num_envs) == b, filters=self.shared_filter is None)
+        arm.reset()
         task.initialize_episode(arm)
         arm.after_reset()
+        estimate = arm.estimate()
+        self._est_t[b], self._est_tc[b] = estimate.t, estimate.t_capture
+        self._est_q[b], self._est_qd[b] = estimate.q, estimate.qd
         observation, clipped = scaled_observation(task.get_observation(arm), self.scales)
         return observation, step_info(task, arm, clipped)
 
@@ -179,8 +217,7 @@ class ArmVectorEnv(VectorEnv):
         running = np.flatnonzero(~resetting)
         for b in running:
             self.tasks[b].before_step(nominal_command(actions[b], self.u_low, self.u_high, self.normalise), self.arms[b])
-            self.arms[b].begin_step()
-        self._periods(running)
+        self.run_periods(running)
         observations: list[dict[str, np.ndarray] | None] = [None] * self.num_envs
         infos: list[dict[str, Any] | None] = [None] * self.num_envs
         rewards = np.zeros(self.num_envs)
@@ -188,7 +225,6 @@ class ArmVectorEnv(VectorEnv):
         truncated = np.zeros(self.num_envs, dtype=bool)
         for b in running:
             task, arm = self.tasks[b], self.arms[b]
-            arm.end_step()
             task.after_step(arm)
             rewards[b] = task.get_reward(arm)
             observations[b], clipped = scaled_observation(task.get_observation(arm), self.scales)
@@ -198,34 +234,55 @@ class ArmVectorEnv(VectorEnv):
                 self.max_episode_steps is not None and task.steps >= self.max_episode_steps)
             infos[b] = step_info(task, arm, clipped)
         for b in np.flatnonzero(resetting):
-            observations[b], infos[b] = self._reset_arm(b, None, reset_filter=self.shared_filter is None)
+            observations[b], infos[b] = self._reset_arm(b, None, reset_row=True)
         self._autoreset = terminated | truncated
         return self._batch(observations), rewards, terminated, truncated, self._infos(infos)
 
-    def _periods(self, running: np.ndarray) -> None:
-        """The env step's control periods of the running arms, all simulations stepped together (module docstring)."""
-        arms, active = self.arms, np.zeros(self.num_envs, dtype=bool)
+    def run_periods(self, running: np.ndarray) -> None:
+        """The env step's control periods of the running arms, all simulations stepped together (module
+        docstring); each running arm then holds its end state, its estimate, the last record and its `StepStats`."""
+        arms, control, plant, n_sims = self.arms, self.control, self.plant, self.num_envs
+        active = np.zeros(n_sims, dtype=bool)
         active[running] = True
-        u = np.zeros((self.num_envs, self.plant.n_segments))
+        u_nom = np.array([arm.command.u_nom for arm in arms])
+        figures = RunningFigures(n_sims, plant.control_dt, f_max=self.safe_set.f_max, force_floor=0.0)
+        ended: dict[int, tuple[PlantState, StepRecord]] = {}  # arms stopped by a fault: where they stopped
+        estimates: list[Estimate | None] = [None] * n_sims  # a noisy estimator's estimates of the last states
         for _ in range(self.config.action_repeat):
             if not active.any():
                 break
-            estimates = [arm.estimate() for arm in arms]
-            steps = [arm.control_step for arm in arms]
-            records: list[StepRecord | None]
-            if self.shared_filter is not None:
-                records = batch_rows(steps, self.shared_filter, estimates, active)
-            else:
-                records = [steps[b](estimates[b]) if active[b] else None for b in range(self.num_envs)]
-            u[:] = 0.0
-            for b, record in enumerate(records):
-                if record is not None:
-                    u[b] = record.u
-            state = self.plant.step(u)
-            for b in np.flatnonzero(active):
-                arms[b].end_period(records[b], state.row(b))
-                if steps[b].stopped:  # a filter fault has vented: b's episode ends (closedloop.step)
-                    active[b] = False
+            rows = None if active.all() else active
+            record = control(self._est_t, self._est_q, self._est_qd, self._est_tc, rows=rows, u_nom=u_nom)
+            state = plant.step(record.u)
+            figures.update(rho_meas(self.safe_set, state.contact_forces)[None], state.contact_forces[None],
+                           record.u[None], record.rho_pred[None], record.infeasible[None], record.action[None],
+                           None if rows is None else rows[None])
+            self._estimate_rows(state, active, estimates)
+            stopped = control.stopped & active
+            if stopped.any():  # a filter fault has vented: b's episode ends (closedloop.step)
+                for b in np.flatnonzero(stopped).tolist():
+                    ended[b] = state.row(b), record.row(b)
+                active &= ~stopped
+        for b in running.tolist():
+            end_state, end_record = ended[b] if b in ended else (state.row(b), record.row(b))
+            periods = int(figures.rows[b])
+            stats = StepStats(periods, int(figures.violations[b]), float(figures.rho_min_meas[b]),
+                              float(figures.force_max_N[b]), float(figures.force_excess[b]) / periods,
+                              bool(figures.vented[b]))
+            estimate = estimates[b] if estimates[b] is not None else exact_state(end_state)
+            arms[b].end_batched_step(end_state, estimate, end_record, stats)
+
+    def _estimate_rows(self, state: BatchPlantState, active: np.ndarray, estimates: list[Estimate | None]) -> None:
+        """The estimates of the active arms' new states into the rows the next period's step reads (module
+        docstring); a noisy estimator's also into `estimates` (their draws are the arm's)."""
+        if self.exact:
+            self._est_t[active], self._est_tc[active] = state.t[active], state.t[active]
+            self._est_q[active], self._est_qd[active] = state.q[active], state.qd[active]
+            return
+        for b in np.flatnonzero(active).tolist():
+            estimate = estimates[b] = self.arms[b].estimator(state.row(b))
+            self._est_t[b], self._est_tc[b] = estimate.t, estimate.t_capture
+            self._est_q[b], self._est_qd[b] = estimate.q, estimate.qd
 
     def _batch(self, observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
         """The (B, ...) observations, fresh arrays."""
