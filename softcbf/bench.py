@@ -727,10 +727,8 @@ def _check_params(key: str, value: Any) -> None:
 def _check_falsify(data: Mapping[str, Any]) -> None:
     """bench.json's "falsify" (null, or the searches' settings) and "worst_found" (one entry per filter)."""
     settings, entries = data["falsify"], data["worst_found"]
-    if not isinstance(entries, list):
-        raise ValueError(f"worst_found must be a list of entries, got {entries!r}")
     if settings is None:
-        if entries:
+        if isinstance(entries, list) and entries:
             raise ValueError("worst_found must be empty when falsify is null (no search ran)")
         return
     if not isinstance(settings, dict):
@@ -744,25 +742,8 @@ def _check_falsify(data: Mapping[str, Any]) -> None:
         check_number(f"falsify.{key}", settings[key], _COUNT if key in ("budget", "population") else non_negative(),
                      integer=True)
     check_number("falsify.duration_s", settings["duration_s"], Bound(0.0, low_open=True, unit="s"))
-    seen = set()
-    for i, entry in enumerate(entries):
-        where = f"worst_found[{i}]"
-        if not isinstance(entry, dict):
-            raise ValueError(f"{where} must be an object, got {entry!r}")
-        missing = [k for k in WORST_KEYS if k not in entry]
-        if missing:
-            raise ValueError(f"{where} lacks {', '.join(missing)}")
-        for key in WORST_KEYS:
-            WORST_SCHEMA[key](f"{where}.{key}", entry[key])
-        if entry["filter"] not in data["filters"]:
-            raise ValueError(f"{where}.filter {entry['filter']!r} is not one of its filters ({', '.join(data['filters'])})")
-        if entry["filter"] in seen:
-            raise ValueError(f"{where}: {entry['filter']} has an entry already")
-        seen.add(entry["filter"])
-        found = [entry[k] is None for k in ("rho_worst_found", "params", "evaluation")]
-        if any(found) and not all(found):
-            raise ValueError(f"{where}: rho_worst_found, params and evaluation must be null together (no evaluation "
-                             "finished)")
+    for where, entry in _checked_items(data, "worst_found", WORST_SCHEMA, ("an entry", "entries"), lambda e: e["filter"]):
+        _null_together(where, entry, ("rho_worst_found", "params", "evaluation"))
         if entry["evaluations"] > settings["budget"] or entry["failed"] > entry["evaluations"]:
             raise ValueError(f"{where}: needs failed <= evaluations <= falsify.budget, got {entry['failed']}, "
                              f"{entry['evaluations']}, {settings['budget']}")
@@ -813,28 +794,41 @@ def check_bench_json(data: Any) -> None:
     check_number("mismatch_draws", data["mismatch_draws"], Bound(1), integer=True)
     if not (isinstance(data["skipped"], dict) and all(isinstance(v, str) for v in data["skipped"].values())):
         raise ValueError(f"skipped must be an object {{case or 'FILTER x CASE': reason}}, got {data['skipped']!r}")
-    if not isinstance(data["results"], list):
-        raise ValueError(f"results must be a list of rows, got {data['results']!r}")
+    for where, row in _checked_items(data, "results", ROW_SCHEMA, ("a row", "rows"), lambda r: f"({r['filter']}, {r['case']})"):
+        _null_together(where, row, ("violation_probability", "violation_ci95", "draws"))
+    _check_falsify(data)
+
+
+def _checked_items(data: Mapping[str, Any], name: str, schema: Mapping[str, Callable[[str, Any], None]],
+                   noun: tuple[str, str], identity: Callable[[dict[str, Any]], str]):
+    """Yield ("NAME[i]", item) for every item of the list data[name] once it is an object holding every key of
+    `schema`, each value passing its check, a filter of data["filters"], and `identity(item)` first seen;
+    ValueError naming the item and the field otherwise (`noun`: an item, items)."""
+    if not isinstance(data[name], list):
+        raise ValueError(f"{name} must be a list of {noun[1]}, got {data[name]!r}")
     seen = set()
-    for i, row in enumerate(data["results"]):
-        where = f"results[{i}]"
-        if not isinstance(row, dict):
-            raise ValueError(f"{where} must be an object, got {row!r}")
-        missing = [k for k in RESULT_KEYS if k not in row]
+    for i, item in enumerate(data[name]):
+        where = f"{name}[{i}]"
+        if not isinstance(item, dict):
+            raise ValueError(f"{where} must be an object, got {item!r}")
+        missing = [k for k in schema if k not in item]
         if missing:
             raise ValueError(f"{where} lacks {', '.join(missing)}")
-        for key in RESULT_KEYS:
-            ROW_SCHEMA[key](f"{where}.{key}", row[key])
-        if row["filter"] not in data["filters"]:
-            raise ValueError(f"{where}.filter {row['filter']!r} is not one of its filters ({', '.join(data['filters'])})")
-        nulls = [row[k] is None for k in ("violation_probability", "violation_ci95", "draws")]
-        if any(nulls) and not all(nulls):
-            raise ValueError(f"{where}: violation_probability, violation_ci95 and draws must be null together, got "
-                             f"{row['violation_probability']!r}, {row['violation_ci95']!r}, {row['draws']!r}")
-        if (row["filter"], row["case"]) in seen:
-            raise ValueError(f"{where}: ({row['filter']}, {row['case']}) has a row already")
-        seen.add((row["filter"], row["case"]))
-    _check_falsify(data)
+        for key, check in schema.items():
+            check(f"{where}.{key}", item[key])
+        if item["filter"] not in data["filters"]:
+            raise ValueError(f"{where}.filter {item['filter']!r} is not one of its filters ({', '.join(data['filters'])})")
+        if identity(item) in seen:
+            raise ValueError(f"{where}: {identity(item)} has {noun[0]} already")
+        seen.add(identity(item))
+        yield where, item
+
+
+def _null_together(where: str, item: Mapping[str, Any], keys: Sequence[str]) -> None:
+    nulls = [item[k] is None for k in keys]
+    if any(nulls) and not all(nulls):
+        raise ValueError(f"{where}: {', '.join(keys[:-1])} and {keys[-1]} must be null together, got "
+                         f"{', '.join(repr(item[k]) for k in keys)}")
 
 
 TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_min_meas", ".4f"),

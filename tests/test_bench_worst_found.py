@@ -140,6 +140,7 @@ def _with_entry(**entry) -> dict:
 SPOILED = [
     (lambda b: b["worst_found"][0].pop("rho_worst_found"), "worst_found[0] lacks rho_worst_found"),
     (lambda b: b.pop("worst_found"), "it lacks worst_found"),
+    (lambda b: b.update(worst_found={}), "worst_found must be a list of entries, got {}"),
     (lambda b: b.pop("falsify"), "it lacks falsify"),
     (lambda b: b.update(falsify=None), "worst_found must be empty when falsify is null"),
     (lambda b: b["falsify"].pop("box"), "falsify lacks box"),
