@@ -305,7 +305,8 @@ def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarr
 @dataclass(frozen=True)
 class RunOptions:
     """How a case runs: quick (CI) or full, local worker processes of the study and the falsifications, mismatch draws
-    (None: `MISMATCH_DRAWS`), the falsification budget; and what happens to a bench folder in --out (`prepare_bench_dir`): resume it, or overwrite it."""
+    (None: `MISMATCH_DRAWS`), the falsification budget; and what happens to a bench folder in --out
+    (`prepare_bench_dir`): resume it, or overwrite it."""
 
     quick: bool = False
     workers: int = 1
@@ -728,8 +729,8 @@ def _check_falsify(data: Mapping[str, Any]) -> None:
     """bench.json's "falsify" (null, or the searches' settings) and "worst_found" (one entry per filter)."""
     settings, entries = data["falsify"], data["worst_found"]
     if settings is None:
-        if isinstance(entries, list) and entries:
-            raise ValueError("worst_found must be empty when falsify is null (no search ran)")
+        if entries != []:
+            raise ValueError(f"worst_found must be [] when falsify is null (no search ran), got {entries!r}")
         return
     if not isinstance(settings, dict):
         raise ValueError(f"falsify must be null or an object of the searches' settings, got {settings!r}")
