@@ -1,7 +1,7 @@
 """`softcbf bench`: every selected safety filter over one fixed battery (docs/beyond-the-paper.md#filter-benchmark).
 
     softcbf bench --out DIR [--filters SPEC,SPEC,...] [--quick] [--cases NAME,...] [--mismatch-draws N] [--workers N]
-                  [--resume | --overwrite]
+                  [--falsify-budget N] [--resume | --overwrite]
 
 Battery (`CASES`, in this order; each case runs registered scenarios with fixed parameters):
 
@@ -19,6 +19,15 @@ Battery (`CASES`, in this order; each case runs registered scenarios with fixed 
 | camera_push_030 … _120, camera_push_150hPa, camera_force_target | camera_loop | 10 Hz | the same contact tasks on the camera loop |
 | paper_sim_3seg   | paper_sim (PCC, exact state), robot "three-segment" | 1 kHz | `THREE_SEGMENT_PUSH_HPA` = 40 hPa on every segment from rest, `PUSH_DURATION_S` = 6 s |
 | mujoco_3seg      | mujoco_contact, robot "three-segment"    | 1 kHz  | the same push on the MuJoCo plant (the plate on its spring) |
+
+The worst case found (`softcbf.study.worst_found`, beside the cases): per filter, a falsification
+(`softcbf study falsify`'s search) over the standard mismatch box's physical errors on mujoco_contact
+(studies/mismatch_box_contact.toml) with the filter's mujoco_contact parameters, for a fixed budget of
+evaluations (`--falsify-budget N`; default `worst_found.BUDGET` = 36 for the whole battery,
+`worst_found.QUICK_BUDGET` = 4 of 1 s with --quick, 0 with --cases; 0 turns it off). bench.json's
+"falsify" names the box and the budget (and the rest of the search's settings); its "worst_found" holds
+one entry per filter (`WORST_KEYS`): rho_worst_found, the minimum ρ_min_meas over the evaluations, with
+that evaluation's parameters. Its folder: DIR/cases/<filter label>/worst_found/ (a falsification folder).
 
 The 3-segment cases (`THREE_SEGMENT_CASES`). The arm is models/robots/three_segment.json
 (`controllers.params.uniform_robot(3)`: three reference segments, reach 0.366 m); at rest
@@ -83,16 +92,18 @@ parameter may be given once.
 
 Resume. The full battery takes hours (the mismatch study dominates). `--resume` continues
 an interrupted `softcbf bench` in the same DIR: a (filter, case) whose row is in DIR/bench.json
-keeps it and is not run again (its row must come from a run with the same quick flag and
-mismatch draws); a mismatch study whose folder exists continues where it stopped (the study
-machinery refuses a folder of another study definition); any other case runs again from
+keeps it and is not run again (its row must come from a run with the same quick flag,
+mismatch draws and "falsify" settings), as does a filter's worst_found entry; a mismatch study or
+a falsification whose folder exists continues where it stopped (the study machinery refuses a
+folder of another study definition); any other case runs again from
 scratch. bench.json is checked first (`check_bench_json`: the fields and types of docs/beyond-the-paper.md#filter-benchmark, numbers
 finite, times, RMS and compute times >= 0, probabilities in [0, 1], known cases, filters of its
-own list, each (filter, case) once); a file that fails is refused with one line naming the
+own list, each (filter, case) once; the same for "worst_found"); a file that fails is refused with one line naming the
 field, and nothing runs.
 
-Outputs: DIR/bench.json (`{"battery", "quick", "filters", "skipped", "results"}`; every
-result row holds `RESULT_KEYS`), DIR/bench.md (the table), DIR/plots/bench.png,
+Outputs: DIR/bench.json (`{"battery", "quick", "mismatch_draws", "filters", "skipped", "results", "falsify",
+"worst_found"}`; every result row holds `RESULT_KEYS`, every worst_found entry `WORST_KEYS`), DIR/bench.md (the
+tables), DIR/plots/bench.png,
 DIR/plots/force_budget.png (with contact tasks), and each
 case's run or study folder under DIR/cases/<filter label>/<case>/.
 """
@@ -124,6 +135,8 @@ from vocabulary.settings import Bound, check_number, non_negative
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
                "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s",
                "force_asked_N", "force_delivered_N", "force_delivered_ratio", "force_budget_used", "f_max_N")
+WORST_KEYS = ("filter", "rho_worst_found", "params", "evaluation", "evaluations", "failed", "first_violation", "wall_s")
+WORST_DIR = "worst_found"  # a filter's falsification folder: DIR/cases/<filter label>/worst_found
 DEFAULT_FILTERS = "e-erg,paper-cbf"
 PAPER_TUNINGS = {"1kHz": "Low", "camera": "HW-High"}
 EERG_PARAMS = {"contact_aware": "true", "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
@@ -291,14 +304,17 @@ def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarr
 
 @dataclass(frozen=True)
 class RunOptions:
-    """How a case runs: quick (CI) or full, local worker processes of the study, mismatch draws (None: `MISMATCH_DRAWS`);
-    and what happens to a bench folder in --out (`prepare_bench_dir`): resume it, or overwrite it."""
+    """How a case runs: quick (CI) or full, local worker processes of the study and the falsifications, mismatch draws
+    (None: `MISMATCH_DRAWS`), the falsification budget; and what happens to a bench folder in --out
+    (`prepare_bench_dir`): resume it, or overwrite it."""
 
     quick: bool = False
     workers: int = 1
     mismatch_draws: int | None = None
     resume: bool = False
     overwrite: bool = False
+    falsify_budget: int | None = None
+    """Evaluations of each filter's worst-case search (module docstring); None: the default, 0: none."""
 
 
 def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
@@ -491,6 +507,8 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
         raise ValueError(f"--mismatch-draws must be >= 1, got {options.mismatch_draws}")
     if options.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {options.workers}")
+    if options.falsify_budget is not None and options.falsify_budget < 0:
+        raise ValueError(f"--falsify-budget must be >= 0 (evaluations per filter; 0: none), got {options.falsify_budget}")
     if not filters:
         raise ValueError("--filters names no filter")
     for spec in filters:
@@ -503,18 +521,21 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
             if reason is not None:
                 skipped[skip_key(spec, case)] = reason
     draws = QUICK_MISMATCH_DRAWS if options.quick else (options.mismatch_draws or MISMATCH_DRAWS)
+    searches = worst_case_searches(filters, options, cases is None)
     bench = {"battery": names, "quick": options.quick, "mismatch_draws": draws, "filters": [s.label for s in filters],
-             "skipped": skipped, "results": []}
+             "skipped": skipped, "results": [], "falsify": searches[0] if searches else None, "worst_found": []}
     created = not os.path.lexists(out)
     prepare_bench_dir(out, options)
     fresh = not (out / BENCH_FILE).is_file()
     try:
-        done = stored_results(out, bench) if options.resume else {}
+        done, worst_done = stored_results(out, bench) if options.resume else ({}, {})
         if fresh:
             write_outputs(out, bench)  # a bench folder from the start: a bench that stops can be resumed
         _run_cases(out, bench, filters, selected, skipped, done, options)
+        if searches:
+            _run_worst_found(out, bench, searches[1], worst_done, options)
     except BaseException:
-        if fresh and not bench["results"]:
+        if fresh and not bench["results"] and not bench["worst_found"]:
             _discard(out, created)
         raise
     finally:
@@ -543,6 +564,48 @@ def _run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], 
             write_outputs(out, bench)
             print(f"bench: {spec.label} x {case.name}: rho_min_meas {row['rho_min_meas']:.4f}, "
                   f"t_violation {row['t_violation_s']:.3f} s, {row['wall_s']:.1f} s", flush=True)
+    write_outputs(out, bench)
+
+
+def worst_case_searches(filters: Sequence[FilterSpec], options: RunOptions, whole_battery: bool
+                        ) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """bench.json's "falsify" and {filter label: its box study} of the worst-case searches (module docstring), each
+    filter with its parameters of the mujoco_contact case (checked here, before the bench starts); None when the
+    budget is 0 (the default with --cases)."""
+    from softcbf.study import worst_found
+
+    budget = options.falsify_budget
+    if budget is None:
+        budget = 0 if not whole_battery else worst_found.QUICK_BUDGET if options.quick else worst_found.BUDGET
+    if budget == 0:
+        return None
+    duration = QUICK_DURATION_S if options.quick else None
+    case = next(c for c in CASES if c.name == "mujoco_contact")
+    studies = {spec.label: worst_found.box_study(spec.name, case_filter_params(spec, case), duration=duration)
+               for spec in filters}
+    return worst_found.settings(budget, duration), studies
+
+
+def _run_worst_found(out: Path, bench: dict[str, Any], studies: Mapping[str, Any],
+                     done: Mapping[str, dict[str, Any]], options: RunOptions) -> None:
+    from softcbf.study.store import FALSIFY_FILE
+    from softcbf.study.worst_found import worst_found
+
+    budget = bench["falsify"]["budget"]
+    for label, study in studies.items():
+        if label in done:
+            bench["worst_found"].append(done[label])
+            print(f"bench: {label} worst case found: kept from {out / BENCH_FILE} (--resume)", flush=True)
+            continue
+        folder = out / "cases" / safe_name(label) / WORST_DIR
+        resume = options.resume and (folder / FALSIFY_FILE).is_file()
+        if folder.exists() and not resume:
+            shutil.rmtree(folder)
+        entry = worst_found(label, study, folder, budget, resume=resume, workers=options.workers)
+        bench["worst_found"].append({k: entry[k] for k in WORST_KEYS})
+        write_outputs(out, bench)
+        print(f"bench: {label} worst case found: rho_min_meas {entry['rho_worst_found']} in {entry['evaluations']} "
+              f"evaluations, {entry['wall_s']:.1f} s", flush=True)
     write_outputs(out, bench)
 
 
@@ -594,13 +657,14 @@ def _discard(out: Path, created: bool) -> None:
         remove_if_unused(out)
 
 
-def stored_results(out: Path, bench: Mapping[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
-    """The rows of out/bench.json that `--resume` keeps: {(filter label, case): row} ({} when there is no file);
-    ValueError when that file is not a bench.json (`check_bench_json`) or came from a run with another quick flag
-    or number of mismatch draws."""
+def stored_results(out: Path, bench: Mapping[str, Any]
+                   ) -> tuple[dict[tuple[str, str], dict[str, Any]], dict[str, dict[str, Any]]]:
+    """What `--resume` keeps of out/bench.json: its rows {(filter label, case): row} and its worst_found entries
+    {filter label: entry} (both {} when there is no file); ValueError when that file is not a bench.json
+    (`check_bench_json`) or came from a run with another quick flag, number of mismatch draws or "falsify"."""
     path = out / BENCH_FILE
     if not path.exists():
-        return {}
+        return {}, {}
     try:
         stored = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
@@ -613,7 +677,11 @@ def stored_results(out: Path, bench: Mapping[str, Any]) -> dict[tuple[str, str],
     if quick != bench["quick"] or draws != bench["mismatch_draws"]:
         raise ValueError(f"--resume: {path} holds a run with quick={quick}, mismatch draws {draws}; "
                          f"this one has quick={bench['quick']}, mismatch draws {bench['mismatch_draws']}")
-    return {(r["filter"], r["case"]): {k: r[k] for k in RESULT_KEYS} for r in stored["results"]}
+    if stored["falsify"] != bench["falsify"]:
+        raise ValueError(f"--resume: {path} holds worst-case searches with falsify = {json.dumps(stored['falsify'])}; "
+                         f"this one has {json.dumps(bench['falsify'])} (--falsify-budget)")
+    return ({(r["filter"], r["case"]): {k: r[k] for k in RESULT_KEYS} for r in stored["results"]},
+            {e["filter"]: {k: e[k] for k in WORST_KEYS} for e in stored["worst_found"]})
 
 
 _FRACTION = Bound(0.0, 1.0)
@@ -632,6 +700,57 @@ ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields
     "force_budget_used": lambda key, v: check_number(key, v, non_negative()),
     "f_max_N": lambda key, v: check_number(key, v, Bound(0.0, low_open=True, unit="N")),
 }
+
+
+_COUNT = Bound(1)
+WORST_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's worst_found entries, checked by key and value
+    "filter": lambda key, v: _check_text(key, v),
+    "rho_worst_found": lambda key, v: v is None or _check_finite(key, v),
+    "params": lambda key, v: v is None or _check_params(key, v),
+    "evaluation": lambda key, v: v is None or check_number(key, v, _COUNT, integer=True),
+    "evaluations": lambda key, v: check_number(key, v, _COUNT, integer=True),
+    "failed": lambda key, v: check_number(key, v, non_negative(), integer=True),
+    "first_violation": lambda key, v: v is None or check_number(key, v, _COUNT, integer=True),
+    "wall_s": lambda key, v: check_number(key, v, non_negative()),
+}
+FALSIFY_TEXT = ("box", "box_file", "scenario", "objective", "sampler")
+FALSIFY_COUNTS = ("budget", "population", "seed", "baseline")
+
+
+def _check_params(key: str, value: Any) -> None:
+    if not (isinstance(value, dict) and all(isinstance(k, str) and k for k in value)):
+        raise ValueError(f"{key} must be null or {{parameter: value}}, got {value!r}")
+    for name, v in value.items():
+        if not isinstance(v, str):
+            _check_finite(f"{key}.{name}", v)
+
+
+def _check_falsify(data: Mapping[str, Any]) -> None:
+    """bench.json's "falsify" (null, or the searches' settings) and "worst_found" (one entry per filter)."""
+    settings, entries = data["falsify"], data["worst_found"]
+    if settings is None:
+        if entries != []:
+            raise ValueError(f"worst_found must be [] when falsify is null (no search ran), got {entries!r}")
+        return
+    if not isinstance(settings, dict):
+        raise ValueError(f"falsify must be null or an object of the searches' settings, got {settings!r}")
+    missing = [k for k in (*FALSIFY_TEXT, *FALSIFY_COUNTS, "duration_s") if k not in settings]
+    if missing:
+        raise ValueError(f"falsify lacks {', '.join(missing)}")
+    for key in FALSIFY_TEXT:
+        _check_text(f"falsify.{key}", settings[key])
+    for key in FALSIFY_COUNTS:
+        check_number(f"falsify.{key}", settings[key], _COUNT if key in ("budget", "population") else non_negative(),
+                     integer=True)
+    check_number("falsify.duration_s", settings["duration_s"], Bound(0.0, low_open=True, unit="s"))
+    for where, entry in _checked_items(data, "worst_found", WORST_SCHEMA, ("an entry", "entries"), lambda e: e["filter"]):
+        _null_together(where, entry, ("rho_worst_found", "params", "evaluation"))
+        if entry["evaluations"] > settings["budget"] or entry["failed"] > entry["evaluations"]:
+            raise ValueError(f"{where}: needs failed <= evaluations <= falsify.budget, got {entry['failed']}, "
+                             f"{entry['evaluations']}, {settings['budget']}")
+        for key in ("evaluation", "first_violation"):
+            if entry[key] is not None and entry[key] > entry["evaluations"]:
+                raise ValueError(f"{where}.{key} must be <= evaluations ({entry['evaluations']}), got {entry[key]}")
 
 
 def _check_finite(key: str, value: Any) -> None:
@@ -657,10 +776,13 @@ def check_bench_json(data: Any) -> None:
     schema: "battery" and "filters" lists of names, "quick" true/false, "mismatch_draws" an integer >= 1, "skipped"
     {case: reason}, "results" rows with every `RESULT_KEYS` field of its type (numbers finite, counts, durations,
     RMS and compute times >= 0, probabilities in [0, 1]; the three violation fields null together), a known case,
-    a filter of "filters", each (filter, case) once."""
+    a filter of "filters", each (filter, case) once; "falsify" null or the searches' settings and "worst_found"
+    entries with every `WORST_KEYS` field (`WORST_SCHEMA`), a filter of "filters" each once (none when falsify
+    is null), failed <= evaluations <= budget."""
     if not isinstance(data, dict):
         raise ValueError(f"it must be a JSON object, got {type(data).__name__}")
-    missing = [k for k in ("battery", "quick", "mismatch_draws", "filters", "skipped", "results") if k not in data]
+    missing = [k for k in ("battery", "quick", "mismatch_draws", "filters", "skipped", "results", "falsify", "worst_found")
+               if k not in data]
     if missing:
         raise ValueError(f"it lacks {', '.join(missing)}")
     for key in ("battery", "filters"):
@@ -673,27 +795,41 @@ def check_bench_json(data: Any) -> None:
     check_number("mismatch_draws", data["mismatch_draws"], Bound(1), integer=True)
     if not (isinstance(data["skipped"], dict) and all(isinstance(v, str) for v in data["skipped"].values())):
         raise ValueError(f"skipped must be an object {{case or 'FILTER x CASE': reason}}, got {data['skipped']!r}")
-    if not isinstance(data["results"], list):
-        raise ValueError(f"results must be a list of rows, got {data['results']!r}")
+    for where, row in _checked_items(data, "results", ROW_SCHEMA, ("a row", "rows"), lambda r: f"({r['filter']}, {r['case']})"):
+        _null_together(where, row, ("violation_probability", "violation_ci95", "draws"))
+    _check_falsify(data)
+
+
+def _checked_items(data: Mapping[str, Any], name: str, schema: Mapping[str, Callable[[str, Any], None]],
+                   noun: tuple[str, str], identity: Callable[[dict[str, Any]], str]):
+    """Yield ("NAME[i]", item) for every item of the list data[name] once it is an object holding every key of
+    `schema`, each value passing its check, a filter of data["filters"], and `identity(item)` first seen;
+    ValueError naming the item and the field otherwise (`noun`: an item, items)."""
+    if not isinstance(data[name], list):
+        raise ValueError(f"{name} must be a list of {noun[1]}, got {data[name]!r}")
     seen = set()
-    for i, row in enumerate(data["results"]):
-        where = f"results[{i}]"
-        if not isinstance(row, dict):
-            raise ValueError(f"{where} must be an object, got {row!r}")
-        missing = [k for k in RESULT_KEYS if k not in row]
+    for i, item in enumerate(data[name]):
+        where = f"{name}[{i}]"
+        if not isinstance(item, dict):
+            raise ValueError(f"{where} must be an object, got {item!r}")
+        missing = [k for k in schema if k not in item]
         if missing:
             raise ValueError(f"{where} lacks {', '.join(missing)}")
-        for key in RESULT_KEYS:
-            ROW_SCHEMA[key](f"{where}.{key}", row[key])
-        if row["filter"] not in data["filters"]:
-            raise ValueError(f"{where}.filter {row['filter']!r} is not one of its filters ({', '.join(data['filters'])})")
-        nulls = [row[k] is None for k in ("violation_probability", "violation_ci95", "draws")]
-        if any(nulls) and not all(nulls):
-            raise ValueError(f"{where}: violation_probability, violation_ci95 and draws must be null together, got "
-                             f"{row['violation_probability']!r}, {row['violation_ci95']!r}, {row['draws']!r}")
-        if (row["filter"], row["case"]) in seen:
-            raise ValueError(f"{where}: ({row['filter']}, {row['case']}) has a row already")
-        seen.add((row["filter"], row["case"]))
+        for key, check in schema.items():
+            check(f"{where}.{key}", item[key])
+        if item["filter"] not in data["filters"]:
+            raise ValueError(f"{where}.filter {item['filter']!r} is not one of its filters ({', '.join(data['filters'])})")
+        if identity(item) in seen:
+            raise ValueError(f"{where}: {identity(item)} has {noun[0]} already")
+        seen.add(identity(item))
+        yield where, item
+
+
+def _null_together(where: str, item: Mapping[str, Any], keys: Sequence[str]) -> None:
+    nulls = [item[k] is None for k in keys]
+    if any(nulls) and not all(nulls):
+        raise ValueError(f"{where}: {', '.join(keys[:-1])} and {keys[-1]} must be null together, got "
+                         f"{', '.join(repr(item[k]) for k in keys)}")
 
 
 TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_min_meas", ".4f"),
@@ -728,7 +864,29 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
     if any(r["force_delivered_N"] is not None for r in bench["results"]):
         lines += ["", "Contact tasks: force delivered against force asked, every filter:", "",
                   f"![delivered against asked]({FORCE_PLOT_FILE})"]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + worst_found_markdown(bench)) + "\n"
+
+
+def worst_found_markdown(bench: Mapping[str, Any]) -> list[str]:
+    """bench.md's lines on the worst-case searches: the box and budget, then one row per filter (none: no search)."""
+    f = bench["falsify"]
+    if f is None:
+        return []
+    lines = ["", "## Worst case found", "",
+             f"Per filter: {f['budget']} evaluations of a falsification ({f['sampler']}, the box's vertices first, seed "
+             f"{f['seed']}) over the box {f['box']} ({f['box_file']}: {f['scenario']}, {f['duration_s']:g} s each); "
+             "ρ_meas worst found = the least ρ_min_meas of those evaluations (< 0: a violation found; ≥ 0 proves "
+             "nothing). Each search's folder: cases/<filter>/worst_found/ (its worst/ replays with `softcbf run "
+             "--config`).", "",
+             "| filter | ρ_meas worst found | at evaluation | first violation | evaluations (failed) | its parameters |",
+             "|---|---|---|---|---|---|"]
+    for e in bench["worst_found"]:
+        rho = "–" if e["rho_worst_found"] is None else f"{e['rho_worst_found']:.4f}"
+        params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                           for k, v in (e["params"] or {}).items()) or "–"
+        lines.append(f"| {e['filter']} | {rho} | {e['evaluation'] or '–'} | {e['first_violation'] or '–'} | "
+                     f"{e['evaluations']} ({e['failed']}) | {params} |")
+    return lines
 
 
 def write_force_plot(path: Path, bench: Mapping[str, Any]) -> None:
@@ -830,7 +988,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="short durations and 2 mismatch draws, emulator skipped (CI)")
     parser.add_argument("--cases", default=None, help=f"run only these cases (comma separated; default all: {', '.join(c.name for c in CASES)})")
     parser.add_argument("--mismatch-draws", type=int, default=None, help=f"draws of the mismatch study (default {MISMATCH_DRAWS})")
-    parser.add_argument("--workers", type=int, default=1, help="local processes of the mismatch study (default 1)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="local processes of the mismatch study and the worst-case searches (default 1)")
+    parser.add_argument("--falsify-budget", type=int, default=None, metavar="N",
+                        help="evaluations of each filter's worst-case search over studies/mismatch_box_contact.toml "
+                             "(bench.json's worst_found; default 36 for the whole battery, 4 with --quick, 0 with "
+                             "--cases; 0: none)")
     parser.add_argument("--resume", action="store_true",
                         help="continue a bench in --out: keep its finished (filter, case) rows, continue its mismatch studies")
     parser.add_argument("--overwrite", action="store_true",
@@ -844,8 +1007,8 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
     try:
         filters = parse_filters(args.filters)
         cases = None if args.cases is None else [c.strip() for c in args.cases.split(",")]
-        run_bench(args.out, filters, RunOptions(args.quick, args.workers, args.mismatch_draws, args.resume, args.overwrite),
-                  cases)
+        run_bench(args.out, filters, RunOptions(args.quick, args.workers, args.mismatch_draws, args.resume, args.overwrite,
+                                                args.falsify_budget), cases)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

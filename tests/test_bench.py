@@ -179,7 +179,7 @@ def _bench_json(**row) -> dict:
               "force_asked_N": None, "force_delivered_N": None, "force_delivered_ratio": None, "force_budget_used": 0.0,
               "f_max_N": 0.16}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
-            "results": [{**stored, **row}]}
+            "results": [{**stored, **row}], "falsify": None, "worst_found": []}
 
 
 QUICK_NONE = ["--quick", "--filters", "none", "--cases", "paper_sim_150"]

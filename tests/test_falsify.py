@@ -318,6 +318,18 @@ def test_shipped_boxes_load_and_are_searchable(name):
         assert (study.fixed["t0"], study.fixed["duration"], study.tunings) == (15.0, 12.0, ("Low",))
 
 
+def test_the_camera_box_is_the_contact_box_plus_the_sensing_errors():
+    camera, contact = (load_study(ROOT / "studies" / f"mismatch_box_{name}.toml") for name in ("camera", "contact"))
+    physical = {d.parameter: d for d in contact.vary}
+    assert set(physical) == {"plate_stiffness", "facet_offset", "true_gain_scale", "true_stiffness_scale",
+                             "true_damping_scale", "tau_p"}
+    assert {d.parameter: d for d in camera.vary if d.parameter in physical} == physical  # the same ranges
+    sensing = {d.parameter: (d.low, d.high) for d in camera.vary if d.parameter not in physical}
+    assert sensing == {"latency": (0.0, 0.06), "pixel_noise": (0.0, 8.0), "drop_rate": (0.0, 0.2)}
+    assert (camera.scenario, contact.scenario) == ("camera_loop", "mujoco_contact")
+    assert default_population(camera) == 10  # 4 + ⌊3 ln 9⌋ of the 2^9 vertices
+
+
 def test_cli_until_bound_prints_the_bound_it_reached(tmp_path, capsys):
     study_file = tmp_path / "safe.toml"
     study_file.write_text('name = "safe"\nscenario = "mujoco_contact"\ntunings = ["Low"]\ndraws = 20\nseed = 5\n'
