@@ -145,7 +145,7 @@ x̂: the count of detected violations is their sum), prediction_s (t_a − t_c),
 
 Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
 call is mostly step 2, 50–120 ROS2 steps over the estimate's age and the delay
-(`controllers.state_predictor` runs them on scalars for N = 2); a 1 kHz call mostly step 1
+(`controllers.state_predictor` runs them in the compiled model kernels of `controllers.pcc_model`); a 1 kHz call mostly step 1
 (the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
 `QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
 cycles through a few), the state's energy (step 2's end) and the certificates of step 3

@@ -1,12 +1,15 @@
 """The PCC model's per-step terms and integrators for B states of any N at once: the one implementation
 (docs/model.md#one-implementation, docs/model.md#pcc-kinematics, docs/model.md#rppr-dynamics).
 
-Compiled numba kernels (`@njit(cache=True, error_model="numpy")`, no fastmath: IEEE operations in the written order,
+Compiled numba kernels over arrays with a leading batch axis b = 0..B−1: `@njit(cache=True)`
+(compiled once per machine into __pycache__), no fastmath (IEEE operations in the written order,
 so the results are deterministic and a row of a batch equals the same state evaluated alone,
-bit for bit) over arrays with a leading batch axis b = 0..B−1. Every per-step user of the
-model goes through them: `controllers.dynamics.PCCDynamics` (B = 1), `BatchDynamics`, the
-barrier terms of `controllers.cbf_batch`, `softcbf_mj.pcc_plant.PCCPlant` (B = 1) and
-`softcbf_mj.pcc_batch_plant.PCCBatchPlant`. The tensor path of `controllers.pcc.kinematics`
+bit for bit), error_model="numpy" (a division by zero gives ±inf/NaN, which the integrators
+report as divergence, instead of raising), the per-row kernels inline="always" (2–3× faster:
+no call or array reference counting per row). Every per-step user of the model goes through
+them: `controllers.dynamics.PCCDynamics` (B = 1), `BatchDynamics`, the barrier terms of
+`controllers.cbf_batch`, `softcbf_mj.pcc_plant.PCCPlant` (B = 1),
+`softcbf_mj.pcc_batch_plant.PCCBatchPlant` and `controllers.state_predictor.StatePredictor`. The tensor path of `controllers.pcc.kinematics`
 (second and third derivatives, for ∂M/∂q, C and the Jacobians of q̈) shares the chord
 function s(q) = sinc(q/2) of this module (`sinc_half_table`).
 
@@ -149,24 +152,23 @@ def parameter_rows(params: RobotParams | Sequence[RobotParams]) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _inverse(m, out, n, rw) -> None:
-    """out = m⁻¹ for a small SPD m, both flat row-major (N²,): closed form for N ≤ 2, Cholesky
-    (m = L Lᵀ, m⁻¹ = L⁻ᵀ L⁻¹) beyond. rw: real scratch, rows 0 and 1 (N² each) used."""
+def _inverse(m, mo, out, oo, n, chol, inv_l) -> None:
+    """out[oo:oo+N²] = (m[mo:mo+N²])⁻¹ for a small SPD matrix stored flat row-major: closed form for
+    N ≤ 2, Cholesky (m = L Lᵀ, m⁻¹ = L⁻ᵀ L⁻¹) beyond; chol, inv_l: scratch (N²,)."""
     if n == 1:
-        out[0] = 1.0 / m[0]
+        out[oo] = 1.0 / m[mo]
         return
     if n == 2:
-        a, b, c, d = m[0], m[1], m[2], m[3]
+        a, b, c, d = m[mo], m[mo + 1], m[mo + 2], m[mo + 3]
         det = a * d - b * c
-        out[0], out[1], out[2], out[3] = d / det, -b / det, -c / det, a / det
+        out[oo], out[oo + 1], out[oo + 2], out[oo + 3] = d / det, -b / det, -c / det, a / det
         return
-    chol, inv_l = rw[0], rw[1]
     for i in range(n * n):
         chol[i] = 0.0
         inv_l[i] = 0.0
     for i in range(n):
         for j in range(i + 1):
-            s = m[i * n + j]
+            s = m[mo + i * n + j]
             for k in range(j):
                 s -= chol[i * n + k] * chol[j * n + k]
             chol[i * n + j] = math.sqrt(s) if i == j else s / chol[j * n + j]
@@ -182,21 +184,23 @@ def _inverse(m, out, n, rw) -> None:
             s = 0.0
             for k in range(i, n):
                 s += inv_l[k * n + i] * inv_l[k * n + j]
-            out[i * n + j] = s
-            out[j * n + i] = s
+            out[oo + i * n + j] = s
+            out[oo + j * n + i] = s
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _row_kinematics(q, qd, lengths, kin, cw) -> None:
+def _row_kinematics(x, par, kin, cw) -> None:
     """The kinematic part of one state's `kin` row: everything but r̈₀ and ∂r̈/∂u (module docstring).
-    cw: complex scratch (6, N)."""
-    n = q.shape[0]
+    x = [q; q̇] (2N,); par: the parameter row (lengths first); cw: complex scratch (6, N).
+    No array views are made here (nor in the other row kernels): in a loop over states
+    their reference counting would cost more than the arithmetic."""
+    n = cw.shape[1]
     # cw rows: 0 chords g, 1 ℓ' z, 2 ġ, 3 d/dt(ℓ' z), 4 J̇q̇ of g, 5 s_j (indexed in place: no views)
     end = 0j
     theta = 0.0
     theta_dot = 0.0
     for k in range(n):
-        qk, qdk, length = q[k], qd[k], lengths[k]
+        qk, qdk, length = x[k], x[n + k], par[k]
         s0, s1, s2, _ = sinc_half(qk)
         l0, l1, l2 = length * s0, length * s1, length * s2
         omega = theta_dot + 0.5 * qdk
@@ -240,24 +244,28 @@ def kinematics_rows(q: np.ndarray, qd: np.ndarray, lengths: np.ndarray) -> np.nd
     b_count, n = q.shape
     kin = np.full((b_count, n * n + 5 * n + 4), np.nan + 0j)
     cw = np.empty((6, n), np.complex128)
+    xs = np.empty(2 * n)
     for b in range(b_count):
-        _row_kinematics(q[b], qd[b], lengths, kin[b], cw)
+        for k in range(n):
+            xs[k] = q[b, k]
+            xs[n + k] = qd[b, k]
+        _row_kinematics(xs, lengths, kin[b], cw)
     return kin
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _row_terms(q, qd, par, kin, dyn, cw, rw) -> None:
-    """The model terms of one state into its `kin` and `dyn` rows (module docstring)."""
-    n = q.shape[0]
+def _row_terms(x, par, kin, dyn, cw, chol, inv_l) -> None:
+    """The model terms of the state x = [q; q̇] (2N,) into its `kin` and `dyn` rows (module docstring)."""
+    n = cw.shape[1]
     nn = n * n
     o_m, o_d, o_k, o_g, o_r = n, 2 * n, 3 * n, 4 * n, 5 * n
     o_cj = 5 * n + 4
-    _row_kinematics(q, qd, par[:n], kin, cw)
+    _row_kinematics(x, par, kin, cw)
     # M = M_rot + Σ m_i J_ciᵀ J_ci and f = D q̇ + K q + Σ m_i J_ciᵀ (J̇_ci q̇), summed over j ≤ l ≤ i.
     for j in range(nn):
         dyn[j] = par[o_r + j]
     for j in range(n):
-        dyn[2 * nn + j] = par[o_d + j] * qd[j] + par[o_k + j] * q[j]
+        dyn[2 * nn + j] = par[o_d + j] * x[n + j] + par[o_k + j] * x[j]
     for i in range(n):
         m_i = par[o_m + i]
         acc = kin[3 * n + i]
@@ -271,7 +279,7 @@ def _row_terms(q, qd, par, kin, dyn, cw, rw) -> None:
     for j in range(1, n):
         for l in range(j):
             dyn[j * n + l] = dyn[l * n + j]
-    _inverse(dyn[:nn], dyn[nn : 2 * nn], n, rw)
+    _inverse(dyn, 0, dyn, nn, n, chol, inv_l)
     # Tip terms: w = M⁻¹ J_r, r̈₀ = J̇_r q̇ − Σ w_i f_i, ∂r̈/∂u_i = w_i λ_i.
     o_t = 4 * n
     drift = 0j
@@ -291,16 +299,19 @@ def model_terms(q: np.ndarray, qd: np.ndarray, params: np.ndarray) -> tuple[np.n
     kin = np.empty((b_count, n * n + 5 * n + 4), np.complex128)
     dyn = np.empty((b_count, 2 * n * n + n))
     cw = np.empty((6, n), np.complex128)
-    rw = np.empty((17, max(n * n, 2 * n)))
+    chol, inv_l, xs = np.empty(n * n), np.empty(n * n), np.empty(2 * n)
     shared = params.shape[0] == 1
     for b in range(b_count):
-        _row_terms(q[b], qd[b], params[0 if shared else b], kin[b], dyn[b], cw, rw)
+        for k in range(n):
+            xs[k] = q[b, k]
+            xs[n + k] = qd[b, k]
+        _row_terms(xs, params[0 if shared else b], kin[b], dyn[b], cw, chol, inv_l)
     return kin, dyn
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _acceleration(dyn, par, u, out, tau) -> None:
-    """out = q̈ = M⁻¹(Λu − f) of one state (its `dyn` row), u (N,) hPa; tau: scratch (≥ N)."""
+    """out = q̈ = M⁻¹(Λu − f) of one state (its `dyn` row), u (N,) hPa; tau: scratch (N,)."""
     n = u.shape[0]
     nn = n * n
     for j in range(n):
@@ -317,35 +328,39 @@ def accelerations(dyn: np.ndarray, params: np.ndarray, u: np.ndarray) -> np.ndar
     """q̈ (B, N) rad/s² from the `dyn` rows of B states and commands u (B, N) hPa."""
     b_count, n = u.shape
     out = np.empty((b_count, n))
-    tau = np.empty(n)
+    tau, acc, ub = np.empty(n), np.empty(n), np.empty(n)
     shared = params.shape[0] == 1
     for b in range(b_count):
-        _acceleration(dyn[b], params[0 if shared else b], u[b], out[b], tau)
+        for j in range(n):
+            ub[j] = u[b, j]
+        _acceleration(dyn[b], params[0 if shared else b], ub, acc, tau)
+        for j in range(n):
+            out[b, j] = acc[j]
     return out
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _solve_w(mass, schur_inv, ghk, gh, r_q, r_v, out, rhs) -> None:
-    """out = [k_q; k_v] = W⁻¹ [r_q; r_v]: (M + γhD + (γh)²K) k_v = M r_v − γhK r_q, k_q = r_q + γh k_v.
-    mass, schur_inv flat (N²,); rhs: scratch (≥ N)."""
-    n = r_q.shape[0]
+def _solve_w(mass, schur_inv, ghk, gh, r_q, ro, r_v, out, rhs) -> None:
+    """out = [k_q; k_v] = W⁻¹ [r_q; r_v] with r_q = r_q[ro:ro+N]: (M + γhD + (γh)²K) k_v = M r_v − γhK r_q,
+    k_q = r_q + γh k_v. mass (M first, flat), schur_inv flat (N²,); rhs: scratch (N,)."""
+    n = ghk.shape[0]
     for j in range(n):
         s = 0.0
         for l in range(n):
             s += mass[j * n + l] * r_v[l]
-        rhs[j] = s - ghk[j] * r_q[j]
+        rhs[j] = s - ghk[j] * r_q[ro + j]
     for j in range(n):
         s = 0.0
         for l in range(n):
             s += schur_inv[j * n + l] * rhs[l]
         out[n + j] = s
     for j in range(n):
-        out[j] = r_q[j] + gh * out[n + j]
+        out[j] = r_q[ro + j] + gh * out[n + j]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, ghk, rw) -> None:
-    """`ros2_first` into k1, x2 (2N,), schur_inv (N²,) with scratch schur (N²,), ghk (N,) and rw."""
+def _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, ghk, rhs, chol, inv_l) -> None:
+    """`ros2_first` into k1, x2 (2N,), schur_inv (N²,), with scratch schur (N²,), ghk, rhs (N,), chol, inv_l."""
     n = acc.shape[0]
     nn = n * n
     gh = ROS2_GAMMA * h
@@ -355,15 +370,15 @@ def _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, ghk, rw) -> None:
         d, k = par[2 * n + j], par[3 * n + j]
         schur[j * n + j] = dyn[j * n + j] + (gh * d + gh * gh * k)
         ghk[j] = gh * k
-    _inverse(schur, schur_inv, n, rw)
-    _solve_w(dyn[:nn], schur_inv, ghk, gh, x[n:], acc, k1, rw[3])
+    _inverse(schur, 0, schur_inv, 0, n, chol, inv_l)
+    _solve_w(dyn, schur_inv, ghk, gh, x, n, acc, k1, rhs)
     for i in range(2 * n):
         x2[i] = x[i] + h * k1[i]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h, new, ghk, r_q, r_v, k2, rw) -> None:
-    """`ros2_second` into new (2N,)."""
+def _ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h, new, ghk, r_q, r_v, k2, rhs) -> None:
+    """`ros2_second` into new (2N,), with scratch ghk, r_q, r_v, rhs (N,), k2 (2N,)."""
     n = acc2.shape[0]
     gh = ROS2_GAMMA * h
     for j in range(n):
@@ -371,7 +386,7 @@ def _ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h, new, ghk, r_q, r_v, k2
     for i in range(n):
         r_q[i] = x2[n + i] - 2.0 * k1[i]
         r_v[i] = acc2[i] - 2.0 * k1[n + i]
-    _solve_w(dyn[: n * n], schur_inv, ghk, gh, r_q, r_v, k2, rw[3])
+    _solve_w(dyn, schur_inv, ghk, gh, r_q, 0, r_v, k2, rhs)
     for i in range(2 * n):
         new[i] = x[i] + (0.5 * h) * (3.0 * k1[i] + k2[i])
 
@@ -385,9 +400,9 @@ def ros2_first(x, acc, dyn, par, h):
     γ = 1 + 1/√2): k1 = W⁻¹ F(x), k2 = W⁻¹ (F(x + h k1) − 2 k1), x' = x + h(3 k1 + k2)/2.
     """
     n = acc.shape[0]
-    rw = np.empty((17, max(n * n, 2 * n)))
-    k1, x2, schur_inv = np.empty(2 * n), np.empty(2 * n), np.empty(n * n)
-    _ros2_first(x, acc, dyn, par, h, k1, x2, rw[11, : n * n], schur_inv, rw[13, :n], rw)
+    k1, x2, schur, schur_inv = np.empty(2 * n), np.empty(2 * n), np.empty(n * n), np.empty(n * n)
+    _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, np.empty(n), np.empty(n), np.empty(n * n),
+                np.empty(n * n))
     return k1, x2, schur_inv
 
 
@@ -395,51 +410,46 @@ def ros2_first(x, acc, dyn, par, h):
 def ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h):
     """Second stage of the ROS2 step begun by `ros2_first`, with q̈ = acc2 at x2: the new state (2N,)."""
     n = acc2.shape[0]
-    rw = np.empty((17, max(n * n, 2 * n)))
     new = np.empty(2 * n)
-    _ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h, new, rw[13, :n], rw[14, :n], rw[15, :n], rw[16, : 2 * n], rw)
+    _ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h, new, np.empty(n), np.empty(n), np.empty(n),
+                 np.empty(2 * n), np.empty(n))
     return new
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _step(method, x, u, par, kin, dyn, h, kin2, dyn2, cw, rw) -> None:
-    """One integrator step of length h from x (2N,) with (kin, dyn) at x; the new x into rw[5].
-    kin2, dyn2: scratch rows; cw: complex scratch (6, N); rw: real scratch (17, max(N², 2N)), rows by role."""
+def _step(method, x, u, par, kin, dyn, h, new, acc, k1, x2, k2, ks, schur, schur_inv, tau, rhs, ghk, r_q, r_v, chol,
+          inv_l, kin2, dyn2, cw) -> None:
+    """One integrator step of length h from x (2N,) with (kin, dyn) at x; the new x into `new` (2N,).
+    Scratch: acc, tau, rhs, ghk, r_q, r_v (N,); k1, x2, k2 (2N,); ks (3, 2N); schur, schur_inv, chol,
+    inv_l (N²,); kin2, dyn2: rows; cw (6, N) complex."""
     n = u.shape[0]
-    acc, new = rw[4, :n], rw[5, : 2 * n]  # rows of rw sliced to their lengths: kernels take N from shapes
-    _acceleration(dyn, par, u, acc, rw[2])
+    _acceleration(dyn, par, u, acc, tau)
     if method == 2:  # forward Euler
         for i in range(n):
             new[i] = x[i] + h * x[n + i]
             new[n + i] = x[n + i] + h * acc[i]
         return
-    k1 = rw[6, : 2 * n]
     if method == 1:  # classical Runge–Kutta
         for i in range(n):
             k1[i] = x[n + i]
             k1[n + i] = acc[i]
-        xs = rw[7, : 2 * n]
-        prev = k1
         for stage in range(3):
             scale = 0.5 * h if stage < 2 else h
-            ks = rw[8 + stage, : 2 * n]
             for i in range(2 * n):
-                xs[i] = x[i] + scale * prev[i]
-            _row_terms(xs[:n], xs[n:], par, kin2, dyn2, cw, rw)
-            _acceleration(dyn2, par, u, acc, rw[2])
+                x2[i] = x[i] + scale * (k1[i] if stage == 0 else ks[stage - 1, i])
+            _row_terms(x2, par, kin2, dyn2, cw, chol, inv_l)
+            _acceleration(dyn2, par, u, acc, tau)
             for i in range(n):
-                ks[i] = xs[n + i]
-                ks[n + i] = acc[i]
-            prev = ks
+                ks[stage, i] = x2[n + i]
+                ks[stage, n + i] = acc[i]
         for i in range(2 * n):
-            new[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * rw[8, i] + 2.0 * rw[9, i] + rw[10, i])
+            new[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * ks[0, i] + 2.0 * ks[1, i] + ks[2, i])
         return
     # ROS2
-    x2, schur, schur_inv = rw[7, : 2 * n], rw[11, : n * n], rw[12, : n * n]
-    _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, rw[13, :n], rw)
-    _row_terms(x2[:n], x2[n:], par, kin2, dyn2, cw, rw)
-    _acceleration(dyn2, par, u, acc, rw[2])
-    _ros2_second(x, x2, k1, acc, dyn, schur_inv, par, h, new, rw[13, :n], rw[14, :n], rw[15, :n], rw[16, : 2 * n], rw)
+    _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, ghk, rhs, chol, inv_l)
+    _row_terms(x2, par, kin2, dyn2, cw, chol, inv_l)
+    _acceleration(dyn2, par, u, acc, tau)
+    _ros2_second(x, x2, k1, acc, dyn, schur_inv, par, h, new, ghk, r_q, r_v, k2, rhs)
 
 
 @njit(cache=True, error_model="numpy")
@@ -456,15 +466,19 @@ def advance(method: int, x: np.ndarray, u: np.ndarray, pressure: np.ndarray, par
     b_count, n = u.shape
     shared = params.shape[0] == 1
     diverged = np.zeros(b_count, np.bool_)
-    acting = np.empty(n)
+    acting, acc = np.empty(n), np.empty(n)
+    xb, new, k1, x2 = np.empty(2 * n), np.empty(2 * n), np.empty(2 * n), np.empty(2 * n)
+    k2, ks = np.empty(2 * n), np.empty((3, 2 * n))
+    tau, rhs, ghk, r_q, r_v = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    schur, schur_inv, chol, inv_l = np.empty(n * n), np.empty(n * n), np.empty(n * n), np.empty(n * n)
     kin2 = np.empty(kin.shape[1], np.complex128)
     dyn2 = np.empty(dyn.shape[1])
     cw = np.empty((6, n), np.complex128)
-    rw = np.empty((17, max(n * n, 2 * n)))
-    new = rw[5, : 2 * n]
     for b in range(b_count):
         par = params[0 if shared else b]
-        xb = x[b]
+        kb, db = kin[b], dyn[b]
+        for i in range(2 * n):
+            xb[i] = x[b, i]
         for _ in range(substeps):
             if decay >= 0.0:
                 for j in range(n):
@@ -473,7 +487,8 @@ def advance(method: int, x: np.ndarray, u: np.ndarray, pressure: np.ndarray, par
             else:
                 for j in range(n):
                     acting[j] = u[b, j]
-            _step(method, xb, acting, par, kin[b], dyn[b], h, kin2, dyn2, cw, rw)
+            _step(method, xb, acting, par, kb, db, h, new, acc, k1, x2, k2, ks, schur, schur_inv, tau, rhs, ghk, r_q, r_v,
+                  chol, inv_l, kin2, dyn2, cw)
             finite = True
             for i in range(2 * n):
                 if not math.isfinite(new[i]):
@@ -483,5 +498,7 @@ def advance(method: int, x: np.ndarray, u: np.ndarray, pressure: np.ndarray, par
                 break
             for i in range(2 * n):
                 xb[i] = new[i]
-            _row_terms(xb[:n], xb[n:], par, kin[b], dyn[b], cw, rw)
+            _row_terms(xb, par, kb, db, cw, chol, inv_l)
+        for i in range(2 * n):
+            x[b, i] = xb[i]
     return diverged
