@@ -1,7 +1,7 @@
 """The paper's CBF-QP filter (`controllers.filter.CBFFilter`) for B states at once (docs/model.md#control-barrier-function, docs/beyond-the-paper.md#batched-ground-truth).
 
-For B states x_b = [q_b; q̇_b] ((B, 2) rad and rad/s each, N = 2 segments) and nominal
-commands u_nom (B, 2) hPa, every state gets what `CBFFilter` computes:
+For B states x_b = [q_b; q̇_b] ((B, N) rad and rad/s each, any number of segments N) and
+nominal commands u_nom (B, N) hPa, every state gets what `CBFFilter` computes:
 
     u*_b = argmin ‖u − u_nom,b‖²  s.t.  L_gB_i(x_b) u ≤ γ/B_i(x_b) − L_fB_i(x_b)   (rows i of P)
                                         u_min ≤ u ≤ u_max                        (when bounded)
@@ -14,7 +14,8 @@ b, ḃ, B, L_fB, L_gB are the scalar filter's floats (log1p is the math module's
 - "disabled" (tuning None): u = u_nom, clipped to the bounds when they are on;
 - "nominal": u_nom within the bounds and L_gB_i u_nom ≤ c_i for every row, tested
   exactly as the scalar filter tests it (u = u_nom);
-- "qp": the QP above, solved exactly by enumeration, which N = 2 makes cheap. With the
+- "qp" (N = 2; for N ≠ 2 these states go to `fallback`, the scalar filter's QP): the QP
+  above, solved exactly by enumeration, which N = 2 makes cheap. With the
   rows scaled to unit norm as `controllers.qp` scales them (â_i = a_i/‖a_i‖,
   b̂_i = c_i/‖a_i‖; rows with ‖a_i‖ ≤ ZERO_ROW_TOL dropped when c_i ≥ 0) and the box as
   ±e_j rows, the minimiser of a strictly convex quadratic over a polygon is u_nom, or
@@ -96,6 +97,15 @@ def predicted_margin(safe_set: ForceSafeSet, x: np.ndarray, y: np.ndarray) -> np
     return np.min(margins, axis=0)
 
 
+def _row_products(a: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Σ_j a[s, i, j] u[s, j]: (S, P), summed in the order j = 0, 1, … (for N = 2 the scalar
+    filter's a_0 u_0 + a_1 u_1)."""
+    out = a[:, :, 0] * u[:, None, 0]
+    for j in range(1, u.shape[1]):
+        out = out + a[:, :, j] * u[:, None, j]
+    return out
+
+
 def _nearest_feasible(u_nom: np.ndarray, rows: np.ndarray, rhs: np.ndarray, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """argmin ‖u − u_nom‖² over {u | rows u ≤ rhs + tol} by enumeration (module docstring).
 
@@ -145,13 +155,14 @@ def cbf_qp_batch(
 ) -> CBFBatchResult:
     """`CBFFilter` at B states (module docstring).
 
-    dynamics: the controller's model (one `RobotParams`); q, qd, u_nom: (B, 2); u_min,
-    u_max: (2,) hPa, or None for the paper's unbounded QP (`CBFFilter(pressure_limits=False)`).
+    dynamics: the controller's model (one `RobotParams`); q, qd, u_nom: (B, N); u_min,
+    u_max: (N,) hPa, or None for the paper's unbounded QP (`CBFFilter(pressure_limits=False)`).
     fallback(b): the scalar filter's result at state b, for the states this enumeration
     does not cover (recovery, infeasible); required only when such a state occurs.
     """
+    n_seg = dynamics.n
     n_states = np.shape(q)[0] if np.ndim(q) == 2 else -1
-    shape = (n_states, 2)
+    shape = (n_states, n_seg)
     q = _check("q", q, shape, NonFiniteStateError)
     qd = _check("qd", qd, shape, NonFiniteStateError)
     u_nom = _check("u_nom", u_nom, shape, NonFiniteCommandError)
@@ -159,9 +170,9 @@ def cbf_qp_batch(
     if bounded != (u_max is not None):
         raise ValueError("u_min and u_max must both be given or both be None")
     terms = dynamics.terms(q, qd)
-    rho_pred = predicted_margin(safe_set, *terms.tip)
-    (rx, ry), (vx, vy) = terms.tip, terms.tip_vel
-    acc0, *acc_u = dynamics.tip_accelerations(terms)
+    tip, tip_vel, acc0, acc_u = terms.tip, terms.tip_vel, terms.tip_drift_acc, terms.tip_input_acc
+    rho_pred = predicted_margin(safe_set, tip.real, tip.imag)
+    rx, ry, vx, vy = tip.real, tip.imag, tip_vel.real, tip_vel.imag
     H, h = safe_set.H_prime.tolist(), safe_set.h_prime.tolist()
     ab, b_e, gamma = tuning.a_E * tuning.b_E, tuning.b_E, tuning.gamma
     b_rows, lgb_rows, c_rows, defined_rows = [], [], [], []
@@ -175,8 +186,8 @@ def cbf_qp_batch(
             inverse = np.where(b > B_MIN, 1.0 / b, 0.0).tolist()
             big_b = np.fromiter(map(math.log1p, inverse), float, len(inverse)) + ab * bdot * bdot / den
             db, dbdot = -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
-            lfb = db * bdot - dbdot * (hx * acc0[0] + hy * acc0[1])
-            lgb = np.stack([-dbdot * (hx * a[0] + hy * a[1]) for a in acc_u], axis=1)
+            lfb = db * bdot - dbdot * (hx * acc0.real + hy * acc0.imag)
+            lgb = -dbdot[:, None] * (hx * acc_u.real + hy * acc_u.imag)
             defined = b > B_MIN
             b_rows.append(b)
             defined_rows.append(defined)
@@ -197,14 +208,17 @@ def cbf_qp_batch(
         action[:] = "disabled"
         return CBFBatchResult(u, action.astype(str), infeasible, rho_pred, b_all, resolved)
 
-    A = np.stack(lgb_rows, axis=1) if lgb_rows else np.empty((n, 0, 2))  # (B, P, 2)
+    A = np.stack(lgb_rows, axis=1) if lgb_rows else np.empty((n, 0, n_seg))  # (B, P, N)
     c = np.column_stack(c_rows) if c_rows else np.empty((n, 0))
     recovery = ~np.all(np.column_stack(defined_rows), axis=1) if defined_rows else np.zeros(n, dtype=bool)
-    satisfied = np.all(A[:, :, 0] * u_nom[:, None, 0] + A[:, :, 1] * u_nom[:, None, 1] <= c, axis=1)
+    satisfied = np.all(_row_products(A, u_nom) <= c, axis=1)
     if bounded:
         satisfied &= np.all((lo <= u_nom) & (u_nom <= hi), axis=1)
     solve = ~satisfied & ~recovery
     resolved[recovery] = False
+    if n_seg != 2:  # the enumeration below is written for two commands: the scalar filter solves these QPs
+        resolved[solve] = False
+        solve[:] = False
     if np.any(solve):
         idx = np.flatnonzero(solve)
         a, c_s, u0 = A[idx], c[idx], u_nom[idx]

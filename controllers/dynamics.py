@@ -16,13 +16,12 @@ the centripetal/Coriolis accelerations of the bodies (the rotational term has no
 velocity part: φ is linear in q); that is how the per-step path computes it.
 
 Per-step path (`evaluate`, `acceleration`, `state_derivative`; unchecked Python-list
-entry points `model_terms`, `evaluate_floats`, `acceleration_from_terms` for the filter and the PCC plant): Python
-scalars on top of `pcc.step_kinematics`, with M⁻¹ in closed form for N ≤ 2 and M,
-C q̇ unrolled for N = 2 (the same floats), because numpy's per-call overhead dominates
-such small arrays. `model_terms` keeps the last state's terms, so a plant and a filter sharing
-one `PCCDynamics` evaluate each measured state once. Derivative terms (∂M/∂q, C, the
-Jacobians of q̈) use the tensor path `pcc.kinematics`; the tests check both against
-each other and against finite differences.
+entry points `model_terms`, `evaluate_floats`, `acceleration_from_terms` for the filter and the PCC plant):
+the compiled kernels of `controllers.pcc_model` at B = 1, the one implementation of the model's
+per-step terms for any N (the batched paths use the same kernels). `model_terms` keeps the last
+state's terms, so a plant and a filter sharing one `PCCDynamics` evaluate each measured state once.
+Derivative terms (∂M/∂q, C, the Jacobians of q̈) use the tensor path `pcc.kinematics`; the tests
+check both against each other and against finite differences.
 
 Energies: kinetic T = ½ q̇ᵀ M q̇, elastic V = ½ qᵀ K q (J); no gravity (docs/model.md#frames-units-conventions).
 
@@ -33,14 +32,45 @@ using third derivatives of c_i (from `controllers.pcc`).
 
 from __future__ import annotations
 
-from operator import mul
 from typing import NamedTuple
 
 import numpy as np
 
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
-from controllers.pcc import StepKinematics, body_terms_2, kinematics_unchecked, step_kinematics, kinematic_structure
+from controllers.pcc import kinematics_unchecked
+from controllers.pcc_model import ModelLayout, accelerations, model_terms, parameter_rows
+
+
+class ModelTerms(NamedTuple):
+    """The model terms of one state (q, q̇): its `kin` (complex) and `dyn` (float) rows of
+    `controllers.pcc_model` (B = 1), sliced by `layout`."""
+
+    kin: np.ndarray
+    dyn: np.ndarray
+    layout: ModelLayout
+
+    @property
+    def mass(self) -> np.ndarray:
+        """M(q): (N, N) (kg·m²), a view."""
+        n = self.layout.ends.stop
+        return self.dyn[self.layout.mass].reshape(n, n)
+
+    @property
+    def mass_inv(self) -> np.ndarray:
+        """M⁻¹: (N, N) (1/(kg·m²)), a view."""
+        n = self.layout.ends.stop
+        return self.dyn[self.layout.mass_inv].reshape(n, n)
+
+    @property
+    def force(self) -> np.ndarray:
+        """C q̇ + D q̇ + K q: (N,) (N·m), a view."""
+        return self.dyn[self.layout.force]
+
+    @property
+    def ends(self) -> np.ndarray:
+        """Segment ends p_1..p_N (complex x + i·y, m), a view."""
+        return self.kin[self.layout.ends]
 
 
 class DynamicsEval:
@@ -50,33 +80,31 @@ class DynamicsEval:
     array properties are built on access.
     """
 
-    __slots__ = ("tip", "_mass", "_force", "_mass_inv", "_gains", "_tip_jac", "_tip_jac_dot")
+    __slots__ = ("tip", "_core", "_gains")
 
-    def __init__(self, tip: tuple, core: "ModelTerms", gains: list[float]) -> None:
-        self.tip = tip  # (r, ṙ, r̈ at u = 0, ∂r̈/∂u_1, …, ∂r̈/∂u_N): m, m/s, m/s², m/s² per hPa
-        self._mass, self._force, self._mass_inv = core.mass, core.force, core.mass_inv
-        self._tip_jac, self._tip_jac_dot = core.kin.tip_jac, core.kin.tip_jac_dot
-        self._gains = gains
+    def __init__(self, core: ModelTerms, gains: np.ndarray) -> None:
+        self.tip = tuple(core.kin[core.layout.tip_terms].tolist())  # (r, ṙ, r̈ at u = 0, ∂r̈/∂u_1, …, ∂r̈/∂u_N): m, m/s, m/s², m/s² per hPa
+        self._core, self._gains = core, gains
 
     @property
     def mass(self) -> np.ndarray:
         """M(q): (N, N) (kg·m²)."""
-        return np.array(self._mass)
+        return self._core.mass.copy()
 
     @property
     def bias(self) -> np.ndarray:
         """C q̇ + D q̇ + K q: (N,) (N·m)."""
-        return np.array(self._force)
+        return self._core.force.copy()
 
     @property
     def drift_acc(self) -> np.ndarray:
         """q̈ at u = 0, −M⁻¹(C q̇ + D q̇ + K q): (N,) (rad/s²)."""
-        return -np.array(self._mass_inv) @ np.array(self._force)
+        return -self._core.mass_inv @ self._core.force
 
     @property
     def input_acc(self) -> np.ndarray:
         """M⁻¹ Λ = ∂q̈/∂u: (N, N) (rad/s² per hPa)."""
-        return np.array(self._mass_inv) * np.array(self._gains)
+        return self._core.mass_inv * self._gains
 
     @property
     def tip_terms(self) -> np.ndarray:
@@ -86,34 +114,12 @@ class DynamicsEval:
     @property
     def tip_jac(self) -> np.ndarray:
         """J_r: (N,) complex (m/rad)."""
-        return np.array(self._tip_jac)
+        return self._core.kin[self._core.layout.tip_jac].copy()
 
     @property
     def tip_jac_dot(self) -> np.ndarray:
         """J̇_r: (N,) complex (m/(rad·s))."""
-        return np.array(self._tip_jac_dot)
-
-
-class ModelTerms(NamedTuple):
-    """Python-scalar model terms at (q, q̇): M, C q̇ + D q̇ + K q and M⁻¹ (nested lists)."""
-
-    kin: StepKinematics
-    mass: list[list[float]]
-    force: list[float]
-    mass_inv: list[list[float]]
-
-
-def spd_inverse(m: list[list[float]]) -> list[list[float]]:
-    """M⁻¹ of a small SPD matrix given as nested Python float lists; closed form for N ≤ 2
-    (np.linalg.inv costs ~5 µs). For per-step integrators (this module, the PCC plant, the
-    governors' state predictor)."""
-    if len(m) == 1:
-        return [[1.0 / m[0][0]]]
-    if len(m) == 2:
-        (a, b), (c, d) = m
-        det = a * d - b * c
-        return [[d / det, -b / det], [-c / det, a / det]]
-    return np.linalg.inv(np.array(m)).tolist()
+        return self._core.kin[self._core.layout.tip_jac_dot].copy()
 
 
 class PCCDynamics:
@@ -121,15 +127,14 @@ class PCCDynamics:
 
     def __init__(self, params: RobotParams) -> None:
         self.params = params
-        self.n = n = params.n_segments
+        self.n = params.n_segments
         self.lengths = params.array("lengths")
         self.stiffness = params.array("stiffness")
         self.damping = params.array("damping")
         self.gains = params.array("gains")
         self._masses = params.array("masses")
-        a = kinematic_structure(n, 1)[0].imag  # A = ∂φ/∂q
-        self._mass_rot = (a.T @ (params.array("inertias")[:, None] * a)).tolist()
-        self._scalars = (self._masses.tolist(), params.damping, params.stiffness, list(params.gains), list(params.lengths))
+        self.parameter_rows = parameter_rows(params)  # (1, 5N + N²): the kernels' parameters
+        self.layout = ModelLayout.of(self.n)
         self._stiffness_damping = np.hstack((self.K, self.D))
         self._last: tuple = (None, None, None)  # (q, q̇, ModelTerms) of the last `model_terms` call
 
@@ -161,69 +166,29 @@ class PCCDynamics:
 
     # -- core ---------------------------------------------------------------------
     def model_terms(self, q: list[float], qd: list[float]) -> ModelTerms:
-        """The per-step model terms at (q, q̇) (Python floats); see `_mass_and_force`.
+        """The per-step model terms at (q, q̇) (Python float lists (N,), unchecked): `pcc_model.model_terms`.
 
         The last state's terms are kept: in a closed loop whose plant and filter share this
-        object, the filter reads the state the plant has just evaluated.
+        object, the filter reads the state the plant has just evaluated (`keep`).
         """
         last_q, last_qd, last = self._last
         if q == last_q and qd == last_qd:
             return last
-        kin = step_kinematics(q, qd, self._scalars[4])
-        mass, force = (self._mass_and_force_2 if self.n == 2 else self._mass_and_force)(kin, q, qd)
-        core = ModelTerms(kin, mass, force, spd_inverse(mass))
+        kin, dyn = model_terms(np.array((q,)), np.array((qd,)), self.parameter_rows)
+        core = ModelTerms(kin[0], dyn[0], self.layout)
         self._last = (q[:], qd[:], core)
         return core
 
-    def _mass_and_force(self, kin: StepKinematics, q: list[float], qd: list[float]) -> tuple[list[list[float]], list[float]]:
-        """M = Σ m_i J_ciᵀ J_ci + M_rot and C q̇ + D q̇ + K q with C q̇ = Σ m_i J_ciᵀ (J̇_ci q̇), summed over j ≤ l ≤ i."""
-        masses, damping, stiffness = self._scalars[:3]
-        mass = [row[:] for row in self._mass_rot]
-        force = [d * v + k * x for d, v, k, x in zip(damping, qd, stiffness, q)]
-        for m_i, row, acc in zip(masses, kin.centre_jac, kin.centre_bias_acc):
-            for j, a in enumerate(row):
-                a_re, a_im = m_i * a.real, m_i * a.imag
-                force[j] += a_re * acc.real + a_im * acc.imag
-                mass_j = mass[j]
-                for l in range(j, len(row)):
-                    mass_j[l] += a_re * row[l].real + a_im * row[l].imag
-        for j in range(1, self.n):
-            for l in range(j):
-                mass[j][l] = mass[l][j]
-        return mass, force
-
-    def _mass_and_force_2(self, kin: StepKinematics, q: list[float], qd: list[float]) -> tuple[list[list[float]], list[float]]:
-        """`_mass_and_force` for N = 2 unrolled: the same operations in the same order (tested)."""
-        ((h0,), (j10, h1)), (acc0, acc1) = kin.centre_jac, kin.centre_bias_acc
-        m00, m01, m11, f0, f1 = self._mass_force_terms_2(q[0], q[1], qd[0], qd[1], h0, j10, h1, acc0, acc1)
-        return [[m00, m01], [m01, m11]], [f0, f1]
-
-    def _mass_force_terms_2(self, q0: float, q1: float, v0: float, v1: float, h0: complex, j10: complex, h1: complex,
-                            acc0: complex, acc1: complex) -> tuple[float, float, float, float, float]:
-        """(M_00, M_01, M_11, f_0, f_1) for N = 2 from the bodies' centre Jacobians and bias accelerations
-        (x + i·y): the rotational mass plus Σ m_b J_bᵀJ_b, and D q̇ + K q + Σ m_b J_bᵀ J̇_b q̇."""
-        (m0, m1), (d0, d1), (k0, k1) = self._scalars[:3]
-        ((r00, r01), (_, r11)) = self._mass_rot
-        a_re, a_im = m0 * h0.real, m0 * h0.imag  # body 1: J_c1 = [h0, 0]
-        f0 = d0 * v0 + k0 * q0 + (a_re * acc0.real + a_im * acc0.imag)
-        m00 = r00 + (a_re * h0.real + a_im * h0.imag)
-        a_re, a_im = m1 * j10.real, m1 * j10.imag  # body 2: J_c2 = [j10, h1]
-        f0 += a_re * acc1.real + a_im * acc1.imag
-        m00 += a_re * j10.real + a_im * j10.imag
-        m01 = r01 + (a_re * h1.real + a_im * h1.imag)
-        a_re, a_im = m1 * h1.real, m1 * h1.imag
-        f1 = d1 * v1 + k1 * q1 + (a_re * acc1.real + a_im * acc1.imag)
-        m11 = r11 + (a_re * h1.real + a_im * h1.imag)
-        return m00, m01, m11, f0, f1
+    def keep(self, q: list[float], qd: list[float], kin: np.ndarray, dyn: np.ndarray) -> ModelTerms:
+        """Take (kin, dyn), rows computed elsewhere by `pcc_model` at (q, q̇) with these parameters (a
+        plant's integrator), as the last state's terms (`model_terms`); returns them."""
+        core = ModelTerms(kin, dyn, self.layout)
+        self._last = (q[:], qd[:], core)
+        return core
 
     def evaluate_floats(self, q: list[float], qd: list[float]) -> DynamicsEval:
         """`evaluate` on Python float lists; no input checks."""
-        core = self.model_terms(q, qd)
-        kin, gains = core.kin, self._scalars[3]
-        # w = M⁻¹ J_r (M⁻¹ symmetric): tip acceleration per unit generalised force.
-        w = [sum(map(mul, row, kin.tip_jac)) for row in core.mass_inv]
-        acc0 = kin.tip_bias_acc - sum(map(mul, w, core.force))
-        return DynamicsEval((kin.tip, kin.tip_vel, acc0, *map(mul, w, gains)), core, gains)
+        return DynamicsEval(self.model_terms(q, qd), self.gains)
 
     def evaluate(self, q, qd) -> DynamicsEval:
         """All per-step quantities of the filter at (q, q̇) in one pass."""
@@ -232,9 +197,7 @@ class PCCDynamics:
 
     def acceleration_from_terms(self, core: ModelTerms, u: list[float]) -> list[float]:
         """q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q) from `core` and a Python float list u."""
-        tau = [g * u_l - f for g, u_l, f in zip(self._scalars[3], u, core.force)]
-        return [sum(map(mul, row, tau)) for row in core.mass_inv]
-
+        return accelerations(core.dyn[None, :], self.parameter_rows, np.array((u,)))[0].tolist()
 
     # -- model terms --------------------------------------------------------------
     def mass_matrix(self, q) -> np.ndarray:
@@ -269,33 +232,13 @@ class PCCDynamics:
         core = self.model_terms(q.tolist(), qd.tolist())
         return np.array(self.acceleration_from_terms(core, self._command(u).tolist())), np.array(core.mass)
 
-    def acceleration_and_mass_unchecked(self, q: list[float], qd: list[float], u: list[float]) -> tuple[list[float], list[list[float]]]:
-        """`acceleration_and_mass` on Python float lists (N,), unchecked: (q̈, M) as lists.
+    def acceleration_and_mass_unchecked(self, q: list[float], qd: list[float], u: list[float]) -> tuple[list[float], np.ndarray]:
+        """`acceleration_and_mass` on Python float lists (N,), unchecked: (q̈ as a list, M (N, N) read-only view).
 
-        For per-step integrators outside this module (the governors' state predictor), where
-        numpy's per-call overhead would dominate at N ≈ 2; the caller guarantees finite
-        inputs of length N. Same floats as `acceleration_and_mass` (tested).
+        The caller guarantees finite inputs of length N. Same floats as `acceleration_and_mass` (tested).
         """
         core = self.model_terms(q, qd)
         return self.acceleration_from_terms(core, u), core.mass
-
-    def acceleration_and_mass_2(self, q0: float, q1: float, v0: float, v1: float, u0: float, u1: float) -> tuple:
-        """`acceleration_and_mass_unchecked` for N = 2 on scalars, with M⁻¹ and the tip terms:
-        (q̈_0, q̈_1, M_00, M_01, M_11, (M⁻¹)_00, (M⁻¹)_01, (M⁻¹)_11, r, J_r[0], J_r[1])
-        in rad/s², kg·m², 1/(kg·m²), m (x + i·y), m/rad.
-
-        For integrators that evaluate the model many times per call (the governors' state
-        predictor): `pcc.body_terms_2` and the mass and force terms of `_mass_and_force_2`, then
-        `spd_inverse` and `acceleration_from_terms` written out, the same operations in the same
-        order (so the same floats, tested), without the containers and the memo.
-        """
-        (g0, g1), (length0, length1) = self._scalars[3:]
-        h0, j10, h1, acc0, acc1, tip, jac0, jac1 = body_terms_2(q0, q1, v0, v1, length0, length1)
-        m00, m01, m11, f0, f1 = self._mass_force_terms_2(q0, q1, v0, v1, h0, j10, h1, acc0, acc1)
-        det = m00 * m11 - m01 * m01
-        i00, i01, i11 = m11 / det, -m01 / det, m00 / det
-        tau0, tau1 = g0 * u0 - f0, g1 * u1 - f1
-        return i00 * tau0 + i01 * tau1, i01 * tau0 + i11 * tau1, m00, m01, m11, i00, i01, i11, tip, jac0, jac1
 
     def acceleration_jacobian(self, q, qd, u) -> tuple[np.ndarray, np.ndarray]:
         """(∂q̈/∂q, ∂q̈/∂q̇) at (q, q̇, u), each (N, N) (1/s², 1/s)."""
@@ -314,7 +257,7 @@ class PCCDynamics:
         dforce_dq = (self._masses * acc).dot(hess.reshape(n, -1).conj()).reshape(n, n) + weighted_h.dot(dacc_dq)
         dforce_dqd = 2.0 * weighted_h.dot(jac_dot)
         lhs = np.hstack((dforce_dq, dforce_dqd)).real + self._stiffness_damping
-        sol = -np.array(core.mass_inv).dot(lhs)
+        sol = -core.mass_inv.dot(lhs)
         return sol[:, :n], sol[:, n:]
 
     def f(self, x) -> np.ndarray:

@@ -145,7 +145,7 @@ x̂: the count of detected violations is their sum), prediction_s (t_a − t_c),
 
 Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
 call is mostly step 2, 50–120 ROS2 steps over the estimate's age and the delay
-(`controllers.state_predictor` runs them on scalars for N = 2); a 1 kHz call mostly step 1
+(`controllers.state_predictor` runs them in the compiled model kernels of `controllers.pcc_model`); a 1 kHz call mostly step 1
 (the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
 `QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
 cycles through a few), the state's energy (step 2's end) and the certificates of step 3
@@ -171,7 +171,7 @@ from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.escape_energy import MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
-from controllers.pcc import kinematics, kinematics_unchecked
+from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safe_set import ForceSafeSet
@@ -471,19 +471,16 @@ class EnergyGovernor:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
         the tip's margin ρ in P (`ForceSafeSet.margin_at`, 1 outside the plate)).
 
-        The tip r(q) is taken from `pcc.kinematics` (array path). For N = 2 a scalar tip
-        (`PCCDynamics.acceleration_and_mass_2`, which also gives M) decides first: when it lies
-        more than TIP_TOLERANCE_M outside every facet, so does the array path's tip (they differ
-        by rounding, ≤ 1e-15 m: tests/test_energy_governor.py), every penetration is 0, ρ = 1 and
-        the plate term is its value at n = 0, the same floats without the array path.
+        The tip r(q) is taken from `pcc.kinematics` (array path). The per-step model
+        (`PCCDynamics.model_terms`, which also gives M) decides first: when its tip lies more
+        than TIP_TOLERANCE_M outside every facet, so does the array path's tip (they differ by
+        rounding, ≤ 1e-15 m: tests/test_energy_governor.py), every penetration is 0, ρ = 1 and the
+        plate term is its value at n = 0, the same floats without the array path.
         """
-        if self.n != 2:
-            tip = kinematics(q, self.dynamics.lengths, order=0).points[-1]
-            return self._plate_and_margin(self.dynamics.kinetic_energy(q, qd), tip)
         qd = np.asarray(qd, dtype=float)
-        q0, q1 = (float(v) for v in q)
-        _, _, m00, m01, m11, _, _, _, tip, _, _ = self.dynamics.acceleration_and_mass_2(q0, q1, 0.0, 0.0, 0.0, 0.0)
-        kinetic = 0.5 * float(qd @ np.array([[m00, m01], [m01, m11]]) @ qd)  # `PCCDynamics.kinetic_energy`'s floats
+        core = self.dynamics.model_terms([float(v) for v in q], [0.0] * self.n)
+        kinetic = 0.5 * float(qd @ core.mass @ qd)  # `PCCDynamics.kinetic_energy`'s floats
+        tip = core.kin[core.layout.tip_terms.start].item()
         x, y = tip.real, tip.imag
         if max(nx * x + ny * y - d for nx, ny, d in self._facets) < -TIP_TOLERANCE_M:
             return kinetic + self._free_plate_energy if self._plate_weight else kinetic, 1.0

@@ -10,7 +10,7 @@ from controllers.cbf_batch import cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteStateError
 from controllers.filter import CBFFilter
-from controllers.params import reference_robot
+from controllers.params import reference_robot, uniform_robot
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
 from controllers.safety_filter import EstimateBatch
 
@@ -98,3 +98,29 @@ def test_cbf_filter_batch_equals_its_scalar_calls(n_states):
     want = [filt(estimates[i], u_nom[i]) for i in range(n_states)]
     assert out.action.tolist() == [w.action for w in want]
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("tuning", ["Low", "HW-High"])
+def test_three_segment_batch_matches_scalar_filter(tuning):
+    """N = 3: barrier terms and the nominal branch batched, every QP state through the fallback."""
+    params, safe_set = uniform_robot(3), paper_safe_set()
+    scalar = CBFFilter(params, safe_set, TUNINGS[tuning])
+    rng = np.random.default_rng(3)
+    count = 400
+    q, qd = rng.uniform(-0.3, 0.6, (count, 3)), rng.normal(0.0, 1.5, (count, 3))
+    u_nom = rng.uniform(-250.0, 250.0, (count, 3))
+    calls = []
+
+    def fallback(i):
+        calls.append(i)
+        return scalar.step(np.concatenate((q[i], qd[i])), u_nom[i])
+
+    limits = np.array(params.u_min), np.array(params.u_max)  # CBFFilter's default pressure limits
+    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS[tuning], q, qd, u_nom, *limits, fallback=fallback)
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(count)]
+    np.testing.assert_array_equal(out.action, [w.action for w in want])
+    np.testing.assert_array_equal(out.u, [w.u for w in want])
+    np.testing.assert_array_equal(out.rho_pred, [w.rho_pred for w in want])
+    np.testing.assert_array_equal(out.b, [w.b for w in want])
+    assert set(out.action[out.resolved]) == {"nominal"} and 0 < len(calls) < count
+    assert sorted(calls) == np.flatnonzero(~out.resolved).tolist()

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from controllers import pcc
-from controllers.dynamics import PCCDynamics, spd_inverse
+from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
 from controllers.params import RobotParams, reference_robot, uniform_robot
 from derivative_cases import SEGMENT_COUNTS, central_difference, configurations, lengths
@@ -214,12 +214,15 @@ def test_linearisation_at_rest_has_the_stiff_mode_of_the_spec():
     np.testing.assert_allclose(slow, [-14.59 - 14.28j, -14.59 + 14.28j, -14.34], atol=0.02)
 
 
-@pytest.mark.parametrize("n", [1, 2, 3])
-def test_small_spd_inverse(n):
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_mass_inverse_of_the_per_step_path(n):
+    """M⁻¹ of the kernel (closed form for N ≤ 2, Cholesky beyond) against numpy's, and M M⁻¹ = I."""
+    dyn = PCCDynamics(reference_robot() if n == 2 else uniform_robot(n))
     rng = np.random.default_rng(n)
-    a = rng.normal(size=(n, n))
-    m = a @ a.T + n * np.eye(n)
-    np.testing.assert_allclose(spd_inverse(m.tolist()), np.linalg.inv(m), rtol=1e-12)
+    for q in rng.uniform(-3.0, 3.0, (20, n)):
+        core = dyn.model_terms(q.tolist(), rng.normal(0.0, 2.0, n).tolist())
+        np.testing.assert_allclose(core.mass_inv, np.linalg.inv(core.mass), rtol=1e-12)
+        np.testing.assert_allclose(core.mass @ core.mass_inv, np.eye(n), atol=1e-12)
 
 
 def test_input_errors():

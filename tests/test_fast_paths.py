@@ -1,5 +1,7 @@
-"""The per-step fast paths against the general code they stand in for (same floats or
-within rounding), and the closed loop's packed recording against a plain per-key one."""
+"""The per-step paths around the model against the plain code they stand in for (the dynamics'
+memo, a filter sharing the plant's model, the safe set's point methods, the certificate energy),
+and the closed loop's packed recording against a plain per-key one. The model's own per-step
+implementation is tested in tests/test_pcc_model.py."""
 
 import math
 
@@ -15,9 +17,8 @@ from controllers.filter import CBF_DIAGNOSTIC_UNITS, CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot, uniform_robot
 from controllers.safe_set import Environment, ForceSafeSet, PowerLawStiffness, paper_safe_set
-from derivative_cases import SPECIAL_ANGLES, configurations, lengths
+from derivative_cases import configurations
 from controllers.safety_filter import FilterContext
-from controllers.state_predictor import StatePredictor
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.pcc_plant import PCCPlant
 
@@ -32,81 +33,14 @@ def _states(n: int, count: int = 300) -> list[tuple[list[float], list[float]]]:
     return [(q, rng.normal(0.0, 3.0, n).tolist()) for q in qs]
 
 
-def test_unrolled_two_segment_kinematics_gives_the_same_floats():
-    lens = lengths(2).tolist()
-    for q, qd in _states(2):
-        assert pcc.step_kinematics_2(q, qd, lens) == pcc.step_kinematics_n(q, qd, lens), (q, qd)
-    assert pcc.step_kinematics([0.1, 0.2], [0.0, 1.0], lens) == pcc.step_kinematics_2([0.1, 0.2], [0.0, 1.0], lens)
-
-
-def test_unrolled_two_segment_mass_and_force_give_the_same_floats():
-    dyn = PCCDynamics(uniform_robot(2).replace(lengths=tuple(lengths(2)), masses=(0.2, 0.07)))
-    for q, qd in _states(2):
-        kin = pcc.step_kinematics(q, qd, dyn.lengths.tolist())
-        assert dyn._mass_and_force_2(kin, q, qd) == dyn._mass_and_force(kin, q, qd), (q, qd)
-
-
-def test_two_segment_model_on_scalars_gives_the_same_floats():
-    """`pcc.body_terms_2` is `step_kinematics_2`'s parts, `acceleration_and_mass_2` is
-    `acceleration_and_mass_unchecked` (with M⁻¹ and the tip terms), bit for bit."""
-    rng = np.random.default_rng(11)
-    for dyn in (PCCDynamics(ROBOT), PCCDynamics(uniform_robot(2).replace(lengths=tuple(lengths(2)), masses=(0.2, 0.07)))):
-        lens = dyn.lengths.tolist()
-        for q, qd in _states(2):
-            kin = pcc.step_kinematics_2(q, qd, lens)
-            assert pcc.body_terms_2(*q, *qd, *lens) == (*kin.centre_jac[0], *kin.centre_jac[1], *kin.centre_bias_acc,
-                                                        kin.tip, *kin.tip_jac), (q, qd)
-            u = rng.uniform(-200.0, 200.0, 2).tolist()
-            acc, mass = dyn.acceleration_and_mass_unchecked(q, qd, u)
-            inverse = dyn.model_terms(q, qd).mass_inv
-            assert inverse[1][0] == inverse[0][1] and mass[1][0] == mass[0][1]
-            assert dyn.acceleration_and_mass_2(*q, *qd, *u) == (*acc, mass[0][0], mass[0][1], mass[1][1], inverse[0][0],
-                                                                inverse[0][1], inverse[1][1], kin.tip, *kin.tip_jac), (q, qd)
-
-
-@pytest.mark.parametrize("tau", [0.0, 0.05])
-@pytest.mark.parametrize("plate", [False, True])
-def test_two_segment_prediction_gives_the_floats_of_the_general_loop(tau, plate):
-    """StatePredictor: the N = 2 loop on scalars against the general one, over random command
-    histories, from states that push into the plate (its force path taken) and that do not."""
-    rng = np.random.default_rng(5)
-    predictor = StatePredictor(PCCDynamics(ROBOT), tau, plate=SAFE if plate else None)
-    pushed = 0
-    for _ in range(60):
-        predictor.reset()
-        t = 0.0
-        for _ in range(4):
-            t += rng.uniform(0.003, 0.05)
-            predictor.record(t, rng.uniform(-150.0, 150.0, 2))
-        t_start, t_end = rng.uniform(0.0, t), t + rng.uniform(0.0, 0.03)
-        q, qd = rng.uniform(0.2, 1.6, 2).tolist(), rng.normal(0.0, 2.0, 2).tolist()
-        p, pieces = predictor._pieces(t_start, t_end)
-        general = predictor._predict_n(q, qd, p.tolist(), pieces)
-        scalar = predictor._predict_2(q, qd, p.tolist(), pieces)
-        assert all(a.tolist() == b.tolist() for a, b in zip(general, scalar)), (q, qd, t_start, t_end)
-        tip = pcc.step_kinematics_2(general[0].tolist(), [0.0, 0.0], ROBOT.array("lengths").tolist()).tip
-        pushed += any(SAFE.penetration_at(tip.real, tip.imag))
-    if plate:
-        assert pushed > 10  # predictions that end in the plate: its push was exercised
-
-
-def test_scalar_sinc_matches_the_series_matrix_and_is_the_array_path():
-    """`_sinc_half` (Horner on _SERIES' columns) against Σ_p S[p, a] q^p, and `_sinc_derivatives` is it per entry."""
-    q = np.array(list(SPECIAL_ANGLES) + np.linspace(-1.99, 1.99, 41).tolist())
-    series = (np.clip(q, -2, 2)[:, None] ** np.arange(pcc._SERIES_DEGREE + 1.0)) @ pcc._SERIES
-    small = np.abs(q) < pcc._SERIES_SWITCH
-    np.testing.assert_allclose(pcc._sinc_derivatives(q)[small], series[small], rtol=1e-15, atol=1e-17)
-    assert pcc._sinc_derivatives(q).tolist() == [list(pcc._sinc_half(v)) for v in q.tolist()]
-
-
 def test_dynamics_memo_returns_the_terms_of_the_state_asked_for():
     dyn, fresh = PCCDynamics(ROBOT), PCCDynamics(ROBOT)
     for q, qd in _states(2, 20):
         first = dyn.model_terms(q, qd)
         assert dyn.model_terms(list(q), list(qd)) is first  # same state: kept
         other = dyn.model_terms([q[0] + 1e-9, q[1]], qd)
-        assert other is not first and other.kin.tip != first.kin.tip
-        assert dyn.model_terms(q, qd).mass == fresh.model_terms(q, qd).mass
+        assert other is not first and other.ends[-1] != first.ends[-1]
+        assert dyn.model_terms(q, qd).mass.tolist() == fresh.model_terms(q, qd).mass.tolist()
 
 
 def test_filter_sharing_the_plant_dynamics_gives_the_same_commands():
@@ -138,16 +72,6 @@ def test_point_methods_match_the_array_methods(safe_set):
         # ρ = (n_max − n)/n_max: the penetration's 1e-16 m above, the subtraction's rounding
         # (an ulp of n_max − n) over n_max, and the division's ulps of ρ itself
         assert math.isclose(safe_set.margin_at(x, y), float(safe_set.margin(r)), rel_tol=4e-16, abs_tol=2e-16 / safe_set.n_max)
-
-
-def test_unrolled_two_segment_ros2_step_gives_the_same_floats():
-    params = uniform_robot(2).replace(lengths=tuple(lengths(2)), masses=(0.2, 0.07), damping=(0.05, 0.09))
-    plant = PCCPlant(params, SAFE)
-    rng = np.random.default_rng(5)
-    for q, qd in _states(2):
-        x, u = q + qd, rng.uniform(-300.0, 300.0, 2).tolist()
-        core = plant._at(x)
-        assert plant._ros2_2(x, core, u, plant.physics_dt) == plant._ros2(x, core, u, plant.physics_dt), (x, u)
 
 
 @pytest.mark.parametrize("integrator", ["ros2", "rk4", "euler"])
