@@ -38,9 +38,9 @@ from pathlib import Path
 from typing import Any
 
 from vocabulary.files import read_settings_file
+from vocabulary.sections import joined
 
 SCENARIO_KEY = "scenario"
-TABLE_PARAMETERS = ("filter_params", "nominal_params")  # "name=value;..." strings, also given as tables
 
 
 @dataclass(frozen=True)
@@ -51,13 +51,6 @@ class RunConfig:
     params: dict[str, Any]
     versions: dict[str, Any] | None = None  # a run folder's config.json: the versions it recorded (None: a TOML file)
     path: Path | None = None
-
-
-def joined(name: str, value: Any) -> Any:
-    """A `filter_params` / `nominal_params` table as the "name=value;name=value" string the scenario takes."""
-    if name in TABLE_PARAMETERS and isinstance(value, Mapping):
-        return ";".join(f"{k}={v}" for k, v in value.items())
-    return value
 
 
 def _from_toml(path: Path, data: Mapping[str, Any]) -> RunConfig:
