@@ -7,8 +7,9 @@ Every scenario takes the controller under test as its spec's `Filter` and `Nomin
 - `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
   FILE.py:Factory, package.module:Factory); `filter_params`: "name=value;name=value"
   (the command line's repeated `--filter-param name=value`, joined);
-- `tunings`: for "paper-cbf", a comma list of its presets, or "custom" (a_E, b_E and
-  gamma from filter_params): one run each, labelled by the preset (a `tuning` in
+- `tunings`: for "paper-cbf", a tuple of its presets (("None", "High"); the comma list
+  "None,High" on the command line and in files), or "custom" (a_E, b_E and gamma from
+  filter_params): one run each, labelled by the preset (a `tuning` in
   filter_params makes one run of that tuning); other filters make one run, labelled
   `Factory(name=value,...)`;
 - `nominal`, `nominal_params`: likewise ("sinusoid", "tip-tracker", FILE.py:Factory);
@@ -156,7 +157,7 @@ def controller_runs(spec: Filter) -> list[ControllerRun]:
     name = spec.name.strip()
     if name != PAPER_FILTER:
         return [ControllerRun(label(name, params), name, params)]
-    names = [params["tuning"]] if "tuning" in params else [t.strip() for t in spec.tunings.split(",") if t.strip()]
+    names = [params["tuning"]] if "tuning" in params else list(spec.tunings)
     if not names:
         raise ValueError("tunings must name at least one tuning, e.g. None,Low,High (or custom with a_E, b_E, gamma)")
     runs = []

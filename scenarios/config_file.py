@@ -5,7 +5,8 @@ Two formats, told apart by the suffix:
 - `.toml`: `scenario = "NAME"` and any of the scenario's parameters, by their names
   (docs/parameters.md); `filter_params` and `nominal_params` may be tables
   (`[filter_params]` with `tuning = "Low"`), joined to "name=value;..." as on the command
-  line. Example (docs/file-formats.md#run-configuration-toml):
+  line, and `tunings` a list (`tunings = ["Low", "High"]`) or the comma list. Example
+  (docs/file-formats.md#run-configuration-toml):
 
       scenario = "paper_sim"
       duration = 10.0
@@ -39,6 +40,7 @@ from typing import Any
 
 from vocabulary.files import read_settings_file
 from vocabulary.sections import joined
+from vocabulary.settings import SETTINGS, flat_form
 
 SCENARIO_KEY = "scenario"
 
@@ -54,7 +56,7 @@ class RunConfig:
 
 
 def _from_toml(path: Path, data: Mapping[str, Any]) -> RunConfig:
-    params = {k: joined(k, v) for k, v in data.items() if k != SCENARIO_KEY}
+    params = {k: flat_form(k, joined(k, v)) if k in SETTINGS else v for k, v in data.items() if k != SCENARIO_KEY}
     for key, value in params.items():
         if isinstance(value, (Mapping, list)):
             raise ValueError(f"run configuration {path}: {key} must be a single value, got {value!r}")

@@ -44,7 +44,7 @@ from typing import Any
 
 from vocabulary.sections import UNSET, check_settings, setting_field, setting_fields
 from vocabulary.sections import section as vocabulary_section
-from vocabulary.settings import Bound, SettingError, default, setting
+from vocabulary.settings import Bound, SettingError, default, flat_form, setting
 
 __all__ = ["UNSET", "Run", "Filter", "Nominal", "Model", "TrueArm", "Plate", "Camera", "section", "plugin_section",
            "scenario_spec", "flat_parameters"]
@@ -131,7 +131,7 @@ def _paths(cls: type) -> dict[str, tuple[str | None, str]]:
 
 def _flat(self: Any) -> dict[str, Any]:
     """Every setting of the spec by its flat name, in declaration order (module docstring)."""
-    return {key: getattr(self if attribute is None else getattr(self, attribute), f)
+    return {key: flat_form(key, getattr(self if attribute is None else getattr(self, attribute), f))
             for key, (attribute, f) in type(self).PATHS.items()}
 
 
@@ -171,10 +171,12 @@ def scenario_spec(name: str, doc: str, context: str, sections: Mapping[str, type
 
 
 def flat_parameters(spec_cls: type) -> dict[str, inspect.Parameter]:
-    """The flat keyword parameters of spec class `spec_cls`: annotation = the setting's kind, default =
-    the scenario's (`default(name, context)`), in declaration order."""
-    return {key: inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=default(key, spec_cls.CONTEXT),
-                                   annotation=setting(key).kind) for key in spec_cls.PATHS}
+    """The flat keyword parameters of spec class `spec_cls`: annotation = the type of the setting's flat
+    form, default = the scenario's (`default(name, context)`) in that form (`vocabulary.settings.flat_form`:
+    the tunings as the comma list), in declaration order."""
+    return {key: inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY,
+                                   default=flat_form(key, default(key, spec_cls.CONTEXT)),
+                                   annotation=setting(key).flat_kind) for key in spec_cls.PATHS}
 
 
 # The sections every scenario draws on (module docstring); field → setting.

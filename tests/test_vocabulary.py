@@ -206,7 +206,9 @@ def test_check_value_normalises_and_refuses_by_kind():
 
 def test_every_setting_is_declared_completely():
     for name, declared in SETTINGS.items():
-        assert declared.meaning and declared.kind in (float, int, bool, str), name
+        assert declared.meaning and declared.kind in (float, int, bool, str, tuple), name
+        assert declared.flat_kind in (float, int, bool, str), name  # what the command line and files take
+        assert check_value(name, declared.default) == declared.default or declared.default is None, name
         assert (declared.bound is not None) == (declared.kind in (float, int)), name
         assert declared.valid_values, name
         assert declared.plausible is None or declared.plausible > 0, name

@@ -94,7 +94,7 @@ def _checked(f: dataclasses.Field, value: Any) -> Any:
         if not (isinstance(value, Mapping) and all(isinstance(k, str) for k in value)):
             raise SettingError(f"{key} must be a table of name = value, got {value!r}")
         return dict(value)
-    if isinstance(value, (list, tuple)):
+    if isinstance(value, (list, tuple)) and setting(key).kind is not tuple:
         if not f.metadata["per_segment"]:
             raise SettingError(f"{key} must be a single value, got {value!r}")
         if not value:
