@@ -20,7 +20,10 @@ holding one instance of each section it declares plus its own few settings. Buil
 spec resolves every `UNSET` field to `default(setting, context)` (the scenario's default,
 `vocabulary.settings.DEFAULT_OVERRIDES`), holds the scenario's narrower `bounds`, then
 runs the scenario's `check(spec)` (files, names, the filter's parameters, cross-setting
-rules). A spec that exists is therefore valid: nothing downstream checks it again.
+rules). A spec that exists is therefore valid: nothing downstream checks it again. What the
+check builds while it checks (the controller's robot, its force-safe set, the runs with their
+parsed parameters and the nominal's: `scenarios.common.Controller`) it returns, and the spec keeps it as `spec.built` (not a setting: left out of `flat()`,
+equality and repr), so that the scenario's setup takes it instead of building it again.
 
 Flat names. Every field of a spec is a setting, and a setting appears at most once in a
 spec, so the setting's name is the field's flat name: `--plate-stiffness` on the command
@@ -111,7 +114,7 @@ def _build_spec(self: Any) -> None:
         if flat[key] not in bound:
             raise SettingError(f"{key} must be {bound}, got {flat[key]!r}")
     if cls.CHECK is not None:
-        cls.CHECK(self)
+        object.__setattr__(self, "built", cls.CHECK(self))
 
 
 def _paths(cls: type) -> dict[str, tuple[str | None, str]]:
@@ -162,6 +165,7 @@ def scenario_spec(name: str, doc: str, context: str, sections: Mapping[str, type
     spec = [(attribute, section_cls, dataclasses.field(default_factory=section_cls))
             for attribute, section_cls in sections.items()]
     spec += [(f, setting(key).kind, setting_field(key)) for f, key in (own or {}).items()]
+    spec += [("built", Any, dataclasses.field(default=None, init=False, repr=False, compare=False))]
     namespace = {"__post_init__": _build_spec, "__doc__": doc, "__module__": module, "flat": _flat,
                  "from_flat": classmethod(_from_flat), "replace_flat": _replace_flat, "SECTIONS": dict(sections),
                  "CONTEXT": context, "BOUNDS": dict(bounds or {}), "CHECK": None if check is None else staticmethod(check)}
