@@ -99,8 +99,9 @@ board's 2 ms command period.
 Files. Relative paths in the file — robot, calibration and a camera.source that is a file
 (not a device index, "virtual", a URL with "://" or a GStreamer pipeline with "!") — are
 relative to the configuration file's folder (`base_dir`), so a configuration runs the same
-from any working directory. robot and calibration are read at load (a missing or malformed
-file is a ConfigError); the camera and the serial port are opened at start-up
+from any working directory. robot and calibration are read, and the force-safe set built,
+once, at load (a missing or malformed file is a ConfigError); `robot_params()`, `safe_set()`
+and `plane_calibration()` hand out those objects (a changed copy, `with_overrides`, loads its own); the camera and the serial port are opened at start-up
 (`softcbf.hardware_cli`).
 
 Timing rules checked at load (period T = 1 / control_rate): the link's worst exchange
@@ -466,7 +467,10 @@ class HardwareConfig:
         _require(self.link.is_emulated == self.camera.is_virtual, "link.port",
                  f'"{EMULATED_PORT}" and camera.source "{VIRTUAL_CAMERA}" go together (the virtual camera renders the '
                  f"emulated arm; a real camera sees the real one), got port {self.link.port!r}, camera {self.camera.source!r}")
-        n = self.robot_params().n_segments  # fail at load on a bad robot file or pressure limits
+        # Loaded once (issue 25: parse once): a bad robot file or pressure limits, facets or calibration file fails
+        # here, at load, and `robot_params`, `safe_set` and `plane_calibration` hand out these objects.
+        object.__setattr__(self, "_robot", self._load_robot())
+        n = self._robot.n_segments
         for key, value in (("amplitude", self.control.amplitude), ("control.phase_rad", self.control.phase_rad),
                            ("emulator.q0_rad", self.emulator.q0_rad)):
             try:
@@ -474,10 +478,10 @@ class HardwareConfig:
             except ValueError as exc:
                 raise ConfigError(str(exc)) from None
         try:
-            self.safe_set()
+            object.__setattr__(self, "_safe_set", self._build_safe_set())
         except ValueError as exc:
             raise ConfigError(f"environment: {exc}") from None
-        self.plane_calibration()  # fail at load on a missing or malformed calibration file
+        object.__setattr__(self, "_calibration", self._load_calibration())
 
     # -- loading ------------------------------------------------------------------
 
@@ -536,7 +540,10 @@ class HardwareConfig:
         return str(self.resolve(source)) if self.camera.is_file else source
 
     def plane_calibration(self) -> PlaneCalibration | None:
-        """The calibration file's image → plane map (None when none is configured)."""
+        """The calibration file's image → plane map (None when none is configured), read at load."""
+        return self._calibration
+
+    def _load_calibration(self) -> PlaneCalibration | None:
         if self.camera.calibration is None:
             return None
         path = self.resolve(self.camera.calibration)
@@ -551,7 +558,15 @@ class HardwareConfig:
     # -- the objects the run needs --------------------------------------------------
 
     def robot_params(self) -> RobotParams:
-        """The controller's robot with the configured pressure limits (their one source of truth)."""
+        """The controller's robot with the configured pressure limits (their one source of truth), read at load."""
+        return self._robot
+
+    def safe_set(self) -> ForceSafeSet:
+        """The controller's force-safe set (the environment's facets, ψ(n) = assumed_plate_stiffness · n, F_max),
+        built at load."""
+        return self._safe_set
+
+    def _load_robot(self) -> RobotParams:
         spec = self.robot.robot
         if spec == "reference":
             robot = reference_robot()
@@ -582,7 +597,7 @@ class HardwareConfig:
                      f"u_max={high:g} hPa for segment {i} (pressure.u_min_hPa, pressure.u_max_hPa or the robot's)")
         return robot
 
-    def safe_set(self) -> ForceSafeSet:
+    def _build_safe_set(self) -> ForceSafeSet:
         env = self.environment
         return ForceSafeSet(Environment(np.array(env.H), np.array(env.h)), LinearStiffness(env.assumed_plate_stiffness),
                             env.f_max, row_scaling=env.row_scaling)
