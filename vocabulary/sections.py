@@ -21,7 +21,9 @@ normalised (an int given for a float becomes one); a bad value raises `error` (d
 `SettingError`, a ValueError) naming the setting, its bound with its unit and the value:
 
 - a list or tuple is one value per segment where the field is `per_segment` (each element
-  checked, named "amplitude[1]"), and refused elsewhere ("f_max must be a single value");
+  checked, named "amplitude[1]"), the value itself for a setting of kind tuple (the tunings:
+  a sequence of names, `vocabulary.settings`), and refused elsewhere ("f_max must be a single
+  value");
 - a plug-in's parameters (`filter_params`, `nominal_params`; `TABLE_PARAMETERS`) given as a
   mapping name → value: a `tables` field holds the mapping (the plug-in checks the names and
   values), any other becomes the command line's "name=value;..." text (`joined`).
