@@ -14,7 +14,10 @@ unit, range and check (`vocabulary.settings.check_value`: "f_max must be > 0 N, 
 
 Settings only the hardware run has stay in their sections (`[camera] source`, `[link]`,
 `[safety] watchdog_s`, `[environment] H, h`, `[pressure]`, `[emulator] q0_rad`, ...).
-`HardwareConfig.load(path)` reads a `.toml` or `.json` file (`vocabulary.files`);
+Each section is a frozen dataclass made by `vocabulary.sections.setting_section` (the
+machinery of the scenarios' sections): its shared settings are declared by name, their
+type, default (`default(name, "hardware")`) and check come from the vocabulary, and its
+hardware-only keys and rules are its own. `HardwareConfig.load(path)` reads a `.toml` or `.json` file (`vocabulary.files`);
 `from_dict(data)` a mapping of the same shape; `with_overrides(changes)` applies changes of
 that shape (command-line options); `to_dict()` gives it back (config.json of the run
 folder, loadable again). Unknown keys, wrong types and out-of-range values raise
@@ -96,8 +99,9 @@ board's 2 ms command period.
 Files. Relative paths in the file — robot, calibration and a camera.source that is a file
 (not a device index, "virtual", a URL with "://" or a GStreamer pipeline with "!") — are
 relative to the configuration file's folder (`base_dir`), so a configuration runs the same
-from any working directory. robot and calibration are read at load (a missing or malformed
-file is a ConfigError); the camera and the serial port are opened at start-up
+from any working directory. robot and calibration are read, and the force-safe set built,
+once, at load (a missing or malformed file is a ConfigError); `robot_params()`, `safe_set()`
+and `plane_calibration()` hand out those objects (a changed copy, `with_overrides`, loads its own); the camera and the serial port are opened at start-up
 (`softcbf.hardware_cli`).
 
 Timing rules checked at load (period T = 1 / control_rate): the link's worst exchange
@@ -126,7 +130,8 @@ from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
 from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
 from perception.plane import PlaneCalibration
 from vocabulary.files import read_settings_file
-from vocabulary.settings import SETTINGS, Bound, SettingError, check_number, check_value, default, positive
+from vocabulary.sections import setting_fields, setting_section
+from vocabulary.settings import Bound, SettingError, check_number, positive
 
 VIRTUAL_CAMERA = "virtual"
 EMULATED_PORT = "emulated"
@@ -192,30 +197,6 @@ def _numbers(key: str, value: Any, plausible: float | None = None, unit: str = "
     return _number(key, value, Bound(), plausible, unit)
 
 
-def _shared(name: str, value: Any) -> Any:
-    """A shared setting's value checked by the vocabulary (a per-segment list: each value)."""
-    try:
-        if isinstance(value, (list, tuple)):
-            _require(len(value) > 0, name, "must be a number or a non-empty list of numbers, got []")
-            return tuple(check_value(name, v, f"{name}[{i}]") for i, v in enumerate(value))
-        return check_value(name, value)
-    except SettingError as exc:
-        raise ConfigError(str(exc)) from None
-
-
-def _check_shared_settings(section: Any) -> None:
-    """Every shared setting of a section checked by the vocabulary and stored normalised
-    (None: not configured; the table of filter or nominal parameters is the filter's to check;
-    a per-segment list only where the field holds `Scalars`)."""
-    for f in dataclasses.fields(section):
-        value = getattr(section, f.name)
-        if f.name not in SETTINGS or value is None or (isinstance(value, Mapping) and f.default_factory is dict):
-            continue
-        if isinstance(value, (list, tuple)) and f.type not in ("Scalars", Scalars):  # annotations are strings here
-            raise ConfigError(f"{f.name} must be a single value, got {value!r}")
-        object.__setattr__(section, f.name, _shared(f.name, value))
-
-
 def _choice(key: str, value: Any, valid: tuple[str, ...]) -> str:
     _require(value in valid, key, f"must be one of {', '.join(map(repr, valid))}, got {value!r}")
     return value
@@ -226,21 +207,20 @@ def camera_source_is_file(source: int | str) -> bool:
     return isinstance(source, str) and source != VIRTUAL_CAMERA and "://" not in source and "!" not in source
 
 
-@dataclass(frozen=True)
+def _hardware_section(*names: str, per_segment: tuple[str, ...] = (), tables: tuple[str, ...] = ()) -> Any:
+    """A hardware section (`vocabulary.sections.setting_section`) whose shared settings `names` (field = setting)
+    follow its own fields, with the hardware file's defaults and ConfigError."""
+    return setting_section(settings={name: name for name in names}, context="hardware", per_segment=per_segment,
+                           tables=tables, error=ConfigError)
+
+
+@_hardware_section("calibration", "detector", "max_hold_s", "qd_filter_tau", "frame_rate", "width", "height")
 class CameraConfig:
     source: int | str = 0
-    calibration: str | None = default("calibration", "hardware")
     tag_size_m: float = 0.03
-    detector: str = default("detector", "hardware")
-    max_hold_s: float = default("max_hold_s", "hardware")
-    qd_filter_tau: float = default("qd_filter_tau", "hardware")
     startup_timeout_s: float = 5.0
-    frame_rate: float = default("frame_rate", "hardware")
-    width: int = default("width", "hardware")
-    height: int = default("height", "hardware")
 
-    def __post_init__(self) -> None:
-        _check_shared_settings(self)
+    def check(self) -> None:
         ok = (isinstance(self.source, int) and not isinstance(self.source, bool) and self.source >= 0) or (
             isinstance(self.source, str) and self.source != "")
         _require(ok, "camera.source", f'must be a device index >= 0, a video file, a stream URL or "virtual", got {self.source!r}')
@@ -266,25 +246,18 @@ class CameraConfig:
         return camera_source_is_file(self.source)
 
 
-@dataclass(frozen=True)
+@_hardware_section("robot")
 class RobotConfig:
-    robot: str = default("robot", "hardware")
-
-    def __post_init__(self) -> None:
-        _check_shared_settings(self)
+    def check(self) -> None:
         _require(self.robot != "", "robot", f'must be "reference" or the path of a RobotParams JSON, got {self.robot!r}')
 
 
-@dataclass(frozen=True)
+@_hardware_section("assumed_plate_stiffness", "f_max", "row_scaling")
 class EnvironmentConfig:
     H: tuple[tuple[float, ...], ...] = ((0.36, 1.0),)
     h: tuple[float, ...] = (0.15,)
-    assumed_plate_stiffness: float = default("assumed_plate_stiffness", "hardware")
-    f_max: float = default("f_max", "hardware")
-    row_scaling: str = default("row_scaling", "hardware")
 
-    def __post_init__(self) -> None:
-        _check_shared_settings(self)
+    def check(self) -> None:
         try:
             Environment(np.asarray(self.H, dtype=float), np.asarray(self.h, dtype=float))
         except (ValueError, TypeError) as exc:
@@ -308,28 +281,15 @@ class PressureConfig:
                 object.__setattr__(self, name, _numbers(f"pressure.{name}", getattr(self, name), PRESSURE_RANGE_HPA, "hPa"))
 
 
-@dataclass(frozen=True)
+@_hardware_section("filter", "filter_params", "control_rate", "pressure_limits", "qp_backend", "amplitude", "frequency",
+                   "nominal", "nominal_params", per_segment=("amplitude",), tables=("filter_params", "nominal_params"))
 class ControlConfig:
-    filter: str = default("filter", "hardware")
-    filter_params: dict = field(default_factory=dict)
     tuning: str = "HW-High"
-    control_rate: float = default("control_rate", "hardware")
-    pressure_limits: bool = default("pressure_limits", "hardware")
-    qp_backend: str = default("qp_backend", "hardware")
-    amplitude: Scalars = default("amplitude", "hardware")
-    frequency: float = default("frequency", "hardware")
     phase_rad: Scalars = 0.0
-    nominal: str = default("nominal", "hardware")
-    nominal_params: dict = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        _check_shared_settings(self)
+    def check(self) -> None:
         for key in ("filter", "nominal"):
             _require(getattr(self, key).strip() != "", key, f"must be a name or FILE.py:Factory (softcbf list), got {getattr(self, key)!r}")
-        for key in ("filter_params", "nominal_params"):
-            value = getattr(self, key)
-            _require(isinstance(value, Mapping) and all(isinstance(k, str) for k in value), key,
-                     f"must be a table of name = value, got {value!r}")
         _require(isinstance(self.tuning, str), "control.tuning", f"must be a tuning name or custom, got {self.tuning!r}")
         if self.filter == "paper-cbf" and self.tuning.strip().lower() != "custom":
             try:
@@ -357,13 +317,11 @@ class ControlConfig:
         return dict(self.nominal_params)
 
 
-@dataclass(frozen=True)
+@_hardware_section("hold_s")
 class SafetyConfig:
-    hold_s: float = default("hold_s", "hardware")
     watchdog_s: float = 0.15
 
-    def __post_init__(self) -> None:
-        _check_shared_settings(self)
+    def check(self) -> None:
         _number("safety.watchdog_s", self.watchdog_s, positive("s"), 5.0, "s")
 
 
@@ -393,26 +351,19 @@ class LinkConfig:
         return (1 + self.retries) * self.ack_timeout_s
 
 
-@dataclass(frozen=True)
+@_hardware_section("duration")
 class RunConfig:
-    duration: float = default("duration", "hardware")
     dry_run: bool = False
 
-    def __post_init__(self) -> None:
-        _check_shared_settings(self)
+    def check(self) -> None:
         _require(isinstance(self.dry_run, bool), "run.dry_run", f"must be true or false, got {self.dry_run!r}")
 
 
-@dataclass(frozen=True)
+@_hardware_section("plate_stiffness", "tau_p", "links_per_segment", "physics_dt")
 class EmulatorConfig:
-    plate_stiffness: float = default("plate_stiffness", "hardware")
-    tau_p: float = default("tau_p", "hardware")
     q0_rad: Scalars = 0.0
-    links_per_segment: int = default("links_per_segment", "hardware")
-    physics_dt: float = default("physics_dt", "hardware")
 
-    def __post_init__(self) -> None:
-        _check_shared_settings(self)
+    def check(self) -> None:
         object.__setattr__(self, "q0_rad", _numbers("emulator.q0_rad", self.q0_rad, math.pi, "rad"))
         ratio = EMULATOR_COMMAND_PERIOD_S / self.physics_dt
         _require(abs(ratio - round(ratio)) <= 1e-9 * ratio, "physics_dt",
@@ -424,13 +375,13 @@ _SECTIONS = {
     "camera": CameraConfig, "robot": RobotConfig, "environment": EnvironmentConfig, "pressure": PressureConfig,
     "control": ControlConfig, "safety": SafetyConfig, "link": LinkConfig, "run": RunConfig, "emulator": EmulatorConfig,
 }
-SHARED_KEYS: dict[str, str] = {f.name: section for section, cls in _SECTIONS.items()
-                               for f in dataclasses.fields(cls) if f.name in SETTINGS}
+SHARED_KEYS: dict[str, str] = {f: section for section, cls in _SECTIONS.items() for f in setting_fields(cls)}
 """The settings the hardware run shares with the simulations (top-level keys), each → the section that holds it."""
 
 
 def _own_keys(section: str) -> list[str]:
-    return [f.name for f in dataclasses.fields(_SECTIONS[section]) if f.name not in SETTINGS]
+    cls = _SECTIONS[section]
+    return [f.name for f in dataclasses.fields(cls) if f.name not in setting_fields(cls)]
 
 
 def default_values() -> dict[str, Any]:
@@ -438,7 +389,7 @@ def default_values() -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, cls in _SECTIONS.items():
         for f in dataclasses.fields(cls):
-            out[f.name if f.name in SETTINGS else f"{name}.{f.name}"] = (
+            out[f.name if f.name in SHARED_KEYS else f"{name}.{f.name}"] = (
                 f.default_factory() if f.default is dataclasses.MISSING else f.default)
     return out
 
@@ -516,7 +467,10 @@ class HardwareConfig:
         _require(self.link.is_emulated == self.camera.is_virtual, "link.port",
                  f'"{EMULATED_PORT}" and camera.source "{VIRTUAL_CAMERA}" go together (the virtual camera renders the '
                  f"emulated arm; a real camera sees the real one), got port {self.link.port!r}, camera {self.camera.source!r}")
-        n = self.robot_params().n_segments  # fail at load on a bad robot file or pressure limits
+        # Loaded once (issue 25: parse once): a bad robot file or pressure limits, facets or calibration file fails
+        # here, at load, and `robot_params`, `safe_set` and `plane_calibration` hand out these objects.
+        object.__setattr__(self, "_robot", self._load_robot())
+        n = self._robot.n_segments
         for key, value in (("amplitude", self.control.amplitude), ("control.phase_rad", self.control.phase_rad),
                            ("emulator.q0_rad", self.emulator.q0_rad)):
             try:
@@ -524,10 +478,10 @@ class HardwareConfig:
             except ValueError as exc:
                 raise ConfigError(str(exc)) from None
         try:
-            self.safe_set()
+            object.__setattr__(self, "_safe_set", self._build_safe_set())
         except ValueError as exc:
             raise ConfigError(f"environment: {exc}") from None
-        self.plane_calibration()  # fail at load on a missing or malformed calibration file
+        object.__setattr__(self, "_calibration", self._load_calibration())
 
     # -- loading ------------------------------------------------------------------
 
@@ -561,9 +515,9 @@ class HardwareConfig:
         out: dict[str, Any] = {}
         for name in _SECTIONS:
             values = dataclasses.asdict(getattr(self, name))
-            out.update({key: value for key, value in values.items() if key in SETTINGS})
+            out.update({key: value for key, value in values.items() if key in SHARED_KEYS})
         for name in _SECTIONS:
-            own = {key: value for key, value in dataclasses.asdict(getattr(self, name)).items() if key not in SETTINGS}
+            own = {key: value for key, value in dataclasses.asdict(getattr(self, name)).items() if key not in SHARED_KEYS}
             if own:
                 out[name] = own
         return out
@@ -586,7 +540,10 @@ class HardwareConfig:
         return str(self.resolve(source)) if self.camera.is_file else source
 
     def plane_calibration(self) -> PlaneCalibration | None:
-        """The calibration file's image → plane map (None when none is configured)."""
+        """The calibration file's image → plane map (None when none is configured), read at load."""
+        return self._calibration
+
+    def _load_calibration(self) -> PlaneCalibration | None:
         if self.camera.calibration is None:
             return None
         path = self.resolve(self.camera.calibration)
@@ -601,7 +558,15 @@ class HardwareConfig:
     # -- the objects the run needs --------------------------------------------------
 
     def robot_params(self) -> RobotParams:
-        """The controller's robot with the configured pressure limits (their one source of truth)."""
+        """The controller's robot with the configured pressure limits (their one source of truth), read at load."""
+        return self._robot
+
+    def safe_set(self) -> ForceSafeSet:
+        """The controller's force-safe set (the environment's facets, ψ(n) = assumed_plate_stiffness · n, F_max),
+        built at load."""
+        return self._safe_set
+
+    def _load_robot(self) -> RobotParams:
         spec = self.robot.robot
         if spec == "reference":
             robot = reference_robot()
@@ -632,7 +597,7 @@ class HardwareConfig:
                      f"u_max={high:g} hPa for segment {i} (pressure.u_min_hPa, pressure.u_max_hPa or the robot's)")
         return robot
 
-    def safe_set(self) -> ForceSafeSet:
+    def _build_safe_set(self) -> ForceSafeSet:
         env = self.environment
         return ForceSafeSet(Environment(np.array(env.H), np.array(env.h)), LinearStiffness(env.assumed_plate_stiffness),
                             env.f_max, row_scaling=env.row_scaling)

@@ -97,6 +97,8 @@ class Scenario:
             return value
         if annotation in (bool, str) and isinstance(value, annotation):
             return value
+        if setting(name).kind is tuple and isinstance(value, (list, tuple)):
+            return value  # a sequence of names (the spec checks them): the flat form's comma list, as a list
         raise ValueError(f"parameter {name!r} takes {annotation.__name__} values, got {value!r}")
 
     def valid(self, name: str) -> str:

@@ -15,7 +15,8 @@ A spec is a frozen dataclass of typed sections (scenarios.spec: `Run`, `Filter`,
 parameters (keywords of their sections, a mapping `params={name: value}`, or the command
 line's "name=value;..." text) against their declarations (controllers.filter_parameters), so a
 bad value is refused before anything runs. No scenario or setting is named by a string: a field left out takes the scenario's
-default, and `spec.flat()` gives the flat names that the command line and the files use.
+default, the paper filter's tunings are a tuple of preset names (`Filter(tunings=("None", "High"))`), and
+`spec.flat()` gives the flat names and forms that the command line and the files use (the tunings as "None,High").
 
 `run(spec)` runs the spec's scenario (the same function `softcbf run` calls) into a temporary
 folder without the report and the recording (`scenarios.common.data_only`) and returns a

@@ -56,11 +56,10 @@ from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
-    ControllerRun, check_choice, check_controller, control_step, controller_row, controller_runs, existing_file,
-    filter_enabled, initial_configuration, live_run, model_safe_set, nominal_arguments, read_parameter_file, save_run,
-    scene_record, stop_after,
+    Controller, ControllerRun, check_choice, check_controller, control_step, controller_row, existing_file,
+    filter_enabled, initial_configuration, live_run, read_parameter_file, save_run, scene_record, stop_after,
 )
-from scenarios.ground_truth import Truth, build_truth, check_true_arm, controller_robot
+from scenarios.ground_truth import Truth, build_truth, check_true_arm
 from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
@@ -145,19 +144,21 @@ def _perception_figures(frames: dict[str, np.ndarray], calls: dict[str, np.ndarr
     }
 
 
-def check_spec(spec: CameraLoop) -> None:
+def check_spec(spec: CameraLoop) -> Controller:
     """The checks of a `camera_loop` spec beyond its values' (scenarios.spec): the controller, the camera's
-    timing on the tick, the detector, the calibration file, the ground truth and the physics step."""
+    timing on the tick, the detector, the calibration file, the ground truth and the physics step; returns the
+    controller it built (`spec.built`)."""
     from perception.detect import BACKENDS as DETECTOR_BACKENDS
 
-    model_robot = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
+    controller = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
     camera_timing(spec).ticks_per_control(spec.camera.tick)
     check_choice("detector", spec.camera.detector, DETECTOR_BACKENDS)
     if spec.camera.calibration not in ("board", "truth") and not Path(spec.camera.calibration).is_file():
         raise ValueError(f"calibration must be 'board', 'truth' or a calibration JSON file, got "
                          f"{spec.camera.calibration!r} (no such file)")
-    check_true_arm(spec.arm, spec.plate, model_robot)
+    check_true_arm(spec.arm, spec.plate, controller.robot)
     steps_per_control(spec.camera.tick, spec.arm.physics_dt)
+    return controller
 
 
 CameraLoop = scenario_spec(
@@ -186,7 +187,7 @@ class CameraSetup:
     plant: MujocoPlant
     truth: Truth
     safe_set: ForceSafeSet
-    runs: list[ControllerRun]
+    runs: tuple[ControllerRun, ...]
     nominal_kwargs: dict[str, object]
     context: FilterContext
     q0: np.ndarray
@@ -202,9 +203,8 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
     from softcbf_mj.model_builder import build_model
     from softcbf_mj.mujoco_plant import MujocoPlant
 
-    camera = spec.camera
-    model_robot = controller_robot(spec.model)
-    safe_set = model_safe_set(spec.model, spec.assumed_plate_stiffness)
+    camera, controller = spec.camera, spec.built
+    model_robot, safe_set = controller.robot, controller.safe_set
     check_duration(spec.run.duration, camera.tick, model_robot.n_segments, safe_set)
     truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)
     plant = MujocoPlant(build_model(truth.config), camera.tick)
@@ -213,7 +213,7 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
     # The filter's command takes effect at the next tick after the call; the estimate's own age is the rest.
     context = FilterContext.for_robot(model_robot, safe_set, 1.0 / spec.control_rate, spec.filter.pressure_limits,
                                       command_delay=0.0, actuator_tau=spec.arm.tau_p)
-    return CameraSetup(plant, truth, safe_set, controller_runs(spec.filter), nominal_arguments(spec.nominal), context,
+    return CameraSetup(plant, truth, safe_set, controller.runs, controller.nominal_kwargs, context,
                        initial_configuration(n, spec.run.seed, spec.run.q0_std), camera_timing(spec),
                        TagDetector(camera.detector, tag_ids=arm_tag_ids(n)), plane)
 

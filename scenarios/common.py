@@ -7,8 +7,9 @@ Every scenario takes the controller under test as its spec's `Filter` and `Nomin
 - `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
   FILE.py:Factory, package.module:Factory); `filter_params`: "name=value;name=value"
   (the command line's repeated `--filter-param name=value`, joined);
-- `tunings`: for "paper-cbf", a comma list of its presets, or "custom" (a_E, b_E and
-  gamma from filter_params): one run each, labelled by the preset (a `tuning` in
+- `tunings`: for "paper-cbf", a tuple of its presets (("None", "High"); the comma list
+  "None,High" on the command line and in files), or "custom" (a_E, b_E and gamma from
+  filter_params): one run each, labelled by the preset (a `tuning` in
   filter_params makes one run of that tuning); other filters make one run, labelled
   `Factory(name=value,...)`;
 - `nominal`, `nominal_params`: likewise ("sinusoid", "tip-tracker", FILE.py:Factory);
@@ -21,6 +22,12 @@ vocabulary, then the scenario's check, built from `check_controller`, `check_cho
 loaders here, whose errors name the parameter and the file); the scenario adds
 `softcbf_mj.loop.check_duration` before it writes anything, so that a rejected command
 leaves no output behind and a study refuses a bad file at load.
+
+Parsed once. The check builds what it checks, and the spec keeps it (`spec.built`,
+scenarios.spec): `check_controller` returns the `Controller` (the controller's robot, its
+force-safe set, the runs with their parsed parameters, the nominal's parameters), which the
+scenario's setup takes as it is; the robot file is read, the safe set built and the plug-in
+parameters parsed once per spec.
 """
 
 from __future__ import annotations
@@ -133,6 +140,17 @@ def _read_environment(path: Path) -> Environment:
     return Environment(np.asarray(data["H"], dtype=float), np.asarray(data["h"], dtype=float))
 
 
+def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
+    """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
+    return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
+
+
+def controller_robot(model: Model) -> RobotParams:
+    """The controller's robot model: `model.robot` with its damping × `model.damping_scale`
+    (scenarios.ground_truth's module docstring)."""
+    return scale_damping(load_robot(model.robot), model.damping_scale)
+
+
 def build_safe_set(environment: str, plate_stiffness: float, f_max: float, row_scaling: str) -> ForceSafeSet:
     return ForceSafeSet(load_environment(environment), LinearStiffness(plate_stiffness), f_max, row_scaling=row_scaling)
 
@@ -156,7 +174,7 @@ def controller_runs(spec: Filter) -> list[ControllerRun]:
     name = spec.name.strip()
     if name != PAPER_FILTER:
         return [ControllerRun(label(name, params), name, params)]
-    names = [params["tuning"]] if "tuning" in params else [t.strip() for t in spec.tunings.split(",") if t.strip()]
+    names = [params["tuning"]] if "tuning" in params else list(spec.tunings)
     if not names:
         raise ValueError("tunings must name at least one tuning, e.g. None,Low,High (or custom with a_E, b_E, gamma)")
     runs = []
@@ -188,25 +206,43 @@ def controller_row(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, o
             "nominal_params": {k: v for k, v in nominal_kwargs.items()}}
 
 
-def check_controller(filter: Filter, nominal: Nominal, model: Model, assumed_stiffness: float) -> RobotParams:
+@dataclass(frozen=True, eq=False)
+class Controller:
+    """A spec's controller, parsed once when the spec is built (`check_controller`).
+
+    robot: the controller's robot (`controller_robot`: damping × damping_scale); safe_set: its
+    force-safe set; runs: the controllers under test (`controller_runs`, parameters parsed);
+    nominal_kwargs: the nominal's parameters (`nominal_arguments`).
+    """
+
+    robot: RobotParams
+    safe_set: ForceSafeSet
+    runs: tuple[ControllerRun, ...]
+    nominal_kwargs: dict[str, object]
+
+
+def check_controller(filter: Filter, nominal: Nominal, model: Model, assumed_stiffness: float) -> Controller:
     """The checks of a spec's controller shared by every scenario (its spec's `check`): the
     controller under test (the filter's spec resolves and takes its parameters, the tunings;
-    nothing is built: `controllers.registry.check_filter`), the nominal, the controller's robot,
-    its force-safe set (`model` and the plate stiffness the controller assumes,
-    `assumed_stiffness` N/m) and the QP backend. Returns the controller's robot."""
+    nothing is built: `controllers.registry.check_filter`), the nominal and the parameters it
+    will be built with, the controller's robot, its force-safe set (`model` and the plate
+    stiffness the controller assumes, `assumed_stiffness` N/m) and the QP backend. Returns
+    what it parsed and built (`Controller`), for the scenario's setup."""
     try:
-        for run in controller_runs(filter):
+        runs = tuple(controller_runs(filter))
+        for run in runs:
             check_filter(run.filter, run.filter_params)
     except ValueError as exc:
         raise ValueError(f"filter {filter.name!r}: {exc}") from None
     try:
-        check_nominal(nominal.name, parse_params(nominal.params))
+        nominal_kwargs = nominal_arguments(nominal)
+        check_nominal(nominal.name, nominal_kwargs)
     except ValueError as exc:
         raise ValueError(f"nominal {nominal.name!r}: {exc}") from None
-    robot = load_robot(model.robot)
-    model_safe_set(model, assumed_stiffness)
+    robot = controller_robot(model)
+    safe_set = model_safe_set(model, assumed_stiffness)
     check_choice("qp_backend", filter.qp_backend, available_backends())
-    return robot
+    return Controller(robot, safe_set, runs, nominal_kwargs)
 
 
 def model_safe_set(model: Model, assumed_stiffness: float) -> ForceSafeSet:

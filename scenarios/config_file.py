@@ -5,7 +5,8 @@ Two formats, told apart by the suffix:
 - `.toml`: `scenario = "NAME"` and any of the scenario's parameters, by their names
   (docs/parameters.md); `filter_params` and `nominal_params` may be tables
   (`[filter_params]` with `tuning = "Low"`), joined to "name=value;..." as on the command
-  line. Example (docs/file-formats.md#run-configuration-toml):
+  line, and `tunings` a list (`tunings = ["Low", "High"]`) or the comma list. Example
+  (docs/file-formats.md#run-configuration-toml):
 
       scenario = "paper_sim"
       duration = 10.0
@@ -38,9 +39,10 @@ from pathlib import Path
 from typing import Any
 
 from vocabulary.files import read_settings_file
+from vocabulary.sections import joined
+from vocabulary.settings import SETTINGS, flat_form
 
 SCENARIO_KEY = "scenario"
-TABLE_PARAMETERS = ("filter_params", "nominal_params")  # "name=value;..." strings, also given as tables
 
 
 @dataclass(frozen=True)
@@ -53,15 +55,8 @@ class RunConfig:
     path: Path | None = None
 
 
-def joined(name: str, value: Any) -> Any:
-    """A `filter_params` / `nominal_params` table as the "name=value;name=value" string the scenario takes."""
-    if name in TABLE_PARAMETERS and isinstance(value, Mapping):
-        return ";".join(f"{k}={v}" for k, v in value.items())
-    return value
-
-
 def _from_toml(path: Path, data: Mapping[str, Any]) -> RunConfig:
-    params = {k: joined(k, v) for k, v in data.items() if k != SCENARIO_KEY}
+    params = {k: flat_form(k, joined(k, v)) if k in SETTINGS else v for k, v in data.items() if k != SCENARIO_KEY}
     for key, value in params.items():
         if isinstance(value, (Mapping, list)):
             raise ValueError(f"run configuration {path}: {key} must be a single value, got {value!r}")

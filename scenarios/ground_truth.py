@@ -21,7 +21,9 @@ The settings (vocabulary.settings; every MuJoCo scenario takes them all, docs/pa
 They are two sections of a MuJoCo scenario's spec (scenarios.spec): `TrueArm` (the arm, the
 rod, the plates' pose, gravity and friction) and `Plate`, with `damping_scale` in the
 controller's `Model`. `check_true_arm` checks them without building anything (the spec's
-check); `build_truth` builds them: a `Truth` whose `config` (`ArmModelConfig`) both the single run's
+check: building the truth there would refuse, at a setting's printed bound, combinations that
+only the run can find out about, tests/test_config_files.py); `build_truth` builds them, once
+per run, from the controller the spec's check built (`spec.built`, scenarios.common.Controller): a `Truth` whose `config` (`ArmModelConfig`) both the single run's
 `MujocoPlant` and the batch's `MujocoBatchPlant` take.
 
 Imports: MuJoCo (softcbf_mj.flexure, flexure_calibration, model_builder) is imported inside
@@ -40,22 +42,12 @@ import numpy as np
 
 from controllers.params import RobotParams
 from controllers.safe_set import Environment
-from scenarios.common import check_choice, load_robot
+from scenarios.common import check_choice, controller_robot, load_robot, scale_damping  # noqa: F401 (re-exported)
 from scenarios.spec import Model, Plate, TrueArm
 
 if TYPE_CHECKING:  # MuJoCo's modules are imported where they are used (module docstring: Imports)
     from softcbf_mj.flexure import FlexureParams
     from softcbf_mj.model_builder import ArmModelConfig
-
-
-def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
-    """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
-    return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
-
-
-def controller_robot(model: Model) -> RobotParams:
-    """The controller's robot model: `model.robot` with its damping × `model.damping_scale` (module docstring)."""
-    return scale_damping(load_robot(model.robot), model.damping_scale)
 
 
 def flexure(plate: Plate) -> FlexureParams:

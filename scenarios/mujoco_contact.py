@@ -57,10 +57,10 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    ControllerRun, check_controller, control_step, controller_row, controller_runs, initial_configuration,
-    model_safe_set, nominal_arguments, run_tuning, scene_record, stop_after,
+    Controller, ControllerRun, check_controller, control_step, controller_row, initial_configuration, run_tuning,
+    scene_record, stop_after,
 )
-from scenarios.ground_truth import Truth, build_truth, check_true_arm, controller_robot
+from scenarios.ground_truth import Truth, build_truth, check_true_arm
 from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, format_table, plate_figures
@@ -100,12 +100,13 @@ TABLE = (
 )
 
 
-def check_spec(spec: MujocoContact) -> None:
+def check_spec(spec: MujocoContact) -> Controller:
     """The checks of a `mujoco_contact` spec beyond its values' (scenarios.spec): the controller, the ground
-    truth, the physics step dividing the control period."""
-    model_robot = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
-    check_true_arm(spec.arm, spec.plate, model_robot)
+    truth, the physics step dividing the control period; returns the controller it built (`spec.built`)."""
+    controller = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
+    check_true_arm(spec.arm, spec.plate, controller.robot)
     steps_per_control(CONTROL_DT, spec.arm.physics_dt)
+    return controller
 
 
 MujocoContact = scenario_spec(
@@ -126,23 +127,24 @@ class ContactSetup:
 
     safe_set: ForceSafeSet
     truth: Truth
-    runs: list[ControllerRun]
+    runs: tuple[ControllerRun, ...]
     nominal_kwargs: dict[str, object]
     q0: np.ndarray
     context: FilterContext
 
 
 def contact_setup(spec: MujocoContact) -> ContactSetup:
-    """The (checked) `spec`'s controller model, ground truth, controllers, nominal parameters and q0:
-    the construction shared by the single run (`mujoco_contact`) and the batch form (`run_contact_batch`)."""
-    model_robot = controller_robot(spec.model)
-    safe_set = model_safe_set(spec.model, spec.assumed_plate_stiffness)
-    check_duration(spec.run.duration, CONTROL_DT, model_robot.n_segments, safe_set)
-    truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)
+    """The (checked) `spec`'s controller model, controllers and nominal parameters (built by its check:
+    `spec.built`), ground truth, q0 and context: the construction shared by the single run (`mujoco_contact`)
+    and the batch form (`run_contact_batch`)."""
+    controller = spec.built
+    safe_set = controller.safe_set
+    check_duration(spec.run.duration, CONTROL_DT, controller.robot.n_segments, safe_set)
+    truth = build_truth(spec.arm, spec.plate, spec.model, controller.robot, safe_set.environment)
     q0 = initial_configuration(truth.robot.n_segments, spec.run.seed, spec.run.q0_std)  # the true arm's segments
-    context = FilterContext.for_robot(model_robot, safe_set, CONTROL_DT, spec.filter.pressure_limits,
+    context = FilterContext.for_robot(controller.robot, safe_set, CONTROL_DT, spec.filter.pressure_limits,
                                       command_delay=0.0, actuator_tau=spec.arm.tau_p)
-    return ContactSetup(safe_set, truth, controller_runs(spec.filter), nominal_arguments(spec.nominal), q0, context)
+    return ContactSetup(safe_set, truth, controller.runs, controller.nominal_kwargs, q0, context)
 
 
 BATCH_VARYING = frozenset({

@@ -31,10 +31,9 @@ from controllers.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
-    ControllerRun, check_choice, check_controller, control_step, controller_row, controller_runs,
-    initial_configuration, model_safe_set, nominal_arguments, run_tuning, scene_record, stop_after,
+    Controller, ControllerRun, check_choice, check_controller, control_step, controller_row, initial_configuration,
+    run_tuning, scene_record, stop_after,
 )
-from scenarios.ground_truth import controller_robot
 from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
@@ -59,10 +58,12 @@ TABLE = (
 
 
 
-def check_spec(spec: PaperSim) -> None:
-    """The checks of a `paper_sim` spec beyond its values' (scenarios.spec): the controller, the integrator."""
-    check_controller(spec.filter, spec.nominal, spec.model, spec.plate_stiffness)
+def check_spec(spec: PaperSim) -> Controller:
+    """The checks of a `paper_sim` spec beyond its values' (scenarios.spec): the controller, the integrator;
+    returns the controller it built (`spec.built`)."""
+    controller = check_controller(spec.filter, spec.nominal, spec.model, spec.plate_stiffness)
     check_choice("integrator", spec.integrator, INTEGRATORS)
+    return controller
 
 
 PaperSim = scenario_spec(
@@ -81,7 +82,7 @@ class PaperSetup:
 
     robot: RobotParams
     safe_set: ForceSafeSet
-    runs: list[ControllerRun]
+    runs: tuple[ControllerRun, ...]
     nominal_kwargs: dict[str, object]
     q0: np.ndarray
     control_dt: float
@@ -93,13 +94,12 @@ class PaperSetup:
 
 
 def paper_setup(spec: PaperSim) -> PaperSetup:
-    """What the single run and the batch form of the (checked) `spec` share."""
-    robot_params = controller_robot(spec.model)
-    safe_set = model_safe_set(spec.model, spec.plate_stiffness)
-    control_dt = 1.0 / spec.control_rate
-    check_duration(spec.run.duration, control_dt, robot_params.n_segments, safe_set)
-    q0 = initial_configuration(robot_params.n_segments, spec.run.seed, spec.run.q0_std)
-    return PaperSetup(robot_params, safe_set, controller_runs(spec.filter), nominal_arguments(spec.nominal), q0,
+    """What the single run and the batch form of the (checked) `spec` share: the controller its check built
+    (`spec.built`), q0 and the control period."""
+    controller, control_dt = spec.built, 1.0 / spec.control_rate
+    check_duration(spec.run.duration, control_dt, controller.robot.n_segments, controller.safe_set)
+    q0 = initial_configuration(controller.robot.n_segments, spec.run.seed, spec.run.q0_std)
+    return PaperSetup(controller.robot, controller.safe_set, controller.runs, controller.nominal_kwargs, q0,
                       control_dt)
 
 

@@ -4,13 +4,14 @@ A *section* groups the settings one part of a run takes: `Run` (duration, seed, 
 progress line), `Filter` (the controller under test), `Nominal` (the nominal controller),
 `Model` (the controller's robot and force-safe set), `TrueArm` and `Plate` (the MuJoCo
 ground truth, `scenarios.ground_truth`) and `Camera` (the camera path). Each is a frozen
-dataclass made by `section(name, doc, {field: setting})`: a field per setting of
+dataclass made by `section(name, doc, {field: setting})` (`vocabulary.sections`, the one
+machinery the hardware file's sections use too): a field per setting of
 `vocabulary.settings.SETTINGS`, whose type is the setting's `kind` and whose value is
 checked by `check_value` when the section is built (an int given for a float becomes
 one; a bad value raises `SettingError` naming the setting, its bound and unit, and the
 value). Fields left out hold `UNSET`, "the scenario's default". A filter's or nominal's
 parameters (`Filter.params`, `Nominal.params`) may be given as a mapping name → value, held as
-the command line's "name=value;..." text (`scenarios.config_file.joined`, as a TOML table is),
+the command line's "name=value;..." text (`vocabulary.sections.joined`, as a TOML table is),
 or as keywords of their own (`Filter("e-erg", contact_aware=True)`: `plugin_section`).
 
 A *spec* is one scenario's whole configuration: a frozen dataclass made by
@@ -19,7 +20,10 @@ holding one instance of each section it declares plus its own few settings. Buil
 spec resolves every `UNSET` field to `default(setting, context)` (the scenario's default,
 `vocabulary.settings.DEFAULT_OVERRIDES`), holds the scenario's narrower `bounds`, then
 runs the scenario's `check(spec)` (files, names, the filter's parameters, cross-setting
-rules). A spec that exists is therefore valid: nothing downstream checks it again.
+rules). A spec that exists is therefore valid: nothing downstream checks it again. What the
+check builds while it checks (the controller's robot, its force-safe set, the runs with their
+parsed parameters and the nominal's: `scenarios.common.Controller`) it returns, and the spec keeps it as `spec.built` (not a setting: left out of `flat()`,
+equality and repr), so that the scenario's setup takes it instead of building it again.
 
 Flat names. Every field of a spec is a setting, and a setting appears at most once in a
 spec, so the setting's name is the field's flat name: `--plate-stiffness` on the command
@@ -41,56 +45,18 @@ import inspect
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from scenarios.config_file import joined
-from vocabulary.settings import Bound, SettingError, check_value, default, setting
+from vocabulary.sections import UNSET, check_settings, setting_field, setting_fields
+from vocabulary.sections import section as vocabulary_section
+from vocabulary.settings import Bound, SettingError, default, flat_form, setting
 
-
-class _Unset:
-    """The value of a section field left out: the scenario's default (`default(setting, context)`)."""
-
-    _instance: _Unset | None = None
-
-    def __new__(cls) -> _Unset:
-        if cls._instance is None:
-            cls._instance = super().__new__(cls)
-        return cls._instance
-
-    def __repr__(self) -> str:
-        return "<scenario default>"
-
-    def __reduce__(self) -> str:
-        return "UNSET"
-
-
-UNSET: Any = _Unset()
-
-SETTING = "setting"  # the dataclass field metadata key that names a field's setting
-
-
-def _setting_fields(cls: type) -> dict[str, str]:
-    """Field name → setting name of a section or spec's own settings (not its sections)."""
-    return {f.name: f.metadata[SETTING] for f in dataclasses.fields(cls) if SETTING in f.metadata}
-
-
-def _check_given(self: Any) -> None:
-    """`__post_init__` of a section: every given field checked and normalised (`check_value`; a
-    plug-in's parameters given as a mapping become the "name=value;..." text, `config_file.joined`)."""
-    for name, key in _setting_fields(type(self)).items():
-        value = getattr(self, name)
-        if value is not UNSET:
-            object.__setattr__(self, name, check_value(key, joined(key, value)))
-
-
-def _setting_field(name: str) -> Any:
-    """A dataclass field of setting `name`, `UNSET` unless given."""
-    return dataclasses.field(default=UNSET, metadata={SETTING: name})
+__all__ = ["UNSET", "Run", "Filter", "Nominal", "Model", "TrueArm", "Plate", "Camera", "section", "plugin_section",
+           "scenario_spec", "flat_parameters"]
 
 
 def section(name: str, doc: str, fields: Mapping[str, str]) -> type:
-    """A frozen section class `name` whose field `f` is setting `fields[f]` (module docstring)."""
-    spec = [(field, setting(key).kind, _setting_field(key)) for field, key in fields.items()]
-    return dataclasses.make_dataclass(name, spec, frozen=True, namespace={"__post_init__": _check_given, "__doc__": doc,
-                                                                          "__module__": __name__})
+    """A frozen section class `name` of this module whose field `f` is setting `fields[f]`, `UNSET` until
+    given (`vocabulary.sections.section`)."""
+    return vocabulary_section(name, doc, fields, module=__name__)
 
 
 def plugin_section(name: str, doc: str, fields: Mapping[str, str]) -> type:
@@ -116,14 +82,14 @@ def plugin_section(name: str, doc: str, fields: Mapping[str, str]) -> type:
 def _fill_unset(value: Any, context: str) -> None:
     """Set `value`'s `UNSET` setting fields to `context`'s defaults, in place (an object under construction,
     or a fresh copy)."""
-    for f, key in _setting_fields(type(value)).items():
+    for f, key in setting_fields(type(value)).items():
         if getattr(value, f) is UNSET:
             object.__setattr__(value, f, default(key, context))
 
 
 def _resolved(value: Any, context: str) -> Any:
     """A section with its `UNSET` fields set to `context`'s defaults (a copy; the given fields stay checked)."""
-    if all(getattr(value, f) is not UNSET for f in _setting_fields(type(value))):
+    if all(getattr(value, f) is not UNSET for f in setting_fields(type(value))):
         return value
     copy = object.__new__(type(value))
     for f in dataclasses.fields(value):
@@ -141,25 +107,25 @@ def _build_spec(self: Any) -> None:
         if not isinstance(value, section_cls):
             raise TypeError(f"{cls.__name__}.{attribute} must be a {section_cls.__name__}, got {value!r}")
         object.__setattr__(self, attribute, _resolved(value, cls.CONTEXT))
-    _check_given(self)
+    check_settings(self)
     _fill_unset(self, cls.CONTEXT)
     flat = self.flat()
     for key, bound in cls.BOUNDS.items():
         if flat[key] not in bound:
             raise SettingError(f"{key} must be {bound}, got {flat[key]!r}")
     if cls.CHECK is not None:
-        cls.CHECK(self)
+        object.__setattr__(self, "built", cls.CHECK(self))
 
 
 def _paths(cls: type) -> dict[str, tuple[str | None, str]]:
     """Flat name → (section attribute or None for an own setting, field) of spec class `cls`."""
     paths: dict[str, tuple[str | None, str]] = {}
     for attribute, section_cls in cls.SECTIONS.items():
-        for f, key in _setting_fields(section_cls).items():
+        for f, key in setting_fields(section_cls).items():
             if key in paths:
                 raise ValueError(f"{cls.__name__}: setting {key!r} is declared twice")
             paths[key] = (attribute, f)
-    for f, key in _setting_fields(cls).items():
+    for f, key in setting_fields(cls).items():
         if key in paths:
             raise ValueError(f"{cls.__name__}: setting {key!r} is declared twice")
         paths[key] = (None, f)
@@ -168,7 +134,7 @@ def _paths(cls: type) -> dict[str, tuple[str | None, str]]:
 
 def _flat(self: Any) -> dict[str, Any]:
     """Every setting of the spec by its flat name, in declaration order (module docstring)."""
-    return {key: getattr(self if attribute is None else getattr(self, attribute), f)
+    return {key: flat_form(key, getattr(self if attribute is None else getattr(self, attribute), f))
             for key, (attribute, f) in type(self).PATHS.items()}
 
 
@@ -198,7 +164,8 @@ def scenario_spec(name: str, doc: str, context: str, sections: Mapping[str, type
     `module`: the module that binds the class to `name` (so that a spec pickles)."""
     spec = [(attribute, section_cls, dataclasses.field(default_factory=section_cls))
             for attribute, section_cls in sections.items()]
-    spec += [(f, setting(key).kind, _setting_field(key)) for f, key in (own or {}).items()]
+    spec += [(f, setting(key).kind, setting_field(key)) for f, key in (own or {}).items()]
+    spec += [("built", Any, dataclasses.field(default=None, init=False, repr=False, compare=False))]
     namespace = {"__post_init__": _build_spec, "__doc__": doc, "__module__": module, "flat": _flat,
                  "from_flat": classmethod(_from_flat), "replace_flat": _replace_flat, "SECTIONS": dict(sections),
                  "CONTEXT": context, "BOUNDS": dict(bounds or {}), "CHECK": None if check is None else staticmethod(check)}
@@ -208,10 +175,12 @@ def scenario_spec(name: str, doc: str, context: str, sections: Mapping[str, type
 
 
 def flat_parameters(spec_cls: type) -> dict[str, inspect.Parameter]:
-    """The flat keyword parameters of spec class `spec_cls`: annotation = the setting's kind, default =
-    the scenario's (`default(name, context)`), in declaration order."""
-    return {key: inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=default(key, spec_cls.CONTEXT),
-                                   annotation=setting(key).kind) for key in spec_cls.PATHS}
+    """The flat keyword parameters of spec class `spec_cls`: annotation = the type of the setting's flat
+    form, default = the scenario's (`default(name, context)`) in that form (`vocabulary.settings.flat_form`:
+    the tunings as the comma list), in declaration order."""
+    return {key: inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY,
+                                   default=flat_form(key, default(key, spec_cls.CONTEXT)),
+                                   annotation=setting(key).flat_kind) for key in spec_cls.PATHS}
 
 
 # The sections every scenario draws on (module docstring); field → setting.

@@ -119,7 +119,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             continue
         doc = setting(name)
         unit = f" [{doc.unit}]" if doc.unit else ""
-        parser.add_argument(option_name(name), dest=name, type=option_type(doc.kind), metavar=doc.kind.__name__.upper(),
+        parser.add_argument(option_name(name), dest=name, type=option_type(doc.flat_kind), metavar=doc.flat_kind.__name__.upper(),
                             help=f"{doc.meaning}{unit}; valid: {doc.valid_values} (overrides the file's {name})")
     parser.add_argument("--dry-run", action="store_true", help="run everything but send zero pressure")
     parser.add_argument("--out", type=Path, help="output folder (default runs/hardware-<time>)")

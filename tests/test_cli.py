@@ -417,7 +417,7 @@ def test_interrupt_at_start_up_exits_130_with_one_line_and_no_folder(tmp_path, c
         module.__getattr__ = lambda name: interrupt()
         monkeypatch.setitem(sys.modules, "softcbf_mj.recording", module)
     else:
-        monkeypatch.setattr(scenarios.paper_sim, "model_safe_set", interrupt)
+        monkeypatch.setattr(scenarios.paper_sim, "initial_configuration", interrupt)
     out = tmp_path / "new" / "run"
     assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT]) == INTERRUPTED
     err = capsys.readouterr().err

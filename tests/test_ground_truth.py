@@ -81,3 +81,23 @@ def test_camera_loop_builds_the_contact_ground_truth(tmp_path):
     np.testing.assert_allclose(scene["plates"]["H"], [[0.36 * c - s, 0.36 * s + c]], rtol=1e-15)
     np.testing.assert_allclose(scene["facets"]["H"], [[0.36, 1.0]], rtol=0)  # the controller keeps its facet
     np.testing.assert_allclose(scene["segment_lengths_m"], [1.1 * 0.122, 1.1 * 0.122], rtol=1e-15)
+
+
+
+def test_the_spec_s_check_builds_the_controller_once_and_keeps_it():
+    """Parse once (issue 25): the spec's check builds the controller's robot, safe set, runs and nominal
+    parameters (`spec.built`), the same as building them again; equality, flat(), repr and pickling ignore it."""
+    import pickle
+
+    from scenarios.common import controller_runs, model_safe_set, nominal_arguments
+
+    spec = get("mujoco_contact").build({"damping_scale": 2.0, "tunings": "Low,High", "nominal_params": "phase=0.5"})
+    controller = spec.built
+    assert controller.robot == controller_robot(spec.model) and controller.runs == tuple(controller_runs(spec.filter))
+    assert [r.label for r in controller.runs] == ["Low", "High"] and controller.nominal_kwargs == nominal_arguments(spec.nominal)
+    again = model_safe_set(spec.model, spec.assumed_plate_stiffness)
+    np.testing.assert_array_equal(controller.safe_set.H_prime, again.H_prime)
+    np.testing.assert_array_equal(controller.safe_set.h_prime, again.h_prime)
+    assert "built" not in spec.flat() and "built" not in repr(spec)
+    assert get("mujoco_contact").spec.from_flat(spec.flat()) == spec
+    assert pickle.loads(pickle.dumps(spec)).built.robot == controller.robot

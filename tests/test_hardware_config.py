@@ -124,3 +124,23 @@ def test_emulator_defaults_are_the_camera_scenarios_rod():
     from softcbf_mj.model_builder import CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT
 
     assert (EmulatorConfig().links_per_segment, EmulatorConfig().physics_dt) == (CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
+
+
+def test_the_robot_safe_set_and_calibration_are_read_once_at_load(tmp_path):
+    """Parse once (issue 25): the files are read and the objects built when the configuration is loaded; the run
+    takes those objects (a file changed or removed afterwards changes nothing), and a changed copy builds its own."""
+    data = tomllib.loads(EXAMPLE.read_text(encoding="utf-8"))
+    robot_file = tmp_path / "robot.json"
+    robot_file.write_bytes((EXAMPLE.parent / data["robot"]).read_bytes())
+    data["robot"] = "robot.json"
+    path = tmp_path / "hw.json"
+    path.write_text(json.dumps(data), encoding="utf-8")
+    config = HardwareConfig.load(path)
+    robot, safe_set = config.robot_params(), config.safe_set()
+    robot_file.unlink()
+    assert config.robot_params() is robot and config.safe_set() is safe_set and config.plane_calibration() is None
+    with pytest.raises(ConfigError, match="no file"):  # a copy checks (and reads) again
+        config.with_overrides({"f_max": 0.2})
+    robot_file.write_bytes((EXAMPLE.parent / tomllib.loads(EXAMPLE.read_text(encoding="utf-8"))["robot"]).read_bytes())
+    changed = config.with_overrides({"f_max": 0.2})
+    assert changed.safe_set().f_max == 0.2 and safe_set.f_max == 0.16 and changed.robot_params() == robot

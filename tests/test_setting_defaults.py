@@ -13,7 +13,7 @@ import pytest
 
 import scenarios
 from hardware.config import SHARED_KEYS, default_values
-from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS, check_value, default
+from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS, check_value, default, flat_form
 
 REPO = Path(__file__).resolve().parents[1]
 # The modules that configure a run: none may type a setting's default (they take `default(name, context)`).
@@ -107,7 +107,7 @@ def test_scenario_defaults_are_the_vocabulary_s(name):
     defaults = scenario.defaults()
     assert set(defaults) <= set(SETTINGS)
     for param, value in defaults.items():
-        expected = default(param, name)
+        expected = flat_form(param, default(param, name))  # the tunings' tuple as the comma list
         assert value == expected and type(value) is type(expected), (name, param, value, expected)
 
 

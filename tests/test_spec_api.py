@@ -18,7 +18,7 @@ from scenarios.spec import UNSET, Camera, Filter, Model, Nominal, Plate, Run, Tr
 from softcbf.cli import main as softcbf_main
 from softcbf_mj.runio import SummaryWriter
 from vocabulary import settings as vocabulary
-from vocabulary.settings import Bound, Setting, SettingError, default
+from vocabulary.settings import Bound, Setting, SettingError, default, flat_form
 
 SECTIONS = (Run, Filter, Nominal, Model, TrueArm, Plate, Camera)
 
@@ -45,7 +45,7 @@ def test_a_section_checks_its_values_when_built_and_is_frozen():
 def test_a_spec_takes_its_scenario_s_defaults_and_round_trips_its_flat_names(name):
     spec_cls = registry()[name].spec
     spec = spec_cls()
-    assert spec.flat() == {key: default(key, name) for key in spec_cls.PATHS}
+    assert spec.flat() == {key: flat_form(key, default(key, name)) for key in spec_cls.PATHS}
     assert spec_cls.from_flat(spec.flat()) == spec and pickle.loads(pickle.dumps(spec)) == spec
     with pytest.raises(ValueError, match=f"scenario '{name}' has no parameter 'no_such'; parameters: duration, "):
         spec_cls.from_flat({"no_such": 1})
@@ -64,7 +64,7 @@ def test_a_section_left_partly_unset_takes_the_scenario_s_defaults():
 def test_a_plug_in_s_parameters_are_keywords_of_its_section_checked_by_the_plug_in():
     contact = registry()["mujoco_contact"].spec
     spec = contact(filter=Filter("e-erg", contact_aware=True, kappa=2.0), plate=Plate(stiffness=12.0))
-    assert spec.filter == Filter("e-erg", params={"contact_aware": True, "kappa": 2.0}, tunings="None,Low,High",
+    assert spec.filter == Filter("e-erg", params={"contact_aware": True, "kappa": 2.0}, tunings=("None", "Low", "High"),
                                  qp_backend="native", pressure_limits=True)
     assert spec.flat()["filter_params"] == "contact_aware=True;kappa=2.0" and spec.flat()["plate_stiffness"] == 12.0
     assert Nominal("sinusoid", phase=0.5).params == "phase=0.5"
@@ -140,7 +140,7 @@ def test_run_returns_the_outputs_in_memory_and_save_writes_softcbf_run_s_folder(
     from scenarios.api import PaperSim, run, save
     from softcbf_mj.runio import load_timeseries
 
-    spec = PaperSim(run=Run(duration=0.3, progress=False), filter=Filter(tunings="High"),
+    spec = PaperSim(run=Run(duration=0.3, progress=False), filter=Filter(tunings=("High",)),
                     nominal=Nominal(amplitude=150.0, frequency=0.25))
     result = run(spec)
     assert [row["tuning"] for row in result.runs] == ["High"] and result.summary["params"] == spec.flat()
@@ -161,3 +161,39 @@ def test_run_returns_the_outputs_in_memory_and_save_writes_softcbf_run_s_folder(
             assert (columns[0][0][key] == columns[1][0][key]).all(), key
     with pytest.raises(TypeError, match="run takes a scenario's spec"):
         run(Run())
+
+
+def test_the_tunings_are_a_tuple_of_names_in_python_and_a_comma_list_on_the_command_line_and_in_files(tmp_path):
+    """The typed API takes a tuple of tuning names; the flat form (the command line, TOML, config.json, studies)
+    stays the comma list, and every form gives the same spec (issue 25: no strings from Python)."""
+    paper = registry()["paper_sim"]
+    typed = paper.spec(filter=Filter(tunings=("None", "High")))
+    assert typed.filter.tunings == ("None", "High") and typed.flat()["tunings"] == "None,High"
+    assert paper.spec.from_flat({"tunings": "None, High"}) == typed == paper.build({"tunings": ["None", "High"]})
+    assert paper.spec.from_flat(json.loads(json.dumps(typed.flat()))) == typed  # config.json round trip
+    assert registry()["camera_loop"].spec().filter.tunings == ("None", "HW-Low", "HW-High")
+    assert paper.defaults()["tunings"] == "None,Low,High" and inspect.signature(paper.run).parameters["tunings"].annotation is str
+    toml = tmp_path / "run.toml"
+    toml.write_text('scenario = "paper_sim"\ntunings = ["Low", "High"]\n', encoding="utf-8")
+    assert load_run_config(toml).params["tunings"] == "Low,High"
+    with pytest.raises(SettingError, match=r"tunings must be a sequence of names or a comma list .*got 3"):
+        Filter(tunings=3)
+    with pytest.raises(ValueError, match="unknown tuning 'Medium'"):
+        paper.spec(filter=Filter(tunings=("None", "Medium")))
+
+
+def test_one_softcbf_run_reads_the_robot_builds_the_safe_set_and_parses_the_plug_in_parameters_once():
+    """Parse once (issue 25; tools/parse_counts.py): the spec's check builds the controller (`spec.built`) and
+    the run takes it; each setting is checked once."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "parse_counts.py"
+    module_spec = importlib.util.spec_from_file_location("parse_counts", path)
+    tool = importlib.util.module_from_spec(module_spec)
+    module_spec.loader.exec_module(tool)
+    found = tool.counts("paper_sim", 0.02)
+    assert found["common:load_robot"] == found["common:build_safe_set"] == 1
+    assert found["registry:parse_params"] == 2  # the filter's parameters and the nominal's
+    assert found["settings:check_value"] == len(registry()["paper_sim"].spec.PATHS)
+    assert found["registry:build_filter"] == found["registry:check_filter"] == 3  # one per tuning

@@ -206,7 +206,9 @@ def test_check_value_normalises_and_refuses_by_kind():
 
 def test_every_setting_is_declared_completely():
     for name, declared in SETTINGS.items():
-        assert declared.meaning and declared.kind in (float, int, bool, str), name
+        assert declared.meaning and declared.kind in (float, int, bool, str, tuple), name
+        assert declared.flat_kind in (float, int, bool, str), name  # what the command line and files take
+        assert check_value(name, declared.default) == declared.default or declared.default is None, name
         assert (declared.bound is not None) == (declared.kind in (float, int)), name
         assert declared.valid_values, name
         assert declared.plausible is None or declared.plausible > 0, name
@@ -270,3 +272,73 @@ def test_one_exit_code_wrapper(tmp_path, capsys):
 
     assert scenarios_main(["paper_sim", "--f-max", "-1", "--out", str(tmp_path / "out")]) == USAGE_ERROR
     assert capsys.readouterr().err == "error: f_max must be > 0 N, got -1.0\n" and not (tmp_path / "out").exists()
+
+
+def test_one_section_machinery_for_the_scenarios_and_the_hardware_file():
+    """vocabulary.sections makes both the scenarios' sections and the hardware file's: each shared setting of
+    a hardware section is a setting field (its type the vocabulary's kind, its default the hardware's)."""
+    import dataclasses
+
+    from hardware import config as hardware
+    from vocabulary.sections import SETTING, setting_fields
+    from vocabulary.settings import default
+
+    for name, cls in {"camera": hardware.CameraConfig, "control": hardware.ControlConfig,
+                      "emulator": hardware.EmulatorConfig, "environment": hardware.EnvironmentConfig}.items():
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        for field_name, key in setting_fields(cls).items():
+            assert hardware.SHARED_KEYS[key] == name and fields[field_name].metadata[SETTING] == key
+            if fields[field_name].metadata["table"]:
+                assert fields[field_name].default_factory() == {}
+            else:
+                assert fields[field_name].default == default(key, "hardware"), key
+    assert set(hardware.SHARED_KEYS) == {key for cls in (hardware.CameraConfig, hardware.RobotConfig,
+                                                          hardware.EnvironmentConfig, hardware.ControlConfig,
+                                                          hardware.SafetyConfig, hardware.RunConfig,
+                                                          hardware.EmulatorConfig)
+                                          for key in setting_fields(cls).values()}
+
+
+def test_a_section_checks_single_per_segment_table_and_unconfigured_values():
+    import dataclasses
+
+    from vocabulary.sections import UNSET, setting_section
+
+    class Bad(ValueError):
+        pass
+
+    @setting_section(settings={"f_max": "f_max", "amplitude": "amplitude", "filter_params": "filter_params",
+                               "calibration": "calibration"},
+                     context="hardware", per_segment=("amplitude",), tables=("filter_params",), error=Bad)
+    class Part:
+        label: str = "x"
+
+        def check(self) -> None:
+            if self.label == "":
+                raise Bad("label must not be empty")
+
+    part = Part(f_max=1, amplitude=[10, 20.5], filter_params={"kappa": 2.0})
+    assert part.f_max == 1.0 and type(part.f_max) is float and part.amplitude == (10.0, 20.5)
+    assert part.filter_params == {"kappa": 2.0} and part.calibration is None and part.label == "x"
+    assert [f.name for f in dataclasses.fields(Part)] == ["label", "f_max", "amplitude", "filter_params", "calibration"]
+    with pytest.raises(Bad, match=r"f_max must be a single value, got \[1.0, 2.0\]"):
+        Part(f_max=[1.0, 2.0])
+    with pytest.raises(Bad, match=r"amplitude\[1\] must be within"):
+        Part(amplitude=[1.0, 1e6])
+    with pytest.raises(Bad, match="amplitude must be a number or a non-empty list of numbers, got \\[\\]"):
+        Part(amplitude=[])
+    with pytest.raises(Bad, match="filter_params must be a table of name = value"):
+        Part(filter_params="kappa=2")
+    with pytest.raises(Bad, match="label must not be empty"):
+        Part(label="")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        part.f_max = 2.0
+
+    @setting_section(settings={"params": "filter_params", "f_max": "f_max"})
+    class Scenario:
+        pass
+
+    given = Scenario(params={"kappa": 2.0})
+    assert given.params == "kappa=2.0" and given.f_max is UNSET
+    with pytest.raises(SettingError, match="calibration must be a str"):
+        setting_section(type("NoNone", (), {}), settings={"calibration": "calibration"})(calibration=None)

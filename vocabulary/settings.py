@@ -7,8 +7,10 @@ F_max per facet in N on the command line (`--f-max`), in a run configuration fil
 
 - `meaning`: what it sets, in a phrase; `unit`: SI unit ("" for a dimensionless number,
   a name or a switch);
-- `kind`: float, int, bool or str (the value's type; an int is accepted for a float and
-  becomes one);
+- `kind`: float, int, bool, str or tuple (the value's type; an int is accepted for a float
+  and becomes one; a tuple is a sequence of names, e.g. the tunings ("None", "High"), whose
+  *flat form* on the command line, in a TOML file and in config.json is the comma list
+  "None,High": `flat_form`, `Setting.flat_kind`; either form is accepted and becomes the tuple);
 - `bound`: the valid range of a number (`Bound`, None for a non-number); a float outside
   it, or not finite, is refused;
 - `plausible`: a plausibility bound |value| <= plausible in `unit` (None: none): a value
@@ -64,6 +66,11 @@ class Setting:
     default: Any = None
 
     @property
+    def flat_kind(self) -> type:
+        """The type of the setting's flat form (the command line, files): str for a tuple of names, else `kind`."""
+        return str if self.kind is tuple else self.kind
+
+    @property
     def valid_values(self) -> str:
         """The valid values in words: the range (and the plausibility bound), else `valid`."""
         if self.bound is None:
@@ -96,6 +103,10 @@ def _text(meaning: str, valid: str, *, default: str) -> Setting:
     return Setting(meaning, "", str, valid=valid, default=default)
 
 
+def _names(meaning: str, valid: str, *, default: tuple[str, ...]) -> Setting:
+    return Setting(meaning, "", tuple, valid=valid, default=default)
+
+
 PAPER_PLATE_STIFFNESS = 11.16  # N/m, the paper's calibrated plate: the true plate's and the controller's default
 _SHEET = "flexure sheet (plate = 'flexure', docs/beyond-the-paper.md#flexure-plate): "
 _TRUE_ARM = "the MuJoCo arm's "
@@ -110,8 +121,9 @@ SETTINGS: dict[str, Setting] = {
                       Bound(0.0, math.pi, unit="rad"), default=0.0),
     "progress": _switch("show a progress line on stderr", default=True),
     # the controller under test (scenarios.common, controllers.registry)
-    "tunings": _text("runs of paper-cbf: comma list of its presets, one run each",
-                     "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)", default="None,Low,High"),
+    "tunings": _names("runs of paper-cbf: its presets, one run each (a comma list on the command line and in files)",
+                      "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)",
+                      default=("None", "Low", "High")),
     "filter": _text("the safety filter under test",
                     "paper-cbf, none, qsg, e-erg, c-erg, FILE.py:Factory, package.module:Factory (softcbf list)", default="paper-cbf"),
     "filter_params": _text("the filter's parameters, name=value;name=value (--filter-param NAME=VALUE; "
@@ -204,7 +216,7 @@ DEFAULT_OVERRIDES: dict[str, dict[str, Any]] = {
     "mujoco_contact": {},
     # the paper's hardware experiment in MuJoCo: the hardware tunings; a coarser rod for a 2 ms tick
     # (softcbf_mj.model_builder.CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
-    "camera_loop": {"tunings": "None,HW-Low,HW-High", "links_per_segment": 5, "physics_dt": 2e-4},
+    "camera_loop": {"tunings": ("None", "HW-Low", "HW-High"), "links_per_segment": 5, "physics_dt": 2e-4},
     # the hardware file: the emulator's coarser rod (5 links at 0.2 ms run ≈ 9× real time), a smaller
     # virtual camera, and no calibration (None: required unless the camera is virtual)
     "hardware": {"links_per_segment": 5, "physics_dt": 2e-4, "width": 480, "height": 270, "calibration": None},
@@ -229,12 +241,31 @@ def setting(name: str) -> Setting:
     return SETTINGS[name]
 
 
+def flat_form(name: str, value: Any) -> Any:
+    """Setting `name`'s `value` in its flat form (the command line's, a file's; module docstring): a tuple
+    of names as the comma list "None,High", any other value unchanged."""
+    if setting(name).kind is tuple and isinstance(value, (tuple, list)):
+        return ",".join(value)
+    return value
+
+
+def _names_value(key: str, declared: Setting, value: Any) -> tuple[str, ...]:
+    """A tuple-of-names setting's value (a comma list, or a sequence of names) as the tuple of its names,
+    stripped, empty ones left out; SettingError for anything else."""
+    names = value.split(",") if isinstance(value, str) else value
+    if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) for n in names):
+        raise SettingError(f"{key} must be a sequence of names or a comma list ({declared.valid}), got {value!r}")
+    return tuple(n.strip() for n in names if n.strip())
+
+
 def check_value(name: str, value: Any, key: str | None = None) -> Any:
     """Setting `name`'s `value` checked against its declaration (module docstring) and
     normalised; SettingError naming `key` (default `name`; e.g. "amplitude[1]" for one
     segment's value), the bound with its unit and the value."""
     declared = setting(name)
     key = name if key is None else key
+    if declared.kind is tuple:
+        return _names_value(key, declared, value)
     if declared.bound is not None:
         return check_number(key, value, declared.bound, plausible=declared.plausible, unit=declared.unit,
                             integer=declared.kind is int)
