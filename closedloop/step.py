@@ -66,7 +66,7 @@ import time
 import traceback
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -74,10 +74,12 @@ from closedloop.columns import TIMESERIES_UNITS
 from closedloop.monitor import (ACTION_CODES, ACTIONS, DEFAULT_HOLD_S, NO_FLAGS, NOT_STEPPED, BatchSafetyMonitor,
                                 SafeAction, SafetyFlags, SafetyMonitor)
 from controllers.errors import ControllerInputError
-from controllers.nominal import NominalController
 from controllers.safety_filter import (Estimate, EstimateBatch, FilterContext, FilterOutput, FilterReturnError,
                                        OutputCheck, SafetyFilter, checked_batch_arrays, read_only, real_vector,
                                        reset_filter)
+
+if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a run starts, not for softcbf list
+    from controllers.nominal import NominalController
 
 STEP_COLUMNS = frozenset({"u_nom", "u_filter", "u", "rho_pred", "infeasible", "filter_us", "action"})
 RESERVED_COLUMNS = frozenset(TIMESERIES_UNITS) | STEP_COLUMNS  # names a filter's diagnostics may not take

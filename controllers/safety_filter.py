@@ -50,13 +50,15 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
-from controllers.dynamics import PCCDynamics
 from controllers.params import RobotParams
 from controllers.safe_set import ForceSafeSet
+
+if TYPE_CHECKING:  # the compiled model (numba) is imported by whoever builds one, not by the contract's readers
+    from controllers.dynamics import PCCDynamics
 
 USER_ACTION = "user"  # the action label of a bare-array return
 

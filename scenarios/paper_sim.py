@@ -20,11 +20,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from controllers.dynamics import PCCDynamics
 from controllers.params import RobotParams
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import FilterContext
@@ -37,9 +36,10 @@ from scenarios.common import (
 from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
-from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-from softcbf_mj.pcc_plant import INTEGRATORS, PCCPlant
 from softcbf_mj.runio import SummaryWriter
+
+if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a run starts, not for softcbf list
+    from controllers.dynamics import PCCDynamics
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -61,6 +61,7 @@ TABLE = (
 def check_spec(spec: PaperSim) -> Controller:
     """The checks of a `paper_sim` spec beyond its values' (scenarios.spec): the controller, the integrator;
     returns the controller it built (`spec.built`)."""
+    from softcbf_mj.pcc_plant import INTEGRATORS  # the plants load the compiled model (numba): where a run starts
     controller = check_controller(spec.filter, spec.nominal, spec.model, spec.plate_stiffness)
     check_choice("integrator", spec.integrator, INTEGRATORS)
     return controller
@@ -123,6 +124,7 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> l
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
     first, spec = setups[0], specs[0]
+    from softcbf_mj.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): where a run starts
     plant = PCCBatchPlant(first.robot, first.safe_set, len(setups), control_dt=first.control_dt,
                           integrator=spec.integrator)
     return run_batch_tuning(plant, first.runs[0], first.context(spec.filter.pressure_limits), spec.nominal.name,
@@ -133,6 +135,7 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> l
           PaperSim, BatchForm(paper_batch_key, run_paper_batch))
 def paper_sim(out_dir: Path, spec: PaperSim) -> dict:
     """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
+    from softcbf_mj.pcc_plant import PCCPlant  # the compiled model (numba): where a run starts
     setup = paper_setup(spec)
     summary = SummaryWriter(out_dir, "paper_sim", spec.flat(), scene_record(setup.robot, setup.safe_set,
                                                                             spec.plate_stiffness))

@@ -31,15 +31,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from closedloop.step import BatchControlStep, FilterFault
-from controllers.nominal import NominalController
 from controllers.safety_filter import FilterContext, SafetyFilter
 from softcbf_mj.metrics import RunningFigures, rho_meas
 from softcbf_mj.plant import BatchPlant
+
+if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a run starts, not for softcbf list
+    from controllers.nominal import NominalController
 
 
 @dataclass(frozen=True, eq=False)
