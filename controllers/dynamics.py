@@ -32,14 +32,19 @@ using third derivatives of c_i (from `controllers.pcc`).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.params import RobotParams
 from controllers.pcc import kinematics_unchecked
-from controllers.pcc_model import ModelLayout, accelerations, model_terms, parameter_rows
+from controllers.lazy_import import lazy_module
+
+pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
+
+if TYPE_CHECKING:
+    from controllers.pcc_model import ModelLayout
 
 
 class ModelTerms(NamedTuple):
@@ -133,8 +138,8 @@ class PCCDynamics:
         self.damping = params.array("damping")
         self.gains = params.array("gains")
         self._masses = params.array("masses")
-        self.parameter_rows = parameter_rows(params)  # (1, 5N + N²): the kernels' parameters
-        self.layout = ModelLayout.of(self.n)
+        self.parameter_rows = pcc_model.parameter_rows(params)  # (1, 5N + N²): the kernels' parameters
+        self.layout = pcc_model.ModelLayout.of(self.n)
         self._stiffness_damping = np.hstack((self.K, self.D))
         self._last: tuple = (None, None, None)  # (q, q̇, ModelTerms) of the last `model_terms` call
 
@@ -174,7 +179,7 @@ class PCCDynamics:
         last_q, last_qd, last = self._last
         if q == last_q and qd == last_qd:
             return last
-        kin, dyn = model_terms(np.array((q,)), np.array((qd,)), self.parameter_rows)
+        kin, dyn = pcc_model.model_terms(np.array((q,)), np.array((qd,)), self.parameter_rows)
         core = ModelTerms(kin[0], dyn[0], self.layout)
         self._last = (q[:], qd[:], core)
         return core
@@ -197,7 +202,7 @@ class PCCDynamics:
 
     def acceleration_from_terms(self, core: ModelTerms, u: list[float]) -> list[float]:
         """q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q) from `core` and a Python float list u."""
-        return accelerations(core.dyn[None, :], self.parameter_rows, np.array((u,)))[0].tolist()
+        return pcc_model.accelerations(core.dyn[None, :], self.parameter_rows, np.array((u,)))[0].tolist()
 
     # -- model terms --------------------------------------------------------------
     def mass_matrix(self, q) -> np.ndarray:

@@ -10,12 +10,17 @@ points x + i·y of the plane (m).
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import TYPE_CHECKING, NamedTuple, Sequence
 
 import numpy as np
 
 from controllers.params import RobotParams
-from controllers.pcc_model import ModelLayout, accelerations, model_terms, parameter_rows
+from controllers.lazy_import import lazy_module
+
+pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
+
+if TYPE_CHECKING:
+    from controllers.pcc_model import ModelLayout
 
 
 class BatchTerms(NamedTuple):
@@ -82,9 +87,9 @@ class BatchDynamics:
 
     def __init__(self, params: RobotParams | Sequence[RobotParams]) -> None:
         self.params = params
-        self.parameter_rows = parameter_rows(params)
+        self.parameter_rows = pcc_model.parameter_rows(params)
         self.n = (params if isinstance(params, RobotParams) else params[0]).n_segments
-        self.layout = ModelLayout.of(self.n)
+        self.layout = pcc_model.ModelLayout.of(self.n)
         self._last: tuple = (None, None, None)  # (q, q̇, BatchTerms) of the last `terms` call
 
     def terms(self, q: np.ndarray, qd: np.ndarray) -> BatchTerms:
@@ -97,7 +102,7 @@ class BatchDynamics:
         if last is not None and np.array_equal(q, last_q) and np.array_equal(qd, last_qd):
             return last
         q, qd = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(qd, dtype=float)
-        terms = BatchTerms(*model_terms(q, qd, self.parameter_rows), self.layout)
+        terms = BatchTerms(*pcc_model.model_terms(q, qd, self.parameter_rows), self.layout)
         self._last = (q.copy(), qd.copy(), terms)
         return terms
 
@@ -110,4 +115,4 @@ class BatchDynamics:
 
     def acceleration(self, terms: BatchTerms, u: np.ndarray) -> np.ndarray:
         """q̈ = M⁻¹(Λu − C q̇ − D q̇ − K q): (B, N) rad/s², as `PCCDynamics.acceleration_from_terms`; u (B, N) hPa."""
-        return accelerations(terms.dyn, self.parameter_rows, np.ascontiguousarray(u, dtype=float))
+        return pcc_model.accelerations(terms.dyn, self.parameter_rows, np.ascontiguousarray(u, dtype=float))

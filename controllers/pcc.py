@@ -44,7 +44,9 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from controllers.errors import ControllerInputError, NonFiniteStateError, as_vector
-from controllers.pcc_model import ModelLayout, kinematics_rows, sinc_half_table
+from controllers.lazy_import import lazy_module
+
+pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
 
 MAX_ORDER = 3
 
@@ -99,7 +101,7 @@ def kinematics_unchecked(q: np.ndarray, lengths: np.ndarray, order: int) -> PCCK
     n = q.shape[0]
     ia, dmap = kinematic_structure(n, order)
     weight = lengths * np.exp(ia.dot(q))  # L_k e^{iφ_k}
-    coef = sinc_half_table(q)[:, : order + 1] * weight[:, None]
+    coef = pcc_model.sinc_half_table(q)[:, : order + 1] * weight[:, None]
     table = coef.ravel().dot(dmap).reshape(n + 1, -1)
     jac_end = n + 1
     hess = table[:, jac_end : jac_end + n * n].reshape(n + 1, n, n) if order >= 2 else None
@@ -131,8 +133,8 @@ def step_kinematics(q: Sequence[float], qd: Sequence[float], lengths: Sequence[f
     per-step implementation, at B = 1.
     """
     n = len(q)
-    row = kinematics_rows(np.array((q,), dtype=float), np.array((qd,), dtype=float), np.asarray(lengths, dtype=float))[0]
-    layout = ModelLayout.of(n)
+    row = pcc_model.kinematics_rows(np.array((q,), dtype=float), np.array((qd,), dtype=float), np.asarray(lengths, dtype=float))[0]
+    layout = pcc_model.ModelLayout.of(n)
     centre = row[layout.centre_jac].tolist()
     tip, tip_vel = row[layout.tip_terms][:2].tolist()
     return StepKinematics(row[layout.ends].tolist(), [centre[i * n : i * n + i + 1] for i in range(n)],
@@ -161,7 +163,7 @@ def kinematics(q, lengths, order: int = 1) -> PCCKinematics:
 def chord_derivatives(q, lengths) -> np.ndarray:
     """ℓ_i(q_i) and its first three derivatives: shape (N, 4), [i, a] = d^aℓ_i/dq_i^a (m/rad^a)."""
     q, lengths = _checked(q, lengths)
-    return sinc_half_table(q) * lengths[:, None]
+    return pcc_model.sinc_half_table(q) * lengths[:, None]
 
 
 def _xy(z: np.ndarray, axis: int) -> np.ndarray:

@@ -41,9 +41,10 @@ import math
 import numpy as np
 
 from controllers.dynamics import PCCDynamics
-from controllers.pcc_model import advance, ros2_first, ros2_second
+from controllers.lazy_import import lazy_module
 from controllers.safe_set import ForceSafeSet
 
+pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
 
 
 class StatePredictor:
@@ -150,16 +151,16 @@ class StatePredictor:
             decay = math.exp(-h / self.tau) if self.tau > 0 else 0.0  # τ_p = 0: p = u (the ideal valve)
             mean = self.tau / h * -math.expm1(-h / self.tau) if self.tau > 0 else 0.0
             if self.plate is None:
-                advance(0, x, u[None, :], p, params, kin, dyn, h, steps, decay, mean)
+                pcc_model.advance(0, x, u[None, :], p, params, kin, dyn, h, steps, decay, mean)
                 continue
             u = u.tolist()
             for _ in range(steps):
                 acting = [v + (pi - v) * mean for v, pi in zip(u, p[0].tolist())]
                 p[0] = [v + (pi - v) * decay for v, pi in zip(u, p[0].tolist())]
                 acc, dyn_row = self._plate_acceleration(x[0], acting)
-                k1, x2, schur_inv = ros2_first(x[0], acc, dyn_row, params[0], h)
+                k1, x2, schur_inv = pcc_model.ros2_first(x[0], acc, dyn_row, params[0], h)
                 acc2, _ = self._plate_acceleration(x2, acting)
-                x[0] = ros2_second(x[0], x2, k1, acc2, dyn_row, schur_inv, params[0], h)
+                x[0] = pcc_model.ros2_second(x[0], x2, k1, acc2, dyn_row, schur_inv, params[0], h)
         return x[0, :n].copy(), x[0, n:].copy(), p[0].copy()
 
     def _plate_acceleration(self, x: np.ndarray, u: list[float]) -> tuple[np.ndarray, np.ndarray]:

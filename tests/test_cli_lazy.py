@@ -1,5 +1,5 @@
 """`softcbf list` imports only what it lists (issue 27): not the hardware mode, the bench or the studies' command
-line, nor MuJoCo, OpenCV, matplotlib or rerun (the scenario modules import them where a scenario runs), and the
+line, nor MuJoCo, OpenCV, matplotlib, rerun or numba (the scenario modules import them where a scenario runs), and the
 registry imports a built-in's module only when it is looked up. CPU time: tools/bench_cli_list.py."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 import pytest
 
 LAZY = ("softcbf.hardware_cli", "hardware.runner", "softcbf.bench", "softcbf.study.cli")
-HEAVY = ("mujoco", "cv2", "OpenGL", "matplotlib", "rerun")  # imported only to run a scenario, render or report
+HEAVY = ("mujoco", "cv2", "OpenGL", "matplotlib", "rerun", "numba")  # imported only to run a scenario, render or report (numba: the compiled PCC model, controllers.lazy_import)
 
 
 def modules_after(code: str) -> set[str]:
