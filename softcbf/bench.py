@@ -13,7 +13,7 @@ Battery (`CASES`, in this order; each case runs registered scenarios with fixed 
 | camera_loop      | camera_loop at its defaults              | 10 Hz  | rendered AprilTags at 12.8 fps, 100 s                   |
 | camera_stiff_close | camera_loop                            | 10 Hz  | true plate 10 % stiffer (12.276 N/m) and 1 mm closer (facet_offset −1 mm), 100 s |
 | hardware_emulator | `softcbf hardware` on the emulator      | 10 Hz  | examples/hardware_emulated.toml with the reference arm (--robot reference), 20 s in real time |
-| camera_mismatch  | a study (softcbf.study) on camera_loop   | 10 Hz  | `MISMATCH_DRAWS` = 100 Monte Carlo draws (seed 2026): true plate stiffness U(±10 %), actuator gain scale U(0.9, 1.1), facet offset U(±1 mm); 30 s from t0 = 15 s (the first contact), as studies/paper_tunings_plate_errors.toml |
+| camera_mismatch  | a study (softcbf.study) on camera_loop   | 10 Hz  | `MISMATCH_DRAWS` = 100 Monte Carlo draws (seed 2026): true plate stiffness U(±10 %), actuator gain scale U(0.9, 1.1), facet offset U(±1 mm); `MISMATCH_DURATION_S` = 30 s from t0 = `MISMATCH_T0_S` = 15 s (the first contact), as studies/paper_tunings_plate_errors.toml |
 
 | mujoco_push_030 … _120, mujoco_push_150hPa, mujoco_force_target | mujoco_contact | 1 kHz | contact tasks (docs/beyond-the-paper.md#contact-tasks, `PUSHES`): a constant push from rest asking 0.3, 0.6, 0.9, 1.2 F_max, the full 150 hPa push, the force-target nominal (target 0.6 F_max); `PUSH_DURATION_S` = 6 s |
 | camera_push_030 … _120, camera_push_150hPa, camera_force_target | camera_loop | 10 Hz | the same contact tasks on the camera loop |
@@ -130,7 +130,7 @@ from softcbf_mj.runio import (
     RUN_MARKER, OutputDirError, load_timeseries, prepare_out_dir, read_run_folder, release_out_dir, remove_if_unused,
     safe_name,
 )
-from vocabulary.settings import Bound, check_number, non_negative
+from vocabulary.settings import Bound, check_number, default, non_negative
 
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
                "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s",
@@ -143,7 +143,8 @@ EERG_PARAMS = {"contact_aware": "true", "stiffness_lo_ratio": "0.9", "stiffness_
 CERG_PARAMS = {"stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
 STEP_STARTS, STEP_DURATION_S = 20, 5.0
 MISMATCH_DRAWS, MISMATCH_SEED = 100, 2026
-ASSUMED_PLATE_N_PER_M = 11.16
+MISMATCH_T0_S, MISMATCH_DURATION_S = 15.0, 30.0  # s: from the first contact on (module docstring)
+ASSUMED_PLATE_N_PER_M = default("assumed_plate_stiffness", "camera_loop")  # the camera cases' model plate (N/m)
 QUICK_DURATION_S = 1.0
 QUICK_STEP_STARTS, QUICK_STEP_DURATION_S, QUICK_MISMATCH_DRAWS = 3, 0.5, 2
 EMULATOR_CONFIG = Path(__file__).resolve().parent.parent / "examples" / "hardware_emulated.toml"
@@ -365,12 +366,13 @@ def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
                           force_key="force_max_emulator_N", violation_key="t_violation_emulator_s")
 
 
-def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float = 30.0):
-    """The camera_mismatch case's `softcbf.study.definition.Study` for `spec` (module docstring)."""
+def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float):
+    """The camera_mismatch case's `softcbf.study.definition.Study` for `spec` (module docstring), each sample
+    `duration` s long (`MISMATCH_DURATION_S`; --quick: `QUICK_DURATION_S`)."""
     from softcbf.study.definition import Distribution, Study
 
     k = ASSUMED_PLATE_N_PER_M
-    fixed = {"t0": 15.0, "duration": duration, "saved_frames_hz": 0.0, "progress": False,
+    fixed = {"t0": MISMATCH_T0_S, "duration": duration, "saved_frames_hz": 0.0, "progress": False,
              "assumed_plate_stiffness": k, "filter_params": _joined(case_filter_params(spec, case))}
     vary = (Distribution("plate_stiffness", "uniform", low=0.9 * k, high=1.1 * k),
             Distribution("true_gain_scale", "uniform", low=0.9, high=1.1),
@@ -398,7 +400,7 @@ def _mismatch_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
     from softcbf.study.execute import run_study
 
     draws = QUICK_MISMATCH_DRAWS if options.quick else (options.mismatch_draws or MISMATCH_DRAWS)
-    study = mismatch_study(spec, case, draws, QUICK_DURATION_S if options.quick else 30.0)
+    study = mismatch_study(spec, case, draws, QUICK_DURATION_S if options.quick else MISMATCH_DURATION_S)
     run_study(study, out, workers=options.workers, keep_runs=True, progress=not options.quick,
               resume=options.resume and out.exists())
     return study_figures(out)

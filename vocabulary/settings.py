@@ -22,10 +22,12 @@ F_max per facet in N on the command line (`--f-max`), in a run configuration fil
 
 One home per default. `default(name, context)` is the default every configuration surface
 takes: the scenario signatures (`plate_stiffness: float = default("plate_stiffness",
-"mujoco_contact")`; the CLI, `softcbf list` and `--help` read `inspect.signature`) and the
-hardware file's fields (context "hardware"). Where a context needs another default (paper_sim
-runs without the pressure box at 1 kHz, camera_loop and the hardware emulator on a coarser
-rod), `DEFAULT_OVERRIDES` says so, the one table of such overrides; no other module types a
+"mujoco_contact")`; the CLI, `softcbf list` and `--help` read `inspect.signature`), the
+hardware file's fields (context "hardware"), the environment's keyword arguments
+(softcbf_mj.env.ArmEnvConfig, context "environment") and softcbf bench's cases (the
+scenario's context). Where a context needs another default (paper_sim runs without the
+pressure box at 1 kHz, camera_loop and the hardware emulator on a coarser rod, the
+environment without a filter), `DEFAULT_OVERRIDES` says so, the one table of such overrides; no other module types a
 setting's default (tests/test_setting_defaults.py). The physical-constant modules below
 (softcbf_mj.model_builder, softcbf_mj.flexure, softcbf_mj.camera_loop.CameraTiming,
 perception.estimator) keep their documented constants, which that test holds equal to these.
@@ -220,8 +222,11 @@ DEFAULT_OVERRIDES: dict[str, dict[str, Any]] = {
     # the hardware file: the emulator's coarser rod (5 links at 0.2 ms run ≈ 9× real time), a smaller
     # virtual camera, and no calibration (None: required unless the camera is virtual)
     "hardware": {"links_per_segment": 5, "physics_dt": 2e-4, "width": 480, "height": 270, "calibration": None},
+    # the environment (softcbf_mj.env's keyword arguments): the unfiltered arm, a policy's to learn on
+    "environment": {"filter": "none"},
 }
-"""Where one context (a scenario's name, or "hardware" for the hardware file) needs another default
+"""Where one context (a scenario's name, "hardware" for the hardware file, "environment" for
+softcbf_mj.env's `ArmEnvConfig`) needs another default
 than the declared one: context → {setting: default}. The one place a default differs by context."""
 
 

@@ -33,7 +33,6 @@ from typing import Any
 
 from dm_control.rl import control
 
-from closedloop.monitor import DEFAULT_HOLD_S
 from controllers.params import RobotParams, reference_robot
 from controllers.registry import build_filter
 from controllers.safe_set import ForceSafeSet, paper_safe_set
@@ -41,9 +40,10 @@ from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from softcbf_mj.env.physics import ArmPhysics, NoisyState
 from softcbf_mj.env.task import COSTS, OBSERVATIONS, ArmTask, RewardConfig
 from softcbf_mj.loop import exact_state
-from softcbf_mj.model_builder import CAMERA_RESOLUTION, DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from softcbf_mj.model_builder import CAMERA_RESOLUTION
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState, steps_per_control
+from vocabulary.settings import default
 
 DEFAULT_CONTROL_DT = 1e-3  # s, the paper's 1 kHz (as scenarios/mujoco_contact.py)
 MIN_IMAGE_PX = 8  # the tag detector's smallest image side
@@ -52,6 +52,13 @@ MIN_IMAGE_PX = 8  # the tag detector's smallest image side
 @dataclass(frozen=True)
 class ArmEnvConfig:
     """Everything the environment depends on (units in the module docstring).
+
+    A field named like a setting of `vocabulary.settings` (plate_stiffness, physics_dt,
+    links_per_segment, tau_p, filter, pressure_limits, hold_s, q0_std) means that setting
+    and takes its default from there: `default(name, "environment")`, the declared default or
+    the context's override (filter "none": the environment is the unfiltered arm unless a
+    filter is asked for). The table shows their values (tests/test_setting_defaults.py holds
+    it to them); control_dt, the other fields and their defaults are the environment's own.
 
     | field            | default              | unit | meaning                                                   |
     |------------------|----------------------|------|-----------------------------------------------------------|
@@ -80,18 +87,18 @@ class ArmEnvConfig:
 
     robot: RobotParams = field(default_factory=reference_robot)
     safe_set: ForceSafeSet = field(default_factory=paper_safe_set)
-    plate_stiffness: float = 11.16
+    plate_stiffness: float = default("plate_stiffness", "environment")
     control_dt: float = DEFAULT_CONTROL_DT
-    physics_dt: float = DEFAULT_PHYSICS_DT
-    links_per_segment: int = DEFAULT_LINKS_PER_SEGMENT
-    tau_p: float = DEFAULT_TAU_P
+    physics_dt: float = default("physics_dt", "environment")
+    links_per_segment: int = default("links_per_segment", "environment")
+    tau_p: float = default("tau_p", "environment")
     action_repeat: int = 1
     episode_steps: int = 1000
-    filter: str = "none"
+    filter: str = default("filter", "environment")
     filter_params: Mapping[str, object] = field(default_factory=dict)
-    pressure_limits: bool = True
-    hold_s: float = DEFAULT_HOLD_S
-    q0_std: float = 0.0
+    pressure_limits: bool = default("pressure_limits", "environment")
+    hold_s: float = default("hold_s", "environment")
+    q0_std: float = default("q0_std", "environment")
     state_noise_std: tuple[float, float] = (0.0, 0.0)
     observation: str = "estimate"
     reward: RewardConfig = field(default_factory=RewardConfig)

@@ -61,7 +61,7 @@ from typing import Callable
 import numpy as np
 from dm_control.rl import control
 
-from closedloop.monitor import DEFAULT_HOLD_S, SafeAction, SafetyMonitor
+from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, StepRecord
 from controllers.pcc import tip_position
 from controllers.safety_filter import Estimate, FilterContext, SafetyFilter, read_only
@@ -71,6 +71,7 @@ from softcbf_mj.loop import exact_state
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState
 from softcbf_mj.render import OffscreenRenderer
+from vocabulary.settings import default
 
 
 class HeldCommand:
@@ -249,8 +250,8 @@ class ArmPhysics(ArmControl, control.Physics):
     """
 
     def __init__(self, plant: MujocoPlant, safety_filter: SafetyFilter, context: FilterContext,
-                 hold_s: float = DEFAULT_HOLD_S, estimator: Callable[[PlantState], Estimate] = exact_state,
-                 image_size: tuple[int, int] = (320, 180)) -> None:
+                 hold_s: float = default("hold_s", "environment"),
+                 estimator: Callable[[PlantState], Estimate] = exact_state, image_size: tuple[int, int] = (320, 180)) -> None:
         self.plant, self.image_size = plant, image_size
         super().__init__(plant.n_segments, plant.n_facets, safety_filter, context, hold_s, estimator, plant.reset)
         self._renderer: OffscreenRenderer | None = None

@@ -73,6 +73,7 @@ from dm_control.rl import control
 from dm_env import specs
 
 from softcbf_mj.env.physics import ArmControl, NoisyState, StepStats
+from vocabulary.settings import default
 
 OBSERVATION_UNITS = {
     "q": "rad (the controller's estimate)",
@@ -150,9 +151,9 @@ class ArmTask(control.Task):
     """
 
     def __init__(self, u_min: np.ndarray, u_max: np.ndarray, n_facets: int, episode_steps: int,
-                 reward: RewardConfig = RewardConfig(), q0_std: float = 0.0, camera: bool = False,
-                 tag_detections: bool = False, image_size: tuple[int, int] = (320, 180), seed: int | None = None,
-                 observation: str = "estimate", cost: str = "violation") -> None:
+                 reward: RewardConfig = RewardConfig(), q0_std: float = default("q0_std", "environment"),
+                 camera: bool = False, tag_detections: bool = False, image_size: tuple[int, int] = (320, 180),
+                 seed: int | None = None, observation: str = "estimate", cost: str = "violation") -> None:
         if isinstance(episode_steps, bool) or not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1:
             raise ValueError(f"episode_steps must be an integer >= 1, got {episode_steps!r}")
         if not (math.isfinite(q0_std) and q0_std >= 0):
