@@ -84,6 +84,19 @@ def test_cli_refuses_a_bad_study_with_exit_2_one_line_and_no_folder(tmp_path, ch
     assert not out.exists()
 
 
+def test_cli_refuses_an_out_of_bounds_filter_parameter_before_any_sample(tmp_path):
+    """Issue 25: a filter's parameters are checked against its declared bounds when the study
+    loads, so `softcbf study run` exits 2 with one line naming the parameter and runs nothing."""
+    text = BASE.replace('tunings = ["None", "Low"]', 'filter = "e-erg"\ntunings = ["e-erg"]').replace(
+        "duration = 0.2", 'duration = 0.2\nfilter_params = "kappa=-1"')
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "softcbf.study", "run", str(_write(tmp_path, text)), "--out", str(out),
+                           "--no-progress"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and "filter 'e-erg': kappa must be in [0, 1000], got -1.0" in proc.stderr
+    assert not out.exists()
+
+
 def test_a_billion_draws_load_at_once_and_a_sample_count_beyond_int64_is_refused(tmp_path):
     study = load_study(_write(tmp_path, BASE.replace("draws = 4", "draws = 1000000000000")))
     assert study.n_samples == 2 * 10**12 and study.sample(study.n_samples - 1).draw == 10**12 - 1
