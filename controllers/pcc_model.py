@@ -6,7 +6,10 @@ Compiled numba kernels over arrays with a leading batch axis b = 0..B−1: `@nji
 so the results are deterministic and a row of a batch equals the same state evaluated alone,
 bit for bit), error_model="numpy" (a division by zero gives ±inf/NaN, which the integrators
 report as divergence, instead of raising), the per-row kernels inline="always" (2–3× faster:
-no call or array reference counting per row). Every per-step user of the model goes through
+no call or array reference counting per row) and handed few arrays: every vector of a row is
+addressed as (array, row index), the integrators' per-state vectors all rows of one float work
+array (`W_*` rows), never a view or an array of its own (numba reference-counts every array
+variable of an inlined kernel; at B = 1024 that halved `advance`'s time, the floats unchanged). Every per-step user of the model goes through
 them: `controllers.dynamics.PCCDynamics` (B = 1), `BatchDynamics`, the barrier terms of
 `controllers.cbf_batch`, `softcbf_mj.pcc_plant.PCCPlant` (B = 1),
 `softcbf_mj.pcc_batch_plant.PCCBatchPlant` and `controllers.state_predictor.StatePredictor`. The tensor path of `controllers.pcc.kinematics`
@@ -151,56 +154,73 @@ def parameter_rows(params: RobotParams | Sequence[RobotParams]) -> np.ndarray:
     return np.ascontiguousarray(np.array(rows, dtype=float))
 
 
+# Rows of the float work array of the row kernels (`_work`): every per-state vector of a step (x,
+# the stages, the acting pressure, the Schur complement, the Cholesky scratch and a stage's `dyn`
+# row) is a row of one array, addressed by (array, row), not an array each: in a loop over states
+# numba reference-counts every array a kernel is handed, which cost more than the arithmetic.
+W_X, W_NEW, W_K1, W_X2, W_K2, W_KS = 0, 1, 2, 3, 4, 5  # W_KS..W_KS + 2: the RK4 stages
+W_U, W_ACC, W_TAU, W_RHS, W_GHK, W_RQ, W_RV = 8, 9, 10, 11, 12, 13, 14
+W_SCHUR, W_SCHUR_INV, W_CHOL, W_DYN2 = 15, 16, 17, 19  # W_CHOL, W_CHOL + 1: the factor L and L⁻¹
+WORK_ROWS = 20
+
+
 @njit(cache=True, error_model="numpy", inline="always")
-def _inverse(m, mo, out, oo, n, chol, inv_l) -> None:
-    """out[oo:oo+N²] = (m[mo:mo+N²])⁻¹ for a small SPD matrix stored flat row-major: closed form for
-    N ≤ 2, Cholesky (m = L Lᵀ, m⁻¹ = L⁻ᵀ L⁻¹) beyond; chol, inv_l: scratch (N²,)."""
+def _work(n):
+    """The float work array (WORK_ROWS, 2N² + N) of N segments (2N² + N ≥ 2N, N²: every row fits)."""
+    return np.empty((WORK_ROWS, 2 * n * n + n))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _inverse(m, mr, mo, out, outr, oo, n, w, cr) -> None:
+    """out[outr, oo:oo+N²] = (m[mr, mo:mo+N²])⁻¹ for a small SPD matrix stored flat row-major: closed
+    form for N ≤ 2, Cholesky (m = L Lᵀ, m⁻¹ = L⁻ᵀ L⁻¹) beyond; w rows cr, cr + 1: scratch (N²,)."""
     if n == 1:
-        out[oo] = 1.0 / m[mo]
+        out[outr, oo] = 1.0 / m[mr, mo]
         return
     if n == 2:
-        a, b, c, d = m[mo], m[mo + 1], m[mo + 2], m[mo + 3]
+        a, b, c, d = m[mr, mo], m[mr, mo + 1], m[mr, mo + 2], m[mr, mo + 3]
         det = a * d - b * c
-        out[oo], out[oo + 1], out[oo + 2], out[oo + 3] = d / det, -b / det, -c / det, a / det
+        out[outr, oo], out[outr, oo + 1], out[outr, oo + 2], out[outr, oo + 3] = d / det, -b / det, -c / det, a / det
         return
+    il = cr + 1
     for i in range(n * n):
-        chol[i] = 0.0
-        inv_l[i] = 0.0
+        w[cr, i] = 0.0
+        w[il, i] = 0.0
     for i in range(n):
         for j in range(i + 1):
-            s = m[mo + i * n + j]
+            s = m[mr, mo + i * n + j]
             for k in range(j):
-                s -= chol[i * n + k] * chol[j * n + k]
-            chol[i * n + j] = math.sqrt(s) if i == j else s / chol[j * n + j]
+                s -= w[cr, i * n + k] * w[cr, j * n + k]
+            w[cr, i * n + j] = math.sqrt(s) if i == j else s / w[cr, j * n + j]
     for j in range(n):  # L⁻¹, lower triangular
-        inv_l[j * n + j] = 1.0 / chol[j * n + j]
+        w[il, j * n + j] = 1.0 / w[cr, j * n + j]
         for i in range(j + 1, n):
             s = 0.0
             for k in range(j, i):
-                s -= chol[i * n + k] * inv_l[k * n + j]
-            inv_l[i * n + j] = s / chol[i * n + i]
+                s -= w[cr, i * n + k] * w[il, k * n + j]
+            w[il, i * n + j] = s / w[cr, i * n + i]
     for i in range(n):
         for j in range(i + 1):
             s = 0.0
             for k in range(i, n):
-                s += inv_l[k * n + i] * inv_l[k * n + j]
-            out[oo + i * n + j] = s
-            out[oo + j * n + i] = s
+                s += w[il, k * n + i] * w[il, k * n + j]
+            out[outr, oo + i * n + j] = s
+            out[outr, oo + j * n + i] = s
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _row_kinematics(x, par, kin, cw) -> None:
-    """The kinematic part of one state's `kin` row: everything but r̈₀ and ∂r̈/∂u (module docstring).
-    x = [q; q̇] (2N,); par: the parameter row (lengths first); cw: complex scratch (6, N).
-    No array views are made here (nor in the other row kernels): in a loop over states
-    their reference counting would cost more than the arithmetic."""
+def _row_kinematics(w, xr, par, pr, kin, kr, cw) -> None:
+    """The kinematic part of the `kin` row kin[kr]: everything but r̈₀ and ∂r̈/∂u (module docstring).
+    x = [q; q̇] = w[xr, :2N]; par[pr]: the parameter row (lengths first); cw: complex scratch (6, N).
+    Rows are indexed in place, never taken as views (nor in the other row kernels): in a loop
+    over states their reference counting would cost more than the arithmetic."""
     n = cw.shape[1]
-    # cw rows: 0 chords g, 1 ℓ' z, 2 ġ, 3 d/dt(ℓ' z), 4 J̇q̇ of g, 5 s_j (indexed in place: no views)
+    # cw rows: 0 chords g, 1 ℓ' z, 2 ġ, 3 d/dt(ℓ' z), 4 J̇q̇ of g, 5 s_j
     end = 0j
     theta = 0.0
     theta_dot = 0.0
     for k in range(n):
-        qk, qdk, length = x[k], x[n + k], par[k]
+        qk, qdk, length = w[xr, k], w[xr, n + k], par[pr, k]
         s0, s1, s2, _ = sinc_half(qk)
         l0, l1, l2 = length * s0, length * s1, length * s2
         omega = theta_dot + 0.5 * qdk
@@ -210,7 +230,7 @@ def _row_kinematics(x, par, kin, cw) -> None:
         theta_dot += qdk
         cw[0, k] = l0 * z
         end += cw[0, k]
-        kin[k] = end
+        kin[kr, k] = end
         cw[1, k] = l1 * z
         cw[2, k] = (l1 * qdk + 1j * l0 * omega) * z
         cw[3, k] = (l2 * qdk + 1j * l1 * omega) * z
@@ -219,23 +239,23 @@ def _row_kinematics(x, par, kin, cw) -> None:
     tip_vel = 0j  # Σ_{k>j} ġ_k, finally ṙ
     for j in range(n - 1, -1, -1):
         cw[5, j] = 1j * (0.5 * cw[0, j] + suffix)
-        kin[n + j] = cw[1, j] + cw[5, j]  # J_r
-        kin[2 * n + j] = cw[3, j] + 1j * (0.5 * cw[2, j] + tip_vel)  # J̇_r
+        kin[kr, n + j] = cw[1, j] + cw[5, j]  # J_r
+        kin[kr, 2 * n + j] = cw[3, j] + 1j * (0.5 * cw[2, j] + tip_vel)  # J̇_r
         suffix += cw[0, j]
         tip_vel += cw[2, j]
     o_cj = 5 * n + 4
     prefix = 0j
     for i in range(n):
         for j in range(i):
-            kin[o_cj + i * n + j] = kin[n + j] - cw[5, i]
-        kin[o_cj + i * n + i] = 0.5 * cw[1, i] + 0.25j * cw[0, i]
+            kin[kr, o_cj + i * n + j] = kin[kr, n + j] - cw[5, i]
+        kin[kr, o_cj + i * n + i] = 0.5 * cw[1, i] + 0.25j * cw[0, i]
         for j in range(i + 1, n):
-            kin[o_cj + i * n + j] = 0j
-        kin[3 * n + i] = prefix + 0.5 * cw[4, i]
+            kin[kr, o_cj + i * n + j] = 0j
+        kin[kr, 3 * n + i] = prefix + 0.5 * cw[4, i]
         prefix += cw[4, i]
-    kin[4 * n] = end
-    kin[4 * n + 1] = tip_vel
-    kin[5 * n + 3] = prefix
+    kin[kr, 4 * n] = end
+    kin[kr, 4 * n + 1] = tip_vel
+    kin[kr, 5 * n + 3] = prefix
 
 
 @njit(cache=True, error_model="numpy")
@@ -244,52 +264,54 @@ def kinematics_rows(q: np.ndarray, qd: np.ndarray, lengths: np.ndarray) -> np.nd
     b_count, n = q.shape
     kin = np.full((b_count, n * n + 5 * n + 4), np.nan + 0j)
     cw = np.empty((6, n), np.complex128)
-    xs = np.empty(2 * n)
+    w = _work(n)
+    par = _as_row(lengths)
     for b in range(b_count):
         for k in range(n):
-            xs[k] = q[b, k]
-            xs[n + k] = qd[b, k]
-        _row_kinematics(xs, lengths, kin[b], cw)
+            w[W_X, k] = q[b, k]
+            w[W_X, n + k] = qd[b, k]
+        _row_kinematics(w, W_X, par, 0, kin, b, cw)
     return kin
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _row_terms(x, par, kin, dyn, cw, chol, inv_l) -> None:
-    """The model terms of the state x = [q; q̇] (2N,) into its `kin` and `dyn` rows (module docstring)."""
+def _row_terms(w, xr, par, pr, kin, kr, dyn, dr, cw) -> None:
+    """The model terms of the state x = [q; q̇] = w[xr, :2N] into its `kin` and `dyn` rows kin[kr],
+    dyn[dr] (module docstring); par[pr]: the parameter row; w rows W_CHOL, W_CHOL + 1: scratch."""
     n = cw.shape[1]
     nn = n * n
     o_m, o_d, o_k, o_g, o_r = n, 2 * n, 3 * n, 4 * n, 5 * n
     o_cj = 5 * n + 4
-    _row_kinematics(x, par, kin, cw)
+    _row_kinematics(w, xr, par, pr, kin, kr, cw)
     # M = M_rot + Σ m_i J_ciᵀ J_ci and f = D q̇ + K q + Σ m_i J_ciᵀ (J̇_ci q̇), summed over j ≤ l ≤ i.
     for j in range(nn):
-        dyn[j] = par[o_r + j]
+        dyn[dr, j] = par[pr, o_r + j]
     for j in range(n):
-        dyn[2 * nn + j] = par[o_d + j] * x[n + j] + par[o_k + j] * x[j]
+        dyn[dr, 2 * nn + j] = par[pr, o_d + j] * w[xr, n + j] + par[pr, o_k + j] * w[xr, j]
     for i in range(n):
-        m_i = par[o_m + i]
-        acc = kin[3 * n + i]
+        m_i = par[pr, o_m + i]
+        acc = kin[kr, 3 * n + i]
         for j in range(i + 1):
-            a = kin[o_cj + i * n + j]
+            a = kin[kr, o_cj + i * n + j]
             a_re, a_im = m_i * a.real, m_i * a.imag
-            dyn[2 * nn + j] += a_re * acc.real + a_im * acc.imag
+            dyn[dr, 2 * nn + j] += a_re * acc.real + a_im * acc.imag
             for l in range(j, i + 1):
-                b = kin[o_cj + i * n + l]
-                dyn[j * n + l] += a_re * b.real + a_im * b.imag
+                b = kin[kr, o_cj + i * n + l]
+                dyn[dr, j * n + l] += a_re * b.real + a_im * b.imag
     for j in range(1, n):
         for l in range(j):
-            dyn[j * n + l] = dyn[l * n + j]
-    _inverse(dyn, 0, dyn, nn, n, chol, inv_l)
+            dyn[dr, j * n + l] = dyn[dr, l * n + j]
+    _inverse(dyn, dr, 0, dyn, dr, nn, n, w, W_CHOL)
     # Tip terms: w = M⁻¹ J_r, r̈₀ = J̇_r q̇ − Σ w_i f_i, ∂r̈/∂u_i = w_i λ_i.
     o_t = 4 * n
     drift = 0j
     for i in range(n):
-        w = 0j
+        wi = 0j
         for j in range(n):
-            w += dyn[nn + i * n + j] * kin[n + j]
-        drift += w * dyn[2 * nn + i]
-        kin[o_t + 3 + i] = w * par[o_g + i]
-    kin[o_t + 2] = kin[5 * n + 3] - drift
+            wi += dyn[dr, nn + i * n + j] * kin[kr, n + j]
+        drift += wi * dyn[dr, 2 * nn + i]
+        kin[kr, o_t + 3 + i] = wi * par[pr, o_g + i]
+    kin[kr, o_t + 2] = kin[kr, 5 * n + 3] - drift
 
 
 @njit(cache=True, error_model="numpy")
@@ -299,28 +321,28 @@ def model_terms(q: np.ndarray, qd: np.ndarray, params: np.ndarray) -> tuple[np.n
     kin = np.empty((b_count, n * n + 5 * n + 4), np.complex128)
     dyn = np.empty((b_count, 2 * n * n + n))
     cw = np.empty((6, n), np.complex128)
-    chol, inv_l, xs = np.empty(n * n), np.empty(n * n), np.empty(2 * n)
+    w = _work(n)
     shared = params.shape[0] == 1
     for b in range(b_count):
         for k in range(n):
-            xs[k] = q[b, k]
-            xs[n + k] = qd[b, k]
-        _row_terms(xs, params[0 if shared else b], kin[b], dyn[b], cw, chol, inv_l)
+            w[W_X, k] = q[b, k]
+            w[W_X, n + k] = qd[b, k]
+        _row_terms(w, W_X, params, 0 if shared else b, kin, b, dyn, b, cw)
     return kin, dyn
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _acceleration(dyn, par, u, out, tau) -> None:
-    """out = q̈ = M⁻¹(Λu − f) of one state (its `dyn` row), u (N,) hPa; tau: scratch (N,)."""
-    n = u.shape[0]
+def _acceleration(dyn, dr, par, pr, w, n) -> None:
+    """w[W_ACC] = q̈ = M⁻¹(Λu − f) of one state (its `dyn` row dyn[dr]), u = w[W_U] (N,) hPa;
+    w[W_TAU]: scratch (N,)."""
     nn = n * n
     for j in range(n):
-        tau[j] = par[4 * n + j] * u[j] - dyn[2 * nn + j]
+        w[W_TAU, j] = par[pr, 4 * n + j] * w[W_U, j] - dyn[dr, 2 * nn + j]
     for i in range(n):
         s = 0.0
         for j in range(n):
-            s += dyn[nn + i * n + j] * tau[j]
-        out[i] = s
+            s += dyn[dr, nn + i * n + j] * w[W_TAU, j]
+        w[W_ACC, i] = s
 
 
 @njit(cache=True, error_model="numpy")
@@ -328,67 +350,76 @@ def accelerations(dyn: np.ndarray, params: np.ndarray, u: np.ndarray) -> np.ndar
     """q̈ (B, N) rad/s² from the `dyn` rows of B states and commands u (B, N) hPa."""
     b_count, n = u.shape
     out = np.empty((b_count, n))
-    tau, acc, ub = np.empty(n), np.empty(n), np.empty(n)
+    w = _work(n)
     shared = params.shape[0] == 1
     for b in range(b_count):
         for j in range(n):
-            ub[j] = u[b, j]
-        _acceleration(dyn[b], params[0 if shared else b], ub, acc, tau)
+            w[W_U, j] = u[b, j]
+        _acceleration(dyn, b, params, 0 if shared else b, w, n)
         for j in range(n):
-            out[b, j] = acc[j]
+            out[b, j] = w[W_ACC, j]
     return out
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _solve_w(mass, schur_inv, ghk, gh, r_q, ro, r_v, out, rhs) -> None:
-    """out = [k_q; k_v] = W⁻¹ [r_q; r_v] with r_q = r_q[ro:ro+N]: (M + γhD + (γh)²K) k_v = M r_v − γhK r_q,
-    k_q = r_q + γh k_v. mass (M first, flat), schur_inv flat (N²,); rhs: scratch (N,)."""
-    n = ghk.shape[0]
+def _solve_w(mass, mr, w, gh, rqr, ro, rvr, outr, n) -> None:
+    """w[outr] = [k_q; k_v] = W⁻¹ [r_q; r_v] with r_q = w[rqr, ro:ro+N], r_v = w[rvr, :N]:
+    (M + γhD + (γh)²K) k_v = M r_v − γhK r_q, k_q = r_q + γh k_v. M: mass[mr, :N²];
+    (M + γhD + (γh)²K)⁻¹: w[W_SCHUR_INV], γhK: w[W_GHK]; w[W_RHS]: scratch (N,)."""
     for j in range(n):
         s = 0.0
         for l in range(n):
-            s += mass[j * n + l] * r_v[l]
-        rhs[j] = s - ghk[j] * r_q[ro + j]
+            s += mass[mr, j * n + l] * w[rvr, l]
+        w[W_RHS, j] = s - w[W_GHK, j] * w[rqr, ro + j]
     for j in range(n):
         s = 0.0
         for l in range(n):
-            s += schur_inv[j * n + l] * rhs[l]
-        out[n + j] = s
+            s += w[W_SCHUR_INV, j * n + l] * w[W_RHS, l]
+        w[outr, n + j] = s
     for j in range(n):
-        out[j] = r_q[ro + j] + gh * out[n + j]
+        w[outr, j] = w[rqr, ro + j] + gh * w[outr, n + j]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, ghk, rhs, chol, inv_l) -> None:
-    """`ros2_first` into k1, x2 (2N,), schur_inv (N²,), with scratch schur (N²,), ghk, rhs (N,), chol, inv_l."""
-    n = acc.shape[0]
+def _ros2_first(w, dyn, dr, par, pr, h, n) -> None:
+    """`ros2_first` from x = w[W_X], q̈ = w[W_ACC] into k1 = w[W_K1], x2 = w[W_X2] (2N,) and
+    w[W_SCHUR_INV] (N²,), with scratch rows W_SCHUR, W_GHK, W_RHS, W_CHOL, W_CHOL + 1."""
     nn = n * n
     gh = ROS2_GAMMA * h
     for j in range(nn):
-        schur[j] = dyn[j]
+        w[W_SCHUR, j] = dyn[dr, j]
     for j in range(n):
-        d, k = par[2 * n + j], par[3 * n + j]
-        schur[j * n + j] = dyn[j * n + j] + (gh * d + gh * gh * k)
-        ghk[j] = gh * k
-    _inverse(schur, 0, schur_inv, 0, n, chol, inv_l)
-    _solve_w(dyn, schur_inv, ghk, gh, x, n, acc, k1, rhs)
+        d, k = par[pr, 2 * n + j], par[pr, 3 * n + j]
+        w[W_SCHUR, j * n + j] = dyn[dr, j * n + j] + (gh * d + gh * gh * k)
+        w[W_GHK, j] = gh * k
+    _inverse(w, W_SCHUR, 0, w, W_SCHUR_INV, 0, n, w, W_CHOL)
+    _solve_w(dyn, dr, w, gh, W_X, n, W_ACC, W_K1, n)
     for i in range(2 * n):
-        x2[i] = x[i] + h * k1[i]
+        w[W_X2, i] = w[W_X, i] + h * w[W_K1, i]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h, new, ghk, r_q, r_v, k2, rhs) -> None:
-    """`ros2_second` into new (2N,), with scratch ghk, r_q, r_v, rhs (N,), k2 (2N,)."""
-    n = acc2.shape[0]
+def _ros2_second(w, dyn, dr, par, pr, h, n) -> None:
+    """`ros2_second` from x = w[W_X], x2 = w[W_X2], k1 = w[W_K1], q̈ at x2 = w[W_ACC] and
+    w[W_SCHUR_INV] into w[W_NEW] (2N,), with scratch rows W_GHK, W_RQ, W_RV, W_RHS, W_K2."""
     gh = ROS2_GAMMA * h
     for j in range(n):
-        ghk[j] = gh * par[3 * n + j]
+        w[W_GHK, j] = gh * par[pr, 3 * n + j]
     for i in range(n):
-        r_q[i] = x2[n + i] - 2.0 * k1[i]
-        r_v[i] = acc2[i] - 2.0 * k1[n + i]
-    _solve_w(dyn, schur_inv, ghk, gh, r_q, 0, r_v, k2, rhs)
+        w[W_RQ, i] = w[W_X2, n + i] - 2.0 * w[W_K1, i]
+        w[W_RV, i] = w[W_ACC, i] - 2.0 * w[W_K1, n + i]
+    _solve_w(dyn, dr, w, gh, W_RQ, 0, W_RV, W_K2, n)
     for i in range(2 * n):
-        new[i] = x[i] + (0.5 * h) * (3.0 * k1[i] + k2[i])
+        w[W_NEW, i] = w[W_X, i] + (0.5 * h) * (3.0 * w[W_K1, i] + w[W_K2, i])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _as_row(v):
+    """A copy of the vector v (any layout) as a (1, len) array, for the row kernels' (array, row) arguments."""
+    out = np.empty((1, v.shape[0]))
+    for i in range(v.shape[0]):
+        out[0, i] = v[i]
+    return out
 
 
 @njit(cache=True, error_model="numpy")
@@ -400,56 +431,64 @@ def ros2_first(x, acc, dyn, par, h):
     γ = 1 + 1/√2): k1 = W⁻¹ F(x), k2 = W⁻¹ (F(x + h k1) − 2 k1), x' = x + h(3 k1 + k2)/2.
     """
     n = acc.shape[0]
-    k1, x2, schur, schur_inv = np.empty(2 * n), np.empty(2 * n), np.empty(n * n), np.empty(n * n)
-    _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, np.empty(n), np.empty(n), np.empty(n * n),
-                np.empty(n * n))
-    return k1, x2, schur_inv
+    w = _work(n)
+    for i in range(2 * n):
+        w[W_X, i] = x[i]
+    for i in range(n):
+        w[W_ACC, i] = acc[i]
+    _ros2_first(w, _as_row(dyn), 0, _as_row(par), 0, h, n)
+    return w[W_K1, :2 * n].copy(), w[W_X2, :2 * n].copy(), w[W_SCHUR_INV, :n * n].copy()
 
 
 @njit(cache=True, error_model="numpy")
 def ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h):
     """Second stage of the ROS2 step begun by `ros2_first`, with q̈ = acc2 at x2: the new state (2N,)."""
     n = acc2.shape[0]
-    new = np.empty(2 * n)
-    _ros2_second(x, x2, k1, acc2, dyn, schur_inv, par, h, new, np.empty(n), np.empty(n), np.empty(n),
-                 np.empty(2 * n), np.empty(n))
-    return new
+    w = _work(n)
+    for i in range(2 * n):
+        w[W_X, i], w[W_X2, i], w[W_K1, i] = x[i], x2[i], k1[i]
+    for i in range(n):
+        w[W_ACC, i] = acc2[i]
+    for i in range(n * n):
+        w[W_SCHUR_INV, i] = schur_inv[i]
+    _ros2_second(w, _as_row(dyn), 0, _as_row(par), 0, h, n)
+    return w[W_NEW, :2 * n].copy()
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _step(method, x, u, par, kin, dyn, h, new, acc, k1, x2, k2, ks, schur, schur_inv, tau, rhs, ghk, r_q, r_v, chol,
-          inv_l, kin2, dyn2, cw) -> None:
-    """One integrator step of length h from x (2N,) with (kin, dyn) at x; the new x into `new` (2N,).
-    Scratch: acc, tau, rhs, ghk, r_q, r_v (N,); k1, x2, k2 (2N,); ks (3, 2N); schur, schur_inv, chol,
-    inv_l (N²,); kin2, dyn2: rows; cw (6, N) complex."""
-    n = u.shape[0]
-    _acceleration(dyn, par, u, acc, tau)
+def _step(method, w, par, pr, kin, dyn, dr, h, kin2, cw) -> None:
+    """One integrator step of length h from x = w[W_X] (2N,) with u = w[W_U] and (kin, dyn) at x in
+    the rows kin[dr], dyn[dr]; the new x into w[W_NEW]. Scratch: the other rows of w (W_DYN2: the
+    stages' `dyn` row), kin2 (1, ·) (their `kin` row), cw (6, N) complex."""
+    n = cw.shape[1]
+    _acceleration(dyn, dr, par, pr, w, n)
     if method == 2:  # forward Euler
         for i in range(n):
-            new[i] = x[i] + h * x[n + i]
-            new[n + i] = x[n + i] + h * acc[i]
+            w[W_NEW, i] = w[W_X, i] + h * w[W_X, n + i]
+            w[W_NEW, n + i] = w[W_X, n + i] + h * w[W_ACC, i]
         return
     if method == 1:  # classical Runge–Kutta
         for i in range(n):
-            k1[i] = x[n + i]
-            k1[n + i] = acc[i]
+            w[W_K1, i] = w[W_X, n + i]
+            w[W_K1, n + i] = w[W_ACC, i]
         for stage in range(3):
             scale = 0.5 * h if stage < 2 else h
             for i in range(2 * n):
-                x2[i] = x[i] + scale * (k1[i] if stage == 0 else ks[stage - 1, i])
-            _row_terms(x2, par, kin2, dyn2, cw, chol, inv_l)
-            _acceleration(dyn2, par, u, acc, tau)
+                w[W_X2, i] = w[W_X, i] + scale * (w[W_K1, i] if stage == 0 else w[W_KS + stage - 1, i])
+            _row_terms(w, W_X2, par, pr, kin2, 0, w, W_DYN2, cw)
+            _acceleration(w, W_DYN2, par, pr, w, n)
             for i in range(n):
-                ks[stage, i] = x2[n + i]
-                ks[stage, n + i] = acc[i]
+                w[W_KS + stage, i] = w[W_X2, n + i]
+                w[W_KS + stage, n + i] = w[W_ACC, i]
         for i in range(2 * n):
-            new[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * ks[0, i] + 2.0 * ks[1, i] + ks[2, i])
+            w[W_NEW, i] = w[W_X, i] + (h / 6.0) * (w[W_K1, i] + 2.0 * w[W_KS, i] + 2.0 * w[W_KS + 1, i]
+                                                   + w[W_KS + 2, i])
         return
     # ROS2
-    _ros2_first(x, acc, dyn, par, h, k1, x2, schur, schur_inv, ghk, rhs, chol, inv_l)
-    _row_terms(x2, par, kin2, dyn2, cw, chol, inv_l)
-    _acceleration(dyn2, par, u, acc, tau)
-    _ros2_second(x, x2, k1, acc, dyn, schur_inv, par, h, new, ghk, r_q, r_v, k2, rhs)
+    _ros2_first(w, dyn, dr, par, pr, h, n)
+    _row_terms(w, W_X2, par, pr, kin2, 0, w, W_DYN2, cw)
+    _acceleration(w, W_DYN2, par, pr, w, n)
+    _ros2_second(w, dyn, dr, par, pr, h, n)
 
 
 @njit(cache=True, error_model="numpy")
@@ -466,39 +505,32 @@ def advance(method: int, x: np.ndarray, u: np.ndarray, pressure: np.ndarray, par
     b_count, n = u.shape
     shared = params.shape[0] == 1
     diverged = np.zeros(b_count, np.bool_)
-    acting, acc = np.empty(n), np.empty(n)
-    xb, new, k1, x2 = np.empty(2 * n), np.empty(2 * n), np.empty(2 * n), np.empty(2 * n)
-    k2, ks = np.empty(2 * n), np.empty((3, 2 * n))
-    tau, rhs, ghk, r_q, r_v = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    schur, schur_inv, chol, inv_l = np.empty(n * n), np.empty(n * n), np.empty(n * n), np.empty(n * n)
-    kin2 = np.empty(kin.shape[1], np.complex128)
-    dyn2 = np.empty(dyn.shape[1])
+    w = _work(n)
+    kin2 = np.empty((1, kin.shape[1]), np.complex128)
     cw = np.empty((6, n), np.complex128)
     for b in range(b_count):
-        par = params[0 if shared else b]
-        kb, db = kin[b], dyn[b]
+        pr = 0 if shared else b
         for i in range(2 * n):
-            xb[i] = x[b, i]
+            w[W_X, i] = x[b, i]
         for _ in range(substeps):
             if decay >= 0.0:
                 for j in range(n):
-                    acting[j] = u[b, j] + (pressure[b, j] - u[b, j]) * mean
+                    w[W_U, j] = u[b, j] + (pressure[b, j] - u[b, j]) * mean
                     pressure[b, j] = u[b, j] + (pressure[b, j] - u[b, j]) * decay
             else:
                 for j in range(n):
-                    acting[j] = u[b, j]
-            _step(method, xb, acting, par, kb, db, h, new, acc, k1, x2, k2, ks, schur, schur_inv, tau, rhs, ghk, r_q, r_v,
-                  chol, inv_l, kin2, dyn2, cw)
+                    w[W_U, j] = u[b, j]
+            _step(method, w, params, pr, kin, dyn, b, h, kin2, cw)
             finite = True
             for i in range(2 * n):
-                if not math.isfinite(new[i]):
+                if not math.isfinite(w[W_NEW, i]):
                     finite = False
             if not finite:
                 diverged[b] = True
                 break
             for i in range(2 * n):
-                xb[i] = new[i]
-            _row_terms(xb, par, kb, db, cw, chol, inv_l)
+                w[W_X, i] = w[W_NEW, i]
+            _row_terms(w, W_X, params, pr, kin, b, dyn, b, cw)
         for i in range(2 * n):
-            x[b, i] = xb[i]
+            x[b, i] = w[W_X, i]
     return diverged
