@@ -130,6 +130,7 @@ from softcbf_mj.runio import (
     RUN_MARKER, OutputDirError, load_timeseries, prepare_out_dir, read_run_folder, release_out_dir, remove_if_unused,
     safe_name,
 )
+from vocabulary.sections import joined
 from vocabulary.settings import Bound, check_number, default, non_negative
 
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
@@ -250,10 +251,6 @@ def case_filter_params(spec: FilterSpec, case: Case) -> dict[str, str]:
     return {**defaults, **spec.params}
 
 
-def _joined(params: Mapping[str, str]) -> str:
-    return ";".join(f"{k}={v}" for k, v in params.items())
-
-
 def _call_rows(path: Path) -> dict[str, np.ndarray]:
     """A run's time series restricted to the filter's call rows (t, u, u_nom, filter_us, rho_meas)."""
     series, _ = load_timeseries(path)
@@ -322,7 +319,7 @@ def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
     from scenarios import get
 
     params = {k: v for k, v in case.scenario_params.items() if k != "scenario"}
-    params.update(filter=spec.name, filter_params=_joined(case_filter_params(spec, case)), progress=False)
+    params.update(filter=spec.name, filter_params=joined("filter_params", case_filter_params(spec, case)), progress=False)
     if options.quick:
         params["duration"] = QUICK_DURATION_S
     out.mkdir(parents=True)
@@ -343,7 +340,7 @@ def _step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> 
     for seed in range(starts):
         folder = out / f"seed-{seed:02d}"
         folder.mkdir(parents=True)
-        get("paper_sim").run(folder, duration=duration, filter=spec.name, filter_params=_joined(case_filter_params(spec, case)),
+        get("paper_sim").run(folder, duration=duration, filter=spec.name, filter_params=joined("filter_params", case_filter_params(spec, case)),
                              nominal="step", nominal_params=f"seed={seed};low_hPa=60;high_hPa=300", progress=False)
         runs += _run_figures(folder)
     return pooled_figures(runs, _f_max(folder))
@@ -373,7 +370,7 @@ def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float):
 
     k = ASSUMED_PLATE_N_PER_M
     fixed = {"t0": MISMATCH_T0_S, "duration": duration, "saved_frames_hz": 0.0, "progress": False,
-             "assumed_plate_stiffness": k, "filter_params": _joined(case_filter_params(spec, case))}
+             "assumed_plate_stiffness": k, "filter_params": joined("filter_params", case_filter_params(spec, case))}
     vary = (Distribution("plate_stiffness", "uniform", low=0.9 * k, high=1.1 * k),
             Distribution("true_gain_scale", "uniform", low=0.9, high=1.1),
             Distribution("facet_offset", "uniform", low=-1e-3, high=1e-3))

@@ -92,6 +92,7 @@ import numpy as np
 
 from scenarios import get as get_scenario
 from vocabulary.files import read_settings_file
+from vocabulary.sections import joined
 
 SAMPLINGS = ("monte_carlo", "grid")
 KINDS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "normal": ("mean", "std"), "choice": ("values",)}
@@ -410,9 +411,7 @@ class Study:
                 if key in fixed:
                     raise ValueError(f"{key} is given twice (top level and fixed)")
                 value = data[key]
-                if key == FILTER_PARAMS and isinstance(value, dict):
-                    value = ";".join(f"{k}={v}" for k, v in value.items())
-                fixed[key] = value
+                fixed[key] = joined(key, value)
         return cls(name=data["name"], scenario=data["scenario"], tunings=data["tunings"], vary=tuple(vary),
                    fixed=fixed, sampling=data.get("sampling", "monte_carlo"),
                    draws=data.get("draws"), seed=data.get("seed", 0),

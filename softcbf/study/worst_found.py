@@ -37,6 +37,7 @@ from typing import Any
 
 from softcbf.study.definition import DEFAULT_OBJECTIVE, FILTER_PARAMS, Study, load_study
 from softcbf.study.falsify import default_population, falsify
+from vocabulary.sections import joined
 
 REPO = Path(__file__).resolve().parents[2]
 BOX_FILE = REPO / "studies" / "mismatch_box_contact.toml"
@@ -57,7 +58,7 @@ def box_study(filter_name: str, filter_params: Mapping[str, str], *, duration: f
     clash = {"filter", FILTER_PARAMS} & set(box.fixed)
     if clash:
         raise ValueError(f"{box_file}: a box for every filter fixes no controller, it fixes {', '.join(sorted(clash))}")
-    fixed = {**box.fixed, FILTER_PARAMS: ";".join(f"{k}={v}" for k, v in filter_params.items())}
+    fixed = {**box.fixed, FILTER_PARAMS: joined(FILTER_PARAMS, filter_params)}
     if duration is not None:
         fixed["duration"] = duration
     return dataclasses.replace(box, tunings=(filter_name,), tuning_parameter="filter", fixed=fixed)
