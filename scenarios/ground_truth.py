@@ -3,7 +3,7 @@
 The settings (vocabulary.settings; every MuJoCo scenario takes them all, docs/parameters.md):
 
 - the controller's robot `robot` (docs/model.md#rppr-dynamics) with every segment's damping
-  d_i × `damping_scale` (> 0; the controller knows it: `controller_robot`);
+  d_i × `damping_scale` (> 0; the controller knows it: `scenarios.common.controller_robot`);
 - the true arm: `true_robot` (a robot JSON with as many segments; '': the controller's robot,
   damping scaled alike) with, per segment, L_i × `true_length_scale` (inertias I_i × its
   square, as for a rod), k_i × `true_stiffness_scale`, d_i × `true_damping_scale` and
@@ -42,7 +42,7 @@ import numpy as np
 
 from controllers.params import RobotParams
 from controllers.safe_set import Environment
-from scenarios.common import check_choice, controller_robot, load_robot, scale_damping  # noqa: F401 (re-exported)
+from scenarios.common import check_choice, load_robot, scale_damping
 from scenarios.spec import Model, Plate, TrueArm
 
 if TYPE_CHECKING:  # MuJoCo's modules are imported where they are used (module docstring: Imports)
@@ -97,7 +97,7 @@ class Truth:
 
 def build_truth(arm: TrueArm, plate: Plate, model: Model, model_robot: RobotParams, environment: Environment) -> Truth:
     """The ground truth of a MuJoCo scenario's checked `arm` and `plate` (module docstring), for the
-    controller's `model`, its robot `model_robot` (`controller_robot`) and facets `environment`."""
+    controller's `model`, its robot `model_robot` (`scenarios.common.controller_robot`) and facets `environment`."""
     from softcbf_mj.flexure_calibration import calibrate_flexure
     from softcbf_mj.model_builder import ArmModelConfig
 

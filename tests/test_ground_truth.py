@@ -13,7 +13,8 @@ import pytest
 from controllers.params import reference_robot
 from controllers.safe_set import paper_environment
 from scenarios import get
-from scenarios.ground_truth import build_truth, controller_robot
+from scenarios.common import controller_robot
+from scenarios.ground_truth import build_truth
 from scenarios.spec import Model, Plate, TrueArm
 from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS
 

@@ -10,7 +10,7 @@ import pytest
 
 from controllers.params import REFERENCE_DAMPING, REFERENCE_STIFFNESS, reference_robot
 from scenarios import get
-from scenarios.ground_truth import scale_damping
+from scenarios.common import scale_damping
 from scenarios.common import ROBOT_PRESETS, load_robot
 from softcbf.study.definition import load_study
 from softcbf_mj.model_builder import DEFAULT_TAU_P
