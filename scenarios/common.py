@@ -57,6 +57,7 @@ from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
 from scenarios.spec import Filter, Model, Nominal
+from vocabulary.project_files import project_file
 
 if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.recording is imported only when recording
     from softcbf_mj.recording import LiveRun
@@ -107,9 +108,9 @@ def data_only() -> Iterator[None]:
 
 
 # Named robot files (`load_robot`); each file's "about" says what its constants are and why.
-ROBOT_PRESETS: dict[str, Path] = {
-    "hardware-like": Path(__file__).resolve().parents[1] / "models" / "robots" / "hardware_like.json",
-    "three-segment": Path(__file__).resolve().parents[1] / "models" / "robots" / "three_segment.json",
+ROBOT_PRESETS: dict[str, str] = {
+    "hardware-like": "models/robots/hardware_like.json",
+    "three-segment": "models/robots/three_segment.json",
 }
 
 
@@ -119,7 +120,7 @@ def load_robot(spec: str) -> RobotParams:
     if spec in ("", "reference"):
         return reference_robot()
     if spec in ROBOT_PRESETS:
-        return read_parameter_file("robot", ROBOT_PRESETS[spec], RobotParams.load)
+        return read_parameter_file("robot", project_file(ROBOT_PRESETS[spec]), RobotParams.load)
     path = existing_file("robot", spec, f"'reference', one of {', '.join(ROBOT_PRESETS)} or a robot JSON file")
     return read_parameter_file("robot", path, RobotParams.load)
 

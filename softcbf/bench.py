@@ -130,6 +130,7 @@ from softcbf_mj.runio import (
     RUN_MARKER, OutputDirError, load_timeseries, prepare_out_dir, read_run_folder, release_out_dir, remove_if_unused,
     safe_name,
 )
+from vocabulary.project_files import project_file
 from vocabulary.sections import joined
 from vocabulary.settings import Bound, check_number, default, non_negative
 
@@ -148,7 +149,7 @@ MISMATCH_T0_S, MISMATCH_DURATION_S = 15.0, 30.0  # s: from the first contact on 
 ASSUMED_PLATE_N_PER_M = default("assumed_plate_stiffness", "camera_loop")  # the camera cases' model plate (N/m)
 QUICK_DURATION_S = 1.0
 QUICK_STEP_STARTS, QUICK_STEP_DURATION_S, QUICK_MISMATCH_DRAWS = 3, 0.5, 2
-EMULATOR_CONFIG = Path(__file__).resolve().parent.parent / "examples" / "hardware_emulated.toml"
+EMULATOR_CONFIG = project_file("examples/hardware_emulated.toml")
 EMULATOR_DURATION_S = 20.0
 BENCH_FILE, TABLE_FILE, PLOT_FILE, FORCE_PLOT_FILE = "bench.json", "bench.md", "plots/bench.png", "plots/force_budget.png"
 PUSH_PLANTS = ("mujoco_contact", "camera_loop")

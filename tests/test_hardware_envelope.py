@@ -12,6 +12,7 @@ from controllers.params import REFERENCE_DAMPING, REFERENCE_STIFFNESS, reference
 from scenarios import get
 from scenarios.common import scale_damping
 from scenarios.common import ROBOT_PRESETS, load_robot
+from vocabulary.project_files import project_file
 from softcbf.study.definition import load_study
 from softcbf_mj.model_builder import DEFAULT_TAU_P
 
@@ -50,7 +51,7 @@ def test_hardware_like_preset_loads_with_its_documented_constants():
     # Everything but the damping is the reference arm's: the preset is the reference arm, slowed.
     assert robot.replace(damping=reference.damping) == reference
     assert DEFAULT_TAU_P == HARDWARE_LIKE_TAU_P
-    about = json.loads(ROBOT_PRESETS["hardware-like"].read_text(encoding="utf-8"))["about"]
+    about = json.loads(project_file(ROBOT_PRESETS["hardware-like"]).read_text(encoding="utf-8"))["about"]
     assert about["time_constant_d_over_k_s"] == HARDWARE_LIKE_TIME_CONSTANT
     assert about["damping_d_Nms_per_rad"] == HARDWARE_LIKE_DAMPING
     assert about["stiffness_k_Nm_per_rad"] == HARDWARE_LIKE_STIFFNESS

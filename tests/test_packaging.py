@@ -70,9 +70,19 @@ def test_sdist_and_wheel_build_and_the_wheel_runs_alone(tmp_path):
     assert listing.returncode == 0, listing.stderr[-3000:]
     assert "paper_sim" in listing.stdout and "e-erg" in listing.stdout
     run = subprocess.run([str(venv / "bin" / "softcbf"), "run", "paper_sim", "--duration", "0.2", "--progress", "false",
-                          "--out", str(work / "run")], cwd=work, capture_output=True, text=True, timeout=300)
+                          "--robot", "hardware-like", "--out", str(work / "run")],
+                         cwd=work, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
     assert (work / "run" / "summary.json").is_file()
+    # The data files code reads at run time (robot presets above, the bench's box and emulator config) come with it.
+    files = subprocess.run([str(python), "-c", "from softcbf.bench import EMULATOR_CONFIG; "
+                            "from softcbf.study.worst_found import BOX_FILE, settings; "
+                            "print(EMULATOR_CONFIG); print(BOX_FILE); print(settings(1)['box_file'])"],
+                           cwd=work, capture_output=True, text=True, timeout=120)
+    assert files.returncode == 0, files.stderr[-3000:]
+    emulator, box, shown = files.stdout.split()
+    assert emulator.startswith(purelib) and box.startswith(purelib), files.stdout
+    assert shown == "studies/mismatch_box_contact.toml"
 
 
 def test_citation_file_names_this_version_and_the_paper():

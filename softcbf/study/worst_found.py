@@ -37,10 +37,10 @@ from typing import Any
 
 from softcbf.study.definition import DEFAULT_OBJECTIVE, FILTER_PARAMS, Study, load_study
 from softcbf.study.falsify import default_population, falsify
+from vocabulary.project_files import project_file, shown
 from vocabulary.sections import joined
 
-REPO = Path(__file__).resolve().parents[2]
-BOX_FILE = REPO / "studies" / "mismatch_box_contact.toml"
+BOX_FILE = project_file("studies/mismatch_box_contact.toml")
 BUDGET = 36  # evaluations per filter: four CMA-ES generations of the box's 9
 QUICK_BUDGET = 4
 SAMPLER = "cmaes"
@@ -67,9 +67,7 @@ def box_study(filter_name: str, filter_params: Mapping[str, str], *, duration: f
 def settings(budget: int, duration: float | None = None, box_file: str | Path = BOX_FILE) -> dict[str, Any]:
     """bench.json's "falsify": what every filter's search shares (a --resume must repeat it)."""
     box = load_study(box_file)
-    path = Path(box_file).resolve()
-    shown = path.relative_to(REPO).as_posix() if path.is_relative_to(REPO) else str(path)
-    return {"budget": budget, "box": box.name, "box_file": shown, "scenario": box.scenario,
+    return {"budget": budget, "box": box.name, "box_file": shown(box_file), "scenario": box.scenario,
             "duration_s": float(box.fixed["duration"] if duration is None else duration),
             "objective": DEFAULT_OBJECTIVE, "sampler": SAMPLER, "seed": box.seed, "population": default_population(box),
             "baseline": 0}
