@@ -139,7 +139,7 @@ def step_info(task: ArmTask, physics: ArmControl, clipped: tuple[str, ...]) -> d
                        object_array([record.action.value if record is not None else ""]),
                        object_array([record.output.action if record is not None and record.output is not None else ""]),
                        [physics.fault])
-    return {key: value[0] if value.dtype == object else value[0].item() for key, value in infos.items()}
+    return {key: value.tolist()[0] for key, value in infos.items()}  # numbers as Python numbers
 
 
 class GymArmEnv(gymnasium.Env):
@@ -194,6 +194,9 @@ class GymArmEnv(gymnasium.Env):
     def _observe(self, observation: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The dm_env observation, normalised and clipped when asked (`scaled_observations` at B = 1); sets the
         clipped keys."""
+        if not self.scales:  # nothing to scale (`scaled_observations` returns its input)
+            self._clipped = ()
+            return dict(observation)
         out, clipped = scaled_observations({key: value[None] for key, value in observation.items()}, self.scales)
         self._clipped = clipped[0]
         return {key: value[0] for key, value in out.items()}

@@ -136,8 +136,12 @@ class BatchStepStats(NamedTuple):
     @staticmethod
     def of(stats: Sequence[StepStats]) -> "BatchStepStats":
         """The rows `stats` (one per arm)."""
-        return BatchStepStats(*(np.array([getattr(s, name) for s in stats], dtype=dtype)
-                                for name, dtype in zip(BatchStepStats._fields, STATS_DTYPES)))
+        return BatchStepStats(np.array([s.periods for s in stats], dtype=np.int64),
+                              np.array([s.violation_periods for s in stats], dtype=np.int64),
+                              np.array([s.rho_meas_min for s in stats], dtype=float),
+                              np.array([s.force_max_N for s in stats], dtype=float),
+                              np.array([s.force_excess for s in stats], dtype=float),
+                              np.array([s.vented for s in stats], dtype=bool))
 
     @staticmethod
     def of_figures(figures: RunningFigures) -> "BatchStepStats":
@@ -148,9 +152,6 @@ class BatchStepStats(NamedTuple):
         mean_excess = np.divide(figures.force_excess, periods, out=np.zeros(len(periods)), where=periods > 0)
         return BatchStepStats(periods, figures.violations.astype(np.int64), figures.rho_min_meas.copy(),
                               figures.force_max_N.copy(), mean_excess, figures.vented.copy())
-
-
-STATS_DTYPES = (np.int64, np.int64, np.float64, np.float64, np.float64, np.bool_)  # BatchStepStats' fields
 
 
 class ArmArrays(NamedTuple):

@@ -78,6 +78,7 @@ are deterministic).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -118,9 +119,8 @@ QD_SCALE = 50.0  # rad/s, the normalised option's scale of qd (module docstring)
 
 def step_costs(stats: BatchStepStats, definition: str) -> np.ndarray:
     """The costs (B,) (>= 0) of B arms' env steps with `stats` under `definition` (one of COSTS; module docstring)."""
-    if definition == "violation":
-        periods = stats.periods
-        return np.divide(stats.violation_periods, periods, out=np.zeros(len(periods)), where=periods > 0)
+    if definition == "violation":  # violation_periods <= periods: 0 where periods = 0
+        return stats.violation_periods / np.maximum(stats.periods, 1)
     if definition == "force_excess":
         return np.array(stats.force_excess, dtype=float)
     raise ValueError(f"cost must be one of {', '.join(COSTS)}, got {definition!r}")
@@ -136,8 +136,14 @@ def predicted_tips(q: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     kinematics of `controllers.pcc_model.kinematics_rows` (the tip needs no rates: q̇ = 0)."""
     q = np.ascontiguousarray(q, dtype=float)
     kin = pcc_model.kinematics_rows(q, np.zeros_like(q), np.ascontiguousarray(lengths, dtype=float))
-    tip = kin[:, pcc_model.ModelLayout.of(q.shape[1]).tip_terms.start]
-    return np.stack((tip.real, tip.imag), axis=1)
+    tip = np.ascontiguousarray(kin[:, tip_column(q.shape[1])])  # x + i·y per arm
+    return tip.view(np.float64).reshape(len(q), 2)
+
+
+@functools.cache
+def tip_column(n_segments: int) -> int:
+    """The column of the tip r in `pcc_model`'s `kin` rows of N segments (its `ModelLayout`)."""
+    return pcc_model.ModelLayout.of(n_segments).tip_terms.start
 
 
 @dataclass(frozen=True)
