@@ -309,8 +309,8 @@ class ArmVectorEnv(VectorEnv):
         self._tip[rows], self._forces[rows] = state.segment_ends[rows, -1], state.contact_forces[rows]
         self._u[rows] = record.u[rows]
         self._monitor_action[rows] = MONITOR_LABELS[record.action[rows]]
-        labels = object_labels(self.num_envs)
-        labels[record.output] = [record.filter_action[b] for b in np.flatnonzero(record.output).tolist()]
+        labels = np.array(record.filter_action, dtype=object)  # a label where the filter's output was taken
+        labels[~record.output] = ""
         self._filter_action[rows] = labels[rows]
 
     def _estimate_rows(self, state: BatchPlantState, active: np.ndarray) -> None:
