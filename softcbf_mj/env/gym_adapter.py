@@ -116,30 +116,30 @@ def object_array(values: Sequence[Any]) -> np.ndarray:
     return out
 
 
-def step_infos(task: ArmTask, arms: ArmArrays, clipped: Sequence[tuple[str, ...]], monitor_action: np.ndarray,
-               filter_action: np.ndarray, faults: Sequence[FilterFault | None]) -> dict[str, np.ndarray]:
-    """The infos of B arms' env steps or resets (module docstring), each key a (B,) array: `clipped`
-    the observation keys clipped per arm; monitor_action, filter_action (B,) object arrays of labels
-    ("" where none); faults: each arm's episode fault (None: none)."""
+def step_infos(task: ArmTask, arms: ArmArrays, clipped: Sequence[tuple[str, ...]], monitor_action: Sequence[str],
+               filter_action: Sequence[str], faults: Sequence[FilterFault | None]) -> dict[str, Any]:
+    """The infos of B arms' env steps or resets (module docstring), key by key in order: the numbers as
+    (B,) arrays (cost, the `StepStats` fields, t), the others as sequences of B values: `clipped` the
+    observation keys clipped per arm; monitor_action, filter_action the labels ("" where none); fault
+    each arm's episode fault as JSON (None: none)."""
     return {
         "cost": task.costs(arms),
         **arms.stats._asdict(),  # StepStats' fields in order
-        "clipped": object_array(clipped),
-        "t": np.array(arms.t, dtype=float),
+        "clipped": clipped,
+        "t": arms.t,
         "monitor_action": monitor_action,
         "filter_action": filter_action,
-        "fault": object_array([fault.to_json() if fault is not None else None for fault in faults]),
+        "fault": [fault.to_json() if fault is not None else None for fault in faults],
     }
 
 
 def step_info(task: ArmTask, physics: ArmControl, clipped: tuple[str, ...]) -> dict[str, Any]:
     """The info of one arm's env step or reset: `step_infos` at B = 1, as Python values."""
     record = physics.last_record
-    infos = step_infos(task, physics.arrays(), [clipped],
-                       object_array([record.action.value if record is not None else ""]),
-                       object_array([record.output.action if record is not None and record.output is not None else ""]),
+    infos = step_infos(task, physics.arrays(), [clipped], [record.action.value if record is not None else ""],
+                       [record.output.action if record is not None and record.output is not None else ""],
                        [physics.fault])
-    return {key: value.tolist()[0] for key, value in infos.items()}  # numbers as Python numbers
+    return {key: value.item(0) if isinstance(value, np.ndarray) else value[0] for key, value in infos.items()}
 
 
 class GymArmEnv(gymnasium.Env):

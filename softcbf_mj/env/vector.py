@@ -88,7 +88,7 @@ from gymnasium.vector.utils import batch_space
 from closedloop.monitor import ACTIONS
 from closedloop.step import BatchControlStep, BatchStepRecord, FilterFault
 from softcbf_mj.env.environment import ArmEnvConfig
-from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, scaled_observations, step_infos
+from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, object_array, scaled_observations, step_infos
 from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, StepStats
 from softcbf_mj.env.task import ArmTask
 from softcbf_mj.loop import exact_state
@@ -267,10 +267,12 @@ class ArmVectorEnv(VectorEnv):
         arms = self.arrays() if arms is None else arms
         observations, clipped = scaled_observations(self.task.observations(arms, self.safe_set, self.lengths),
                                                     self.scales)
-        infos: dict[str, Any] = step_infos(self.task, arms, clipped, self._monitor_action.copy(),
-                                           self._filter_action.copy(), self.control.faults)
+        infos: dict[str, Any] = {}
         mask = np.ones(self.num_envs, dtype=bool)
-        infos.update({f"_{key}": mask.copy() for key in list(infos)})
+        for key, value in step_infos(self.task, arms, clipped, self._monitor_action, self._filter_action,
+                                     self.control.faults).items():
+            infos[key] = np.array(value) if isinstance(value, np.ndarray) else object_array(value)  # fresh arrays
+            infos[f"_{key}"] = mask.copy()
         return {key: observations[key] for key in self.single_observation_space.keys()}, infos
 
     def run_periods(self, running: np.ndarray) -> None:
