@@ -31,7 +31,7 @@ filters; with a batched filter the commands are those of `filter_batch`, which
 
 One env step, for every sub-environment that is not being reset ("running"):
 
-    u_nom (B, N) = nominal_command(action_b) per arm            hPa, held for the env step
+    u_nom (B, N) = nominal_command(actions) of the running arms  hPa, held for the env step
     repeat action_repeat control periods, t_k = k Δ:
         record = the batched control step of the running arms at their estimates, with
                  u_nom as their nominal commands: a filter with `filter_batch`: one filter
