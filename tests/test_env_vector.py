@@ -170,6 +170,24 @@ def test_time_limit_truncates_as_gymnasiums():
     np.testing.assert_array_equal(np.array(truncations)[:, 0], [0, 0, 1, 0, 0, 0, 1, 0])
 
 
+def test_termination_at_the_time_limit_is_also_truncated_as_gymnasiums():
+    """An episode terminated (a violation) at the very step the time limit is reached: terminated and,
+    as Gymnasium's TimeLimit says, truncated too."""
+    kwargs = {**FAST, "reward": RewardConfig(terminate_on_violation=True), "episode_steps": 500}
+    probe = GymArmEnv(**kwargs)
+    probe.reset(seed=0)
+    push = np.array([150.0, 150.0])
+    for limit in range(1, 500):
+        if probe.step(push)[2]:
+            break
+    vector, sync = _pair(2, **kwargs, max_episode_steps=limit)
+    _assert_same_step(vector.reset(seed=0), sync.reset(seed=0), True, "reset")
+    for k in range(limit):
+        got = vector.step(np.tile(push, (2, 1)))
+        _assert_same_step(got, sync.step(np.tile(push, (2, 1))), True, f"step {k}")
+    assert got[2][0] and got[3][0], "terminated and truncated at the limit"
+
+
 def test_next_step_autoreset_ignores_the_action_and_returns_the_reset():
     """The step after an episode's end: the reset's observation and info, reward 0, no flags, the action unused."""
     envs = gymnasium.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", **FAST, episode_steps=2,

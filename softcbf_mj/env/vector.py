@@ -246,8 +246,8 @@ class ArmVectorEnv(VectorEnv):
         arms = self.arrays()
         rewards = np.where(running, self.task.rewards(arms), 0.0)
         terminated, truncated = self.task.ends(arms, self._steps)
-        if self.max_episode_steps is not None:
-            truncated |= ~terminated & (self._steps >= self.max_episode_steps)
+        if self.max_episode_steps is not None:  # Gymnasium's TimeLimit: truncated at the limit, terminated or not
+            truncated |= self._steps >= self.max_episode_steps
         terminated &= running
         truncated &= running
         self._autoreset = terminated | truncated
