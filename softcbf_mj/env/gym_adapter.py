@@ -51,8 +51,8 @@ import numpy as np
 from dm_env import specs
 from gymnasium import spaces
 
-from softcbf_mj.env.environment import ArmEnvConfig, make_environment
 from closedloop.step import FilterFault
+from softcbf_mj.env.environment import ArmEnvConfig, make_environment
 from softcbf_mj.env.physics import ArmArrays, ArmControl, ArmPhysics
 from softcbf_mj.env.presets import EPISODE_STEPS, PRESETS
 from softcbf_mj.env.task import ArmTask

@@ -38,8 +38,7 @@ period's end: the number of periods with ρ_meas < 0 (ρ_meas = min over facets 
 safe set's `margin_from_force` of the plate's spring force, 1), the least ρ_meas, the
 largest plate force (N), the mean force excess (1: the mean over the periods of
 max_i max(0, F_i − F_max)/F_max, F_max the safe set's) and whether the safety monitor vented.
-The filter is built once
-(`controllers.registry.build_filter`, by the environment); every `reset()` makes a new
+The filter is built once (`controllers.registry.build_filter`, by the environment); every `reset()` makes a new
 `ControlStep` around it with a fresh `SafetyMonitor` (`hold_s`) and calls the filter's
 `reset()` (the plug-in contract: called before each run).
 
