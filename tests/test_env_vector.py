@@ -11,7 +11,10 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space
 from gymnasium.wrappers.vector import RecordEpisodeStatistics
 
+from closedloop.step import FilterFault
 from softcbf_mj.env import ENV_ID, PRESETS, GymArmEnv, RewardConfig
+from softcbf_mj.env.gym_adapter import scaled_observations, step_info, step_infos
+from softcbf_mj.env.physics import ArmArrays, BatchStepStats
 from softcbf_mj.env.vector import ArmVectorEnv
 
 FAST = {"control_dt": 0.01, "physics_dt": 2e-4, "links_per_segment": 5}  # a coarse, quick arm (as tests/test_env.py)
@@ -75,6 +78,65 @@ def test_make_vec_builds_the_vector_env_of_every_id(env_id):
     assert isinstance(gymnasium.make_vec(env_id, num_envs=2, **FAST), ArmVectorEnv)  # the default mode
 
 
+def _random_arms(rng: np.random.Generator, n_arms: int, n_facets: int, f_max: float) -> ArmArrays:
+    """B arms' arrays spread over free space, contact and violations (forces up to 3 F_max), every flag mixed."""
+    periods = rng.integers(0, 4, n_arms)
+    stats = BatchStepStats(periods, rng.integers(0, periods + 1), rng.uniform(-2.0, 1.0, n_arms),
+                           rng.uniform(0.0, 3.0 * f_max, n_arms), rng.uniform(0.0, 2.0, n_arms),
+                           rng.random(n_arms) < 0.3)
+    return ArmArrays(rng.normal(0.0, 0.6, (n_arms, 2)), rng.normal(0.0, 5.0, (n_arms, 2)),
+                     rng.uniform(-150.0, 150.0, (n_arms, 2)), rng.uniform(0.0, 1.0, n_arms),
+                     rng.normal(0.0, 0.6, (n_arms, 2)), rng.normal(0.0, 60.0, (n_arms, 2)),
+                     rng.uniform(0.0, 0.3, (n_arms, 2)), rng.uniform(0.0, 3.0 * f_max, (n_arms, n_facets)), stats,
+                     rng.random(n_arms) < 0.3, rng.random(n_arms) < 0.2)
+
+
+@pytest.mark.parametrize("cost", ["violation", "force_excess"])
+def test_b_arms_task_functions_equal_their_single_arm_calls_row_by_row(cost):
+    """One definition for one arm and for B: the task's observations, rewards, costs, ends and the adapter's
+    scaling and infos of B = 37 arms equal, bit for bit, the same calls at B = 1 (how the single env calls
+    them) row by row, over free space, contact, violations, vents, faults and clipped observations."""
+    reward = RewardConfig(target_tip_m=(0.2, 0.05), tracking_weight=2.0, target_force_N=0.1, force_weight=3.0,
+                          violation_penalty=0.5, terminate_on_violation=True, terminate_on_vent=False)
+    env = GymArmEnv(**FAST, observation="privileged", normalise=True, reward=reward, cost=cost, episode_steps=5)
+    task, physics, scales = env.task, env.physics, env.scales
+    rng = np.random.default_rng(11)
+    n_arms = 37
+    arms = _random_arms(rng, n_arms, physics.safe_set.n_facets, physics.safe_set.f_max)
+    steps = rng.integers(0, 8, n_arms)
+    monitor = np.array(rng.choice(["run", "hold", "vent", ""], n_arms), dtype=object)
+    filtered = np.array(rng.choice(["nominal", "filtered", ""], n_arms), dtype=object)
+    fault = FilterFault("RuntimeError", "boom", "filter", "x.py:1", 0.5, "")
+    faults = [fault if flag else None for flag in arms.faulted]
+    observations, clipped = scaled_observations(task.observations(arms, physics.safe_set, physics.lengths), scales)
+    rewards, costs, (terminated, truncated) = task.rewards(arms), task.costs(arms), task.ends(arms, steps)
+    infos = step_infos(task, arms, clipped, monitor, filtered, faults)
+    assert any(clipped) and not all(clipped), "some arms, not all, must have clipped observations"
+    assert terminated.any() and truncated.any() and not (terminated & truncated).any()
+    assert rewards.shape == costs.shape == (n_arms,) and set(observations) == set(task.keys())
+    for b in range(n_arms):
+        row = ArmArrays(*(field[b:b + 1] for field in arms[:-3]), BatchStepStats(*(f[b:b + 1] for f in arms.stats)),
+                        arms.vent_latched[b:b + 1], arms.faulted[b:b + 1])
+        single, single_clipped = scaled_observations(task.observations(row, physics.safe_set, physics.lengths), scales)
+        for key, value in single.items():
+            np.testing.assert_array_equal(observations[key][b:b + 1], value, err_msg=f"arm {b}: {key}")
+        assert clipped[b] == single_clipped[0]
+        np.testing.assert_array_equal(rewards[b:b + 1], task.rewards(row))
+        np.testing.assert_array_equal(costs[b:b + 1], task.costs(row))
+        ends = task.ends(row, steps[b:b + 1])
+        assert (terminated[b], truncated[b]) == (ends[0][0], ends[1][0])
+        single_infos = step_infos(task, row, single_clipped, monitor[b:b + 1], filtered[b:b + 1], faults[b:b + 1])
+        assert list(single_infos) == list(infos)
+        for key, value in single_infos.items():
+            assert list(value) == list(infos[key][b:b + 1]), f"arm {b}: info {key}"
+    env.reset(seed=0)
+    observation, reward, *_, info = env.step(np.array([1.0, 0.0]))  # the single env: the same functions at B = 1
+    arms = physics.arrays()
+    assert reward == task.rewards(arms)[0] and info == step_info(task, physics, info["clipped"])
+    np.testing.assert_array_equal(observation["tip_pred"], np.clip(
+        task.observations(arms, physics.safe_set, physics.lengths)["tip_pred"][0] / scales["tip_pred"], -1.0, 1.0))
+
+
 @pytest.mark.parametrize("changes", [
     {"observation": "estimate"},
     {"observation": "privileged", "normalise": True, "state_noise_std": (0.01, 0.1), "cost": "force_excess"},
@@ -106,6 +168,24 @@ def test_time_limit_truncates_as_gymnasiums():
         _assert_same_step(got, sync.step(actions), True, f"step {k}")
         truncations.append(got[3].copy())
     np.testing.assert_array_equal(np.array(truncations)[:, 0], [0, 0, 1, 0, 0, 0, 1, 0])
+
+
+def test_termination_at_the_time_limit_is_also_truncated_as_gymnasiums():
+    """An episode terminated (a violation) at the very step the time limit is reached: terminated and,
+    as Gymnasium's TimeLimit says, truncated too."""
+    kwargs = {**FAST, "reward": RewardConfig(terminate_on_violation=True), "episode_steps": 500}
+    probe = GymArmEnv(**kwargs)
+    probe.reset(seed=0)
+    push = np.array([150.0, 150.0])
+    for limit in range(1, 500):
+        if probe.step(push)[2]:
+            break
+    vector, sync = _pair(2, **kwargs, max_episode_steps=limit)
+    _assert_same_step(vector.reset(seed=0), sync.reset(seed=0), True, "reset")
+    for k in range(limit):
+        got = vector.step(np.tile(push, (2, 1)))
+        _assert_same_step(got, sync.step(np.tile(push, (2, 1))), True, f"step {k}")
+    assert got[2][0] and got[3][0], "terminated and truncated at the limit"
 
 
 def test_next_step_autoreset_ignores_the_action_and_returns_the_reset():

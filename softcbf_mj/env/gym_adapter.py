@@ -42,7 +42,7 @@ vectorization mode when an id has one; vectorization_mode="sync" gives `SyncVect
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import dm_env
@@ -51,8 +51,9 @@ import numpy as np
 from dm_env import specs
 from gymnasium import spaces
 
+from closedloop.step import FilterFault
 from softcbf_mj.env.environment import ArmEnvConfig, make_environment
-from softcbf_mj.env.physics import ArmControl, ArmPhysics
+from softcbf_mj.env.physics import ArmArrays, ArmControl, ArmPhysics
 from softcbf_mj.env.presets import EPISODE_STEPS, PRESETS
 from softcbf_mj.env.task import ArmTask
 
@@ -91,30 +92,54 @@ def nominal_command(action: np.ndarray, u_low: np.ndarray, u_high: np.ndarray, n
     return u_low + 0.5 * (a + 1.0) * (u_high - u_low) if normalise else a
 
 
-def scaled_observation(observation: Mapping[str, np.ndarray], scales: Mapping[str, np.ndarray]
-                       ) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
-    """(the observation normalised and clipped by `scales`, the keys that were clipped; module docstring)."""
-    out, clipped = dict(observation), []
+def scaled_observations(observations: Mapping[str, np.ndarray], scales: Mapping[str, np.ndarray]
+                        ) -> tuple[dict[str, np.ndarray], list[tuple[str, ...]]]:
+    """(B arms' observations (B, ...) per key normalised and clipped by `scales` (each key's, of the single
+    shape), per arm the keys that were clipped; module docstring). Without scales: the observations as they are."""
+    out, flags = dict(observations), []
     for key, scale in scales.items():
         value = out[key] / scale
-        if np.any(np.abs(value) > 1.0):
-            clipped.append(key)
+        flags.append(np.any(np.abs(value.reshape(len(value), -1)) > 1.0, axis=1))
         out[key] = np.clip(value, -1.0, 1.0)
-    return out, tuple(clipped)
+    n_arms = len(next(iter(observations.values())))
+    if not flags or not np.any(flags):
+        return out, [()] * n_arms
+    keys, clipped = list(scales), np.array(flags).T
+    return out, [tuple(key for key, flag in zip(keys, row) if flag) for row in clipped.tolist()]
+
+
+def object_array(values: Sequence[Any]) -> np.ndarray:
+    """A (B,) object array of `values`, element by element (numpy would unpack equal-length tuples into 2-d)."""
+    out = np.empty(len(values), dtype=object)
+    for b, value in enumerate(values):
+        out[b] = value
+    return out
+
+
+def step_infos(task: ArmTask, arms: ArmArrays, clipped: Sequence[tuple[str, ...]], monitor_action: Sequence[str],
+               filter_action: Sequence[str], faults: Sequence[FilterFault | None]) -> dict[str, Any]:
+    """The infos of B arms' env steps or resets (module docstring), key by key in order: the numbers as
+    (B,) arrays (cost, the `StepStats` fields, t), the others as sequences of B values: `clipped` the
+    observation keys clipped per arm; monitor_action, filter_action the labels ("" where none); fault
+    each arm's episode fault as JSON (None: none)."""
+    return {
+        "cost": task.costs(arms),
+        **arms.stats._asdict(),  # StepStats' fields in order
+        "clipped": clipped,
+        "t": arms.t,
+        "monitor_action": monitor_action,
+        "filter_action": filter_action,
+        "fault": [fault.to_json() if fault is not None else None for fault in faults],
+    }
 
 
 def step_info(task: ArmTask, physics: ArmControl, clipped: tuple[str, ...]) -> dict[str, Any]:
-    """The info of an env step or reset (module docstring); `clipped`: the observation keys clipped."""
+    """The info of one arm's env step or reset: `step_infos` at B = 1, as Python values."""
     record = physics.last_record
-    return {
-        "cost": task.cost(physics),
-        **vars(physics.stats),  # StepStats' fields in order (a flat dataclass: asdict's deep copy costs 10x)
-        "clipped": clipped,
-        "t": physics.state.t,
-        "monitor_action": record.action.value if record is not None else "",
-        "filter_action": record.output.action if record is not None and record.output is not None else "",
-        "fault": physics.fault.to_json() if physics.fault is not None else None,
-    }
+    infos = step_infos(task, physics.arrays(), [clipped], [record.action.value if record is not None else ""],
+                       [record.output.action if record is not None and record.output is not None else ""],
+                       [physics.fault])
+    return {key: value.item(0) if isinstance(value, np.ndarray) else value[0] for key, value in infos.items()}
 
 
 class GymArmEnv(gymnasium.Env):
@@ -167,9 +192,14 @@ class GymArmEnv(gymnasium.Env):
         return nominal_command(action, self.u_low, self.u_high, self.normalise)
 
     def _observe(self, observation: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """The dm_env observation, normalised and clipped when asked (`scaled_observation`); sets the clipped keys."""
-        out, self._clipped = scaled_observation(observation, self.scales)
-        return out
+        """The dm_env observation, normalised and clipped when asked (`scaled_observations` at B = 1); sets the
+        clipped keys."""
+        if not self.scales:  # nothing to scale (`scaled_observations` returns its input)
+            self._clipped = ()
+            return dict(observation)
+        out, clipped = scaled_observations({key: value[None] for key, value in observation.items()}, self.scales)
+        self._clipped = clipped[0]
+        return {key: value[0] for key, value in out.items()}
 
     def render(self) -> np.ndarray | None:
         """The overhead camera's frame (H, W, 3) uint8 RGB (render_mode "rgb_array"); None without a render mode."""

@@ -11,13 +11,15 @@ exactly as `softcbf_mj.loop.run_closed_loop` runs one:
 
 What does not depend on how the plant is stepped is `ArmControl` (ArmPhysics is one):
 the control step, the estimate, the statistics below (`begin_step`, `end_period(record,
-state)` per period, `end_step`) and the episode's reset; `softcbf_mj.env.vector` runs B
-`ArmControl`s over one `MujocoBatchPlant` and one `closedloop.step.BatchControlStep` (row b
-arm b's control step), keeps their statistics with `softcbf_mj.metrics.RunningFigures` (the
-same definitions, for all arms at once) and hands each arm its end state, estimate, last
-record and statistics (`end_batched_step`), so that the task (`softcbf_mj.env.task`) reads
-the same state from both. (The single environment keeps the per-period tally below: one
-`RunningFigures` update costs more than a 1 ms env step's tally.)
+state)` per period, `end_step`) and the episode's reset. What the task reads of an arm is
+`ArmArrays`, arrays with a leading axis of B arms: `ArmControl.arrays()` is one arm's (B = 1);
+`softcbf_mj.env.vector` keeps the arrays of B arms stepped on one `MujocoBatchPlant` by
+one `closedloop.step.BatchControlStep` (row b arm b's control step), its statistics
+`BatchStepStats.of_figures` of a `softcbf_mj.metrics.RunningFigures` (the same definitions,
+for all arms at once), so that the task (`softcbf_mj.env.task`) computes observations,
+rewards, costs and terminations of one arm and of B arms with the same functions. (The
+single environment keeps the per-period tally below: one `RunningFigures` update costs more
+than a 1 ms env step's tally.)
 
 The estimate of a state is made once, when the state is reached (`estimate()` returns it),
 so the observation shows exactly what the filter is handed next. `NoisyState(q_std,
@@ -36,9 +38,7 @@ period's end: the number of periods with ρ_meas < 0 (ρ_meas = min over facets 
 safe set's `margin_from_force` of the plate's spring force, 1), the least ρ_meas, the
 largest plate force (N), the mean force excess (1: the mean over the periods of
 max_i max(0, F_i − F_max)/F_max, F_max the safe set's) and whether the safety monitor vented.
-`rho_pred()` is the model's margin (1) of the current estimate: min over facets of the safe
-set's `margin` at the PCC tip r(q̂) (`tip_pred()`, m) — what a controller can compute. The filter is built once
-(`controllers.registry.build_filter`, by the environment); every `reset()` makes a new
+The filter is built once (`controllers.registry.build_filter`, by the environment); every `reset()` makes a new
 `ControlStep` around it with a fresh `SafetyMonitor` (`hold_s`) and calls the filter's
 `reset()` (the plug-in contract: called before each run).
 
@@ -56,18 +56,18 @@ from __future__ import annotations
 import math
 import weakref
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 from dm_control.rl import control
 
 from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, StepRecord
-from controllers.pcc import tip_position
-from controllers.safety_filter import Estimate, FilterContext, SafetyFilter, read_only
+from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from perception.detect import Detection, TagDetector
 from perception.tags import arm_tag_ids
 from softcbf_mj.loop import exact_state
+from softcbf_mj.metrics import RunningFigures, rho_meas
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState
 from softcbf_mj.render import OffscreenRenderer
@@ -121,6 +121,61 @@ class StepStats:
     vented: bool = False
 
 
+class BatchStepStats(NamedTuple):
+    """`StepStats` of B arms: the same fields in the same order, each a (B,) array (int64 periods and
+    violation_periods, float64 rho_meas_min, force_max_N and force_excess, bool vented)."""
+
+    periods: np.ndarray
+    violation_periods: np.ndarray
+    rho_meas_min: np.ndarray
+    force_max_N: np.ndarray
+    force_excess: np.ndarray
+    vented: np.ndarray
+
+    @staticmethod
+    def of(stats: Sequence[StepStats]) -> "BatchStepStats":
+        """The rows `stats` (one per arm)."""
+        return BatchStepStats(np.array([s.periods for s in stats], dtype=np.int64),
+                              np.array([s.violation_periods for s in stats], dtype=np.int64),
+                              np.array([s.rho_meas_min for s in stats], dtype=float),
+                              np.array([s.force_max_N for s in stats], dtype=float),
+                              np.array([s.force_excess for s in stats], dtype=float),
+                              np.array([s.vented for s in stats], dtype=bool))
+
+    @staticmethod
+    def of_figures(figures: RunningFigures) -> "BatchStepStats":
+        """The statistics of an env step whose periods `figures` (made with f_max and force_floor 0 N)
+        kept, run by run: force_excess their mean (0, as every other field's `StepStats` default, for a
+        run with no period)."""
+        periods = figures.rows.astype(np.int64)
+        mean_excess = np.divide(figures.force_excess, periods, out=np.zeros(len(periods)), where=periods > 0)
+        return BatchStepStats(periods, figures.violations.astype(np.int64), figures.rho_min_meas.copy(),
+                              figures.force_max_N.copy(), mean_excess, figures.vented.copy())
+
+
+class ArmArrays(NamedTuple):
+    """What the task (`softcbf_mj.env.task`) reads of B arms after an env step or a reset, rows by arm.
+
+    q, qd (B, N) rad, rad/s: the controller's estimates (what the filter sees next); u (B, N)
+    hPa: the command sent in the last control period (0 after a reset); t (B,) s; q_true,
+    qd_true (B, N): the true state; tip (B, 2) m: the true tip; contact_forces (B, P) N: the
+    plates' forces; stats: the env step's `BatchStepStats`; vent_latched (B,) bool: the safety
+    monitor has latched a vent; faulted (B,) bool: the episode's control step has a filter fault.
+    """
+
+    q: np.ndarray
+    qd: np.ndarray
+    u: np.ndarray
+    t: np.ndarray
+    q_true: np.ndarray
+    qd_true: np.ndarray
+    tip: np.ndarray
+    contact_forces: np.ndarray
+    stats: BatchStepStats
+    vent_latched: np.ndarray
+    faulted: np.ndarray
+
+
 class ArmControl:
     """One arm's control step and its bookkeeping, whatever steps its plant (module docstring).
 
@@ -172,7 +227,7 @@ class ArmControl:
             self.control_step.reset()
 
     def after_reset(self) -> None:
-        self.last_record = None
+        self.last_record, self._arrays = None, None
         self.stats = StepStats()
 
     def begin_step(self) -> None:
@@ -183,8 +238,8 @@ class ArmControl:
         """The plant reached `state` under `record.u` (one control period): the estimate of
         `state`, and the period in the env step's `StepStats` (module docstring)."""
         self.state = state
-        self._estimate, self._tip_pred = self.estimator(state), None
-        self.last_record = record
+        self._estimate = self.estimator(state)
+        self.last_record, self._arrays = record, None
         rho = self.rho_meas()
         force = float(np.max(state.contact_forces, initial=0.0))
         tally = self._tally
@@ -197,13 +252,7 @@ class ArmControl:
         """After an env step's periods: `stats` (force_excess their mean)."""
         tally = self._tally
         self.stats = replace(tally, force_excess=tally.force_excess / tally.periods) if tally.periods else tally
-
-    def end_batched_step(self, state: PlantState, estimate: Estimate, record: StepRecord, stats: StepStats) -> None:
-        """An env step whose periods a batched loop ran (`softcbf_mj.env.vector`): the state it left
-        the arm in, that state's estimate, the last period's record and the step's `StepStats`
-        (what `end_period` per period and `end_step` leave)."""
-        self.state, self._estimate, self._tip_pred = state, estimate, None
-        self.last_record, self.stats = record, stats
+        self._arrays = None
 
     def new_control_step(self) -> ControlStep:
         """The control step of an episode: the filter, the held action as nominal, a fresh safety monitor."""
@@ -212,25 +261,26 @@ class ArmControl:
     def reset_state(self, q0: np.ndarray) -> None:
         """Rest at bending angles q0 (N,) rad (`reset_plant`), and its estimate."""
         self.state = self.reset_plant(q0)
-        self._estimate, self._tip_pred = self.estimator(self.state), None
+        self._estimate, self._arrays = self.estimator(self.state), None
 
     def estimate(self) -> Estimate:
         """The controller's view of the current state (what the filter sees next; made once per state)."""
         return self._estimate
 
-    def tip_pred(self) -> np.ndarray:
-        """The model's tip r(q̂) (2,) m: PCC kinematics of the estimate (computed once per estimate; a read-only array)."""
-        if self._tip_pred is None:
-            self._tip_pred = read_only(tip_position(self._estimate.q, self.lengths))
-        return self._tip_pred
-
-    def rho_pred(self) -> float:
-        """ρ_pred (1): min over facets of the safe set's margin at the model's tip r(q̂)."""
-        return float(self.safe_set.margin(self.tip_pred()))
+    def arrays(self) -> ArmArrays:
+        """This arm's `ArmArrays` (B = 1, views of the current state; made once per state and statistics)."""
+        if self._arrays is None:
+            state, estimate, record = self.state, self._estimate, self.last_record
+            u = record.u if record is not None else np.zeros(self.n_segments)
+            self._arrays = ArmArrays(estimate.q[None], estimate.qd[None], np.asarray(u, dtype=float)[None],
+                                     np.array([state.t]), state.q[None], state.qd[None], state.tip[None],
+                                     state.contact_forces[None], BatchStepStats.of([self.stats]),
+                                     np.array([self.vent_latched]), np.array([self.fault is not None]))
+        return self._arrays
 
     def rho_meas(self) -> float:
-        """ρ_meas (1) of the current state: min over facets of the margin from the plate force."""
-        return float(np.min(self.safe_set.margin_from_force(self.state.contact_forces)))
+        """ρ_meas (1) of the current state: min over facets of the margin from the plate force (`metrics.rho_meas`)."""
+        return float(rho_meas(self.safe_set, self.state.contact_forces))
 
     @property
     def fault(self) -> FilterFault | None:

@@ -55,6 +55,20 @@ Termination (dm_env: LAST with discount 0): a period with ρ_meas < 0 when
 `terminate_on_violation`; a latched vent of the safety monitor when `terminate_on_vent`.
 Truncation (LAST with discount 1): after `episode_steps` env steps.
 
+One definition for one arm and for B: observations, reward, cost and termination are
+`ArmTask.observations`, `rewards`, `costs` and `ends`, functions of `physics.ArmArrays` (every
+array with a leading axis of B arms, numpy over it) that return (B, ...) arrays. The dm_control
+methods (`get_observation`, `get_reward`, `get_termination`, `cost`) call them on the single
+arm's arrays (B = 1, `ArmControl.arrays()`) and take row 0; the vector environment
+(`softcbf_mj.env.vector`) calls them once per env step for all its arms. tip_pred is the PCC
+kinematics of `controllers.pcc_model` (`kinematics_rows`, the one kernel, a row per arm),
+rho_pred the safe set's `margin` at it, rho_meas `softcbf_mj.metrics.rho_meas`. Each row's
+arithmetic is its own (elementwise, or a reduction over that row), so row b of B arms equals
+the single arm's, bit for bit (tests/test_env_vector.py). The one product, the facets' n̂_i·r
+of `margin`, is taken on a stack of B (1, 2) points ((B, 1, 2) @ (2, P)): numpy runs the same
+BLAS call per point whatever B, where one (B, 2) @ (2, P) product takes a kernel that depends on
+B and moves rho_pred by a few 1e-15.
+
 Seeds: the initial bending angles are q0 ~ N(0, q0_std²) per segment (rad) from the
 task's `numpy.random.Generator` (`seed(seed)`), then the estimator's noise generator is
 seeded from it (when the estimator is a `NoisyState`); with q0_std = 0 and no noise the
@@ -64,6 +78,7 @@ are deterministic).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -72,8 +87,13 @@ import numpy as np
 from dm_control.rl import control
 from dm_env import specs
 
-from softcbf_mj.env.physics import ArmControl, NoisyState, StepStats
+from controllers.lazy_import import lazy_module
+from controllers.safe_set import ForceSafeSet
+from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, NoisyState, StepStats
+from softcbf_mj.metrics import rho_meas
 from vocabulary.settings import default
+
+pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first observation (controllers.lazy_import)
 
 OBSERVATION_UNITS = {
     "q": "rad (the controller's estimate)",
@@ -97,13 +117,33 @@ COSTS = ("violation", "force_excess")
 QD_SCALE = 50.0  # rad/s, the normalised option's scale of qd (module docstring)
 
 
-def step_cost(stats: StepStats, definition: str) -> float:
-    """The cost (>= 0) of an env step with `stats` under `definition` (one of COSTS; module docstring)."""
-    if definition == "violation":
-        return stats.violation_periods / stats.periods if stats.periods else 0.0
+def step_costs(stats: BatchStepStats, definition: str) -> np.ndarray:
+    """The costs (B,) (>= 0) of B arms' env steps with `stats` under `definition` (one of COSTS; module docstring)."""
+    if definition == "violation":  # violation_periods <= periods: 0 where periods = 0
+        return stats.violation_periods / np.maximum(stats.periods, 1)
     if definition == "force_excess":
-        return stats.force_excess
+        return np.array(stats.force_excess, dtype=float)
     raise ValueError(f"cost must be one of {', '.join(COSTS)}, got {definition!r}")
+
+
+def step_cost(stats: StepStats, definition: str) -> float:
+    """The cost (>= 0) of one env step with `stats` under `definition`: `step_costs` at B = 1."""
+    return float(step_costs(BatchStepStats.of([stats]), definition)[0])
+
+
+def predicted_tips(q: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The model's tips r(q̂) (B, 2) m of B estimates q (B, N) rad, segment lengths (N,) m: the PCC
+    kinematics of `controllers.pcc_model.kinematics_rows` (the tip needs no rates: q̇ = 0)."""
+    q = np.ascontiguousarray(q, dtype=float)
+    kin = pcc_model.kinematics_rows(q, np.zeros_like(q), np.ascontiguousarray(lengths, dtype=float))
+    tip = np.ascontiguousarray(kin[:, tip_column(q.shape[1])])  # x + i·y per arm
+    return tip.view(np.float64).reshape(len(q), 2)
+
+
+@functools.cache
+def tip_column(n_segments: int) -> int:
+    """The column of the tip r in `pcc_model`'s `kin` rows of N segments (its `ModelLayout`)."""
+    return pcc_model.ModelLayout.of(n_segments).tip_terms.start
 
 
 @dataclass(frozen=True)
@@ -196,9 +236,48 @@ class ArmTask(control.Task):
         return {"q": (n,), "qd": (n,), "u": (n,), "tip_pred": (2,), "rho_pred": (1,), "q_true": (n,), "qd_true": (n,),
                 "tip": (2,), "contact_force": (p,), "rho_meas": (1,), "tag_corners": (n + 1, 4, 2), "tag_seen": (n + 1,)}
 
+    # -- B arms at once (module docstring) -----------------------------------------------
+
+    def observations(self, arms: ArmArrays, safe_set: ForceSafeSet, lengths: np.ndarray) -> OrderedDict[str, np.ndarray]:
+        """The float observations of this mode (`keys`) of B arms: each key (B, *shape), fresh arrays;
+        `safe_set`: the filter's (ρ_pred, ρ_meas); lengths (N,) m: the model's segments (tip_pred)."""
+        tip_pred = predicted_tips(arms.q, lengths)
+        observation = OrderedDict(q=np.array(arms.q, dtype=float), qd=np.array(arms.qd, dtype=float),
+                                  u=np.array(arms.u, dtype=float), tip_pred=tip_pred,
+                                  rho_pred=np.asarray(safe_set.margin(tip_pred[:, None, :]), dtype=float))
+        if self.observation == "privileged":
+            observation.update(q_true=np.array(arms.q_true, dtype=float), qd_true=np.array(arms.qd_true, dtype=float),
+                               tip=np.array(arms.tip, dtype=float), contact_force=np.array(arms.contact_forces, dtype=float),
+                               rho_meas=np.asarray(rho_meas(safe_set, arms.contact_forces), dtype=float)[:, None])
+        return observation
+
+    def rewards(self, arms: ArmArrays) -> np.ndarray:
+        """The rewards (B,) of B arms' env steps (module docstring: from the state at their end)."""
+        config = self.reward
+        reward = np.zeros(len(arms.t))
+        if config.target_tip_m is not None:
+            target_x, target_y = config.target_tip_m
+            reward -= config.tracking_weight * np.hypot(arms.tip[:, 0] - target_x, arms.tip[:, 1] - target_y)
+        if config.target_force_N is not None:
+            force = np.max(arms.contact_forces, axis=1, initial=0.0)
+            reward -= config.force_weight * np.abs(force - config.target_force_N)
+        return reward - config.violation_penalty * arms.stats.violation_periods
+
+    def costs(self, arms: ArmArrays) -> np.ndarray:
+        """The costs (B,) of B arms' env steps (`step_costs` of this task's definition)."""
+        return step_costs(arms.stats, self.cost_definition)
+
+    def ends(self, arms: ArmArrays, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(terminated, truncated), each (B,) bool, of B arms after `steps` (B,) env steps of their episodes
+        (module docstring: dm_env's discount 0 and 1). A filter fault always ends the episode at its vent."""
+        terminated = arms.vent_latched & (self.reward.terminate_on_vent | arms.faulted)
+        if self.reward.terminate_on_violation:
+            terminated = terminated | (arms.stats.violation_periods > 0)
+        return terminated, ~terminated & (np.asarray(steps) >= self.episode_steps)
+
     def cost(self, physics: ArmControl) -> float:
-        """The last env step's cost (module docstring)."""
-        return step_cost(physics.stats, self.cost_definition)
+        """The last env step's cost (`costs` at B = 1)."""
+        return float(self.costs(physics.arrays())[0])
 
     # -- dm_control Task --------------------------------------------------------------
 
@@ -232,16 +311,8 @@ class ArmTask(control.Task):
         return spec
 
     def get_observation(self, physics: ArmControl) -> OrderedDict[str, np.ndarray]:
-        estimate, state = physics.estimate(), physics.state
-        u = physics.last_record.u if physics.last_record is not None else np.zeros(self.n_segments)
-        observation = OrderedDict(
-            q=np.array(estimate.q, dtype=float), qd=np.array(estimate.qd, dtype=float), u=np.array(u, dtype=float),
-            tip_pred=np.array(physics.tip_pred(), dtype=float), rho_pred=np.array([physics.rho_pred()]),
-        )
-        if self.observation == "privileged":
-            observation.update(q_true=np.array(state.q, dtype=float), qd_true=np.array(state.qd, dtype=float),
-                               tip=np.array(state.tip, dtype=float), contact_force=np.array(state.contact_forces, dtype=float),
-                               rho_meas=np.array([physics.rho_meas()]))
+        batch = self.observations(physics.arrays(), physics.safe_set, physics.lengths)
+        observation = OrderedDict((key, value[0]) for key, value in batch.items())
         if self.camera or self.tag_detections:
             image = physics.render_image()
             if self.camera:
@@ -254,19 +325,8 @@ class ArmTask(control.Task):
         return observation
 
     def get_reward(self, physics: ArmControl) -> float:
-        config, reward = self.reward, 0.0
-        if config.target_tip_m is not None:
-            reward -= config.tracking_weight * float(np.hypot(*(physics.state.tip - np.array(config.target_tip_m))))
-        if config.target_force_N is not None:
-            force = float(np.max(physics.state.contact_forces, initial=0.0))
-            reward -= config.force_weight * abs(force - config.target_force_N)
-        return reward - config.violation_penalty * physics.stats.violation_periods
+        return float(self.rewards(physics.arrays())[0])
 
     def get_termination(self, physics: ArmControl) -> float | None:
-        if self.reward.terminate_on_violation and physics.stats.violation_periods > 0:
-            return 0.0
-        if physics.vent_latched and (self.reward.terminate_on_vent or physics.fault is not None):
-            return 0.0  # a filter fault always ends the episode at its vent
-        if self.steps >= self.episode_steps:
-            return 1.0
-        return None
+        terminated, truncated = self.ends(physics.arrays(), np.array([self.steps]))
+        return 0.0 if terminated[0] else 1.0 if truncated[0] else None

@@ -13,13 +13,16 @@ single environment, none is copied here:
   threads; 0: all CPUs), bit-identical to b's own `MujocoPlant` (`mujoco.batch`), reset
   alone at b's episode start (`MujocoBatchPlant.reset(ids=[b])`);
 - control: row b of one `closedloop.step.BatchControlStep` (b's control step with its own
-  safety monitor row, bit for bit the `ControlStep` of b's single environment), and an
-  `ArmControl` (`softcbf_mj.env.physics`: b's estimator, state and `StepStats`, the latter
-  kept for all arms at once by `softcbf_mj.metrics.RunningFigures`);
-- task: an `ArmTask` (`softcbf_mj.env.task`: observation, reward, cost, termination and
-  b's own generator of initial states);
-- Gymnasium: the spaces, the (normalised) command, the scaled observation and the info of
-  `softcbf_mj.env.gym_adapter`.
+  safety monitor row, bit for bit the `ControlStep` of b's single environment); the env
+  step's statistics of all arms at once (`softcbf_mj.metrics.RunningFigures`,
+  `physics.BatchStepStats.of_figures`);
+- episode starts: an `ArmControl` (`softcbf_mj.env.physics`: b's estimator and reset) and an
+  `ArmTask` (`softcbf_mj.env.task`: b's own generator of initial states), per arm;
+- task: observation, reward, cost and termination of all B arms in one call each
+  (`ArmTask.observations`, `rewards`, `costs`, `ends` on the arms' `physics.ArmArrays`, the
+  very functions the single environment calls with B = 1), numpy over the arms;
+- Gymnasium: the spaces, the (normalised) command, the scaled observations and the infos of
+  `softcbf_mj.env.gym_adapter` (`scaled_observations`, `step_infos`, again those of B = 1).
 
 So for the same seeds and actions the vector environment returns what B single
 environments return (`tests/test_env_vector.py`: equal, bit for bit, with per-arm
@@ -28,7 +31,7 @@ filters; with a batched filter the commands are those of `filter_batch`, which
 
 One env step, for every sub-environment that is not being reset ("running"):
 
-    u_nom (B, N) = nominal_command(action_b) per arm            hPa, held for the env step
+    u_nom (B, N) = nominal_command(actions) of the running arms  hPa, held for the env step
     repeat action_repeat control periods, t_k = k Δ:
         record = the batched control step of the running arms at their estimates, with
                  u_nom as their nominal commands: a filter with `filter_batch`: one filter
@@ -43,10 +46,13 @@ One env step, for every sub-environment that is not being reset ("running"):
     stops for the rest of the env step: its episode ends (terminated, info["fault"]), as
     in the single environment; the others go on.
 
-Then per running arm, as dm_control's `Environment.step` and `GymArmEnv.step`: reward,
-observation, cost and termination from its task (dm_env's discount 0: terminated; 1:
-truncated at `episode_steps`), truncated also when its episode reaches
-`max_episode_steps` env steps (Gymnasium's `TimeLimit`).
+The vector environment keeps the arrays the task reads (`ArmArrays`: each arm's estimate,
+last command, true state and statistics; an arm stopped by a fault keeps the state and
+record of its stop); then, for all arms at once, as dm_control's `Environment.step` and
+`GymArmEnv.step`: reward, observation, cost and termination (dm_env's discount 0:
+terminated; 1: truncated at `episode_steps`), truncated also when an episode reaches
+`max_episode_steps` env steps (Gymnasium's `TimeLimit`). Only episode starts and a noisy
+estimator's draws (each arm's own generator) run arm by arm.
 
 Autoreset (Gymnasium 1.x, `metadata["autoreset_mode"]` = `AutoresetMode.NEXT_STEP`, as
 `SyncVectorEnv`): a sub-environment whose step ended its episode (terminated or
@@ -77,24 +83,27 @@ from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
+from gymnasium.vector.utils import batch_space
 
-from closedloop.step import BatchControlStep, FilterFault, StepRecord
-from controllers.safety_filter import Estimate
+from closedloop.monitor import ACTIONS
+from closedloop.step import BatchControlStep, BatchStepRecord, FilterFault
 from softcbf_mj.env.environment import ArmEnvConfig
-from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, scaled_observation, step_info
-from softcbf_mj.env.physics import ArmControl, StepStats
+from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, object_array, scaled_observations, step_infos
+from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, StepStats
 from softcbf_mj.env.task import ArmTask
 from softcbf_mj.loop import exact_state
 from softcbf_mj.metrics import RunningFigures, rho_meas
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.plant import BatchPlantState, PlantState
 
+MONITOR_LABELS = np.array([action.value for action in ACTIONS], dtype=object)  # by the monitor's action code
+
 
 class BatchArm(ArmControl):
-    """Sub-environment b's `ArmControl` whose control step is row b of the vector environment's
-    `BatchControlStep` (`control`): its fault and latched vent are that row's; the vector
-    environment resets the row and runs the periods (`ArmControl.end_batched_step`)."""
+    """Sub-environment b's `ArmControl` for its episode starts (its estimator, its reset on simulation
+    b), whose control step is row b of the vector environment's `BatchControlStep` (`control`):
+    its fault and latched vent are that row's; the vector environment resets the row, runs the
+    periods and keeps the arms' current state (`ArmVectorEnv`)."""
 
     def __init__(self, control: BatchControlStep, b: int, *args: Any) -> None:
         self.batch_control, self.row = control, b
@@ -148,17 +157,26 @@ class ArmVectorEnv(VectorEnv):
                              for _ in range(self.num_envs - 1)]
         self.control = BatchControlStep(first if self.shared_filter is not None else filters, None, context,
                                         self.num_envs, config.hold_s)
-        self.safe_set = context.safe_set
-        n, b_all = layout.n_segments, self.num_envs
-        self._est_t, self._est_tc = np.zeros(b_all), np.zeros(b_all)  # the arms' current estimates, by row
+        self.safe_set, self.lengths = context.safe_set, context.robot.array("lengths")
+        n, p, b_all = layout.n_segments, layout.n_facets, self.num_envs
+        # the arms' current arrays, by row (`ArmArrays`, module docstring): the estimates (what the next
+        # period's control step reads), the last commands, the true states and their monitor and filter labels
+        self._est_t, self._est_tc = np.zeros(b_all), np.zeros(b_all)
         self._est_q, self._est_qd = np.zeros((b_all, n)), np.zeros((b_all, n))
-        self.arms = [BatchArm(self.control, b, n, layout.n_facets, f, context, config.hold_s, config.estimator(),
+        self._u_nom, self._u = np.zeros((b_all, n)), np.zeros((b_all, n))
+        self._t, self._q, self._qd = np.zeros(b_all), np.zeros((b_all, n)), np.zeros((b_all, n))
+        self._tip, self._forces = np.zeros((b_all, 2)), np.zeros((b_all, p))
+        self._monitor_action, self._filter_action = object_labels(b_all), object_labels(b_all)
+        self._stats = BatchStepStats.of([StepStats()] * b_all)
+        self._steps = np.zeros(b_all, dtype=int)
+        self.arms = [BatchArm(self.control, b, n, p, f, context, config.hold_s, config.estimator(),
                               lambda q0, b=b: self._reset_simulation(b, q0)) for b, f in enumerate(filters)]
         self.exact = all(arm.estimator is exact_state for arm in self.arms)
         self.tasks: list[ArmTask] = [config.task(layout) for _ in range(self.num_envs)]
-        self.u_low, self.u_high = self.tasks[0].u_min, self.tasks[0].u_max
+        self.task = self.tasks[0]  # every arm's task has the same definitions: the batched calls use the first's
+        self.u_low, self.u_high = self.task.u_min, self.task.u_max
         self.single_action_space, self.single_observation_space, self.scales = gym_spaces(
-            self.tasks[0], self.arms[0], config, normalise)
+            self.task, self.arms[0], config, normalise)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
@@ -181,15 +199,18 @@ class ArmVectorEnv(VectorEnv):
                 raise ValueError(f"seed must be None, an integer or num_envs = {self.num_envs} seeds, got {len(seeds)}")
         super().reset(seed=seeds[0])
         self.control.reset()  # every row; a shared filter's reset() once, whose fault is every arm's
-        results = [self._reset_arm(b, seeds[b], reset_row=False) for b in range(self.num_envs)]
+        for b in range(self.num_envs):
+            self._reset_arm(b, seeds[b], reset_row=False)
+        self._stats = BatchStepStats.of([StepStats()] * self.num_envs)
         self._autoreset[:] = False
         self._started = True
-        return self._batch([obs for obs, _ in results]), self._infos([info for _, info in results])
+        observations, infos = self._observe()
+        return observations, infos
 
-    def _reset_arm(self, b: int, seed: int | None, reset_row: bool) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Sub-environment b's new episode, as dm_control's `Environment.reset` and `GymArmEnv.reset`;
-        `reset_row`: row b of the batched step too (an autoreset: its monitor and, for per-arm
-        filters, its filter's `reset()`; a shared filter is reset by `reset()` only)."""
+    def _reset_arm(self, b: int, seed: int | None, reset_row: bool) -> None:
+        """Sub-environment b's new episode, as dm_control's `Environment.reset` and `GymArmEnv.reset`, into
+        row b of the arrays; `reset_row`: row b of the batched step too (an autoreset: its monitor and,
+        for per-arm filters, its filter's `reset()`; a shared filter is reset by `reset()` only)."""
         task, arm = self.tasks[b], self.arms[b]
         if seed is not None:
             task.seed(seed)
@@ -198,11 +219,13 @@ class ArmVectorEnv(VectorEnv):
         arm.reset()
         task.initialize_episode(arm)
         arm.after_reset()
-        estimate = arm.estimate()
+        estimate, state = arm.estimate(), arm.state
         self._est_t[b], self._est_tc[b] = estimate.t, estimate.t_capture
         self._est_q[b], self._est_qd[b] = estimate.q, estimate.qd
-        observation, clipped = scaled_observation(task.get_observation(arm), self.scales)
-        return observation, step_info(task, arm, clipped)
+        self._t[b], self._q[b], self._qd[b] = state.t, state.q, state.qd
+        self._tip[b], self._forces[b] = state.tip, state.contact_forces
+        self._u_nom[b], self._u[b], self._monitor_action[b], self._filter_action[b] = 0.0, 0.0, "", ""
+        self._steps[b] = task.steps
 
     def step(self, actions: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray,
                                                   dict[str, Any]]:
@@ -214,91 +237,99 @@ class ArmVectorEnv(VectorEnv):
         if actions.shape != shape:
             raise ValueError(f"actions must have shape {shape}, got {actions.shape}")
         resetting = self._autoreset.copy()
-        running = np.flatnonzero(~resetting)
-        for b in running:
-            self.tasks[b].before_step(nominal_command(actions[b], self.u_low, self.u_high, self.normalise), self.arms[b])
+        running = ~resetting
+        self._u_nom[running] = nominal_command(actions[running], self.u_low, self.u_high, self.normalise)
         self.run_periods(running)
-        observations: list[dict[str, np.ndarray] | None] = [None] * self.num_envs
-        infos: list[dict[str, Any] | None] = [None] * self.num_envs
-        rewards = np.zeros(self.num_envs)
-        terminated = np.zeros(self.num_envs, dtype=bool)
-        truncated = np.zeros(self.num_envs, dtype=bool)
-        for b in running:
-            task, arm = self.tasks[b], self.arms[b]
-            task.after_step(arm)
-            rewards[b] = task.get_reward(arm)
-            observations[b], clipped = scaled_observation(task.get_observation(arm), self.scales)
-            discount = task.get_termination(arm)
-            terminated[b] = discount == 0.0
-            truncated[b] = (discount is not None and not terminated[b]) or (
-                self.max_episode_steps is not None and task.steps >= self.max_episode_steps)
-            infos[b] = step_info(task, arm, clipped)
-        for b in np.flatnonzero(resetting):
-            observations[b], infos[b] = self._reset_arm(b, None, reset_row=True)
+        self._steps[running] += 1
+        for b in np.flatnonzero(resetting).tolist():
+            self._reset_arm(b, None, reset_row=True)
+        arms = self.arrays()
+        rewards = np.where(running, self.task.rewards(arms), 0.0)
+        terminated, truncated = self.task.ends(arms, self._steps)
+        if self.max_episode_steps is not None:  # Gymnasium's TimeLimit: truncated at the limit, terminated or not
+            truncated |= self._steps >= self.max_episode_steps
+        terminated &= running
+        truncated &= running
         self._autoreset = terminated | truncated
-        return self._batch(observations), rewards, terminated, truncated, self._infos(infos)
+        observations, infos = self._observe(arms)
+        return observations, rewards, terminated, truncated, infos
+
+    def arrays(self) -> ArmArrays:
+        """The arms' current `ArmArrays` (views of this environment's rows)."""
+        control = self.control
+        return ArmArrays(self._est_q, self._est_qd, self._u, self._t, self._q, self._qd, self._tip, self._forces,
+                         self._stats, control.monitor.latched.copy(), control.faulted.copy())
+
+    def _observe(self, arms: ArmArrays | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """(observations, infos) of every arm from its arrays: the task's observations, scaled as the
+        single environment's, in the single space's key order; Gymnasium's vector infos (per key a (B,)
+        array and its all-True mask "_key")."""
+        arms = self.arrays() if arms is None else arms
+        observations, clipped = scaled_observations(self.task.observations(arms, self.safe_set, self.lengths),
+                                                    self.scales)
+        infos: dict[str, Any] = {}
+        mask = np.ones(self.num_envs, dtype=bool)
+        for key, value in step_infos(self.task, arms, clipped, self._monitor_action, self._filter_action,
+                                     self.control.faults).items():
+            infos[key] = np.array(value) if isinstance(value, np.ndarray) else object_array(value)  # fresh arrays
+            infos[f"_{key}"] = mask.copy()
+        return {key: observations[key] for key in self.single_observation_space.keys()}, infos
 
     def run_periods(self, running: np.ndarray) -> None:
-        """The env step's control periods of the running arms, all simulations stepped together (module
-        docstring); each running arm then holds its end state, its estimate, the last record and its `StepStats`."""
-        arms, control, plant, n_sims = self.arms, self.control, self.plant, self.num_envs
-        active = np.zeros(n_sims, dtype=bool)
-        active[running] = True
-        u_nom = np.array([arm.command.u_nom for arm in arms])
+        """The env step's control periods of the `running` arms ((B,) bool), all simulations stepped
+        together (module docstring); then each running arm's row holds its end state, its estimate, the
+        last command and labels, and the env step's statistics."""
+        control, plant, n_sims = self.control, self.plant, self.num_envs
+        active = running.copy()
         figures = RunningFigures(n_sims, plant.control_dt, f_max=self.safe_set.f_max, force_floor=0.0)
-        ended: dict[int, tuple[PlantState, StepRecord]] = {}  # arms stopped by a fault: where they stopped
-        estimates: list[Estimate | None] = [None] * n_sims  # a noisy estimator's estimates of the last states
+        ended: list[tuple[np.ndarray, BatchPlantState, BatchStepRecord]] = []  # arms stopped by a fault: where
+        state = record = None
         for _ in range(self.config.action_repeat):
             if not active.any():
                 break
             rows = None if active.all() else active
-            record = control(self._est_t, self._est_q, self._est_qd, self._est_tc, rows=rows, u_nom=u_nom)
+            record = control(self._est_t, self._est_q, self._est_qd, self._est_tc, rows=rows, u_nom=self._u_nom)
             state = plant.step(record.u)
             figures.update(rho_meas(self.safe_set, state.contact_forces)[None], state.contact_forces[None],
                            record.u[None], record.rho_pred[None], record.infeasible[None], record.action[None],
                            None if rows is None else rows[None])
-            self._estimate_rows(state, active, estimates)
+            self._estimate_rows(state, active)
             stopped = control.stopped & active
             if stopped.any():  # a filter fault has vented: b's episode ends (closedloop.step)
-                for b in np.flatnonzero(stopped).tolist():
-                    ended[b] = state.row(b), record.row(b)
+                ended.append((stopped, state, record))
                 active &= ~stopped
-        for b in running.tolist():
-            end_state, end_record = ended[b] if b in ended else (state.row(b), record.row(b))
-            periods = int(figures.rows[b])
-            stats = StepStats(periods, int(figures.violations[b]), float(figures.rho_min_meas[b]),
-                              float(figures.force_max_N[b]), float(figures.force_excess[b]) / periods,
-                              bool(figures.vented[b]))
-            estimate = estimates[b] if estimates[b] is not None else exact_state(end_state)
-            arms[b].end_batched_step(end_state, estimate, end_record, stats)
+        self._stats = BatchStepStats.of_figures(figures)
+        if state is None or record is None:
+            return
+        self._keep(running & ~np.logical_or.reduce([rows for rows, *_ in ended], initial=False), state, record)
+        for rows, stop_state, stop_record in ended:
+            self._keep(rows, stop_state, stop_record)
 
-    def _estimate_rows(self, state: BatchPlantState, active: np.ndarray, estimates: list[Estimate | None]) -> None:
-        """The estimates of the active arms' new states into the rows the next period's step reads (module
-        docstring); a noisy estimator's also into `estimates` (their draws are the arm's)."""
+    def _keep(self, rows: np.ndarray, state: BatchPlantState, record: BatchStepRecord) -> None:
+        """The rows `rows` ((B,) bool) of an env step's end `state` and last `record` into the arms' arrays."""
+        self._t[rows], self._q[rows], self._qd[rows] = state.t[rows], state.q[rows], state.qd[rows]
+        self._tip[rows], self._forces[rows] = state.segment_ends[rows, -1], state.contact_forces[rows]
+        self._u[rows] = record.u[rows]
+        self._monitor_action[rows] = MONITOR_LABELS[record.action[rows]]
+        labels = np.array(record.filter_action, dtype=object)  # a label where the filter's output was taken
+        labels[~record.output] = ""
+        self._filter_action[rows] = labels[rows]
+
+    def _estimate_rows(self, state: BatchPlantState, active: np.ndarray) -> None:
+        """The estimates of the active arms' new states into the rows the next period's step reads and
+        the observation shows (module docstring); a noisy estimator's from each arm's own generator."""
         if self.exact:
             self._est_t[active], self._est_tc[active] = state.t[active], state.t[active]
             self._est_q[active], self._est_qd[active] = state.q[active], state.qd[active]
             return
         for b in np.flatnonzero(active).tolist():
-            estimate = estimates[b] = self.arms[b].estimator(state.row(b))
+            estimate = self.arms[b].estimator(state.row(b))
             self._est_t[b], self._est_tc[b] = estimate.t, estimate.t_capture
             self._est_q[b], self._est_qd[b] = estimate.q, estimate.qd
 
-    def _batch(self, observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-        """The (B, ...) observations, fresh arrays."""
-        return concatenate(self.single_observation_space, observations,
-                           create_empty_array(self.single_observation_space, self.num_envs))
 
-    def _infos(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
-        """The single environment's infos as Gymnasium's vector infos: per key a (B,) array and its mask "_key"."""
-        out: dict[str, Any] = {}
-        for key, first in infos[0].items():
-            values = [info[key] for info in infos]
-            if isinstance(first, (bool, int, float, np.number)):
-                out[key] = np.array(values, dtype=type(first))
-            else:  # element by element: numpy would unpack tuples of equal length into a 2-d array
-                out[key] = np.empty(self.num_envs, dtype=object)
-                for b, value in enumerate(values):
-                    out[key][b] = value
-            out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
-        return out
+def object_labels(n: int) -> np.ndarray:
+    """(n,) object array of empty labels ""."""
+    out = np.empty(n, dtype=object)
+    out[:] = ""
+    return out
