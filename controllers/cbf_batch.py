@@ -14,28 +14,49 @@ b, ḃ, B, L_fB, L_gB are the scalar filter's floats (log1p is the math module's
 - "disabled" (tuning None): u = u_nom, clipped to the bounds when they are on;
 - "nominal": u_nom within the bounds and L_gB_i u_nom ≤ c_i for every row, tested
   exactly as the scalar filter tests it (u = u_nom);
-- "qp" (N = 2; for N ≠ 2 these states go to `fallback`, the scalar filter's QP): the QP
-  above, solved exactly by enumeration, which N = 2 makes cheap. With the
-  rows scaled to unit norm as `controllers.qp` scales them (â_i = a_i/‖a_i‖,
-  b̂_i = c_i/‖a_i‖; rows with ‖a_i‖ ≤ ZERO_ROW_TOL dropped when c_i ≥ 0) and the box as
-  ±e_j rows, the minimiser of a strictly convex quadratic over a polygon is u_nom, or
-  the projection of u_nom onto one row's line, or the intersection of two rows' lines
-  (at most N = 2 rows are active at a non-degenerate vertex; at a degenerate vertex
-  any two independent active rows give the same point). Every candidate is tested for
-  feasibility with the scalar solver's tolerance FEASIBILITY_RTOL·(1 + max(|u_nom|, |lb|,
-  |ub|)), and the feasible candidate nearest u_nom is the optimum: the optimum is a
-  feasible candidate, and no feasible point is nearer. (Equivalently the KKT point:
-  its multipliers are ≥ 0; the nearest-feasible test needs no multipliers.) u_nom
-  itself within that tolerance gives u = u_nom, as the scalar solver's shortcut does.
-  The result is clipped to the bounds, as `CBFFilter` clips it.
+- "qp" (N ≤ ENUMERATION_MAX_N = 4; for larger N these states go to `fallback`, the scalar
+  filter's QP): the QP above, solved exactly by enumeration. The rows are scaled to unit norm
+  as `controllers.qp` scales them (â_i = a_i/‖a_i‖, b̂_i = c_i/‖a_i‖; rows with ‖a_i‖ ≤
+  ZERO_ROW_TOL dropped when c_i ≥ 0), the box added as the rows +e_j ≤ u_max,j and
+  −e_j ≤ −u_min,j: m = P + 2N rows (P unbounded). Derivation: the minimiser u* of the
+  strictly convex ‖u − u₀‖² over the polyhedron {u | â_i·u ≤ b̂_i} satisfies the KKT
+  conditions u* = u₀ − Σ_{i∈S} μ_i â_i, μ ≥ 0, with S its active rows; dropping rows of S
+  whose normals are dependent on the others (a degenerate vertex: the same point) leaves a
+  subset of k ≤ N linearly independent rows, and u* is then the projection of u₀ onto their
+  affine set {u | A_S u = b_S}:
+      u_S = u₀ − A_Sᵀ (A_S A_Sᵀ)⁻¹ (A_S u₀ − b_S)
+  (u₀ − u_S lies in the row space of A_S and u_S satisfies the rows). So u* is one of the
+  candidates u₀ (S empty) and u_S over every subset of 1 ≤ k ≤ N rows; it is feasible, and no
+  feasible candidate is nearer u₀ than the minimiser over the whole polyhedron: the feasible
+  candidate nearest u₀ is the optimum (no multipliers needed). Candidates are built subset by
+  subset in lexicographic order, each extending its prefix S' by one row a (`subset_levels`):
+  with v = a orthogonalised against the prefix's rows (modified Gram–Schmidt; v ⊥ the rows of S'
+  and a·v = ‖v‖²), u_S = u_S' − t v with t = (a·u_S' − b̂)/(a·v), which keeps S' satisfied and
+  meets a's row, and u₀ − u_S stays in the row space: the projection above without forming
+  (A_S A_Sᵀ)⁻¹. For one row this is t = (â·u₀ − b̂)/‖â‖², u₀ − t â, the scalar solver's first
+  step float for float. A square subset (k = N) has the vertex A_S⁻¹ b_S, taken by Cramer's
+  rule (determinants by cofactor expansion), which for N = 2 are exactly the formulas of the
+  two-row vertex used before (the N = 2 floats did not move; measured on 120 000 random states:
+  no command differs). A subset whose unit rows span a parallelotope of volume
+  ‖v_1‖⋯‖v_k‖ (|det A_S| when square) below SINGULAR_TOL = 1e-12 is skipped (nearly dependent
+  rows: parallel at k = 2), and so are subsets holding both ±e_j. Count: with the box,
+  1 + Σ_{k≤N} C(P + 2N, k) less those pairs: 14, 46, 146 candidates for N = 2, 3, 4 and one
+  facet row (27, 106, 384 with three rows); unbounded 1 + Σ_k C(P, k). Every candidate is
+  tested for feasibility with the scalar solver's tolerance FEASIBILITY_RTOL·(1 + max(|u_nom|,
+  |lb|, |ub|)), and the feasible candidate nearest u₀ wins (ties: the first in the order above).
+  u_nom itself within that tolerance gives u = u_nom, as the scalar solver's shortcut does. The
+  result is clipped to the bounds, as `CBFFilter` clips it. Above N = 4 the count (454
+  candidates at N = 5, one row) makes the enumeration costlier per state than the scalar
+  filter's QP, so those states go to the fallback (cost per state: tools/bench_batch_filters.py).
 - Not covered here, handed to `fallback(b)` per state b (the scalar filter): some row
   has b_i ≤ B_MIN ("recovery", the quasi-static rows), or no candidate is feasible
   (the rows and bounds cannot all hold: "slack" / "vent"), or a row is zero with
   c_i < 0. These are rare in closed loop; `resolved` marks the states that did not
   need the fallback. Without a fallback such states raise.
 
-Agreement with `CBFFilter` (tests/test_cbf_batch.py, thousands of random states): the
-same action label, and commands within 1e-9 hPa. The enumeration is exact to rounding;
+Agreement with `CBFFilter` (tests/test_cbf_batch.py, thousands of random states for N = 2, 3
+and 4, one facet and a corner, with and without the box): the same action label, and commands
+within 1e-9 hPa. The enumeration is exact to rounding;
 the scalar dual active-set method stops once every row holds within the feasibility
 tolerance, so both can differ by up to that tolerance (≈ 1.5e-7 hPa at ±150 hPa) when a
 row's violation at an intermediate iterate lies below it; in tests this never happened.
@@ -43,7 +64,7 @@ row's violation at an intermediate iterate lies below it; in tests this never ha
 
 from __future__ import annotations
 
-import itertools
+import functools
 import math
 from dataclasses import dataclass
 from typing import Callable, Protocol
@@ -79,7 +100,8 @@ class CBFBatchResult:
     resolved: np.ndarray
 
 
-def _check(name: str, value: np.ndarray, shape: tuple[int, int], error: type[Exception]) -> np.ndarray:
+def checked_rows(name: str, value: np.ndarray, shape: tuple[int, int], error: type[Exception]) -> np.ndarray:
+    """value as a float array of `shape` (B, N) with finite rows, else `error` naming the shape or the non-finite rows."""
     arr = np.asarray(value, dtype=float)
     if arr.shape != shape:
         raise error(f"{name} must have shape {shape}, got {arr.shape}")
@@ -97,40 +119,114 @@ def predicted_margin(safe_set: ForceSafeSet, x: np.ndarray, y: np.ndarray) -> np
     return np.min(margins, axis=0)
 
 
-def _row_products(a: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Σ_j a[s, i, j] u[s, j]: (S, P), summed in the order j = 0, 1, … (for N = 2 the scalar
-    filter's a_0 u_0 + a_1 u_1)."""
-    out = a[:, :, 0] * u[:, None, 0]
-    for j in range(1, u.shape[1]):
-        out = out + a[:, :, j] * u[:, None, j]
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Σ_j x[..., j] y[..., j], summed in the order j = 0, 1, … (for N = 2 the scalar solver's x_0 y_0 + x_1 y_1)."""
+    out = x[..., 0] * y[..., 0]
+    for j in range(1, x.shape[-1]):
+        out = out + x[..., j] * y[..., j]
     return out
 
 
-def _nearest_feasible(u_nom: np.ndarray, rows: np.ndarray, rhs: np.ndarray, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+ENUMERATION_MAX_N = 4
+"""The largest N whose QP states `cbf_qp_batch` solves by enumeration (module docstring: the
+subsets grow as C(P + 2N, ≤ N)); QP states of larger N go to the fallback."""
+
+SINGULAR_TOL = 1e-12
+"""A unit row within this distance of the span of a subset's other rows makes the subset singular (skipped)."""
+
+
+@functools.lru_cache(maxsize=64)
+def subset_levels(m: int, n: int, box_start: int | None) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+    """The subsets S of rows 0..m−1 with 1 ≤ |S| ≤ n, level by level (module docstring).
+
+    Level k holds the subsets of size k in lexicographic order (`itertools.combinations`) as
+    (parent, row, members): subset s of level k is parent[s] of level k − 1 (level 0: the empty
+    set) extended by row[s] > every row of the parent; members (K, k) lists its rows. With box rows (rows box_start + j:
+    +e_j, box_start + n + j: −e_j, j < n), subsets holding both ±e_j (parallel: no vertex) are left out.
+    """
+    levels, previous = [], [()]
+    for _ in range(n):
+        parents, rows, current = [], [], []
+        for p, subset in enumerate(previous):
+            for row in range(subset[-1] + 1 if subset else 0, m):
+                if box_start is not None and row >= box_start + n and row - n in subset:
+                    continue  # −e_j with +e_j
+                parents.append(p)
+                rows.append(row)
+                current.append(subset + (row,))
+        if not current:
+            break
+        levels.append((np.array(parents, dtype=np.intp), np.array(rows, dtype=np.intp), np.array(current, dtype=np.intp)))
+        previous = current
+    return tuple(levels)
+
+
+def _det(m: np.ndarray) -> np.ndarray:
+    """det of the trailing (k, k) matrices of m, by cofactor expansion along the first row (k ≤ 4 here);
+    for k = 2 m00 m11 − m01 m10."""
+    k = m.shape[-1]
+    if k == 1:
+        return m[..., 0, 0]
+    if k == 2:
+        return m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
+    out = None
+    for j in range(k):
+        term = m[..., 0, j] * _det(np.delete(m[..., 1:, :], j, axis=-1))
+        out = term if out is None else (out - term if j % 2 else out + term)
+    return out
+
+
+def _vertices(a: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """The solutions u of a u = c, (..., N), of the square systems a (..., N, N), c (..., N) by Cramer's
+    rule (u_j = det(a with column j replaced by c)/det(a); for N = 2 the formulas of the pair vertex
+    (c_i b_1 − c_j a_1)/det, (a_0 c_j − b_0 c_i)/det of rows a, b); NaN where |det a| < SINGULAR_TOL."""
+    det = _det(a)
+    columns = []
+    for j in range(a.shape[-1]):
+        replaced = a.copy()
+        replaced[..., :, j] = c
+        columns.append(_det(replaced))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.stack(columns, axis=-1) / det[..., None]
+    u[np.abs(det) < SINGULAR_TOL] = np.nan
+    return u
+
+
+def _nearest_feasible(u_nom: np.ndarray, rows: np.ndarray, rhs: np.ndarray, tol: np.ndarray,
+                      box_start: int | None) -> tuple[np.ndarray, np.ndarray]:
     """argmin ‖u − u_nom‖² over {u | rows u ≤ rhs + tol} by enumeration (module docstring).
 
-    u_nom (S, 2); rows (S, m, 2) unit or zero rows; rhs (S, m); tol (S,). Returns (u (S, 2),
-    found (S,)); u is NaN where no candidate is feasible.
+    u_nom (S, N); rows (S, m, N) unit or zero rows (rows box_start.. the box's ±e_j, or None);
+    rhs (S, m); tol (S,). Returns (u (S, N), found (S,)); u is NaN where no candidate is feasible.
     """
-    m = rows.shape[1]
-    r0, r1 = rows[..., 0], rows[..., 1]
-    # Projections onto each row's line, in the operations of the scalar solver's first step
-    # (t = (â·u − b̂)/‖â‖², u − t â), so that a one-row solution is the scalar filter's float for float.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        step = ((r0 * u_nom[:, None, 0] + r1 * u_nom[:, None, 1]) - rhs) / (r0 * r0 + r1 * r1)
-    singles = u_nom[:, None, :] - step[:, :, None] * rows
-    pairs = list(itertools.combinations(range(m), 2))
-    candidates = [u_nom[:, None, :], singles]
-    if pairs:
-        i, j = np.array(pairs).T
-        a, b = rows[:, i], rows[:, j]  # (S, K, 2)
-        det = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-        ci, cj = rhs[:, i], rhs[:, j]
+    n = u_nom.shape[1]
+    candidates = [u_nom[:, None, :]]
+    basis = np.empty((len(u_nom), 1, 0, n))  # the parent's orthogonalised rows v_1..v_k
+    volume = np.ones((len(u_nom), 1))  # the parent's ‖v_1‖ ⋯ ‖v_k‖
+    u_parent = u_nom[:, None, :]
+    subsets = subset_levels(rows.shape[1], n, box_start)
+    for size, (parents, new, members) in enumerate(subsets, start=1):
+        if size == n:  # square: the vertex
+            candidates.append(_vertices(rows[:, members], rhs[:, members]))
+            break
+        a = rows[:, new]  # (S, K, N)
+        prior = basis[:, parents]  # (S, K, k, N)
+        v = a
         with np.errstate(divide="ignore", invalid="ignore"):
-            vertex = np.stack(((ci * b[..., 1] - cj * a[..., 1]) / det, (a[..., 0] * cj - b[..., 0] * ci) / det), axis=-1)
-        vertex[np.abs(det) < 1e-12] = np.nan  # (nearly) parallel rows: no vertex
-        candidates.append(vertex)
-    cand = np.concatenate(candidates, axis=1)  # (S, K, 2)
+            for i in range(prior.shape[2]):  # modified Gram–Schmidt against the parent's rows
+                w = prior[:, :, i]
+                v = v - (_dot(v, w) / _dot(w, w))[..., None] * w
+            u_p = u_parent[:, parents]
+            # For one row (v = a): t = (â·u − b̂)/‖â‖², u − t â, the scalar solver's first step, float for float.
+            step = (_dot(a, u_p) - rhs[:, new]) / _dot(a, v)
+            u = u_p - step[..., None] * v
+            volume = volume[:, parents] * np.sqrt(_dot(v, v))
+        u[~(volume >= SINGULAR_TOL)] = np.nan
+        candidates.append(u)
+        if size < len(subsets):
+            basis = np.concatenate((prior, v[:, :, None, :]), axis=2)
+            u_parent = u
+    cand = np.concatenate(candidates, axis=1)  # (S, C, N)
     with np.errstate(invalid="ignore"):
         violation = np.max(np.einsum("smk,sck->scm", rows, cand) - rhs[:, None, :], axis=2)
         feasible = violation <= tol[:, None]
@@ -163,9 +259,9 @@ def cbf_qp_batch(
     n_seg = dynamics.n
     n_states = np.shape(q)[0] if np.ndim(q) == 2 else -1
     shape = (n_states, n_seg)
-    q = _check("q", q, shape, NonFiniteStateError)
-    qd = _check("qd", qd, shape, NonFiniteStateError)
-    u_nom = _check("u_nom", u_nom, shape, NonFiniteCommandError)
+    q = checked_rows("q", q, shape, NonFiniteStateError)
+    qd = checked_rows("qd", qd, shape, NonFiniteStateError)
+    u_nom = checked_rows("u_nom", u_nom, shape, NonFiniteCommandError)
     bounded = u_min is not None
     if bounded != (u_max is not None):
         raise ValueError("u_min and u_max must both be given or both be None")
@@ -211,30 +307,32 @@ def cbf_qp_batch(
     A = np.stack(lgb_rows, axis=1) if lgb_rows else np.empty((n, 0, n_seg))  # (B, P, N)
     c = np.column_stack(c_rows) if c_rows else np.empty((n, 0))
     recovery = ~np.all(np.column_stack(defined_rows), axis=1) if defined_rows else np.zeros(n, dtype=bool)
-    satisfied = np.all(_row_products(A, u_nom) <= c, axis=1)
+    satisfied = np.all(_dot(A, u_nom[:, None, :]) <= c, axis=1)
     if bounded:
         satisfied &= np.all((lo <= u_nom) & (u_nom <= hi), axis=1)
     solve = ~satisfied & ~recovery
     resolved[recovery] = False
-    if n_seg != 2:  # the enumeration below is written for two commands: the scalar filter solves these QPs
+    if n_seg > ENUMERATION_MAX_N:  # the enumeration's subsets outgrow the scalar filter: it solves these QPs
         resolved[solve] = False
         solve[:] = False
     if np.any(solve):
         idx = np.flatnonzero(solve)
         a, c_s, u0 = A[idx], c[idx], u_nom[idx]
-        norm = np.sqrt(a[..., 0] * a[..., 0] + a[..., 1] * a[..., 1])
+        norm = np.sqrt(_dot(a, a))
         kept = norm > ZERO_ROW_TOL
         contradiction = np.any(~kept & (c_s < 0.0), axis=1)  # a zero row with c < 0: infeasible
         with np.errstate(divide="ignore", invalid="ignore"):
             rows = np.where(kept[..., None], a / norm[..., None], 0.0)
             rhs = np.where(kept, c_s / norm, 0.0)
         scale = 1.0 + np.max(np.abs(u0), axis=1)
+        box_start = None
         if bounded:
-            box = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
-            rows = np.concatenate((rows, np.broadcast_to(box, (len(idx), 4, 2))), axis=1)
-            rhs = np.concatenate((rhs, np.broadcast_to(np.concatenate((hi, -lo)), (len(idx), 4))), axis=1)
+            box_start = rows.shape[1]
+            box = np.vstack((np.eye(n_seg), -np.eye(n_seg))) + 0.0  # rows +e_j, then −e_j (+ 0.0: no −0.0 entries)
+            rows = np.concatenate((rows, np.broadcast_to(box, (len(idx), 2 * n_seg, n_seg))), axis=1)
+            rhs = np.concatenate((rhs, np.broadcast_to(np.concatenate((hi, -lo)), (len(idx), 2 * n_seg))), axis=1)
             scale = np.maximum(scale, 1.0 + max(np.max(np.abs(lo)), np.max(np.abs(hi))))
-        u_qp, found = _nearest_feasible(u0, rows, rhs, FEASIBILITY_RTOL * scale)
+        u_qp, found = _nearest_feasible(u0, rows, rhs, FEASIBILITY_RTOL * scale, box_start)
         found &= ~contradiction
         if bounded:
             u_qp = np.clip(u_qp, lo, hi)
