@@ -274,3 +274,29 @@ def test_nominal_rows_are_decided_without_the_scalar_governor(monkeypatch):
     want = [c(estimates[b], far[b]) for b, c in enumerate(copies)]
     assert out.action.tolist() == ["governed"] * 5 == [w.action for w in want]
     assert np.array_equal(out.u, [w.u for w in want]) and np.allclose(np.abs(out.u - u_nom), 100.0, atol=1e-6)
+
+
+def test_a_batched_pcc_loop_with_one_shared_governor_equals_its_serial_loops():
+    """run_batch_closed_loop calls the shared governor's filter_batch once per period: the commands and
+    figures of each simulation are, bit for bit, those of the serial loop with a governor of its own."""
+    from closedloop.step import ControlStep
+    from controllers.nominal import SinusoidNominal
+    from softcbf_mj.batch_loop import run_batch_closed_loop
+    from softcbf_mj.loop import run_closed_loop
+    from softcbf_mj.metrics import run_figures
+    from softcbf_mj.pcc_batch_plant import PCCBatchPlant
+    from softcbf_mj.pcc_plant import PCCPlant
+
+    nominal = SinusoidNominal((80.0, 80.0), 1.0, (np.pi / 2, np.pi / 2))
+    q0 = np.random.default_rng(5).normal(0.3, 0.1, (4, 2))
+    plant = PCCBatchPlant(ROBOT, SAFE, 4)
+    ctx = FilterContext.for_robot(ROBOT, SAFE, plant.control_dt)
+    batch = run_batch_closed_loop(plant, QuasiStaticGovernor(ctx, rate_limit_hPa_per_s=2000.0), nominal, ctx, 0.4,
+                                  q0, record_commands=True)
+    for b in range(4):
+        step = ControlStep(QuasiStaticGovernor(ctx, rate_limit_hPa_per_s=2000.0), nominal, ctx)
+        log, _ = run_closed_loop(PCCPlant(ROBOT, SAFE), step, SAFE, 0.4, q0[b])
+        assert np.array_equal(batch.commands[:, b], log["u"])
+        want = run_figures(log, plant.control_dt, True, 1.0)
+        assert {k: batch.run(b)[k] for k in ("rho_min_pred", "infeasible_steps", "u_peak_abs_hPa")} == {
+            k: want[k] for k in ("rho_min_pred", "infeasible_steps", "u_peak_abs_hPa")}
