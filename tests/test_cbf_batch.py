@@ -177,11 +177,11 @@ def test_subset_levels_count_and_order(n_seg, bounded, count):
     itertools.combinations order level by level (the tie order of before, for N = 2)."""
     m = 1 + 2 * n_seg if bounded else 1
     levels = subset_levels(m, n_seg, 1 if bounded else None)
-    assert 1 + sum(len(parents) for parents, _, _ in levels) == count
-    for size, (parents, rows, members) in enumerate(levels, start=1):
+    assert 1 + sum(len(rows) for _, rows, _ in levels) == count
+    for size, (prefixes, rows, members) in enumerate(levels, start=1):
         want = [s for s in itertools.combinations(range(m), size)
                 if not bounded or not any(1 + j in s and 1 + n_seg + j in s for j in range(n_seg))]
         assert [tuple(s) for s in members.tolist()] == want
         assert np.array_equal(members[:, -1], rows)
-        if size > 1:
-            assert np.array_equal(levels[size - 2][2][parents], members[:, :-1])
+        for i in range(size - 1):  # prefixes[:, i]: the subset of the first i + 1 rows, in level i + 1
+            assert np.array_equal(levels[i][2][prefixes[:, i]], members[:, : i + 1])
