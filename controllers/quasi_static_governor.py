@@ -61,14 +61,16 @@ import time
 
 import numpy as np
 
-from controllers import pcc_model
 from controllers.cbf_batch import checked_rows, predicted_margin
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
+from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked, step_kinematics
 from controllers.qp import DEFAULT_BACKEND, check_backend, solve_lists
 from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
 from controllers.bounds import Bound
+
+pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
 
 RESIDUAL_TOL_M = 1e-6
 """Rest-shape rows may miss the margin by this much (m, Euclidean) at the returned command."""
