@@ -49,8 +49,10 @@ The common case is decided for all rows at once: u_nom inside the box and the ro
 and its rest-shape margin (from `controllers.pcc_model.kinematics_rows`, the kernel behind
 `step_kinematics`, with `_scalar_rest_margin`'s arithmetic: the same floats) above NOMINAL_TOL_M
 → "nominal", u = u_nom. Every other row runs `_decide` with that row's previous command. The
-histories are per row position: the same B rows every call until `reset()` (which forgets all
-of them); a call with another B raises. rho_pred is the estimate's tip margin, min over facets,
+histories are per row position (0..B−1), or, given `rows`, per index: the caller says which
+simulation each row is, so a call for some of them leaves the others' histories as they are;
+`reset()` forgets all of them, `reset(rows)` those. A call without `rows` with fewer rows than
+the histories held raises. rho_pred is the estimate's tip margin, min over facets,
 from the same kernel (`__call__` reads its tip there too, so a row's rho_pred is the call's).
 """
 
@@ -144,12 +146,37 @@ class QuasiStaticGovernor:
         check_backend(arguments.get("qp_backend", DEFAULT_BACKEND))
         return checked
 
-    def reset(self) -> None:
-        """Forget the previous command (the rate limit and the warm start then start afresh), of every row
-        of `filter_batch` too."""
+    def reset(self, rows=None) -> None:
+        """Forget the previous command (the rate limit and the warm start then start afresh), of every
+        history of `filter_batch` too; with `rows` (indices of `filter_batch` histories), of those
+        histories alone (one simulation's new episode), as if their governors were reset."""
+        if rows is not None:
+            ids = self._history_ids(rows, None)
+            self._grow_histories(ids)
+            self._batch_prev[ids] = math.nan
+            return
         self._u_prev = None
         self._batch_prev = None
         self._commands.clear()
+
+    @staticmethod
+    def _history_ids(rows, count: int | None) -> np.ndarray:
+        """`rows` as distinct indices ≥ 0 ((count,) when count is given), else ValueError."""
+        ids = np.asarray(rows)
+        if ids.ndim != 1 or (count is not None and len(ids) != count) or (len(ids) and ids.dtype.kind not in "iu"):
+            raise ValueError(f"rows must be {'' if count is None else f'{count} '}integer indices, got {rows!r}")
+        if len(ids) and (ids.min() < 0 or len(np.unique(ids)) != len(ids)):
+            raise ValueError(f"rows must be distinct indices >= 0, got {ids.tolist()}")
+        return ids.astype(np.intp)
+
+    def _grow_histories(self, ids: np.ndarray) -> None:
+        """Histories up to index max(ids), the new ones copies of this governor in its present state."""
+        if self._batch_prev is None:
+            self._batch_prev = np.empty((0, self.n))
+        held, needed = len(self._batch_prev), int(ids.max()) + 1 if len(ids) else 0
+        if needed > held:
+            start = np.full(self.n, math.nan) if self._u_prev is None else self._u_prev
+            self._batch_prev = np.vstack((self._batch_prev, np.tile(start, (needed - held, 1))))
 
     # -- maths ------------------------------------------------------------------------
     def rest_shape(self, u: np.ndarray) -> np.ndarray:
@@ -322,22 +349,26 @@ class QuasiStaticGovernor:
         kin = pcc_model.kinematics_rows(np.ascontiguousarray(q), np.zeros_like(q), self.lengths)
         return kin[:, pcc_model.ModelLayout.of(self.n).tip_terms.start]
 
-    def filter_batch(self, estimates: EstimateBatch, u_nom) -> BatchOutput:
-        """B governors at once (module docstring, "Batched"): row b is, bit for bit, the b-th of B copies
-        of this governor (in its state at the first call after `reset`) called in turn; u_nom (B, N) hPa.
-        A non-finite or misshapen row raises for the whole call (NonFiniteStateError /
-        NonFiniteCommandError), and so does a call with another number of rows than the histories held."""
+    def filter_batch(self, estimates: EstimateBatch, u_nom, rows=None) -> BatchOutput:
+        """B governors at once (module docstring, "Batched"): row b is, bit for bit, a call of the governor
+        whose history is rows[b] (None: b), each history a copy of this governor in its state at its first
+        call after `reset`; u_nom (B, N) hPa. A non-finite or misshapen row raises for the whole call
+        (NonFiniteStateError / NonFiniteCommandError), and so does a call without `rows` with fewer rows
+        than the histories held (ValueError: which history is which would be a guess)."""
         n_rows, n = len(estimates), self.n
         q = checked_rows("q", estimates.q, (n_rows, n), NonFiniteStateError)
         checked_rows("qd", estimates.qd, (n_rows, n), NonFiniteStateError)
         u_nom = checked_rows("u_nom", u_nom, (n_rows, n), NonFiniteCommandError)
-        if self._batch_prev is None:
-            start = np.full(n, math.nan) if self._u_prev is None else self._u_prev
-            self._batch_prev = np.tile(start, (n_rows, 1))
-        elif len(self._batch_prev) != n_rows:
-            raise ValueError(f"filter_batch keeps one history per row: it holds {len(self._batch_prev)} rows and was "
-                             f"called with {n_rows} (reset() starts afresh)")
-        prev = self._batch_prev
+        held = 0 if self._batch_prev is None else len(self._batch_prev)
+        if rows is None:
+            if held > n_rows:
+                raise ValueError(f"filter_batch keeps one history per row: it holds {held} and was called with "
+                                 f"{n_rows} rows without saying which (rows=); reset() starts afresh")
+            ids = np.arange(n_rows)
+        else:
+            ids = self._history_ids(rows, n_rows)
+        self._grow_histories(ids)
+        prev = self._batch_prev[ids]
         has_prev = ~np.isnan(prev[:, 0])
         lo, hi = self.context.u_min, self.context.u_max  # `_bounds(True)` row by row, ±inf for no bound
         lb = np.full((n_rows, n), -math.inf) if lo is None else np.tile(lo, (n_rows, 1))
@@ -364,7 +395,7 @@ class QuasiStaticGovernor:
                 u[b], action[b], infeasible[b] = self._decide(u_nom[b])[:3]
         finally:
             self._u_prev = saved
-        prev[:] = u
+        self._batch_prev[ids] = u
         tips = self._rest_tips(q)
         rho = predicted_margin(self.context.safe_set, tips.real, tips.imag)
         return BatchOutput(u, action.astype(str), infeasible, rho)

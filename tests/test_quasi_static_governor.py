@@ -195,10 +195,12 @@ def test_remembered_commands_are_govern_for_a_held_nominal(u_nom):
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_seg=st.sampled_from([2, 3]), rate=st.sampled_from([None, 300.0, 3000.0]),
-       bounded=st.booleans(), n_rows=st.integers(1, 12), warm=st.integers(0, 2))
-def test_filter_batch_is_b_scalar_governors_bit_for_bit(seed, n_seg, rate, bounded, n_rows, warm):
+       bounded=st.booleans(), n_rows=st.integers(1, 12), warm=st.integers(0, 2), subsets=st.booleans())
+def test_filter_batch_is_b_scalar_governors_bit_for_bit(seed, n_seg, rate, bounded, n_rows, warm, subsets):
     """filter_batch over a closed-loop-like sequence (nominals drifting, held, jumping beyond the box;
-    resets) equals B copies of the governor called in turn: commands, actions, flags and ρ_pred, bit for bit."""
+    resets of all rows or of some) equals B copies of the governor called in turn: commands, actions,
+    flags and ρ_pred, bit for bit; with `subsets`, each period calls some of the rows (rows=) and only
+    their copies."""
     robot = ROBOT if n_seg == 2 else uniform_robot(n_seg)
     ctx = FilterContext.for_robot(robot, SAFE, 0.01, pressure_limits=bounded)
     rng = np.random.default_rng(seed)
@@ -212,17 +214,26 @@ def test_filter_batch_is_b_scalar_governors_bit_for_bit(seed, n_seg, rate, bound
         kind = rng.integers(6)
         if kind == 0:
             u_nom = rng.uniform(-400.0, 400.0, (n_rows, n_seg))  # jumps, beyond the box
-        elif kind == 1:
+        elif kind == 1 and rng.random() < 0.5:
             gov.reset()
             for c in copies:
                 c.reset()
+        elif kind == 1:  # some rows' new episodes
+            some = np.flatnonzero(rng.random(n_rows) < 0.5)
+            gov.reset(rows=some)
+            for b in some:
+                copies[b].reset()
         elif kind < 5:
             u_nom = u_nom + rng.normal(0.0, 20.0, u_nom.shape)  # drifts (kind 5: held)
         q = q + rng.normal(0.0, 0.02, q.shape)
         qd = rng.normal(0.0, 1.0, q.shape)
-        estimates = EstimateBatch(np.full(n_rows, 0.01 * k), q, qd, np.full(n_rows, 0.01 * k))
-        out = gov.filter_batch(estimates, u_nom)
-        want = [c(estimates[b], u_nom[b]) for b, c in enumerate(copies)]
+        ids = np.arange(n_rows)
+        if subsets:
+            ids = np.flatnonzero(rng.random(n_rows) < 0.7)
+            ids = ids if len(ids) else rng.integers(n_rows, size=1)  # (a batched step calls at least one row)
+        estimates = EstimateBatch(np.full(len(ids), 0.01 * k), q[ids], qd[ids], np.full(len(ids), 0.01 * k))
+        out = gov.filter_batch(estimates, u_nom[ids], rows=ids) if subsets else gov.filter_batch(estimates, u_nom)
+        want = [copies[b](estimates[i], u_nom[b]) for i, b in enumerate(ids)]
         assert out.action.tolist() == [w.action for w in want]
         assert np.array_equal(out.u, [w.u for w in want])
         assert out.infeasible.tolist() == [w.infeasible for w in want]
@@ -245,8 +256,14 @@ def test_filter_batch_covers_every_branch_and_refuses_a_changed_batch():
         assert out.action.tolist() == [w.action for w in want] and np.array_equal(out.u, [w.u for w in want])
         seen |= set(out.action.tolist())
     assert seen == {"nominal", "governed", "backtrack"}, seen
-    with pytest.raises(ValueError, match="holds 4 rows and was called with 3"):
+    with pytest.raises(ValueError, match=r"holds 4 and was called with 3 rows without saying which \(rows=\)"):
         gov.filter_batch(EstimateBatch(np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)), np.zeros((3, 2)))
+    with pytest.raises(ValueError, match=r"rows must be distinct indices >= 0, got \[1, 1, 2\]"):
+        gov.filter_batch(EstimateBatch(np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)), np.zeros((3, 2)),
+                         rows=[1, 1, 2])
+    with pytest.raises(ValueError, match="rows must be 3 integer indices"):
+        gov.filter_batch(EstimateBatch(np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)), np.zeros((3, 2)),
+                         rows=[0.0, 1.0, 2.0])
     with pytest.raises(NonFiniteCommandError, match=r"non-finite rows \[2\]"):
         gov.filter_batch(rest, np.array([[0, 0], [0, 0], [np.nan, 0], [0, 0]]))
     gov.reset()
