@@ -138,7 +138,8 @@ ENUMERATION_MAX_N = 4
 subsets grow as C(P + 2N, ≤ N)); QP states of larger N go to the fallback."""
 
 SINGULAR_TOL = 1e-12
-"""A unit row within this distance of the span of a subset's other rows makes the subset singular (skipped)."""
+"""A subset whose unit rows span a parallelotope of volume below this (‖v_1‖⋯‖v_k‖; |det| of two rows for
+N = 2) is skipped: its rows are nearly dependent (module docstring)."""
 
 
 @functools.lru_cache(maxsize=64)
