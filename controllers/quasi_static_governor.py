@@ -41,6 +41,19 @@ above), "rate_dropped" (feasible only without the rate limit; infeasible flagged
 margin min_j (b_j(q_u) − δ_j)/‖H'_j‖ in m, the iterations and the QP solve time.
 `command` is `govern` without the diagnostics (the energy governor's target): it accepts a
 clearly nominal u_nom from the scalar kinematics alone (`_decide`), the same command.
+
+Batched (`filter_batch`, the plug-in contract of `controllers.safety_filter`): B rows, each a
+governor of its own (its previous command: the rate limit's centre and the warm start), row b
+bit for bit the b-th of B copies of this governor called in turn (tests/test_quasi_static_governor.py).
+The common case is decided for all rows at once: u_nom inside the box and the row's rate window
+and its rest-shape margin (from `controllers.pcc_model.kinematics_rows`, the kernel behind
+`step_kinematics`, with `_scalar_rest_margin`'s arithmetic: the same floats) above NOMINAL_TOL_M
+→ "nominal", u = u_nom. Every other row runs `_decide` with that row's previous command. The
+histories are per row position (0..B−1), or, given `rows`, per index: the caller says which
+simulation each row is, so a call for some of them leaves the others' histories as they are;
+`reset()` forgets all of them, `reset(rows)` those. A call without `rows` with fewer rows than
+the histories held raises. rho_pred is the estimate's tip margin, min over facets,
+from the same kernel (`__call__` reads its tip there too, so a row's rho_pred is the call's).
 """
 
 from __future__ import annotations
@@ -50,12 +63,16 @@ import time
 
 import numpy as np
 
+from controllers.cbf_batch import checked_rows, predicted_margin
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
-from controllers.pcc import kinematics, kinematics_unchecked, step_kinematics
+from controllers.lazy_import import lazy_module
+from controllers.pcc import kinematics_unchecked, step_kinematics
 from controllers.qp import DEFAULT_BACKEND, check_backend, solve_lists
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
 from controllers.bounds import Bound
+
+pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
 
 RESIDUAL_TOL_M = 1e-6
 """Rest-shape rows may miss the margin by this much (m, Euclidean) at the returned command."""
@@ -117,6 +134,7 @@ class QuasiStaticGovernor:
         lo, hi = context.u_min, context.u_max
         self._nominal_range = None if lo is None else (lo - NOMINAL_RANGE_WIDTHS * (hi - lo), hi + NOMINAL_RANGE_WIDTHS * (hi - lo))
         self._u_prev: np.ndarray | None = None
+        self._batch_prev: np.ndarray | None = None  # `filter_batch`'s previous commands (B, N), NaN rows: none
         self._row_cache: dict[tuple, tuple] = {}
         self._commands: dict[bytes, np.ndarray] = {}  # `command`'s recent (input bytes → command), COMMAND_MEMORY at most
 
@@ -128,10 +146,37 @@ class QuasiStaticGovernor:
         check_backend(arguments.get("qp_backend", DEFAULT_BACKEND))
         return checked
 
-    def reset(self) -> None:
-        """Forget the previous command (the rate limit and the warm start then start afresh)."""
+    def reset(self, rows=None) -> None:
+        """Forget the previous command (the rate limit and the warm start then start afresh), of every
+        history of `filter_batch` too; with `rows` (indices of `filter_batch` histories), of those
+        histories alone (one simulation's new episode), as if their governors were reset."""
+        if rows is not None:
+            ids = self._history_ids(rows, None)
+            self._grow_histories(ids)
+            self._batch_prev[ids] = math.nan
+            return
         self._u_prev = None
+        self._batch_prev = None
         self._commands.clear()
+
+    @staticmethod
+    def _history_ids(rows, count: int | None) -> np.ndarray:
+        """`rows` as distinct indices ≥ 0 ((count,) when count is given), else ValueError."""
+        ids = np.asarray(rows)
+        if ids.ndim != 1 or (count is not None and len(ids) != count) or (len(ids) and ids.dtype.kind not in "iu"):
+            raise ValueError(f"rows must be {'' if count is None else f'{count} '}integer indices, got {rows!r}")
+        if len(ids) and (ids.min() < 0 or len(np.unique(ids)) != len(ids)):
+            raise ValueError(f"rows must be distinct indices >= 0, got {ids.tolist()}")
+        return ids.astype(np.intp)
+
+    def _grow_histories(self, ids: np.ndarray) -> None:
+        """Histories up to index max(ids), the new ones copies of this governor in its present state."""
+        if self._batch_prev is None:
+            self._batch_prev = np.empty((0, self.n))
+        held, needed = len(self._batch_prev), int(ids.max()) + 1 if len(ids) else 0
+        if needed > held:
+            start = np.full(self.n, math.nan) if self._u_prev is None else self._u_prev
+            self._batch_prev = np.vstack((self._batch_prev, np.tile(start, (needed - held, 1))))
 
     # -- maths ------------------------------------------------------------------------
     def rest_shape(self, u: np.ndarray) -> np.ndarray:
@@ -294,6 +339,63 @@ class QuasiStaticGovernor:
         q = as_vector("q", estimate.q, self.n, NonFiniteStateError)
         as_vector("qd", estimate.qd, self.n, NonFiniteStateError)
         out = self.govern(u_nom)
-        tip = kinematics(q, self.lengths, order=0).points[-1]
+        tip = step_kinematics(q.tolist(), [0.0] * self.n, self._length_list).tip  # `_rest_tips`' floats
         rho = self.context.safe_set.margin_at(tip.real, tip.imag)
         return FilterOutput(out.u, out.action, out.infeasible, rho, out.diagnostics, out.diagnostic_units)
+
+    def _rest_tips(self, q: np.ndarray) -> np.ndarray:
+        """Tips r(q) (B,) complex m of the configurations q (B, N) rad: the one kinematics kernel, each row
+        bit for bit `step_kinematics(q_b, 0, L).tip` (controllers.pcc_model)."""
+        kin = pcc_model.kinematics_rows(np.ascontiguousarray(q), np.zeros_like(q), self.lengths)
+        return kin[:, pcc_model.ModelLayout.of(self.n).tip_terms.start]
+
+    def filter_batch(self, estimates: EstimateBatch, u_nom, rows=None) -> BatchOutput:
+        """B governors at once (module docstring, "Batched"): row b is, bit for bit, a call of the governor
+        whose history is rows[b] (None: b), each history a copy of this governor in its state at its first
+        call after `reset`; u_nom (B, N) hPa. A non-finite or misshapen row raises for the whole call
+        (NonFiniteStateError / NonFiniteCommandError), and so does a call without `rows` with fewer rows
+        than the histories held (ValueError: which history is which would be a guess)."""
+        n_rows, n = len(estimates), self.n
+        q = checked_rows("q", estimates.q, (n_rows, n), NonFiniteStateError)
+        checked_rows("qd", estimates.qd, (n_rows, n), NonFiniteStateError)
+        u_nom = checked_rows("u_nom", u_nom, (n_rows, n), NonFiniteCommandError)
+        held = 0 if self._batch_prev is None else len(self._batch_prev)
+        if rows is None:
+            if held > n_rows:
+                raise ValueError(f"filter_batch keeps one history per row: it holds {held} and was called with "
+                                 f"{n_rows} rows without saying which (rows=); reset() starts afresh")
+            ids = np.arange(n_rows)
+        else:
+            ids = self._history_ids(rows, n_rows)
+        self._grow_histories(ids)
+        prev = self._batch_prev[ids]
+        has_prev = ~np.isnan(prev[:, 0])
+        lo, hi = self.context.u_min, self.context.u_max  # `_bounds(True)` row by row, ±inf for no bound
+        lb = np.full((n_rows, n), -math.inf) if lo is None else np.tile(lo, (n_rows, 1))
+        ub = np.full((n_rows, n), math.inf) if hi is None else np.tile(hi, (n_rows, 1))
+        if self.rate_limit is not None:
+            step = self.rate_limit * self.context.control_dt
+            lb[has_prev] = np.maximum(lb[has_prev], prev[has_prev] - step)
+            ub[has_prev] = np.minimum(ub[has_prev], prev[has_prev] + step)
+        inside = np.all((lb <= u_nom) & (u_nom <= ub), axis=1)
+        margin = np.full(n_rows, -math.inf)
+        if np.any(inside):  # `_scalar_rest_margin`, row by row: the same kinematics kernel and arithmetic
+            tip = self._rest_tips(self.static_gain * u_nom[inside])
+            x, y = tip.real, tip.imag
+            margin[inside] = np.min([(h - (a * x + b * y) - delta) / norm for a, b, h, delta, norm in self._row_list],
+                                    axis=0)
+        nominal = margin > NOMINAL_TOL_M
+        u = u_nom.copy()
+        action = np.full(n_rows, "nominal", dtype=object)
+        infeasible = np.zeros(n_rows, dtype=bool)
+        saved = self._u_prev
+        try:
+            for b in np.flatnonzero(~nominal).tolist():  # the scalar governor with row b's history
+                self._u_prev = None if not has_prev[b] else prev[b].copy()
+                u[b], action[b], infeasible[b] = self._decide(u_nom[b])[:3]
+        finally:
+            self._u_prev = saved
+        self._batch_prev[ids] = u
+        tips = self._rest_tips(q)
+        rho = predicted_margin(self.context.safe_set, tips.real, tips.imag)
+        return BatchOutput(u, action.astype(str), infeasible, rho)

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
 from controllers.cbf import TUNINGS
-from controllers.cbf_batch import cbf_qp_batch
+from controllers.cbf_batch import ENUMERATION_MAX_N, cbf_qp_batch, subset_levels
 from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteStateError
 from controllers.filter import CBFFilter
 from controllers.params import reference_robot, uniform_robot
+from controllers.pcc import tip_positions
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
 from controllers.safety_filter import EstimateBatch
 
@@ -100,27 +103,85 @@ def test_cbf_filter_batch_equals_its_scalar_calls(n_states):
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("tuning", ["Low", "HW-High"])
-def test_three_segment_batch_matches_scalar_filter(tuning):
-    """N = 3: barrier terms and the nominal branch batched, every QP state through the fallback."""
-    params, safe_set = uniform_robot(3), paper_safe_set()
-    scalar = CBFFilter(params, safe_set, TUNINGS[tuning])
-    rng = np.random.default_rng(3)
-    count = 400
-    q, qd = rng.uniform(-0.3, 0.6, (count, 3)), rng.normal(0.0, 1.5, (count, 3))
-    u_nom = rng.uniform(-250.0, 250.0, (count, 3))
+def _inside_states(params, safe_set, count: int, spread: float, seed: int):
+    """`count` random states of `params` whose tip is inside every row of P (b > 0: no recovery), moving
+    (some nearly at rest), with commands inside and beyond ±150 hPa."""
+    rng = np.random.default_rng(seed)
+    n = params.n_segments
+    q = rng.uniform(-spread, spread, (4 * count, n))
+    b = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["None"], q, np.zeros_like(q), np.zeros_like(q)).b
+    q = q[np.all(b > 0.0, axis=1)][:count]
+    assert len(q) == count
+    qd = rng.normal(0.0, 1.5, (count, n))
+    qd[: count // 10] *= 1e-3
+    return q, qd, rng.uniform(-250.0, 250.0, (count, n))
+
+
+@pytest.mark.parametrize("n_seg", [3, 4])
+@pytest.mark.parametrize("tuning", ["Low", "High", "HW-High"])
+@pytest.mark.parametrize("corner", [False, True])
+@pytest.mark.parametrize("pressure_limits", [True, False])
+def test_n_segment_batch_matches_scalar_filter(n_seg, tuning, corner, pressure_limits):
+    """N = 3 and 4: the QP states solved by the enumeration (subsets of up to N rows), against the scalar
+    filter's QP on thousands of states inside P; a corner (three CBF rows) and the box give vertices."""
+    params = uniform_robot(n_seg)
+    safe_set = paper_safe_set()
+    if corner:  # the corner of the N = 2 test, its facets placed at the 70th percentile of this arm's tips
+        normals = np.array([[0.36, 1.0], [1.0, -1.0]])
+        tips = tip_positions(np.random.default_rng(0).uniform(-0.4, 0.4, (2000, n_seg)), params.array("lengths"))
+        safe_set = ForceSafeSet(Environment(normals, np.percentile(tips @ normals.T, 70, axis=0)), LinearStiffness(11.16),
+                                0.16, row_scaling="paper")
+        assert len(safe_set.H_prime) == 3
+    scalar = CBFFilter(params, safe_set, TUNINGS[tuning], pressure_limits=pressure_limits)
+    count = 2000 if n_seg == 3 else 1000
+    q, qd, u_nom = _inside_states(params, safe_set, count, 0.4, n_seg)
     calls = []
 
     def fallback(i):
         calls.append(i)
         return scalar.step(np.concatenate((q[i], qd[i])), u_nom[i])
 
-    limits = np.array(params.u_min), np.array(params.u_max)  # CBFFilter's default pressure limits
+    limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
     out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS[tuning], q, qd, u_nom, *limits, fallback=fallback)
     want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(count)]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
-    np.testing.assert_array_equal(out.u, [w.u for w in want])
+    np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
+    np.testing.assert_array_equal(out.infeasible, [w.infeasible for w in want])
     np.testing.assert_array_equal(out.rho_pred, [w.rho_pred for w in want])
     np.testing.assert_array_equal(out.b, [w.b for w in want])
-    assert set(out.action[out.resolved]) == {"nominal"} and 0 < len(calls) < count
     assert sorted(calls) == np.flatnonzero(~out.resolved).tolist()
+    assert set(out.action[out.resolved]) == {"nominal", "qp"}
+    assert np.count_nonzero(out.resolved & (out.action == "qp")) > count // 5  # the enumeration, not the fallback
+    if corner:
+        two_active = sum(int(np.count_nonzero(w.active)) >= 2 for w, ok in zip(want, out.resolved) if ok)
+        assert two_active > 0, "no state with two active CBF rows: the multi-row candidates go untested"
+
+
+def test_the_enumeration_hands_larger_n_to_the_scalar_filter():
+    """Above ENUMERATION_MAX_N the QP states go to the fallback (module docstring: the subsets' count)."""
+    n_seg = ENUMERATION_MAX_N + 1
+    params, safe_set = uniform_robot(n_seg), paper_safe_set()
+    scalar = CBFFilter(params, safe_set, TUNINGS["HW-High"])
+    q, qd, u_nom = _inside_states(params, safe_set, 200, 0.3, 1)
+    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, np.array(params.u_min),
+                       np.array(params.u_max), fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]))
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(len(q))]
+    np.testing.assert_array_equal(out.action, [w.action for w in want])
+    np.testing.assert_array_equal(out.u, [w.u for w in want])
+    assert set(out.action[out.resolved]) == {"nominal"} and "qp" in set(out.action)
+
+
+@pytest.mark.parametrize("n_seg, bounded, count", [(2, True, 14), (3, True, 46), (4, True, 146), (3, False, 2)])
+def test_subset_levels_count_and_order(n_seg, bounded, count):
+    """The candidates of one facet row: u_nom and the subsets of ≤ N rows without ±e_j together, in
+    itertools.combinations order level by level (the tie order of before, for N = 2)."""
+    m = 1 + 2 * n_seg if bounded else 1
+    levels = subset_levels(m, n_seg, 1 if bounded else None)
+    assert 1 + sum(len(rows) for _, rows, _ in levels) == count
+    for size, (prefixes, rows, members) in enumerate(levels, start=1):
+        want = [s for s in itertools.combinations(range(m), size)
+                if not bounded or not any(1 + j in s and 1 + n_seg + j in s for j in range(n_seg))]
+        assert [tuple(s) for s in members.tolist()] == want
+        assert np.array_equal(members[:, -1], rows)
+        for i in range(size - 1):  # prefixes[:, i]: the subset of the first i + 1 rows, in level i + 1
+            assert np.array_equal(levels[i][2][prefixes[:, i]], members[:, : i + 1])

@@ -2,6 +2,7 @@
 optimality against a grid search, box and rate limit, reset, bad parameters, and its known
 transient weakness (docs/beyond-the-paper.md#filters-beyond-the-paper: the step rest → (150, 150) hPa with an ideal valve)."""
 
+import copy
 import re
 import sys
 from pathlib import Path
@@ -9,12 +10,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from controllers.params import reference_robot
+from controllers.errors import NonFiniteCommandError
+from controllers.params import reference_robot, uniform_robot
 from controllers.pcc import tip_positions
 from controllers.quasi_static_governor import NOMINAL_TOL_M, RESIDUAL_TOL_M, QuasiStaticGovernor
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
+from controllers.safety_filter import Estimate, EstimateBatch, FilterContext
 
 sys.path.insert(0, str(Path(__file__).parent))
 from governor_loop import context, run_loop  # noqa: E402
@@ -187,3 +191,129 @@ def test_remembered_commands_are_govern_for_a_held_nominal(u_nom):
     fast.reset()
     assert tuple(fast.command(u_nom).view(np.uint64).tolist()) == commands[0]
     assert len(set(commands)) < 50
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_seg=st.sampled_from([2, 3]), rate=st.sampled_from([None, 300.0, 3000.0]),
+       bounded=st.booleans(), n_rows=st.integers(1, 12), warm=st.integers(0, 2), subsets=st.booleans())
+def test_filter_batch_is_b_scalar_governors_bit_for_bit(seed, n_seg, rate, bounded, n_rows, warm, subsets):
+    """filter_batch over a closed-loop-like sequence (nominals drifting, held, jumping beyond the box;
+    resets of all rows or of some) equals B copies of the governor called in turn: commands, actions,
+    flags and ρ_pred, bit for bit; with `subsets`, each period calls some of the rows (rows=) and only
+    their copies."""
+    robot = ROBOT if n_seg == 2 else uniform_robot(n_seg)
+    ctx = FilterContext.for_robot(robot, SAFE, 0.01, pressure_limits=bounded)
+    rng = np.random.default_rng(seed)
+    gov = QuasiStaticGovernor(ctx, rate_limit_hPa_per_s=rate)
+    for _ in range(warm):  # scalar calls first: the rows start from the governor's state
+        gov(Estimate(0.0, np.zeros(n_seg), np.zeros(n_seg), 0.0), rng.uniform(-150, 150, n_seg))
+    copies = [copy.deepcopy(gov) for _ in range(n_rows)]
+    u_nom = rng.uniform(-150.0, 150.0, (n_rows, n_seg))
+    q = rng.uniform(-0.3, 0.5, (n_rows, n_seg))
+    for k in range(40):
+        kind = rng.integers(6)
+        if kind == 0:
+            u_nom = rng.uniform(-400.0, 400.0, (n_rows, n_seg))  # jumps, beyond the box
+        elif kind == 1 and rng.random() < 0.5:
+            gov.reset()
+            for c in copies:
+                c.reset()
+        elif kind == 1:  # some rows' new episodes
+            some = np.flatnonzero(rng.random(n_rows) < 0.5)
+            gov.reset(rows=some)
+            for b in some:
+                copies[b].reset()
+        elif kind < 5:
+            u_nom = u_nom + rng.normal(0.0, 20.0, u_nom.shape)  # drifts (kind 5: held)
+        q = q + rng.normal(0.0, 0.02, q.shape)
+        qd = rng.normal(0.0, 1.0, q.shape)
+        ids = np.arange(n_rows)
+        if subsets:
+            ids = np.flatnonzero(rng.random(n_rows) < 0.7)
+            ids = ids if len(ids) else rng.integers(n_rows, size=1)  # (a batched step calls at least one row)
+        estimates = EstimateBatch(np.full(len(ids), 0.01 * k), q[ids], qd[ids], np.full(len(ids), 0.01 * k))
+        out = gov.filter_batch(estimates, u_nom[ids], rows=ids) if subsets else gov.filter_batch(estimates, u_nom)
+        want = [copies[b](estimates[i], u_nom[b]) for i, b in enumerate(ids)]
+        assert out.action.tolist() == [w.action for w in want]
+        assert np.array_equal(out.u, [w.u for w in want])
+        assert out.infeasible.tolist() == [w.infeasible for w in want]
+        assert np.array_equal(out.rho_pred, [w.rho_pred for w in want])
+
+
+def test_filter_batch_covers_every_branch_and_refuses_a_changed_batch():
+    """Nominal rows (vectorised) and governed and backtracked rows (scalar; the backtrack of
+    `test_an_unconverged_iteration_backtracks_to_a_safe_rest_shape`) in one batch; a call with another
+    number of rows raises, a non-finite row refuses the call, reset() starts afresh."""
+    gov = make(max_iterations=1)
+    copies = [copy.deepcopy(gov) for _ in range(4)]
+    rest = EstimateBatch(np.zeros(4), np.zeros((4, 2)), np.zeros((4, 2)), np.zeros(4))
+    seen = set()
+    for u_nom in ([[0, 0], [5, 5], [150, 150], [-141.5, -112.7]], [[1, 1], [10, 10], [150, 150], [151.8, 141.2]],
+                  [[2, 2], [150, 150], [150, 150], [0, 0]]):
+        u_nom = np.array(u_nom, dtype=float)
+        out = gov.filter_batch(rest, u_nom)
+        want = [c(rest[b], u_nom[b]) for b, c in enumerate(copies)]
+        assert out.action.tolist() == [w.action for w in want] and np.array_equal(out.u, [w.u for w in want])
+        seen |= set(out.action.tolist())
+    assert seen == {"nominal", "governed", "backtrack"}, seen
+    with pytest.raises(ValueError, match=r"holds 4 and was called with 3 rows without saying which \(rows=\)"):
+        gov.filter_batch(EstimateBatch(np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)), np.zeros((3, 2)))
+    with pytest.raises(ValueError, match=r"rows must be distinct indices >= 0, got \[1, 1, 2\]"):
+        gov.filter_batch(EstimateBatch(np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)), np.zeros((3, 2)),
+                         rows=[1, 1, 2])
+    with pytest.raises(ValueError, match="rows must be 3 integer indices"):
+        gov.filter_batch(EstimateBatch(np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)), np.zeros((3, 2)),
+                         rows=[0.0, 1.0, 2.0])
+    with pytest.raises(NonFiniteCommandError, match=r"non-finite rows \[2\]"):
+        gov.filter_batch(rest, np.array([[0, 0], [0, 0], [np.nan, 0], [0, 0]]))
+    gov.reset()
+    out = gov.filter_batch(EstimateBatch(np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3)),
+                           np.full((3, 2), 150.0))
+    assert np.array_equal(out.u, np.tile(make(max_iterations=1)(REST, np.full(2, 150.0)).u, (3, 1)))
+
+
+def test_nominal_rows_are_decided_without_the_scalar_governor(monkeypatch):
+    """Rows whose u_nom is inside the box and rate window with a safe rest shape never reach `_decide`
+    (the vectorised branch); their commands are u_nom and they become the rows' previous commands."""
+    gov = make(rate_limit_hPa_per_s=1000.0)
+    copies = [copy.deepcopy(gov) for _ in range(5)]
+    rng = np.random.default_rng(4)
+    u_nom = rng.uniform(-40.0, 40.0, (5, 2))
+    estimates = EstimateBatch(np.zeros(5), rng.uniform(-0.3, 0.3, (5, 2)), np.zeros((5, 2)), np.zeros(5))
+    want = [c(estimates[b], u_nom[b]) for b, c in enumerate(copies)]
+    monkeypatch.setattr(gov, "_decide", lambda u: pytest.fail("a nominal row went to the scalar governor"))
+    out = gov.filter_batch(estimates, u_nom)
+    assert out.action.tolist() == ["nominal"] * 5 == [w.action for w in want]
+    assert np.array_equal(out.u, u_nom) and np.array_equal(out.rho_pred, [w.rho_pred for w in want])
+    monkeypatch.undo()
+    far = u_nom - 101.0  # safe rest shapes, but beyond each row's rate window (1000 hPa/s · 0.1 s)
+    out = gov.filter_batch(estimates, far)
+    want = [c(estimates[b], far[b]) for b, c in enumerate(copies)]
+    assert out.action.tolist() == ["governed"] * 5 == [w.action for w in want]
+    assert np.array_equal(out.u, [w.u for w in want]) and np.allclose(np.abs(out.u - u_nom), 100.0, atol=1e-6)
+
+
+def test_a_batched_pcc_loop_with_one_shared_governor_equals_its_serial_loops():
+    """run_batch_closed_loop calls the shared governor's filter_batch once per period: the commands and
+    figures of each simulation are, bit for bit, those of the serial loop with a governor of its own."""
+    from closedloop.step import ControlStep
+    from controllers.nominal import SinusoidNominal
+    from softcbf_mj.batch_loop import run_batch_closed_loop
+    from softcbf_mj.loop import run_closed_loop
+    from softcbf_mj.metrics import run_figures
+    from softcbf_mj.pcc_batch_plant import PCCBatchPlant
+    from softcbf_mj.pcc_plant import PCCPlant
+
+    nominal = SinusoidNominal((80.0, 80.0), 1.0, (np.pi / 2, np.pi / 2))
+    q0 = np.random.default_rng(5).normal(0.3, 0.1, (4, 2))
+    plant = PCCBatchPlant(ROBOT, SAFE, 4)
+    ctx = FilterContext.for_robot(ROBOT, SAFE, plant.control_dt)
+    batch = run_batch_closed_loop(plant, QuasiStaticGovernor(ctx, rate_limit_hPa_per_s=2000.0), nominal, ctx, 0.4,
+                                  q0, record_commands=True)
+    for b in range(4):
+        step = ControlStep(QuasiStaticGovernor(ctx, rate_limit_hPa_per_s=2000.0), nominal, ctx)
+        log, _ = run_closed_loop(PCCPlant(ROBOT, SAFE), step, SAFE, 0.4, q0[b])
+        assert np.array_equal(batch.commands[:, b], log["u"])
+        want = run_figures(log, plant.control_dt, True, 1.0)
+        assert {k: batch.run(b)[k] for k in ("rho_min_pred", "infeasible_steps", "u_peak_abs_hPa")} == {
+            k: want[k] for k in ("rho_min_pred", "infeasible_steps", "u_peak_abs_hPa")}
