@@ -181,8 +181,10 @@ x̂: the count of detected violations is their sum), prediction_s (t_a − t_c),
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
 
 Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
-call is mostly step 2, 50–120 ROS2 steps over the estimate's age and the delay
-(`controllers.state_predictor` runs them in the compiled model kernels of `controllers.pcc_model`); a 1 kHz call mostly step 1
+call is step 2, 50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor`
+runs them in compiled kernels, the plate's push included: ≈ 0.25–0.35 ms of CPU), then the Γ̲ look-ups
+of step 3 (≈ 17–20 µs each near the plate, up to 3 bisection_steps + 2) or step 4's scan of the
+table's grid (1.4–2 ms: the camera-rate p99 where recoveries are frequent; docs/results.md); a 1 kHz call mostly step 1
 (the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
 `QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
 cycles through a few), the state's energy (step 2's end) and the certificates of step 3
