@@ -73,6 +73,8 @@ LOOP_CASES = {
     "c-erg cam pushing exact": ("c-erg", {}, 0.1, 0.02, (0.03, 0.1), 0.05, _step, 4.0, 5, 11.16),
     "c-erg 1kHz pushing": ("c-erg", BENCH_STIFFNESS, 1e-3, 0.0, (0.0, 0.0), 0.0, _step, 1.0, 0, 11.16 * 0.95),
     "c-erg cam sin8": ("c-erg", BENCH_STIFFNESS, 0.1, 0.02, (0.03, 0.1), 0.05, _sinusoid(8.0), 12.0, 0, 11.16),
+    # the PCC plant's plate does not push back (outside the contact-aware certificate): recoveries (step 4)
+    "c-erg cam step recovering": ("c-erg", BENCH_STIFFNESS, 0.1, 0.02, (0.03, 0.1), 0.05, _step, 4.0, 0, None),
     "qsg 1kHz sin8": ("qsg", {}, 1e-3, 0.0, (0.0, 0.0), 0.0, _sinusoid(8.0), 4.0, 0, None),
     "qsg cam sin8": ("qsg", {}, 0.1, 0.02, (0.03, 0.1), 0.05, _sinusoid(8.0), 12.0, 0, None),
 }
