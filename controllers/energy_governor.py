@@ -90,22 +90,24 @@ min(m_j(g_lo), m_j(g_hi)) and checking the two ends certifies every gain between
     Γ^∂_j(g·u) − ½|ζ − g z_u|² = min_{s∈S_j} ½(|s − g z_u|² − |ζ − g z_u|²) = min_{s∈S_j} (½|s|² − ½|ζ|² − g z_u·(s − ζ)),
 a minimum of affine functions of g, hence concave (the g² terms cancel exactly; any set S_j, also the
 parked certificate's unsafe set); −½g² Σβ(p̂ − u)² is concave (≤ 0 curvature) and the rest does not depend
-on g. Neither Γ^∂ nor the elastic energy is concave alone (Γ^∂(g·u) is a squared distance: convex near
-the boundary), only their difference, so they are not bounded separately (min Γ^∂ − max W would also be
-sound, but it gives away the motion of the rest shape twice). Γ̲^∂_j(g·u) ≤ Γ^∂_j(g·u) at each end (the
+on g. Neither term is concave alone (the elastic energy is convex in g, Γ^∂(g·u) neither in general), only
+their difference, so they are not bounded separately (min Γ^∂ − max W would also be sound, but it gives
+away the motion of the rest shape twice). Γ̲^∂_j(g·u) ≤ Γ^∂_j(g·u) at each end (the
 table's bounds hold for any command, 4b outside its box; the second-order bound anywhere), so the governor
 takes min over the ends g ∈ {g_lo, g_hi} of min_j (Γ̲^∂_j(g·u) + o_j) − W(g) as its margin (W(g): `energy` at
 gain g; the diagnostics report the binding end). The recovery's grid commands u_c use
 d_j(g·u_c) ≥ d̲_j(u_c) − |g − 1| ‖u_c‖_w ((*) of `controllers.escape_energy`, w_i = λ_i²/k_i: the rest
-shape moves by that much in z), tests/test_contact_governor.py checks it against brute force.
+shape moves by that much in z), tests/test_contact_governor.py checks it against brute force; its fallback
+(no candidate certified: no guarantee either way) ranks by the model's rest shapes.
 Assumptions added: g is constant and common to the segments (per-segment gains in a box would need the 2^N
 vertices, by the same concavity along each axis: not built); the state predictor integrates the model's
 gain, so over the prediction span t_a − t_c (estimate age plus delay, ≈ 0.05–0.12 s at the camera rate, 0
 at 1 kHz with an exact state) the gain's effect on x̂ is an estimate error, not covered beyond κ.
 What it costs (measured on the reference arm, docs/results.md): the plate's whole force range lies within a
 few hPa (`softcbf.bench.PUSHES`: 57.0, 62.5, 68.2 and 74.0 hPa on both segments press with 0.3, 0.6, 0.9 and
-1.2 F_max), so 10 % of the gain, ≈ 6 hPa there, is ≈ 0.3 F_max of steady force; and the certificate (which cannot use damping) must also allow the arm's swing from the
-state where a stronger actuator would start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
+1.2 F_max), so 10 % of the gain, ≈ 6 hPa there, is ≈ 0.3 F_max of steady force; and the certificate
+(which cannot use damping) must also allow the arm's swing from the state where a stronger actuator would
+start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
 (mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
 this is the price of certifying ±10 % of actuator gain on this arm.
 
@@ -182,9 +184,9 @@ x̂: the count of detected violations is their sum), prediction_s (t_a − t_c),
 
 Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
 call is step 2, 50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor`
-runs them in compiled kernels, the plate's push included: ≈ 0.25–0.35 ms of CPU), then the Γ̲ look-ups
-of step 3 (≈ 17–20 µs each near the plate, up to 3 bisection_steps + 2) or step 4's scan of the
-table's grid (1.4–2 ms: the camera-rate p99 where recoveries are frequent; docs/results.md); a 1 kHz call mostly step 1
+runs them in compiled kernels, the plate's push included: ≈ 0.3 ms of CPU), then the Γ̲ look-ups
+of step 3 (≈ 11 µs each near the plate, up to 3 bisection_steps + 2) or step 4's scan of the
+table's grid (1.0–1.5 ms: the camera-rate p99 where recoveries are frequent; docs/results.md); a 1 kHz call mostly step 1
 (the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
 `QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
 cycles through a few), the state's energy (step 2's end) and the certificates of step 3

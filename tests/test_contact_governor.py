@@ -1,7 +1,9 @@
 """The contact certificate (c-erg, e-erg certificate="contact", issue 24): the grid-free bound on the
 least energy to P's boundary against finite differences and brute force (N = 2, 3, 4), the
 boundary table, and closed loops on the PCC model whose plate pushes back: it holds F ≤ F_max and
-uses the budget where the parked certificate delivers half of it. Also the force-target nominal."""
+uses the budget where the parked certificate delivers half of it; the actuator gain interval (the margin's
+concavity in the gain, and commands certified for [0.9, 1.1] held on plants of gain 0.9, 1.0 and 1.1). Also
+the force-target nominal."""
 
 import math
 import sys

@@ -13,9 +13,9 @@ after the call, valve lag τ_p), so the figures are those of the tests' setting:
   150 hPa on both segments for 6 s, at 1 kHz (exact state) and at 10 Hz with camera timing: its
   contact task, where its state predictor integrates the plate's push.
 Call times: wall (filter_us_*, what the loop records) and process CPU time (cpu_us_*, less
-sensitive to other processes on a shared machine), after one warm-up call (numba's first call
-in a process loads the compiled kernels: ≈ 0.1 s once, which in these short runs would be the
-p99); the table build time is separate (build_s).
+sensitive to other processes on a shared machine), after a warm-up (`warm_up`: numba's first call
+of each kernel in a process loads it, 5–100 ms once, which in these short runs would be the p99);
+the table build time is separate (build_s).
 Prints one line per case and ends with one JSON line. Usage:
     PYTHONPATH=$PWD python tools/bench_governors.py [--quick] [--filters c-erg] [--against /path/to/other/tree]
 --against TREE runs every case a second time, right after this tree's run, in a child process
@@ -90,6 +90,15 @@ def cases(names, quick: bool) -> dict[str, tuple]:
     return out
 
 
+def warm_up(gov, n: int) -> None:
+    """Load the compiled kernels of every path (numba loads each on its first call in a process, ≈ 5 ms each,
+    which in these short runs would be the p99): a step from rest towards 150 hPa, then a state beyond P moving
+    outwards (the recovery); the loop resets the governor before its first call."""
+    rest, push = np.zeros(n), np.full(n, 150.0)
+    for estimate in (Estimate(0.0, rest, rest, 0.0), Estimate(0.1, np.full(n, 0.6), np.full(n, 4.0), 0.1)):
+        gov(estimate, push)
+
+
 def run_case(name: str, spec: tuple) -> dict:
     label, period, delay, age, tau, nominal, duration, pushing = spec
     robot, safe = reference_robot(), paper_safe_set()
@@ -97,8 +106,7 @@ def run_case(name: str, spec: tuple) -> dict:
     t0 = time.perf_counter()
     gov = cls(context(robot, safe, period, delay, tau), **kwargs)
     build_s = time.perf_counter() - t0
-    rest = np.zeros(robot.n_segments)
-    gov(Estimate(0.0, rest, rest, 0.0), rest)  # warm-up: the first call loads the compiled kernels (once per process)
+    warm_up(gov, robot.n_segments)
     plant = PushingPlatePlant(robot, safe, PLATE_N_PER_M, tau) if pushing else None
     rec = run_loop(gov, robot, safe, nominal, duration, period, delay, age, tau_p=tau, seed=0, plant=plant)
     t = (np.array(rec.apply_ticks) - int(round(delay / 1e-3))) * 1e-3

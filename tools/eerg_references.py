@@ -1,5 +1,5 @@
-"""Reference commands of the energy governor (e-erg) and the quasi-static governor (qsg), for
-tests/test_energy_governor_references.py: speed-ups of either must not change what it commands.
+"""Reference commands of the energy governors (e-erg, c-erg) and the quasi-static governor (qsg), for
+tests/test_energy_governor_references.py: speed-ups of any must not change what it commands.
 
 Cases: the tools/bench_governors.py cases (the tests' PCC loop, tests/governor_loop.py: 1 kHz
 exact state; 10 Hz camera timing with sinusoids and the worst step), the contact-aware
@@ -7,7 +7,9 @@ variant with the benchmark's plate bounds [0.9, 1.1] (softcbf/bench.py) on the P
 on a plate that pushes back, a random-steps run, a detected violation and its recovery, and
 the scenario cases (SCENARIO_CASES): mujoco_contact at 1 kHz with the contact-aware e-erg, and
 the filter benchmark's step case (softcbf/bench.py: paper_sim at 1 kHz, nominal "step", the
-benchmark's plate bounds) for two seeds, where e-erg bisects at nearly every call. Stored per
+benchmark's plate bounds) for two seeds, where e-erg bisects at nearly every call; c-erg (with
+the benchmark's plate bounds; the model's gain) pushing the plate at 10 Hz and 1 kHz, on the
+sinusoid, recovering on the PCC plant, and on mujoco_contact. Stored per
 case: every call's command (calls, N) hPa and action (an index into ACTIONS); the scenario
 cases store the recorded command column u. The stored files: every case but the step cases
 from commit 45eacd9 (before the first speed-ups), the step cases from commit 266e431 (the
