@@ -73,6 +73,44 @@ outside P (no certificate holds) it takes the command nearest u_nom whose rest s
 Measured (mujoco_contact, push asking 1.2 F_max, 6 s; `softcbf bench`): exact model 0.946 F_max;
 plate stiffness within ±10 % (n_max = ψ⁻¹(F_max/1.1)): 0.841 F_max, ρ_meas 0.159.
 
+Actuator gain (`gain_lo_ratio`, `gain_hi_ratio`; contact certificate only; default 1, 1: the model's λ, the
+commands bit for bit those without the interval: tools/eerg_references.py). The true arm's gains are g·λ_i,
+one unknown scale g ∈ [g_lo, g_hi] for every segment (dimensionless; the bench's camera_mismatch draws g
+from U(0.9, 1.1)). Only two things change with g: the true rest shape q_u(g) = K⁻¹(gΛ)u = g·q_u (rad), and
+the lag weights, β_i(g) = τ_p (gλ_i)²/(4d_i) = g²β_i (J/hPa²), the derivation of Ẇ ≤ 0 above with gΛ in place
+of Λ. So the certificate for the gain g, at a state x̂ = (q̂, q̂̇, p̂) (κ, o_j and the plate terms depend on
+the state alone), asks for every row j
+
+    m_j(g) = Γ^∂_j(g·u) + o_j − (1 + κ)·½q̂̇ᵀMq̂̇ − ½(q̂ − g q_u)ᵀK(q̂ − g q_u) − ½ g² Σ_i β_i (p̂_i − u_i)² ≥ ε,
+
+Γ^∂_j(g·u) the least energy to row j's boundary from the rest shape g·q_u (the table's function at the
+command g·u, whose model rest shape that is). Claim: m_j is concave in g, so min over [g_lo, g_hi] of m_j is
+min(m_j(g_lo), m_j(g_hi)) and checking the two ends certifies every gain between them. Proof: in z = K^{1/2}q
+(J^{1/2}), with ζ = K^{1/2}q̂, z_u = K^{1/2}q_u and S_j = {z : g_j = 0},
+    Γ^∂_j(g·u) − ½|ζ − g z_u|² = min_{s∈S_j} ½(|s − g z_u|² − |ζ − g z_u|²) = min_{s∈S_j} (½|s|² − ½|ζ|² − g z_u·(s − ζ)),
+a minimum of affine functions of g, hence concave (the g² terms cancel exactly; any set S_j, also the
+parked certificate's unsafe set); −½g² Σβ(p̂ − u)² is concave (≤ 0 curvature) and the rest does not depend
+on g. Neither term is concave alone (the elastic energy is convex in g, Γ^∂(g·u) neither in general), only
+their difference, so they are not bounded separately (min Γ^∂ − max W would also be sound, but it gives
+away the motion of the rest shape twice). Γ̲^∂_j(g·u) ≤ Γ^∂_j(g·u) at each end (the
+table's bounds hold for any command, 4b outside its box; the second-order bound anywhere), so the governor
+takes min over the ends g ∈ {g_lo, g_hi} of min_j (Γ̲^∂_j(g·u) + o_j) − W(g) as its margin (W(g): `energy` at
+gain g; the diagnostics report the binding end). The recovery's grid commands u_c use
+d_j(g·u_c) ≥ d̲_j(u_c) − |g − 1| ‖u_c‖_w ((*) of `controllers.escape_energy`, w_i = λ_i²/k_i: the rest
+shape moves by that much in z), tests/test_contact_governor.py checks it against brute force; its fallback
+(no candidate certified: no guarantee either way) ranks by the model's rest shapes.
+Assumptions added: g is constant and common to the segments (per-segment gains in a box would need the 2^N
+vertices, by the same concavity along each axis: not built); the state predictor integrates the model's
+gain, so over the prediction span t_a − t_c (estimate age plus delay, ≈ 0.05–0.12 s at the camera rate, 0
+at 1 kHz with an exact state) the gain's effect on x̂ is an estimate error, not covered beyond κ.
+What it costs (measured on the reference arm, docs/results.md): the plate's whole force range lies within a
+few hPa (`softcbf.bench.PUSHES`: 57.0, 62.5, 68.2 and 74.0 hPa on both segments press with 0.3, 0.6, 0.9 and
+1.2 F_max), so 10 % of the gain, ≈ 6 hPa there, is ≈ 0.3 F_max of steady force; and the certificate
+(which cannot use damping) must also allow the arm's swing from the state where a stronger actuator would
+start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
+(mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
+this is the price of certifying ±10 % of actuator gain on this arm.
+
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
 the absolute margin a new command must keep. The held command, certified when it was
@@ -129,7 +167,8 @@ are accurate to within the κ-inflation; the commands this governor returns are 
 unchanged from t + δ and held until the next one acts (no clipping, no other source);
 the valves start vented (p = 0) at `reset`; Γ̲ ≤ Γ (by construction); the arm starts
 certified (e.g. at rest with its rest shape in P). Where it can fail: a wrong model
-(gain, stiffness, plate position) is not covered by κ, and a state far from the
+(an actuator gain outside [gain_lo_ratio, gain_hi_ratio], a plate stiffness outside its interval, arm
+stiffness, plate position) is not covered by κ, and a state far from the
 estimate is not caught until the next estimate shows it; the recovery then has no
 guarantee.
 
@@ -144,8 +183,10 @@ x̂: the count of detected violations is their sum), prediction_s (t_a − t_c),
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
 
 Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
-call is mostly step 2, 50–120 ROS2 steps over the estimate's age and the delay
-(`controllers.state_predictor` runs them in the compiled model kernels of `controllers.pcc_model`); a 1 kHz call mostly step 1
+call is step 2, 50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor`
+runs them in compiled kernels, the plate's push included: ≈ 0.3 ms of CPU), then the Γ̲ look-ups
+of step 3 (≈ 11 µs each near the plate, up to 3 bisection_steps + 2) or step 4's scan of the
+table's grid (1.0–1.5 ms: the camera-rate p99 where recoveries are frequent; docs/results.md); a 1 kHz call mostly step 1
 (the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
 `QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
 cycles through a few), the state's energy (step 2's end) and the certificates of step 3
@@ -203,6 +244,9 @@ TIME_LIMIT_S = 1e9
 STIFFNESS_RATIOS = Bound(0.0, 1e3)
 """Valid plate stiffness ratios (1): a multiple of the model's ψ; hi must also be ≥ 1e-3 (P then grows 1000-fold)."""
 
+GAIN_RATIOS = Bound(0.1, 10.0)
+"""Valid actuator gain ratios (1): the true λ as a multiple of the model's; below 0.1 or above 10 the model is no model."""
+
 PARAMETERS = {
     "margin_m": FilterParameter("rest-shape tip margin of the target (quasi-static governor) inside P", "m",
                                 bound=QSG_PARAMETERS["margin_m"].bound),
@@ -232,6 +276,10 @@ PARAMETERS = {
     "escape_spacing_rad": FilterParameter("q-space spacing of the escape-energy table (per √k_i); finer: a tighter Γ̲ "
                                           "near P's boundary, a slower build (2.4 s at 4e-3, 6.7 s at 2e-3 on the "
                                           "reference arm)", "rad", bound=Bound(5e-4, 0.05, unit="rad")),
+    "gain_lo_ratio": FilterParameter("lowest true actuator gain λ as a multiple of the model's (every segment alike; "
+                                     "<= gain_hi_ratio; contact certificate only)", "1", bound=GAIN_RATIOS),
+    "gain_hi_ratio": FilterParameter("highest true actuator gain λ as a multiple of the model's (the contact "
+                                     "certificate holds for every gain in [lo, hi]: module docstring)", "1", bound=GAIN_RATIOS),
 }
 """The E-ERG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them.
 
@@ -241,7 +289,8 @@ PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's t
 (1e-6 hPa asked for 639 PiB). Physical ones: κ ≥ 0 (an inflation; ≤ 1000: beyond, it is no estimate error),
 ε ≥ 0 and below the table's saturation ½ k_min reach² (`EscapeEnergyTable.saturation_J`, 0.72 J on the
 reference arm: a larger ε certifies no step at all), the stiffness ratios
-0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, τ_p ≤ 10 s.
+0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, the gain ratios 0.1 ≤ lo ≤ hi ≤ 10 (other than 1 only with the contact
+certificate), τ_p ≤ 10 s.
 """
 
 BOUND_BELOW_J = 0.02
@@ -262,6 +311,18 @@ def ray_point(start: tuple, direction: tuple, sigma: float) -> tuple:
     if len(start) == 2:
         return (start[0] + sigma * direction[0], start[1] + sigma * direction[1])
     return tuple(a + sigma * d for a, d in zip(start, direction))
+
+
+def row_sums(x: np.ndarray) -> np.ndarray:
+    """np.sum(x, axis=1) of a (G, N) array, the same floats: for N = 2 the columns' sum x[:, 0] + x[:, 1]
+    (numpy's reduction adds a row's two entries once too, and the recovery's entries are ≥ +0, so no sign
+    of zero differs), ≈ 10× cheaper than numpy's reduction along a 2-long axis over the table's grid."""
+    return x[:, 0] + x[:, 1] if x.shape[1] == 2 else np.sum(x, axis=1)
+
+
+def scaled_command(gain: float, u: tuple) -> tuple:
+    """g·u per entry (hPa): the command whose model rest shape is the true one, g K⁻¹Λu, under the gain g; u itself at g = 1."""
+    return u if gain == 1.0 else tuple(gain * v for v in u)
 
 
 def ray_may_come_nearer(start: tuple, goal: tuple, direction: tuple, aim: tuple, best: float, sigma_min: float) -> bool:
@@ -314,8 +375,9 @@ class EnergyGovernor:
                  contact_aware: bool = False, stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0,
                  command_delay_s: float | None = None, actuator_tau_s: float | None = None, grid_hPa: float = 2.5,
                  predictor_step_s: float = 1e-3, bisection_steps: int = 12, certificate: str = "park",
-                 escape_spacing_rad: float = 4e-3) -> None:
+                 escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0, gain_hi_ratio: float = 1.0) -> None:
         checked = self.check_arguments({"certificate": certificate, "escape_spacing_rad": escape_spacing_rad,
+            "gain_lo_ratio": gain_lo_ratio, "gain_hi_ratio": gain_hi_ratio,
             "margin_m": margin_m, "kappa": kappa, "energy_margin_J": energy_margin_J, "contact_aware": contact_aware,
             "stiffness_lo_ratio": stiffness_lo_ratio, "stiffness_hi_ratio": stiffness_hi_ratio,
             "command_delay_s": command_delay_s, "actuator_tau_s": actuator_tau_s, "grid_hPa": grid_hPa,
@@ -332,6 +394,9 @@ class EnergyGovernor:
         self.kappa, self.energy_margin = checked["kappa"], checked["energy_margin_J"]
         self.contact_aware = checked["contact_aware"]
         self.stiffness_lo, self.stiffness_hi = checked["stiffness_lo_ratio"], checked["stiffness_hi_ratio"]
+        self.gain_lo, self.gain_hi = checked["gain_lo_ratio"], checked["gain_hi_ratio"]
+        # the gain ends the certificate is checked at (module docstring, "actuator gain"): (1.0,) is the model alone
+        self.gains = tuple(sorted({self.gain_lo, self.gain_hi}))
         self.command_delay, self.actuator_tau = delay, tau
         self.bisection_steps = checked["bisection_steps"]
         self.context = context
@@ -362,7 +427,9 @@ class EnergyGovernor:
         self._k = robot.array("stiffness").tolist()
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()
-        self._energy_2 = (*self._k, *self._a, *self._beta) if self.n == 2 else None
+        # per gain end g: (K, g·K⁻¹Λ, g²β); g = 1 gives the model's floats exactly (1.0·x = x)
+        self._energy_terms = {g: (self._k, [g * a for a in self._a], [g * g * b for b in self._beta]) for g in self.gains}
+        self._energy_2 = {g: (*k, *a, *b) for g, (k, a, b) in self._energy_terms.items()} if self.n == 2 else None
         self._box = None if context.u_min is None else (context.u_min, context.u_max)
         self._rest_list = tuple((np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)).tolist())
         self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
@@ -376,6 +443,7 @@ class EnergyGovernor:
             self._grid_values, self._grid_rest_inside = self.table.grid_values(), self.table.rest_inside
         self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
         self._escape_origin: tuple | None = None
+        self._grid_rows = {g: self.grid_rows_at_gain(g) for g in self.gains} if self.contact else {}
         self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
         if self.table is not None and not self.energy_margin < self.table.saturation_J:
             raise ValueError(f"energy_margin_J must be < {self.table.saturation_J:.6g} J (½ k_min reach², the escape "
@@ -393,6 +461,12 @@ class EnergyGovernor:
         lo, hi = checked.get("stiffness_lo_ratio", 1.0), checked.get("stiffness_hi_ratio", 1.0)
         if lo > hi:
             raise ValueError(f"stiffness_lo_ratio must be <= stiffness_hi_ratio = {hi!r}, got {lo!r}")
+        lo, hi = checked.get("gain_lo_ratio", 1.0), checked.get("gain_hi_ratio", 1.0)
+        if lo > hi:
+            raise ValueError(f"gain_lo_ratio must be <= gain_hi_ratio = {hi!r}, got {lo!r}")
+        if (lo, hi) != (1.0, 1.0) and checked.get("certificate", "park") != "contact":
+            raise ValueError(f"gain_lo_ratio and gain_hi_ratio other than 1 need certificate='contact' (the parked "
+                             f"target's rest shape assumes the model's gain), got [{lo!r}, {hi!r}]")
         return checked
 
     def reset(self) -> None:
@@ -404,17 +478,18 @@ class EnergyGovernor:
         self._escape_origin = None
 
     # -- certificate ------------------------------------------------------------------
-    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u) -> float:
-        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J).
+    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0) -> float:
+        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J), for the true actuator
+        gain g = `gain` × the model's (one of `gains`): ½(q − g q_u)ᵀK(q − g q_u) + ½ g² Σβ(p − u)².
 
         N = 2 unrolled (a bisection evaluates it ~40 times per call): the loop's floats."""
         if self.n == 2:
-            k0, k1, a0, a1, beta0, beta1 = self._energy_2
+            k0, k1, a0, a1, beta0, beta1 = self._energy_2[gain]
             e0, e1 = q[0] - a0 * u[0], q[1] - a1 * u[1]
             total = kinetic_and_plate + 0.5 * (k0 * e0 * e0 + beta0 * (p[0] - u[0]) ** 2)
             return total + 0.5 * (k1 * e1 * e1 + beta1 * (p[1] - u[1]) ** 2)
         total = kinetic_and_plate
-        for k, a, beta, qi, pi, ui in zip(self._k, self._a, self._beta, q, p, u):
+        for k, a, beta, qi, pi, ui in zip(*self._energy_terms[gain], q, p, u):
             e = qi - a * ui
             total += 0.5 * (k * e * e + beta * (pi - ui) ** 2)
         return total
@@ -523,24 +598,29 @@ class EnergyGovernor:
         if self.contact:
             offsets, inside, rho = self.contact_offsets(q_hat)
             base = inflation * self.dynamics.kinetic_energy(q_hat, qd_hat)  # (1 + κ)·½q̇ᵀMq̇
-            inflation = 1.0  # κ inflates the kinetic energy alone
+            inflation, gains = 1.0, self.gains  # κ inflates the kinetic energy alone
 
-            def gamma_of(u: tuple) -> float:  # min_j (Γ^∂_j(u) + o_j) (J); -inf when x̂ is not strictly inside P
+            def terms(u: tuple) -> tuple[float, float]:
+                """(Γ, W) (J) at the gain end g with the least Γ − W: Γ = min_j (Γ^∂_j(g u) + o_j), -inf when x̂
+                is not strictly inside P; W at g (module docstring, "actuator gain": the ends bound every g)."""
                 rows = known.get(u)
                 if rows is None:
-                    rows = known[u] = self.boundary_escape(u)
-                return min(g + o for g, o in zip(rows, offsets)) if inside else -math.inf
+                    rows = known[u] = [self.boundary_escape(scaled_command(g, u)) for g in gains]
+                pairs = [(min(r + o for r, o in zip(row, offsets)) if inside else -math.inf,
+                          energy(base, q_list, p_list, u, g)) for row, g in zip(rows, gains)]
+                return pairs[0] if len(pairs) == 1 else min(pairs, key=lambda pair: pair[0] - pair[1])
         else:
             base, rho = self.state_energy(q_hat, qd_hat)
 
-            def gamma_of(u: tuple) -> float:  # min_j (Γ_j(u) + c_j) (J) through the memory
+            def terms(u: tuple) -> tuple[float, float]:  # (min_j (Γ_j(u) + c_j) through the memory, W) (J)
                 gamma = known.get(u)
                 if gamma is None:
                     gamma = known[u] = self.escape(u)
-                return gamma
+                return gamma, energy(base, q_list, p_list, u)
 
         def margin(u: tuple) -> float:  # Γ − (1 + κ) W (J): ≥ ε when u is certified at x̂ (≥ 0: the held u)
-            return gamma_of(u) - inflation * energy(base, q_list, p_list, u)
+            gamma, w = terms(u)
+            return gamma - inflation * w
 
         held_margin = margin(held)
         held_ok = held_margin > 0.0  # Γ = W = 0 (the arm at rest on or beyond P's boundary) certifies nothing
@@ -573,7 +653,7 @@ class EnergyGovernor:
             else:
                 u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
             u, action, sigma = tuple(u.tolist()), "recover", math.nan
-        w, gamma = energy(base, q_list, p_list, u), gamma_of(u)
+        gamma, w = terms(u)
         # the held command keeps its certificate down to Γ − (1 + κ)W = 0 (the hysteresis), a new one needs ε
         certified_margin = held_margin if action == "hold" else gamma - inflation * w - eps
         diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": certified_margin,
@@ -586,11 +666,11 @@ class EnergyGovernor:
         candidates = np.vstack((self._grid, u_prev, target))
         gamma = np.concatenate((self._grid_gamma, [self.escape(u_prev.tolist()), self.escape(target.tolist())]))
         k, a, beta = np.array(self._k), np.array(self._a), self.beta
-        energy = base + 0.5 * np.sum(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2, axis=1)
+        energy = base + 0.5 * row_sums(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2)
         margins = gamma - (1.0 + self.kappa) * energy - self.energy_margin
         certified = margins >= 0.0
         if np.any(certified):
-            distance = np.where(certified, np.sum((candidates - target) ** 2, axis=1), np.inf)
+            distance = np.where(certified, row_sums((candidates - target) ** 2), np.inf)
             return candidates[int(np.argmin(distance))].copy(), False
         resting_inside = gamma >= self.energy_margin  # rest shape inside P: the arm settles there
         if not np.any(resting_inside):
@@ -601,6 +681,20 @@ class EnergyGovernor:
         """The model's tip r(q) (m) as Python floats."""
         tip = kinematics_unchecked(np.asarray(q, dtype=float), self.dynamics.lengths, 0).points[-1]
         return tip.real, tip.imag
+
+    def grid_rows_at_gain(self, gain: float) -> np.ndarray:
+        """Lower bounds of Γ^∂_j(g·u_c) (J) for the recovery's grid commands u_c under the gain g: (P', G).
+
+        g = 1: the table's values. Else, from (*) of `controllers.escape_energy` (the distance to the boundary
+        is 1-Lipschitz in z = K^{1/2}q and z moves by |g − 1| ‖u_c‖_w from u_c to g·u_c, w_i = λ_i²/k_i):
+        d_j(g u_c) ≥ d̲_j(u_c) − |g − 1| ‖u_c‖_w, Γ ≥ ½ max(0, ·)². Without a table (N > 2) the one grid
+        command is bounded at g·u_c directly (`BoundaryDistanceBound`)."""
+        if gain == 1.0:
+            return self._grid_values
+        if self.table is None:
+            return np.array([self.boundary_bound.values(gain * c) for c in self._grid]).T
+        shift = abs(gain - 1.0) * np.sqrt(np.sum(self.table.weights * self._grid**2, axis=1))  # (G,) J^{1/2}
+        return 0.5 * np.maximum(self.table.distance - shift, 0.0) ** 2
 
     def rest_inside(self, u: np.ndarray) -> bool:
         """Whether the rest shape q_u = K⁻¹Λu of the command u (N,) hPa puts the tip strictly inside P."""
@@ -613,12 +707,16 @@ class EnergyGovernor:
         else, with x̂ inside P, the largest margin among the candidates whose rest shape lies inside P; else (x̂
         outside P, where no certificate holds) the one of those nearest the target; the target if there is none."""
         candidates = np.vstack((self._grid, u_prev, target))
-        rows = np.hstack((self._grid_values, np.array([self.boundary_escape(u_prev), self.boundary_escape(target)]).T))
-        gamma = np.min(rows + np.array(offsets)[:, None], axis=0)
-        k, a, beta = np.array(self._k), np.array(self._a), self.beta
-        energy = base + 0.5 * np.sum(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2, axis=1)
-        margins = gamma - energy - self.energy_margin
-        distance = np.sum((candidates - target) ** 2, axis=1)
+        margins = None
+        for g in self.gains:  # the least margin over the gain ends (module docstring, "actuator gain")
+            ends = [self.boundary_escape(scaled_command(g, tuple(c.tolist()))) for c in (u_prev, target)]
+            rows = np.hstack((self._grid_rows[g], np.array(ends).T))
+            gamma = np.min(rows + np.array(offsets)[:, None], axis=0)
+            k, a, beta = (np.array(terms) for terms in self._energy_terms[g])
+            energy = base + 0.5 * row_sums(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2)
+            at_g = gamma - energy - self.energy_margin
+            margins = at_g if margins is None else np.minimum(margins, at_g)
+        distance = row_sums((candidates - target) ** 2)
         if inside and np.any(margins >= 0.0):
             return candidates[int(np.argmin(np.where(margins >= 0.0, distance, np.inf)))].copy(), False
         resting_inside = np.concatenate((self._grid_rest_inside, [self.rest_inside(u_prev), self.rest_inside(target)]))
@@ -645,17 +743,25 @@ class ContactEnergyGovernor(EnergyGovernor):
     The target is u_nom itself; a command is certified when the arm's energy about its rest shape,
     with the plate's stored energy counted per facet, stays below the least energy to P's boundary
     (module docstring, "contact certificate"). The plate's stiffness interval [lo, hi] × ψ
-    (`stiffness_lo_ratio`, `stiffness_hi_ratio`) keeps F_true ≤ F_max for any true plate within it.
+    (`stiffness_lo_ratio`, `stiffness_hi_ratio`) keeps F_true ≤ F_max for any true plate within it, and the
+    gain interval [gain_lo_ratio, gain_hi_ratio] × λ for any true actuator gain within it (module docstring,
+    "actuator gain").
     """
 
     parameter_docs = {name: doc for name, doc in EnergyGovernor.parameter_docs.items() if name not in ("margin_m", "certificate")}
 
+    @staticmethod
+    def check_arguments(arguments: dict[str, object]) -> dict[str, object]:
+        """`EnergyGovernor.check_arguments` with the contact certificate (c-erg takes no `certificate`)."""
+        return EnergyGovernor.check_arguments({**arguments, "certificate": "contact"})
+
     def __init__(self, context: FilterContext, kappa: float = 0.5, energy_margin_J: float = 1e-5, contact_aware: bool = True,
                  stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0, command_delay_s: float | None = None,
                  actuator_tau_s: float | None = None, grid_hPa: float = 2.5, predictor_step_s: float = 1e-3,
-                 bisection_steps: int = 12, escape_spacing_rad: float = 4e-3) -> None:
+                 bisection_steps: int = 12, escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0,
+                 gain_hi_ratio: float = 1.0) -> None:
         super().__init__(context, kappa=kappa, energy_margin_J=energy_margin_J, contact_aware=contact_aware,
                          stiffness_lo_ratio=stiffness_lo_ratio, stiffness_hi_ratio=stiffness_hi_ratio,
                          command_delay_s=command_delay_s, actuator_tau_s=actuator_tau_s, grid_hPa=grid_hPa,
                          predictor_step_s=predictor_step_s, bisection_steps=bisection_steps, certificate="contact",
-                         escape_spacing_rad=escape_spacing_rad)
+                         escape_spacing_rad=escape_spacing_rad, gain_lo_ratio=gain_lo_ratio, gain_hi_ratio=gain_hi_ratio)

@@ -1,7 +1,9 @@
 """The contact certificate (c-erg, e-erg certificate="contact", issue 24): the grid-free bound on the
 least energy to P's boundary against finite differences and brute force (N = 2, 3, 4), the
 boundary table, and closed loops on the PCC model whose plate pushes back: it holds F ≤ F_max and
-uses the budget where the parked certificate delivers half of it. Also the force-target nominal."""
+uses the budget where the parked certificate delivers half of it; the actuator gain interval (the margin's
+concavity in the gain, and commands certified for [0.9, 1.1] held on plants of gain 0.9, 1.0 and 1.1). Also
+the force-target nominal."""
 
 import math
 import sys
@@ -184,3 +186,116 @@ def test_contact_certificate_without_a_grid_holds_three_and_four_segments(n, off
     assert rec.rho.min() > 0.0 and rec.rho[-1] < 0.5
     back = run_loop(gov, robot, safe, lambda t: np.full(n, -150.0), 1.0, PERIOD, DELAY, tau_p=0.05, seed=3)
     assert np.allclose(back.commands[-1], -150.0) and back.rho.min() > 0.0
+
+
+# -- the actuator gain interval (module docstring of controllers.energy_governor, "actuator gain") ---------------
+
+def scaled_gain_robot(g):
+    return ROBOT.replace(gains=tuple(ROBOT.array("gains") * g))
+
+
+def test_gain_margin_is_concave_in_the_gain_so_its_ends_bound_it():
+    """m(g) = min over boundary points s of ½|s − g q_u|²_K − ½|q − g q_u|²_K − ½ g² Σβ(p − u)² (the certificate's
+    margin, less the terms that do not depend on g) is concave in g: its second differences are ≤ 0 and every
+    g in [0.9, 1.1] has m(g) ≥ min(m(0.9), m(1.1)). The governor's W at the ends is the formula's."""
+    gov = ContactEnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), gain_lo_ratio=0.9, gain_hi_ratio=1.1)
+    assert gov.gains == (0.9, 1.1)
+    k, a, beta = ROBOT.array("stiffness"), ROBOT.array("gains") / ROBOT.array("stiffness"), gov.beta
+    points = boundary_points(ROBOT, SAFE, -1.5, 1.5, 20000)
+    rng = np.random.default_rng(4)
+    gains = np.linspace(0.9, 1.1, 41)
+    step = gains[1] - gains[0]
+    for _ in range(30):
+        u = rng.uniform(0.0, 150.0, 2)
+        q, p = rng.uniform(-0.5, 1.0, 2), rng.uniform(0.0, 150.0, 2)
+
+        def elastic(g):
+            return 0.5 * np.sum(k * (q - g * a * u) ** 2) + 0.5 * g * g * np.sum(beta * (p - u) ** 2)
+
+        def margin(g):
+            return float(np.min(0.5 * np.sum(k * (points - g * a * u) ** 2, axis=1))) - elastic(g)
+
+        for g in gov.gains:
+            assert gov.energy(0.0, q.tolist(), p.tolist(), tuple(u.tolist()), g) == pytest.approx(elastic(g), rel=1e-12)
+        m = np.array([margin(g) for g in gains])
+        second = (m[2:] - 2 * m[1:-1] + m[:-2]) / step**2
+        scale = np.max(np.abs(m)) + 1e-12
+        assert np.all(second <= 1e-6 * scale / step**2), second.max()
+        assert np.all(m >= min(m[0], m[-1]) - 1e-12 * scale)
+
+
+def test_grid_rows_at_a_gain_are_lower_bounds_of_the_escape_energy_there():
+    """The recovery's grid bound under a gain g (the table's distances shifted by |g − 1| ‖u‖_w) never exceeds the
+    least energy to the boundary from g·q_u (brute force over boundary points), is tight somewhere, and g = 1 is
+    the table."""
+    gov = ContactEnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), gain_lo_ratio=0.9, gain_hi_ratio=1.1)
+    assert gov.grid_rows_at_gain(1.0) is gov.grid_rows_at_gain(1.0) and np.array_equal(gov.grid_rows_at_gain(1.0),
+                                                                                        gov.table.grid_values())
+    k, a = ROBOT.array("stiffness"), ROBOT.array("gains") / ROBOT.array("stiffness")
+    points = boundary_points(ROBOT, SAFE, -1.5, 1.5, 20000)
+    picks = np.random.default_rng(5).choice(len(gov.table.grid_commands()), 300, replace=False)
+    for g in gov.gains:
+        rows, tight = gov.grid_rows_at_gain(g), 0
+        for i in picks:
+            u = gov.table.grid_commands()[i]
+            least = float(np.min(0.5 * np.sum(k * (points - g * a * u) ** 2, axis=1)))
+            assert rows[0, i] <= least + 1e-12, (g, u, rows[0, i], least)
+            tight += rows[0, i] >= 0.25 * least
+        assert tight >= len(picks) // 10
+
+
+def fork_holds(robot_true, x, p, t, u, hold_s):
+    """ρ min (true plate) while `u` is held for hold_s on the plate plant of `robot_true` from state x, pressure p."""
+    plant = PushingPlatePlant(robot_true, SAFE, 11.16, 0.05)
+    plant.x, plant.p, plant.t = x.copy(), p.copy(), t
+    worst = math.inf
+    for _ in range(int(round(hold_s / 1e-3))):
+        state = plant.step(u)
+        worst = min(worst, float(SAFE.margin(state.tip)))
+    return worst
+
+
+FORK_CALLS = (5, 10, 20)
+"""The calls (10 Hz) whose commands are held on the forks: the approach (0.5 s), first contact and pressing (1, 2 s)."""
+
+
+def certified_forks(gain_lo, gain_hi, loop_gain, gains_held, hold_s=1.0):
+    """Closed loop at 10 Hz on the plate plant of true gain `loop_gain` (exact state, no delay: the certificate
+    is evaluated at the true state) pushing at 150 hPa; at the calls FORK_CALLS the returned command is also held
+    for hold_s from the true state on plants of each gain in `gains_held`. Returns the least ρ of the forks."""
+    from controllers.safety_filter import Estimate
+
+    gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
+                                gain_lo_ratio=gain_lo, gain_hi_ratio=gain_hi)
+    plant = PushingPlatePlant(scaled_gain_robot(loop_gain), SAFE, 11.16, 0.05)
+    state, worst = plant.reset(np.zeros(2)), math.inf
+    for call in range(max(FORK_CALLS) + 1):
+        out = gov(Estimate(state.t, state.q, state.qd, state.t), np.full(2, 150.0))
+        if call in FORK_CALLS:
+            for g in gains_held:
+                worst = min(worst, fork_holds(scaled_gain_robot(g), plant.x, plant.p, plant.t, out.u, hold_s))
+        for _ in range(int(round(PERIOD / 1e-3))):
+            state = plant.step(out.u)
+    return worst
+
+
+def test_a_command_certified_for_a_gain_interval_keeps_every_gain_in_it_inside_P():
+    """Certified for gains [0.9, 1.1] (exact plate), each command held from the true state keeps the plate plant
+    with true gain 0.9, 1.0 and 1.1 inside P (ρ ≥ 0); the state comes from a loop whose arm has gain 1.1 (the
+    closest: measured least ρ 0.10 there, 0.68 with gain 0.9)."""
+    assert certified_forks(0.9, 1.1, 1.1, (0.9, 1.0, 1.1)) >= 0.0
+
+
+def test_the_model_gain_certificate_does_not_hold_a_stronger_actuator():
+    """The same forks certified for the model's gain alone: a true gain 1.1 leaves P (the test above can fail)."""
+    assert certified_forks(1.0, 1.0, 1.0, (1.1,)) < 0.0
+
+
+def test_gain_ratios_are_checked():
+    with pytest.raises(ValueError, match="gain_lo_ratio must be <= gain_hi_ratio = 0.9, got 1.1"):
+        ContactEnergyGovernor.check_arguments({"gain_lo_ratio": 1.1, "gain_hi_ratio": 0.9})
+    with pytest.raises(ValueError, match="need certificate='contact'"):
+        EnergyGovernor.check_arguments({"gain_lo_ratio": 0.9})
+    with pytest.raises(ValueError, match="gain_hi_ratio"):
+        ContactEnergyGovernor.check_arguments({"gain_hi_ratio": 20.0})
+    assert ContactEnergyGovernor.check_arguments({"gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1})["certificate"] == "contact"

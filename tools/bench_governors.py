@@ -8,10 +8,20 @@ after the call, valve lag τ_p), so the figures are those of the tests' setting:
 - 10 Hz camera timing (age 0.03–0.1 s, delay 20 ms, τ_p = 0.05 s): the same sinusoid
   (T = 8 s and 20 s, 1.5 T) and the worst step rest → (150, 150) hPa with τ_p = 0 and
   0.05 s (4 s): ρ_min, governor_figures.
+- c-erg (the contact certificate, plate stiffness [0.9, 1.1] as the bench's) also pushes the
+  plate that pushes back (tests/governor_loop.py PushingPlatePlant, the model's 11.16 N/m) with
+  150 hPa on both segments for 6 s, at 1 kHz (exact state) and at 10 Hz with camera timing: its
+  contact task, where its state predictor integrates the plate's push.
 Call times: wall (filter_us_*, what the loop records) and process CPU time (cpu_us_*, less
-sensitive to other processes on a shared machine); the table build time is separate.
+sensitive to other processes on a shared machine), after a warm-up (`warm_up`: numba's first call
+of each kernel in a process loads it, 5–100 ms once, which in these short runs would be the p99);
+the table build time is separate (build_s).
 Prints one line per case and ends with one JSON line. Usage:
-    PYTHONPATH=$PWD python tools/bench_governors.py [--quick]
+    PYTHONPATH=$PWD python tools/bench_governors.py [--quick] [--filters c-erg] [--against /path/to/other/tree]
+--against TREE runs every case a second time, right after this tree's run, in a child process
+whose controllers are TREE's (PYTHONPATH=TREE; the loop, cases and figures are this script's),
+and prints the ratios this/TREE of the call-time medians and p99s: side by side on the same
+load. A filter TREE does not have is reported as missing.
 """
 
 from __future__ import annotations
@@ -19,6 +29,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -26,57 +38,148 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from governor_loop import context, run_loop  # noqa: E402
+from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
 
-from controllers.energy_governor import EnergyGovernor  # noqa: E402
 from controllers.filter_metrics import governor_figures  # noqa: E402
 from controllers.params import reference_robot  # noqa: E402
-from controllers.quasi_static_governor import QuasiStaticGovernor  # noqa: E402
 from controllers.safe_set import paper_safe_set  # noqa: E402
+from controllers.safety_filter import Estimate  # noqa: E402
 
-FACTORIES = {"qsg": QuasiStaticGovernor, "e-erg": EnergyGovernor}
+FILTER_NAMES = ("qsg", "e-erg", "c-erg")
+PLATE_N_PER_M = 11.16
+"""The pushing plate's stiffness (N/m): the model's (paper_safe_set)."""
+
+
+def factory(name: str):
+    """The filter class of `name` and its keyword arguments (c-erg: the bench's plate interval)."""
+    from controllers import energy_governor, quasi_static_governor
+
+    if name == "qsg":
+        return quasi_static_governor.QuasiStaticGovernor, {}
+    if name == "e-erg":
+        return energy_governor.EnergyGovernor, {}
+    if name == "c-erg":
+        if not hasattr(energy_governor, "ContactEnergyGovernor"):
+            raise LookupError("c-erg")
+        return energy_governor.ContactEnergyGovernor, {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1}
+    raise ValueError(f"filter must be one of {FILTER_NAMES}, got {name!r}")
 
 
 def sinusoid(period_s: float):
     return lambda t: np.full(2, 150.0 * math.sin(2 * math.pi * t / period_s))
 
 
-def case(name: str, factory, period: float, delay: float, age: tuple, tau: float, nominal, duration: float) -> dict:
+def push(t: float) -> np.ndarray:
+    return np.array([150.0, 150.0])
+
+
+def cases(names, quick: bool) -> dict[str, tuple]:
+    """name → (filter, period s, delay s, age range s, τ_p s, u_nom, duration s, plate pushes back)."""
+    out = {}
+    for label in names:
+        out[f"{label} 1 kHz sin T=8s"] = (label, 1e-3, 0.0, (0.0, 0.0), 0.0, sinusoid(8.0), 2.0 if quick else 8.0, False)
+        for period_s in (8.0,) if quick else (8.0, 20.0):
+            out[f"{label} 10 Hz camera sin T={period_s:g}s"] = (label, 0.1, 0.02, (0.03, 0.1), 0.05, sinusoid(period_s),
+                                                               1.5 * period_s, False)
+        for tau in (0.0, 0.05):
+            out[f"{label} 10 Hz camera step 150/150 τ={tau:g}"] = (label, 0.1, 0.02, (0.03, 0.1), tau, push, 4.0, False)
+        if label == "c-erg":
+            out[f"{label} 1 kHz push 150/150 plate"] = (label, 1e-3, 0.0, (0.0, 0.0), 0.0, push, 2.0 if quick else 6.0, True)
+            out[f"{label} 10 Hz camera push 150/150 plate"] = (label, 0.1, 0.02, (0.03, 0.1), 0.05, push,
+                                                              3.0 if quick else 6.0, True)
+    return out
+
+
+def warm_up(gov, n: int) -> None:
+    """Load the compiled kernels of every path (numba loads each on its first call in a process, ≈ 5 ms each,
+    which in these short runs would be the p99): a step from rest towards 150 hPa, then a state beyond P moving
+    outwards (the recovery); the loop resets the governor before its first call."""
+    rest, push = np.zeros(n), np.full(n, 150.0)
+    for estimate in (Estimate(0.0, rest, rest, 0.0), Estimate(0.1, np.full(n, 0.6), np.full(n, 4.0), 0.1)):
+        gov(estimate, push)
+
+
+def run_case(name: str, spec: tuple) -> dict:
+    label, period, delay, age, tau, nominal, duration, pushing = spec
     robot, safe = reference_robot(), paper_safe_set()
+    cls, kwargs = factory(label)
     t0 = time.perf_counter()
-    gov = factory(context(robot, safe, period, delay, tau))
+    gov = cls(context(robot, safe, period, delay, tau), **kwargs)
     build_s = time.perf_counter() - t0
-    rec = run_loop(gov, robot, safe, nominal, duration, period, delay, age, tau_p=tau, seed=0)
+    warm_up(gov, robot.n_segments)
+    plant = PushingPlatePlant(robot, safe, PLATE_N_PER_M, tau) if pushing else None
+    rec = run_loop(gov, robot, safe, nominal, duration, period, delay, age, tau_p=tau, seed=0, plant=plant)
     t = (np.array(rec.apply_ticks) - int(round(delay / 1e-3))) * 1e-3
     u_nom = np.array([nominal(s) for s in t])
     figures = governor_figures(t, np.array(rec.commands), u_nom, rec.call_us)
     cpu = {"cpu_us_median": float(np.median(rec.call_cpu_us)), "cpu_us_p99": float(np.percentile(rec.call_cpu_us, 99))}
-    result = {"case": name, "rho_min": float(rec.rho.min()), "calls": len(rec.call_us), "build_s": build_s,
-              "u_max_abs_hPa": float(np.max(np.abs(rec.u))), **figures, **cpu}
-    print(f"{name:38s} ρ_min {result['rho_min']:+.3f}  calls {result['calls']:5d}  "
-          f"wall median/p99 {figures['filter_us_median']:6.0f}/{figures['filter_us_p99']:6.0f} µs  "
-          f"CPU {cpu['cpu_us_median']:6.0f}/{cpu['cpu_us_p99']:6.0f} µs  "
-          f"blocked {figures['blocked_s']:.1f} s (longest {figures['blocked_longest_s']:.1f} s)  "
-          f"dev rms {figures['u_dev_rms_hPa']:.1f} hPa  switches {figures['switches_per_s']:.2f}/s  build {build_s:.1f} s")
-    return result
+    return {"case": name, "rho_min": float(rec.rho.min()), "calls": len(rec.call_us), "build_s": build_s,
+            "u_max_abs_hPa": float(np.max(np.abs(rec.u))), **figures, **cpu}
 
 
-def main() -> None:
+def show(result: dict, tag: str = "") -> None:
+    print(f"{tag}{result['case']:40s} ρ_min {result['rho_min']:+.3f}  calls {result['calls']:5d}  "
+          f"wall median/p99 {result['filter_us_median']:6.0f}/{result['filter_us_p99']:6.0f} µs  "
+          f"CPU {result['cpu_us_median']:6.0f}/{result['cpu_us_p99']:6.0f} µs  "
+          f"blocked {result['blocked_s']:.1f} s (longest {result['blocked_longest_s']:.1f} s)  "
+          f"dev rms {result['u_dev_rms_hPa']:.1f} hPa  build {result['build_s']:.1f} s", flush=True)
+
+
+def run_against(tree: str, name: str, quick: bool) -> dict | None:
+    """The case `name` run by this script in a child process on TREE's controllers (None: TREE lacks the filter)."""
+    env = {**os.environ, "PYTHONPATH": str(Path(tree).resolve())}
+    command = [sys.executable, str(Path(__file__).resolve()), "--one", name] + (["--quick"] if quick else [])
+    done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    if done.returncode == 3:
+        return None
+    if done.returncode != 0:
+        raise RuntimeError(f"--against {tree}: case {name!r} failed:\n{done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="shorter runs (1 kHz: 2 s; sinusoids: T = 8 s only)")
+    parser.add_argument("--quick", action="store_true", help="shorter runs (1 kHz: 2 s; sinusoids: T = 8 s only; pushes 2–3 s)")
+    parser.add_argument("--filters", default=",".join(FILTER_NAMES), help=f"comma list of {', '.join(FILTER_NAMES)}")
+    parser.add_argument("--cases", default="", help="only the cases whose name contains one of these comma-separated words")
+    parser.add_argument("--against", metavar="TREE", help="also run every case on TREE's controllers (module docstring)")
+    parser.add_argument("--one", metavar="CASE", help=argparse.SUPPRESS)  # the child of --against: one case, its JSON
     args = parser.parse_args()
+    names = [n.strip() for n in args.filters.split(",") if n.strip()]
+    for n in names:
+        if n not in FILTER_NAMES:
+            parser.error(f"--filters: {n!r} is not one of {', '.join(FILTER_NAMES)}")
+    table = cases(FILTER_NAMES if args.one else names, args.quick)
+    if args.one:
+        try:
+            print(json.dumps(run_case(args.one, table[args.one])))
+        except LookupError:
+            return 3
+        return 0
+    words = [w.strip() for w in args.cases.split(",") if w.strip()]
     results = []
-    for label, factory in FACTORIES.items():
-        results.append(case(f"{label} 1 kHz sin T=8s", factory, 1e-3, 0.0, (0.0, 0.0), 0.0, sinusoid(8.0),
-                            2.0 if args.quick else 8.0))
-        for period_s in (8.0,) if args.quick else (8.0, 20.0):
-            results.append(case(f"{label} 10 Hz camera sin T={period_s:g}s", factory, 0.1, 0.02, (0.03, 0.1), 0.05,
-                                sinusoid(period_s), 1.5 * period_s))
-        for tau in (0.0, 0.05):
-            results.append(case(f"{label} 10 Hz camera step 150/150 τ={tau:g}", factory, 0.1, 0.02, (0.03, 0.1), tau,
-                                lambda t: np.array([150.0, 150.0]), 4.0))
-    print(json.dumps({"quick": args.quick, "results": results}))
+    for name, spec in table.items():
+        if words and not any(w in name for w in words):
+            continue
+        result = run_case(name, spec)
+        show(result)
+        if args.against:
+            before = run_against(args.against, name, args.quick)
+            if before is None:
+                print(f"  against {args.against}: no {spec[0]} there")
+            else:
+                show(before, "  against: ")
+                result["against"] = before
+                result["ratio_median"] = result["filter_us_median"] / before["filter_us_median"]
+                result["ratio_p99"] = result["filter_us_p99"] / before["filter_us_p99"]
+                result["ratio_cpu_median"] = result["cpu_us_median"] / before["cpu_us_median"]
+                result["ratio_cpu_p99"] = result["cpu_us_p99"] / before["cpu_us_p99"]
+                print(f"  this/against: wall median {result['ratio_median']:.2f}  p99 {result['ratio_p99']:.2f}  "
+                      f"CPU median {result['ratio_cpu_median']:.2f}  p99 {result['ratio_cpu_p99']:.2f}", flush=True)
+        results.append(result)
+    print(json.dumps({"quick": args.quick, "against": args.against, "load_1min": os.getloadavg()[0], "results": results}))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,5 +1,5 @@
-"""Reference commands of the energy governor (e-erg) and the quasi-static governor (qsg), for
-tests/test_energy_governor_references.py: speed-ups of either must not change what it commands.
+"""Reference commands of the energy governors (e-erg, c-erg) and the quasi-static governor (qsg), for
+tests/test_energy_governor_references.py: speed-ups of any must not change what it commands.
 
 Cases: the tools/bench_governors.py cases (the tests' PCC loop, tests/governor_loop.py: 1 kHz
 exact state; 10 Hz camera timing with sinusoids and the worst step), the contact-aware
@@ -7,16 +7,23 @@ variant with the benchmark's plate bounds [0.9, 1.1] (softcbf/bench.py) on the P
 on a plate that pushes back, a random-steps run, a detected violation and its recovery, and
 the scenario cases (SCENARIO_CASES): mujoco_contact at 1 kHz with the contact-aware e-erg, and
 the filter benchmark's step case (softcbf/bench.py: paper_sim at 1 kHz, nominal "step", the
-benchmark's plate bounds) for two seeds, where e-erg bisects at nearly every call. Stored per
+benchmark's plate bounds) for two seeds, where e-erg bisects at nearly every call; c-erg (with
+the benchmark's plate bounds; the model's gain) pushing the plate at 10 Hz and 1 kHz, on the
+sinusoid, recovering on the PCC plant, and on mujoco_contact. Stored per
 case: every call's command (calls, N) hPa and action (an index into ACTIONS); the scenario
 cases store the recorded command column u. The stored files: every case but the step cases
 from commit 45eacd9 (before the first speed-ups), the step cases from commit 266e431 (the
-first speed-ups, before the second), each with this script on a copy of that commit:
+first speed-ups, before the second), the c-erg cases (contact certificate; CERG_CASES) from commit
+a6cdc5c (before the gain interval and the camera-rate speed-ups), each with this script on a copy of
+that commit:
 
     git archive 45eacd9 | tar -x -C /tmp/eerg_ref
     PYTHONPATH=/tmp/eerg_ref python tools/eerg_references.py --write tests/data/eerg_references_45eacd9.npz
     python tools/eerg_references.py --cases "paper_sim step seed 0,paper_sim step seed 3" \
         --write tests/data/eerg_references_step_266e431.npz    # this script on 266e431's controllers
+    git archive a6cdc5c | tar -x -C /tmp/cerg_ref
+    PYTHONPATH=/tmp/cerg_ref python tools/eerg_references.py --cases "$(python tools/eerg_references.py --list-cerg)" \
+        --write tests/data/eerg_references_cerg_a6cdc5c.npz     # this script on a6cdc5c's controllers
 
 Without --write it compares the current tree with the stored files (default: REFERENCE_FILES,
 merged): prints each case's max |Δu| (hPa) and the number of differing actions; ends with
@@ -38,9 +45,11 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_FILES = (REPO / "tests" / "data" / "eerg_references_45eacd9.npz",
-                   REPO / "tests" / "data" / "eerg_references_step_266e431.npz")
+                   REPO / "tests" / "data" / "eerg_references_step_266e431.npz",
+                   REPO / "tests" / "data" / "eerg_references_cerg_a6cdc5c.npz")
 ACTIONS = ("free", "governed", "hold", "recover", "stale", "nominal", "backtrack", "rate_dropped", "vent", "")  # e-erg, qsg
 BENCH_PLATE = {"contact_aware": True, "stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1}
+BENCH_STIFFNESS = {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1}  # c-erg is contact-aware by default
 
 
 def _sinusoid(period_s: float):
@@ -62,6 +71,12 @@ LOOP_CASES = {
     "e-erg aware cam sin8": ("e-erg", BENCH_PLATE, 0.1, 0.02, (0.03, 0.1), 0.05, _sinusoid(8.0), 12.0, 0, None),
     "e-erg aware cam pushing": ("e-erg", BENCH_PLATE, 0.1, 0.02, (0.03, 0.1), 0.05, _step, 3.0, 2, 11.16 * 1.05),
     "e-erg aware 1kHz sin8": ("e-erg", BENCH_PLATE, 1e-3, 0.0, (0.0, 0.0), 0.0, _sinusoid(8.0), 4.0, 0, None),
+    "c-erg cam pushing": ("c-erg", BENCH_STIFFNESS, 0.1, 0.02, (0.03, 0.1), 0.05, _step, 4.0, 2, 11.16 * 1.05),
+    "c-erg cam pushing exact": ("c-erg", {}, 0.1, 0.02, (0.03, 0.1), 0.05, _step, 4.0, 5, 11.16),
+    "c-erg 1kHz pushing": ("c-erg", BENCH_STIFFNESS, 1e-3, 0.0, (0.0, 0.0), 0.0, _step, 1.0, 0, 11.16 * 0.95),
+    "c-erg cam sin8": ("c-erg", BENCH_STIFFNESS, 0.1, 0.02, (0.03, 0.1), 0.05, _sinusoid(8.0), 12.0, 0, 11.16),
+    # the PCC plant's plate does not push back (outside the contact-aware certificate): recoveries (step 4)
+    "c-erg cam step recovering": ("c-erg", BENCH_STIFFNESS, 0.1, 0.02, (0.03, 0.1), 0.05, _step, 4.0, 0, None),
     "qsg 1kHz sin8": ("qsg", {}, 1e-3, 0.0, (0.0, 0.0), 0.0, _sinusoid(8.0), 4.0, 0, None),
     "qsg cam sin8": ("qsg", {}, 0.1, 0.02, (0.03, 0.1), 0.05, _sinusoid(8.0), 12.0, 0, None),
 }
@@ -70,6 +85,9 @@ BENCH_PLATE_PARAMS = "contact_aware=true;stiffness_lo_ratio=0.9;stiffness_hi_rat
 SCENARIO_CASES = {
     "mujoco_contact": ("mujoco_contact", dict(duration=1.5, filter="e-erg", filter_params=BENCH_PLATE_PARAMS,
                                               amplitude=150.0, frequency=0.25, t0=1.0)),
+    "mujoco_contact c-erg": ("mujoco_contact", dict(duration=1.5, filter="c-erg",
+                                                    filter_params="stiffness_lo_ratio=0.9;stiffness_hi_ratio=1.1",
+                                                    amplitude=150.0, frequency=0.25, t0=1.0)),
     **{f"paper_sim step seed {seed}": ("paper_sim", dict(duration=2.0, filter="e-erg", filter_params=BENCH_PLATE_PARAMS,
                                                          nominal="step", nominal_params=f"seed={seed};low_hPa=60;high_hPa=300"))
        for seed in (0, 3)},
@@ -85,14 +103,14 @@ def run_loop_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
     sys.path.insert(0, str(REPO / "tests"))
     from governor_loop import PushingPlatePlant, context, run_loop
 
-    from controllers.energy_governor import EnergyGovernor
+    from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
     from controllers.params import reference_robot
     from controllers.quasi_static_governor import QuasiStaticGovernor
     from controllers.safe_set import paper_safe_set
 
     factory, kwargs, period, delay, age, tau, nominal, duration, seed, k_true = LOOP_CASES[name]
     robot, safe = reference_robot(), paper_safe_set()
-    gov = {"e-erg": EnergyGovernor, "qsg": QuasiStaticGovernor}[factory](context(robot, safe, period, delay, tau), **kwargs)
+    gov = {"e-erg": EnergyGovernor, "c-erg": ContactEnergyGovernor, "qsg": QuasiStaticGovernor}[factory](context(robot, safe, period, delay, tau), **kwargs)
     plant = None if k_true is None else PushingPlatePlant(robot, safe, k_true, tau)
     rec = run_loop(gov, robot, safe, nominal, duration * scale, period, delay, age, tau_p=tau, seed=seed, plant=plant)
     return {"u": np.array(rec.commands), "action": np.array([_action_index(o) for o in rec.outputs])}
@@ -133,6 +151,8 @@ def run_scenario_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
 
 
 CASES = (*LOOP_CASES, "recovery", *SCENARIO_CASES)
+CERG_CASES = tuple(name for name in CASES if "c-erg" in name)
+"""The c-erg cases (stored from a6cdc5c)."""
 
 
 def run_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
@@ -180,7 +200,11 @@ def main() -> int:
     parser.add_argument("--reference", nargs="+", default=[str(f) for f in REFERENCE_FILES], help="stored files to compare with")
     parser.add_argument("--scale", type=float, default=1.0, help="fraction of each case's duration (compare only)")
     parser.add_argument("--cases", default=",".join(CASES), help="comma list of the cases to run (default: all)")
+    parser.add_argument("--list-cerg", action="store_true", help="print the c-erg cases as a comma list and exit")
     args = parser.parse_args()
+    if args.list_cerg:
+        print(",".join(CERG_CASES))
+        return 0
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
     if args.write:
         arrays = run_all(cases=cases)
