@@ -13,11 +13,11 @@ Few arguments, packed (each array argument costs about 0.1 µs of the call's dis
 (2, N) hPa (lo, hi), the monitor's times (B, 2) s (its clock, hold_since) and bits (B, 2) bool
 (has_run, latched), of which `closedloop.monitor.BatchSafetyMonitor`'s attributes are views.
 
-`admit(u_filter, output, limits, clip, command, admitted)`, per row b (docs/safety-filter.md):
+`admit(u_filter, output, limits, command, admitted)`, per row b (docs/safety-filter.md):
   admitted[b] = output[b] and every u_filter[b, j] is finite;
-  command[b, j] = min(max(u_filter[b, j], lo[j]), hi[j]) with `clip` (Python's min and max: max(v, lo)
-  is lo only if lo > v, min(v, hi) is hi only if hi < v, so a finite v in range is kept as it is,
-  −0.0 included), u_filter[b, j] without. u_filter (B, N) hPa, output (B,) bool (the filter returned
+  command[b, j] = min(max(u_filter[b, j], lo[j]), hi[j]) (Python's min and max: max(v, lo) is lo only
+  if lo > v, min(v, hi) is hi only if hi < v, so a v in range is kept as it is, −0.0 included; with
+  lo = −inf and hi = +inf, no limits, every float is kept as it is, NaN included). u_filter (B, N) hPa, output (B,) bool (the filter returned
   an output the step accepted), lo, hi = limits (N,) hPa each; command (B, N) and admitted (B,) are written.
 
 `run_plain(t, u, admitted, fault, rows, quiet, times, last_run, bits, sent, action)`: the monitor's RUN case (closedloop.monitor). Checks first that every stepped row's t (s) is
@@ -39,7 +39,7 @@ from closedloop.monitor import CLOCK, HAS_RUN, HOLD_SINCE, LATCHED, NOT_STEPPED,
 
 
 @njit(cache=True)
-def admit(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, clip: bool, command: np.ndarray,
+def admit(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, command: np.ndarray,
           admitted: np.ndarray) -> None:
     n_rows, n = u_filter.shape
     for b in range(n_rows):
@@ -48,11 +48,10 @@ def admit(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, clip: bo
             v = u_filter[b, j]
             if not math.isfinite(v):
                 ok = False
-            if clip:
-                if limits[0, j] > v:
-                    v = limits[0, j]
-                if limits[1, j] < v:
-                    v = limits[1, j]
+            if limits[0, j] > v:
+                v = limits[0, j]
+            if limits[1, j] < v:
+                v = limits[1, j]
             command[b, j] = v
         admitted[b] = ok
 
@@ -87,9 +86,9 @@ def run_plain(t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndar
 
 
 @njit(cache=True)
-def admit_and_run(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, clip: bool, command: np.ndarray,
+def admit_and_run(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, command: np.ndarray,
                   admitted: np.ndarray, t: np.ndarray, fault: np.ndarray, rows: np.ndarray, quiet: np.ndarray,
                   times: np.ndarray, last_run: np.ndarray, bits: np.ndarray, sent: np.ndarray,
                   action: np.ndarray) -> int:
-    admit(u_filter, output, limits, clip, command, admitted)
+    admit(u_filter, output, limits, command, admitted)
     return run_plain(t, command, admitted, fault, rows, quiet, times, last_run, bits, sent, action)

@@ -40,8 +40,8 @@ Interrupts (KeyboardInterrupt) are not faults: they propagate to the loop.
 The batch axis: one step for one run and for B. `BatchControlStep` is this step for B runs at
 once (a batched study's simulations, the vector environment's arms): state (B, N) arrays in,
 `BatchStepRecord` of (B, ...) arrays out; `ControlStep` is its B = 1 case (`rows`, a
-`BatchControlStep` of one row, called through `step_one`: an `Estimate` in, a `StepRecord` out,
-no (1, ...) record built). Written once for both:
+`BatchControlStep` of one row, whose helpers it calls: an `Estimate` in, a `StepRecord` out, no
+(1, ...) record built). Written once for both:
 - the user code, row by row (`nominal_row`, `filter_row`: the views, the call, the output check,
   the fault), or once for many rows (a shared nominal's `nominal_batch`, a shared filter's
   `filter_batch`: an exception or refused return is the fault of each row it was called for);
@@ -167,7 +167,7 @@ class StepRecord:
 
 class ControlStep:
     """estimate → nominal → filter → admission → monitor → command (module docstring) for one run:
-    the B = 1 case of `BatchControlStep` (`rows`, its one row; `BatchControlStep.step_one`).
+    the B = 1 case of `BatchControlStep` (`rows`, its one row).
 
     `context` gives the pressure limits the command is clipped to (`context.limits`) and the
     number of segments; `monitor` defaults to a `SafetyMonitor` with its default hold (its
@@ -183,6 +183,11 @@ class ControlStep:
             raise ValueError(f"monitor has {self.monitor.n_segments} segments, the robot {self.n}")
         self.rows = BatchControlStep([safety_filter], [nominal], context, 1, self.monitor.hold_s, clock,
                                      monitor=self.monitor.rows)
+        # work arrays of a call (B = 1): the output flag, u_filter without an output, the admission, t, the action
+        self.accepted, self.refused = np.ones(1, dtype=bool), np.zeros(1, dtype=bool)
+        self.no_output = np.full((1, self.n), math.nan)
+        self.command, self.admitted, self.t = np.empty((1, self.n)), np.empty(1, dtype=bool), np.empty(1)
+        self.action = np.empty(1, dtype=np.int8)
 
     @property
     def filter(self) -> SafetyFilter:
@@ -213,7 +218,28 @@ class ControlStep:
         self.rows.reset()
 
     def __call__(self, estimate: Estimate, flags: SafetyFlags = NO_FLAGS) -> StepRecord:
-        return self.rows.step_one(estimate, flags)
+        """The step at `estimate` with `flags`: `BatchControlStep.__call__` for its one row, through the
+        same row helpers, admission and monitor, with the row's own objects in and out (the estimate,
+        its FilterOutput) instead of (1, ...) arrays."""
+        rows = self.rows
+        output, u_nom, filter_us = None, rows.nan_row, math.nan
+        faults = rows.faults
+        if faults[0] is None:
+            q, qd = rows.views(estimate.q, estimate.qd)
+            value = rows.nominal_row(0, estimate.t, q, qd)
+            if value is not None:
+                u_nom = value
+                if not flags.perception_stale:
+                    output, filter_us = rows.filter_row(0, Estimate(estimate.t, q, qd, estimate.t_capture), value)
+            if faults[0] is not None:  # a fault's row has no output
+                output = None
+        t = self.t
+        t[0] = estimate.t
+        sent, action = np.empty((1, self.n)), self.action  # sent: the record's u; action read only here
+        reasons = rows.decide(t, self.no_output if output is None else output.u.reshape(1, self.n),
+                              self.refused if output is None else self.accepted, rows.all_rows,
+                              None if flags is NO_FLAGS else [flags], self.command, self.admitted, sent, action)
+        return StepRecord(estimate, u_nom, output, sent[0], ACTIONS[action[0]], reasons[0] if reasons else (), filter_us)
 
     def wait(self, estimate: Estimate) -> StepRecord:
         """A call before the loop has its first estimate (camera start-up): the filter and the
@@ -280,9 +306,8 @@ class BatchControlStep:
     Written once for every B: the user code row by row (`nominal_row`, `filter_row`) or batched,
     the admission and the monitor's RUN case in one compiled call each over the batch axis
     (`closedloop.kernels`), the rows that hold or vent through `closedloop.monitor.decide`.
-    `__call__` takes and returns arrays with the batch axis; `step_one` is the same step for
-    B = 1 taking an `Estimate` and returning a `StepRecord` (`ControlStep`), without building
-    the (B, ...) record.
+    `__call__` takes and returns arrays with the batch axis; `ControlStep` calls the same helpers
+    for its one row with an `Estimate` in and a `StepRecord` out, without a (1, ...) record.
     """
 
     def __init__(self, safety_filter: SafetyFilter | Sequence[SafetyFilter],
@@ -306,18 +331,14 @@ class BatchControlStep:
             raise ValueError(f"monitor has {self.monitor.n_sims} runs of {self.monitor.n_segments} segments, "
                              f"the step {n_sims} of {self.n}")
         limits = context.limits
-        self.clip = limits is not None  # limits (2, N) hPa: lo, hi (unused without clipping)
-        self.limits = np.zeros((2, self.n)) if limits is None else np.array([limits[0], limits[1]], dtype=float)
+        # (2, N) hPa: lo, hi; without limits ±inf, with which the clip keeps every float (closedloop.kernels)
+        self.limits = np.array([[-math.inf] * self.n, [math.inf] * self.n] if limits is None else [limits[0], limits[1]],
+                               dtype=float)
         self.faults: list[FilterFault | None] = [None] * n_sims
         self.faulted = np.zeros(n_sims, dtype=bool)
         self.checks = [OutputCheck(self.n, RESERVED_COLUMNS) for _ in range(n_sims)]
         self.all_rows = np.ones(n_sims, dtype=bool)
         self.nan_row = read_only(np.full(self.n, math.nan))  # u_nom of a row whose nominal was not called or refused
-        # step_one's work arrays (B = 1): the output flag, u_filter without an output, the admission's result, t
-        self.accepted, self.refused = np.ones(1, dtype=bool), np.zeros(1, dtype=bool)
-        self.nan_rows = np.full((1, self.n), math.nan)
-        self.command_one, self.admitted_one, self.t_one = np.empty((1, self.n)), np.empty(1, dtype=bool), np.empty(1)
-        self.action_one = np.empty(1, dtype=np.int8)
 
     @property
     def stopped(self) -> np.ndarray:
@@ -391,32 +412,6 @@ class BatchControlStep:
             self._fault(b, FilterFault.from_exception(exc, "filter return", view.t, safety_filter))
             return None, filter_us
 
-    def step_one(self, estimate: Estimate, flags: SafetyFlags = NO_FLAGS) -> StepRecord:
-        """The step of a single run (B = 1) at `estimate` with `flags` (`ControlStep.__call__`): the
-        same row helpers, admission and monitor as `__call__`, with the row's own objects in and
-        out (the estimate, its FilterOutput) instead of (1, ...) arrays."""
-        output, u_nom, filter_us = None, self.nan_row, math.nan
-        faults = self.faults
-        if faults[0] is None:
-            q, qd = self.views(estimate.q, estimate.qd)
-            value = self.nominal_row(0, estimate.t, q, qd)
-            if value is not None:
-                u_nom = value
-                if not flags.perception_stale:
-                    output, filter_us = self.filter_row(0, Estimate(estimate.t, q, qd, estimate.t_capture), value)
-            if faults[0] is not None:  # a fault's row has no output
-                output = None
-        t = self.t_one
-        t[0] = estimate.t
-        sent, action = np.empty((1, self.n)), self.action_one  # sent: the record's u; action read only here
-        if output is None:
-            reasons = self.decide(t, self.nan_rows, self.refused, self.all_rows, None if flags is NO_FLAGS else [flags],
-                                  self.command_one, self.admitted_one, sent, action)
-        else:
-            reasons = self.decide(t, output.u.reshape(1, self.n), self.accepted, self.all_rows,
-                                  None if flags is NO_FLAGS else [flags], self.command_one, self.admitted_one, sent, action)
-        return StepRecord(estimate, u_nom, output, sent[0], ACTIONS[action[0]], reasons[0] if reasons else (), filter_us)
-
     def decide(self, t: np.ndarray, u_filter: np.ndarray, output: np.ndarray, rows: np.ndarray,
                flags: list[SafetyFlags] | None, command: np.ndarray, admitted: np.ndarray, sent: np.ndarray,
                action: np.ndarray) -> list[tuple[str, ...]] | None:
@@ -427,9 +422,9 @@ class BatchControlStep:
         (B, N) hPa and the action codes (B,) into `sent` and `action`; returns each row's reasons, None
         when every stepped row RUNs (no reasons)."""
         monitor = self.monitor
-        pending = kernels.admit_and_run(u_filter, output, self.limits, self.clip, command, admitted, t, self.faulted,
-                                        rows, monitor.quiet_rows(flags), monitor.times, monitor.last_run, monitor.bits,
-                                        sent, action)
+        pending = kernels.admit_and_run(u_filter, output, self.limits, command, admitted, t, self.faulted, rows,
+                                        monitor.quiet if flags is None else monitor.quiet_rows(flags), monitor.times,
+                                        monitor.last_run, monitor.bits, sent, action)
         if pending:  # a bad time, or rows that hold or vent
             return monitor.settle(pending, t, command, admitted, self.faulted, flags, sent, action).reasons
         return None
