@@ -209,7 +209,7 @@ class ControlStep:
     @property
     def stopped(self) -> bool:
         """A filter fault has led to the monitor's vent: the loop ends its run (module docstring)."""
-        return bool(self.rows.stopped[0])
+        return self.rows.faults[0] is not None and self.monitor.vent_latched  # `BatchControlStep.stopped` of its row
 
     def reset(self) -> None:
         """Before a run: no fault, a fresh output check, the filter's own `reset()` (when it has one;
