@@ -10,18 +10,19 @@ call does either for all B rows in about 1 µs plus a few ns a row (tools/bench_
 Loaded on the first call (`controllers.lazy_import`): `softcbf list` never imports numba.
 
 Few arguments, packed (each array argument costs about 0.1 µs of the call's dispatch): the limits
-(2, N) hPa (lo, hi), the monitor's times (B, 2) s (its clock, hold_since) and bits (B, 2) bool
-(has_run, latched), of which `closedloop.monitor.BatchSafetyMonitor`'s attributes are views.
+(2, N) hPa (lo, hi), the monitor's state (B, 2 + N) (its clock s, hold_since s, last_run hPa) and
+bits (B, 2) bool (has_run, latched), of which `closedloop.monitor.BatchSafetyMonitor`'s attributes
+are views; a row without a filter output has u_filter NaN (refused as any non-finite command).
 
-`admit(u_filter, output, limits, command, admitted)`, per row b (docs/safety-filter.md):
-  admitted[b] = output[b] and every u_filter[b, j] is finite;
+`admit(u_filter, limits, command, admitted)`, per row b (docs/safety-filter.md):
+  admitted[b] = every u_filter[b, j] is finite;
   command[b, j] = min(max(u_filter[b, j], lo[j]), hi[j]) (Python's min and max: max(v, lo) is lo only
   if lo > v, min(v, hi) is hi only if hi < v, so a v in range is kept as it is, −0.0 included; with
-  lo = −inf and hi = +inf, no limits, every float is kept as it is, NaN included). u_filter (B, N) hPa, output (B,) bool (the filter returned
-  an output the step accepted), lo, hi = limits (N,) hPa each; command (B, N) and admitted (B,) are written.
+  lo = −inf and hi = +inf, no limits, every float is kept as it is, NaN included). u_filter (B, N)
+  hPa, lo, hi = limits (N,) hPa each; command (B, N) and admitted (B,) are written.
 
-`run_plain(t, u, admitted, fault, rows, quiet, times, last_run, bits, sent, action)`: the monitor's RUN case (closedloop.monitor). Checks first that every stepped row's t (s) is
-finite and not before its clock (returns −1 − b for the first row b that is not, nothing changed);
+`run_plain(t, u, admitted, fault, rows, quiet, state, bits, sent, action)`: the monitor's RUN case
+(closedloop.monitor; u may be `sent` itself). Checks first that every stepped row's t (s) is finite and not before its clock (returns −1 − b for the first row b that is not, nothing changed);
 then per row: not stepped (rows[b] False) → action NOT_STEPPED, sent 0; stepped, admitted, no fault,
 no flag raised (quiet) and no latched vent → RUN: sent = last_run = u[b], has_run, no hold, action 0;
 any other stepped row → action PENDING, sent untouched (the caller decides it with `decide`). Every
@@ -35,15 +36,14 @@ import math
 import numpy as np
 from numba import njit
 
-from closedloop.monitor import CLOCK, HAS_RUN, HOLD_SINCE, LATCHED, NOT_STEPPED, PENDING
+from closedloop.monitor import CLOCK, HAS_RUN, HOLD_SINCE, LAST_RUN, LATCHED, NOT_STEPPED, PENDING
 
 
 @njit(cache=True)
-def admit(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, command: np.ndarray,
-          admitted: np.ndarray) -> None:
+def admit(u_filter: np.ndarray, limits: np.ndarray, command: np.ndarray, admitted: np.ndarray) -> None:
     n_rows, n = u_filter.shape
     for b in range(n_rows):
-        ok = output[b]
+        ok = True
         for j in range(n):
             v = u_filter[b, j]
             if not math.isfinite(v):
@@ -58,11 +58,10 @@ def admit(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, command:
 
 @njit(cache=True)
 def run_plain(t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndarray, rows: np.ndarray,
-              quiet: np.ndarray, times: np.ndarray, last_run: np.ndarray, bits: np.ndarray, sent: np.ndarray,
-              action: np.ndarray) -> int:
+              quiet: np.ndarray, state: np.ndarray, bits: np.ndarray, sent: np.ndarray, action: np.ndarray) -> int:
     n_rows, n = sent.shape
     for b in range(n_rows):
-        if rows[b] and not (math.isfinite(t[b]) and t[b] >= times[b, CLOCK]):
+        if rows[b] and not (math.isfinite(t[b]) and t[b] >= state[b, CLOCK]):
             return -1 - b
     pending = 0
     for b in range(n_rows):
@@ -71,13 +70,13 @@ def run_plain(t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndar
             for j in range(n):
                 sent[b, j] = 0.0
             continue
-        times[b, CLOCK] = t[b]
+        state[b, CLOCK] = t[b]
         if admitted[b] and not fault[b] and quiet[b] and not bits[b, LATCHED]:
             for j in range(n):
                 sent[b, j] = u[b, j]
-                last_run[b, j] = u[b, j]
+                state[b, LAST_RUN + j] = u[b, j]
             bits[b, HAS_RUN] = True
-            times[b, HOLD_SINCE] = math.nan
+            state[b, HOLD_SINCE] = math.nan
             action[b] = 0
         else:
             action[b] = PENDING
@@ -86,9 +85,8 @@ def run_plain(t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndar
 
 
 @njit(cache=True)
-def admit_and_run(u_filter: np.ndarray, output: np.ndarray, limits: np.ndarray, command: np.ndarray,
-                  admitted: np.ndarray, t: np.ndarray, fault: np.ndarray, rows: np.ndarray, quiet: np.ndarray,
-                  times: np.ndarray, last_run: np.ndarray, bits: np.ndarray, sent: np.ndarray,
+def admit_and_run(u_filter: np.ndarray, limits: np.ndarray, t: np.ndarray, fault: np.ndarray, rows: np.ndarray,
+                  quiet: np.ndarray, state: np.ndarray, bits: np.ndarray, sent: np.ndarray, admitted: np.ndarray,
                   action: np.ndarray) -> int:
-    admit(u_filter, output, limits, command, admitted)
-    return run_plain(t, command, admitted, fault, rows, quiet, times, last_run, bits, sent, action)
+    admit(u_filter, limits, sent, admitted)
+    return run_plain(t, sent, admitted, fault, rows, quiet, state, bits, sent, action)

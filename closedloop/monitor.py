@@ -85,7 +85,7 @@ class SafetyDecision:
 ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}  # the time series' `action` column
 NOT_STEPPED = -1  # `BatchDecision.action` of a row that was not stepped
 PENDING = 3  # `closedloop.kernels.run_plain`'s action of a stepped row off the RUN case (`decide` then decides it)
-CLOCK, HOLD_SINCE = 0, 1  # the columns of `BatchSafetyMonitor.times` (B, 2) s
+CLOCK, HOLD_SINCE, LAST_RUN = 0, 1, 2  # the columns of `BatchSafetyMonitor.state` (B, 2 + N): s, s, then N hPa
 HAS_RUN, LATCHED = 0, 1  # the columns of `BatchSafetyMonitor.bits` (B, 2) bool
 ACTIONS = (SafeAction.RUN, SafeAction.HOLD, SafeAction.VENT)  # by code
 
@@ -187,10 +187,9 @@ class BatchSafetyMonitor:
         if not (isinstance(n_sims, int) and n_sims >= 1):
             raise ValueError(f"n_sims must be an int >= 1, got {n_sims!r}")
         self.n_sims, self.n_segments, self.hold_s = n_sims, n_segments, float(hold_s)
-        self.last_run = np.zeros((n_sims, n_segments))
-        self.times = np.full((n_sims, 2), math.nan)  # packed for the compiled call (closedloop.kernels)
-        self.t, self.hold_since = self.times[:, CLOCK], self.times[:, HOLD_SINCE]
-        self.t[:] = -math.inf
+        self.state = np.zeros((n_sims, LAST_RUN + n_segments))  # packed for the compiled call (closedloop.kernels)
+        self.t, self.hold_since, self.last_run = self.state[:, CLOCK], self.state[:, HOLD_SINCE], self.state[:, LAST_RUN:]
+        self.t[:], self.hold_since[:] = -math.inf, math.nan
         self.bits = np.zeros((n_sims, 2), dtype=bool)
         self.has_run, self.latched = self.bits[:, HAS_RUN], self.bits[:, LATCHED]
         self.vent_reasons: list[tuple[str, ...] | None] = [None] * n_sims  # latched[b]: vent_reasons[b] is not None
@@ -218,8 +217,8 @@ class BatchSafetyMonitor:
         `admitted` (B,) is True, refused elsewhere), `fault` (B,) bool the `filter_fault` flag
         and `flags` each row's other flags (None: none raised)."""
         sent, action = self.outputs()
-        pending = kernels.run_plain(t, u, admitted, fault, rows, self.quiet_rows(flags), self.times, self.last_run,
-                                    self.bits, sent, action)
+        pending = kernels.run_plain(t, u, admitted, fault, rows, self.quiet_rows(flags), self.state, self.bits, sent,
+                                    action)
         return self.settle(pending, t, u, admitted, fault, flags, sent, action)
 
     def outputs(self) -> tuple[np.ndarray, np.ndarray]:
@@ -233,7 +232,8 @@ class BatchSafetyMonitor:
     def settle(self, pending: int, t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndarray,
                flags: list[SafetyFlags] | None, sent: np.ndarray, action: np.ndarray) -> BatchDecision:
         """The decision of a call after `kernels.run_plain` (arguments as `step`'s; pending its return,
-        sent and action the arrays it wrote): the error of a bad t, or the pending rows through `decide`."""
+        sent and action the arrays it wrote; u may be `sent`, whose pending rows then hold their
+        admitted commands): the error of a bad t, or the pending rows through `decide`."""
         if pending < 0:
             b = -1 - pending
             raise ValueError(f"t must be finite and non-decreasing, got {t[b]} after {self.t[b]} "

@@ -183,11 +183,9 @@ class ControlStep:
             raise ValueError(f"monitor has {self.monitor.n_segments} segments, the robot {self.n}")
         self.rows = BatchControlStep([safety_filter], [nominal], context, 1, self.monitor.hold_s, clock,
                                      monitor=self.monitor.rows)
-        # work arrays of a call (B = 1): the output flag, u_filter without an output, the admission, t, the action
-        self.accepted, self.refused = np.ones(1, dtype=bool), np.zeros(1, dtype=bool)
+        # work arrays of a call (B = 1): u_filter without an output (refused), t, the admission, the action
         self.no_output = np.full((1, self.n), math.nan)
-        self.command, self.admitted, self.t = np.empty((1, self.n)), np.empty(1, dtype=bool), np.empty(1)
-        self.action = np.empty(1, dtype=np.int8)
+        self.t, self.admitted, self.action = np.empty(1), np.empty(1, dtype=bool), np.empty(1, dtype=np.int8)
 
     @property
     def filter(self) -> SafetyFilter:
@@ -236,9 +234,8 @@ class ControlStep:
         t = self.t
         t[0] = estimate.t
         sent, action = np.empty((1, self.n)), self.action  # sent: the record's u; action read only here
-        reasons = rows.decide(t, self.no_output if output is None else output.u.reshape(1, self.n),
-                              self.refused if output is None else self.accepted, rows.all_rows,
-                              None if flags is NO_FLAGS else [flags], self.command, self.admitted, sent, action)
+        reasons = rows.decide(t, self.no_output if output is None else output.u.reshape(1, self.n), rows.all_rows,
+                              None if flags is NO_FLAGS else [flags], sent, self.admitted, action)
         return StepRecord(estimate, u_nom, output, sent[0], ACTIONS[action[0]], reasons[0] if reasons else (), filter_us)
 
     def wait(self, estimate: Estimate) -> StepRecord:
@@ -412,21 +409,19 @@ class BatchControlStep:
             self._fault(b, FilterFault.from_exception(exc, "filter return", view.t, safety_filter))
             return None, filter_us
 
-    def decide(self, t: np.ndarray, u_filter: np.ndarray, output: np.ndarray, rows: np.ndarray,
-               flags: list[SafetyFlags] | None, command: np.ndarray, admitted: np.ndarray, sent: np.ndarray,
-               action: np.ndarray) -> list[tuple[str, ...]] | None:
+    def decide(self, t: np.ndarray, u_filter: np.ndarray, rows: np.ndarray, flags: list[SafetyFlags] | None,
+               sent: np.ndarray, admitted: np.ndarray, action: np.ndarray) -> list[tuple[str, ...]] | None:
         """Admission and monitor of the rows in `rows` at t (B,) s: u_filter (B, N) hPa what the filters
-        returned where `output` (B,) says they returned an accepted output; admitted into `command`
-        (B, N) and `admitted` (B,) (work arrays) and decided in one compiled call (`kernels.admit_and_run`),
-        the rows that hold or vent by the monitor (`BatchSafetyMonitor.settle`). Writes the command sent
-        (B, N) hPa and the action codes (B,) into `sent` and `action`; returns each row's reasons, None
-        when every stepped row RUNs (no reasons)."""
+        returned (NaN in a row without an output: refused), admitted (`admitted` (B,), a work array)
+        and decided in one compiled call (`kernels.admit_and_run`), the rows that hold or vent by the
+        monitor (`BatchSafetyMonitor.settle`). Writes the command sent (B, N) hPa and the action codes
+        (B,) into `sent` and `action`; returns each row's reasons, None when every stepped row RUNs."""
         monitor = self.monitor
-        pending = kernels.admit_and_run(u_filter, output, self.limits, command, admitted, t, self.faulted, rows,
-                                        monitor.quiet if flags is None else monitor.quiet_rows(flags), monitor.times,
-                                        monitor.last_run, monitor.bits, sent, action)
+        pending = kernels.admit_and_run(u_filter, self.limits, t, self.faulted, rows,
+                                        monitor.quiet if flags is None else monitor.quiet_rows(flags), monitor.state,
+                                        monitor.bits, sent, admitted, action)
         if pending:  # a bad time, or rows that hold or vent
-            return monitor.settle(pending, t, command, admitted, self.faulted, flags, sent, action).reasons
+            return monitor.settle(pending, t, sent, admitted, self.faulted, flags, sent, action).reasons
         return None
 
     def __call__(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray, t_capture: np.ndarray | None = None,
@@ -488,8 +483,7 @@ class BatchControlStep:
             for b in np.flatnonzero(faulted).tolist():
                 filter_action[b] = outputs[b] = None
         sent, action = self.monitor.outputs()
-        reasons = self.decide(t, u_filter, output, rows, flags, np.empty((n_sims, n)), np.empty(n_sims, dtype=bool), sent,
-                              action)
+        reasons = self.decide(t, u_filter, rows, flags, sent, np.empty(n_sims, dtype=bool), action)
         return BatchStepRecord(t, q_view, qd_view, t_capture, nominal, output, u_filter, rho_pred, infeasible,
                                filter_action, outputs, sent, action, [()] * n_sims if reasons is None else reasons,
                                filter_us)
