@@ -237,7 +237,9 @@ class ControlStep:
         sent, action = np.empty((1, self.n)), self.action  # sent: the record's u; action read only here
         reasons = rows.decide(t, self.no_output if output is None else output.u.reshape(1, self.n), rows.all_rows,
                               None if flags is NO_FLAGS else [flags], sent, self.admitted, action)
-        return StepRecord(estimate, u_nom, output, sent[0], ACTIONS[action[0]], reasons[0] if reasons else (), filter_us)
+        if reasons is None:  # the one row RUNs
+            return StepRecord(estimate, u_nom, output, sent[0], SafeAction.RUN, (), filter_us)
+        return StepRecord(estimate, u_nom, output, sent[0], ACTIONS[action[0]], reasons[0], filter_us)
 
     def wait(self, estimate: Estimate) -> StepRecord:
         """A call before the loop has its first estimate (camera start-up): the filter and the
