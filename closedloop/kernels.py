@@ -1,7 +1,9 @@
 """The control step's arithmetic over a batch axis, compiled: the admission (`admit`) and the safety
 monitor's common case (`run_plain`), the one implementation of each for every loop (one run is B = 1).
 
-Why compiled (numba, `@njit(cache=True)`, no fastmath: IEEE operations in the written order). The
+Why compiled (numba, `@njit(cache=True)`, no fastmath: IEEE operations in the written order;
+`admit` and `run_plain` inline="always", so `admit_and_run` is one function without inner calls,
+0.2–0.3 µs less at B = 1). The
 same code must serve a serial run (B = 1, every control call of the simulated, camera and hardware
 loops and of the environment) and a batched study (B in the hundreds). In numpy each operation on a
 (1, N) array costs about 0.5–1 µs of call overhead, so the admission and the monitor's RUN case
@@ -39,7 +41,7 @@ from numba import njit
 from closedloop.monitor import CLOCK, HAS_RUN, HOLD_SINCE, LAST_RUN, LATCHED, NOT_STEPPED, PENDING
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def admit(u_filter: np.ndarray, limits: np.ndarray, command: np.ndarray, admitted: np.ndarray) -> None:
     n_rows, n = u_filter.shape
     for b in range(n_rows):
@@ -56,7 +58,7 @@ def admit(u_filter: np.ndarray, limits: np.ndarray, command: np.ndarray, admitte
         admitted[b] = ok
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def run_plain(t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndarray, rows: np.ndarray,
               quiet: np.ndarray, state: np.ndarray, bits: np.ndarray, sent: np.ndarray, action: np.ndarray) -> int:
     n_rows, n = sent.shape
