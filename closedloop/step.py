@@ -50,7 +50,7 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
   Python's min and max, RUN for the admitted rows with nothing raised or latched), and every other
   row through `closedloop.monitor.decide`, the state machine's one definition.
 One row's fault stops that row only. Cost per call, pass-through filter (`tools/bench_serial_loop.py`'s
-`control_step_us`, docs/studies.md#batches): `ControlStep` about 1 µs (10 %) more than the
+`control_step_us`, docs/studies.md#batches): `ControlStep` 0.2–0.9 µs (3–10 %) more than the
 hand-written scalar step it replaced (the compiled call's argument handling; numpy on (1, N)
 arrays would cost 0.5–1 µs an operation), `BatchControlStep` at B = 1 1.5–1.7× faster than its
 numpy form was.
