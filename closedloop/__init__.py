@@ -1,10 +1,12 @@
-"""The closed loop's controller side, shared by every clock (docs/safety-filter.md): numpy only, no MuJoCo, no I/O.
+"""The closed loop's controller side, shared by every clock (docs/safety-filter.md): numpy and two
+compiled kernels (numba, loaded on the first step), no MuJoCo, no I/O.
 
-- `closedloop.step`: `ControlStep`, the one control step (estimate → nominal → filter →
-  admission → safety monitor → command) and its `StepRecord`; `BatchControlStep`, the same
-  step for B runs at once (numpy over the batch axis);
-- `closedloop.monitor`: `SafetyMonitor`, the run → hold → vent state machine, and
-  `BatchSafetyMonitor`, B of them in arrays (both decide through `decide`);
+- `closedloop.step`: `BatchControlStep`, the one control step (estimate → nominal → filter →
+  admission → safety monitor → command) for B runs at once, and `ControlStep`, its B = 1 case
+  for one run, with their records `BatchStepRecord` and `StepRecord`;
+- `closedloop.monitor`: `BatchSafetyMonitor`, the run → hold → vent state machine in (B, ...)
+  arrays, and `SafetyMonitor`, its B = 1 case (both decide through `decide`);
+- `closedloop.kernels`: the admission and the monitor's RUN case over the batch axis, compiled;
 - `closedloop.record`: `Recorder`, the one recorder, and `TIMESERIES_UNITS`, the one table of units.
 
 Layers: imports `controllers` only; `hardware`, `softcbf_mj` and above import it.

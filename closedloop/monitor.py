@@ -21,15 +21,16 @@ A latched vent clears only by `reset()`, which refuses while a flag is raised, o
 `restart()` before a new run (its clock starts again). The class does no I/O and reads
 no clock, so it is tested exactly.
 
-`BatchSafetyMonitor` is the same machine for B runs at once (a batched loop's B
-simulations): its state is (B, ...) arrays, the common case (RUN, nothing raised, nothing
-latched) is decided for all rows in numpy, and every other row goes through `decide`, the
-one definition of the table that `SafetyMonitor` calls as well; so row b decides exactly
-what a `SafetyMonitor` of b's run decides (tests/test_monitor.py).
+`BatchSafetyMonitor` is this machine for B runs at once (a batched loop's B simulations),
+and `SafetyMonitor` is its B = 1 case: one implementation. Its state is (B, ...) arrays; the
+common case (RUN: admitted, nothing raised, nothing latched) is decided for all rows in one
+compiled call (`closedloop.kernels.run_plain`, about 1 µs at B = 1), every other row goes
+through `decide`, the one definition of the table; so row b decides exactly what a
+`SafetyMonitor` of b's run decides (tests/test_monitor.py).
 
-A caller that has admitted u_cmd itself (the control step: a new finite (N,) float
-array, clipped) says so with `admitted=True`; the monitor then keeps u_cmd as it is
-instead of checking and copying it. What it decides is the same.
+A caller that has admitted u_cmd itself (the control step: a finite (N,) float array,
+clipped) says so with `admitted=True`; the monitor then does not check it again. What it
+decides is the same. The monitor keeps its own copy of the last command sent with RUN.
 """
 
 from __future__ import annotations
@@ -39,6 +40,10 @@ from dataclasses import dataclass, fields, replace
 from enum import Enum
 
 import numpy as np
+
+from controllers.lazy_import import lazy_module
+
+kernels = lazy_module("closedloop.kernels")  # numba loads on the first step (controllers.lazy_import)
 
 DEFAULT_HOLD_S = 0.5  # five cycles of the 10 Hz loop
 
@@ -79,6 +84,9 @@ class SafetyDecision:
 
 ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}  # the time series' `action` column
 NOT_STEPPED = -1  # `BatchDecision.action` of a row that was not stepped
+PENDING = 3  # `closedloop.kernels.run_plain`'s action of a stepped row off the RUN case (`decide` then decides it)
+CLOCK, HOLD_SINCE, LAST_RUN = 0, 1, 2  # the columns of `BatchSafetyMonitor.state` (B, 2 + N): s, s, then N hPa
+HAS_RUN, LATCHED = 0, 1  # the columns of `BatchSafetyMonitor.bits` (B, 2) bool
 ACTIONS = (SafeAction.RUN, SafeAction.HOLD, SafeAction.VENT)  # by code
 
 
@@ -91,64 +99,43 @@ def check_monitor_args(n_segments: int, hold_s: float) -> None:
 
 
 class SafetyMonitor:
-    """Run → hold → vent (see the module table). One instance per run."""
+    """Run → hold → vent (see the module table) for one run: the B = 1 case of
+    `BatchSafetyMonitor` (`rows`, its one row), so one run and a batch decide through the same code."""
 
     def __init__(self, n_segments: int, hold_s: float = DEFAULT_HOLD_S) -> None:
-        check_monitor_args(n_segments, hold_s)
-        self.n_segments = n_segments
-        self._shape = (n_segments,)
-        self.hold_s = float(hold_s)
-        self._last_run: np.ndarray | None = None
-        self._hold_since: float | None = None
-        self._vent_reasons: tuple[str, ...] | None = None
-        self._t = -math.inf
+        self.rows = BatchSafetyMonitor(1, n_segments, hold_s)
+        self.n_segments, self.hold_s = n_segments, self.rows.hold_s
+        self.all_rows = np.ones(1, dtype=bool)  # the `rows` argument of every call: the one row
+        self.no_fault = np.zeros(1, dtype=bool)
 
     @property
     def vent_latched(self) -> bool:
-        return self._vent_reasons is not None
+        return bool(self.rows.latched[0])
 
     def restart(self) -> None:
         """Before a new run: no command sent yet, no hold, no latched vent, and the clock
         starts again (t may go back to the new run's first time)."""
-        self._last_run = None
-        self._hold_since = None
-        self._vent_reasons = None
-        self._t = -math.inf
+        self.rows.restart()
 
     def reset(self, flags: SafetyFlags = SafetyFlags()) -> None:
         """Clear a latched vent; refused (ValueError) while any of `flags` is raised."""
         if flags.raised():
             raise ValueError(f"cannot clear the vent while {', '.join(flags.raised())} is raised")
-        self._vent_reasons = None
-        self._hold_since = None
+        self.rows.clear_vent(self.all_rows)
 
     def step(self, t: float, u_cmd: np.ndarray | None, flags: SafetyFlags = NO_FLAGS,
              admitted: bool = False) -> SafetyDecision:
         """The decision at time t (s) for the command u_cmd (module table). `admitted`: the
-        caller guarantees that u_cmd, when not None, is a finite (N,) float array that
-        nothing modifies afterwards (the monitor keeps it without a copy)."""
-        if not (math.isfinite(t) and t >= self._t):
-            raise ValueError(f"t must be finite and non-decreasing, got {t} after {self._t}")
-        self._t = t
-        if flags is NO_FLAGS and self._vent_reasons is None:  # the common case: RUN, nothing raised
-            if admitted and u_cmd is not None:
-                self._hold_since = None
-                self._last_run = u_cmd
-                return SafetyDecision(SafeAction.RUN, u_cmd, ())
-            if type(u_cmd) is np.ndarray and u_cmd.shape == self._shape:
-                u = u_cmd.astype(float)  # a copy: the monitor keeps it
-                if all(map(math.isfinite, u.tolist())):
-                    self._hold_since = None
-                    self._last_run = u
-                    return SafetyDecision(SafeAction.RUN, u, ())
-        u = None if u_cmd is None else np.array(u_cmd, dtype=float)  # a copy: the monitor keeps it
+        caller guarantees that u_cmd, when not None, is a finite (N,) float array (the step's
+        admission); otherwise u_cmd is checked here: shape (N,) or ValueError, refused when
+        not finite."""
+        u = None if u_cmd is None else (u_cmd if admitted else np.array(u_cmd, dtype=float))
         if u is not None and u.shape != (self.n_segments,):
             raise ValueError(f"u_cmd must have shape ({self.n_segments},), got {u.shape}")
-        if u is not None and not all(map(math.isfinite, u.tolist())):
-            u = None
-        decision, self._last_run, self._hold_since, self._vent_reasons = decide(
-            t, u, flags, self._last_run, self._hold_since, self._vent_reasons, self.hold_s, self.n_segments)
-        return decision
+        ok = u is not None and (admitted or all(map(math.isfinite, u.tolist())))
+        decision = self.rows.step(np.array([float(t)]), self.rows.zeros if u is None else u.reshape(1, -1),
+                                  np.array([ok]), self.no_fault, self.all_rows, None if flags is NO_FLAGS else [flags])
+        return SafetyDecision(ACTIONS[decision.action[0]], decision.u[0], decision.reasons[0])
 
 
 def decide(t: float, u: np.ndarray | None, flags: SafetyFlags, last_run: np.ndarray | None, hold_since: float | None,
@@ -192,27 +179,34 @@ class BatchSafetyMonitor:
 
     State per row: last_run (B, N) hPa with has_run (B,) bool (a command was sent with RUN),
     hold_since (B,) s (NaN: not holding), vent_reasons (B tuples, None: not latched) and the
-    row's clock (B,) s."""
+    row's clock (B,) s. The RUN case of every row is one compiled call (`closedloop.kernels.run_plain`),
+    the other rows go through `decide`."""
 
     def __init__(self, n_sims: int, n_segments: int, hold_s: float = DEFAULT_HOLD_S) -> None:
         check_monitor_args(n_segments, hold_s)
         if not (isinstance(n_sims, int) and n_sims >= 1):
             raise ValueError(f"n_sims must be an int >= 1, got {n_sims!r}")
         self.n_sims, self.n_segments, self.hold_s = n_sims, n_segments, float(hold_s)
-        self.last_run = np.zeros((n_sims, n_segments))
-        self.has_run = np.zeros(n_sims, dtype=bool)
-        self.hold_since = np.full(n_sims, math.nan)
-        self.latched = np.zeros(n_sims, dtype=bool)  # vent_reasons[b] is not None
-        self.vent_reasons: list[tuple[str, ...] | None] = [None] * n_sims
-        self.t = np.full(n_sims, -math.inf)
+        self.state = np.zeros((n_sims, LAST_RUN + n_segments))  # packed for the compiled call (closedloop.kernels)
+        self.t, self.hold_since, self.last_run = self.state[:, CLOCK], self.state[:, HOLD_SINCE], self.state[:, LAST_RUN:]
+        self.t[:], self.hold_since[:] = -math.inf, math.nan
+        self.bits = np.zeros((n_sims, 2), dtype=bool)
+        self.has_run, self.latched = self.bits[:, HAS_RUN], self.bits[:, LATCHED]
+        self.vent_reasons: list[tuple[str, ...] | None] = [None] * n_sims  # latched[b]: vent_reasons[b] is not None
+        self.zeros = np.zeros((n_sims, n_segments))  # the commands of calls where none is admitted
+        self.quiet = np.ones(n_sims, dtype=bool)  # no flag raised in any row
 
     def restart(self, rows: np.ndarray | None = None) -> None:
         """`SafetyMonitor.restart` of the rows in `rows` ((B,) bool; None: all)."""
         rows = np.ones(self.n_sims, dtype=bool) if rows is None else rows
         self.has_run[rows] = False
+        self.t[rows] = -math.inf
+        self.clear_vent(rows)
+
+    def clear_vent(self, rows: np.ndarray) -> None:
+        """No latched vent and no hold in the rows in `rows` ((B,) bool; `SafetyMonitor.reset`)."""
         self.hold_since[rows] = math.nan
         self.latched[rows] = False
-        self.t[rows] = -math.inf
         for b in np.flatnonzero(rows).tolist():
             self.vent_reasons[b] = None
 
@@ -222,29 +216,32 @@ class BatchSafetyMonitor:
         the admitted commands (finite, nothing modifies them afterwards; read on the rows where
         `admitted` (B,) is True, refused elsewhere), `fault` (B,) bool the `filter_fault` flag
         and `flags` each row's other flags (None: none raised)."""
-        times = t[rows]
-        if not (np.all(np.isfinite(times)) and np.all(times >= self.t[rows])):
-            raise ValueError(f"t must be finite and non-decreasing in every run, got {times} after {self.t[rows]}")
-        self.t[rows] = times
-        plain = rows & admitted & ~fault & ~self.latched
-        if flags is not None:
-            plain &= np.array([f is NO_FLAGS or not f.raised() for f in flags])
-        sent = np.zeros((self.n_sims, self.n_segments))
-        action = np.full(self.n_sims, NOT_STEPPED, dtype=np.int8)
+        sent, action = self.outputs()
+        pending = kernels.run_plain(t, u, admitted, fault, rows, self.quiet_rows(flags), self.state, self.bits, sent,
+                                    action)
+        return self.settle(pending, t, u, admitted, fault, flags, sent, action)
+
+    def outputs(self) -> tuple[np.ndarray, np.ndarray]:
+        """New arrays for a call's decisions: sent (B, N) hPa, action (B,) int8."""
+        return np.empty((self.n_sims, self.n_segments)), np.empty(self.n_sims, dtype=np.int8)
+
+    def quiet_rows(self, flags: list[SafetyFlags] | None) -> np.ndarray:
+        """(B,) bool: the rows with no flag raised (`flags`: each row's; None: none raised)."""
+        return self.quiet if flags is None else np.array([f is NO_FLAGS or not f.raised() for f in flags])
+
+    def settle(self, pending: int, t: np.ndarray, u: np.ndarray, admitted: np.ndarray, fault: np.ndarray,
+               flags: list[SafetyFlags] | None, sent: np.ndarray, action: np.ndarray) -> BatchDecision:
+        """The decision of a call after `kernels.run_plain` (arguments as `step`'s; pending its return,
+        sent and action the arrays it wrote; u may be `sent`, whose pending rows then hold their
+        admitted commands): the error of a bad t, or the pending rows through `decide`."""
+        if pending < 0:
+            b = -1 - pending
+            raise ValueError(f"t must be finite and non-decreasing, got {t[b]} after {self.t[b]} "
+                             f"(run {b})")
         reasons: list[tuple[str, ...]] = [()] * self.n_sims
-        if plain.all():  # the common case: every row RUNs
-            sent[:] = u
-            self.last_run[:] = u
-            self.has_run[:] = True
-            self.hold_since[:] = math.nan
-            action[:] = 0
+        if not pending:  # the common case: every stepped row RUNs
             return BatchDecision(action, sent, reasons)
-        sent[plain] = u[plain]
-        self.last_run[plain] = u[plain]
-        self.has_run |= plain
-        self.hold_since[plain] = math.nan
-        action[plain] = 0
-        for b in np.flatnonzero(rows & ~plain).tolist():
+        for b in np.flatnonzero(action == PENDING).tolist():
             row_flags = NO_FLAGS if flags is None else flags[b]
             if fault[b]:
                 row_flags = replace(row_flags, filter_fault=True)

@@ -37,24 +37,23 @@ Guarantees, whatever the filter does: u is finite; on RUN and HOLD it is a comma
 step admitted, so within the limits when they are on; VENT sends 0 hPa (the valves' vent).
 Interrupts (KeyboardInterrupt) are not faults: they propagate to the loop.
 
-The batch axis. `BatchControlStep` is this step for B runs at once (a batched study's
-simulations, the vector environment's arms): state (B, N) arrays in, `BatchStepRecord` of
-(B, ...) arrays out, row b exactly what `ControlStep` gives run b. What costs Python per
-row in `ControlStep` is done once for all rows: the views (one read-only copy of all
-states), the nominal (its `nominal_batch` when a shared nominal has one), the filter (its
-`filter_batch` when a shared filter has one: one call; else each row's filter in turn, user
-code being per sample), the output check (`checked_batch_arrays`), the admission (non-finite
-rows refused, the clip `minimum(maximum(u, lo), hi)`, the same floats as the scalar clip)
-and the monitor (`BatchSafetyMonitor`: the common RUN case in numpy, any other row through
-`closedloop.monitor.decide`, the state machine's one definition). One row's fault stops that
-row only; an exception from a call made for many rows (`filter_batch`, `nominal_batch`) is
-the fault of each of them. `ControlStep` stays the serial loops' entry (the simulated,
-camera and hardware loops, the single environment): at B = 1 the batched step costs more
-numpy overhead than the whole scalar step (66 µs against 9 µs a call with a pass-through
-filter: `tools/bench_batch.py`'s `step_us`, docs/studies.md#batches), and the serial loops must not
-get slower; the two are held to the same decisions by tests (tests/test_monitor.py,
-tests/test_trust_boundary.py, tests/test_batch_loop.py: bit-identical commands, rows and
-faults).
+The batch axis: one step for one run and for B. `BatchControlStep` is this step for B runs at
+once (a batched study's simulations, the vector environment's arms): state (B, N) arrays in,
+`BatchStepRecord` of (B, ...) arrays out; `ControlStep` is its B = 1 case (`rows`, a
+`BatchControlStep` of one row, whose helpers it calls: an `Estimate` in, a `StepRecord` out, no
+(1, ...) record built). Written once for both:
+- the user code, row by row (`nominal_row`, `filter_row`: the views, the call, the output check,
+  the fault), or once for many rows (a shared nominal's `nominal_batch`, a shared filter's
+  `filter_batch`: an exception or refused return is the fault of each row it was called for);
+- the admission and the monitor's RUN case, one compiled call over the batch axis
+  (`closedloop.kernels.admit_and_run`: non-finite rows refused, the clip min(max(u, lo), hi) as
+  Python's min and max, RUN for the admitted rows with nothing raised or latched), and every other
+  row through `closedloop.monitor.decide`, the state machine's one definition.
+One row's fault stops that row only. Cost per call, pass-through filter (`tools/bench_serial_loop.py`'s
+`control_step_us`, docs/studies.md#batches): `ControlStep` 0.2–0.9 µs (3–10 %) more than the
+hand-written scalar step it replaced (the compiled call's argument handling; numpy on (1, N)
+arrays would cost 0.5–1 µs an operation), `BatchControlStep` at B = 1 1.5–1.7× faster than its
+numpy form was.
 """
 
 from __future__ import annotations
@@ -64,16 +63,17 @@ import math
 import sysconfig
 import time
 import traceback
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
 from closedloop.columns import TIMESERIES_UNITS
-from closedloop.monitor import (ACTION_CODES, ACTIONS, DEFAULT_HOLD_S, NO_FLAGS, NOT_STEPPED, BatchSafetyMonitor,
+from closedloop.monitor import (ACTION_CODES, ACTIONS, DEFAULT_HOLD_S, NO_FLAGS, BatchSafetyMonitor,
                                 SafeAction, SafetyFlags, SafetyMonitor)
 from controllers.errors import ControllerInputError
+from controllers.lazy_import import lazy_module
 from controllers.safety_filter import (Estimate, EstimateBatch, FilterContext, FilterOutput, FilterReturnError,
                                        OutputCheck, SafetyFilter, checked_batch_arrays, read_only, real_vector,
                                        reset_filter)
@@ -83,6 +83,7 @@ if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a 
 
 STEP_COLUMNS = frozenset({"u_nom", "u_filter", "u", "rho_pred", "infeasible", "filter_us", "action"})
 RESERVED_COLUMNS = frozenset(TIMESERIES_UNITS) | STEP_COLUMNS  # names a filter's diagnostics may not take
+kernels = lazy_module("closedloop.kernels")  # numba loads on the first step (controllers.lazy_import)
 _LIBRARY_DIRS = tuple({sysconfig.get_paths()[key] for key in ("stdlib", "platstdlib", "purelib", "platlib")})
 
 
@@ -166,119 +167,90 @@ class StepRecord:
 
 
 class ControlStep:
-    """estimate → nominal → filter → admission → monitor → command (module docstring).
+    """estimate → nominal → filter → admission → monitor → command (module docstring) for one run:
+    the B = 1 case of `BatchControlStep` (`rows`, its one row).
 
     `context` gives the pressure limits the command is clipped to (`context.limits`) and the
-    number of segments; `monitor` defaults to a `SafetyMonitor` with its default hold;
-    `clock` (s) times the filter call. `fault` is the run's first filter fault (None: none).
+    number of segments; `monitor` defaults to a `SafetyMonitor` with its default hold (its
+    `rows` are the step's monitor); `clock` (s) times the filter call. `fault` is the run's
+    first filter fault (None: none); `filter` the filter (it may be replaced between runs).
     """
 
     def __init__(self, safety_filter: SafetyFilter, nominal: NominalController, context: FilterContext,
                  monitor: SafetyMonitor | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
-        self.filter, self.nominal, self.context = safety_filter, nominal, context
-        self.n = context.robot.n_segments
+        self.context, self.n, self.clock = context, context.robot.n_segments, clock
         self.monitor = SafetyMonitor(self.n) if monitor is None else monitor
         if self.monitor.n_segments != self.n:
             raise ValueError(f"monitor has {self.monitor.n_segments} segments, the robot {self.n}")
-        self.clock = clock
-        self._nan_n = read_only(np.full(self.n, math.nan))
-        limits = context.limits
-        self._lo, self._hi = (None, None) if limits is None else (list(limits[0]), list(limits[1]))
-        self.check = OutputCheck(self.n, RESERVED_COLUMNS)
-        self.fault: FilterFault | None = None
+        self.rows = BatchControlStep([safety_filter], [nominal], context, 1, self.monitor.hold_s, clock,
+                                     monitor=self.monitor.rows)
+        # work arrays of a call (B = 1): u_filter without an output (refused), t, the admission, the action
+        self.no_output = np.full((1, self.n), math.nan)
+        self.t, self.admitted, self.action = np.empty(1), np.empty(1, dtype=bool), np.empty(1, dtype=np.int8)
+
+    @property
+    def filter(self) -> SafetyFilter:
+        return self.rows.filters[0]
+
+    @filter.setter
+    def filter(self, safety_filter: SafetyFilter) -> None:
+        self.rows.filters[0] = safety_filter
+
+    @property
+    def nominal(self) -> NominalController:
+        return self.rows.nominals[0]
+
+    @property
+    def fault(self) -> FilterFault | None:
+        """The run's first filter fault (None: none)."""
+        return self.rows.faults[0]
 
     @property
     def stopped(self) -> bool:
         """A filter fault has led to the monitor's vent: the loop ends its run (module docstring)."""
-        return self.fault is not None and self.monitor.vent_latched
+        return self.rows.faults[0] is not None and self.monitor.vent_latched  # `BatchControlStep.stopped` of its row
 
     def reset(self) -> None:
         """Before a run: no fault, a fresh output check, the filter's own `reset()` (when it has one;
         if it raises, that is the run's filter fault) and the monitor's `restart()` (its clock,
         hold and latched vent start again)."""
-        self.fault = None
-        self.check = OutputCheck(self.n, RESERVED_COLUMNS)
-        self.monitor.restart()
-        try:
-            reset_filter(self.filter)
-        except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
-            self.fault = FilterFault.from_exception(exc, "reset", math.nan)
-
-    def view(self, estimate: Estimate) -> Estimate:
-        """What user code sees of `estimate`: read-only copies of q and q̇ (the loop keeps its own)."""
-        return Estimate(estimate.t, read_only(np.array(estimate.q, dtype=float)),
-                        read_only(np.array(estimate.qd, dtype=float)), estimate.t_capture)
-
-    def nominal_command(self, view: Estimate) -> np.ndarray:
-        """u_nom of `view` as a new read-only float array (N,) hPa (FilterReturnError if the
-        nominal's return is not N real numbers)."""
-        return read_only(real_vector(self.nominal(view.t, view.q, view.qd), self.n, "the nominal command"))
-
-    def prepare(self, estimate: Estimate) -> tuple[Estimate | None, np.ndarray]:
-        """Steps 1–2 of the module docstring: (the view of `estimate` the filter is to be called
-        on, u_nom); the view is None when the filter is not to be called (a fault, now or before,
-        or the nominal refused its input: u_nom is then NaN)."""
-        if self.fault is not None:
-            return None, self._nan_n
-        try:
-            view = self.view(estimate)
-            return view, self.nominal_command(view)
-        except ControllerInputError:
-            return None, self._nan_n
-        except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
-            self.fault = FilterFault.from_exception(exc, "nominal", estimate.t)
-            return None, self._nan_n
+        self.rows.reset()
 
     def __call__(self, estimate: Estimate, flags: SafetyFlags = NO_FLAGS) -> StepRecord:
-        view, u_nom = self.prepare(estimate)
-        result, filter_us = None, math.nan
-        if view is not None and not flags.perception_stale:
-            try:
-                start = self.clock()
-                result = self.filter(view, u_nom)
-                filter_us = (self.clock() - start) * 1e6
-            except ControllerInputError:
-                result = None
-            except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
-                self.fault = FilterFault.from_exception(exc, "filter", estimate.t)
-        return self.finish(estimate, u_nom, result, filter_us, flags)
-
-    def finish(self, estimate: Estimate, u_nom: np.ndarray, result: object, filter_us: float,
-               flags: SafetyFlags = NO_FLAGS) -> StepRecord:
-        """Steps 3–6 of the module docstring for a filter's raw `result` (None: the filter was
-        not called, raised or refused its input)."""
-        output = command = None
-        if result is not None and self.fault is None:
-            try:
-                output = self.check(result)
-            except FilterReturnError as exc:
-                self.fault = FilterFault.from_exception(exc, "filter return", estimate.t, self.filter)
-            else:
-                command = self.admit(output.u)
-        if self.fault is not None:
-            flags = replace(flags, filter_fault=True)
-            output = None
-        decision = self.monitor.step(estimate.t, command, flags, admitted=True)
-        return StepRecord(estimate, u_nom, output, decision.u, decision.action, decision.reasons, filter_us)
-
-    def admit(self, u_filter: np.ndarray) -> np.ndarray | None:
-        """u_filter (N,) hPa, a float array the step owns (`OutputCheck` made it), clipped to the
-        limits; None when it is not finite."""
-        values = u_filter.tolist()  # Python floats: faster than numpy for N ~ 2
-        if not all(map(math.isfinite, values)):
-            return None
-        if self._lo is None:
-            return u_filter
-        return np.array([min(max(v, lo), hi) for v, lo, hi in zip(values, self._lo, self._hi)])
+        """The step at `estimate` with `flags`: `BatchControlStep.__call__` for its one row, through the
+        same row helpers, admission and monitor, with the row's own objects in and out (the estimate,
+        its FilterOutput) instead of (1, ...) arrays."""
+        rows = self.rows
+        output, u_nom, filter_us = None, rows.nan_row, math.nan
+        faults = rows.faults
+        if faults[0] is None:
+            q, qd = rows.views(estimate.q, estimate.qd)
+            value = rows.nominal_row(0, estimate.t, q, qd)
+            if value is not None:
+                u_nom = value
+                if not flags.perception_stale:
+                    output, filter_us = rows.filter_row(0, Estimate(estimate.t, q, qd, estimate.t_capture), value)
+            if faults[0] is not None:  # a fault's row has no output
+                output = None
+        t = self.t
+        t[0] = estimate.t
+        sent, action = np.empty((1, self.n)), self.action  # sent: the record's u; action read only here
+        reasons = rows.decide(t, self.no_output if output is None else output.u.reshape(1, self.n), rows.all_rows,
+                              None if flags is NO_FLAGS else [flags], sent, self.admitted, action)
+        if reasons is None:  # the one row RUNs
+            return StepRecord(estimate, u_nom, output, sent[0], SafeAction.RUN, (), filter_us)
+        return StepRecord(estimate, u_nom, output, sent[0], ACTIONS[action[0]], reasons[0], filter_us)
 
     def wait(self, estimate: Estimate) -> StepRecord:
         """A call before the loop has its first estimate (camera start-up): the filter and the
         monitor are not called; the valves vent (u = 0 hPa) without latching. The nominal is
         evaluated for the record (NaN when it raises or returns what the contract refuses)."""
-        try:
-            u_nom = self.nominal_command(self.view(estimate)) if self.fault is None else self._nan_n
-        except Exception:  # noqa: BLE001 - recorded as NaN; the fault surfaces at the first real call
-            u_nom = self._nan_n
+        u_nom = self.rows.nan_row
+        if self.fault is None:
+            try:
+                u_nom = self.rows.nominal_value(0, estimate.t, *self.rows.views(estimate.q, estimate.qd))
+            except Exception:  # noqa: BLE001 - recorded as NaN; the fault surfaces at the first real call
+                u_nom = self.rows.nan_row
         return StepRecord(estimate, u_nom, None, np.zeros(self.n), SafeAction.VENT, ("perception_stale",), math.nan)
 
 
@@ -321,27 +293,27 @@ class BatchStepRecord:
 
 
 class BatchControlStep:
-    """B control steps at once, row b the `ControlStep` of run b (module docstring), in numpy.
+    """B control steps at once, row b the control step of run b (module docstring); `ControlStep` is B = 1.
 
     safety_filter: one filter for all rows, or B, one per row; nominal: likewise (None: the loop
     hands every call its nominal commands, `u_nom`, e.g. the environment's actions). A shared filter
     with `filter_batch` (the plug-in contract, `controllers.safety_filter`) is called once per
     control call for all the rows whose step calls it; any other filter is called row by row
-    (one shared filter without `filter_batch` must then be stateless). What each row's step does
-    is `ControlStep`'s: the same views (read-only copies), the same admission (the output
-    check, non-finite refused, the clip to `context.limits`), the same faults (a row's first,
-    after which its user code is not called again; an exception or refused return of
-    `filter_batch` is a fault of every row it was called for) and the same monitor
-    (`BatchSafetyMonitor`, `hold_s`), so a row's commands, records and fault are, bit for bit,
-    those of a `ControlStep` of that run alone with the same filter calls (tests/test_monitor.py,
-    tests/test_trust_boundary.py). Vectorised: the admission, the monitor's common case, the
-    figures; per row: the user code that has no batch form (nominal, filters without
-    `filter_batch`) and the rows that hold or vent.
+    (one shared filter without `filter_batch` must then be stateless). Each row has its views
+    (read-only copies), its output check, its first fault (after which its user code is not
+    called again; an exception or refused return of `filter_batch` is a fault of every row it
+    was called for) and its monitor row (`BatchSafetyMonitor`, `hold_s`; or `monitor`, given).
+    Written once for every B: the user code row by row (`nominal_row`, `filter_row`) or batched,
+    the admission and the monitor's RUN case in one compiled call each over the batch axis
+    (`closedloop.kernels`), the rows that hold or vent through `closedloop.monitor.decide`.
+    `__call__` takes and returns arrays with the batch axis; `ControlStep` calls the same helpers
+    for its one row with an `Estimate` in and a `StepRecord` out, without a (1, ...) record.
     """
 
     def __init__(self, safety_filter: SafetyFilter | Sequence[SafetyFilter],
                  nominal: NominalController | Sequence[NominalController] | None, context: FilterContext,
-                 n_sims: int, hold_s: float = DEFAULT_HOLD_S, clock: Callable[[], float] = time.perf_counter) -> None:
+                 n_sims: int, hold_s: float = DEFAULT_HOLD_S, clock: Callable[[], float] = time.perf_counter,
+                 monitor: BatchSafetyMonitor | None = None) -> None:
         self.n_sims, self.n, self.context, self.clock = n_sims, context.robot.n_segments, context, clock
         self.per_row_filters = isinstance(safety_filter, Sequence)
         self.filters = list(safety_filter) if self.per_row_filters else [safety_filter] * n_sims
@@ -354,12 +326,19 @@ class BatchControlStep:
         self.nominal_batch = getattr(shared_nominal, "nominal_batch", None)  # None: the nominal is called per row
         self.nominal_missing = any(nom is None for nom in self.nominals)
         self.batched = not self.per_row_filters and callable(getattr(safety_filter, "filter_batch", None))
-        self.monitor = BatchSafetyMonitor(n_sims, self.n, hold_s)
+        self.monitor = BatchSafetyMonitor(n_sims, self.n, hold_s) if monitor is None else monitor
+        if (self.monitor.n_sims, self.monitor.n_segments) != (n_sims, self.n):
+            raise ValueError(f"monitor has {self.monitor.n_sims} runs of {self.monitor.n_segments} segments, "
+                             f"the step {n_sims} of {self.n}")
         limits = context.limits
-        self._lo, self._hi = (None, None) if limits is None else (np.array(limits[0]), np.array(limits[1]))
+        # (2, N) hPa: lo, hi; without limits ±inf, with which the clip keeps every float (closedloop.kernels)
+        self.limits = np.array([[-math.inf] * self.n, [math.inf] * self.n] if limits is None else [limits[0], limits[1]],
+                               dtype=float)
         self.faults: list[FilterFault | None] = [None] * n_sims
         self.faulted = np.zeros(n_sims, dtype=bool)
         self.checks = [OutputCheck(self.n, RESERVED_COLUMNS) for _ in range(n_sims)]
+        self.all_rows = np.ones(n_sims, dtype=bool)
+        self.nan_row = read_only(np.full(self.n, math.nan))  # u_nom of a row whose nominal was not called or refused
 
     @property
     def stopped(self) -> np.ndarray:
@@ -367,10 +346,10 @@ class BatchControlStep:
         return self.faulted & self.monitor.latched
 
     def reset(self, rows: np.ndarray | None = None, filters: bool = True) -> None:
-        """`ControlStep.reset` of the rows in `rows` ((B,) bool; None: all): no fault, a fresh output
-        check, the monitor's restart and, with `filters`, the filters' `reset()` (a shared
-        filter's once, whose fault is then every row's)."""
-        rows = np.ones(self.n_sims, dtype=bool) if rows is None else rows
+        """Before a run of the rows in `rows` ((B,) bool; None: all): no fault, a fresh output check,
+        the monitor's restart and, with `filters`, the filters' `reset()` (a shared filter's once,
+        whose fault is then every row's)."""
+        rows = self.all_rows if rows is None else rows
         ids = np.flatnonzero(rows).tolist()
         self.monitor.restart(rows)
         self.faulted[rows] = False
@@ -392,6 +371,62 @@ class BatchControlStep:
             self.faults[b] = fault
             self.faulted[b] = True
 
+    @staticmethod
+    def views(q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What user code sees of q and q̇ (any shape): read-only copies (the loop keeps its own)."""
+        return read_only(np.array(q, float)), read_only(np.array(qd, float))
+
+    def nominal_value(self, b: int, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Row b's nominal at (t s, q rad, q̇ rad/s: read-only views) as a new read-only float array
+        (N,) hPa; what it raises propagates (FilterReturnError: not N real numbers)."""
+        return read_only(real_vector(self.nominals[b](t, q, qd), self.n, "the nominal command"))
+
+    def nominal_row(self, b: int, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray | None:
+        """`nominal_value`, or None when the nominal refused its input (ControllerInputError) or
+        faulted (any other exception: row b's fault)."""
+        try:
+            return self.nominal_value(b, t, q, qd)
+        except ControllerInputError:
+            return None
+        except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
+            self._fault(b, FilterFault.from_exception(exc, "nominal", t))
+            return None
+
+    def filter_row(self, b: int, view: Estimate, u_nom: np.ndarray) -> tuple[FilterOutput | None, float]:
+        """Row b's filter on its view and u_nom, timed: (its output through row b's output check,
+        None when it refused its input, raised or returned what the contract refuses (the last two
+        row b's fault); the call's µs, NaN when it raised)."""
+        safety_filter = self.filters[b]
+        try:
+            start = self.clock()
+            result = safety_filter(view, u_nom)
+            filter_us = (self.clock() - start) * 1e6
+        except ControllerInputError:
+            return None, math.nan
+        except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
+            self._fault(b, FilterFault.from_exception(exc, "filter", view.t))
+            return None, math.nan
+        try:
+            return self.checks[b](result), filter_us
+        except FilterReturnError as exc:
+            self._fault(b, FilterFault.from_exception(exc, "filter return", view.t, safety_filter))
+            return None, filter_us
+
+    def decide(self, t: np.ndarray, u_filter: np.ndarray, rows: np.ndarray, flags: list[SafetyFlags] | None,
+               sent: np.ndarray, admitted: np.ndarray, action: np.ndarray) -> list[tuple[str, ...]] | None:
+        """Admission and monitor of the rows in `rows` at t (B,) s: u_filter (B, N) hPa what the filters
+        returned (NaN in a row without an output: refused), admitted (`admitted` (B,), a work array)
+        and decided in one compiled call (`kernels.admit_and_run`), the rows that hold or vent by the
+        monitor (`BatchSafetyMonitor.settle`). Writes the command sent (B, N) hPa and the action codes
+        (B,) into `sent` and `action`; returns each row's reasons, None when every stepped row RUNs."""
+        monitor = self.monitor
+        pending = kernels.admit_and_run(u_filter, self.limits, t, self.faulted, rows,
+                                        monitor.quiet if flags is None else monitor.quiet_rows(flags), monitor.state,
+                                        monitor.bits, sent, admitted, action)
+        if pending:  # a bad time, or rows that hold or vent
+            return monitor.settle(pending, t, sent, admitted, self.faulted, flags, sent, action).reasons
+        return None
+
     def __call__(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray, t_capture: np.ndarray | None = None,
                  rows: np.ndarray | None = None, u_nom: np.ndarray | None = None,
                  flags: list[SafetyFlags] | None = None) -> BatchStepRecord:
@@ -403,31 +438,30 @@ class BatchControlStep:
         n_sims, n = self.n_sims, self.n
         t = np.asarray(t, dtype=float)
         t_capture = t if t_capture is None else np.asarray(t_capture, dtype=float)
-        rows = np.ones(n_sims, dtype=bool) if rows is None else rows
-        stale = np.zeros(n_sims, dtype=bool) if flags is None else np.array([f.perception_stale for f in flags])
+        rows = self.all_rows if rows is None else rows
         live = rows & ~self.faulted
         ts, tcs = t.tolist(), t_capture.tolist()
-        q_view, qd_view = read_only(np.array(q, dtype=float)), read_only(np.array(qd, dtype=float))
+        q_view, qd_view = self.views(q, qd)
         nominal_ok = live.copy()
         if u_nom is None:
             if self.nominal_missing:
                 raise ValueError("u_nom must be given: this step was made without a nominal controller")
             nominal = np.full((n_sims, n), math.nan)
-            if self.nominal_batch is not None and live.any():
-                self._call_nominal_batch(live, ts, t, q_view, qd_view, nominal, nominal_ok)
-            for b in (np.flatnonzero(live).tolist() if self.nominal_batch is None else ()):
-                try:
-                    nominal[b] = real_vector(self.nominals[b](ts[b], q_view[b], qd_view[b]), n, "the nominal command")
-                except ControllerInputError:
-                    nominal_ok[b] = False
-                except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
-                    self._fault(b, FilterFault.from_exception(exc, "nominal", ts[b]))
-                    nominal_ok[b] = False
+            if self.nominal_batch is not None:
+                if live.any():
+                    self._call_nominal_batch(live, ts, t, q_view, qd_view, nominal, nominal_ok)
+            else:
+                for b in np.flatnonzero(live).tolist():
+                    value = self.nominal_row(b, ts[b], q_view[b], qd_view[b])
+                    if value is None:
+                        nominal_ok[b] = False
+                    else:
+                        nominal[b] = value
         else:
             nominal = np.array(u_nom, dtype=float)
         nominal[~nominal_ok] = math.nan
         read_only(nominal)
-        called = nominal_ok & ~stale
+        called = nominal_ok if flags is None else nominal_ok & ~np.array([f.perception_stale for f in flags])
         output = np.zeros(n_sims, dtype=bool)
         u_filter = np.full((n_sims, n), math.nan)
         rho_pred = np.full(n_sims, math.nan)
@@ -441,19 +475,21 @@ class BatchControlStep:
                              filter_action, filter_us)
         else:
             for b in ids:
-                self._call_row(b, Estimate(ts[b], q_view[b], qd_view[b], tcs[b]), nominal[b], output, u_filter,
-                               rho_pred, infeasible, filter_action, outputs, filter_us)
+                checked, filter_us[b] = self.filter_row(b, Estimate(ts[b], q_view[b], qd_view[b], tcs[b]), nominal[b])
+                if checked is not None:
+                    output[b], outputs[b], filter_action[b] = True, checked, checked.action
+                    u_filter[b], rho_pred[b], infeasible[b] = checked.u, checked.rho_pred, checked.infeasible
         faulted = self.faulted
-        if faulted.any():  # a fault's row has no output (`ControlStep.finish`)
+        if faulted.any():  # a fault's row has no output
             output &= ~faulted
             u_filter[faulted], rho_pred[faulted], infeasible[faulted] = math.nan, math.nan, False
             for b in np.flatnonzero(faulted).tolist():
                 filter_action[b] = outputs[b] = None
-        admitted = output & np.all(np.isfinite(u_filter), axis=1)
-        command = u_filter if self._lo is None else np.minimum(np.maximum(u_filter, self._lo), self._hi)
-        decision = self.monitor.step(t, command, admitted, faulted, rows, flags)
+        sent, action = self.monitor.outputs()
+        reasons = self.decide(t, u_filter, rows, flags, sent, np.empty(n_sims, dtype=bool), action)
         return BatchStepRecord(t, q_view, qd_view, t_capture, nominal, output, u_filter, rho_pred, infeasible,
-                               filter_action, outputs, decision.u, decision.action, decision.reasons, filter_us)
+                               filter_action, outputs, sent, action, [()] * n_sims if reasons is None else reasons,
+                               filter_us)
 
     def _call_nominal_batch(self, live: np.ndarray, ts: list[float], t: np.ndarray, q: np.ndarray, qd: np.ndarray,
                             nominal: np.ndarray, nominal_ok: np.ndarray) -> None:
@@ -506,27 +542,6 @@ class BatchControlStep:
             for b, action in zip(ids, actions):
                 filter_action[b] = action
 
-    def _call_row(self, b: int, view: Estimate, u_nom: np.ndarray, output: np.ndarray, u_filter: np.ndarray,
-                  rho_pred: np.ndarray, infeasible: np.ndarray, filter_action: list[str | None],
-                  outputs: list[FilterOutput | None], filter_us: np.ndarray) -> None:
-        """Row b's filter on its view, its output checked (`ControlStep.__call__` and `finish`) into the row arrays."""
-        safety_filter = self.filters[b]
-        try:
-            start = self.clock()
-            result = safety_filter(view, u_nom)
-            filter_us[b] = (self.clock() - start) * 1e6
-        except ControllerInputError:
-            return
-        except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
-            self._fault(b, FilterFault.from_exception(exc, "filter", view.t))
-            return
-        try:
-            checked = self.checks[b](result)
-        except FilterReturnError as exc:
-            self._fault(b, FilterFault.from_exception(exc, "filter return", view.t, safety_filter))
-            return
-        output[b], outputs[b], filter_action[b] = True, checked, checked.action
-        u_filter[b], rho_pred[b], infeasible[b] = checked.u, checked.rho_pred, checked.infeasible
 
 
 def fault_log_name(label: str) -> str:

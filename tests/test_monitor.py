@@ -108,18 +108,20 @@ SEQUENCE = [(SafetyFlags(), U), (SafetyFlags(perception_stale=True), U + 1), (Sa
             (SafetyFlags(), U + 3), (SafetyFlags(interrupted=True), U + 4), (SafetyFlags(), U + 5)]
 
 
-def test_admitted_commands_get_the_same_decisions_and_are_kept_without_a_copy():
+def test_admitted_commands_get_the_same_decisions_and_the_monitor_keeps_its_own_copy():
     checked, trusted = SafetyMonitor(2, hold_s=0.5), SafetyMonitor(2, hold_s=0.5)
     for k, (flags, u) in enumerate(SEQUENCE):
         a = checked.step(k * DT, u, flags)
         b = trusted.step(k * DT, None if u is None else u.copy(), flags, admitted=True)
         assert (a.action, a.reasons) == (b.action, b.reasons), k
         np.testing.assert_array_equal(a.u, b.u)
-    u = U.copy()
-    d = SafetyMonitor(2).step(0.0, u, admitted=True)
-    assert d.action is SafeAction.RUN and d.u is u  # trusted: not copied
-    d = SafetyMonitor(2).step(0.0, u)
-    assert d.u is not u and np.array_equal(d.u, u)  # checked: the monitor keeps its own copy
+    for admitted in (True, False):
+        u, monitor = U.copy(), SafetyMonitor(2, hold_s=0.5)
+        d = monitor.step(0.0, u, admitted=admitted)
+        assert d.action is SafeAction.RUN and d.u is not u and np.array_equal(d.u, U)
+        u[:] = 999.0  # the caller's array changes after the call: the hold sends what was sent with RUN
+        held = monitor.step(0.1, None)
+        assert held.action is SafeAction.HOLD and np.array_equal(held.u, U)
 
 
 FLAG_CHOICES = (SafetyFlags(), SafetyFlags(), SafetyFlags(), SafetyFlags(perception_stale=True),

@@ -11,7 +11,9 @@ Per tree and tuning, in one process (after a warm-up call of the scenario):
   the commands u the loop sent, on the same model (`bench_mujoco_contact.replay_mj_step`);
 - t_plant: the same commands through `MujocoPlant.step` (physics, `mj_forward`, the state;
   `bench_mujoco_contact.replay_plant`);
-- filter_us: the loop's mean filter time (µs, its own `filter_us` column: wall clock).
+- filter_us: the loop's mean filter time (µs, its own `filter_us` column: wall clock);
+- the control step alone (`control_step_us`): CPU µs per call of `ControlStep` and of
+  `BatchControlStep` at B = 1 with a pass-through filter (the step's own cost), min over the repeats.
 
 Figures: fraction = t_mj_step / t_loop (the loop's speed as a fraction of bare mj_step's:
 1 would be a loop that costs nothing beyond the physics; in CPU time, and in wall time in
@@ -50,6 +52,46 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parents[1]  # this tree
 TARGET_FRACTION = 0.5  # issue 23: the serial loop at >= 0.5 of bare mj_step
 TIMES = ("t_loop", "t_mj_step", "t_plant", "wall_loop", "wall_mj_step", "wall_plant")  # CPU s, wall s
+STEP_TIMES = ("step_us", "batch_step_us_B1")  # CPU µs per control call of the step alone
+STEP_CALLS = 20000
+
+
+def control_step_us(calls: int = STEP_CALLS) -> dict[str, float]:
+    """CPU µs per call of the control step alone (no plant, no recorder): the paper's two-segment
+    robot and sinusoid, limits on, a pass-through filter (the step's own cost, not a filter's):
+    `ControlStep` (what every serial loop calls) and `BatchControlStep` at B = 1."""
+    import numpy as np
+    from closedloop.step import BatchControlStep, ControlStep
+    from controllers.nominal import SinusoidNominal
+    from controllers.params import reference_robot
+    from controllers.safe_set import paper_safe_set
+    from controllers.safety_filter import Estimate, FilterContext
+
+    context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
+    nominal = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))
+
+    def pass_through(estimate, u_nom):
+        return u_nom
+
+    def per_call_us(call, n: int) -> float:  # after a warm-up (a compiled kernel loads on its first call)
+        call(0, 100)
+        start = time.process_time()
+        call(100, 100 + n)
+        return (time.process_time() - start) / n * 1e6
+
+    def scalar(first: int, last: int) -> None:
+        for k in range(first, last):
+            step(Estimate(k * 1e-3, q, q, k * 1e-3))
+
+    def batched(first: int, last: int) -> None:
+        for k in range(first, last):
+            batch(np.full(1, k * 1e-3), qb, qb)
+
+    step, q = ControlStep(pass_through, nominal, context), np.zeros(2)
+    batch, qb = BatchControlStep([pass_through], [nominal], context, 1), np.zeros((1, 2))
+    step.reset()
+    batch.reset()
+    return {"step_us": per_call_us(scalar, calls), "batch_step_us_B1": per_call_us(batched, calls)}
 
 
 def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[str, float | str]]:
@@ -73,7 +115,7 @@ def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[st
     scenario = get("mujoco_contact")
     plant = MujocoPlant.from_config(control_dt=CONTROL_DT, links_per_segment=DEFAULT_LINKS_PER_SEGMENT,
                                     physics_dt=DEFAULT_PHYSICS_DT)
-    out: dict[str, dict[str, float | str]] = {}
+    out: dict[str, dict[str, float | str]] = {"step": control_step_us()}
     with tempfile.TemporaryDirectory() as tmp, data_only(), contextlib.redirect_stdout(io.StringIO()):
         (Path(tmp) / "warm").mkdir()
         scenario.run(Path(tmp) / "warm", duration=0.05, t0=t0, tunings=",".join(tunings), progress=False)
@@ -140,9 +182,13 @@ def main() -> None:
         trees["against"] = args.against.resolve()
 
     best: dict[str, dict[str, dict]] = {name: {} for name in trees}
+    steps: dict[str, dict[str, float]] = {}
     for _ in range(args.repeats):
         for name, tree in trees.items():
-            for tuning, got in run_child(tree, tunings, args.duration, args.t0).items():
+            child = run_child(tree, tunings, args.duration, args.t0)
+            step = child.pop("step")
+            steps[name] = {key: min(steps.get(name, step)[key], step[key]) for key in STEP_TIMES}
+            for tuning, got in child.items():
                 kept = best[name].setdefault(tuning, dict(got))
                 for key in (*TIMES, "filter_us"):
                     kept[key] = min(kept[key], got[key])
@@ -167,6 +213,13 @@ def main() -> None:
             print(f"  {tuning}: loop speed-up {entry['speedup']:.3f}x against {trees['against']}; commands "
                   f"{'bit-identical' if entry['commands_identical'] else 'DIFFER'}")
         report["runs"][tuning] = entry
+    report["control_step_us"] = steps
+    print(f"  control step alone (pass-through filter, {STEP_CALLS} calls), CPU µs per call: "
+          + "; ".join(f"{name}: ControlStep {steps[name]['step_us']:.2f}, BatchControlStep B = 1 "
+                      f"{steps[name]['batch_step_us_B1']:.2f}" for name in trees))
+    if "against" in trees:
+        report["control_step_speedup"] = steps["against"]["step_us"] / steps["this"]["step_us"]
+        print(f"  ControlStep speed-up {report['control_step_speedup']:.3f}x against {trees['against']}")
     worst = min(report["runs"][t]["this"]["fraction"] for t in tunings)
     report["fraction_min"] = worst
     print(f"  worst fraction {worst:.3f} (target >= {TARGET_FRACTION:g}: {'met' if worst >= TARGET_FRACTION else 'NOT met'})")
