@@ -45,6 +45,10 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
 - the user code, row by row (`nominal_row`, `filter_row`: the views, the call, the output check,
   the fault), or once for many rows (a shared nominal's `nominal_batch`, a shared filter's
   `filter_batch`: an exception or refused return is the fault of each row it was called for);
+  a shared filter that keeps a history per row says so by a `rows` keyword: its `filter_batch`
+  is then told the indices of the rows it is called for (`rows`, (k,) int, ascending), and its
+  `reset` the indices of the rows that restart when only some do (the vector environment's
+  autoreset), so that row b's history is run b's wherever other rows skip a call or restart;
 - the admission and the monitor's RUN case, one compiled call over the batch axis
   (`closedloop.kernels.admit_and_run`: non-finite rows refused, the clip min(max(u, lo), hi) as
   Python's min and max, RUN for the admitted rows with nothing raised or latched), and every other
@@ -326,6 +330,9 @@ class BatchControlStep:
         self.nominal_batch = getattr(shared_nominal, "nominal_batch", None)  # None: the nominal is called per row
         self.nominal_missing = any(nom is None for nom in self.nominals)
         self.batched = not self.per_row_filters and callable(getattr(safety_filter, "filter_batch", None))
+        # a shared filter with a history per row (module docstring): told which rows it serves
+        self.batch_rows = self.batched and takes_keyword(safety_filter.filter_batch, "rows")
+        self.reset_rows = not self.per_row_filters and takes_keyword(getattr(safety_filter, "reset", None), "rows")
         self.monitor = BatchSafetyMonitor(n_sims, self.n, hold_s) if monitor is None else monitor
         if (self.monitor.n_sims, self.monitor.n_segments) != (n_sims, self.n):
             raise ValueError(f"monitor has {self.monitor.n_sims} runs of {self.monitor.n_segments} segments, "
@@ -348,7 +355,8 @@ class BatchControlStep:
     def reset(self, rows: np.ndarray | None = None, filters: bool = True) -> None:
         """Before a run of the rows in `rows` ((B,) bool; None: all): no fault, a fresh output check,
         the monitor's restart and, with `filters`, the filters' `reset()` (a shared filter's once,
-        whose fault is then every row's)."""
+        whose fault is then every row's; `reset(rows=...)` with the restarting rows' indices when it
+        takes them and not every row restarts)."""
         rows = self.all_rows if rows is None else rows
         ids = np.flatnonzero(rows).tolist()
         self.monitor.restart(rows)
@@ -358,9 +366,13 @@ class BatchControlStep:
             self.checks[b] = OutputCheck(self.n, RESERVED_COLUMNS)
         if not filters:
             return
+        some = self.reset_rows and len(ids) < self.n_sims
         for b in ids if self.per_row_filters else ids[:1]:
             try:
-                reset_filter(self.filters[b])
+                if some:
+                    self.filter.reset(rows=read_only(np.array(ids)))
+                else:
+                    reset_filter(self.filters[b])
             except Exception as exc:  # noqa: BLE001 - a filter fault, recorded (module docstring)
                 fault = FilterFault.from_exception(exc, "reset", math.nan)
                 for row in ([b] if self.per_row_filters else ids):
@@ -524,7 +536,10 @@ class BatchControlStep:
         where = "filter_batch"
         try:
             start = self.clock()
-            result = self.filter.filter_batch(batch, read_only(nominal[called]))
+            if self.batch_rows:
+                result = self.filter.filter_batch(batch, read_only(nominal[called]), rows=read_only(np.array(ids)))
+            else:
+                result = self.filter.filter_batch(batch, read_only(nominal[called]))
             per_row_us = (self.clock() - start) * 1e6 / len(ids)
             where = "filter return"
             u, actions, infeasible_rows, rho = checked_batch_arrays(result, len(ids), self.n)
@@ -542,6 +557,18 @@ class BatchControlStep:
             for b, action in zip(ids, actions):
                 filter_action[b] = action
 
+
+
+def takes_keyword(function: object, name: str) -> bool:
+    """Whether `function` (a user's method, or None) can be called with the keyword argument `name`."""
+    if not callable(function):
+        return False
+    try:
+        parameters = inspect.signature(function).parameters.values()
+    except (TypeError, ValueError):  # no signature to read (a builtin): called without it
+        return False
+    return any(p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) or p.kind == p.VAR_KEYWORD
+               for p in parameters)
 
 
 def fault_log_name(label: str) -> str:

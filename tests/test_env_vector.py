@@ -140,13 +140,16 @@ def test_b_arms_task_functions_equal_their_single_arm_calls_row_by_row(cost):
 @pytest.mark.parametrize("changes", [
     {"observation": "estimate"},
     {"observation": "privileged", "normalise": True, "state_noise_std": (0.01, 0.1), "cost": "force_excess"},
+    {"filter": "qsg", "filter_params": {"rate_limit_hPa_per_s": 2000.0}},
 ])
 def test_vector_env_equals_sync_vector_env_bit_for_bit_through_autoresets(changes):
-    """Per-arm filters ("none": one instance per arm), random initial shapes, seeds per sub-env,
-    episodes of 6 env steps of 2 control periods (truncated by the task): every observation,
-    reward, flag and info equal to B single envs', autoresets included."""
+    """Per-arm filters ("none": one instance per arm) or one shared qsg (filter_batch with a history per
+    arm, each arm's reset alone at its autoreset), random initial shapes, seeds per sub-env, episodes of
+    6 env steps of 2 control periods (truncated by the task): every observation, reward, flag and info
+    equal to B single envs', autoresets included."""
     kwargs = {**FAST, "q0_std": 0.1, "episode_steps": 6, "action_repeat": 2, "filter": "none", **changes}
     vector, sync = _pair(3, **kwargs)
+    assert (vector.shared_filter is not None) == (kwargs["filter"] == "qsg")
     _assert_same_step(vector.reset(seed=7), sync.reset(seed=7), True, "reset")
     ended = np.zeros(3, dtype=int)
     for k, actions in enumerate(_actions(3, 20)):

@@ -317,3 +317,32 @@ def test_a_batched_pcc_loop_with_one_shared_governor_equals_its_serial_loops():
         want = run_figures(log, plant.control_dt, True, 1.0)
         assert {k: batch.run(b)[k] for k in ("rho_min_pred", "infeasible_steps", "u_peak_abs_hPa")} == {
             k: want[k] for k in ("rho_min_pred", "infeasible_steps", "u_peak_abs_hPa")}
+
+
+def test_a_shared_governor_in_the_batched_step_keeps_each_rows_history_when_rows_skip_and_restart():
+    """The batched step tells a shared governor which rows it serves (`rows`) and which restart: a row
+    that skips periods (the loop's `rows`, a stale estimate) or restarts alone (the vector environment's
+    autoreset) leaves the others' histories as their own governors' would be, bit for bit."""
+    from closedloop.step import BatchControlStep
+
+    ctx = FilterContext.for_robot(ROBOT, SAFE, 0.01)
+    rng = np.random.default_rng(11)
+    n_rows, periods = 3, 40
+    shared = BatchControlStep(QuasiStaticGovernor(ctx, rate_limit_hPa_per_s=3000.0), None, ctx, n_rows)
+    assert shared.batch_rows and shared.reset_rows
+    alone = [QuasiStaticGovernor(ctx, rate_limit_hPa_per_s=3000.0) for _ in range(n_rows)]
+    shared.reset()
+    for k in range(periods):
+        t = np.full(n_rows, k * 0.01)
+        q, qd = rng.normal(0.3, 0.2, (n_rows, 2)), rng.normal(0.0, 0.5, (n_rows, 2))
+        u_nom = rng.uniform(-150.0, 150.0, (n_rows, 2))
+        called = np.array([True, k % 3 != 1, True])  # row 1 skips every third period
+        if k == 25:  # row 2 restarts alone
+            shared.reset(np.array([False, False, True]))
+            alone[2].reset()
+        record = shared(t, q, qd, rows=called, u_nom=u_nom)
+        for b in np.flatnonzero(called):
+            want = alone[b](Estimate(float(t[b]), q[b], qd[b], float(t[b])), u_nom[b])
+            assert np.array_equal(record.u_filter[b], want.u), (k, b)
+            assert record.filter_action[b] == want.action
+    assert not any(shared.faults)

@@ -63,8 +63,9 @@ observation and info, reward 0, terminated = truncated = False. Its simulation i
 Seeds (as `SyncVectorEnv`): `reset(seed=s)` seeds sub-environment b's task with s + b, a
 list seeds b with its b-th entry (None: not reseeded), `reset()` lets each continue its
 generator. A filter shared by all arms (one with `filter_batch`) is reset (its `reset()`)
-by `reset()` only, not when one arm's episode restarts: its state, if it keeps one, spans
-all arms (the `filter_batch` contract, `controllers.safety_filter`); per-arm
+by `reset()`; when one arm's episode restarts, only if it keeps a history per row (its
+`reset` takes `rows`, `closedloop.step`: then `reset(rows=[b])`, as qsg), for otherwise its
+state spans all arms (the `filter_batch` contract, `controllers.safety_filter`); per-arm
 filters are reset at each of their episodes, as in the single environment.
 
 Returns: observations a Dict of (B, ...) arrays (`gymnasium.vector.utils.batch_space` of
@@ -210,12 +211,12 @@ class ArmVectorEnv(VectorEnv):
     def _reset_arm(self, b: int, seed: int | None, reset_row: bool) -> None:
         """Sub-environment b's new episode, as dm_control's `Environment.reset` and `GymArmEnv.reset`, into
         row b of the arrays; `reset_row`: row b of the batched step too (an autoreset: its monitor and,
-        for per-arm filters, its filter's `reset()`; a shared filter is reset by `reset()` only)."""
+        for per-arm filters, its filter's `reset()`, for a shared one with a history per row its `reset(rows=[b])`)."""
         task, arm = self.tasks[b], self.arms[b]
         if seed is not None:
             task.seed(seed)
         if reset_row:
-            self.control.reset(np.arange(self.num_envs) == b, filters=self.shared_filter is None)
+            self.control.reset(np.arange(self.num_envs) == b, filters=self.shared_filter is None or self.control.reset_rows)
         arm.reset()
         task.initialize_episode(arm)
         arm.after_reset()
