@@ -306,7 +306,7 @@ def test_gain_ratios_are_checked():
 # -- the online gain estimate (controllers.gain_estimate; `gain_estimate`) ---------------------------------------
 
 def approach_then_push(t):
-    """40 hPa on both segments (the arm at rest 2 cm short of the plate) for 2 s, then the 150 hPa push."""
+    """40 hPa on both segments (the arm at rest clear of the plate by more than gain_clearance_m) for 2 s, then 150 hPa."""
     return 40.0 if t < 2.0 else 150.0
 
 
