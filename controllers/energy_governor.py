@@ -546,23 +546,24 @@ class EnergyGovernor:
         the ends' terms), or at once when it fell back to the prior."""
         estimator, previous = self.gain_estimator, self._gain_previous
         self._gain_previous = (t_capture, q, qd)
+        moving = previous is not None and 0.0 < t_capture - previous[0] <= self.gain_difference
+        if not moving and max(abs(v) for v in qd.tolist()) > self.gain_rest:
+            return  # neither kind of sample (checked before the kinematics: the common case at the camera rate)
         x, y = self._tip(q)
         if max(nx * x + ny * y - d for nx, ny, d in self._facets) > -self.gain_clearance:
             return
-        if previous is not None and 0.0 < t_capture - previous[0] <= self.gain_difference:
+        if moving:
             t0, q0, qd0 = previous
             h = t_capture - t0
             q_mid, qd_mid = 0.5 * (q0 + q), 0.5 * (qd0 + qd)
             terms = self.dynamics.evaluate(q_mid, qd_mid)
             residual = (terms.mass @ ((qd - qd0) / h) + terms.bias) / np.asarray(self._k)
             accepted = estimator.sample(self.predictor.pressure_at(t0 + 0.5 * h), residual)
-        elif max(abs(v) for v in qd.tolist()) <= self.gain_rest:
+        else:
             p = self.predictor.pressure_at(t_capture)
             if np.any(np.abs(estimator.a * (p - self.predictor.command_at(t_capture))) > estimator.noise_rad):
                 return
             accepted = estimator.sample(p, estimator.rest_residual(q, qd))
-        else:
-            return
         if accepted:
             lo, hi = estimator.interval
             width = self.gain_hi - self.gain_lo
