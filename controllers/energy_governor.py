@@ -323,7 +323,8 @@ PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's t
 ε ≥ 0 and below the table's saturation ½ k_min reach² (`EscapeEnergyTable.saturation_J`, 0.72 J on the
 reference arm: a larger ε certifies no step at all), the stiffness ratios
 0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, the gain ratios 0.1 ≤ lo ≤ hi ≤ 10 (other than 1 only with the contact
-certificate), τ_p ≤ 10 s.
+certificate), τ_p ≤ 10 s; the gain estimate's Δ in (0, 1] rad (0 would trust a perfect model), |q̇| ≤ 10 rad/s
+for a rest sample, a clearance ≤ 1 m, and estimates ≤ 0.1 s apart for a difference (beyond, no acceleration).
 """
 
 BOUND_BELOW_J = 0.02

@@ -29,7 +29,7 @@ INFORMATIVE·(hi − lo)): every subset of samples gives a valid bound, and the 
 (the arm near its vented shape) tell little of g while their δ is largest where the arm starts
 from rest: the MuJoCo rod's fast modes after the first pressure step read as δ up to 0.013 rad
 in its first 5 ms (`softcbf bench` case mujoco_push_120, p from 0 towards 74 hPa), ≤ 0.002 rad
-from 50 ms (x ≥ 0.12 rad) on; the quarter keeps x ≥ 0.1 rad for Δ = 5e-3 rad and the prior
+from 80 ms (x ≥ 0.12 rad) on; the quarter keeps x ≥ 0.1 rad for Δ = 5e-3 rad and the prior
 [0.9, 1.1].
 
 Interval. The narrowed interval after each accepted sample is I ← I ∩ [ĝ − e, ĝ + e], starting
