@@ -110,6 +110,23 @@ few hPa (`softcbf.bench.PUSHES`: 57.0, 62.5, 68.2 and 74.0 hPa on both segments 
 start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
 (mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
 this is the price of certifying ±10 % of actuator gain on this arm.
+Gain feedback (`gain_estimate`, default off: then nothing below runs and the commands are those above bit for
+bit). g is observable out of contact: `controllers.gain_estimate` fits K⁻¹(M q̈ + (C + D) q̇ + K q) = g K⁻¹Λ p by
+least squares over samples whose model tip lies at least `gain_clearance_m` clear of every facet plane, p the
+pressure the predictor integrates from this governor's commands; "rest" samples (every |q̂̇_i| ≤ `gain_rest_rad_s`,
+p settled, M q̈ + C q̇ left to the bound) and, where consecutive estimates are at most `gain_difference_s` apart
+(1 kHz with an exact state), "difference" samples (q̈ from the two q̂̇, the model's terms at their midpoint).
+Under its assumptions (each sample within Δ = `gain_noise_rad` of the model's balance per segment, g constant
+and common to the segments, no contact in the samples) the true g lies in [ĝ − e, ĝ + e], e = Δ_K Σ|x|_K/Σ|x|²_K,
+and in the intersection of these intervals with the prior [gain_lo_ratio, gain_hi_ratio], which only shrinks.
+The governor certifies that narrowed interval from the call after it narrowed by 1 % of the prior's width
+(`update_gain`; sound for every interval that contains g, the certificate above unchanged). Shrinking never
+uncertifies the held command (the margin's minimum over a sub-interval is no smaller); an empty intersection
+(an assumption proven false) returns the prior for good, until `reset`. The predictor still integrates the model's
+gain (the assumption on the prediction above). What it gives (docs/results.md): samples exist only where the arm
+moves or rests out of contact, so at 1 kHz with an exact state the approach to the plate narrows [0.9, 1.1] to
+≈ [0.975, 1.021] before the first contact (mujoco_contact), while at the camera rate a push from rest reaches the
+plate before any rest sample: no narrowing, the prior's 0.23 F_max.
 
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
@@ -212,6 +229,7 @@ from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.escape_energy import MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
+from controllers.gain_estimate import GainEstimator
 from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
 from controllers.quasi_static_governor import QuasiStaticGovernor
@@ -230,6 +248,9 @@ DIAGNOSTIC_UNITS = {
     "W_J": "J", "Gamma_J": "J", "margin_J": "J", "step_fraction": "1", "blocked": "bool (1: the target was not reached)",
     "violation": "bool (1: the held command failed its certificate)", "prediction_s": "s", "solve_us": "µs",
 }
+
+GAIN_DIAGNOSTIC_UNITS = {**DIAGNOSTIC_UNITS, "gain_lo": "1", "gain_hi": "1", "gain_hat": "1"}
+"""The diagnostics' units with `gain_estimate`: the certified gain interval and the estimate ĝ (module docstring)."""
 
 
 PREDICTION_HORIZON_S = 2.0
@@ -280,6 +301,18 @@ PARAMETERS = {
                                      "<= gain_hi_ratio; contact certificate only)", "1", bound=GAIN_RATIOS),
     "gain_hi_ratio": FilterParameter("highest true actuator gain λ as a multiple of the model's (the contact "
                                      "certificate holds for every gain in [lo, hi]: module docstring)", "1", bound=GAIN_RATIOS),
+    "gain_estimate": FilterParameter("narrow [gain_lo_ratio, gain_hi_ratio] online to [ĝ − e, ĝ + e] from rest samples "
+                                     "out of contact (controllers.gain_estimate; contact certificate only)", "", bool),
+    "gain_noise_rad": FilterParameter("bound Δ on the rest samples' deviation from the model's balance per segment "
+                                      "(estimate error and residual motion; gain_estimate only)", "rad",
+                                      bound=Bound(0.0, 1.0, low_open=True, unit="rad")),
+    "gain_rest_rad_s": FilterParameter("largest |q̇_i| of a rest sample (gain_estimate only)", "rad/s",
+                                       bound=Bound(0.0, 10.0, unit="rad/s")),
+    "gain_clearance_m": FilterParameter("least distance of a sample's tip from every facet plane (gain_estimate "
+                                        "only)", "m", bound=Bound(0.0, 1.0, unit="m")),
+    "gain_difference_s": FilterParameter("largest spacing of two estimates whose q̇ difference gives q̈ for a moving "
+                                         "sample (0: rest samples only; gain_estimate only)", "s",
+                                         bound=Bound(0.0, 0.1, unit="s")),
 }
 """The E-ERG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them.
 
@@ -290,7 +323,8 @@ PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's t
 ε ≥ 0 and below the table's saturation ½ k_min reach² (`EscapeEnergyTable.saturation_J`, 0.72 J on the
 reference arm: a larger ε certifies no step at all), the stiffness ratios
 0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, the gain ratios 0.1 ≤ lo ≤ hi ≤ 10 (other than 1 only with the contact
-certificate), τ_p ≤ 10 s.
+certificate), τ_p ≤ 10 s; the gain estimate's Δ in (0, 1] rad (0 would trust a perfect model), |q̇| ≤ 10 rad/s
+for a rest sample, a clearance ≤ 1 m, and estimates ≤ 0.1 s apart for a difference (beyond, no acceleration).
 """
 
 BOUND_BELOW_J = 0.02
@@ -375,9 +409,14 @@ class EnergyGovernor:
                  contact_aware: bool = False, stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0,
                  command_delay_s: float | None = None, actuator_tau_s: float | None = None, grid_hPa: float = 2.5,
                  predictor_step_s: float = 1e-3, bisection_steps: int = 12, certificate: str = "park",
-                 escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0, gain_hi_ratio: float = 1.0) -> None:
+                 escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0, gain_hi_ratio: float = 1.0,
+                 gain_estimate: bool = False, gain_noise_rad: float = 5e-3, gain_rest_rad_s: float = 0.02,
+                 gain_clearance_m: float = 5e-3,
+                 gain_difference_s: float = 0.0) -> None:
         checked = self.check_arguments({"certificate": certificate, "escape_spacing_rad": escape_spacing_rad,
-            "gain_lo_ratio": gain_lo_ratio, "gain_hi_ratio": gain_hi_ratio,
+            "gain_lo_ratio": gain_lo_ratio, "gain_hi_ratio": gain_hi_ratio, "gain_estimate": gain_estimate,
+            "gain_noise_rad": gain_noise_rad, "gain_rest_rad_s": gain_rest_rad_s, "gain_clearance_m": gain_clearance_m,
+            "gain_difference_s": gain_difference_s,
             "margin_m": margin_m, "kappa": kappa, "energy_margin_J": energy_margin_J, "contact_aware": contact_aware,
             "stiffness_lo_ratio": stiffness_lo_ratio, "stiffness_hi_ratio": stiffness_hi_ratio,
             "command_delay_s": command_delay_s, "actuator_tau_s": actuator_tau_s, "grid_hPa": grid_hPa,
@@ -427,9 +466,6 @@ class EnergyGovernor:
         self._k = robot.array("stiffness").tolist()
         self._a = (robot.array("gains") / robot.array("stiffness")).tolist()
         self._beta = self.beta.tolist()
-        # per gain end g: (K, g·K⁻¹Λ, g²β); g = 1 gives the model's floats exactly (1.0·x = x)
-        self._energy_terms = {g: (self._k, [g * a for a in self._a], [g * g * b for b in self._beta]) for g in self.gains}
-        self._energy_2 = {g: (*k, *a, *b) for g, (k, a, b) in self._energy_terms.items()} if self.n == 2 else None
         self._box = None if context.u_min is None else (context.u_min, context.u_max)
         self._rest_list = tuple((np.zeros(self.n) if self._box is None else np.clip(np.zeros(self.n), *self._box)).tolist())
         self._facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(), nominal.environment.offsets.tolist())]
@@ -443,7 +479,13 @@ class EnergyGovernor:
             self._grid_values, self._grid_rest_inside = self.table.grid_values(), self.table.rest_inside
         self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
         self._escape_origin: tuple | None = None
-        self._grid_rows = {g: self.grid_rows_at_gain(g) for g in self.gains} if self.contact else {}
+        self.set_gain_ends(self.gain_lo, self.gain_hi)
+        self.gain_estimator = GainEstimator(self._k, self._a, robot.array("damping"), (self.gain_lo, self.gain_hi),
+                                            checked["gain_noise_rad"]) if checked["gain_estimate"] else None
+        self.gain_prior = (self.gain_lo, self.gain_hi)
+        self.gain_rest, self.gain_clearance = checked["gain_rest_rad_s"], checked["gain_clearance_m"]
+        self.gain_difference = checked["gain_difference_s"]
+        self._gain_previous: tuple | None = None  # (t_capture, q, q̇) of the previous estimate (`update_gain`)
         self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
         if self.table is not None and not self.energy_margin < self.table.saturation_J:
             raise ValueError(f"energy_margin_J must be < {self.table.saturation_J:.6g} J (½ k_min reach², the escape "
@@ -467,6 +509,8 @@ class EnergyGovernor:
         if (lo, hi) != (1.0, 1.0) and checked.get("certificate", "park") != "contact":
             raise ValueError(f"gain_lo_ratio and gain_hi_ratio other than 1 need certificate='contact' (the parked "
                              f"target's rest shape assumes the model's gain), got [{lo!r}, {hi!r}]")
+        if checked.get("gain_estimate", False) and checked.get("certificate", "park") != "contact":
+            raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
         return checked
 
     def reset(self) -> None:
@@ -476,6 +520,56 @@ class EnergyGovernor:
             self.target_governor.reset()
         self._escape_known.clear()
         self._escape_origin = None
+        if self.gain_estimator is not None:
+            self.gain_estimator.reset()
+            self.set_gain_ends(*self.gain_prior)
+            self._gain_previous = None
+
+    def set_gain_ends(self, lo: float, hi: float) -> None:
+        """Certify the gain interval [lo, hi] from now on (module docstring, "actuator gain"; narrowed online by
+        `gain_estimate`): the ends' energy terms (K, g·K⁻¹Λ, g²β; g = 1 gives the model's floats exactly,
+        1.0·x = x), the recovery's grid rows (computed when needed) and the escape memory (its rows are per end)."""
+        self.gain_lo, self.gain_hi = lo, hi
+        self.gains = tuple(sorted({lo, hi}))
+        self._energy_terms = {g: (self._k, [g * a for a in self._a], [g * g * b for b in self._beta]) for g in self.gains}
+        self._energy_2 = {g: (*k, *a, *b) for g, (k, a, b) in self._energy_terms.items()} if self.n == 2 else None
+        self._grid_rows: dict[float, np.ndarray] = {}  # g → `grid_rows_at_gain(g)`, computed when needed
+        self._escape_known.clear()
+        self._escape_origin = None
+
+    def update_gain(self, q: np.ndarray, qd: np.ndarray, t_capture: float) -> None:
+        """Offer the estimate (q, q̇) at t_capture to the gain estimator (`controllers.gain_estimate`) when the model's
+        tip lies at least gain_clearance_m clear of every facet plane, as a difference sample when the previous
+        estimate was captured at most gain_difference_s before (midpoint state, q̈ by the difference of the q̇'s,
+        y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤ gain_rest_rad_s and the model's
+        pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). Its interval is applied once it has narrowed
+        by 1 % of the prior's width (a wider interval than the estimator's is also sound, and each change rebuilds
+        the ends' terms), or at once when it fell back to the prior."""
+        estimator, previous = self.gain_estimator, self._gain_previous
+        self._gain_previous = (t_capture, q, qd)
+        moving = previous is not None and 0.0 < t_capture - previous[0] <= self.gain_difference
+        if not moving and max(abs(v) for v in qd.tolist()) > self.gain_rest:
+            return  # neither kind of sample (checked before the kinematics: the common case at the camera rate)
+        x, y = self._tip(q)
+        if max(nx * x + ny * y - d for nx, ny, d in self._facets) > -self.gain_clearance:
+            return
+        if moving:
+            t0, q0, qd0 = previous
+            h = t_capture - t0
+            q_mid, qd_mid = 0.5 * (q0 + q), 0.5 * (qd0 + qd)
+            terms = self.dynamics.evaluate(q_mid, qd_mid)
+            residual = (terms.mass @ ((qd - qd0) / h) + terms.bias) / np.asarray(self._k)
+            accepted = estimator.sample(self.predictor.pressure_at(t0 + 0.5 * h), residual)
+        else:
+            p = self.predictor.pressure_at(t_capture)
+            if np.any(np.abs(estimator.a * (p - self.predictor.command_at(t_capture))) > estimator.noise_rad):
+                return
+            accepted = estimator.sample(p, estimator.rest_residual(q, qd))
+        if accepted:
+            lo, hi = estimator.interval
+            width = self.gain_hi - self.gain_lo
+            if estimator.inconsistent or hi - lo <= width - 0.01 * (self.gain_prior[1] - self.gain_prior[0]):
+                self.set_gain_ends(lo, hi)
 
     # -- certificate ------------------------------------------------------------------
     def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0) -> float:
@@ -589,6 +683,8 @@ class EnergyGovernor:
         u_prev = self.predictor.command_at(t_apply)
         if not self.predictor.can_predict(t_capture, t_apply):
             return self._finish(u_prev, "stale", True, math.nan, {}, t_apply, t_capture, t0)
+        if self.gain_estimator is not None:
+            self.update_gain(q, qd, t_capture)
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
         q_list, p_list = q_hat.tolist(), p_hat.tolist()
         # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
@@ -710,7 +806,10 @@ class EnergyGovernor:
         margins = None
         for g in self.gains:  # the least margin over the gain ends (module docstring, "actuator gain")
             ends = [self.boundary_escape(scaled_command(g, tuple(c.tolist()))) for c in (u_prev, target)]
-            rows = np.hstack((self._grid_rows[g], np.array(ends).T))
+            grid = self._grid_rows.get(g)
+            if grid is None:
+                grid = self._grid_rows[g] = self.grid_rows_at_gain(g)
+            rows = np.hstack((grid, np.array(ends).T))
             gamma = np.min(rows + np.array(offsets)[:, None], axis=0)
             k, a, beta = (np.array(terms) for terms in self._energy_terms[g])
             energy = base + 0.5 * row_sums(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2)
@@ -733,8 +832,11 @@ class EnergyGovernor:
                 "blocked": math.nan, "violation": math.nan}
         full.update(diagnostics)
         full["prediction_s"] = t_apply - t_capture
+        if self.gain_estimator is not None:  # the interval certified from this call on, and ĝ (NaN before a sample)
+            full.update(gain_lo=self.gain_lo, gain_hi=self.gain_hi, gain_hat=self.gain_estimator.estimate)
         full["solve_us"] = (time.perf_counter() - t0) * 1e6
-        return FilterOutput(u, action, infeasible, rho, full, DIAGNOSTIC_UNITS)
+        return FilterOutput(u, action, infeasible, rho, full,
+                            DIAGNOSTIC_UNITS if self.gain_estimator is None else GAIN_DIAGNOSTIC_UNITS)
 
 
 class ContactEnergyGovernor(EnergyGovernor):
@@ -759,9 +861,13 @@ class ContactEnergyGovernor(EnergyGovernor):
                  stiffness_lo_ratio: float = 1.0, stiffness_hi_ratio: float = 1.0, command_delay_s: float | None = None,
                  actuator_tau_s: float | None = None, grid_hPa: float = 2.5, predictor_step_s: float = 1e-3,
                  bisection_steps: int = 12, escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0,
-                 gain_hi_ratio: float = 1.0) -> None:
+                 gain_hi_ratio: float = 1.0, gain_estimate: bool = False, gain_noise_rad: float = 5e-3,
+                 gain_rest_rad_s: float = 0.02, gain_clearance_m: float = 5e-3,
+                 gain_difference_s: float = 0.0) -> None:
         super().__init__(context, kappa=kappa, energy_margin_J=energy_margin_J, contact_aware=contact_aware,
                          stiffness_lo_ratio=stiffness_lo_ratio, stiffness_hi_ratio=stiffness_hi_ratio,
                          command_delay_s=command_delay_s, actuator_tau_s=actuator_tau_s, grid_hPa=grid_hPa,
                          predictor_step_s=predictor_step_s, bisection_steps=bisection_steps, certificate="contact",
-                         escape_spacing_rad=escape_spacing_rad, gain_lo_ratio=gain_lo_ratio, gain_hi_ratio=gain_hi_ratio)
+                         escape_spacing_rad=escape_spacing_rad, gain_lo_ratio=gain_lo_ratio, gain_hi_ratio=gain_hi_ratio,
+                         gain_estimate=gain_estimate, gain_noise_rad=gain_noise_rad, gain_rest_rad_s=gain_rest_rad_s,
+                         gain_clearance_m=gain_clearance_m, gain_difference_s=gain_difference_s)

@@ -259,36 +259,38 @@ FORK_CALLS = (5, 10, 20)
 """The calls (10 Hz) whose commands are held on the forks: the approach (0.5 s), first contact and pressing (1, 2 s)."""
 
 
-def certified_forks(gain_lo, gain_hi, loop_gain, gains_held, hold_s=1.0):
+def certified_forks(gain_lo, gain_hi, loop_gain, gains_held, hold_s=1.0, calls=FORK_CALLS, level=lambda t: 150.0,
+                    **options):
     """Closed loop at 10 Hz on the plate plant of true gain `loop_gain` (exact state, no delay: the certificate
-    is evaluated at the true state) pushing at 150 hPa; at the calls FORK_CALLS the returned command is also held
-    for hold_s from the true state on plants of each gain in `gains_held`. Returns the least ρ of the forks."""
+    is evaluated at the true state) pushing at level(t) hPa on both segments (150); at the calls `calls` the returned
+    command is also held for hold_s from the true state on plants of each gain in `gains_held`. Returns the least
+    ρ of the forks and the governor (`options`: its further parameters)."""
     from controllers.safety_filter import Estimate
 
     gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
-                                gain_lo_ratio=gain_lo, gain_hi_ratio=gain_hi)
+                                gain_lo_ratio=gain_lo, gain_hi_ratio=gain_hi, **options)
     plant = PushingPlatePlant(scaled_gain_robot(loop_gain), SAFE, 11.16, 0.05)
     state, worst = plant.reset(np.zeros(2)), math.inf
-    for call in range(max(FORK_CALLS) + 1):
-        out = gov(Estimate(state.t, state.q, state.qd, state.t), np.full(2, 150.0))
-        if call in FORK_CALLS:
+    for call in range(max(calls) + 1):
+        out = gov(Estimate(state.t, state.q, state.qd, state.t), np.full(2, level(state.t)))
+        if call in calls:
             for g in gains_held:
                 worst = min(worst, fork_holds(scaled_gain_robot(g), plant.x, plant.p, plant.t, out.u, hold_s))
         for _ in range(int(round(PERIOD / 1e-3))):
             state = plant.step(out.u)
-    return worst
+    return worst, gov
 
 
 def test_a_command_certified_for_a_gain_interval_keeps_every_gain_in_it_inside_P():
     """Certified for gains [0.9, 1.1] (exact plate), each command held from the true state keeps the plate plant
     with true gain 0.9, 1.0 and 1.1 inside P (ρ ≥ 0); the state comes from a loop whose arm has gain 1.1 (the
     closest: measured least ρ 0.10 there, 0.68 with gain 0.9)."""
-    assert certified_forks(0.9, 1.1, 1.1, (0.9, 1.0, 1.1)) >= 0.0
+    assert certified_forks(0.9, 1.1, 1.1, (0.9, 1.0, 1.1))[0] >= 0.0
 
 
 def test_the_model_gain_certificate_does_not_hold_a_stronger_actuator():
     """The same forks certified for the model's gain alone: a true gain 1.1 leaves P (the test above can fail)."""
-    assert certified_forks(1.0, 1.0, 1.0, (1.1,)) < 0.0
+    assert certified_forks(1.0, 1.0, 1.0, (1.1,))[0] < 0.0
 
 
 def test_gain_ratios_are_checked():
@@ -299,3 +301,55 @@ def test_gain_ratios_are_checked():
     with pytest.raises(ValueError, match="gain_hi_ratio"):
         ContactEnergyGovernor.check_arguments({"gain_hi_ratio": 20.0})
     assert ContactEnergyGovernor.check_arguments({"gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1})["certificate"] == "contact"
+
+
+# -- the online gain estimate (controllers.gain_estimate; `gain_estimate`) ---------------------------------------
+
+def approach_then_push(t):
+    """40 hPa on both segments (the arm at rest clear of the plate by more than gain_clearance_m) for 2 s, then 150 hPa."""
+    return 40.0 if t < 2.0 else 150.0
+
+
+@pytest.mark.parametrize("true_gain", [0.9, 1.1])
+def test_gain_estimate_converges_at_rest_out_of_contact_and_the_narrowed_commands_hold(true_gain):
+    """At rest out of contact (exact state at 10 Hz) ĝ converges to the true gain 0.9 or 1.1, the certified
+    interval narrows from [0.9, 1.1] and keeps the true gain; the commands certified with it, held from the true
+    state on the plate plant of the true gain while the arm presses the plate (3–4 s), keep ρ ≥ 0."""
+    worst, gov = certified_forks(0.9, 1.1, true_gain, (true_gain,), calls=(25, 30, 40), level=approach_then_push,
+                                 gain_estimate=True)
+    assert worst >= 0.0
+    assert abs(gov.gain_estimator.estimate - true_gain) < 1e-3
+    assert gov.gain_lo <= true_gain <= gov.gain_hi and gov.gain_hi - gov.gain_lo < 0.06
+
+
+def test_gain_estimate_from_differences_converges_during_the_approach_at_one_kilohertz():
+    """With gain_difference_s the moving arm gives samples too (q̈ from the q̇ of consecutive estimates): pushing
+    from rest at 1 kHz (exact state) on the plant of gain 1.1, the interval is narrowed before the first contact."""
+    from controllers.safety_filter import Estimate
+
+    gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), 1e-3, 0.0, 0.05),
+                                gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_difference_s=2e-3)
+    plant = PushingPlatePlant(scaled_gain_robot(1.1), SAFE, 11.16, 0.05)
+    state = plant.reset(np.zeros(2))
+    while not np.any(state.contact_forces > 0.0):
+        out = gov(Estimate(state.t, state.q, state.qd, state.t), np.full(2, 150.0))
+        state = plant.step(out.u)
+        assert state.t < 3.0, "no contact within 3 s"
+    assert gov.gain_lo <= 1.1 <= gov.gain_hi and gov.gain_hi - gov.gain_lo < 0.05
+    assert abs(gov.gain_estimator.estimate - 1.1) < 1e-2
+
+
+def test_gain_estimate_takes_no_sample_in_contact():
+    """Pushing from rest at 10 Hz the arm comes to rest only against the plate: no sample is taken there (the plate's
+    force would read as gain), the interval stays the prior, and the commands are those without the estimate."""
+    plain = certified_forks(0.9, 1.1, 1.1, (), calls=(30,))[1]
+    worst, gov = certified_forks(0.9, 1.1, 1.1, (), calls=(30,), gain_estimate=True)
+    assert gov.gain_estimator.samples == 0 and (gov.gain_lo, gov.gain_hi) == (0.9, 1.1)
+    assert np.array_equal(gov.predictor.command_at(3.0), plain.predictor.command_at(3.0))
+
+
+def test_gain_estimate_is_refused_without_the_contact_certificate():
+    with pytest.raises(ValueError, match="gain_estimate needs certificate='contact'"):
+        EnergyGovernor.check_arguments({"gain_estimate": True})
+    with pytest.raises(ValueError, match="gain_noise_rad"):
+        ContactEnergyGovernor.check_arguments({"gain_noise_rad": 0.0})
