@@ -44,7 +44,9 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
 (1, ...) record built). Written once for both:
 - the user code, row by row (`nominal_row`, `filter_row`: the views, the call, the output check,
   the fault), or once for many rows (a shared nominal's `nominal_batch`, a shared filter's
-  `filter_batch`: an exception or refused return is the fault of each row it was called for);
+  `filter_batch`: an exception or refused return is the fault of each row it was called for; a
+  `ControllerInputError` from the call asks it again for each row alone, so that only the rows it
+  refuses are refused, as in their runs);
   a shared filter that keeps a history per row says so by a `rows` keyword: its `filter_batch`
   is then told the indices of the rows it is called for (`rows`, (k,) int, ascending), and its
   `reset` the indices of the rows that restart when only some do (the vector environment's
@@ -544,6 +546,12 @@ class BatchControlStep:
             where = "filter return"
             u, actions, infeasible_rows, rho = checked_batch_arrays(result, len(ids), self.n)
         except ControllerInputError:
+            if where == "filter_batch" and len(ids) > 1:  # which rows it refuses: each alone (module docstring)
+                for b in ids:
+                    alone = np.zeros_like(called)
+                    alone[b] = True
+                    self._call_batch([b], alone, ts, t, t_capture, q, qd, nominal, output, u_filter, rho_pred,
+                                     infeasible, filter_action, filter_us)
             return
         except Exception as exc:  # noqa: BLE001 - a filter fault of every row it was called for
             for b in ids:

@@ -23,6 +23,7 @@ from hypothesis import strategies as st
 
 from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, fault_log_name
+from controllers.errors import NonFiniteStateError
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
@@ -409,14 +410,18 @@ def test_property_batched_loop_is_the_serial_loop_sample_by_sample(hows, at):
 class BatchedMisbehaving:
     """A stateless filter with `filter_batch`: clips u_nom to ±100 hPa, but returns NaN where q_2 < 0 for
     t in [0.01, 0.03) s, 1e300 hPa for t in [0.1, 0.12) s, a 3-vector (a refused return) where the time is
-    `bad_shape_at` (s) and raises from `raise_at` (s) on."""
+    `bad_shape_at` (s) and raises from `raise_at` (s) on; with `refuse`, it refuses its input
+    (NonFiniteStateError, a ControllerInputError) where q_2 < 0 for t in [0.002, 0.008) s: every row of the
+    call, where a serial run refuses only that row."""
 
-    def __init__(self, raise_at: float = math.inf, bad_shape_at: float = math.inf) -> None:
-        self.raise_at, self.bad_shape_at = raise_at, bad_shape_at
+    def __init__(self, raise_at: float = math.inf, bad_shape_at: float = math.inf, refuse: bool = False) -> None:
+        self.raise_at, self.bad_shape_at, self.refuse = raise_at, bad_shape_at, refuse
 
     def _rows(self, t: np.ndarray, q: np.ndarray, u_nom: np.ndarray) -> np.ndarray:
         if np.any(t >= self.raise_at):
             raise RuntimeError("misbehaving batch")
+        if self.refuse and np.any((t >= 0.002) & (t < 0.008) & (q[:, 1] < 0.0)):
+            raise NonFiniteStateError("refused: q_2 < 0")
         u = np.clip(u_nom, -100.0, 100.0)
         u[(t >= 0.01) & (t < 0.03) & (q[:, 1] < 0.0), 0] = math.nan
         u[(t >= 0.1) & (t < 0.12)] = 1e300
@@ -435,17 +440,19 @@ class BatchedMisbehaving:
         return BatchOutput(u, np.array(["user"] * len(batch)), np.zeros(len(batch), bool), np.full(len(batch), math.nan))
 
 
-@pytest.mark.parametrize("raise_at, bad_shape_at", [(math.inf, math.inf), (0.3, math.inf), (math.inf, 0.2)])
-def test_filter_batch_faults_and_refusals_are_the_serial_runs_row_by_row(raise_at, bad_shape_at):
+@pytest.mark.parametrize("raise_at, bad_shape_at, refuse", [(math.inf, math.inf, False), (0.3, math.inf, False),
+                                                             (math.inf, 0.2, False), (math.inf, math.inf, True)])
+def test_filter_batch_faults_and_refusals_are_the_serial_runs_row_by_row(raise_at, bad_shape_at, refuse):
     """One `filter_batch` call for all rows: a NaN row holds only that sample, huge values are clipped in every
-    row, and an exception or refused return is a fault of every row it was called for; each row is, bit for bit,
+    row, a refused input (ControllerInputError) is asked again row by row so that only the rows it refuses hold,
+    and an exception or refused return is a fault of every row it was called for; each row is, bit for bit,
     the serial run of the same filter called state by state (commands, figures, fault)."""
     context = FilterContext.for_robot(ROBOT, SAFE, 1e-3)
     q0 = np.array([[0.1, 0.2], [0.1, -0.2], [0.0, -0.3]])
-    batch = run_batch_closed_loop(PCCBatchPlant(ROBOT, SAFE, 3), BatchedMisbehaving(raise_at, bad_shape_at), PUSH,
-                                  context, 0.4, q0, record_commands=True)
+    batch = run_batch_closed_loop(PCCBatchPlant(ROBOT, SAFE, 3), BatchedMisbehaving(raise_at, bad_shape_at, refuse),
+                                  PUSH, context, 0.4, q0, record_commands=True)
     for b in range(3):
-        step = ControlStep(BatchedMisbehaving(raise_at, bad_shape_at), PUSH, context)
+        step = ControlStep(BatchedMisbehaving(raise_at, bad_shape_at, refuse), PUSH, context)
         log, _ = run_closed_loop(PCCPlant(ROBOT, SAFE), step, SAFE, 0.4, q0[b])
         rows = len(log["t"])
         assert batch.rows[b] == rows
