@@ -46,9 +46,10 @@ Batched (`filter_batch`, the plug-in contract of `controllers.safety_filter`): B
 governor of its own (its previous command: the rate limit's centre and the warm start), row b
 bit for bit the b-th of B copies of this governor called in turn (tests/test_quasi_static_governor.py).
 The common case is decided for all rows at once: u_nom inside the box and the row's rate window
-and its rest-shape margin (from `controllers.pcc_model.kinematics_rows`, the kernel behind
+(`bounds` and `within`, which the scalar governor uses too, over the batch axis) and its rest-shape margin (from `controllers.pcc_model.kinematics_rows`, the kernel behind
 `step_kinematics`, with `_scalar_rest_margin`'s arithmetic: the same floats) above NOMINAL_TOL_M
-→ "nominal", u = u_nom. Every other row runs `_decide` with that row's previous command. The
+→ "nominal", u = u_nom. Every other row runs `_decide` with that row's previous command (an
+argument: `_decide` keeps no state, its caller records the command it returns). The
 histories are per row position (0..B−1), or, given `rows`, per index: the caller says which
 simulation each row is, so a call for some of them leaves the others' histories as they are;
 `reset()` forgets all of them, `reset(rows)` those. A call without `rows` with fewer rows than
@@ -207,19 +208,30 @@ class QuasiStaticGovernor:
         self._row_cache[key] = result
         return result
 
-    def _bounds(self, rate: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+    def bounds(self, u_prev: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The next command's bounds (lb, ub) hPa after the previous command u_prev, (N,) or (B, N) hPa (None,
+        or a NaN row: none): the box [u_min, u_max] ∩ the rate window u_prev ± r·T, each None when neither
+        bounds it; a row without a previous command has the box alone (±inf where there is none)."""
         lb, ub = self.context.u_min, self.context.u_max
-        if rate and self.rate_limit is not None and self._u_prev is not None:
+        if self.rate_limit is not None and u_prev is not None:
             step = self.rate_limit * self.context.control_dt
-            lo, hi = self._u_prev - step, self._u_prev + step
-            lb = lo if lb is None else np.maximum(lb, lo)
-            ub = hi if ub is None else np.minimum(ub, hi)
+            lo, hi = u_prev - step, u_prev + step  # NaN in a row without a previous command, which fmax/fmin skip
+            lb = np.fmax(-math.inf if lb is None else lb, lo)
+            ub = np.fmin(math.inf if ub is None else ub, hi)
         return lb, ub
 
-    def _iterate(self, u_nom: np.ndarray, rate: bool) -> tuple[np.ndarray | None, int]:
-        """The linearise-and-solve loop; returns (u or None when a QP is infeasible, iterations)."""
-        lb, ub = self._bounds(rate)
-        u = u_nom if self._u_prev is None else self._u_prev  # warm start: the last command
+    @staticmethod
+    def within(u: np.ndarray, lb: np.ndarray | None, ub: np.ndarray | None) -> np.ndarray:
+        """Whether u (N,) or (B, N) hPa lies within [lb, ub] (`bounds`), per row (a bool array of u's rows)."""
+        if lb is None:
+            return np.ones(u.shape[:-1], dtype=bool)
+        return np.all((lb <= u) & (u <= ub), axis=-1)
+
+    def _iterate(self, u_nom: np.ndarray, u_prev: np.ndarray | None, rate: bool) -> tuple[np.ndarray | None, int]:
+        """The linearise-and-solve loop after u_prev (the warm start; the rate window's centre when `rate`);
+        returns (u or None when a QP is infeasible, iterations)."""
+        lb, ub = self.bounds(u_prev if rate else None)
+        u = u_nom if u_prev is None else u_prev  # warm start: the last command
         u = u if lb is None else np.clip(u, lb, ub)
         # `solve_qp`'s solver on the lists it would build (its checks hold by construction: u_nom and the
         # rows are finite; lb ≤ ub, as FilterContext has u_min < u_max and the rate window is centred on
@@ -237,10 +249,11 @@ class QuasiStaticGovernor:
                 break
         return u, iteration
 
-    def _backtrack(self, u: np.ndarray) -> np.ndarray:
-        """The point of the segment u_from → u nearest u whose rest shape keeps the margin (bisection)."""
-        lb, ub = self._bounds(True)
-        start = np.zeros(self.n) if self._u_prev is None else self._u_prev
+    def _backtrack(self, u: np.ndarray, u_prev: np.ndarray | None) -> np.ndarray:
+        """The point of the segment u_from → u nearest u whose rest shape keeps the margin (bisection);
+        u_from: u_prev (0 without one) within `bounds(u_prev)`."""
+        lb, ub = self.bounds(u_prev)
+        start = np.zeros(self.n) if u_prev is None else u_prev
         start = start if lb is None else np.clip(start, lb, ub)
         if np.min(self.rest_margins(start)) < -RESIDUAL_TOL_M:
             return start
@@ -253,27 +266,26 @@ class QuasiStaticGovernor:
                 hi = mid
         return start + lo * (u - start)
 
-    def _decide(self, u_nom: np.ndarray) -> tuple[np.ndarray, str, bool, np.ndarray | None, int]:
-        """(u, action, infeasible, the rest margins at u or None, iterations) for a checked u_nom;
-        records u as the previous command. Whether u_nom is nominal (in the box, rest margins ≥ 0)
-        is read from `_scalar_rest_margin` when it is farther than NOMINAL_TOL_M from 0 (None: u_nom
-        was accepted that way), from `rest_margins` otherwise."""
-        lb, ub = self._bounds(True)
-        inside = lb is None or bool(np.all((lb <= u_nom) & (u_nom <= ub)))
+    def _decide(self, u_nom: np.ndarray, u_prev: np.ndarray | None) -> tuple[np.ndarray, str, bool, np.ndarray | None, int]:
+        """(u, action, infeasible, the rest margins at u or None, iterations) for a checked u_nom after the
+        previous command u_prev (None: none), a new array u that the caller records as the next call's
+        u_prev. Whether u_nom is nominal (in the box, rest margins ≥ 0) is read from `_scalar_rest_margin`
+        when it is farther than NOMINAL_TOL_M from 0 (None: u_nom was accepted that way), from
+        `rest_margins` otherwise."""
+        inside = bool(self.within(u_nom, *self.bounds(u_prev)))
         if not inside and self._nominal_range is not None:  # (inside the box is inside the range: no cost there)
             u_nom = np.clip(u_nom, *self._nominal_range)  # NOMINAL_RANGE_WIDTHS
         scalar = self._scalar_rest_margin(u_nom) if inside else -math.inf
         if scalar > NOMINAL_TOL_M:
-            self._u_prev = np.array(u_nom, dtype=float)
-            return u_nom, "nominal", False, None, 0
+            return np.array(u_nom, dtype=float), "nominal", False, None, 0
         iterations, infeasible = 0, False
         if scalar >= -NOMINAL_TOL_M and np.min(self.rest_margins(u_nom)) >= 0.0:
             u, action = u_nom, "nominal"
         else:
-            u, iterations = self._iterate(u_nom, rate=True)
+            u, iterations = self._iterate(u_nom, u_prev, rate=True)
             action = "governed"
             if u is None and self.rate_limit is not None:
-                u, more = self._iterate(u_nom, rate=False)
+                u, more = self._iterate(u_nom, u_prev, rate=False)
                 iterations += more
                 action, infeasible = "rate_dropped", True
             if u is None:
@@ -281,11 +293,10 @@ class QuasiStaticGovernor:
                 u = np.zeros(self.n) if lo is None else np.clip(np.zeros(self.n), lo, hi)
                 action, infeasible = "vent", True
             elif np.min(self.rest_margins(u)) < -RESIDUAL_TOL_M:
-                u, action = self._backtrack(u), "backtrack"
+                u, action = self._backtrack(u, u_prev), "backtrack"
         margins = self.rest_margins(u)
         infeasible = infeasible or float(np.min(margins)) < -RESIDUAL_TOL_M
-        self._u_prev = np.array(u, dtype=float)
-        return u, action, infeasible, margins, iterations
+        return np.array(u, dtype=float), action, infeasible, margins, iterations
 
     def _scalar_rest_margin(self, u: np.ndarray) -> float:
         """min_j of `rest_margins(u)` (m) from the scalar kinematics (`pcc.step_kinematics`): within
@@ -310,19 +321,19 @@ class QuasiStaticGovernor:
         key = u_nom.tobytes() + (b"" if self._u_prev is None else self._u_prev.tobytes())
         u = self._commands.get(key)
         if u is None:
-            u = np.array(self._decide(u_nom)[0], dtype=float)
+            u = self._decide(u_nom, self._u_prev)[0]
             if len(self._commands) >= COMMAND_MEMORY:
                 del self._commands[next(iter(self._commands))]  # the oldest
             self._commands[key] = u
-        else:
-            self._u_prev = u.copy()  # `_decide`'s state change
+        self._u_prev = u.copy()
         return u.copy()
 
     def govern(self, u_nom) -> FilterOutput:
         """The QSG's command for u_nom (N,) hPa; it does not need the state."""
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
         t0 = time.perf_counter()
-        u, action, infeasible, margins, iterations = self._decide(u_nom)
+        u, action, infeasible, margins, iterations = self._decide(u_nom, self._u_prev)
+        self._u_prev = u.copy()
         margins = self.rest_margins(u) if margins is None else margins
         solve_us = (time.perf_counter() - t0) * 1e6
         return FilterOutput(
@@ -370,14 +381,7 @@ class QuasiStaticGovernor:
         self._grow_histories(ids)
         prev = self._batch_prev[ids]
         has_prev = ~np.isnan(prev[:, 0])
-        lo, hi = self.context.u_min, self.context.u_max  # `_bounds(True)` row by row, ±inf for no bound
-        lb = np.full((n_rows, n), -math.inf) if lo is None else np.tile(lo, (n_rows, 1))
-        ub = np.full((n_rows, n), math.inf) if hi is None else np.tile(hi, (n_rows, 1))
-        if self.rate_limit is not None:
-            step = self.rate_limit * self.context.control_dt
-            lb[has_prev] = np.maximum(lb[has_prev], prev[has_prev] - step)
-            ub[has_prev] = np.minimum(ub[has_prev], prev[has_prev] + step)
-        inside = np.all((lb <= u_nom) & (u_nom <= ub), axis=1)
+        inside = self.within(u_nom, *self.bounds(prev))
         margin = np.full(n_rows, -math.inf)
         if np.any(inside):  # `_scalar_rest_margin`, row by row: the same kinematics kernel and arithmetic
             tip = self._rest_tips(self.static_gain * u_nom[inside])
@@ -388,13 +392,8 @@ class QuasiStaticGovernor:
         u = u_nom.copy()
         action = np.full(n_rows, "nominal", dtype=object)
         infeasible = np.zeros(n_rows, dtype=bool)
-        saved = self._u_prev
-        try:
-            for b in np.flatnonzero(~nominal).tolist():  # the scalar governor with row b's history
-                self._u_prev = None if not has_prev[b] else prev[b].copy()
-                u[b], action[b], infeasible[b] = self._decide(u_nom[b])[:3]
-        finally:
-            self._u_prev = saved
+        for b in np.flatnonzero(~nominal).tolist():  # the scalar governor with row b's history
+            u[b], action[b], infeasible[b] = self._decide(u_nom[b], prev[b] if has_prev[b] else None)[:3]
         self._batch_prev[ids] = u
         tips = self._rest_tips(q)
         rho = predicted_margin(self.context.safe_set, tips.real, tips.imag)

@@ -281,7 +281,7 @@ def test_nominal_rows_are_decided_without_the_scalar_governor(monkeypatch):
     u_nom = rng.uniform(-40.0, 40.0, (5, 2))
     estimates = EstimateBatch(np.zeros(5), rng.uniform(-0.3, 0.3, (5, 2)), np.zeros((5, 2)), np.zeros(5))
     want = [c(estimates[b], u_nom[b]) for b, c in enumerate(copies)]
-    monkeypatch.setattr(gov, "_decide", lambda u: pytest.fail("a nominal row went to the scalar governor"))
+    monkeypatch.setattr(gov, "_decide", lambda *args: pytest.fail("a nominal row went to the scalar governor"))
     out = gov.filter_batch(estimates, u_nom)
     assert out.action.tolist() == ["nominal"] * 5 == [w.action for w in want]
     assert np.array_equal(out.u, u_nom) and np.array_equal(out.rho_pred, [w.rho_pred for w in want])
