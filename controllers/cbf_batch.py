@@ -132,8 +132,9 @@ def checked_rows(name: str, value: np.ndarray, shape: tuple[int, int], error: ty
     arr = np.asarray(value, dtype=float)
     if arr.shape != shape:
         raise error(f"{name} must have shape {shape}, got {arr.shape}")
-    bad = ~np.all(np.isfinite(arr), axis=1)
-    if np.any(bad):
+    finite = np.isfinite(arr)
+    if not finite.all():
+        bad = ~finite.all(axis=1)
         raise error(f"{name} must be finite, got non-finite rows {np.flatnonzero(bad).tolist()}")
     return arr
 
@@ -142,8 +143,10 @@ def predicted_margin(safe_set: ForceSafeSet, x: np.ndarray, y: np.ndarray) -> np
     """ρ = min_i (n_max − n_i)/n_max at tips (x, y) (m, (B,) each), as `ForceSafeSet.margin_at` (same floats)."""
     n_max = safe_set.n_max
     normals, offsets = safe_set.environment.normals.tolist(), safe_set.environment.offsets.tolist()
-    margins = [(n_max - np.maximum(nx * x + ny * y - d, 0.0)) / n_max for (nx, ny), d in zip(normals, offsets)]
-    return np.min(margins, axis=0)
+    rho = np.full(np.shape(x), np.inf)
+    for (nx, ny), d in zip(normals, offsets):
+        rho = np.minimum(rho, (n_max - np.maximum(nx * x + ny * y - d, 0.0)) / n_max)
+    return rho
 
 
 ENUMERATION_MAX_N = 4
