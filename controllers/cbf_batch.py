@@ -26,8 +26,9 @@ module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's roundin
   (H'_i J_r K⁻¹Λ) u ≤ b_i − ε_i + H'_i J_r q (the rest shape inside P by ε_i, linearised about q),
   the other rows keep their CBF rows, and the QP below is solved with them, labelled "recovery"
   (and "nominal" when u_nom already meets every row, as `CBFFilter` labels it);
-- "qp" (N ≤ ENUMERATION_MAX_N = 4; for larger N these states go to `fallback`, the scalar
-  filter's QP): the QP above, solved exactly by enumeration. The rows are scaled to unit norm
+- "qp" (when the enumeration has at most ENUMERATION_MAX_CANDIDATES = 500 candidates, below;
+  else these states go to `fallback`, the scalar filter's QP): the QP above, solved exactly by
+  enumeration. The rows are scaled to unit norm
   as `controllers.qp` scales them (â_i = a_i/‖a_i‖, b̂_i = c_i/‖a_i‖; rows with ‖a_i‖ ≤
   ZERO_ROW_TOL dropped when c_i ≥ 0), the box added as the rows +e_j ≤ u_max,j and
   −e_j ≤ −u_min,j: m = P + 2N rows (P unbounded). Derivation: the minimiser u* of the
@@ -66,10 +67,13 @@ module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's roundin
   |lb|, |ub|)), and the feasible candidate nearest u₀ wins (ties: the first in the order above).
   u_nom itself within that tolerance gives u = u_nom, as the scalar solver's shortcut does (the
   enumeration stops there: no candidate is nearer). The
-  result is clipped to the bounds, as `CBFFilter` clips it. Above N = 4 the count (454
-  candidates at N = 5, one row) makes the enumeration costlier per state than the scalar
-  filter's QP (tools/bench_batch_filters.py, which times it there with `enumerate_up_to`), so
-  those states go to the fallback.
+  result is clipped to the bounds, as `CBFFilter` clips it. The kernel's cost grows with the
+  candidates (each tested against m rows): per QP state, one facet, the box, HW-High, B = 256
+  (tools/bench_batch_filters.py, which forces the enumeration with `max_candidates`), 0.4, 1.5,
+  8.5, 33 and 139 µs of CPU for 14, 46, 146, 454 and 1394 candidates (N = 2 … 6) against the
+  scalar filter's 50–86 µs: up to ENUMERATION_MAX_CANDIDATES candidates the enumeration is
+  the cheaper (N ≤ 5 with one facet and the box, N ≤ 4 with three rows, any N without the box:
+  1 + Σ_k C(P, k) candidates); beyond, those states go to the fallback.
 - Not covered here, handed to `fallback(b)` per state b (the scalar filter): no candidate is
   feasible (the rows and bounds cannot all hold: "slack", the rest target or "vent"), a row is zero
   with c_i < 0, a row is not finite (overflowed terms, |q̇| ≳ 1e154 rad/s: "slack"), and, without
@@ -149,9 +153,10 @@ def predicted_margin(safe_set: ForceSafeSet, x: np.ndarray, y: np.ndarray) -> np
     return rho
 
 
-ENUMERATION_MAX_N = 4
-"""The largest N whose QP states `cbf_qp_batch` solves by enumeration (module docstring: the
-subsets grow as C(P + 2N, ≤ N)); QP states of larger N go to the fallback."""
+ENUMERATION_MAX_CANDIDATES = 500
+"""The most candidates (`candidate_table`) for which `cbf_qp_batch` solves QP states by enumeration
+(module docstring: measured, 454 candidates cost 33 µs a state against the scalar QP's 77 µs, 1394
+cost 139 µs against 86 µs); with more, the QP states go to the fallback."""
 
 SINGULAR_TOL = 1e-12
 """A subset whose unit rows span a parallelotope of volume below this (‖v_1‖⋯‖v_k‖; |det| of two rows for
@@ -230,7 +235,7 @@ def cbf_qp_batch(
     u_min: np.ndarray | None = None,
     u_max: np.ndarray | None = None,
     fallback: Callable[[int], ScalarResult] | None = None,
-    enumerate_up_to: int = ENUMERATION_MAX_N,
+    max_candidates: int = ENUMERATION_MAX_CANDIDATES,
     recovery: RecoveryRows | None = None,
 ) -> CBFBatchResult:
     """`CBFFilter` at B states (module docstring).
@@ -239,8 +244,8 @@ def cbf_qp_batch(
     u_max: (N,) hPa, or None for the paper's unbounded QP (`CBFFilter(pressure_limits=False)`).
     fallback(b): the scalar filter's result at state b, for the states this enumeration
     does not cover (infeasible, and recovery without `recovery`); required only when such a state occurs.
-    enumerate_up_to: the largest N whose QP states are enumerated (default ENUMERATION_MAX_N; a
-    larger value times the enumeration beyond it, tools/bench_batch_filters.py).
+    max_candidates: the most candidates for which QP states are enumerated (default
+    ENUMERATION_MAX_CANDIDATES; a larger value times the enumeration beyond it, tools/bench_batch_filters.py).
     recovery: the filter's quasi-static rows (`RecoveryRows`): states with a row b ≤ B_MIN are solved here
     with them, as `CBFFilter` solves them; None: those states go to the fallback.
     """
@@ -267,9 +272,8 @@ def cbf_qp_batch(
     limits = np.zeros((2, n_seg))
     if bounded:
         limits[0], limits[1] = u_min, u_max
-    enumerate_qp = n_seg <= enumerate_up_to  # beyond, the enumeration's subsets outgrow the scalar filter's QP
-    table = candidate_table(n_rows + 2 * n_seg if bounded else n_rows, n_seg, n_rows if bounded else None) \
-        if enumerate_qp else np.zeros((1, n_seg + 1), dtype=np.int64)
+    table = candidate_table(n_rows + 2 * n_seg if bounded else n_rows, n_seg, n_rows if bounded else None)
+    enumerate_qp = len(table) <= max_candidates  # beyond, the enumeration costs more than the scalar filter's QP
     u = np.empty(shape)
     code = np.empty(len(q), dtype=np.int8)
     b_all = np.empty((len(q), n_rows))

@@ -308,8 +308,9 @@ class CBFFilter:
         """B states at once: `controllers.cbf_batch.cbf_qp_batch` (the "disabled", "nominal", "qp" and
         "recovery" branches compiled; infeasible states through `__call__`), the same
         actions as B calls and commands within 1e-9 hPa. Batches smaller than SCALAR_BELOW
-        go state by state; above N = ENUMERATION_MAX_N (4) the QP states go through `__call__` too
-        (the enumeration's subsets outgrow the scalar QP). u_nom: (B, N) hPa."""
+        go state by state; where the enumeration has more than ENUMERATION_MAX_CANDIDATES candidates
+        (N ≥ 6 with one facet and the box) the QP states go through `__call__` too (the enumeration
+        would cost more than the scalar QP). u_nom: (B, N) hPa."""
         if len(estimates) < SCALAR_BELOW:
             outputs = [self(estimates[i], u_nom[i]) for i in range(len(estimates))]
             return BatchOutput(np.array([o.u for o in outputs]), np.array([o.action for o in outputs]),

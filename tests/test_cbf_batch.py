@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from controllers.cbf import TUNINGS
-from controllers.cbf_batch import ENUMERATION_MAX_N, RecoveryRows, candidate_table, cbf_qp_batch, subset_levels
+from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, RecoveryRows, candidate_table, cbf_qp_batch,
+                                   subset_levels)
 from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteStateError
 from controllers.filter import CBFFilter
@@ -165,21 +166,30 @@ def test_n_segment_batch_matches_scalar_filter(n_seg, tuning, corner, pressure_l
         assert two_active > 0, "no state with two active CBF rows: the multi-row candidates go untested"
 
 
-def test_the_enumeration_hands_larger_n_to_the_scalar_filter():
-    """Above ENUMERATION_MAX_N the QP states go to the fallback (module docstring: the subsets' count)."""
-    n_seg = ENUMERATION_MAX_N + 1
+@pytest.mark.parametrize("n_seg, pressure_limits", [(5, True), (6, True), (6, False)])
+def test_the_enumeration_up_to_its_candidate_count(n_seg, pressure_limits):
+    """Up to ENUMERATION_MAX_CANDIDATES candidates the QP states are enumerated (N = 5 with the box: 454; N = 6
+    without: 2), beyond they go to the fallback (N = 6 with the box: 1394); the scalar filter's labels either way."""
     params, safe_set = uniform_robot(n_seg), paper_safe_set()
-    scalar = CBFFilter(params, safe_set, TUNINGS["HW-High"])
+    scalar = CBFFilter(params, safe_set, TUNINGS["HW-High"], pressure_limits=pressure_limits)
     q, qd, u_nom = _inside_states(params, safe_set, 200, 0.3, 1)
-    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, np.array(params.u_min),
-                       np.array(params.u_max), fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]))
+    limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
+    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, *limits,
+                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]))
     want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(len(q))]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
-    np.testing.assert_array_equal(out.u, [w.u for w in want])
-    assert set(out.action[out.resolved]) == {"nominal"} and "qp" in set(out.action)
+    np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
+    enumerated = len(candidate_table(1 + 2 * n_seg, n_seg, 1) if pressure_limits else candidate_table(1, n_seg, None)) \
+        <= ENUMERATION_MAX_CANDIDATES
+    assert enumerated == ((n_seg, pressure_limits) != (6, True))
+    qp = out.action == "qp"
+    assert np.any(qp) and np.all(out.resolved[qp] == enumerated)
+    if not enumerated:
+        np.testing.assert_array_equal(out.u[qp], [w.u for w, is_qp in zip(want, qp) if is_qp])
 
 
-@pytest.mark.parametrize("n_seg, bounded, count", [(2, True, 14), (3, True, 46), (4, True, 146), (3, False, 2)])
+@pytest.mark.parametrize("n_seg, bounded, count", [(2, True, 14), (3, True, 46), (4, True, 146), (5, True, 454),
+                                                    (6, True, 1394), (3, False, 2)])
 def test_subset_levels_count_and_order(n_seg, bounded, count):
     """The candidates of one facet row: u_nom and the subsets of ≤ N rows without ±e_j together, in
     itertools.combinations order level by level (the tie order of before, for N = 2)."""
