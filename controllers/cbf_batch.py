@@ -144,12 +144,13 @@ def checked_rows(name: str, value: np.ndarray, shape: tuple[int, int], error: ty
 
 
 def predicted_margin(safe_set: ForceSafeSet, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """ρ = min_i (n_max − n_i)/n_max at tips (x, y) (m, (B,) each), as `ForceSafeSet.margin_at` (same floats)."""
-    n_max = safe_set.n_max
-    normals, offsets = safe_set.environment.normals.tolist(), safe_set.environment.offsets.tolist()
-    rho = np.full(np.shape(x), np.inf)
-    for (nx, ny), d in zip(normals, offsets):
-        rho = np.minimum(rho, (n_max - np.maximum(nx * x + ny * y - d, 0.0)) / n_max)
+    """ρ = min_i (n_max − n_i)/n_max at tips (x, y) (m, (B,) each), as `ForceSafeSet.margin_at` (same floats;
+    compiled: `controllers.cbf_kernels.predicted_margins`)."""
+    environment = safe_set.environment
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    rho = np.empty(x.shape)
+    cbf_kernels.predicted_margins(x, y, np.asarray(environment.normals, dtype=float),
+                                  np.asarray(environment.offsets, dtype=float), float(safe_set.n_max), rho)
     return rho
 
 
@@ -284,8 +285,8 @@ def cbf_qp_batch(
     action = CODE_LABELS[code]
     infeasible = np.zeros(len(q), dtype=bool)
     resolved = code != cbf_kernels.FALLBACK
-    unresolved = np.flatnonzero(~resolved)
-    if len(unresolved):
+    if not resolved.all():
+        unresolved = np.flatnonzero(~resolved)
         if fallback is None:
             raise ValueError(f"state {unresolved[0]} needs the scalar filter (recovery or infeasible) but no fallback "
                              "was given")

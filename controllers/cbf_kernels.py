@@ -234,3 +234,19 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
                 v = min(max(v, limits[0, j]), limits[1, j])
             u[s, j] = v
         code[s] = RECOVERY if recovery else QP
+
+
+@njit(cache=True, error_model="numpy")
+def predicted_margins(x, y, normals, offsets, n_max, out) -> None:
+    """ρ = min_i (n_max − max(n̂_i·r − d_i, 0))/n_max at the tips r = (x, y) (m, (B,) each) into out (B,):
+    `cbf_batch.predicted_margin` (numpy's maximum and minimum: a NaN propagates)."""
+    for s in range(x.shape[0]):
+        rho = math.inf
+        for i in range(normals.shape[0]):
+            depth = normals[i, 0] * x[s] + normals[i, 1] * y[s] - offsets[i]
+            if not (depth >= 0.0 or math.isnan(depth)):
+                depth = 0.0
+            margin = (n_max - depth) / n_max
+            if not (rho <= margin or math.isnan(rho)):
+                rho = margin
+        out[s] = rho
