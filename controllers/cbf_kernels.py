@@ -41,6 +41,15 @@ DISABLED, NOMINAL, QP, RECOVERY, FALLBACK = 0, 1, 2, 3, 4
 """The kernel's per-state codes: the action labels `cbf_batch.CODE_LABELS` (FALLBACK: the scalar filter's)."""
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _dot(a, ra, b, rb, n):
+    """Σ_j a[ra, j] b[rb, j], summed in the order j = 0, 1, … (the scalar solver's x_0 y_0 + x_1 y_1 + …)."""
+    out = a[ra, 0] * b[rb, 0]
+    for j in range(1, n):
+        out += a[ra, j] * b[rb, j]
+    return out
+
+
 @njit(cache=True, error_model="numpy")
 def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_gain, limits, table, disabled, bounded,
               recover, enumerate_qp, b_min, feasibility_rtol, zero_row_tol, singular_tol, u, code, b_out) -> None:
@@ -56,7 +65,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
     basis_sq = np.empty(n_cand)  # v·v
     volume = np.empty(n_cand)  # ‖v_1‖⋯‖v_k‖
     valid = np.empty(n_cand, dtype=np.bool_)
-    u0 = np.empty(n)
+    u0 = np.empty((1, n))
     box_scale = 0.0
     if bounded:
         for j in range(n):
@@ -72,7 +81,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
             v = u_nom[s, j]
             if bounded:
                 v = min(max(v, limits[0, j]), limits[1, j])
-            u0[j] = v
+            u0[0, j] = v
             u[s, j] = v
         # Barrier rows (controllers.cbf.barrier_rows, in its operation order), or the quasi-static row of a row with
         # b ≤ B_MIN (CBFFilter._static_row).
@@ -115,10 +124,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
             continue
         nominal = True
         for i in range(p):
-            dot = rows[i, 0] * u0[0]
-            for j in range(1, n):
-                dot += rows[i, j] * u0[j]
-            if not dot <= rhs[i]:
+            if not _dot(rows, i, u0, 0, n) <= rhs[i]:
                 nominal = False
         if nominal:
             code[s] = NOMINAL
@@ -129,10 +135,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
         # The QP by enumeration: rows scaled to unit norm (controllers.qp.solve_lists), zero rows dropped.
         contradiction = False
         for i in range(p):
-            norm_sq = rows[i, 0] * rows[i, 0]
-            for j in range(1, n):
-                norm_sq += rows[i, j] * rows[i, j]
-            norm = math.sqrt(norm_sq)
+            norm = math.sqrt(_dot(rows, i, rows, i, n))
             if not math.isfinite(norm + rhs[i]):
                 contradiction = True  # an overflowed row: the scalar filter's "slack"
             zero[i] = not norm > zero_row_tol
@@ -151,7 +154,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
             continue
         scale = 0.0
         for j in range(n):
-            scale = max(scale, abs(u0[j]))
+            scale = max(scale, abs(u0[0, j]))
         scale = 1.0 + scale
         if bounded:
             scale = max(scale, 1.0 + box_scale)
@@ -161,7 +164,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
             size = table[g, 0]
             if g == 0:  # u_nom itself
                 for j in range(n):
-                    cand[0, j] = u0[j]
+                    cand[0, j] = u0[0, j]
                 valid[0] = True
             else:
                 row = table[g, 1]
@@ -184,24 +187,14 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
                         basis[g, j] = rows[row, j]
                     for i in range(size - 1):  # modified Gram–Schmidt against the prefix's rows
                         w = table[g, 2 + i]
-                        dot = basis[g, 0] * basis[w, 0]
-                        for j in range(1, n):
-                            dot += basis[g, j] * basis[w, j]
-                        coef = dot / basis_sq[w]
+                        coef = _dot(basis, g, basis, w, n) / basis_sq[w]
                         for j in range(n):
                             basis[g, j] = basis[g, j] - coef * basis[w, j]
-                    num = rows[row, 0] * cand[parent, 0]
-                    den = rows[row, 0] * basis[g, 0]
-                    for j in range(1, n):
-                        num += rows[row, j] * cand[parent, j]
-                        den += rows[row, j] * basis[g, j]
-                    step = (num - rhs[row]) / den
+                    step = (_dot(rows, row, cand, parent, n) - rhs[row]) / _dot(rows, row, basis, g, n)
                     for j in range(n):
                         cand[g, j] = cand[parent, j] - step * basis[g, j]
                     if not (size == 1 and n == 2):  # (N = 2: the next level is Cramer's, no basis needed)
-                        vv = basis[g, 0] * basis[g, 0]
-                        for j in range(1, n):
-                            vv += basis[g, j] * basis[g, j]
+                        vv = _dot(basis, g, basis, g, n)
                         basis_sq[g] = vv
                         volume[g] = math.sqrt(vv) if size == 1 else volume[parent] * math.sqrt(vv)
                         if not volume[g] >= singular_tol:
@@ -209,17 +202,14 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
                             continue
             feasible = True
             for i in range(m):
-                dot = cand[g, 0] * rows[i, 0]
-                for j in range(1, n):
-                    dot += cand[g, j] * rows[i, j]
-                if not dot - rhs[i] <= tol:
+                if not _dot(cand, g, rows, i, n) - rhs[i] <= tol:
                     feasible = False
                     break
             if not feasible:
                 continue
             distance = 0.0
             for j in range(n):
-                d = cand[g, j] - u0[j]
+                d = cand[g, j] - u0[0, j]
                 distance += d * d
             if distance < best_distance:
                 best, best_distance = g, distance
