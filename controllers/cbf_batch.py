@@ -69,9 +69,9 @@ module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's roundin
   enumeration stops there: no candidate is nearer). The
   result is clipped to the bounds, as `CBFFilter` clips it. The kernel's cost grows with the
   candidates (each tested against m rows): per QP state, one facet, the box, HW-High, B = 256
-  (tools/bench_batch_filters.py, which forces the enumeration with `max_candidates`), 0.4, 1.5,
-  8.5, 33 and 139 µs of CPU for 14, 46, 146, 454 and 1394 candidates (N = 2 … 6) against the
-  scalar filter's 50–86 µs: up to ENUMERATION_MAX_CANDIDATES candidates the enumeration is
+  (tools/bench_batch_filters.py, which forces the enumeration with `max_candidates`; load 6), 0.5,
+  2.2, 10.6, 46 and 171 µs of CPU for 14, 46, 146, 454 and 1394 candidates (N = 2 … 6) against the
+  scalar filter's 68–102 µs: up to ENUMERATION_MAX_CANDIDATES candidates the enumeration is
   the cheaper (N ≤ 5 with one facet and the box, N ≤ 4 with three rows, any N without the box:
   1 + Σ_k C(P, k) candidates); beyond, those states go to the fallback.
 - Not covered here, handed to `fallback(b)` per state b (the scalar filter): no candidate is
@@ -156,8 +156,8 @@ def predicted_margin(safe_set: ForceSafeSet, x: np.ndarray, y: np.ndarray) -> np
 
 ENUMERATION_MAX_CANDIDATES = 500
 """The most candidates (`candidate_table`) for which `cbf_qp_batch` solves QP states by enumeration
-(module docstring: measured, 454 candidates cost 33 µs a state against the scalar QP's 77 µs, 1394
-cost 139 µs against 86 µs); with more, the QP states go to the fallback."""
+(module docstring: measured, 454 candidates cost 46 µs a state against the scalar QP's 101 µs, 1394
+cost 171 µs against 102 µs); with more, the QP states go to the fallback."""
 
 SINGULAR_TOL = 1e-12
 """A subset whose unit rows span a parallelotope of volume below this (‖v_1‖⋯‖v_k‖; |det| of two rows for

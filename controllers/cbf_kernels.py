@@ -8,11 +8,11 @@ fastmath (IEEE operations in the written order: a row's floats do not depend on 
 B), error_model="numpy" (x/0 gives ±inf/NaN, never raises). Loaded on the first call through
 `controllers.lazy_import`: `softcbf list` imports no numba.
 
-Why compiled: in numpy every state's QP cost ≈ 2 µs at B = 256 (the enumeration's (S, C, N) arrays
-and a dozen numpy calls per level) and the states the numpy path left to the scalar filter, the
-quasi-static "recovery" rows, cost ≈ 100 µs each in Python (a quarter of the states of the MuJoCo
-contact batch, tools/bench_batch.py); one compiled loop does either in well under a microsecond a
-state.
+Why compiled: in numpy a QP state cost ≈ 3.2 µs at N = 2, B = 256 (the enumeration's (S, C, N)
+arrays and a dozen numpy calls per level), and the states the numpy path left to the scalar filter,
+the quasi-static "recovery" rows, ≈ 35 µs each (tools/bench_batch_filters.py, baseline 510d063;
+a quarter of the states of the MuJoCo contact batch of tools/bench_batch.py); one compiled loop does
+either in well under a microsecond a state at N = 2 (0.3–0.6 µs, the same tool).
 
 Arguments (shapes: B states, N inputs, P rows of P, m = P (+ 2N with the box) QP rows, C candidates):
 - kin (B, ·) complex: `controllers.pcc_model` rows at the states; tip_col: the column of r (then ṙ,
