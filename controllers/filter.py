@@ -95,7 +95,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.cbf import B_MIN, TUNING_PARAMETERS, TUNINGS, Tuning, barrier_rows, get_tuning
-from controllers.cbf_batch import SCALAR_BELOW, cbf_qp_batch
+from controllers.cbf_batch import SCALAR_BELOW, RecoveryRows, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
@@ -201,10 +201,11 @@ class CBFFilter:
         self._H = np.array(safe_set.H_prime, dtype=float)
         self._h = np.array(safe_set.h_prime, dtype=float)
         self._rows, self._hs = self._H.tolist(), self._h.tolist()
-        self._eps = (self.recovery_margin * np.hypot(self._H[:, 0], self._H[:, 1])).tolist()
+        self._recovery_rows = RecoveryRows.of(params, safe_set, self.recovery_margin)  # K⁻¹Λ and ε_i
+        self._eps = list(self._recovery_rows.margins)
         self._lb_list = list(params.u_min) if self.pressure_limits else None
         self._ub_list = list(params.u_max) if self.pressure_limits else None
-        self._static_gain = (params.array("gains") / params.array("stiffness")).tolist()  # K⁻¹Λ, rad/hPa
+        self._static_gain = list(self._recovery_rows.static_gain)  # K⁻¹Λ, rad/hPa
         self._rest_targets: np.ndarray | None = None
         p = len(self._rows)
         self.diagnostic_layout = DiagnosticLayout(
@@ -304,11 +305,12 @@ class CBFFilter:
                             CBF_DIAGNOSTIC_UNITS)
 
     def filter_batch(self, estimates: EstimateBatch, u_nom) -> BatchOutput:
-        """B states at once: `controllers.cbf_batch.cbf_qp_batch` (the "disabled", "nominal" and
-        "qp" branches vectorised; recovery and infeasible states through `__call__`), the same
+        """B states at once: `controllers.cbf_batch.cbf_qp_batch` (the "disabled", "nominal", "qp" and
+        "recovery" branches compiled; infeasible states through `__call__`), the same
         actions as B calls and commands within 1e-9 hPa. Batches smaller than SCALAR_BELOW
-        go state by state; above N = ENUMERATION_MAX_N (4) the QP states go through `__call__` too
-        (the enumeration's subsets outgrow the scalar QP). u_nom: (B, N) hPa."""
+        go state by state; where the enumeration has more than ENUMERATION_MAX_CANDIDATES candidates
+        (N ≥ 6 with one facet and the box) the QP states go through `__call__` too (the enumeration
+        would cost more than the scalar QP). u_nom: (B, N) hPa."""
         if len(estimates) < SCALAR_BELOW:
             outputs = [self(estimates[i], u_nom[i]) for i in range(len(estimates))]
             return BatchOutput(np.array([o.u for o in outputs]), np.array([o.action for o in outputs]),
@@ -317,7 +319,8 @@ class CBFFilter:
             self._batch_dynamics = BatchDynamics(self.params)
         lo, hi = (np.array(self.params.u_min), np.array(self.params.u_max)) if self.pressure_limits else (None, None)
         out = cbf_qp_batch(self._batch_dynamics, self.safe_set, self.tuning, estimates.q, estimates.qd, u_nom, lo, hi,
-                           fallback=lambda i: self(estimates[i], u_nom[i]))
+                           fallback=lambda i: self(estimates[i], u_nom[i]),
+                           recovery=self._recovery_rows)
         return BatchOutput(out.u, out.action, out.infeasible, out.rho_pred)
 
     def step(self, x, u_nom) -> CBFResult:

@@ -18,7 +18,11 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from controllers.lazy_import import lazy_module
 from controllers.safe_set import ForceSafeSet
+
+figures_kernel = lazy_module("softcbf_mj.figures_kernel")  # numba loads on the first update (controllers.lazy_import)
+_NO_CODES = np.zeros((1, 1), dtype=np.int8)  # the kernel's placeholder for action / rows when they are None
 
 CHATTER_THRESHOLD_HPA = 0.1  # |u − u_nom| below this (hPa) counts as "no correction"
 HF_CUTOFF_HZ = 5.0  # above the reference arm's first mode (≈ 20 rad/s ≈ 3.2 Hz): power the arm cannot follow
@@ -129,31 +133,16 @@ class RunningFigures:
                infeasible: np.ndarray, action: np.ndarray | None = None, rows: np.ndarray | None = None) -> None:
         """T rows of every run: margin ρ_meas (T, B), contact_forces (T, B, P) N, u (T, B, N) hPa
         sent, rho_pred (T, B) (NaN: none), infeasible (T, B) bool, action (T, B) the monitor's
-        codes (0 RUN, 1 HOLD, 2 VENT; None: not counted); `rows` (T, B) bool: the rows that count (None: all)."""
-        force = np.max(contact_forces, axis=-1)
-        peak = np.max(np.abs(u), axis=-1)
-        if rows is not None:
-            margin = np.where(rows, margin, math.inf)
-            force = np.where(rows, force, -math.inf)
-            peak = np.where(rows, peak, 0.0)
-            rho_pred = np.where(rows, rho_pred, math.nan)
-            infeasible = infeasible & rows
-            action = None if action is None else np.where(rows, action, 0)
-            self.rows += np.count_nonzero(rows, axis=0)
-        else:
-            self.rows += len(margin)
-        self.rho_min_pred = np.fmin(self.rho_min_pred, np.fmin.reduce(rho_pred, axis=0))
-        self.rho_min_meas = np.minimum(self.rho_min_meas, np.min(margin, axis=0))
-        self.force_max_N = np.maximum(self.force_max_N, np.max(force, axis=0))
-        self.violations += np.count_nonzero(margin < 0.0, axis=0)
-        self.infeasible += np.count_nonzero(infeasible, axis=0)
-        if action is not None:
-            self.refused += np.count_nonzero(action != 0, axis=0)
-            self.vented |= np.any(action == 2, axis=0)
-        self.u_peak_abs_hPa = np.fmax(self.u_peak_abs_hPa, np.max(peak, axis=0))
-        if self.f_max is not None:
-            excess = np.max(np.maximum(contact_forces - self.f_max, 0.0), axis=-1) / self.f_max
-            self.force_excess += np.sum(np.where(rows, excess, 0.0) if rows is not None else excess, axis=0)
+        codes (0 RUN, 1 HOLD, 2 VENT; None: not counted); `rows` (T, B) bool: the rows that count (None: all).
+        Compiled (`softcbf_mj.figures_kernel`: one pass over the block, the definitions above)."""
+        margin, rho_pred, infeasible = np.asarray(margin, dtype=float), np.asarray(rho_pred, dtype=float), \
+            np.asarray(infeasible)
+        figures_kernel.update(margin, np.asarray(contact_forces, dtype=float), np.asarray(u, dtype=float), rho_pred,
+                              infeasible, _NO_CODES if action is None else np.asarray(action),
+                              _NO_CODES if rows is None else np.asarray(rows), action is not None, rows is not None,
+                              math.nan if self.f_max is None else float(self.f_max), self.rows, self.rho_min_pred,
+                              self.rho_min_meas, self.force_max_N, self.violations, self.infeasible, self.refused,
+                              self.vented, self.u_peak_abs_hPa, self.force_excess)
 
     def figures(self, b: int) -> dict[str, Any]:
         """Run b's figures under the docs/run-outputs.md names (rho_min_pred None when never predicted)."""

@@ -52,7 +52,7 @@ class PCCBatchPlant:
         self.control_dt, self.integrator = self.period.control_dt, integrator
         self.physics_dt, self.substeps, self.tau_p = self.period.physics_dt, self.period.substeps, self.period.tau_p
         normals, offsets = safe_set.environment.normals, safe_set.environment.offsets
-        self._normals, self._offsets = np.asarray(normals, dtype=float), np.asarray(offsets, dtype=float)
+        self._facets = list(zip(np.asarray(normals, dtype=float).tolist(), np.asarray(offsets, dtype=float).tolist()))
         self._x = np.zeros((self.n_sims, 2 * n))
         self._p = np.zeros((self.n_sims, n))
         self._kin = self._dyn = np.zeros((self.n_sims, 0))
@@ -63,8 +63,7 @@ class PCCBatchPlant:
         ends = self._kin[:, self.dynamics.layout.ends]
         tip = ends[:, -1]
         x, y = tip.real, tip.imag
-        penetration = np.column_stack([np.maximum(nx * x + ny * y - d, 0.0)
-                                       for (nx, ny), d in zip(self._normals.tolist(), self._offsets.tolist())])
+        penetration = np.column_stack([np.maximum(nx * x + ny * y - d, 0.0) for (nx, ny), d in self._facets])
         return BatchPlantState(
             t=np.full(self.n_sims, self._k * self.control_dt),
             q=self._x[:, :n].copy(),
@@ -94,7 +93,7 @@ class PCCBatchPlant:
         """Hold u[b] (hPa, (B, N), finite) on simulation b for one control period."""
         u = np.array(u, dtype=float)
         shape = (self.n_sims, self.n_segments)
-        if u.shape != shape or not np.all(np.isfinite(u)):
+        if u.shape != shape or not np.isfinite(u).all():
             raise ValueError(f"u must be finite with shape {shape}, got shape {u.shape}")
         x, p, kin, dyn = self._x.copy(), self._p.copy(), self._kin.copy(), self._dyn.copy()
         self.period.run(x, u, p, self.dynamics.parameter_rows, kin, dyn, self._k * self.control_dt)

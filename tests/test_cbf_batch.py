@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from controllers.cbf import TUNINGS
-from controllers.cbf_batch import ENUMERATION_MAX_N, cbf_qp_batch, subset_levels
+from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, RecoveryRows, candidate_table, cbf_qp_batch,
+                                   subset_levels)
 from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteStateError
 from controllers.filter import CBFFilter
@@ -32,7 +33,10 @@ def _states(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("tuning", ["None", "Low", "High", "HW-Low", "HW-High"])
 @pytest.mark.parametrize("pressure_limits", [True, False])
-def test_batch_matches_scalar_filter(tuning, pressure_limits):
+@pytest.mark.parametrize("recover", [False, True])
+def test_batch_matches_scalar_filter(tuning, pressure_limits, recover):
+    """With `recovery` the states outside P (b ≤ B_MIN on a row) are solved in the batch too, with the filter's
+    quasi-static rows; without, they go to the fallback. Either way: the scalar filter's labels and commands."""
     params, safe_set = reference_robot(), paper_safe_set()
     scalar = CBFFilter(params, safe_set, TUNINGS[tuning], pressure_limits=pressure_limits)
     q, qd, u_nom = _states(hash((tuning, pressure_limits)) % 2**32)
@@ -43,7 +47,8 @@ def test_batch_matches_scalar_filter(tuning, pressure_limits):
         calls.append(i)
         return scalar.step(np.concatenate((q[i], qd[i])), u_nom[i])
 
-    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS[tuning], q, qd, u_nom, *limits, fallback=fallback)
+    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS[tuning], q, qd, u_nom, *limits, fallback=fallback,
+                       recovery=RecoveryRows.of(params, safe_set, scalar.recovery_margin) if recover else None)
     want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(N_STATES)]
     actions = np.array([w.action for w in want])
     np.testing.assert_array_equal(out.action, actions)
@@ -53,9 +58,13 @@ def test_batch_matches_scalar_filter(tuning, pressure_limits):
     np.testing.assert_allclose(out.b, [w.b for w in want], rtol=0.0, atol=0.0)
     assert sorted(calls) == np.flatnonzero(~out.resolved).tolist()
     covered = set(actions[out.resolved])
-    assert covered <= {"disabled", "nominal", "qp"}
     if tuning == "None":
         assert covered == {"disabled"}
+    elif recover:  # the random states exercise every covered branch; only infeasible states are left
+        assert covered == {"nominal", "qp", "recovery"}, covered
+        assert set(actions[~out.resolved]) <= {"slack", "vent"}
+        recovering = out.resolved & np.array([w.recovery for w in want])  # outside P, solved in the batch
+        assert np.count_nonzero(recovering) > N_STATES // 20 and {"nominal", "recovery"} <= set(actions[recovering])
     else:  # the random states exercise every covered branch and the fallback
         assert covered == {"nominal", "qp"}, covered
         assert 0 < len(calls) < N_STATES // 2
@@ -157,21 +166,30 @@ def test_n_segment_batch_matches_scalar_filter(n_seg, tuning, corner, pressure_l
         assert two_active > 0, "no state with two active CBF rows: the multi-row candidates go untested"
 
 
-def test_the_enumeration_hands_larger_n_to_the_scalar_filter():
-    """Above ENUMERATION_MAX_N the QP states go to the fallback (module docstring: the subsets' count)."""
-    n_seg = ENUMERATION_MAX_N + 1
+@pytest.mark.parametrize("n_seg, pressure_limits", [(5, True), (6, True), (6, False)])
+def test_the_enumeration_up_to_its_candidate_count(n_seg, pressure_limits):
+    """Up to ENUMERATION_MAX_CANDIDATES candidates the QP states are enumerated (N = 5 with the box: 454; N = 6
+    without: 2), beyond they go to the fallback (N = 6 with the box: 1394); the scalar filter's labels either way."""
     params, safe_set = uniform_robot(n_seg), paper_safe_set()
-    scalar = CBFFilter(params, safe_set, TUNINGS["HW-High"])
+    scalar = CBFFilter(params, safe_set, TUNINGS["HW-High"], pressure_limits=pressure_limits)
     q, qd, u_nom = _inside_states(params, safe_set, 200, 0.3, 1)
-    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, np.array(params.u_min),
-                       np.array(params.u_max), fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]))
+    limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
+    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, *limits,
+                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]))
     want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(len(q))]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
-    np.testing.assert_array_equal(out.u, [w.u for w in want])
-    assert set(out.action[out.resolved]) == {"nominal"} and "qp" in set(out.action)
+    np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
+    enumerated = len(candidate_table(1 + 2 * n_seg, n_seg, 1) if pressure_limits else candidate_table(1, n_seg, None)) \
+        <= ENUMERATION_MAX_CANDIDATES
+    assert enumerated == ((n_seg, pressure_limits) != (6, True))
+    qp = out.action == "qp"
+    assert np.any(qp) and np.all(out.resolved[qp] == enumerated)
+    if not enumerated:
+        np.testing.assert_array_equal(out.u[qp], [w.u for w, is_qp in zip(want, qp) if is_qp])
 
 
-@pytest.mark.parametrize("n_seg, bounded, count", [(2, True, 14), (3, True, 46), (4, True, 146), (3, False, 2)])
+@pytest.mark.parametrize("n_seg, bounded, count", [(2, True, 14), (3, True, 46), (4, True, 146), (5, True, 454),
+                                                    (6, True, 1394), (3, False, 2)])
 def test_subset_levels_count_and_order(n_seg, bounded, count):
     """The candidates of one facet row: u_nom and the subsets of ≤ N rows without ±e_j together, in
     itertools.combinations order level by level (the tie order of before, for N = 2)."""
@@ -185,3 +203,36 @@ def test_subset_levels_count_and_order(n_seg, bounded, count):
         assert np.array_equal(members[:, -1], rows)
         for i in range(size - 1):  # prefixes[:, i]: the subset of the first i + 1 rows, in level i + 1
             assert np.array_equal(levels[i][2][prefixes[:, i]], members[:, : i + 1])
+
+
+@pytest.mark.parametrize("n_seg", [3, 4])
+@pytest.mark.parametrize("pressure_limits", [True, False])
+def test_n_segment_recovery_rows_match_scalar_filter(n_seg, pressure_limits):
+    """N = 3, 4 with states outside P: the quasi-static rows enumerated as the CBF rows are, against the scalar filter."""
+    params, safe_set = uniform_robot(n_seg), paper_safe_set()
+    scalar = CBFFilter(params, safe_set, TUNINGS["HW-High"], pressure_limits=pressure_limits)
+    rng = np.random.default_rng(n_seg)
+    count = 1000
+    q, qd, u_nom = rng.uniform(-0.4, 0.8, (count, n_seg)), rng.normal(0.0, 1.5, (count, n_seg)), \
+        rng.uniform(-250.0, 250.0, (count, n_seg))
+    limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
+    out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, *limits,
+                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]),
+                       recovery=RecoveryRows.of(params, safe_set, scalar.recovery_margin))
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(count)]
+    np.testing.assert_array_equal(out.action, [w.action for w in want])
+    np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
+    np.testing.assert_array_equal(out.infeasible, [w.infeasible for w in want])
+    assert np.count_nonzero(out.resolved & (out.action == "recovery")) > count // 20
+
+
+def test_candidate_table_follows_the_subset_levels():
+    """The kernel's table: u_nom, then each level's subsets in order, with their sizes, last rows and prefixes."""
+    levels = subset_levels(7, 3, 1)
+    table = candidate_table(7, 3, 1)
+    members = [()] + [tuple(m) for _, _, level in levels for m in level.tolist()]
+    assert len(table) == len(members) and table[0].tolist() == [0, 0, 0, 0]
+    for row, subset in zip(table[1:].tolist(), members[1:]):
+        size = len(subset)
+        assert row[:2] == [size, subset[-1]]
+        assert [members[g] for g in row[2 : 2 + size - 1]] == [subset[: i + 1] for i in range(size - 1)]

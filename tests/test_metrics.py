@@ -6,6 +6,7 @@ import pytest
 from softcbf_mj.metrics import (
     CHATTER_THRESHOLD_HPA,
     HF_CUTOFF_HZ,
+    RunningFigures,
     chatter_per_s,
     high_frequency_fraction,
     run_figures,
@@ -101,3 +102,62 @@ def test_run_figures_report_the_chatter_of_the_log():
     assert row["u_hf_fraction"] > 0.9
     assert row["u_dev_max_hPa"] == pytest.approx(360.4)
     assert row["u_dev_rms_hPa"] == pytest.approx(np.sqrt((58.7**2 + 360.4**2) / 4), rel=1e-9)
+
+
+def _numpy_figures(blocks, n_sims: int, f_max, force_floor: float) -> dict[str, np.ndarray]:
+    """The running figures' definitions (RunningFigures' docstring) as numpy expressions over whole blocks: the
+    reference the compiled update must equal bit for bit (the numpy update it replaced)."""
+    out = {"rows": np.zeros(n_sims, dtype=int), "rho_min_pred": np.full(n_sims, np.nan),
+           "rho_min_meas": np.full(n_sims, np.inf), "force_max_N": np.full(n_sims, force_floor),
+           "violations": np.zeros(n_sims, dtype=int), "infeasible": np.zeros(n_sims, dtype=int),
+           "refused": np.zeros(n_sims, dtype=int), "vented": np.zeros(n_sims, dtype=bool),
+           "u_peak_abs_hPa": np.zeros(n_sims), "force_excess": np.zeros(n_sims)}
+    for margin, forces, u, rho_pred, infeasible, action, rows in blocks:
+        force, peak = np.max(forces, axis=-1), np.max(np.abs(u), axis=-1)
+        excess = np.max(np.maximum(forces - (f_max or 1.0), 0.0), axis=-1) / (f_max or 1.0)
+        if rows is not None:
+            margin, force, peak = np.where(rows, margin, np.inf), np.where(rows, force, -np.inf), np.where(rows, peak, 0.0)
+            rho_pred, infeasible = np.where(rows, rho_pred, np.nan), infeasible & rows
+            action, excess = (None if action is None else np.where(rows, action, 0)), np.where(rows, excess, 0.0)
+            out["rows"] += np.count_nonzero(rows, axis=0)
+        else:
+            out["rows"] += len(margin)
+        out["rho_min_pred"] = np.fmin(out["rho_min_pred"], np.fmin.reduce(rho_pred, axis=0))
+        out["rho_min_meas"] = np.minimum(out["rho_min_meas"], np.min(margin, axis=0))
+        out["force_max_N"] = np.maximum(out["force_max_N"], np.max(force, axis=0))
+        out["violations"] += np.count_nonzero(margin < 0.0, axis=0)
+        out["infeasible"] += np.count_nonzero(infeasible, axis=0)
+        if action is not None:
+            out["refused"] += np.count_nonzero(action != 0, axis=0)
+            out["vented"] |= np.any(action == 2, axis=0)
+        out["u_peak_abs_hPa"] = np.fmax(out["u_peak_abs_hPa"], np.max(peak, axis=0))
+        if f_max is not None:
+            out["force_excess"] += np.sum(excess, axis=0)
+    return out
+
+
+@pytest.mark.parametrize("block", [1, 37])
+@pytest.mark.parametrize("f_max", [None, 0.5])
+def test_running_figures_equal_their_numpy_definitions(block, f_max):
+    """The compiled update against the figures' numpy definitions, bit for bit: blocks of 1 and 37 rows, some
+    rows masked, NaN predictions and forces, signed commands, refused and vented rows."""
+    rng = np.random.default_rng(block)
+    n_sims, n_facets, n_seg = 7, 3, 2
+    blocks = []
+    for k in range(6):
+        margin = rng.normal(0.2, 0.3, (block, n_sims))
+        forces = rng.exponential(0.3, (block, n_sims, n_facets))
+        forces[rng.random(forces.shape) < 0.05] = np.nan
+        rho_pred = np.where(rng.random((block, n_sims)) < 0.3, np.nan, rng.normal(0.2, 0.3, (block, n_sims)))
+        u = rng.normal(0.0, 100.0, (block, n_sims, n_seg))
+        infeasible = rng.random((block, n_sims)) < 0.2
+        action = rng.choice(np.array([0, 0, 0, 1, 2], dtype=np.int8), (block, n_sims))
+        rows = None if k % 2 else rng.random((block, n_sims)) < 0.7
+        blocks.append((margin, forces, u, rho_pred, infeasible, None if k == 3 else action, rows))
+    running = RunningFigures(n_sims, DT, f_max=f_max, force_floor=0.0)
+    for blk in blocks:
+        running.update(*blk)
+    want = _numpy_figures(blocks, n_sims, f_max, 0.0)
+    for name, value in want.items():
+        np.testing.assert_array_equal(getattr(running, name), value, err_msg=name)
+        assert getattr(running, name).dtype == value.dtype

@@ -3,9 +3,12 @@
 paper-cbf (`CBFFilter`, HW-High, ±150 hPa, the paper's facet; `uniform_robot(N)` for N ≠ 2, the
 reference arm for N = 2): B = `--batch` states whose tip is inside P (no recovery), moving,
 with u_nom ~ U(−250, 250) hPa per input, drawn once in this process and handed to every tree.
-Two sets per N: "mixed" (those states as drawn: nominal, qp, and a few slack states) and "qp"
-(only the states the scalar filter labels "qp": the enumeration's own cost). Per set: CPU µs
-per state of one `filter_batch` call of B states, and of B `__call__`s on the same states.
+Three sets per N: "mixed" (those states as drawn: nominal, qp, and a few slack states), "qp"
+(only the states the scalar filter labels "qp": the enumeration's own cost) and "outside" (states of
+the same draws whose tip is outside P: the quasi-static "recovery" rows, which the batch solves since
+the compiled kernel, and the few infeasible "slack" states it hands to the scalar filter). Per set:
+CPU µs per state of one `filter_batch` call of B states, and of B `__call__`s on the same states;
+`qp share`: the states labelled "qp" or "recovery".
 Each tree (`--against DIR`: a worktree of an older commit, e.g. one whose enumeration was
 N = 2 only, sending every N ≠ 2 QP state to the scalar filter) runs in fresh worker processes,
 twice, interleaved with the other tree's, each figure the best of both workers' `--repeats`
@@ -17,8 +20,8 @@ closed-loop-like sequence (per row the paper's sinusoid, amplitude 80 or 150 hPa
 phase, plus noise), CPU µs per row and period of `filter_batch` against B governors of their
 own called in turn (what a batched study did before: one filter per simulation), with the
 share of rows the vectorised branch decided ("nominal"). Last, this tree's enumeration forced at
-every N (`cbf_qp_batch(..., enumerate_up_to=N)`) on the "qp" set: where it is slower than the
-scalar filter, `ENUMERATION_MAX_N` hands those states to the scalar filter.
+every N (`cbf_qp_batch(..., max_candidates=...)` above the count) on the "qp" set: where it is slower
+than the scalar filter, `ENUMERATION_MAX_CANDIDATES` hands those states to the scalar filter.
 
 Usage: `python tools/bench_batch_filters.py [--against ../pin] [--batch 256] [--repeats 3]
 [--segments 2,3,4,5]`; prints a table and ends with one line of JSON (µs; ratios scalar / batch,
@@ -66,20 +69,24 @@ def draw_states(segments: list[int], batch: int) -> dict[str, np.ndarray]:
     safe_set, out, rng = paper_safe_set(), {}, np.random.default_rng(0)
     for n in segments:
         scalar = CBFFilter(_robot(n), safe_set, TUNINGS["HW-High"])
-        q, qd, u_nom, qp = [], [], [], []
-        while len(q) < batch or len(qp) < batch:
+        q, qd, u_nom, qp, outside = [], [], [], [], []
+        while len(q) < batch or len(qp) < batch or len(outside) < batch:
             x = np.concatenate((rng.uniform(-0.4, 0.4, n), rng.normal(0.0, 1.5, n)))
             u = rng.uniform(-250.0, 250.0, n)
             result = scalar.step(x, u)
             if not np.all(result.b > 0.0):
+                if len(outside) < batch:
+                    outside.append(np.concatenate((x, u)))
                 continue
             if len(q) < batch:
                 q.append(x[:n]), qd.append(x[n:]), u_nom.append(u)
             if result.action == "qp" and len(qp) < batch:
                 qp.append(np.concatenate((x, u)))
-        qp = np.array(qp)
+        qp, outside = np.array(qp), np.array(outside)
         out.update({f"N{n}_q": np.array(q), f"N{n}_qd": np.array(qd), f"N{n}_u": np.array(u_nom),
-                    f"N{n}_qp_q": qp[:, :n], f"N{n}_qp_qd": qp[:, n:2 * n], f"N{n}_qp_u": qp[:, 2 * n:]})
+                    f"N{n}_qp_q": qp[:, :n], f"N{n}_qp_qd": qp[:, n:2 * n], f"N{n}_qp_u": qp[:, 2 * n:],
+                    f"N{n}_outside_q": outside[:, :n], f"N{n}_outside_qd": outside[:, n:2 * n],
+                    f"N{n}_outside_u": outside[:, 2 * n:]})
     return out
 
 
@@ -93,7 +100,7 @@ def cbf_worker(states: dict[str, np.ndarray], segments: list[int], repeats: int)
     out = {}
     for n in segments:
         filt = CBFFilter(_robot(n), paper_safe_set(), TUNINGS["HW-High"])
-        for name, prefix in (("mixed", f"N{n}_"), ("qp", f"N{n}_qp_")):
+        for name, prefix in (("mixed", f"N{n}_"), ("qp", f"N{n}_qp_"), ("outside", f"N{n}_outside_")):
             q, qd, u = states[prefix + "q"], states[prefix + "qd"], states[prefix + "u"]
             b = len(q)
             est = EstimateBatch(np.zeros(b), q, qd, np.zeros(b))
@@ -102,15 +109,15 @@ def cbf_worker(states: dict[str, np.ndarray], segments: list[int], repeats: int)
             assert batch.action.tolist() == [c.action for c in calls]
             out[f"cbf_N{n}_{name}_batch_us"] = _best(lambda: filt.filter_batch(est, u), repeats) / b * 1e6
             out[f"cbf_N{n}_{name}_scalar_us"] = _best(lambda: [filt(est[i], u[i]) for i in range(b)], repeats) / b * 1e6
-            out[f"cbf_N{n}_{name}_qp_share"] = float(np.mean(batch.action == "qp"))
+            out[f"cbf_N{n}_{name}_qp_share"] = float(np.mean(np.isin(batch.action, ("qp", "recovery"))))
     return out
 
 
 def forced_enumeration(states: dict[str, np.ndarray], segments: list[int], repeats: int) -> dict:
-    """This tree: `cbf_qp_batch` on the "qp" set with the enumeration forced for every N (`enumerate_up_to`),
+    """This tree: `cbf_qp_batch` on the "qp" set with the enumeration forced for every N (`max_candidates`),
     CPU µs per state, and the share of states it resolved without the scalar filter."""
     from controllers.cbf import TUNINGS
-    from controllers.cbf_batch import cbf_qp_batch
+    from controllers.cbf_batch import candidate_table, cbf_qp_batch
     from controllers.dynamics_batch import BatchDynamics
     from controllers.filter import CBFFilter
     from controllers.safe_set import paper_safe_set
@@ -123,9 +130,11 @@ def forced_enumeration(states: dict[str, np.ndarray], segments: list[int], repea
         limits = np.array(robot.u_min), np.array(robot.u_max)
 
         def run():
-            return cbf_qp_batch(dynamics, safe_set, TUNINGS["HW-High"], q, qd, u, *limits, enumerate_up_to=n,
+            return cbf_qp_batch(dynamics, safe_set, TUNINGS["HW-High"], q, qd, u, *limits, max_candidates=2**62,
                                 fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u[i]))
 
+        p = len(safe_set.h_prime)
+        out[f"cbf_N{n}_candidates"] = len(candidate_table(p + 2 * n, n, p))
         out[f"cbf_N{n}_forced_resolved"] = float(np.mean(run().resolved))
         out[f"cbf_N{n}_forced_us"] = _best(run, repeats) / len(q) * 1e6
     return out
@@ -205,7 +214,7 @@ def main() -> None:
           f"{'base batch':>10s} {'base/this':>9s}")
     ratios = {}
     for n in segments:
-        for name in ("mixed", "qp"):
+        for name in ("mixed", "qp", "outside"):
             key = f"cbf_N{n}_{name}"
             scalar, batch = this[f"{key}_scalar_us"], this[f"{key}_batch_us"]
             old = base.get(f"{key}_batch_us", float("nan"))
@@ -216,10 +225,11 @@ def main() -> None:
     with np.load(states_file) as data:
         forced = forced_enumeration(dict(data), segments, args.repeats)
     report["forced_enumeration"] = forced
-    print("the enumeration forced for every N (cbf_qp_batch, enumerate_up_to = N), 'qp' set: CPU µs per state, "
+    print("the enumeration forced for every N (cbf_qp_batch, max_candidates unbounded), 'qp' set: CPU µs per state, "
           "share resolved / this tree's scalar __call__")
     for n in segments:
-        print(f"{n:2d} {forced[f'cbf_N{n}_forced_us']:9.1f} µs, {forced[f'cbf_N{n}_forced_resolved']:.2f} resolved / "
+        print(f"{n:2d} {forced[f'cbf_N{n}_candidates']:5d} candidates {forced[f'cbf_N{n}_forced_us']:9.1f} µs, "
+              f"{forced[f'cbf_N{n}_forced_resolved']:.2f} resolved / "
               f"{this[f'cbf_N{n}_qp_scalar_us']:.1f} µs scalar")
     qsg = qsg_figures(args.batch, args.periods, args.repeats)
     report["qsg"] = qsg

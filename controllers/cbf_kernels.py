@@ -1,0 +1,242 @@
+"""The batched paper CBF's per-state arithmetic, compiled: barrier rows and the enumeration QP (controllers.cbf_batch).
+
+One numba kernel, `paper_cbf`, runs `controllers.cbf_batch.cbf_qp_batch`'s maths for B states, one
+state per loop iteration; the derivation (the QP, its candidates, the tolerances, the order of the
+operations) is cbf_batch's module docstring, this module only its compiled form. Compiled like
+`controllers.pcc_model`: `@njit(cache=True)` (compiled once per machine into __pycache__), no
+fastmath (IEEE operations in the written order: a row's floats do not depend on the other rows nor on
+B), error_model="numpy" (x/0 gives ±inf/NaN, never raises). Loaded on the first call through
+`controllers.lazy_import`: `softcbf list` imports no numba.
+
+Why compiled: in numpy a QP state cost ≈ 3.2 µs at N = 2, B = 256 (the enumeration's (S, C, N)
+arrays and a dozen numpy calls per level), and the states the numpy path left to the scalar filter,
+the quasi-static "recovery" rows, ≈ 35 µs each (tools/bench_batch_filters.py, baseline 510d063;
+a quarter of the states of the MuJoCo contact batch of tools/bench_batch.py); one compiled loop does
+either in well under a microsecond a state at N = 2 (0.3–0.6 µs, the same tool).
+
+Arguments (shapes: B states, N inputs, P rows of P, m = P (+ 2N with the box) QP rows, C candidates):
+- kin (B, ·) complex: `controllers.pcc_model` rows at the states; tip_col: the column of r (then ṙ,
+  r̈ at u = 0, ∂r̈/∂u_1..N), jac_col: the first column of J_r (N columns);
+- q (B, N) rad; u_nom (B, N) hPa (finite, checked by the caller);
+- facets (P, 4): H'_i (x, y), h'_i, ε_i (the recovery margin of row i, m·‖H'_i‖);
+- ab = a_E·b_E, b_e = b_E, gamma: the tuning (ab computed by the caller as the scalar filter does);
+- static_gain (N,) rad/hPa: K⁻¹Λ of the recovery rows (cbf_batch: `recovery`), used only if `recover`;
+- limits (2, N) hPa: (u_min, u_max), used only if `bounded`;
+- table (C, N + 1) int: the candidates (`cbf_batch.candidate_table`): per candidate g ≥ 1 its size k,
+  its last row and the global indices of its prefixes of sizes 1..k−1; row 0 stands for u_nom;
+- flags: disabled (tuning None), bounded, recover (recovery rows computed here), enumerate (N within
+  the enumeration's reach); tolerances: b_min (B_MIN), feasibility_rtol, zero_row_tol, singular_tol.
+Outputs, written per state: u (B, N) hPa, code (B,) int8 (DISABLED, NOMINAL, QP, RECOVERY, or
+FALLBACK: the scalar filter decides), b (B, P) (the barrier per row).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+DISABLED, NOMINAL, QP, RECOVERY, FALLBACK = 0, 1, 2, 3, 4
+"""The kernel's per-state codes: the action labels `cbf_batch.CODE_LABELS` (FALLBACK: the scalar filter's)."""
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _dot(a, ra, b, rb, n):
+    """Σ_j a[ra, j] b[rb, j], summed in the order j = 0, 1, … (the scalar solver's x_0 y_0 + x_1 y_1 + …)."""
+    out = a[ra, 0] * b[rb, 0]
+    for j in range(1, n):
+        out += a[ra, j] * b[rb, j]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_gain, limits, table, disabled, bounded,
+              recover, enumerate_qp, b_min, feasibility_rtol, zero_row_tol, singular_tol, u, code, b_out) -> None:
+    n_states, n = u_nom.shape
+    p = facets.shape[0]
+    m = p + 2 * n if bounded else p
+    n_cand = table.shape[0]
+    rows = np.empty((m, n))  # the QP's rows (unit after scaling; the box rows ±e_j)
+    rhs = np.empty(m)
+    zero = np.zeros(m, dtype=np.bool_)  # a zero row (dropped: every candidate holding it is skipped)
+    cand = np.empty((n_cand, n))  # per candidate: u_S
+    basis = np.empty((n_cand, n))  # per candidate: v, its last row orthogonalised against its prefix's rows
+    basis_sq = np.empty(n_cand)  # v·v
+    volume = np.empty(n_cand)  # ‖v_1‖⋯‖v_k‖
+    valid = np.empty(n_cand, dtype=np.bool_)
+    u0 = np.empty((1, n))
+    box_scale = 0.0
+    if bounded:
+        for j in range(n):
+            rhs_hi, rhs_lo = limits[1, j], limits[0, j]
+            box_scale = max(box_scale, max(abs(rhs_lo), abs(rhs_hi)))
+            for k in range(n):
+                rows[p + j, k] = 1.0 if k == j else 0.0
+                rows[p + n + j, k] = -1.0 if k == j else 0.0
+            rhs[p + j] = rhs_hi
+            rhs[p + n + j] = -rhs_lo
+    for s in range(n_states):
+        for j in range(n):  # u_nom saturated to the box (Python's min and max, as CBFFilter._clip)
+            v = u_nom[s, j]
+            if bounded:
+                v = min(max(v, limits[0, j]), limits[1, j])
+            u0[0, j] = v
+            u[s, j] = v
+        # Barrier rows (controllers.cbf.barrier_rows, in its operation order), or the quasi-static row of a row with
+        # b ≤ B_MIN (CBFFilter._static_row).
+        r = kin[s, tip_col]
+        r_dot = kin[s, tip_col + 1]
+        r_acc0 = kin[s, tip_col + 2]
+        recovery, unevaluable = False, False
+        for i in range(p):
+            hx, hy, h_i = facets[i, 0], facets[i, 1], facets[i, 2]
+            b = h_i - (hx * r.real + hy * r.imag)
+            b_out[s, i] = b
+            if b > b_min:
+                bdot = -(hx * r_dot.real + hy * r_dot.imag)
+                den = 1.0 + b_e * bdot * bdot
+                big_b = math.log1p(1.0 / b) + ab * bdot * bdot / den
+                db, dbdot = -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
+                lfb = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
+                total = 0.0
+                for j in range(n):
+                    a = kin[s, tip_col + 3 + j]
+                    rows[i, j] = -dbdot * (hx * a.real + hy * a.imag)
+                    total += rows[i, j]
+                rhs[i] = gamma / big_b - lfb
+                if not math.isfinite(rhs[i] + total):
+                    unevaluable = True
+            else:
+                recovery = True
+                offset = 0.0
+                for j in range(n):
+                    jac = kin[s, jac_col + j]
+                    hj = hx * jac.real + hy * jac.imag
+                    rows[i, j] = hj * static_gain[j]
+                    offset += hj * q[s, j]
+                rhs[i] = b - facets[i, 3] + offset
+        if disabled:
+            code[s] = DISABLED
+            continue
+        if unevaluable or (recovery and not recover):
+            code[s] = FALLBACK
+            continue
+        nominal = True
+        for i in range(p):
+            if not _dot(rows, i, u0, 0, n) <= rhs[i]:
+                nominal = False
+        if nominal:
+            code[s] = NOMINAL
+            continue
+        if not enumerate_qp:
+            code[s] = FALLBACK
+            continue
+        # The QP by enumeration: rows scaled to unit norm (controllers.qp.solve_lists), zero rows dropped.
+        contradiction = False
+        for i in range(p):
+            norm = math.sqrt(_dot(rows, i, rows, i, n))
+            if not math.isfinite(norm + rhs[i]):
+                contradiction = True  # an overflowed row: the scalar filter's "slack"
+            zero[i] = not norm > zero_row_tol
+            if zero[i]:
+                if rhs[i] < 0.0:
+                    contradiction = True
+                for j in range(n):
+                    rows[i, j] = 0.0
+                rhs[i] = 0.0
+            else:
+                for j in range(n):
+                    rows[i, j] = rows[i, j] / norm
+                rhs[i] = rhs[i] / norm
+        if contradiction:
+            code[s] = FALLBACK
+            continue
+        scale = 0.0
+        for j in range(n):
+            scale = max(scale, abs(u0[0, j]))
+        scale = 1.0 + scale
+        if bounded:
+            scale = max(scale, 1.0 + box_scale)
+        tol = feasibility_rtol * scale
+        best, best_distance = -1, math.inf
+        for g in range(n_cand):
+            size = table[g, 0]
+            if g == 0:  # u_nom itself
+                for j in range(n):
+                    cand[0, j] = u0[0, j]
+                valid[0] = True
+            else:
+                row = table[g, 1]
+                parent = table[g, size] if size > 1 else 0
+                valid[g] = valid[parent] and not zero[row]
+                if not valid[g]:
+                    continue
+                if size == 2 and n == 2:  # the square level of N = 2: Cramer's rule (cbf_batch: the floats of before)
+                    first = table[parent, 1]
+                    a0, a1, c_a = rows[first, 0], rows[first, 1], rhs[first]
+                    b0, b1, c_b = rows[row, 0], rows[row, 1], rhs[row]
+                    det = a0 * b1 - a1 * b0
+                    if not abs(det) >= singular_tol:
+                        valid[g] = False
+                        continue
+                    cand[g, 0] = (c_a * b1 - c_b * a1) / det
+                    cand[g, 1] = (a0 * c_b - b0 * c_a) / det
+                else:
+                    for j in range(n):
+                        basis[g, j] = rows[row, j]
+                    for i in range(size - 1):  # modified Gram–Schmidt against the prefix's rows
+                        w = table[g, 2 + i]
+                        coef = _dot(basis, g, basis, w, n) / basis_sq[w]
+                        for j in range(n):
+                            basis[g, j] = basis[g, j] - coef * basis[w, j]
+                    step = (_dot(rows, row, cand, parent, n) - rhs[row]) / _dot(rows, row, basis, g, n)
+                    for j in range(n):
+                        cand[g, j] = cand[parent, j] - step * basis[g, j]
+                    if not (size == 1 and n == 2):  # (N = 2: the next level is Cramer's, no basis needed)
+                        vv = _dot(basis, g, basis, g, n)
+                        basis_sq[g] = vv
+                        volume[g] = math.sqrt(vv) if size == 1 else volume[parent] * math.sqrt(vv)
+                        if not volume[g] >= singular_tol:
+                            valid[g] = False
+                            continue
+            feasible = True
+            for i in range(m):
+                if not _dot(cand, g, rows, i, n) - rhs[i] <= tol:
+                    feasible = False
+                    break
+            if not feasible:
+                continue
+            distance = 0.0
+            for j in range(n):
+                d = cand[g, j] - u0[0, j]
+                distance += d * d
+            if distance < best_distance:
+                best, best_distance = g, distance
+                if g == 0:  # nothing is nearer u_nom than u_nom
+                    break
+        if best < 0:
+            code[s] = FALLBACK
+            continue
+        for j in range(n):
+            v = cand[best, j]
+            if bounded:
+                v = min(max(v, limits[0, j]), limits[1, j])
+            u[s, j] = v
+        code[s] = RECOVERY if recovery else QP
+
+
+@njit(cache=True, error_model="numpy")
+def predicted_margins(x, y, normals, offsets, n_max, out) -> None:
+    """ρ = min_i (n_max − max(n̂_i·r − d_i, 0))/n_max at the tips r = (x, y) (m, (B,) each) into out (B,):
+    `cbf_batch.predicted_margin` (numpy's maximum and minimum: a NaN propagates)."""
+    for s in range(x.shape[0]):
+        rho = math.inf
+        for i in range(normals.shape[0]):
+            depth = normals[i, 0] * x[s] + normals[i, 1] * y[s] - offsets[i]
+            if not (depth >= 0.0 or math.isnan(depth)):
+                depth = 0.0
+            margin = (n_max - depth) / n_max
+            if not (rho <= margin or math.isnan(rho)):
+                rho = margin
+        out[s] = rho
