@@ -199,6 +199,19 @@ target was not reached), violation (1 when the held command failed its certifica
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
 
+Batched (`filter_batch`, the plug-in contract of `controllers.safety_filter`, issue 23): B rows, each a
+governor of its own: its history (HISTORY_FIELDS: the predictor's command records, the target
+governor's warm start, the gain estimate and the certified gain ends with their caches) is installed
+for the row's steps 1–2 and 4 (`_install`), and step 3 runs once for all the rows in the compiled
+`energy_kernels.govern_rows`, which `__call__` runs with one row: one implementation, row b bit
+for bit the b-th of B governors called in turn (tests/test_energy_governor_batch.py, hypothesis
+over closed-loop-like sequences with resets, subsets of rows, stale estimates and refused times).
+Histories belong to row positions, or, given `rows`, to the caller's indices (the batched step's
+simulations); a new one is a copy of this governor in its present state; `reset()` forgets all of
+them, `reset(rows)` those. Refused times (ControllerInputError) are checked for every row before any
+history changes. What it saves is step 3's per-call overhead only: the rows' predictions and
+certificate states (steps 1–2) stay per row (tools/bench_governors.py --batch; docs/safety-filter.md).
+
 Compute time (issues 13 and 24, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
 call is step 2, 50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor`
 runs them in compiled kernels, the plate's push included: ≈ 0.2 ms of CPU), then steps 3 or 4; a 1 kHz
@@ -222,9 +235,11 @@ commands are those of commit 45eacd9 (the step case: of 266e431; c-erg: of a6cdc
 
 from __future__ import annotations
 
+import copy
 import math
+import operator
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -238,9 +253,10 @@ from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
 from controllers.bounds import Bound
+from controllers.cbf_batch import checked_rows
 
 energy_kernels = lazy_module("controllers.energy_kernels")  # numba loads on the first recovery (controllers.lazy_import)
 
@@ -336,6 +352,15 @@ below this (J): near the boundary, where the table is loose; beyond ≈ 0.01 J t
 on the reference arm: 1.46e-2 against 1.15e-2 J at (32, 69) hPa, 0.10 against 0.057 J at rest), and the
 bound's kinematics cost more than the table's look-up."""
 
+HISTORY_FIELDS = ("predictor", "target_governor", "gain_estimator", "_gain_previous", "gain_lo", "gain_hi", "gains",
+                  "_energy_terms", "_energy_2", "_grid_rows", "_escape_known", "_escape_origin", "_scan_rows",
+                  "_kernel_terms")
+"""What one governor's calls change (`EnergyGovernor.filter_batch` keeps one of these per simulation): the command
+history, the target governor's warm start, the gain estimate with the certified gain ends, and the caches of
+those ends (the recovery's grid rows, the kernels' energy terms)."""
+
+_READ_HISTORY = operator.itemgetter(*HISTORY_FIELDS)
+
 ACTION_NAMES = ("free", "governed", "hold", "recover")
 """The actions by `energy_kernels.govern_rows`' codes (FREE, GOVERNED, HOLD, RECOVER)."""
 
@@ -374,6 +399,50 @@ def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndar
         raise ValueError(f"a pressure lag (actuator_tau = {actuator_tau} s) needs damping > 0 on every segment, "
                          f"got {damping.tolist()}: the certificate's β = τ_p λ²/(4d) is undefined")
     return actuator_tau * gains**2 / (4.0 * damping)
+
+
+@dataclass(eq=False)
+class GovernorCall:
+    """One call's state between its preparation and its step 3 (`EnergyGovernor._prepare`): the estimate's
+    capture and the command's application times (s), u_prev, the target and u_nom clipped (N,) hPa; unless
+    stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
+    for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
+    x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the gain ends and their energy terms (E, 3, N)."""
+
+    t_capture: float
+    t_apply: float
+    u_prev: np.ndarray
+    target: np.ndarray
+    nominal: np.ndarray
+    stale: bool = False
+    q_hat: np.ndarray | None = None
+    p_hat: np.ndarray | None = None
+    base: float = math.nan
+    offsets: list[float] = field(default_factory=list)
+    inside: bool = False
+    rho: float = math.nan
+    inflation: float = 1.0
+    gains: tuple = ()
+    terms: np.ndarray | None = None
+
+
+def certificate_rows(calls: list[GovernorCall]) -> tuple:
+    """The certificate's per-row arguments of `energy_kernels.certificate_terms` and `govern_rows` for the calls
+    (B rows): the gain ends (B, E) and their count (B,), the energy terms (B, E, 3, N), base (B,) J, q̂ (B, N)
+    rad, p̂ (B, N) hPa, the offsets (B, P') J and inside (B,); E the most ends of a call, the others' padded
+    (never read: a row reads its count)."""
+    ends = np.array([len(c.gains) for c in calls])
+    most = int(ends.max())
+    if most == len(calls[0].gains) and all(c.terms is calls[0].terms for c in calls):
+        gains, terms = np.array([calls[0].gains] * len(calls)), np.array([calls[0].terms] * len(calls))
+    else:
+        gains = np.array([c.gains + (1.0,) * (most - len(c.gains)) for c in calls], dtype=float)
+        terms = np.zeros((len(calls), most) + calls[0].terms.shape[1:])
+        for b, c in enumerate(calls):
+            terms[b, :len(c.gains)] = c.terms
+    return (gains, ends, terms, np.array([c.base for c in calls]), np.array([c.q_hat for c in calls]),
+            np.array([c.p_hat for c in calls]), np.array([c.offsets for c in calls], dtype=float),
+            np.array([c.inside for c in calls]))
 
 
 class EnergyGovernor:
@@ -463,7 +532,7 @@ class EnergyGovernor:
         # emptied by `set_gain_ends`, read by nothing since the look-ups are compiled (≈ 0.3 µs each in the kernels)
         self._escape_known: dict[tuple, float] = {}
         self._scan_rows: tuple[tuple, np.ndarray] | None = None  # (gains, the recovery's grid rows (E, P', G) for them)
-        self._kernel_terms: tuple | None = None  # (gains, (1, E) gains, (1, E, 3, N) energy terms): `certificate_state`
+        self._kernel_terms: tuple | None = None  # (gains, their energy terms (E, 3, N): k, g·a, g²β): `_prepare`
         self._lookup = lookup_arguments(self.table, self.boundary_bound, BOUND_BELOW_J)  # the kernels' Γ̲ look-up
         self._rest = np.array(self._rest_list)
         self._grid_columns = np.ascontiguousarray(self._grid.T)  # (N, G): the compiled recovery scan's layout
@@ -475,6 +544,7 @@ class EnergyGovernor:
         self.gain_rest, self.gain_clearance = checked["gain_rest_rad_s"], checked["gain_clearance_m"]
         self.gain_difference = checked["gain_difference_s"]
         self._gain_previous: tuple | None = None  # (t_capture, q, q̇) of the previous estimate (`update_gain`)
+        self._histories: list[dict] = []  # `filter_batch`'s, one per simulation (HISTORY_FIELDS → value)
         self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
         if self.table is not None and not self.energy_margin < self.table.saturation_J:
             raise ValueError(f"energy_margin_J must be < {self.table.saturation_J:.6g} J (½ k_min reach², the escape "
@@ -502,8 +572,24 @@ class EnergyGovernor:
             raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
         return checked
 
-    def reset(self) -> None:
-        """Forget the command history (vented valves, p = 0) and the target governor's warm start."""
+    def reset(self, rows=None) -> None:
+        """Forget the command history (vented valves, p = 0), the target governor's warm start and the gain
+        estimate, and every history of `filter_batch`; with `rows` (indices of `filter_batch` histories), those
+        histories alone (one simulation's new episode), as if their governors were reset."""
+        if rows is not None:
+            for i in self._history_ids(rows, None).tolist():
+                self._grow_histories(i + 1)
+                saved = self._install(self._histories[i])
+                try:
+                    self._reset_own()
+                finally:
+                    self._histories[i] = self._install(saved)
+            return
+        self._reset_own()
+        self._histories = []
+
+    def _reset_own(self) -> None:
+        """`reset` of the installed history (the governor's own, or a row's: `_install`)."""
         self.predictor.reset()
         if self.target_governor is not None:
             self.target_governor.reset()
@@ -511,6 +597,89 @@ class EnergyGovernor:
             self.gain_estimator.reset()
             self.set_gain_ends(*self.gain_prior)
             self._gain_previous = None
+
+    # -- batched (B governors: one history each) -----------------------------------------------------------
+    def _install(self, history: dict) -> dict:
+        """Make `history` (HISTORY_FIELDS → value) this governor's state; return the state it replaces."""
+        state = self.__dict__
+        previous = dict(zip(HISTORY_FIELDS, _READ_HISTORY(state)))
+        state.update(history)
+        return previous
+
+    def _copy_history(self) -> dict:
+        """A copy of the installed history: what changes across calls copied (the predictor's records, the target
+        governor's previous command, the gain estimator), the rest shared (never changed in place)."""
+        history = {name: getattr(self, name) for name in HISTORY_FIELDS}
+        history["predictor"] = self.predictor.copy()
+        history["target_governor"] = None if self.target_governor is None else copy.copy(self.target_governor)
+        history["gain_estimator"] = None if self.gain_estimator is None else copy.deepcopy(self.gain_estimator)
+        history["_grid_rows"], history["_escape_known"] = dict(self._grid_rows), {}
+        return history
+
+    @staticmethod
+    def _history_ids(rows, count: int | None) -> np.ndarray:
+        """`rows` as distinct indices ≥ 0 ((count,) when count is given), else ValueError."""
+        ids = np.asarray(rows)
+        if ids.ndim != 1 or (count is not None and len(ids) != count) or (len(ids) and ids.dtype.kind not in "iu"):
+            raise ValueError(f"rows must be {'' if count is None else f'{count} '}integer indices, got {rows!r}")
+        if len(ids) and (ids.min() < 0 or len(np.unique(ids)) != len(ids)):
+            raise ValueError(f"rows must be distinct indices >= 0, got {ids.tolist()}")
+        return ids.astype(np.intp)
+
+    def _grow_histories(self, needed: int) -> None:
+        """Histories up to index needed − 1, the new ones copies of this governor in its present state."""
+        while len(self._histories) < needed:
+            self._histories.append(self._copy_history())
+
+    def filter_batch(self, estimates: EstimateBatch, u_nom, rows=None) -> BatchOutput:
+        """B governors at once: row b is, bit for bit, a call of the governor whose history is rows[b] (None: b),
+        each history a copy of this governor in its state at its first call after `reset` (module docstring,
+        "Batched"); u_nom (B, N) hPa. A non-finite or misshapen row raises for the whole call
+        (NonFiniteStateError / NonFiniteCommandError), a row whose times the governor refuses raises
+        ControllerInputError before any history changes, and a call without `rows` with fewer rows than the
+        histories held raises ValueError (which history is which would be a guess)."""
+        n_rows, n = len(estimates), self.n
+        q = checked_rows("q", estimates.q, (n_rows, n), NonFiniteStateError)
+        qd = checked_rows("qd", estimates.qd, (n_rows, n), NonFiniteStateError)
+        u_nom = checked_rows("u_nom", u_nom, (n_rows, n), NonFiniteCommandError)
+        t = np.asarray(estimates.t, dtype=float).reshape(n_rows).tolist()
+        t_capture = np.asarray(estimates.t_capture, dtype=float).reshape(n_rows).tolist()
+        if rows is None:
+            if len(self._histories) > n_rows:
+                raise ValueError(f"filter_batch keeps one history per row: it holds {len(self._histories)} and was "
+                                 f"called with {n_rows} rows without saying which (rows=); reset() starts afresh")
+            ids = list(range(n_rows))
+        else:
+            ids = self._history_ids(rows, n_rows).tolist()
+        self._grow_histories(max(ids) + 1 if ids else 0)
+        t_apply = []
+        for b, i in enumerate(ids):  # every row's times first: a refusal changes no history
+            try:
+                t_apply.append(self._apply_time(t[b], t_capture[b], self._histories[i]["predictor"]))
+            except ControllerInputError as exc:
+                raise ControllerInputError(f"row {b}: {exc}") from exc
+        calls = []
+        for b, i in enumerate(ids):
+            saved = self._install(self._histories[i])
+            try:
+                calls.append(self._prepare(q[b], qd[b], u_nom[b], t_capture[b], t_apply[b]))
+            finally:
+                self._histories[i] = self._install(saved)
+        live = [b for b, call in enumerate(calls) if not call.stale]
+        outputs = self._govern([calls[b] for b in live]) if live else None
+        position = {b: k for k, b in enumerate(live)}
+        u, action = np.empty((n_rows, n)), np.empty(n_rows, dtype=object)
+        infeasible, rho = np.zeros(n_rows, dtype=bool), np.full(n_rows, math.nan)
+        for b, i in enumerate(ids):
+            call, t0 = calls[b], time.perf_counter()
+            saved = self._install(self._histories[i])
+            try:
+                out = (self._finish(call.u_prev, "stale", True, math.nan, {}, call.t_apply, call.t_capture, t0)
+                       if call.stale else self._conclude(call, outputs, position[b], t0))
+            finally:
+                self._histories[i] = self._install(saved)
+            u[b], action[b], infeasible[b], rho[b] = out.u, out.action, out.infeasible, out.rho_pred
+        return BatchOutput(u, action.astype(str), infeasible, rho)
 
     def set_gain_ends(self, lo: float, hi: float) -> None:
         """Certify the gain interval [lo, hi] from now on (module docstring, "actuator gain"; narrowed online by
@@ -632,23 +801,38 @@ class EnergyGovernor:
         q = as_vector("q", estimate.q, self.n, NonFiniteStateError)
         qd = as_vector("qd", estimate.qd, self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
-        t, t_capture = float(estimate.t), float(estimate.t_capture)
+        t_apply = self._apply_time(float(estimate.t), float(estimate.t_capture), self.predictor)
+        call = self._prepare(q, qd, u_nom, float(estimate.t_capture), t_apply)
+        if call.stale:
+            return self._finish(call.u_prev, "stale", True, math.nan, {}, t_apply, call.t_capture, t0)
+        return self._conclude(call, self._govern([call]), 0, t0)
+
+    def _apply_time(self, t: float, t_capture: float, predictor: StatePredictor) -> float:
+        """t_a = t + δ (s) for a call at t with an estimate captured at t_capture, given the call's history's
+        predictor, or ControllerInputError (module docstring, "Times"): checked before the call changes anything."""
         if not -TIME_LIMIT_S <= t_capture <= t <= TIME_LIMIT_S:  # also False for NaN
             raise ControllerInputError(f"the estimate's times must satisfy -{TIME_LIMIT_S:g} <= t_capture <= t <= "
                                        f"{TIME_LIMIT_S:g} s, got t_capture = {t_capture!r}, t = {t!r}")
         t_apply = t + self.command_delay
-        if t_apply < self.predictor.latest_time:
+        if t_apply < predictor.latest_time:
             raise ControllerInputError(f"t must not go backwards: got t = {t!r} s after a call at "
-                                       f"t = {self.predictor.latest_time - self.command_delay!r} s (reset first)")
+                                       f"t = {predictor.latest_time - self.command_delay!r} s (reset first)")
+        return t_apply
+
+    def _prepare(self, q: np.ndarray, qd: np.ndarray, u_nom: np.ndarray, t_capture: float,
+                 t_apply: float) -> GovernorCall:
+        """Steps 1 and 2 of a call (module docstring) and the certificate's state at x̂: everything before the
+        compiled step 3 (`energy_kernels.govern_rows`), which takes the calls of one or many governors."""
         nominal = u_nom if self._box is None else np.clip(u_nom, *self._box)
         target = nominal if self.contact else self.target_governor.command(u_nom)
         u_prev = self.predictor.command_at(t_apply)
+        call = GovernorCall(t_capture, t_apply, u_prev, target, nominal)
         if not self.predictor.can_predict(t_capture, t_apply):
-            return self._finish(u_prev, "stale", True, math.nan, {}, t_apply, t_capture, t0)
+            call.stale = True
+            return call
         if self.gain_estimator is not None:
             self.update_gain(q, qd, t_capture)
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
-
         if self.contact:
             offsets, inside, rho = self.contact_offsets(q_hat)
             base = (1.0 + self.kappa) * self.dynamics.kinetic_energy(q_hat, qd_hat)  # (1 + κ)·½q̇ᵀMq̇
@@ -656,45 +840,47 @@ class EnergyGovernor:
         else:
             base, rho = self.state_energy(q_hat, qd_hat)
             offsets, inside, inflation = self._credit, True, 1.0 + self.kappa
-        state = self.certificate_state(base, q_hat, p_hat, offsets, inside)
-        u_row, code, sigma, gamma, w, held_margin = energy_kernels.govern_rows(
-            u_prev[None], target[None], self._rest, nominal[None], 2 if self.contact else 3, *state, inflation,
-            self.energy_margin, self.bisection_steps, *self._lookup)
-        code, sigma, held_margin = int(code[0]), float(sigma[0]), float(held_margin[0])
+        if self._kernel_terms is None or self._kernel_terms[0] != self.gains:
+            self._kernel_terms = (self.gains, np.array([self._energy_terms[g] for g in self.gains], dtype=float))
+        call.q_hat, call.p_hat, call.base, call.offsets, call.inside, call.rho = q_hat, p_hat, base, offsets, inside, rho
+        call.inflation, call.gains, call.terms = inflation, self.gains, self._kernel_terms[1]
+        return call
+
+    def _govern(self, calls: list[GovernorCall]) -> tuple:
+        """Step 3 for the calls (module docstring), row b the call calls[b]: `energy_kernels.govern_rows`."""
+        return energy_kernels.govern_rows(
+            np.array([c.u_prev for c in calls]), np.array([c.target for c in calls]), self._rest,
+            np.array([c.nominal for c in calls]), 2 if self.contact else 3, *certificate_rows(calls),
+            calls[0].inflation, self.energy_margin, self.bisection_steps, *self._lookup)
+
+    def _conclude(self, call: GovernorCall, outputs: tuple, b: int, t0: float) -> FilterOutput:
+        """Step 4 where step 3 found the held command failed, the diagnostics, and the command recorded for the
+        predictor: the call's output from row b of `_govern`'s outputs."""
+        u_rows, codes, sigmas, gammas, ws, held_margins = outputs
+        code, sigma, held_margin = int(codes[b]), float(sigmas[b]), float(held_margins[b])
         held_ok = held_margin > 0.0  # Γ = W = 0 (the arm at rest on or beyond P's boundary) certifies nothing
         infeasible, action = False, ACTION_NAMES[code]
         if code == energy_kernels.RECOVER:
             if self.contact:
-                u, infeasible = self._recover_contact(base, offsets, inside, q_hat, p_hat, u_prev, target)
+                u, infeasible = self._recover_contact(call.base, call.offsets, call.inside, call.q_hat, call.p_hat,
+                                                      call.u_prev, call.target)
             else:
-                u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
-            gamma, w = self.certificate_terms(u, state)
+                u, infeasible = self._recover(call.base, call.q_hat, call.p_hat, call.u_prev, call.target)
+            gamma, w = self.certificate_terms(u, call)
         else:
-            u, gamma, w = u_row[0], float(gamma[0]), float(w[0])
+            u, gamma, w = u_rows[b], float(gammas[b]), float(ws[b])
         # the held command keeps its certificate down to Γ − ιW = 0 (the hysteresis), a new one needs ε
-        certified_margin = held_margin if action == "hold" else gamma - inflation * w - self.energy_margin
+        certified_margin = held_margin if action == "hold" else gamma - call.inflation * w - self.energy_margin
         diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": certified_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
-        return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
+        return self._finish(u, action, infeasible, call.rho, diagnostics, call.t_apply, call.t_capture, t0)
 
-    def certificate_state(self, base: float, q_hat: np.ndarray, p_hat: np.ndarray, offsets: list[float],
-                          inside: bool) -> tuple:
-        """The certificate's per-state arguments of the compiled kernels (`energy_kernels.certificate_terms`) for
-        one row: the gain ends (1, E), their count (1,), the energy terms (1, E, 3, N) (k, g·a, g²β), base (1,)
-        J, q̂ (1, N) rad, p̂ (1, N) hPa, the offsets o_j (1, P') J and whether x̂ lies strictly inside P (1,)."""
-        if self._kernel_terms is None or self._kernel_terms[0] != self.gains:
-            self._kernel_terms = (self.gains, np.array([self.gains]),
-                                  np.array([[self._energy_terms[g] for g in self.gains]], dtype=float))
-        _, gains, terms = self._kernel_terms
-        return (gains, np.array([len(self.gains)]), terms, np.array([base]), q_hat[None], p_hat[None],
-                np.array([offsets], dtype=float), np.array([inside]))
-
-    def certificate_terms(self, u, state: tuple) -> tuple[float, float]:
-        """(Γ, W) (J) of the command u (N,) hPa at the state `certificate_state` describes: the gain end with
-        the least Γ − W, Γ = min_j (Γ̲_j(g·u) + o_j) (−inf outside P), W at g (module docstring)."""
-        n, rows = self.n, len(state[6][0])
-        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), 0, *state, *self._lookup,
-                                                    np.empty(n), np.empty(rows), np.empty(rows))
+    def certificate_terms(self, u, call: GovernorCall) -> tuple[float, float]:
+        """(Γ, W) (J) of the command u (N,) hPa at the call's state x̂: the gain end with the least Γ − W,
+        Γ = min_j (Γ̲_j(g·u) + o_j) (−inf outside P), W at g (module docstring; `energy_kernels.certificate_terms`)."""
+        rows = len(call.offsets)
+        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), 0, *certificate_rows([call]),
+                                                    *self._lookup, np.empty(self.n), np.empty(rows), np.empty(rows))
         return float(gamma), float(w)
 
     def _recover(self, base: float, q_hat: np.ndarray, p_hat: np.ndarray, u_prev: np.ndarray,

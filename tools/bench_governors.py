@@ -47,7 +47,7 @@ from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
 from controllers.filter_metrics import governor_figures  # noqa: E402
 from controllers.params import reference_robot  # noqa: E402
 from controllers.safe_set import paper_safe_set  # noqa: E402
-from controllers.safety_filter import Estimate  # noqa: E402
+from controllers.safety_filter import Estimate, EstimateBatch  # noqa: E402
 
 FILTER_NAMES = ("qsg", "e-erg", "c-erg")
 PLATE_N_PER_M = 11.16
@@ -131,6 +131,68 @@ def run_case(name: str, spec: tuple, repeat: int = 1) -> dict:
             "u_max_abs_hPa": float(np.max(np.abs(rec.u))), **figures, **cpu}
 
 
+class Recorder:
+    """A governor that keeps every call's (estimate, u_nom): the inputs a batched replay hands `filter_batch`."""
+
+    def __init__(self, governor) -> None:
+        self.governor, self.calls = governor, []
+
+    def reset(self) -> None:
+        self.governor.reset()
+        self.calls = []
+
+    def __call__(self, estimate: Estimate, u_nom):
+        self.calls.append((estimate, np.array(u_nom, dtype=float)))
+        return self.governor(estimate, u_nom)
+
+
+def batch_case(name: str, spec: tuple, rows: int, repeat: int) -> dict:
+    """The case run as `rows` simulations (the loop's seeds 0..rows−1: different estimate ages at the camera
+    rate), their calls recorded through scalar governors, then replayed per period two ways: `rows` governors
+    called in turn (per simulation) and one governor's `filter_batch` over the rows; each period's time the
+    least over `repeat` replays. The commands must agree bit for bit (the batch contract), so the replay is the
+    closed loop either way."""
+    label, period, delay, age, tau, nominal, duration, pushing = spec
+    robot, safe = reference_robot(), paper_safe_set()
+    cls, kwargs = factory(label)
+    ctx = context(robot, safe, period, delay, tau)
+    serial = [cls(ctx, **kwargs) for _ in range(rows)]
+    calls = []
+    for b, gov in enumerate(serial):
+        warm_up(gov, robot.n_segments)
+        recorder = Recorder(gov)
+        plant = PushingPlatePlant(robot, safe, PLATE_N_PER_M, tau) if pushing else None
+        run_loop(recorder, robot, safe, nominal, duration, period, delay, age, tau_p=tau, seed=b, plant=plant)
+        calls.append(recorder.calls)
+    periods = min(len(c) for c in calls)
+    batched = cls(ctx, **kwargs)
+    warm_up(batched, robot.n_segments)
+    serial_us, batch_us = np.full(periods, np.inf), np.full(periods, np.inf)
+    for _ in range(repeat):
+        for gov in serial:
+            gov.reset()
+        batched.reset()
+        for k in range(periods):
+            inputs = [calls[b][k] for b in range(rows)]
+            t0 = time.process_time()
+            want = [gov(estimate, u_nom) for gov, (estimate, u_nom) in zip(serial, inputs)]
+            t1 = time.process_time()
+            estimates = EstimateBatch(np.array([e.t for e, _ in inputs]), np.array([e.q for e, _ in inputs]),
+                                      np.array([e.qd for e, _ in inputs]), np.array([e.t_capture for e, _ in inputs]))
+            t2 = time.process_time()
+            out = batched.filter_batch(estimates, np.array([u for _, u in inputs]))
+            t3 = time.process_time()
+            if not np.array_equal(out.u, [w.u for w in want]) or out.action.tolist() != [w.action for w in want]:
+                raise RuntimeError(f"{name}: filter_batch differs from the serial governors at period {k}")
+            serial_us[k] = min(serial_us[k], (t1 - t0) * 1e6)
+            batch_us[k] = min(batch_us[k], (t3 - t2) * 1e6)
+    return {"case": name, "rows": rows, "periods": periods, "repeat": repeat,
+            "serial_us_per_period_median": float(np.median(serial_us)),
+            "batch_us_per_period_median": float(np.median(batch_us)),
+            "serial_us_total": float(np.sum(serial_us)), "batch_us_total": float(np.sum(batch_us)),
+            "batch_over_serial": float(np.sum(batch_us) / np.sum(serial_us))}
+
+
 def show(result: dict, tag: str = "") -> None:
     print(f"{tag}{result['case']:40s} ρ_min {result['rho_min']:+.3f}  calls {result['calls']:5d}  "
           f"wall median/p99 {result['filter_us_median']:6.0f}/{result['filter_us_p99']:6.0f} µs  "
@@ -159,6 +221,9 @@ def main() -> int:
     parser.add_argument("--against", metavar="TREE", help="also run every case on TREE's controllers (module docstring)")
     parser.add_argument("--repeat", type=int, default=1, help="run each case this many times; each call's time is "
                         "its least over the runs (run_case: the noise of a loaded machine removed)")
+    parser.add_argument("--batch", type=int, default=0, metavar="B",
+                        help="instead: each case as B simulations, B governors called per simulation against one "
+                        "governor's filter_batch (batch_case; qsg has its own in tools/bench_batch_filters.py)")
     parser.add_argument("--one", metavar="CASE", help=argparse.SUPPRESS)  # the child of --against: one case, its JSON
     args = parser.parse_args()
     if args.repeat < 1:
@@ -176,6 +241,18 @@ def main() -> int:
         return 0
     words = [w.strip() for w in args.cases.split(",") if w.strip()]
     results = []
+    if args.batch:
+        for name, spec in table.items():
+            if (words and not any(w in name for w in words)) or spec[0] == "qsg":
+                continue
+            result = batch_case(name, spec, args.batch, args.repeat)
+            print(f"{name:40s} B = {args.batch}: per period serial {result['serial_us_per_period_median']:7.0f} µs, "
+                  f"batched {result['batch_us_per_period_median']:7.0f} µs (medians); total batched/serial "
+                  f"{result['batch_over_serial']:.2f}", flush=True)
+            results.append(result)
+        print(json.dumps({"quick": args.quick, "batch": args.batch, "repeat": args.repeat,
+                          "load_1min": os.getloadavg()[0], "results": results}))
+        return 0
     for name, spec in table.items():
         if words and not any(w in name for w in words):
             continue
