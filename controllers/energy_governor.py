@@ -245,7 +245,8 @@ import numpy as np
 
 from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
-from controllers.escape_energy import MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments, lower_bounds
+from controllers.escape_energy import (MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments,
+                                       lower_bounds)
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.gain_estimate import GainEstimator
 from controllers.lazy_import import lazy_module
@@ -258,7 +259,7 @@ from controllers.state_predictor import StatePredictor
 from controllers.bounds import Bound
 from controllers.cbf_batch import checked_rows
 
-energy_kernels = lazy_module("controllers.energy_kernels")  # numba loads on the first recovery (controllers.lazy_import)
+energy_kernels = lazy_module("controllers.energy_kernels")  # numba loads on the first call (controllers.lazy_import)
 
 TIP_TOLERANCE_M = 1e-9
 """A scalar tip this far outside every facet (m) has the array path's tip outside too (`EnergyGovernor.state_energy`)."""
@@ -387,7 +388,8 @@ def ray_may_come_nearer(start, goal, direction, aim, best: float, sigma_min: flo
     has already counted. d = 0: False. The compiled ray search's test (`energy_kernels.ray_may_come_nearer`).
     """
     vectors = (np.asarray(v, dtype=float) for v in (start, goal, direction, aim))
-    return bool(energy_kernels.ray_may_come_nearer(*vectors, float(best), float(sigma_min), energy_kernels.PYTHON_SQUARE))
+    return bool(energy_kernels.ray_may_come_nearer(*vectors, float(best), float(sigma_min),
+                                                   energy_kernels.PYTHON_SQUARE))
 
 
 def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
@@ -608,7 +610,8 @@ class EnergyGovernor:
 
     def _copy_history(self) -> dict:
         """A copy of the installed history: what changes across calls copied (the predictor's records, the target
-        governor's previous command, the gain estimator), the rest shared (never changed in place)."""
+        governor's previous command, the gain estimator), the rest shared (never changed in place; the target
+        governors' shallow copies share `QuasiStaticGovernor.command`'s memory, a function's values)."""
         history = {name: getattr(self, name) for name in HISTORY_FIELDS}
         history["predictor"] = self.predictor.copy()
         history["target_governor"] = None if self.target_governor is None else copy.copy(self.target_governor)

@@ -13,18 +13,17 @@ from hypothesis import strategies as st
 
 from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
 from controllers.errors import ControllerInputError, NonFiniteStateError
-from controllers.params import reference_robot
+from controllers.params import reference_robot, uniform_robot
 from controllers.safe_set import paper_safe_set
 from controllers.safety_filter import Estimate, EstimateBatch, FilterContext
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()
-STATIC_GAIN = ROBOT.array("gains") / ROBOT.array("stiffness")
 COARSE = {"grid_hPa": 10.0, "escape_spacing_rad": 8e-3}  # small tables: the test builds many governors
 
 
-def governor(certificate: str, gains: tuple, estimate: bool, period: float):
-    ctx = FilterContext.for_robot(ROBOT, SAFE, period)
+def governor(certificate: str, gains: tuple, estimate: bool, period: float, robot=ROBOT):
+    ctx = FilterContext.for_robot(robot, SAFE, period)
     if certificate == "park":
         return EnergyGovernor(ctx, command_delay_s=0.02, actuator_tau_s=0.05, **COARSE)
     return ContactEnergyGovernor(ctx, command_delay_s=0.02 if period > 0.01 else 0.0, actuator_tau_s=0.05,
@@ -42,29 +41,34 @@ def assert_rows_match(out, want):
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), certificate=st.sampled_from(["park", "contact"]),
        gains=st.sampled_from([(1.0, 1.0), (0.9, 1.1)]), estimate=st.booleans(), camera=st.booleans(),
-       n_rows=st.integers(1, 5), warm=st.integers(0, 2), subsets=st.booleans())
+       n_rows=st.integers(1, 5), warm=st.integers(0, 2), subsets=st.booleans(), three=st.booleans())
 def test_filter_batch_is_b_scalar_governors_bit_for_bit(seed, certificate, gains, estimate, camera, n_rows, warm,
-                                                         subsets):
+                                                         subsets, three):
     """Closed-loop-like sequences (rest shapes drifting to and beyond the plate, velocities large enough to
     violate, nominals held, drifting and jumping beyond the box; resets of all rows or of some; rows called in
     subsets, some with estimates older than the predictor's horizon): commands, actions, flags and ρ_pred of
-    every row equal those of B copies of the governor, bit for bit."""
+    every row equal those of B copies of the governor, bit for bit. c-erg also on a 3-segment arm (no table:
+    the second-order bound alone)."""
     period = 0.1 if camera else 0.001
+    three = three and certificate == "contact"
+    robot = uniform_robot(3) if three else ROBOT
+    n = robot.n_segments
+    static_gain = robot.array("gains") / robot.array("stiffness")
     gov = governor(certificate, gains if certificate == "contact" else (1.0, 1.0),
-                   estimate and certificate == "contact", period)
+                   estimate and certificate == "contact", period, robot)
     rng = np.random.default_rng(seed)
     t = 0.0
     for _ in range(warm):  # scalar calls first: the rows start from the governor's state
-        gov(Estimate(t, np.zeros(2), np.zeros(2), t), rng.uniform(-150, 150, 2))
+        gov(Estimate(t, np.zeros(n), np.zeros(n), t), rng.uniform(-150, 150, n))
         t += period
     copies = [copy.deepcopy(gov) for _ in range(n_rows)]
-    u_nom = rng.uniform(0.0, 150.0, (n_rows, 2))
-    centre = rng.uniform(0.0, 80.0, (n_rows, 2))
+    u_nom = rng.uniform(0.0, 150.0, (n_rows, n))
+    centre = rng.uniform(0.0, 80.0, (n_rows, n))
     actions = set()
     for k in range(30):
         kind = rng.integers(7)
         if kind == 0:
-            u_nom = rng.uniform(-400.0, 400.0, (n_rows, 2))  # jumps, beyond the box
+            u_nom = rng.uniform(-400.0, 400.0, (n_rows, n))  # jumps, beyond the box
         elif kind == 1 and rng.random() < 0.5:
             gov.reset()
             for c in copies:
@@ -78,7 +82,7 @@ def test_filter_batch_is_b_scalar_governors_bit_for_bit(seed, certificate, gains
         elif kind < 5:
             u_nom = np.clip(u_nom + rng.normal(0.0, 20.0, u_nom.shape), -150.0, 150.0)  # drifts (kind 5, 6: held)
         centre = np.clip(centre + rng.normal(0.0, 8.0, centre.shape), -20.0, 120.0)
-        q = STATIC_GAIN * centre + rng.normal(0.0, 0.02, centre.shape)
+        q = static_gain * centre + rng.normal(0.0, 0.02, centre.shape)
         qd = rng.normal(0.0, 0.3, centre.shape) * (rng.random((n_rows, 1)) < 0.7)
         ids = np.arange(n_rows)
         if subsets:
@@ -127,3 +131,42 @@ def test_filter_batch_refuses_before_any_history_changes_and_counts_its_rows():
     out = gov.filter_batch(EstimateBatch(np.array([0.8]), np.zeros((1, 2)), np.zeros((1, 2)), np.array([0.75])),
                            push[:1], rows=np.array([1]))
     assert np.array_equal(out.u[0], fresh(Estimate(0.8, np.zeros(2), np.zeros(2), 0.75), push[0]).u)
+
+
+@pytest.mark.parametrize("certificate", ["park", "contact"])
+def test_a_batched_pcc_loop_with_one_shared_governor_equals_its_serial_loops(certificate):
+    """run_batch_closed_loop calls the shared governor's filter_batch once per period (rows=, as the batched
+    step does): the commands of each simulation are, bit for bit, those of the serial loop with a governor of
+    its own, pushing towards the plate (the certificate binds)."""
+    from closedloop.step import ControlStep
+    from controllers.nominal import SinusoidNominal
+    from softcbf_mj.batch_loop import run_batch_closed_loop
+    from softcbf_mj.loop import run_closed_loop
+    from softcbf_mj.pcc_batch_plant import PCCBatchPlant
+    from softcbf_mj.pcc_plant import PCCPlant
+
+    nominal = SinusoidNominal((100.0, 100.0), 1.0, (np.pi / 2, np.pi / 2))
+    q0 = np.random.default_rng(5).normal(0.3, 0.1, (3, 2))
+    plant = PCCBatchPlant(ROBOT, SAFE, 3)
+    ctx = FilterContext.for_robot(ROBOT, SAFE, plant.control_dt)
+
+    def build():
+        cls = EnergyGovernor if certificate == "park" else ContactEnergyGovernor
+        return cls(ctx, **COARSE)
+
+    shared, served = build(), []
+    original = shared.filter_batch
+
+    def counted(estimates, u_nom, rows=None):
+        served.append(len(estimates))
+        return original(estimates, u_nom, rows=rows)
+
+    shared.filter_batch = counted
+    batch = run_batch_closed_loop(plant, shared, nominal, ctx, 0.4, q0, record_commands=True)
+    assert served and max(served) == 3  # one call per period for the simulations
+    governed = 0
+    for b in range(3):
+        log, _ = run_closed_loop(PCCPlant(ROBOT, SAFE), ControlStep(build(), nominal, ctx), SAFE, 0.4, q0[b])
+        assert np.array_equal(batch.commands[:, b], log["u"])
+        governed += int(np.sum(np.any(log["u"] != log["u_nom"], axis=1)))
+    assert governed > 0  # the certificate bound

@@ -204,7 +204,8 @@ def show(result: dict, tag: str = "") -> None:
 def run_against(tree: str, name: str, quick: bool, repeat: int) -> dict | None:
     """The case `name` run by this script in a child process on TREE's controllers (None: TREE lacks the filter)."""
     env = {**os.environ, "PYTHONPATH": str(Path(tree).resolve())}
-    command = [sys.executable, str(Path(__file__).resolve()), "--one", name, "--repeat", str(repeat)] + (["--quick"] if quick else [])
+    command = [sys.executable, str(Path(__file__).resolve()), "--one", name, "--repeat", str(repeat)]
+    command += ["--quick"] if quick else []
     done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
     if done.returncode == 3:
         return None
