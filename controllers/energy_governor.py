@@ -199,47 +199,67 @@ target was not reached), violation (1 when the held command failed its certifica
 x̂: the count of detected violations is their sum), prediction_s (t_a − t_c), solve_us
 (the call's own wall time). All NaN but prediction_s and solve_us on a "stale" call.
 
-Compute time (issue 13, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
+Batched (`filter_batch`, the plug-in contract of `controllers.safety_filter`, issue 23): B rows, each a
+governor of its own: its history (HISTORY_FIELDS: the predictor's command records, the target
+governor's warm start, the gain estimate and the certified gain ends with their caches) is installed
+for the row's steps 1–2 and 4 (`_install`), and step 3 runs once for all the rows in the compiled
+`energy_kernels.govern_rows`, which `__call__` runs with one row: one implementation, row b bit
+for bit the b-th of B governors called in turn (tests/test_energy_governor_batch.py, hypothesis
+over closed-loop-like sequences with resets, subsets of rows, stale estimates and refused times).
+Histories belong to row positions, or, given `rows`, to the caller's indices (the batched step's
+simulations); a new one is a copy of this governor in its present state; `reset()` forgets all of
+them, `reset(rows)` those. Refused times (ControllerInputError) are checked for every row before any
+history changes. What it saves is step 3's per-call overhead only: the rows' predictions and
+certificate states (steps 1–2) stay per row (tools/bench_governors.py --batch; docs/safety-filter.md).
+
+Compute time (issues 13 and 24, tools/bench_governors.py, the `softcbf bench` step case). A camera-rate
 call is step 2, 50–120 ROS2 steps over the estimate's age and the delay (`controllers.state_predictor`
-runs them in compiled kernels, the plate's push included: ≈ 0.3 ms of CPU), then the Γ̲ look-ups
-of step 3 (≈ 11 µs each near the plate, up to 3 bisection_steps + 2) or step 4's scan of the
-table's grid (1.0–1.5 ms: the camera-rate p99 where recoveries are frequent; docs/results.md); a 1 kHz call mostly step 1
-(the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
+runs them in compiled kernels, the plate's push included: ≈ 0.2 ms of CPU), then steps 3 or 4; a 1 kHz
+call mostly step 1 (the quasi-static governor's QP iterations when u_nom's rest shape leaves P;
 `QuasiStaticGovernor.command`, which remembers the commands of its last inputs: a held u_nom
-cycles through a few), the state's energy (step 2's end) and the certificates of step 3
-(Γ̲ look-ups and energies, up to 3 bisection_steps + 2 per call). The rays are walked on
-Python floats (numpy's elementwise arithmetic, the same floats; `ray_point`), Γ̲ (a function
-of the command alone) is remembered across the calls that hold the same u_prev
-(`escape_memory`: a "hold" call repeats its predecessor's look-ups), a ray is skipped when no
-end point of it can come nearer the target than the best so far (`ray_may_come_nearer`,
-with a rounding slack), and the state's energy and ρ skip the array kinematics when the tip
-is clear of the plate (`state_energy`). None of this changes a command: the commands of
-commit 45eacd9 (the step case: of 266e431), bit for bit (tests/test_energy_governor_references.py).
+cycles through a few), the state's energy (step 2's end) and step 3. Steps 3 and 4 are compiled
+(`controllers.energy_kernels`, numba, loaded on the first call): step 3 is one call of
+`govern_rows` (the held command's and the target's certificates, the rays' bisections, each
+point's Γ̲ looked up in the kernel, ≈ 0.3 µs against ≈ 8–11 µs of Python floats near the
+plate: ≈ 20 µs for the 2 × 12 bisection points of a "hold" call), step 4 one call of
+`recovery_scan` over the table's grid (≈ 35 µs for its 14 641 commands, against 0.9–1.3 ms of
+numpy). The kernels take every state with a leading row axis, which `filter_batch` uses for
+B governors at once. A ray is skipped when no end point of it can come nearer the target
+than the best so far (`ray_may_come_nearer`, with a rounding slack), and the state's energy
+and ρ skip the array kinematics when the tip is clear of the plate (`state_energy`). None of
+this changes a command: the kernels' arithmetic is the Python floats' operation for operation
+(`x ** 2` as libm's pow, as Python computes it: `energy_kernels.PYTHON_SQUARE`), and the
+commands are those of commit 45eacd9 (the step case: of 266e431; c-erg: of a6cdc5c), bit for bit
+(tests/test_energy_governor_references.py, `python tools/eerg_references.py`: 0 hPa over every case).
 """
 
 from __future__ import annotations
 
+import copy
 import math
+import operator
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
-from controllers.escape_energy import MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable
+from controllers.escape_energy import (MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments,
+                                       lower_bounds)
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.gain_estimate import GainEstimator
+from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
 from controllers.state_predictor import StatePredictor
 from controllers.bounds import Bound
+from controllers.cbf_batch import checked_rows
 
-ESCAPE_MEMORY = 4096
-"""Most Γ̲ look-ups remembered across calls (`EnergyGovernor.escape_memory`)."""
+energy_kernels = lazy_module("controllers.energy_kernels")  # numba loads on the first call (controllers.lazy_import)
 
 TIP_TOLERANCE_M = 1e-9
 """A scalar tip this far outside every facet (m) has the array path's tip outside too (`EnergyGovernor.state_energy`)."""
@@ -331,35 +351,29 @@ BOUND_BELOW_J = 0.02
 """The contact certificate evaluates the second-order boundary bound only where the table's least row value is
 below this (J): near the boundary, where the table is loose; beyond ≈ 0.01 J the table is the larger (measured
 on the reference arm: 1.46e-2 against 1.15e-2 J at (32, 69) hPa, 0.10 against 0.057 J at rest), and the
-bound costs ≈ 40 µs of numpy per command."""
+bound's kinematics cost more than the table's look-up."""
+
+HISTORY_FIELDS = ("predictor", "target_governor", "gain_estimator", "_gain_previous", "gain_lo", "gain_hi", "gains",
+                  "_energy_terms", "_energy_2", "_grid_rows", "_escape_known", "_escape_origin", "_scan_rows",
+                  "_kernel_terms")
+"""What one governor's calls change (`EnergyGovernor.filter_batch` keeps one of these per simulation): the command
+history, the target governor's warm start, the gain estimate with the certified gain ends, and the caches of
+those ends (the recovery's grid rows, the kernels' energy terms)."""
+
+_READ_HISTORY = operator.itemgetter(*HISTORY_FIELDS)
+
+ACTION_NAMES = ("free", "governed", "hold", "recover")
+"""The actions by `energy_kernels.govern_rows`' codes (FREE, GOVERNED, HOLD, RECOVER)."""
 
 CERTIFICATES = ("park", "contact")
 """The `certificate` values (module docstring: the parked target, and the contact certificate)."""
-
-ROUNDING_SLACK = 1e-12
-"""Relative slack (of Σ_i (|a_i| + |g_i| + |t_i|)², hPa²) for the rounding of the ray distances (`ray_may_come_nearer`)."""
-
-
-def ray_point(start: tuple, direction: tuple, sigma: float) -> tuple:
-    """start + σ·direction per entry (hPa), numpy's elementwise floats; N = 2 unrolled."""
-    if len(start) == 2:
-        return (start[0] + sigma * direction[0], start[1] + sigma * direction[1])
-    return tuple(a + sigma * d for a, d in zip(start, direction))
-
-
-def row_sums(x: np.ndarray) -> np.ndarray:
-    """np.sum(x, axis=1) of a (G, N) array, the same floats: for N = 2 the columns' sum x[:, 0] + x[:, 1]
-    (numpy's reduction adds a row's two entries once too, and the recovery's entries are ≥ +0, so no sign
-    of zero differs), ≈ 10× cheaper than numpy's reduction along a 2-long axis over the table's grid."""
-    return x[:, 0] + x[:, 1] if x.shape[1] == 2 else np.sum(x, axis=1)
-
 
 def scaled_command(gain: float, u: tuple) -> tuple:
     """g·u per entry (hPa): the command whose model rest shape is the true one, g K⁻¹Λu, under the gain g; u itself at g = 1."""
     return u if gain == 1.0 else tuple(gain * v for v in u)
 
 
-def ray_may_come_nearer(start: tuple, goal: tuple, direction: tuple, aim: tuple, best: float, sigma_min: float) -> bool:
+def ray_may_come_nearer(start, goal, direction, aim, best: float, sigma_min: float) -> bool:
     """Whether a point a + σ·d of the ray from a = `start` towards g = `goal` (d = `direction`
     = g − a as floats), σ ∈ [sigma_min, 1], may have a squared distance to t = `aim` below
     `best` (hPa²) as the governor computes it (per entry a + σd, then Σ (c − t)²).
@@ -369,17 +383,13 @@ def ray_may_come_nearer(start: tuple, goal: tuple, direction: tuple, aim: tuple,
     (d, σd, a + σd, c − t, its square, the sum) errs by at most one rounding u = 2⁻⁵³ of
     entries bounded by M_i = |a_i| + |g_i| + |t_i|, so the computed distance and the computed
     Q(σ*) each lie within about 30u Σ M_i² of the exact ones; ROUNDING_SLACK Σ M_i² is over
-    300 times that. False therefore proves that no σ in the range gives a computed distance
-    below `best`. σ = 0 gives a itself, which the caller has already counted. d = 0: False.
+    300 times that (`controllers.energy_kernels.ROUNDING_SLACK`, 1e-12). False therefore proves that
+    no σ in the range gives a computed distance below `best`. σ = 0 gives a itself, which the caller
+    has already counted. d = 0: False. The compiled ray search's test (`energy_kernels.ray_may_come_nearer`).
     """
-    offset = [a - t for a, t in zip(start, aim)]
-    curvature = sum(d * d for d in direction)
-    if curvature == 0.0:
-        return False
-    nearest = min(max(-sum(e * d for e, d in zip(offset, direction)) / curvature, sigma_min), 1.0)
-    lowest = sum((e + nearest * d) ** 2 for e, d in zip(offset, direction))
-    scale = sum((abs(a) + abs(g) + abs(t)) ** 2 for a, g, t in zip(start, goal, aim))
-    return lowest <= best + ROUNDING_SLACK * scale
+    vectors = (np.asarray(v, dtype=float) for v in (start, goal, direction, aim))
+    return bool(energy_kernels.ray_may_come_nearer(*vectors, float(best), float(sigma_min),
+                                                   energy_kernels.PYTHON_SQUARE))
 
 
 def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
@@ -391,6 +401,50 @@ def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndar
         raise ValueError(f"a pressure lag (actuator_tau = {actuator_tau} s) needs damping > 0 on every segment, "
                          f"got {damping.tolist()}: the certificate's β = τ_p λ²/(4d) is undefined")
     return actuator_tau * gains**2 / (4.0 * damping)
+
+
+@dataclass(eq=False)
+class GovernorCall:
+    """One call's state between its preparation and its step 3 (`EnergyGovernor._prepare`): the estimate's
+    capture and the command's application times (s), u_prev, the target and u_nom clipped (N,) hPa; unless
+    stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
+    for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
+    x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the gain ends and their energy terms (E, 3, N)."""
+
+    t_capture: float
+    t_apply: float
+    u_prev: np.ndarray
+    target: np.ndarray
+    nominal: np.ndarray
+    stale: bool = False
+    q_hat: np.ndarray | None = None
+    p_hat: np.ndarray | None = None
+    base: float = math.nan
+    offsets: list[float] = field(default_factory=list)
+    inside: bool = False
+    rho: float = math.nan
+    inflation: float = 1.0
+    gains: tuple = ()
+    terms: np.ndarray | None = None
+
+
+def certificate_rows(calls: list[GovernorCall]) -> tuple:
+    """The certificate's per-row arguments of `energy_kernels.certificate_terms` and `govern_rows` for the calls
+    (B rows): the gain ends (B, E) and their count (B,), the energy terms (B, E, 3, N), base (B,) J, q̂ (B, N)
+    rad, p̂ (B, N) hPa, the offsets (B, P') J and inside (B,); E the most ends of a call, the others' padded
+    (never read: a row reads its count)."""
+    ends = np.array([len(c.gains) for c in calls])
+    most = int(ends.max())
+    if most == len(calls[0].gains) and all(c.terms is calls[0].terms for c in calls):
+        gains, terms = np.array([calls[0].gains] * len(calls)), np.array([calls[0].terms] * len(calls))
+    else:
+        gains = np.array([c.gains + (1.0,) * (most - len(c.gains)) for c in calls], dtype=float)
+        terms = np.zeros((len(calls), most) + calls[0].terms.shape[1:])
+        for b, c in enumerate(calls):
+            terms[b, :len(c.gains)] = c.terms
+    return (gains, ends, terms, np.array([c.base for c in calls]), np.array([c.q_hat for c in calls]),
+            np.array([c.p_hat for c in calls]), np.array([c.offsets for c in calls], dtype=float),
+            np.array([c.inside for c in calls]))
 
 
 class EnergyGovernor:
@@ -477,7 +531,13 @@ class EnergyGovernor:
         else:
             self._grid = self.table.grid_commands()
             self._grid_values, self._grid_rest_inside = self.table.grid_values(), self.table.rest_inside
-        self._escape_known: dict[tuple, float] = {}  # u → `escape(u)`, kept while u_prev is held (`escape_memory`)
+        # emptied by `set_gain_ends`, read by nothing since the look-ups are compiled (≈ 0.3 µs each in the kernels)
+        self._escape_known: dict[tuple, float] = {}
+        self._scan_rows: tuple[tuple, np.ndarray] | None = None  # (gains, the recovery's grid rows (E, P', G) for them)
+        self._kernel_terms: tuple | None = None  # (gains, their energy terms (E, 3, N): k, g·a, g²β): `_prepare`
+        self._lookup = lookup_arguments(self.table, self.boundary_bound, BOUND_BELOW_J)  # the kernels' Γ̲ look-up
+        self._rest = np.array(self._rest_list)
+        self._grid_columns = np.ascontiguousarray(self._grid.T)  # (N, G): the compiled recovery scan's layout
         self._escape_origin: tuple | None = None
         self.set_gain_ends(self.gain_lo, self.gain_hi)
         self.gain_estimator = GainEstimator(self._k, self._a, robot.array("damping"), (self.gain_lo, self.gain_hi),
@@ -486,6 +546,7 @@ class EnergyGovernor:
         self.gain_rest, self.gain_clearance = checked["gain_rest_rad_s"], checked["gain_clearance_m"]
         self.gain_difference = checked["gain_difference_s"]
         self._gain_previous: tuple | None = None  # (t_capture, q, q̇) of the previous estimate (`update_gain`)
+        self._histories: list[dict] = []  # `filter_batch`'s, one per simulation (HISTORY_FIELDS → value)
         self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
         if self.table is not None and not self.energy_margin < self.table.saturation_J:
             raise ValueError(f"energy_margin_J must be < {self.table.saturation_J:.6g} J (½ k_min reach², the escape "
@@ -513,17 +574,115 @@ class EnergyGovernor:
             raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
         return checked
 
-    def reset(self) -> None:
-        """Forget the command history (vented valves, p = 0) and the target governor's warm start."""
+    def reset(self, rows=None) -> None:
+        """Forget the command history (vented valves, p = 0), the target governor's warm start and the gain
+        estimate, and every history of `filter_batch`; with `rows` (indices of `filter_batch` histories), those
+        histories alone (one simulation's new episode), as if their governors were reset."""
+        if rows is not None:
+            for i in self._history_ids(rows, None).tolist():
+                self._grow_histories(i + 1)
+                saved = self._install(self._histories[i])
+                try:
+                    self._reset_own()
+                finally:
+                    self._histories[i] = self._install(saved)
+            return
+        self._reset_own()
+        self._histories = []
+
+    def _reset_own(self) -> None:
+        """`reset` of the installed history (the governor's own, or a row's: `_install`)."""
         self.predictor.reset()
         if self.target_governor is not None:
             self.target_governor.reset()
-        self._escape_known.clear()
-        self._escape_origin = None
         if self.gain_estimator is not None:
             self.gain_estimator.reset()
             self.set_gain_ends(*self.gain_prior)
             self._gain_previous = None
+
+    # -- batched (B governors: one history each) -----------------------------------------------------------
+    def _install(self, history: dict) -> dict:
+        """Make `history` (HISTORY_FIELDS → value) this governor's state; return the state it replaces."""
+        state = self.__dict__
+        previous = dict(zip(HISTORY_FIELDS, _READ_HISTORY(state)))
+        state.update(history)
+        return previous
+
+    def _copy_history(self) -> dict:
+        """A copy of the installed history: what changes across calls copied (the predictor's records, the target
+        governor's previous command, the gain estimator), the rest shared (never changed in place; the target
+        governors' shallow copies share `QuasiStaticGovernor.command`'s memory, a function's values)."""
+        history = {name: getattr(self, name) for name in HISTORY_FIELDS}
+        history["predictor"] = self.predictor.copy()
+        history["target_governor"] = None if self.target_governor is None else copy.copy(self.target_governor)
+        history["gain_estimator"] = None if self.gain_estimator is None else copy.deepcopy(self.gain_estimator)
+        history["_grid_rows"], history["_escape_known"] = dict(self._grid_rows), {}
+        return history
+
+    @staticmethod
+    def _history_ids(rows, count: int | None) -> np.ndarray:
+        """`rows` as distinct indices ≥ 0 ((count,) when count is given), else ValueError."""
+        ids = np.asarray(rows)
+        if ids.ndim != 1 or (count is not None and len(ids) != count) or (len(ids) and ids.dtype.kind not in "iu"):
+            raise ValueError(f"rows must be {'' if count is None else f'{count} '}integer indices, got {rows!r}")
+        if len(ids) and (ids.min() < 0 or len(np.unique(ids)) != len(ids)):
+            raise ValueError(f"rows must be distinct indices >= 0, got {ids.tolist()}")
+        return ids.astype(np.intp)
+
+    def _grow_histories(self, needed: int) -> None:
+        """Histories up to index needed − 1, the new ones copies of this governor in its present state."""
+        while len(self._histories) < needed:
+            self._histories.append(self._copy_history())
+
+    def filter_batch(self, estimates: EstimateBatch, u_nom, rows=None) -> BatchOutput:
+        """B governors at once: row b is, bit for bit, a call of the governor whose history is rows[b] (None: b),
+        each history a copy of this governor in its state at its first call after `reset` (module docstring,
+        "Batched"); u_nom (B, N) hPa. A non-finite or misshapen row raises for the whole call
+        (NonFiniteStateError / NonFiniteCommandError), a row whose times the governor refuses raises
+        ControllerInputError before any history changes, and a call without `rows` with fewer rows than the
+        histories held raises ValueError (which history is which would be a guess)."""
+        n_rows, n = len(estimates), self.n
+        q = checked_rows("q", estimates.q, (n_rows, n), NonFiniteStateError)
+        qd = checked_rows("qd", estimates.qd, (n_rows, n), NonFiniteStateError)
+        u_nom = checked_rows("u_nom", u_nom, (n_rows, n), NonFiniteCommandError)
+        t = np.asarray(estimates.t, dtype=float).reshape(n_rows).tolist()
+        t_capture = np.asarray(estimates.t_capture, dtype=float).reshape(n_rows).tolist()
+        if rows is None:
+            if len(self._histories) > n_rows:
+                raise ValueError(f"filter_batch keeps one history per row: it holds {len(self._histories)} and was "
+                                 f"called with {n_rows} rows without saying which (rows=); reset() starts afresh")
+            ids = list(range(n_rows))
+        else:
+            ids = self._history_ids(rows, n_rows).tolist()
+        self._grow_histories(max(ids) + 1 if ids else 0)
+        t_apply = []
+        for b, i in enumerate(ids):  # every row's times first: a refusal changes no history
+            try:
+                t_apply.append(self._apply_time(t[b], t_capture[b], self._histories[i]["predictor"]))
+            except ControllerInputError as exc:
+                raise ControllerInputError(f"row {b}: {exc}") from exc
+        calls = []
+        for b, i in enumerate(ids):
+            saved = self._install(self._histories[i])
+            try:
+                calls.append(self._prepare(q[b], qd[b], u_nom[b], t_capture[b], t_apply[b]))
+            finally:
+                self._histories[i] = self._install(saved)
+        live = [b for b, call in enumerate(calls) if not call.stale]
+        outputs = self._govern([calls[b] for b in live]) if live else None
+        position = {b: k for k, b in enumerate(live)}
+        u, action = np.empty((n_rows, n)), np.empty(n_rows, dtype=object)
+        infeasible, rho = np.zeros(n_rows, dtype=bool), np.full(n_rows, math.nan)
+        for b, i in enumerate(ids):
+            call, t0 = calls[b], time.perf_counter()
+            saved = self._install(self._histories[i])
+            try:
+                out = (self._finish(call.u_prev, "stale", True, math.nan, {}, call.t_apply, call.t_capture, t0)
+                       if call.stale else self._conclude(call, outputs, position[b], t0))
+            finally:
+                self._histories[i] = self._install(saved)
+            u[b], action[b], infeasible[b], rho[b] = out.u, out.action, out.infeasible, out.rho_pred
+        return BatchOutput(u, action.astype(str), infeasible, rho)
 
     def set_gain_ends(self, lo: float, hi: float) -> None:
         """Certify the gain interval [lo, hi] from now on (module docstring, "actuator gain"; narrowed online by
@@ -574,47 +733,22 @@ class EnergyGovernor:
     # -- certificate ------------------------------------------------------------------
     def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0) -> float:
         """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J), for the true actuator
-        gain g = `gain` × the model's (one of `gains`): ½(q − g q_u)ᵀK(q − g q_u) + ½ g² Σβ(p − u)².
-
-        N = 2 unrolled (a bisection evaluates it ~40 times per call): the loop's floats."""
-        if self.n == 2:
-            k0, k1, a0, a1, beta0, beta1 = self._energy_2[gain]
-            e0, e1 = q[0] - a0 * u[0], q[1] - a1 * u[1]
-            total = kinetic_and_plate + 0.5 * (k0 * e0 * e0 + beta0 * (p[0] - u[0]) ** 2)
-            return total + 0.5 * (k1 * e1 * e1 + beta1 * (p[1] - u[1]) ** 2)
-        total = kinetic_and_plate
-        for k, a, beta, qi, pi, ui in zip(*self._energy_terms[gain], q, p, u):
-            e = qi - a * ui
-            total += 0.5 * (k * e * e + beta * (pi - ui) ** 2)
-        return total
+        gain g = `gain` × the model's (one of `gains`): ½(q − g q_u)ᵀK(q − g q_u) + ½ g² Σβ(p − u)², segment
+        by segment (the compiled `energy_kernels.energy_at`, which the certificate's kernels evaluate)."""
+        terms = np.array([[self._energy_terms[gain]]], dtype=float)
+        return float(energy_kernels.energy_at(np.asarray(u, dtype=float), np.array([q], dtype=float),
+                                              np.array([p], dtype=float), terms, 0, 0, float(kinetic_and_plate),
+                                              energy_kernels.PYTHON_SQUARE))
 
     def escape(self, u) -> float:
         """min_j (Γ̲_j(u) + c_j) (J)."""
         return min(g + c for g, c in zip(self.table.values(u), self._credit))
 
-    def escape_memory(self, origin: tuple) -> dict[tuple, float]:
-        """The memory u → `escape(u)` (J) of the calls that held the command `origin` (hPa).
-
-        Γ̲ depends on the command alone (not on the state), and while the governor holds u_prev
-        ("hold", or a target already reached) each call walks the same rays from it: the look-ups
-        repeat. The memory is emptied when the held command changes, and when a call starts
-        with ESCAPE_MEMORY entries (a call adds at most 3 bisection_steps + 3).
-        """
-        if origin != self._escape_origin or len(self._escape_known) >= ESCAPE_MEMORY:
-            self._escape_known.clear()
-            self._escape_origin = origin
-        return self._escape_known
-
     def boundary_escape(self, u) -> list[float]:
         """Γ̲^∂_j(u) for every row (J): the larger of the boundary table's and the second-order bound's
         (`controllers.escape_energy`; both are lower bounds of the least elastic energy to P's boundary),
         the second only where some row's table value is below BOUND_BELOW_J (any of the two is a valid bound)."""
-        if self.table is None:
-            return self.boundary_bound.values(u)
-        table = self.table.values(u)
-        if min(table) >= BOUND_BELOW_J:  # far from the boundary: the table is the tighter bound, skip the other
-            return table
-        return [max(t, b) for t, b in zip(table, self.boundary_bound.values(u))]
+        return lower_bounds(u, self.table, self.boundary_bound, BOUND_BELOW_J)
 
     def contact_offsets(self, q: np.ndarray) -> tuple[list[float], bool, float]:
         """The contact certificate's per-row offsets o_j (J) at q (N,) rad, whether the tip r(q) lies
@@ -670,108 +804,113 @@ class EnergyGovernor:
         q = as_vector("q", estimate.q, self.n, NonFiniteStateError)
         qd = as_vector("qd", estimate.qd, self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
-        t, t_capture = float(estimate.t), float(estimate.t_capture)
+        t_apply = self._apply_time(float(estimate.t), float(estimate.t_capture), self.predictor)
+        call = self._prepare(q, qd, u_nom, float(estimate.t_capture), t_apply)
+        if call.stale:
+            return self._finish(call.u_prev, "stale", True, math.nan, {}, t_apply, call.t_capture, t0)
+        return self._conclude(call, self._govern([call]), 0, t0)
+
+    def _apply_time(self, t: float, t_capture: float, predictor: StatePredictor) -> float:
+        """t_a = t + δ (s) for a call at t with an estimate captured at t_capture, given the call's history's
+        predictor, or ControllerInputError (module docstring, "Times"): checked before the call changes anything."""
         if not -TIME_LIMIT_S <= t_capture <= t <= TIME_LIMIT_S:  # also False for NaN
             raise ControllerInputError(f"the estimate's times must satisfy -{TIME_LIMIT_S:g} <= t_capture <= t <= "
                                        f"{TIME_LIMIT_S:g} s, got t_capture = {t_capture!r}, t = {t!r}")
         t_apply = t + self.command_delay
-        if t_apply < self.predictor.latest_time:
+        if t_apply < predictor.latest_time:
             raise ControllerInputError(f"t must not go backwards: got t = {t!r} s after a call at "
-                                       f"t = {self.predictor.latest_time - self.command_delay!r} s (reset first)")
+                                       f"t = {predictor.latest_time - self.command_delay!r} s (reset first)")
+        return t_apply
+
+    def _prepare(self, q: np.ndarray, qd: np.ndarray, u_nom: np.ndarray, t_capture: float,
+                 t_apply: float) -> GovernorCall:
+        """Steps 1 and 2 of a call (module docstring) and the certificate's state at x̂: everything before the
+        compiled step 3 (`energy_kernels.govern_rows`), which takes the calls of one or many governors."""
         nominal = u_nom if self._box is None else np.clip(u_nom, *self._box)
         target = nominal if self.contact else self.target_governor.command(u_nom)
         u_prev = self.predictor.command_at(t_apply)
+        call = GovernorCall(t_capture, t_apply, u_prev, target, nominal)
         if not self.predictor.can_predict(t_capture, t_apply):
-            return self._finish(u_prev, "stale", True, math.nan, {}, t_apply, t_capture, t0)
+            call.stale = True
+            return call
         if self.gain_estimator is not None:
             self.update_gain(q, qd, t_capture)
         q_hat, qd_hat, p_hat = self.predictor.predict(t_capture, q, qd, t_apply)
-        q_list, p_list = q_hat.tolist(), p_hat.tolist()
-        # Commands as tuples of Python floats: u_prev + σ(g − u_prev) per entry is numpy's elementwise arithmetic.
-        held, aim = tuple(u_prev.tolist()), tuple(target.tolist())
-
-        inflation, energy, known, eps = 1.0 + self.kappa, self.energy, self.escape_memory(held), self.energy_margin
         if self.contact:
             offsets, inside, rho = self.contact_offsets(q_hat)
-            base = inflation * self.dynamics.kinetic_energy(q_hat, qd_hat)  # (1 + κ)·½q̇ᵀMq̇
-            inflation, gains = 1.0, self.gains  # κ inflates the kinetic energy alone
-
-            def terms(u: tuple) -> tuple[float, float]:
-                """(Γ, W) (J) at the gain end g with the least Γ − W: Γ = min_j (Γ^∂_j(g u) + o_j), -inf when x̂
-                is not strictly inside P; W at g (module docstring, "actuator gain": the ends bound every g)."""
-                rows = known.get(u)
-                if rows is None:
-                    rows = known[u] = [self.boundary_escape(scaled_command(g, u)) for g in gains]
-                pairs = [(min(r + o for r, o in zip(row, offsets)) if inside else -math.inf,
-                          energy(base, q_list, p_list, u, g)) for row, g in zip(rows, gains)]
-                return pairs[0] if len(pairs) == 1 else min(pairs, key=lambda pair: pair[0] - pair[1])
+            base = (1.0 + self.kappa) * self.dynamics.kinetic_energy(q_hat, qd_hat)  # (1 + κ)·½q̇ᵀMq̇
+            inflation = 1.0  # κ inflates the kinetic energy alone
         else:
             base, rho = self.state_energy(q_hat, qd_hat)
+            offsets, inside, inflation = self._credit, True, 1.0 + self.kappa
+        if self._kernel_terms is None or self._kernel_terms[0] != self.gains:
+            self._kernel_terms = (self.gains, np.array([self._energy_terms[g] for g in self.gains], dtype=float))
+        call.q_hat, call.p_hat, call.base, call.offsets, call.inside, call.rho = q_hat, p_hat, base, offsets, inside, rho
+        call.inflation, call.gains, call.terms = inflation, self.gains, self._kernel_terms[1]
+        return call
 
-            def terms(u: tuple) -> tuple[float, float]:  # (min_j (Γ_j(u) + c_j) through the memory, W) (J)
-                gamma = known.get(u)
-                if gamma is None:
-                    gamma = known[u] = self.escape(u)
-                return gamma, energy(base, q_list, p_list, u)
+    def _govern(self, calls: list[GovernorCall]) -> tuple:
+        """Step 3 for the calls (module docstring), row b the call calls[b]: `energy_kernels.govern_rows`."""
+        return energy_kernels.govern_rows(
+            np.array([c.u_prev for c in calls]), np.array([c.target for c in calls]), self._rest,
+            np.array([c.nominal for c in calls]), 2 if self.contact else 3, *certificate_rows(calls),
+            calls[0].inflation, self.energy_margin, self.bisection_steps, *self._lookup)
 
-        def margin(u: tuple) -> float:  # Γ − (1 + κ) W (J): ≥ ε when u is certified at x̂ (≥ 0: the held u)
-            gamma, w = terms(u)
-            return gamma - inflation * w
-
-        held_margin = margin(held)
+    def _conclude(self, call: GovernorCall, outputs: tuple, b: int, t0: float) -> FilterOutput:
+        """Step 4 where step 3 found the held command failed, the diagnostics, and the command recorded for the
+        predictor: the call's output from row b of `_govern`'s outputs."""
+        u_rows, codes, sigmas, gammas, ws, held_margins = outputs
+        code, sigma, held_margin = int(codes[b]), float(sigmas[b]), float(held_margins[b])
         held_ok = held_margin > 0.0  # Γ = W = 0 (the arm at rest on or beyond P's boundary) certifies nothing
-        infeasible, sigma = False, 1.0
-        if margin(aim) >= eps:
-            u, action = aim, "free"
-        elif held_ok:
-            u, sigma, best = held, 0.0, sum((a - t) * (a - t) for a, t in zip(held, aim))
-            goals = (aim, self._rest_list) if self.contact else (aim, self._rest_list, tuple(nominal.tolist()))
-            for k, goal in enumerate(goals):
-                direction = tuple(g - a for a, g in zip(held, goal))
-                if k and not ray_may_come_nearer(held, goal, direction, aim, best, 0.5**self.bisection_steps):
-                    continue  # no end point of this ray can win: its search cannot change u
-                lo, hi = 0.0, 1.0
-                for _ in range(self.bisection_steps):
-                    mid = 0.5 * (lo + hi)
-                    if margin(ray_point(held, direction, mid)) >= eps:
-                        lo = mid
-                    else:
-                        hi = mid
-                sigma = lo if k == 0 else sigma
-                candidate = ray_point(held, direction, lo)
-                distance = sum((c - t) * (c - t) for c, t in zip(candidate, aim))
-                if distance < best:
-                    u, best = candidate, distance
-            action = "hold" if u is held else "governed"
-        else:
+        infeasible, action = False, ACTION_NAMES[code]
+        if code == energy_kernels.RECOVER:
             if self.contact:
-                u, infeasible = self._recover_contact(base, offsets, inside, q_hat, p_hat, u_prev, target)
+                u, infeasible = self._recover_contact(call.base, call.offsets, call.inside, call.q_hat, call.p_hat,
+                                                      call.u_prev, call.target)
             else:
-                u, infeasible = self._recover(base, q_hat, p_hat, u_prev, target)
-            u, action, sigma = tuple(u.tolist()), "recover", math.nan
-        gamma, w = terms(u)
-        # the held command keeps its certificate down to Γ − (1 + κ)W = 0 (the hysteresis), a new one needs ε
-        certified_margin = held_margin if action == "hold" else gamma - inflation * w - eps
+                u, infeasible = self._recover(call.base, call.q_hat, call.p_hat, call.u_prev, call.target)
+            gamma, w = self.certificate_terms(u, call)
+        else:
+            u, gamma, w = u_rows[b], float(gammas[b]), float(ws[b])
+        # the held command keeps its certificate down to Γ − ιW = 0 (the hysteresis), a new one needs ε
+        certified_margin = held_margin if action == "hold" else gamma - call.inflation * w - self.energy_margin
         diagnostics = {"W_J": w, "Gamma_J": gamma, "margin_J": certified_margin,
                        "step_fraction": sigma, "blocked": float(action != "free"), "violation": float(not held_ok)}
-        return self._finish(u, action, infeasible, rho, diagnostics, t_apply, t_capture, t0)
+        return self._finish(u, action, infeasible, call.rho, diagnostics, call.t_apply, call.t_capture, t0)
+
+    def certificate_terms(self, u, call: GovernorCall) -> tuple[float, float]:
+        """(Γ, W) (J) of the command u (N,) hPa at the call's state x̂: the gain end with the least Γ − W,
+        Γ = min_j (Γ̲_j(g·u) + o_j) (−inf outside P), W at g (module docstring; `energy_kernels.certificate_terms`)."""
+        rows = len(call.offsets)
+        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), 0, *certificate_rows([call]),
+                                                    *self._lookup, np.empty(self.n), np.empty(rows), np.empty(rows))
+        return float(gamma), float(w)
 
     def _recover(self, base: float, q_hat: np.ndarray, p_hat: np.ndarray, u_prev: np.ndarray,
                  target: np.ndarray) -> tuple[np.ndarray, bool]:
-        """The held command failed: the certified candidate nearest the target, else the best margin."""
-        candidates = np.vstack((self._grid, u_prev, target))
-        gamma = np.concatenate((self._grid_gamma, [self.escape(u_prev.tolist()), self.escape(target.tolist())]))
-        k, a, beta = np.array(self._k), np.array(self._a), self.beta
-        energy = base + 0.5 * row_sums(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2)
-        margins = gamma - (1.0 + self.kappa) * energy - self.energy_margin
-        certified = margins >= 0.0
-        if np.any(certified):
-            distance = np.where(certified, row_sums((candidates - target) ** 2), np.inf)
-            return candidates[int(np.argmin(distance))].copy(), False
-        resting_inside = gamma >= self.energy_margin  # rest shape inside P: the arm settles there
-        if not np.any(resting_inside):
-            return target.copy(), True
-        return candidates[int(np.argmax(np.where(resting_inside, margins, -np.inf)))].copy(), True
+        """The held command failed: the certified candidate nearest the target, else the best margin among the
+        candidates whose rest shape lies inside P (Γ ≥ ε); the compiled scan (`controllers.energy_kernels`)."""
+        extra_rows = np.array([[self.table.values(c) for c in (u_prev, target)]]).transpose(0, 2, 1)  # (1, P', 2)
+        terms = np.array([(self._k, self._a, self._beta)])
+        return self._scan(self._grid_values[None], extra_rows, self._credit, terms, base, q_hat, p_hat, u_prev,
+                          target, 1.0 + self.kappa, True, None)
+
+    def _scan(self, grid_rows: np.ndarray, extra_rows: np.ndarray, offsets: list[float], terms: np.ndarray,
+              base: float, q_hat: np.ndarray, p_hat: np.ndarray, u_prev: np.ndarray, target: np.ndarray,
+              inflation: float, inside: bool, resting_extra: np.ndarray | None) -> tuple[np.ndarray, bool]:
+        """The recovery's choice among the grid commands, u_prev and the target (`energy_kernels.recovery_scan`):
+        grid_rows (E, P', G) and extra_rows (E, P', 2) per gain end; resting_extra None: the rest shape is inside
+        P where Γ ≥ ε (the parked certificate), else the grid's flags and these two."""
+        by_gamma = resting_extra is None
+        index, infeasible = energy_kernels.recovery_scan(
+            self._grid_columns, grid_rows, np.array((u_prev, target)).T.copy(), extra_rows,
+            np.array(offsets, dtype=float), terms,
+            base, q_hat, p_hat, target, inflation, self.energy_margin, inside, self._grid_rest_inside,
+            np.zeros(2, dtype=bool) if by_gamma else resting_extra, by_gamma)
+        index = int(index)
+        grid_size = len(self._grid)
+        chosen = target if index < 0 else self._grid[index] if index < grid_size else (u_prev, target)[index - grid_size]
+        return np.array(chosen, dtype=float), bool(infeasible)
 
     def _tip(self, q: np.ndarray) -> tuple[float, float]:
         """The model's tip r(q) (m) as Python floats."""
@@ -801,28 +940,19 @@ class EnergyGovernor:
                          u_prev: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, bool]:
         """The contact certificate's recovery (module docstring, step 4): the certified candidate nearest the target;
         else, with x̂ inside P, the largest margin among the candidates whose rest shape lies inside P; else (x̂
-        outside P, where no certificate holds) the one of those nearest the target; the target if there is none."""
-        candidates = np.vstack((self._grid, u_prev, target))
-        margins = None
-        for g in self.gains:  # the least margin over the gain ends (module docstring, "actuator gain")
-            ends = [self.boundary_escape(scaled_command(g, tuple(c.tolist()))) for c in (u_prev, target)]
-            grid = self._grid_rows.get(g)
-            if grid is None:
-                grid = self._grid_rows[g] = self.grid_rows_at_gain(g)
-            rows = np.hstack((grid, np.array(ends).T))
-            gamma = np.min(rows + np.array(offsets)[:, None], axis=0)
-            k, a, beta = (np.array(terms) for terms in self._energy_terms[g])
-            energy = base + 0.5 * row_sums(k * (q_hat - a * candidates) ** 2 + beta * (p_hat - candidates) ** 2)
-            at_g = gamma - energy - self.energy_margin
-            margins = at_g if margins is None else np.minimum(margins, at_g)
-        distance = row_sums((candidates - target) ** 2)
-        if inside and np.any(margins >= 0.0):
-            return candidates[int(np.argmin(np.where(margins >= 0.0, distance, np.inf)))].copy(), False
-        resting_inside = np.concatenate((self._grid_rest_inside, [self.rest_inside(u_prev), self.rest_inside(target)]))
-        if not np.any(resting_inside):
-            return target.copy(), True
-        score = margins if inside else -distance
-        return candidates[int(np.argmax(np.where(resting_inside, score, -np.inf)))].copy(), True
+        outside P, where no certificate holds) the one of those nearest the target; the target if there is none.
+        The margin is the least over the gain ends (module docstring, "actuator gain"); the compiled scan."""
+        if self._scan_rows is None or self._scan_rows[0] != self.gains:  # the grid rows of these gain ends, stacked
+            for g in self.gains:
+                if g not in self._grid_rows:
+                    self._grid_rows[g] = self.grid_rows_at_gain(g)
+            self._scan_rows = (self.gains, np.array([self._grid_rows[g] for g in self.gains]))
+        extra_rows = np.array([[self.boundary_escape(scaled_command(g, tuple(c.tolist()))) for c in (u_prev, target)]
+                               for g in self.gains]).transpose(0, 2, 1)
+        terms = np.array([self._energy_terms[g] for g in self.gains])
+        resting = np.array([self.rest_inside(u_prev), self.rest_inside(target)])
+        return self._scan(self._scan_rows[1], extra_rows, offsets, terms, base, q_hat, p_hat, u_prev, target, 1.0,
+                          inside, resting)
 
     def _finish(self, u: np.ndarray, action: str, infeasible: bool, rho: float, diagnostics: dict,
                 t_apply: float, t_capture: float, t0: float) -> FilterOutput:

@@ -40,7 +40,8 @@ The table (N ≤ 2 segments; the q-space search below is a grid):
    b. Lipschitz, from (*): d_j(u) ≥ max_c (d̲_c − ‖u − u_c‖_w), Γ ≥ ½ max(0, ·)²; valid
       anywhere, so it also covers commands outside the box (the nearest cell's corners).
    Γ̲_j(u) is the larger of the two.
-So Γ̲_j(u) ≤ Γ_j(u) everywhere: the table is conservative.
+So Γ̲_j(u) ≤ Γ_j(u) everywhere: the table is conservative. The look-up is compiled
+(`controllers.energy_kernels`: `lower_bounds` from Python, and inside the energy governor's kernels).
 
 Boundary variant (`boundary=True`, the e-erg's contact certificate, `controllers.energy_governor`):
 S_j = {z : g_j = 0}, the row's boundary itself, so Γ^∂_j(u) = min {½ (q − q_u)ᵀK(q − q_u) : g_j(q) = 0}
@@ -58,7 +59,6 @@ of the reference arm (≤ 0.67 J). tests/test_energy_governor.py compares the ta
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
@@ -68,7 +68,7 @@ from controllers.params import RobotParams
 from controllers.pcc import tip_positions
 from controllers.safe_set import ForceSafeSet
 
-pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
+energy_kernels = lazy_module("controllers.energy_kernels")  # numba loads on the first kernel call (controllers.lazy_import)
 
 MAX_SEGMENTS = 2
 MAX_TABLE_COMMANDS = 2**18
@@ -112,13 +112,9 @@ class EscapeEnergyTable:
         self.boundary = bool(boundary)
         commands = self.grid_commands()
         self.distance = self._distances(robot, safe_set, commands, float(q_spacing_rad))  # (P', G) J^{1/2}
-        self._shape = tuple(len(a) for a in self.axes)
-        # C order: flat index Σ_i index_i · stride_i; None for a row out of reach (Γ_j = +inf)
-        self._flat_rows = [d.tolist() if np.isfinite(d[0]) else None for d in self.distance]
-        self._strides = [int(np.prod(self._shape[i + 1:])) for i in range(self.n)]
-        self._lo = u_lo.tolist()
-        self._step = self.spacing.tolist()
-        self._w = self.weights.tolist()
+        shape = [len(a) for a in self.axes]
+        strides = [int(np.prod(shape[i + 1:])) for i in range(self.n)]  # C order: flat index Σ_i index_i · stride_i
+        self.kernel_table = np.array([u_lo, self.spacing, self.weights, shape, strides], dtype=float)  # (5, N)
 
     @property
     def saturation_J(self) -> float:
@@ -172,68 +168,18 @@ class EscapeEnergyTable:
     def values(self, u) -> list[float]:
         """Γ̲_j(u) for every row j: P' floats (J). u: (N,) hPa (Python floats or an array).
 
-        The larger of the two bounds 4a (inside the box) and 4b. Python floats: this runs
-        several times per filter call, where numpy's per-call overhead would dominate at N ≤ 2;
-        N = 2 takes `_values_2`, the same arithmetic unrolled (tested against this path).
-        """
-        if self.n == 2:
-            return self._values_2(float(u[0]), float(u[1]))
-        return self._values_general(u)
+        The larger of the two bounds 4a (inside the box) and 4b, in the compiled look-up
+        (`controllers.energy_kernels.table_values`, the floats of the Python look-up it replaced; called
+        from Python its dispatch costs ≈ 5 µs, inside the governor's kernels the look-up ≈ 0.1 µs):
+        N = 2 in the unrolled expression order, which `values_general` (the loop over the 2^N corners,
+        any N) matches to rounding (tests/test_energy_governor.py)."""
+        return lower_bounds(u, self, None)
 
-    def _values_2(self, u0: float, u1: float) -> list[float]:
-        """`values` for N = 2 (cell corners unrolled)."""
-        (lo0, lo1), (step0, step1), (size0, size1), (w0, w1) = self._lo, self._step, self._shape, self._w
-        i0 = min(max(int((u0 - lo0) // step0), 0), size0 - 2)
-        i1 = min(max(int((u1 - lo1) // step1), 0), size1 - 2)
-        o0, o1 = u0 - (lo0 + i0 * step0), u1 - (lo1 + i1 * step1)
-        inside = 0.0 <= o0 <= step0 and 0.0 <= o1 <= step1
-        r0, r1 = o0 - step0, o1 - step1  # x * x, not x ** 2 (the same float, but inf instead of OverflowError)
-        a0, b0 = w0 * o0 * o0, w0 * (r0 * r0)
-        a1, b1 = w1 * o1 * o1, w1 * (r1 * r1)
-        d00, d10, d01, d11 = math.sqrt(a0 + a1), math.sqrt(b0 + a1), math.sqrt(a0 + b1), math.sqrt(b0 + b1)
-        t0, t1 = o0 / step0, o1 / step1
-        curvature = 0.5 * (w0 * o0 * (step0 - o0) + w1 * o1 * (step1 - o1))
-        k00 = i0 * size1 + i1
-        k10, k01, k11 = k00 + size1, k00 + 1, k00 + size1 + 1
-        result = []
-        for table in self._flat_rows:
-            if table is None:
-                result.append(math.inf)
-                continue
-            e00, e10, e01, e11 = table[k00], table[k10], table[k01], table[k11]
-            cone = max(e00 - d00, e10 - d10, e01 - d01, e11 - d11)
-            best = 0.5 * cone * cone if cone > 0.0 else 0.0
-            if inside:
-                bilinear = 0.5 * ((1.0 - t0) * ((1.0 - t1) * e00 * e00 + t1 * e01 * e01)
-                                  + t0 * ((1.0 - t1) * e10 * e10 + t1 * e11 * e11)) - curvature
-                best = max(best, bilinear)
-            result.append(best)
-        return result
-
-    def _values_general(self, u) -> list[float]:
-        """`values` for any N ≤ MAX_SEGMENTS (loops over the 2^N corners)."""
-        flat, dims, inside, curvature = 0, [], True, 0.0
-        for v, lo, step, size, stride, w in zip(u, self._lo, self._step, self._shape, self._strides, self._w):
-            i = min(max(int((v - lo) // step), 0), size - 2) if size > 1 else 0
-            o = v - (lo + i * step)
-            inside = inside and 0.0 <= o <= step
-            flat += i * stride
-            curvature += 0.5 * w * o * (step - o)
-            t = o / step
-            dims.append(((0, w * o * o, 1.0 - t), (stride, w * ((o - step) * (o - step)), t)))
-        corners = [(sum(c[0] for c in combo), math.sqrt(sum(c[1] for c in combo)), math.prod(c[2] for c in combo))
-                   for combo in itertools.product(*dims)]
-        result = []
-        for table in self._flat_rows:
-            if table is None:
-                result.append(math.inf)
-                continue
-            cone = max(table[flat + k] - dist for k, dist, _ in corners)
-            best = 0.5 * cone * cone if cone > 0.0 else 0.0
-            if inside:
-                best = max(best, sum(0.5 * table[flat + k] ** 2 * weight for k, _, weight in corners) - curvature)
-            result.append(best)
-        return result
+    def values_general(self, u) -> list[float]:
+        """`values` through the loop over the 2^N corners for every N (the reference of N = 2's unrolled order)."""
+        return energy_kernels.escape_values(np.asarray(u, dtype=float), energy_kernels.TABLE, self.kernel_table,
+                                            self.distance, False, *_NO_BOUND, 0.0,
+                                            energy_kernels.PYTHON_SQUARE).tolist()
 
 
 class BoundaryDistanceBound:
@@ -276,28 +222,41 @@ class BoundaryDistanceBound:
         before = np.concatenate(([0.0], np.cumsum(1.0 / stiffness)[:-1]))  # Σ_{k<i} 1/k_k
         self.curvature = norms * float(np.sum(self.lengths * (before + 1.0 / (3.0 * stiffness))))  # C_j, m/J
         self.reachable = norms * float(np.sum(self.lengths)) >= self.h
-        self._gain = self.static_gain.tolist()
-        self._zeros, self._inverse_root_k = np.zeros((1, len(self._gain))), self.inverse_root_k.tolist()
-        n = len(self._gain)
-        self._tip, self._tip_jac = 4 * n, slice(n, 2 * n)  # `pcc_model.ModelLayout`: tip_terms.start, tip_jac
-        self._rows = list(zip(self.H[:, 0].tolist(), self.H[:, 1].tolist(), self.h.tolist(), self.curvature.tolist(),
-                              self.reachable.tolist()))
+        self.kernel_bound = np.stack((self.H[:, 0], self.H[:, 1], self.h, self.curvature,
+                                      self.reachable.astype(float)), axis=1)  # (P', 5), `energy_kernels` layout
 
     def values(self, u) -> list[float]:
-        """½ δ_j(u)² for every row j (J); u: (N,) hPa. Python floats on the tip r and its Jacobian J_r from the
-        kinematic kernel (`pcc_model.kinematics_rows`, the floats of `pcc.step_kinematics` without its other
-        terms: 2 µs against 9 µs; this runs up to 3 bisection_steps + 2 times per governor call)."""
-        row = pcc_model.kinematics_rows(np.array(([g * float(v) for g, v in zip(self._gain, u)],)), self._zeros,
-                                        self.lengths)[0]
-        tip, tip_jac = row[self._tip].item(), row[self._tip_jac].tolist()
-        x, y = tip.real, tip.imag
-        out = []
-        for (hx, hy, h, c, reachable) in self._rows:
-            if not reachable:
-                out.append(math.inf)
-                continue
-            size = abs(hx * x + hy * y - h)
-            slope = math.sqrt(sum(((hx * d.real + hy * d.imag) * s) ** 2 for d, s in zip(tip_jac, self._inverse_root_k)))
-            delta = 2.0 * size / (slope + math.sqrt(slope * slope + 2.0 * c * size)) if size > 0.0 else 0.0
-            out.append(0.5 * delta * delta)
-        return out
+        """½ δ_j(u)² for every row j (J); u: (N,) hPa. Compiled (`controllers.energy_kernels.bound_values`: the tip
+        r and its Jacobian J_r from the kinematic kernel `pcc_model.kinematics_rows`, then the rows' arithmetic,
+        the floats of the Python version it replaced); the governor evaluates it inside its kernels."""
+        return lower_bounds(u, None, self)
+
+
+_NO_TABLE = (np.zeros((5, 1)), np.zeros((1, 1)))
+"""`energy_kernels.escape_values`' table arguments where there is no table (never read)."""
+_NO_BOUND = (np.zeros((1, 5)), np.zeros(1), np.zeros(1), np.zeros(1))
+"""Its bound arguments where there is no second-order bound (never read)."""
+
+
+def lookup_arguments(table: EscapeEnergyTable | None, bound: BoundaryDistanceBound | None,
+                     below: float = 0.0) -> tuple:
+    """The look-up's arguments of the compiled kernels (`energy_kernels.escape_values` after u, and every kernel
+    that looks Γ̲ up): the table's (`EscapeEnergyTable.values`), the second-order bound's
+    (`BoundaryDistanceBound.values`), or with both the larger of the two per row, the bound evaluated only where
+    the table's least row value is below `below` (J; both are lower bounds of Γ^∂_j, so either is valid
+    everywhere)."""
+    if table is None:
+        mode, table_arrays, unrolled = energy_kernels.BOUND, _NO_TABLE, False
+    else:
+        mode = energy_kernels.TABLE if bound is None else energy_kernels.BOTH
+        table_arrays, unrolled = (table.kernel_table, table.distance), table.n == 2
+    bound_arrays = _NO_BOUND if bound is None else (bound.kernel_bound, bound.lengths, bound.static_gain,
+                                                    bound.inverse_root_k)
+    return (mode, *table_arrays, unrolled, *bound_arrays, float(below), energy_kernels.PYTHON_SQUARE)
+
+
+def lower_bounds(u, table: EscapeEnergyTable | None, bound: BoundaryDistanceBound | None,
+                 below: float = 0.0) -> list[float]:
+    """Γ̲_j(u) for every row j (J), u (N,) hPa (`lookup_arguments`): one compiled call
+    (`controllers.energy_kernels.escape_values`)."""
+    return energy_kernels.escape_values(np.asarray(u, dtype=float), *lookup_arguments(table, bound, below)).tolist()

@@ -89,6 +89,15 @@ class StatePredictor:
         self._commands: list[np.ndarray] = [np.zeros(self.n)]
         self._pressures: list[np.ndarray] = [np.zeros(self.n)]
 
+    def copy(self) -> "StatePredictor":
+        """A predictor with the same model and a copy of this one's command history (one per simulation of a
+        batched governor, `EnergyGovernor.filter_batch`); the records' arrays are never changed in place, so
+        the copy shares them."""
+        twin = object.__new__(StatePredictor)
+        twin.__dict__.update(self.__dict__)
+        twin._times, twin._commands, twin._pressures = list(self._times), list(self._commands), list(self._pressures)
+        return twin
+
     def record(self, t_apply: float, u: np.ndarray) -> None:
         """The command u (N,) hPa acts from t_apply (s) on; times must not decrease."""
         if t_apply < self._times[-1]:

@@ -16,8 +16,12 @@ Call times: wall (filter_us_*, what the loop records) and process CPU time (cpu_
 sensitive to other processes on a shared machine), after a warm-up (`warm_up`: numba's first call
 of each kernel in a process loads it, 5–100 ms once, which in these short runs would be the p99);
 the table build time is separate (build_s).
+--repeat R runs each case R times on the same governor (the loop resets it: the same calls and commands,
+checked) and takes each call's least time over the R runs: on a loaded machine the scheduler and other
+processes add milliseconds to a few calls, which in a camera case of 40–300 calls is the p99; the least
+over repeats keeps what the call itself costs (CPU time counts a preempted virtual CPU's stolen time too).
 Prints one line per case and ends with one JSON line. Usage:
-    PYTHONPATH=$PWD python tools/bench_governors.py [--quick] [--filters c-erg] [--against /path/to/other/tree]
+    PYTHONPATH=$PWD python tools/bench_governors.py [--quick] [--filters c-erg] [--repeat 5] [--against /path/to/other/tree]
 --against TREE runs every case a second time, right after this tree's run, in a child process
 whose controllers are TREE's (PYTHONPATH=TREE; the loop, cases and figures are this script's),
 and prints the ratios this/TREE of the call-time medians and p99s: side by side on the same
@@ -43,7 +47,7 @@ from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
 from controllers.filter_metrics import governor_figures  # noqa: E402
 from controllers.params import reference_robot  # noqa: E402
 from controllers.safe_set import paper_safe_set  # noqa: E402
-from controllers.safety_filter import Estimate  # noqa: E402
+from controllers.safety_filter import Estimate, EstimateBatch  # noqa: E402
 
 FILTER_NAMES = ("qsg", "e-erg", "c-erg")
 PLATE_N_PER_M = 11.16
@@ -99,7 +103,10 @@ def warm_up(gov, n: int) -> None:
         gov(estimate, push)
 
 
-def run_case(name: str, spec: tuple) -> dict:
+def run_case(name: str, spec: tuple, repeat: int = 1) -> dict:
+    """The case `name` run `repeat` times on one governor (reset by the loop before each run: the same calls,
+    the same commands): each call's time is its least over the runs (`repeat` > 1: the scheduler's and other
+    processes' share of a call, which on a loaded machine sets the p99, mostly removed; the call's own cost kept)."""
     label, period, delay, age, tau, nominal, duration, pushing = spec
     robot, safe = reference_robot(), paper_safe_set()
     cls, kwargs = factory(label)
@@ -107,14 +114,83 @@ def run_case(name: str, spec: tuple) -> dict:
     gov = cls(context(robot, safe, period, delay, tau), **kwargs)
     build_s = time.perf_counter() - t0
     warm_up(gov, robot.n_segments)
-    plant = PushingPlatePlant(robot, safe, PLATE_N_PER_M, tau) if pushing else None
-    rec = run_loop(gov, robot, safe, nominal, duration, period, delay, age, tau_p=tau, seed=0, plant=plant)
+    runs = []
+    for _ in range(repeat):
+        plant = PushingPlatePlant(robot, safe, PLATE_N_PER_M, tau) if pushing else None
+        runs.append(run_loop(gov, robot, safe, nominal, duration, period, delay, age, tau_p=tau, seed=0, plant=plant))
+    rec = runs[0]
+    if any(not np.array_equal(r.commands, rec.commands) for r in runs[1:]):
+        raise RuntimeError(f"{name}: the repeated runs commanded differently")
+    wall = np.min([r.call_us for r in runs], axis=0)
+    cpu_us = np.min([r.call_cpu_us for r in runs], axis=0)
     t = (np.array(rec.apply_ticks) - int(round(delay / 1e-3))) * 1e-3
     u_nom = np.array([nominal(s) for s in t])
-    figures = governor_figures(t, np.array(rec.commands), u_nom, rec.call_us)
-    cpu = {"cpu_us_median": float(np.median(rec.call_cpu_us)), "cpu_us_p99": float(np.percentile(rec.call_cpu_us, 99))}
-    return {"case": name, "rho_min": float(rec.rho.min()), "calls": len(rec.call_us), "build_s": build_s,
+    figures = governor_figures(t, np.array(rec.commands), u_nom, wall)
+    cpu = {"cpu_us_median": float(np.median(cpu_us)), "cpu_us_p99": float(np.percentile(cpu_us, 99))}
+    return {"case": name, "rho_min": float(rec.rho.min()), "calls": len(wall), "build_s": build_s, "repeat": repeat,
             "u_max_abs_hPa": float(np.max(np.abs(rec.u))), **figures, **cpu}
+
+
+class Recorder:
+    """A governor that keeps every call's (estimate, u_nom): the inputs a batched replay hands `filter_batch`."""
+
+    def __init__(self, governor) -> None:
+        self.governor, self.calls = governor, []
+
+    def reset(self) -> None:
+        self.governor.reset()
+        self.calls = []
+
+    def __call__(self, estimate: Estimate, u_nom):
+        self.calls.append((estimate, np.array(u_nom, dtype=float)))
+        return self.governor(estimate, u_nom)
+
+
+def batch_case(name: str, spec: tuple, rows: int, repeat: int) -> dict:
+    """The case run as `rows` simulations (the loop's seeds 0..rows−1: different estimate ages at the camera
+    rate), their calls recorded through scalar governors, then replayed per period two ways: `rows` governors
+    called in turn (per simulation) and one governor's `filter_batch` over the rows; each period's time the
+    least over `repeat` replays. The commands must agree bit for bit (the batch contract), so the replay is the
+    closed loop either way."""
+    label, period, delay, age, tau, nominal, duration, pushing = spec
+    robot, safe = reference_robot(), paper_safe_set()
+    cls, kwargs = factory(label)
+    ctx = context(robot, safe, period, delay, tau)
+    serial = [cls(ctx, **kwargs) for _ in range(rows)]
+    calls = []
+    for b, gov in enumerate(serial):
+        warm_up(gov, robot.n_segments)
+        recorder = Recorder(gov)
+        plant = PushingPlatePlant(robot, safe, PLATE_N_PER_M, tau) if pushing else None
+        run_loop(recorder, robot, safe, nominal, duration, period, delay, age, tau_p=tau, seed=b, plant=plant)
+        calls.append(recorder.calls)
+    periods = min(len(c) for c in calls)
+    batched = cls(ctx, **kwargs)
+    warm_up(batched, robot.n_segments)
+    serial_us, batch_us = np.full(periods, np.inf), np.full(periods, np.inf)
+    for _ in range(repeat):
+        for gov in serial:
+            gov.reset()
+        batched.reset()
+        for k in range(periods):
+            inputs = [calls[b][k] for b in range(rows)]
+            t0 = time.process_time()
+            want = [gov(estimate, u_nom) for gov, (estimate, u_nom) in zip(serial, inputs)]
+            t1 = time.process_time()
+            estimates = EstimateBatch(np.array([e.t for e, _ in inputs]), np.array([e.q for e, _ in inputs]),
+                                      np.array([e.qd for e, _ in inputs]), np.array([e.t_capture for e, _ in inputs]))
+            t2 = time.process_time()
+            out = batched.filter_batch(estimates, np.array([u for _, u in inputs]))
+            t3 = time.process_time()
+            if not np.array_equal(out.u, [w.u for w in want]) or out.action.tolist() != [w.action for w in want]:
+                raise RuntimeError(f"{name}: filter_batch differs from the serial governors at period {k}")
+            serial_us[k] = min(serial_us[k], (t1 - t0) * 1e6)
+            batch_us[k] = min(batch_us[k], (t3 - t2) * 1e6)
+    return {"case": name, "rows": rows, "periods": periods, "repeat": repeat,
+            "serial_us_per_period_median": float(np.median(serial_us)),
+            "batch_us_per_period_median": float(np.median(batch_us)),
+            "serial_us_total": float(np.sum(serial_us)), "batch_us_total": float(np.sum(batch_us)),
+            "batch_over_serial": float(np.sum(batch_us) / np.sum(serial_us))}
 
 
 def show(result: dict, tag: str = "") -> None:
@@ -125,10 +201,11 @@ def show(result: dict, tag: str = "") -> None:
           f"dev rms {result['u_dev_rms_hPa']:.1f} hPa  build {result['build_s']:.1f} s", flush=True)
 
 
-def run_against(tree: str, name: str, quick: bool) -> dict | None:
+def run_against(tree: str, name: str, quick: bool, repeat: int) -> dict | None:
     """The case `name` run by this script in a child process on TREE's controllers (None: TREE lacks the filter)."""
     env = {**os.environ, "PYTHONPATH": str(Path(tree).resolve())}
-    command = [sys.executable, str(Path(__file__).resolve()), "--one", name] + (["--quick"] if quick else [])
+    command = [sys.executable, str(Path(__file__).resolve()), "--one", name, "--repeat", str(repeat)]
+    command += ["--quick"] if quick else []
     done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
     if done.returncode == 3:
         return None
@@ -143,8 +220,15 @@ def main() -> int:
     parser.add_argument("--filters", default=",".join(FILTER_NAMES), help=f"comma list of {', '.join(FILTER_NAMES)}")
     parser.add_argument("--cases", default="", help="only the cases whose name contains one of these comma-separated words")
     parser.add_argument("--against", metavar="TREE", help="also run every case on TREE's controllers (module docstring)")
+    parser.add_argument("--repeat", type=int, default=1, help="run each case this many times; each call's time is "
+                        "its least over the runs (run_case: the noise of a loaded machine removed)")
+    parser.add_argument("--batch", type=int, default=0, metavar="B",
+                        help="instead: each case as B simulations, B governors called per simulation against one "
+                        "governor's filter_batch (batch_case; qsg has its own in tools/bench_batch_filters.py)")
     parser.add_argument("--one", metavar="CASE", help=argparse.SUPPRESS)  # the child of --against: one case, its JSON
     args = parser.parse_args()
+    if args.repeat < 1:
+        parser.error(f"--repeat must be >= 1, got {args.repeat}")
     names = [n.strip() for n in args.filters.split(",") if n.strip()]
     for n in names:
         if n not in FILTER_NAMES:
@@ -152,19 +236,31 @@ def main() -> int:
     table = cases(FILTER_NAMES if args.one else names, args.quick)
     if args.one:
         try:
-            print(json.dumps(run_case(args.one, table[args.one])))
+            print(json.dumps(run_case(args.one, table[args.one], args.repeat)))
         except LookupError:
             return 3
         return 0
     words = [w.strip() for w in args.cases.split(",") if w.strip()]
     results = []
+    if args.batch:
+        for name, spec in table.items():
+            if (words and not any(w in name for w in words)) or spec[0] == "qsg":
+                continue
+            result = batch_case(name, spec, args.batch, args.repeat)
+            print(f"{name:40s} B = {args.batch}: per period serial {result['serial_us_per_period_median']:7.0f} µs, "
+                  f"batched {result['batch_us_per_period_median']:7.0f} µs (medians); total batched/serial "
+                  f"{result['batch_over_serial']:.2f}", flush=True)
+            results.append(result)
+        print(json.dumps({"quick": args.quick, "batch": args.batch, "repeat": args.repeat,
+                          "load_1min": os.getloadavg()[0], "results": results}))
+        return 0
     for name, spec in table.items():
         if words and not any(w in name for w in words):
             continue
-        result = run_case(name, spec)
+        result = run_case(name, spec, args.repeat)
         show(result)
         if args.against:
-            before = run_against(args.against, name, args.quick)
+            before = run_against(args.against, name, args.quick, args.repeat)
             if before is None:
                 print(f"  against {args.against}: no {spec[0]} there")
             else:
@@ -177,7 +273,7 @@ def main() -> int:
                 print(f"  this/against: wall median {result['ratio_median']:.2f}  p99 {result['ratio_p99']:.2f}  "
                       f"CPU median {result['ratio_cpu_median']:.2f}  p99 {result['ratio_cpu_p99']:.2f}", flush=True)
         results.append(result)
-    print(json.dumps({"quick": args.quick, "against": args.against, "load_1min": os.getloadavg()[0], "results": results}))
+    print(json.dumps({"quick": args.quick, "against": args.against, "repeat": args.repeat, "load_1min": os.getloadavg()[0], "results": results}))
     return 0
 
 
