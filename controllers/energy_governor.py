@@ -254,7 +254,7 @@ from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput, batch_history_ids
 from controllers.state_predictor import StatePredictor
 from controllers.bounds import Bound
 from controllers.cbf_batch import checked_rows
@@ -579,7 +579,7 @@ class EnergyGovernor:
         estimate, and every history of `filter_batch`; with `rows` (indices of `filter_batch` histories), those
         histories alone (one simulation's new episode), as if their governors were reset."""
         if rows is not None:
-            for i in self._history_ids(rows, None).tolist():
+            for i in batch_history_ids(rows).tolist():
                 self._grow_histories(i + 1)
                 saved = self._install(self._histories[i])
                 try:
@@ -619,16 +619,6 @@ class EnergyGovernor:
         history["_grid_rows"], history["_escape_known"] = dict(self._grid_rows), {}
         return history
 
-    @staticmethod
-    def _history_ids(rows, count: int | None) -> np.ndarray:
-        """`rows` as distinct indices ≥ 0 ((count,) when count is given), else ValueError."""
-        ids = np.asarray(rows)
-        if ids.ndim != 1 or (count is not None and len(ids) != count) or (len(ids) and ids.dtype.kind not in "iu"):
-            raise ValueError(f"rows must be {'' if count is None else f'{count} '}integer indices, got {rows!r}")
-        if len(ids) and (ids.min() < 0 or len(np.unique(ids)) != len(ids)):
-            raise ValueError(f"rows must be distinct indices >= 0, got {ids.tolist()}")
-        return ids.astype(np.intp)
-
     def _grow_histories(self, needed: int) -> None:
         """Histories up to index needed − 1, the new ones copies of this governor in its present state."""
         while len(self._histories) < needed:
@@ -647,13 +637,7 @@ class EnergyGovernor:
         u_nom = checked_rows("u_nom", u_nom, (n_rows, n), NonFiniteCommandError)
         t = np.asarray(estimates.t, dtype=float).reshape(n_rows).tolist()
         t_capture = np.asarray(estimates.t_capture, dtype=float).reshape(n_rows).tolist()
-        if rows is None:
-            if len(self._histories) > n_rows:
-                raise ValueError(f"filter_batch keeps one history per row: it holds {len(self._histories)} and was "
-                                 f"called with {n_rows} rows without saying which (rows=); reset() starts afresh")
-            ids = list(range(n_rows))
-        else:
-            ids = self._history_ids(rows, n_rows).tolist()
+        ids = batch_history_ids(rows, n_rows, len(self._histories)).tolist()
         self._grow_histories(max(ids) + 1 if ids else 0)
         t_apply = []
         for b, i in enumerate(ids):  # every row's times first: a refusal changes no history

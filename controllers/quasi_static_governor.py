@@ -70,7 +70,7 @@ from controllers.filter_parameters import FilterParameter, check_parameters, par
 from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked, step_kinematics
 from controllers.qp import DEFAULT_BACKEND, check_backend, solve_lists
-from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput, batch_history_ids
 from controllers.bounds import Bound
 
 pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
@@ -152,23 +152,13 @@ class QuasiStaticGovernor:
         history of `filter_batch` too; with `rows` (indices of `filter_batch` histories), of those
         histories alone (one simulation's new episode), as if their governors were reset."""
         if rows is not None:
-            ids = self._history_ids(rows, None)
+            ids = batch_history_ids(rows)
             self._grow_histories(ids)
             self._batch_prev[ids] = math.nan
             return
         self._u_prev = None
         self._batch_prev = None
         self._commands.clear()
-
-    @staticmethod
-    def _history_ids(rows, count: int | None) -> np.ndarray:
-        """`rows` as distinct indices ≥ 0 ((count,) when count is given), else ValueError."""
-        ids = np.asarray(rows)
-        if ids.ndim != 1 or (count is not None and len(ids) != count) or (len(ids) and ids.dtype.kind not in "iu"):
-            raise ValueError(f"rows must be {'' if count is None else f'{count} '}integer indices, got {rows!r}")
-        if len(ids) and (ids.min() < 0 or len(np.unique(ids)) != len(ids)):
-            raise ValueError(f"rows must be distinct indices >= 0, got {ids.tolist()}")
-        return ids.astype(np.intp)
 
     def _grow_histories(self, ids: np.ndarray) -> None:
         """Histories up to index max(ids), the new ones copies of this governor in its present state."""
@@ -370,14 +360,7 @@ class QuasiStaticGovernor:
         q = checked_rows("q", estimates.q, (n_rows, n), NonFiniteStateError)
         checked_rows("qd", estimates.qd, (n_rows, n), NonFiniteStateError)
         u_nom = checked_rows("u_nom", u_nom, (n_rows, n), NonFiniteCommandError)
-        held = 0 if self._batch_prev is None else len(self._batch_prev)
-        if rows is None:
-            if held > n_rows:
-                raise ValueError(f"filter_batch keeps one history per row: it holds {held} and was called with "
-                                 f"{n_rows} rows without saying which (rows=); reset() starts afresh")
-            ids = np.arange(n_rows)
-        else:
-            ids = self._history_ids(rows, n_rows)
+        ids = batch_history_ids(rows, n_rows, 0 if self._batch_prev is None else len(self._batch_prev))
         self._grow_histories(ids)
         prev = self._batch_prev[ids]
         has_prev = ~np.isnan(prev[:, 0])

@@ -437,6 +437,24 @@ def checked_batch_arrays(result: object, n_states: int, n: int) -> tuple[np.ndar
     return u.astype(float), actions, infeasible.copy(), rho.astype(float)
 
 
+def batch_history_ids(rows, count: int | None = None, held: int = 0) -> np.ndarray:
+    """The histories served by a `filter_batch(..., rows=rows)` call of `count` rows (or by `reset(rows=rows)`,
+    count None) of a filter that keeps one history per simulation (the plug-in contract's `rows`): `rows` as
+    distinct integer indices ≥ 0, (count,) when count is given, else ValueError; rows None (a call): 0..count − 1,
+    refused (ValueError) when the filter holds more than count histories (`held`: which is which would be a guess)."""
+    if rows is None:
+        if count is None or held > count:
+            raise ValueError(f"filter_batch keeps one history per row: it holds {held} and was called with "
+                             f"{count} rows without saying which (rows=); reset() starts afresh")
+        return np.arange(count, dtype=np.intp)
+    ids = np.asarray(rows)
+    if ids.ndim != 1 or (count is not None and len(ids) != count) or (len(ids) and ids.dtype.kind not in "iu"):
+        raise ValueError(f"rows must be {'' if count is None else f'{count} '}integer indices, got {rows!r}")
+    if len(ids) and (ids.min() < 0 or len(np.unique(ids)) != len(ids)):
+        raise ValueError(f"rows must be distinct indices >= 0, got {ids.tolist()}")
+    return ids.astype(np.intp)
+
+
 def reset_filter(safety_filter: SafetyFilter) -> None:
     """Call the filter's optional `reset()`."""
     reset = getattr(safety_filter, "reset", None)
