@@ -229,7 +229,7 @@ from controllers.dynamics import PCCDynamics
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.escape_energy import MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
-from controllers.gain_estimate import GainEstimator
+from controllers.gain_estimate import GAIN_CONTACT, GainEstimator
 from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
 from controllers.quasi_static_governor import QuasiStaticGovernor
@@ -302,17 +302,21 @@ PARAMETERS = {
     "gain_hi_ratio": FilterParameter("highest true actuator gain λ as a multiple of the model's (the contact "
                                      "certificate holds for every gain in [lo, hi]: module docstring)", "1", bound=GAIN_RATIOS),
     "gain_estimate": FilterParameter("narrow [gain_lo_ratio, gain_hi_ratio] online to [ĝ − e, ĝ + e] from rest samples "
-                                     "out of contact (controllers.gain_estimate; contact certificate only)", "", bool),
+                                     "(in contact too: gain_contact) (controllers.gain_estimate; contact certificate "
+                                     "only)", "", bool),
     "gain_noise_rad": FilterParameter("bound Δ on the rest samples' deviation from the model's balance per segment "
                                       "(estimate error and residual motion; gain_estimate only)", "rad",
                                       bound=Bound(0.0, 1.0, low_open=True, unit="rad")),
     "gain_rest_rad_s": FilterParameter("largest |q̇_i| of a rest sample (gain_estimate only)", "rad/s",
                                        bound=Bound(0.0, 10.0, unit="rad/s")),
-    "gain_clearance_m": FilterParameter("least distance of a sample's tip from every facet plane (gain_estimate "
-                                        "only)", "m", bound=Bound(0.0, 1.0, unit="m")),
+    "gain_clearance_m": FilterParameter("least distance of a sample's tip from every facet plane for no contact "
+                                        "(nearer: gain_contact; gain_estimate only)", "m", bound=Bound(0.0, 1.0, unit="m")),
     "gain_difference_s": FilterParameter("largest spacing of two estimates whose q̇ difference gives q̈ for a moving "
                                          "sample (0: rest samples only; gain_estimate only)", "s",
                                          bound=Bound(0.0, 0.1, unit="s")),
+    "gain_contact": FilterParameter("samples with the tip within gain_clearance_m of a facet: 'normal' (the plate's "
+                                    "force along its normal eliminated: frictionless), 'any' (also the tangential: "
+                                    "friction), 'off' (none; controllers.gain_estimate; gain_estimate only)", "", str),
 }
 """The E-ERG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them.
 
@@ -412,11 +416,11 @@ class EnergyGovernor:
                  escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0, gain_hi_ratio: float = 1.0,
                  gain_estimate: bool = False, gain_noise_rad: float = 5e-3, gain_rest_rad_s: float = 0.02,
                  gain_clearance_m: float = 5e-3,
-                 gain_difference_s: float = 0.0) -> None:
+                 gain_difference_s: float = 0.0, gain_contact: str = "normal") -> None:
         checked = self.check_arguments({"certificate": certificate, "escape_spacing_rad": escape_spacing_rad,
             "gain_lo_ratio": gain_lo_ratio, "gain_hi_ratio": gain_hi_ratio, "gain_estimate": gain_estimate,
             "gain_noise_rad": gain_noise_rad, "gain_rest_rad_s": gain_rest_rad_s, "gain_clearance_m": gain_clearance_m,
-            "gain_difference_s": gain_difference_s,
+            "gain_difference_s": gain_difference_s, "gain_contact": gain_contact,
             "margin_m": margin_m, "kappa": kappa, "energy_margin_J": energy_margin_J, "contact_aware": contact_aware,
             "stiffness_lo_ratio": stiffness_lo_ratio, "stiffness_hi_ratio": stiffness_hi_ratio,
             "command_delay_s": command_delay_s, "actuator_tau_s": actuator_tau_s, "grid_hPa": grid_hPa,
@@ -484,7 +488,7 @@ class EnergyGovernor:
                                             checked["gain_noise_rad"]) if checked["gain_estimate"] else None
         self.gain_prior = (self.gain_lo, self.gain_hi)
         self.gain_rest, self.gain_clearance = checked["gain_rest_rad_s"], checked["gain_clearance_m"]
-        self.gain_difference = checked["gain_difference_s"]
+        self.gain_difference, self.gain_contact = checked["gain_difference_s"], checked["gain_contact"]
         self._gain_previous: tuple | None = None  # (t_capture, q, q̇) of the previous estimate (`update_gain`)
         self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
         if self.table is not None and not self.energy_margin < self.table.saturation_J:
@@ -509,6 +513,8 @@ class EnergyGovernor:
         if (lo, hi) != (1.0, 1.0) and checked.get("certificate", "park") != "contact":
             raise ValueError(f"gain_lo_ratio and gain_hi_ratio other than 1 need certificate='contact' (the parked "
                              f"target's rest shape assumes the model's gain), got [{lo!r}, {hi!r}]")
+        if checked.get("gain_contact", "normal") not in GAIN_CONTACT:
+            raise ValueError(f"gain_contact must be one of {', '.join(GAIN_CONTACT)}, got {checked['gain_contact']!r}")
         if checked.get("gain_estimate", False) and checked.get("certificate", "park") != "contact":
             raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
         return checked
@@ -538,11 +544,14 @@ class EnergyGovernor:
         self._escape_origin = None
 
     def update_gain(self, q: np.ndarray, qd: np.ndarray, t_capture: float) -> None:
-        """Offer the estimate (q, q̇) at t_capture to the gain estimator (`controllers.gain_estimate`) when the model's
-        tip lies at least gain_clearance_m clear of every facet plane, as a difference sample when the previous
-        estimate was captured at most gain_difference_s before (midpoint state, q̈ by the difference of the q̇'s,
-        y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤ gain_rest_rad_s and the model's
-        pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). Its interval is applied once it has narrowed
+        """Offer the estimate (q, q̇) at t_capture to the gain estimator (`controllers.gain_estimate`), as a difference
+        sample when the previous estimate was captured at most gain_difference_s before (midpoint state, q̈ by the
+        difference of the q̇'s, y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤
+        gain_rest_rad_s and the model's pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the
+        model's tip at least gain_clearance_m clear of every facet plane the sample is one out of contact; else
+        (`gain_contact` not "off") the plate's force on the tip is eliminated: along the normal n̂_j of each facet
+        within the clearance ("normal", a frictionless plate), and along its tangent too ("any"), the directions
+        J_r(q)ᵀv at the sample's q (`GainEstimator.sample_in_contact`). Its interval is applied once it has narrowed
         by 1 % of the prior's width (a wider interval than the estimator's is also sound, and each change rebuilds
         the ends' terms), or at once when it fell back to the prior."""
         estimator, previous = self.gain_estimator, self._gain_previous
@@ -551,20 +560,28 @@ class EnergyGovernor:
         if not moving and max(abs(v) for v in qd.tolist()) > self.gain_rest:
             return  # neither kind of sample (checked before the kinematics: the common case at the camera rate)
         x, y = self._tip(q)
-        if max(nx * x + ny * y - d for nx, ny, d in self._facets) > -self.gain_clearance:
+        near = [(nx, ny) for nx, ny, d in self._facets if nx * x + ny * y - d > -self.gain_clearance]
+        if near and self.gain_contact == "off":
             return
         if moving:
             t0, q0, qd0 = previous
             h = t_capture - t0
-            q_mid, qd_mid = 0.5 * (q0 + q), 0.5 * (qd0 + qd)
-            terms = self.dynamics.evaluate(q_mid, qd_mid)
+            q_sample, qd_mid = 0.5 * (q0 + q), 0.5 * (qd0 + qd)
+            terms = self.dynamics.evaluate(q_sample, qd_mid)
             residual = (terms.mass @ ((qd - qd0) / h) + terms.bias) / np.asarray(self._k)
-            accepted = estimator.sample(self.predictor.pressure_at(t0 + 0.5 * h), residual)
+            p = self.predictor.pressure_at(t0 + 0.5 * h)
         else:
-            p = self.predictor.pressure_at(t_capture)
+            q_sample, p = q, self.predictor.pressure_at(t_capture)
             if np.any(np.abs(estimator.a * (p - self.predictor.command_at(t_capture))) > estimator.noise_rad):
                 return
-            accepted = estimator.sample(p, estimator.rest_residual(q, qd))
+            residual = estimator.rest_residual(q, qd)
+        if near:
+            jac = kinematics_unchecked(np.asarray(q_sample, dtype=float), self.dynamics.lengths, 1).jac[-1]  # ∂r/∂q as x + iy
+            directions = near if self.gain_contact == "normal" else near + [(-ny, nx) for nx, ny in near]
+            torques = np.array([jac.real * vx + jac.imag * vy for vx, vy in directions]).T  # (N, m): J_r(q)ᵀv
+            accepted = estimator.sample_in_contact(p, residual, torques)
+        else:
+            accepted = estimator.sample(p, residual)
         if accepted:
             lo, hi = estimator.interval
             width = self.gain_hi - self.gain_lo
@@ -863,11 +880,12 @@ class ContactEnergyGovernor(EnergyGovernor):
                  bisection_steps: int = 12, escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0,
                  gain_hi_ratio: float = 1.0, gain_estimate: bool = False, gain_noise_rad: float = 5e-3,
                  gain_rest_rad_s: float = 0.02, gain_clearance_m: float = 5e-3,
-                 gain_difference_s: float = 0.0) -> None:
+                 gain_difference_s: float = 0.0, gain_contact: str = "normal") -> None:
         super().__init__(context, kappa=kappa, energy_margin_J=energy_margin_J, contact_aware=contact_aware,
                          stiffness_lo_ratio=stiffness_lo_ratio, stiffness_hi_ratio=stiffness_hi_ratio,
                          command_delay_s=command_delay_s, actuator_tau_s=actuator_tau_s, grid_hPa=grid_hPa,
                          predictor_step_s=predictor_step_s, bisection_steps=bisection_steps, certificate="contact",
                          escape_spacing_rad=escape_spacing_rad, gain_lo_ratio=gain_lo_ratio, gain_hi_ratio=gain_hi_ratio,
                          gain_estimate=gain_estimate, gain_noise_rad=gain_noise_rad, gain_rest_rad_s=gain_rest_rad_s,
-                         gain_clearance_m=gain_clearance_m, gain_difference_s=gain_difference_s)
+                         gain_clearance_m=gain_clearance_m, gain_difference_s=gain_difference_s,
+                         gain_contact=gain_contact)
