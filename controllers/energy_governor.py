@@ -111,22 +111,25 @@ start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
 (mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
 this is the price of certifying ±10 % of actuator gain on this arm.
 Gain feedback (`gain_estimate`, default off: then nothing below runs and the commands are those above bit for
-bit). g is observable out of contact: `controllers.gain_estimate` fits K⁻¹(M q̈ + (C + D) q̇ + K q) = g K⁻¹Λ p by
-least squares over samples whose model tip lies at least `gain_clearance_m` clear of every facet plane, p the
-pressure the predictor integrates from this governor's commands; "rest" samples (every |q̂̇_i| ≤ `gain_rest_rad_s`,
-p settled, M q̈ + C q̇ left to the bound) and, where consecutive estimates are at most `gain_difference_s` apart
-(1 kHz with an exact state), "difference" samples (q̈ from the two q̂̇, the model's terms at their midpoint).
-Under its assumptions (each sample within Δ = `gain_noise_rad` of the model's balance per segment, g constant
-and common to the segments, no contact in the samples) the true g lies in [ĝ − e, ĝ + e], e = Δ_K Σ|x|_K/Σ|x|²_K,
-and in the intersection of these intervals with the prior [gain_lo_ratio, gain_hi_ratio], which only shrinks.
+bit). `controllers.gain_estimate` fits K⁻¹(M q̈ + (C + D) q̇ + K q) = g K⁻¹Λ p by least squares, p the pressure
+the predictor integrates from this governor's commands, over samples out of contact (the model tip at least
+`gain_clearance_m` clear of every facet plane) and, with `gain_contact` "normal" (default), in contact too: there
+the plate's unknown force on the tip, along each near facet's normal, is eliminated (x projected K-orthogonally
+off K⁻¹J_r(q̂)ᵀn̂_j; "any" eliminates the tangential force too, "off" takes no sample there); "rest" samples
+(every |q̂̇_i| ≤ `gain_rest_rad_s`, p settled, M q̈ + C q̇ left to the bound) and, where consecutive estimates are
+at most `gain_difference_s` apart (1 kHz with an exact state), "difference" samples (q̈ from the two q̂̇, the
+model's terms at their midpoint). Under its assumptions (each sample within Δ = `gain_noise_rad` of the model's
+balance per segment, g constant and common to the segments, no force on the arm but the eliminated ones at the
+tip) the true g lies in [ĝ − e, ĝ + e], e = Δ Σ_s Σ_i k_i|x̃_s,i| / Σ_s |x̃_s|²_K, and in the intersection of these
+intervals with the prior [gain_lo_ratio, gain_hi_ratio], which only shrinks.
 The governor certifies that narrowed interval from the call after it narrowed by 1 % of the prior's width
 (`update_gain`; sound for every interval that contains g, the certificate above unchanged). Shrinking never
 uncertifies the held command (the margin's minimum over a sub-interval is no smaller); an empty intersection
 (an assumption proven false) returns the prior for good, until `reset`. The predictor still integrates the model's
-gain (the assumption on the prediction above). What it gives (docs/results.md): samples exist only where the arm
-moves or rests out of contact, so at 1 kHz with an exact state the approach to the plate narrows [0.9, 1.1] to
-≈ [0.975, 1.021] before the first contact (mujoco_contact), while at the camera rate a push from rest reaches the
-plate before any rest sample: no narrowing, the prior's 0.23 F_max.
+gain (the assumption on the prediction above). What it gives (docs/results.md): at the camera rate a push from
+rest reaches the plate before any sample out of contact, and the samples at rest against the plate narrow
+[0.9, 1.1] while it presses (camera_push_120: 0.71 F_max with Δ = 5e-3 rad, 0.81 with Δ = 1e-3 rad and
+`gain_rest_rad_s` 3e-3; the prior alone 0.23).
 
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is

@@ -6,6 +6,7 @@ is refused. The estimator on the PCC plant (rest and difference samples, in and 
 c-erg in tests/test_contact_governor.py."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +15,9 @@ from hypothesis import strategies as st
 
 from controllers.gain_estimate import GainEstimator
 from controllers.params import reference_robot
-from controllers.pcc import tip_jacobian
+from controllers.pcc import tip_jacobian, tip_position
 
+ROOT = Path(__file__).resolve().parents[1]
 ROBOT = reference_robot()
 K, A, D = ROBOT.array("stiffness"), ROBOT.array("gains") / ROBOT.array("stiffness"), ROBOT.array("damping")
 NOISE = 5e-3
@@ -198,3 +200,38 @@ def test_the_interval_holds_the_true_gain_for_any_plate_forces_and_deviations_wi
         assert prior[0] <= lo <= gain <= hi <= prior[1] and not est.inconsistent
         if est.samples:
             assert abs(est.estimate - gain) <= est.bound
+
+
+def test_the_contact_samples_tool_reads_the_deviation_of_a_recorded_rest_against_the_plate(tmp_path):
+    """tools/gain_contact_samples.py on a recorded run at rest against the paper's facet (the exact PCC balance with a
+    0.1 N plate force, true gain 1.05): deviation 0 at the steady rows; the estimate offset by 4e-4 rad per segment
+    with the signs of x̃ (the worst case of |δ_i| ≤ 4e-4) reads 4e-4; the rows before the pressure is steady, and those clear of the plate, are not read."""
+    import importlib.util
+    import json as json_module
+
+    from controllers.safe_set import paper_environment
+
+    spec = importlib.util.spec_from_file_location("gain_contact_samples", ROOT / "tools" / "gain_contact_samples.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    normal = paper_environment().normals[0]
+    p = np.full(2, 74.0)
+    x, q = A * p, A * p * 1.05
+    for _ in range(200):  # q = g x − K⁻¹J_r(q)ᵀn̂ F: the rest against the plate
+        q = 1.05 * x - plate_torque(q, normal) / K * 0.1
+    assert normal @ tip_position(q, ROBOT.array("lengths")) > paper_environment().offsets[0] - 5e-3
+    t = np.arange(0.0, 1.0, 2e-3)
+    worst = 4e-4 * np.sign(estimator().free_part(x, plate_torque(q, normal)[:, None]))
+    for offset, expected in ((0.0, 0.0), (worst, 4e-4)):
+        run = tmp_path / f"run{expected}"
+        (run / "timeseries").mkdir(parents=True)
+        (run / "config.json").write_text(json_module.dumps({"scenario": "camera_loop", "params": {
+            "robot": "reference", "environment": "paper", "true_gain_scale": 1.05, "tau_p": 0.0}}))
+        u = np.where(t[:, None] < 0.5, 0.0, 74.0) * np.ones((1, 2))
+        np.savez(run / "timeseries" / "c-erg.npz", t=t, q_est=np.tile(q + offset, (len(t), 1)),
+                 qd_est=np.zeros((len(t), 2)), u_applied=u)
+        summary = tool.contact_samples(run, 0.02, 1e-3, 5e-3, 5e-3, replay=False)
+        assert summary["rows"] == int(np.sum(t > 0.5 + tool.HOLD_S + 1e-9))  # p reaches u one row after the step
+        # J_r at q̂ = q + offset: the force's direction error F K⁻¹(J_r(q) − J_r(q̂))ᵀn̂ ≈ 1e-7 rad (module docstring)
+        assert summary["deviation_max_rad"] == pytest.approx(expected, abs=1e-6)
+        assert 20.0 < summary["theta_deg_median"] < 40.0
