@@ -117,6 +117,7 @@ def test_free_part_is_k_orthogonal_to_the_eliminated_directions_and_a_projection
     assert abs(free @ (torques[:, 0])) < 1e-12  # x̃ᵀK z = x̃ᵀ J_rᵀn̂ = 0 (z = K⁻¹J_rᵀn̂)
     assert np.allclose(est.free_part(free, torques), free)  # Π² = Π
     assert np.allclose(est.free_part(x, np.zeros((2, 1))), x)  # a zero direction eliminates nothing
+    assert np.array_equal(est.free_part(x, np.zeros((2, 0))), x)  # no direction: x itself
     assert np.allclose(est.free_part(x, rng.normal(size=(2, 2))), 0.0)  # N = 2, two directions: nothing left
 
 
