@@ -111,22 +111,25 @@ start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
 (mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
 this is the price of certifying ±10 % of actuator gain on this arm.
 Gain feedback (`gain_estimate`, default off: then nothing below runs and the commands are those above bit for
-bit). g is observable out of contact: `controllers.gain_estimate` fits K⁻¹(M q̈ + (C + D) q̇ + K q) = g K⁻¹Λ p by
-least squares over samples whose model tip lies at least `gain_clearance_m` clear of every facet plane, p the
-pressure the predictor integrates from this governor's commands; "rest" samples (every |q̂̇_i| ≤ `gain_rest_rad_s`,
-p settled, M q̈ + C q̇ left to the bound) and, where consecutive estimates are at most `gain_difference_s` apart
-(1 kHz with an exact state), "difference" samples (q̈ from the two q̂̇, the model's terms at their midpoint).
-Under its assumptions (each sample within Δ = `gain_noise_rad` of the model's balance per segment, g constant
-and common to the segments, no contact in the samples) the true g lies in [ĝ − e, ĝ + e], e = Δ_K Σ|x|_K/Σ|x|²_K,
-and in the intersection of these intervals with the prior [gain_lo_ratio, gain_hi_ratio], which only shrinks.
+bit). `controllers.gain_estimate` fits K⁻¹(M q̈ + (C + D) q̇ + K q) = g K⁻¹Λ p by least squares, p the pressure
+the predictor integrates from this governor's commands, over samples out of contact (the model tip at least
+`gain_clearance_m` clear of every facet plane) and, with `gain_contact` "normal" (default), in contact too: there
+the plate's unknown force on the tip, along each near facet's normal, is eliminated (x projected K-orthogonally
+off K⁻¹J_r(q̂)ᵀn̂_j; "any" eliminates the tangential force too, "off" takes no sample there); "rest" samples
+(every |q̂̇_i| ≤ `gain_rest_rad_s`, p settled, M q̈ + C q̇ left to the bound) and, where consecutive estimates are
+at most `gain_difference_s` apart (1 kHz with an exact state), "difference" samples (q̈ from the two q̂̇, the
+model's terms at their midpoint). Under its assumptions (each sample within Δ = `gain_noise_rad` of the model's
+balance per segment, g constant and common to the segments, no force on the arm but the eliminated ones at the
+tip) the true g lies in [ĝ − e, ĝ + e], e = Δ Σ_s Σ_i k_i|x̃_s,i| / Σ_s |x̃_s|²_K, and in the intersection of these
+intervals with the prior [gain_lo_ratio, gain_hi_ratio], which only shrinks.
 The governor certifies that narrowed interval from the call after it narrowed by 1 % of the prior's width
 (`update_gain`; sound for every interval that contains g, the certificate above unchanged). Shrinking never
 uncertifies the held command (the margin's minimum over a sub-interval is no smaller); an empty intersection
 (an assumption proven false) returns the prior for good, until `reset`. The predictor still integrates the model's
-gain (the assumption on the prediction above). What it gives (docs/results.md): samples exist only where the arm
-moves or rests out of contact, so at 1 kHz with an exact state the approach to the plate narrows [0.9, 1.1] to
-≈ [0.975, 1.021] before the first contact (mujoco_contact), while at the camera rate a push from rest reaches the
-plate before any rest sample: no narrowing, the prior's 0.23 F_max.
+gain (the assumption on the prediction above). What it gives (docs/results.md): at the camera rate a push from
+rest reaches the plate before any sample out of contact, and the samples at rest against the plate narrow
+[0.9, 1.1] while it presses (camera_push_120: 0.71 F_max with Δ = 5e-3 rad, 0.81 with Δ = 1e-3 rad and
+`gain_rest_rad_s` 3e-3; the prior alone 0.23).
 
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
@@ -248,7 +251,7 @@ from controllers.errors import ControllerInputError, NonFiniteCommandError, NonF
 from controllers.escape_energy import (MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments,
                                        lower_bounds)
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
-from controllers.gain_estimate import GainEstimator
+from controllers.gain_estimate import GAIN_CONTACT, GainEstimator
 from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
@@ -322,17 +325,21 @@ PARAMETERS = {
     "gain_hi_ratio": FilterParameter("highest true actuator gain λ as a multiple of the model's (the contact "
                                      "certificate holds for every gain in [lo, hi]: module docstring)", "1", bound=GAIN_RATIOS),
     "gain_estimate": FilterParameter("narrow [gain_lo_ratio, gain_hi_ratio] online to [ĝ − e, ĝ + e] from rest samples "
-                                     "out of contact (controllers.gain_estimate; contact certificate only)", "", bool),
+                                     "(in contact too: gain_contact) (controllers.gain_estimate; contact certificate "
+                                     "only)", "", bool),
     "gain_noise_rad": FilterParameter("bound Δ on the rest samples' deviation from the model's balance per segment "
                                       "(estimate error and residual motion; gain_estimate only)", "rad",
                                       bound=Bound(0.0, 1.0, low_open=True, unit="rad")),
     "gain_rest_rad_s": FilterParameter("largest |q̇_i| of a rest sample (gain_estimate only)", "rad/s",
                                        bound=Bound(0.0, 10.0, unit="rad/s")),
-    "gain_clearance_m": FilterParameter("least distance of a sample's tip from every facet plane (gain_estimate "
-                                        "only)", "m", bound=Bound(0.0, 1.0, unit="m")),
+    "gain_clearance_m": FilterParameter("least distance of a sample's tip from every facet plane for no contact "
+                                        "(nearer: gain_contact; gain_estimate only)", "m", bound=Bound(0.0, 1.0, unit="m")),
     "gain_difference_s": FilterParameter("largest spacing of two estimates whose q̇ difference gives q̈ for a moving "
                                          "sample (0: rest samples only; gain_estimate only)", "s",
                                          bound=Bound(0.0, 0.1, unit="s")),
+    "gain_contact": FilterParameter("samples with the tip within gain_clearance_m of a facet: 'normal' (the plate's "
+                                    "force along its normal eliminated: frictionless), 'any' (also the tangential: "
+                                    "friction), 'off' (none; controllers.gain_estimate; gain_estimate only)", "", str),
 }
 """The E-ERG's parameters, declared once (`controllers.filter_parameters`): `check_arguments` and the constructor check them.
 
@@ -354,7 +361,7 @@ on the reference arm: 1.46e-2 against 1.15e-2 J at (32, 69) hPa, 0.10 against 0.
 bound's kinematics cost more than the table's look-up."""
 
 HISTORY_FIELDS = ("predictor", "target_governor", "gain_estimator", "_gain_previous", "gain_lo", "gain_hi", "gains",
-                  "_energy_terms", "_energy_2", "_grid_rows", "_escape_known", "_escape_origin", "_scan_rows",
+                  "_energy_terms", "_grid_rows", "_scan_rows",
                   "_kernel_terms")
 """What one governor's calls change (`EnergyGovernor.filter_batch` keeps one of these per simulation): the command
 history, the target governor's warm start, the gain estimate with the certified gain ends, and the caches of
@@ -466,11 +473,11 @@ class EnergyGovernor:
                  escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0, gain_hi_ratio: float = 1.0,
                  gain_estimate: bool = False, gain_noise_rad: float = 5e-3, gain_rest_rad_s: float = 0.02,
                  gain_clearance_m: float = 5e-3,
-                 gain_difference_s: float = 0.0) -> None:
+                 gain_difference_s: float = 0.0, gain_contact: str = "normal") -> None:
         checked = self.check_arguments({"certificate": certificate, "escape_spacing_rad": escape_spacing_rad,
             "gain_lo_ratio": gain_lo_ratio, "gain_hi_ratio": gain_hi_ratio, "gain_estimate": gain_estimate,
             "gain_noise_rad": gain_noise_rad, "gain_rest_rad_s": gain_rest_rad_s, "gain_clearance_m": gain_clearance_m,
-            "gain_difference_s": gain_difference_s,
+            "gain_difference_s": gain_difference_s, "gain_contact": gain_contact,
             "margin_m": margin_m, "kappa": kappa, "energy_margin_J": energy_margin_J, "contact_aware": contact_aware,
             "stiffness_lo_ratio": stiffness_lo_ratio, "stiffness_hi_ratio": stiffness_hi_ratio,
             "command_delay_s": command_delay_s, "actuator_tau_s": actuator_tau_s, "grid_hPa": grid_hPa,
@@ -531,20 +538,17 @@ class EnergyGovernor:
         else:
             self._grid = self.table.grid_commands()
             self._grid_values, self._grid_rest_inside = self.table.grid_values(), self.table.rest_inside
-        # emptied by `set_gain_ends`, read by nothing since the look-ups are compiled (≈ 0.3 µs each in the kernels)
-        self._escape_known: dict[tuple, float] = {}
         self._scan_rows: tuple[tuple, np.ndarray] | None = None  # (gains, the recovery's grid rows (E, P', G) for them)
         self._kernel_terms: tuple | None = None  # (gains, their energy terms (E, 3, N): k, g·a, g²β): `_prepare`
         self._lookup = lookup_arguments(self.table, self.boundary_bound, BOUND_BELOW_J)  # the kernels' Γ̲ look-up
         self._rest = np.array(self._rest_list)
         self._grid_columns = np.ascontiguousarray(self._grid.T)  # (N, G): the compiled recovery scan's layout
-        self._escape_origin: tuple | None = None
         self.set_gain_ends(self.gain_lo, self.gain_hi)
         self.gain_estimator = GainEstimator(self._k, self._a, robot.array("damping"), (self.gain_lo, self.gain_hi),
                                             checked["gain_noise_rad"]) if checked["gain_estimate"] else None
         self.gain_prior = (self.gain_lo, self.gain_hi)
         self.gain_rest, self.gain_clearance = checked["gain_rest_rad_s"], checked["gain_clearance_m"]
-        self.gain_difference = checked["gain_difference_s"]
+        self.gain_difference, self.gain_contact = checked["gain_difference_s"], checked["gain_contact"]
         self._gain_previous: tuple | None = None  # (t_capture, q, q̇) of the previous estimate (`update_gain`)
         self._histories: list[dict] = []  # `filter_batch`'s, one per simulation (HISTORY_FIELDS → value)
         self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
@@ -570,6 +574,8 @@ class EnergyGovernor:
         if (lo, hi) != (1.0, 1.0) and checked.get("certificate", "park") != "contact":
             raise ValueError(f"gain_lo_ratio and gain_hi_ratio other than 1 need certificate='contact' (the parked "
                              f"target's rest shape assumes the model's gain), got [{lo!r}, {hi!r}]")
+        if checked.get("gain_contact", "normal") not in GAIN_CONTACT:
+            raise ValueError(f"gain_contact must be one of {', '.join(GAIN_CONTACT)}, got {checked['gain_contact']!r}")
         if checked.get("gain_estimate", False) and checked.get("certificate", "park") != "contact":
             raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
         return checked
@@ -616,7 +622,7 @@ class EnergyGovernor:
         history["predictor"] = self.predictor.copy()
         history["target_governor"] = None if self.target_governor is None else copy.copy(self.target_governor)
         history["gain_estimator"] = None if self.gain_estimator is None else copy.deepcopy(self.gain_estimator)
-        history["_grid_rows"], history["_escape_known"] = dict(self._grid_rows), {}
+        history["_grid_rows"] = dict(self._grid_rows)
         return history
 
     def _grow_histories(self, needed: int) -> None:
@@ -671,21 +677,21 @@ class EnergyGovernor:
     def set_gain_ends(self, lo: float, hi: float) -> None:
         """Certify the gain interval [lo, hi] from now on (module docstring, "actuator gain"; narrowed online by
         `gain_estimate`): the ends' energy terms (K, g·K⁻¹Λ, g²β; g = 1 gives the model's floats exactly,
-        1.0·x = x), the recovery's grid rows (computed when needed) and the escape memory (its rows are per end)."""
+        1.0·x = x) and the recovery's grid rows (computed when needed)."""
         self.gain_lo, self.gain_hi = lo, hi
         self.gains = tuple(sorted({lo, hi}))
         self._energy_terms = {g: (self._k, [g * a for a in self._a], [g * g * b for b in self._beta]) for g in self.gains}
-        self._energy_2 = {g: (*k, *a, *b) for g, (k, a, b) in self._energy_terms.items()} if self.n == 2 else None
         self._grid_rows: dict[float, np.ndarray] = {}  # g → `grid_rows_at_gain(g)`, computed when needed
-        self._escape_known.clear()
-        self._escape_origin = None
 
     def update_gain(self, q: np.ndarray, qd: np.ndarray, t_capture: float) -> None:
-        """Offer the estimate (q, q̇) at t_capture to the gain estimator (`controllers.gain_estimate`) when the model's
-        tip lies at least gain_clearance_m clear of every facet plane, as a difference sample when the previous
-        estimate was captured at most gain_difference_s before (midpoint state, q̈ by the difference of the q̇'s,
-        y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤ gain_rest_rad_s and the model's
-        pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). Its interval is applied once it has narrowed
+        """Offer the estimate (q, q̇) at t_capture to the gain estimator (`controllers.gain_estimate`), as a difference
+        sample when the previous estimate was captured at most gain_difference_s before (midpoint state, q̈ by the
+        difference of the q̇'s, y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤
+        gain_rest_rad_s and the model's pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the
+        model's tip at least gain_clearance_m clear of every facet plane the sample is one out of contact; else
+        (`gain_contact` not "off") the plate's force on the tip is eliminated: along the normal n̂_j of each facet
+        within the clearance ("normal", a frictionless plate), and along its tangent too ("any"), the directions
+        J_r(q)ᵀv at the sample's q (`GainEstimator.sample_in_contact`). Its interval is applied once it has narrowed
         by 1 % of the prior's width (a wider interval than the estimator's is also sound, and each change rebuilds
         the ends' terms), or at once when it fell back to the prior."""
         estimator, previous = self.gain_estimator, self._gain_previous
@@ -694,20 +700,28 @@ class EnergyGovernor:
         if not moving and max(abs(v) for v in qd.tolist()) > self.gain_rest:
             return  # neither kind of sample (checked before the kinematics: the common case at the camera rate)
         x, y = self._tip(q)
-        if max(nx * x + ny * y - d for nx, ny, d in self._facets) > -self.gain_clearance:
+        near = [(nx, ny) for nx, ny, d in self._facets if nx * x + ny * y - d > -self.gain_clearance]
+        if near and self.gain_contact == "off":
             return
         if moving:
             t0, q0, qd0 = previous
             h = t_capture - t0
-            q_mid, qd_mid = 0.5 * (q0 + q), 0.5 * (qd0 + qd)
-            terms = self.dynamics.evaluate(q_mid, qd_mid)
+            q_sample, qd_mid = 0.5 * (q0 + q), 0.5 * (qd0 + qd)
+            terms = self.dynamics.evaluate(q_sample, qd_mid)
             residual = (terms.mass @ ((qd - qd0) / h) + terms.bias) / np.asarray(self._k)
-            accepted = estimator.sample(self.predictor.pressure_at(t0 + 0.5 * h), residual)
+            p = self.predictor.pressure_at(t0 + 0.5 * h)
         else:
-            p = self.predictor.pressure_at(t_capture)
+            q_sample, p = q, self.predictor.pressure_at(t_capture)
             if np.any(np.abs(estimator.a * (p - self.predictor.command_at(t_capture))) > estimator.noise_rad):
                 return
-            accepted = estimator.sample(p, estimator.rest_residual(q, qd))
+            residual = estimator.rest_residual(q, qd)
+        if near:
+            jac = kinematics_unchecked(np.asarray(q_sample, dtype=float), self.dynamics.lengths, 1).jac[-1]  # ∂r/∂q as x + iy
+            directions = near if self.gain_contact == "normal" else near + [(-ny, nx) for nx, ny in near]
+            torques = np.array([jac.real * vx + jac.imag * vy for vx, vy in directions]).T  # (N, m): J_r(q)ᵀv
+            accepted = estimator.sample_in_contact(p, residual, torques)
+        else:
+            accepted = estimator.sample(p, residual)
         if accepted:
             lo, hi = estimator.interval
             width = self.gain_hi - self.gain_lo
@@ -977,11 +991,12 @@ class ContactEnergyGovernor(EnergyGovernor):
                  bisection_steps: int = 12, escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0,
                  gain_hi_ratio: float = 1.0, gain_estimate: bool = False, gain_noise_rad: float = 5e-3,
                  gain_rest_rad_s: float = 0.02, gain_clearance_m: float = 5e-3,
-                 gain_difference_s: float = 0.0) -> None:
+                 gain_difference_s: float = 0.0, gain_contact: str = "normal") -> None:
         super().__init__(context, kappa=kappa, energy_margin_J=energy_margin_J, contact_aware=contact_aware,
                          stiffness_lo_ratio=stiffness_lo_ratio, stiffness_hi_ratio=stiffness_hi_ratio,
                          command_delay_s=command_delay_s, actuator_tau_s=actuator_tau_s, grid_hPa=grid_hPa,
                          predictor_step_s=predictor_step_s, bisection_steps=bisection_steps, certificate="contact",
                          escape_spacing_rad=escape_spacing_rad, gain_lo_ratio=gain_lo_ratio, gain_hi_ratio=gain_hi_ratio,
                          gain_estimate=gain_estimate, gain_noise_rad=gain_noise_rad, gain_rest_rad_s=gain_rest_rad_s,
-                         gain_clearance_m=gain_clearance_m, gain_difference_s=gain_difference_s)
+                         gain_clearance_m=gain_clearance_m, gain_difference_s=gain_difference_s,
+                         gain_contact=gain_contact)

@@ -339,13 +339,23 @@ def test_gain_estimate_from_differences_converges_during_the_approach_at_one_kil
     assert abs(gov.gain_estimator.estimate - 1.1) < 1e-2
 
 
-def test_gain_estimate_takes_no_sample_in_contact():
-    """Pushing from rest at 10 Hz the arm comes to rest only against the plate: no sample is taken there (the plate's
-    force would read as gain), the interval stays the prior, and the commands are those without the estimate."""
-    plain = certified_forks(0.9, 1.1, 1.1, (), calls=(30,))[1]
-    worst, gov = certified_forks(0.9, 1.1, 1.1, (), calls=(30,), gain_estimate=True)
-    assert gov.gain_estimator.samples == 0 and (gov.gain_lo, gov.gain_hi) == (0.9, 1.1)
-    assert np.array_equal(gov.predictor.command_at(3.0), plain.predictor.command_at(3.0))
+def test_gain_estimate_in_contact_narrows_the_interval_while_pressing_and_the_commands_hold():
+    """Pushing from rest at 10 Hz (exact state) on the plate plant of true gain 1.1, the arm comes to rest only
+    against the plate: the samples there (the plate's normal force eliminated, `gain_contact="normal"`) narrow
+    [0.9, 1.1] around the true gain (ĝ within 1e-3), the commands press harder than the prior's, and held from the
+    true state on the plant of gain 1.1 while pressing (2–4 s) they keep ρ ≥ 0. With `gain_contact="off"`, and with
+    "any" (normal and tangential force eliminated: for N = 2 nothing is left), no sample is taken in contact and
+    the commands are those without the estimate."""
+    plain = certified_forks(0.9, 1.1, 1.1, (), calls=(40,))[1]
+    worst, gov = certified_forks(0.9, 1.1, 1.1, (1.1,), calls=(20, 30, 40), gain_estimate=True)
+    assert worst >= 0.0 and gov.gain_estimator.samples > 0
+    assert gov.gain_lo <= 1.1 <= gov.gain_hi and gov.gain_hi - gov.gain_lo < 0.05
+    assert abs(gov.gain_estimator.estimate - 1.1) < 1e-3
+    assert np.all(gov.predictor.command_at(4.0) > plain.predictor.command_at(4.0) + 0.5)
+    for contact in ("off", "any"):
+        gov = certified_forks(0.9, 1.1, 1.1, (), calls=(40,), gain_estimate=True, gain_contact=contact)[1]
+        assert gov.gain_estimator.samples == 0 and (gov.gain_lo, gov.gain_hi) == (0.9, 1.1)
+        assert np.array_equal(gov.predictor.command_at(4.0), plain.predictor.command_at(4.0))
 
 
 def test_gain_estimate_is_refused_without_the_contact_certificate():
@@ -353,3 +363,5 @@ def test_gain_estimate_is_refused_without_the_contact_certificate():
         EnergyGovernor.check_arguments({"gain_estimate": True})
     with pytest.raises(ValueError, match="gain_noise_rad"):
         ContactEnergyGovernor.check_arguments({"gain_noise_rad": 0.0})
+    with pytest.raises(ValueError, match="gain_contact must be one of normal, any, off, got 'tangent'"):
+        ContactEnergyGovernor.check_arguments({"gain_contact": "tangent"})
