@@ -128,7 +128,7 @@ uncertifies the held command (the margin's minimum over a sub-interval is no sma
 (an assumption proven false) returns the prior for good, until `reset`. The predictor still integrates the model's
 gain (the assumption on the prediction above). What it gives (docs/results.md): at the camera rate a push from
 rest reaches the plate before any sample out of contact, and the samples at rest against the plate narrow
-[0.9, 1.1] while it presses (camera_push_120: 0.71 F_max with Δ = 5e-3 rad, 0.81 with Δ = 1e-3 rad and
+[0.9, 1.1] while it presses (camera_push_120: 0.71 F_max with Δ = 5e-3 rad, 0.80 with Δ = 1.5e-3 rad and
 `gain_rest_rad_s` 3e-3; the prior alone 0.23).
 
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction

@@ -75,7 +75,7 @@ and the arm near rest (the caller accepts a sample only with |q̂̇_i| ≤ `rest
 pressure settled, |λ_i/k_i (p_i − u_i)| ≤ Δ, so that the rest shape has no more than Δ to move;
 the remaining M q̈ + C q̇ is what Δ must also cover: an arm ringing through q̇ ≈ 0 is not near
 rest; measured at c-erg's samples against the plate on the camera loop, the deviation x̃ᵀKδ/w̃ that
-Δ must bound reached 3.3e-3 rad with |q̂̇_i| ≤ 0.02 rad/s, 8.5e-4 rad with |q̂̇_i| ≤ 3e-3 rad/s
+Δ must bound reached 3.3e-3 rad with |q̂̇_i| ≤ 0.02 rad/s, 1.13e-3 rad with |q̂̇_i| ≤ 3e-3 rad/s
 (tools/gain_contact_samples.py --replay, docs/results.md); (2) g constant and one scale for every
 segment; (3) no external force on the arm in the accepted samples (the caller takes samples only
 with the model's tip at least `clearance_m` clear of every facet plane: the plate's position error
