@@ -968,7 +968,7 @@ class EnergyGovernor:
 
 
 class ContactEnergyGovernor(EnergyGovernor):
-    """Recommended for contact tasks: the energy governor with the contact certificate (c-erg; e-erg with certificate=contact, contact_aware=true).
+    """Recommended for contact tasks with gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=true, gain_noise_rad=0.0015, gain_rest_rad_s=0.003 (README): the energy governor with the contact certificate (c-erg; e-erg with certificate=contact, contact_aware=true).
 
     The target is u_nom itself; a command is certified when the arm's energy about its rest shape,
     with the plate's stored energy counted per facet, stays below the least energy to P's boundary
