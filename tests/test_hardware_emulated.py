@@ -51,12 +51,15 @@ def _run(config: HardwareConfig, out: Path, fault=None, report: bool = False):
     return row, series, emulation
 
 
-def test_high_tuning_keeps_the_true_plate_force_below_f_max_and_writes_the_run_folder(tmp_path):
-    config = _config(control={"tuning": "High"}, duration=7.0)
+def test_the_contact_governor_keeps_the_true_plate_force_below_f_max_and_writes_the_run_folder(tmp_path):
+    # c-erg, whose certificate covers the sampled, delayed loop. paper-cbf High reached 0.13-0.16 N here from run to
+    # run (the real-time loop's timing; 0.1608 and 0.1615 N > F_max in 2 of about 20 runs, at 510d063 as now): this
+    # arm's d/k = 1.4 s lies where docs/hardware_envelope.md's map has the paper's CBF violate at 10 Hz.
+    config = _config(filter="c-erg", duration=7.0)
     row, series, emulation = _run(config, tmp_path / "run", report=True)
     truth = emulation.emulator.record()
     f_max = config.environment.f_max
-    assert 0.05 < truth["contact_force"].max() < f_max  # the arm presses the plate, below F_max (measured 0.135 N)
+    assert 0.03 < truth["contact_force"].max() < f_max  # the arm presses the plate, below F_max (measured 0.056-0.061 N)
     assert row["force_max_emulator_N"] == pytest.approx(truth["contact_force"].max(), rel=1e-12)
     assert row["t_violation_emulator_s"] == 0.0 and row["force_max_N"] < f_max
     # a late frame on the loaded machine may make a cycle HOLD (measured 0–1 of 70); nothing vents
@@ -74,18 +77,18 @@ def test_high_tuning_keeps_the_true_plate_force_below_f_max_and_writes_the_run_f
     # the camera's estimate is the true bend at its capture time (16 px tags at 480 × 270: measured 0.034–0.060 rad max)
     assert np.max(np.abs(series["q_est"] - emulation.emulator.state_at(series["t_clock"] - series["est_age_s"])["q"])) < 0.1
     folder = read_run_folder(tmp_path / "run")
-    assert folder.summary["scenario"] == "hardware" and folder.labels == ["High"]
+    assert folder.summary["scenario"] == "hardware" and folder.labels == ["c-erg"]
     for key in ("rho_min_pred", "rho_min_meas", "force_max_N", "t_violation_s", "infeasible_steps", "recovery_steps",
                 "filter_us_median", "filter_us_p99", "wall_s", "sim_s"):
         assert key in row
     store = rr.chunk.RrdReader(str(tmp_path / "run" / "recording.rrd")).stream().collect()
-    assert "/runs/High/force" in {str(p) for p in store.schema().entity_paths()}
+    assert "/runs/c-erg/force" in {str(p) for p in store.schema().entity_paths()}
     # camera frames kept at SAVED_FRAMES_HZ over the 7 s run, each in the recording at its time
-    frames = folder.frames("High")
+    frames = folder.frames("c-erg")
     times = np.array([f["t"] for f in frames])
     assert 7.0 * SAVED_FRAMES_HZ - 2 <= len(frames) <= 7.0 * SAVED_FRAMES_HZ + 1
     assert np.all(np.diff(times) >= 1.0 / SAVED_FRAMES_HZ) and all(len(f["detections"]) >= 1 for f in frames)
-    images = [c for c in store.stream() if c.entity_path == "/runs/High/camera/image"]
+    images = [c for c in store.stream() if c.entity_path == "/runs/c-erg/camera/image"]
     logged = np.sort(np.concatenate([c.to_record_batch().column("sim_time").cast("int64").to_numpy() for c in images]))
     np.testing.assert_allclose(logged * 1e-9, times, atol=1e-9)
 
