@@ -116,7 +116,8 @@ the predictor integrates from this governor's commands, over samples out of cont
 `gain_clearance_m` clear of every facet plane) and, with `gain_contact` "normal" (default), in contact too: there
 the plate's unknown force on the tip, along each near facet's normal, is eliminated (x projected K-orthogonally
 off K⁻¹J_r(q̂)ᵀn̂_j; "any" eliminates the tangential force too, "off" takes no sample there); "rest" samples
-(every |q̂̇_i| ≤ `gain_rest_rad_s`, p settled, M q̈ + C q̇ left to the bound) and, where consecutive estimates are
+(every |q̂̇_i| ≤ `gain_rest_rad_s`, in this estimate and in every one over the last `gain_rest_s`, p settled,
+M q̈ + C q̇ left to the bound) and, where consecutive estimates are
 at most `gain_difference_s` apart (1 kHz with an exact state), "difference" samples (q̈ from the two q̂̇, the
 model's terms at their midpoint). Under its assumptions (each sample within Δ = `gain_noise_rad` of the model's
 balance per segment, g constant and common to the segments, no force on the arm but the eliminated ones at the
@@ -129,11 +130,15 @@ uncertifies the held command (the margin's minimum over a sub-interval is no sma
 gain (the assumption on the prediction above). What it gives (docs/results.md): at the camera rate a push from
 rest reaches the plate before any sample out of contact, and the samples at rest against the plate narrow
 [0.9, 1.1] while it presses (camera_push_120: 0.71 F_max with Δ = 5e-3 rad, 0.80 with Δ = 1.5e-3 rad and
-`gain_rest_rad_s` 3e-3; the prior alone 0.23).
+`gain_rest_rad_s` 3e-3, 0.81 with `gain_rest_s` 0.2 and ε = 2e-6 J as well; the prior alone 0.23).
 
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
-the absolute margin a new command must keep. The held command, certified when it was
+the absolute margin a new command must keep. No guarantee above needs ε > 0 (each holds for margins ≥ 0), so ε
+is a buffer for what the assumptions leave out, and at the plate it has a price: at rest against it the margin
+is the rise of the arm–plate energy from the equilibrium to the boundary, ≈ ½ k_c (n_max − n)² (k_c the arm and
+plate's stiffness along the normal), so the governor stops where that rise is ε (measured with the recommended
+setting, mujoco_push_120: 0.808 F_max at ε = 2e-6 J against 0.797 at the default 1e-5 J; docs/results.md). The held command, certified when it was
 issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ, tested as
 Γ − (1 + κ)W > 0, not as (Γ − (1 + κ)W − ε) + ε ≥ 0, which for ε = 1e300 held any W): a
 hysteresis that keeps integration round-off from reading as a violation.
@@ -332,6 +337,9 @@ PARAMETERS = {
                                       bound=Bound(0.0, 1.0, low_open=True, unit="rad")),
     "gain_rest_rad_s": FilterParameter("largest |q̇_i| of a rest sample (gain_estimate only)", "rad/s",
                                        bound=Bound(0.0, 10.0, unit="rad/s")),
+    "gain_rest_s": FilterParameter("how long every estimate must have been at rest (|q̇_i| <= gain_rest_rad_s) before a "
+                                   "rest sample is taken: the arm settled, not passing through q̇ = 0 (0: the first "
+                                   "estimate at rest; gain_estimate only)", "s", bound=Bound(0.0, 10.0, unit="s")),
     "gain_clearance_m": FilterParameter("least distance of a sample's tip from every facet plane for no contact "
                                         "(nearer: gain_contact; gain_estimate only)", "m", bound=Bound(0.0, 1.0, unit="m")),
     "gain_difference_s": FilterParameter("largest spacing of two estimates whose q̇ difference gives q̈ for a moving "
@@ -360,12 +368,11 @@ below this (J): near the boundary, where the table is loose; beyond ≈ 0.01 J t
 on the reference arm: 1.46e-2 against 1.15e-2 J at (32, 69) hPa, 0.10 against 0.057 J at rest), and the
 bound's kinematics cost more than the table's look-up."""
 
-HISTORY_FIELDS = ("predictor", "target_governor", "gain_estimator", "_gain_previous", "gain_lo", "gain_hi", "gains",
-                  "_energy_terms", "_grid_rows", "_scan_rows",
-                  "_kernel_terms")
+HISTORY_FIELDS = ("predictor", "target_governor", "gain_estimator", "_gain_previous", "_rest_since", "gain_lo", "gain_hi",
+                  "gains", "_energy_terms", "_grid_rows", "_scan_rows", "_kernel_terms")
 """What one governor's calls change (`EnergyGovernor.filter_batch` keeps one of these per simulation): the command
-history, the target governor's warm start, the gain estimate with the certified gain ends, and the caches of
-those ends (the recovery's grid rows, the kernels' energy terms)."""
+history, the target governor's warm start, the gain estimate (its samples, previous estimate and rest timer) with
+the certified gain ends, and the caches of those ends (the recovery's grid rows, the kernels' energy terms)."""
 
 _READ_HISTORY = operator.itemgetter(*HISTORY_FIELDS)
 
@@ -472,12 +479,12 @@ class EnergyGovernor:
                  predictor_step_s: float = 1e-3, bisection_steps: int = 12, certificate: str = "park",
                  escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0, gain_hi_ratio: float = 1.0,
                  gain_estimate: bool = False, gain_noise_rad: float = 5e-3, gain_rest_rad_s: float = 0.02,
-                 gain_clearance_m: float = 5e-3,
+                 gain_rest_s: float = 0.0, gain_clearance_m: float = 5e-3,
                  gain_difference_s: float = 0.0, gain_contact: str = "normal") -> None:
         checked = self.check_arguments({"certificate": certificate, "escape_spacing_rad": escape_spacing_rad,
             "gain_lo_ratio": gain_lo_ratio, "gain_hi_ratio": gain_hi_ratio, "gain_estimate": gain_estimate,
-            "gain_noise_rad": gain_noise_rad, "gain_rest_rad_s": gain_rest_rad_s, "gain_clearance_m": gain_clearance_m,
-            "gain_difference_s": gain_difference_s, "gain_contact": gain_contact,
+            "gain_noise_rad": gain_noise_rad, "gain_rest_rad_s": gain_rest_rad_s, "gain_rest_s": gain_rest_s,
+            "gain_clearance_m": gain_clearance_m, "gain_difference_s": gain_difference_s, "gain_contact": gain_contact,
             "margin_m": margin_m, "kappa": kappa, "energy_margin_J": energy_margin_J, "contact_aware": contact_aware,
             "stiffness_lo_ratio": stiffness_lo_ratio, "stiffness_hi_ratio": stiffness_hi_ratio,
             "command_delay_s": command_delay_s, "actuator_tau_s": actuator_tau_s, "grid_hPa": grid_hPa,
@@ -548,8 +555,10 @@ class EnergyGovernor:
                                             checked["gain_noise_rad"]) if checked["gain_estimate"] else None
         self.gain_prior = (self.gain_lo, self.gain_hi)
         self.gain_rest, self.gain_clearance = checked["gain_rest_rad_s"], checked["gain_clearance_m"]
+        self.gain_rest_hold = checked["gain_rest_s"]
         self.gain_difference, self.gain_contact = checked["gain_difference_s"], checked["gain_contact"]
         self._gain_previous: tuple | None = None  # (t_capture, q, q̇) of the previous estimate (`update_gain`)
+        self._rest_since: float | None = None  # t_capture of the first estimate of the current run at rest (`update_gain`)
         self._histories: list[dict] = []  # `filter_batch`'s, one per simulation (HISTORY_FIELDS → value)
         self._grid_gamma = np.min(self._grid_values + np.array(self._credit)[:, None], axis=0)
         if self.table is not None and not self.energy_margin < self.table.saturation_J:
@@ -604,7 +613,7 @@ class EnergyGovernor:
         if self.gain_estimator is not None:
             self.gain_estimator.reset()
             self.set_gain_ends(*self.gain_prior)
-            self._gain_previous = None
+            self._gain_previous = self._rest_since = None
 
     # -- batched (B governors: one history each) -----------------------------------------------------------
     def _install(self, history: dict) -> dict:
@@ -674,6 +683,14 @@ class EnergyGovernor:
             u[b], action[b], infeasible[b], rho[b] = out.u, out.action, out.infeasible, out.rho_pred
         return BatchOutput(u, action.astype(str), infeasible, rho)
 
+    def gain_interval(self, row: int | None = None) -> tuple[float, float]:
+        """The certified actuator gain interval [lo, hi] (1): this governor's own, or that of `filter_batch`'s
+        history `row` (IndexError for a row it does not hold)."""
+        if row is None:
+            return self.gain_lo, self.gain_hi
+        history = self._histories[row]
+        return history["gain_lo"], history["gain_hi"]
+
     def set_gain_ends(self, lo: float, hi: float) -> None:
         """Certify the gain interval [lo, hi] from now on (module docstring, "actuator gain"; narrowed online by
         `gain_estimate`): the ends' energy terms (K, g·K⁻¹Λ, g²β; g = 1 gives the model's floats exactly,
@@ -687,7 +704,8 @@ class EnergyGovernor:
         """Offer the estimate (q, q̇) at t_capture to the gain estimator (`controllers.gain_estimate`), as a difference
         sample when the previous estimate was captured at most gain_difference_s before (midpoint state, q̈ by the
         difference of the q̇'s, y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤
-        gain_rest_rad_s and the model's pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the
+        gain_rest_rad_s, in this estimate and in every one captured over the last gain_rest_s (an arm that has
+        settled, not one passing through q̇ = 0), and the model's pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the
         model's tip at least gain_clearance_m clear of every facet plane the sample is one out of contact; else
         (`gain_contact` not "off") the plate's force on the tip is eliminated: along the normal n̂_j of each facet
         within the clearance ("normal", a frictionless plate), and along its tangent too ("any"), the directions
@@ -697,7 +715,11 @@ class EnergyGovernor:
         estimator, previous = self.gain_estimator, self._gain_previous
         self._gain_previous = (t_capture, q, qd)
         moving = previous is not None and 0.0 < t_capture - previous[0] <= self.gain_difference
-        if not moving and max(abs(v) for v in qd.tolist()) > self.gain_rest:
+        if max(abs(v) for v in qd.tolist()) > self.gain_rest:
+            self._rest_since = None
+        elif self._rest_since is None:
+            self._rest_since = t_capture
+        if not moving and (self._rest_since is None or t_capture - self._rest_since < self.gain_rest_hold):
             return  # neither kind of sample (checked before the kinematics: the common case at the camera rate)
         x, y = self._tip(q)
         near = [(nx, ny) for nx, ny, d in self._facets if nx * x + ny * y - d > -self.gain_clearance]
@@ -968,7 +990,7 @@ class EnergyGovernor:
 
 
 class ContactEnergyGovernor(EnergyGovernor):
-    """Recommended for contact tasks with gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=true, gain_noise_rad=0.0015, gain_rest_rad_s=0.003 (README): the energy governor with the contact certificate (c-erg; e-erg with certificate=contact, contact_aware=true).
+    """Recommended for contact tasks with gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=true, gain_noise_rad=0.0015, gain_rest_rad_s=0.003, gain_rest_s=0.2, energy_margin_J=2e-6 (README): the energy governor with the contact certificate (c-erg; e-erg with certificate=contact, contact_aware=true).
 
     The target is u_nom itself; a command is certified when the arm's energy about its rest shape,
     with the plate's stored energy counted per facet, stays below the least energy to P's boundary
@@ -990,7 +1012,7 @@ class ContactEnergyGovernor(EnergyGovernor):
                  actuator_tau_s: float | None = None, grid_hPa: float = 2.5, predictor_step_s: float = 1e-3,
                  bisection_steps: int = 12, escape_spacing_rad: float = 4e-3, gain_lo_ratio: float = 1.0,
                  gain_hi_ratio: float = 1.0, gain_estimate: bool = False, gain_noise_rad: float = 5e-3,
-                 gain_rest_rad_s: float = 0.02, gain_clearance_m: float = 5e-3,
+                 gain_rest_rad_s: float = 0.02, gain_rest_s: float = 0.0, gain_clearance_m: float = 5e-3,
                  gain_difference_s: float = 0.0, gain_contact: str = "normal") -> None:
         super().__init__(context, kappa=kappa, energy_margin_J=energy_margin_J, contact_aware=contact_aware,
                          stiffness_lo_ratio=stiffness_lo_ratio, stiffness_hi_ratio=stiffness_hi_ratio,
@@ -998,5 +1020,5 @@ class ContactEnergyGovernor(EnergyGovernor):
                          predictor_step_s=predictor_step_s, bisection_steps=bisection_steps, certificate="contact",
                          escape_spacing_rad=escape_spacing_rad, gain_lo_ratio=gain_lo_ratio, gain_hi_ratio=gain_hi_ratio,
                          gain_estimate=gain_estimate, gain_noise_rad=gain_noise_rad, gain_rest_rad_s=gain_rest_rad_s,
-                         gain_clearance_m=gain_clearance_m, gain_difference_s=gain_difference_s,
+                         gain_rest_s=gain_rest_s, gain_clearance_m=gain_clearance_m, gain_difference_s=gain_difference_s,
                          gain_contact=gain_contact)

@@ -75,8 +75,12 @@ and the arm near rest (the caller accepts a sample only with |q̂̇_i| ≤ `rest
 pressure settled, |λ_i/k_i (p_i − u_i)| ≤ Δ, so that the rest shape has no more than Δ to move;
 the remaining M q̈ + C q̇ is what Δ must also cover: an arm ringing through q̇ ≈ 0 is not near
 rest; measured at c-erg's samples against the plate on the camera loop, the deviation x̃ᵀKδ/w̃ that
-Δ must bound reached 3.3e-3 rad with |q̂̇_i| ≤ 0.02 rad/s, 1.13e-3 rad with |q̂̇_i| ≤ 3e-3 rad/s
-(tools/gain_contact_samples.py --replay, docs/results.md); (2) g constant and one scale for every
+Δ must bound reached 3.3e-3 rad with |q̂̇_i| ≤ 0.02 rad/s, 1.32e-3 rad with |q̂̇_i| ≤ 3e-3 rad/s, and
+1.43e-3 rad with the arm also at rest for 0.2 s before (c-erg's `gain_rest_s`: it removes the samples taken
+while the arm rings through q̂̇ ≈ 0, but not the camera's error at rest: ≤ 9e-5 rad on the pushes asking
+0.3 and 0.6 F_max, ≤ 8.6e-4 rad on those delivering ≈ 0.81 F_max, up to 1.43e-3 rad at the one or two
+samples some mismatch draws take at their sinusoid's peak: the camera's estimate of the distal segment, off by
+1–2.3e-3 rad there, where the MuJoCo arm's own q deviates by ≤ 4.5e-4 rad) (tools/gain_contact_samples.py --replay, docs/results.md); (2) g constant and one scale for every
 segment; (3) no external force on the arm in the accepted samples (the caller takes samples only
 with the model's tip at least `clearance_m` clear of every facet plane: the plate's position error
 and the tip's estimate error must be below it)

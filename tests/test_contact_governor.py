@@ -358,6 +358,39 @@ def test_gain_estimate_in_contact_narrows_the_interval_while_pressing_and_the_co
         assert np.array_equal(gov.predictor.command_at(4.0), plain.predictor.command_at(4.0))
 
 
+def first_rest_sample(rest_s, moving_until=0, blip_every=0):
+    """Capture time of c-erg's first gain sample (None: none in 4 s) with the arm held at the model's rest shape of
+    40 hPa (clear of the plate) at 10 Hz, the estimate's |q̇| above gain_rest_rad_s before frame `moving_until` and
+    at every `blip_every`-th frame."""
+    from controllers.safety_filter import Estimate
+
+    gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
+                                gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_rest_s=rest_s)
+    u = np.full(2, 40.0)
+    q = ROBOT.array("gains") / ROBOT.array("stiffness") * u
+    for i in range(40):
+        t = PERIOD * i
+        moving = i < moving_until or (blip_every and i % blip_every == 0)
+        gov(Estimate(t, q, np.full(2, 0.05 if moving else 0.0), t), u)
+        if gov.gain_estimator.samples:
+            return t
+    return None
+
+
+def test_a_rest_sample_needs_the_arm_at_rest_for_gain_rest_s():
+    """`gain_rest_s`: a rest sample is taken only once every estimate over the last gain_rest_s was at rest. With
+    0 the first estimate at rest with the pressure settled (0.2 s after the 40 hPa step, τ_p = 0.05 s) gives it;
+    with 0.25 / 0.5 s it waits that long from the first estimate at rest (t = 0.5 s after five moving frames), and an arm ringing
+    through q̇ = 0 (|q̇| above the threshold every third frame: runs of 0.1 s at rest) gives none."""
+    assert first_rest_sample(0.0) == pytest.approx(0.2)
+    assert first_rest_sample(0.25) == pytest.approx(0.3)
+    assert first_rest_sample(0.0, moving_until=5) == pytest.approx(0.5)
+    assert first_rest_sample(0.25, moving_until=5) == pytest.approx(0.8)
+    assert first_rest_sample(0.5, moving_until=5) == pytest.approx(1.0)
+    assert first_rest_sample(0.0, blip_every=3) is not None
+    assert first_rest_sample(0.25, blip_every=3) is None
+
+
 def test_gain_estimate_is_refused_without_the_contact_certificate():
     with pytest.raises(ValueError, match="gain_estimate needs certificate='contact'"):
         EnergyGovernor.check_arguments({"gain_estimate": True})

@@ -164,3 +164,26 @@ def test_no_file_refers_to_a_path_outside_the_repository():
     offending = [(name, path) for name in files if name != "CHANGELOG.md" and (ROOT / name).is_file()
                  for path in outside if path in (ROOT / name).read_text(encoding="utf-8")]
     assert offending == []
+
+
+def test_the_readme_names_the_recommended_filter_that_softcbf_list_marks():
+    """The README's recommended filter is one `softcbf bench --filters` spec, the setting that c-erg's docstring
+    (what `softcbf list` marks) names, and it builds on the reference arm with the bench's plate interval."""
+    from controllers.energy_governor import ContactEnergyGovernor
+    from controllers.registry import FILTERS, build_filter
+    from softcbf.bench import parse_filters
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    named = re.findall(r"\*\*The recommended filter\*\* for contact tasks is\n`([^`]+)`", readme)
+    assert len(named) == 1, "the README names the recommended filter once"
+    (spec,) = parse_filters(named[0])
+    assert FILTERS[spec.name] is ContactEnergyGovernor
+    marked = re.fullmatch(r"Recommended for contact tasks with (.*) \(README\): .*",
+                          ContactEnergyGovernor.__doc__.splitlines()[0]).group(1)
+    assert dict(pair.split("=") for pair in marked.split(", ")) == spec.params
+    robot = reference_robot()
+    context = FilterContext(robot, paper_safe_set(), robot.array("u_min"), robot.array("u_max"), 0.1, 0.02, 0.05)
+    governor = build_filter(spec.name, {**spec.params, "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}, context)
+    assert (governor.gain_lo, governor.gain_hi, governor.gain_rest_hold) == (0.9, 1.1, 0.2)
+    out = governor(Estimate(0.0, np.zeros(2), np.zeros(2), 0.0), np.full(2, 150.0))
+    assert np.all(np.isfinite(out.u)) and np.all(out.u <= robot.array("u_max"))

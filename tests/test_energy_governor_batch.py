@@ -28,7 +28,8 @@ def governor(certificate: str, gains: tuple, estimate: bool, period: float, robo
         return EnergyGovernor(ctx, command_delay_s=0.02, actuator_tau_s=0.05, **COARSE)
     return ContactEnergyGovernor(ctx, command_delay_s=0.02 if period > 0.01 else 0.0, actuator_tau_s=0.05,
                                  stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.1, gain_lo_ratio=gains[0],
-                                 gain_hi_ratio=gains[1], gain_estimate=estimate, gain_difference_s=0.002, **COARSE)
+                                 gain_hi_ratio=gains[1], gain_estimate=estimate, gain_difference_s=0.002,
+                                 gain_rest_s=period, **COARSE)  # a rest sample needs the previous estimate at rest too
 
 
 def assert_rows_match(out, want):
@@ -170,3 +171,30 @@ def test_a_batched_pcc_loop_with_one_shared_governor_equals_its_serial_loops(cer
         assert np.array_equal(batch.commands[:, b], log["u"])
         governed += int(np.sum(np.any(log["u"] != log["u_nom"], axis=1)))
     assert governed > 0  # the certificate bound
+
+
+def test_each_rows_rest_time_is_its_own():
+    """`gain_rest_s` counts each history's own estimates at rest: held at the model's rest shape of 40 hPa at
+    10 Hz, row 0 at rest from the start and row 1 moving (|q̇| above gain_rest_rad_s) for its first five
+    estimates, one batched governor narrows each row's certified gain interval (`gain_interval(row)`) when a
+    governor of its own does (its first sample: 0.3 s and 0.8 s with gain_rest_s = 0.25 s), with the same
+    commands."""
+    make = lambda: ContactEnergyGovernor(FilterContext.for_robot(ROBOT, SAFE, 0.1), actuator_tau_s=0.05,  # noqa: E731
+                                         gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_rest_s=0.25,
+                                         **COARSE)
+    shared, own = make(), [make(), make()]
+    u = np.full((2, 2), 40.0)
+    q = np.tile(ROBOT.array("gains") / ROBOT.array("stiffness") * 40.0, (2, 1))
+    first = [None, None]
+    for i in range(12):
+        t = 0.1 * i
+        qd = np.array([[0.0, 0.0], [0.05, 0.05] if i < 5 else [0.0, 0.0]])
+        out = shared.filter_batch(EstimateBatch(np.full(2, t), q, qd, np.full(2, t)), u)
+        for b in range(2):
+            want = own[b](Estimate(t, q[b], qd[b], t), u[b])
+            assert np.array_equal(out.u[b], want.u)
+            interval = shared.gain_interval(b)
+            assert interval == own[b].gain_interval()
+            if first[b] is None and interval != (0.9, 1.1):  # the first sample narrows the prior
+                first[b] = t
+    assert first == [pytest.approx(0.3), pytest.approx(0.8)]

@@ -233,11 +233,16 @@ def test_the_contact_samples_tool_reads_the_deviation_of_a_recorded_rest_against
         u = np.where(t[:, None] < 0.5, 0.0, 74.0) * np.ones((1, 2))
         np.savez(run / "timeseries" / "c-erg.npz", t=t, q_est=np.tile(q + offset, (len(t), 1)),
                  qd_est=np.zeros((len(t), 2)), u_applied=u)
-        summary = tool.contact_samples(run, 0.02, 1e-3, 5e-3, 5e-3, replay=False)
+        summary = tool.contact_samples(run, 0.02, 0.0, 1e-3, 5e-3, 5e-3, replay=False)
         assert summary["rows"] == int(np.sum(t > 0.5 + tool.HOLD_S + 1e-9))  # p reaches u one row after the step
         # J_r at q̂ = q + offset: the force's direction error F K⁻¹(J_r(q) − J_r(q̂))ᵀn̂ ≈ 1e-7 rad (module docstring)
         assert summary["deviation_max_rad"] == pytest.approx(expected, abs=1e-6)
         assert 20.0 < summary["theta_deg_median"] < 40.0
+    qd = np.where((t > 0.7) & (t < 0.72), 0.05, 0.0)[:, None] * np.ones((1, 2))  # moving for 20 ms at 0.7 s
+    np.savez(run / "timeseries" / "c-erg.npz", t=t, q_est=np.tile(q + offset, (len(t), 1)), qd_est=qd, u_applied=u)
+    rows = [tool.contact_samples(run, 0.02, rest_s, 1e-3, 5e-3, 5e-3, replay=False)["rows"] for rest_s in (0.0, 0.1)]
+    at_rest = (t > 0.5 + tool.HOLD_S + 1e-9) & (qd[:, 0] == 0.0)
+    assert rows == [int(np.sum(at_rest)), int(np.sum(at_rest & ((t < 0.7) | (t >= 0.72 + 0.1 - 1e-9))))]
 
 
 def test_a_mujoco_push_with_the_true_gain_at_the_prior_end_holds_while_its_samples_against_the_plate_narrow(tmp_path):

@@ -3,7 +3,8 @@
 For every run folder under the given folders (a `softcbf run` folder, or a `softcbf bench` / study folder that holds
 them), the rows of its time series where c-erg would take a rest sample against the plate:
 
-- the estimate at rest, every |q̂̇_i| ≤ --rest-rad-s (c-erg's `gain_rest_rad_s`);
+- the estimate at rest, every |q̂̇_i| ≤ --rest-rad-s (c-erg's `gain_rest_rad_s`), and every one before it over the
+  last --rest-s (c-erg's `gain_rest_s`; 0: this one alone);
 - the pressure settled: p, the first-order lag (the run's τ_p) of the recorded valve command u_applied, within
   --settle-rad of the command's rest shape (|λ_i/k_i (p_i − u_i)|), and its rest shape λ_i/k_i p_i within
   STEADY_RAD over the last HOLD_S (so the pressure at the estimate's capture, up to HOLD_S earlier, is the
@@ -61,7 +62,8 @@ def run_folders(roots: list[Path]) -> list[Path]:
 
 
 def recorded_states(folder: Path, estimator: GainEstimator, tau: float, settle_rad: float):
-    """(q̂, q̂̇, p) at the recorded rows where the pressure is settled and steady (module docstring)."""
+    """(t, q̂, q̂̇, p, settled) at every recorded row, settled where the pressure is settled and steady (module
+    docstring)."""
     series = next(p for p in sorted((folder / "timeseries").glob("*.npz")) if not p.stem.endswith("__frames"))
     data = np.load(series)
     t, q, qd, u = data["t"], data["q_est"], data["qd_est"], data["u_applied"]
@@ -72,21 +74,22 @@ def recorded_states(folder: Path, estimator: GainEstimator, tau: float, settle_r
     shape = estimator.a * p  # (T, N) rad
     for i in range(len(t)):
         window = shape[(t >= t[i] - HOLD_S) & (t <= t[i])]
-        if (t[i] - t[0] >= HOLD_S and np.max(np.abs(window - shape[i])) <= STEADY_RAD
-                and np.max(np.abs(estimator.a * (p[i] - u[i]))) <= settle_rad):
-            yield q[i], qd[i], p[i]
+        settled = bool(t[i] - t[0] >= HOLD_S and np.max(np.abs(window - shape[i])) <= STEADY_RAD
+                       and np.max(np.abs(estimator.a * (p[i] - u[i]))) <= settle_rad)
+        yield float(t[i]), q[i], qd[i], p[i], settled
 
 
 def replayed_states(folder: Path, estimator: GainEstimator, settle_rad: float):
-    """(q̂, q̂̇, p) at the c-erg calls of the run replayed, where the predictor's pressure is settled (module docstring)."""
+    """(t_capture, q̂, q̂̇, p, settled) at every c-erg call of the run replayed, settled where the predictor's pressure
+    is (module docstring)."""
     from softcbf.cli import main as cli
 
     calls = []
     offer = EnergyGovernor.update_gain
 
     def recorded(governor, q, qd, t_capture):
-        calls.append((np.array(q, dtype=float), np.array(qd, dtype=float), governor.predictor.pressure_at(t_capture),
-                      governor.predictor.command_at(t_capture)))
+        calls.append((float(t_capture), np.array(q, dtype=float), np.array(qd, dtype=float),
+                      governor.predictor.pressure_at(t_capture), governor.predictor.command_at(t_capture)))
         return offer(governor, q, qd, t_capture)
 
     EnergyGovernor.update_gain = recorded
@@ -97,13 +100,12 @@ def replayed_states(folder: Path, estimator: GainEstimator, settle_rad: float):
         EnergyGovernor.update_gain = offer
     if not calls:
         raise SystemExit(f"{folder}: c-erg's update_gain was never called (the run's filter needs gain_estimate=true)")
-    for q, qd, p, u in calls:
-        if np.max(np.abs(estimator.a * (p - u))) <= settle_rad:
-            yield q, qd, p
+    for t_capture, q, qd, p, u in calls:
+        yield t_capture, q, qd, p, bool(np.max(np.abs(estimator.a * (p - u))) <= settle_rad)
 
 
-def contact_samples(folder: Path, rest_rad_s: float, settle_rad: float, clearance_m: float, noise_rad: float,
-                    replay: bool) -> dict:
+def contact_samples(folder: Path, rest_rad_s: float, rest_s: float, settle_rad: float, clearance_m: float,
+                    noise_rad: float, replay: bool) -> dict:
     """The run's rest samples against the plate (module docstring): θ (deg), |x̃|_K (rad), e (1), the deviation (rad)."""
     params = json.loads((folder / "config.json").read_text(encoding="utf-8"))["params"]
     robot = scale_damping(load_robot(params.get("robot", "reference")), params.get("damping_scale", 1.0))
@@ -113,9 +115,13 @@ def contact_samples(folder: Path, rest_rad_s: float, settle_rad: float, clearanc
     estimator = GainEstimator(k, robot.array("gains") / k, robot.array("damping"), (0.9, 1.1), noise_rad)
     states: Iterable = (replayed_states(folder, estimator, settle_rad) if replay
                         else recorded_states(folder, estimator, tau, settle_rad))
-    rows = []
-    for q, qd, p in states:
+    rows, rest_since = [], None
+    for t, q, qd, p, settled in states:
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))) or np.max(np.abs(qd)) > rest_rad_s:
+            rest_since = None  # c-erg's rule (`gain_rest_s`): at rest for rest_s without a break
+            continue
+        rest_since = t if rest_since is None else rest_since
+        if not settled or t - rest_since < rest_s:
             continue
         tip = tip_position(q, lengths)
         near = environment.normals[environment.normals @ tip - environment.offsets > -clearance_m]
@@ -142,6 +148,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="+", type=Path, help="run, bench or study folders (searched recursively)")
     parser.add_argument("--rest-rad-s", type=float, default=0.02, help="largest |q̂̇_i| of a rest sample (rad/s)")
+    parser.add_argument("--rest-s", type=float, default=0.0, help="how long at rest before a sample (s; c-erg's gain_rest_s)")
     parser.add_argument("--settle-rad", type=float, default=1e-3, help="largest |λ_i/k_i (p_i − u_i)| (rad)")
     parser.add_argument("--clearance-m", type=float, default=5e-3, help="facet planes within this of the tip (m)")
     parser.add_argument("--noise-rad", type=float, default=5e-3, help="Δ for the sample's bound e (rad)")
@@ -150,7 +157,7 @@ def main() -> None:
     folders = run_folders(args.folders)
     if not folders:
         raise SystemExit(f"no run folder (config.json and timeseries/) under {', '.join(map(str, args.folders))}")
-    runs = [contact_samples(f, args.rest_rad_s, args.settle_rad, args.clearance_m, args.noise_rad, args.replay)
+    runs = [contact_samples(f, args.rest_rad_s, args.rest_s, args.settle_rad, args.clearance_m, args.noise_rad, args.replay)
             for f in folders]
     for run in runs:
         figures = "" if not run["rows"] else (
@@ -159,7 +166,7 @@ def main() -> None:
         print(f"{run['run']}: g {run['true_gain']:.4f}, {run['rows']} rows{figures}")
     deviations = [run["deviation_max_rad"] for run in runs if run["rows"]]
     print(json.dumps({"runs": len(runs), "runs_with_rows": len(deviations), "replay": args.replay, "rest_rad_s": args.rest_rad_s,
-                      "noise_rad": args.noise_rad, "deviation_max_rad": max(deviations) if deviations else None}))
+                      "rest_s": args.rest_s, "noise_rad": args.noise_rad, "deviation_max_rad": max(deviations) if deviations else None}))
 
 
 if __name__ == "__main__":
