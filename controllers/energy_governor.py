@@ -138,9 +138,9 @@ the absolute margin a new command must keep. No guarantee above needs ε > 0 (ea
 is a buffer for what the assumptions leave out, and at the plate it has a price: at rest against it the margin
 is the rise of the arm–plate energy from the equilibrium to the boundary, ≈ ½ k_c (n_max − n)² (k_c the arm and
 plate's stiffness along the normal), so the governor stops where that rise is ε (measured with the recommended
-setting, mujoco_push_120: 0.808 F_max at ε = 2e-6 J against 0.797 at the default 1e-5 J; docs/results.md). The held command, certified when it was
-issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ, tested as
-Γ − (1 + κ)W > 0, not as (Γ − (1 + κ)W − ε) + ε ≥ 0, which for ε = 1e300 held any W): a
+setting, mujoco_push_120: 0.808 F_max at ε = 2e-6 J against 0.797 at the default 1e-5 J; docs/results.md).
+The held command, certified when it was issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ,
+tested as Γ − (1 + κ)W > 0, not as (Γ − (1 + κ)W − ε) + ε ≥ 0, which for ε = 1e300 held any W): a
 hysteresis that keeps integration round-off from reading as a violation.
 
 Times (refused with ControllerInputError, which the control step treats as a refused
