@@ -116,8 +116,8 @@ the predictor integrates from this governor's commands, over samples out of cont
 `gain_clearance_m` clear of every facet plane) and, with `gain_contact` "normal" (default), in contact too: there
 the plate's unknown force on the tip, along each near facet's normal, is eliminated (x projected K-orthogonally
 off K⁻¹J_r(q̂)ᵀn̂_j; "any" eliminates the tangential force too, "off" takes no sample there); "rest" samples
-(every |q̂̇_i| ≤ `gain_rest_rad_s`, in this estimate and in every one over the last `gain_rest_s`, p settled,
-M q̈ + C q̇ left to the bound) and, where consecutive estimates are
+(every |q̂̇_i| ≤ `gain_rest_rad_s`, in this estimate and in every one over the last `gain_rest_s` since the
+previous rest sample, p settled, M q̈ + C q̇ left to the bound) and, where consecutive estimates are
 at most `gain_difference_s` apart (1 kHz with an exact state), "difference" samples (q̈ from the two q̂̇, the
 model's terms at their midpoint). Under its assumptions (each sample within Δ = `gain_noise_rad` of the model's
 balance per segment, g constant and common to the segments, no force on the arm but the eliminated ones at the
@@ -338,8 +338,9 @@ PARAMETERS = {
     "gain_rest_rad_s": FilterParameter("largest |q̇_i| of a rest sample (gain_estimate only)", "rad/s",
                                        bound=Bound(0.0, 10.0, unit="rad/s")),
     "gain_rest_s": FilterParameter("how long every estimate must have been at rest (|q̇_i| <= gain_rest_rad_s) before a "
-                                   "rest sample is taken: the arm settled, not passing through q̇ = 0 (0: the first "
-                                   "estimate at rest; gain_estimate only)", "s", bound=Bound(0.0, 10.0, unit="s")),
+                                   "rest sample is taken, and between two rest samples: the arm settled, not passing "
+                                   "through q̇ = 0 (0: every estimate at rest; gain_estimate only)", "s",
+                                   bound=Bound(0.0, 10.0, unit="s")),
     "gain_clearance_m": FilterParameter("least distance of a sample's tip from every facet plane for no contact "
                                         "(nearer: gain_contact; gain_estimate only)", "m", bound=Bound(0.0, 1.0, unit="m")),
     "gain_difference_s": FilterParameter("largest spacing of two estimates whose q̇ difference gives q̈ for a moving "
@@ -705,7 +706,8 @@ class EnergyGovernor:
         sample when the previous estimate was captured at most gain_difference_s before (midpoint state, q̈ by the
         difference of the q̇'s, y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤
         gain_rest_rad_s, in this estimate and in every one captured over the last gain_rest_s (an arm that has
-        settled, not one passing through q̇ = 0), and the model's pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the
+        settled, not one passing through q̇ = 0; with gain_rest_s > 0 the timer restarts at each rest sample, so an
+        arm resting at 1 kHz offers one per gain_rest_s, not one per call), and the model's pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the
         model's tip at least gain_clearance_m clear of every facet plane the sample is one out of contact; else
         (`gain_contact` not "off") the plate's force on the tip is eliminated: along the normal n̂_j of each facet
         within the clearance ("normal", a frictionless plate), and along its tangent too ("any"), the directions
@@ -721,6 +723,8 @@ class EnergyGovernor:
             self._rest_since = t_capture
         if not moving and (self._rest_since is None or t_capture - self._rest_since < self.gain_rest_hold):
             return  # neither kind of sample (checked before the kinematics: the common case at the camera rate)
+        if not moving and self.gain_rest_hold > 0.0:
+            self._rest_since = t_capture  # the next rest sample after gain_rest_s more at rest: one per gain_rest_s
         x, y = self._tip(q)
         near = [(nx, ny) for nx, ny, d in self._facets if nx * x + ny * y - d > -self.gain_clearance]
         if near and self.gain_contact == "off":
@@ -987,6 +991,13 @@ class EnergyGovernor:
         full["solve_us"] = (time.perf_counter() - t0) * 1e6
         return FilterOutput(u, action, infeasible, rho, full,
                             DIAGNOSTIC_UNITS if self.gain_estimator is None else GAIN_DIAGNOSTIC_UNITS)
+
+
+RECOMMENDED = {"gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1, "gain_estimate": True, "gain_noise_rad": 0.0015,
+               "gain_rest_rad_s": 0.003, "gain_rest_s": 0.2, "energy_margin_J": 2e-6}
+"""c-erg's recommended setting for contact tasks (README; `ContactEnergyGovernor`'s first docstring line names it,
+`softcbf list` marks it): the actuator gain interval [0.9, 1.1] narrowed online by samples at rest for 0.2 s,
+trusted to Δ = 1.5e-3 rad, and ε = 2e-6 J (docs/results.md#the-recommended-filter-over-the-full-battery)."""
 
 
 class ContactEnergyGovernor(EnergyGovernor):

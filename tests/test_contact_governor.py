@@ -391,6 +391,25 @@ def test_a_rest_sample_needs_the_arm_at_rest_for_gain_rest_s():
     assert first_rest_sample(0.25, blip_every=3) is None
 
 
+@pytest.mark.parametrize("rest_s, offered", [(0.0, 39), (0.25, 13)])
+def test_gain_rest_s_also_spaces_the_rest_samples(rest_s, offered):
+    """With gain_rest_s > 0 the rest timer restarts at each rest sample: an arm resting for 4 s at 10 Hz is offered to the estimator at 0.3, 0.6, ..., 3.9 s (13 times) instead of at every
+    estimate whose pressure has settled (39 times: all but the first step's); at 1 kHz this spares the sample's
+    kinematics and projection at most calls."""
+    from controllers.safety_filter import Estimate
+
+    gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
+                                gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_rest_s=rest_s)
+    offers = []
+    sample = gov.gain_estimator.sample
+    gov.gain_estimator.sample = lambda p, y: offers.append(p) or sample(p, y)
+    u = np.full(2, 40.0)
+    q = ROBOT.array("gains") / ROBOT.array("stiffness") * u
+    for i in range(40):
+        gov(Estimate(PERIOD * i, q, np.zeros(2), PERIOD * i), u)
+    assert len(offers) == offered
+
+
 def test_gain_estimate_is_refused_without_the_contact_certificate():
     with pytest.raises(ValueError, match="gain_estimate needs certificate='contact'"):
         EnergyGovernor.check_arguments({"gain_estimate": True})

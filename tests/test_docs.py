@@ -168,9 +168,10 @@ def test_no_file_refers_to_a_path_outside_the_repository():
 
 def test_the_readme_names_the_recommended_filter_that_softcbf_list_marks():
     """The README's recommended filter is one `softcbf bench --filters` spec, the setting that c-erg's docstring
-    (what `softcbf list` marks) names, and it builds on the reference arm with the bench's plate interval."""
-    from controllers.energy_governor import ContactEnergyGovernor
-    from controllers.registry import FILTERS, build_filter
+    (what `softcbf list` marks) names and `energy_governor.RECOMMENDED` holds (tools/bench_governors.py times it),
+    and it builds on the reference arm with the bench's plate interval."""
+    from controllers.energy_governor import RECOMMENDED, ContactEnergyGovernor
+    from controllers.registry import FILTERS, arguments, build_filter
     from softcbf.bench import parse_filters
 
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -181,6 +182,7 @@ def test_the_readme_names_the_recommended_filter_that_softcbf_list_marks():
     marked = re.fullmatch(r"Recommended for contact tasks with (.*) \(README\): .*",
                           ContactEnergyGovernor.__doc__.splitlines()[0]).group(1)
     assert dict(pair.split("=") for pair in marked.split(", ")) == spec.params
+    assert arguments(ContactEnergyGovernor, spec.params) == RECOMMENDED
     robot = reference_robot()
     context = FilterContext(robot, paper_safe_set(), robot.array("u_min"), robot.array("u_max"), 0.1, 0.02, 0.05)
     governor = build_filter(spec.name, {**spec.params, "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}, context)

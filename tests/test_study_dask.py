@@ -149,3 +149,24 @@ def test_a_scheduler_address_runs_the_study(local_rows, client, tmp_path):
     rows = StudyStore.open(tmp_path / "s").load_rows()
     assert [(r["sample"], r["status"]) for r in rows] == [(0, "ok"), (1, "ok")]
     assert [r["rho_min_meas"] for r in rows] == [r["rho_min_meas"] for r in local_rows[:2]]
+
+
+def test_a_local_pool_whose_worker_cannot_exit_is_closed_in_bounded_time():
+    """`close_local_pool`: a worker that does not exit at shutdown (here busy in a task for 1000 s; in the wild, blocked
+    on the call-queue lock of a worker killed while holding it) is terminated after the timeout instead of being
+    joined forever, as `shutdown(wait=True)` would."""
+    import concurrent.futures
+
+    from softcbf.study.execute import close_local_pool
+
+    pool = concurrent.futures.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+    pool.submit(time.sleep, 1000.0)
+    deadline = time.monotonic() + 30.0
+    while not pool._processes and time.monotonic() < deadline:  # the worker is spawned on submit  # noqa: SLF001
+        time.sleep(0.01)
+    (worker,) = pool._processes.values()  # noqa: SLF001
+    time.sleep(0.5)  # the worker has taken the task
+    start = time.monotonic()
+    close_local_pool(pool, timeout_s=1.0)
+    assert time.monotonic() - start < 10.0
+    assert not worker.is_alive()

@@ -49,13 +49,14 @@ from controllers.params import reference_robot  # noqa: E402
 from controllers.safe_set import paper_safe_set  # noqa: E402
 from controllers.safety_filter import Estimate, EstimateBatch  # noqa: E402
 
-FILTER_NAMES = ("qsg", "e-erg", "c-erg")
+FILTER_NAMES = ("qsg", "e-erg", "c-erg", "c-erg-recommended")
 PLATE_N_PER_M = 11.16
 """The pushing plate's stiffness (N/m): the model's (paper_safe_set)."""
 
 
 def factory(name: str):
-    """The filter class of `name` and its keyword arguments (c-erg: the bench's plate interval)."""
+    """The filter class of `name` and its keyword arguments (c-erg: the bench's plate interval; c-erg-recommended:
+    with `energy_governor.RECOMMENDED` too)."""
     from controllers import energy_governor, quasi_static_governor
 
     if name == "qsg":
@@ -66,6 +67,11 @@ def factory(name: str):
         if not hasattr(energy_governor, "ContactEnergyGovernor"):
             raise LookupError("c-erg")
         return energy_governor.ContactEnergyGovernor, {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1}
+    if name == "c-erg-recommended":
+        if not hasattr(energy_governor, "RECOMMENDED"):
+            raise LookupError("c-erg-recommended")
+        return energy_governor.ContactEnergyGovernor, {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1,
+                                                       **energy_governor.RECOMMENDED}
     raise ValueError(f"filter must be one of {FILTER_NAMES}, got {name!r}")
 
 
@@ -87,7 +93,7 @@ def cases(names, quick: bool) -> dict[str, tuple]:
                                                                1.5 * period_s, False)
         for tau in (0.0, 0.05):
             out[f"{label} 10 Hz camera step 150/150 τ={tau:g}"] = (label, 0.1, 0.02, (0.03, 0.1), tau, push, 4.0, False)
-        if label == "c-erg":
+        if label.startswith("c-erg"):
             out[f"{label} 1 kHz push 150/150 plate"] = (label, 1e-3, 0.0, (0.0, 0.0), 0.0, push, 2.0 if quick else 6.0, True)
             out[f"{label} 10 Hz camera push 150/150 plate"] = (label, 0.1, 0.02, (0.03, 0.1), 0.05, push,
                                                               3.0 if quick else 6.0, True)

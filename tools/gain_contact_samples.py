@@ -4,7 +4,8 @@ For every run folder under the given folders (a `softcbf run` folder, or a `soft
 them), the rows of its time series where c-erg would take a rest sample against the plate:
 
 - the estimate at rest, every |q̂̇_i| ≤ --rest-rad-s (c-erg's `gain_rest_rad_s`), and every one before it over the
-  last --rest-s (c-erg's `gain_rest_s`; 0: this one alone);
+  last --rest-s (c-erg's `gain_rest_s`; 0: this one alone); every such row is read, a superset of the samples
+  c-erg takes (with gain_rest_s > 0 it takes one per gain_rest_s among them);
 - the pressure settled: p, the first-order lag (the run's τ_p) of the recorded valve command u_applied, within
   --settle-rad of the command's rest shape (|λ_i/k_i (p_i − u_i)|), and its rest shape λ_i/k_i p_i within
   STEADY_RAD over the last HOLD_S (so the pressure at the estimate's capture, up to HOLD_S earlier, is the

@@ -79,6 +79,7 @@ ORPHAN_EXIT_CODE = 70  # a local worker's exit status when its driver died
 DEFAULT_BATCH_SIZE = 128  # samples per batch where the scenario has a batch form (tools/bench_batch.py)
 BATCH_BUFFER = 8  # batches' worth of samples the driver may hold while their groups fill
 SCHEDULER_CONNECT_TIMEOUT_S = 5.0  # how long a Dask scheduler address is tried before the study is refused, s
+POOL_EXIT_S = 5.0  # how long a local pool's workers have to exit at its shutdown before they are terminated, s
 
 
 def connect_scheduler(address: str, timeout: float | None = None) -> Any:
@@ -143,6 +144,25 @@ def exit_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
 def _local_pool(workers: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=exit_with_parent, initargs=(os.getpid(),))
+
+
+def close_local_pool(executor: ProcessPoolExecutor, timeout_s: float = POOL_EXIT_S) -> None:
+    """Shut a local pool down without waiting forever on a worker that cannot exit, then end its workers.
+
+    A worker killed (SIGKILL, the OOM killer) while it holds the pool's call-queue lock leaves every other worker
+    blocked on that lock, so `shutdown(wait=True)` joins them forever (seen with CPython 3.11 in
+    tests/test_study_dask.py: the study's rows all stored, the driver in `shutdown`, the surviving worker in
+    `Queue.get`). The pool is shut down without waiting; each worker then has until `timeout_s` to exit and is
+    terminated if it has not. The worker processes are read from the executor's `_processes` (CPython's
+    ProcessPoolExecutor has no public accessor)."""
+    processes = list((getattr(executor, "_processes", None) or {}).values())
+    executor.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + timeout_s
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+        if process.is_alive():
+            process.terminate()
+            process.join()
 
 
 def pending_indices(limit: int, done: set[int]) -> Iterator[int]:
@@ -283,7 +303,7 @@ def run_study(
             if broken:
                 broken += list(pending.values())  # the whole pool is gone
                 pending.clear()
-                executor.shutdown(wait=True, cancel_futures=True)
+                close_local_pool(executor)
                 executor = _local_pool(n_workers)
                 for task in sorted(broken, key=lambda t: t.indices[0], reverse=True):
                     for index in task.indices:
@@ -295,7 +315,10 @@ def run_study(
                                 for index in task.indices])
                     else:
                         retry.appendleft(task)
-        executor.shutdown(wait=True)  # before its client closes (a Dask executor needs the client's loop)
+        if isinstance(executor, ProcessPoolExecutor):
+            close_local_pool(executor)
+        else:
+            executor.shutdown(wait=True)  # before its client closes (a Dask executor needs the client's loop)
     except BaseException:
         for future in pending:
             future.cancel()
