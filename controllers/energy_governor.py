@@ -707,12 +707,12 @@ class EnergyGovernor:
         difference of the q̇'s, y = K⁻¹(M q̈ + C q̇ + D q̇ + K q)), else as a rest sample when every |q̇_i| ≤
         gain_rest_rad_s, in this estimate and in every one captured over the last gain_rest_s (an arm that has
         settled, not one passing through q̇ = 0; with gain_rest_s > 0 the timer restarts at each rest sample, so an
-        arm resting at 1 kHz offers one per gain_rest_s, not one per call), and the model's pressure has settled (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the
-        model's tip at least gain_clearance_m clear of every facet plane the sample is one out of contact; else
-        (`gain_contact` not "off") the plate's force on the tip is eliminated: along the normal n̂_j of each facet
-        within the clearance ("normal", a frictionless plate), and along its tangent too ("any"), the directions
-        J_r(q)ᵀv at the sample's q (`GainEstimator.sample_in_contact`). Its interval is applied once it has narrowed
-        by 1 % of the prior's width (a wider interval than the estimator's is also sound, and each change rebuilds
+        arm resting at 1 kHz offers one per gain_rest_s, not one per call), and the model's pressure has settled
+        (|λ_i/k_i (p_i − u_i)| ≤ gain_noise_rad). With the model's tip at least gain_clearance_m clear of every facet
+        plane the sample is one out of contact; else (`gain_contact` not "off") the plate's force on the tip is
+        eliminated: along the normal n̂_j of each facet within the clearance ("normal", a frictionless plate), and
+        along its tangent too ("any"), the directions J_r(q)ᵀv at the sample's q (`GainEstimator.sample_in_contact`).
+        Its interval is applied once it has narrowed by 1 % of the prior's width (a wider interval than the estimator's is also sound, and each change rebuilds
         the ends' terms), or at once when it fell back to the prior."""
         estimator, previous = self.gain_estimator, self._gain_previous
         self._gain_previous = (t_capture, q, qd)
