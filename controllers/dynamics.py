@@ -19,7 +19,9 @@ Per-step path (`evaluate`, `acceleration`, `state_derivative`; unchecked Python-
 entry points `model_terms`, `evaluate_floats`, `acceleration_from_terms` for the filter and the PCC plant):
 the compiled kernels of `controllers.pcc_model` at B = 1, the one implementation of the model's
 per-step terms for any N (the batched paths use the same kernels). `model_terms` keeps the last
-state's terms, so a plant and a filter sharing one `PCCDynamics` evaluate each measured state once.
+state's terms, so a plant and a filter sharing one `PCCDynamics` evaluate each measured state once; its
+`parameter_rows` are then what the plant integrates, so only the testbed's own code shares one (its
+benchmarks): a plug-in is handed the robot's parameters and builds a model of its own.
 Derivative terms (∂M/∂q, C, the Jacobians of q̈) use the tensor path `pcc.kinematics`; the tests
 check both against each other and against finite differences.
 

@@ -447,14 +447,13 @@ def paper_cbf(
 ) -> CBFFilter:
     """The paper's CBF-QP filter (docs/model.md#control-barrier-function), a preset tuning or a custom (a_E, b_E, γ).
 
-    The pressure limits are the robot model's own when `context.bounded`; `context.dynamics`
-    (the plant's evaluation of the same model), when given, is shared.
+    The pressure limits are the robot model's own when `context.bounded`; the model's dynamics is the filter's own.
     """
     check_paper_cbf({"tuning": tuning, "a_E": a_E, "b_E": b_E, "gamma": gamma, "qp_backend": qp_backend,
                      "recovery_margin": recovery_margin, "slack_weight": slack_weight})
     chosen = paper_tuning(tuning, a_E, b_E, gamma)
     return CBFFilter(context.robot, context.safe_set, chosen, pressure_limits=context.bounded, qp_backend=qp_backend,
-                     recovery_margin=recovery_margin, slack_weight=slack_weight, dynamics=context.dynamics)
+                     recovery_margin=recovery_margin, slack_weight=slack_weight)
 
 
 def paper_cbf_label(params: dict[str, object]) -> str:

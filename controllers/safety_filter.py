@@ -26,8 +26,7 @@ command that is sent:
 - `FilterContext` is what a filter is told at construction (the registry passes it to
   factories that ask for a `context` argument): the robot model, the force-safe set,
   the pressure limits, the control period and, where known, the command's delay and
-  the actuator's time constant (and, where the plant integrates the controller's own
-  model, that model's evaluation object, which a filter may share).
+  the actuator's time constant; each plug-in is handed its own copy (`FilterContext.copy`).
 - An optional attribute `enabled` (default True): False says the filter passes u_nom
   through (the paper's None tuning); its call times are then not reported as filter times.
 
@@ -49,16 +48,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from copy import deepcopy
+from dataclasses import dataclass, field, replace
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from controllers.params import RobotParams
 from controllers.safe_set import ForceSafeSet
-
-if TYPE_CHECKING:  # the compiled model (numba) is imported by whoever builds one, not by the contract's readers
-    from controllers.dynamics import PCCDynamics
 
 USER_ACTION = "user"  # the action label of a bare-array return
 
@@ -201,14 +198,16 @@ class FilterContext:
     simulation); control_dt: s, the period between filter calls; command_delay: s, the
     time from the filter's call to the command taking effect at the valves, beyond the
     estimate's own age (None: unknown); actuator_tau: s, the pressure's first-order time
-    constant (0: ideal valve; None: unknown); dynamics: the plant's evaluation object of
-    `robot`'s PCC model when the plant integrates exactly that model (the PCC plant), so a
-    filter may share its evaluations at the state the plant reports; None otherwise.
+    constant (0: ideal valve; None: unknown).
 
-    The context is handed to code the testbed did not write: u_min and u_max are read-only
-    copies (an in-place change raises ValueError), and `limits` holds the same limits as
-    tuples of floats, which is what the control step clips to (`closedloop.step`), so
-    nothing a filter does to the context can widen them.
+    The context is handed to code the testbed did not write. A loop keeps its own context
+    (the one its control step reads its limits from) and hands each plug-in `copy()`: its
+    own robot, safe set and limits, so nothing a plug-in does to what it was handed (in
+    place, or by `object.__setattr__` on these frozen objects) reaches the loop's context,
+    the plant or the verdict; the controller's model of the dynamics is the plug-in's own,
+    built from `robot` (never an object a plant integrates with). u_min and u_max are
+    read-only copies (an in-place change raises ValueError), and `limits` holds the same
+    limits as tuples of floats, which is what the control step clips to (`closedloop.step`).
     """
 
     robot: RobotParams
@@ -218,14 +217,13 @@ class FilterContext:
     control_dt: float
     command_delay: float | None = None
     actuator_tau: float | None = None
-    dynamics: PCCDynamics | None = None
     limits: tuple[tuple[float, ...], tuple[float, ...]] | None = field(default=None, init=False, repr=False)
 
     @classmethod
     def for_robot(cls, robot: RobotParams, safe_set: ForceSafeSet, control_dt: float, pressure_limits: bool = True,
                   **known: object) -> "FilterContext":
         """The context of `robot` with its own limits u_min, u_max when `pressure_limits`
-        (None otherwise); `known`: command_delay, actuator_tau, dynamics."""
+        (None otherwise); `known`: command_delay, actuator_tau."""
         limits = (np.array(robot.u_min, dtype=float), np.array(robot.u_max, dtype=float)) if pressure_limits else (None, None)
         return cls(robot, safe_set, *limits, control_dt, **known)
 
@@ -246,8 +244,14 @@ class FilterContext:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0 s (or None: unknown), got {value}")
-        if self.dynamics is not None and self.dynamics.params != self.robot:
-            raise ValueError("dynamics must evaluate the context's robot model")
+
+    def copy(self) -> "FilterContext":
+        """An independent copy for one plug-in (class docstring): the robot, the safe set (its
+        environment and stiffness law) and the limits rebuilt, each checked and read-only again as
+        at construction; nothing in it is an object of this context."""
+        safe_set = self.safe_set
+        own_set = replace(safe_set, environment=replace(safe_set.environment), stiffness=deepcopy(safe_set.stiffness))
+        return replace(self, robot=replace(self.robot), safe_set=own_set)
 
     @property
     def bounded(self) -> bool:

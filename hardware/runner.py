@@ -82,9 +82,11 @@ LOOP_FLAGS = ("est_stale", "link_acked", "link_lost")
 
 
 def controller_context(config: HardwareConfig) -> FilterContext:
-    """What the configured filter is told: the robot model, P, the limits when pressure_limits, the period."""
+    """The loop's context: the robot model, P, the limits when pressure_limits, the period; its own copy of
+    the config's robot and safe set (`FilterContext.copy`), whose pressure limits also set the link's. A plug-in
+    is handed a copy of it in turn (`HardwareLoop.from_config`)."""
     return FilterContext.for_robot(config.robot_params(), config.safe_set(), config.control.period_s,
-                                   config.control.pressure_limits)
+                                   config.control.pressure_limits).copy()
 
 
 class StartupError(RuntimeError):
@@ -256,8 +258,8 @@ class HardwareLoop:
         link = ValveBoardLink(transport, n, robot.u_min, robot.u_max, ack_timeout_s=lk.ack_timeout_s,
                               retries=lk.retries, clock=clock, lost_after=lk.lost_after, baudrate=lk.baudrate)
         context = controller_context(config)
-        step = ControlStep(build_filter(config.plugin_spec(ctl.filter), ctl.filter_arguments(), context),
-                           build_nominal(config.plugin_spec(ctl.nominal), ctl.nominal_arguments(), context), context,
+        step = ControlStep(build_filter(config.plugin_spec(ctl.filter), ctl.filter_arguments(), context.copy()),
+                           build_nominal(config.plugin_spec(ctl.nominal), ctl.nominal_arguments(), context.copy()), context,
                            SafetyMonitor(n, config.safety.hold_s))
         return cls(perception, link, step, ctl.period_s, config.run.duration, dry_run=config.run.dry_run,
                    startup_timeout_s=cam.startup_timeout_s, clock=clock, on_cycle=on_cycle)

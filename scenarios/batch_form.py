@@ -9,7 +9,9 @@ one row per sample: `BatchRun.run(b)` (the docs/run-outputs.md figures of the sa
 the single run's, with a filter fault's fields, `tests/test_study_batch.py`), `wall_s`
 (the batch's wall time / B) and `batch_size` (B). The filter is built once when it has
 `filter_batch` (the paper's CBF: `controllers.cbf_batch`), else once per simulation (B
-independent histories: a user's filter runs inside the batch, the physics batched).
+independent histories: a user's filter runs inside the batch, the physics batched). Each filter and
+nominal is told its own copy of `context` (`FilterContext.copy`); the batched step reads its limits from
+`context` itself, which no plug-in is handed.
 """
 
 from __future__ import annotations
@@ -33,9 +35,9 @@ def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterConte
     if len(nominal_kwargs) != n_sims or np.shape(q0) != (n_sims, plant.n_segments):
         raise ValueError(f"nominal_kwargs and q0 must hold one entry per simulation ({n_sims}), got "
                          f"{len(nominal_kwargs)} and q0 of shape {np.shape(q0)}")
-    one = build_filter(run.filter, run.filter_params, context)
+    one = build_filter(run.filter, run.filter_params, context.copy())
     filters = one if callable(getattr(one, "filter_batch", None)) else [
-        build_filter(run.filter, run.filter_params, context) for _ in range(n_sims)]
-    nominals = [build_nominal(nominal, kwargs, context) for kwargs in nominal_kwargs]
+        build_filter(run.filter, run.filter_params, context.copy()) for _ in range(n_sims)]
+    nominals = [build_nominal(nominal, kwargs, context.copy()) for kwargs in nominal_kwargs]
     result = run_batch_closed_loop(plant, filters, nominals, context, duration, q0)
     return [{**result.run(b), "wall_s": result.wall_s / n_sims, "batch_size": n_sims} for b in range(n_sims)]

@@ -196,9 +196,11 @@ def nominal_arguments(spec: Nominal) -> dict[str, object]:
 
 def control_step(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, object], context: FilterContext,
                  monitor: SafetyMonitor | None = None) -> ControlStep:
-    """The control step of `run`: its filter and the nominal controller, told `context`."""
-    safety_filter = build_filter(run.filter, run.filter_params, context)
-    return ControlStep(safety_filter, build_nominal(nominal, nominal_kwargs, context), context, monitor)
+    """The control step of `run`: its filter and the nominal controller, each told its own copy of `context`
+    (`FilterContext.copy`), so that the step's limits, read from `context` itself, are fixed before any
+    plug-in code runs and nothing a plug-in does to what it was told reaches them."""
+    safety_filter = build_filter(run.filter, run.filter_params, context.copy())
+    return ControlStep(safety_filter, build_nominal(nominal, nominal_kwargs, context.copy()), context, monitor)
 
 
 def controller_row(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, object]) -> dict[str, Any]:

@@ -11,7 +11,9 @@ Batch form (studies, docs/studies.md#batches): samples that differ only in q0 (`
 `PCCBatchPlant` (`run_paper_batch`); both paths build a sample with `paper_setup`.
 
 The spec (`PaperSim`, scenarios.spec) holds the sections `run`, `filter`, `nominal` and `model`
-(the controller's robot is also the PCC plant's, its damping × `damping_scale`) and three
+(the controller's robot is also the PCC plant's, its damping × `damping_scale`: the same numbers, never
+the same objects, for the plant integrates arrays of its own and each plug-in is handed its own copy of the
+context, `scenarios.common.control_step`) and three
 settings of its own: `plate_stiffness` (N/m, the true plate's and the controller's ψ),
 `integrator` and `control_rate` (Hz).
 """
@@ -20,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -37,9 +39,6 @@ from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import format_table
 from softcbf_mj.runio import SummaryWriter
-
-if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a run starts, not for softcbf list
-    from controllers.dynamics import PCCDynamics
 
 TABLE = (
     ("tuning", "tuning", ""),
@@ -88,10 +87,10 @@ class PaperSetup:
     q0: np.ndarray
     control_dt: float
 
-    def context(self, pressure_limits: bool, dynamics: PCCDynamics | None = None) -> FilterContext:
-        """What the filters and the nominal are told (`dynamics`: the plant's, shared when given)."""
+    def context(self, pressure_limits: bool) -> FilterContext:
+        """The loop's context: what the filters and the nominal are told (each its own copy, `control_step`)."""
         return FilterContext.for_robot(self.robot, self.safe_set, self.control_dt, pressure_limits,
-                                       actuator_tau=0.0, command_delay=0.0, dynamics=dynamics)
+                                       actuator_tau=0.0, command_delay=0.0)
 
 
 def paper_setup(spec: PaperSim) -> PaperSetup:
@@ -141,8 +140,7 @@ def paper_sim(out_dir: Path, spec: PaperSim) -> dict:
                                                                             spec.plate_stiffness))
     for run in setup.runs:
         plant = PCCPlant(setup.robot, setup.safe_set, control_dt=setup.control_dt, integrator=spec.integrator)
-        step = control_step(run, spec.nominal.name, setup.nominal_kwargs,
-                            setup.context(spec.filter.pressure_limits, plant.dynamics))
+        step = control_step(run, spec.nominal.name, setup.nominal_kwargs, setup.context(spec.filter.pressure_limits))
         row = run_tuning(out_dir, summary, run.label, plant, step, setup.safe_set, spec.run.duration, setup.q0,
                          spec.run.progress, row=controller_row(run, spec.nominal.name, setup.nominal_kwargs))
         if stop_after(row):

@@ -6,8 +6,9 @@ any number of segments N: the same compiled kernel (`controllers.pcc_model.advan
 call, and a row's arithmetic does not depend on the others, so its states equal those of a
 `PCCPlant` bit for bit (tested); the same zero-order hold and valve lag, and the same read-out
 (segment ends, ψ(n) of the true tip per facet, u_applied = the acting pressure). The terms at
-the reported states are kept in `self.dynamics` (`BatchDynamics.keep`), so a batched filter built
-with `CBFFilter(..., batch_dynamics=plant.dynamics)` does not evaluate them again.
+the reported states are kept in `self.dynamics` (`BatchDynamics.keep`), the plants' physics (what
+they integrate): as `PCCPlant.dynamics`, the scenarios never hand it to a plug-in, and sharing it,
+`CBFFilter(..., batch_dynamics=plant.dynamics)`, is for the testbed's own benchmarks of its built-in filter.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class PCCBatchPlant:
             raise ValueError(f"params must be one RobotParams or n_sims = {n_sims} of them, got {len(params)}")
         self.n_sims = int(n_sims)
         self.params = params
-        self.dynamics = BatchDynamics(params)  # the model; its terms at the reported states serve a filter sharing it
+        self.dynamics = BatchDynamics(params)  # the plants' physics and their terms at the reported states
         self.n_segments = n = self.dynamics.n
         self.safe_set = safe_set
         self.control_dt, self.integrator = self.period.control_dt, integrator

@@ -98,8 +98,13 @@ class PCCPlant:
 
     One `pcc_model.advance` call per period (B = 1); `step` checks u once. The model terms at the
     current state come back from the kernel and serve its report (segment ends, contact force)
-    and, kept in `self.dynamics` (`PCCDynamics.keep`), the next step and a filter built with
-    `CBFFilter(..., dynamics=plant.dynamics)`.
+    and, kept in `self.dynamics` (`PCCDynamics.keep`), the next step.
+
+    `self.dynamics` is the plant's physics: its `parameter_rows` are what the plant integrates.
+    The scenarios never hand it to a plug-in (a filter builds its own model from the robot it is
+    told, `controllers.safety_filter.FilterContext`); sharing it, `CBFFilter(..., dynamics=plant.dynamics)`,
+    saves one evaluation of the model per period and is for the testbed's own benchmarks and tests
+    of its built-in filter only.
     """
 
     def __init__(
@@ -138,7 +143,7 @@ class PCCPlant:
         )
 
     def _keep(self) -> None:
-        """Hand the terms at the current state to the shared dynamics (the filter reads them)."""
+        """Keep the terms at the current state in `self.dynamics` (the next step starts from them)."""
         n, x = self.n_segments, self._x[0].tolist()
         self.dynamics.keep(x[:n], x[n:], self._kin[0], self._dyn[0])
 

@@ -13,9 +13,10 @@ seconds of simulated time. The scene is the one of `scenarios/mujoco_contact.py`
 MuJoCo arm of `robot` (`MujocoPlant.from_config`), the plates on the facets of
 `safe_set.environment` with spring stiffness `plate_stiffness` (N/m), and the control step
 of the scenarios (`closedloop.step.ControlStep`: the filter `filter` with `filter_params`
-built once per environment by `controllers.registry.build_filter`, told
+built once per environment by `controllers.registry.build_filter`, told its own copy of
 `FilterContext.for_robot(robot, safe_set, control_dt, pressure_limits, command_delay=0,
-actuator_tau=tau_p)`, and reset before every episode; admission; a fresh `SafetyMonitor`
+actuator_tau=tau_p)` (the step's limits and the safe set of ρ_meas are the environment's), and
+reset before every episode; admission; a fresh `SafetyMonitor`
 holding `hold_s` per episode). The filter sees the exact state (`exact_state`), or with
 `state_noise_std` = (σ_q rad, σ_q̇ rad/s) ≠ 0 the noisy state (`physics.NoisyState`); the
 observation's estimate keys are that same estimate.
@@ -160,8 +161,9 @@ class ArmEnvConfig:
                        self.camera, self.tag_detections, self.image_size, seed, self.observation, self.cost)
 
     def safety_filter(self, context: FilterContext) -> SafetyFilter:
-        """The filter `filter` with `filter_params`, told `context` (the registry's convention)."""
-        return build_filter(self.filter, self.filter_params, context)
+        """The filter `filter` with `filter_params`, told its own copy of `context` (`FilterContext.copy`:
+        the control step's limits and the safe set that gives ρ_meas stay `context`'s, out of the filter's reach)."""
+        return build_filter(self.filter, self.filter_params, context.copy())
 
 
 class ArmEnvironment(control.Environment):
