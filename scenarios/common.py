@@ -9,7 +9,7 @@ Every scenario takes the controller under test as its spec's `Filter` and `Nomin
   (the command line's repeated `--filter-param name=value`, joined);
 - `tunings`: for "paper-cbf", a tuple of its presets (("None", "High"); the comma list
   "None,High" on the command line and in files), or "custom" (a_E, b_E and gamma from
-  filter_params): one run each, labelled by the preset (a `tuning` in
+  filter_params): one run each, labelled by the preset (each named once) (a `tuning` in
   filter_params makes one run of that tuning); other filters make one run, labelled
   `Factory(name=value,...)`;
 - `nominal`, `nominal_params`: likewise ("sinusoid", "tip-tracker", FILE.py:Factory);
@@ -178,6 +178,10 @@ def controller_runs(spec: Filter) -> list[ControllerRun]:
     names = [params["tuning"]] if "tuning" in params else list(spec.tunings)
     if not names:
         raise ValueError("tunings must name at least one tuning, e.g. None,Low,High (or custom with a_E, b_E, gamma)")
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:  # each run is labelled by its tuning and writes the time series of that label
+        raise ValueError(f"tunings must name each tuning once (one run and one time series each), got "
+                         f"{', '.join(repeated)} more than once in {','.join(names)}")
     runs = []
     for tuning in names:
         run_params = {"qp_backend": spec.qp_backend, **params, "tuning": tuning}
