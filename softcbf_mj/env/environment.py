@@ -44,9 +44,11 @@ from softcbf_mj.loop import exact_state
 from softcbf_mj.model_builder import CAMERA_RESOLUTION
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState, steps_per_control
-from vocabulary.settings import default
+from vocabulary.settings import check_value, default
 
 DEFAULT_CONTROL_DT = 1e-3  # s, the paper's 1 kHz (as scenarios/mujoco_contact.py)
+VOCABULARY_FIELDS = ("plate_stiffness", "physics_dt", "links_per_segment", "tau_p", "filter", "pressure_limits", "hold_s",
+                     "q0_std")  # ArmEnvConfig's fields that are settings of vocabulary.settings (checked by it)
 MIN_IMAGE_PX = 8  # the tag detector's smallest image side
 
 
@@ -58,8 +60,11 @@ class ArmEnvConfig:
     links_per_segment, tau_p, filter, pressure_limits, hold_s, q0_std) means that setting
     and takes its default from there: `default(name, "environment")`, the declared default or
     the context's override (filter "none": the environment is the unfiltered arm unless a
-    filter is asked for). The table shows their values (tests/test_setting_defaults.py holds
-    it to them); control_dt, the other fields and their defaults are the environment's own.
+    filter is asked for), and its check: `vocabulary.settings.check_value`, the bounds the
+    command line and the files hold it to (q0_std in [0, π] rad, tau_p <= 5 s, hold_s >= 0 s,
+    links_per_segment in [1, 100], …), so the environment refuses what `softcbf run` refuses,
+    with the same one-line error. The table shows their values (tests/test_setting_defaults.py
+    holds it to them); control_dt, the other fields and their defaults are the environment's own.
 
     | field            | default              | unit | meaning                                                   |
     |------------------|----------------------|------|-----------------------------------------------------------|
@@ -109,13 +114,13 @@ class ArmEnvConfig:
     image_size: tuple[int, int] = (320, 180)
 
     def __post_init__(self) -> None:
+        for name in VOCABULARY_FIELDS:
+            object.__setattr__(self, name, check_value(name, getattr(self, name)))
         steps_per_control(self.control_dt, self.physics_dt)
         for name in ("action_repeat", "episode_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-        if not (math.isfinite(self.plate_stiffness) and self.plate_stiffness > 0):
-            raise ValueError(f"plate_stiffness must be finite and > 0 N/m, got {self.plate_stiffness}")
         if self.safe_set.environment.n_facets < 1:
             raise ValueError("safe_set must have at least one facet")
         size = tuple(self.image_size)

@@ -17,15 +17,36 @@
   estimate's noise) and `np_random`; `reset()` without one continues the generator;
 - `step(action)` → (observation, reward, terminated, truncated, info): dm_env's LAST with
   discount 0 is `terminated`, LAST with discount 1 (`episode_steps` reached) `truncated`;
-  info holds "cost" (the env step's cost, `softcbf_mj.env.task`: Safety-Gymnasium's
-  convention, read by its `SafetyGymnasium2Gymnasium`-style consumers and TorchRL as
-  info["cost"]), the env step's `StepStats` (periods, violation_periods, rho_meas_min,
-  force_max_N, force_excess, vented), the time t (s), the safety monitor's last action,
-  the filter's last action label ("" when it was not called) and `fault` (the filter fault
-  that ended the episode, `closedloop.step.FilterFault.to_json`, or None). A step after the
-  episode's end raises: call reset();
+  info holds the keys of `INFO_KEYS` (below). A step after the episode's end raises: call
+  reset(). An action is converted once (`physics.action_array`): bool, complex, object or
+  string values, masked arrays and other shapes are refused with a ValueError;
 - `render()` (render_mode "rgb_array"): the overhead camera's frame (H, W, 3) uint8 RGB
   at the config's image_size.
+
+The info of a step or a reset (`INFO_KEYS`, in this order; "truth": computed from the ground truth):
+
+| key               | unit | truth | what                                                                     |
+|-------------------|------|-------|--------------------------------------------------------------------------|
+| cost              | 1    | yes   | the env step's cost (`softcbf_mj.env.task`), Safety-Gymnasium's info["cost"] |
+| periods           | —    | no    | control periods in the env step                                          |
+| violation_periods | —    | yes   | of them, periods whose end state has ρ_meas < 0                           |
+| rho_meas_min      | 1    | yes   | the least ρ_meas over them (+inf before any period)                      |
+| force_max_N       | N    | yes   | the largest measured plate force over them                               |
+| force_excess      | 1    | yes   | the mean over them of max_i max(0, F_i − F_max)/F_max                    |
+| vented            | —    | no    | the safety monitor sent VENT in one of them                              |
+| clipped           | —    | no    | the observation keys clipped by `normalise` at this step                 |
+| t                 | s    | no    | the time                                                                 |
+| monitor_action    | —    | no    | the safety monitor's last action ("run", "hold", "vent")                 |
+| filter_action     | —    | no    | the filter's last action label ("" when it was not called)               |
+| fault             | —    | no    | the filter fault that ended the episode (`FilterFault.to_json`) or None   |
+
+The ground-truth keys (`GROUND_TRUTH_INFO`) are in the info of both observation modes, flagged here
+rather than moved: info is the training algorithm's and the log's channel, not the policy's input
+(Gymnasium's convention), and a constrained learner trains on the cost, which is the ground truth's
+by definition (Safety-Gymnasium's cost is the simulator's, as the reward is); removing rho_meas_min
+from the "estimate" mode while keeping the cost (the violation cost is violation_periods / periods)
+would hide nothing. What the "estimate" mode promises is its observation: only what the controller
+under test sees. A policy or a filter evaluated in that mode must not read the flagged keys as input.
 
 `SafetyGymnasiumStep(env)` is the other convention: its `step` returns Safety-Gymnasium's
 6-tuple (observation, reward, cost, terminated, truncated, info), cost = info["cost"].
@@ -53,11 +74,15 @@ from gymnasium import spaces
 
 from closedloop.step import FilterFault
 from softcbf_mj.env.environment import ArmEnvConfig, make_environment
-from softcbf_mj.env.physics import ArmArrays, ArmControl, ArmPhysics
+from softcbf_mj.env.physics import ArmArrays, ArmControl, ArmPhysics, action_array
 from softcbf_mj.env.presets import EPISODE_STEPS, PRESETS
 from softcbf_mj.env.task import ArmTask
 
 ENV_ID = "softcbf_mj/SoftArm-v0"
+INFO_KEYS = ("cost", "periods", "violation_periods", "rho_meas_min", "force_max_N", "force_excess", "vented", "clipped",
+             "t", "monitor_action", "filter_action", "fault")  # the info's keys, in order (module docstring)
+GROUND_TRUTH_INFO = ("cost", "violation_periods", "rho_meas_min", "force_max_N", "force_excess")
+"""The info keys computed from the ground truth, in either observation mode (module docstring)."""
 
 
 def box(spec: specs.Array) -> spaces.Box:
@@ -87,9 +112,9 @@ def gym_spaces(task: ArmTask, physics: ArmControl, config: ArmEnvConfig, normali
 
 
 def nominal_command(action: np.ndarray, u_low: np.ndarray, u_high: np.ndarray, normalise: bool) -> np.ndarray:
-    """The nominal command (N,) hPa of `action` (the action itself unless normalised; module docstring)."""
-    a = np.asarray(action, dtype=float)
-    return u_low + 0.5 * (a + 1.0) * (u_high - u_low) if normalise else a
+    """The nominal command (..., N) hPa of `action`, a float array checked by `physics.action_array` (the action
+    itself unless normalised; module docstring)."""
+    return u_low + 0.5 * (action + 1.0) * (u_high - u_low) if normalise else action
 
 
 def scaled_observations(observations: Mapping[str, np.ndarray], scales: Mapping[str, np.ndarray]
@@ -189,7 +214,7 @@ class GymArmEnv(gymnasium.Env):
 
     def u_nom(self, action: np.ndarray) -> np.ndarray:
         """The nominal command (N,) hPa of `action` (`nominal_command`)."""
-        return nominal_command(action, self.u_low, self.u_high, self.normalise)
+        return nominal_command(action_array(action, self.u_low.shape), self.u_low, self.u_high, self.normalise)
 
     def _observe(self, observation: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The dm_env observation, normalised and clipped when asked (`scaled_observations` at B = 1); sets the

@@ -30,8 +30,11 @@ Gaussian noise N(0, q_std²), N(0, qd_std²) per segment, drawn from its generat
 The nominal controller of the control step is the policy's action: `set_control(u_nom)`
 (N,) hPa sets the command that `HeldCommand` returns at every period until the next call,
 so the filter still runs once per control period when the environment repeats an action
-(dm_control's `n_sub_steps`, the environment's `action_repeat`). A non-finite u_nom is
-not refused here: the control step refuses it (HOLD, then VENT), as in every loop.
+(dm_control's `n_sub_steps`, the environment's `action_repeat`). An action is converted once
+(`action_array`): real numbers (float or int) of the action's shape; bool, complex, object or
+string values and masked arrays (whose mask a conversion would drop, sending the masked
+entries' stale data) are refused with a ValueError. A non-finite u_nom is not refused here:
+the control step refuses it (HOLD, then VENT), as in every loop.
 
 Per `step(n)` the physics keeps `StepStats` over its n periods, from the state at each
 period's end: the number of periods with ρ_meas < 0 (ρ_meas = min over facets of the
@@ -72,6 +75,25 @@ from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState
 from softcbf_mj.render import OffscreenRenderer
 from vocabulary.settings import default
+
+
+def action_array(action: object, shape: tuple[int, ...], name: str = "the action u_nom") -> np.ndarray:
+    """`action` as a new float64 array of `shape` (hPa; module docstring): ValueError naming `name`, what is
+    expected and what was received for a masked array, non-real values (bool, complex, object, str) or
+    another shape. NaN and ±inf are kept: the control step refuses them as it refuses any nominal's."""
+    if isinstance(action, np.ma.MaskedArray):
+        raise ValueError(f"{name} must be a plain array of real numbers (hPa), got a masked array (its mask would be "
+                         f"dropped): fill it first, e.g. np.ma.filled(action, 0.0)")
+    try:
+        array = np.asarray(action)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{name} must be an array of real numbers of shape {shape} (hPa), got an unreadable "
+                         f"{type(action).__name__}: {exc}") from None
+    if array.dtype.kind not in "fiu":
+        raise ValueError(f"{name} must hold real numbers (float or int) in hPa, got dtype {array.dtype}")
+    if array.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
+    return array.astype(float)
 
 
 class HeldCommand:
@@ -207,11 +229,8 @@ class ArmControl:
         self._tally = StepStats()
 
     def set_control(self, control: np.ndarray) -> None:
-        """The policy's action u_nom (N,) hPa, held until the next call."""
-        u_nom = np.array(control, dtype=float)
-        if u_nom.shape != (self.n_segments,):
-            raise ValueError(f"the action u_nom must have shape ({self.n_segments},) hPa, got {u_nom.shape}")
-        self.command.u_nom = u_nom
+        """The policy's action u_nom (N,) hPa (`action_array`), held until the next call."""
+        self.command.u_nom = action_array(control, (self.n_segments,))
 
     def reset(self, reset_filter: bool = True) -> None:
         """A new episode: a new control step (`reset_control`), u_nom = 0, the arm straight at rest."""

@@ -90,7 +90,7 @@ from closedloop.monitor import ACTIONS
 from closedloop.step import BatchControlStep, BatchStepRecord, FilterFault
 from softcbf_mj.env.environment import ArmEnvConfig
 from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, object_array, scaled_observations, step_infos
-from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, StepStats
+from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, StepStats, action_array
 from softcbf_mj.env.task import ArmTask
 from softcbf_mj.loop import exact_state
 from softcbf_mj.metrics import RunningFigures, rho_meas
@@ -233,10 +233,7 @@ class ArmVectorEnv(VectorEnv):
         """One env step of every sub-environment (module docstring); autoresets those whose episode ended."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        actions = np.asarray(actions, dtype=float)
-        shape = (self.num_envs, self.plant.n_segments)
-        if actions.shape != shape:
-            raise ValueError(f"actions must have shape {shape}, got {actions.shape}")
+        actions = action_array(actions, (self.num_envs, self.plant.n_segments), "actions")
         resetting = self._autoreset.copy()
         running = ~resetting
         self._u_nom[running] = nominal_command(actions[running], self.u_low, self.u_high, self.normalise)
