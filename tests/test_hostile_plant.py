@@ -266,3 +266,19 @@ def test_duplicate_tunings_are_refused_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == USAGE_ERROR and not out.exists()
     assert err.count("\n") == 0 and "tunings must name each tuning once" in err and "None more than once" in err
+
+
+def test_a_context_copy_shares_no_object_with_the_loops_context():
+    from controllers.params import reference_robot
+    from controllers.safe_set import paper_safe_set
+    from controllers.safety_filter import FilterContext
+
+    context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3, actuator_tau=0.05)
+    own = context.copy()
+    assert own.robot == context.robot and own.limits == context.limits and own.actuator_tau == 0.05
+    pairs = [(own.robot, context.robot), (own.safe_set, context.safe_set), (own.u_max, context.u_max),
+             (own.safe_set.environment, context.safe_set.environment),
+             (own.safe_set.stiffness, context.safe_set.stiffness), (own.safe_set.H_prime, context.safe_set.H_prime)]
+    assert all(a is not b for a, b in pairs)
+    assert np.array_equal(own.safe_set.h_prime, context.safe_set.h_prime) and own.safe_set.n_max == context.safe_set.n_max
+    assert not (own.u_max.flags.writeable or own.safe_set.environment.offsets.flags.writeable)
