@@ -86,9 +86,9 @@ def plugins(tmp_path_factory) -> Path:
     return path
 
 
-def _paper_sim(out: Path, *tokens: str) -> tuple[int, dict]:
-    """Run paper_sim for 0.2 s; (exit code, its one row)."""
-    code = exit_code(lambda: run_scenario("paper_sim", ["--duration", "0.2", "--progress", "false", *tokens], out))
+def _paper_sim(out: Path, *tokens: str, scenario: str = "paper_sim") -> tuple[int, dict]:
+    """Run `scenario` for 0.2 s; (exit code, its one row)."""
+    code = exit_code(lambda: run_scenario(scenario, ["--duration", "0.2", "--progress", "false", *tokens], out))
     return code, json.loads((out / "summary.json").read_text())["runs"][0]
 
 
@@ -173,11 +173,12 @@ def test_the_hardware_configs_robot_and_safe_set_are_out_of_a_factorys_reach(plu
 # --- the limits fixed before user code runs ---------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("who", ["filter", "nominal"])
-def test_object_setattr_on_the_context_limits_cannot_widen_the_clip_in_paper_sim(tmp_path, plugins, who):
+@pytest.mark.parametrize("scenario, who", [("paper_sim", "filter"), ("paper_sim", "nominal"),
+                                           ("mujoco_contact", "filter")])
+def test_object_setattr_on_the_context_limits_cannot_widen_the_clip_in_a_run(tmp_path, plugins, scenario, who):
     tokens = (("--filter", f"{plugins}:Widen", *PUSH) if who == "filter"
               else ("--filter", "none", "--nominal", f"{plugins}:WidenNominal"))
-    code, row = _paper_sim(tmp_path / who, "--pressure-limits", "true", *tokens)
+    code, row = _paper_sim(tmp_path / who, "--pressure-limits", "true", *tokens, scenario=scenario)
     assert code == 0 and row["u_peak_abs_hPa"] == LIMIT
     series, _ = load_timeseries(tmp_path / who / row["timeseries"])
     assert np.all(series["u"] == LIMIT)
