@@ -29,7 +29,8 @@ display is present, and says so when it skips it. `python -m scenarios` is the s
 (`scenarios.config_file`: a TOML file, or a run folder's config.json, which replays that
 run, with one warning line on stderr for each recorded version that differs from the
 running one and for a --seed that changes the recorded seed: such a replay is not
-bit-identical); parameters on the command line override the file's, and a SCENARIO given
+bit-identical; a filter or nominal FILE.py runs from its recorded location and is refused
+when its SHA-256 differs from the recorded one, unless --allow-changed-filter); parameters on the command line override the file's, and a SCENARIO given
 as well must be the file's. `softcbf run SCENARIO --help` lists the scenario's parameters with
 their meaning, unit, default and valid values (docs/parameters.md).
 
@@ -76,7 +77,7 @@ from typing import Any
 import softcbf_mj
 from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
-from scenarios.config_file import load_run_config, replay_warnings
+from scenarios.config_file import load_run_config, replay_sources, replay_warnings
 from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
 from softcbf_mj.runio import RunFolderError, versions
 
@@ -148,6 +149,9 @@ def _run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, metavar="FILE",
                         help="run configuration: a TOML file (scenario = NAME and parameters) or a run folder's "
                              "config.json (replays that run); command-line parameters override it")
+    parser.add_argument("--allow-changed-filter", action="store_true",
+                        help="replay a config.json even though its filter or nominal FILE.py changed since the run "
+                             "(refused without it; the replay then warns that it is not the recorded run)")
     parser.add_argument("--out", help="output folder (default runs/<scenario>-<time>; refused if it exists and is not empty)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the contents of an existing run folder (one written by softcbf)")
@@ -171,12 +175,18 @@ def _run(args: argparse.Namespace, extra: list[str]) -> int:
         return _run_help(args, name)
     if name is None:
         raise UsageError("softcbf run: give a scenario name (softcbf list) or --config FILE")
-    if args.config is not None and config.versions is not None:  # a replay: say where it departs from the recorded run
+    replay = args.config is not None and config.versions is not None
+    if args.allow_changed_filter and not replay:
+        raise UsageError("--allow-changed-filter applies to a replay: softcbf run --config RUN_DIR/config.json")
+    if replay:  # run the recorded filter and nominal files, and say where the replay departs from the recorded run
         try:
             params = scenario_parameters(get_scenario(name), tokens, base)
+            base, source_lines = replay_sources(config, params, args.allow_changed_filter)
         except KeyError as exc:
             raise UsageError(exc.args[0]) from None
-        for line in replay_warnings(config, params, versions()):
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        for line in [*replay_warnings(config, params, versions()), *source_lines]:
             print(line, file=sys.stderr)
     return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base)
 
