@@ -228,7 +228,10 @@ def parameters(factory: Callable) -> list[Parameter]:
 
 
 def parse_params(text: str) -> dict[str, str]:
-    """"name=value;name=value" (the command line's repeated --filter-param joined by ';') → {name: value}."""
+    """"name=value;name=value" (the command line's repeated --filter-param joined by ';', a file's or a spec's
+    text) → {name: value}. ValueError for an item that is not name=value, and for a name given twice (the last
+    would silently win): the one check of duplicate parameters, wherever the text comes from (config.json, a TOML
+    run or study file, `Filter(params=...)`); an override is a merge of two mappings, never a joined text."""
     out: dict[str, str] = {}
     for item in (text or "").split(";"):
         if not item.strip():
@@ -236,7 +239,10 @@ def parse_params(text: str) -> dict[str, str]:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():
             raise ValueError(f"parameters must be name=value, got {item.strip()!r}")
-        out[name.strip()] = value.strip()
+        name, value = name.strip(), value.strip()
+        if name in out:
+            raise ValueError(f"parameter {name} is given twice ({name}={out[name]}, then {name}={value}); give it once")
+        out[name] = value
     return out
 
 

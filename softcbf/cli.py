@@ -43,7 +43,8 @@ Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the
 type, not finite or out of range, a duration whose time series would not fit in memory,
 an --out that is in use, not writable, or non-empty without --overwrite, a folder that is
 not a run folder, a time series that cannot be read), with one line on stderr naming the
-parameter (or file) and the valid values; 130 interrupted. Scenarios check every
+parameter (or file) and the valid values; 130 interrupted; 141, silently, when stdout's reader
+has gone (`softcbf list | head`: scenarios.pipe). Scenarios check every
 parameter before they write anything; a run that stops before its first finished tuning
 (rejected, failed or interrupted) leaves no output behind (folders it created are
 removed, one that existed is emptied), so the corrected command is not refused. Ctrl-C
@@ -78,6 +79,7 @@ import softcbf_mj
 from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
 from scenarios.config_file import load_run_config, replay_sources, replay_warnings
+from scenarios.pipe import quiet_on_closed_pipe
 from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
 from softcbf_mj.runio import RunFolderError, versions
 
@@ -287,7 +289,8 @@ def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of `softcbf`; returns the exit code (0, 2 usage error, 130 interrupted)."""
+    """Entry point of `softcbf`; returns the exit code (0, 2 usage error, 130 interrupted, 141 stdout's reader gone:
+    `softcbf list | head`, scenarios.pipe)."""
     tokens = sys.argv[1:] if argv is None else list(argv)
     first = next((token for token in tokens if not token.startswith("-")), None)  # the command (the top level has no values)
     parser = build_parser(first if first in COMMANDS else None)
@@ -299,7 +302,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"softcbf {command.name}: unrecognised arguments: {' '.join(extra)}")
         return command.handler(args, extra)
 
-    return exit_code(run)
+    return quiet_on_closed_pipe(lambda: exit_code(run))
 
 
 if __name__ == "__main__":
