@@ -6,7 +6,9 @@ A spec names a factory (a class or a function):
   contact certificate, recommended for contact tasks), "sinusoid",
   "tip-tracker", "step", "force-target";
 - `path/to/file.py:Factory` (the file is imported as a module of its own; the path is
-  relative to the working directory);
+  relative to the working directory; `spec_file` tells such a spec apart, `source_record`
+  gives its file's absolute path and SHA-256, which a run's config.json records so that a
+  replay runs the same file: scenarios.config_file);
 - `package.module:Factory` (imported from sys.path).
 
 The factory is called as `Factory(**params)`, plus `context=FilterContext(...)` when its
@@ -78,6 +80,7 @@ NOMINALS: Mapping[str, Callable[..., NominalController]] = Factories({
     "force-target": "controllers.nominal:force_target",
 })
 CONTEXT = "context"
+SPEC_SETTINGS = ("filter", "nominal")  # the settings that hold a filter's or a nominal's spec
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
@@ -102,11 +105,42 @@ def resolve(spec: str, builtins: Mapping[str, Callable]) -> Callable:
     if ":" not in spec:
         raise ValueError(f"unknown name {spec!r}; built-ins: {', '.join(builtins)}; or FILE.py:Factory, package.module:Factory")
     where, _, name = spec.rpartition(":")
-    module = _load_file(Path(where)) if where.endswith(".py") or "/" in where or "\\" in where else _import(where)
+    module = _load_file(Path(where)) if spec_file(spec) is not None else _import(where)
     factory = getattr(module, name, None)
     if not callable(factory):
         raise ValueError(f"{where} has no callable {name!r} (spec {spec!r})")
     return factory
+
+
+def spec_file(spec: object) -> tuple[Path, str] | None:
+    """(FILE, Factory) of a `FILE.py:Factory` spec (FILE as written: a name ending in .py or a path with a folder
+    separator), None for a built-in's name, a `package.module:Factory` spec or anything not a string."""
+    if not isinstance(spec, str):
+        return None
+    where, sep, name = spec.strip().rpartition(":")
+    if not sep or not (where.endswith(".py") or "/" in where or "\\" in where):
+        return None
+    return Path(where), name
+
+
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of the file's bytes, as 64 hexadecimal digits."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def source_record(spec: object) -> dict[str, str] | None:
+    """{"path": absolute path, "sha256": content hash} of the file a `FILE.py:Factory` spec names (relative to the
+    working directory), None for any other spec or a file that does not exist (the run refuses that spec anyway)."""
+    found = spec_file(spec)
+    if found is None or not found[0].is_file():
+        return None
+    path = found[0].absolute()
+    return {"path": str(path), "sha256": file_sha256(path)}
+
+
+def recorded_sources(params: Mapping[str, object]) -> dict[str, dict[str, str]]:
+    """`source_record` of each of `params`' SPEC_SETTINGS that names a file: what a run's config.json records."""
+    return {key: record for key in SPEC_SETTINGS if (record := source_record(params.get(key))) is not None}
 
 
 class PluginLoadError(ValueError):
@@ -194,7 +228,10 @@ def parameters(factory: Callable) -> list[Parameter]:
 
 
 def parse_params(text: str) -> dict[str, str]:
-    """"name=value;name=value" (the command line's repeated --filter-param joined by ';') → {name: value}."""
+    """"name=value;name=value" (the command line's repeated --filter-param joined by ';', a file's or a spec's
+    text) → {name: value}. ValueError for an item that is not name=value, and for a name given twice (the last
+    would silently win): the one check of duplicate parameters, wherever the text comes from (config.json, a TOML
+    run or study file, `Filter(params=...)`); an override is a merge of two mappings, never a joined text."""
     out: dict[str, str] = {}
     for item in (text or "").split(";"):
         if not item.strip():
@@ -202,7 +239,10 @@ def parse_params(text: str) -> dict[str, str]:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():
             raise ValueError(f"parameters must be name=value, got {item.strip()!r}")
-        out[name.strip()] = value.strip()
+        name, value = name.strip(), value.strip()
+        if name in out:
+            raise ValueError(f"parameter {name} is given twice ({name}={out[name]}, then {name}={value}); give it once")
+        out[name] = value
     return out
 
 

@@ -91,6 +91,10 @@ physics_dt <= 1e-3 s, control_rate <= 1e4 Hz, frame_rate <= 1000 Hz, amplitude w
 | camera.tag_size_m                    | ≤ 0.5 m              | millimetres                  |
 | pressure.*                           | within ±3276.7 hPa (the protocol's range, `hardware.protocol`) | pascals |
 | emulator.q0_rad                      | within ±π rad        | degrees                      |
+| environment.h[k] / ‖H[k]‖ (a facet's distance from the base) | ≤ 10 m | millimetres      |
+
+width and height of the virtual camera are at most its render's framebuffer, the
+vocabulary's declared width × height (1280 × 720 px, as the camera_loop scenario's bound).
 
 Pressure limits must hold 0 hPa (u_min ≤ 0 ≤ u_max per segment): VENT, the safe action,
 sets 0 hPa, and the emulated valves start there. physics_dt must divide the emulated
@@ -126,12 +130,13 @@ import numpy as np
 from controllers.cbf import get_tuning
 from controllers.params import RobotParams, per_segment, reference_robot
 from controllers.qp import available_backends
+from controllers.registry import spec_file
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
 from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
 from perception.plane import PlaneCalibration
 from vocabulary.files import read_settings_file
 from vocabulary.sections import setting_fields, setting_section
-from vocabulary.settings import Bound, SettingError, check_number, positive
+from vocabulary.settings import Bound, SettingError, check_number, positive, setting
 
 VIRTUAL_CAMERA = "virtual"
 EMULATED_PORT = "emulated"
@@ -140,6 +145,7 @@ ROW_SCALINGS = ("paper", "unit")
 Scalars = float | tuple[float, ...]
 EMULATOR_COMMAND_PERIOD_S = 2e-3  # s, the emulated board's command resolution (softcbf_mj.emulate)
 NOUN = "hardware configuration"
+MAX_FACET_DISTANCE_M = 10.0  # a facet's distance from the base, h_k / |H_k| (module docstring: plausibility bounds)
 
 LEGACY_KEYS: dict[str, str] = {
     "robot.params": "robot",
@@ -232,6 +238,10 @@ class CameraConfig:
         _choice("detector", self.detector, DETECTORS)
         _number("camera.startup_timeout_s", self.startup_timeout_s, positive("s"), 600.0, "s")
         if self.is_virtual:
+            for key in ("width", "height"):
+                most = setting(key).default  # the virtual camera's framebuffer (module docstring)
+                _require(getattr(self, key) <= most, key, f"must be <= {most} px for the virtual camera (its render's "
+                         f"framebuffer), got {getattr(self, key)}")
             _require(self.max_hold_s > 1.0 / self.frame_rate, "max_hold_s",
                      f"must exceed one frame period (1/frame_rate = {1.0 / self.frame_rate:.3g} s), got {self.max_hold_s}; "
                      "otherwise every estimate goes stale between frames")
@@ -267,6 +277,10 @@ class EnvironmentConfig:
         for k, value in enumerate(self.h):
             _require(value > 0, f"environment.h[{k}]", f"must be > 0 m: the arm's base (the origin) must lie inside the free "
                      f"space H r <= h, got {value:g}")
+            distance = value / math.hypot(*self.H[k])
+            _require(distance <= MAX_FACET_DISTANCE_M, f"environment.h[{k}]",
+                     f"must put facet {k} within {MAX_FACET_DISTANCE_M:g} m of the arm's base (h[{k}] / |H[{k}]| <= "
+                     f"{MAX_FACET_DISTANCE_M:g} m; a value in millimetres?), got {distance:g} m")
         _choice("row_scaling", self.row_scaling, ROW_SCALINGS)
 
 
@@ -524,10 +538,8 @@ class HardwareConfig:
 
     def plugin_spec(self, spec: str) -> str:
         """A filter or nominal spec with its FILE.py made relative to this file's folder (names unchanged)."""
-        where, sep, name = spec.rpartition(":")
-        if sep and where.endswith(".py"):
-            return f"{self.resolve(where)}:{name}"
-        return spec
+        found = spec_file(spec)
+        return spec if found is None else f"{self.resolve(str(found[0]))}:{found[1]}"
 
     def resolve(self, path: str) -> Path:
         """`path` relative to the configuration file's folder (unchanged when absolute)."""

@@ -2,7 +2,8 @@
 
 docs/run-outputs.md's spelling of `softcbf list` / `softcbf run NAME --out DIR ...`: the same
 implementation (`scenarios.run.run_scenario`), the same outputs, errors and exit codes,
-except that --out is required here.
+except that --out is required here. A closed stdout (`python -m scenarios --list | head`) ends
+quietly with 141 (scenarios.pipe).
 """
 
 from __future__ import annotations
@@ -11,10 +12,16 @@ import argparse
 import sys
 
 from scenarios import registry
+from scenarios.pipe import quiet_on_closed_pipe
 from scenarios.run import UsageError, describe, exit_code, run_scenario
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of `python -m scenarios`; returns the exit code (module docstring)."""
+    return quiet_on_closed_pipe(lambda: command_line(argv))
+
+
+def command_line(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(prog="python -m scenarios", description="Run a registered softcbf-mj scenario.",
                                      allow_abbrev=False)
     parser.add_argument("name", nargs="?", help="scenario name (see --list)")

@@ -24,16 +24,23 @@ folder without the report and the recording (`scenarios.common.data_only`) and r
 run's time series loaded (`softcbf_mj.runio.load_timeseries`: columns and units);
 `save(result, out_dir)` writes those files into a new run folder (the same checks and lock as
 `softcbf run --out`) and builds the report and the recording from it, as `softcbf run` does
-after its last run. One implementation of the outputs: the API writes nothing `softcbf run`
+after its last run. Every file stays inside the folder: a relative path with no "..", no "."
+and no backslash (`folder_path`; anything else is a ValueError before anything is written).
+The save is all or nothing: the folder is built in a temporary folder beside it (a
+subfolder of the same name, so the report's title is the folder's), and only when it is
+complete is `out_dir` prepared (checked, locked, emptied with `overwrite`) and the files
+renamed into it; a failure before that leaves `out_dir` as it was and removes the temporary
+folder and any parent folder the save created. One implementation of the outputs: the API writes nothing `softcbf run`
 does not (tests/test_spec_api.py compares the two folders).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
@@ -44,7 +51,7 @@ from scenarios.common import data_only
 from scenarios.mujoco_contact import MujocoContact
 from scenarios.paper_sim import PaperSim
 from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm
-from softcbf_mj.runio import SUMMARY_FILE, load_timeseries, prepare_out_dir, release_out_dir
+from softcbf_mj.runio import RUN_MARKER, SUMMARY_FILE, load_timeseries, prepare_out_dir, release_out_dir
 
 __all__ = ["Camera", "CameraLoop", "Filter", "Model", "MujocoContact", "Nominal", "PaperSim", "Plate", "Result", "Run",
            "TrueArm", "run", "save"]
@@ -88,21 +95,52 @@ def run(spec: Any) -> Result:
                   {k: dict(v[1]) for k, v in loaded.items()}, files)
 
 
+def folder_path(name: object) -> PurePosixPath:
+    """`name` as a file's path inside a run folder: a non-empty relative POSIX path with no "..", "." or empty part,
+    no backslash, not the folder's marker; ValueError naming it otherwise (module docstring)."""
+    path = PurePosixPath(name) if isinstance(name, str) and name and "\\" not in name and "\0" not in name else None
+    if (path is None or not path.parts or path.is_absolute() or path.as_posix() != name or ".." in path.parts
+            or name == RUN_MARKER):
+        raise ValueError(f"a saved file must be a path inside the run folder (relative, no '..'), got {name!r}")
+    return path
+
+
 def save(result: Result, out_dir: str | Path, overwrite: bool = False) -> Path:
     """Write `result`'s run folder into `out_dir` (refused if it exists and is not empty, unless `overwrite`
-    replaces a run folder's contents: `softcbf_mj.runio.prepare_out_dir`), then its report and recording;
-    returns the folder."""
+    replaces a run folder's contents: `softcbf_mj.runio.prepare_out_dir`), then its report and recording, all or
+    nothing (module docstring); returns the folder."""
     from softcbf_mj.recording import write_recording  # rerun and matplotlib: imported when a folder is saved
     from softcbf_mj.report import write_report
 
-    out = prepare_out_dir(out_dir, overwrite=overwrite)
+    files = {folder_path(name): data for name, data in result.files.items()}
+    if str(out_dir) == "":
+        raise ValueError("save needs a folder to write, got ''")
+    target = Path(out_dir).absolute()
+    created = [p for p in (target.parent, *target.parent.parents) if not p.exists()]  # deepest first
     try:
-        for name, data in result.files.items():
-            path = out / name
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(data)
-        write_report(out)
-        write_recording(out)
-    finally:
-        release_out_dir(out)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix=".softcbf-save-", dir=target.parent) as tmp:
+            staged = prepare_out_dir(Path(tmp) / target.name)
+            try:
+                for name, data in files.items():
+                    (staged / name).parent.mkdir(parents=True, exist_ok=True)
+                    (staged / name).write_bytes(data)
+                write_report(staged)
+                write_recording(staged)
+            finally:
+                release_out_dir(staged)
+            out = prepare_out_dir(out_dir, overwrite=overwrite)
+            try:
+                for entry in staged.iterdir():
+                    if entry.name != RUN_MARKER:
+                        os.replace(entry, out / entry.name)
+            finally:
+                release_out_dir(out)
+    except BaseException:
+        for folder in created:
+            try:
+                folder.rmdir()
+            except OSError:  # not empty: something else wrote there meanwhile
+                break
+        raise
     return out

@@ -29,6 +29,16 @@ says, one line each, where a replay departs from that: every version config.json
 (softcbf_mj, mujoco, python, numpy, ..., platform; `softcbf_mj.runio.versions`) that
 differs from the running one, a config.json that records none, and a seed that the
 command line changes.
+
+A replay runs the same filter and nominal code, or refuses: config.json records, for a
+`FILE.py:Factory` spec, the file's absolute path and SHA-256 ("sources",
+controllers.registry.recorded_sources). `replay_sources` points the replay's spec at that
+recorded file (not at whatever the relative path names in the folder the replay starts from)
+and refuses, one line, when the file is missing or its content differs from the recorded
+hash; `allow_changed` (`softcbf run --allow-changed-filter`) runs the changed file instead,
+with a warning. A config.json written before the hash was recorded resolves the relative path
+against its recorded working folder ("cwd") and warns that the file cannot be checked. A spec
+that the command line replaces (`--filter other.py:F`) is not checked.
 """
 
 from __future__ import annotations
@@ -38,6 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from controllers.registry import SPEC_SETTINGS, file_sha256, spec_file
 from vocabulary.files import read_settings_file
 from vocabulary.sections import joined
 from vocabulary.settings import SETTINGS, flat_form
@@ -53,6 +64,8 @@ class RunConfig:
     params: dict[str, Any]
     versions: dict[str, Any] | None = None  # a run folder's config.json: the versions it recorded (None: a TOML file)
     path: Path | None = None
+    sources: dict[str, dict[str, str]] | None = None  # config.json's "sources": setting → {"path", "sha256"}
+    cwd: str | None = None  # config.json's "cwd": the working folder the recorded run started in
 
 
 def _from_toml(path: Path, data: Mapping[str, Any]) -> RunConfig:
@@ -71,7 +84,50 @@ def _from_run_folder(path: Path, data: Mapping[str, Any]) -> RunConfig:
     versions = data.get("versions", {})
     if not isinstance(versions, Mapping):
         raise ValueError(f"run configuration {path}: \"versions\" must be an object {{name: version}}, got {versions!r}")
-    return RunConfig(data[SCENARIO_KEY], dict(params), dict(versions), path)
+    sources = data.get("sources", {})
+    if not isinstance(sources, Mapping) or not all(
+            isinstance(r, Mapping) and isinstance(r.get("path"), str) and isinstance(r.get("sha256"), str)
+            for r in sources.values()):
+        raise ValueError(f"run configuration {path}: \"sources\" must be an object {{setting: {{\"path\", \"sha256\"}}}}, "
+                         f"got {sources!r}")
+    cwd = data.get("cwd")
+    return RunConfig(data[SCENARIO_KEY], dict(params), dict(versions), path, {k: dict(v) for k, v in sources.items()},
+                     cwd if isinstance(cwd, str) else None)
+
+
+def replay_sources(config: RunConfig, params: Mapping[str, Any], allow_changed: bool = False) -> tuple[dict[str, Any], list[str]]:
+    """`config.params` with each filter or nominal `FILE.py:Factory` spec that the replay keeps (`params`: the final
+    parameters) pointing at the recorded file, and the warnings, one line each (module docstring). ValueError, one
+    line, when that file is missing or differs from the recorded SHA-256 (unless `allow_changed`)."""
+    base, lines = dict(config.params), []
+    for key in SPEC_SETTINGS:
+        found = spec_file(config.params.get(key))
+        if found is None or params.get(key) != config.params[key]:
+            continue
+        written, factory = found
+        record = (config.sources or {}).get(key)
+        if record is not None:
+            path = Path(record["path"])
+        elif config.cwd is not None and not written.is_absolute():
+            path = Path(config.cwd) / written
+        else:
+            path = written
+        if not path.is_file():
+            raise ValueError(f"run configuration {config.path}: the {key} file {path} of the recorded run "
+                             f"({config.params[key]}) no longer exists")
+        if record is None:
+            lines.append(f"warning: {config.path} records no SHA-256 of the {key} file {path}: the replay runs it as it "
+                         "is now, which may not be the code of the recorded run")
+        elif (now := file_sha256(path)) != record["sha256"]:
+            if not allow_changed:
+                raise ValueError(f"run configuration {config.path}: the {key} file {path} changed since the run was "
+                                 f"recorded (SHA-256 {record['sha256'][:12]}... recorded, {now[:12]}... now); "
+                                 "--allow-changed-filter replays it as it is now")
+            lines.append(f"WARNING: --allow-changed-filter: the {key} file {path} changed since the run was recorded "
+                         f"(SHA-256 {record['sha256'][:12]}... recorded, {now[:12]}... now): this replay is NOT the "
+                         "recorded run")
+        base[key] = f"{path}:{factory}"
+    return base, lines
 
 
 def replay_warnings(config: RunConfig, params: Mapping[str, Any], running: Mapping[str, Any]) -> list[str]:

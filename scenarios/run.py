@@ -156,12 +156,11 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
     for name, option in repeated.items():
         items, text = values.pop(f"{name}_items"), values[name]
         given_here = ([(option_name(name), text)] if text else []) + [(option, item) for item in items]
-        try:
-            command_line_params(given_here)
+        try:  # the command line's parameters override the file's: a merge (parse_params refuses a name twice)
+            here, recorded = command_line_params(given_here), given.get(name, params[name].default) if text is None else ""
+            values[name] = ";".join(f"{k}={v}" for k, v in {**parse_params(recorded), **here}.items()) if here else recorded
         except ValueError as exc:
             raise UsageError(str(exc)) from None
-        values[name] = ";".join(part for part in (given.get(name, params[name].default) if text is None else text, *items)
-                                if part)
     return values
 
 

@@ -29,7 +29,8 @@ display is present, and says so when it skips it. `python -m scenarios` is the s
 (`scenarios.config_file`: a TOML file, or a run folder's config.json, which replays that
 run, with one warning line on stderr for each recorded version that differs from the
 running one and for a --seed that changes the recorded seed: such a replay is not
-bit-identical); parameters on the command line override the file's, and a SCENARIO given
+bit-identical; a filter or nominal FILE.py runs from its recorded location and is refused
+when its SHA-256 differs from the recorded one, unless --allow-changed-filter); parameters on the command line override the file's, and a SCENARIO given
 as well must be the file's. `softcbf run SCENARIO --help` lists the scenario's parameters with
 their meaning, unit, default and valid values (docs/parameters.md).
 
@@ -42,7 +43,8 @@ Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the
 type, not finite or out of range, a duration whose time series would not fit in memory,
 an --out that is in use, not writable, or non-empty without --overwrite, a folder that is
 not a run folder, a time series that cannot be read), with one line on stderr naming the
-parameter (or file) and the valid values; 130 interrupted. Scenarios check every
+parameter (or file) and the valid values; 130 interrupted; 141, silently, when stdout's reader
+has gone (`softcbf list | head`: scenarios.pipe). Scenarios check every
 parameter before they write anything; a run that stops before its first finished tuning
 (rejected, failed or interrupted) leaves no output behind (folders it created are
 removed, one that existed is emptied), so the corrected command is not refused. Ctrl-C
@@ -76,7 +78,8 @@ from typing import Any
 import softcbf_mj
 from controllers import registry as controllers_registry
 from scenarios import get as get_scenario, registry
-from scenarios.config_file import load_run_config, replay_warnings
+from scenarios.config_file import load_run_config, replay_sources, replay_warnings
+from scenarios.pipe import quiet_on_closed_pipe
 from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
 from softcbf_mj.runio import RunFolderError, versions
 
@@ -148,6 +151,9 @@ def _run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, metavar="FILE",
                         help="run configuration: a TOML file (scenario = NAME and parameters) or a run folder's "
                              "config.json (replays that run); command-line parameters override it")
+    parser.add_argument("--allow-changed-filter", action="store_true",
+                        help="replay a config.json even though its filter or nominal FILE.py changed since the run "
+                             "(refused without it; the replay then warns that it is not the recorded run)")
     parser.add_argument("--out", help="output folder (default runs/<scenario>-<time>; refused if it exists and is not empty)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the contents of an existing run folder (one written by softcbf)")
@@ -171,12 +177,18 @@ def _run(args: argparse.Namespace, extra: list[str]) -> int:
         return _run_help(args, name)
     if name is None:
         raise UsageError("softcbf run: give a scenario name (softcbf list) or --config FILE")
-    if args.config is not None and config.versions is not None:  # a replay: say where it departs from the recorded run
+    replay = args.config is not None and config.versions is not None
+    if args.allow_changed_filter and not replay:
+        raise UsageError("--allow-changed-filter applies to a replay: softcbf run --config RUN_DIR/config.json")
+    if replay:  # run the recorded filter and nominal files, and say where the replay departs from the recorded run
         try:
             params = scenario_parameters(get_scenario(name), tokens, base)
+            base, source_lines = replay_sources(config, params, args.allow_changed_filter)
         except KeyError as exc:
             raise UsageError(exc.args[0]) from None
-        for line in replay_warnings(config, params, versions()):
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        for line in [*replay_warnings(config, params, versions()), *source_lines]:
             print(line, file=sys.stderr)
     return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base)
 
@@ -277,7 +289,8 @@ def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of `softcbf`; returns the exit code (0, 2 usage error, 130 interrupted)."""
+    """Entry point of `softcbf`; returns the exit code (0, 2 usage error, 130 interrupted, 141 stdout's reader gone:
+    `softcbf list | head`, scenarios.pipe)."""
     tokens = sys.argv[1:] if argv is None else list(argv)
     first = next((token for token in tokens if not token.startswith("-")), None)  # the command (the top level has no values)
     parser = build_parser(first if first in COMMANDS else None)
@@ -289,7 +302,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"softcbf {command.name}: unrecognised arguments: {' '.join(extra)}")
         return command.handler(args, extra)
 
-    return exit_code(run)
+    return quiet_on_closed_pipe(lambda: exit_code(run))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Layout of a run folder DIR:
     DIR/config.json                  {"scenario", "params", "seed", "versions", "command",
-                                      "cwd", "started"}: written once, when the run starts
+                                      "cwd", "started", "sources"}: written once, when the run starts
     DIR/summary.json                 {"scenario", "params", "versions", "scene", "runs": [...]}
     DIR/timeseries/<run>.npz         one NumPy .npz archive per run (format below)
     DIR/frames/<run>/frames.json     optional camera frames of a run (format below)
@@ -67,6 +67,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from controllers.registry import recorded_sources
 from controllers.safe_set import LinearStiffness, PowerLawStiffness, StiffnessLaw
 
 CONFIG_FILE = "config.json"
@@ -325,7 +326,8 @@ def load_timeseries(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
 def write_config(out_dir: Path, scenario: str, params: Mapping[str, Any]) -> dict[str, Any]:
     """Write DIR/config.json: every parameter, the seed (params["seed"], None without one),
     the versions, the command line (this process's, as the shell received it), the working folder
-    and the start time (UTC, ISO 8601); return what it wrote."""
+    and the start time (UTC, ISO 8601), and for a filter or nominal FILE.py:Factory its file's absolute path and
+    SHA-256 (controllers.registry.recorded_sources: a replay checks it); return what it wrote."""
     config = {
         "scenario": scenario,
         "params": dict(params),
@@ -334,6 +336,7 @@ def write_config(out_dir: Path, scenario: str, params: Mapping[str, Any]) -> dic
         "command": shlex.join(sys.orig_argv),
         "cwd": os.getcwd(),
         "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "sources": recorded_sources(params),
     }
     write_json(Path(out_dir) / CONFIG_FILE, config)
     return config

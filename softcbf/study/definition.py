@@ -90,6 +90,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from controllers.registry import parse_params
 from scenarios import get as get_scenario
 from vocabulary.files import read_settings_file
 from vocabulary.sections import joined
@@ -294,6 +295,12 @@ class Study:
         object.__setattr__(self, "fixed", {k: _named(f"fixed.{k}", scenario.coerce, k, v) for k, v in self.fixed.items()})
         if set(self.fixed) & {d.parameter for d in self.vary if d.parameter.startswith(FILTER_PARAM_PREFIX)}:
             raise ValueError("filter_param.NAME may only be varied (fixed filter parameters go in filter_params)")
+        fixed_params = _named(FILTER_PARAMS, parse_params, self.fixed.get(FILTER_PARAMS, ""))  # a name twice: refused
+        twice = sorted(set(fixed_params) & {d.parameter.removeprefix(FILTER_PARAM_PREFIX) for d in self.vary
+                                            if d.parameter.startswith(FILTER_PARAM_PREFIX)})
+        if twice:
+            raise ValueError(f"filter parameter(s) {', '.join(twice)} are given twice (in filter_params and varied as "
+                             f"filter_param.NAME); give each once")
         for dist in self.vary:
             if dist.parameter.startswith(FILTER_PARAM_PREFIX):
                 continue  # the filter checks its own parameters when it is built
