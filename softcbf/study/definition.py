@@ -100,7 +100,7 @@ SEED_PARAMETER = "seed"  # the scenario parameter that receives scenario_seed
 FILTER_PARAM_PREFIX = "filter_param."  # vary."filter_param.NAME": one parameter of the filter
 FILTER_PARAMS = "filter_params"  # the scenario parameter they are folded into
 _STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description",
-               "filter", "filter_params", "objective"}
+               "filter", "filter_params", "isolate", "objective"}
 DEFAULT_OBJECTIVE = "rho_min_meas"  # the summary metric `study falsify` minimises (softcbf.study.falsify)
 MAX_SAMPLES = 2**63 - 1  # sample indices are int64 columns
 MAX_GRID_POINTS = 1_000_000  # per distribution: its grid is held in memory
@@ -406,7 +406,7 @@ class Study:
             kind = spec.pop("dist")
             vary.append(Distribution(parameter, kind, **spec))
         fixed = dict(data.get("fixed", {}))
-        for key in ("filter", FILTER_PARAMS):
+        for key in ("filter", FILTER_PARAMS, "isolate"):  # isolate: the filter and nominal in their own process
             if key in data:
                 if key in fixed:
                     raise ValueError(f"{key} is given twice (top level and fixed)")
