@@ -4,8 +4,9 @@ In-process, a filter is Python code in the testbed's interpreter: it can patch a
 (`closedloop.kernels`, numpy, the step itself), reach the step's arrays through `gc` and
 change a frozen object with `object.__setattr__`. No check written in Python holds against
 that. Isolation puts the user's code where it cannot reach the plant, the clip or the record:
-a child process (multiprocessing's "spawn" start: a fresh interpreter, no memory shared with
-the testbed, its working directory and sys.path those of the parent at start) that is given
+a child process (a fresh interpreter, `python -c` started by subprocess: no memory shared with
+the testbed, its working directory and sys.path those of the parent at start; not a
+multiprocessing child, so a study's daemonic Dask worker may start one too) that is given
 the filter and nominal specs, their parameters and a copy of the `FilterContext` (pickled
 parent → child; a context's `dynamics`, when it has one, is rebuilt there from the robot: the
 child's own model), builds them with the registry (`controllers.registry`) and serves calls.
@@ -35,17 +36,17 @@ same error. Load-time faults (a bad spec, unknown parameters, a raising factory,
 ends while building) raise `PluginLoadError` (one line; the command exits 2).
 
 Lifetime. The child is ended when its proxies are gone (a `weakref.finalize` of the `Host`: the
-end of the run that built them), by `Host.close()`, and at the parent's exit (the finalizer's
-atexit; multiprocessing ends its daemonic children too). Ending it closes the pipe and, when
+end of the run that built them), by `Host.close()`, and at the parent's exit (an atexit hook,
+`_end_all`). Ending it closes the socket and, when
 the child does not leave within `END_WAIT_S`, kills it (SIGKILL: a child that ignores SIGTERM
 or hangs). The child leaves by `os._exit` when its pipe closes (threads the user started do
 not keep it alive) and a watchdog thread ends it when its parent is gone (a parent killed by
 SIGKILL runs no atexit). SIGINT is ignored in the child: Ctrl-C interrupts the parent, which
-ends the child.
+ends the child. Requests (parent → child) are pickled: the child trusts its parent.
 
 Assumptions and limits. The child runs as the same user: isolation is a memory boundary, not
 a sandbox. It can still read and write the user's files, kill the parent with a signal, or use
-the network; a daemonic child cannot start multiprocessing children of its own. `filter_us`
+the network. `filter_us`
 in isolated mode includes the round trip (what the step waited). The parent imports no user
 module: a spec's checks and labels (a factory's `run_label`) run in an isolated process too
 (`check_in_child`). The cost per call is measured by tools/bench_isolation.py
@@ -59,25 +60,27 @@ import dataclasses
 import hashlib
 import json
 import math
-import multiprocessing
-import multiprocessing.util  # its exit hook is registered before ours, so ours runs first (`_end_all`)
 import os
 import pickle
 import signal
+import socket
 import struct
+import subprocess
+import sys
 import threading
 import time
 import traceback
 import weakref
 from collections.abc import Callable, Mapping, Sequence
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from closedloop.step import RESERVED_COLUMNS, takes_keyword
 from controllers.errors import ControllerInputError
 from controllers.registry import PluginLoadError
-from closedloop.step import RESERVED_COLUMNS, takes_keyword
 from controllers.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, DiagnosticLayout, Estimate, EstimateBatch,
                                        FilterContext, FilterOutput, FlatDiagnostics, OutputCheck, checked_batch_arrays,
                                        read_only, real_vector)
@@ -87,7 +90,7 @@ CALL_DEADLINE_S = 60.0  # s: any later call; beyond it the child is ended and th
 END_WAIT_S = 1.0  # s: how long an ended child may take to leave before it is killed
 MAX_REPLY_BYTES = 64 * 2**20  # a reply longer than this is a protocol fault
 WATCHDOG_S = 0.2  # s: how often the child checks that its parent is alive
-START_METHOD = "spawn"  # a fresh interpreter: nothing of the parent's memory, no forked threads
+CHILD_MAIN = "import sys; from closedloop.isolation import serve; serve(int(sys.argv[1]))"  # the child's program
 _LENGTH = struct.Struct("<I")
 _KINDS = {"f": float, "b": bool}  # a reply array's kinds: float64 values, bools as 0.0/1.0
 
@@ -169,25 +172,25 @@ _LIVE: set[weakref.finalize] = set()  # the finalizers of the hosts started in t
 
 
 def _end_all() -> None:
-    """At the parent's exit: end every isolated process still running (before multiprocessing's own exit hook,
-    which would wait forever for a hung child that ignores SIGTERM)."""
+    """At the parent's exit: end every isolated process still running."""
     for finalizer in list(_LIVE):
         finalizer()
 
 
-atexit.register(_end_all)  # registered after multiprocessing.util's exit hook (imported above): runs before it
+atexit.register(_end_all)
 
 
-def _ended(process: Any, conn: Any) -> None:
-    """End the child: close its pipe (it leaves by os._exit), kill it if it is still there after END_WAIT_S."""
+def _ended(process: subprocess.Popen, conn: Connection) -> None:
+    """End the child: close its socket (it leaves by os._exit), kill it if it is still there after END_WAIT_S."""
     try:
         conn.close()
     except OSError:
         pass
-    process.join(END_WAIT_S)
-    if process.is_alive():
+    try:
+        process.wait(END_WAIT_S)
+    except subprocess.TimeoutExpired:
         process.kill()
-        process.join(END_WAIT_S)
+        process.wait()
 
 
 class Host:
@@ -199,22 +202,27 @@ class Host:
     request raises the same error)."""
 
     def __init__(self, plan: Plan, deadline_s: float = CALL_DEADLINE_S, build_deadline_s: float = BUILD_DEADLINE_S) -> None:
-        context = multiprocessing.get_context(START_METHOD)
-        self.conn, child_conn = context.Pipe()
-        self.process = context.Process(target=serve, args=(child_conn, plan), daemon=True, name="softcbf-isolated")
-        self.process.start()
-        child_conn.close()  # the child's end lives in the child only: its death is an EOF here
+        ours, theirs = socket.socketpair()
+        self.conn, child_fd = Connection(ours.detach()), theirs.detach()
+        root = str(Path(__file__).resolve().parents[1])  # where `closedloop` is imported from
+        path = os.pathsep.join([root, *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))])
+        try:
+            self.process = subprocess.Popen([sys.executable, "-c", CHILD_MAIN, str(child_fd)], pass_fds=(child_fd,),
+                                            stdin=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": path})
+        finally:
+            os.close(child_fd)  # the child's end lives in the child only: its death is an EOF here
         self.pid = self.process.pid
         self.deadline_s, self.next_deadline_s = deadline_s, build_deadline_s
         self.failure: IsolatedProcessError | None = None
         self.seq = 0
         self._finalizer = weakref.finalize(self, _ended, self.process, self.conn)
+        self.conn.send_bytes(pickle.dumps((list(sys.path), plan), protocol=pickle.HIGHEST_PROTOCOL))
         _LIVE.difference_update([f for f in _LIVE if not f.alive])
         _LIVE.add(self._finalizer)
 
     @property
     def alive(self) -> bool:
-        return self.failure is None and self.process.is_alive()
+        return self.failure is None and self.process.poll() is None
 
     def close(self) -> None:
         """End the child now (module docstring: lifetime)."""
@@ -228,10 +236,10 @@ class Host:
         return self.failure
 
     def _death(self) -> str:
-        self.process.join(END_WAIT_S)
-        code = self.process.exitcode
-        if code is None:
-            return "the isolated process closed its pipe"
+        try:
+            code = self.process.wait(END_WAIT_S)
+        except subprocess.TimeoutExpired:
+            return "the isolated process closed its socket"
         if code < 0:
             try:
                 name = signal.Signals(-code).name
@@ -493,7 +501,7 @@ class Served:
             return
         from controllers.registry import build_filter, build_nominal
 
-        context = plan.context
+        context = dataclasses.replace(plan.context)  # u_min, u_max read-only again (pickling does not keep the flag)
         if plan.with_dynamics:  # the child's own model of the robot (the parent's plant stays out of reach)
             from controllers.dynamics import PCCDynamics
 
@@ -578,10 +586,16 @@ def flat_diagnostics(output: FilterOutput) -> tuple[list, np.ndarray]:
     return entries, np.concatenate(values) if values else np.zeros(0)
 
 
-def serve(conn: Any, plan: Plan) -> None:
-    """The isolated process's main (module docstring): build `plan`, then answer requests until the pipe closes."""
+def serve(fd: int) -> None:
+    """The isolated process's main (module docstring): on the socket `fd`, take the parent's sys.path and the
+    `Plan`, build it, then answer requests until the socket closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_watchdog, args=(os.getppid(),), daemon=True).start()
+    conn = Connection(fd)
+    try:
+        sys.path[:], plan = pickle.loads(conn.recv_bytes())
+    except (EOFError, OSError):
+        os._exit(0)
     served = Served(plan)
     while True:
         try:

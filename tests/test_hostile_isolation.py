@@ -14,6 +14,7 @@ simulated time at 1 kHz); patches made in this process are undone by monkeypatch
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import pickle
 import subprocess
@@ -347,6 +348,21 @@ def test_isolated_no_process_outlives_its_parent(hostile, tmp_path, how):
         parent.kill()
     parent.wait(timeout=120)
     assert gone(child, 10.0)
+
+
+def isolated_nominal_in(queue) -> None:
+    """In a daemonic worker (as a Dask worker is): an isolated nominal's first command, into `queue`."""
+    _, nominals = isolate(FilterContext.for_robot(ROBOT, SAFE, 1e-3), [("none", {})], [NOMINAL])
+    queue.put(nominals[0](0.0, np.zeros(2), np.zeros(2)).tolist())
+
+
+def test_a_daemonic_worker_can_run_isolated_code():
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    worker = context.Process(target=isolated_nominal_in, args=(queue,), daemon=True)
+    worker.start()
+    assert queue.get(timeout=240) == [150.0, 150.0]
+    worker.join(60)
 
 
 # --- load-time faults, the wiring: --isolate, isolate = true in studies ---------------------------------------------
