@@ -115,9 +115,10 @@ def encode(header: dict[str, Any], arrays: Sequence[np.ndarray] = ()) -> bytes:
     specs, buffers = [], []
     for array in arrays:
         array = np.asarray(array)
-        specs.append([list(array.shape), "b" if array.dtype == bool else "f"])
+        specs.append(f'[[{",".join(map(str, array.shape))}],"{"b" if array.dtype == bool else "f"}"]')
         buffers.append(np.ascontiguousarray(array, dtype="<f8").tobytes())
-    head = json.dumps({**header, "arrays": specs}).encode("utf-8")
+    text = json.dumps(header)  # the header's own fields, then "arrays" written out (the same JSON, made faster)
+    head = f'{text[:-1]}{", " if len(text) > 2 else ""}"arrays": [{",".join(specs)}]}}'.encode("utf-8")
     return _LENGTH.pack(len(head)) + head + b"".join(buffers)
 
 
@@ -131,19 +132,21 @@ def decode(data: bytes) -> tuple[dict[str, Any], list[np.ndarray]]:
         raise ProtocolError(f"unreadable reply header ({type(exc).__name__})") from None
     if type(header) is not dict or type(header.get("arrays")) is not list:
         raise ProtocolError("a reply header must be an object with a list 'arrays'")
-    arrays, offset = [], 4 + size
-    for spec in header["arrays"]:
+    specs, total = header["arrays"], 0
+    for spec in specs:
         if (type(spec) is not list or len(spec) != 2 or type(spec[0]) is not list or len(spec[0]) > 2
                 or not all(type(d) is int and 0 <= d <= 2**20 for d in spec[0]) or spec[1] not in _KINDS):
             raise ProtocolError(f"bad array spec {str(spec)[:80]}")
-        count = math.prod(spec[0])
-        if offset + 8 * count > len(data):
-            raise ProtocolError("a reply shorter than its arrays")
-        values = np.frombuffer(data, dtype="<f8", count=count, offset=offset).astype(float).reshape(spec[0])
-        arrays.append(values != 0.0 if spec[1] == "b" else values)
-        offset += 8 * count
-    if offset != len(data):
-        raise ProtocolError("a reply longer than its arrays")
+        total += math.prod(spec[0])
+    if 4 + size + 8 * total != len(data):
+        raise ProtocolError(f"a reply of {len(data)} bytes for a header of {size} and {total} floats")
+    values = np.frombuffer(data, dtype="<f8", offset=4 + size).astype(float)  # one copy the parent owns
+    arrays, start = [], 0
+    for shape, kind in specs:
+        count = math.prod(shape)
+        array = values[start:start + count].reshape(shape)
+        arrays.append(array != 0.0 if kind == "b" else array)
+        start += count
     return header, arrays
 
 
@@ -497,6 +500,7 @@ class Served:
         self.nominals: list[Any] = []
         self.build_error: BaseException | None = None
         self.layouts: dict[int, tuple] = {}  # filter index → (its FlatDiagnostics' layout, the layout last sent)
+        self.checks: dict[int, OutputCheck] = {}  # filter index → its output check (as the step's, new at reset)
         if plan.context is None:  # a check-only child
             return
         from controllers.registry import build_filter, build_nominal
@@ -536,7 +540,10 @@ class Served:
             index, t, t_capture, q, qd, u_nom = args
             result = self.filters[index](Estimate(t, read_only(np.array(q)), read_only(np.array(qd)), t_capture),
                                          read_only(np.array(u_nom)))
-            output = OutputCheck(self.n, RESERVED_COLUMNS)(result)
+            check = self.checks.get(index)
+            if check is None:
+                check = self.checks[index] = OutputCheck(self.n, RESERVED_COLUMNS)
+            output = check(result)
             diagnostics = output.diagnostics
             if type(diagnostics) is FlatDiagnostics and diagnostics.layout is self.layouts.get(index, (None,))[0]:
                 layout, flat = None, np.array(diagnostics.values, dtype=float)  # the parent has this layout
@@ -560,6 +567,7 @@ class Served:
             return encode({"seq": seq, "status": "ok", "actions": actions}, [u, infeasible, rho])
         if op == "reset":
             index, rows = args
+            self.checks.pop(index, None)
             reset = getattr(self.filters[index], "reset", None)
             if callable(reset):
                 if rows is not None and takes_keyword(reset, "rows"):

@@ -169,7 +169,7 @@ class ControllerRun:
     label: str
     filter: str
     filter_params: dict[str, str]
-    isolate: bool = False
+    isolate: bool
 
 
 def controller_runs(spec: Filter, labels: Sequence[str] | None = None) -> list[ControllerRun]:
