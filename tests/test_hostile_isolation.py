@@ -416,6 +416,19 @@ def test_isolate_on_every_scenario_keeps_the_clip_and_records_the_fault(tmp_path
     assert code == FILTER_FAULT and summary["fault"]["type"] == "SystemExit" and summary["fault"]["where"] == "filter"
 
 
+def test_isolate_true_in_a_run_file_and_its_config_json_replay(tmp_path, hostile, undo):
+    from softcbf.cli import main
+
+    config = tmp_path / "run.toml"
+    config.write_text(f'scenario = "paper_sim"\nisolate = true\nfilter = "{hostile}:GcLimits"\nduration = 0.05\n'
+                      f'pressure_limits = true\nprogress = false\n', encoding="utf-8")
+    for source, out in ((config, tmp_path / "first"), (tmp_path / "first" / "config.json", tmp_path / "replay")):
+        assert main(["run", "--config", str(source), "--out", str(out)]) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        series, _ = load_timeseries(out / summary["runs"][0]["timeseries"])
+        assert summary["params"]["isolate"] is True and np.all(np.abs(series["u"]) <= LIMIT)
+
+
 def test_a_study_with_isolate_true_runs_its_batch_isolated(tmp_path, hostile, undo):
     from softcbf.study.definition import Study
 

@@ -13,7 +13,8 @@ A study runs one registered scenario (`scenarios`, docs/run-outputs.md) many tim
   varies one filter parameter (float unless dist = "choice"), folded into the sample's
   `filter_params` after the fixed ones; to compare filters, set `tuning_parameter =
   "filter"` and list the filter specs in `tunings` (each with its own defaults; fix
-  the paper filter's `tunings` to one preset);
+  the paper filter's `tunings` to one preset); `isolate = true` (top level, or in `fixed`)
+  runs the filter and the nominal in a process of their own (closedloop.isolation);
 - `sampling`: "monte_carlo" (`draws` seeded draws) or "grid" (the Cartesian product of
   every distribution's grid, the first parameter varying slowest); `seed`;
 - `objective` (default "rho_min_meas"): the summary metric (a column of the rows) that
