@@ -199,12 +199,13 @@ def _ended(process: subprocess.Popen, conn: Connection) -> None:
 class Host:
     """One isolated process hosting filters and nominals (module docstring): start it, send requests, decode replies.
 
-    `request(message, where)` sends a pickled message and returns the decoded reply of status "ok",
+    `request(message)` sends a pickled message and returns the decoded reply of status "ok",
     raises ControllerInputError (status "refused"), the child's exception (status "error") or
     IsolatedProcessError (no reply, a dead child, a bad reply: the child is ended, and every later
     request raises the same error)."""
 
-    def __init__(self, plan: Plan, deadline_s: float = CALL_DEADLINE_S, build_deadline_s: float = BUILD_DEADLINE_S) -> None:
+    def __init__(self, plan: Plan, deadline_s: float = CALL_DEADLINE_S,
+                 build_deadline_s: float = BUILD_DEADLINE_S) -> None:
         ours, theirs = socket.socketpair()
         self.conn, child_fd = Connection(ours.detach()), theirs.detach()
         root = str(Path(__file__).resolve().parents[1])  # where `closedloop` is imported from
@@ -303,7 +304,7 @@ def raise_at(error: BaseException, location: str) -> None:
     the step's fault names that code (`closedloop.step.FilterFault.location`); the file is not read or run:
     its name and line only label the one-statement frame that raises."""
     where, _, line = location.rpartition(":")
-    if where and line.isdigit() and 0 < int(line) < 10**7:
+    if where and "\0" not in where and line.isdigit() and 0 < int(line) < 10**7:
         code = compile("raise error", where, "exec").replace(co_firstlineno=int(line))
         exec(code, {"error": error})  # noqa: S102 - fixed code: raise `error`
     raise error
