@@ -416,6 +416,13 @@ def test_isolate_on_every_scenario_keeps_the_clip_and_records_the_fault(tmp_path
     assert code == FILTER_FAULT and summary["fault"]["type"] == "SystemExit" and summary["fault"]["where"] == "filter"
 
 
+def test_a_scenario_run_ends_its_isolated_process(tmp_path, hostile):
+    pid_file = tmp_path / "pid"
+    code, _ = _run(tmp_path, "--filter", f"{hostile}:Thread", "--filter-param", f"pid_file={pid_file}",
+                   "--duration", "0.05")
+    assert code == 0 and gone(int(pid_file.read_text()))  # its non-daemon thread did not keep it
+
+
 def test_isolate_true_in_a_run_file_and_its_config_json_replay(tmp_path, hostile, undo):
     from softcbf.cli import main
 
