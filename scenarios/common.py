@@ -44,8 +44,8 @@ from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import numpy as np
 
-from closedloop.monitor import SafetyMonitor
 from closedloop.isolation import check_in_child, isolate
+from closedloop.monitor import SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, write_fault_log
 from controllers.params import RobotParams, reference_robot
 from controllers.registry import (FILTERS, NOMINALS, build_filter, build_nominal, check_filter, check_nominal, label,
