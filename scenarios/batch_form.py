@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from closedloop.isolation import isolate
 from controllers.registry import build_filter, build_nominal
 from controllers.safety_filter import FilterContext
 from scenarios.common import ControllerRun
@@ -35,9 +36,14 @@ def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterConte
     if len(nominal_kwargs) != n_sims or np.shape(q0) != (n_sims, plant.n_segments):
         raise ValueError(f"nominal_kwargs and q0 must hold one entry per simulation ({n_sims}), got "
                          f"{len(nominal_kwargs)} and q0 of shape {np.shape(q0)}")
-    one = build_filter(run.filter, run.filter_params, context.copy())
-    filters = one if callable(getattr(one, "filter_batch", None)) else [
-        build_filter(run.filter, run.filter_params, context.copy()) for _ in range(n_sims)]
-    nominals = [build_nominal(nominal, kwargs, context.copy()) for kwargs in nominal_kwargs]
+    if run.isolate:  # one isolated process hosts the batch's filters and nominals (closedloop.isolation)
+        hosted, nominals = isolate(context, [(run.filter, run.filter_params)], [(nominal, kw) for kw in nominal_kwargs],
+                                   copies=n_sims)
+        filters = hosted[0] if callable(getattr(hosted[0], "filter_batch", None)) else hosted
+    else:
+        one = build_filter(run.filter, run.filter_params, context.copy())
+        filters = one if callable(getattr(one, "filter_batch", None)) else [
+            build_filter(run.filter, run.filter_params, context.copy()) for _ in range(n_sims)]
+        nominals = [build_nominal(nominal, kwargs, context.copy()) for kwargs in nominal_kwargs]
     result = run_batch_closed_loop(plant, filters, nominals, context, duration, q0)
     return [{**result.run(b), "wall_s": result.wall_s / n_sims, "batch_size": n_sims} for b in range(n_sims)]

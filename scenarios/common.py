@@ -44,10 +44,12 @@ from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import numpy as np
 
+from closedloop.isolation import check_in_child, isolate
 from closedloop.monitor import SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, write_fault_log
 from controllers.params import RobotParams, reference_robot
-from controllers.registry import build_filter, build_nominal, check_filter, check_nominal, label, parse_params
+from controllers.registry import (FILTERS, NOMINALS, build_filter, build_nominal, check_filter, check_nominal, label,
+                                  parse_params)
 from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
 from controllers.safety_filter import Estimate, FilterContext
@@ -161,20 +163,23 @@ PAPER_FILTER = "paper-cbf"
 
 @dataclass(frozen=True)
 class ControllerRun:
-    """One run's controller under test: its label (summary.json's "tuning"), filter spec and parameters."""
+    """One run's controller under test: its label (summary.json's "tuning"), filter spec and parameters, and
+    whether the filter and the nominal run isolated (`control_step`)."""
 
     label: str
     filter: str
     filter_params: dict[str, str]
+    isolate: bool
 
 
-def controller_runs(spec: Filter) -> list[ControllerRun]:
+def controller_runs(spec: Filter, labels: Sequence[str] | None = None) -> list[ControllerRun]:
     """The runs of a scenario's controller under test `spec` (module docstring; its `qp_backend`
-    is the paper filter's unless its parameters set it); errors name the parameter and the valid values."""
+    is the paper filter's unless its parameters set it); errors name the parameter and the valid values.
+    `labels`: the runs' labels as an isolated check found them (`check_controller`), else `label`'s."""
     params = parse_params(spec.params)
     name = spec.name.strip()
     if name != PAPER_FILTER:
-        return [ControllerRun(label(name, params), name, params)]
+        return [ControllerRun(label(name, params) if labels is None else labels[0], name, params, spec.isolate)]
     names = [params["tuning"]] if "tuning" in params else list(spec.tunings)
     if not names:
         raise ValueError("tunings must name at least one tuning, e.g. None,Low,High (or custom with a_E, b_E, gamma)")
@@ -183,9 +188,10 @@ def controller_runs(spec: Filter) -> list[ControllerRun]:
         raise ValueError(f"tunings must name each tuning once (one run and one time series each), got "
                          f"{', '.join(repeated)} more than once in {','.join(names)}")
     runs = []
-    for tuning in names:
+    for i, tuning in enumerate(names):
         run_params = {"qp_backend": spec.qp_backend, **params, "tuning": tuning}
-        runs.append(ControllerRun(label(name, run_params), name, run_params))
+        runs.append(ControllerRun(label(name, run_params) if labels is None else labels[i], name, run_params,
+                                  spec.isolate))
     return runs
 
 
@@ -201,8 +207,12 @@ def nominal_arguments(spec: Nominal) -> dict[str, object]:
 def control_step(run: ControllerRun, nominal: str, nominal_kwargs: dict[str, object], context: FilterContext,
                  monitor: SafetyMonitor | None = None) -> ControlStep:
     """The control step of `run`: its filter and the nominal controller, each told its own copy of `context`
-    (`FilterContext.copy`), so that the step's limits, read from `context` itself, are fixed before any
-    plug-in code runs and nothing a plug-in does to what it was told reaches them."""
+    (`FilterContext.copy`; with `run.isolate`, built and called in a process of their own,
+    `closedloop.isolation`, which ends with the step), so that the step's limits, read from `context` itself,
+    are fixed before any plug-in code runs and nothing a plug-in does to what it was told reaches them."""
+    if run.isolate:
+        filters, nominals = isolate(context, [(run.filter, run.filter_params)], [(nominal, nominal_kwargs)])
+        return ControlStep(filters[0], nominals[0], context, monitor)
     safety_filter = build_filter(run.filter, run.filter_params, context.copy())
     return ControlStep(safety_filter, build_nominal(nominal, nominal_kwargs, context.copy()), context, monitor)
 
@@ -235,6 +245,21 @@ def check_controller(filter: Filter, nominal: Nominal, model: Model, assumed_sti
     will be built with, the controller's robot, its force-safe set (`model` and the plate
     stiffness the controller assumes, `assumed_stiffness` N/m) and the QP backend. Returns
     what it parsed and built (`Controller`), for the scenario's setup."""
+    if filter.isolate and (filter.name.strip() not in FILTERS or nominal.name.strip() not in NOMINALS):
+        # the user's modules are imported in an isolated process only (closedloop.isolation)
+        labels = check_in_child(plugin_labels, filter, nominal)
+        runs, nominal_kwargs = tuple(controller_runs(filter, labels)), nominal_arguments(nominal)
+    else:
+        runs, nominal_kwargs = check_plugins(filter, nominal)
+    robot = controller_robot(model)
+    safe_set = model_safe_set(model, assumed_stiffness)
+    check_choice("qp_backend", filter.qp_backend, available_backends())
+    return Controller(robot, safe_set, runs, nominal_kwargs)
+
+
+def check_plugins(filter: Filter, nominal: Nominal) -> tuple[tuple[ControllerRun, ...], dict[str, object]]:
+    """`check_controller`'s checks of the filter's and the nominal's specs and parameters (each resolved, nothing
+    built): the runs and the nominal's parameters; ValueError naming the filter or the nominal."""
     try:
         runs = tuple(controller_runs(filter))
         for run in runs:
@@ -246,10 +271,12 @@ def check_controller(filter: Filter, nominal: Nominal, model: Model, assumed_sti
         check_nominal(nominal.name, nominal_kwargs)
     except ValueError as exc:
         raise ValueError(f"nominal {nominal.name!r}: {exc}") from None
-    robot = controller_robot(model)
-    safe_set = model_safe_set(model, assumed_stiffness)
-    check_choice("qp_backend", filter.qp_backend, available_backends())
-    return Controller(robot, safe_set, runs, nominal_kwargs)
+    return runs, nominal_kwargs
+
+
+def plugin_labels(filter: Filter, nominal: Nominal) -> list[str]:
+    """The run labels of `check_plugins` (what an isolated check sends back)."""
+    return [run.label for run in check_plugins(filter, nominal)[0]]
 
 
 def model_safe_set(model: Model, assumed_stiffness: float) -> ForceSafeSet:

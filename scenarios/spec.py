@@ -187,9 +187,10 @@ def flat_parameters(spec_cls: type) -> dict[str, inspect.Parameter]:
 Run = section("Run", "The run: its length (s), seed, initial pose noise (rad) and progress line.",
               {"duration": "duration", "seed": "seed", "q0_std": "q0_std", "progress": "progress"})
 Filter = plugin_section("Filter", "The controller under test: the filter, its parameters, the paper filter's tunings, "
-                           "its QP backend and whether its QP holds the pressure box.",
+                           "its QP backend, whether its QP holds the pressure box and whether it runs isolated "
+                           "(with the nominal, in a process of its own: closedloop.isolation).",
                  {"name": "filter", "params": "filter_params", "tunings": "tunings", "qp_backend": "qp_backend",
-                  "pressure_limits": "pressure_limits"})
+                  "pressure_limits": "pressure_limits", "isolate": "isolate"})
 Nominal = plugin_section("Nominal", "The nominal controller, its parameters and the sinusoid's amplitude (hPa), "
                              "frequency (Hz) and time offset (s).",
                   {"name": "nominal", "params": "nominal_params", "amplitude": "amplitude", "frequency": "frequency",

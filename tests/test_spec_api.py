@@ -65,7 +65,7 @@ def test_a_plug_in_s_parameters_are_keywords_of_its_section_checked_by_the_plug_
     contact = registry()["mujoco_contact"].spec
     spec = contact(filter=Filter("e-erg", contact_aware=True, kappa=2.0), plate=Plate(stiffness=12.0))
     assert spec.filter == Filter("e-erg", params={"contact_aware": True, "kappa": 2.0}, tunings=("None", "Low", "High"),
-                                 qp_backend="native", pressure_limits=True)
+                                 qp_backend="native", pressure_limits=True, isolate=False)
     assert spec.flat()["filter_params"] == "contact_aware=True;kappa=2.0" and spec.flat()["plate_stiffness"] == 12.0
     assert Nominal("sinusoid", phase=0.5).params == "phase=0.5"
     with pytest.raises(ValueError, match="unknown parameter.s. contact_awar for EnergyGovernor"):

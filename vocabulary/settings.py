@@ -139,6 +139,8 @@ SETTINGS: dict[str, Setting] = {
     "frequency": _number("sinusoid nominal: frequency f", "Hz", positive("Hz"), default=0.01),
     "t0": _number("sinusoid nominal: time offset (> 0 starts later in the cycle)", "s", finite("s"), default=0.0),
     "pressure_limits": _switch("the filter's QP holds the robot's pressure box", default=True),
+    "isolate": _switch("run the filter and the nominal in a process of their own (closedloop.isolation: "
+                       "protection against hostile code, at a cost per call; docs/safety-filter.md)", default=False),
     "qp_backend": _text("QP solver of the filter", "native, daqp, qpsolvers:daqp, qpsolvers:quadprog, "
                                                     "qpsolvers:osqp (those installed)", default="native"),
     "control_rate": _number("rate of the controller's calls (zero-order hold between)", "Hz", positive("Hz"), 1e4, default=10.0),

@@ -13,7 +13,8 @@ A study runs one registered scenario (`scenarios`, docs/run-outputs.md) many tim
   varies one filter parameter (float unless dist = "choice"), folded into the sample's
   `filter_params` after the fixed ones; to compare filters, set `tuning_parameter =
   "filter"` and list the filter specs in `tunings` (each with its own defaults; fix
-  the paper filter's `tunings` to one preset);
+  the paper filter's `tunings` to one preset); `isolate = true` (top level, or in `fixed`)
+  runs the filter and the nominal in a process of their own (closedloop.isolation);
 - `sampling`: "monte_carlo" (`draws` seeded draws) or "grid" (the Cartesian product of
   every distribution's grid, the first parameter varying slowest); `seed`;
 - `objective` (default "rho_min_meas"): the summary metric (a column of the rows) that
@@ -101,7 +102,7 @@ SEED_PARAMETER = "seed"  # the scenario parameter that receives scenario_seed
 FILTER_PARAM_PREFIX = "filter_param."  # vary."filter_param.NAME": one parameter of the filter
 FILTER_PARAMS = "filter_params"  # the scenario parameter they are folded into
 _STUDY_KEYS = {"name", "scenario", "seed", "sampling", "draws", "tunings", "tuning_parameter", "fixed", "vary", "description",
-               "filter", "filter_params", "objective"}
+               "filter", "filter_params", "isolate", "objective"}
 DEFAULT_OBJECTIVE = "rho_min_meas"  # the summary metric `study falsify` minimises (softcbf.study.falsify)
 MAX_SAMPLES = 2**63 - 1  # sample indices are int64 columns
 MAX_GRID_POINTS = 1_000_000  # per distribution: its grid is held in memory
@@ -413,7 +414,7 @@ class Study:
             kind = spec.pop("dist")
             vary.append(Distribution(parameter, kind, **spec))
         fixed = dict(data.get("fixed", {}))
-        for key in ("filter", FILTER_PARAMS):
+        for key in ("filter", FILTER_PARAMS, "isolate"):  # isolate: the filter and nominal in their own process
             if key in data:
                 if key in fixed:
                     raise ValueError(f"{key} is given twice (top level and fixed)")
