@@ -124,7 +124,8 @@ def test_bench_rows_carry_the_fault_and_no_clean_verdict(plugin, tmp_path):
         assert row["rho_min_meas"] is None and row["t_violation_s"] is None
     assert steps["violation_probability"] == 1.0 and steps["draws"] == 3  # every faulted start is a violation
     table = (tmp_path / "b" / "bench.md").read_text(encoding="utf-8")
-    assert table.count("| fault: RuntimeError in the filter |") == 2 and "1.0000" not in table
+    assert "| RuntimeError in the filter (1 run) |" in table and "| RuntimeError in the filter (3 runs) |" in table
+    assert "1.0000" not in table
 
 
 # -- D4, D5: a falsification's resume ----------------------------------------------------------------------------
