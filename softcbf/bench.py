@@ -80,7 +80,7 @@ over every call; violation_probability = k/n runs with ρ_meas < 0 and its 95 % 
 interval (`softcbf.study.analysis`), draws = n; single runs have null there. wall_s: the
 case's wall time.
 
-A fault is never a pass (SPEC §16). A run whose filter (or nominal) faulted stops at the vent
+A fault is never a pass (docs/studies.md#faulted-samples). A run whose filter (or nominal) faulted stops at the vent
 after its fault, so its figures cover only the rows before it (a filter that raises at its
 first call leaves ρ_meas min 1.0 and t_violation 0 over a few milliseconds). Every row says how
 many of its runs faulted (`faulted`, 0: none) and the first run's fault (`fault`: {type,

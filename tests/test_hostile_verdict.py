@@ -1,4 +1,5 @@
-"""A fault is never a pass, and a falsification's resume cannot be turned against its user (SPEC §15, §16).
+"""A fault is never a pass, and a falsification's resume cannot be turned against its user
+(docs/studies.md#faulted-samples, docs/studies.md#falsification).
 
 One test per defect found by hostile use: a filter that faults counted as a safe sample in a study (run alone and
 batched), by the sequential stop, by the falsification's objective and by the bench (S1); a falsification
