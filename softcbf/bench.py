@@ -87,7 +87,8 @@ many of its runs faulted (`faulted`, 0: none) and the first run's fault (`fault`
 message, where}, null: none); a row with a fault has no verdict: rho_min_meas and t_violation_s
 are null, violation_probability counts each faulted run as a violation, and the figures of the
 filter's calls (u_dev_rms_hPa, blocked_s, switches_per_s: null when no run made two calls;
-filter_us_*: null when none made one) and F max cover the rows up to the fault. bench.md's
+filter_us_*: null when none made one) and F max cover the rows up to the fault; a contact
+task's force_delivered_N and force_delivered_ratio are null (no steady push). bench.md's
 "filter fault" column names it, and the worst case found holds the same two fields (a
 search's evaluation that faulted is its worst: rho_worst_found null, `fault` set;
 `softcbf.study.falsify`).
@@ -347,7 +348,7 @@ def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
     out.mkdir(parents=True)
     get(case.scenario_params.get("scenario", case.name)).run(out, **params)
     figures = pooled_figures(_run_figures(out), _f_max(out))
-    if case.asked_N is None:
+    if case.asked_N is None or figures["fault"]:  # a push cut short by a fault delivered no steady force
         return figures
     delivered = steady_force_of_folder(out)
     return {**figures, "force_delivered_N": delivered,
