@@ -57,7 +57,8 @@ per falsification, is kept in falsify.json, so a folder may move), the parts kee
 Evaluation e is the e-th trial whose parameters cover the box, in trial order (a trial that
 stopped inside optuna's `ask()` has none or part of them and is no evaluation). On resume the
 trials asked but never told (the driver died) are run again (run_study skips the ones already
-stored) and told; one interrupted inside `ask()` is told failed and its candidate asked again;
+stored) and told; one interrupted inside `ask()` is told failed and its candidate asked again
+(a vertex of generation 0 is enqueued again);
 then the search goes on up to the budget, which may grow. One driver per folder. A resume must
 give the same study, objective, sampler, seed and population (DIR/falsify.json records them),
 and its storage must hold the search: a missing, empty or unreadable optuna.db, or a storage
@@ -385,6 +386,9 @@ def falsify(
         for trial in trials:
             if trial.state == TrialState.RUNNING and trial.number not in numbers:  # stopped inside ask(): asked anew
                 search.tell(trial.number, state=TrialState.FAIL)
+                vertex = trial.system_attrs.get("fixed_params")  # an enqueued vertex (optuna's key): enqueued again
+                if vertex:
+                    search.enqueue_trial(vertex)
         if initial == "vertices" and not trials:  # a fresh search
             for vertex in vertex_design(space, population, study.seed):
                 search.enqueue_trial(vertex)
