@@ -107,7 +107,7 @@ import numpy as np
 import optuna
 import sqlalchemy.exc
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution
-from optuna.trial import FrozenTrial, TrialState
+from optuna.trial import TrialState
 
 from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import Sample, Study, draw_generator
