@@ -112,6 +112,22 @@ def test_falsify_takes_a_fault_as_the_worst_value_and_reports_it(plugin, tmp_pat
     assert "filter fault (RuntimeError in the filter)" in report and "its filter faulted again" in report
 
 
+def test_a_search_for_the_best_setting_never_picks_one_that_faulted(plugin, tmp_path):
+    """b76c301: maximising ρ_min_meas picked the setting whose filter raised at its first call (its truncated run's
+    ρ 1.0) over the one that ran."""
+    study = Study("hostile", "paper_sim", (f"{plugin}:RaiseAt",), tuning_parameter="filter", draws=4, seed=1,
+                  fixed={"duration": 0.1, **PUSH}, objective="-rho_min_meas",
+                  vary=(Distribution("filter_param.at", "uniform", low=1.0, high=1e6),))
+    result = falsify(study, tmp_path / "f", budget=2, population=2, sampler="tpe", baseline=0, workers=1,
+                     progress=False)
+    best = result["best"]
+    assert best["params"] == {"filter_param.at": 1e6} and best["fault"] is None and math.isfinite(best["value"])
+    assert result["faulted"] == 1 and result["failed"] == 0 and result["first_violation"] is not None
+    stored = json.loads((tmp_path / "f" / "falsify.json").read_text(encoding="utf-8"))
+    search = optuna.load_study(study_name=stored["optuna_study"], storage=f"sqlite:///{tmp_path / 'f' / STORAGE_FILE}")
+    assert {t.params["filter_param.at"]: t.value for t in search.trials}[1.0] == math.inf  # the worst for the search
+
+
 def test_bench_rows_carry_the_fault_and_no_clean_verdict(plugin, tmp_path):
     """b76c301: a filter that faults at its first call ended the bench with "t must have shape (T,) with T >= 2";
     one that faults later gave the row ρ 1.0000, t_viol 0, no fault in bench.json or bench.md."""

@@ -27,11 +27,16 @@ covariance-matrix adaptation on the box mapped to [0, 1]^d, starting at its cent
 constant liar for candidates in flight). Generation g asks `population` candidates (default
 the CMA-ES population 4 + ⌊3 ln d⌋ for d coordinates), runs them together (below) and tells
 each its J; a sample that failed (status "error", or no finite objective) is told as a failed
-trial, which the sampler skips. A sample whose filter (or nominal) faulted is the worst value
-there is: it is told J = −∞ in the searched sense (`searched_value`; a fault is never a pass, and
-a search that finds one has found a counterexample), it is a violation, and it is the best
-evaluation as soon as one faults (its metric, cut short at the fault, is no value: best.value is
-null and best.fault holds {type, message, where}). The search stops after N evaluations or, with
+trial, which the sampler skips. A sample whose filter (or nominal) faulted is a violation and
+takes the metric's unsafe extreme (`fault_value`; a fault is never a pass): −∞ for a margin
+(names starting "rho": ρ_min_meas, larger is safer), +∞ for an excess (force_max…, t_violation…,
+force_budget_used: larger is less safe); its own metric, cut short at the fault, is no value. So a
+falsification (minimising ρ_min_meas, or maximising a force) is told −∞ for it and takes it as its
+best as soon as one faults (best.value null, best.fault {type, message, where}), while a search for
+the best setting ("-rho_min_meas", "force_max_N") is told +∞ and never picks a setting that
+faulted while another finished. A metric of neither kind has no unsafe side known here: a faulted
+sample is then a failed trial for the sampler, still counted in `faulted` and as a violation.
+The search stops after N evaluations or, with
 `stop_on_violation`, after the generation in which an evaluation violated (ρ_min_meas < 0 or a
 filter fault, `analysis.violated`, whatever the objective).
 
@@ -126,6 +131,8 @@ INITIALS = ("vertices", "random")
 CMAES_MIN_POPULATION = 4  # CMA-ES's μ = ⌊population / 2⌋ parents must be >= 2 (its covariance update divides by them)
 VERTEX_STREAM = 1  # the vertex design's generator: SeedSequence([seed, VERTEX_STREAM])
 SETTINGS = ("objective", "sampler", "seed", "population", "initial", "study")  # what a resume must repeat
+MARGINS = ("rho",)  # metrics whose larger values are safer (ρ ≥ 0 ⇔ F ≤ F_max): a fault takes −∞
+EXCESSES = ("force_max", "t_violation", "force_budget_used")  # metrics whose larger values are less safe: +∞
 
 
 @dataclass(frozen=True)
@@ -240,12 +247,20 @@ def minimised(value: float, objective: str) -> float:
     return -value if objective.startswith("-") else value
 
 
-def searched_value(row: dict[str, Any], objective: str) -> float | None:
-    """What the search is told for `row` (module docstring): −∞ when its filter faulted (the worst value there
-    is), else the minimised metric of a clean row; None when it has none (a failed trial)."""
-    if faulted(row):
+def fault_value(metric: str) -> float | None:
+    """The value a faulted sample takes for `metric` (module docstring): −∞ for a margin, +∞ for an excess, None
+    when its unsafe side is not known."""
+    if metric.startswith(MARGINS):
         return -math.inf
-    value = objective_value(row, objective)
+    if metric.startswith(EXCESSES):
+        return math.inf
+    return None
+
+
+def searched_value(row: dict[str, Any], objective: str) -> float | None:
+    """What the search is told for `row` (module docstring): the minimised metric of a clean row, or of a faulted
+    row's `fault_value`; None when it has none (a failed trial)."""
+    value = fault_value(objective.removeprefix("-")) if faulted(row) else objective_value(row, objective)
     return None if value is None else minimised(value, objective)
 
 
@@ -269,13 +284,13 @@ def _rows(store_dir: Path, indices: range) -> dict[int, dict[str, Any]]:
 
 
 def _summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
-    """Best row (by the searched sense, a faulted row first: `searched_value`), failures, faults and the
+    """Best row (by the searched sense, `searched_value`), failures (no value, no fault), faults and the
     evaluation count at the first violation (a fault included)."""
     scored = [(searched_value(r, objective), r) for r in rows]
     ok = [(v, r) for v, r in scored if v is not None]
     first = next((int(r["sample"]) + 1 for r in rows if violated(r)), None)
     out: dict[str, Any] = {"best": None, "params": None, "tuning": None, "evaluation": None, "fault": None,
-                           "evaluations": len(rows), "failed": len(rows) - len(ok),
+                           "evaluations": len(rows), "failed": sum(1 for v, r in scored if v is None and not faulted(r)),
                            "faulted": sum(1 for r in rows if faulted(r)), "first_violation": first}
     if ok:
         _, row = min(ok, key=lambda vr: vr[0])
