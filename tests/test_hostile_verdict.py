@@ -20,7 +20,7 @@ from pathlib import Path
 import optuna
 import pytest
 
-from softcbf.bench import FilterSpec, RunOptions, check_bench_json, run_bench
+from softcbf.bench import FilterSpec, RunOptions, check_bench_json, run_bench, study_figures
 from softcbf.study import Distribution, Study, StudyStore, run_study
 from softcbf.study.analysis import tuning_summary
 from softcbf.study.cli import main as study_main
@@ -143,6 +143,15 @@ def test_bench_rows_carry_the_fault_and_no_clean_verdict(plugin, tmp_path):
     table = (tmp_path / "b" / "bench.md").read_text(encoding="utf-8")
     assert "| RuntimeError in the filter (1 run) |" in table and "| RuntimeError in the filter (3 runs) |" in table
     assert "1.0000" not in table
+
+
+def test_the_bench_mismatch_study_counts_its_faulted_samples(plugin, tmp_path):
+    """The bench's study case (camera_mismatch: `study_figures` over a kept-runs study) pools faulted samples as
+    violations; b76c301 pooled them as clean runs (and ended on "t must have shape (T,)" for a first-call fault)."""
+    run_study(push_study(plugin), tmp_path / "s", workers=1, batch_size=1, keep_runs=True, progress=False)
+    figures = study_figures(tmp_path / "s")
+    assert (figures["faulted"], figures["draws"], figures["violation_probability"]) == (3, 3, 1.0)
+    assert figures["rho_min_meas"] is None and figures["fault"]["type"] == "RuntimeError"
 
 
 # -- D4, D5: a falsification's resume ----------------------------------------------------------------------------
