@@ -80,6 +80,19 @@ over every call; violation_probability = k/n runs with ρ_meas < 0 and its 95 % 
 interval (`softcbf.study.analysis`), draws = n; single runs have null there. wall_s: the
 case's wall time.
 
+A fault is never a pass (docs/studies.md#faulted-samples). A run whose filter (or nominal) faulted stops at the vent
+after its fault, so its figures cover only the rows before it (a filter that raises at its
+first call leaves ρ_meas min 1.0 and t_violation 0 over a few milliseconds). Every row says how
+many of its runs faulted (`faulted`, 0: none) and the first run's fault (`fault`: {type,
+message, where}, null: none); a row with a fault has no verdict: rho_min_meas and t_violation_s
+are null, violation_probability counts each faulted run as a violation, and the figures of the
+filter's calls (u_dev_rms_hPa, blocked_s, switches_per_s: null when no run made two calls;
+filter_us_*: null when none made one) and F max cover the rows up to the fault; a contact
+task's force_delivered_N and force_delivered_ratio are null (no steady push). bench.md's
+"filter fault" column names it, and the worst case found holds the same two fields (a
+search's evaluation that faulted is its worst: rho_worst_found null, `fault` set;
+`softcbf.study.falsify`).
+
 The bench folder (`prepare_bench_dir`, as `softcbf run`'s run folders, softcbf_mj.runio). DIR
 is new or empty, or it is a bench folder (it holds bench.json) and `--resume` continues it or
 `--overwrite` replaces its contents; any other non-empty folder (a user's, a run folder) is
@@ -126,6 +139,7 @@ import numpy as np
 
 from controllers.filter_metrics import governor_figures
 from controllers.registry import FILTERS, check_filter, resolve
+from softcbf.study.store import fault_of, faulted
 from softcbf_mj.runio import (
     RUN_MARKER, OutputDirError, load_timeseries, prepare_out_dir, read_run_folder, release_out_dir, remove_if_unused,
     safe_name,
@@ -136,8 +150,12 @@ from vocabulary.settings import Bound, check_number, default, non_negative
 
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
                "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99", "wall_s",
-               "force_asked_N", "force_delivered_N", "force_delivered_ratio", "force_budget_used", "f_max_N")
-WORST_KEYS = ("filter", "rho_worst_found", "params", "evaluation", "evaluations", "failed", "first_violation", "wall_s")
+               "force_asked_N", "force_delivered_N", "force_delivered_ratio", "force_budget_used", "f_max_N",
+               "faulted", "fault")
+VERDICT_KEYS = ("rho_min_meas", "t_violation_s")  # null exactly when a run of the row faulted (module docstring)
+CALL_KEYS = ("u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99")  # null only then
+WORST_KEYS = ("filter", "rho_worst_found", "params", "evaluation", "evaluations", "failed", "first_violation", "wall_s",
+              "faulted", "fault")
 WORST_DIR = "worst_found"  # a filter's falsification folder: DIR/cases/<filter label>/worst_found
 DEFAULT_FILTERS = "e-erg,paper-cbf"
 PAPER_TUNINGS = {"1kHz": "Low", "camera": "HW-High"}
@@ -272,30 +290,34 @@ def _f_max(folder: Path) -> float:
 
 def pooled_figures(runs: Sequence[tuple[Mapping[str, Any], Mapping[str, np.ndarray]]], f_max: float,
                    force_key: str = "force_max_N", violation_key: str = "t_violation_s") -> dict[str, Any]:
-    """The figures of one case from its runs' summary rows and call rows (module docstring: pooling); `f_max`
-    (N): the case's force limit (force_budget_used = F max / f_max)."""
+    """The figures of one case from its runs' summary rows and call rows (module docstring: pooling and faults);
+    `f_max` (N): the case's force limit (force_budget_used = F max / f_max)."""
     from softcbf.study.analysis import wilson_interval
 
     if not runs:
         raise ValueError("a case needs at least one run")
-    per_run = [governor_figures(c["t"], c["u"], c["u_nom"], c["filter_us"]) for _, c in runs]
+    timed = [c for _, c in runs if c["t"].size >= 2]  # a run that faulted early may have made fewer calls
+    per_run = [governor_figures(c["t"], c["u"], c["u_nom"], c["filter_us"]) for c in timed]
     calls = np.concatenate([np.asarray(c["filter_us"], dtype=float) for _, c in runs])
-    weights = np.array([c["t"].size for _, c in runs], dtype=float)
+    weights = np.array([c["t"].size for c in timed], dtype=float)
     rho = [float(r["rho_min_meas"]) for r, _ in runs]
+    faults = [fault_of(r) for r, _ in runs if faulted(r)]
     force_max = max(float(r[force_key]) for r, _ in runs)
     out = {
-        "rho_min_meas": min(rho),
-        "t_violation_s": float(sum(float(r[violation_key]) for r, _ in runs)),
+        "rho_min_meas": None if faults else min(rho),
+        "t_violation_s": None if faults else float(sum(float(r[violation_key]) for r, _ in runs)),
         "force_max_N": force_max, "f_max_N": f_max, "force_budget_used": force_max / f_max,
         "violation_probability": None, "violation_ci95": None, "draws": None,
-        "u_dev_rms_hPa": float(math.sqrt(np.average([f["u_dev_rms_hPa"] ** 2 for f in per_run], weights=weights))),
-        "blocked_s": float(sum(f["blocked_s"] for f in per_run)),
-        "switches_per_s": float(np.mean([f["switches_per_s"] for f in per_run])),
-        "filter_us_median": float(np.median(calls)),
-        "filter_us_p99": float(np.percentile(calls, 99)),
+        "u_dev_rms_hPa": float(math.sqrt(np.average([f["u_dev_rms_hPa"] ** 2 for f in per_run], weights=weights)))
+        if per_run else None,
+        "blocked_s": float(sum(f["blocked_s"] for f in per_run)) if per_run else None,
+        "switches_per_s": float(np.mean([f["switches_per_s"] for f in per_run])) if per_run else None,
+        "filter_us_median": float(np.median(calls)) if calls.size else None,
+        "filter_us_p99": float(np.percentile(calls, 99)) if calls.size else None,
+        "faulted": len(faults), "fault": faults[0] if faults else None,
     }
     if len(runs) > 1:
-        violations = sum(r < 0 for r in rho)
+        violations = sum(faulted(r) or float(r["rho_min_meas"]) < 0 for r, _ in runs)
         out.update(violation_probability=violations / len(runs), violation_ci95=list(wilson_interval(violations, len(runs))),
                    draws=len(runs))
     return out
@@ -326,7 +348,7 @@ def _scenario_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
     out.mkdir(parents=True)
     get(case.scenario_params.get("scenario", case.name)).run(out, **params)
     figures = pooled_figures(_run_figures(out), _f_max(out))
-    if case.asked_N is None:
+    if case.asked_N is None or figures["fault"]:  # a push cut short by a fault delivered no steady force
         return figures
     delivered = steady_force_of_folder(out)
     return {**figures, "force_delivered_N": delivered,
@@ -356,7 +378,11 @@ def _emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions)
     for name, value in case_filter_params(spec, case).items():
         argv += ["--filter-param", f"{name}={value}"]
     code = hardware_cli.main(argv)
-    if code != 0:
+    from scenarios.run import FILTER_FAULT
+
+    ended_on_fault = code == FILTER_FAULT and (out / "run").is_dir() and any(
+        faulted(row) for row in read_run_folder(out / "run").runs)
+    if code != 0 and not ended_on_fault:  # a filter fault is the row's result (module docstring)
         raise RuntimeError(f"softcbf hardware {' '.join(argv)} exited with {code}")
     from hardware.config import HardwareConfig
 
@@ -381,11 +407,13 @@ def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float):
 
 
 def study_figures(folder: Path) -> dict[str, Any]:
-    """A mismatch study folder (run with keep_runs) → the case's figures over its ok samples."""
+    """A mismatch study folder (run with keep_runs) → the case's figures over its samples that ran (ok or faulted:
+    a fault is never a pass, module docstring)."""
+    from softcbf.study.analysis import clean
     from softcbf.study.store import StudyStore
 
     store = StudyStore.open(folder)
-    rows = [r for r in store.load_rows() if r["status"] == "ok"]
+    rows = [r for r in store.load_rows() if clean(r) or faulted(r)]
     if not rows:
         raise RuntimeError(f"study {folder} has no finished sample")
     runs = []
@@ -562,8 +590,9 @@ def _run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], 
                    "wall_s": time.perf_counter() - start}
             bench["results"].append({k: row[k] for k in RESULT_KEYS})
             write_outputs(out, bench)
-            print(f"bench: {spec.label} x {case.name}: rho_min_meas {row['rho_min_meas']:.4f}, "
-                  f"t_violation {row['t_violation_s']:.3f} s, {row['wall_s']:.1f} s", flush=True)
+            verdict = (f"filter fault ({fault_text(row)}), no verdict" if row["fault"] else
+                       f"rho_min_meas {row['rho_min_meas']:.4f}, t_violation {row['t_violation_s']:.3f} s")
+            print(f"bench: {spec.label} x {case.name}: {verdict}, {row['wall_s']:.1f} s", flush=True)
     write_outputs(out, bench)
 
 
@@ -604,7 +633,8 @@ def _run_worst_found(out: Path, bench: dict[str, Any], studies: Mapping[str, Any
         entry = worst_found(label, study, folder, budget, resume=resume, workers=options.workers)
         bench["worst_found"].append({k: entry[k] for k in WORST_KEYS})
         write_outputs(out, bench)
-        print(f"bench: {label} worst case found: rho_min_meas {entry['rho_worst_found']} in {entry['evaluations']} "
+        found = f"a filter fault ({fault_text(entry)})" if entry["fault"] else f"rho_min_meas {entry['rho_worst_found']}"
+        print(f"bench: {label} worst case found: {found} in {entry['evaluations']} "
               f"evaluations, {entry['wall_s']:.1f} s", flush=True)
     write_outputs(out, bench)
 
@@ -688,10 +718,10 @@ _FRACTION = Bound(0.0, 1.0)
 ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields (docs/beyond-the-paper.md#filter-benchmark), each checked by key and value
     "filter": lambda key, v: _check_text(key, v),
     "case": lambda key, v: _check_text(key, v, [c.name for c in CASES]),
-    "rho_min_meas": lambda key, v: _check_finite(key, v),
-    **{name: (lambda key, v: check_number(key, v, non_negative()))
-       for name in ("t_violation_s", "force_max_N", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median",
-                    "filter_us_p99", "wall_s")},
+    "rho_min_meas": lambda key, v: v is None or _check_finite(key, v),
+    **{name: (lambda key, v: check_number(key, v, non_negative())) for name in ("force_max_N", "wall_s")},
+    **{name: (lambda key, v: v is None or check_number(key, v, non_negative()))  # null: `_check_row_fault`
+       for name in ("t_violation_s", *CALL_KEYS)},
     "violation_probability": lambda key, v: v is None or check_number(key, v, _FRACTION),
     "violation_ci95": lambda key, v: v is None or _check_interval(key, v),
     "draws": lambda key, v: v is None or check_number(key, v, Bound(1), integer=True),
@@ -699,6 +729,8 @@ ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields
        for name in ("force_asked_N", "force_delivered_N", "force_delivered_ratio")},
     "force_budget_used": lambda key, v: check_number(key, v, non_negative()),
     "f_max_N": lambda key, v: check_number(key, v, Bound(0.0, low_open=True, unit="N")),
+    "faulted": lambda key, v: check_number(key, v, non_negative(), integer=True),
+    "fault": lambda key, v: _check_fault(key, v),
 }
 
 
@@ -712,9 +744,33 @@ WORST_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's worst_fo
     "failed": lambda key, v: check_number(key, v, non_negative(), integer=True),
     "first_violation": lambda key, v: v is None or check_number(key, v, _COUNT, integer=True),
     "wall_s": lambda key, v: check_number(key, v, non_negative()),
+    "faulted": lambda key, v: check_number(key, v, non_negative(), integer=True),
+    "fault": lambda key, v: _check_fault(key, v),
 }
 FALSIFY_TEXT = ("box", "box_file", "scenario", "objective", "sampler")
 FALSIFY_COUNTS = ("budget", "population", "seed", "baseline")
+
+
+def _check_fault(key: str, value: Any) -> None:
+    if value is None:
+        return
+    if not (isinstance(value, dict) and set(value) == {"type", "message", "where"}
+            and all(isinstance(v, str) for v in value.values())):
+        raise ValueError(f"{key} must be null or {{\"type\", \"message\", \"where\"}} (texts), got {value!r}")
+
+
+def _check_row_fault(where: str, row: Mapping[str, Any]) -> None:
+    """A result row's fault fields agree (module docstring): fault set exactly when faulted > 0, the verdict
+    (`VERDICT_KEYS`) null exactly then, the call figures (`CALL_KEYS`) set when no run faulted."""
+    if (row["fault"] is None) != (row["faulted"] == 0):
+        raise ValueError(f"{where}: fault must be set exactly when faulted > 0, got faulted {row['faulted']!r}, "
+                         f"fault {row['fault']!r}")
+    for key in VERDICT_KEYS:
+        if row["faulted"] and row[key] is not None:
+            raise ValueError(f"{where}.{key} must be null in a row whose filter faulted (no verdict), got {row[key]!r}")
+    for key in (*VERDICT_KEYS, *CALL_KEYS) if not row["faulted"] else ():
+        if row[key] is None:
+            raise ValueError(f"{where}.{key} must be a number (null only in a row whose filter faulted), got None")
 
 
 def _check_params(key: str, value: Any) -> None:
@@ -744,7 +800,13 @@ def _check_falsify(data: Mapping[str, Any]) -> None:
                      integer=True)
     check_number("falsify.duration_s", settings["duration_s"], Bound(0.0, low_open=True, unit="s"))
     for where, entry in _checked_items(data, "worst_found", WORST_SCHEMA, ("an entry", "entries"), lambda e: e["filter"]):
-        _null_together(where, entry, ("rho_worst_found", "params", "evaluation"))
+        _null_together(where, entry, ("params", "evaluation"))
+        if (entry["rho_worst_found"] is None) != (entry["params"] is None or entry["fault"] is not None):
+            raise ValueError(f"{where}: rho_worst_found must be null exactly when no evaluation finished or the worst "
+                             f"one faulted (fault set), got {entry['rho_worst_found']!r} with params "
+                             f"{entry['params']!r}, fault {entry['fault']!r}")
+        if entry["fault"] is not None and not entry["faulted"]:
+            raise ValueError(f"{where}: a fault needs faulted >= 1, got {entry['faulted']!r}")
         if entry["evaluations"] > settings["budget"] or entry["failed"] > entry["evaluations"]:
             raise ValueError(f"{where}: needs failed <= evaluations <= falsify.budget, got {entry['failed']}, "
                              f"{entry['evaluations']}, {settings['budget']}")
@@ -797,6 +859,7 @@ def check_bench_json(data: Any) -> None:
         raise ValueError(f"skipped must be an object {{case or 'FILTER x CASE': reason}}, got {data['skipped']!r}")
     for where, row in _checked_items(data, "results", ROW_SCHEMA, ("a row", "rows"), lambda r: f"({r['filter']}, {r['case']})"):
         _null_together(where, row, ("violation_probability", "violation_ci95", "draws"))
+        _check_row_fault(where, row)
     _check_falsify(data)
 
 
@@ -832,7 +895,7 @@ def _null_together(where: str, item: Mapping[str, Any], keys: Sequence[str]) -> 
                          f"{', '.join(repr(item[k]) for k in keys)}")
 
 
-TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_min_meas", ".4f"),
+TABLE = (("filter", "filter", ""), ("case", "case", ""), ("filter fault", "fault", ""), ("ρ_meas min", "rho_min_meas", ".4f"),
          ("t_viol [s]", "t_violation_s", ".3f"), ("F max [N]", "force_max_N", ".4f"),
          ("P(viol) [95 % CI] (n)", None, ""), ("u_dev RMS [hPa]", "u_dev_rms_hPa", ".1f"), ("blocked [s]", "blocked_s", ".2f"),
          ("switches [1/s]", "switches_per_s", ".2f"), ("filter med [µs]", "filter_us_median", ".0f"),
@@ -841,7 +904,17 @@ TABLE = (("filter", "filter", ""), ("case", "case", ""), ("ρ_meas min", "rho_mi
          ("F max / F_max", "force_budget_used", ".3f"))
 
 
+def fault_text(item: Mapping[str, Any]) -> str:
+    """A bench row's or worst_found entry's fault in words: "TYPE in the WHERE (n runs)", "" without one."""
+    fault, n = item["fault"], item["faulted"]
+    if fault is None:
+        return ""
+    return f"{fault['type']} in the {fault['where']} ({n} run{'s' if n != 1 else ''})"
+
+
 def _cell(row: Mapping[str, Any], key: str | None, spec: str) -> str:
+    if key == "fault":
+        return fault_text(row) or "–"
     if key is None:
         p = row["violation_probability"]
         if p is None:
@@ -858,6 +931,8 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
     """bench.md: the results as one Markdown table, the quick flag and the skipped cases."""
     lines = [f"# Filter benchmark{' (quick: shortened for CI, not the battery)' if bench['quick'] else ''}", "",
              f"Battery: {', '.join(bench['battery'])}. Filters: {', '.join(bench['filters'])}.", "",
+             "A fault is never a pass: a row whose filter faulted in some run names the fault and has no ρ_meas min "
+             "or t_viol (its runs stopped at the fault); P(viol) counts each faulted run as a violation.", "",
              "| " + " | ".join(h for h, _, _ in TABLE) + " |", "|" + "---|" * len(TABLE)]
     lines += ["| " + " | ".join(_cell(r, k, s) for _, k, s in TABLE) + " |" for r in bench["results"]]
     lines += [f"\nSkipped: {name}: {reason}" for name, reason in bench["skipped"].items()]
@@ -875,13 +950,15 @@ def worst_found_markdown(bench: Mapping[str, Any]) -> list[str]:
     lines = ["", "## Worst case found", "",
              f"Per filter: {f['budget']} evaluations of a falsification ({f['sampler']}, the box's vertices first, seed "
              f"{f['seed']}) over the box {f['box']} ({f['box_file']}: {f['scenario']}, {f['duration_s']:g} s each); "
-             "ρ_meas worst found = the least ρ_min_meas of those evaluations (< 0: a violation found; ≥ 0 proves "
+             "ρ_meas worst found = the least ρ_min_meas of those evaluations, or a filter fault, the worst there "
+             "is (< 0 or a fault: a violation found; ≥ 0 proves "
              "nothing). Each search's folder: cases/<filter>/worst_found/ (its worst/ replays with `softcbf run "
              "--config`).", "",
              "| filter | ρ_meas worst found | at evaluation | first violation | evaluations (failed) | its parameters |",
              "|---|---|---|---|---|---|"]
     for e in bench["worst_found"]:
-        rho = "–" if e["rho_worst_found"] is None else f"{e['rho_worst_found']:.4f}"
+        rho = (f"filter fault: {fault_text(e)}" if e["fault"] else
+               "–" if e["rho_worst_found"] is None else f"{e['rho_worst_found']:.4f}")
         params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
                            for k, v in (e["params"] or {}).items()) or "–"
         lines.append(f"| {e['filter']} | {rho} | {e['evaluation'] or '–'} | {e['first_violation'] or '–'} | "
@@ -953,7 +1030,7 @@ def write_plot(path: Path, bench: Mapping[str, Any]) -> None:
     width = 0.8 / max(1, len(filters))
     for ax, (key, title) in zip(axes, PLOTTED):
         for j, name in enumerate(filters):
-            values = {r["case"]: r[key] for r in bench["results"] if r["filter"] == name}
+            values = {r["case"]: r[key] for r in bench["results"] if r["filter"] == name and r[key] is not None}
             x = [i + j * width for i, c in enumerate(cases) if c in values]
             ax.bar(x, [values[c] for c in cases if c in values], width, label=name)
         if key == "rho_min_meas":

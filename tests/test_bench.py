@@ -115,9 +115,10 @@ def test_quick_bench_writes_the_contract(tmp_path):
     for row in bench["results"]:
         assert tuple(row) == RESULT_KEYS
         assert row["force_asked_N"] is None and row["force_delivered_N"] is None and row["force_delivered_ratio"] is None
+        assert row["faulted"] == 0 and row["fault"] is None
         for key in RESULT_KEYS[2:]:
             if key in ("violation_probability", "violation_ci95", "draws", "force_asked_N", "force_delivered_N",
-                       "force_delivered_ratio"):
+                       "force_delivered_ratio", "faulted", "fault"):
                 continue
             assert isinstance(row[key], float) and math.isfinite(row[key]), key
         multi = row["case"] == "step"
@@ -177,7 +178,7 @@ def _bench_json(**row) -> dict:
               "violation_probability": None, "violation_ci95": None, "draws": None, "u_dev_rms_hPa": 0.0,
               "blocked_s": 0.0, "switches_per_s": 0.0, "filter_us_median": 12.0, "filter_us_p99": 30.0, "wall_s": 3.0,
               "force_asked_N": None, "force_delivered_N": None, "force_delivered_ratio": None, "force_budget_used": 0.0,
-              "f_max_N": 0.16}
+              "f_max_N": 0.16, "faulted": 0, "fault": None}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
             "results": [{**stored, **row}], "falsify": None, "worst_found": []}
 
@@ -213,6 +214,14 @@ GARBAGE = [  # N7: --resume kept rows of any value (a string ρ, NaN, a negative
     (lambda b: b["results"][0].update(t_violation_s=-1.0), "results[0].t_violation_s must be >= 0, got -1.0"),
     (lambda b: b["results"][0].update(wall_s=True), "results[0].wall_s must be a number"),
     (lambda b: b["results"][0].update(filter_us_p99=None), "results[0].filter_us_p99 must be a number"),
+    (lambda b: b["results"][0].update(rho_min_meas=None), "results[0].rho_min_meas must be a number (null only in a "
+                                                          "row whose filter faulted)"),
+    (lambda b: b["results"][0].update(faulted=1, fault={"type": "RuntimeError", "message": "boom", "where": "filter"}),
+     "results[0].rho_min_meas must be null in a row whose filter faulted"),
+    (lambda b: b["results"][0].update(fault={"type": "RuntimeError", "message": "boom", "where": "filter"}),
+     "results[0]: fault must be set exactly when faulted > 0"),
+    (lambda b: b["results"][0].update(faulted=1, fault="boom"), "results[0].fault must be null or"),
+    (lambda b: b["results"][0].pop("fault"), "results[0] lacks fault"),
     (lambda b: b["results"][0].update(violation_probability=1.5, violation_ci95=[0.1, 0.9], draws=3),
      "results[0].violation_probability must be in [0, 1], got 1.5"),
     (lambda b: b["results"][0].update(violation_probability=0.5, violation_ci95=[0.9, 0.1], draws=2),

@@ -132,7 +132,8 @@ def _with_entry(**entry) -> dict:
                 "scenario": "mujoco_contact", "duration_s": 1.0, "objective": "rho_min_meas", "sampler": "cmaes",
                 "seed": 2027, "population": 9, "baseline": 0}
     found = {"filter": "none", "rho_worst_found": -0.5, "params": {"plate_stiffness": 13.392, "facet_offset": 0.002},
-             "evaluation": 2, "evaluations": 4, "failed": 0, "first_violation": 1, "wall_s": 9.0}
+             "evaluation": 2, "evaluations": 4, "failed": 0, "first_violation": 1, "wall_s": 9.0, "faulted": 0,
+             "fault": None}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
             "results": [], "falsify": settings, "worst_found": [{**found, **entry}]}
 
@@ -148,7 +149,12 @@ SPOILED = [
     (lambda b: b["falsify"].update(budget=0), "falsify.budget must be"),
     (lambda b: b["worst_found"][0].update(rho_worst_found=float("nan")), "worst_found[0].rho_worst_found must be a finite"),
     (lambda b: b["worst_found"][0].update(rho_worst_found="low"), "worst_found[0].rho_worst_found must be a finite"),
-    (lambda b: b["worst_found"][0].update(rho_worst_found=None), "must be null together"),
+    (lambda b: b["worst_found"][0].update(rho_worst_found=None), "rho_worst_found must be null exactly when"),
+    (lambda b: b["worst_found"][0].update(params=None), "params and evaluation must be null together"),
+    (lambda b: b["worst_found"][0].update(faulted=1, fault={"type": "E", "message": "m", "where": "filter"}),
+     "rho_worst_found must be null exactly when no evaluation finished or the worst one faulted"),
+    (lambda b: b["worst_found"][0].update(rho_worst_found=None, fault={"type": "E", "message": "m", "where": "filter"}),
+     "a fault needs faulted >= 1"),
     (lambda b: b["worst_found"][0].update(params=[1.0]), "worst_found[0].params must be null or {parameter: value}"),
     (lambda b: b["worst_found"][0]["params"].update(tau_p=float("inf")), "worst_found[0].params.tau_p must be"),
     (lambda b: b["worst_found"][0].update(evaluations=5), "failed <= evaluations <= falsify.budget"),
@@ -165,6 +171,7 @@ SPOILED = [
 def test_the_schema_refuses_a_bad_worst_found_naming_the_field(spoil, message):
     check_bench_json(_with_entry())
     check_bench_json(_with_entry(rho_worst_found=None, params=None, evaluation=None, failed=4, first_violation=None))
+    check_bench_json(_with_entry(rho_worst_found=None, faulted=2, fault={"type": "E", "message": "m", "where": "filter"}))
     bench = copy.deepcopy(_with_entry())
     spoil(bench)
     with pytest.raises(ValueError, match=None) as error:

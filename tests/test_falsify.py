@@ -194,8 +194,9 @@ def test_falsify_stores_every_evaluation_and_finds_the_best(searched):
     best = min(rows, key=lambda r: r["rho_min_meas"])
     assert result["best"] == {"value": best["rho_min_meas"], "tuning": "Low", "evaluation": best["sample"] + 1,
                               "params": {"plate_stiffness": best["param.plate_stiffness"],
-                                         "facet_offset": best["param.facet_offset"]}}
-    assert (result["evaluations"], result["failed"], result["status"], result["stopped"]) == (8, 0, "done", "budget")
+                                         "facet_offset": best["param.facet_offset"]}, "fault": None}
+    assert (result["evaluations"], result["failed"], result["faulted"], result["status"], result["stopped"]) == \
+        (8, 0, 0, "done", "budget")
     first = next((r["sample"] + 1 for r in rows if r["rho_min_meas"] < 0), None)
     assert result["first_violation"] == first
     base = StudyStore.open(out / "random").load_rows()
@@ -220,11 +221,11 @@ def test_report_understands_a_falsification_folder(searched):
     out, result = searched
     text = write_report(out).read_text(encoding="utf-8")
     assert (out / "plots" / "best_so_far.png").stat().st_size > 1000
-    assert f"| search | 8 | 0 | {result['best']['value']:.6g} | {result['best']['evaluation']} | Low |" in text
-    assert f"| uniform random | 6 | 0 | {result['random_baseline']['best']:.6g} |" in text
+    assert f"| search | 8 | 0 | 0 | {result['best']['value']:.6g} | {result['best']['evaluation']} | Low |" in text
+    assert f"| uniform random | 6 | 0 | 0 | {result['random_baseline']['best']:.6g} |" in text
     assert "equal to the search's row, bit for bit" in text
     k = sum(r["rho_min_meas"] < 0 for r in StudyStore.open(out / "random").load_rows())
-    assert f"| Low | {k}/6 | {k / 6:.3f} |" in text and f"| {clopper_pearson_upper(k, 6):.4f} |" in text
+    assert f"| Low | 0 | {k}/6 | {k / 6:.3f} |" in text and f"| {clopper_pearson_upper(k, 6):.4f} |" in text
 
 
 def test_resume_continues_the_same_search_up_to_a_larger_budget(searched, client, tmp_path):
@@ -251,9 +252,11 @@ def test_a_storage_url_is_used_and_never_written_and_resume_needs_it(client, tmp
                      client=client, progress=False)
     assert result["evaluations"] == 2 and not (tmp_path / "f" / "optuna.db").exists()
     assert url not in (tmp_path / "f" / "falsify.json").read_text() and result["storage"] == "server database (--storage)"
-    with pytest.raises(OutputDirError, match="holds 2 evaluations but its optuna storage 0 trials"):
+    with pytest.raises(OutputDirError, match="optuna.db is missing .or the search ran on a server database: resume "
+                                             "with its --storage"):
         falsify(box(), tmp_path / "f", budget=4, population=2, sampler="tpe", baseline=0, resume=True, client=client,
                 progress=False)
+    assert not (tmp_path / "f" / "optuna.db").exists()
     again = falsify(box(), tmp_path / "f", budget=4, population=2, sampler="tpe", baseline=0, storage=url,
                     resume=True, client=client, progress=False)
     assert again["evaluations"] == 4
@@ -339,5 +342,6 @@ def test_cli_until_bound_prints_the_bound_it_reached(tmp_path, capsys):
                          "--workers", "1", "--no-progress"]) == 0
     out = capsys.readouterr().out
     bound = clopper_pearson_upper(0, 5)
-    assert f"Low: 0/5 violations; P(violation) < {bound:.4g} at 95 % (one-sided Clopper–Pearson)" in out
+    assert f"Low: 0/5 violations (0 of them filter faults); P(violation) < {bound:.4g} at 95 % (one-sided " \
+           "Clopper–Pearson)" in out
     assert f"| {bound:.4f} |" in (tmp_path / "s" / "report.md").read_text(encoding="utf-8")

@@ -248,7 +248,7 @@ def test_report_writes_markdown_plots_and_one_parquet(reference, tiny):
     for s in tuning_summary(rows, ["None", "Low"]):
         v = s["violation"]
         exact = clopper_pearson_interval(v.k, v.n)
-        assert (f"| {s['tuning']} | 3 | 0 | {v.k}/{v.n} | {v.p:.3f} | [{v.low:.3f}, {v.high:.3f}] "
+        assert (f"| {s['tuning']} | 3 | 0 | 0 | {v.k}/{v.n} | {v.p:.3f} | [{v.low:.3f}, {v.high:.3f}] "
                 f"| [{exact[0]:.3f}, {exact[1]:.3f}] | {clopper_pearson_upper(v.k, v.n):.4f} |") in text
     assert "| plate_stiffness |" in text and "| facet_offset |" in text
     for name in ("rho_min_meas", "force_max_N", "violation_plate_stiffness", "violation_facet_offset"):

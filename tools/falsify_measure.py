@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 from softcbf.study.definition import load_study
-from softcbf.study.falsify import falsify, uniform_baseline
+from softcbf.study.falsify import falsify, objective_value, uniform_baseline
 from softcbf.study.analysis import violated
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
                 rows = uniform_baseline(seeded, folder, args.random_cap, args.chunk,
                                         {"workers": args.workers, "progress": False})
                 first = next((int(r["sample"]) + 1 for r in rows if violated(r)), None)
-                best = min((r["rho_min_meas"] for r in rows if r.get("rho_min_meas") is not None), default=None)
+                best = min((v for v in (objective_value(r, "rho_min_meas") for r in rows) if v is not None), default=None)
                 n = len(rows)
             else:
                 name, initial = sampler.split(":")
@@ -94,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
             walls[f"{sampler}-{seed}"] = time.perf_counter() - start
             found.setdefault(sampler, {})[seed] = first
             print(f"{sampler:14s} seed {seed}: first violation at evaluation {first if first else '>' + str(n)} "
-                  f"({n} evaluations, best rho_min_meas {best:.4f}, {walls[f'{sampler}-{seed}']:.0f} s)", flush=True)
+                  f"({n} evaluations, best rho_min_meas " + ("– (a filter fault or none finished)" if best is None
+                                                             else f"{best:.4f}")
+                  + f", {walls[f'{sampler}-{seed}']:.0f} s)", flush=True)
 
     def medians(sampler: str, cap: int) -> float:
         return _median([v if v is not None else (cap + 1 if sampler == "random" else math.inf)

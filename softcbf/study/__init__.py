@@ -5,7 +5,8 @@ parameters — model mismatches between the ground truth and the controller's mo
 imperfections, tunings — sampled by seeded Monte Carlo or on a grid. `execute` runs the
 samples on a local process pool or a Dask cluster and streams one row per sample into the
 study folder (`store`, Parquet parts, resumable); `analysis` turns the rows into violation
-probabilities with confidence intervals (Wilson, exact Clopper–Pearson) and sensitivities;
+probabilities with confidence intervals (Wilson, exact Clopper–Pearson) and sensitivities
+(a sample whose filter faulted counts as a violation: a fault is never a pass);
 `report` writes the plots and a Markdown summary; `sequential` draws until the violation
 probability is bounded; `falsify` searches a study's box for its worst case (optuna) on the
 same engine; `cli` is `python -m softcbf.study run|falsify|report`.

@@ -2,8 +2,14 @@
 
 Violation. A sample violates when its measured margin `rho_min_meas` < 0, i.e. the
 measured contact force exceeded F_max at some control step (ρ_meas = (n_max − n)/n_max
-with ψ strictly increasing, so ρ_meas < 0 ⇔ F > F_max; docs/model.md#force-safe-set, docs/run-outputs.md). Only samples with
-status "ok" and a measured ρ count; failed samples are counted apart.
+with ψ strictly increasing, so ρ_meas < 0 ⇔ F > F_max; docs/model.md#force-safe-set, docs/run-outputs.md),
+or when its filter (or nominal) faulted (`store.faulted`): a fault is never a pass. A faulted
+run stops at its fault, so its ρ_min_meas covers only the rows before it (1.0 for a filter that
+raised at its first call) and says nothing about the filter; counted as safe, a filter that
+never ran would earn "P(violation) < 0.99 %" from 300 draws. So a faulted sample counts in k
+and n as a violation, its figures stay out of the quantiles, and every summary says how many
+samples faulted. Samples that failed outside the filter (status "error": a bad parameter, a
+dead worker) have no verdict and are counted apart, as failed.
 
 Violation probability p = k/n with the Wilson score interval at confidence level 1 − α
 (z = Φ⁻¹(1 − α/2), 1.96 for 95 %):
@@ -42,7 +48,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from softcbf.study.store import PARAM_PREFIX
+from softcbf.study.store import PARAM_PREFIX, faulted
 
 QUANTILES = (0.0, 0.05, 0.5, 0.95, 1.0)
 BISECTION_STEPS = 200  # more than enough to pin a bound in (0, 1) to the last bit of a float64
@@ -127,11 +133,19 @@ def clopper_pearson_upper(k: int, n: int, confidence: float = 0.95) -> float:
 
 
 def violated(row: Mapping[str, Any]) -> bool | None:
-    """Whether an ok row's measured force exceeded F_max (None when it has no measured ρ or failed)."""
+    """Whether a row is a violation (module docstring): True when its filter faulted or its measured force
+    exceeded F_max; None when it failed outside the filter or has no measured ρ."""
+    if faulted(row):
+        return True
     rho = row.get("rho_min_meas")
     if row.get("status") != "ok" or rho is None:
         return None
     return bool(rho < 0.0)
+
+
+def clean(row: Mapping[str, Any]) -> bool:
+    """Whether a row's run finished without a fault (status "ok", no fault): its figures are a verdict."""
+    return row.get("status") == "ok" and not faulted(row)
 
 
 @dataclass(frozen=True)
@@ -173,18 +187,21 @@ def _quantiles(values: Sequence[float]) -> dict[str, float] | None:
 
 
 def tuning_summary(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str]) -> list[dict[str, Any]]:
-    """Per tuning (in the given order): samples, failed, violation Proportion, quantiles of ρ_min_meas and F max."""
+    """Per tuning (in the given order): samples, failed (outside the filter), faulted, the violation Proportion
+    (faulted samples count as violations), quantiles of ρ_min_meas and F max over the clean samples."""
     out = []
     for tuning in tunings:
         mine = [r for r in rows if r["tuning"] == tuning]
-        ok = [r for r in mine if r["status"] == "ok"]
+        finished = [r for r in mine if clean(r)]
+        faults = sum(1 for r in mine if faulted(r))
         out.append({
             "tuning": tuning,
             "samples": len(mine),
-            "failed": len(mine) - len(ok),
-            "violation": Proportion.of(violated(r) for r in ok),
-            "rho_min_meas": _quantiles([r.get("rho_min_meas") for r in ok]),
-            "force_max_N": _quantiles([r.get("force_max_N") for r in ok]),
+            "failed": len(mine) - len(finished) - faults,
+            "faulted": faults,
+            "violation": Proportion.of(violated(r) for r in mine),
+            "rho_min_meas": _quantiles([r.get("rho_min_meas") for r in finished]),
+            "force_max_N": _quantiles([r.get("force_max_N") for r in finished]),
         })
     return out
 
@@ -222,7 +239,7 @@ def sensitivity(rows: Sequence[Mapping[str, Any]], parameter: str, tuning: str, 
     if bins < 1:
         raise ValueError(f"bins must be >= 1, got {bins}")
     key = PARAM_PREFIX + parameter
-    mine = [r for r in rows if r["tuning"] == tuning and r["status"] == "ok" and r.get(key) is not None]
+    mine = [r for r in rows if r["tuning"] == tuning and violated(r) is not None and r.get(key) is not None]
     values = [r[key] for r in mine]
     if not mine:
         return []

@@ -19,7 +19,8 @@ stored. It ends with the report. `--set fixed.duration=10` (repeatable) sets a d
 of the study file (`softcbf.study.definition.load_study`) without copying the file.
 `--until-bound P` is the sequential stop (`softcbf.study.sequential`): it draws in chunks
 until every tuning's one-sided 95 % Clopper–Pearson bound on P(violation) is below P or
-that tuning has violated (at most the file's draws).
+that tuning has violated (at most the file's draws). A sample whose filter faulted counts as a
+violation everywhere (a fault is never a pass); the lines printed say how many faulted.
 `falsify` searches the file's [vary] box for the minimum of its objective (default
 ρ_min_meas) with optuna's CMA-ES or TPE, beside a uniform baseline of the same budget, into
 DIR (`softcbf.study.falsify`: DIR/falsify.json, DIR/worst/, …); it ends with the report.
@@ -56,14 +57,16 @@ def _run(args: argparse.Namespace) -> int:
             sequential = run_until_bound(study, args.out, args.until_bound, **options)
             outcome = sequential.outcome
             for tuning, p in sequential.violation.items():
+                faults = sequential.faulted[tuning]
                 verdict = (f"P(violation) < {p.upper:.4g} at 95 % (one-sided Clopper–Pearson)"
                            if sequential.bounded[tuning] else
                            "violated: no bound below the target" if p.k else
                            f"not bounded: the study's draws ran out at P < {p.upper:.4g}")
-                print(f"{tuning}: {p.k}/{p.n} violations; {verdict}")
+                print(f"{tuning}: {p.k}/{p.n} violations ({faults} of them filter faults); {verdict}")
         else:
             outcome = run_study(study, args.out, samples=args.samples, **options)
-        print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed), {outcome.skipped} already "
+        print(f"study {study.name}: ran {outcome.ran} samples ({outcome.failed} failed, {outcome.faulted} filter "
+              f"faults, counted as violations), {outcome.skipped} already "
               f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
               + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
         print(f"report: {write_report(args.out)}")
@@ -98,10 +101,15 @@ def _falsify(args: argparse.Namespace) -> int:
                          storage=args.storage, resume=args.resume, workers=args.workers, scheduler=args.scheduler,
                          batch_size=args.batch_size, progress=not args.no_progress)
         best, base = result["best"], result["random_baseline"]
-        print(f"falsify {study.name}: best {result['objective']} = {best['value']!r} at evaluation "
-              f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}, {best['params']}); first violation: "
-              f"{result['first_violation'] or 'none'}; uniform baseline: best {base['best']!r} in "
-              f"{base['evaluations']}, first violation: {base['first_violation'] or 'none'}; folder {args.out}")
+        found = (f"a filter fault ({best['fault']['type']} in the {best['fault']['where']}: {best['fault']['message']})"
+                 if best["fault"] else f"{result['objective']} = {best['value']!r}")
+        print(f"falsify {study.name}: best {found} at evaluation "
+              f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}, {best['params']}; "
+              f"{result['faulted']} faulted); first violation: "
+              f"{result['first_violation'] or 'none'}; uniform baseline: best "
+              + ("a filter fault" if base["fault"] else repr(base["best"]))
+              + f" in {base['evaluations']} ({base['faulted']} faulted), first violation: "
+              f"{base['first_violation'] or 'none'}; folder {args.out}")
         print(f"report: {write_report(args.out)}")
 
     return _resumable(body, args.out, "evaluations")

@@ -28,9 +28,10 @@ worker) stores nothing and its samples run again, whole, on resume or retry.
 The driver keeps a window of submitted tasks (local: one per worker; Dask: two per
 worker thread), writes each finished sample's row itself, once (`StudyStore.write`,
 named by the sample index: a task that Dask reruns after a worker death cannot add a
-second row), and updates the progress line (samples done, failed, ETA) on stderr.
+second row), and updates the progress line (samples done, failed, faulted, ETA) on stderr.
 
-Failures: an exception inside the scenario is a row with status "error" (`runner`). A
+Failures: an exception inside the scenario is a row with status "error" (`runner`); a run that
+ended on a filter fault is a row with status "fault", counted apart (`StudyOutcome.faulted`). A
 Dask task whose worker dies is rescheduled by Dask; after Dask gives up
 (`distributed.scheduler.allowed-failures`) the sample is a row with the error. A local
 worker that dies breaks the whole process pool: the driver starts a new pool and
@@ -71,7 +72,7 @@ from scenarios import get as get_scenario
 from softcbf_mj.progress import Progress
 from softcbf.study.definition import Study
 from softcbf.study.runner import batch_key, failed_row, run_batch, run_sample
-from softcbf.study.store import StudyStore
+from softcbf.study.store import StudyStore, faulted
 
 MAX_ATTEMPTS = 2  # local pool breaks a sample may be in flight for before it is recorded as failed
 PARENT_POLL_S = 0.5  # how often a local worker checks that its driver is alive, s
@@ -116,8 +117,9 @@ class Task:
 
 @dataclass(frozen=True)
 class StudyOutcome:
-    """What one `run_study` call did: samples of the study, already stored, run now, failed now, wall time (s),
-    and how many stored parts were corrupted (and so run again)."""
+    """What one `run_study` call did: samples of the study, already stored, run now, failed now (outside the
+    filter), wall time (s), how many stored parts were corrupted (and so run again), and how many of the samples
+    run now ended on a filter fault (`store.faulted`; not in `failed`)."""
 
     n_samples: int
     skipped: int
@@ -127,6 +129,7 @@ class StudyOutcome:
     backend: str
     workers: int
     corrupted: int = 0
+    faulted: int = 0
 
 
 def exit_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
@@ -263,7 +266,7 @@ def run_study(
         raise
 
     start = time.perf_counter()
-    ran = failed = 0
+    ran = failed = faults = 0
     bar = Progress(f"study {study.name}", max(n_todo, 1), enabled=progress and n_todo > 0)
     pending: dict[Future, Task] = {}
     attempts: collections.Counter[int] = collections.Counter()
@@ -271,12 +274,13 @@ def run_study(
     def record(rows: list[dict[str, Any]]) -> None:
         """Store a task's rows, then update the progress line once (per row, a batch's first row
         would extrapolate the ETA from one sample of a task that finished many)."""
-        nonlocal ran, failed
+        nonlocal ran, failed, faults
         for row in rows:
             store.write(row)
             ran += 1
-            failed += row["status"] != "ok"
-        bar.update(ran, f"{ran}/{n_todo} done, {failed} failed")
+            faults += faulted(row)
+            failed += row["status"] != "ok" and not faulted(row)
+        bar.update(ran, f"{ran}/{n_todo} done, {failed} failed, {faults} faulted")
 
     try:
         while True:
@@ -329,4 +333,4 @@ def run_study(
             own_client.close()
     bar.close()
     return StudyOutcome(study.n_samples, skipped, ran, failed, time.perf_counter() - start, backend, n_workers,
-                        len(corrupted))
+                        len(corrupted), faults)

@@ -27,9 +27,18 @@ covariance-matrix adaptation on the box mapped to [0, 1]^d, starting at its cent
 constant liar for candidates in flight). Generation g asks `population` candidates (default
 the CMA-ES population 4 + ⌊3 ln d⌋ for d coordinates), runs them together (below) and tells
 each its J; a sample that failed (status "error", or no finite objective) is told as a failed
-trial, which the sampler skips. The search stops after N evaluations or, with
-`stop_on_violation`, after the generation in which an evaluation violated (ρ_min_meas < 0,
-`analysis.violated`, whatever the objective).
+trial, which the sampler skips. A sample whose filter (or nominal) faulted is a violation and
+takes the metric's unsafe extreme (`fault_value`; a fault is never a pass): −∞ for a margin
+(names starting "rho": ρ_min_meas, larger is safer), +∞ for an excess (force_max…, t_violation…,
+force_budget_used: larger is less safe); its own metric, cut short at the fault, is no value. So a
+falsification (minimising ρ_min_meas, or maximising a force) is told −∞ for it and takes it as its
+best as soon as one faults (best.value null, best.fault {type, message, where}), while a search for
+the best setting ("-rho_min_meas", "force_max_N") is told +∞ and never picks a setting that
+faulted while another finished. A metric of neither kind has no unsafe side known here: a faulted
+sample is then a failed trial for the sampler, still counted in `faulted` and as a violation.
+The search stops after N evaluations or, with
+`stop_on_violation`, after the generation in which an evaluation violated (ρ_min_meas < 0 or a
+filter fault, `analysis.violated`, whatever the objective).
 
 Evaluation on the study engine (no second engine): `CandidateStudy` is the study whose sample
 e is candidate e (evaluation e = optuna trial e; draw e; the scenario seed of the study's
@@ -49,21 +58,29 @@ first violation.
 
 Resume: optuna keeps the trials in its storage (SQLite in DIR/optuna.db by default, or a
 server database's URL, which is never written to the folder; the optuna study's name, unique
-per falsification, is kept in falsify.json, so a folder may move), the parts keep the rows. On
-resume the trials asked but never told (the driver died) are run again (run_study skips the
-ones already stored) and told, then the search goes on up to the budget, which may grow.
-One driver per folder. A resume must give the same study, objective, sampler, seed and
-population (DIR/falsify.json records them).
+per falsification, is kept in falsify.json, so a folder may move), the parts keep the rows.
+Evaluation e is the e-th trial whose parameters cover the box, in trial order (a trial that
+stopped inside optuna's `ask()` has none or part of them and is no evaluation). On resume the
+trials asked but never told (the driver died) are run again (run_study skips the ones already
+stored) and told; one interrupted inside `ask()` is told failed and its candidate asked again
+(a vertex of generation 0 is enqueued again);
+then the search goes on up to the budget, which may grow. One driver per folder. A resume must
+give the same study, objective, sampler, seed and population (DIR/falsify.json records them),
+and its storage must hold the search: a missing, empty or unreadable optuna.db, or a storage
+without the study, is refused with one line (`OutputDirError`) before anything is written, so a
+refused resume leaves falsify.json as it was.
 
 Outputs of a falsification folder DIR:
 
-    DIR/falsify.json     {"objective", "best": {"value", "params", "tuning", "evaluation"},
-                          "evaluations", "failed", "first_violation", "random_baseline":
-                          {"best", "params", "tuning", "evaluations", "failed",
+    DIR/falsify.json     {"objective", "best": {"value", "params", "tuning", "evaluation", "fault"},
+                          "evaluations", "failed", "faulted", "first_violation", "random_baseline":
+                          {"best", "params", "tuning", "evaluations", "failed", "faulted", "fault",
                           "first_violation"}, "worst": {...}, the settings, "stopped"}; best.value
-                          is the metric's own value (for "-NAME" the largest NAME); evaluations
-                          are counted from 1, first_violation is the count at the first violation
-                          (null: none)
+                          is the metric's own value (for "-NAME" the largest NAME), null with
+                          best.fault {type, message, where} when the best evaluation faulted;
+                          evaluations are counted from 1, first_violation is the count at the
+                          first violation (null: none); failed: evaluations without a value
+                          (status "error"), faulted: evaluations whose filter faulted
     DIR/search/          study folder of the evaluations (sample = evaluation − 1)
     DIR/random/          study folder of the baseline
     DIR/worst/           run folder of the best evaluation (run alone, with the scenario's
@@ -78,10 +95,12 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
+import contextlib
 import logging
 import math
 import os
 import shutil
+import sqlite3
 import sys
 import uuid
 import warnings
@@ -91,14 +110,15 @@ from typing import Any
 
 import numpy as np
 import optuna
+import sqlalchemy.exc
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution
-from optuna.trial import FrozenTrial, TrialState
+from optuna.trial import TrialState
 
-from softcbf.study.analysis import violated
+from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import Sample, Study, draw_generator
 from softcbf.study.execute import run_study
 from softcbf.study.runner import run_sample
-from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, part_name, read_part
+from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part
 from softcbf_mj.runio import OutputDirError, write_json
 
 SAMPLERS = ("cmaes", "tpe")
@@ -111,6 +131,8 @@ INITIALS = ("vertices", "random")
 CMAES_MIN_POPULATION = 4  # CMA-ES's μ = ⌊population / 2⌋ parents must be >= 2 (its covariance update divides by them)
 VERTEX_STREAM = 1  # the vertex design's generator: SeedSequence([seed, VERTEX_STREAM])
 SETTINGS = ("objective", "sampler", "seed", "population", "initial", "study")  # what a resume must repeat
+MARGINS = ("rho",)  # metrics whose larger values are safer (ρ ≥ 0 ⇔ F ≤ F_max): a fault takes −∞
+EXCESSES = ("force_max", "t_violation", "force_budget_used")  # metrics whose larger values are less safe: +∞
 
 
 @dataclass(frozen=True)
@@ -212,8 +234,9 @@ def vertex_design(space: dict[str, BaseDistribution], population: int, seed: int
 
 
 def objective_value(row: dict[str, Any], objective: str) -> float | None:
-    """The metric `objective` names ("NAME" or "-NAME") in an ok row, as stored (None: failed or not finite)."""
-    value = row.get(objective.removeprefix("-")) if row.get("status") == "ok" else None
+    """The metric `objective` names ("NAME" or "-NAME") in a clean row (`analysis.clean`), as stored (None:
+    failed, faulted or not finite)."""
+    value = row.get(objective.removeprefix("-")) if clean(row) else None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return None
     return float(value)
@@ -222,6 +245,23 @@ def objective_value(row: dict[str, Any], objective: str) -> float | None:
 def minimised(value: float, objective: str) -> float:
     """The value the search minimises: the metric, or its negative for "-NAME"."""
     return -value if objective.startswith("-") else value
+
+
+def fault_value(metric: str) -> float | None:
+    """The value a faulted sample takes for `metric` (module docstring): −∞ for a margin, +∞ for an excess, None
+    when its unsafe side is not known."""
+    if metric.startswith(MARGINS):
+        return -math.inf
+    if metric.startswith(EXCESSES):
+        return math.inf
+    return None
+
+
+def searched_value(row: dict[str, Any], objective: str) -> float | None:
+    """What the search is told for `row` (module docstring): the minimised metric of a clean row, or of a faulted
+    row's `fault_value`; None when it has none (a failed trial)."""
+    value = fault_value(objective.removeprefix("-")) if faulted(row) else objective_value(row, objective)
+    return None if value is None else minimised(value, objective)
 
 
 def _sampler(name: str, seed: int, population: int) -> optuna.samplers.BaseSampler:
@@ -244,15 +284,18 @@ def _rows(store_dir: Path, indices: range) -> dict[int, dict[str, Any]]:
 
 
 def _summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
-    """Best row (by the searched sense), failures and the evaluation count at the first violation."""
-    scored = [(objective_value(r, objective), r) for r in rows]
+    """Best row (by the searched sense, `searched_value`), failures (no value, no fault), faults and the
+    evaluation count at the first violation (a fault included)."""
+    scored = [(searched_value(r, objective), r) for r in rows]
     ok = [(v, r) for v, r in scored if v is not None]
     first = next((int(r["sample"]) + 1 for r in rows if violated(r)), None)
-    out: dict[str, Any] = {"best": None, "params": None, "tuning": None, "evaluation": None,
-                           "evaluations": len(rows), "failed": len(rows) - len(ok), "first_violation": first}
+    out: dict[str, Any] = {"best": None, "params": None, "tuning": None, "evaluation": None, "fault": None,
+                           "evaluations": len(rows), "failed": sum(1 for v, r in scored if v is None and not faulted(r)),
+                           "faulted": sum(1 for r in rows if faulted(r)), "first_violation": first}
     if ok:
-        value, row = min(ok, key=lambda vr: minimised(vr[0], objective))
-        out.update(best=value, params={k.removeprefix(PARAM_PREFIX): v for k, v in row.items() if k.startswith(PARAM_PREFIX)},
+        _, row = min(ok, key=lambda vr: vr[0])
+        out.update(best=objective_value(row, objective), fault=fault_of(row),
+                   params={k.removeprefix(PARAM_PREFIX): v for k, v in row.items() if k.startswith(PARAM_PREFIX)},
                    tuning=row["tuning"], evaluation=int(row["sample"]) + 1)
     return out
 
@@ -324,11 +367,25 @@ def falsify(
     settings = {"objective": objective, "sampler": sampler, "seed": study.seed, "population": population,
                 "initial": initial, "study": study.to_dict()}
     stored = _check_folder(root, settings, resume)
-    root.mkdir(parents=True, exist_ok=True)
     name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
     state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
                              "storage": "server database (--storage)" if storage else STORAGE_FILE}
-    write_json(root / FALSIFY_FILE, state)
+    if not resume:  # a falsification folder from the start, so a search that stops can be resumed
+        root.mkdir(parents=True, exist_ok=True)
+        write_json(root / FALSIFY_FILE, state)
+    optuna.logging.set_verbosity(logging.WARNING)
+    search = open_search(root, storage, name, _sampler(sampler, study.seed, population), resume)
+    search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
+    trials = [t for t in search.get_trials(deepcopy=False) if t.state != TrialState.WAITING]  # WAITING: enqueued
+    if [t.number for t in trials] != list(range(len(trials))):
+        raise OutputDirError(f"the optuna study of {root} has gaps in its trial numbers; it was changed outside "
+                             "falsify (one driver per folder)")
+    asked = [t for t in trials if set(space) <= set(t.params)]  # evaluation e is asked[e] (module docstring)
+    parts = StudyStore(search_dir, study).part_paths()
+    if len(parts) > len(asked):
+        raise OutputDirError(f"{root} holds {len(parts)} evaluations but its optuna storage {len(asked)} trials "
+                             f"of study {name!r}: resume with the --storage that the search started with")
+    write_json(root / FALSIFY_FILE, state)  # the resume is accepted: nothing was written before
 
     own_client = None
     if scheduler is not None:
@@ -339,26 +396,20 @@ def falsify(
         n_workers = sum(client.nthreads().values()) if client is not None else (workers or os.cpu_count() or 1)
         batch_size = max(1, math.ceil(population / max(1, n_workers)))
     run = {"workers": workers, "client": client, "batch_size": batch_size, "progress": False}
-    optuna.logging.set_verbosity(logging.WARNING)
-    url = storage or f"sqlite:///{(root / STORAGE_FILE).resolve()}"
-    search = optuna.create_study(study_name=name, storage=url, direction="minimize",
-                                 sampler=_sampler(sampler, study.seed, population), load_if_exists=resume)
-    search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
     try:
-        if initial == "vertices" and not search.get_trials(deepcopy=False):  # a fresh search
+        numbers = [t.number for t in asked]  # evaluation e is optuna trial numbers[e]
+        for trial in trials:
+            if trial.state == TrialState.RUNNING and trial.number not in numbers:  # stopped inside ask(): asked anew
+                search.tell(trial.number, state=TrialState.FAIL)
+                vertex = trial.system_attrs.get("fixed_params")  # an enqueued vertex (optuna's key): enqueued again
+                if vertex:
+                    search.enqueue_trial(vertex)
+        if initial == "vertices" and not trials:  # a fresh search
             for vertex in vertex_design(space, population, study.seed):
                 search.enqueue_trial(vertex)
-        trials = [t for t in search.get_trials(deepcopy=False) if t.state != TrialState.WAITING]  # WAITING: enqueued
-        if [t.number for t in trials] != list(range(len(trials))):
-            raise OutputDirError(f"the optuna study of {root} has gaps in its trial numbers; it was changed outside "
-                                 "falsify (one driver per folder)")
-        parts = StudyStore(search_dir, study).part_paths()
-        if len(parts) > len(trials):
-            raise OutputDirError(f"{root} holds {len(parts)} evaluations but its optuna storage {len(trials)} trials "
-                                 f"of study {name!r}: resume with the --storage that the search started with")
-        candidates = [_candidate(t.params, study) for t in trials]
-        pending: list[FrozenTrial | optuna.Trial] = [t for t in trials if t.state == TrialState.RUNNING]
-        evaluated = _rows(search_dir, range(len(trials)))  # evaluation index → row, as they are told
+        candidates = [_candidate(t.params, study) for t in asked]
+        pending = [e for e, t in enumerate(asked) if t.state == TrialState.RUNNING]  # asked, never told
+        evaluated = _rows(search_dir, range(len(asked)))  # evaluation index → row, as they are told
         violation = any(violated(r) for r in evaluated.values())
         stopped = "budget"
         while True:
@@ -370,30 +421,33 @@ def falsify(
                     break
                 for _ in range(min(population, budget - len(candidates))):
                     trial = search.ask(space)
-                    if trial.number != len(candidates):
-                        raise OutputDirError(f"optuna gave trial {trial.number} for evaluation {len(candidates)}: the "
-                                             f"study in its storage was changed outside falsify (one driver per folder)")
+                    if numbers and trial.number <= numbers[-1]:
+                        raise OutputDirError(f"optuna gave trial {trial.number} after trial {numbers[-1]}: the study "
+                                             "in its storage was changed outside falsify (one driver per folder)")
+                    numbers.append(trial.number)
                     candidates.append(_candidate(trial.params, study))
-                    pending.append(trial)
+                    pending.append(len(candidates) - 1)
             run_study(CandidateStudy.of(study, candidates), search_dir, resume=True, samples=len(candidates), **run)
-            rows = _rows(search_dir, range(pending[0].number, pending[-1].number + 1))
+            rows = _rows(search_dir, range(pending[0], pending[-1] + 1))
             evaluated.update(rows)
-            for trial in pending:
-                row = rows.get(trial.number, {})
-                value = objective_value(row, objective)
+            for e in pending:
+                row = rows.get(e, {})
+                value = searched_value(row, objective)
                 violation = violation or bool(violated(row))
                 if value is None:
-                    search.tell(trial.number, state=TrialState.FAIL)
+                    search.tell(numbers[e], state=TrialState.FAIL)
                 else:
-                    search.tell(trial.number, minimised(value, objective))
+                    search.tell(numbers[e], value)
             if all(objective_value(r, objective) is None for r in rows.values()) and len(candidates) == len(pending):
                 _refuse_unknown_objective(rows, objective)
             pending = []
             if progress:
                 done = _summary([evaluated[i] for i in sorted(evaluated)], objective)
-                print(f"falsify {study.name}: {len(candidates)}/{budget} evaluations, best {objective} "
-                      f"{done['best']!r}" + (f", first violation at evaluation {done['first_violation']}"
-                                             if done["first_violation"] else ""), file=sys.stderr, flush=True)
+                best = "a filter fault" if done["fault"] else repr(done["best"])
+                print(f"falsify {study.name}: {len(candidates)}/{budget} evaluations, best {objective} {best}"
+                      + (f", {done['faulted']} faulted" if done["faulted"] else "")
+                      + (f", first violation at evaluation {done['first_violation']}"
+                         if done["first_violation"] else ""), file=sys.stderr, flush=True)
         result = _summary([evaluated[i] for i in sorted(evaluated)], objective)
         base = uniform_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run) \
             if baseline else []
@@ -406,14 +460,48 @@ def falsify(
         if own_client is not None:
             own_client.close()
     state.update(status="done", stopped=stopped, evaluations=result["evaluations"], failed=result["failed"],
-                 first_violation=result["first_violation"],
+                 faulted=result["faulted"], first_violation=result["first_violation"],
                  best={"value": result["best"], "params": result["params"], "tuning": result["tuning"],
-                       "evaluation": result["evaluation"]},
+                       "evaluation": result["evaluation"], "fault": result["fault"]},
                  random_baseline={k: base_summary[k] for k in ("best", "params", "tuning", "evaluation", "evaluations",
-                                                              "failed", "first_violation")},
+                                                              "failed", "faulted", "fault", "first_violation")},
                  worst=worst)
     write_json(root / FALSIFY_FILE, state)
     return state
+
+
+def open_search(root: Path, storage: str | None, name: str, sampler: optuna.samplers.BaseSampler,
+                resume: bool) -> optuna.Study:
+    """The optuna study `name`: created (a new search) or, with `resume`, loaded from its storage (`storage`, a
+    URL; None: DIR/optuna.db). A storage that is missing, empty, unreadable or without the study is refused with
+    one line (`OutputDirError`); the default SQLite file is first read read-only, so a refused resume writes
+    nothing (module docstring)."""
+    url = storage or f"sqlite:///{(root / STORAGE_FILE).resolve()}"
+    shown = "the --storage database" if storage else str(root / STORAGE_FILE)
+    hint = ("the search's trials are lost: start a new falsification in another --out (its evaluations stay in "
+            f"{root / SEARCH_DIR})")
+    if resume and storage is None:
+        path = root / STORAGE_FILE
+        if not path.is_file():
+            raise OutputDirError(f"{path} is missing (or the search ran on a server database: resume with its "
+                                 f"--storage); without it {hint}")
+        try:
+            with contextlib.closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+                names = {n for (n,) in db.execute("SELECT study_name FROM studies")}
+        except sqlite3.Error as exc:
+            raise OutputDirError(f"{path} is not a readable optuna storage ({exc}); {hint}") from None
+        if name not in names:
+            raise OutputDirError(f"{path} holds no optuna study {name!r} (the one falsify.json names); {hint}")
+    try:
+        if resume:
+            return optuna.load_study(study_name=name, storage=url, sampler=sampler)
+        return optuna.create_study(study_name=name, storage=url, direction="minimize", sampler=sampler)
+    except KeyError:
+        raise OutputDirError(f"{shown} holds no optuna study {name!r} (the one falsify.json names); resume with "
+                             "the --storage that the search started with") from None
+    except (sqlalchemy.exc.SQLAlchemyError, optuna.exceptions.StorageInternalError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise OutputDirError(f"cannot open {shown} as an optuna storage: {first}") from None
 
 
 def _refuse_unknown_objective(rows: dict[int, dict[str, Any]], objective: str) -> None:
@@ -449,4 +537,4 @@ def _replay_worst(study: CandidateStudy, index: int, folder: Path, objective: st
         shutil.rmtree(folder)
     row = run_sample(study, index, str(folder))
     return {"dir": WORST_DIR, "evaluation": index + 1, "value": objective_value(row, objective),
-            "status": row["status"], "replay": f"softcbf run --config {WORST_DIR}/config.json"}
+            "status": row["status"], "fault": fault_of(row), "replay": f"softcbf run --config {WORST_DIR}/config.json"}

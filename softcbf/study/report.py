@@ -2,11 +2,12 @@
 
 `write_report(DIR, level=0.05, bins=6, figure_format="png", dpi=DPI)` reads DIR's rows and writes:
 
-    DIR/report.md                      per tuning: samples, failed, violation probability with its
-                                       95 % Wilson interval, quantiles of ρ_min_meas and F max [N];
+    DIR/report.md                      per tuning: samples, failed, faulted, violation probability with
+                                       its 95 % Wilson interval, quantiles of ρ_min_meas and F max [N];
                                        per varied parameter and tuning: where the binned violation
-                                       probability reaches `level`; the first failed samples' errors
-    DIR/plots/rho_min_meas.<fmt>       ρ_min_meas [-] per sample, by tuning (dots over box plots),
+                                       probability reaches `level`; the first failed and faulted
+                                       samples' errors
+    DIR/plots/rho_min_meas.<fmt>       ρ_min_meas [-] per clean sample, by tuning (dots over box plots),
                                        ρ = 0 (F = F_max) marked
     DIR/plots/force_max_N.<fmt>        peak measured force [N] per sample, by tuning, F_max marked
                                        (the study's fixed `f_max`, else the scenario's default)
@@ -18,16 +19,21 @@
 
 Per tuning the table gives the violation probability's 95 % Wilson interval, the exact
 two-sided Clopper–Pearson interval and the one-sided 95 % Clopper–Pearson upper bound (the
-"P(violation) < … at 95 %" a lab can publish; `softcbf.study.analysis`).
+"P(violation) < … at 95 %" a lab can publish; `softcbf.study.analysis`). A sample whose filter
+faulted counts as a violation in all of them and in the sensitivities, and stays out of the
+distributions and their plots (its figures stop at the fault); the table's "faulted" column says
+how many (a fault is never a pass).
 
 A falsification folder (DIR/falsify.json, `softcbf.study.falsify`) gets its own report:
 
-    DIR/report.md                      the objective, the search's and the uniform baseline's best value,
-                                       where (parameters, tuning, evaluation) and their first violation; the
+    DIR/report.md                      the objective, the search's and the uniform baseline's best value
+                                       (or filter fault), where (parameters, tuning, evaluation), how many
+                                       faulted and their first violation; the
                                        worst case's replay; the baseline's violation probability (its draws
                                        are uniform, so it estimates P over the box; the search's are not)
     DIR/plots/best_so_far.<fmt>        best-so-far objective against evaluations, search and baseline,
-                                       first violations marked, 0 marked for a ρ objective
+                                       first violations marked (a vertical line when it is a filter fault,
+                                       which has no value), 0 marked for a ρ objective
 
 `figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. Colours: tunings take
 their run colours (softcbf_mj.palette, Okabe–Ito), as in run reports; legends sit outside
@@ -44,9 +50,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from scenarios import get as get_scenario
-from softcbf.study.analysis import Proportion, crossing, sensitivity, tuning_summary, varied_parameters, violated
+from softcbf.study.analysis import (Proportion, clean, crossing, sensitivity, tuning_summary, varied_parameters,
+                                    violated)
 from softcbf.study.falsify import BASELINE_DIR, SEARCH_DIR, WORST_DIR, minimised, objective_value
-from softcbf.study.store import FALSIFY_FILE, STUDY_FILE, StudyStore
+from softcbf.study.store import FALSIFY_FILE, STUDY_FILE, StudyStore, fault_of, faulted
 from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, run_color
 from softcbf_mj.report import FIGURE_FORMATS, save_figure
 
@@ -110,7 +117,7 @@ def _axis_label(parameter: str) -> str:
 def _distribution_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], key: str, label: str,
                        path: Path, figure_format: str, dpi: float, line: float | None = None,
                        line_label: str = "") -> None:
-    data = [[r[key] for r in rows if r["tuning"] == t and r["status"] == "ok" and r.get(key) is not None]
+    data = [[r[key] for r in rows if r["tuning"] == t and clean(r) and r.get(key) is not None]
             for t in tunings]
     fig = _figure((2.8 + 1.3 * len(tunings), 4), dpi)
     ax = fig.add_subplot()
@@ -192,16 +199,21 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
               f"{len(rows)} of {study.n_samples} samples stored ({study.n_draws} draws × {len(tunings)} tunings). "
               f"Fixed: {fixed}. Varied: "
               + (", ".join(f"`{d.parameter}` {d.to_dict()}" for d in study.vary) or "nothing") + ".", "",
-              "Violation: measured force > F_max at some step (ρ_min_meas < 0). Intervals at 95 %: Wilson, exact "
+              "Violation: measured force > F_max at some step (ρ_min_meas < 0), or a filter fault: a sample whose "
+              "filter (or nominal) faulted counts as a violation (a fault is never a pass; its figures stop at the "
+              "fault and stay out of the distributions). Failed samples (an error outside the filter) have no "
+              "verdict and are left out. Intervals at 95 %: Wilson, exact "
               "Clopper–Pearson, and the one-sided Clopper–Pearson upper bound (P(violation) < bound at 95 %; "
               "with 0 violations in n samples it is 1 − 0.05^(1/n)).", "",
-              "| tuning | samples | failed | violations | P(violation) | Wilson 95 % | Clopper–Pearson 95 % "
-              "| P < (one-sided 95 %) | ρ_min_meas min / median / max | F max [N] median / p95 / max |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "| tuning | samples | failed | faulted | violations (faults included) | P(violation) | Wilson 95 % "
+              "| Clopper–Pearson 95 % | P < (one-sided 95 %) | ρ_min_meas min / median / max "
+              "| F max [N] median / p95 / max |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in summary:
         v, rho, force = s["violation"], s["rho_min_meas"] or {}, s["force_max_N"] or {}
         exact = v.exact
-        lines.append(f"| {s['tuning']} | {s['samples']} | {s['failed']} | {v.k}/{v.n} | {_fmt(v.p, '.3f')} "
+        lines.append(f"| {s['tuning']} | {s['samples']} | {s['failed']} | {s['faulted']} | {v.k}/{v.n} "
+                     f"| {_fmt(v.p, '.3f')} "
                      f"| [{v.low:.3f}, {v.high:.3f}] | [{exact[0]:.3f}, {exact[1]:.3f}] | {v.upper:.4f} "
                      f"| {_fmt(rho.get('q00'))} / {_fmt(rho.get('q50'))} / "
                      f"{_fmt(rho.get('q100'))} | {_fmt(force.get('q50'))} / {_fmt(force.get('q95'))} / "
@@ -221,11 +233,14 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
                 cells.append(f"{c['value']:.4g} ({c['status']})" if c["value"] is not None else c["status"])
             lines.append(f"| {parameter} | " + " | ".join(cells) + " |")
         lines += [""] + [f"![{p}](plots/violation_{p}.{ext})" for p in parameters] + [""]
-    errors = [r for r in rows if r["status"] != "ok"]
+    errors = [r for r in rows if not clean(r)]
     if errors:
-        lines += [f"## Failed samples ({len(errors)})", ""]
+        faults = sum(1 for r in errors if faulted(r))
+        lines += [f"## Failed and faulted samples ({len(errors) - faults} failed, {faults} faulted)", ""]
         for r in errors[:MAX_ERRORS_LISTED]:
-            first = (r.get("error") or "").splitlines()[0] if r.get("error") else ""
+            fault = fault_of(r)
+            first = (r.get("error") or "").splitlines()[0] if r.get("error") else (
+                f"filter fault in the {fault['where']}: {fault['type']}: {fault['message']}" if fault else "")
             lines.append(f"- sample {r['sample']} (draw {r['draw']}, {r['tuning']}): {first}")
         lines.append("")
     path = store.root / REPORT_FILE
@@ -234,7 +249,8 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
 
 
 def _best_so_far(rows: Sequence[Mapping[str, Any]], objective: str) -> tuple[list[int], list[float]]:
-    """(evaluation counts, best objective so far) over the rows in evaluation order; failed rows keep the best."""
+    """(evaluation counts, best objective so far) over the rows in evaluation order; failed and faulted rows
+    (no value) keep the best."""
     x, y, best = [], [], None
     for row in rows:
         value = objective_value(dict(row), objective)
@@ -255,7 +271,10 @@ def _best_so_far_plot(curves: Mapping[str, Sequence[Mapping[str, Any]]], objecti
         colour = run_color(label, i)
         ax.step(x, y, where="post", color=colour, label=label)
         first = next((r for r in rows if violated(r)), None)
-        if first is not None:
+        if first is not None and faulted(first):
+            ax.axvline(int(first["sample"]) + 1, color=colour, ls=":", lw=1.2,
+                       label=f"{label}: first violation at {int(first['sample']) + 1} (a filter fault)")
+        elif first is not None:
             ax.plot([int(first["sample"]) + 1], [objective_value(dict(first), objective)], "o", color=colour,
                     label=f"{label}: first violation at {int(first['sample']) + 1}")
     if objective.removeprefix("-").startswith("rho"):
@@ -291,21 +310,33 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
              f"{state['population']}, generation 0 {state.get('initial', 'random')}, seed {state['seed']}, budget "
              f"{state['budget']}; status {state['status']}"
              + (f", stopped at the {state['stopped']}" if state.get("stopped") else "") + ".", "",
-             "| | evaluations | failed | best | at evaluation | tuning | parameters | first violation |",
-             "|---|---|---|---|---|---|---|---|"]
+             "A filter fault is the worst value there is (a fault is never a pass): an evaluation that faulted is "
+             "a violation and, if any did, the best.", "",
+             "| | evaluations | failed | faulted | best | at evaluation | tuning | parameters | first violation |",
+             "|---|---|---|---|---|---|---|---|---|"]
     best = state.get("best") or {}
     base = state.get("random_baseline") or {}
     for label, s, value in (("search", {**state, **best}, best.get("value")), ("uniform random", base, base.get("best"))):
         if not s.get("evaluations"):
             continue
+        shown = (f"filter fault ({s['fault']['type']} in the {s['fault']['where']})" if s.get("fault")
+                 else _fmt(value, '.6g'))
         params = ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v!r}"
                            for k, v in (s.get("params") or {}).items()) or "–"
-        lines.append(f"| {label} | {s['evaluations']} | {s['failed']} | {_fmt(value, '.6g')} | "
+        lines.append(f"| {label} | {s['evaluations']} | {s['failed']} | {s.get('faulted', 0)} | {shown} | "
                      f"{_fmt(s.get('evaluation'), 'd')} | {s.get('tuning') or '–'} | {params} | "
                      f"{_fmt(s.get('first_violation'), 'd')} |")
     lines += ["", f"![best so far](plots/best_so_far.{figure_format})", ""]
     worst = state.get("worst")
-    if worst:
+    if worst and (worst.get("fault") or best.get("fault")):
+        again = worst.get("fault")
+        lines += ["## Worst case", "",
+                  f"`{WORST_DIR}/` is a run folder of evaluation {worst['evaluation']} run alone: "
+                  + (f"its filter faulted again ({again['type']} in the {again['where']}: {again['message']})"
+                     if again else f"{objective.removeprefix('-')} = {_fmt(worst['value'], '.6g')}, no fault: the "
+                                   "search's filter fault was NOT replayed")
+                  + f". Replay: `softcbf run --config {root / WORST_DIR / 'config.json'}`.", ""]
+    elif worst:
         same = worst["value"] == best.get("value")
         lines += ["## Worst case", "",
                   f"`{WORST_DIR}/` is a run folder of evaluation {worst['evaluation']} run alone: "
@@ -317,13 +348,16 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
     if baseline_rows:
         lines += ["## The uniform baseline as an estimate", "",
                   "Its draws are uniform over the box, so it estimates P(violation) over the box (the search's "
-                  "evaluations are chosen, not drawn, and estimate nothing):", "",
-                  "| tuning | violations | P(violation) | Wilson 95 % | Clopper–Pearson 95 % | P < (one-sided 95 %) |",
-                  "|---|---|---|---|---|---|"]
+                  "evaluations are chosen, not drawn, and estimate nothing); a draw whose filter faulted counts "
+                  "as a violation:", "",
+                  "| tuning | faulted | violations (faults included) | P(violation) | Wilson 95 % | Clopper–Pearson 95 % "
+                  "| P < (one-sided 95 %) |",
+                  "|---|---|---|---|---|---|---|"]
         for tuning in study["tunings"]:
             v = Proportion.of(violated(r) for r in baseline_rows if r["tuning"] == tuning)
+            faults = sum(1 for r in baseline_rows if r["tuning"] == tuning and faulted(r))
             exact = v.exact
-            lines.append(f"| {tuning} | {v.k}/{v.n} | {_fmt(v.p, '.3f')} | [{v.low:.3f}, {v.high:.3f}] | "
+            lines.append(f"| {tuning} | {faults} | {v.k}/{v.n} | {_fmt(v.p, '.3f')} | [{v.low:.3f}, {v.high:.3f}] | "
                          f"[{exact[0]:.3f}, {exact[1]:.3f}] | {v.upper:.4f} |")
         lines.append("")
     lines += [f"Rows: `{SEARCH_DIR}/` and `{BASELINE_DIR}/` are study folders (one Parquet part per evaluation; "

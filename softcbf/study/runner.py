@@ -7,7 +7,10 @@ printed table, and returns the sample's row
 (columns: `softcbf.study.store`). The scenario must produce exactly one run (one
 tuning). An exception inside the scenario becomes a row with status "error" and its
 text, so a crashing sample never stops the study; only a dead worker process (a
-segfault, a kill) escapes, and the executor handles that.
+segfault, a kill) escapes, and the executor handles that. A run that ended on a filter
+fault (its row carries `fault`, closedloop.step.FilterFault) is a row with status "fault",
+the fault's one line as its error and its fault_type, fault_where, fault_message
+(`run_fields`): its figures stop at the fault and are no verdict (a fault is never a pass).
 
 Cost: besides the closed loop, a sample pays for building the scenario (for
 `mujoco_contact`: compiling the MuJoCo model) and for writing its summary and time series
@@ -39,9 +42,10 @@ from pathlib import Path
 from typing import Any
 
 from scenarios import get as get_scenario
+from closedloop.step import describe_fault
 from scenarios.common import data_only
 from softcbf.study.definition import Sample, Study
-from softcbf.study.store import PARAM_PREFIX
+from softcbf.study.store import FAULT_STATUS, PARAM_PREFIX
 
 _SKIPPED_RUN_FIELDS = ("tuning", "timeseries")  # the row has its own tuning; no time series is kept
 
@@ -56,6 +60,15 @@ def sample_row(sample: Sample) -> dict[str, Any]:
                            "scenario_seed": sample.scenario_seed}
     row.update({PARAM_PREFIX + k: v for k, v in sample.values.items()})
     return row
+
+
+def run_fields(run: dict[str, Any]) -> dict[str, Any]:
+    """A finished run's columns of a sample's row: status ("ok", or "fault" when the run ended on a filter
+    fault), error ("" or the fault's one line) and the run's scalar fields (module docstring)."""
+    fault = run.get("fault")
+    fields: dict[str, Any] = {"status": FAULT_STATUS if fault else "ok", "error": describe_fault(fault) if fault else ""}
+    fields.update({k: v for k, v in run.items() if k not in _SKIPPED_RUN_FIELDS and _scalar(v)})
+    return fields
 
 
 def failed_row(study: Study, index: int, error: str) -> dict[str, Any]:
@@ -88,12 +101,12 @@ def run_batch(study: Study, indices: list[int], nthread: int = 1) -> list[dict[s
         return [run_sample(study, i) for i in indices]
     wall = (time.perf_counter() - start) / len(indices)
     worker = f"{socket.gethostname()}:{os.getpid()}"
-    return [{**sample_row(s), "status": "ok", "error": "", **run, "sample_wall_s": wall, "worker": worker}
+    return [{**sample_row(s), **run_fields(run), "sample_wall_s": wall, "worker": worker}
             for s, run in zip(samples, runs)]
 
 
 def run_sample(study: Study, index: int, keep_dir: str | None = None) -> dict[str, Any]:
-    """The result row of sample `index` (status "ok" with the run's scalar fields, or "error")."""
+    """The result row of sample `index` (status "ok" or "fault" with the run's scalar fields, or "error")."""
     start = time.perf_counter()
     sample = study.sample(index)
     row = sample_row(sample)
@@ -112,8 +125,7 @@ def run_sample(study: Study, index: int, keep_dir: str | None = None) -> dict[st
         if len(runs) != 1:
             raise ValueError(f"scenario {study.scenario!r} returned {len(runs)} runs for one sample; a study needs "
                              f"one run per tuning (check tuning_parameter {study.tuning_parameter!r})")
-        row.update(status="ok", error="")
-        row.update({k: v for k, v in runs[0].items() if k not in _SKIPPED_RUN_FIELDS and _scalar(v)})
+        row.update(run_fields(runs[0]))
     except Exception as exc:  # noqa: BLE001 - a failing sample is a result, recorded with its error
         tail = "".join(traceback.format_exception(exc)[-3:])
         row.update(status="error", error=f"{type(exc).__name__}: {exc}\n{tail}".strip())

@@ -2,8 +2,8 @@
 
 Rule (`softcbf study run FILE --until-bound TARGET`). The study runs its draws in rounds
 (`execute.run_study` with resume, so each round adds draws to the same folder). After a
-round, per tuning t with k_t violations (ρ_min_meas < 0, `analysis.violated`) among the n_t
-samples with a measured ρ, u_t is the one-sided Clopper–Pearson upper bound on P(violation)
+round, per tuning t with k_t violations (ρ_min_meas < 0 or a filter fault, `analysis.violated`:
+a fault is never a pass) among the n_t samples with a verdict, u_t is the one-sided Clopper–Pearson upper bound on P(violation)
 at `confidence` (95 %; `analysis.clopper_pearson_upper`). Tuning t is settled when
 u_t < TARGET (the claim "P(violation) < TARGET at 95 %" holds) or k_t ≥ 1 (a violation was
 found: the claim cannot be made on this many draws). The study stops when every tuning is
@@ -18,7 +18,8 @@ samples unless a violation comes first", and a p ≥ TARGET passes it with proba
 Rounds: each round adds min(⌈n* / 4⌉, what the unsettled tunings still need) draws, so a
 violation stops the study at most a quarter of n* draws after it happened (each round is one
 `run_study` call, i.e. one pool start), and no round goes past n* for a tuning without
-violations (failed samples do not count towards n_t, so a round may be added for them).
+violations (failed samples do not count towards n_t, so a round may be added for them; faulted
+samples count as violations and settle their tuning as violated).
 """
 
 from __future__ import annotations
@@ -31,21 +32,22 @@ from typing import Any
 from softcbf.study.analysis import Proportion, violated
 from softcbf.study.definition import Study
 from softcbf.study.execute import StudyOutcome, run_study
-from softcbf.study.store import StudyStore
+from softcbf.study.store import StudyStore, faulted
 
 ROUNDS = 4  # rounds to reach n* without violations
 
 
 @dataclass(frozen=True)
 class SequentialOutcome:
-    """The study's draws run, per tuning its violation Proportion (with `.upper`) and whether it is settled,
-    and the summed `run_study` outcomes."""
+    """The study's draws run, per tuning its violation Proportion (with `.upper`; faulted samples are violations),
+    whether it is settled and how many of its samples faulted, and the summed `run_study` outcomes."""
 
     draws: int
     violation: dict[str, Proportion]
     settled: dict[str, bool]
     target: float
     outcome: StudyOutcome
+    faulted: dict[str, int]
 
     @property
     def bounded(self) -> dict[str, bool]:
@@ -76,6 +78,7 @@ def run_until_bound(study: Study, out_dir: str | Path, target: float, *, confide
     while True:
         rows = store.load_rows() if store is not None else []
         violation = {t: Proportion.of((violated(r) for r in rows if r["tuning"] == t), confidence) for t in tunings}
+        faults = {t: sum(1 for r in rows if r["tuning"] == t and faulted(r)) for t in tunings}
         settled = {t: p.k > 0 or p.upper < target for t, p in violation.items()}
         draws = max(draws, len({r["draw"] for r in rows}))
         if all(settled.values()) or draws >= study.n_draws:
@@ -86,7 +89,8 @@ def run_until_bound(study: Study, out_dir: str | Path, target: float, *, confide
         store = StudyStore.open(out_dir)
         totals = outcome if totals is None else replace(
             outcome, skipped=totals.skipped, ran=totals.ran + outcome.ran, failed=totals.failed + outcome.failed,
-            wall_s=totals.wall_s + outcome.wall_s, corrupted=totals.corrupted + outcome.corrupted)
+            wall_s=totals.wall_s + outcome.wall_s, corrupted=totals.corrupted + outcome.corrupted,
+            faulted=totals.faulted + outcome.faulted)
     if totals is None:  # a resumed folder that was settled already
         totals = StudyOutcome(study.n_samples, len(rows), 0, 0, 0.0, "none", 0)
-    return SequentialOutcome(draws, violation, settled, target, totals)
+    return SequentialOutcome(draws, violation, settled, target, totals, faults)

@@ -30,13 +30,22 @@ Columns (one row per sample):
 | tuning              | string  | tuning name                                                      |
 | scenario_seed       | int64   | the draw's seed for the scenario's own randomness                |
 | param.<name>        | per     | the drawn value of every varied parameter, in its own unit       |
-| status              | string  | "ok" or "error"                                                  |
-| error               | string  | "" when ok; the exception and the end of its traceback otherwise |
+| status              | string  | "ok"; "fault": the filter or nominal faulted (its run stopped    |
+|                     |         | there, `faulted`); "error": the sample failed outside the filter |
+| error               | string  | "" when ok; the fault's one line; the exception and the end of   |
+|                     |         | its traceback for an error                                       |
+| fault_type, fault_where, fault_message | string | a faulted sample's fault (closedloop.step.FilterFault):  |
+|                     |         | exception class, "filter", "nominal", …, first line; else absent |
 | <run field>         | per     | every scalar field of the scenario's run row (docs/run-outputs.md: |
 |                     |         | rho_min_pred, rho_min_meas, force_max_N [N], t_violation_s [s],  |
 |                     |         | infeasible_steps, …, plus the scenario's extras); null on error  |
 | sample_wall_s       | float64 | wall time of the whole sample in the worker (s)                  |
 | worker              | string  | host:pid that ran it                                             |
+
+A faulted sample's figures cover only the rows up to its fault (a filter that raises at its first
+call leaves ρ_min_meas 1.0 over one period): they are no verdict, and every statistic counts the
+sample as a violation (`softcbf.study.analysis.violated`). `faulted(row)` also knows a row stored
+with status "ok" and a `fault_type` (folders written before the "fault" status).
 
 `WALL_CLOCK_COLUMNS` depend on the machine, not on the study: leave them out when
 comparing runs for determinism.
@@ -64,6 +73,7 @@ RESULTS_DIR = "results"
 COMPACT_FILE = "results.parquet"
 RUNS_DIR = "runs"
 PARAM_PREFIX = "param."
+FAULT_STATUS = "fault"  # a sample whose filter or nominal faulted (module docstring)
 WALL_CLOCK_COLUMNS = frozenset({"wall_s", "filter_us_median", "filter_us_p99", "realtime_factor", "sample_wall_s", "worker"})
 DIGEST_KEY = b"softcbf.row_sha256"
 _PART = re.compile(r"sample-(\d+)\.parquet")
@@ -71,6 +81,19 @@ _PART = re.compile(r"sample-(\d+)\.parquet")
 
 class CorruptPartError(ValueError):
     """A stored part cannot be read or does not match its digest; the message names the file."""
+
+
+def faulted(row: Mapping[str, Any]) -> bool:
+    """Whether the sample of `row` ended on a filter fault: status "fault", or a `fault_type` (module docstring)."""
+    return row.get("status") == FAULT_STATUS or bool(row.get("fault_type"))
+
+
+def fault_of(row: Mapping[str, Any]) -> dict[str, str] | None:
+    """A faulted row's fault as {type, message, where} (None: the row did not fault)."""
+    if not faulted(row):
+        return None
+    return {"type": row.get("fault_type") or "", "message": row.get("fault_message") or "",
+            "where": row.get("fault_where") or ""}
 
 
 def part_name(index: int) -> str:

@@ -24,7 +24,9 @@ with x_e's parameters (`params`), e (`evaluation`, 1-based), the evaluations run
 evaluation that violated (null: none). It bounds the box's true worst case from above
 (min_{x ∈ box} ρ ≤ rho_worst_found): a negative value is a counterexample that replays, a positive one
 is no proof of safety (the search may miss a worse x; for a bound on P(violation) use `softcbf study run
---until-bound`). It is null when no evaluation finished.
+--until-bound`). It is null when no evaluation finished, and when the worst evaluation is a filter fault
+(the worst there is: `fault` {type, message, where} then names it, `faulted` counts the evaluations
+that faulted; a fault is never a pass).
 """
 
 from __future__ import annotations
@@ -77,7 +79,8 @@ def worst_found(label: str, study: Study, folder: str | Path, budget: int, *, re
                 workers: int | None = None) -> dict[str, Any]:
     """Search `study`'s box for `budget` evaluations into `folder` (a new or empty folder, or with `resume` a
     falsification folder of the same search, continued up to `budget`); bench.json's "worst_found" entry of the filter `label` (module docstring): filter,
-    rho_worst_found, params, evaluation, evaluations, failed, first_violation, wall_s (s, this call's)."""
+    rho_worst_found, params, evaluation, evaluations, failed, first_violation, wall_s (s, this call's), faulted,
+    fault."""
     folder = Path(folder)
     start = time.perf_counter()
     result = falsify(study, folder, budget=budget, sampler=SAMPLER, baseline=0, workers=workers, progress=False,
@@ -85,4 +88,5 @@ def worst_found(label: str, study: Study, folder: str | Path, budget: int, *, re
     best = result["best"]
     return {"filter": label, "rho_worst_found": best["value"], "params": best["params"], "evaluation": best["evaluation"],
             "evaluations": result["evaluations"], "failed": result["failed"],
-            "first_violation": result["first_violation"], "wall_s": time.perf_counter() - start}
+            "first_violation": result["first_violation"], "wall_s": time.perf_counter() - start,
+            "faulted": result["faulted"], "fault": best["fault"]}
