@@ -18,10 +18,10 @@ side as its own process, alternating, and append every run's JSON line to one fi
 over the runs of each run's median, side by side with the first side. E.g. MuJoCo 4.0.0 with the
 tree of the commit before against this tree:
 
-    git worktree add /tmp/base <commit>       # the tree before
-    for i in 1 2 3 4 5; do
-      PYTHONPATH=/tmp/base OLD_VENV/bin/python tools/bench_mujoco.py --append /tmp/mj.jsonl
-      PYTHONPATH=$PWD .venv/bin/python tools/bench_mujoco.py --append /tmp/mj.jsonl
+    git archive <commit before> | tar -x -C /tmp/base     # with a venv of the old MuJoCo in OLD
+    for i in 1 2 3 4 5 6; do
+      PYTHONPATH=/tmp/base OLD/bin/python tools/bench_mujoco.py --repeats 3 --seconds 0.5 --append /tmp/mj.jsonl
+      PYTHONPATH=$PWD .venv/bin/python tools/bench_mujoco.py --repeats 3 --seconds 0.5 --append /tmp/mj.jsonl
     done
     .venv/bin/python tools/bench_mujoco.py --compare /tmp/mj.jsonl
 
@@ -191,6 +191,9 @@ def main() -> None:
                         help="only compare the runs in these JSON-line files (see the docstring)")
     args = parser.parse_args()
     if args.compare is not None:
+        missing = [str(path) for path in args.compare if not path.is_file()]
+        if missing:
+            parser.error(f"--compare: no such file {', '.join(missing)}")
         print(json.dumps(compare(args.compare)))
         return
     try:
