@@ -24,5 +24,23 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip
+# MuJoCo 4 splits its Python bindings into mujoco, mujoco-core, mujoco-studio and mujoco-studio-wasm,
+# which all write into one mujoco/ directory; upgrading them in place can leave a mix of versions, so
+# the old ones are uninstalled first. Only when an installed one differs from the pin: a second run
+# keeps the installation.
+mujoco_pin=$(sed -n 's/^mujoco==//p' constraints.txt)
+mujoco_installed=$(.venv/bin/python - <<'PY'
+from importlib import metadata
+for name in ("mujoco", "mujoco-core", "mujoco-studio", "mujoco-studio-wasm"):
+    try:
+        print(name, metadata.version(name))
+    except metadata.PackageNotFoundError:
+        pass
+PY
+)
+if [ -n "$mujoco_installed" ] && echo "$mujoco_installed" | grep -qv " $mujoco_pin\$"; then
+  echo "setup: replacing $(echo "$mujoco_installed" | paste -sd, -) by MuJoCo $mujoco_pin (uninstalling first)"
+  .venv/bin/python -m pip uninstall -q -y $(echo "$mujoco_installed" | cut -d' ' -f1)
+fi
 .venv/bin/python -m pip install -q -c constraints.txt -e '.[dev]'
 echo "setup: ready ($(.venv/bin/python --version), $(.venv/bin/python -c 'import mujoco; print("mujoco", mujoco.__version__)'))"

@@ -66,8 +66,10 @@ inertials), textured with the 36h11 images of `perception.tags.tag_image` (PNG f
 matte material (no specular highlight). The calibration scene adds a board of tags
 `CALIBRATION_BOARD_IDS` on the world in the same plane (`calibration_board`).
 
-Options: `implicitfast` (joint damping integrated implicitly), dense Jacobian (MuJoCo
-4.0.0 sparse-solver bug), gravity off by default (the arm lies on a table; `gravity`
+Options: `implicitfast` (joint damping integrated implicitly), MuJoCo's own choice of the
+constraint Jacobian (`jacobian="auto"`, MuJoCo's default: dense below 60 degrees of freedom, so
+the default arm with its plate, nv = 21, and the flexure, nv = 31, are dense and the convergence
+study's finer arms, nv = 81 at n = 40, sparse), gravity off by default (the arm lies on a table; `gravity`
 sets it, e.g. (0, −9.81, 0) for an arm in a vertical plane; `table_friction` instead makes the
 links slide on the table with Coulomb friction, `softcbf_mj.table_friction`). The defaults n = 10
 and physics step 0.1 ms come from `tools/convergence_study.py` (models/softcbf_arm/README.md).
@@ -592,7 +594,6 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     spec.compiler.autolimits = True
     spec.option.timestep = _r6(config.physics_dt)
     spec.option.integrator = mujoco.mjtIntegrator.__members__[f"mjINT_{config.integrator.upper()}"]
-    spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # docs/ground-truth.md: MuJoCo 4.0.0 sparse-solver bug
     spec.option.gravity = _r6v(config.gravity)
     if config.table_friction > 0:  # read back by softcbf_mj.table_friction.table_friction_of
         spec.add_numeric(name=TABLE_FRICTION_NUMERIC, data=[_r6(config.table_friction)])
