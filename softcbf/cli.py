@@ -73,12 +73,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import softcbf_mj
-from controllers import registry as controllers_registry
-from scenarios import get as get_scenario, registry
-from scenarios.config_file import load_run_config, replay_warnings
-from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
-from softcbf_mj.runio import RunFolderError, versions
+try:  # Ctrl-C while the command line starts (these imports take about a second): one line, exit 130
+    import softcbf_mj
+    from controllers import registry as controllers_registry
+    from scenarios import get as get_scenario, registry
+    from scenarios.config_file import load_run_config, replay_warnings
+    from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
+    from softcbf_mj.runio import RunFolderError, versions
+except KeyboardInterrupt:
+    print("\ninterrupted", file=sys.stderr)
+    raise SystemExit(130) from None  # scenarios.run.INTERRUPTED, which could not be imported
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay;
@@ -289,7 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"softcbf {command.name}: unrecognised arguments: {' '.join(extra)}")
         return command.handler(args, extra)
 
-    return exit_code(run)
+    return exit_code(run, process=argv is None)  # argv None: this process's own command line
 
 
 if __name__ == "__main__":
