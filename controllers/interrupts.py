@@ -10,10 +10,11 @@ filter fault (docs/safety-filter.md#the-plug-in-boundary-is-a-trust-boundary).
 (`signal.default_int_handler`) is in place, it installs `interrupt_handler`, which does what that
 handler does (raise KeyboardInterrupt) and keeps the exception it raised. `is_interrupt(exc)` is
 then True for that exception, or for a KeyboardInterrupt raised while it was being handled (its
-`__context__` chain holds it), and False for every other exception. Where `interrupt_handler` is
-not in place (another handler, such as the hardware loop's, or `watch()` never called from the
-main thread) every KeyboardInterrupt counts as a real one: nothing that may be the user's Ctrl-C is
-taken for a fault. The control step and the plug-in registry call `watch()` when they are built, the
+`__context__` chain holds it), and False for every other exception. Where SIGINT is ignored
+(SIG_IGN) or ends the process (SIG_DFL), no KeyboardInterrupt is a Ctrl-C. Where another handler
+is in place (such as the hardware loop's, or Python's own because `watch()` was never called from
+the main thread) every KeyboardInterrupt counts as a real one: nothing that may be the user's
+Ctrl-C is taken for a fault. The control step and the plug-in registry call `watch()` when they are built, the
 command line when it starts.
 """
 
@@ -45,7 +46,10 @@ def is_interrupt(exc: BaseException) -> bool:
     """Whether `exc`, raised by user code, is a real Ctrl-C (module docstring)."""
     if not isinstance(exc, KeyboardInterrupt):
         return False
-    if signal.getsignal(signal.SIGINT) is not interrupt_handler:
+    handler = signal.getsignal(signal.SIGINT)
+    if handler in (signal.SIG_IGN, signal.SIG_DFL):
+        return False  # SIGINT is ignored or ends the process: it raises nothing
+    if handler is not interrupt_handler:
         return True  # no way to tell: taken as the user's Ctrl-C
     seen, depth = exc, 0
     while seen is not None and depth < 100:

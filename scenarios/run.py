@@ -7,7 +7,7 @@ spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
 repeatable, add to `filter_params` and `nominal_params`; `--tuning NAME` is
 `--filter-param tuning=NAME`; a NAME given twice on one command line is refused,
 `command_line_params`, while one of `base` is overridden). `run_scenario` checks every parameter
-and builds the scenario's spec (every value checked, `Scenario.build`) before the run folder exists,
+and builds the scenario's spec (every value checked, `scenarios.spec`) before the run folder exists,
 then makes it absolute (a filter that changes the working folder cannot move the outputs), locks
 it (`softcbf_mj.runio`) and runs the spec into it.
 
@@ -315,7 +315,7 @@ def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overw
         raise UsageError(exc.args[0]) from None
     params = scenario_parameters(scenario, tokens, base)
     try:
-        spec = scenario.build(params)
+        spec = scenario.spec.from_flat(params)  # the parameters are typed: the spec's checks only
     except ValueError as exc:  # the vocabulary's and the scenario's checks (scenarios.spec)
         raise UsageError(str(exc)) from None
     try:

@@ -42,10 +42,12 @@ Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the
 type, not finite or out of range, a duration whose time series would not fit in memory,
 an --out that is in use, not writable, or non-empty without --overwrite, a folder that is
 not a run folder, a time series that cannot be read), with one line on stderr naming the
-parameter (or file) and the valid values; 130 interrupted. Scenarios check every
-parameter before they write anything; a run that stops before its first finished tuning
-(rejected, failed or interrupted) leaves no output behind (folders it created are
-removed, one that existed is emptied), so the corrected command is not refused. Ctrl-C
+parameter (or file) and the valid values; 1 a run that ended on a filter fault (one line, its
+record kept) or an error of the testbed itself (a traceback; the run folder kept as it was, the
+evidence); 130 interrupted. Scenarios check every parameter before they write anything; a run
+that stops before its first finished tuning (rejected or interrupted) leaves no output behind
+(folders it created are removed, one that existed is emptied), so the corrected command is not
+refused. Ctrl-C
 after a finished tuning keeps the finished tunings and brings the report and the
 recording up to them if they lag behind (a second Ctrl-C skips that and says what to run).
 
