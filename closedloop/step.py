@@ -5,10 +5,11 @@ controller's view of the state (`controllers.safety_filter.Estimate`: t, t_captu
 q (N,) rad, qd (N,) rad/s) and what it observed (`SafetyFlags`), and sends the
 `StepRecord.u` it gets back. In this order:
 
-1. the plug-in boundary in: the estimate the nominal and the filter see has read-only
-   copies of q and q̇, so nothing they do changes what the loop records;
-2. nominal: u_nom = nominal(t, q, qd), (N,) hPa, converted once (`real_vector`: a new
-   read-only float array);
+1. the plug-in boundary in: the estimate the nominal and the filter see has `frozen`
+   copies of q and q̇ (read-only, and the flag cannot be set back), so nothing they do
+   changes what the loop records;
+2. nominal: u_nom = nominal(t, q, qd), (N,) hPa, converted once (`real_vector`, then
+   `frozen`: the array recorded is the one the filter gets, which it cannot write);
 3. filter (skipped while `perception_stale`: there is no estimate to filter):
    output = OutputCheck(filter(estimate, u_nom)), the call timed (`filter_us`, µs);
 4. admission: a u_filter that is not finite is refused (the monitor's `command_nonfinite`
@@ -23,9 +24,12 @@ q (N,) rad, qd (N,) rad/s) and what it observed (`SafetyFlags`), and sends the
 6. the record: what the filter returned (`output`, None when it was not called or
    raised), what was sent (`u`), the monitor's action and reasons, the filter's time.
 
-Filter faults (docs/safety-filter.md#the-plug-in-boundary-is-a-trust-boundary). Any other
-exception from the nominal, the filter or its `reset()`, and any return the contract
-refuses (`FilterReturnError`), is a filter fault:
+Filter faults (docs/safety-filter.md#the-plug-in-boundary-is-a-trust-boundary). Anything
+else the nominal, the filter or its `reset()` raises, `BaseException`s included (SystemExit,
+GeneratorExit, a KeyboardInterrupt the code raises itself), anything the conversion of its
+return raises (a hostile value's own `__float__`, a mapping's `items()`: every conversion
+happens here, inside the boundary), and any return the contract refuses
+(`FilterReturnError`), is a filter fault:
 the step keeps the first one (`fault`, a `FilterFault` with its traceback), calls no user
 code again, and raises the monitor's `filter_fault` flag on every later call: HOLD the last
 admitted command for the monitor's hold, then VENT (at once if nothing was admitted yet).
@@ -35,7 +39,8 @@ recorded so far. A non-finite command is not a fault: it is refused and the step
 
 Guarantees, whatever the filter does: u is finite; on RUN and HOLD it is a command the
 step admitted, so within the limits when they are on; VENT sends 0 hPa (the valves' vent).
-Interrupts (KeyboardInterrupt) are not faults: they propagate to the loop.
+A real Ctrl-C is not a fault: its KeyboardInterrupt propagates to the loop
+(`controllers.interrupts.is_interrupt`; the step calls `watch()` when it is built).
 
 The batch axis: one step for one run and for B. `BatchControlStep` is this step for B runs at
 once (a batched study's simulations, the vector environment's arms): state (B, N) arrays in,

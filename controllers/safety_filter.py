@@ -35,8 +35,9 @@ Whatever a filter returns, the control step clips it to the limits and refuses
 non-finite commands (`closedloop.step`); a filter need not repeat that.
 
 What a loop accepts (the plug-in boundary is a trust boundary, docs/safety-filter.md#the-plug-in-boundary-is-a-trust-boundary). A filter is
-somebody else's code, so the control step hands it read-only copies (the estimate's q and
-q̇, u_nom, the context's limits) and converts its return once (`OutputCheck`): a bare
+somebody else's code, so the control step hands it copies it cannot make writable (`frozen`:
+the estimate's q and q̇, u_nom; the context's limits are read-only copies) and converts its
+return once (`OutputCheck`, every value read once into plain floats, the diagnostics too): a bare
 return must be n real numbers (an ndarray, list or tuple; not bool, complex or object
 values), a FilterOutput must have such a u, a str action, a bool infeasible, a real
 rho_pred (NaN for none) and diagnostics of str keys and real values, at most

@@ -182,12 +182,37 @@ HOWS = (*RAISES, "bad_float_u", "bad_float_rho", "bad_int_rho", "bad_float_diagn
 NOT_FAULTS = ("disagree", "nan", "inf", "huge")  # converted (disagree: items() read once) or refused then held
 
 
+class HostileNominal:
+    """The constant nominal until call `at`, then `how` (`NOMINAL_HOWS`) at that call and every later one."""
+
+    def __init__(self, how: str, at: int) -> None:
+        self.how, self.at, self.calls = how, at, 0
+
+    def __call__(self, t, q, qd):
+        self.calls += 1
+        if self.calls < self.at:
+            return np.array(U_NOM)
+        how = self.how
+        if how in RAISES:
+            raise RAISES[how]("hostile nominal")
+        if how == "bad_float":
+            return [BadFloat(1.0), 0.0]
+        if how == "setflags_q":
+            q.setflags(write=True)
+        if how == "shape":
+            return np.zeros(3)
+        raise AssertionError(how)
+
+
+NOMINAL_HOWS = ("exception", "system_exit", "custom", "keyboard_interrupt", "bad_float", "setflags_q", "shape")
+
+
 def _estimate(k: int) -> Estimate:
     q, qd = np.array([0.01 * k, -0.02]), np.array([0.1, 0.0])
     return Estimate(k * DT, q, qd, k * DT)
 
 
-def _serial(safety_filter, calls: int = 40, hold_s: float = 0.005):
+def _serial(safety_filter, calls: int = 40, hold_s: float = 0.005, nominal=nominal):
     """Run `calls` control calls of a ControlStep, recording each; (records, recorder columns, fault)."""
     step = ControlStep(safety_filter, nominal, CONTEXT, SafetyMonitor(2, hold_s=hold_s))
     recorder = Recorder(calls, 2, {"t": ()})
@@ -202,9 +227,10 @@ def _serial(safety_filter, calls: int = 40, hold_s: float = 0.005):
     return records, recorder.columns(len(records)), step.fault
 
 
-def _batched(filters, calls: int = 40, hold_s: float = 0.005):
-    """The same calls through a BatchControlStep of one filter per row; (u (calls, B, N), rows, faults, records)."""
-    step = BatchControlStep(filters, nominal, CONTEXT, len(filters), hold_s)
+def _batched(filters, calls: int = 40, hold_s: float = 0.005, nominals=None):
+    """The same calls through a BatchControlStep of one filter (and one nominal) per row; (u (calls, B, N), rows,
+    faults, records)."""
+    step = BatchControlStep(filters, nominals or [nominal] * len(filters), CONTEXT, len(filters), hold_s)
     step.reset()
     active = np.ones(len(filters), dtype=bool)
     rows, u, records = np.zeros(len(filters), dtype=int), [], []
@@ -507,20 +533,30 @@ def test_a_diagnostic_named_as_a_plant_column_is_kept_beside_it():
 # --- the property: drawn misbehaviours at a drawn call, serial and batched alike -------------------------------------
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(how=st.sampled_from(HOWS), at=st.integers(1, 25))
-def test_property_every_misbehaviour_is_the_same_fault_serial_and_batched(how, at):
-    records, columns, fault = _serial(Hostile(how, at))
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(who=st.sampled_from(["filter", "nominal"]), data=st.data(), at=st.integers(1, 25))
+def test_property_every_misbehaviour_is_the_same_fault_serial_and_batched(who, data, at):
+    """A filter (or nominal) misbehaving as drawn from call `at` on: the serial step and row 0 of the batched step give
+    the same commands and the same fault; u finite and within the limits; the rows before the fault those of the
+    benign filter; the recorded u_nom the nominal's; row 1 of the batch (benign) unaffected."""
+    how = data.draw(st.sampled_from(HOWS if who == "filter" else NOMINAL_HOWS), label="how")
+
+    def pair():
+        return (Hostile(how, at), nominal) if who == "filter" else (benign, HostileNominal(how, at))
+
+    safety_filter, own_nominal = pair()
+    records, columns, fault = _serial(safety_filter, nominal=own_nominal)
     u = columns["u"]
     assert np.isfinite(u).all() and (np.abs(u) <= LIMIT).all(), how
     np.testing.assert_array_equal(u[: at - 1], np.tile([100.0, -80.0], (at - 1, 1)))  # the rows up to the fault are kept
-    kept = min(at, len(u))  # the rows up to the faulting call: the nominal was called (after it: NaN, not called)
+    kept = min(at if who == "filter" else at - 1, len(u))  # the rows whose nominal returned (NaN after a fault)
     np.testing.assert_array_equal(columns["u_nom"][:kept], np.tile(U_NOM, (kept, 1)))  # the nominal's, never the filter's
-    assert (fault is None) == (how in NOT_FAULTS), (how, fault)
+    assert (fault is None) == (who == "filter" and how in NOT_FAULTS), (how, fault)
     if fault is not None:
-        assert fault.t == (at - 1) * DT and records[-1].action is SafeAction.VENT
-    batch_u, rows, faults, _ = _batched([Hostile(how, at), benign])
+        assert fault.t == (at - 1) * DT and fault.where.startswith(who) and records[-1].action is SafeAction.VENT
+    safety_filter, own_nominal = pair()
+    batch_u, rows, faults, _ = _batched([safety_filter, benign], nominals=[own_nominal, nominal])
     assert rows[0] == len(u) and rows[1] == 40 and faults[1] is None
     np.testing.assert_array_equal(batch_u[: rows[0], 0], u, err_msg=how)
-    np.testing.assert_array_equal(batch_u[:, 1], [[100.0, -80.0]] * 40)
+    np.testing.assert_array_equal(batch_u[:, 1], np.tile([100.0, -80.0], (40, 1)))
     assert (faults[0] is None) == (fault is None) and (fault is None or faults[0].to_json() == fault.to_json())
