@@ -372,8 +372,13 @@ FACTORIES = textwrap.dedent('''
             return u_nom
 
     class ExitsAtCall:
+        def __init__(self, at: int = 1):
+            self.at, self.calls = at, 0
         def __call__(self, estimate, u_nom):
-            sys.exit(0)
+            self.calls += 1
+            if self.calls >= self.at:
+                sys.exit(0)
+            return u_nom
 ''')
 
 
@@ -431,6 +436,21 @@ def test_a_factory_raising_system_exit_is_exit_2_with_one_line(tmp_path, plugins
     err = capsys.readouterr().err
     assert code == USAGE_ERROR and "SystemExit" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_hardware_run_whose_filter_raises_system_exit_keeps_its_cycles_and_vents(tmp_path, plugins):
+    from hardware.config import HardwareConfig
+    from softcbf.hardware_cli import run_hardware
+    from softcbf_mj.emulate import EmulatedHardware
+
+    config = HardwareConfig.load(REPO / "examples" / "hardware_emulated.toml").with_overrides(
+        {"filter": f"{plugins}:ExitsAtCall", "filter_params": {"at": 5}, "duration": 2.0})
+    with EmulatedHardware(config) as emulation:
+        (tmp_path / "hw").mkdir()
+        row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)  # SystemExit escaped before
+    series, _ = load_timeseries(tmp_path / "hw" / row["timeseries"])
+    assert row["fault"]["type"] == "SystemExit" and row["fault"]["where"] == "filter"
+    assert np.all(series["action"][:4] == 0) and series["action"][-1] == 2 and row["final_vent_acked"]
 
 
 # --- D7: the run folder is absolute; a filter that changes the working folder keeps the run -------------------------
