@@ -18,7 +18,8 @@ series would not fit in memory) or a plug-in that cannot be loaded or built (`Pl
 on those, or Ctrl-C, before the first finished run nothing is left behind (the folders it created
 are removed, one that existed is emptied). Any other exception is a bug of the testbed (its
 metrics, report or plant code): it propagates (a traceback, exit 1) and the folder is kept as it
-is, the evidence, which the traceback names. Ctrl-C after a finished run keeps the finished runs
+is, the evidence, which the traceback names; a SystemExit (or another BaseException but Ctrl-C)
+that user code raised outside the control step's boundary becomes such an error, never exit 0. Ctrl-C after a finished run keeps the finished runs
 and brings the report and the recording up to them (a second Ctrl-C skips that and says what to
 run); interrupts return `INTERRUPTED`. A run that ended on a filter fault (closedloop.step)
 keeps its folder and returns `FILTER_FAULT` (1) after one line naming the fault.
@@ -352,6 +353,9 @@ def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[P
                 print(message, file=sys.stderr)
             summary = scenario.function(out_dir, spec)
     except BaseException as exc:
+        if not isinstance(exc, (Exception, KeyboardInterrupt)):  # SystemExit & co. from user code the step did not call
+            raise RuntimeError(f"{type(exc).__name__} raised while the scenario ran, by user code outside the control "
+                               f"step (a filter's attribute?); the run folder {out_dir} is kept as it was") from exc
         if not isinstance(exc, (KeyboardInterrupt, *VALIDATION_ERRORS)):  # a bug: the folder is the evidence
             exc.add_note(f"softcbf: the run folder {out_dir} is kept as it was when this error was raised")
             raise

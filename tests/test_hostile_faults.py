@@ -497,6 +497,18 @@ def test_a_bug_in_the_testbed_is_a_traceback_and_keeps_the_folder(tmp_path, monk
     assert any("is kept as it was" in note for note in info.value.__notes__)
 
 
+def test_a_system_exit_outside_the_step_is_an_error_never_exit_0(tmp_path, monkeypatch):
+    import scenarios.common
+
+    def leaving(*args, **kwargs):
+        raise SystemExit(0)  # as a filter's `enabled` property would, read outside the control step
+
+    monkeypatch.setattr(scenarios.common, "run_figures", leaving)
+    with pytest.raises(RuntimeError, match="SystemExit raised while the scenario ran"):
+        _run(tmp_path, "none")
+    assert (tmp_path / "run").is_dir()
+
+
 def test_the_spec_is_built_before_the_run_folder_is_made(tmp_path, monkeypatch):
     made = []
     monkeypatch.setattr(scenarios.run, "prepare_out_dir", lambda *a, **k: made.append(a) or a[0])
