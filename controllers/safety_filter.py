@@ -296,15 +296,17 @@ def frozen(values: object, dtype: type = float) -> np.ndarray:
     immutable bytes object, so `setflags(write=True)` raises ValueError on it, on its views and on
     its `.base` alike. What the control step hands user code (an estimate's q and q̇, u_nom, the
     rows of a batch): nothing a filter does to it reaches what the step records."""
-    array = np.ascontiguousarray(values, dtype=dtype)
-    return np.frombuffer(array.tobytes(), dtype=dtype).reshape(array.shape)  # a view of it, as a batch's rows are
+    array = np.asarray(values, dtype=dtype)
+    copy = np.frombuffer(array.tobytes(), dtype)  # (tobytes: C order, whatever the strides)
+    return copy[:] if array.ndim == 1 else copy.reshape(array.shape)  # a view of it, as a batch's rows are
 
 
-def real_vector(value: object, n: int, what: str) -> np.ndarray:
-    """`value` as a new float array of shape (n,): an ndarray, list or tuple of n real numbers
-    (int or float; not bool, complex, object or str); FilterReturnError naming `what` otherwise.
-    Non-finite entries are kept (the control step refuses them as commands). Whatever the
-    conversion of a hostile value raises propagates (the control step's fault boundary)."""
+def real_vector(value: object, n: int, what: str, freeze: bool = False) -> np.ndarray:
+    """`value` as a new float array of shape (n,) (with `freeze`: `frozen`, one copy): an ndarray,
+    list or tuple of n real numbers (int or float; not bool, complex, object or str);
+    FilterReturnError naming `what` otherwise. Non-finite entries are kept (the control step
+    refuses them as commands). Whatever the conversion of a hostile value raises propagates (the
+    control step's fault boundary)."""
     if type(value) is np.ndarray:
         array = value
     elif isinstance(value, (np.ndarray, list, tuple)):
@@ -319,7 +321,7 @@ def real_vector(value: object, n: int, what: str) -> np.ndarray:
         raise FilterReturnError(f"{what} must hold real numbers (float or int), got dtype {array.dtype}")
     if array.shape != (n,):
         raise FilterReturnError(f"{what} must have shape ({n},), got {array.shape}")
-    return np.array(array, dtype=float)  # a base ndarray of its own (also of a subclass's data)
+    return frozen(array) if freeze else np.array(array, dtype=float)  # a base ndarray of its own (a subclass's too)
 
 
 def real_scalar(value: object, what: str, booleans: bool = False) -> float | bool:
