@@ -541,7 +541,7 @@ def test_a_filter_left_running_in_a_thread_does_not_keep_the_command_alive(tmp_p
 
 def test_ctrl_c_at_start_up_is_one_line(tmp_path):
     process = _cli("list")
-    time.sleep(0.3)  # within the command line's imports (about a second)
+    time.sleep(0.5)  # within the command line's imports (about a second here)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert "Traceback" not in err and err.strip() == "interrupted" and process.returncode == 130, err
