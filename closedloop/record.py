@@ -12,7 +12,11 @@ A row holds:
   unit the filter declares in `diagnostic_units` (`units()`); their shapes are fixed by
   the first output of the run (the control step's `OutputCheck` has checked that they
   keep them, stay within `DIAGNOSTIC_FLOATS_MAX` floats and take no loop column's name; an
-  output without diagnostics, e.g. a bare array, records NaN in them).
+  output without diagnostics, e.g. a bare array, records NaN in them). The step hands the
+  recorder the check's plain copy (`FlatDiagnostics` in the check's layout), which it copies
+  as it is: nothing of the filter's own objects is read here. A diagnostic whose name is also
+  one of the plant's extras (which a plant may add at any row, e.g. a solver warning's count)
+  keeps the plant's column under that name and is stored as "filter.<name>" (`columns`, `units`).
 
 Rows between control calls (a multi-rate loop passes `called=False`) repeat the step in
 force. The filter's columns (u_filter, rho_pred, diagnostics) hold the last output the
@@ -133,15 +137,18 @@ class Recorder:
                 ACTION_CODES[step.action], *diag]
 
     def _add_diagnostics(self, output: FilterOutput) -> None:
-        """Columns for the filter's diagnostics, NaN on the rows before its first output."""
-        self._diag_layout = [(key, np.shape(value), np.asarray(value).dtype == bool)
-                             for key, value in output.diagnostics.items()]
-        self._diag_units = {key: str(output.diagnostic_units[key]) for key in output.diagnostics}
-        self._diag_plan = [(key, shape, len(shape) == 1) for key, shape, _ in self._diag_layout]  # key, shape, 1-D
+        """Columns for the filter's diagnostics, NaN on the rows before its first output: those of
+        its FlatDiagnostics' layout (the control step's copy), else of the mapping's values."""
         flat = output.diagnostics
-        if type(flat) is FlatDiagnostics and self._diag_layout == [
-                (key, shape, key in flat.layout.booleans) for key, shape in flat.layout.shapes.items()]:
-            self._flat_layout = flat.layout
+        if type(flat) is FlatDiagnostics:
+            layout = flat.layout
+            self._diag_layout = [(key, shape, key in layout.booleans) for key, shape in layout.shapes.items()]
+            self._diag_units = {key: str(layout.units[key]) for key in layout.shapes}
+            self._flat_layout = layout
+        else:
+            self._diag_layout = [(key, np.shape(value), np.asarray(value).dtype == bool) for key, value in flat.items()]
+            self._diag_units = {key: str(output.diagnostic_units[key]) for key in flat}
+        self._diag_plan = [(key, shape, len(shape) == 1) for key, shape, _ in self._diag_layout]  # key, shape, 1-D
         self._layout += [(key, shape, bool if is_bool else float) for key, shape, is_bool in self._diag_layout]
         size = sum(math.prod(s) for _, s, _ in self._diag_layout)
         self._floats = np.hstack((self._floats, np.full((self.n_steps, size), math.nan)))
@@ -160,18 +167,33 @@ class Recorder:
                 flat += np.asarray(value, dtype=float).reshape(shape).ravel().tolist()
         return flat
 
+    def _names(self) -> list[str]:
+        """The column names of `_layout`'s entries: a diagnostic named as one of the plant's extras
+        becomes "filter.<name>" (module docstring; repeated while that is taken too)."""
+        taken = {key for key, _, _ in self._layout} | self._extras.keys()
+        names = []
+        for key, _, _ in self._layout:
+            name = key
+            if key in self._diag_units and key in self._extras:
+                while name in taken:
+                    name = f"filter.{name}"
+                taken.add(name)
+            names.append(name)
+        return names
+
     def units(self) -> dict[str, str]:
         """The units of every column `columns` returns except the extras."""
-        return {key: self._diag_units.get(key) or TIMESERIES_UNITS[key] for key, _, _ in self._layout}
+        return {name: self._diag_units.get(key) or TIMESERIES_UNITS[key]
+                for name, (key, _, _) in zip(self._names(), self._layout)}
 
     def columns(self, n_rows: int | None = None, first_row: int = 0) -> dict[str, np.ndarray]:
         """Rows first_row .. n_rows - 1 (default: from the first to the last) as arrays by key."""
         rows = self.n_steps if n_rows is None else n_rows
         columns, start = {}, 0
-        for key, shape, dtype in self._layout:
+        for name, (key, shape, dtype) in zip(self._names(), self._layout):
             size = math.prod(shape)
             block = self._floats[first_row:rows, start : start + size].reshape((rows - first_row,) + shape)
-            columns[key] = np.nan_to_num(block, nan=0.0).astype(dtype) if dtype is not float else block.copy()
+            columns[name] = np.nan_to_num(block, nan=0.0).astype(dtype) if dtype is not float else block.copy()
             start += size
         columns.update({key: value[first_row:rows].copy() for key, value in self._extras.items()})
         return columns

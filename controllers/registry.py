@@ -39,6 +39,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from controllers.interrupts import is_interrupt
 from controllers.safety_filter import FilterContext, SafetyFilter
 
 if typing.TYPE_CHECKING:
@@ -171,7 +172,9 @@ def _import(name: str) -> types.ModuleType:
         return importlib.import_module(name)
     except ImportError as exc:
         raise PluginLoadError(f"cannot import module {name!r}: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 - the module's own code raised while it was imported
+    except BaseException as exc:  # noqa: BLE001 - the module's own code raised while it was imported (SystemExit too)
+        if is_interrupt(exc):
+            raise
         raise _load_error(f"module {name!r} raised while it was imported", exc) from None
 
 
@@ -188,12 +191,11 @@ def _load_file(path: Path) -> types.ModuleType:
     sys.modules[name] = module
     try:
         spec.loader.exec_module(module)
-    except Exception as exc:  # noqa: BLE001 - syntax, import and any error of the file's own code
+    except BaseException as exc:  # noqa: BLE001 - syntax, import and any error of the file's own code (SystemExit too)
         del sys.modules[name]
+        if is_interrupt(exc):
+            raise
         raise _load_error(f"cannot load {str(path)!r}", exc, resolved) from None
-    except BaseException:
-        del sys.modules[name]
-        raise
     return module
 
 
@@ -303,7 +305,9 @@ def build(factory: Callable, params: Mapping[str, object], context: FilterContex
         kwargs[CONTEXT] = context
     try:
         return factory(**kwargs)
-    except Exception as exc:  # noqa: BLE001 - the factory is user code: a load-time fault (exit 2)
+    except BaseException as exc:  # noqa: BLE001 - the factory is user code: a load-time fault (exit 2), SystemExit too
+        if is_interrupt(exc):
+            raise
         raise _load_error(f"{getattr(factory, '__name__', repr(factory))}({', '.join(kwargs)}) raised", exc,
                           _source_file(factory)) from None
 

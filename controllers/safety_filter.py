@@ -34,8 +34,9 @@ Whatever a filter returns, the control step clips it to the limits and refuses
 non-finite commands (`closedloop.step`); a filter need not repeat that.
 
 What a loop accepts (the plug-in boundary is a trust boundary, docs/safety-filter.md#the-plug-in-boundary-is-a-trust-boundary). A filter is
-somebody else's code, so the control step hands it read-only copies (the estimate's q and
-q̇, u_nom, the context's limits) and converts its return once (`OutputCheck`): a bare
+somebody else's code, so the control step hands it copies it cannot make writable (`frozen`:
+the estimate's q and q̇, u_nom; the context's limits are read-only copies) and converts its
+return once (`OutputCheck`, every value read once into plain floats, the diagnostics too): a bare
 return must be n real numbers (an ndarray, list or tuple; not bool, complex or object
 values), a FilterOutput must have such a u, a str action, a bool infeasible, a real
 rho_pred (NaN for none) and diagnostics of str keys and real values, at most
@@ -281,21 +282,35 @@ class FilterReturnError(TypeError):
 
 
 DIAGNOSTIC_FLOATS_MAX = 256  # floats of diagnostics one call may return (the recorder keeps them every row)
-_REAL_SCALARS = (float, bool, np.float64, np.float32, np.int64, np.int32, np.bool_)  # types of real scalars a float holds
 _INT_MAX = 2**1023  # a Python int beyond this is no float
+# numpy's real scalar types (not bool), exactly: their float() is numpy's own, no user code
+_NUMPY_REALS = frozenset(np.dtype(code).type for code in np.typecodes["Float"] + np.typecodes["AllInteger"])
+_PLAIN = frozenset({float, bool, np.float64, np.bool_})  # flat diagnostic values kept as they are
 
 
 def read_only(values: np.ndarray) -> np.ndarray:
-    """`values`, a new array its caller owns, made read-only (what user code is handed: an
-    in-place change raises ValueError) and returned."""
+    """`values`, a new array its caller owns, made read-only (an in-place change raises
+    ValueError) and returned. Its owner can set the flag back: what user code is handed is `frozen`."""
     values.setflags(write=False)  # as `flags.writeable = False`, without building a flags object
     return values
 
 
-def real_vector(value: object, n: int, what: str) -> np.ndarray:
-    """`value` as a new float array of shape (n,): an ndarray, list or tuple of n real numbers
-    (int or float; not bool, complex, object or str); FilterReturnError naming `what` otherwise.
-    Non-finite entries are kept (the control step refuses them as commands)."""
+def frozen(values: object, dtype: type = float) -> np.ndarray:
+    """A read-only copy of `values` as `dtype` whose flag cannot be set back: its memory is an
+    immutable bytes object, so `setflags(write=True)` raises ValueError on it, on its views and on
+    its `.base` alike. What the control step hands user code (an estimate's q and q̇, u_nom, the
+    rows of a batch): nothing a filter does to it reaches what the step records."""
+    array = np.asarray(values, dtype=dtype)
+    copy = np.frombuffer(array.tobytes(), dtype)  # (tobytes: C order, whatever the strides)
+    return copy[:] if array.ndim == 1 else copy.reshape(array.shape)  # a view of it, as a batch's rows are
+
+
+def real_vector(value: object, n: int, what: str, freeze: bool = False) -> np.ndarray:
+    """`value` as a new float array of shape (n,) (with `freeze`: `frozen`, one copy): an ndarray,
+    list or tuple of n real numbers (int or float; not bool, complex, object or str);
+    FilterReturnError naming `what` otherwise. Non-finite entries are kept (the control step
+    refuses them as commands). Whatever the conversion of a hostile value raises propagates (the
+    control step's fault boundary)."""
     if type(value) is np.ndarray:
         array = value
     elif isinstance(value, (np.ndarray, list, tuple)):
@@ -310,37 +325,64 @@ def real_vector(value: object, n: int, what: str) -> np.ndarray:
         raise FilterReturnError(f"{what} must hold real numbers (float or int), got dtype {array.dtype}")
     if array.shape != (n,):
         raise FilterReturnError(f"{what} must have shape ({n},), got {array.shape}")
-    return array.astype(float)
+    return frozen(array) if freeze else np.array(array, dtype=float)  # a base ndarray of its own (a subclass's too)
 
 
-def _real_scalar(value: object) -> bool:
-    """A real number a float can hold: float, bool, a numpy real, or an int within ±2**1023."""
-    if type(value) in _REAL_SCALARS:
-        return True
-    if isinstance(value, int):
-        return -_INT_MAX < value < _INT_MAX
-    return isinstance(value, (float, np.integer, np.floating))
+def real_scalar(value: object, what: str, booleans: bool = False) -> float | bool:
+    """`value` as a plain float (or, with `booleans`, a bool as a plain bool): a float, an int
+    within ±2**1023, a numpy real, or an instance of a subclass of float or int, converted by its own
+    `__float__` (whatever that raises propagates: the control step's fault boundary);
+    FilterReturnError naming `what` for anything else (a bool without `booleans`, complex, str, ...)."""
+    kind = type(value)
+    if kind is float:
+        return value
+    if kind is bool or kind is np.bool_:
+        if booleans:
+            return bool(value)
+        raise FilterReturnError(f"{what} must be a real number, got a bool")
+    if kind is int:
+        if not -_INT_MAX < value < _INT_MAX:
+            raise FilterReturnError(f"{what} must be a real number a float can hold, got an int of "
+                                    f"{len(str(abs(value)))} digits")
+        return float(value)
+    if kind in _NUMPY_REALS:
+        return float(value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)  # a subclass: its own __float__, called here once
+    raise FilterReturnError(f"{what} must be a real number, got {kind.__name__}")
 
 
 class OutputCheck:
     """The one conversion of a filter's return, at the plug-in boundary (module docstring,
-    "What a loop accepts"): `check(result)` is a FilterOutput whose u is a new float array
-    of shape (n_segments,), or raises FilterReturnError.
+    "What a loop accepts"): `check(result)` is a new FilterOutput of plain values only, or raises
+    FilterReturnError (or whatever a hostile value's own conversion raises: the control step calls
+    it inside its fault boundary).
 
     - a bare return must be `real_vector`;
-    - a FilterOutput: u likewise; action a str; infeasible a bool; rho_pred a real number
-      (NaN: no prediction; not ±inf); diagnostics a mapping of str keys to real numbers or
-      arrays of real numbers, at most DIAGNOSTIC_FLOATS_MAX floats in all, whose keys and
-      shapes stay those of the first output with diagnostics (the recorder's columns; an
-      output without any, e.g. a bare return, is allowed and records NaN), and none of
-      whose keys is in `reserved` (the loop's own column names).
+    - a FilterOutput: u likewise; action a str; infeasible a bool; rho_pred a `real_scalar`
+      (NaN: no prediction; not ±inf); diagnostics a mapping of str keys to real numbers (or bools)
+      or arrays of them, at most DIAGNOSTIC_FLOATS_MAX floats in all, whose keys and shapes stay
+      those of the first output with diagnostics (the recorder's columns; an output without any,
+      e.g. a bare return, is allowed and records NaN), and none of whose keys is in `reserved`
+      (the loop's own column names); diagnostic_units a str unit for each of the first output's keys.
 
-    One instance per control step (it remembers the first diagnostics' layout)."""
+    Every value is read once: each attribute of the output, the diagnostics' `items()` once (or a
+    `FlatDiagnostics`' values once), each value converted once into a plain float or bool. The
+    checked output's diagnostics are a `FlatDiagnostics` of those plain values in the check's own
+    `layout` (made from the first output with diagnostics, units included), so whoever reads them
+    afterwards (the recorder) reads that copy, never the filter's objects again.
+
+    One instance per run (it remembers the first diagnostics' layout)."""
 
     def __init__(self, n_segments: int, reserved: frozenset[str] = frozenset()) -> None:
         self.n, self.reserved = n_segments, reserved
-        self.shapes: dict[str, tuple[int, ...]] | None = None  # the diagnostics' layout, from the first output
-        self._flat_layout: DiagnosticLayout | None = None  # a FlatDiagnostics layout already checked
+        self.layout: DiagnosticLayout | None = None  # the diagnostics' layout, from the first output with them
+        self._source_layout: DiagnosticLayout | None = None  # the filter's FlatDiagnostics layout of `layout`
+
+    @property
+    def shapes(self) -> dict[str, tuple[int, ...]] | None:
+        """The diagnostics' keys and shapes (None before the first output with diagnostics)."""
+        return None if self.layout is None else self.layout.shapes
 
     def __call__(self, result: object) -> FilterOutput:
         if type(result) is not FilterOutput:
@@ -349,67 +391,109 @@ class OutputCheck:
                                         f"({type(result).__name__})")
             return FilterOutput(real_vector(result, self.n, "the filter's command"))
         u = real_vector(result.u, self.n, "FilterOutput.u")
-        if type(result.action) is not str:
-            raise FilterReturnError(f"FilterOutput.action must be a str, got {type(result.action).__name__}")
-        if type(result.infeasible) not in (bool, np.bool_):
-            raise FilterReturnError(f"FilterOutput.infeasible must be a bool, got {type(result.infeasible).__name__}")
-        rho = result.rho_pred
-        if not _real_scalar(rho) or isinstance(rho, bool) or math.isinf(rho):
-            raise FilterReturnError(f"FilterOutput.rho_pred must be a real number or NaN (no prediction), got {rho!r}"
-                                    if _real_scalar(rho) else f"FilterOutput.rho_pred must be a real number or NaN "
-                                    f"(no prediction), got {type(rho).__name__}")
-        self._check_diagnostics(result.diagnostics)
-        return FilterOutput(u, result.action, bool(result.infeasible), float(rho), result.diagnostics,
-                            result.diagnostic_units)
+        action, infeasible = result.action, result.infeasible
+        if type(action) is not str:
+            raise FilterReturnError(f"FilterOutput.action must be a str, got {type(action).__name__}")
+        if type(infeasible) not in (bool, np.bool_):
+            raise FilterReturnError(f"FilterOutput.infeasible must be a bool, got {type(infeasible).__name__}")
+        rho = real_scalar(result.rho_pred, "FilterOutput.rho_pred (NaN: no prediction)")
+        if math.isinf(rho):
+            raise FilterReturnError(f"FilterOutput.rho_pred must be a real number or NaN (no prediction), got {rho!r}")
+        values = self._diagnostics(result.diagnostics, result.diagnostic_units)
+        if values is None:
+            return FilterOutput(u, action, bool(infeasible), rho)
+        return FilterOutput(u, action, bool(infeasible), rho, FlatDiagnostics(self.layout, values), self.layout.units)
 
-    def _check_diagnostics(self, diagnostics: object) -> None:
+    def _diagnostics(self, diagnostics: object, units: object) -> list | None:
+        """The diagnostics' values, plain and flat in the check's layout (None: none this call)."""
         if type(diagnostics) is dict and not diagnostics:  # the common case of a plain output: none
-            return
+            return None
         if type(diagnostics) is FlatDiagnostics:
-            layout = diagnostics.layout
-            if layout is not self._flat_layout:
-                self._check_layout(dict(layout.shapes))
-                self._flat_layout = layout
-            values = diagnostics.values
-            if len(values) != layout.size or not all(type(v) in _REAL_SCALARS or _real_scalar(v) for v in values):
-                raise FilterReturnError(f"FlatDiagnostics.values must be {layout.size} real numbers")
-            return
+            return self._flat_values(diagnostics)
         if not isinstance(diagnostics, Mapping):
             raise FilterReturnError(f"FilterOutput.diagnostics must be a mapping, got {type(diagnostics).__name__}")
-        if not diagnostics:  # none this call (as a bare return): the recorder keeps NaN
-            return
-        shapes = {}
-        for key, value in diagnostics.items():
+        items = list(diagnostics.items())  # read once
+        if not items:  # none this call (as a bare return): the recorder keeps NaN
+            return None
+        shapes: dict[str, tuple[int, ...]] = {}
+        booleans, flat = set(), []
+        for key, value in items:
             if type(key) is not str:
-                raise FilterReturnError(f"diagnostic keys must be str, got {key!r}")
-            if _real_scalar(value):
-                shapes[key] = ()
+                raise FilterReturnError(f"diagnostic keys must be str, got {type(key).__name__}")
+            if key in shapes:
+                raise FilterReturnError(f"diagnostic {key!r} is given twice")
+            if isinstance(value, (np.ndarray, list, tuple)):
+                try:
+                    array = np.array(value)
+                except (ValueError, TypeError, OverflowError):
+                    raise FilterReturnError(f"diagnostic {key!r} must be a real number or an array of them") from None
+                if array.dtype.kind not in "fiub":
+                    raise FilterReturnError(f"diagnostic {key!r} must hold real numbers or bools, got dtype "
+                                            f"{array.dtype}")
+                if array.dtype.kind == "b":
+                    booleans.add(key)
+                    flat += array.ravel().tolist()
+                else:
+                    flat += array.astype(float).ravel().tolist()
+                shapes[key] = array.shape
                 continue
-            if not isinstance(value, (np.ndarray, list, tuple)):
-                raise FilterReturnError(f"diagnostic {key!r} must be a real number or an array of them, got "
-                                        f"{type(value).__name__}")
             try:
-                array = np.asarray(value)
-            except (ValueError, TypeError, OverflowError):
-                raise FilterReturnError(f"diagnostic {key!r} must be a real number or an array of them") from None
-            if array.dtype.kind not in "fiub":
-                raise FilterReturnError(f"diagnostic {key!r} must hold real numbers or bools, got dtype {array.dtype}")
-            shapes[key] = array.shape
-        self._check_layout(shapes)
-
-    def _check_layout(self, shapes: dict[str, tuple[int, ...]]) -> None:
-        if self.shapes is None:
-            clash = sorted(set(shapes) & self.reserved)
-            if clash:
-                raise FilterReturnError(f"filter diagnostics must not reuse the loop's column names, got {clash}")
-            size = sum(math.prod(shape) for shape in shapes.values())
-            if size > DIAGNOSTIC_FLOATS_MAX:
-                raise FilterReturnError(f"filter diagnostics hold {size} floats a call, more than the "
-                                        f"{DIAGNOSTIC_FLOATS_MAX} a time-series row may keep")
-            self.shapes = shapes
-        elif shapes != self.shapes:
+                scalar = real_scalar(value, f"diagnostic {key!r}", booleans=True)
+            except FilterReturnError:
+                raise FilterReturnError(f"diagnostic {key!r} must be a real number or an array of them, got "
+                                        f"{type(value).__name__}") from None
+            if type(scalar) is bool:
+                booleans.add(key)
+            shapes[key] = ()
+            flat.append(scalar)
+        if self.layout is None:
+            self._new_layout(shapes, units, frozenset(booleans))
+        elif shapes != self.layout.shapes:
             raise FilterReturnError(f"filter diagnostics must keep their keys and shapes over a run: first "
-                                    f"{sorted(self.shapes.items())}, now {sorted(shapes.items())}")
+                                    f"{sorted(self.layout.shapes.items())}, now {sorted(shapes.items())}")
+        return flat
+
+    def _flat_values(self, diagnostics: FlatDiagnostics) -> list:
+        """A FlatDiagnostics' values, copied once and plain (its layout read once per run)."""
+        source = diagnostics.layout
+        if source is not self._source_layout:
+            if type(source) is not DiagnosticLayout:
+                raise FilterReturnError(f"FlatDiagnostics.layout must be a DiagnosticLayout, got {type(source).__name__}")
+            shapes = {key: tuple(int(d) for d in shape) for key, shape in dict(source.shapes).items()}
+            if self.layout is None:
+                self._new_layout(shapes, source.units, frozenset(source.booleans) & shapes.keys())
+            elif shapes != self.layout.shapes:
+                raise FilterReturnError(f"filter diagnostics must keep their keys and shapes over a run: first "
+                                        f"{sorted(self.layout.shapes.items())}, now {sorted(shapes.items())}")
+            self._source_layout = source
+        values = diagnostics.values
+        values = values.copy() if type(values) is list else list(values)
+        if len(values) != self.layout.size:
+            raise FilterReturnError(f"FlatDiagnostics.values must be {self.layout.size} real numbers, got {len(values)}")
+        if not set(map(type, values)) <= _PLAIN:
+            values = [real_scalar(v, "a FlatDiagnostics value", booleans=True) for v in values]
+        return values
+
+    def _new_layout(self, shapes: dict[str, tuple[int, ...]], units: object, booleans: frozenset[str]) -> None:
+        """The run's diagnostics layout, from its first output with diagnostics: their keys (none a
+        loop column's), shapes (at most DIAGNOSTIC_FLOATS_MAX floats) and units, copied."""
+        clash = sorted(set(shapes) & self.reserved)
+        if clash:
+            raise FilterReturnError(f"filter diagnostics must not reuse the loop's column names, got {clash}")
+        size = sum(math.prod(shape) for shape in shapes.values())
+        if size > DIAGNOSTIC_FLOATS_MAX:
+            raise FilterReturnError(f"filter diagnostics hold {size} floats a call, more than the "
+                                    f"{DIAGNOSTIC_FLOATS_MAX} a time-series row may keep")
+        if not isinstance(units, Mapping):
+            raise FilterReturnError(f"FilterOutput.diagnostic_units must be a mapping, got {type(units).__name__}")
+        copied = {}
+        for key in shapes:
+            unit = units.get(key)
+            if type(unit) is not str:
+                raise FilterReturnError(f"diagnostic_units must give a str unit for diagnostic {key!r}, got "
+                                        f"{type(unit).__name__}")
+            copied[key] = unit
+        self.layout = DiagnosticLayout(shapes, copied, booleans)
 
 
 def checked_batch_arrays(result: object, n_states: int, n: int) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:

@@ -43,7 +43,7 @@ def command_line(argv: list[str] | None) -> int:
             raise UsageError("--out DIR is required to run a scenario")
         return run_scenario(args.name, rest, args.out, args.overwrite, args.spawn)
 
-    return exit_code(run)
+    return exit_code(run, process=argv is None)  # argv None: this process's own command line
 
 
 if __name__ == "__main__":

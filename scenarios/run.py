@@ -6,14 +6,29 @@ spec's settings by name, `scenarios.spec`) over the defaults or the `base` value
 spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
 repeatable, add to `filter_params` and `nominal_params`; `--tuning NAME` is
 `--filter-param tuning=NAME`; a NAME given twice on one command line is refused,
-`command_line_params`, while one of `base` is overridden). `run_scenario` checks every parameter before anything is
-written, locks the run folder (`softcbf_mj.runio`), and on failure or Ctrl-C before the
-first finished run leaves no output behind (the folders it created are removed, one that
-existed is emptied); Ctrl-C after a finished run keeps the finished runs and brings the
-report and the recording up to them (a second Ctrl-C skips that and says what to run).
-Usage errors raise `UsageError` (exit code `USAGE_ERROR`); interrupts return `INTERRUPTED`;
-a run that ended on a filter fault (closedloop.step) keeps its folder and returns
-`FILTER_FAULT` (1) after one line naming the fault.
+`command_line_params`, while one of `base` is overridden). `run_scenario` checks every parameter
+and builds the scenario's spec (every value checked, `scenarios.spec`) before the run folder exists,
+then makes it absolute (a filter that changes the working folder cannot move the outputs), locks
+it (`softcbf_mj.runio`) and runs the spec into it.
+
+The error boundary. Only validation errors are usage errors (`UsageError`, exit code
+`USAGE_ERROR`, one line): a parameter refused while the spec is built, and, raised while the
+scenario runs, a setting refused by the vocabulary (`SettingError`: e.g. a duration whose time
+series would not fit in memory) or a plug-in that cannot be loaded or built (`PluginLoadError`);
+on those, or Ctrl-C, before the first finished run nothing is left behind (the folders it created
+are removed, one that existed is emptied). Any other exception is a bug of the testbed (its
+metrics, report or plant code): it propagates (a traceback, exit 1) and the folder is kept as it
+is, the evidence, which the traceback names; a SystemExit (or another BaseException but Ctrl-C)
+that user code raised outside the control step's boundary becomes such an error, never exit 0. Ctrl-C after a finished run keeps the finished runs
+and brings the report and the recording up to them (a second Ctrl-C skips that and says what to
+run); interrupts return `INTERRUPTED`. A run that ended on a filter fault (closedloop.step)
+keeps its folder and returns `FILTER_FAULT` (1) after one line naming the fault.
+
+The process (`exit_code(..., process=True)`: the command line's own process). Ctrl-C is told from
+a filter's own KeyboardInterrupt from the start (`controllers.interrupts.watch`); and when the
+command has finished (its outputs written) while non-daemon threads are still running (a filter
+that started one and never ended it), the process says so in one line and ends with the command's
+exit code instead of waiting for them forever.
 """
 
 from __future__ import annotations
@@ -23,12 +38,15 @@ import contextlib
 import os
 import shutil
 import sys
+import threading
 import typing
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from closedloop.step import describe_fault, fault_log_name
-from controllers.registry import parse_params
+from controllers.bounds import SettingError
+from controllers.interrupts import watch
+from controllers.registry import PluginLoadError, parse_params
 from scenarios import Scenario, get
 from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
@@ -49,18 +67,40 @@ class UsageError(Exception):
     """Bad command-line input; the message names the parameter and the valid values."""
 
 
-def exit_code(command: Callable[[], int]) -> int:
+def exit_code(command: Callable[[], int], process: bool = False) -> int:
     """`command()`'s exit code, or USAGE_ERROR after "error: MESSAGE" on stderr for a
     UsageError, or INTERRUPTED after "interrupted" for Ctrl-C: the exit codes of every
-    command line (`softcbf`, `python -m scenarios`)."""
+    command line (`softcbf`, `python -m scenarios`). With `process` (the command line's own
+    process, not a caller's): Ctrl-C is watched from the start, and threads left running end
+    with the process (module docstring, `end_if_threads_left`)."""
+    if process:
+        watch()
     try:
-        return command()
+        code = command()
     except UsageError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return USAGE_ERROR
+        code = USAGE_ERROR
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
-        return INTERRUPTED
+        code = INTERRUPTED
+    if process:
+        end_if_threads_left(code)
+    return code
+
+
+def end_if_threads_left(code: int) -> None:
+    """When non-daemon threads other than the main one are still running (started by user code:
+    Python would wait for them at exit, forever if they never end), say so on stderr and end the
+    process now with exit code `code`, stdout and stderr flushed; return otherwise."""
+    left = [t for t in threading.enumerate() if t is not threading.main_thread() and t.is_alive() and not t.daemon]
+    if not left:
+        return
+    names = ", ".join(sorted(t.name for t in left))
+    print(f"warning: {len(left)} non-daemon thread(s) still running after the command finished ({names}), "
+          f"started by the filter or nominal; ending the process without waiting for them", file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 class UsageParser(argparse.ArgumentParser):
@@ -268,19 +308,25 @@ def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overw
     """Run scenario `name` with parameters from `base` (a run configuration file's) and
     `tokens` (which override them) into `out` (default runs/<name>-<time>, made unique); the
     one implementation behind `softcbf run` and `python -m scenarios`. Every parameter is
-    checked before anything is written."""
+    checked, and the spec built, before anything is written; the run folder is absolute (module docstring)."""
     try:
         scenario = get(name)
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
     params = scenario_parameters(scenario, tokens, base)
     try:
+        spec = scenario.spec.from_flat(params)  # the parameters are typed: the spec's checks only
+    except ValueError as exc:  # the vocabulary's and the scenario's checks (scenarios.spec)
+        raise UsageError(str(exc)) from None
+    try:
         if out is None:
-            missing = _missing_folders(DEFAULT_RUNS_DIR)
-            out = new_run_dir(DEFAULT_RUNS_DIR, name)
+            runs_dir = Path(os.path.abspath(DEFAULT_RUNS_DIR))
+            missing = _missing_folders(runs_dir)
+            out = new_run_dir(runs_dir, name)
             created = [out, *missing]
         else:
-            created = _missing_folders(Path(out))
+            out = Path(os.path.abspath(out))
+            created = _missing_folders(out)
         try:
             out_dir = prepare_out_dir(out, overwrite=overwrite)
         except BaseException:
@@ -289,20 +335,29 @@ def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overw
     except OutputDirError as exc:
         raise UsageError(str(exc)) from None
     try:
-        return _run_locked(scenario, params, out_dir, created, spawn)
+        return _run_locked(scenario, spec, out_dir, created, spawn)
     finally:
         release_out_dir(out_dir)
 
 
-def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, created: list[Path], spawn: bool) -> int:
+VALIDATION_ERRORS = (UsageError, SettingError, PluginLoadError)  # raised while a scenario runs: exit 2 (module docstring)
+
+
+def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[Path], spawn: bool) -> int:
     try:
         from softcbf_mj.recording import live_viewer
 
         with live_viewer() if spawn else contextlib.nullcontext("") as message:
             if message:
                 print(message, file=sys.stderr)
-            summary = scenario.run(out_dir, **params)
+            summary = scenario.function(out_dir, spec)
     except BaseException as exc:
+        if not isinstance(exc, (Exception, KeyboardInterrupt)):  # SystemExit & co. from user code the step did not call
+            raise RuntimeError(f"{type(exc).__name__} raised while the scenario ran, by user code outside the control "
+                               f"step (a filter's attribute?); the run folder {out_dir} is kept as it was") from exc
+        if not isinstance(exc, (KeyboardInterrupt, *VALIDATION_ERRORS)):  # a bug: the folder is the evidence
+            exc.add_note(f"softcbf: the run folder {out_dir} is kept as it was when this error was raised")
+            raise
         done = _finished_runs(out_dir)
         if not done:
             _discard(out_dir, created)
@@ -311,9 +366,7 @@ def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, cr
                 print(f"\ninterrupted before the first run finished; nothing kept in {out_dir}", file=sys.stderr)
                 return INTERRUPTED
             return _interrupted(out_dir, done)
-        if isinstance(exc, ValueError):
-            raise UsageError(str(exc)) from None
-        raise
+        raise UsageError(str(exc)) from None
     print(_outputs_summary(out_dir))
     fault = summary.get("fault") if isinstance(summary, dict) else None
     if fault:

@@ -43,11 +43,13 @@ Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the
 type, not finite or out of range, a duration whose time series would not fit in memory,
 an --out that is in use, not writable, or non-empty without --overwrite, a folder that is
 not a run folder, a time series that cannot be read), with one line on stderr naming the
-parameter (or file) and the valid values; 130 interrupted; 141, silently, when stdout's reader
-has gone (`softcbf list | head`: scenarios.pipe). Scenarios check every
-parameter before they write anything; a run that stops before its first finished tuning
-(rejected, failed or interrupted) leaves no output behind (folders it created are
-removed, one that existed is emptied), so the corrected command is not refused. Ctrl-C
+parameter (or file) and the valid values; 1 a run that ended on a filter fault (one line, its
+record kept) or an error of the testbed itself (a traceback; the run folder kept as it was, the
+evidence); 130 interrupted; 141, silently, when stdout's reader has gone (`softcbf list | head`:
+scenarios.pipe). Scenarios check every parameter before they write anything; a run
+that stops before its first finished tuning (rejected or interrupted) leaves no output behind
+(folders it created are removed, one that existed is emptied), so the corrected command is not
+refused. Ctrl-C
 after a finished tuning keeps the finished tunings and brings the report and the
 recording up to them if they lag behind (a second Ctrl-C skips that and says what to run).
 
@@ -75,13 +77,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import softcbf_mj
-from controllers import registry as controllers_registry
-from scenarios import get as get_scenario, registry
-from scenarios.config_file import load_run_config, replay_sources, replay_warnings
-from scenarios.pipe import quiet_on_closed_pipe
-from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
-from softcbf_mj.runio import RunFolderError, versions
+try:  # Ctrl-C while the command line starts (these imports take about a second): one line, exit 130
+    import softcbf_mj
+    from controllers import registry as controllers_registry
+    from scenarios import get as get_scenario, registry
+    from scenarios.config_file import load_run_config, replay_sources, replay_warnings
+    from scenarios.pipe import quiet_on_closed_pipe
+    from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
+    from softcbf_mj.runio import RunFolderError, versions
+except KeyboardInterrupt:
+    print("\ninterrupted", file=sys.stderr)
+    raise SystemExit(130) from None  # scenarios.run.INTERRUPTED, which could not be imported
 
 # softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay;
@@ -302,7 +308,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"softcbf {command.name}: unrecognised arguments: {' '.join(extra)}")
         return command.handler(args, extra)
 
-    return quiet_on_closed_pipe(lambda: exit_code(run))
+    return quiet_on_closed_pipe(lambda: exit_code(run, process=argv is None))  # argv None: this process's own command line
 
 
 if __name__ == "__main__":

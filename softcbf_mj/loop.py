@@ -23,6 +23,7 @@ import numpy as np
 
 from closedloop.record import TIMESERIES_UNITS, LiveRows, Recorder
 from closedloop.step import ControlStep
+from controllers.bounds import SettingError
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate
 from softcbf_mj.plant import Plant, PlantState
@@ -74,18 +75,18 @@ def series_bytes_needed(n_steps: int, n_segments: int, safe_set: ForceSafeSet) -
 def check_duration(duration: float, control_dt: float, n_segments: int, safe_set: ForceSafeSet) -> int:
     """The number of control steps of a run of `duration` s at period `control_dt` s,
     after checking it: duration finite and > 0, at least one period, and the time series
-    (`series_bytes_needed`) within the available memory. Raises ValueError naming
-    duration; call it before writing anything."""
+    (`series_bytes_needed`) within the available memory. Raises SettingError (a ValueError)
+    naming duration, a validation error of the command line; call it before writing anything."""
     if not (math.isfinite(duration) and duration > 0):
-        raise ValueError(f"duration must be finite and > 0 s, got {duration}")
+        raise SettingError(f"duration must be finite and > 0 s, got {duration}")
     if not (math.isfinite(control_dt) and control_dt > 0):
-        raise ValueError(f"the control period must be finite and > 0 s, got {control_dt}")
+        raise SettingError(f"the control period must be finite and > 0 s, got {control_dt}")
     n_steps = int(round(duration / control_dt))
     if n_steps < 1:
-        raise ValueError(f"duration must cover at least one control period ({control_dt:g} s), got {duration} s")
+        raise SettingError(f"duration must cover at least one control period ({control_dt:g} s), got {duration} s")
     needed, available = series_bytes_needed(n_steps, n_segments, safe_set), available_memory_bytes()
     if needed > available:
-        raise ValueError(f"duration {duration:g} s ({n_steps} steps of {control_dt:g} s) needs {needed / 2**30:.1f} GiB "
+        raise SettingError(f"duration {duration:g} s ({n_steps} steps of {control_dt:g} s) needs {needed / 2**30:.1f} GiB "
                          f"for its time series, more than the {available / 2**30:.1f} GiB of memory available; "
                          "shorten duration or lower the rate")
     return n_steps

@@ -171,11 +171,12 @@ def prepare_out_dir(path: str | Path, overwrite: bool = False, keep: bool = Fals
     home: its contents are deleted. With `keep` such a folder is taken as it is (marked,
     locked, nothing deleted: a bench continued with --resume, whose caller has checked that
     the folder is its own). Raises OutputDirError (never OSError) naming the folder and
-    what is wrong, before deleting anything.
+    what is wrong, before deleting anything. The folder returned is absolute (`os.path.abspath`:
+    symbolic links kept), so that whatever changes the working folder meanwhile, outputs land in it.
     """
     if str(path) == "":
         raise OutputDirError("--out must name a folder, got ''")
-    out = Path(path)
+    out = Path(os.path.abspath(path))  # absolute: a filter that changes the working folder cannot move it
     try:
         if out.exists() and not out.is_dir():
             raise OutputDirError(f"{out} exists and is not a folder")
@@ -208,7 +209,7 @@ def prepare_out_dir(path: str | Path, overwrite: bool = False, keep: bool = Fals
 def new_run_dir(parent: str | Path, stem: str) -> Path:
     """Create a new folder parent/<stem>-<YYYYmmdd-HHMMSS> (suffix -2, -3, ... when that
     exists) atomically (mkdir), so that runs started in the same second get one each."""
-    base = Path(parent) / f"{stem}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
+    base = Path(os.path.abspath(parent)) / f"{stem}-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     candidate, index = base, 1
     try:
         base.parent.mkdir(parents=True, exist_ok=True)

@@ -144,7 +144,7 @@ class StudyStore:
         An existing non-empty folder is refused without `resume`; with it, the stored study
         must equal `study` (else the rows would mix two studies).
         """
-        root = Path(root)
+        root = Path(os.path.abspath(root))  # absolute: a filter that changes the working folder cannot move it
         if root.exists() and not root.is_dir():
             raise OutputDirError(f"{root} exists and is not a folder")
         stored = root / STUDY_FILE
