@@ -92,4 +92,7 @@ def lazy_module(name: str) -> ModuleType:
         module = importlib.util.module_from_spec(spec)
         module.__class__ = DeferredModule
         sys.modules[name] = module
+        parent, _, child = name.rpartition(".")
+        if parent:  # as an import does: `package.child` reads the module (find_spec imported the package)
+            setattr(sys.modules[parent], child, module)
     return module

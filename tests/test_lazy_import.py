@@ -102,3 +102,15 @@ def test_an_unknown_module_is_refused_at_once():
 
     with pytest.raises(ImportError, match="no module named 'controllers.nosuch'"):
         lazy_module("controllers.nosuch")
+
+
+def test_a_deferred_submodule_is_an_attribute_of_its_package_as_after_an_import():
+    """`import package.child` after `lazy_module("package.child")` finds the module in sys.modules and binds the
+    package: the package must then hold the child, as after an ordinary import."""
+    code = textwrap.dedent("""
+        import json, sys
+        import closedloop.step
+        import closedloop.kernels
+        print(json.dumps({"same": closedloop.kernels is sys.modules["closedloop.kernels"]}))
+    """)
+    assert run_python(code) == {"same": True}
