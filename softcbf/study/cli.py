@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from softcbf_mj.runio import OutputDirError
 
@@ -92,6 +93,11 @@ def _falsify(args: argparse.Namespace) -> int:
     from softcbf.study.definition import load_study
     from softcbf.study.falsify import falsify
     from softcbf.study.report import write_report
+    from softcbf_mj.progress import significant
+
+    def shown(value: Any) -> str:
+        """A figure or parameter to `significant` digits (a tuning, a flag: as it is)."""
+        return significant(value) if isinstance(value, float) else str(value)
 
     def body() -> None:
         study = load_study(args.study_file, args.set)
@@ -102,12 +108,13 @@ def _falsify(args: argparse.Namespace) -> int:
                          batch_size=args.batch_size, progress=not args.no_progress)
         best, base = result["best"], result["random_baseline"]
         found = (f"a filter fault ({best['fault']['type']} in the {best['fault']['where']}: {best['fault']['message']})"
-                 if best["fault"] else f"{result['objective']} = {best['value']!r}")
+                 if best["fault"] else f"{result['objective']} = {shown(best['value'])}")
+        params = ", ".join(f"{k} = {shown(v)}" for k, v in (best["params"] or {}).items())
         print(f"falsify {study.name}: best {found} at evaluation "
-              f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}, {best['params']}; "
+              f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}; {params}; "
               f"{result['faulted']} faulted); first violation: "
               f"{result['first_violation'] or 'none'}; uniform baseline: best "
-              + ("a filter fault" if base["fault"] else repr(base["best"]))
+              + ("a filter fault" if base["fault"] else shown(base["best"]))
               + f" in {base['evaluations']} ({base['faulted']} faulted), first violation: "
               f"{base['first_violation'] or 'none'}; folder {args.out}")
         print(f"report: {write_report(args.out)}")
