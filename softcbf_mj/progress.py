@@ -10,9 +10,11 @@ through its simulated time). Numbers a person reads are shown to `SIGNIFICANT` d
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 import time
-from typing import TextIO
+from typing import Iterator, TextIO
 
 SIGNIFICANT = 4  # significant digits of the figures a progress line shows (a best objective, a force)
 QUIET_MIN_S = 1.0  # a non-terminal log gets a line at latest this long after the start …
@@ -67,11 +69,16 @@ class Progress:
         self._last_line = self.start
         self._note = ""
         self._done = 0.0
+        self._lock = threading.Lock()  # `ticking`'s thread and the caller's both update
 
     def update(self, done: float, note: str = "") -> None:
         """Report `done` units; `note` (e.g. '2 failed') is appended to the line."""
         if not self.enabled:
             return
+        with self._lock:
+            self._update(done, note)
+
+    def _update(self, done: float, note: str) -> None:
         self._note = note
         self._done = done
         now = time.perf_counter()
@@ -105,10 +112,33 @@ class Progress:
         return (f"[{self.label}] |{bar:<20}| {100 * frac:5.1f}%{count}{sim}  {duration_text(elapsed)} elapsed, "
                 f"eta {eta}{note}")
 
+    def eta_s(self) -> float | None:
+        """The time left (s) at the last `done` (module docstring), None before any work is done."""
+        frac = min(self._done / self.total, 1.0)
+        return (time.perf_counter() - self.start) * (1 - frac) / frac if frac > 0 else None
+
     def tick(self, note: str | None = None) -> None:
         """Report the last `done` again (a line on a log that has been quiet for long; a fresh elapsed time);
         `note` replaces the note when given."""
         self.update(self._done, self._note if note is None else note)
+
+    @contextlib.contextmanager
+    def ticking(self, every_s: float = QUIET_MIN_S) -> Iterator["Progress"]:
+        """Within the block a daemon thread calls `tick()` every `every_s` s, so a unit of work that takes
+        minutes (a bench case) still refreshes the line (and a log gets its `quiet_limit_s` lines)."""
+        stop = threading.Event()
+
+        def beat() -> None:
+            while not stop.wait(every_s):
+                self.tick()
+
+        thread = threading.Thread(target=beat, name=f"progress {self.label}", daemon=True)
+        thread.start()
+        try:
+            yield self
+        finally:
+            stop.set()
+            thread.join()
 
     def close(self, done: float | None = None) -> None:
         """Print the final line: at `total` units, or at `done` for work that stopped early (e.g. a search
