@@ -69,6 +69,7 @@ class Progress:
         self._last_line = self.start
         self._note = ""
         self._done = 0.0
+        self._printed: tuple[float, str] | None = None  # (done, note) of the last line a log got
         self._lock = threading.Lock()  # `ticking`'s thread and the caller's both update
 
     def update(self, done: float, note: str = "") -> None:
@@ -95,6 +96,7 @@ class Progress:
                 return
             self._last_decile = decile
             self._last_line = now
+            self._printed = (done, note)
             self.stream.write(self._line(frac, now) + "\n")
         self.stream.flush()
 
@@ -142,8 +144,11 @@ class Progress:
 
     def close(self, done: float | None = None) -> None:
         """Print the final line: at `total` units, or at `done` for work that stopped early (e.g. a search
-        that stopped on its first violation)."""
-        self.update(self.total if done is None else done, self._note)
+        that stopped on its first violation). A log gets it unless its last line said the same."""
+        done = self.total if done is None else done
+        if not self.live and self._printed != (done, self._note):
+            self._last_decile = -1
+        self.update(done, self._note)
         if self.live:
             self.stream.write("\n")
             self.stream.flush()

@@ -281,7 +281,7 @@ def run_study(
         skipped = sum(1 for i in done if i < limit)
         n_todo = limit - skipped
         bar = Progress(f"study {study.name}", max(n_todo, 1), enabled=progress and n_todo > 0, unit="samples")
-        bar.update(0, f"starting on {'Dask' if client is not None else f'{workers or os.cpu_count() or 1} workers'}")
+        bar.update(0, f"starting {'on Dask' if client is not None else f'{workers or os.cpu_count() or 1} local worker(s)'}")
         if client is not None:
             backend = "dask"
             n_workers = max(1, sum(client.nthreads().values()))

@@ -336,13 +336,15 @@ def falsify(
     scheduler: str | None = None,
     client: Any = None,
     batch_size: int | None = None,
-    progress: bool = True,
+    progress: bool | Progress = True,
 ) -> dict[str, Any]:
     """Search `study`'s box for the minimum of its objective (module docstring); returns falsify.json's content.
 
     `budget`: evaluations of the search; `baseline`: uniform draws (default `budget`, 0: none); `seed`: of the
     sampler, the evaluations' scenario seeds and the baseline (default the study's); `storage`: optuna storage
-    URL (default SQLite in DIR); `workers`, `scheduler`, `client`, `batch_size`: as `run_study`.
+    URL (default SQLite in DIR); `workers`, `scheduler`, `client`, `batch_size`: as `run_study`. `progress`: the
+    progress line (per evaluation, with its ETA) or not, or the `Progress` to report into (the command line's,
+    whose first line came before optuna was imported).
     """
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ValueError(f"budget must be an integer >= 1 (evaluations), got {budget!r}")
@@ -371,9 +373,13 @@ def falsify(
     name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
     state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
                              "storage": "server database (--storage)" if storage else STORAGE_FILE}
+    fresh_bar = not isinstance(progress, Progress)
+    bar = Progress(f"falsify {study.name}", budget, enabled=progress, unit="evaluations") if fresh_bar else progress
     if not resume:  # a falsification folder from the start, so a search that stops can be resumed
         root.mkdir(parents=True, exist_ok=True)
         write_json(root / FALSIFY_FILE, state)
+        if fresh_bar:
+            bar.update(0, "opening the search")  # its storage takes seconds; a resume's first line follows its checks
     optuna.logging.set_verbosity(logging.WARNING)
     search = open_search(root, storage, name, _sampler(sampler, study.seed, population), resume)
     search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
@@ -413,8 +419,7 @@ def falsify(
         evaluated = _rows(search_dir, range(len(asked)))  # evaluation index → row, as they are told
         violation = any(violated(r) for r in evaluated.values())
         stopped = "budget"
-        bar = Progress(f"falsify {study.name}", budget, enabled=progress, unit="evaluations")
-        note = search_note(evaluated, objective) if evaluated else "starting"
+        note = search_note(evaluated, objective) if evaluated else "first generation"
         bar.update(len(evaluated), note)
         while True:
             if not pending:
@@ -453,7 +458,7 @@ def falsify(
         result = _summary([evaluated[i] for i in sorted(evaluated)], objective)
         base = []
         if baseline:
-            base_bar = Progress(f"falsify {study.name} baseline", baseline, enabled=progress, unit="draws")
+            base_bar = Progress(f"falsify {study.name} baseline", baseline, enabled=bar.enabled, unit="draws")
             base_bar.update(0, "uniform draws of the box")
             base = uniform_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run,
                                     report=lambda done_now: base_bar.update(done_now, "uniform draws of the box"))
