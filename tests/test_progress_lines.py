@@ -121,6 +121,31 @@ def test_a_batched_loop_reports_the_fraction_of_its_run_after_every_step():
     assert len(fractions) == steps and fractions[-1] == 1.0 and fractions == sorted(fractions)
 
 
+def test_a_study_counts_a_running_batch_by_the_fraction_of_its_simulated_time(tmp_path):
+    """One batch of 3 samples: the driver reports fractions of it while it runs, not 0 until it ends, then 3."""
+    from softcbf.study.definition import Study
+    from softcbf.study.execute import run_study
+
+    study = Study("one_batch", "mujoco_contact", ("Low",), draws=3, seed=7, fixed={"t0": 25.0, "duration": 3.0})
+    reported: list[float] = []
+    outcome = run_study(study, tmp_path / "s", workers=1, progress=False, report=reported.append)
+    assert outcome.ran == 3 and reported[-1] == 3
+    running = [done for done in reported if 0 < done < 3]
+    assert running and running == sorted(running), reported
+
+
+def test_a_log_gets_the_final_note_even_at_the_same_percentage():
+    """falsify's last generation: its best objective is known after the line at 100 % was printed."""
+    stream = io.StringIO()
+    bar = Progress("falsify s", 2, stream=stream, unit="evaluations")
+    bar.update(2, "first generation")
+    bar.update(2, "best rho_min_meas -0.6312")
+    bar.close()
+    bar.close()
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 2 and lines[-1].endswith("best rho_min_meas -0.6312")
+
+
 # -- the commands -----------------------------------------------------------------------------------------------
 
 
@@ -133,7 +158,8 @@ def test_a_study_run_prints_its_first_progress_line_within_2_s(tmp_path):
 
 def test_falsify_prints_progress_within_2_s_and_rounds_its_figures(tmp_path):
     proc, start = started(cli("study", "falsify", str(ROOT / "studies/mismatch_box_contact.toml"), "--out",
-                              str(tmp_path / "f"), "--budget", "2", "--sampler", "tpe", "--population", "2", "--baseline", "0",
+                              str(tmp_path / "f"), "--budget", "2", "--sampler", "tpe", "--population", "2",
+                              "--baseline", "0",
                               "--workers", "1", "--set", "fixed.duration=0.1"), tmp_path)
     lines: list[tuple[float, str]] = []
     at = read_until(proc, start, PROGRESS_LINE, lines)

@@ -34,7 +34,7 @@ Progress per sample, not per task. A batch of B samples finishes all at once, af
 samples' worth of simulated time (minutes), so counting finished tasks alone would leave
 the line at 0 for that long. A local batch reports the fraction of its simulated time done
 (`softcbf_mj.batch_loop.run_batch_closed_loop`'s callback) through a queue of a
-`multiprocessing.Manager` to the driver, at most every `BATCH_REPORT_S`; the driver counts
+`multiprocessing` manager (which ignores Ctrl-C: the driver handles it) to the driver, at most every `BATCH_REPORT_S`; the driver counts
 a batch at fraction f as f·B samples done (the samples of a batch advance together), polls
 every `POLL_S` and prints the first line (0 done) before any worker starts. A Dask task, or
 a sample run alone, counts when it finishes. `report`, if given, is called with the same
@@ -71,10 +71,12 @@ import collections
 import multiprocessing
 import os
 import queue
+import signal
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.managers import SyncManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Hashable, Iterator
@@ -217,9 +219,12 @@ class BatchReporter:
 
     def __call__(self, fraction: float) -> None:
         now = time.monotonic()
-        if now - self.last >= BATCH_REPORT_S:
+        if self.channel is not None and now - self.last >= BATCH_REPORT_S:
             self.last = now
-            self.channel.put((self.first, fraction))
+            try:
+                self.channel.put((self.first, fraction))
+            except (OSError, EOFError):  # the driver's manager is gone (it is ending): the batch goes on, unreported
+                self.channel = None
 
 
 def run_task(study: Study, task: Task, keep_dir: str | None, nthread: int,
@@ -281,7 +286,8 @@ def run_study(
         skipped = sum(1 for i in done if i < limit)
         n_todo = limit - skipped
         bar = Progress(f"study {study.name}", max(n_todo, 1), enabled=progress and n_todo > 0, unit="samples")
-        bar.update(0, f"starting {'on Dask' if client is not None else f'{workers or os.cpu_count() or 1} local worker(s)'}")
+        where = "on Dask" if client is not None else f"{workers or os.cpu_count() or 1} local worker(s)"
+        bar.update(0, f"starting {where}")
         if client is not None:
             backend = "dask"
             n_workers = max(1, sum(client.nthreads().values()))
@@ -294,7 +300,8 @@ def run_study(
             window = n_workers
             nthread = max(1, (os.cpu_count() or 1) // n_workers)
             if batch_size > 1 and n_todo > 0:  # batches report their progress (module docstring)
-                manager = multiprocessing.get_context("spawn").Manager()
+                manager = SyncManager(ctx=multiprocessing.get_context("spawn"))
+                manager.start(signal.signal, (signal.SIGINT, signal.SIG_IGN))  # Ctrl-C is the driver's to handle
             executor = _local_pool(n_workers)
     except BaseException:
         if manager is not None:

@@ -101,7 +101,6 @@ import math
 import os
 import shutil
 import sqlite3
-import sys
 import uuid
 import warnings
 from dataclasses import dataclass
