@@ -112,7 +112,12 @@ folder of another study definition); any other case runs again from
 scratch. bench.json is checked first (`check_bench_json`: the fields and types of docs/beyond-the-paper.md#filter-benchmark, numbers
 finite, times, RMS and compute times >= 0, probabilities in [0, 1], known cases, filters of its
 own list, each (filter, case) once; the same for "worst_found"); a file that fails is refused with one line naming the
-field, and nothing runs.
+field, and nothing runs. Ctrl-C exits with 130 after one line that says what is stored and to continue with
+`--resume` (or that nothing was: a fresh bench interrupted before its first row leaves nothing).
+
+Progress: a line on stderr (softcbf_mj.progress) counts the cases to run now ("case k of n", the worst-case
+searches included, kept rows not) with an ETA, refreshed while a case runs; each finished case's line on stdout
+ends with the same "case k of n, eta …".
 
 Outputs: DIR/bench.json (`{"battery", "quick", "mismatch_draws", "filters", "skipped", "results", "falsify",
 "worst_found"}`; every result row holds `RESULT_KEYS`, every worst_found entry `WORST_KEYS`), DIR/bench.md (the

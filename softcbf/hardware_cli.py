@@ -47,6 +47,11 @@ setting (`StartupError`), exit code 2, and no folder (nor, with --overwrite, a r
 one). A loop that then sees no complete frame within camera.startup_timeout_s vents and
 ends the same way, removing the folder it had made.
 
+Progress (`CycleProgress`, softcbf_mj.progress): an emulated run says first that its emulator
+is starting (it takes seconds); from the first cycle on the progress line shows cycles done of
+the run's, the run time, the real-time factor and an ETA, updated once per second of run. A
+failed start-up of a real arm prints nothing but its one error line.
+
 Exit codes as `softcbf`: 0 done, 1 a filter fault or an error of the control loop (the
 filter or nominal raised or returned what the contract refuses: the loop held, then
 vented and stopped; every cycle before is in the folder, summary.json's row has `fault`,
