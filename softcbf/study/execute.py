@@ -34,7 +34,8 @@ Progress per sample, not per task. A batch of B samples finishes all at once, af
 samples' worth of simulated time (minutes), so counting finished tasks alone would leave
 the line at 0 for that long. A local batch reports the fraction of its simulated time done
 (`softcbf_mj.batch_loop.run_batch_closed_loop`'s callback) through a queue of a
-`multiprocessing` manager (which ignores Ctrl-C: the driver handles it) to the driver, at most every `BATCH_REPORT_S`; the driver counts
+`multiprocessing` manager (`start_manager`: it ignores Ctrl-C, which the driver handles, and
+exits with its driver as the workers do; started only when the progress is shown or reported) to the driver, at most every `BATCH_REPORT_S`; the driver counts
 a batch at fraction f as f·B samples done (the samples of a batch advance together), polls
 every `POLL_S` and prints the first line (0 done) before any worker starts. A Dask task, or
 a sample run alone, counts when it finishes. `report`, if given, is called with the same
@@ -59,7 +60,7 @@ driver holds the stored indices, the window, the retries and at most `BATCH_BUFF
 samples waiting for their batch, never a list of the study's size: `draws = 10**12`
 starts its first task at once.
 
-Orphans: a local worker exits within `PARENT_POLL_S` when its driver dies, even by
+Orphans: a local worker (and the batches' progress manager) exits within `PARENT_POLL_S` when its driver dies, even by
 SIGKILL (which runs no clean-up): a daemon thread in every worker compares
 `os.getppid()` with the driver's pid and calls `os._exit` once they differ (the worker
 was reparented). Dask workers belong to their cluster and are not affected.
@@ -157,6 +158,13 @@ def exit_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
         os._exit(ORPHAN_EXIT_CODE)
 
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+def start_manager(parent_pid: int) -> None:
+    """In the batches' progress manager process: Ctrl-C is the driver's to handle (the manager stays until the
+    driver shuts it down), and the manager ends with its driver as a worker does (`exit_with_parent`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_with_parent(parent_pid)
 
 
 def _local_pool(workers: int) -> ProcessPoolExecutor:
@@ -299,9 +307,9 @@ def run_study(
             n_workers = workers or os.cpu_count() or 1
             window = n_workers
             nthread = max(1, (os.cpu_count() or 1) // n_workers)
-            if batch_size > 1 and n_todo > 0:  # batches report their progress (module docstring)
+            if batch_size > 1 and n_todo > 0 and (progress or report is not None):  # batches report (docstring)
                 manager = SyncManager(ctx=multiprocessing.get_context("spawn"))
-                manager.start(signal.signal, (signal.SIGINT, signal.SIG_IGN))  # Ctrl-C is the driver's to handle
+                manager.start(start_manager, (os.getpid(),))
             executor = _local_pool(n_workers)
     except BaseException:
         if manager is not None:
