@@ -6,6 +6,7 @@ env step; the filter runs every control period). Each filter sees the same actio
 sequences (the policy's generator is seeded per episode). Reported per filter, over all
 episodes, from the state at the end of every control period: the periods with
 ρ_meas < 0 (plate force above F_max = 0.16 N), the largest plate force and the least ρ_meas.
+A progress line on stderr (softcbf_mj.progress) counts the env steps of all filters' episodes.
 
     .venv/bin/python examples/random_policy_env.py             # none, paper-cbf Low (and e-erg where the
                                                                # registry has it), 5 episodes of 10 s
@@ -23,16 +24,20 @@ import numpy as np
 
 from controllers.registry import FILTERS, label, parse_params
 from softcbf_mj.env import GymArmEnv
+from softcbf_mj.progress import Progress
 
 ENERGY_GOVERNOR = "e-erg"
 
 
 def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float, hold_s: float, control_dt: float,
-               seed: int) -> dict:
-    """Run `episodes` episodes of the random policy through the environment filtered by `spec`."""
+               seed: int, bar: Progress | None = None, offset: int = 0) -> dict:
+    """Run `episodes` episodes of the random policy through the environment filtered by `spec`; `bar` counts
+    its env steps after the `offset` steps of the filters before."""
     repeat = int(round(hold_s / control_dt))
     if repeat < 1 or abs(hold_s / control_dt - repeat) > 1e-9 * repeat:
         raise ValueError(f"hold_s must be a whole number >= 1 of control periods ({control_dt:g} s), got {hold_s:g} s")
+    if bar is not None:
+        bar.update(offset, f"{spec}: building the environment")
     env = GymArmEnv(filter=spec, filter_params=params, control_dt=control_dt, action_repeat=repeat,
                     episode_steps=int(round(seconds / hold_s)))
     periods = violations = 0
@@ -46,6 +51,9 @@ def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float,
             u_nom = policy.uniform(env.action_space.low, env.action_space.high)
             _, _, terminated, truncated, info = env.step(u_nom)
             done = terminated or truncated
+            offset += 1
+            if bar is not None:
+                bar.update(offset, f"{spec}, episode {episode + 1} of {episodes}")
             periods += info["periods"]
             violations += info["violation_periods"]
             force_max, rho_min = max(force_max, info["force_max_N"]), min(rho_min, info["rho_meas_min"])
@@ -73,7 +81,11 @@ def main() -> None:
         runs.append((ENERGY_GOVERNOR, {"contact_aware": "true"}))
     params = args.filter_params + [""] * (len(args.filter) - len(args.filter_params))
     runs += [(spec, parse_params(text)) for spec, text in zip(args.filter, params)]
-    results = [run_filter(spec, p, args.episodes, args.seconds, args.hold_s, args.control_dt, args.seed) for spec, p in runs]
+    steps = args.episodes * int(round(args.seconds / args.hold_s))  # env steps per filter
+    bar = Progress("random_policy_env", max(1, len(runs) * steps), unit_s=args.hold_s)
+    results = [run_filter(spec, p, args.episodes, args.seconds, args.hold_s, args.control_dt, args.seed, bar, i * steps)
+               for i, (spec, p) in enumerate(runs)]
+    bar.close()
     print(f"random policy: u_nom ~ U(±150 hPa) held {args.hold_s:g} s, {args.episodes} episodes of {args.seconds:g} s, "
           f"control period {args.control_dt * 1e3:g} ms")
     width = max(len("filter"), *(len(r["filter"]) for r in results))

@@ -16,7 +16,7 @@ from the straight arm at rest: deterministic), keeps the `--elite` best by retur
 μ, σ to their mean and standard deviation (σ floored at `SIGMA_FLOOR`). The same draws
 (one seeded generator per filter, seeded alike) train once with each filter of
 `--filters` (default: "none" and the contact-aware energy governor "e-erg"), so the runs
-differ only by the shield.
+differ only by the shield. A progress line on stderr (softcbf_mj.progress) counts the episodes.
 
 Reported per iteration and filter: the population's mean episode return (Σ reward) and
 mean episode cost (Σ cost; × 0.1 s it is the time above F_max, s), and the cumulative
@@ -38,6 +38,7 @@ import numpy as np
 
 from controllers.registry import parse_params
 from softcbf_mj.env import GymArmEnv, force_regulation
+from softcbf_mj.progress import Progress
 
 SIGMA_FLOOR = 0.05  # the CEM's smallest standard deviation per weight (keeps exploring)
 DEFAULT_FILTERS = ("none", "e-erg:contact_aware=true")
@@ -61,9 +62,13 @@ def episode(env: GymArmEnv, weights: np.ndarray) -> tuple[float, float]:
     return total_reward, total_cost
 
 
-def train(spec: str, iterations: int, population: int, elite: int, sigma: float, episode_steps: int, seed: int) -> dict:
-    """CEM behind the filter `spec` ("NAME" or "NAME:param=value;..."); per-iteration figures (module docstring)."""
+def train(spec: str, iterations: int, population: int, elite: int, sigma: float, episode_steps: int, seed: int,
+          bar: Progress | None = None, offset: int = 0) -> dict:
+    """CEM behind the filter `spec` ("NAME" or "NAME:param=value;..."); per-iteration figures (module docstring).
+    `bar` counts its episodes after the `offset` episodes of the filters before."""
     name, _, text = spec.partition(":")
+    if bar is not None:
+        bar.update(offset, f"{spec}: building the environment")
     env = GymArmEnv(force_regulation(filter=name, filter_params=parse_params(text), episode_steps=episode_steps),
                     normalise=True)
     observation, _ = env.reset(seed=0)
@@ -72,9 +77,15 @@ def train(spec: str, iterations: int, population: int, elite: int, sigma: float,
     mean, std = np.zeros(shape), np.full(shape, sigma)
     returns, costs, cumulative, total = [], [], [], 0.0
     start = time.perf_counter()
-    for _ in range(iterations):
+    for iteration in range(iterations):
         draws = mean + std * random.standard_normal((population, *shape))
-        results = np.array([episode(env, w) for w in draws])
+        rows = []
+        for w in draws:
+            rows.append(episode(env, w))
+            offset += 1
+            if bar is not None:
+                bar.update(offset, f"{spec}, iteration {iteration + 1} of {iterations}")
+        results = np.array(rows)
         total += float(results[:, 1].sum())
         returns.append(float(results[:, 0].mean()))
         costs.append(float(results[:, 1].mean()))
@@ -82,6 +93,8 @@ def train(spec: str, iterations: int, population: int, elite: int, sigma: float,
         best = draws[np.argsort(results[:, 0])[::-1][:elite]]
         mean, std = best.mean(axis=0), np.maximum(best.std(axis=0), SIGMA_FLOOR)
     final_return, final_cost = episode(env, mean)
+    if bar is not None:
+        bar.update(offset + 1, f"{spec}, final policy")
     env.close()
     return {"filter": spec, "mean_return": returns, "mean_cost": costs, "cumulative_cost": cumulative,
             "final_policy_return": final_return, "final_policy_cost": final_cost, "episodes": iterations * population + 1,
@@ -131,8 +144,12 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--elite must be <= --population ({args.population}), got {elite}")
     if not args.sigma > 0:
         parser.error(f"--sigma must be > 0, got {args.sigma}")
-    results = [train(spec.strip(), args.iterations, args.population, elite, args.sigma, args.episode_steps, args.seed)
-               for spec in args.filters.split(",") if spec.strip()]
+    specs = [spec.strip() for spec in args.filters.split(",") if spec.strip()]
+    per_filter = args.iterations * args.population + 1  # episodes, the final policy's included
+    bar = Progress("shield_cem", max(1, len(specs) * per_filter), unit="episodes")
+    results = [train(spec, args.iterations, args.population, elite, args.sigma, args.episode_steps, args.seed,
+                     bar, i * per_filter) for i, spec in enumerate(specs)]
+    bar.close()
     print(f"CEM on force regulation: {args.iterations} iterations × {args.population} policies (elite {elite}), "
           f"episodes of {args.episode_steps} steps of 0.1 s")
     print(f"{'filter':<26} {'iteration':>9} {'mean return':>12} {'mean cost':>10} {'cumulative cost':>15}")

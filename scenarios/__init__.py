@@ -29,7 +29,8 @@ Batch form (optional, studies: docs/studies.md#batches). `register(..., batch=Ba
 lets a study run many samples of the scenario in one batched closed loop:
 `key(kwargs)` is what samples must share to run in one batch (hashable; None: this
 sample cannot be batched), `run(kwargs_list, nthread)` runs the validated flat parameters
-of samples with one key together and returns one row of run figures per
+of samples with one key together (optional third argument `progress`: called with the fraction
+of the batch's run done, `softcbf_mj.batch_loop.run_batch_closed_loop`) and returns one row of run figures per
 sample (`softcbf_mj.batch_loop.BatchRun.run`), equal to the single run's fields of the
 same names.
 """
@@ -52,10 +53,10 @@ _MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera
 @dataclass(frozen=True)
 class BatchForm:
     """A scenario's batch form (module docstring): `key(kwargs) -> Hashable | None`,
-    `run(kwargs_list, nthread) -> list[dict]` (one row of run figures per sample)."""
+    `run(kwargs_list, nthread, progress=None) -> list[dict]` (one row of run figures per sample)."""
 
     key: Callable[[Mapping[str, Any]], Hashable | None]
-    run: Callable[[Sequence[Mapping[str, Any]], int], list[dict[str, Any]]]
+    run: Callable[..., list[dict[str, Any]]]
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ nominal is told its own copy of `context` (`FilterContext.copy`); the batched st
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -30,8 +30,9 @@ from softcbf_mj.plant import BatchPlant
 
 def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterContext, nominal: str,
                      nominal_kwargs: Sequence[dict[str, object]], duration: float,
-                     q0: np.ndarray) -> list[dict[str, Any]]:
-    """One row of run figures per simulation of `plant` (module docstring); q0 (B, N) rad."""
+                     q0: np.ndarray, progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
+    """One row of run figures per simulation of `plant` (module docstring); q0 (B, N) rad; `progress`: the
+    batched loop's (`run_batch_closed_loop`: the fraction of the run done, after each control step)."""
     n_sims = plant.n_sims
     if len(nominal_kwargs) != n_sims or np.shape(q0) != (n_sims, plant.n_segments):
         raise ValueError(f"nominal_kwargs and q0 must hold one entry per simulation ({n_sims}), got "
@@ -45,5 +46,5 @@ def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterConte
         filters = one if callable(getattr(one, "filter_batch", None)) else [
             build_filter(run.filter, run.filter_params, context.copy()) for _ in range(n_sims)]
         nominals = [build_nominal(nominal, kwargs, context.copy()) for kwargs in nominal_kwargs]
-    result = run_batch_closed_loop(plant, filters, nominals, context, duration, q0)
+    result = run_batch_closed_loop(plant, filters, nominals, context, duration, q0, progress=progress)
     return [{**result.run(b), "wall_s": result.wall_s / n_sims, "batch_size": n_sims} for b in range(n_sims)]

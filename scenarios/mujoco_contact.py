@@ -48,7 +48,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -164,7 +164,8 @@ def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:
     return tuple(sorted((k, v) for k, v in params.items() if k not in BATCH_VARYING))
 
 
-def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> list[dict[str, Any]]:
+def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
+                      progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
     """Run `mujoco_contact` samples (flat parameters) that share `contact_batch_key` (each one tuning) in
     one batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
     run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
@@ -182,7 +183,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) ->
                                           nthread=nthread)
     return run_batch_tuning(plant, first.runs[0], first.context, specs[0].nominal.name,
                             [s.nominal_kwargs for s in setups], specs[0].run.duration,
-                            np.array([s.q0 for s in setups]))
+                            np.array([s.q0 for s in setups]), progress)
 
 
 @register("mujoco_contact", "the paper's sinusoid against the MuJoCo plate, exact rod state, None/Low/High",

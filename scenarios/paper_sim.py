@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -112,7 +112,8 @@ def paper_batch_key(params: Mapping[str, Any]) -> tuple:
     return tuple(sorted((k, v) for k, v in params.items() if k not in PAPER_BATCH_VARYING))
 
 
-def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> list[dict[str, Any]]:
+def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
+                    progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
     """Run `paper_sim` samples (flat parameters) that share `paper_batch_key` (each one tuning) on one
     `PCCBatchPlant` (numpy, `nthread` unused); one row of run figures per sample
     (`scenarios.batch_form.run_batch_tuning`)."""
@@ -127,7 +128,8 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1) -> l
     plant = PCCBatchPlant(first.robot, first.safe_set, len(setups), control_dt=first.control_dt,
                           integrator=spec.integrator)
     return run_batch_tuning(plant, first.runs[0], first.context(spec.filter.pressure_limits), spec.nominal.name,
-                            [s.nominal_kwargs for s in setups], spec.run.duration, np.array([s.q0 for s in setups]))
+                            [s.nominal_kwargs for s in setups], spec.run.duration, np.array([s.q0 for s in setups]),
+                            progress)
 
 
 @register("paper_sim", "the paper's Table I: PCC simulation, sinusoid into one facet, None/Low/High",

@@ -112,7 +112,12 @@ folder of another study definition); any other case runs again from
 scratch. bench.json is checked first (`check_bench_json`: the fields and types of docs/beyond-the-paper.md#filter-benchmark, numbers
 finite, times, RMS and compute times >= 0, probabilities in [0, 1], known cases, filters of its
 own list, each (filter, case) once; the same for "worst_found"); a file that fails is refused with one line naming the
-field, and nothing runs.
+field, and nothing runs. Ctrl-C exits with 130 after one line that says what is stored and to continue with
+`--resume` (or that nothing was: a fresh bench interrupted before its first row leaves nothing).
+
+Progress: a line on stderr (softcbf_mj.progress) counts the cases to run now ("case k of n", the worst-case
+searches included, kept rows not) with an ETA, refreshed while a case runs; each finished case's line on stdout
+ends with the same "case k of n, eta …".
 
 Outputs: DIR/bench.json (`{"battery", "quick", "mismatch_draws", "filters", "skipped", "results", "falsify",
 "worst_found"}`; every result row holds `RESULT_KEYS`, every worst_found entry `WORST_KEYS`), DIR/bench.md (the
@@ -140,6 +145,7 @@ import numpy as np
 from controllers.filter_metrics import governor_figures
 from controllers.registry import FILTERS, check_filter, resolve
 from softcbf.study.store import fault_of, faulted
+from softcbf_mj.progress import Progress, duration_text
 from softcbf_mj.runio import (
     RUN_MARKER, OutputDirError, load_timeseries, prepare_out_dir, read_run_folder, release_out_dir, remove_if_unused,
     safe_name,
@@ -559,9 +565,16 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
         done, worst_done = stored_results(out, bench) if options.resume else ({}, {})
         if fresh:
             write_outputs(out, bench)  # a bench folder from the start: a bench that stops can be resumed
-        _run_cases(out, bench, filters, selected, skipped, done, options)
-        if searches:
-            _run_worst_found(out, bench, searches[1], worst_done, options)
+        to_run = planned_cases(filters, selected, skipped, done)
+        new_searches = [label for label in (searches[1] if searches else {}) if label not in worst_done]
+        bar = Progress("bench", max(1, len(to_run) + len(new_searches)), enabled=bool(to_run or new_searches),
+                       unit="cases")
+        bar.update(0, "starting")
+        with bar.ticking():  # a case may take minutes: the line's elapsed time goes on
+            _run_cases(out, bench, filters, selected, skipped, done, options, bar)
+            if searches:
+                _run_worst_found(out, bench, searches[1], worst_done, options, bar, len(to_run))
+        bar.close()
     except BaseException:
         if fresh and not bench["results"] and not bench["worst_found"]:
             _discard(out, created)
@@ -571,28 +584,45 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
     return bench
 
 
+def planned_cases(filters: Sequence[FilterSpec], selected: Sequence[str], skipped: Mapping[str, str],
+                  done: Mapping[tuple[str, str], dict[str, Any]] | None = None) -> list[tuple[FilterSpec, Case]]:
+    """The (filter, case) pairs the bench runs, in order: selected, not skipped and (with `done`) not kept."""
+    return [(spec, case) for spec in filters for case in CASES
+            if case.name in selected and case.name not in skipped and skip_key(spec, case) not in skipped
+            and (done is None or (spec.label, case.name) not in done)]
+
+
+def progress_text(bar: Progress, k: int) -> str:
+    """"case k of n" and the ETA of the bench's progress `bar` (after k cases)."""
+    eta = bar.eta_s()
+    return f"case {k} of {bar.total}" + (f", eta {duration_text(eta)}" if eta is not None else "")
+
+
 def _run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], selected: Sequence[str],
-               skipped: Mapping[str, str], done: Mapping[tuple[str, str], dict[str, Any]], options: RunOptions) -> None:
-    for spec in filters:
-        for case in CASES:
-            if case.name not in selected or case.name in skipped or skip_key(spec, case) in skipped:
-                continue
-            if (spec.label, case.name) in done:
-                bench["results"].append(done[spec.label, case.name])
-                print(f"bench: {spec.label} x {case.name}: kept from {out / BENCH_FILE} (--resume)", flush=True)
-                continue
-            folder = out / "cases" / safe_name(spec.label) / case.name
-            if folder.exists() and not (options.resume and case.run is _mismatch_case):
-                shutil.rmtree(folder)
-            start = time.perf_counter()
-            row = {"filter": spec.label, "case": case.name, "force_asked_N": case.asked_N, "force_delivered_N": None,
-                   "force_delivered_ratio": None, **case.run(case, spec, folder, options),
-                   "wall_s": time.perf_counter() - start}
-            bench["results"].append({k: row[k] for k in RESULT_KEYS})
-            write_outputs(out, bench)
-            verdict = (f"filter fault ({fault_text(row)}), no verdict" if row["fault"] else
-                       f"rho_min_meas {row['rho_min_meas']:.4f}, t_violation {row['t_violation_s']:.3f} s")
-            print(f"bench: {spec.label} x {case.name}: {verdict}, {row['wall_s']:.1f} s", flush=True)
+               skipped: Mapping[str, str], done: Mapping[tuple[str, str], dict[str, Any]], options: RunOptions,
+               bar: Progress) -> None:
+    n_run = 0
+    for spec, case in planned_cases(filters, selected, skipped):
+        if (spec.label, case.name) in done:
+            bench["results"].append(done[spec.label, case.name])
+            print(f"bench: {spec.label} x {case.name}: kept from {out / BENCH_FILE} (--resume)", flush=True)
+            continue
+        bar.update(n_run, f"case {n_run + 1} of {bar.total} running: {spec.label} x {case.name}")
+        folder = out / "cases" / safe_name(spec.label) / case.name
+        if folder.exists() and not (options.resume and case.run is _mismatch_case):
+            shutil.rmtree(folder)
+        start = time.perf_counter()
+        row = {"filter": spec.label, "case": case.name, "force_asked_N": case.asked_N, "force_delivered_N": None,
+               "force_delivered_ratio": None, **case.run(case, spec, folder, options),
+               "wall_s": time.perf_counter() - start}
+        bench["results"].append({k: row[k] for k in RESULT_KEYS})
+        write_outputs(out, bench)
+        verdict = (f"filter fault ({fault_text(row)}), no verdict" if row["fault"] else
+                   f"rho_min_meas {row['rho_min_meas']:.4f}, t_violation {row['t_violation_s']:.3f} s")
+        n_run += 1
+        bar.update(n_run, f"case {n_run} of {bar.total} done: {spec.label} x {case.name}")
+        print(f"bench: {spec.label} x {case.name}: {verdict}, {row['wall_s']:.1f} s ({progress_text(bar, n_run)})",
+              flush=True)
     write_outputs(out, bench)
 
 
@@ -616,7 +646,7 @@ def worst_case_searches(filters: Sequence[FilterSpec], options: RunOptions, whol
 
 
 def _run_worst_found(out: Path, bench: dict[str, Any], studies: Mapping[str, Any],
-                     done: Mapping[str, dict[str, Any]], options: RunOptions) -> None:
+                     done: Mapping[str, dict[str, Any]], options: RunOptions, bar: Progress, k: int) -> None:
     from softcbf.study.store import FALSIFY_FILE
     from softcbf.study.worst_found import worst_found
 
@@ -630,12 +660,16 @@ def _run_worst_found(out: Path, bench: dict[str, Any], studies: Mapping[str, Any
         resume = options.resume and (folder / FALSIFY_FILE).is_file()
         if folder.exists() and not resume:
             shutil.rmtree(folder)
-        entry = worst_found(label, study, folder, budget, resume=resume, workers=options.workers)
+        bar.update(k, f"case {k + 1} of {bar.total} running: {label} worst-case search")
+        entry = worst_found(label, study, folder, budget, resume=resume, workers=options.workers,
+                            progress=not options.quick)
+        k += 1
+        bar.update(k, f"case {k} of {bar.total} done: {label} worst-case search")
         bench["worst_found"].append({k: entry[k] for k in WORST_KEYS})
         write_outputs(out, bench)
         found = f"a filter fault ({fault_text(entry)})" if entry["fault"] else f"rho_min_meas {entry['rho_worst_found']}"
         print(f"bench: {label} worst case found: {found} in {entry['evaluations']} "
-              f"evaluations, {entry['wall_s']:.1f} s", flush=True)
+              f"evaluations, {entry['wall_s']:.1f} s ({progress_text(bar, k)})", flush=True)
     write_outputs(out, bench)
 
 
@@ -1078,8 +1112,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int:
-    """Handler of `softcbf bench`: 0 done, 2 usage error (one line on stderr)."""
+    """Handler of `softcbf bench`: 0 done, 2 usage error (one line on stderr), 130 on Ctrl-C (after a line that
+    says what is stored and how to continue: `--resume`)."""
     import sys
+
+    from scenarios.run import INTERRUPTED
 
     try:
         filters = parse_filters(args.filters)
@@ -1089,5 +1126,10 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        stored = (f"finished cases are stored in {args.out}; continue with --resume"
+                  if is_bench_folder(args.out) else "nothing was stored")
+        print(f"\ninterrupted: {stored}", file=sys.stderr)
+        return INTERRUPTED
     print(f"bench: {args.out / BENCH_FILE}, {args.out / TABLE_FILE}, {args.out / PLOT_FILE}")
     return 0

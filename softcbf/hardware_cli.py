@@ -47,6 +47,11 @@ setting (`StartupError`), exit code 2, and no folder (nor, with --overwrite, a r
 one). A loop that then sees no complete frame within camera.startup_timeout_s vents and
 ends the same way, removing the folder it had made.
 
+Progress (`CycleProgress`, softcbf_mj.progress): an emulated run says first that its emulator
+is starting (it takes seconds); from the first cycle on the progress line shows cycles done of
+the run's, the run time, the real-time factor and an ETA, updated once per second of run. A
+failed start-up of a real arm prints nothing but its one error line.
+
 Exit codes as `softcbf`: 0 done, 1 a filter fault or an error of the control loop (the
 filter or nominal raised or returned what the contract refuses: the loop held, then
 vented and stopped; every cycle before is in the folder, summary.json's row has `fault`,
@@ -63,6 +68,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import sys
 import tempfile
@@ -90,6 +96,7 @@ from closedloop.step import describe_fault, fault_log_name, write_fault_log
 from controllers.registry import build_filter, build_nominal
 from controllers.registry import label as run_label
 from softcbf_mj.metrics import run_figures
+from softcbf_mj.progress import Progress
 from softcbf_mj.runio import (
     OutputDirError, SummaryWriter, frames_folder, prepare_out_dir, remove_if_unused, save_frames_index, save_timeseries,
 )
@@ -195,7 +202,9 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
     out_dir = None
     try:
         config = configure(args)
-        with started_loop(config) as (loop, emulation):
+        progress = CycleProgress(config)
+        progress.start()
+        with started_loop(config, on_cycle=progress) as (loop, emulation):
             out_dir = prepare_out_dir(args.out or Path("runs") / f"{SCENARIO}-{time.strftime('%Y%m%d-%H%M%S')}",
                                       args.overwrite)
             if args.spawn:
@@ -203,9 +212,9 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
 
                 with live_viewer() as message:
                     print(message, file=sys.stderr)
-                    row = run_loop(config, loop, emulation, out_dir)
+                    row = run_loop(config, loop, emulation, out_dir, progress=progress)
             else:
-                row = run_loop(config, loop, emulation, out_dir)
+                row = run_loop(config, loop, emulation, out_dir, progress=progress)
     except (ConfigError, StartupError, OutputDirError) as exc:
         if out_dir is not None:
             remove_if_unused(out_dir)  # made for a run that did not start
@@ -314,8 +323,47 @@ def run_hardware(config: HardwareConfig, out_dir: Path, *, emulation: Any = None
         return run_loop(config, loop, emulation, out_dir, report)
 
 
-def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir: Path, report: bool = True) -> dict[str, Any]:
-    """Run a started loop and write the run folder `out_dir`; return the summary row.
+class CycleProgress:
+    """The loop's `on_cycle` of the command: the progress line (`softcbf_mj.progress.Progress`: cycles done of
+    the run's, simulated = run time, its ETA). `start()` says that an emulated run's emulator is starting (MuJoCo
+    and the virtual camera: seconds before the first cycle; a real camera and port open at once, and a start-up
+    that fails stays the one line of its error); the line's clock restarts at the first cycle (so the ETA and the
+    real-time factor are the loop's), then the line is updated once per second of run (s since the first
+    cycle), with the last cycle's safety action."""
+
+    def __init__(self, config: HardwareConfig) -> None:
+        self.period = config.control.period_s
+        self.label = f"hardware {run_label(config.plugin_spec(config.control.filter), config.control.filter_arguments())}"
+        self.total = max(1, int(round(config.run.duration / self.period)))
+        self.emulated = config.link.is_emulated
+        self.bar: Progress | None = None
+        self.next_s = 0.0
+        self.done = 0
+
+    def start(self) -> None:
+        """An emulated run's first line, before its emulator starts (class docstring)."""
+        if self.emulated:
+            Progress(self.label, self.total, unit_s=self.period).update(0, "starting the emulator (MuJoCo, virtual camera)")
+
+    def __call__(self, k: int, t: float, action: SafeAction) -> None:
+        self.done = k + 1  # k counts skipped cycles too: the run's schedule
+        if self.bar is None:
+            self.bar = Progress(self.label, self.total, unit_s=self.period)
+            self.bar.start -= t  # the clock of the first cycle (t s ago)
+        if t >= self.next_s:
+            self.next_s = math.floor(t) + 1.0
+            self.bar.update(self.done, f"last action {action.value}")
+
+    def close(self) -> None:
+        """The final line, at the last cycle the run reached (before the planned end when it stopped early)."""
+        if self.bar is not None:
+            self.bar.close(self.done)
+
+
+def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir: Path, report: bool = True,
+             progress: CycleProgress | None = None) -> dict[str, Any]:
+    """Run a started loop and write the run folder `out_dir`; return the summary row. `progress` (the loop's
+    `on_cycle`, if it is one) prints its final line when the loop ends, before the folder is written.
 
     With `report`, camera frames are kept (`FrameKeeper`) for the recording, and while a
     live viewer is active (softcbf_mj.recording.live_viewer: `--spawn`) the run streams to
@@ -334,6 +382,8 @@ def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir
     start = time.perf_counter()
     log = loop.run()
     wall = time.perf_counter() - start
+    if progress is not None:
+        progress.close()
     if keeper is not None and keeper.saved:
         save_frames_index(out_dir, keeper.label, keeper.saved)
     return write_run(config, out_dir, log, loop, wall, emulation, report)

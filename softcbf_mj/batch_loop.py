@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -84,6 +84,7 @@ def run_batch_closed_loop(
     duration: float,
     q0: np.ndarray,
     record_commands: bool = False,
+    progress: Callable[[float], None] | None = None,
 ) -> BatchRun:
     """Run all B simulations for `duration` s from rest at q0 (B, N) rad; return their figures.
 
@@ -91,6 +92,8 @@ def run_batch_closed_loop(
     simulation; nominal: one nominal controller for all or B, one per simulation. `context`
     is the controllers' (its limits are what every step clips to, its safe set gives ρ_meas).
     The batched control step is reset first (the filters' `reset()`: a shared one's once; the monitors).
+    `progress`, if given, is called after every control step with the fraction of the run done (k/T); it
+    must be cheap (a study's worker forwards it to its driver at most twice a second).
     """
     n_steps = int(round(duration / plant.control_dt))
     if n_steps < 1:
@@ -113,6 +116,8 @@ def run_batch_closed_loop(
             commands[k] = record.u
         active &= ~step.stopped
         state = plant.step(record.u)  # a stopped simulation's row of u is 0 hPa: the vent
+        if progress is not None:
+            progress((k + 1) / n_steps)
     wall = time.perf_counter() - start
     return BatchRun(figures, tuple(step.faults), wall, plant.control_dt, commands)
 

@@ -147,7 +147,9 @@ def test_an_emulator_that_does_not_start_is_one_line_exit_2_and_no_folder(tmp_pa
 
     monkeypatch.setattr(softcbf_mj.emulate, "EmulatedHardware", refuse)
     code, err = _run_cli(capfd, [str(EXAMPLE), "--out", str(tmp_path / "out")])
-    assert (code, err) == (2, "error: emulator: RuntimeError: the MuJoCo model did not compile\n")
+    *progress, error = err.splitlines()  # the emulated run's start line comes first (softcbf.hardware_cli.CycleProgress)
+    assert (code, error) == (2, "error: emulator: RuntimeError: the MuJoCo model did not compile")
+    assert [line.split("]")[0] for line in progress] == ["[hardware High"]
     assert not (tmp_path / "out").exists()
 
 

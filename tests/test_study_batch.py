@@ -97,16 +97,16 @@ def test_paper_sim_batches_equal_its_single_runs(tmp_path):
                 assert math.isclose(many[name], one[name], rel_tol=0.0, abs_tol=1e-9), (one["sample"], name)
 
 
-def test_progress_counts_whole_batches(mismatch, tmp_path, capsys):
-    """The progress line moves once per finished batch: a line per row would show a batch's
-    first row alone, and extrapolate the ETA from one sample of a task that finished several."""
+def test_progress_counts_samples_from_the_start_to_the_end(mismatch, tmp_path, capsys):
+    """The progress line starts at 0 of the samples before any worker runs and counts up to all of them (a
+    running batch counts the fraction of its simulated time done: tests/test_progress_lines.py)."""
     study = Study("progress", "mujoco_contact", ("None",), draws=4, seed=7, fixed=mismatch.fixed,
                   vary=mismatch.vary)
     outcome = run_study(study, tmp_path / "s", workers=1, batch_size=2)
     assert (outcome.ran, outcome.failed) == (4, 0)
-    counts = [line.split(" done")[0].rsplit(" ", 1)[1] for line in capsys.readouterr().err.splitlines()
-              if "[study progress]" in line]
-    assert counts == ["2/4", "4/4"]
+    counts = [int(line.split(" samples")[0].rsplit(" ", 1)[1].split("/")[0])
+              for line in capsys.readouterr().err.splitlines() if "[study progress]" in line]
+    assert counts[0] == 0 and counts[-1] == 4 and counts == sorted(counts)
 
 
 def test_a_three_segment_study_batches_and_equals_its_single_runs(tmp_path):

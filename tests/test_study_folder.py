@@ -174,22 +174,25 @@ import sys
 from softcbf.study import Distribution, Study, run_study
 if __name__ == "__main__":
     study = Study("long", "paper_sim", ("None", "Low"), draws=2, fixed={"duration": 10000.0})
-    run_study(study, sys.argv[1], workers=2, progress=False)
+    run_study(study, sys.argv[1], workers=2, progress=PROGRESS)
 """
 
 
-def test_sigkill_of_the_driver_ends_its_workers(tmp_path):
+@pytest.mark.parametrize("progress, children", [(False, 2), (True, 3)], ids=["workers", "workers_and_manager"])
+def test_sigkill_of_the_driver_ends_its_workers(tmp_path, progress, children):
+    """With the progress line the driver has a third spawned child, the batches' progress manager
+    (softcbf.study.execute.start_manager): it ends with the driver too."""
     script = tmp_path / "driver.py"
-    script.write_text(DRIVER, encoding="utf-8")
+    script.write_text(DRIVER.replace("PROGRESS", str(progress)), encoding="utf-8")
     driver = subprocess.Popen([sys.executable, str(script), str(tmp_path / "study")], cwd=ROOT,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     workers: list[int] = []
     try:
         deadline = time.monotonic() + 90
-        while len(workers) < 2 and time.monotonic() < deadline and driver.poll() is None:
+        while len(workers) < children and time.monotonic() < deadline and driver.poll() is None:
             workers = [p for p, cmd in _children(driver.pid).items() if "spawn_main" in cmd]
             time.sleep(0.2)
-        assert len(workers) == 2, "the driver did not start its two workers"
+        assert len(workers) == children, "the driver did not start its two workers (and its progress manager)"
         time.sleep(3 * PARENT_POLL_S)  # the workers are past their start-up, running their samples
         assert all(_alive(p) for p in workers)
         driver.send_signal(signal.SIGKILL)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from softcbf_mj.runio import OutputDirError
 
@@ -43,7 +44,6 @@ from softcbf_mj.runio import OutputDirError
 def _run(args: argparse.Namespace) -> int:
     from softcbf.study.definition import load_study
     from softcbf.study.execute import run_study
-    from softcbf.study.report import write_report
 
     def body() -> None:
         study = load_study(args.study_file, args.set)
@@ -69,6 +69,8 @@ def _run(args: argparse.Namespace) -> int:
               f"faults, counted as violations), {outcome.skipped} already "
               f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
               + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
+        from softcbf.study.report import write_report  # pandas, matplotlib: after the run, so its first line is early
+
         print(f"report: {write_report(args.out)}")
 
     return _resumable(body, args.out, "samples")
@@ -90,26 +92,37 @@ def _resumable(body, out: Path, stored: str) -> int:
 
 def _falsify(args: argparse.Namespace) -> int:
     from softcbf.study.definition import load_study
-    from softcbf.study.falsify import falsify
-    from softcbf.study.report import write_report
+    from softcbf_mj.progress import Progress, significant
+
+    def shown(value: Any) -> str:
+        """A figure or parameter to `significant` digits (a tuning, a flag: as it is)."""
+        return significant(value) if isinstance(value, float) else str(value)
 
     def body() -> None:
         study = load_study(args.study_file, args.set)
+        bar = Progress(f"falsify {study.name}", max(1, args.budget), enabled=not args.no_progress, unit="evaluations")
+        if args.budget >= 1 and not args.resume:  # a resume's first line follows its checks (`falsify`)
+            bar.update(0, "starting the search")
+        from softcbf.study.falsify import falsify  # optuna: a second or more to import, after the first line
+
         result = falsify(study, args.out, budget=args.budget, sampler=args.sampler, population=args.population,
                          initial=args.initial,
                          seed=args.seed, baseline=args.baseline, stop_on_violation=args.stop_on_violation,
                          storage=args.storage, resume=args.resume, workers=args.workers, scheduler=args.scheduler,
-                         batch_size=args.batch_size, progress=not args.no_progress)
+                         batch_size=args.batch_size, progress=bar)
         best, base = result["best"], result["random_baseline"]
         found = (f"a filter fault ({best['fault']['type']} in the {best['fault']['where']}: {best['fault']['message']})"
-                 if best["fault"] else f"{result['objective']} = {best['value']!r}")
+                 if best["fault"] else f"{result['objective']} = {shown(best['value'])}")
+        params = ", ".join(f"{k} = {shown(v)}" for k, v in (best["params"] or {}).items())
         print(f"falsify {study.name}: best {found} at evaluation "
-              f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}, {best['params']}; "
+              f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}; {params}; "
               f"{result['faulted']} faulted); first violation: "
               f"{result['first_violation'] or 'none'}; uniform baseline: best "
-              + ("a filter fault" if base["fault"] else repr(base["best"]))
+              + ("a filter fault" if base["fault"] else shown(base["best"]))
               + f" in {base['evaluations']} ({base['faulted']} faulted), first violation: "
               f"{base['first_violation'] or 'none'}; folder {args.out}")
+        from softcbf.study.report import write_report  # pandas, matplotlib: after the search (its first line early)
+
         print(f"report: {write_report(args.out)}")
 
     return _resumable(body, args.out, "evaluations")

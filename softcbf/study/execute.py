@@ -30,6 +30,17 @@ worker thread), writes each finished sample's row itself, once (`StudyStore.writ
 named by the sample index: a task that Dask reruns after a worker death cannot add a
 second row), and updates the progress line (samples done, failed, faulted, ETA) on stderr.
 
+Progress per sample, not per task. A batch of B samples finishes all at once, after B
+samples' worth of simulated time (minutes), so counting finished tasks alone would leave
+the line at 0 for that long. A local batch reports the fraction of its simulated time done
+(`softcbf_mj.batch_loop.run_batch_closed_loop`'s callback) through a queue of a
+`multiprocessing` manager (`start_manager`: it ignores Ctrl-C, which the driver handles, and
+exits with its driver as the workers do; started only when the progress is shown or reported) to the driver, at most every `BATCH_REPORT_S`; the driver counts
+a batch at fraction f as f·B samples done (the samples of a batch advance together), polls
+every `POLL_S` and prints the first line (0 done) before any worker starts. A Dask task, or
+a sample run alone, counts when it finishes. `report`, if given, is called with the same
+count (e.g. falsify's line over many `run_study` calls).
+
 Failures: an exception inside the scenario is a row with status "error" (`runner`); a run that
 ended on a filter fault is a row with status "fault", counted apart (`StudyOutcome.faulted`). A
 Dask task whose worker dies is rescheduled by Dask; after Dask gives up
@@ -49,7 +60,7 @@ driver holds the stored indices, the window, the retries and at most `BATCH_BUFF
 samples waiting for their batch, never a list of the study's size: `draws = 10**12`
 starts its first task at once.
 
-Orphans: a local worker exits within `PARENT_POLL_S` when its driver dies, even by
+Orphans: a local worker (and the batches' progress manager) exits within `PARENT_POLL_S` when its driver dies, even by
 SIGKILL (which runs no clean-up): a daemon thread in every worker compares
 `os.getppid()` with the driver's pid and calls `os._exit` once they differ (the worker
 was reparented). Dask workers belong to their cluster and are not affected.
@@ -60,10 +71,13 @@ from __future__ import annotations
 import collections
 import multiprocessing
 import os
+import queue
+import signal
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.managers import SyncManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Hashable, Iterator
@@ -81,6 +95,8 @@ DEFAULT_BATCH_SIZE = 128  # samples per batch where the scenario has a batch for
 BATCH_BUFFER = 8  # batches' worth of samples the driver may hold while their groups fill
 SCHEDULER_CONNECT_TIMEOUT_S = 5.0  # how long a Dask scheduler address is tried before the study is refused, s
 POOL_EXIT_S = 5.0  # how long a local pool's workers have to exit at its shutdown before they are terminated, s
+POLL_S = 0.25  # how often the driver reads the batches' progress and refreshes the line, s
+BATCH_REPORT_S = 0.5  # how often a local batch sends the fraction of its simulated time done, s
 
 
 def connect_scheduler(address: str, timeout: float | None = None) -> Any:
@@ -144,6 +160,13 @@ def exit_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
+def start_manager(parent_pid: int) -> None:
+    """In the batches' progress manager process: Ctrl-C is the driver's to handle (the manager stays until the
+    driver shuts it down), and the manager ends with its driver as a worker does (`exit_with_parent`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_with_parent(parent_pid)
+
+
 def _local_pool(workers: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=exit_with_parent, initargs=(os.getpid(),))
@@ -195,10 +218,30 @@ def group_tasks(indices: Iterator[int], key: Callable[[int], Hashable | None], b
         yield Task(tuple(group), True)
 
 
-def run_task(study: Study, task: Task, keep_dir: str | None, nthread: int) -> list[dict[str, Any]]:
-    """In a worker: the rows of `task` (`run_batch`, or `run_sample` for a sample alone)."""
+class BatchReporter:
+    """In a worker: sends (the task's first index, fraction of its simulated time done) to the driver's
+    `channel`, at most every `BATCH_REPORT_S` (module docstring)."""
+
+    def __init__(self, channel: Any, first: int) -> None:
+        self.channel, self.first, self.last = channel, first, 0.0
+
+    def __call__(self, fraction: float) -> None:
+        now = time.monotonic()
+        if self.channel is not None and now - self.last >= BATCH_REPORT_S:
+            self.last = now
+            try:
+                self.channel.put((self.first, fraction))
+            except (OSError, EOFError):  # the driver's manager is gone (it is ending): the batch goes on, unreported
+                self.channel = None
+
+
+def run_task(study: Study, task: Task, keep_dir: str | None, nthread: int,
+             channel: Any = None) -> list[dict[str, Any]]:
+    """In a worker: the rows of `task` (`run_batch`, or `run_sample` for a sample alone); a batch reports its
+    progress to `channel` (a queue, or None: no reports)."""
     if task.batched:
-        return run_batch(study, list(task.indices), nthread)
+        reporter = BatchReporter(channel, task.indices[0]) if channel is not None else None
+        return run_batch(study, list(task.indices), nthread, reporter)
     return [run_sample(study, task.indices[0], keep_dir)]
 
 
@@ -214,6 +257,7 @@ def run_study(
     keep_runs: bool = False,
     progress: bool = True,
     batch_size: int | None = None,
+    report: Callable[[float], None] | None = None,
 ) -> StudyOutcome:
     """Run the study's samples 0 … `samples`−1 (default: all) that the folder does not hold yet.
 
@@ -221,6 +265,7 @@ def run_study(
     Dask scheduler address; `client`: a `distributed.Client` to use (not closed here).
     `keep_runs` keeps each scenario's own outputs under DIR/runs/ (and runs every sample
     alone). `batch_size`: samples per batch (module docstring; 1: every sample alone).
+    `report`: called with the samples done by this call so far (fractional, module docstring).
     """
     if scheduler is not None and client is not None:
         raise ValueError("give a Dask scheduler address or a client, not both")
@@ -239,6 +284,7 @@ def run_study(
     own_client = connect_scheduler(scheduler) if scheduler is not None else None  # before the folder is made
     if own_client is not None:
         client = own_client
+    manager = None  # a local run's channel for the batches' progress
     try:  # the client made here is closed on every way out
         store = StudyStore.create(out_dir, study, resume=resume)
         done, corrupted = store.scan()
@@ -247,7 +293,9 @@ def run_study(
         retry: collections.deque[Task] = collections.deque()  # tasks of a broken pool, run before fresh ones
         skipped = sum(1 for i in done if i < limit)
         n_todo = limit - skipped
-
+        bar = Progress(f"study {study.name}", max(n_todo, 1), enabled=progress and n_todo > 0, unit="samples")
+        where = "on Dask" if client is not None else f"{workers or os.cpu_count() or 1} local worker(s)"
+        bar.update(0, f"starting {where}")
         if client is not None:
             backend = "dask"
             n_workers = max(1, sum(client.nthreads().values()))
@@ -259,28 +307,51 @@ def run_study(
             n_workers = workers or os.cpu_count() or 1
             window = n_workers
             nthread = max(1, (os.cpu_count() or 1) // n_workers)
+            if batch_size > 1 and n_todo > 0 and (progress or report is not None):  # batches report (docstring)
+                manager = SyncManager(ctx=multiprocessing.get_context("spawn"))
+                manager.start(start_manager, (os.getpid(),))
             executor = _local_pool(n_workers)
     except BaseException:
+        if manager is not None:
+            manager.shutdown()
         if own_client is not None:
             own_client.close()
         raise
 
     start = time.perf_counter()
     ran = failed = faults = 0
-    bar = Progress(f"study {study.name}", max(n_todo, 1), enabled=progress and n_todo > 0)
     pending: dict[Future, Task] = {}
     attempts: collections.Counter[int] = collections.Counter()
+    channel = manager.Queue() if manager is not None else None
+    partial: dict[int, float] = {}  # a running batch's first index → its samples' worth done (module docstring)
+    sizes: dict[int, int] = {}  # a running batch's first index → its size
 
-    def record(rows: list[dict[str, Any]]) -> None:
+    def show() -> None:
+        """Read the batches' reports, then update the progress line (and `report`) with the samples done."""
+        while channel is not None:
+            try:
+                first, fraction = channel.get_nowait()
+            except (queue.Empty, OSError, EOFError):  # nothing more, or the manager is gone (its close)
+                break
+            if first in sizes:
+                partial[first] = fraction * sizes[first]
+        done_now = ran + sum(partial.values())
+        bar.update(done_now, f"{failed} failed, {faults} faulted")
+        if report is not None:
+            report(done_now)
+
+    def record(task: Task, rows: list[dict[str, Any]]) -> None:
         """Store a task's rows, then update the progress line once (per row, a batch's first row
         would extrapolate the ETA from one sample of a task that finished many)."""
         nonlocal ran, failed, faults
+        partial.pop(task.indices[0], None)
+        sizes.pop(task.indices[0], None)
         for row in rows:
             store.write(row)
             ran += 1
             faults += faulted(row)
             failed += row["status"] != "ok" and not faulted(row)
-        bar.update(ran, f"{ran}/{n_todo} done, {failed} failed, {faults} faulted")
+        show()
 
     try:
         while True:
@@ -289,10 +360,15 @@ def run_study(
                 if task is None:
                     break
                 keep = str(store.run_dir(task.indices[0])) if keep_runs else None
-                pending[executor.submit(run_task, study, task, keep, nthread)] = task
+                if task.batched:
+                    sizes[task.indices[0]] = len(task.indices)
+                pending[executor.submit(run_task, study, task, keep, nthread, channel)] = task
             if not pending:
                 break
-            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            finished, _ = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            if not finished:
+                show()
+                continue
             broken: list[Task] = []
             for future in finished:
                 task = pending.pop(future)
@@ -303,20 +379,21 @@ def run_study(
                     continue
                 except Exception as exc:  # noqa: BLE001 - e.g. Dask's KilledWorker: the task failed, the study goes on
                     rows = [failed_row(study, index, f"{type(exc).__name__}: {exc}") for index in task.indices]
-                record(rows)
+                record(task, rows)
             if broken:
                 broken += list(pending.values())  # the whole pool is gone
                 pending.clear()
                 close_local_pool(executor)
                 executor = _local_pool(n_workers)
                 for task in sorted(broken, key=lambda t: t.indices[0], reverse=True):
+                    partial.pop(task.indices[0], None)
                     for index in task.indices:
                         attempts[index] += 1
                     tries = max(attempts[index] for index in task.indices)
                     if tries >= MAX_ATTEMPTS:
-                        record([failed_row(study, index, f"the worker process died {tries} times while running "
-                                                         "this sample or its batch (crash or kill outside Python)")
-                                for index in task.indices])
+                        record(task, [failed_row(study, index, f"the worker process died {tries} times while "
+                                                               "running this sample or its batch (crash or kill "
+                                                               "outside Python)") for index in task.indices])
                     else:
                         retry.appendleft(task)
         if isinstance(executor, ProcessPoolExecutor):
@@ -329,6 +406,8 @@ def run_study(
         executor.shutdown(wait=False)
         raise
     finally:
+        if manager is not None:
+            manager.shutdown()
         if own_client is not None:
             own_client.close()
     bar.close()

@@ -101,12 +101,11 @@ import math
 import os
 import shutil
 import sqlite3
-import sys
 import uuid
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import optuna
@@ -119,6 +118,7 @@ from softcbf.study.definition import Sample, Study, draw_generator
 from softcbf.study.execute import run_study
 from softcbf.study.runner import run_sample
 from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part
+from softcbf_mj.progress import Progress, significant
 from softcbf_mj.runio import OutputDirError, write_json
 
 SAMPLERS = ("cmaes", "tpe")
@@ -335,13 +335,15 @@ def falsify(
     scheduler: str | None = None,
     client: Any = None,
     batch_size: int | None = None,
-    progress: bool = True,
+    progress: bool | Progress = True,
 ) -> dict[str, Any]:
     """Search `study`'s box for the minimum of its objective (module docstring); returns falsify.json's content.
 
     `budget`: evaluations of the search; `baseline`: uniform draws (default `budget`, 0: none); `seed`: of the
     sampler, the evaluations' scenario seeds and the baseline (default the study's); `storage`: optuna storage
-    URL (default SQLite in DIR); `workers`, `scheduler`, `client`, `batch_size`: as `run_study`.
+    URL (default SQLite in DIR); `workers`, `scheduler`, `client`, `batch_size`: as `run_study`. `progress`: the
+    progress line (per evaluation, with its ETA) or not, or the `Progress` to report into (the command line's,
+    whose first line came before optuna was imported).
     """
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ValueError(f"budget must be an integer >= 1 (evaluations), got {budget!r}")
@@ -370,9 +372,13 @@ def falsify(
     name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
     state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
                              "storage": "server database (--storage)" if storage else STORAGE_FILE}
+    fresh_bar = not isinstance(progress, Progress)
+    bar = Progress(f"falsify {study.name}", budget, enabled=progress, unit="evaluations") if fresh_bar else progress
     if not resume:  # a falsification folder from the start, so a search that stops can be resumed
         root.mkdir(parents=True, exist_ok=True)
         write_json(root / FALSIFY_FILE, state)
+        if fresh_bar:
+            bar.update(0, "opening the search")  # its storage takes seconds; a resume's first line follows its checks
     optuna.logging.set_verbosity(logging.WARNING)
     search = open_search(root, storage, name, _sampler(sampler, study.seed, population), resume)
     search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
@@ -412,6 +418,8 @@ def falsify(
         evaluated = _rows(search_dir, range(len(asked)))  # evaluation index → row, as they are told
         violation = any(violated(r) for r in evaluated.values())
         stopped = "budget"
+        note = search_note(evaluated, objective) if evaluated else "first generation"
+        bar.update(len(evaluated), note)
         while True:
             if not pending:
                 if stop_on_violation and violation:
@@ -427,7 +435,9 @@ def falsify(
                     numbers.append(trial.number)
                     candidates.append(_candidate(trial.params, study))
                     pending.append(len(candidates) - 1)
-            run_study(CandidateStudy.of(study, candidates), search_dir, resume=True, samples=len(candidates), **run)
+            before = len(candidates) - len(pending)  # evaluations told before this generation
+            run_study(CandidateStudy.of(study, candidates), search_dir, resume=True, samples=len(candidates),
+                      report=lambda done_now: bar.update(before + done_now, note), **run)
             rows = _rows(search_dir, range(pending[0], pending[-1] + 1))
             evaluated.update(rows)
             for e in pending:
@@ -441,16 +451,17 @@ def falsify(
             if all(objective_value(r, objective) is None for r in rows.values()) and len(candidates) == len(pending):
                 _refuse_unknown_objective(rows, objective)
             pending = []
-            if progress:
-                done = _summary([evaluated[i] for i in sorted(evaluated)], objective)
-                best = "a filter fault" if done["fault"] else repr(done["best"])
-                print(f"falsify {study.name}: {len(candidates)}/{budget} evaluations, best {objective} {best}"
-                      + (f", {done['faulted']} faulted" if done["faulted"] else "")
-                      + (f", first violation at evaluation {done['first_violation']}"
-                         if done["first_violation"] else ""), file=sys.stderr, flush=True)
+            note = search_note(evaluated, objective)
+            bar.update(len(candidates), note)
+        bar.close(len(candidates))
         result = _summary([evaluated[i] for i in sorted(evaluated)], objective)
-        base = uniform_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run) \
-            if baseline else []
+        base = []
+        if baseline:
+            base_bar = Progress(f"falsify {study.name} baseline", baseline, enabled=bar.enabled, unit="draws")
+            base_bar.update(0, "uniform draws of the box")
+            base = uniform_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run,
+                                    report=lambda done_now: base_bar.update(done_now, "uniform draws of the box"))
+            base_bar.close(len(base))
         base_summary = _summary(base, objective)
         worst = None
         if result["evaluation"] is not None:
@@ -504,6 +515,15 @@ def open_search(root: Path, storage: str | None, name: str, sampler: optuna.samp
         raise OutputDirError(f"cannot open {shown} as an optuna storage: {first}") from None
 
 
+def search_note(evaluated: dict[int, dict[str, Any]], objective: str) -> str:
+    """The progress line's note of a search: the best objective so far (`significant` digits), faults and the
+    first violation."""
+    done = _summary([evaluated[i] for i in sorted(evaluated)], objective)
+    best = "a filter fault" if done["fault"] else significant(done["best"])
+    return (f"best {objective} {best}" + (f", {done['faulted']} faulted" if done["faulted"] else "")
+            + (f", first violation at evaluation {done['first_violation']}" if done["first_violation"] else ""))
+
+
 def _refuse_unknown_objective(rows: dict[int, dict[str, Any]], objective: str) -> None:
     """Every sample of the first generation ran but none has the objective's column: a misspelt metric."""
     ok = [r for r in rows.values() if r.get("status") == "ok"]
@@ -515,15 +535,18 @@ def _refuse_unknown_objective(rows: dict[int, dict[str, Any]], objective: str) -
                          f"{', '.join(numeric)}")
 
 
-def uniform_baseline(study: Study, folder: Path, budget: int, chunk: int | None, run: dict[str, Any]) -> list[dict]:
-    """Uniform draws of the box: the study's Monte Carlo samples 0 … budget−1 (module docstring)."""
+def uniform_baseline(study: Study, folder: Path, budget: int, chunk: int | None, run: dict[str, Any],
+                     report: Callable[[float], None] | None = None) -> list[dict]:
+    """Uniform draws of the box: the study's Monte Carlo samples 0 … budget−1 (module docstring); `report` is
+    called with the draws done so far (fractional, as `run_study`'s)."""
     draws = math.ceil(budget / len(study.tunings))
     uniform = dataclasses.replace(study, sampling="monte_carlo", draws=draws)
     rows: dict[int, dict[str, Any]] = {}
     done = 0
     while done < budget:
         start, done = done, (budget if chunk is None else min(budget, done + chunk))
-        run_study(uniform, folder, resume=True, samples=done, **run)
+        chunk_report = None if report is None else (lambda done_now, start=start: report(start + done_now))
+        run_study(uniform, folder, resume=True, samples=done, report=chunk_report, **run)
         new = _rows(folder, range(start, done))
         rows.update(new)
         if chunk is not None and any(violated(r) for r in new.values()):

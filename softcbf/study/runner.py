@@ -20,8 +20,9 @@ recording, 1–3 s per run); `tools/bench_study.py` measures the total against t
 
 Batches. `batch_key(study, index)` is the key of the scenario's batch form for sample
 `index` (None: the scenario has no batch form or the sample does not batch), and
-`run_batch(study, indices, nthread)` runs samples sharing one key in one batched
-closed loop (`scenarios.BatchForm`): one row per sample, with the batch form's run
+`run_batch(study, indices, nthread, progress)` runs samples sharing one key in one batched
+closed loop (`scenarios.BatchForm`; `progress`, if given, is called with the fraction of the batch's
+simulated time done): one row per sample, with the batch form's run
 figures (rho_min_pred, rho_min_meas, force_max_N, t_violation_s, infeasible_steps,
 u_peak_abs_hPa, refused_steps, sim_s; wall_s and sample_wall_s are the batch's wall
 time / B; batch_size), equal to the single run's fields of the same names; the single
@@ -39,7 +40,7 @@ import tempfile
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from scenarios import get as get_scenario
 from closedloop.step import describe_fault
@@ -88,7 +89,8 @@ def batch_key(study: Study, index: int) -> Any:
         return None
 
 
-def run_batch(study: Study, indices: list[int], nthread: int = 1) -> list[dict[str, Any]]:
+def run_batch(study: Study, indices: list[int], nthread: int = 1,
+              progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
     """The rows of samples `indices` (one batch key) run together (module docstring), in that order."""
     start = time.perf_counter()
     scenario = get_scenario(study.scenario)
@@ -96,7 +98,8 @@ def run_batch(study: Study, indices: list[int], nthread: int = 1) -> list[dict[s
     try:
         if scenario.batch is None:
             raise ValueError(f"scenario {study.scenario!r} has no batch form")
-        runs = scenario.batch.run([scenario.validate(s.kwargs) for s in samples], nthread)
+        flat = [scenario.validate(s.kwargs) for s in samples]
+        runs = scenario.batch.run(flat, nthread) if progress is None else scenario.batch.run(flat, nthread, progress)
     except Exception:  # noqa: BLE001 - run alone, so the error lands on the sample that has it
         return [run_sample(study, i) for i in indices]
     wall = (time.perf_counter() - start) / len(indices)

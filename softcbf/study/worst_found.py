@@ -76,14 +76,14 @@ def settings(budget: int, duration: float | None = None, box_file: str | Path = 
 
 
 def worst_found(label: str, study: Study, folder: str | Path, budget: int, *, resume: bool = False,
-                workers: int | None = None) -> dict[str, Any]:
+                workers: int | None = None, progress: bool = False) -> dict[str, Any]:
     """Search `study`'s box for `budget` evaluations into `folder` (a new or empty folder, or with `resume` a
     falsification folder of the same search, continued up to `budget`); bench.json's "worst_found" entry of the filter `label` (module docstring): filter,
     rho_worst_found, params, evaluation, evaluations, failed, first_violation, wall_s (s, this call's), faulted,
-    fault."""
+    fault. `progress`: falsify's progress line (per evaluation, on stderr)."""
     folder = Path(folder)
     start = time.perf_counter()
-    result = falsify(study, folder, budget=budget, sampler=SAMPLER, baseline=0, workers=workers, progress=False,
+    result = falsify(study, folder, budget=budget, sampler=SAMPLER, baseline=0, workers=workers, progress=progress,
                      resume=resume)
     best = result["best"]
     return {"filter": label, "rho_worst_found": best["value"], "params": best["params"], "evaluation": best["evaluation"],
