@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from controllers.backup_cbf import BackupCBF
 from controllers.cbf_family import ISS_PARAMETERS, ExponentialCBF, barrier_derivatives, ecbf, isscbf
 from controllers.dynamics import PCCDynamics
 from controllers.params import reference_robot
@@ -171,4 +172,97 @@ def test_ecbf_brakes_the_tip_but_the_hold_biases_it_out(tmp_path, robot):
     worst = series["rho_meas"].min()
     assert (-0.1 < worst < 0.0) if robot == "reference" else (-1.2 < worst < -0.9)
     if robot == "reference":
+        assert np.array_equal(series["u"][:1000], series["u_nom"][:1000])
+
+
+# -- backup CBF -------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", SEGMENTS)
+def test_backup_energy_and_its_decay_along_the_held_flow(n):
+    """W_v = ½q̇ᵀMq̇ + ½(q − q_v)ᵀK(q − q_v) against the model's M, and Ẇ_v = −q̇ᵀDq̇ ≤ 0 under v held (a central
+    difference along the flow): the backup set's invariance."""
+    robot = _robot(n)
+    filt = BackupCBF(_context(n))
+    dynamics = PCCDynamics(robot)
+    static_gain, stiffness, damping = robot.array("gains") / robot.array("stiffness"), robot.array("stiffness"), \
+        robot.array("damping")
+
+    def energy(q, qd, v):
+        core = dynamics.model_terms(list(q), list(qd))
+        return filt.energy(core.kin[None, :], core.dyn[None, :], np.concatenate((q, qd))[None, :], v[None, :])[0]
+
+    for q, qd, v in _states(n):
+        e = q - static_gain * v
+        assert energy(q, qd, v) == pytest.approx(0.5 * qd @ dynamics.mass_matrix(q) @ qd + 0.5 * e @ (stiffness * e))
+        qdd, tau = dynamics.acceleration(q, qd, v), 1e-6
+        rate = (energy(q + tau * qd, qd + tau * qdd, v) - energy(q - tau * qd, qd - tau * qdd, v)) / (2 * tau)
+        assert rate == pytest.approx(-qd @ (damping * qd), rel=1e-5, abs=1e-9)
+
+
+@pytest.mark.parametrize("n", SEGMENTS)
+def test_backup_barrier_and_escape_bound_against_brute_force(n):
+    """b from the rollout rows equals h' − H' r(q); Γ̲(v) is below ½(q − q_v)ᵀK(q − q_v) at every boundary point found
+    by a dense search (the backup set lies inside P)."""
+    robot, safe_set = _robot(n), paper_safe_set()
+    filt = BackupCBF(_context(n))
+    dynamics = PCCDynamics(robot)
+    H, h = np.array(safe_set.H_prime), np.array(safe_set.h_prime)
+    rng = np.random.default_rng(3)
+    static_gain, stiffness = robot.array("gains") / robot.array("stiffness"), robot.array("stiffness")
+    for q, qd, v in _states(n):
+        core = dynamics.model_terms(list(q), list(qd))
+        tip = core.kin[dynamics.layout.tip_terms.start]
+        np.testing.assert_allclose(filt.barrier(core.kin[None, :])[0], h - H @ [tip.real, tip.imag], atol=1e-15)
+        gamma = filt.escape(v[None, :])[0]
+        rest = static_gain * v
+
+        def b_at(config):
+            tip = dynamics.model_terms(list(config), [0.0] * n).kin[dynamics.layout.tip_terms.start]
+            return h[0] - H[0] @ [tip.real, tip.imag]
+
+        found = []
+        for s in rest + rng.normal(0.0, 0.6, (300, n)):  # boundary points by bisection on segments from q_v
+            lo, hi = 0.0, 1.0
+            if np.sign(b_at(rest)) == np.sign(b_at(s)):
+                continue
+            for _ in range(50):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if np.sign(b_at(rest + mid * (s - rest))) == np.sign(b_at(rest)) else (lo, mid)
+            e = hi * (s - rest)
+            found.append(0.5 * e @ (stiffness * e))
+        assert found and gamma <= min(found) + 1e-12
+
+
+def test_backup_passes_u_nom_at_rest_far_inside_and_refuses_bad_parameters():
+    """From rest, straight (the tip 33–77 mm inside P), commands that bend the arm away from P pass unchanged."""
+    for n in SEGMENTS:
+        for backup in ("vent", "hold"):
+            for u_nom in (np.full(n, -60.0), np.full(n, -150.0), np.full(n, -20.0)):
+                out = BackupCBF(_context(n), backup=backup)(Estimate(0.0, np.zeros(n), np.zeros(n), 0.0), u_nom)
+                assert out.action == "nominal" and np.array_equal(out.u, u_nom) and not out.infeasible
+    with pytest.raises(ValueError, match="backup must be one of vent, hold, got 'brake'"):
+        BackupCBF(_context(2), backup="brake")
+    with pytest.raises(ValueError, match="horizon_s must be in"):
+        check_filter("backup-cbf", {"horizon_s": "-1"})
+    with pytest.raises(ValueError, match="levels"):
+        BackupCBF(_context(2), levels=0)
+    assert FILTERS["backup-cbf"] is BackupCBF and set(BackupCBF.parameter_docs) == {"backup", "horizon_s", "levels"}
+
+
+@pytest.mark.parametrize("backup", ["vent", "hold"])
+@pytest.mark.parametrize("robot", ["reference", "three-segment"])
+def test_backup_cbf_keeps_the_tip_in_p_on_the_paper_sinusoid(tmp_path, robot, backup):
+    """PCC plant = model, exact state, 1 kHz: the tip stays in P with either backup; with two segments (5 s, the tip
+    reaches P's boundary) the first second passes u_nom unchanged; three segments for 2 s (slower: 7–8 ms a call)."""
+    out = tmp_path / "run"
+    assert main(["run", "paper_sim", "--filter", "backup-cbf", "--filter-param", f"backup={backup}", "--robot", robot,
+                 "--duration", "5" if robot == "reference" else "2", "--frequency", "0.1", "--out", str(out),
+                 "--progress", "false"]) == 0
+    (row,) = read_run_folder(out).summary["runs"]
+    series, _ = load_timeseries(out / row["timeseries"])
+    assert series["rho_meas"].min() >= 0.0 and not series["infeasible"].any()
+    assert not np.array_equal(series["u"], series["u_nom"])
+    if robot == "reference":
+        assert series["rho_meas"].min() < 0.01  # it let the tip reach the plate: F_max, not less
         assert np.array_equal(series["u"][:1000], series["u_nom"][:1000])
