@@ -76,7 +76,8 @@ BACKUPS = ("vent", "hold")
 
 PARAMETERS = {
     "backup": FilterParameter(f"backup controller ({', '.join(BACKUPS)}): u = 0, or the last command held", "", str),
-    "horizon_s": FilterParameter("backup horizon T_b after the candidate's period", "s", bound=Bound(0.0, 10.0, unit="s")),
+    "horizon_s": FilterParameter("backup horizon T_b after the candidate's period", "s",
+                                 bound=Bound(0.0, 10.0, unit="s")),
     "levels": FilterParameter("candidates between u_nom and the backup (theta = 1, 1/2, ..., 2^-(levels-1), 0)",
                               "1", int, bound=Bound(1, 20)),
 }
@@ -180,11 +181,14 @@ class BackupCBF:
         chosen = int(np.argmax(verified)) if verified.any() else len(self.thetas) - 1
         theta = self.thetas[chosen]
         u = u_bar.copy() if theta == 1.0 else candidates[chosen]
-        action = ("nominal" if theta == 1.0 else "blend" if theta > 0.0 else "backup") if verified.any() else "unverified"
+        action = "nominal" if theta == 1.0 else "blend" if theta > 0.0 else "backup"
+        if not verified.any():
+            action = "unverified"
         self._last = u.copy()
         core = self.dynamics.model_terms(q.tolist(), qd.tolist())
         x = np.concatenate((q, qd))[None, :]
-        gap = float(self.energy(core.kin[None, :], core.dyn[None, :], x, u_b[None, :])[0] - self.escape(u_b[None, :])[0])
+        held = u_b[None, :]
+        gap = float(self.energy(core.kin[None, :], core.dyn[None, :], x, held)[0] - self.escape(held)[0])
         b = self.barrier(core.kin[None, :])[0]
         tip = core.kin[self.dynamics.layout.tip_terms.start]
         values = [theta, float(verified.sum()), gap, *b.tolist()]

@@ -113,7 +113,8 @@ FAMILY_DIAGNOSTIC_UNITS = {
 }
 
 
-def barrier_derivatives(tip: tuple, rows: list[list[float]], hs: list[float]) -> list[tuple[float, float, float, list[float]]]:
+def barrier_derivatives(tip: tuple, rows: list[list[float]],
+                        hs: list[float]) -> list[tuple[float, float, float, list[float]]]:
     """Per row of (H', h'): (b, ḃ, b̈₀, a) with b̈ = b̈₀ − a·u (module docstring), as Python floats.
 
     `tip` is `DynamicsEval.tip`: (r, ṙ, r̈₀, ∂r̈/∂u_1, …, ∂r̈/∂u_N), complex x + i·y.
