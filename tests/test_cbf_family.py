@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from controllers.backup_cbf import BackupCBF
-from controllers.cbf_family import ISS_PARAMETERS, ExponentialCBF, barrier_derivatives, ecbf, isscbf
+from controllers.cbf_family import (ISS_PARAMETERS, SAMPLED_PARAMETERS, ExponentialCBF, SampledDataCBF,
+                                    barrier_derivatives, ecbf, isscbf, sdcbf)
 from controllers.dynamics import PCCDynamics
 from controllers.params import reference_robot
 from controllers.qp import solve_qp
@@ -173,6 +174,55 @@ def test_ecbf_brakes_the_tip_but_the_hold_biases_it_out(tmp_path, robot):
     assert (-0.1 < worst < 0.0) if robot == "reference" else (-1.2 < worst < -0.9)
     if robot == "reference":
         assert np.array_equal(series["u"][:1000], series["u_nom"][:1000])
+
+
+@pytest.mark.parametrize("n", SEGMENTS)
+def test_sampled_data_margin_rate_box_and_command_against_brute_force(n):
+    """sdcbf: m = T (k₁|b̈(ū)| + k₀|ḃ| + r‖a‖₁) written out, the box |u − u_prev| ≤ rT (u_prev = 0 after reset, then
+    the command sent), and no point of that box meeting the row is nearer to ū (a grid search)."""
+    filt = sdcbf(_context(n), rate_hPa_per_s=500.0)
+    for q, qd, u_nom in _states(n):
+        filt.reset()
+        for _ in range(2):  # after reset (u_prev = 0), then after one command
+            lb, ub = filt.bounds()
+            u_bar = np.clip(u_nom, lb, ub)
+            out = filt(Estimate(0.0, q, qd, 0.0), u_nom)
+            (b, bdot, bdd0, a), = filt.terms(list(q), list(qd))
+            margin = 1e-3 * ((filt.k1 * abs(bdd0 - np.dot(a, u_bar))) + filt.k0 * abs(bdot) + 500.0 * np.abs(a).sum())
+            assert out.diagnostics["margin"][0] == pytest.approx(margin, rel=1e-12)
+            assert np.all(out.u >= np.array(lb) - 1e-12) and np.all(out.u <= np.array(ub) + 1e-12)
+            row = np.array(a)
+            rhs = bdd0 + filt.k1 * bdot + filt.k0 * b - margin
+            if out.action == "nominal":
+                assert np.array_equal(out.u, u_bar) and row @ u_bar <= rhs
+            elif out.action == "qp":
+                grid = np.stack(np.meshgrid(*[np.linspace(l, h, 41) for l, h in zip(lb, ub)], indexing="ij"),
+                                -1).reshape(-1, n)
+                feasible = grid[grid @ row <= rhs]
+                assert np.linalg.norm(out.u - u_bar) <= np.min(np.linalg.norm(feasible - u_bar, axis=1)) + 1e-9
+            else:  # no box point meets the row (its best corner included): flagged
+                assert out.infeasible and out.action == "clipped" and row @ np.where(row > 0, lb, ub) > rhs
+            assert np.array_equal(np.array(filt.bounds()[0]) + 0.5, out.u)  # the next box is centred on u sent
+
+
+def test_sampled_data_parameters_are_one_error():
+    with pytest.raises(ValueError, match=r"rate_hPa_per_s must be in \(0, 1e\+06\] hPa/s, got 0"):
+        sdcbf(_context(2), rate_hPa_per_s=0.0)
+    with pytest.raises(ValueError, match="lipschitz_factor"):
+        check_filter("sdcbf", {"lipschitz_factor": "0.5"})
+    assert FILTERS["sdcbf"] is sdcbf and set(sdcbf.parameter_docs) == set(SAMPLED_PARAMETERS)
+    assert isinstance(build_filter("sdcbf", {"rate_hPa_per_s": "200"}, _context(3)), SampledDataCBF)
+
+
+@pytest.mark.parametrize("robot", ["reference", "three-segment"])
+def test_sdcbf_keeps_the_tip_in_p_on_the_paper_sinusoid(tmp_path, robot):
+    """PCC plant = model, 1 kHz: the tip stays in P, every step within the rate box; with two segments the first
+    300 steps pass u_nom unchanged."""
+    series = _paper_sim(tmp_path, "sdcbf", robot)
+    assert series["rho_meas"].min() >= 0.0 and not series["infeasible"].any()
+    assert np.abs(np.diff(series["u"], axis=0)).max() <= 1.0 + 1e-9  # r T = 1000 hPa/s × 1 ms
+    if robot == "reference":
+        assert np.array_equal(series["u"][:300], series["u_nom"][:300])
 
 
 # -- backup CBF -------------------------------------------------------------------------------------------------
