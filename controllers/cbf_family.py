@@ -1,8 +1,9 @@
 """The standard CBF family on the tip's distance to the force-safe set P: exponential, sampled-data and ISSf CBFs.
 
 Three registered filters (`ecbf`, `sdcbf`, `isscbf`, docs/beyond-the-paper.md#the-standard-cbf-family) share
-one constraint and one QP, on any number of segments N (the backup CBF is `controllers.backup_cbf`). Shapes: N inputs (hPa), P' rows of the force-safe set
-P = {r | H' r ≤ h'} (H' (P', 2), h' (P',), the rows' own scaling, docs/model.md#force-safe-set).
+one constraint and one QP, on any number of segments N (the backup CBF is `controllers.backup_cbf`).
+Shapes: N inputs (hPa), P' rows of the force-safe set P = {r | H' r ≤ h'} (H' (P', 2), h' (P',), the
+rows' own scaling, docs/model.md#force-safe-set).
 
 Barrier and its derivatives (per row i; the tip terms of `controllers.dynamics.DynamicsEval.tip`):
 
