@@ -75,6 +75,8 @@ FILTERS: Mapping[str, Callable[..., SafetyFilter]] = Factories({
     "paper-cbf": "controllers.filter:paper_cbf", "none": "controllers.safety_filter:PassThroughFilter",
     "qsg": "controllers.quasi_static_governor:QuasiStaticGovernor", "e-erg": "controllers.energy_governor:EnergyGovernor",
     "c-erg": "controllers.energy_governor:ContactEnergyGovernor",
+    "ecbf": "controllers.cbf_family:ecbf", "sdcbf": "controllers.cbf_family:sdcbf", "isscbf": "controllers.cbf_family:isscbf",
+    "backup-cbf": "controllers.backup_cbf:BackupCBF",
 })
 NOMINALS: Mapping[str, Callable[..., NominalController]] = Factories({
     "sinusoid": "controllers.nominal:sinusoid", "tip-tracker": "controllers.nominal:tip_tracker", "step": "controllers.nominal:step",

@@ -62,7 +62,7 @@ def test_top_level_help_names_every_subcommand_with_its_help(capsys):
 
 def test_the_registry_imports_a_builtin_at_its_first_lookup():
     loaded = modules_after("from controllers.registry import FILTERS, NOMINALS\n"
-                           "assert 'e-erg' in FILTERS and list(FILTERS) == ['paper-cbf', 'none', 'qsg', 'e-erg', 'c-erg']\n"
+                           "assert 'e-erg' in FILTERS and list(FILTERS) == ['paper-cbf', 'none', 'qsg', 'e-erg', 'c-erg', 'ecbf', 'sdcbf', 'isscbf', 'backup-cbf']\n"
                            "assert len(NOMINALS) == 4 and FILTERS['qsg'].__name__ == 'QuasiStaticGovernor'")
     assert "controllers.quasi_static_governor" in loaded
     assert "controllers.energy_governor" not in loaded and "controllers.filter" not in loaded
