@@ -185,8 +185,8 @@ def test_check_value_normalises_and_refuses_by_kind():
         ("seed", 1.0, "seed must be an integer >= 0, got 1.0"),
         ("seed", -1, "seed must be >= 0, got -1"),
         ("progress", "yes", "progress must be true or false, got 'yes'"),
-        ("filter", 3, "filter must be a str (paper-cbf, none, qsg, e-erg, c-erg, FILE.py:Factory, package.module:Factory "
-                      "(softcbf list)), got 3"),
+        ("filter", 3, "filter must be a str (a built-in filter (softcbf list: paper-cbf, none, c-erg, ...), "
+                      "FILE.py:Factory or package.module:Factory), got 3"),
         ("amplitude", -5000, "amplitude must be within ±3276.7 hPa (a plausibility bound; a value in Pa? "
                              "-5000 Pa = -50 hPa), got -5000.0"),
         ("drop_rate", 1.0, "drop_rate must be in [0, 1), got 1.0"),

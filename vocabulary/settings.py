@@ -127,7 +127,7 @@ SETTINGS: dict[str, Setting] = {
                       "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)",
                       default=("None", "Low", "High")),
     "filter": _text("the safety filter under test",
-                    "paper-cbf, none, qsg, e-erg, c-erg, FILE.py:Factory, package.module:Factory (softcbf list)", default="paper-cbf"),
+                    "a built-in filter (softcbf list: paper-cbf, none, c-erg, ...), FILE.py:Factory or package.module:Factory", default="paper-cbf"),
     "filter_params": _text("the filter's parameters, name=value;name=value (--filter-param NAME=VALUE; "
                            "a table [filter_params] in a file)", "the filter's parameters (softcbf list)", default=""),
     "nominal": _text("the nominal controller", "sinusoid, tip-tracker, step, force-target, FILE.py:Factory, package.module:Factory",
