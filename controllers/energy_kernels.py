@@ -23,7 +23,7 @@ for every row j of P (`escape_energy.lower_bounds` and `lookup_arguments` hand t
   δ_j = 2|G_j| / (‖∇G_j‖ + √(‖∇G_j‖² + 2 C_j |G_j|)) from the tip and its Jacobian at the rest
   shape K⁻¹Λu (`pcc_model.kinematics_rows`, the same kernel);
 - mode TABLE, BOUND, or BOTH: the table, and where its least row value is below `below` (J) the
-  larger of the two per row (`EnergyGovernor.boundary_escape`).
+  larger of the two per row (`GovernorModel.boundary_escape` of `controllers.energy_governor.certificate`).
 Layouts: `table` (5, N) float: lo, Δ, w, G_k, stride_k (hPa, hPa, J/hPa², 1, 1); `flat` (P', G) the
 distances d̲ (J^{1/2}), a row out of reach +inf; `bound` (P', 5) float: H'_x, H'_y, h', C_j, reachable
 (1/0); `gain` K⁻¹Λ (rad/hPa) and `inverse_root_k` 1/√k.
@@ -333,7 +333,7 @@ def escape_into(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_ro
 def energy_at(u, q, p, terms, b, e, base, two):
     """W (J) of the command u (N,) hPa at row b's state q[b] (rad), p[b] (hPa) and gain end e: base plus
     ½(k_i e_i e_i + β_i (p_i − u_i)²) segment by segment, e_i = q_i − a_i u_i, terms[b, e] = (k, a, β)
-    (`EnergyGovernor.energy`; Python's `**` as pow: PYTHON_SQUARE)."""
+    (`GovernorModel.energy`; Python's `**` as pow: PYTHON_SQUARE)."""
     w = base
     for i in range(u.shape[0]):
         diff = q[b, i] - terms[b, e, 1, i] * u[i]

@@ -179,7 +179,7 @@ def test_contact_certificate_without_a_grid_holds_three_and_four_segments(n, off
     robot = uniform_robot(n)
     safe = ForceSafeSet(Environment(np.array([[0.36, 1.0]]), np.array([offset])), LinearStiffness(11.16), 0.16, "paper")
     gov = ContactEnergyGovernor(context(robot, safe, PERIOD, DELAY, 0.05), contact_aware=False)
-    assert gov.table is None
+    assert gov.model.table is None
     free = run_loop(lambda e, u: u, robot, safe, lambda t: np.full(n, 150.0), 3.0, PERIOD, DELAY, tau_p=0.05, seed=3)
     rec = run_loop(gov, robot, safe, lambda t: np.full(n, 150.0), 3.0, PERIOD, DELAY, tau_p=0.05, seed=3)
     assert free.rho.min() < -1.0
@@ -188,7 +188,7 @@ def test_contact_certificate_without_a_grid_holds_three_and_four_segments(n, off
     assert np.allclose(back.commands[-1], -150.0) and back.rho.min() > 0.0
 
 
-# -- the actuator gain interval (module docstring of controllers.energy_governor, "actuator gain") ---------------
+# -- the actuator gain interval (module docstring of controllers.energy_governor.certificate, "actuator gain") ---------------
 
 def scaled_gain_robot(g):
     return ROBOT.replace(gains=tuple(ROBOT.array("gains") * g))
@@ -199,8 +199,8 @@ def test_gain_margin_is_concave_in_the_gain_so_its_ends_bound_it():
     margin, less the terms that do not depend on g) is concave in g: its second differences are ≤ 0 and every
     g in [0.9, 1.1] has m(g) ≥ min(m(0.9), m(1.1)). The governor's W at the ends is the formula's."""
     gov = ContactEnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), gain_lo_ratio=0.9, gain_hi_ratio=1.1)
-    assert gov.gains == (0.9, 1.1)
-    k, a, beta = ROBOT.array("stiffness"), ROBOT.array("gains") / ROBOT.array("stiffness"), gov.beta
+    assert gov.state.ends.gains == (0.9, 1.1)
+    k, a, beta = ROBOT.array("stiffness"), ROBOT.array("gains") / ROBOT.array("stiffness"), gov.model.beta
     points = boundary_points(ROBOT, SAFE, -1.5, 1.5, 20000)
     rng = np.random.default_rng(4)
     gains = np.linspace(0.9, 1.1, 41)
@@ -215,8 +215,8 @@ def test_gain_margin_is_concave_in_the_gain_so_its_ends_bound_it():
         def margin(g):
             return float(np.min(0.5 * np.sum(k * (points - g * a * u) ** 2, axis=1))) - elastic(g)
 
-        for g in gov.gains:
-            assert gov.energy(0.0, q.tolist(), p.tolist(), tuple(u.tolist()), g) == pytest.approx(elastic(g), rel=1e-12)
+        for g in gov.state.ends.gains:
+            assert gov.model.energy(0.0, q.tolist(), p.tolist(), tuple(u.tolist()), g) == pytest.approx(elastic(g), rel=1e-12)
         m = np.array([margin(g) for g in gains])
         second = (m[2:] - 2 * m[1:-1] + m[:-2]) / step**2
         scale = np.max(np.abs(m)) + 1e-12
@@ -229,15 +229,15 @@ def test_grid_rows_at_a_gain_are_lower_bounds_of_the_escape_energy_there():
     least energy to the boundary from g·q_u (brute force over boundary points), is tight somewhere, and g = 1 is
     the table."""
     gov = ContactEnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), gain_lo_ratio=0.9, gain_hi_ratio=1.1)
-    assert gov.grid_rows_at_gain(1.0) is gov.grid_rows_at_gain(1.0) and np.array_equal(gov.grid_rows_at_gain(1.0),
-                                                                                        gov.table.grid_values())
+    assert gov.model.grid_rows_at_gain(1.0) is gov.model.grid_rows_at_gain(1.0) and np.array_equal(gov.model.grid_rows_at_gain(1.0),
+                                                                                        gov.model.table.grid_values())
     k, a = ROBOT.array("stiffness"), ROBOT.array("gains") / ROBOT.array("stiffness")
     points = boundary_points(ROBOT, SAFE, -1.5, 1.5, 20000)
-    picks = np.random.default_rng(5).choice(len(gov.table.grid_commands()), 300, replace=False)
-    for g in gov.gains:
-        rows, tight = gov.grid_rows_at_gain(g), 0
+    picks = np.random.default_rng(5).choice(len(gov.model.table.grid_commands()), 300, replace=False)
+    for g in gov.state.ends.gains:
+        rows, tight = gov.model.grid_rows_at_gain(g), 0
         for i in picks:
-            u = gov.table.grid_commands()[i]
+            u = gov.model.table.grid_commands()[i]
             least = float(np.min(0.5 * np.sum(k * (points - g * a * u) ** 2, axis=1)))
             assert rows[0, i] <= least + 1e-12, (g, u, rows[0, i], least)
             tight += rows[0, i] >= 0.25 * least
@@ -318,8 +318,8 @@ def test_gain_estimate_converges_at_rest_out_of_contact_and_the_narrowed_command
     worst, gov = certified_forks(0.9, 1.1, true_gain, (true_gain,), calls=(25, 30, 40), level=approach_then_push,
                                  gain_estimate=True)
     assert worst >= 0.0
-    assert abs(gov.gain_estimator.estimate - true_gain) < 1e-3
-    assert gov.gain_lo <= true_gain <= gov.gain_hi and gov.gain_hi - gov.gain_lo < 0.06
+    assert abs(gov.state.gain_estimator.estimate - true_gain) < 1e-3
+    assert gov.state.ends.lo <= true_gain <= gov.state.ends.hi and gov.state.ends.hi - gov.state.ends.lo < 0.06
 
 
 def test_gain_estimate_from_differences_converges_during_the_approach_at_one_kilohertz():
@@ -335,8 +335,8 @@ def test_gain_estimate_from_differences_converges_during_the_approach_at_one_kil
         out = gov(Estimate(state.t, state.q, state.qd, state.t), np.full(2, 150.0))
         state = plant.step(out.u)
         assert state.t < 3.0, "no contact within 3 s"
-    assert gov.gain_lo <= 1.1 <= gov.gain_hi and gov.gain_hi - gov.gain_lo < 0.05
-    assert abs(gov.gain_estimator.estimate - 1.1) < 1e-2
+    assert gov.state.ends.lo <= 1.1 <= gov.state.ends.hi and gov.state.ends.hi - gov.state.ends.lo < 0.05
+    assert abs(gov.state.gain_estimator.estimate - 1.1) < 1e-2
 
 
 def test_gain_estimate_in_contact_narrows_the_interval_while_pressing_and_the_commands_hold():
@@ -348,14 +348,14 @@ def test_gain_estimate_in_contact_narrows_the_interval_while_pressing_and_the_co
     the commands are those without the estimate."""
     plain = certified_forks(0.9, 1.1, 1.1, (), calls=(40,))[1]
     worst, gov = certified_forks(0.9, 1.1, 1.1, (1.1,), calls=(20, 30, 40), gain_estimate=True)
-    assert worst >= 0.0 and gov.gain_estimator.samples > 0
-    assert gov.gain_lo <= 1.1 <= gov.gain_hi and gov.gain_hi - gov.gain_lo < 0.05
-    assert abs(gov.gain_estimator.estimate - 1.1) < 1e-3
-    assert np.all(gov.predictor.command_at(4.0) > plain.predictor.command_at(4.0) + 0.5)
+    assert worst >= 0.0 and gov.state.gain_estimator.samples > 0
+    assert gov.state.ends.lo <= 1.1 <= gov.state.ends.hi and gov.state.ends.hi - gov.state.ends.lo < 0.05
+    assert abs(gov.state.gain_estimator.estimate - 1.1) < 1e-3
+    assert np.all(gov.state.predictor.command_at(4.0) > plain.state.predictor.command_at(4.0) + 0.5)
     for contact in ("off", "any"):
         gov = certified_forks(0.9, 1.1, 1.1, (), calls=(40,), gain_estimate=True, gain_contact=contact)[1]
-        assert gov.gain_estimator.samples == 0 and (gov.gain_lo, gov.gain_hi) == (0.9, 1.1)
-        assert np.array_equal(gov.predictor.command_at(4.0), plain.predictor.command_at(4.0))
+        assert gov.state.gain_estimator.samples == 0 and (gov.state.ends.lo, gov.state.ends.hi) == (0.9, 1.1)
+        assert np.array_equal(gov.state.predictor.command_at(4.0), plain.state.predictor.command_at(4.0))
 
 
 def first_rest_sample(rest_s, moving_until=0, blip_every=0):
@@ -372,7 +372,7 @@ def first_rest_sample(rest_s, moving_until=0, blip_every=0):
         t = PERIOD * i
         moving = i < moving_until or (blip_every and i % blip_every == 0)
         gov(Estimate(t, q, np.full(2, 0.05 if moving else 0.0), t), u)
-        if gov.gain_estimator.samples:
+        if gov.state.gain_estimator.samples:
             return t
     return None
 
@@ -401,8 +401,8 @@ def test_gain_rest_s_also_spaces_the_rest_samples(rest_s, offered):
     gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
                                 gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_rest_s=rest_s)
     offers = []
-    sample = gov.gain_estimator.sample
-    gov.gain_estimator.sample = lambda p, y: offers.append(p) or sample(p, y)
+    sample = gov.state.gain_estimator.sample
+    gov.state.gain_estimator.sample = lambda p, y: offers.append(p) or sample(p, y)
     u = np.full(2, 40.0)
     q = ROBOT.array("gains") / ROBOT.array("stiffness") * u
     for i in range(40):

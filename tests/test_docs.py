@@ -186,6 +186,6 @@ def test_the_readme_names_the_recommended_filter_that_softcbf_list_marks():
     robot = reference_robot()
     context = FilterContext(robot, paper_safe_set(), robot.array("u_min"), robot.array("u_max"), 0.1, 0.02, 0.05)
     governor = build_filter(spec.name, {**spec.params, "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}, context)
-    assert (governor.gain_lo, governor.gain_hi, governor.gain_rest_hold) == (0.9, 1.1, 0.2)
+    assert (*governor.gain_interval(), governor.params.gain_rest_s) == (0.9, 1.1, 0.2)
     out = governor(Estimate(0.0, np.zeros(2), np.zeros(2), 0.0), np.full(2, 150.0))
     assert np.all(np.isfinite(out.u)) and np.all(out.u <= robot.array("u_max"))

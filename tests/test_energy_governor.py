@@ -50,8 +50,8 @@ def certificate_slack(gov: EnergyGovernor, rec) -> np.ndarray:
         if not 1 <= tick <= len(rec.t):
             continue
         i = tick - 1  # the state at the end of tick i is the state when tick `tick` starts
-        base, _ = gov.state_energy(rec.q[i], rec.qd[i])
-        slack.append(gov.escape(u.tolist()) - gov.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
+        base, _ = gov.model.state_energy(rec.q[i], rec.qd[i])
+        slack.append(gov.model.escape(u.tolist()) - gov.model.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
     return np.array(slack)
 
 
@@ -113,7 +113,7 @@ def test_certified_energy_never_grows_along_the_model(governor_lag):
     """W_u along fine RK4 trajectories of the model with the valve lag (τ_p = 0.05 s) from
     random states: nonincreasing, and its rate matches −Σ(√d q̇ − λ(p − u)/(2√d))².
     Without the pressure term (β = 0) W grows: the term is needed."""
-    gov, dyn = governor_lag, governor_lag.dynamics
+    gov, dyn = governor_lag, governor_lag.model.dynamics
     d, lam, tau = ROBOT.array("damping"), ROBOT.array("gains"), 0.05
     rng = np.random.default_rng(6)
     grew_without_beta = False
@@ -123,8 +123,8 @@ def test_certified_energy_never_grows_along_the_model(governor_lag):
 
         def energy(q, qd, p, beta=True):
             base = dyn.kinetic_energy(q, qd)
-            w = gov.energy(base, q.tolist(), p.tolist(), u.tolist())
-            return w if beta else w - 0.5 * float(np.sum(gov.beta * (p - u) ** 2))
+            w = gov.model.energy(base, q.tolist(), p.tolist(), u.tolist())
+            return w if beta else w - 0.5 * float(np.sum(gov.model.beta * (p - u) ** 2))
 
         h = 2e-5
         states = [(q, qd, p)] + list(rk4_with_lag(dyn, q, qd, p, u, tau, h, 1500))
@@ -317,24 +317,24 @@ def test_reset_replays_the_same_run_and_stale_estimates_hold(governor_ideal):
     assert old.action == "stale" and old.infeasible
     np.testing.assert_array_equal(old.u, held)
     gov.reset()
-    assert gov.predictor.oldest_time == -math.inf
+    assert gov.state.predictor.oldest_time == -math.inf
 
 
 def test_contact_aware_terms_and_robust_n_max():
     ctx = context(ROBOT, SAFE, PERIOD, DELAY, 0.05)
     plain = EnergyGovernor(ctx, grid_hPa=10.0)
     aware = EnergyGovernor(ctx, contact_aware=True, stiffness_lo_ratio=0.9, stiffness_hi_ratio=1.1, grid_hPa=10.0)
-    assert aware.safe_set.n_max == pytest.approx(0.16 / (11.16 * 1.1))
-    credit = 0.9 * 0.5 * 11.16 * aware.safe_set.n_max**2
+    assert aware.model.safe_set.n_max == pytest.approx(0.16 / (11.16 * 1.1))
+    credit = 0.9 * 0.5 * 11.16 * aware.model.safe_set.n_max**2
     robust = EnergyGovernor(ctx, stiffness_hi_ratio=1.1, grid_hPa=10.0)
     u = [40.0, 100.0]
-    assert aware.escape(u) == pytest.approx(robust.escape(u) + credit, rel=1e-12)
-    assert robust.escape(u) < plain.escape(u)  # the stiffer plate shrinks P
+    assert aware.model.escape(u) == pytest.approx(robust.model.escape(u) + credit, rel=1e-12)
+    assert robust.model.escape(u) < plain.model.escape(u)  # the stiffer plate shrinks P
     q = np.array([0.6, 0.9])  # the tip pressed into the plate
     n = SAFE.penetration(tip_positions(q[None], ROBOT.array("lengths"))[0])[0]
     assert n > 0
-    plain_base, _ = plain.state_energy(q, np.zeros(2))
-    aware_base, _ = aware.state_energy(q, np.zeros(2))
+    plain_base, _ = plain.model.state_energy(q, np.zeros(2))
+    aware_base, _ = aware.model.state_energy(q, np.zeros(2))
     assert plain_base == 0.0
     assert aware_base == pytest.approx(1.1 * 0.5 * 11.16 * n**2)
 
@@ -355,9 +355,9 @@ def test_state_energy_is_the_array_path_in_and_out_of_contact():
         worst = max(worst, abs(tip - pcc.step_kinematics(q.tolist(), [0.0, 0.0], lengths.tolist()).tip))
         n = SAFE.penetration_at(tip.real, tip.imag)
         touching += any(n)
-        kinetic = plain.dynamics.kinetic_energy(q, qd)
-        assert plain.state_energy(q, qd) == (kinetic, SAFE.margin_at(tip.real, tip.imag))
-        assert aware.state_energy(q, qd) == (kinetic + 1.1 * float(np.sum(SAFE.stiffness.energy(n))),
+        kinetic = plain.model.dynamics.kinetic_energy(q, qd)
+        assert plain.model.state_energy(q, qd) == (kinetic, SAFE.margin_at(tip.real, tip.imag))
+        assert aware.model.state_energy(q, qd) == (kinetic + 1.1 * float(np.sum(SAFE.stiffness.energy(n))),
                                              SAFE.margin_at(tip.real, tip.imag))
     assert worst <= 1e-15 and TIP_TOLERANCE_M >= 1e6 * worst
     assert 50 < touching < 550  # both branches
@@ -444,9 +444,9 @@ def test_a_failed_certificate_is_detected_and_recovered(governor_ideal):
     assert out.action == "recover" and out.diagnostics["violation"] == 1.0 and out.infeasible
     assert out.rho_pred < 0
     assert np.all(np.abs(out.u) <= 150.0)
-    assert out.diagnostics["Gamma_J"] >= gov.energy_margin
-    assert gov.target_governor.rest_margins(out.u).min() + gov.target_governor.margin_m > 0  # it settles inside P
-    calm_state = 0.5 * gov.target_governor.rest_shape(out.u)
+    assert out.diagnostics["Gamma_J"] >= gov.params.energy_margin_J
+    assert gov.state.target_governor.rest_margins(out.u).min() + gov.state.target_governor.margin_m > 0  # it settles inside P
+    calm_state = 0.5 * gov.state.target_governor.rest_shape(out.u)
     calm = gov(Estimate(0.2, calm_state, rest, 0.2), np.array([150.0, 150.0]))
     assert not calm.infeasible and calm.diagnostics["margin_J"] >= 0.0
     gov.reset()
@@ -471,8 +471,8 @@ def test_contact_aware_on_a_plate_that_pushes_back():
         if not 0 <= i < len(rec.t):
             continue
         n = SAFE.penetration(tip_positions(rec.q[i][None], ROBOT.array("lengths"))[0])
-        base = gov.dynamics.kinetic_energy(rec.q[i], rec.qd[i]) + ratio * float(np.sum(SAFE.stiffness.energy(n)))
-        slack.append(gov.escape(u.tolist()) - gov.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
+        base = gov.model.dynamics.kinetic_energy(rec.q[i], rec.qd[i]) + ratio * float(np.sum(SAFE.stiffness.energy(n)))
+        slack.append(gov.model.escape(u.tolist()) - gov.model.energy(base, rec.q[i].tolist(), rec.p[i].tolist(), u.tolist()))
     assert min(slack) >= 0.0
 
 

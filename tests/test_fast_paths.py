@@ -125,11 +125,11 @@ def test_packed_recording_matches_a_plain_one():
 
 @pytest.mark.parametrize("tau", [0.0, 0.05])
 def test_unrolled_two_segment_certificate_energy_gives_the_loops_floats(tau):
-    """`EnergyGovernor.energy` for N = 2 (unrolled) against the per-segment loop it stands in for."""
+    """`GovernorModel.energy` for N = 2 (unrolled) against the per-segment loop it stands in for."""
     from controllers.energy_governor import EnergyGovernor
 
     gov = EnergyGovernor(FilterContext.for_robot(ROBOT, SAFE, 1e-3, actuator_tau=tau))
-    k, a, beta = ROBOT.array("stiffness").tolist(), (ROBOT.array("gains") / ROBOT.array("stiffness")).tolist(), gov.beta.tolist()
+    k, a, beta = ROBOT.array("stiffness").tolist(), (ROBOT.array("gains") / ROBOT.array("stiffness")).tolist(), gov.model.beta.tolist()
     assert any(beta) == (tau > 0)
     rng = np.random.default_rng(11)
     for _ in range(500):
@@ -138,4 +138,4 @@ def test_unrolled_two_segment_certificate_energy_gives_the_loops_floats(tau):
         for ki, ai, bi, qi, pi, ui in zip(k, a, beta, q, p, u):
             e = qi - ai * ui
             total += 0.5 * (ki * e * e + bi * (pi - ui) ** 2)
-        assert gov.energy(base, q, p, u) == total
+        assert gov.model.energy(base, q, p, u) == total

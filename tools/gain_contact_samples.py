@@ -20,7 +20,7 @@ recorded rows, not the governor's calls: the pressure is reconstructed and the e
 not recorded, hence the steadiness condition; figures close to, not identical with, the governor's own samples.
 
 --replay instead runs each run's configuration again (`softcbf run --config`, into a temporary folder) and reads
-the c-erg governor's own inputs at every call (`EnergyGovernor.update_gain` wrapped: the estimate, its capture
+the c-erg governor's own inputs at every call (`controllers.energy_governor.steps`'s `update_gain` wrapped: the estimate, its capture
 time, the predictor's pressure and command there): the rows are then exactly the calls at which c-erg would offer
 a rest sample against the plate (the same three conditions, the pressure settled to --settle-rad as c-erg's
 `gain_noise_rad` asks), while the arm is still settling too. It needs the run's filter to be c-erg with
@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.energy_governor import EnergyGovernor
+from controllers.energy_governor import steps as governor_steps
 from controllers.gain_estimate import GainEstimator
 from controllers.pcc import tip_jacobian, tip_position
 from scenarios.common import load_environment, load_robot, scale_damping
@@ -86,19 +86,19 @@ def replayed_states(folder: Path, estimator: GainEstimator, settle_rad: float):
     from softcbf.cli import main as cli
 
     calls = []
-    offer = EnergyGovernor.update_gain
+    offer = governor_steps.update_gain
 
-    def recorded(governor, q, qd, t_capture):
+    def recorded(model, state, q, qd, t_capture):
         calls.append((float(t_capture), np.array(q, dtype=float), np.array(qd, dtype=float),
-                      governor.predictor.pressure_at(t_capture), governor.predictor.command_at(t_capture)))
-        return offer(governor, q, qd, t_capture)
+                      state.predictor.pressure_at(t_capture), state.predictor.command_at(t_capture)))
+        return offer(model, state, q, qd, t_capture)
 
-    EnergyGovernor.update_gain = recorded
+    governor_steps.update_gain = recorded
     try:
         with tempfile.TemporaryDirectory() as out:
             cli(["run", "--config", str(folder / "config.json"), "--out", str(Path(out) / "run"), "--progress", "false"])
     finally:
-        EnergyGovernor.update_gain = offer
+        governor_steps.update_gain = offer
     if not calls:
         raise SystemExit(f"{folder}: c-erg's update_gain was never called (the run's filter needs gain_estimate=true)")
     for t_capture, q, qd, p, u in calls:

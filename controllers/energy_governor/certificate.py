@@ -1,0 +1,479 @@
+"""The energy governor's certificate and its model: everything built once from the parameters and the context.
+
+`GovernorModel.build(params, context)` makes the immutable model a governor's calls read (the tables and
+bounds of Γ̲, P with the plate's stiffness interval, the energy's weights, the recovery's grid, the target
+governor's configuration); nothing in it changes during calls. The per-run state is
+`controllers.energy_governor.state.GovernorState`.
+
+Certificate. Model (docs/model.md#rppr-dynamics) with the pressure p (hPa) lagging the command (τ_p, s):
+
+    M(q) q̈ + C(q, q̇) q̇ + D q̇ + K q = Λ p,     ṗ = (u − p)/τ_p,
+
+    W_u(q, q̇, p) = ½ q̇ᵀM(q)q̇ + ½ (q − q_u)ᵀK(q − q_u) + ½ Σ_i β_i (p_i − u_i)²   (J),
+    β_i = τ_p λ_i² / (4 d_i)   (J/hPa²).
+
+Along the model's trajectories with u held,
+    Ẇ = q̇ᵀ(Λp − Cq̇ − Dq̇ − Kq) + ½ q̇ᵀṀq̇ + q̇ᵀK(q − q_u) − Σ β_i (p_i − u_i)²/τ_p
+      = q̇ᵀΛ(p − u) − q̇ᵀDq̇ − Σ (β_i/τ_p)(p_i − u_i)²            (q̇ᵀ(Ṁ − 2C)q̇ = 0, K q_u = Λu)
+      = −Σ_i (√d_i q̇_i − λ_i (p_i − u_i)/(2√d_i))² ≤ 0            (β_i/τ_p = λ_i²/(4 d_i)),
+so W_u never grows while u is held (τ_p = 0: β = 0, p = u, Ẇ = −q̇ᵀDq̇). Since
+W_u ≥ ½ (q − q_u)ᵀK(q − q_u), the tip stays in P for as long as u is held if
+W_u(x(t_a)) ≤ Γ(u) at the instant t_a when u starts to act, with Γ(u) the escape energy
+(`controllers.escape_energy`: Γ(u) = min over q with r(q) ∉ P of ½ (q − q_u)ᵀK(q − q_u),
+tabulated as a lower bound).
+
+The plate. Two variants. Plain (`contact_aware` False): the environment does not push
+back (the PCC plant, the paper's simulation); the certificate is (1 + κ)W_u(x̂) + ε ≤ Γ(u).
+Contact-aware: a facet pushes back with force ψ_true(n) ∈ [lo·ψ(n), hi·ψ(n)]
+(`stiffness_lo_ratio`, `stiffness_hi_ratio`); it stores E_true(n) = ∫₀ⁿ ψ_true with
+lo·E(n) ≤ E_true(n) ≤ hi·E(n) (E = `ψ.energy`), a conservative force, so W_u + E_true
+never grows. Safety is F_true ≤ F_max, which holds if n ≤ n_max = ψ⁻¹(F_max/hi) (the
+stiffest plate): P is built with that n_max whenever hi ≠ 1, in both variants. Leaving P
+through facet j's row means n_j ≥ n_max, where the plate holds at least lo·E(n_max). So
+
+    (1 + κ) [W_u(x̂) + hi Σ_facets E(n_i(x̂))] + ε ≤ min_j (Γ_j(u) + c_j),
+
+c_j = lo·E(n_max) for facet rows, 0 for vertex-correction rows, implies
+W_u + E_true ≤ Γ_j + c_j along the motion, hence the tip stays in P. The plain variant
+is not sound where the plate pushes back while the tip is in contact (the plate's
+stored energy can return to the arm), and the contact-aware one is not sound where the
+plate does not push back (nothing stops the tip at n_max).
+Contact certificate (`certificate="contact"`, the `c-erg` filter). The parked
+certificate above delivers about half the force budget on a plate (measured: 0.45–0.50 F_max
+on mujoco_contact): its target's rest shape parks `margin_m` inside P, and its Γ(u) is 0 for
+every rest shape beyond P, although the arm pressing a plate rests well inside P with its rest
+shape beyond it. Three changes make the equilibrium at P's boundary reachable:
+(a) Γ to the boundary: the arm starts strictly inside P (checked at x̂: every row H'_j r(q̂) < h'_j,
+    else nothing is certified), so to leave P its tip must cross some row's boundary g_j = 0
+    first. Γ^∂_j(u) = min {½(q − q_u)ᵀK(q − q_u) : g_j(q) = 0} is then the barrier, > 0 also for a
+    rest shape beyond P. Γ̲^∂_j = the larger of the boundary table (`EscapeEnergyTable(boundary=True)`,
+    N ≤ 2) and the grid-free second-order bound (`BoundaryDistanceBound`: exact to second order
+    near the boundary, where the table's looseness, ≈ 2.6 h_z in distance, halved Γ: 1.06e-4 J
+    against 2.39e-4 J at 70 hPa on both segments of the reference arm).
+(b) The plate's energy per facet, with lo on the difference only. With the true plate energy
+    E_true,i(n_i) (conservative, ψ_true ∈ [lo ψ, hi ψ]), V = W_u + Σ_i E_true,i never grows (u
+    held). At the first exit through facet row j, n_j = n_max, so V ≥ Γ^∂_j(u) + E_true,j(n_max).
+    For n_j ≤ n_max, E_true,j(n_max) − E_true,j(n_j) = ∫_{n_j}^{n_max} ψ_true ≥ lo (E(n_max) − E(n_j)),
+    and E_true,i ≤ hi E(n_i), so V(x̂) < Γ^∂_j + E_true,j(n_max) follows from
+        W_u(x̂) + hi Σ_{i≠j} E(n_i) < Γ^∂_j(u) + lo (E(n_max) − E(n_j)).
+    Per row: o_j = lo (E(n_max) − E(n_j)) − hi Σ_{i≠j} E(n_i) for a facet row, o_j = −hi Σ_i E(n_i)
+    for a vertex-correction row (no facet is at n_max on it); without `contact_aware` o_j = 0.
+    The parked variant's hi E(n) in W against lo E(n_max) in Γ costs (hi − lo) E(n_max) at the
+    plate; this one costs lo's share of the last bit of penetration only. For the exact model
+    (lo = hi = 1) and a rest state, Γ^∂_j + E(n_max) − (W_u + E(n)) is the gap between the arm-plate
+    energy's minimum on the boundary and at the equilibrium: > 0 for every equilibrium strictly
+    inside P, so the governor can approach the boundary.
+(c) κ inflates the kinetic energy alone: (1 + κ)·½q̇ᵀMq̇ + ½(q − q_u)ᵀK(q − q_u) + ½Σβ(p − u)² + ε ≤
+    min_j (Γ̲^∂_j(u) + o_j). κ stands for the velocity's estimation error (finite differences); a
+    whole-energy inflation would ask (1 + κ) W ≤ Γ + ... at a contact equilibrium, where W is
+    the arm's elastic energy against the plate: never certified near the boundary.
+Any number of segments: for N > 2 (no q-space table) Γ̲^∂ is the second-order bound alone and the
+recovery's candidates are u_prev, u_nom and 0 hPa (tests/test_contact_governor.py: N = 3 and 4 on
+the PCC plant). The target is u_nom itself (clipped to the box); the rays are those to it and to 0 hPa. The
+recovery (step 4) ranks the table's grid commands, u_prev and u_nom by the same margin; with x̂
+outside P (no certificate holds) it takes the command nearest u_nom whose rest shape lies inside P.
+Measured (mujoco_contact, push asking 1.2 F_max, 6 s; `softcbf bench`): exact model 0.946 F_max;
+plate stiffness within ±10 % (n_max = ψ⁻¹(F_max/1.1)): 0.841 F_max, ρ_meas 0.159.
+
+Actuator gain (`gain_lo_ratio`, `gain_hi_ratio`; contact certificate only; default 1, 1: the model's λ, the
+commands bit for bit those without the interval: tools/eerg_references.py). The true arm's gains are g·λ_i,
+one unknown scale g ∈ [g_lo, g_hi] for every segment (dimensionless; the bench's camera_mismatch draws g
+from U(0.9, 1.1)). Only two things change with g: the true rest shape q_u(g) = K⁻¹(gΛ)u = g·q_u (rad), and
+the lag weights, β_i(g) = τ_p (gλ_i)²/(4d_i) = g²β_i (J/hPa²), the derivation of Ẇ ≤ 0 above with gΛ in place
+of Λ. So the certificate for the gain g, at a state x̂ = (q̂, q̂̇, p̂) (κ, o_j and the plate terms depend on
+the state alone), asks for every row j
+
+    m_j(g) = Γ^∂_j(g·u) + o_j − (1 + κ)·½q̂̇ᵀMq̂̇ − ½(q̂ − g q_u)ᵀK(q̂ − g q_u) − ½ g² Σ_i β_i (p̂_i − u_i)² ≥ ε,
+
+Γ^∂_j(g·u) the least energy to row j's boundary from the rest shape g·q_u (the table's function at the
+command g·u, whose model rest shape that is). Claim: m_j is concave in g, so min over [g_lo, g_hi] of m_j is
+min(m_j(g_lo), m_j(g_hi)) and checking the two ends certifies every gain between them. Proof: in z = K^{1/2}q
+(J^{1/2}), with ζ = K^{1/2}q̂, z_u = K^{1/2}q_u and S_j = {z : g_j = 0},
+    Γ^∂_j(g·u) − ½|ζ − g z_u|² = min_{s∈S_j} ½(|s − g z_u|² − |ζ − g z_u|²) = min_{s∈S_j} (½|s|² − ½|ζ|² − g z_u·(s − ζ)),
+a minimum of affine functions of g, hence concave (the g² terms cancel exactly; any set S_j, also the
+parked certificate's unsafe set); −½g² Σβ(p̂ − u)² is concave (≤ 0 curvature) and the rest does not depend
+on g. Neither term is concave alone (the elastic energy is convex in g, Γ^∂(g·u) neither in general), only
+their difference, so they are not bounded separately (min Γ^∂ − max W would also be sound, but it gives
+away the motion of the rest shape twice). Γ̲^∂_j(g·u) ≤ Γ^∂_j(g·u) at each end (the
+table's bounds hold for any command, 4b outside its box; the second-order bound anywhere), so the governor
+takes min over the ends g ∈ {g_lo, g_hi} of min_j (Γ̲^∂_j(g·u) + o_j) − W(g) as its margin (W(g): `energy` at
+gain g; the diagnostics report the binding end). The recovery's grid commands u_c use
+d_j(g·u_c) ≥ d̲_j(u_c) − |g − 1| ‖u_c‖_w ((*) of `controllers.escape_energy`, w_i = λ_i²/k_i: the rest
+shape moves by that much in z), tests/test_contact_governor.py checks it against brute force; its fallback
+(no candidate certified: no guarantee either way) ranks by the model's rest shapes.
+Assumptions added: g is constant and common to the segments (per-segment gains in a box would need the 2^N
+vertices, by the same concavity along each axis: not built); the state predictor integrates the model's
+gain, so over the prediction span t_a − t_c (estimate age plus delay, ≈ 0.05–0.12 s at the camera rate, 0
+at 1 kHz with an exact state) the gain's effect on x̂ is an estimate error, not covered beyond κ.
+What it costs (measured on the reference arm, docs/results.md): the plate's whole force range lies within a
+few hPa (`softcbf.bench.PUSHES`: 57.0, 62.5, 68.2 and 74.0 hPa on both segments press with 0.3, 0.6, 0.9 and
+1.2 F_max), so 10 % of the gain, ≈ 6 hPa there, is ≈ 0.3 F_max of steady force; and the certificate
+(which cannot use damping) must also allow the arm's swing from the state where a stronger actuator would
+start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
+(mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
+this is the price of certifying ±10 % of actuator gain on this arm.
+κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
+errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
+the absolute margin a new command must keep. No guarantee above needs ε > 0 (each holds for margins ≥ 0), so ε
+is a buffer for what the assumptions leave out, and at the plate it has a price: at rest against it the margin
+is the rise of the arm–plate energy from the equilibrium to the boundary, ≈ ½ k_c (n_max − n)² (k_c the arm and
+plate's stiffness along the normal), so the governor stops where that rise is ε (measured with the recommended
+setting, mujoco_push_120: 0.808 F_max at ε = 2e-6 J against 0.797 at the default 1e-5 J; docs/results.md).
+The held command, certified when it was issued, counts as failed only when it has lost all of ε ((1 + κ)W ≥ Γ,
+tested as Γ − (1 + κ)W > 0, not as (Γ − (1 + κ)W − ε) + ε ≥ 0, which for ε = 1e300 held any W): a
+hysteresis that keeps integration round-off from reading as a violation.
+
+Assumptions of the guarantee (tip in P at all times): the model is the plant (M, C, K,
+D, Λ, τ_p, the PCC kinematics, P and ψ within [lo, hi]); the estimate and the predictor
+are accurate to within the κ-inflation; the commands this governor returns are applied
+unchanged from t + δ and held until the next one acts (no clipping, no other source);
+the valves start vented (p = 0) at `reset`; Γ̲ ≤ Γ (by construction); the arm starts
+certified (e.g. at rest with its rest shape in P). Where it can fail: a wrong model
+(an actuator gain outside [gain_lo_ratio, gain_hi_ratio], a plate stiffness outside its interval, arm
+stiffness, plate position) is not covered by κ, and a state far from the
+estimate is not caught until the next estimate shows it; the recovery then has no
+guarantee.
+
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from controllers.dynamics import PCCDynamics
+from controllers.escape_energy import (MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments,
+                                       lower_bounds)
+from controllers.energy_governor.parameters import PARAMETERS, PREDICTION_HORIZON_S, GovernorParams
+from controllers.gain_estimate import GainEstimator
+from controllers.lazy_import import lazy_module
+from controllers.pcc import kinematics_unchecked
+from controllers.quasi_static_governor import QuasiStaticGovernor
+from controllers.safe_set import ForceSafeSet
+from controllers.safety_filter import FilterContext
+from controllers.state_predictor import StatePredictor
+
+energy_kernels = lazy_module("controllers.energy_kernels")  # numba loads on the first call (controllers.lazy_import)
+
+TIP_TOLERANCE_M = 1e-9
+"""A scalar tip this far outside every facet (m) has the array path's tip outside too (`GovernorModel.state_energy`)."""
+
+BOUND_BELOW_J = 0.02
+"""The contact certificate evaluates the second-order boundary bound only where the table's least row value is
+below this (J): near the boundary, where the table is loose; beyond ≈ 0.01 J the table is the larger (measured
+on the reference arm: 1.46e-2 against 1.15e-2 J at (32, 69) hPa, 0.10 against 0.057 J at rest), and the
+bound's kinematics cost more than the table's look-up."""
+
+
+def scaled_command(gain: float, u: tuple) -> tuple:
+    """g·u per entry (hPa): the command whose model rest shape is the true one, g K⁻¹Λu, under the gain g; u itself at g = 1."""
+    return u if gain == 1.0 else tuple(gain * v for v in u)
+
+
+def ray_may_come_nearer(start, goal, direction, aim, best: float, sigma_min: float) -> bool:
+    """Whether a point a + σ·d of the ray from a = `start` towards g = `goal` (d = `direction`
+    = g − a as floats), σ ∈ [sigma_min, 1], may have a squared distance to t = `aim` below
+    `best` (hPa²) as the governor computes it (per entry a + σd, then Σ (c − t)²).
+
+    The exact distance Q(σ) = Σ_i (e_i + σ d_i)², e = a − t, is a convex quadratic with its
+    least value on [sigma_min, 1] at σ* = clip(−e·d/|d|², sigma_min, 1). Each float step
+    (d, σd, a + σd, c − t, its square, the sum) errs by at most one rounding u = 2⁻⁵³ of
+    entries bounded by M_i = |a_i| + |g_i| + |t_i|, so the computed distance and the computed
+    Q(σ*) each lie within about 30u Σ M_i² of the exact ones; ROUNDING_SLACK Σ M_i² is over
+    300 times that (`controllers.energy_kernels.ROUNDING_SLACK`, 1e-12). False therefore proves that
+    no σ in the range gives a computed distance below `best`. σ = 0 gives a itself, which the caller
+    has already counted. d = 0: False. The compiled ray search's test (`energy_kernels.ray_may_come_nearer`).
+    """
+    vectors = (np.asarray(v, dtype=float) for v in (start, goal, direction, aim))
+    return bool(energy_kernels.ray_may_come_nearer(*vectors, float(best), float(sigma_min),
+                                                   energy_kernels.PYTHON_SQUARE))
+
+
+def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
+    """β_i = τ_p λ_i² / (4 d_i): (N,) J/hPa²; refuses τ_p > 0 with an undamped segment."""
+    damping, gains = context.robot.array("damping"), context.robot.array("gains")
+    if actuator_tau == 0.0:
+        return np.zeros_like(gains)
+    if np.any(damping <= 0):
+        raise ValueError(f"a pressure lag (actuator_tau = {actuator_tau} s) needs damping > 0 on every segment, "
+                         f"got {damping.tolist()}: the certificate's β = τ_p λ²/(4d) is undefined")
+    return actuator_tau * gains**2 / (4.0 * damping)
+
+
+def tip_of(lengths: np.ndarray, q) -> tuple[float, float]:
+    """The model's tip r(q) (m) as Python floats."""
+    tip = kinematics_unchecked(np.asarray(q, dtype=float), lengths, 0).points[-1]
+    return tip.real, tip.imag
+
+
+@dataclass(eq=False)
+class GovernorCall:
+    """One call's state between its preparation and its step 3 (`controllers.energy_governor.steps`): the estimate's
+    capture and the command's application times (s), u_prev, the target and u_nom clipped (N,) hPa; unless
+    stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
+    for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
+    x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the gain ends and their energy terms (E, 3, N)."""
+
+    t_capture: float
+    t_apply: float
+    u_prev: np.ndarray
+    target: np.ndarray
+    nominal: np.ndarray
+    stale: bool = False
+    q_hat: np.ndarray | None = None
+    p_hat: np.ndarray | None = None
+    base: float = math.nan
+    offsets: list[float] = field(default_factory=list)
+    inside: bool = False
+    rho: float = math.nan
+    inflation: float = 1.0
+    gains: tuple = ()
+    terms: np.ndarray | None = None
+
+
+def certificate_rows(calls: list[GovernorCall]) -> tuple:
+    """The certificate's per-row arguments of `energy_kernels.certificate_terms` and `govern_rows` for the calls
+    (B rows): the gain ends (B, E) and their count (B,), the energy terms (B, E, 3, N), base (B,) J, q̂ (B, N)
+    rad, p̂ (B, N) hPa, the offsets (B, P') J and inside (B,); E the most ends of a call, the others' padded
+    (never read: a row reads its count)."""
+    ends = np.array([len(c.gains) for c in calls])
+    most = int(ends.max())
+    if most == len(calls[0].gains) and all(c.terms is calls[0].terms for c in calls):
+        gains, terms = np.array([calls[0].gains] * len(calls)), np.array([calls[0].terms] * len(calls))
+    else:
+        gains = np.array([c.gains + (1.0,) * (most - len(c.gains)) for c in calls], dtype=float)
+        terms = np.zeros((len(calls), most) + calls[0].terms.shape[1:])
+        for b, c in enumerate(calls):
+            terms[b, :len(c.gains)] = c.terms
+    return (gains, ends, terms, np.array([c.base for c in calls]), np.array([c.q_hat for c in calls]),
+            np.array([c.p_hat for c in calls]), np.array([c.offsets for c in calls], dtype=float),
+            np.array([c.inside for c in calls]))
+
+
+@dataclass(frozen=True, eq=False)
+class GovernorModel:
+    """What a governor's calls read and never change (module docstring), built by `build`.
+
+    params: the checked parameters; context: the filter's context; command_delay δ and actuator_tau τ_p (s, the
+    parameters' or the context's); safe_set: P with n_max = ψ⁻¹(F_max/hi); contact: the contact certificate;
+    target_governor: the parked certificate's quasi-static governor, configured (each state holds a copy:
+    `controllers.energy_governor.state.new_state`), None for the contact certificate; beta (N,) J/hPa²; k, a, beta_list:
+    K, K⁻¹Λ and β as lists; table / boundary_bound: Γ̲'s sources (`controllers.escape_energy`); rows: P's rows
+    (h'x, h'y, h'); facets: the plate's (nx, ny, d); credit: c_j per row (J); plate_weight: hi when contact-aware,
+    else 0; free_plate_energy: its term at n = 0 (J); box: the pressure box or None; rest: 0 hPa clipped to it;
+    grid / grid_values / grid_rest_inside / grid_columns: the recovery's candidate commands (G, N), their Γ̲ rows
+    (P', G), whether their rest shapes lie inside P, and the commands as (N, G); lookup: the kernels' Γ̲ look-up;
+    gain_prior: the certified gain interval before any estimate."""
+
+    params: GovernorParams
+    context: FilterContext
+    n: int
+    command_delay: float
+    actuator_tau: float
+    safe_set: ForceSafeSet
+    contact: bool
+    target_governor: QuasiStaticGovernor | None
+    dynamics: PCCDynamics
+    beta: np.ndarray
+    k: list
+    a: list
+    beta_list: list
+    table: EscapeEnergyTable | None
+    boundary_bound: BoundaryDistanceBound | None
+    n_facets: int
+    rows: list
+    facets: list
+    credit: list
+    plate_weight: float
+    free_plate_energy: float
+    box: tuple | None
+    rest: np.ndarray
+    grid: np.ndarray
+    grid_values: np.ndarray
+    grid_rest_inside: np.ndarray
+    grid_columns: np.ndarray
+    lookup: tuple
+    gain_prior: tuple
+
+    @classmethod
+    def build(cls, params: GovernorParams, context: FilterContext) -> "GovernorModel":
+        """The model of `params` on `context`; ValueError for what needs the context to check (module docstring of
+        `controllers.energy_governor.parameters`): the context's delay and time constant, the plate's law, the
+        table's size, ε against the table's saturation."""
+        delay = context.command_delay if params.command_delay_s is None else params.command_delay_s
+        tau = context.actuator_tau if params.actuator_tau_s is None else params.actuator_tau_s
+        delay, tau = (0.0 if delay is None else float(delay)), (0.0 if tau is None else float(tau))
+        for name, value in (("command_delay_s", delay), ("actuator_tau_s", tau)):  # the context's, when not given
+            PARAMETERS[name].check(f"{name} (the context's)", value)
+        law = context.safe_set.stiffness
+        if not callable(getattr(law, "energy", None)):
+            raise ValueError(f"the plate's stiffness law {type(law).__name__} has no energy(n); "
+                             "use LinearStiffness or PowerLawStiffness")
+        robot, nominal, contact = context.robot, context.safe_set, params.contact
+        n = robot.n_segments
+        hi = params.stiffness_hi_ratio
+        safe_set = nominal if hi == 1.0 else ForceSafeSet(nominal.environment, law, nominal.f_max / hi,
+                                                          nominal.row_scaling)
+        target_governor = None if contact else QuasiStaticGovernor(replace(context, safe_set=safe_set),
+                                                                   margin_m=params.margin_m)
+        u_lo = robot.array("u_min") if context.u_min is None else context.u_min
+        u_hi = robot.array("u_max") if context.u_max is None else context.u_max
+        beta = pressure_lag_weights(context, tau)
+        gridded = not contact or n <= MAX_SEGMENTS  # the contact certificate needs no table for N > 2
+        table = EscapeEnergyTable(robot, safe_set, u_lo, u_hi, grid_hPa=params.grid_hPa, boundary=contact,
+                                  q_spacing_rad=params.escape_spacing_rad) if gridded else None
+        boundary_bound = BoundaryDistanceBound(robot, safe_set) if contact else None
+        credit = params.stiffness_lo_ratio * float(law.energy(safe_set.n_max)) if params.contact_aware else 0.0
+        rows = [(hx, hy, h) for (hx, hy), h in zip(np.asarray(safe_set.H_prime).tolist(),
+                                                   np.asarray(safe_set.h_prime).tolist())]
+        plate_weight = hi if params.contact_aware else 0.0
+        facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(),
+                                                     nominal.environment.offsets.tolist())]
+        k = robot.array("stiffness").tolist()
+        a = (robot.array("gains") / robot.array("stiffness")).tolist()
+        box = None if context.u_min is None else (context.u_min, context.u_max)
+        rest_list = tuple((np.zeros(n) if box is None else np.clip(np.zeros(n), *box)).tolist())
+        dynamics = PCCDynamics(robot)
+        if table is None:  # N > 2, contact certificate: the recovery's candidates are u_prev, u_nom and 0 hPa
+            grid = np.array([rest_list])
+            grid_values = np.array([boundary_bound.values(rest_list)]).T
+            grid_rest_inside = np.array([rest_shape_inside(dynamics.lengths, a, rows, grid[0])])
+        else:
+            grid, grid_values, grid_rest_inside = table.grid_commands(), table.grid_values(), table.rest_inside
+        if table is not None and not params.energy_margin_J < table.saturation_J:
+            raise ValueError(f"energy_margin_J must be < {table.saturation_J:.6g} J (½ k_min reach², the escape "
+                             f"energy the table resolves), got {params.energy_margin_J!r}")
+        return cls(params=params, context=context, n=n, command_delay=delay, actuator_tau=tau, safe_set=safe_set,
+                   contact=contact, target_governor=target_governor, dynamics=dynamics, beta=beta, k=k, a=a,
+                   beta_list=beta.tolist(), table=table, boundary_bound=boundary_bound, n_facets=nominal.n_facets,
+                   rows=rows, facets=facets,
+                   credit=[0.0 if corner else credit for corner in safe_set.is_vertex_correction.tolist()],
+                   plate_weight=plate_weight,
+                   free_plate_energy=plate_weight * float(np.sum(law.energy([0.0] * len(facets)))),  # n = 0 everywhere
+                   box=box, rest=np.array(rest_list), grid=grid, grid_values=grid_values,
+                   grid_rest_inside=grid_rest_inside, grid_columns=np.ascontiguousarray(grid.T),  # the scan's layout
+                   lookup=lookup_arguments(table, boundary_bound, BOUND_BELOW_J),
+                   gain_prior=(params.gain_lo_ratio, params.gain_hi_ratio))
+
+    # -- what each state starts from --------------------------------------------------------------------
+    def new_predictor(self) -> StatePredictor:
+        """A state predictor of this model, vented since t = −inf (`controllers.state_predictor`)."""
+        return StatePredictor(self.dynamics, self.actuator_tau, step_s=self.params.predictor_step_s,
+                              horizon_s=PREDICTION_HORIZON_S,
+                              plate=self.context.safe_set if self.params.contact_aware else None)
+
+    def new_gain_estimator(self) -> GainEstimator | None:
+        """A gain estimator with the prior interval and no sample (None without `gain_estimate`)."""
+        if not self.params.gain_estimate:
+            return None
+        return GainEstimator(self.k, self.a, self.context.robot.array("damping"), self.gain_prior,
+                             self.params.gain_noise_rad)
+
+    # -- certificate ------------------------------------------------------------------
+    def energy_terms(self, gain: float) -> tuple[list, list, list]:
+        """The energy's weights at the actuator gain g: (K, g·K⁻¹Λ, g²β) as lists (g = 1: the model's floats
+        exactly, 1.0·x = x)."""
+        return self.k, [gain * a for a in self.a], [gain * gain * b for b in self.beta_list]
+
+    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0) -> float:
+        """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J), for the true actuator
+        gain g = `gain` × the model's: ½(q − g q_u)ᵀK(q − g q_u) + ½ g² Σβ(p − u)², segment
+        by segment (the compiled `energy_kernels.energy_at`, which the certificate's kernels evaluate)."""
+        terms = np.array([[self.energy_terms(gain)]], dtype=float)
+        return float(energy_kernels.energy_at(np.asarray(u, dtype=float), np.array([q], dtype=float),
+                                              np.array([p], dtype=float), terms, 0, 0, float(kinetic_and_plate),
+                                              energy_kernels.PYTHON_SQUARE))
+
+    def escape(self, u) -> float:
+        """min_j (Γ̲_j(u) + c_j) (J)."""
+        return min(g + c for g, c in zip(self.table.values(u), self.credit))
+
+    def boundary_escape(self, u) -> list[float]:
+        """Γ̲^∂_j(u) for every row (J): the larger of the boundary table's and the second-order bound's
+        (`controllers.escape_energy`; both are lower bounds of the least elastic energy to P's boundary),
+        the second only where some row's table value is below BOUND_BELOW_J (any of the two is a valid bound)."""
+        return lower_bounds(u, self.table, self.boundary_bound, BOUND_BELOW_J)
+
+    def certificate_terms(self, u, call: GovernorCall) -> tuple[float, float]:
+        """(Γ, W) (J) of the command u (N,) hPa at the call's state x̂: the gain end with the least Γ − W,
+        Γ = min_j (Γ̲_j(g·u) + o_j) (−inf outside P), W at g (module docstring; `energy_kernels.certificate_terms`)."""
+        rows = len(call.offsets)
+        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), 0, *certificate_rows([call]),
+                                                    *self.lookup, np.empty(self.n), np.empty(rows), np.empty(rows))
+        return float(gamma), float(w)
+
+    def tip(self, q) -> tuple[float, float]:
+        """The model's tip r(q) (m) as Python floats."""
+        return tip_of(self.dynamics.lengths, q)
+
+    def rest_inside(self, u: np.ndarray) -> bool:
+        """Whether the rest shape q_u = K⁻¹Λu of the command u (N,) hPa puts the tip strictly inside P."""
+        return rest_shape_inside(self.dynamics.lengths, self.a, self.rows, u)
+
+    def grid_rows_at_gain(self, gain: float) -> np.ndarray:
+        """Lower bounds of Γ^∂_j(g·u_c) (J) for the recovery's grid commands u_c under the gain g: (P', G).
+
+        g = 1: the table's values. Else, from (*) of `controllers.escape_energy` (the distance to the boundary
+        is 1-Lipschitz in z = K^{1/2}q and z moves by |g − 1| ‖u_c‖_w from u_c to g·u_c, w_i = λ_i²/k_i):
+        d_j(g u_c) ≥ d̲_j(u_c) − |g − 1| ‖u_c‖_w, Γ ≥ ½ max(0, ·)². Without a table (N > 2) the one grid
+        command is bounded at g·u_c directly (`BoundaryDistanceBound`)."""
+        if gain == 1.0:
+            return self.grid_values
+        if self.table is None:
+            return np.array([self.boundary_bound.values(gain * c) for c in self.grid]).T
+        shift = abs(gain - 1.0) * np.sqrt(np.sum(self.table.weights * self.grid**2, axis=1))  # (G,) J^{1/2}
+        return 0.5 * np.maximum(self.table.distance - shift, 0.0) ** 2
+
+    def contact_offsets(self, q: np.ndarray) -> tuple[list[float], bool, float]:
+        """The contact certificate's per-row offsets o_j (J) at q (N,) rad, whether the tip r(q) lies
+        strictly inside P (every row H'_j r < h'_j; module docstring, "contact certificate") and its ρ
+        (`ForceSafeSet.margin_at` of the context's set).
+
+        Facet row j: o_j = lo·(E(n_max) − E(n_j)) − hi Σ_{i≠j} E(n_i); vertex-correction row:
+        o_j = −hi Σ_i E(n_i); n_i the model's facet penetrations at r(q) (m), E = ψ.energy.
+        Without contact_aware every o_j = 0 (the environment does not push back)."""
+        x, y = self.tip(q)
+        inside = all(hx * x + hy * y < h for hx, hy, h in self.rows)
+        nominal = self.context.safe_set
+        rho = nominal.margin_at(x, y)
+        if not self.params.contact_aware:
+            return [0.0] * len(self.rows), inside, rho
+        lo, hi = self.params.stiffness_lo_ratio, self.params.stiffness_hi_ratio
+        energies = np.asarray(nominal.stiffness.energy(nominal.penetration_at(x, y)), dtype=float).tolist()
+        total = hi * sum(energies)
+        offsets = [credit - lo * e - hi * (sum(energies) - e) if j < self.n_facets
+                   else -total for j, (credit, e) in enumerate(zip(self.credit, energies + [0.0] * len(self.rows)))]
+        return offsets, inside, rho
+
+    def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
+        """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
+        the tip's margin ρ in P (`ForceSafeSet.margin_at`, 1 outside the plate)).
+
+        The tip r(q) is taken from `pcc.kinematics` (array path). The per-step model
+        (`PCCDynamics.model_terms`, which also gives M) decides first: when its tip lies more
+        than TIP_TOLERANCE_M outside every facet, so does the array path's tip (they differ by
+        rounding, ≤ 1e-15 m: tests/test_energy_governor.py), every penetration is 0, ρ = 1 and the
+        plate term is its value at n = 0, the same floats without the array path.
+        """
+        qd = np.asarray(qd, dtype=float)
+        core = self.dynamics.model_terms([float(v) for v in q], [0.0] * self.n)
+        kinetic = 0.5 * float(qd @ core.mass @ qd)  # `PCCDynamics.kinetic_energy`'s floats
+        tip = core.kin[core.layout.tip_terms.start].item()
+        x, y = tip.real, tip.imag
+        if max(nx * x + ny * y - d for nx, ny, d in self.facets) < -TIP_TOLERANCE_M:
+            return kinetic + self.free_plate_energy if self.plate_weight else kinetic, 1.0
+        tip = kinematics_unchecked(np.asarray(q, dtype=float), self.dynamics.lengths, 0).points[-1]
+        rho = self.context.safe_set.margin_at(tip.real, tip.imag)
+        if not self.plate_weight:
+            return kinetic, rho
+        nominal = self.context.safe_set
+        plate = float(np.sum(nominal.stiffness.energy(nominal.penetration_at(tip.real, tip.imag))))
+        return kinetic + self.plate_weight * plate, rho
+
+
+def rest_shape_inside(lengths: np.ndarray, a: list, rows: list, u) -> bool:
+    """Whether the rest shape q_u = K⁻¹Λu (a = K⁻¹Λ per segment) of the command u (N,) hPa puts the tip strictly
+    inside P (`rows`: (h'x, h'y, h') per row)."""
+    x, y = tip_of(lengths, np.array(a) * np.asarray(u, dtype=float))
+    return all(hx * x + hy * y < h for hx, hy, h in rows)

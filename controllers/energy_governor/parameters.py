@@ -1,0 +1,184 @@
+"""The energy governor's parameters: one frozen, typed declaration, validated once.
+
+Each parameter is one field of `GovernorParams` (e-erg): its type, its default and its declaration
+(`controllers.filter_parameters.FilterParameter`: meaning, unit, kind, valid range), so that `PARAMETERS`,
+the filters' signatures and `parameter_docs` are all derived from the fields. `ContactGovernorParams` (c-erg)
+is the same declaration with the contact certificate's defaults (`certificate` "contact", `contact_aware`
+true); the c-erg filter takes neither `certificate` nor `margin_m` (the parked target's margin).
+
+Validation happens once, at construction (`__post_init__`): every field by its declaration (an int given for
+a float becomes one), then the rules between fields. What needs the filter's context (the context's delay and
+time constant, the table's size, ε against the table) is checked when the model is built
+(`controllers.energy_governor.certificate.GovernorModel.build`).
+
+Computational bounds: command_delay_s ≤ MAX_COMMAND_DELAY_S keeps a prediction within the horizon
+(δ = 100 s took 2 s per call: 10⁵ integration steps); predictor_step_s ≥ 1e-4 s caps a prediction at
+PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's table ≤ MAX_TABLE_COMMANDS commands
+(1e-6 hPa asked for 639 PiB). Physical ones: κ ≥ 0 (an inflation; ≤ 1000: beyond, it is no estimate error),
+ε ≥ 0 and below the table's saturation ½ k_min reach² (`EscapeEnergyTable.saturation_J`, 0.72 J on the
+reference arm: a larger ε certifies no step at all), the stiffness ratios
+0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, the gain ratios 0.1 ≤ lo ≤ hi ≤ 10 (other than 1 only with the contact
+certificate), τ_p ≤ 10 s; the gain estimate's Δ in (0, 1] rad (0 would trust a perfect model), |q̇| ≤ 10 rad/s
+for a rest sample, a clearance ≤ 1 m, and estimates ≤ 0.1 s apart for a difference (beyond, no acceleration).
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field, fields
+
+from controllers.bounds import Bound
+from controllers.filter_parameters import FilterParameter
+from controllers.gain_estimate import GAIN_CONTACT
+from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
+
+PREDICTION_HORIZON_S = 2.0
+"""The state predictor's horizon (s): an estimate whose prediction span t_a − t_c exceeds it is "stale"."""
+
+MAX_COMMAND_DELAY_S = 0.5 * PREDICTION_HORIZON_S
+"""Largest command delay δ (s): half the horizon, so an estimate up to that old can still be predicted."""
+
+STIFFNESS_RATIOS = Bound(0.0, 1e3)
+"""Valid plate stiffness ratios (1): a multiple of the model's ψ; hi must also be ≥ 1e-3 (P then grows 1000-fold)."""
+
+GAIN_RATIOS = Bound(0.1, 10.0)
+"""Valid actuator gain ratios (1): the true λ as a multiple of the model's; below 0.1 or above 10 the model is no model."""
+
+CERTIFICATES = ("park", "contact")
+"""The `certificate` values (the parked target, and the contact certificate: `controllers.energy_governor.certificate`)."""
+
+
+def declared(default: object, meaning: str, unit: str, kind: type = float, bound: Bound | None = None,
+             optional: bool = False):
+    """A parameter field: its default and its declaration (`FilterParameter`) in the field's metadata."""
+    return field(default=default, metadata={"parameter": FilterParameter(meaning, unit, kind, bound, optional)})
+
+
+@dataclass(frozen=True)
+class GovernorParams:
+    """The e-erg's parameters (module docstring); the fields' declarations are `PARAMETERS`."""
+
+    margin_m: float = declared(5e-3, "rest-shape tip margin of the target (quasi-static governor) inside P", "m",
+                               bound=QSG_PARAMETERS["margin_m"].bound)
+    kappa: float = declared(0.5, "relative inflation of the certified energy against estimate/prediction errors", "1",
+                            bound=Bound(0.0, 1e3))
+    energy_margin_J: float = declared(1e-5, "absolute certificate margin ε; below ½ k_min (1.2 rad)², the escape "
+                                      "energy the table resolves (checked at construction)", "J",
+                                      bound=Bound(0.0, unit="J"))
+    contact_aware: bool = declared(False, "credit the plate's stored energy at the boundary (the plate pushes back)",
+                                   "", bool)
+    stiffness_lo_ratio: float = declared(1.0, "lowest true plate stiffness as a multiple of the model's ψ (<= hi)", "1",
+                                         bound=STIFFNESS_RATIOS)
+    stiffness_hi_ratio: float = declared(1.0, "highest true plate stiffness as a multiple of the model's ψ "
+                                         "(n_max = ψ⁻¹(F_max/hi))", "1", bound=Bound(1e-3, 1e3))
+    command_delay_s: float | None = declared(None, "call → command acting at the valves (None: the context's, "
+                                             "unknown = 0)", "s", bound=Bound(0.0, MAX_COMMAND_DELAY_S, unit="s"),
+                                             optional=True)
+    actuator_tau_s: float | None = declared(None, "valve pressure time constant τ_p (None: the context's, unknown = 0)",
+                                            "s", bound=Bound(0.0, 10.0, unit="s"), optional=True)
+    grid_hPa: float = declared(2.5, "command spacing of the escape-energy table; at most "
+                               "controllers.escape_energy.MAX_TABLE_COMMANDS commands over the box "
+                               "(checked at construction)", "hPa", bound=Bound(0.0, low_open=True, unit="hPa"))
+    predictor_step_s: float = declared(1e-3, "largest integration step of the state predictor", "s",
+                                       bound=Bound(1e-4, 1e-2, unit="s"))
+    bisection_steps: int = declared(12, "halvings of the step towards the target (beyond 52 a double's σ stops "
+                                    "changing)", "1", int, Bound(1, 52))
+    certificate: str = declared("park", "'park' (the target parks margin_m inside P, Γ over the unsafe set) or "
+                                "'contact' (the target is u_nom, Γ to P's boundary, the plate's energy counted per "
+                                "facet, κ on the kinetic energy: module docstring)", "", str)
+    escape_spacing_rad: float = declared(4e-3, "q-space spacing of the escape-energy table (per √k_i); finer: a "
+                                         "tighter Γ̲ near P's boundary, a slower build (2.4 s at 4e-3, 6.7 s at 2e-3 on "
+                                         "the reference arm)", "rad", bound=Bound(5e-4, 0.05, unit="rad"))
+    gain_lo_ratio: float = declared(1.0, "lowest true actuator gain λ as a multiple of the model's (every segment "
+                                    "alike; <= gain_hi_ratio; contact certificate only)", "1", bound=GAIN_RATIOS)
+    gain_hi_ratio: float = declared(1.0, "highest true actuator gain λ as a multiple of the model's (the contact "
+                                    "certificate holds for every gain in [lo, hi]: module docstring)", "1",
+                                    bound=GAIN_RATIOS)
+    gain_estimate: bool = declared(False, "narrow [gain_lo_ratio, gain_hi_ratio] online to [ĝ − e, ĝ + e] from rest "
+                                   "samples (in contact too: gain_contact) (controllers.gain_estimate; contact "
+                                   "certificate only)", "", bool)
+    gain_noise_rad: float = declared(5e-3, "bound Δ on the rest samples' deviation from the model's balance per "
+                                     "segment (estimate error and residual motion; gain_estimate only)", "rad",
+                                     bound=Bound(0.0, 1.0, low_open=True, unit="rad"))
+    gain_rest_rad_s: float = declared(0.02, "largest |q̇_i| of a rest sample (gain_estimate only)", "rad/s",
+                                      bound=Bound(0.0, 10.0, unit="rad/s"))
+    gain_rest_s: float = declared(0.0, "how long every estimate must have been at rest (|q̇_i| <= gain_rest_rad_s) "
+                                  "before a rest sample is taken, and between two rest samples: the arm settled, not "
+                                  "passing through q̇ = 0 (0: every estimate at rest; gain_estimate only)", "s",
+                                  bound=Bound(0.0, 10.0, unit="s"))
+    gain_clearance_m: float = declared(5e-3, "least distance of a sample's tip from every facet plane for no contact "
+                                       "(nearer: gain_contact; gain_estimate only)", "m", bound=Bound(0.0, 1.0, unit="m"))
+    gain_difference_s: float = declared(0.0, "largest spacing of two estimates whose q̇ difference gives q̈ for a "
+                                        "moving sample (0: rest samples only; gain_estimate only)", "s",
+                                        bound=Bound(0.0, 0.1, unit="s"))
+    gain_contact: str = declared("normal", "samples with the tip within gain_clearance_m of a facet: 'normal' (the "
+                                 "plate's force along its normal eliminated: frictionless), 'any' (also the "
+                                 "tangential: friction), 'off' (none; controllers.gain_estimate; gain_estimate only)",
+                                 "", str)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # each by its declaration, normalised (an int given for a float becomes one)
+            object.__setattr__(self, f.name, f.metadata["parameter"].check(f.name, getattr(self, f.name)))
+        if self.certificate not in CERTIFICATES:
+            raise ValueError(f"certificate must be one of {', '.join(CERTIFICATES)}, got {self.certificate!r}")
+        if self.stiffness_lo_ratio > self.stiffness_hi_ratio:
+            raise ValueError(f"stiffness_lo_ratio must be <= stiffness_hi_ratio = {self.stiffness_hi_ratio!r}, "
+                             f"got {self.stiffness_lo_ratio!r}")
+        lo, hi = self.gain_lo_ratio, self.gain_hi_ratio
+        if lo > hi:
+            raise ValueError(f"gain_lo_ratio must be <= gain_hi_ratio = {hi!r}, got {lo!r}")
+        if (lo, hi) != (1.0, 1.0) and self.certificate != "contact":
+            raise ValueError(f"gain_lo_ratio and gain_hi_ratio other than 1 need certificate='contact' (the parked "
+                             f"target's rest shape assumes the model's gain), got [{lo!r}, {hi!r}]")
+        if self.gain_contact not in GAIN_CONTACT:
+            raise ValueError(f"gain_contact must be one of {', '.join(GAIN_CONTACT)}, got {self.gain_contact!r}")
+        if self.gain_estimate and self.certificate != "contact":
+            raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
+
+    @property
+    def contact(self) -> bool:
+        """Whether the contact certificate is in use (`certificate` "contact")."""
+        return self.certificate == "contact"
+
+
+def contact_default(name: str, default: object):
+    """GovernorParams' field `name` with another default (its declaration kept)."""
+    return field(default=default, metadata=GovernorParams.__dataclass_fields__[name].metadata)
+
+
+@dataclass(frozen=True)
+class ContactGovernorParams(GovernorParams):
+    """The c-erg's parameters: `GovernorParams` with the contact certificate, the plate's energy credited."""
+
+    contact_aware: bool = contact_default("contact_aware", True)
+    certificate: str = contact_default("certificate", "contact")
+
+
+PARAMETERS = {f.name: f.metadata["parameter"] for f in fields(GovernorParams)}
+"""The e-erg's parameters, declared once (the fields of `GovernorParams`): `check_arguments` and the constructor check them."""
+
+CONTACT_FIXED = ("margin_m", "certificate")
+"""The parameters the c-erg does not take: its certificate is the contact one, whose target is u_nom itself."""
+
+
+def parameter_signature(params_type: type, excluded: tuple[str, ...] = ()) -> inspect.Signature:
+    """The filter constructor's signature `(context, *, name: kind = default, ...)` from the declaration, in its
+    order, without `excluded` (what `controllers.registry` reads: names, defaults and kinds)."""
+    out = [inspect.Parameter("context", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+    for f in fields(params_type):
+        if f.name not in excluded:
+            out.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default,
+                                         annotation=parameter_kind(f.metadata["parameter"])))
+    return inspect.Signature(out)
+
+
+def parameter_kind(parameter: FilterParameter) -> object:
+    """A declaration's Python type: its kind, or kind | None where None is allowed."""
+    return parameter.kind | None if parameter.optional else parameter.kind
+
+
+RECOMMENDED = {"gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1, "gain_estimate": True, "gain_noise_rad": 0.0015,
+               "gain_rest_rad_s": 0.003, "gain_rest_s": 0.2, "energy_margin_J": 2e-6}
+"""c-erg's recommended setting for contact tasks (README; `ContactEnergyGovernor`'s first docstring line names it,
+`softcbf list` marks it): the actuator gain interval [0.9, 1.1] narrowed online by samples at rest for 0.2 s,
+trusted to Δ = 1.5e-3 rad, and ε = 2e-6 J (docs/results.md#the-recommended-filter-over-the-full-battery)."""

@@ -1,0 +1,85 @@
+"""The energy governor's per-run state: one `GovernorState` per simulation (a batch row is a state of its own).
+
+A governor's calls read its model (`controllers.energy_governor.certificate.GovernorModel`, never changed) and
+change its state, and nothing else:
+
+- `predictor`: the commands this governor issued, with their application times, and the pressures the model's
+  valves reach under them (`controllers.state_predictor`): the history that predicts x̂ at t_a and u_prev;
+- `target_governor`: the parked certificate's quasi-static governor, whose warm start is its previous command
+  (None for the contact certificate);
+- the gain feedback (`controllers.energy_governor.gain_feedback`): `gain_estimator` (its samples), `gain_previous`
+  (t_capture, q, q̇) of the previous estimate, `rest_since` (when the current run at rest began);
+- `ends`: the certified gain interval and its energy terms (`GainEnds`), and `scan_rows`, the recovery's grid
+  rows at those ends, built when a recovery first needs them.
+
+`new_state(model)` is a governor's state at `reset` (valves vented, nothing estimated); `GovernorState.copy()` a
+state that continues independently (what changes is copied: the predictor's records, the target governor, the
+gain estimator; the rest is never changed in place and is shared). `controllers.energy_governor.steps.step`
+advances a state and returns it.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from controllers.energy_governor.certificate import GovernorModel
+from controllers.gain_estimate import GainEstimator
+from controllers.quasi_static_governor import QuasiStaticGovernor
+from controllers.state_predictor import StatePredictor
+
+
+@dataclass(frozen=True, eq=False)
+class GainEnds:
+    """The certified actuator gain interval [lo, hi] (1), its distinct ends `gains` (sorted; (1.0,) is the model
+    alone) and their energy terms (E, 3, N): K, g·K⁻¹Λ, g²β per end (`GovernorModel.energy_terms`)."""
+
+    lo: float
+    hi: float
+    gains: tuple
+    terms: np.ndarray
+
+
+def gain_ends(model: GovernorModel, lo: float, hi: float) -> GainEnds:
+    """The ends of the gain interval [lo, hi] with their energy terms (module docstring of
+    `controllers.energy_governor.certificate`, "actuator gain")."""
+    gains = tuple(sorted({lo, hi}))
+    return GainEnds(lo, hi, gains, np.array([model.energy_terms(g) for g in gains], dtype=float))
+
+
+@dataclass(eq=False)
+class GovernorState:
+    """One governor's per-run state (module docstring)."""
+
+    predictor: StatePredictor
+    target_governor: QuasiStaticGovernor | None
+    gain_estimator: GainEstimator | None
+    gain_previous: tuple | None
+    rest_since: float | None
+    ends: GainEnds
+    scan_rows: np.ndarray | None = None
+
+    def copy(self) -> "GovernorState":
+        """A state that continues from this one independently (module docstring)."""
+        return GovernorState(self.predictor.copy(), copy.copy(self.target_governor), copy.deepcopy(self.gain_estimator),
+                             self.gain_previous, self.rest_since, self.ends, self.scan_rows)
+
+    def set_gain_ends(self, model: GovernorModel, lo: float, hi: float) -> None:
+        """Certify the gain interval [lo, hi] from now on (the recovery's grid rows rebuilt when needed)."""
+        self.ends, self.scan_rows = gain_ends(model, lo, hi), None
+
+    def recovery_rows(self, model: GovernorModel) -> np.ndarray:
+        """The recovery's grid rows (E, P', G) at the certified gain ends (`GovernorModel.grid_rows_at_gain`)."""
+        if self.scan_rows is None:
+            self.scan_rows = np.array([model.grid_rows_at_gain(g) for g in self.ends.gains])
+        return self.scan_rows
+
+
+def new_state(model: GovernorModel) -> GovernorState:
+    """A governor's state at `reset` (module docstring): vented valves since t = −inf, no estimate, the prior gain
+    interval. The target governor is a copy of the model's configured one (copies share its memory of commands,
+    a function of its inputs)."""
+    return GovernorState(model.new_predictor(), copy.copy(model.target_governor), model.new_gain_estimator(),
+                         None, None, gain_ends(model, *model.gain_prior))
