@@ -28,7 +28,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from closedloop.step import describe_fault, fault_log_name
-from controllers.registry import parse_params
+from controllers.registry import did_you_mean, parse_params
 from scenarios import Scenario, get
 from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
@@ -151,7 +151,8 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
         raise UsageError(str(exc).removeprefix(f"{parser.prog}: argument ")) from None
     if unknown:
         valid = ", ".join([*(option_name(n) for n in params), *repeated.values()])
-        raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
+        raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}"
+                         f"{did_you_mean(unknown[0], valid.split(', '))}; valid: {valid}")
     values = vars(known)
     for name, option in repeated.items():
         items, text = values.pop(f"{name}_items"), values[name]
@@ -296,12 +297,15 @@ def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overw
 
 def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, created: list[Path], spawn: bool) -> int:
     try:
+        spec = scenario.spec.from_flat(params)  # checked before the run's first line: bad input stays one line
+        print(f"{scenario.name}: {params['duration']:g} s per run into {out_dir}", file=sys.stderr, flush=True)
+        from softcbf_mj.kernels import compile_notes  # numba, and rerun, matplotlib: seconds, after the first line
         from softcbf_mj.recording import live_viewer
 
-        with live_viewer() if spawn else contextlib.nullcontext("") as message:
+        with live_viewer() if spawn else contextlib.nullcontext("") as message, compile_notes():
             if message:
                 print(message, file=sys.stderr)
-            summary = scenario.run(out_dir, **params)
+            summary = scenario.function(out_dir, spec)
     except BaseException as exc:
         done = _finished_runs(out_dir)
         if not done:

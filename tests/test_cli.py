@@ -125,7 +125,7 @@ def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
     "args, message",
     [
         (["run", "nosuch"], "unknown scenario 'nosuch'; available: camera_loop, mujoco_contact, paper_sim"),
-        (["run", "paper_sim", "--speed", "3"], "unknown parameter(s) --speed 3 for scenario paper_sim; valid: --duration, "),
+        (["run", "paper_sim", "--speed", "3"], "unknown parameter(s) --speed 3 for scenario paper_sim (did you mean '--seed'?); valid: --duration, "),
         (["run", "paper_sim", "--dur", "3"], "unknown parameter(s) --dur 3"),  # no abbreviations
         (["run", "paper_sim", "--duration", "abc"], "--duration: expected float, got 'abc'"),
         (["run", "paper_sim", "--seed", "1.5"], "--seed: expected int, got '1.5'"),
