@@ -1,10 +1,18 @@
-"""Progress of long runs on stderr: a live line on a terminal, a line per 10 % otherwise."""
+"""Progress of long runs on stderr: a live line on a terminal, a line per 10 % otherwise.
+
+The line starts with its label cut to LABEL_LIMIT characters (`softcbf_mj.palette.short_label`: a run of the
+recommended filter is labelled with all seven of its parameters), so that it fits a 120-column terminal.
+"""
 
 from __future__ import annotations
 
 import sys
 import time
 from typing import TextIO
+
+from softcbf_mj.palette import short_label
+
+LABEL_LIMIT = 40  # characters of the label at the start of a progress line
 
 
 class Progress:
@@ -20,7 +28,7 @@ class Progress:
             raise ValueError(f"total must be >= 1, got {total}")
         if unit_s is not None and not unit_s > 0:
             raise ValueError(f"unit_s must be > 0 s (or None), got {unit_s}")
-        self.label, self.total, self.unit_s = label, total, unit_s
+        self.label, self.total, self.unit_s = short_label(label, LABEL_LIMIT), total, unit_s
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = enabled
         self.live = enabled and self.stream.isatty()
