@@ -106,7 +106,7 @@ def test_same_seed_same_arrays(tmp_path):
         (tmp_path / name).mkdir()
         with data_only():
             scenario.run(tmp_path / name, **params)
-    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["config.json", "summary.json", "timeseries"]
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["config.json", "summary.json", "table.txt", "timeseries"]
     a, _ = load_timeseries(tmp_path / "a" / "timeseries" / "Low.npz")
     b, _ = load_timeseries(tmp_path / "b" / "timeseries" / "Low.npz")
     for key in ("q", "qd", "u", "u_nom", "rho_pred", "contact_force"):
