@@ -309,7 +309,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     def run() -> int:
         if first is not None and first not in COMMANDS:
-            raise UsageError(f"unknown command {first!r}{did_you_mean(first, COMMANDS)}; commands: {', '.join(COMMANDS)}")
+            raise UsageError(f"unknown command {first!r}{did_you_mean(first, COMMANDS)}; "
+                             f"commands: {', '.join(COMMANDS)}")
         args, extra = parser.parse_known_args(argv)
         command = COMMANDS[args.command]
         if extra and not command.extra_args:

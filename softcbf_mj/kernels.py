@@ -58,4 +58,5 @@ def compile_notes(stream: TextIO | None = None) -> Iterator[None]:
     with event.install_listener("numba:compile", note):
         yield
     if note.count:
-        print(f"compiled {note.count} numba kernel(s) in {note.total_s:.0f} s, cached for later runs", file=out, flush=True)
+        print(f"compiled {note.count} numba kernel(s) in {note.total_s:.0f} s, cached for later runs", file=out,
+              flush=True)

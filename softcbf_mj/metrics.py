@@ -12,8 +12,8 @@ Plus `u_dev_rms_hPa` and `u_dev_max_hPa`, RMS and max |d| over all steps and seg
 
 The table a scenario prints (`write_table`) fits a terminal of TERMINAL_COLUMNS characters: its
 leading columns as far as they fit (the label column always, a label cut to
-`softcbf_mj.palette.LABEL_LIMIT` characters), then a line naming the columns left out and the file
-that holds them all, TABLE_FILE in the run folder (every column, full labels).
+`softcbf_mj.palette.LABEL_LIMIT` characters), then a line counting the columns left out and naming
+the file that holds them all, TABLE_FILE in the run folder (every column, full labels).
 """
 
 from __future__ import annotations
@@ -304,7 +304,8 @@ def format_table(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple], ma
     return "\n".join(lines)
 
 
-def fitting_columns(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple], width: int = TERMINAL_COLUMNS) -> list[tuple]:
+def fitting_columns(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple],
+                    width: int = TERMINAL_COLUMNS) -> list[tuple]:
     """The leading `columns` whose plain-text table (`format_table`: columns two spaces apart) is at most `width`
     characters a line; the first column always."""
     fitted: list[tuple] = []
@@ -321,8 +322,8 @@ def fitting_columns(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple],
 def write_table(out_dir: Path, runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple],
                 width: int = TERMINAL_COLUMNS) -> str:
     """Write the full table of `runs` to out_dir/TABLE_FILE and return the text to print: the columns that fit
-    `width` characters a line with the first column's labels cut (`plot_labels`), then, when columns are left out,
-    a line naming them and the file (module docstring)."""
+    `width` characters a line with the first column's labels cut (`plot_labels`), then, when columns are left out
+    or labels cut, a line counting the columns left out and naming the file (module docstring)."""
     full = format_table(runs, columns)
     path = Path(out_dir) / TABLE_FILE
     path.write_text(full + "\n", encoding="utf-8")

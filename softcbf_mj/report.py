@@ -35,8 +35,8 @@ scene, i.e. the force the controller's own state estimate and model imply on its
 penetrated facet (ρ_pred = (n_max − n̂)/n_max).
 
 Legibility: a time series longer than ENVELOPE_BINS samples is drawn as its min/max
-envelope over ENVELOPE_BINS equal runs of samples (about one per pixel column; shaded)
-plus the mean of each run of samples (line), so a command that switches every 1 ms step
+envelope over ENVELOPE_BINS equal runs of samples (1.5 pixel columns each on a text-width
+axis at 200 dpi; shaded) plus the mean of each run of samples (line), so a command that switches every 1 ms step
 shows as a band around its mean instead of a solid block of vertical lines (`envelope`).
 The zoom of plots/pressure is ZOOM_WINDOW_S wide, centred on the step with the largest
 |u − u_nom| of any run (where the filter corrects most; without any correction, on the
@@ -92,7 +92,7 @@ PLOTS_DIR = "plots"
 REPORT_FILE = "report.md"
 BOX_MARGIN_M = 0.03  # margin (m) around everything the arm reached, for drawing the lines of N and P
 ARC_CHORDS = 8  # chords per PCC segment when the arm is drawn as arcs
-ENVELOPE_BINS = 800  # runs of samples per time axis (≈ one per pixel column of a 6 in axis at 130 dpi)
+ENVELOPE_BINS = 800  # runs of samples per time axis (a text-width axis, ≈ 6 in, is 1200 px at 200 dpi: 1.5 px a run)
 ZOOM_WINDOW_S = 0.05  # width (s) of the pressure zoom: 50 control steps at 1 kHz, each step visible
 TIP_PATH_POINTS = 4000  # at most this many points of each tip path are drawn (the path is smooth)
 FACET_COLOR, P_COLOR, PLATE_COLOR, NOMINAL_COLOR = NEUTRAL_COLOR, LIMIT_COLOR, NEUTRAL_COLOR, NEUTRAL_COLOR
@@ -295,7 +295,7 @@ def _plot_overview(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Pa
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("t [s]")
-    axes[0].set_title("tip, measured force, command; shaded: min–max of each pixel column")
+    axes[0].set_title("tip, measured force, command; shaded: the samples' min–max band")
     _legend_outside(fig, axes)
     save_figure(fig, path, figure_format, dpi)
 
@@ -400,7 +400,7 @@ def _plot_pressure(runs: Sequence[tuple[str, str, dict]], path: Path, figure_for
         zoom.set(ylabel=f"u{j + 1} [hPa]")
         for ax in (full, zoom):
             ax.grid(alpha=0.3)
-    axes[0, 0].set_title("u vs u_nom; shaded: min–max of each pixel column; grey: zoom")
+    axes[0, 0].set_title("u vs u_nom; shaded: the samples' min–max band; grey: zoom")
     axes[0, 1].set_title(f"zoom {t0:.3f}–{t1:.3f} s")
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("t [s]")
