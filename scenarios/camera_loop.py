@@ -198,14 +198,15 @@ class CameraSetup:
 
 def camera_setup(spec: CameraLoop) -> CameraSetup:
     """The (checked) `spec`'s plant, controllers and camera pipeline (`CameraSetup`)."""
-    from perception.detect import TagDetector
+    camera, controller = spec.camera, spec.built
+    model_robot, safe_set = controller.robot, controller.safe_set
+    check_duration(spec.run.duration, camera.tick, model_robot.n_segments, safe_set)  # first: refused at once
+
+    from perception.detect import TagDetector  # OpenCV, MuJoCo: after the checks
     from perception.tags import arm_tag_ids
     from softcbf_mj.model_builder import build_model
     from softcbf_mj.mujoco_plant import MujocoPlant
 
-    camera, controller = spec.camera, spec.built
-    model_robot, safe_set = controller.robot, controller.safe_set
-    check_duration(spec.run.duration, camera.tick, model_robot.n_segments, safe_set)
     truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)
     plant = MujocoPlant(build_model(truth.config), camera.tick)
     n = plant.n_segments

@@ -297,15 +297,20 @@ def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overw
 
 def _run_locked(scenario: Scenario, params: dict[str, object], out_dir: Path, created: list[Path], spawn: bool) -> int:
     try:
-        spec = scenario.spec.from_flat(params)  # checked before the run's first line: bad input stays one line
-        print(f"{scenario.name}: {params['duration']:g} s per run into {out_dir}", file=sys.stderr, flush=True)
-        from softcbf_mj.kernels import compile_notes  # numba, and rerun, matplotlib: seconds, after the first line
-        from softcbf_mj.recording import live_viewer
+        from softcbf_mj.kernels import compile_notes
+        from softcbf_mj.progress import heartbeat
 
-        with live_viewer() if spawn else contextlib.nullcontext("") as message, compile_notes():
+        viewer = contextlib.nullcontext("")
+        if spawn:  # rerun and matplotlib take seconds to import: only for the viewer, so the run talks at once
+            from softcbf_mj.recording import live_viewer
+
+            viewer = live_viewer()
+        start = (heartbeat(f"{scenario.name}: setting up, {params['duration']:g} s per run into {out_dir}")
+                 if params.get("progress", True) else contextlib.nullcontext())  # a line within a second
+        with viewer as message, compile_notes(), start:
             if message:
                 print(message, file=sys.stderr)
-            summary = scenario.function(out_dir, spec)
+            summary = scenario.run(out_dir, **params)
     except BaseException as exc:
         done = _finished_runs(out_dir)
         if not done:

@@ -43,8 +43,8 @@ other folder, nor the working folder, a folder above it or the home folder.
 
 A misspelt name (command, scenario, parameter, filter, nominal) is answered with the closest
 valid ones (`controllers.registry.did_you_mean`): "unknown command 'rnu' (did you mean 'run'?)".
-A run's first line comes as soon as its parameters are checked, before rerun and matplotlib
-are imported, and numba's compiles are announced (scenarios.run, softcbf_mj.kernels).
+A run talks within a second or two (its progress bar, or the heartbeat of a longer set-up), and
+numba's compiles are announced as they start (scenarios.run, softcbf_mj.progress, softcbf_mj.kernels).
 
 Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the wrong
 type, not finite or out of range, a duration whose time series would not fit in memory,

@@ -11,9 +11,9 @@ depends on its signature and its source's stamp, which numba alone decides: so t
 from the files but taken from numba itself. `compile_notes(stream)` listens to numba's "numba:compile"
 event (numba.core.event), which numba raises only after a cache miss, just before it compiles; the first
 one prints COMPILE_NOTE on `stream`, and leaving the context says how many kernels compiled and how long
-they took (outermost compiles: a kernel's inlined callees count with it). A command prints its own first
-line before it imports numba or MuJoCo, then enters `compile_notes` (`scenarios.run`, behind `softcbf
-run` and `python -m scenarios`; `softcbf demo`): nothing is printed when every kernel loads from the cache.
+they took (outermost compiles: a kernel's inlined callees count with it); the note counts as the run having
+spoken (`softcbf_mj.progress.mark_spoken`). `scenarios.run` (behind `softcbf run` and `python -m scenarios`)
+and `softcbf demo` run within it: nothing is printed when every kernel loads from the cache.
 """
 
 from __future__ import annotations
@@ -23,6 +23,8 @@ import sys
 import time
 from collections.abc import Iterator
 from typing import TextIO
+
+from softcbf_mj.progress import mark_spoken
 
 COLD_COMPILE_S = 40  # s, the first mujoco_contact run with c-erg on a fresh clone (2 cores)
 COMPILE_NOTE = (f"compiling numba kernels, once: up to ~{COLD_COMPILE_S} s "
@@ -45,6 +47,7 @@ def compile_notes(stream: TextIO | None = None) -> Iterator[None]:
             if self.depth == 0:
                 self.start = time.perf_counter()
                 if self.count == 0:
+                    mark_spoken()
                     print(COMPILE_NOTE, file=out, flush=True)
             self.depth += 1
 

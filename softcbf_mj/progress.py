@@ -2,24 +2,65 @@
 
 The line starts with its label cut to LABEL_LIMIT characters (`softcbf_mj.palette.short_label`: a run of the
 recommended filter is labelled with all seven of its parameters), so that it fits a 120-column terminal.
+
+No silent start: a run's set-up (building the filter, calibrating the camera, importing the recording's
+libraries) may take seconds before its first bar. `heartbeat(line)` prints `line` once after HEARTBEAT_S
+unless something has spoken by then (a bar drew, or `mark_spoken()`: numba's compile note), and never
+after its context ends: input refused within HEARTBEAT_S stays one line.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from typing import TextIO
 
 from softcbf_mj.palette import short_label
 
 LABEL_LIMIT = 40  # characters of the label at the start of a progress line
+HEARTBEAT_S = 0.5  # s of silence after which a starting run says what it is doing
+_SPOKEN = threading.Event()
+
+
+def mark_spoken() -> None:
+    """Something has told the user what runs (module docstring): a pending `heartbeat` stays quiet."""
+    _SPOKEN.set()
+
+
+@contextlib.contextmanager
+def heartbeat(line: str, after_s: float = HEARTBEAT_S, stream: TextIO | None = None) -> Iterator[None]:
+    """Within this context, print `line` on `stream` (stderr) once, `after_s` s after entering, unless a progress
+    bar drew or `mark_spoken` was called first (module docstring)."""
+    _SPOKEN.clear()
+    lock = threading.Lock()
+
+    def speak() -> None:
+        with lock:
+            if not _SPOKEN.is_set():
+                _SPOKEN.set()
+                print(line, file=stream if stream is not None else sys.stderr, flush=True)
+
+    timer = threading.Timer(after_s, speak)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        with lock:  # a speak() under way finishes first; none starts after
+            _SPOKEN.set()
 
 
 class Progress:
     """Report `done` out of `total` units of work under a label; `close()` prints the final line.
 
     With `unit_s` (simulated seconds per unit, e.g. the control period) the line also shows
-    the simulated time done / total (s) and the real-time factor (simulated s per wall s).
+    the simulated time done / total (s) and the real-time factor (simulated s per wall s), and the
+    bar draws its 0 % line when it is made: a run's first line, before its first step, which may
+    wait a second or more for the recording's imports and numba's kernels.
     """
 
     def __init__(self, label: str, total: int, stream: TextIO | None = None, enabled: bool = True,
@@ -36,6 +77,8 @@ class Progress:
         self._last_decile = -1
         self._last_draw = 0.0
         self._note = ""
+        if unit_s is not None:
+            self.update(0)
 
     def update(self, done: int, note: str = "") -> None:
         """Report `done` units; `note` (e.g. '2 failed') is appended to the line."""
@@ -48,12 +91,14 @@ class Progress:
             if now - self._last_draw < 0.2 and done < self.total:
                 return
             self._last_draw = now
+            _SPOKEN.set()
             self.stream.write("\r" + self._line(frac, now))
         else:
             decile = int(frac * 10)
             if decile == self._last_decile:
                 return
             self._last_decile = decile
+            _SPOKEN.set()
             self.stream.write(self._line(frac, now) + "\n")
         self.stream.flush()
 
