@@ -23,10 +23,15 @@ parameter whose annotation allows None). Built-in factories carry `parameter_doc
 may carry `run_label(params) -> str`, a run's label (`label`; default
 `Factory(name=value,...)`), and `check_arguments(arguments)`, the checks its construction
 would make, run without building it (`check_filter`).
+
+A misspelt name is answered with the closest valid ones (`did_you_mean`: difflib's ratio of matching
+characters ≥ 0.6, at most three), the one helper of every name lookup (scenarios, filters, nominal
+controllers, `softcbf` subcommands): "unknown name 'c-egr' (did you mean 'c-erg', 'e-erg'?)".
 """
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import importlib
 import importlib.util
@@ -35,7 +40,7 @@ import sys
 import traceback
 import types
 import typing
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,6 +102,13 @@ class Parameter:
     doc: str
 
 
+def did_you_mean(name: str, valid: Iterable[str]) -> str:
+    """" (did you mean 'a', 'b'?)" naming up to three of `valid` closest to `name` (difflib.get_close_matches,
+    cutoff 0.6), "" when none is close: the suffix of every "unknown name" message (module docstring)."""
+    close = difflib.get_close_matches(name, list(valid), n=3, cutoff=0.6)
+    return f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
+
+
 def resolve(spec: str, builtins: Mapping[str, Callable]) -> Callable:
     """The factory named by `spec` (module docstring); ValueError naming the spec otherwise."""
     if not isinstance(spec, str) or not spec.strip():
@@ -106,7 +118,7 @@ def resolve(spec: str, builtins: Mapping[str, Callable]) -> Callable:
     if spec in builtins:
         return builtins[spec]
     if ":" not in spec:
-        raise ValueError(f"unknown name {spec!r}; built-ins: {', '.join(builtins)}; or FILE.py:Factory, package.module:Factory")
+        raise ValueError(f"unknown name {spec!r}{did_you_mean(spec, builtins)}; built-ins: {', '.join(builtins)}; or FILE.py:Factory, package.module:Factory")
     where, _, name = spec.rpartition(":")
     module = _load_file(Path(where)) if spec_file(spec) is not None else _import(where)
     factory = getattr(module, name, None)

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Hashable, Mapping, Sequence
 
+from controllers.registry import did_you_mean
 from scenarios.spec import flat_parameters
 from vocabulary.settings import setting
 
@@ -169,5 +170,5 @@ def registry() -> dict[str, Scenario]:
 def get(name: str) -> Scenario:
     scenarios = registry()
     if name not in scenarios:
-        raise KeyError(f"unknown scenario {name!r}; available: {', '.join(scenarios)}")
+        raise KeyError(f"unknown scenario {name!r}{did_you_mean(name, scenarios)}; available: {', '.join(scenarios)}")
     return scenarios[name]

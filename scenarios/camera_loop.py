@@ -62,7 +62,7 @@ from scenarios.common import (
 from scenarios.ground_truth import Truth, build_truth, check_true_arm
 from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.loop import check_duration
-from softcbf_mj.metrics import contact_figures, format_table, plate_figures
+from softcbf_mj.metrics import contact_figures, plate_figures, write_table
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
@@ -84,7 +84,7 @@ TABLE = (
     ("tuning", "tuning", ""),
     ("rho_pred", "rho_min_pred", ".4f"),
     ("rho_meas", "rho_min_meas", ".4f"),
-    ("F_max [N]", "force_max_N", ".4f"),
+    ("F peak [N]", "force_max_N", ".4f"),
     ("t_viol [s]", "t_violation_s", ".2f"),
     ("q err rms [deg]", "q_err_rms_rad", ".3f", 180 / math.pi),
     ("q err max [deg]", "q_err_max_rad", ".3f", 180 / math.pi),
@@ -198,14 +198,15 @@ class CameraSetup:
 
 def camera_setup(spec: CameraLoop) -> CameraSetup:
     """The (checked) `spec`'s plant, controllers and camera pipeline (`CameraSetup`)."""
-    from perception.detect import TagDetector
+    camera, controller = spec.camera, spec.built
+    model_robot, safe_set = controller.robot, controller.safe_set
+    check_duration(spec.run.duration, camera.tick, model_robot.n_segments, safe_set)  # first: refused at once
+
+    from perception.detect import TagDetector  # OpenCV, MuJoCo: after the checks
     from perception.tags import arm_tag_ids
     from softcbf_mj.model_builder import build_model
     from softcbf_mj.mujoco_plant import MujocoPlant
 
-    camera, controller = spec.camera, spec.built
-    model_robot, safe_set = controller.robot, controller.safe_set
-    check_duration(spec.run.duration, camera.tick, model_robot.n_segments, safe_set)
     truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)
     plant = MujocoPlant(build_model(truth.config), camera.tick)
     n = plant.n_segments
@@ -305,5 +306,5 @@ def camera_loop(out_dir: Path, spec: CameraLoop) -> dict:
           f"loop {spec.control_rate:g} Hz, latency {camera.latency * 1e3:g} ms, drop rate {camera.drop_rate:g}, "
           f"pixel noise {camera.pixel_noise:g}, calibration {camera.calibration!r}, F_max {spec.model.f_max:g} N; "
           f"outputs in {out_dir}")
-    print(format_table(summary.data["runs"], TABLE))
+    print(write_table(out_dir, summary.data["runs"], TABLE))
     return summary.data

@@ -63,7 +63,7 @@ from scenarios.common import (
 from scenarios.ground_truth import Truth, build_truth, check_true_arm
 from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.loop import check_duration
-from softcbf_mj.metrics import contact_figures, format_table, plate_figures
+from softcbf_mj.metrics import contact_figures, plate_figures, write_table
 from softcbf_mj.plant import steps_per_control
 from softcbf_mj.runio import SummaryWriter
 from vocabulary.settings import Bound
@@ -76,7 +76,7 @@ TABLE = (
     ("tuning", "tuning", ""),
     ("rho_pred", "rho_min_pred", ".4f"),
     ("rho_meas", "rho_min_meas", ".4f"),
-    ("F_max [N]", "force_max_N", ".4f"),
+    ("F peak [N]", "force_max_N", ".4f"),
     ("t_viol [s]", "t_violation_s", ".3f"),
     ("t_contact [s]", "t_contact_s", ".2f"),
     ("F err rms [mN]", "force_err_rms_N", ".2f", 1e3),
@@ -216,5 +216,5 @@ def mujoco_contact(out_dir: Path, spec: MujocoContact) -> dict:
           f"{plate} plate {true_plate_stiffness:.4g} N/m{' (calibrated)' if plate != 'ideal' else ''} "
           f"(assumed {spec.assumed_plate_stiffness:g}), F_max {spec.model.f_max:g} N, "
           f"n_max {safe_set.n_max * 1e3:.2f} mm; outputs in {out_dir}")
-    print(format_table(summary.data["runs"], TABLE))
+    print(write_table(out_dir, summary.data["runs"], TABLE))
     return summary.data

@@ -37,13 +37,13 @@ from scenarios.common import (
 )
 from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
 from softcbf_mj.loop import check_duration
-from softcbf_mj.metrics import format_table
+from softcbf_mj.metrics import write_table
 from softcbf_mj.runio import SummaryWriter
 
 TABLE = (
     ("tuning", "tuning", ""),
     ("rho_min", "rho_min_meas", ".4f"),
-    ("F_max [N]", "force_max_N", ".4f"),
+    ("F peak [N]", "force_max_N", ".4f"),
     ("t_viol [s]", "t_violation_s", ".3f"),
     ("|u|peak [hPa]", "u_peak_abs_hPa", ".1f"),
     ("infeasible", "infeasible_steps", "d"),
@@ -149,5 +149,5 @@ def paper_sim(out_dir: Path, spec: PaperSim) -> dict:
             break
     print(f"paper_sim: {spec.run.duration:g} s, pressure limits {'on' if spec.filter.pressure_limits else 'off'}; "
           f"outputs in {out_dir}")
-    print(format_table(summary.data["runs"], TABLE))
+    print(write_table(out_dir, summary.data["runs"], TABLE))
     return summary.data

@@ -46,7 +46,7 @@ from pathlib import Path
 from closedloop.step import describe_fault, fault_log_name
 from controllers.bounds import SettingError
 from controllers.interrupts import watch
-from controllers.registry import PluginLoadError, parse_params
+from controllers.registry import PluginLoadError, did_you_mean, parse_params
 from scenarios import Scenario, get
 from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
@@ -191,7 +191,8 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
         raise UsageError(str(exc).removeprefix(f"{parser.prog}: argument ")) from None
     if unknown:
         valid = ", ".join([*(option_name(n) for n in params), *repeated.values()])
-        raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}; valid: {valid}")
+        raise UsageError(f"unknown parameter(s) {' '.join(unknown)} for scenario {scenario.name}"
+                         f"{did_you_mean(unknown[0], valid.split(', '))}; valid: {valid}")
     values = vars(known)
     for name, option in repeated.items():
         items, text = values.pop(f"{name}_items"), values[name]
@@ -345,9 +346,17 @@ VALIDATION_ERRORS = (UsageError, SettingError, PluginLoadError)  # raised while 
 
 def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[Path], spawn: bool) -> int:
     try:
-        from softcbf_mj.recording import live_viewer
+        from softcbf_mj.kernels import compile_notes
+        from softcbf_mj.progress import heartbeat
 
-        with live_viewer() if spawn else contextlib.nullcontext("") as message:
+        viewer = contextlib.nullcontext("")
+        if spawn:  # rerun and matplotlib take seconds to import: only for the viewer, so the run talks at once
+            from softcbf_mj.recording import live_viewer
+
+            viewer = live_viewer()
+        start = (heartbeat(f"{scenario.name}: setting up, {spec.run.duration:g} s per run into {out_dir}")
+                 if spec.run.progress else contextlib.nullcontext())  # a line within a second
+        with viewer as message, compile_notes(), start:
             if message:
                 print(message, file=sys.stderr)
             summary = scenario.function(out_dir, spec)

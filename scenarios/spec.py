@@ -45,6 +45,7 @@ import inspect
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from controllers.registry import did_you_mean
 from vocabulary.sections import UNSET, check_settings, setting_field, setting_fields
 from vocabulary.sections import section as vocabulary_section
 from vocabulary.settings import Bound, SettingError, default, flat_form, setting
@@ -142,7 +143,8 @@ def _from_flat(cls: type, values: Mapping[str, Any]) -> Any:
     """The spec of flat `values` (the others: the scenario's defaults); ValueError for an unknown name."""
     unknown = [k for k in values if k not in cls.PATHS]
     if unknown:
-        raise ValueError(f"scenario {cls.CONTEXT!r} has no parameter {unknown[0]!r}; parameters: {', '.join(cls.PATHS)}")
+        raise ValueError(f"scenario {cls.CONTEXT!r} has no parameter {unknown[0]!r}{did_you_mean(unknown[0], cls.PATHS)}; "
+                         f"parameters: {', '.join(cls.PATHS)}")
     grouped: dict[str | None, dict[str, Any]] = {}
     for key, value in values.items():
         attribute, f = cls.PATHS[key]

@@ -1,5 +1,7 @@
 """The `softcbf` command line (installed by pyproject.toml's [project.scripts]).
 
+    softcbf demo [--out DIR] [--duration S]       the paper's CBF against the recommended filter on the MuJoCo
+                                                   plate: one contact figure in under a minute (softcbf.demo)
     softcbf list                                   scenarios, filters and nominal controllers with their parameters
     softcbf run SCENARIO [--PARAM VALUE ...] [--filter SPEC] [--filter-param NAME=VALUE ...]
                          [--nominal SPEC] [--nominal-param NAME=VALUE ...] [--out DIR] [--overwrite] [--spawn]
@@ -39,6 +41,11 @@ refused, naming the process that holds it). `--overwrite` replaces the contents 
 folder (one softcbf wrote: its .softcbf-run marker or a summary.json of docs/run-outputs.md), never any
 other folder, nor the working folder, a folder above it or the home folder.
 
+A misspelt name (command, scenario, parameter, filter, nominal) is answered with the closest
+valid ones (`controllers.registry.did_you_mean`): "unknown command 'rnu' (did you mean 'run'?)".
+A run talks within a second or two (its progress bar, or the heartbeat of a longer set-up), and
+numba's compiles are announced as they start (scenarios.run, softcbf_mj.progress, softcbf_mj.kernels).
+
 Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the wrong
 type, not finite or out of range, a duration whose time series would not fit in memory,
 an --out that is in use, not writable, or non-empty without --overwrite, a folder that is
@@ -58,7 +65,7 @@ A subcommand is one `register_command(name, help, add_arguments, handler)` call:
 it (`extra`: tokens the parser did not know, passed only with `extra_args=True`); a
 handler raises `UsageError` for bad input. `add_arguments` may be None (no options).
 `help` may be a function returning the text, and `lazy(module, name)` stands for the
-function `name` of `module`, imported when first called: `hardware`, `bench` and `study`
+function `name` of `module`, imported when first called: `demo`, `hardware`, `bench` and `study`
 are registered so, and `main` builds only the subcommand it runs (the others get their
 name, and their help only for `softcbf --help`), so `softcbf list` imports neither OpenCV
 nor the hardware mode nor the governors' benchmark, and the scenario modules import MuJoCo and
@@ -80,6 +87,7 @@ from typing import Any
 try:  # Ctrl-C while the command line starts (these imports take about a second): one line, exit 130
     import softcbf_mj
     from controllers import registry as controllers_registry
+    from controllers.registry import did_you_mean
     from scenarios import get as get_scenario, registry
     from scenarios.config_file import load_run_config, replay_sources, replay_warnings
     from scenarios.pipe import quiet_on_closed_pipe
@@ -216,23 +224,25 @@ def _report_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-recording", action="store_true", help="rebuild the plots and report.md only")
     # figure options (softcbf_mj.report.write_report / softcbf.study.report.write_report parameters)
     parser.add_argument("--figure-format", choices=("png", "svg", "pdf"), default="png", help="plot file format (default png)")
-    parser.add_argument("--dpi", type=float, default=100.0, help="raster resolution of the plots, dots per inch (default 100)")
+    parser.add_argument("--dpi", type=float, default=None,
+                        help="raster resolution of the plots, dots per inch (default: a run's 200, a study's 100)")
 
 
 def _report(args: argparse.Namespace, extra: list[str]) -> int:
     from softcbf.study.store import FALSIFY_FILE, STUDY_FILE
 
+    resolution = {} if args.dpi is None else {"dpi": args.dpi}  # each report's own default otherwise
     if (args.run_dir / STUDY_FILE).is_file() or (args.run_dir / FALSIFY_FILE).is_file():
         from softcbf.study.report import write_report as write_study_report
 
-        print(f"study report: {write_study_report(args.run_dir, figure_format=args.figure_format, dpi=args.dpi)}")
+        print(f"study report: {write_study_report(args.run_dir, figure_format=args.figure_format, **resolution)}")
         return 0
     from softcbf_mj.recording import write_recording
     from softcbf_mj.report import write_report
 
     try:
         start = time.perf_counter()
-        files = write_report(args.run_dir, figure_format=args.figure_format, dpi=args.dpi)
+        files = write_report(args.run_dir, figure_format=args.figure_format, **resolution)
         report_s = time.perf_counter() - start
         print(f"report ({report_s:.1f} s): " + ", ".join(str(p) for p in files.values()))
         if not args.no_recording:
@@ -244,6 +254,8 @@ def _report(args: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
+register_command("demo", lambda: importlib.import_module("softcbf.demo").HELP,
+                 lazy("softcbf.demo", "add_arguments"), lazy("softcbf.demo", "run_command"))
 register_command("list", "list the scenarios, filters and nominal controllers with their parameters", None, _list)
 register_command("run", "run a scenario: softcbf run SCENARIO [--PARAM VALUE ...] [--out DIR] | --config FILE",
                  _run_args, _run, extra_args=True, add_help=False)
@@ -302,6 +314,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser(first if first in COMMANDS else None)
 
     def run() -> int:
+        if first is not None and first not in COMMANDS:
+            raise UsageError(f"unknown command {first!r}{did_you_mean(first, COMMANDS)}; "
+                             f"commands: {', '.join(COMMANDS)}")
         args, extra = parser.parse_known_args(argv)
         command = COMMANDS[args.command]
         if extra and not command.extra_args:

@@ -9,22 +9,31 @@ control step of Δt s; d = u − u_nom, "no correction" where |d_j| ≤ CHATTER_
 - `u_hf_fraction`: the fraction of u's variance above HF_CUTOFF_HZ (power the arm cannot
   follow, i.e. command energy the valves spend for nothing).
 Plus `u_dev_rms_hPa` and `u_dev_max_hPa`, RMS and max |d| over all steps and segments.
+
+The table a scenario prints (`write_table`) fits a terminal of TERMINAL_COLUMNS characters: its
+leading columns as far as they fit (the label column always, a label cut to
+`softcbf_mj.palette.LABEL_LIMIT` characters), then a line counting the columns left out and naming
+the file that holds them all, TABLE_FILE in the run folder (every column, full labels).
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from controllers.lazy_import import lazy_module
 from controllers.safe_set import ForceSafeSet
+from softcbf_mj.palette import plot_labels
 
 figures_kernel = lazy_module("softcbf_mj.figures_kernel")  # numba loads on the first update (controllers.lazy_import)
 _NO_CODES = np.zeros((1, 1), dtype=np.int8)  # the kernel's placeholder for action / rows when they are None
 
 CHATTER_THRESHOLD_HPA = 0.1  # |u − u_nom| below this (hPa) counts as "no correction"
+TERMINAL_COLUMNS = 120  # characters a line of a printed table (module docstring)
+TABLE_FILE = "table.txt"  # the full table, in the run folder
 HF_CUTOFF_HZ = 5.0  # above the reference arm's first mode (≈ 20 rad/s ≈ 3.2 Hz): power the arm cannot follow
 
 
@@ -293,3 +302,36 @@ def format_table(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple], ma
     lines = ["  ".join(c.rjust(w) for c, w in zip(row, widths)) for row in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)
+
+
+def fitting_columns(runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple],
+                    width: int = TERMINAL_COLUMNS) -> list[tuple]:
+    """The leading `columns` whose plain-text table (`format_table`: columns two spaces apart) is at most `width`
+    characters a line; the first column always."""
+    fitted: list[tuple] = []
+    line = -2
+    for column in columns:
+        column_width = max(len(cell) for cell in [column[0]] + [_cell(r.get(column[1]), *column[2:]) for r in runs])
+        if fitted and line + 2 + column_width > width:
+            break
+        fitted.append(column)
+        line += 2 + column_width
+    return fitted
+
+
+def write_table(out_dir: Path, runs: Sequence[Mapping[str, Any]], columns: Sequence[tuple],
+                width: int = TERMINAL_COLUMNS) -> str:
+    """Write the full table of `runs` to out_dir/TABLE_FILE and return the text to print: the columns that fit
+    `width` characters a line with the first column's labels cut (`plot_labels`), then, when columns are left out
+    or labels cut, a line counting the columns left out and naming the file (module docstring)."""
+    full = format_table(runs, columns)
+    path = Path(out_dir) / TABLE_FILE
+    path.write_text(full + "\n", encoding="utf-8")
+    label = columns[0][1]
+    shown_runs = [{**r, label: short} for r, short in zip(runs, plot_labels([str(r.get(label)) for r in runs]))]
+    fitted = fitting_columns(shown_runs, columns, width)
+    text = format_table(shown_runs, fitted)
+    left_out = [c[0] for c in columns[len(fitted):]]
+    if left_out or shown_runs != list(runs):
+        text += f"\n{f'{len(left_out)} more columns' if left_out else 'full labels'} (every column): {path}"
+    return text

@@ -14,6 +14,12 @@ dark background); neutral elements use a mid grey that reads on both backgrounds
 | the facets, the plates, u_nom           | NEUTRAL_COLOR (mid grey)       |
 
 Colours are "#rrggbb" strings; `rgb` turns one into the [r, g, b] (0–255) rerun takes.
+
+Labels. A run's label is its filter with every parameter (controllers.registry.label): the
+recommended filter's is 137 characters, more than a figure's width. `short_label` keeps a label of
+at most LABEL_LIMIT characters and cuts a longer one to LABEL_LIMIT − 1 characters and "…";
+`plot_labels` does so for a folder's runs and keeps them distinct (a shortened label that two runs
+share ends in " #k", the run's position, instead). The reports' legends and the progress lines use them.
 """
 
 from __future__ import annotations
@@ -26,6 +32,22 @@ TUNING_COLORS = {"None": ORANGE, "Low": SKY_BLUE, "High": BLUISH_GREEN, "HW-Low"
 RUN_CYCLE = (SKY_BLUE, BLUISH_GREEN, BLUE, REDDISH_PURPLE, ORANGE, YELLOW)
 LIMIT_COLOR = VERMILLION
 NEUTRAL_COLOR = "#999999"
+LABEL_LIMIT = 24  # characters: a legend entry of 7 pt text about 1.3 in wide
+
+
+def short_label(label: str, limit: int = LABEL_LIMIT) -> str:
+    """`label` if it has at most `limit` characters, else its first `limit` − 1 and "…" (module docstring)."""
+    if limit < 2:
+        raise ValueError(f"limit must be >= 2 characters, got {limit}")
+    return label if len(label) <= limit else label[: limit - 1] + "…"
+
+
+def plot_labels(labels: list[str] | tuple[str, ...], limit: int = LABEL_LIMIT) -> list[str]:
+    """`short_label` of each of `labels`, distinct: a shortened label that several runs share is cut further and
+    ends in " #k" (k = 1 + the run's index) (module docstring)."""
+    short = [short_label(label, limit) for label in labels]
+    return [s if short.count(s) == 1 or s == label else short_label(label, limit - len(f" #{k + 1}")) + f" #{k + 1}"
+            for k, (label, s) in enumerate(zip(labels, short))]
 
 
 def run_color(label: str, index: int) -> str:

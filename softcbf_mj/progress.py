@@ -6,6 +6,14 @@ examples): one line format, "[label] |bar| pct  done/total unit  elapsed, eta". 
 from the fraction done (elapsed × (1 − f) / f): it assumes the remaining units cost what the done ones did on
 average, and is shown as soon as any work is done (work may be fractional, e.g. a batch of samples half way
 through its simulated time). Numbers a person reads are shown to `SIGNIFICANT` digits (`significant`).
+
+The line starts with its label cut to LABEL_LIMIT characters (`softcbf_mj.palette.short_label`: a run of the
+recommended filter is labelled with all seven of its parameters), so that it fits a 120-column terminal.
+
+No silent start: a run's set-up (building the filter, calibrating the camera, importing the recording's
+libraries) may take seconds before its first bar. `heartbeat(line)` prints `line` once after HEARTBEAT_S
+unless something has spoken by then (a bar drew, or `mark_spoken()`: numba's compile note), and never
+after its context ends: input refused within HEARTBEAT_S stays one line.
 """
 
 from __future__ import annotations
@@ -14,8 +22,14 @@ import contextlib
 import sys
 import threading
 import time
-from typing import Iterator, TextIO
+from collections.abc import Iterator
+from typing import TextIO
 
+from softcbf_mj.palette import short_label
+
+LABEL_LIMIT = 40  # characters of the label at the start of a progress line
+HEARTBEAT_S = 0.5  # s of silence after which a starting run says what it is doing
+_SPOKEN = threading.Event()
 SIGNIFICANT = 4  # significant digits of the figures a progress line shows (a best objective, a force)
 QUIET_MIN_S = 1.0  # a non-terminal log gets a line at latest this long after the start …
 QUIET_MAX_S = 60.0  # … and then at latest every quarter of the elapsed time, never less often than this, s
@@ -44,11 +58,42 @@ def quiet_limit_s(elapsed: float) -> float:
     return min(QUIET_MAX_S, max(QUIET_MIN_S, 0.25 * elapsed))
 
 
+def mark_spoken() -> None:
+    """Something has told the user what runs (module docstring): a pending `heartbeat` stays quiet."""
+    _SPOKEN.set()
+
+
+@contextlib.contextmanager
+def heartbeat(line: str, after_s: float = HEARTBEAT_S, stream: TextIO | None = None) -> Iterator[None]:
+    """Within this context, print `line` on `stream` (stderr) once, `after_s` s after entering, unless a progress
+    bar drew or `mark_spoken` was called first (module docstring)."""
+    _SPOKEN.clear()
+    lock = threading.Lock()
+
+    def speak() -> None:
+        with lock:
+            if not _SPOKEN.is_set():
+                _SPOKEN.set()
+                print(line, file=stream if stream is not None else sys.stderr, flush=True)
+
+    timer = threading.Timer(after_s, speak)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        with lock:  # a speak() under way finishes first; none starts after
+            _SPOKEN.set()
+
+
 class Progress:
     """Report `done` out of `total` units of work under a label; `close()` prints the final line.
 
     With `unit_s` (simulated seconds per unit, e.g. the control period) the line also shows
-    the simulated time done / total (s) and the real-time factor (simulated s per wall s).
+    the simulated time done / total (s) and the real-time factor (simulated s per wall s), and the
+    bar draws its 0 % line when it is made: a run's first line, before its first step, which may
+    wait a second or more for the recording's imports and numba's kernels.
     With `unit` (e.g. "samples", "cases") it shows the units done / total ("12/150 samples").
     `done` may be fractional (work part done); the count shown is its whole part.
     """
@@ -59,7 +104,7 @@ class Progress:
             raise ValueError(f"total must be >= 1, got {total}")
         if unit_s is not None and not unit_s > 0:
             raise ValueError(f"unit_s must be > 0 s (or None), got {unit_s}")
-        self.label, self.total, self.unit_s, self.unit = label, total, unit_s, unit
+        self.label, self.total, self.unit_s, self.unit = short_label(label, LABEL_LIMIT), total, unit_s, unit
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = enabled
         self.live = enabled and self.stream.isatty()
@@ -71,6 +116,8 @@ class Progress:
         self._done = 0.0
         self._printed: tuple[float, str] | None = None  # (done, note) of the last line a log got
         self._lock = threading.Lock()  # `ticking`'s thread and the caller's both update
+        if unit_s is not None:
+            self.update(0)
 
     def update(self, done: float, note: str = "") -> None:
         """Report `done` units; `note` (e.g. '2 failed') is appended to the line."""
@@ -88,6 +135,7 @@ class Progress:
             if now - self._last_draw < 0.2 and done < self.total:
                 return
             self._last_draw = now
+            _SPOKEN.set()
             self.stream.write("\r" + self._line(frac, now))
         else:
             decile = int(frac * 10)
@@ -97,6 +145,7 @@ class Progress:
             self._last_decile = decile
             self._last_line = now
             self._printed = (done, note)
+            _SPOKEN.set()
             self.stream.write(self._line(frac, now) + "\n")
         self.stream.flush()
 

@@ -3,20 +3,24 @@ folder alone (summary.json with its "scene", config.json, the time series).
 
 `write_report(DIR, figure_format="png", dpi=DPI)` writes, each file atomically (temp file + rename):
 
-| file                  | size (in; px at 100 dpi) | what                                                        |
-|-----------------------|--------------------------|-------------------------------------------------------------|
-| plots/overview.<fmt>  | 9 × 10; 900 × 1000       | the paper's Fig. 5 / Fig. 7 analogue on one time axis: tip  |
-|                       |                          | r_x(t), r_y(t) [m], measured force F(t) against F_max [N],  |
-|                       |                          | u_j(t) of every run against u_nom,j (dashed) [hPa]          |
-| plots/rho.<fmt>       | 9 × 4; 900 × 400         | ρ_meas(t) (solid) and ρ_pred(t) (dashed) of every run, ρ = 0 |
-|                       |                          | (the paper's Fig. 6 / Fig. 8 analogues)                     |
-| plots/tip_path.<fmt>  | 8 × 7; 800 × 700         | tip paths r(t), the facets (boundary of N), the boundary of |
-|                       |                          | P, the plates at rest when they differ from the facets, the |
-|                       |                          | arm at t = 0 and at each run's minimum ρ_meas               |
-| plots/force.<fmt>     | 9 × 6; 900 × 600         | per run: measured contact force, predicted force and F_max  |
-| plots/pressure.<fmt>  | 12 × 6; 1200 × 600       | per segment: commanded u of every run and nominal u_nom;    |
-|                       |                          | left the whole run, right a ZOOM_WINDOW_S zoom (below)      |
-| report.md             |                          | the summary table, the plots, parameters, scene, versions   |
+| file                 | size (in; px at 200 dpi) | what                                                       |
+|----------------------|--------------------------|------------------------------------------------------------|
+| plots/overview.<fmt> | 7.16 × 7.5; 1432 × 1500  | the paper's Fig. 5 / Fig. 7 analogue on one time axis: tip |
+|                      |                          | r_x(t), r_y(t) [m], measured force F(t) against F_max [N], |
+|                      |                          | u_j(t) of every run against u_nom,j (dashed) [hPa]         |
+| plots/rho.<fmt>      | 3.5 × 3.4; 700 × 680     | ρ_meas(t) (solid) and ρ_pred(t) (dashed) of every run,     |
+|                      |                          | ρ = 0 (the paper's Fig. 6 / Fig. 8 analogues)              |
+| plots/tip_path.<fmt> | 7.16 × 5; 1432 × 1000    | tip paths r(t), the facets (boundary of N), the boundary   |
+|                      |                          | of P, the plates at rest when they differ from the facets, |
+|                      |                          | the arm at t = 0 and at each run's minimum ρ_meas          |
+| plots/force.<fmt>    | 3.5 × 4.2; 700 × 840     | per run: measured contact force, predicted force and F_max |
+| plots/pressure.<fmt> | 7.16 × 4; 1432 × 800     | per segment: commanded u of every run and nominal u_nom;   |
+|                      |                          | left the whole run, right a ZOOM_WINDOW_S zoom, each step  |
+| report.md            |                          | the summary table, the plots, parameters, scene, versions  |
+
+Sizes are a journal's (IEEE's two-column layout): COLUMN_WIDTH_IN = 3.5 in for rho and
+force, TEXT_WIDTH_IN = 7.16 in for the others, so that they are placed at 100 % and their
+text (STYLE: 8 pt, ticks and legends 7 pt) reads as the paper's own.
 
 `figure_format` is one of FIGURE_FORMATS (png, svg, pdf); `dpi` sets the raster
 resolution (png pixels = inches × dpi; in svg/pdf it only scales embedded rasters). The
@@ -31,17 +35,23 @@ scene, i.e. the force the controller's own state estimate and model imply on its
 penetrated facet (ρ_pred = (n_max − n̂)/n_max).
 
 Legibility: a time series longer than ENVELOPE_BINS samples is drawn as its min/max
-envelope over ENVELOPE_BINS equal runs of samples (about one per pixel column; shaded)
-plus the mean of each run of samples (line), so a command that switches every 1 ms step
+envelope over ENVELOPE_BINS equal runs of samples (1.5 pixel columns each on a text-width
+axis at 200 dpi; shaded) plus the mean of each run of samples (line), so a command that switches every 1 ms step
 shows as a band around its mean instead of a solid block of vertical lines (`envelope`).
 The zoom of plots/pressure is ZOOM_WINDOW_S wide, centred on the step with the largest
 |u − u_nom| of any run (where the filter corrects most; without any correction, on the
 first run's minimum ρ_meas), drawn step by step; its span is shaded in the left panels.
-Legends sit outside the axes (right; below the tip path). Colours: softcbf_mj.palette (Okabe–Ito), shared with
-the recording.
+Legends sit outside the axes (right of the time series of full width, below the others) and each entry
+once; a run's label in them is `softcbf_mj.palette.plot_labels` of the folder's labels (at most
+LABEL_LIMIT characters, a longer one shortened with "…" and kept distinct: a filter's label with
+every parameter, "c-erg(gain_lo_ratio=0.9,…)", never runs over the axes); report.md lists each
+shortened label beside the full one. Colours: softcbf_mj.palette (Okabe–Ito), shared with the recording.
 
 Plots use matplotlib's Agg canvas directly (`matplotlib.figure.Figure`, no pyplot, no
-global backend change), fixed sizes (`FIGURE_SIZES_IN`, inches).
+global backend change), fixed sizes (`FIGURE_SIZES_IN`, inches), the STYLE rc parameters
+(matplotlib.rc_context, nothing global) and the constrained layout, which warns where it cannot
+fit the axes: tests/test_report_figures.py renders every plot kind with the longest labels the
+project writes with warnings as errors. `plot_force` is public: `softcbf demo` draws its figure with it.
 
 The drawing helpers here (`scene_box`, `boundary_segments`, `arm_polyline`,
 `predicted_force`, `plate_displacement`) are shared with softcbf_mj.recording, so the
@@ -55,29 +65,34 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from controllers.safe_set import StiffnessLaw
 from softcbf_mj.metrics import format_table
-from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, run_color
+from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels, run_color
 from softcbf_mj.runio import RunFolder, RunFolderError, atomic_path, read_run_folder, stiffness_from_json
 
-DPI = 100
+DPI = 200
 FIGURE_FORMATS = ("png", "svg", "pdf")
+COLUMN_WIDTH_IN, TEXT_WIDTH_IN = 3.5, 7.16  # IEEE two-column: one column, the full text width
 FIGURE_SIZES_IN: dict[str, tuple[float, float]] = {
-    "overview": (9.0, 10.0),
-    "rho": (9.0, 4.0),
-    "tip_path": (8.0, 7.0),
-    "force": (9.0, 6.0),
-    "pressure": (12.0, 6.0),
+    "overview": (TEXT_WIDTH_IN, 7.5),
+    "rho": (COLUMN_WIDTH_IN, 3.4),
+    "tip_path": (TEXT_WIDTH_IN, 5.0),
+    "force": (COLUMN_WIDTH_IN, 4.2),
+    "pressure": (TEXT_WIDTH_IN, 4.0),
 }
+STYLE = {"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
+         "legend.fontsize": 7, "lines.linewidth": 1.0, "figure.constrained_layout.h_pad": 0.03,
+         "figure.constrained_layout.w_pad": 0.03}
 PLOTS_DIR = "plots"
 REPORT_FILE = "report.md"
 BOX_MARGIN_M = 0.03  # margin (m) around everything the arm reached, for drawing the lines of N and P
 ARC_CHORDS = 8  # chords per PCC segment when the arm is drawn as arcs
-ENVELOPE_BINS = 800  # runs of samples per time axis (≈ one per pixel column of a 9 in axis at 100 dpi)
+ENVELOPE_BINS = 800  # runs of samples per time axis (a text-width axis, ≈ 6 in, is 1200 px at 200 dpi: 1.5 px a run)
 ZOOM_WINDOW_S = 0.05  # width (s) of the pressure zoom: 50 control steps at 1 kHz, each step visible
 TIP_PATH_POINTS = 4000  # at most this many points of each tip path are drawn (the path is smooth)
 FACET_COLOR, P_COLOR, PLATE_COLOR, NOMINAL_COLOR = NEUTRAL_COLOR, LIMIT_COLOR, NEUTRAL_COLOR, NEUTRAL_COLOR
@@ -86,7 +101,7 @@ SUMMARY_COLUMNS = (
     ("tuning", "tuning", ""),
     ("ρ_pred min", "rho_min_pred", ".4f"),
     ("ρ_meas min", "rho_min_meas", ".4f"),
-    ("F max [N]", "force_max_N", ".4f"),
+    ("F peak [N]", "force_max_N", ".4f"),
     ("t_viol [s]", "t_violation_s", ".3f"),
     ("infeasible", "infeasible_steps", "d"),
     ("recovery", "recovery_steps", "d"),
@@ -244,7 +259,12 @@ def _legend_outside(fig: Figure, axes, loc: str = "outside right upper", ncols: 
     for ax in axes:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             entries.setdefault(label, handle)
-    fig.legend(list(entries.values()), list(entries), loc=loc, ncols=ncols, fontsize=8)
+    fig.legend(list(entries.values()), list(entries), loc=loc, ncols=ncols)
+
+
+def _legend_below(fig: Figure, axes) -> None:
+    """The legend of a one-column figure: below the axes, two columns."""
+    _legend_outside(fig, axes, loc="outside lower center", ncols=2)
 
 
 def save_figure(fig: Figure, path: Path, figure_format: str, dpi: float) -> None:
@@ -275,7 +295,7 @@ def _plot_overview(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Pa
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("t [s]")
-    axes[0].set_title("tip, measured force, command; shaded: min–max of each pixel column", fontsize=10)
+    axes[0].set_title("tip, measured force, command; shaded: the samples' min–max band")
     _legend_outside(fig, axes)
     save_figure(fig, path, figure_format, dpi)
 
@@ -287,9 +307,9 @@ def _plot_rho(runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: 
         _draw(ax, s["t"], s["rho_meas"], color, f"{label} measured", lw=1.2)
         _draw(ax, s["t"], s["rho_pred"], color, f"{label} predicted", lw=1.0, ls="--")
     ax.axhline(0.0, color=LIMIT_COLOR, lw=1.0, ls="--", label="ρ = 0 (F = F_max)")
-    ax.set(xlabel="t [s]", ylabel="safety margin ρ [-]", title="ρ(t): measured (solid) and predicted (dashed)")
+    ax.set(xlabel="t [s]", ylabel="safety margin ρ [-]", title="ρ: measured (solid), predicted (dashed)")
     ax.grid(alpha=0.3)
-    _legend_outside(fig, [ax])
+    _legend_below(fig, [ax])
     save_figure(fig, path, figure_format, dpi)
 
 
@@ -319,19 +339,23 @@ def _plot_tip_path(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Pa
     save_figure(fig, path, figure_format, dpi)
 
 
-def _plot_force(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: str, dpi: float) -> None:
-    fig = _figure("force", dpi)
-    axes = fig.subplots(len(runs), 1, sharex=True, squeeze=False)[:, 0]
-    for ax, (label, color, s) in zip(axes, runs):
-        _draw(ax, s["t"], np.max(s["contact_force"], axis=1), color, f"{label} measured", lw=1.2)
-        _draw(ax, s["t"], predicted_force(scene, s["rho_pred"]), color, f"{label} predicted", lw=1.0, ls="--")
-        ax.axhline(scene.f_max, color=LIMIT_COLOR, lw=1.0, ls="--", label=f"F_max = {scene.f_max:g} N")
-        ax.set(ylabel="F [N]", title=label)
-        ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("t [s]")
-    axes[0].set_title(f"{runs[0][0]}; contact force measured (solid), predicted (dashed)", fontsize=10)
-    _legend_outside(fig, axes)
-    save_figure(fig, path, figure_format, dpi)
+def plot_force(scene: Scene, runs: Sequence[tuple[str, str, Mapping[str, np.ndarray]]], path: Path,
+               figure_format: str = "png", dpi: float = DPI) -> None:
+    """plots/force: one panel per run (label, colour, time series) with its measured contact force (solid), the
+    force its controller predicts (dashed) and F_max, sharing the time axis; written to `path` (`save_figure`)."""
+    with matplotlib.rc_context(STYLE):
+        fig = _figure("force", dpi)
+        axes = fig.subplots(len(runs), 1, sharex=True, sharey=True, squeeze=False)[:, 0]
+        for ax, (label, color, s) in zip(axes, runs):
+            _draw(ax, s["t"], np.max(s["contact_force"], axis=1), color, "measured", lw=1.2)
+            _draw(ax, s["t"], predicted_force(scene, s["rho_pred"]), NEUTRAL_COLOR, "predicted", lw=1.0, ls="--")
+            ax.axhline(scene.f_max, color=LIMIT_COLOR, lw=1.0, ls=":", label=f"F_max = {scene.f_max:g} N")
+            ax.set(ylabel="F [N]", title=label)
+            ax.grid(alpha=0.3)
+        axes[-1].set_xlabel("t [s]")
+        fig.suptitle("contact force, most loaded facet", fontsize=STYLE["axes.titlesize"])
+        _legend_below(fig, axes)
+        save_figure(fig, path, figure_format, dpi)
 
 
 def zoom_window(runs: Sequence[Mapping[str, np.ndarray]], width_s: float = ZOOM_WINDOW_S) -> tuple[float, float]:
@@ -373,18 +397,20 @@ def _plot_pressure(runs: Sequence[tuple[str, str, dict]], path: Path, figure_for
             _draw(zoom, first["t"][inside], first["u_nom"][inside, j], NOMINAL_COLOR, "u_nom", lw=1.0, ls="--")
         full.axvspan(t0, t1, color=NEUTRAL_COLOR, alpha=0.25, lw=0)
         full.set(ylabel=f"u{j + 1} [hPa]")
+        zoom.set(ylabel=f"u{j + 1} [hPa]")
         for ax in (full, zoom):
             ax.grid(alpha=0.3)
-    axes[0, 0].set_title("u vs u_nom; shaded: min–max of each pixel column; grey: zoom", fontsize=10)
-    axes[0, 1].set_title(f"zoom {t0:.3f}–{t1:.3f} s, each step", fontsize=10)
+    axes[0, 0].set_title("u vs u_nom; shaded: the samples' min–max band; grey: zoom")
+    axes[0, 1].set_title(f"zoom {t0:.3f}–{t1:.3f} s")
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("t [s]")
     _legend_outside(fig, axes.ravel())
     save_figure(fig, path, figure_format, dpi)
 
 
-def _markdown(folder: RunFolder, scene: Scene, plots: Mapping[str, Path]) -> str:
+def _markdown(folder: RunFolder, scene: Scene, plots: Mapping[str, Path], shown: Mapping[str, str]) -> str:
     summary, config = folder.summary, folder.config or {}
+    key = [f"- {short}: `{full}`" for full, short in shown.items() if short != full]
     versions = summary.get("versions", {})
     columns = [c for c in SUMMARY_COLUMNS if any(run.get(c[1]) is not None for run in folder.runs)]
     lines = [
@@ -405,6 +431,7 @@ def _markdown(folder: RunFolder, scene: Scene, plots: Mapping[str, Path]) -> str
         "",
         *[f"![{name}]({path.relative_to(folder.path).as_posix()})" for name, path in plots.items()],
         "",
+        *(["Shortened run labels in the plots:", "", *key, ""] if key else []),
         "## Scene",
         "",
         f"- segment lengths: {', '.join(f'{v:.4g}' for v in scene.lengths)} m",
@@ -438,17 +465,19 @@ def write_report(run_dir: str | Path, figure_format: str = "png", dpi: float = D
     if not folder.runs:
         raise RunFolderError(f"{folder.path} has no finished run to report")
     scene = Scene.of(folder)
-    runs = [(label, run_color(label, i), folder.timeseries(label)[0]) for i, label in enumerate(folder.labels)]
+    shown = dict(zip(folder.labels, plot_labels(folder.labels)))
+    runs = [(shown[label], run_color(label, i), folder.timeseries(label)[0]) for i, label in enumerate(folder.labels)]
     plots_dir = folder.path / PLOTS_DIR
     plots_dir.mkdir(exist_ok=True)
     plots = {name: plots_dir / f"{name}.{figure_format}" for name in FIGURE_SIZES_IN}
-    _plot_overview(scene, runs, plots["overview"], figure_format, dpi)
-    _plot_rho(runs, plots["rho"], figure_format, dpi)
-    _plot_tip_path(scene, runs, plots["tip_path"], figure_format, dpi)
-    _plot_force(scene, runs, plots["force"], figure_format, dpi)
-    _plot_pressure(runs, plots["pressure"], figure_format, dpi)
+    with matplotlib.rc_context(STYLE):
+        _plot_overview(scene, runs, plots["overview"], figure_format, dpi)
+        _plot_rho(runs, plots["rho"], figure_format, dpi)
+        _plot_tip_path(scene, runs, plots["tip_path"], figure_format, dpi)
+        plot_force(scene, runs, plots["force"], figure_format, dpi)
+        _plot_pressure(runs, plots["pressure"], figure_format, dpi)
     report = folder.path / REPORT_FILE
-    text = _markdown(folder, scene, plots)
+    text = _markdown(folder, scene, plots, shown)
     with atomic_path(report) as tmp:
         tmp.write_text(text, encoding="utf-8")
     for name in plots:  # the rebuilt figures replace their copies in the other formats

@@ -125,7 +125,7 @@ def test_report_rebuilds_from_saved_data_only(run_dir, capsys, monkeypatch):
     "args, message",
     [
         (["run", "nosuch"], "unknown scenario 'nosuch'; available: camera_loop, mujoco_contact, paper_sim"),
-        (["run", "paper_sim", "--speed", "3"], "unknown parameter(s) --speed 3 for scenario paper_sim; valid: --duration, "),
+        (["run", "paper_sim", "--speed", "3"], "unknown parameter(s) --speed 3 for scenario paper_sim (did you mean '--seed'?); valid: --duration, "),
         (["run", "paper_sim", "--dur", "3"], "unknown parameter(s) --dur 3"),  # no abbreviations
         (["run", "paper_sim", "--duration", "abc"], "--duration: expected float, got 'abc'"),
         (["run", "paper_sim", "--seed", "1.5"], "--seed: expected int, got '1.5'"),
@@ -419,7 +419,8 @@ def test_interrupt_at_start_up_exits_130_with_one_line_and_no_folder(tmp_path, c
     else:
         monkeypatch.setattr(scenarios.paper_sim, "initial_configuration", interrupt)
     out = tmp_path / "new" / "run"
-    assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT]) == INTERRUPTED
+    spawn = ["--spawn"] if when == "import" else []  # rerun is imported at start-up for the viewer only
+    assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT, *spawn]) == INTERRUPTED
     err = capsys.readouterr().err
     assert err.strip() == f"interrupted before the first run finished; nothing kept in {out}"
     assert list(tmp_path.iterdir()) == []

@@ -73,7 +73,7 @@ def test_user_factory_gets_converted_parameters_and_the_context_when_it_asks(tmp
         build_filter(f"{tmp_path}/f.py:F", {"bogus": "1"}, CONTEXT)
     with pytest.raises(ValueError, match="parameter steps must be int, got 'x'"):
         build_filter(f"{tmp_path}/f.py:F", {"steps": "x"}, CONTEXT)
-    with pytest.raises(ValueError, match="unknown name 'nope'; built-ins: paper-cbf, none"):
+    with pytest.raises(ValueError, match=r"unknown name 'nope' \(did you mean 'none'\?\); built-ins: paper-cbf, none"):
         build_filter("nope", {}, CONTEXT)
     with pytest.raises(ValueError, match="has no callable 'G'"):
         build_filter(f"{tmp_path}/f.py:G", {}, CONTEXT)

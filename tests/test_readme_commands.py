@@ -27,6 +27,7 @@ OVERRIDES = (  # (command start, appended arguments), first match wins
     (".venv/bin/python -m scenarios ", SHORT_RUN),
     (".venv/bin/python -m pytest", ["tests/test_layers.py", "-q", "-x"]),
     (".venv/bin/softcbf run ", SHORT_RUN),
+    (".venv/bin/softcbf demo", ["--duration", "0.3"]),
     (".venv/bin/softcbf report ", []),
     (".venv/bin/softcbf study run ", ["--samples", "2", "--set", "fixed.duration=0.3", "--workers", "1", "--no-progress"]),
     (".venv/bin/softcbf study report ", []),

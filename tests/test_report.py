@@ -53,7 +53,7 @@ def test_markdown_table_holds_every_run_with_its_figures(run_dir):
     text = (run_dir / "report.md").read_text(encoding="utf-8")
     runs = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))["runs"]
     header = next(line for line in text.splitlines() if line.startswith("| tuning |"))
-    assert "ρ_pred min" in header and "ρ_meas min" in header and "F max [N]" in header
+    assert "ρ_pred min" in header and "ρ_meas min" in header and "F peak [N]" in header
     for run in runs:
         row = next(line for line in text.splitlines() if line.startswith(f"| {run['tuning']} |"))
         cells = [c.strip() for c in row.strip("|").split("|")]

@@ -86,7 +86,7 @@ def test_existing_output_folder_is_refused(tmp_path):
         (["paper_sim", "--out", "{out}", "--tunings", "Medium"], "unknown tuning 'Medium'; valid: None, Low, High, HW-Low, HW-High"),
         (["paper_sim", "--out", "{out}", "--duration", "abc"], "--duration: expected float, got 'abc'"),
         (["paper_sim", "--out", "{out}", "--pressure-limits", "maybe"], "--pressure-limits: expected one of"),
-        (["paper_sim", "--out", "{out}", "--speed", "3"], "unknown parameter(s) --speed 3 for scenario paper_sim; valid: --duration"),
+        (["paper_sim", "--out", "{out}", "--speed", "3"], "unknown parameter(s) --speed 3 for scenario paper_sim (did you mean '--seed'?); valid: --duration"),
         (["paper_sim", "--out", "{out}", "--duration", "-1"], "duration must be > 0 s, got -1.0"),
         (["paper_sim", "--out", "{out}", "--integrator", "leapfrog"], "integrator must be one of ros2, rk4, euler"),
         (["paper_sim"], "--out DIR is required"),
@@ -106,7 +106,7 @@ def test_same_seed_same_arrays(tmp_path):
         (tmp_path / name).mkdir()
         with data_only():
             scenario.run(tmp_path / name, **params)
-    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["config.json", "summary.json", "timeseries"]
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["config.json", "summary.json", "table.txt", "timeseries"]
     a, _ = load_timeseries(tmp_path / "a" / "timeseries" / "Low.npz")
     b, _ = load_timeseries(tmp_path / "b" / "timeseries" / "Low.npz")
     for key in ("q", "qd", "u", "u_nom", "rho_pred", "contact_force"):
