@@ -539,9 +539,25 @@ def test_a_filter_left_running_in_a_thread_does_not_keep_the_command_alive(tmp_p
     assert (tmp_path / "run" / "summary.json").is_file()
 
 
+SLOW_IMPORT = textwrap.dedent('''
+    import sys, time
+
+    class SlowTestbedImport:  # the command line's start-up imports, held for 5 s: a Ctrl-C lands inside them
+        def find_spec(self, name, path=None, target=None):
+            if name == "softcbf_mj":
+                time.sleep(5.0)
+            return None
+
+    sys.meta_path.insert(0, SlowTestbedImport())
+''')
+
+
 def test_ctrl_c_at_start_up_is_one_line(tmp_path):
-    process = _cli("list")
-    time.sleep(0.5)  # within the command line's imports (about a second here)
+    (tmp_path / "sitecustomize.py").write_text(SLOW_IMPORT, encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])}
+    process = subprocess.Popen([sys.executable, "-m", "softcbf.cli", "list"], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, env=env)
+    time.sleep(2.0)  # inside the held import (the interpreter's own start-up takes well under that)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert "Traceback" not in err and err.strip() == "interrupted" and process.returncode == 130, err
