@@ -10,7 +10,7 @@ B), error_model="numpy" (x/0 gives ±inf/NaN, never raises). Loaded on the first
 
 Why compiled: in numpy a QP state cost ≈ 3.2 µs at N = 2, B = 256 (the enumeration's (S, C, N)
 arrays and a dozen numpy calls per level), and the states the numpy path left to the scalar filter,
-the quasi-static "recovery" rows, ≈ 35 µs each (tools/bench_batch_filters.py, baseline 510d063;
+the quasi-static "recovery" rows, ≈ 35 µs each (tools/bench_batch_filters.py against the numpy version;
 a quarter of the states of the MuJoCo contact batch of tools/bench_batch.py); one compiled loop does
 either in well under a microsecond a state at N = 2 (0.3–0.6 µs, the same tool).
 

@@ -1,4 +1,4 @@
-"""The energy governor's compiled kernels (`controllers.energy_governor`, e-erg and c-erg; issues 23 and 24):
+"""The energy governor's compiled kernels (`controllers.energy_governor`, e-erg and c-erg):
 the look-ups of the escape-energy lower bounds Γ̲ (`controllers.escape_energy`), the certificate, the
 rays' bisections (step 3 of the governor) and the recovery's scan (step 4), over a leading row axis
 where a governor call has state: row b is one governor's call, so `EnergyGovernor.__call__` (B = 1)

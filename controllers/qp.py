@@ -58,12 +58,12 @@ Backends (`available_backends()`):
   quadprog has no feasibility tolerance and may call a degenerate problem (a dependent
   row violated by rounding at a vertex with more tight rows than N) infeasible.
 `tools/bench_qp.py` measures them per solve, `tools/bench_filter.py --backends native,daqp`
-inside the whole filter step. DEFAULT_BACKEND stays "native" (issue 12 item 5, decided on the
-second measurement): over 3000 states of each 30 s paper_sim configuration, timed round-robin
+inside the whole filter step. DEFAULT_BACKEND stays "native" (decided on the second of two
+measurements): over 3000 states of each 30 s paper_sim configuration, timed round-robin
 in one process (CPU time, 2-CPU x86_64 shared machine), the median of the steps that solve a
 QP was 85 / 100 / 83 / 107 µs with native and 103 / 110 / 99 / 119 µs with daqp (Low off,
-Low on, High off, High on), with identical actions and commands within 6.2e-11 hPa (issue 12
-had measured 74 vs 76 µs on another machine). daqp stays available; the slack QP's fallback is
+Low on, High off, High on), with identical actions and commands within 6.2e-11 hPa (the first
+measurement, on another machine: 74 vs 76 µs). daqp stays available; the slack QP's fallback is
 native.
 """
 

@@ -481,7 +481,7 @@ class HardwareConfig:
         _require(self.link.is_emulated == self.camera.is_virtual, "link.port",
                  f'"{EMULATED_PORT}" and camera.source "{VIRTUAL_CAMERA}" go together (the virtual camera renders the '
                  f"emulated arm; a real camera sees the real one), got port {self.link.port!r}, camera {self.camera.source!r}")
-        # Loaded once (issue 25: parse once): a bad robot file or pressure limits, facets or calibration file fails
+        # Loaded once (parse once): a bad robot file or pressure limits, facets or calibration file fails
         # here, at load, and `robot_params`, `safe_set` and `plane_calibration` hand out these objects.
         object.__setattr__(self, "_robot", self._load_robot())
         n = self._robot.n_segments

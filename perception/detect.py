@@ -99,7 +99,7 @@ PUPIL_TO_UPRIGHT = (1, 0, 3, 2)
 PUPIL_PIXEL_OFFSET = 0.5  # pupil-apriltags' pixel centres sit at integer + 0.5, px
 PUPIL_QUAD_DECIMATE = 2.0  # as accurate as 1.0 on 40 px tags and ~4x faster (measured)
 # pupil-apriltags 1.0.4 can crash (SIGSEGV in apriltag_detector_destroy) when a Detector is
-# freed after use (pupil-labs/apriltags issue #46; measured: every time a second detector
+# freed after use (github.com/pupil-labs/apriltags/issues/46; measured: every time a second detector
 # replaced a used one); one Detector per setting is kept for the life of the process.
 _PUPIL_DETECTORS: dict[bool, Any] = {}
 

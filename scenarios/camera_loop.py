@@ -37,7 +37,7 @@ operating-envelope study, studies/hardware_envelope.toml), the `camera` section 
 
 Imports: MuJoCo, OpenCV and the perception pipeline are imported inside the functions that
 check or run the scenario, not at load, so that registering it and reading its parameters
-(`softcbf list`, `softcbf run NAME --help`) stay cheap (issue 27; tests/test_cli_lazy.py). The
+(`softcbf list`, `softcbf run NAME --help`) stay cheap (tests/test_cli_lazy.py). The
 image size's bound is the render's resolution (`softcbf_mj.model_builder.CAMERA_RESOLUTION`),
 which is the scenario's default width and height (tests/test_setting_defaults.py holds them equal).
 """

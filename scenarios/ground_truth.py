@@ -29,7 +29,7 @@ per run, from the controller the spec's check built (`spec.built`, scenarios.com
 Imports: MuJoCo (softcbf_mj.flexure, flexure_calibration, model_builder) is imported inside
 the functions that check or build a ground truth, not at load, so that registering the
 scenarios and reading their parameters (`softcbf list`, `softcbf run NAME --help`) stay cheap
-(issue 27; tests/test_cli_lazy.py).
+(tests/test_cli_lazy.py).
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ Model mismatch studies vary these (softcbf.study).
 
 Imports: MuJoCo (the plants, the model builder) is imported inside the functions that run the
 scenario or its batch form, not at load, so that registering the scenario and reading its
-parameters (`softcbf list`, `softcbf run NAME --help`) stay cheap (issue 27; tests/test_cli_lazy.py).
+parameters (`softcbf list`, `softcbf run NAME --help`) stay cheap (tests/test_cli_lazy.py).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ Runs the `camera_loop` scenario (defaults unless overridden: 1280 × 720 at 12.8
 first contact) into a temporary folder, without report and recording, and prints per
 tuning: the median wall time per frame of rendering, detection and estimation (ms) and
 their sum, the camera's share of the run's wall time, and the real-time factor RTF =
-simulated s / wall s of the closed loop (`realtime_factor` in summary.json; the issue's
+simulated s / wall s of the closed loop (`realtime_factor` in summary.json; the
 target: ≥ 2 on CPU at 12.8 fps). MUJOCO_GL picks the renderer (osmesa on CPU, egl on a GPU).
 
     python tools/bench_camera_loop.py [--duration 30] [--t0 15] [--width 1280 --height 720] [--tracking true]

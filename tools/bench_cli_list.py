@@ -3,7 +3,7 @@
 Each of `--repeats` runs starts `python -m softcbf.cli list` with the interpreter of this
 process (so the same virtual environment) with its output discarded, and reads the
 child's user and system CPU time from `resource.getrusage(RUSAGE_CHILDREN)` (the
-difference before and after the child). The budget (issue 27) is 0.5 s of CPU; the
+difference before and after the child). The budget is 0.5 s of CPU; the
 median over the runs is what is compared with it. Also reported: `softcbf run
 mujoco_contact --help` (a scenario's parameters, which import no MuJoCo either:
 tests/test_cli_lazy.py) and the bare interpreter's start (`python -c pass`), the floor no
@@ -21,7 +21,7 @@ import subprocess
 import sys
 import time
 
-BUDGET_S = 0.5  # s of CPU (user + system), issue 27
+BUDGET_S = 0.5  # s of CPU (user + system), the budget of `softcbf list`
 
 
 def cpu_of(command: list[str]) -> tuple[float, float]:

@@ -1,7 +1,7 @@
 """Speed of the PCC model's one implementation (`controllers.pcc_model`) against a baseline tree, side by side.
 
 Each figure is measured in a fresh worker process per tree (`--against DIR`, e.g. a worktree of
-e4ce86e, whose N = 2 paths were hand-unrolled Python and whose batch was numpy over N = 2), the
+the earlier version, whose N = 2 paths were hand-unrolled Python and whose batch was numpy over N = 2), the
 workers running one after the other, each the best of `--repeats` passes in CPU time of the
 process (`time.process_time`, which other jobs on a shared machine disturb far less than wall time):
 

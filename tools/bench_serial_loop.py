@@ -1,5 +1,5 @@
 """The serial MuJoCo loop's speed as a fraction of bare `mj_step`, optionally side by side with
-another tree (issue 23, item 4: ≥ 0.5 on mujoco_contact, and never slower than before).
+another tree (the target: ≥ 0.5 on mujoco_contact, and never slower than before).
 
 Per tree and tuning, in one process (after a warm-up call of the scenario):
 - t_loop: CPU s of the closed loop of `mujoco_contact` as the scenario runs it (its
@@ -28,7 +28,7 @@ least disturbed by other jobs on a shared machine). With `--against`: speedup =
 t_loop(TREE) / t_loop(this tree) per tuning, and whether both trees sent bit-identical
 commands. Usage:
 
-    git archive 8ba33d0 | tar -x -C /tmp/base
+    git archive REV | tar -x -C /tmp/base     # REV: the commit to compare with
     .venv/bin/python tools/bench_serial_loop.py --against /tmp/base [--duration 10] [--tunings None,Low]
 
 Prints a table and ends with one line of JSON.
@@ -50,7 +50,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parents[1]  # this tree
-TARGET_FRACTION = 0.5  # issue 23: the serial loop at >= 0.5 of bare mj_step
+TARGET_FRACTION = 0.5  # the target: the serial loop at >= 0.5 of bare mj_step
 TIMES = ("t_loop", "t_mj_step", "t_plant", "wall_loop", "wall_mj_step", "wall_plant")  # CPU s, wall s
 STEP_TIMES = ("step_us", "batch_step_us_B1")  # CPU µs per control call of the step alone
 STEP_CALLS = 20000

@@ -11,19 +11,19 @@ benchmark's plate bounds) for two seeds, where e-erg bisects at nearly every cal
 the benchmark's plate bounds; the model's gain) pushing the plate at 10 Hz and 1 kHz, on the
 sinusoid, recovering on the PCC plant, and on mujoco_contact. Stored per
 case: every call's command (calls, N) hPa and action (an index into ACTIONS); the scenario
-cases store the recorded command column u. The stored files: every case but the step cases
-from commit 45eacd9 (before the first speed-ups), the step cases from commit 266e431 (the
-first speed-ups, before the second), the c-erg cases (contact certificate; CERG_CASES) from commit
-a6cdc5c (before the gain interval and the camera-rate speed-ups), each with this script on a copy of
-that commit:
+cases store the recorded command column u. The stored files (each named
+after the commit it was generated from, REV below): every case but the step cases from the tree
+before the first speed-ups, the step cases from the tree of the first speed-ups (before the
+second), the c-erg cases (contact certificate; CERG_CASES) from the tree before the gain interval
+and the camera-rate speed-ups, each with this script on a copy of that commit:
 
-    git archive 45eacd9 | tar -x -C /tmp/eerg_ref
-    PYTHONPATH=/tmp/eerg_ref python tools/eerg_references.py --write tests/data/eerg_references_45eacd9.npz
+    git archive REV | tar -x -C /tmp/eerg_ref
+    PYTHONPATH=/tmp/eerg_ref python tools/eerg_references.py --write tests/data/eerg_references_REV.npz
     python tools/eerg_references.py --cases "paper_sim step seed 0,paper_sim step seed 3" \
-        --write tests/data/eerg_references_step_266e431.npz    # this script on 266e431's controllers
-    git archive a6cdc5c | tar -x -C /tmp/cerg_ref
+        --write tests/data/eerg_references_step_REV.npz    # this script on REV's controllers
+    git archive REV | tar -x -C /tmp/cerg_ref
     PYTHONPATH=/tmp/cerg_ref python tools/eerg_references.py --cases "$(python tools/eerg_references.py --list-cerg)" \
-        --write tests/data/eerg_references_cerg_a6cdc5c.npz     # this script on a6cdc5c's controllers
+        --write tests/data/eerg_references_cerg_REV.npz     # this script on REV's controllers
 
 Without --write it compares the current tree with the stored files (default: REFERENCE_FILES,
 merged): prints each case's max |Δu| (hPa) and the number of differing actions; ends with
@@ -152,7 +152,7 @@ def run_scenario_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
 
 CASES = (*LOOP_CASES, "recovery", *SCENARIO_CASES)
 CERG_CASES = tuple(name for name in CASES if "c-erg" in name)
-"""The c-erg cases (stored from a6cdc5c)."""
+"""The c-erg cases (stored from the tree before the gain interval)."""
 
 
 def run_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Falsification against uniform random search on a box where violations are rare (issue 26, docs/studies.md).
+"""Falsification against uniform random search on a box where violations are rare (docs/studies.md).
 
     .venv/bin/python tools/falsify_measure.py [--study studies/paper_low_plate_corner.toml] [--seeds 1,2,3,4,5]
                                               [--searches cmaes:vertices,tpe:vertices,tpe:random,cmaes:random]
@@ -16,7 +16,7 @@ a violation is replayed with `softcbf run --config DIR/worst/config.json` and it
 compared, bit for bit, with the worst-case run folder's and with the search's batched row.
 
 Medians count a search without a violation as +∞ and a random search without one as cap + 1,
-both in the direction that makes the claim harder. Done when (issue 26): the default search
+both in the direction that makes the claim harder. The target: the default search
 finds a violation within 40 evaluations in at least 4 of 5 seeds, and its median is at most
 half of random search's. Prints a table and the verdict; ends with one JSON line.
 """

@@ -5,11 +5,11 @@ Runs short scenarios (every paper tuning, the filter active: large, fast sinusoi
 start at the sinusoid's peak) with the Python API and stores, per run, every
 DECIMATE-th row of the columns that do not depend on wall time (timing columns such as
 filter_us are left out) in one compressed .npz: key "<case>/<tuning>/<column>".
-The stored file was generated from commit 7ba3f9c (before the control step became a
-plug-in), with this script on the PYTHONPATH of a worktree of that commit:
+The stored file was generated from the tree before the control step became a plug-in (REV, the
+commit its name ends with), with this script on the PYTHONPATH of a worktree of that commit:
 
-    git worktree add --detach ../ref7ba 7ba3f9c
-    PYTHONPATH=../ref7ba python tools/loop_references.py tests/data/loop_references_7ba3f9c.npz
+    git worktree add --detach ../ref REV
+    PYTHONPATH=../ref python tools/loop_references.py tests/data/loop_references_REV.npz
 
 It uses only the scenario registry and the run-folder time series, which both commits share.
 Prints the figures it stored and ends with one JSON line.

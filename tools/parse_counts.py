@@ -1,4 +1,4 @@
-"""How often one `softcbf run SCENARIO` parses, loads and checks its configuration (issue 25: "parse once").
+"""How often one `softcbf run SCENARIO` parses, loads and checks its configuration ("parse once").
 
 Runs `softcbf run SCENARIO --duration D --progress false` (default mujoco_contact, 0.02 s) through
 `softcbf.cli.main` under cProfile (the run folder, its report and recording included, in a
