@@ -56,8 +56,8 @@ module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's roundin
   the chain stays within 5e-12 hPa of the scalar filter in the tests. The compiled kernel replaced
   the numpy enumeration of before without moving these floats: on 120 000 random N = 2 states (four
   tunings, with and without the box) no command and no label changed (`tools/cbf_batch_agreement.py
-  --against <worktree of the numpy version>`, which also compares 22 376 states outside P with the scalar filter: the same
-  labels, commands within 4.3e-14 hPa). (Its feasibility products are
+  --against <worktree of the numpy version>`, which also compares 22 376 states outside P with the
+  scalar filter: the same labels, commands within 4.3e-14 hPa). (Its feasibility products are
   sums in the order j = 0, 1, …, the numpy version's a matmul: rounding differences there could only
   flip a candidate lying within 1e-14 of the tolerance.) A subset whose unit rows span a parallelotope of volume ‖v_1‖⋯‖v_k‖
   (|det A_S| when square) below SINGULAR_TOL = 1e-12 is skipped (nearly dependent

@@ -10,8 +10,8 @@ outside P against the scalar `CBFFilter`: labels that differ and the largest |Δ
 
 Both trees run in this process: `--against DIR`'s controllers/cbf_batch.py is loaded under another
 module name on top of this tree's other modules (the baseline must share this tree's
-`BatchDynamics`; true of the numpy version before the compiled kernel). Usage: `python tools/cbf_batch_agreement.py --against
-../pin [--states 120000]`; ends with one line of JSON.
+`BatchDynamics`; true of the numpy version before the compiled kernel). Usage:
+`python tools/cbf_batch_agreement.py --against ../pin [--states 120000]`; ends with one line of JSON.
 """
 
 from __future__ import annotations
