@@ -13,6 +13,9 @@
                                                    robustness studies and worst-case search (softcbf.study)
     softcbf hardware --config FILE ...             the hardware mode (softcbf.hardware_cli)
     softcbf bench --out DIR [--filters SPEC,...] [--quick]   the filter benchmark battery (softcbf.bench)
+    softcbf examples DIR [--overwrite]             copy the shipped examples, studies and hardware configurations
+                                                   into DIR (softcbf.shipped; STUDY_FILE and CONFIG above may be
+                                                   their names, e.g. mismatch_box_contact, hardware_emulated)
     softcbf --version
 
 `run` runs a registered scenario (`scenarios.registry`, through `scenarios.run.run_scenario`): its parameters are the
@@ -65,7 +68,7 @@ A subcommand is one `register_command(name, help, add_arguments, handler)` call:
 it (`extra`: tokens the parser did not know, passed only with `extra_args=True`); a
 handler raises `UsageError` for bad input. `add_arguments` may be None (no options).
 `help` may be a function returning the text, and `lazy(module, name)` stands for the
-function `name` of `module`, imported when first called: `demo`, `hardware`, `bench` and `study`
+function `name` of `module`, imported when first called: `demo`, `hardware`, `bench`, `study` and `examples`
 are registered so, and `main` builds only the subcommand it runs (the others get their
 name, and their help only for `softcbf --help`), so `softcbf list` imports neither OpenCV
 nor the hardware mode nor the governors' benchmark, and the scenario modules import MuJoCo and
@@ -266,6 +269,8 @@ register_command("study", "robustness studies of model mismatch: softcbf study r
                  lazy("softcbf.study.cli", "add_arguments"), lazy("softcbf.study.cli", "run_command"))
 register_command("hardware", lambda: importlib.import_module("softcbf.hardware_cli").HELP,
                  lazy("softcbf.hardware_cli", "add_arguments"), lazy("softcbf.hardware_cli", "run_command"))
+register_command("examples", "copy the shipped examples, studies and hardware configurations into DIR: softcbf examples DIR",
+                 lazy("softcbf.shipped", "add_arguments"), lazy("softcbf.shipped", "run_command"))
 register_command("bench", lambda: importlib.import_module("softcbf.bench").HELP,
                  lazy("softcbf.bench", "add_arguments"), lazy("softcbf.bench", "run_command"))
 

@@ -4,7 +4,9 @@
                             [--filter SPEC] [--filter-param NAME=VALUE ...] [--f-max N] [--duration S] ...
                             [--dry-run] [--out DIR] [--overwrite] [--spawn]
 
-CONFIG is a `hardware.config` file (TOML or JSON; examples/hardware_emulated.toml); the
+CONFIG is a `hardware.config` file (TOML or JSON; examples/hardware_emulated.toml), or the name of a shipped one
+(`hardware_emulated`: `softcbf.shipped.resolve`, which also finds examples/hardware_emulated.toml outside the
+checkout, and names the shipped ones when CONFIG is neither); the
 options override its `link.port`, `camera.source`, `control.tuning` and `run.dry_run`,
 and every setting it shares with the simulations by the option `softcbf run` has for it
 (`hardware.config.SHARED_KEYS`: `--f-max`, `--control-rate`, `--filter`, `--duration`,
@@ -95,6 +97,7 @@ from closedloop.record import TIMESERIES_UNITS
 from closedloop.step import describe_fault, fault_log_name, write_fault_log
 from controllers.registry import build_filter, build_nominal
 from controllers.registry import label as run_label
+from softcbf.shipped import UnknownShipped, resolve as shipped_or_file
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import (
@@ -115,7 +118,8 @@ TABLE_SETTINGS = {"filter_params": "--filter-param", "nominal_params": "--nomina
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("config", type=Path, help="hardware configuration file (.toml or .json)")
+    parser.add_argument("config", type=Path, help="hardware configuration file (.toml or .json), or a shipped one's name "
+                                                  "(hardware_emulated)")
     parser.add_argument("--port", help=f"valve board serial port, or {EMULATED_PORT!r} (overrides link.port)")
     parser.add_argument("--camera", help=f"camera device index, video file or URL, or {VIRTUAL_CAMERA!r} (overrides camera.source)")
     parser.add_argument("--tuning", help="CBF tuning (overrides control.tuning)")
@@ -168,7 +172,7 @@ def configure(args: argparse.Namespace) -> HardwareConfig:
             elif name in PLUGIN_SETTINGS:
                 value = _plugin_from_working_directory(value)
             changes[name] = value
-    config = HardwareConfig.load(args.config)
+    config = HardwareConfig.load(shipped_or_file("hardware", args.config))
     for name in ("filter", "nominal"):
         if getattr(args, name) is not None:
             changes[f"{name}_params"] = {}  # another controller: the file's parameters were for the file's
@@ -215,7 +219,7 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
                     row = run_loop(config, loop, emulation, out_dir, progress=progress)
             else:
                 row = run_loop(config, loop, emulation, out_dir, progress=progress)
-    except (ConfigError, StartupError, OutputDirError) as exc:
+    except (ConfigError, UnknownShipped, StartupError, OutputDirError) as exc:
         if out_dir is not None:
             remove_if_unused(out_dir)  # made for a run that did not start
         print(f"error: {exc}", file=sys.stderr)

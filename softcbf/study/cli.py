@@ -35,6 +35,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from softcbf.shipped import resolve as shipped_or_file
 from softcbf_mj.runio import OutputDirError
 
 # The study machinery (pyarrow, Dask, matplotlib) is imported by the handlers, so that
@@ -46,7 +47,7 @@ def _run(args: argparse.Namespace) -> int:
     from softcbf.study.execute import run_study
 
     def body() -> None:
-        study = load_study(args.study_file, args.set)
+        study = load_study(shipped_or_file("study", args.study_file), args.set)
         options = {"workers": args.workers, "scheduler": args.scheduler, "resume": args.resume,
                    "keep_runs": args.keep_runs, "progress": not args.no_progress, "batch_size": args.batch_size}
         if args.until_bound is not None:
@@ -99,7 +100,7 @@ def _falsify(args: argparse.Namespace) -> int:
         return significant(value) if isinstance(value, float) else str(value)
 
     def body() -> None:
-        study = load_study(args.study_file, args.set)
+        study = load_study(shipped_or_file("study", args.study_file), args.set)
         bar = Progress(f"falsify {study.name}", max(1, args.budget), enabled=not args.no_progress, unit="evaluations")
         if args.budget >= 1 and not args.resume:  # a resume's first line follows its checks (`falsify`)
             bar.update(0, "starting the search")
@@ -144,7 +145,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the `run`, `falsify` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf.study`)."""
     commands = parser.add_subparsers(dest="study_command", required=True)
     run = commands.add_parser("run", help="run a study file into a study folder")
-    run.add_argument("study_file", type=Path, help="study definition (TOML), e.g. studies/paper_tunings_plate_errors.toml")
+    run.add_argument("study_file", type=Path, help="study definition (TOML) or a shipped study's name, e.g. studies/paper_tunings_plate_errors.toml, mismatch_box_contact")
     run.add_argument("--out", type=Path, required=True, help="study folder (refused if not empty, unless --resume)")
     backend = run.add_mutually_exclusive_group()
     backend.add_argument("--workers", type=int, help="local worker processes (default: every core)")
@@ -163,7 +164,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "P(violation) is below P, or it violated (at most the file's draws)")
     run.set_defaults(study_handler=_run)
     falsify = commands.add_parser("falsify", help="search a study file's [vary] box for its worst case")
-    falsify.add_argument("study_file", type=Path, help="study definition (TOML), e.g. studies/paper_low_plate_corner.toml")
+    falsify.add_argument("study_file", type=Path, help="study definition (TOML) or a shipped study's name, e.g. studies/paper_low_plate_corner.toml, mismatch_box_contact")
     falsify.add_argument("--out", type=Path, required=True, help="falsification folder (refused if not empty, unless --resume)")
     falsify.add_argument("--budget", type=int, default=100, help="evaluations of the search (default 100)")
     falsify.add_argument("--sampler", choices=("cmaes", "tpe"), default="cmaes", help="optuna sampler (default cmaes)")
