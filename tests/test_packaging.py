@@ -1,5 +1,7 @@
-"""Packaging (issue 27): the docs site builds with --strict (a broken link fails), and `python -m build` makes an
-sdist and a wheel whose wheel, installed alone into a fresh environment, runs `softcbf list` and a short run.
+"""Packaging: the docs site builds with --strict (a broken link fails), and `python -m build` makes an
+sdist and a wheel whose wheel, installed alone into a fresh environment, runs `softcbf list` and a short run, finds
+the shipped studies and hardware configuration by name and copies the shipped files out (`softcbf examples`).
+scripts/wheel_smoke.sh (CI) does the same with the newest allowed dependencies from the package index.
 
 Marked `packaging` (deselect with `-m "not packaging"`); about 15 s on the project's 2-core machine."""
 
@@ -83,6 +85,27 @@ def test_sdist_and_wheel_build_and_the_wheel_runs_alone(tmp_path):
     emulator, box, shown = files.stdout.split()
     assert emulator.startswith(purelib) and box.startswith(purelib), files.stdout
     assert shown == "studies/mismatch_box_contact.toml"
+    # The files shipped for users (softcbf.shipped.SHIPPED, the checkout's) are the wheel's softcbf_files/, reachable by
+    # name from outside the checkout, and `softcbf examples DIR` copies them out.
+    from softcbf.shipped import shipped_files
+
+    with zipfile.ZipFile(wheel) as archive:
+        in_wheel = {n.removeprefix("softcbf_files/") for n in archive.namelist()
+                    if n.startswith(("softcbf_files/examples/", "softcbf_files/studies/"))}
+    assert in_wheel == {p.as_posix() for p in shipped_files()}
+    names = subprocess.run([str(python), "-c", "from softcbf.shipped import resolve; "
+                            "print(resolve('study', 'mismatch_box_contact')); print(resolve('hardware', 'hardware_emulated')); "
+                            "print(resolve('study', 'studies/paper_low_plate_corner.toml'))"],
+                           cwd=work, capture_output=True, text=True, timeout=120)
+    assert names.returncode == 0, names.stderr[-3000:]
+    assert all(line.startswith(f"{purelib}/softcbf_files/") for line in names.stdout.split()), names.stdout
+    bad = subprocess.run([str(venv / "bin" / "softcbf"), "study", "run", "mismatch_box_contat", "--out", str(work / "s")],
+                         cwd=work, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "did you mean 'mismatch_box_contact'" in bad.stderr and len(bad.stderr.splitlines()) == 1
+    copied = subprocess.run([str(venv / "bin" / "softcbf"), "examples", str(work / "mine")],
+                            cwd=work, capture_output=True, text=True, timeout=120)
+    assert copied.returncode == 0, copied.stderr[-3000:]
+    assert sorted(p.relative_to(work / "mine").as_posix() for p in (work / "mine").rglob("*") if p.is_file()) == sorted(in_wheel)
 
 
 def test_citation_file_names_this_version_and_the_paper():
