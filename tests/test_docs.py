@@ -127,8 +127,8 @@ def test_the_getting_started_block_reads_a_run_folder(tmp_path):
     from scenarios.api import MujocoContact, Nominal, Run, run, save
 
     (block,) = _blocks("getting-started.md", "getting-started")
-    assert "--amplitude 150 --frequency 0.25 --t0 1 --duration 5 --out runs/first" in (DOCS / "getting-started.md").read_text(
-        encoding="utf-8")
+    page = (DOCS / "getting-started.md").read_text(encoding="utf-8")
+    assert "--amplitude 150 --frequency 0.25 --t0 1 --duration 5 --out runs/first" in page
     save(run(MujocoContact(run=Run(duration=0.2, progress=False), nominal=Nominal(amplitude=150.0, frequency=0.25,
                                                                                  t0=1.0))), tmp_path / "runs/first")
     script = tmp_path / "block.py"

@@ -32,7 +32,7 @@ def test_docs_site_builds_strictly_and_a_broken_link_fails(tmp_path):
     assert (tmp_path / "site" / "figures" / "shield_cem.png").is_file()
     home = (tmp_path / "site" / "index.html").read_text(encoding="utf-8")
     assert 'href="getting-started/"' in home and 'src="figures/demo_force.png"' in home
-    readme = (tmp_path / "site" / "project-readme" / "index.html").read_text(encoding="utf-8")  # docs/hooks/readme_page.py
+    readme = (tmp_path / "site" / "project-readme" / "index.html").read_text(encoding="utf-8")  # the hook's page
     assert 'href="../results/#contact-tasks"' in readme and not (tmp_path / "site" / "hooks").exists()
     broken = tmp_path / "broken"
     shutil.copytree(ROOT / "docs", broken / "docs")
