@@ -21,7 +21,9 @@ default, the paper filter's tunings are a tuple of preset names (`Filter(tunings
 `run(spec)` runs the spec's scenario (the same function `softcbf run` calls) into a temporary
 folder without the report and the recording (`scenarios.common.data_only`) and returns a
 `Result` holding every file it wrote (bytes, by relative path), summary.json parsed and each
-run's time series loaded (`softcbf_mj.runio.load_timeseries`: columns and units);
+run's time series loaded (`softcbf_mj.runio.load_timeseries`: columns and units). The folder
+is deleted when `run` returns, so the lines the scenario prints name what holds its files
+instead: "outputs in result.files", "(every column): result.files['table.txt']" (`InMemoryNames`);
 `save(result, out_dir)` writes those files into a new run folder (the same checks and lock as
 `softcbf run --out`) and builds the report and the recording from it, as `softcbf run` does
 after its last run. Every file stays inside the folder: a relative path with no "..", no "."
@@ -36,12 +38,16 @@ does not (tests/test_spec_api.py compares the two folders).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
+import re
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -57,6 +63,31 @@ __all__ = ["Camera", "CameraLoop", "Filter", "Model", "MujocoContact", "Nominal"
            "TrueArm", "run", "save"]
 
 TIMESERIES = "timeseries"
+IN_MEMORY = "result.files"  # what run(spec)'s printed lines name instead of its temporary folder
+
+
+class InMemoryNames(io.TextIOBase):
+    """A text stream that passes what is written on to `stream`, at once, with `folder` (a folder deleted before the
+    reader can look) named as the `Result` that holds its files: `folder/NAME` → result.files['NAME'], `folder` →
+    result.files (module docstring)."""
+
+    def __init__(self, stream: TextIO, folder: Path) -> None:
+        super().__init__()
+        self.stream = stream
+        self.pattern = re.compile(re.escape(str(folder)) + r"(?:/([^\s:;,'\")]+))?")
+
+    def renamed(self, text: str) -> str:
+        return self.pattern.sub(lambda m: f"{IN_MEMORY}[{m.group(1)!r}]" if m.group(1) else IN_MEMORY, text)
+
+    def write(self, text: str) -> int:
+        self.stream.write(self.renamed(text))
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def isatty(self) -> bool:  # also asked after run returns, by a module that kept sys.stdout (numba's colorama)
+        return not self.stream.closed and self.stream.isatty()
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +119,8 @@ def run(spec: Any) -> Result:
                         f"got {spec!r}")
     with tempfile.TemporaryDirectory(prefix="softcbf-") as tmp, data_only():
         folder = Path(tmp)
-        scenario.function(folder, spec)
+        with contextlib.redirect_stdout(InMemoryNames(sys.stdout, folder)):
+            scenario.function(folder, spec)
         files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
         loaded = {p.stem: load_timeseries(p) for p in sorted((folder / TIMESERIES).glob("*.npz"))}
     return Result(spec, json.loads(files[SUMMARY_FILE]), {k: v[0] for k, v in loaded.items()},

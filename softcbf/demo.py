@@ -66,7 +66,7 @@ def _run_one(k: int, demo: DemoRun, out: Path, duration: float, stream: TextIO) 
     print(f"[{k}/2] {demo.label}: {duration:g} s of mujoco_contact", file=stream, flush=True)
     spec = MujocoContact(run=Run(duration=duration, progress=True), filter=Filter(demo.filter, params=demo.params),
                          nominal=Nominal(**NOMINAL))
-    with contextlib.redirect_stdout(io.StringIO()):  # the scenario's table names its temporary folder
+    with contextlib.redirect_stdout(io.StringIO()):  # the scenario's own table: the demo says its result below
         result = run(spec)
     row = result.runs[0]
     f_max = result.summary["scene"]["f_max_N"]

@@ -1,6 +1,9 @@
 """docs/: every example file loads with the project's own loader and is the one the page
 shows, every Python block runs, every relative link and anchor resolves, and no code or
-model README cites the old out-of-repository specification."""
+model README cites the old out-of-repository specification; the site opens on what the testbed
+is, a picture and the way to getting-started.md, and holds the README with its links re-aimed
+(docs/hooks/readme_page.py); the user pages carry no history (commit ids, issue numbers, dates:
+CHANGELOG.md holds it)."""
 
 import os
 import re
@@ -10,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from controllers.params import RobotParams, reference_robot
 from controllers.safe_set import ForceSafeSet, LinearStiffness, paper_safe_set
@@ -117,6 +121,26 @@ def test_python_blocks_run(page, tag, tmp_path):
         assert (tmp_path / "runs" / "quickstart" / "plots" / "overview.svg").is_file()
 
 
+def test_the_getting_started_block_reads_a_run_folder(tmp_path):
+    """The page's Python block, on a short run of its command (the same scenario and push, saved where the page's
+    command writes it)."""
+    from scenarios.api import MujocoContact, Nominal, Run, run, save
+
+    (block,) = _blocks("getting-started.md", "getting-started")
+    page = (DOCS / "getting-started.md").read_text(encoding="utf-8")
+    assert "--amplitude 150 --frequency 0.25 --t0 1 --duration 5 --out runs/first" in page
+    save(run(MujocoContact(run=Run(duration=0.2, progress=False), nominal=Nominal(amplitude=150.0, frequency=0.25,
+                                                                                 t0=1.0))), tmp_path / "runs/first")
+    script = tmp_path / "block.py"
+    script.write_text(block, encoding="utf-8")
+    result = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert result.returncode == 0, result.stderr[-3000:]
+    lines = result.stdout.splitlines()
+    assert [line.split(":")[0].strip() for line in lines[:3]] == ["None", "Low", "High"], lines
+    assert re.fullmatch(r"\(200,\) N \(measured\) hPa .*", lines[3]), lines
+
+
 def _anchors(path: Path) -> set[str]:
     """GitHub's heading anchors: lower case, punctuation dropped, spaces → '-'."""
     heads = re.findall(r"^#+ (.+)$", path.read_text(encoding="utf-8"), re.M)
@@ -189,3 +213,98 @@ def test_the_readme_names_the_recommended_filter_that_softcbf_list_marks():
     assert (*governor.gain_interval(), governor.params.gain_rest_s) == (0.9, 1.1, 0.2)
     out = governor(Estimate(0.0, np.zeros(2), np.zeros(2), 0.0), np.full(2, 150.0))
     assert np.all(np.isfinite(out.u)) and np.all(out.u <= robot.array("u_max"))
+
+
+# -- the site ----------------------------------------------------------------------------------------------------
+
+
+def readme_hook():
+    from importlib.util import module_from_spec, spec_from_file_location
+
+    spec = spec_from_file_location("readme_page", DOCS / "hooks" / "readme_page.py")
+    module = module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_site_opens_on_the_testbed_a_picture_and_getting_started():
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))
+    hook = readme_hook()
+    assert config["hooks"] == ["docs/hooks/readme_page.py"]
+    first = config["nav"][0]
+    assert list(first) == ["Getting started"]
+    assert first["Getting started"] == [{"Home": "README.md"}, "getting-started.md", {"Project README": hook.PAGE}]
+    home = (DOCS / "README.md").read_text(encoding="utf-8")
+    assert "](figures/demo_force.png)" in home and (DOCS / "figures/demo_force.png").is_file()
+    assert home.index("](getting-started.md)") < home.index("## Use it")  # the way in comes before the map
+    assert "§" not in home  # no section numbers of a specification the reader never saw
+    guide = (DOCS / "getting-started.md").read_text(encoding="utf-8")
+    for heading in ("## Set up", "## See the point: `softcbf demo`", "## A first run", "## Reading a run folder",
+                    "## Where to go next"):
+        assert heading in guide
+
+
+def test_the_readme_page_links_only_to_pages_and_files_of_the_site():
+    """Every link of the README's page lands on a docs page (with the anchor it names) or a file of docs/, or is a URL;
+    the README as written links into docs/ (docs/results.md) and to files the site does not hold, which a plain include
+    would leave broken."""
+    hook = readme_hook()
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    written = LINK.findall(readme)
+    assert any(t.startswith("docs/results.md") for t in written) and "LICENSE" in written
+    page = hook.readme_markdown(ROOT)
+    targets = LINK.findall(page)
+    assert len(targets) == len([t for t in written if t.startswith(("docs/", "http"))])
+    for target in targets:
+        if target.startswith(("http://", "https://")):
+            continue
+        file, _, anchor = target.partition("#")
+        assert not file.startswith(("docs/", "../")) and (DOCS / file).is_file(), target
+        if anchor:
+            assert anchor in _anchors(DOCS / file), target
+    assert "[`docs/`](README.md)" in page  # docs/README.md is the site's home
+    assert "protocol in hardware/README.md)" in page and "MIT (LICENSE)." in page  # files the site does not hold
+
+
+def test_a_docs_page_s_link_out_of_docs_lands_on_the_site():
+    hook = readme_hook()
+    text = "[README](../README.md#layout), [model](model.md#qp-filter), ![f](figures/demo_force.png), [up](../LICENSE)"
+    assert hook.rewrite_links(text, "docs") == (f"[README]({hook.PAGE}#layout), [model](model.md#qp-filter), "
+                                                "![f](figures/demo_force.png), up")
+    assert hook.rewrite_links("[README](../../README.md)", "docs/sub") == f"[README](../{hook.PAGE})"
+    assert hook.rewrite_links("[a](https://example.org/a/b.md) [b](#here)", "") == \
+        "[a](https://example.org/a/b.md) [b](#here)"
+
+
+HISTORY = {  # what belongs in CHANGELOG.md, not on a user page
+    "a commit id": re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b"),
+    "an issue number": re.compile(r"\bissues? #?\d+|(?<![\w&/])#\d+\b", re.I),
+    "a date": re.compile(r"\b20\d\d-[01]\d(-[0-3]\d)?\b"),
+    "a time of day": re.compile(r"\b\d\d:\d\d\b(–\d\d:\d\d)? UTC"),
+    "a work session": re.compile(r"\b(today|yesterday|(this|that|these|two|other|the|same) sessions?)\b", re.I),
+}
+
+
+def user_pages() -> list[Path]:
+    return [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
+
+
+def history_in(text: str) -> list[tuple[int, str, str]]:
+    """(line number, kind, match) of every passage of HISTORY in `text`."""
+    return [(number, kind, match.group(0)) for number, line in enumerate(text.splitlines(), start=1)
+            for kind, pattern in HISTORY.items() for match in pattern.finditer(line)]
+
+
+def test_the_history_scan_finds_what_it_looks_for():
+    found = history_in("fixed in 84df02c (issue 36, #12), measured 2026-12-06 and 2026-11, 12:01–12:15 UTC, "
+                       "in this session; today's path")
+    assert [kind for _, kind, _ in found] == ["a commit id", "an issue number", "an issue number", "a date", "a date",
+                                              "a time of day", "a work session", "a work session"]
+    assert history_in("1e300, 3f2a..., float64, [x](results.md#contact-tasks), start time (UTC), 2.8 s, 12 000") == []
+
+
+def test_user_pages_carry_no_history():
+    """README.md and docs/*.md say what is, not when or in which change it came (CHANGELOG.md)."""
+    found = [(page.relative_to(ROOT).as_posix(), *hit) for page in user_pages()
+             for hit in history_in(page.read_text(encoding="utf-8"))]
+    assert found == []

@@ -32,9 +32,14 @@ def test_docs_site_builds_strictly_and_a_broken_link_fails(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     assert (tmp_path / "site" / "environment" / "index.html").is_file()
     assert (tmp_path / "site" / "figures" / "shield_cem.png").is_file()
+    home = (tmp_path / "site" / "index.html").read_text(encoding="utf-8")
+    assert 'href="getting-started/"' in home and 'src="figures/demo_force.png"' in home
+    readme = (tmp_path / "site" / "project-readme" / "index.html").read_text(encoding="utf-8")  # the hook's page
+    assert 'href="../results/#contact-tasks"' in readme and not (tmp_path / "site" / "hooks").exists()
     broken = tmp_path / "broken"
     shutil.copytree(ROOT / "docs", broken / "docs")
     shutil.copy(ROOT / "mkdocs.yml", broken / "mkdocs.yml")
+    shutil.copy(ROOT / "README.md", broken / "README.md")  # the site's README page
     page = broken / "docs" / "environment.md"
     page.write_text(page.read_text(encoding="utf-8") + "\nSee [nowhere](no-such-page.md).\n", encoding="utf-8")
     result = mkdocs(broken / "mkdocs.yml", tmp_path / "broken_site")

@@ -1,6 +1,12 @@
 """Every long command talks: each prints a progress line (softcbf_mj.progress) within FIRST_LINE_S of its start,
 run as a user runs it (a subprocess, short durations); bench's Ctrl-C says to continue with --resume; falsify's
-figures are rounded; the progress helper's own rules (a log line from the first second, ETA, rounding)."""
+figures are rounded; the progress helper's own rules (a log line from the first second, ETA, rounding).
+
+Within FIRST_LINE_S (`in_time`): on an idle machine, of wall time. A machine running more processes than it has
+cores stretches every command's wall time by about load / cores (the project's 2-core machine, shared, runs at
+load 5 to 20), so there the bound holds for the CPU time the command has used by its first line (user + system,
+read from /proc when the line arrives: Linux) and its wall time may stretch by that factor; a command that is silent
+for want of a line, not for want of a core, fails either way (`softcbf report` on a quiet or a busy machine)."""
 
 from __future__ import annotations
 
@@ -24,6 +30,19 @@ FIRST_LINE_S = 2.0  # the issue's bound: a command's first progress line within 
 PROGRESS_LINE = re.compile(r"^\[[^\]]+\] \|[# ]{20}\|")
 
 
+def cpu_seconds(pid: int) -> float:
+    """The CPU time (user + system, s) the running process `pid` has used (/proc/PID/stat's utime and stime)."""
+    fields = Path(f"/proc/{pid}/stat").read_text(encoding="ascii").rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def in_time(wall_s: float, cpu_s: float) -> bool:
+    """A first line `wall_s` after the start, the command having used `cpu_s` of CPU, keeps FIRST_LINE_S (module
+    docstring): wall time within FIRST_LINE_S × max(1, load / cores), CPU time within FIRST_LINE_S."""
+    stretch = max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
+    return cpu_s <= FIRST_LINE_S and wall_s <= FIRST_LINE_S * stretch
+
+
 def started(args: list[str], cwd: Path) -> tuple[subprocess.Popen, float]:
     """`python ARGS` in `cwd` with this checkout importable, stdout and stderr merged, line-buffered; its start."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
@@ -34,19 +53,19 @@ def started(args: list[str], cwd: Path) -> tuple[subprocess.Popen, float]:
 
 
 def read_until(proc: subprocess.Popen, start: float, pattern: re.Pattern[str],
-               lines: list[tuple[float, str]]) -> float | None:
+               lines: list[tuple[float, str]]) -> tuple[float, float] | None:
     """Read `proc`'s lines (appended to `lines` with their time since `start`) up to the first that matches
-    `pattern`; that line's time, or None when the output ends first."""
+    `pattern`; that line's time and the CPU time `proc` had used then, or None when the output ends first."""
     for line in proc.stdout:
         lines.append((time.monotonic() - start, line.rstrip("\n")))
         if pattern.search(line):
-            return lines[-1][0]
+            return lines[-1][0], cpu_seconds(proc.pid)
     return None
 
 
-def first_progress_line(args: list[str], cwd: Path) -> tuple[float | None, list[tuple[float, str]]]:
-    """The time (s from the start) of the command's first progress line, and its lines so far; the command is
-    then ended (by its pid: a process this test started)."""
+def first_progress_line(args: list[str], cwd: Path) -> tuple[tuple[float, float] | None, list[tuple[float, str]]]:
+    """The time (s from the start) of the command's first progress line and the CPU time it had used, and its lines
+    so far; the command is then ended (by its pid: a process this test started)."""
     proc, start = started(args, cwd)
     lines: list[tuple[float, str]] = []
     try:
@@ -59,7 +78,7 @@ def first_progress_line(args: list[str], cwd: Path) -> tuple[float | None, list[
 def assert_talks_early(args: list[str], cwd: Path) -> None:
     at, lines = first_progress_line(args, cwd)
     assert at is not None, f"no progress line from {args}:\n" + "\n".join(line for _, line in lines)
-    assert at <= FIRST_LINE_S, f"first progress line after {at:.2f} s: {lines[-1][1]}"
+    assert in_time(*at), f"first progress line after {at[0]:.2f} s ({at[1]:.2f} s of CPU): {lines[-1][1]}"
 
 
 def cli(*args: str) -> list[str]:
@@ -165,7 +184,7 @@ def test_falsify_prints_progress_within_2_s_and_rounds_its_figures(tmp_path):
     at = read_until(proc, start, PROGRESS_LINE, lines)
     lines += [(time.monotonic() - start, line.rstrip("\n")) for line in proc.stdout]
     assert proc.wait(timeout=600) == 0, "\n".join(line for _, line in lines)
-    assert at is not None and at <= FIRST_LINE_S, lines[:3]
+    assert at is not None and in_time(*at), (at, lines[:3])
     text = [line for _, line in lines if PROGRESS_LINE.match(line) or line.startswith("falsify ")]
     assert any("2/2 evaluations" in line for line in text), text
     numbers = [n for line in text for n in re.findall(r"-?\d+\.\d+(?:e[+-]\d+)?", line.split("; folder")[0])]
@@ -180,7 +199,7 @@ def test_bench_counts_its_cases_and_its_ctrl_c_says_how_to_resume(tmp_path):
     lines: list[tuple[float, str]] = []
     try:
         at = read_until(proc, start, PROGRESS_LINE, lines)
-        assert at is not None and at <= FIRST_LINE_S, lines
+        assert at is not None and in_time(*at), (at, lines)
         assert "0/2 cases" in lines[-1][1]
         assert read_until(proc, start, re.compile(r"case 1 of 2, eta \d"), lines) is not None, lines
         proc.send_signal(signal.SIGINT)

@@ -163,6 +163,21 @@ def test_run_returns_the_outputs_in_memory_and_save_writes_softcbf_run_s_folder(
         run(Run())
 
 
+def test_run_names_no_folder_that_is_gone_when_it_returns(capsys):
+    """run(spec) works in a temporary folder that it deletes: what it prints names result.files, not that folder."""
+    import tempfile
+
+    from scenarios.api import PaperSim, run
+
+    result = run(PaperSim(run=Run(duration=0.05, progress=False), filter=Filter(tunings=("High",))))
+    out = capsys.readouterr().out
+    assert tempfile.gettempdir() not in out, out
+    assert "; outputs in result.files\n" in out, out
+    for line in out.splitlines():
+        if "(every column)" in line:
+            assert line.endswith(": result.files['table.txt']") and "table.txt" in result.files, line
+
+
 def test_the_tunings_are_a_tuple_of_names_in_python_and_a_comma_list_on_the_command_line_and_in_files(tmp_path):
     """The typed API takes a tuple of tuning names; the flat form (the command line, TOML, config.json, studies)
     stays the comma list, and every form gives the same spec (issue 25: no strings from Python)."""
