@@ -352,7 +352,7 @@ class MujocoPlant:
         model, data, n_facets = self.model, self.data, self.n_facets
         ncon = data.ncon
         if ncon == 0:
-            return PlateContacts.empty(n_facets)
+            return PlateContacts.empty(n_facets, points)
         # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
         # struct of one contact), the same operations in the same order as summing per contact.
         # Each read of a field of MuJoCo's contact list builds an array (about 1 µs): the frames are
@@ -364,7 +364,7 @@ class MujocoPlant:
         normal_sum = [0.0] * n_facets
         tangential = [[0.0, 0.0, 0.0] for _ in range(n_facets)]
         strongest = [0.0] * n_facets
-        where = [[math.nan, math.nan] for _ in range(n_facets)]
+        where = [[math.nan, math.nan] for _ in range(n_facets)] if points else None
         touched = False
         force, contact = self._contact_force, data.contact
         frames = dist = pos = None  # read on the first contact that needs them
@@ -396,18 +396,20 @@ class MujocoPlant:
                 where[k] = [at[j] + half_dist * (sign * frame[j]) for j in range(2)]
         # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
         norms = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential] if touched else [0.0] * n_facets
-        return PlateContacts(np.array(normal_sum), np.array(norms), np.array(where).reshape(n_facets, 2))
+        return PlateContacts(np.array(normal_sum), np.array(norms),
+                             np.array(where).reshape(n_facets, 2) if points else None)
 
 
 @dataclasses.dataclass
 class PlateContacts:
     """Per facet (P,): summed normal force (N), magnitude of the summed tangential force (N), and the
-    sheet-surface point (world x, y, m) of the contact with the largest normal force (NaN: none)."""
+    sheet-surface point (world x, y, m; (P, 2)) of the contact with the largest normal force (NaN: none;
+    None: not asked for)."""
 
     normal: np.ndarray
     tangential: np.ndarray
-    point: np.ndarray
+    point: np.ndarray | None
 
     @classmethod
-    def empty(cls, n_facets: int) -> "PlateContacts":
-        return cls(np.zeros(n_facets), np.zeros(n_facets), np.full((n_facets, 2), np.nan))
+    def empty(cls, n_facets: int, points: bool = True) -> "PlateContacts":
+        return cls(np.zeros(n_facets), np.zeros(n_facets), np.full((n_facets, 2), np.nan) if points else None)

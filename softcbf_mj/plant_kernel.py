@@ -11,15 +11,14 @@ into one new float array, in this order, N segments and P facets:
 
 `index` packs the ids: tendon (N), actuator (N), site (N), the tip geom (1), plate qpos (P).
 Copies and one product a facet, so the values are those numpy's indexing and `np.maximum(0.0, k · x)`
-give, bit for bit (no fastmath; max keeps 0.0 for −0.0 and propagates NaN, as np.maximum does).
+give, bit for bit (no fastmath; np.maximum(0.0, f) is 0.0 only where f < 0: it keeps −0.0, its second
+operand on a tie, and propagates NaN).
 Why compiled (numba, `@njit(cache=True)`): numpy's indexing costs 0.5–1 µs a call on these few floats
 and the state took about ten of them every control period; one compiled call reads them all.
 Loaded on the first call (`controllers.lazy_import`).
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 from numba import njit
@@ -49,7 +48,7 @@ def read_state(qpos: np.ndarray, ten_length: np.ndarray, ten_velocity: np.ndarra
     for k in range(p):
         x = qpos[index[3 * n + 1 + k]]
         force = stiffness[k] * x
-        out[forces + k] = force if (force > 0.0 or math.isnan(force)) else 0.0
+        out[forces + k] = 0.0 if force < 0.0 else force  # np.maximum(0.0, force): −0.0 and NaN kept
         out[springs + k] = x
     for i in range(n):
         out[applied + i] = actuator_force[index[n + i]]
