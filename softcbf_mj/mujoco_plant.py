@@ -29,6 +29,13 @@ derived quantity belongs to the reported state):
   Contact points are the sheet's surface points of MuJoCo's contacts (midpoint moved by
   half the penetration).
 
+Reading the state costs next to nothing beside the physics only if it stays out of Python's
+per-array calls: q, q̇, the segment ends, the measured forces, u_applied and the plates' Δ come
+from MuJoCo's arrays (views of the data bound once) in one compiled call
+(`softcbf_mj.plant_kernel.read_state`, numpy's values bit for bit), and the contact list's
+fields, each of whose reads builds an array, are read only where a figure needs them (the
+frames for a tangential force or a contact point, dist and pos for a flexure's point).
+
 Table friction (`softcbf_mj.table_friction`: the model's custom numeric `table_friction` μ > 0,
 `ArmModelConfig.table_friction`): each physics step is then taken from Python as `mj_step1`, the
 friction forces on the arm's links from the velocities just computed (`data.xfrc_applied`),
