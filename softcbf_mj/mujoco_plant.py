@@ -357,8 +357,9 @@ class MujocoPlant:
         `points` also the sheet-surface point of each facet's strongest contact (else NaN: the ideal
         plate does not report it)."""
         model, data, n_facets = self.model, self.data, self.n_facets
-        ncon = data.ncon
-        if ncon == 0:
+        contact = data.contact  # MuJoCo's contact list, ncon long
+        geoms = contact.geom.tolist()
+        if not geoms:
             return PlateContacts.empty(n_facets, points)
         # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
         # struct of one contact), the same operations in the same order as summing per contact.
@@ -373,9 +374,9 @@ class MujocoPlant:
         strongest = [0.0] * n_facets
         where = [[math.nan, math.nan] for _ in range(n_facets)] if points else None
         touched = False
-        force, contact = self._contact_force, data.contact
+        force = self._contact_force
         frames = dist = pos = None  # read on the first contact that needs them
-        for c, (geom1, geom2) in enumerate(contact.geom.tolist()):
+        for c, (geom1, geom2) in enumerate(geoms):
             if facet_of[geom1] >= 0 and on_arm[geom2]:
                 k, sign = facet_of[geom1], -1.0  # sign: the frame's normal (from geom1 to geom2) toward the plate
             elif facet_of[geom2] >= 0 and on_arm[geom1]:
