@@ -63,8 +63,8 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
 One row's fault stops that row only. Cost per call, pass-through filter (`tools/bench_serial_loop.py`'s
 `control_step_us`, docs/studies.md#batches): `ControlStep` 0.2–0.9 µs (3–10 %) more than the
 hand-written scalar step it replaced (the compiled call's argument handling; numpy on (1, N)
-arrays would cost 0.5–1 µs an operation). `BatchControlStep` at B = 1: 21.7 µs a call against
-`ControlStep`'s 12.8 (load 16–19; 44.8 before its call took the all-rows case without a numpy
+arrays would cost 0.5–1 µs an operation). `BatchControlStep` at B = 1: 21.0–21.7 µs a call against
+`ControlStep`'s 12.0–12.8 (load 14–19; 42.3–44.8 before its call took the all-rows case without a numpy
 operation per row set and copied its fresh arrays from templates). What B = 1 still pays beyond
 `ControlStep` is the (B, ...) record itself: five fresh arrays, the nominal matrix's `frozen` copy,
 and a numpy write per row and field. The `frozen` copies handed to user code cost about 8 % of the step (`control_step_us`
