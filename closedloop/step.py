@@ -67,7 +67,8 @@ arrays would cost 0.5–1 µs an operation). `BatchControlStep` at B = 1: 21.0�
 `ControlStep`'s 12.0–12.8 (load 14–19; 42.3–44.8 before its call took the all-rows case without a numpy
 operation per row set and copied its fresh arrays from templates). What B = 1 still pays beyond
 `ControlStep` is the (B, ...) record itself: five fresh arrays, the nominal matrix's `frozen` copy,
-and a numpy write per row and field. The `frozen` copies handed to user code cost about 8 % of the step (`control_step_us`
+and a numpy write per row and field.
+The `frozen` copies handed to user code cost about 8 % of the step (`control_step_us`
 with `--against` the tree before them, on a loaded 2-core machine: 11.7 against 10.9 µs CPU a call;
 the mujoco_contact loop 0.987×, its commands bit-identical).
 """
