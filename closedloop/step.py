@@ -63,8 +63,12 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
 One row's fault stops that row only. Cost per call, pass-through filter (`tools/bench_serial_loop.py`'s
 `control_step_us`, docs/studies.md#batches): `ControlStep` 0.2–0.9 µs (3–10 %) more than the
 hand-written scalar step it replaced (the compiled call's argument handling; numpy on (1, N)
-arrays would cost 0.5–1 µs an operation), `BatchControlStep` at B = 1 1.5–1.7× faster than its
-numpy form was. The `frozen` copies handed to user code cost about 8 % of the step (`control_step_us`
+arrays would cost 0.5–1 µs an operation). `BatchControlStep` at B = 1: 21.0–21.7 µs a call against
+`ControlStep`'s 12.0–12.8 (load 14–19; 42.3–44.8 before its call took the all-rows case without a numpy
+operation per row set and copied its fresh arrays from templates). What B = 1 still pays beyond
+`ControlStep` is the (B, ...) record itself: five fresh arrays, the nominal matrix's `frozen` copy,
+and a numpy write per row and field.
+The `frozen` copies handed to user code cost about 8 % of the step (`control_step_us`
 with `--against` the tree before them, on a loaded 2-core machine: 11.7 against 10.9 µs CPU a call;
 the mujoco_contact loop 0.987×, its commands bit-identical).
 """
@@ -364,7 +368,11 @@ class BatchControlStep:
         self.faulted = np.zeros(n_sims, dtype=bool)
         self.checks = [OutputCheck(self.n, RESERVED_COLUMNS) for _ in range(n_sims)]
         self.all_rows = np.ones(n_sims, dtype=bool)
+        self.all_ids = list(range(n_sims))
         self.nan_row = frozen(np.full(self.n, math.nan))  # u_nom of a row whose nominal was not called or refused
+        # a call's fresh arrays are copies of these (a copy costs a third of np.full or np.zeros), and its work array
+        self.nan_rows, self.nan_column = np.full((n_sims, self.n), math.nan), np.full(n_sims, math.nan)
+        self.false_column, self.admitted = np.zeros(n_sims, dtype=bool), np.empty(n_sims, dtype=bool)
 
     @property
     def stopped(self) -> np.ndarray:
@@ -475,41 +483,50 @@ class BatchControlStep:
         arrays: the step copies what user code sees); `u_nom` (B, N) hPa: the nominal commands
         when the loop has them (the environment's held actions; the nominal is then not called),
         None: each row's nominal is called; `flags`: each row's flags (None: none raised)."""
-        n_sims, n = self.n_sims, self.n
+        n_sims, faults = self.n_sims, self.faults
         t = np.asarray(t, dtype=float)
         t_capture = t if t_capture is None else np.asarray(t_capture, dtype=float)
+        # every row stepped and none faulted (the common case): the row sets below are all rows,
+        # without a numpy operation for each
+        every = rows is None and faults.count(None) == n_sims
         rows = self.all_rows if rows is None else rows
-        live = rows & ~self.faulted
-        ts, tcs = t.tolist(), t_capture.tolist()
+        live = rows if every else rows & ~self.faulted
+        live_ids = self.all_ids if every else np.flatnonzero(live).tolist()
+        ts = t.tolist()
+        tcs = ts if t_capture is t else t_capture.tolist()
         q_view, qd_view = self.views(q, qd)
-        nominal_ok = live.copy()
+        nominal_ok, refused = live, False  # nominal_ok: copied before a row of it is refused
         if u_nom is None:
             if self.nominal_missing:
                 raise ValueError("u_nom must be given: this step was made without a nominal controller")
-            nominal = np.full((n_sims, n), math.nan)
+            nominal = self.nan_rows.copy()  # NaN on every row the nominal is not called for or refuses
             if self.nominal_batch is not None:
-                if live.any():
+                if live_ids:
+                    nominal_ok = live.copy()
                     self._call_nominal_batch(live, ts, t, q_view, qd_view, nominal, nominal_ok)
             else:
-                for b in np.flatnonzero(live).tolist():
+                for b in live_ids:
                     value = self.nominal_row(b, ts[b], q_view[b], qd_view[b])
                     if value is None:
+                        if not refused:
+                            nominal_ok, refused = live.copy(), True
                         nominal_ok[b] = False
                     else:
                         nominal[b] = value
         else:
             nominal = np.array(u_nom, dtype=float)
-        nominal[~nominal_ok] = math.nan
+            if not every:
+                nominal[~live] = math.nan
         nominal = frozen(nominal)  # recorded; user code sees its rows, which it cannot make writable
         called = nominal_ok if flags is None else nominal_ok & ~np.array([f.perception_stale for f in flags])
-        output = np.zeros(n_sims, dtype=bool)
-        u_filter = np.full((n_sims, n), math.nan)
-        rho_pred = np.full(n_sims, math.nan)
-        infeasible = np.zeros(n_sims, dtype=bool)
+        output = self.false_column.copy()
+        u_filter = self.nan_rows.copy()
+        rho_pred = self.nan_column.copy()
+        infeasible = self.false_column.copy()
         filter_action: list[str | None] = [None] * n_sims
         outputs: list[FilterOutput | None] = [None] * n_sims
-        filter_us = np.full(n_sims, math.nan)
-        ids = np.flatnonzero(called).tolist()
+        filter_us = self.nan_column.copy()
+        ids = live_ids if called is live else np.flatnonzero(called).tolist()
         if ids and self.batched:
             self._call_batch(ids, called, ts, t, t_capture, q_view, qd_view, nominal, output, u_filter, rho_pred, infeasible,
                              filter_action, filter_us)
@@ -520,13 +537,13 @@ class BatchControlStep:
                     output[b], outputs[b], filter_action[b] = True, checked, checked.action
                     u_filter[b], rho_pred[b], infeasible[b] = checked.u, checked.rho_pred, checked.infeasible
         faulted = self.faulted
-        if faulted.any():  # a fault's row has no output
+        if faults.count(None) < n_sims:  # a fault's row has no output
             output &= ~faulted
             u_filter[faulted], rho_pred[faulted], infeasible[faulted] = math.nan, math.nan, False
             for b in np.flatnonzero(faulted).tolist():
                 filter_action[b] = outputs[b] = None
         sent, action = self.monitor.outputs()
-        reasons = self.decide(t, u_filter, rows, flags, sent, np.empty(n_sims, dtype=bool), action)
+        reasons = self.decide(t, u_filter, rows, flags, sent, self.admitted, action)
         return BatchStepRecord(t, q_view, qd_view, t_capture, nominal, output, u_filter, rho_pred, infeasible,
                                filter_action, outputs, sent, action, [()] * n_sims if reasons is None else reasons,
                                filter_us)

@@ -29,6 +29,13 @@ derived quantity belongs to the reported state):
   Contact points are the sheet's surface points of MuJoCo's contacts (midpoint moved by
   half the penetration).
 
+Reading the state costs next to nothing beside the physics only if it stays out of Python's
+per-array calls: q, q̇, the segment ends, the measured forces, u_applied and the plates' Δ come
+from MuJoCo's arrays (views of the data bound once) in one compiled call
+(`softcbf_mj.plant_kernel.read_state`, numpy's values bit for bit), and the contact list's
+fields, each of whose reads builds an array, are read only where a figure needs them (the
+frames for a tangential force or a contact point, dist and pos for a flexure's point).
+
 Table friction (`softcbf_mj.table_friction`: the model's custom numeric `table_friction` μ > 0,
 `ArmModelConfig.table_friction`): each physics step is then taken from Python as `mj_step1`, the
 friction forces on the arm's links from the velocities just computed (`data.xfrc_applied`),
@@ -63,6 +70,7 @@ import mujoco
 import numpy as np
 
 import softcbf_mj
+from controllers.lazy_import import lazy_module
 from softcbf_mj.flexure import SheetInModel
 from softcbf_mj.model_builder import ArmModelConfig, build_model
 from softcbf_mj.plant import PlantState, steps_per_control
@@ -91,6 +99,7 @@ EXTRAS_UNITS: dict[str, str] = {
     **{f"warning_{name}": "count (cumulative)" for name in WARNINGS.values()},
 }
 
+plant_kernel = lazy_module("softcbf_mj.plant_kernel")  # numba loads on the first state (controllers.lazy_import)
 _ACTUATOR = re.compile(r"seg(\d+)_pressure")
 _PLATE_JOINT = re.compile(r"plate(\d+)_(?:slide|gauge)")
 
@@ -168,9 +177,19 @@ class MujocoPlant:
         base = model.body("base").id
         self._facet_of_geom = [plate_roots.get(root, -1) for root in roots]  # per geom: its plate's facet, -1: none
         self._on_arm = [root == base for root in roots]  # per geom: part of the arm (below `base`)
-        # index arrays of the state's reads (a list index is converted on every read)
-        self._site_xy = np.array([(3 * i, 3 * i + 1) for i in self.site_ids]).ravel()  # into site_xpos.ravel()
-        self._tendon_index, self._actuator_index = np.array(self.tendon_ids), np.array(self.actuator_ids)
+        # the ids the state reads (`softcbf_mj.plant_kernel.read_state`'s `index`), and MuJoCo's arrays it reads
+        # them from: views of the data bound once (their shapes are the model's; reading an attribute of the
+        # data builds a new array each time)
+        self._state_index = np.array([*self.tendon_ids, *self.actuator_ids, *self.site_ids, self.tip_geom,
+                                      *self.plate_qpos], dtype=np.int64)
+        self._actuator_index = np.array(self.actuator_ids)
+        data = self.data
+        self._ctrl = data.ctrl
+        self._state_arrays = (data.qpos, data.ten_length, data.ten_velocity, data.site_xpos, data.geom_xpos,
+                              data.actuator_force)
+        # what the position and velocity stages read (`_stage_inputs`): qpos, qvel and, if any, the mocap poses
+        self._stage_arrays = (data.qpos, data.qvel, *((data.mocap_pos, data.mocap_quat) if model.nmocap else ()))
+        self._warning_counts = data.warning.number  # (mjNWARNING,) int, a view of the data's warning stats
 
         self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
         self.u_max = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
@@ -246,7 +265,7 @@ class MujocoPlant:
         pressure limits of `RobotParams`), and `u_applied` reports what acted.
         """
         model, data, friction = self.model, self.data, self.table_friction
-        data.ctrl[self._actuator_index] = self._vector(u, "u")
+        self._ctrl[self._actuator_index] = self._vector(u, "u")
         if friction is None and not self._split_steps:
             mujoco.mj_step(model, data, nstep=self.steps_per_control)
         elif friction is None:
@@ -268,13 +287,12 @@ class MujocoPlant:
 
     def state(self) -> PlantState:
         """The state of the current data (after `mj_forward`, if you edited it)."""
-        data = self.data
-        ends = np.empty(2 * self.n_segments + 2)  # x, y of the sites, then of the tip
-        ends[:-2] = data.site_xpos.ravel()[self._site_xy]
-        ends[-2:] = data.geom_xpos[self.tip_geom, :2]
-        spring = data.qpos[self.plate_qpos]  # (a copy) the plate's Δ or the gauge's x_g, m
-        force = self.plate_stiffness * spring
-        contacts = self._plate_contacts()
+        n, p = self.n_segments, self.n_facets
+        values = np.empty(5 * n + 2 + 2 * p)  # q, qd, segment ends, contact forces, u_applied, spring (plant_kernel)
+        plant_kernel.read_state(*self._state_arrays, self._state_index, self.plate_stiffness, values)
+        ends, applied = 2 * n, 4 * n + 2 + p
+        spring = values[applied + n:]  # the plate's Δ or the gauge's x_g, m
+        contacts = self._plate_contacts(bool(self.sheets))
         displacement = spring.copy() if self.sheets else spring
         extras: dict[str, float | np.ndarray] = {
             "plate_displacement_m": displacement,
@@ -296,20 +314,14 @@ class MujocoPlant:
             extras["contact_stiffness_N_per_m"] = stiffness
         if self.table_friction is not None:
             extras["table_friction_power_W"] = self._friction_power
-        counts = data.warning.number.tolist()
+        counts = self._warning_counts.tolist()
         if any(counts):
             for index, count in enumerate(counts):
                 if count:
                     extras[f"warning_{WARNINGS[index]}"] = float(count)
-        return PlantState(
-            t=data.time,
-            q=data.ten_length[self._tendon_index],
-            qd=data.ten_velocity[self._tendon_index],
-            segment_ends=ends.reshape(self.n_segments + 1, 2),
-            contact_forces=np.maximum(0.0, force, out=force),
-            u_applied=data.actuator_force[self._actuator_index],
-            extras=extras,
-        )
+        return PlantState(t=self.data.time, q=values[:n], qd=values[n:ends],
+                          segment_ends=values[ends:applied - p].reshape(n + 1, 2),
+                          contact_forces=values[applied - p:applied], u_applied=values[applied:applied + n], extras=extras)
 
     # -- internals ----------------------------------------------------------------
 
@@ -321,8 +333,7 @@ class MujocoPlant:
 
     def _stage_inputs(self) -> tuple[bytes, ...]:
         """What MuJoCo's position and velocity stages read from the data: qpos, qvel, the mocap poses."""
-        data = self.data
-        return data.qpos.tobytes(), data.qvel.tobytes(), data.mocap_pos.tobytes(), data.mocap_quat.tobytes()
+        return tuple([array.tobytes() for array in self._stage_arrays])
 
     def _first_step1(self) -> None:
         """`mj_step1` of a control period's first physics step (module docstring): its checks,
@@ -341,22 +352,31 @@ class MujocoPlant:
             raise ValueError(f"{name} must be finite, got {arr.tolist()}")
         return arr
 
-    def _plate_contacts(self) -> "PlateContacts":
-        """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce)."""
+    def _plate_contacts(self, points: bool) -> "PlateContacts":
+        """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce); with
+        `points` also the sheet-surface point of each facet's strongest contact (else NaN: the ideal
+        plate does not report it)."""
         model, data, n_facets = self.model, self.data, self.n_facets
-        ncon = data.ncon
-        if ncon == 0:
-            return PlateContacts.empty(n_facets)
+        contact = data.contact  # MuJoCo's contact list, ncon long
+        geoms = contact.geom.tolist()
+        if not geoms:
+            return PlateContacts.empty(n_facets, points)
         # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
-        # struct of one contact), the same operations in the same order as summing per contact
+        # struct of one contact), the same operations in the same order as summing per contact.
+        # Each read of a field of MuJoCo's contact list builds an array (about 1 µs): the frames are
+        # read only for a contact with a tangential force or a point to place, dist and pos only for a
+        # point. A frictionless contact (f1 = f2 = 0) adds ±0.0 to each finite tangential sum, which
+        # leaves it as it is (the sums start at +0.0; a contact frame is an orthonormal, finite triad), so
+        # skipping its frame changes no bit.
         facet_of, on_arm = self._facet_of_geom, self._on_arm
         normal_sum = [0.0] * n_facets
         tangential = [[0.0, 0.0, 0.0] for _ in range(n_facets)]
         strongest = [0.0] * n_facets
-        points = [[math.nan, math.nan] for _ in range(n_facets)]
+        where = [[math.nan, math.nan] for _ in range(n_facets)] if points else None
         touched = False
-        force, contact = self._contact_force, data.contact
-        for c, (geom1, geom2) in enumerate(contact.geom[:ncon].tolist()):
+        force = self._contact_force
+        frames = dist = pos = None  # read on the first contact that needs them
+        for c, (geom1, geom2) in enumerate(geoms):
             if facet_of[geom1] >= 0 and on_arm[geom2]:
                 k, sign = facet_of[geom1], -1.0  # sign: the frame's normal (from geom1 to geom2) toward the plate
             elif facet_of[geom2] >= 0 and on_arm[geom1]:
@@ -365,30 +385,39 @@ class MujocoPlant:
                 continue
             mujoco.mj_contactForce(model, data, c, force)
             normal, f1, f2 = force[:3].tolist()
-            frame = contact.frame[c].tolist()  # rows: normal (from geom1 to geom2), two tangents
             normal_sum[k] += normal
+            touched = True
+            stronger = points and normal > strongest[k]
+            if not (stronger or f1 != 0.0 or f2 != 0.0):
+                continue
+            if frames is None:
+                frames = contact.frame
+            frame = frames[c].tolist()  # rows: normal (from geom1 to geom2), two tangents
             summed = tangential[k]
             for j in range(3):
                 summed[j] += f1 * frame[3 + j] + f2 * frame[6 + j]
-            touched = True
-            if normal > strongest[k]:
+            if stronger:
                 strongest[k] = normal
-                half_dist, pos = 0.5 * float(contact.dist[c]), contact.pos[c].tolist()
-                points[k] = [pos[j] + half_dist * (sign * frame[j]) for j in range(2)]
+                if dist is None:
+                    dist, pos = contact.dist, contact.pos
+                half_dist, at = 0.5 * float(dist[c]), pos[c].tolist()
+                where[k] = [at[j] + half_dist * (sign * frame[j]) for j in range(2)]
         # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
         norms = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential] if touched else [0.0] * n_facets
-        return PlateContacts(np.array(normal_sum), np.array(norms), np.array(points).reshape(n_facets, 2))
+        return PlateContacts(np.array(normal_sum), np.array(norms),
+                             np.array(where).reshape(n_facets, 2) if points else None)
 
 
 @dataclasses.dataclass
 class PlateContacts:
     """Per facet (P,): summed normal force (N), magnitude of the summed tangential force (N), and the
-    sheet-surface point (world x, y, m) of the contact with the largest normal force (NaN: none)."""
+    sheet-surface point (world x, y, m; (P, 2)) of the contact with the largest normal force (NaN: none;
+    None: not asked for)."""
 
     normal: np.ndarray
     tangential: np.ndarray
-    point: np.ndarray
+    point: np.ndarray | None
 
     @classmethod
-    def empty(cls, n_facets: int) -> "PlateContacts":
-        return cls(np.zeros(n_facets), np.zeros(n_facets), np.full((n_facets, 2), np.nan))
+    def empty(cls, n_facets: int, points: bool = True) -> "PlateContacts":
+        return cls(np.zeros(n_facets), np.zeros(n_facets), np.full((n_facets, 2), np.nan) if points else None)

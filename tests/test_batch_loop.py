@@ -158,3 +158,40 @@ def test_a_faulty_nominal_batch_is_a_nominal_fault_of_every_row_it_was_called_fo
         # held for the monitor's hold (0.5 s > the run): every row from the fault on holds the last command
         np.testing.assert_array_equal(run.commands[10:, b], np.broadcast_to([50.0, 50.0], (90, 2)))
         assert run.run(b)["refused_steps"] == 90
+
+
+def test_a_batch_steps_records_are_its_own_arrays():
+    """BatchControlStep's call makes its record's arrays as copies of the step's templates: writing into one
+    call's record changes neither the next call's record nor what the step sends, for B = 1 and B = 3, a row
+    not stepped and a refused nominal among them."""
+    from closedloop.step import BatchControlStep
+    from controllers.errors import ControllerInputError
+
+    context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
+
+    def refuses_row_1(t, q, qd):
+        if q[0] == 1.0:
+            raise ControllerInputError("row 1 refused")
+        return PEAK(t, q, qd)
+
+    for n_sims in (1, 3):
+        def make():
+            step = BatchControlStep(lambda estimate, u_nom: u_nom, refuses_row_1, context, n_sims)
+            step.reset()
+            return step
+
+        written, clean = make(), make()
+        q = np.zeros((n_sims, 2))
+        q[1:, 0] = 1.0
+        rows = np.ones(n_sims, dtype=bool)
+        rows[-1] = n_sims == 1  # the last of three rows is not stepped
+        for k in range(3):
+            t = np.full(n_sims, k * 1e-3)
+            got, want = written(t, q, q, rows=rows), clean(t, q, q, rows=rows)
+            for key in ("u_filter", "rho_pred", "infeasible", "output", "filter_us", "u", "action"):
+                value = getattr(got, key)
+                if key != "filter_us":  # (wall-clock times)
+                    np.testing.assert_array_equal(value, getattr(want, key), err_msg=f"{n_sims} {k} {key}")
+                value[...] = 7  # a caller's write into its record
+            np.testing.assert_array_equal(got.u_nom, want.u_nom)
+            assert np.isnan(got.u_nom[1:]).all() and np.isfinite(got.u_nom[0]).all()

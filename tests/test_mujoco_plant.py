@@ -342,3 +342,55 @@ def test_plant_reads_its_parameters_from_a_variant_model():
     assert state.segment_ends.shape == (4, 2) and state.contact_forces.shape == (2,)
     # 18 cells of 0.1/6 m, each position stored to 6 significant digits: ≤ 1e-6 m in all.
     assert state.tip[0] == pytest.approx(0.3, abs=1e-6) and math.isclose(state.t, 1e-3)
+
+
+def _numpy_state(plant: MujocoPlant, data: mujoco.MjData) -> dict[str, np.ndarray]:
+    """The state's fixed-size arrays as numpy's indexing reads them from `data` (module docstring)."""
+    ends = np.vstack([data.site_xpos[plant.site_ids, :2], data.geom_xpos[plant.tip_geom, :2]])
+    spring = data.qpos[plant.plate_qpos]
+    return {"q": data.ten_length[plant.tendon_ids], "qd": data.ten_velocity[plant.tendon_ids], "segment_ends": ends,
+            "contact_forces": np.maximum(0.0, plant.plate_stiffness * spring),
+            "u_applied": data.actuator_force[plant.actuator_ids]}
+
+
+@pytest.mark.parametrize("changes", [{}, dict(plate="flexure", tip_friction=0.5)], ids=["ideal", "flexure"])
+def test_the_compiled_state_read_is_numpys_and_each_state_keeps_its_values(changes):
+    """`MujocoPlant.state` reads MuJoCo's arrays in one compiled call (softcbf_mj.plant_kernel): through
+    contact its arrays equal numpy's reads of a reference data bit for bit, and a state returned earlier
+    keeps its values when the plant steps on (each state has arrays of its own)."""
+    plant = MujocoPlant.from_config(**changes)
+    plant.reset(np.zeros(2))
+    data = _reference_data(plant)
+    kept: list[tuple[PlantState, dict[str, bytes]]] = []
+    for k in range(400):
+        u = np.array([150.0, 150.0]) if k < 300 else np.array([0.0, 0.0])
+        state = plant.step(u)
+        _reference_period(plant, data, u)
+        for key, value in _numpy_state(plant, data).items():
+            assert getattr(state, key).tobytes() == value.tobytes(), (k, key)
+        if plant.n_facets and not changes:  # the ideal plate: Δ is the slide joint's qpos
+            assert state.extras["plate_displacement_m"].tobytes() == data.qpos[plant.plate_qpos].tobytes()
+        if k % 50 == 0:
+            kept.append((state, {key: getattr(state, key).tobytes() for key in ("q", "qd", "segment_ends",
+                                                                              "contact_forces", "u_applied")}))
+    assert max(s.contact_forces.max() for s, _ in kept) > 0.1  # the run presses the plate
+    for state, values in kept:
+        assert all(getattr(state, key).tobytes() == value for key, value in values.items())
+
+
+def test_the_compiled_force_is_numpys_maximum():
+    """max(0, k·x) as np.maximum(0.0, k·x): a negative force gives 0.0, −0.0 stays −0.0 (numpy keeps its
+    second operand on a tie), NaN stays NaN."""
+    from softcbf_mj.plant_kernel import read_state
+
+    x = np.array([-1.0, -0.0, 0.0, 2.0, np.nan, np.inf])
+    stiffness = np.array([3.0, 3.0, 3.0, 3.0, 3.0, 0.0])  # 0 · inf = NaN
+    n, p = 1, len(x)
+    index = np.array([0, 0, 0, 0, *range(p)], dtype=np.int64)  # tendon, actuator, site, tip, plate qpos
+    out = np.empty(5 * n + 2 + 2 * p)
+    read_state(x, np.array([0.5]), np.array([0.25]), np.ones((1, 3)), np.full((1, 3), 2.0), np.array([7.0]), index,
+               stiffness, out)
+    forces = out[4 * n + 2:4 * n + 2 + p]
+    assert forces.tobytes() == np.maximum(0.0, stiffness * x).tobytes()
+    assert out[:4 * n + 2].tolist() == [0.5, 0.25, 1.0, 1.0, 2.0, 2.0]
+    assert out[4 * n + 2 + p] == 7.0 and out[5 * n + 2 + p:].tobytes() == x.tobytes()
