@@ -235,6 +235,8 @@ def _report(args: argparse.Namespace, extra: list[str]) -> int:
     from softcbf.study.store import FALSIFY_FILE, STUDY_FILE
 
     resolution = {} if args.dpi is None else {"dpi": args.dpi}  # each report's own default otherwise
+    print(f"report: rebuilding {args.run_dir}'s plots and report.md"
+          + ("" if args.no_recording else " and recording"), flush=True)
     if (args.run_dir / STUDY_FILE).is_file() or (args.run_dir / FALSIFY_FILE).is_file():
         from softcbf.study.report import write_report as write_study_report
 

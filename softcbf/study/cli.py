@@ -130,6 +130,7 @@ def _falsify(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
+    print(f"study report: rebuilding {args.dir}'s tables and plots", flush=True)
     from softcbf.study.report import write_report
 
     try:
