@@ -480,7 +480,13 @@ def describe_preset(name: str) -> str:
 
 
 def is_builtin(spec: object, builtins: Mapping[str, Callable] = FILTERS) -> bool:
-    """Whether `spec` names a built-in or one of its presets (nothing of the user's is imported to use it)."""
+    """Whether `spec` names a built-in or one of its presets (nothing of the user's is imported to use it);
+    ValueError for a built-in's unknown preset (`find_preset`)."""
     if not isinstance(spec, str):
         return False
-    return spec.strip() in builtins or (spec.strip() in PRESETS and PRESETS[spec.strip()].filter in builtins)
+    return spec.strip() in builtins or find_preset(spec, builtins) is not None
+
+
+def parameter_names(spec: str, builtins: Mapping[str, Callable] = FILTERS) -> frozenset[str]:
+    """The names of the parameters the plug-in `spec` declares (`parameters`; a preset's built-in's)."""
+    return frozenset(p.name for p in parameters(resolve(spec, builtins)))

@@ -49,7 +49,7 @@ from closedloop.step import describe_fault, fault_log_name
 from controllers.bounds import SettingError
 from controllers.interrupts import watch
 from controllers.filter_parameters import OLD_TEXT_WARNING, Params, read_params
-from controllers.registry import PluginLoadError, did_you_mean
+from controllers.registry import FILTERS, NOMINALS, PluginLoadError, did_you_mean, is_builtin, parameter_names
 from scenarios import Scenario, get
 from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
@@ -202,7 +202,7 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
         items, text = values.pop(f"{name}_items"), values[name]
         given_here = ([(option_name(name), text)] if text else []) + [(option, item) for item in items]
         try:  # the command line's parameters override the file's: a merge of mappings (a name twice on one line: refused)
-            here = command_line_params(given_here)
+            here = command_line_params(given_here, declared_names(name, values))
             recorded = read_params(given.get(name, params[name].default)) if text is None else Params()
             values[name] = Params({**recorded, **here})
         except ValueError as exc:
@@ -210,24 +210,37 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
     return values
 
 
-def _old_joined(text: str) -> bool:
+def declared_names(setting_name: str, values: typing.Mapping[str, object]) -> frozenset[str]:
+    """The parameter names the plug-in of `setting_name` ("filter_params": `values["filter"]`, "nominal_params":
+    `values["nominal"]`) declares (`controllers.registry.parameter_names`); none for a plug-in of a file that runs
+    isolated (the parent never imports it) or that cannot be resolved (the spec's check says why)."""
+    builtins, spec = (FILTERS, values.get("filter")) if setting_name == "filter_params" else (NOMINALS, values.get("nominal"))
+    if not isinstance(spec, str) or (values.get("isolate") and not is_builtin(spec, builtins)):
+        return frozenset()
+    try:
+        return parameter_names(spec, builtins)
+    except ValueError:
+        return frozenset()
+
+
+def _old_joined(text: str, names: typing.Collection[str]) -> bool:
     """Whether one --filter-param item is the old joined form "a=1;b=2": two or more ';'-separated parts, each
-    NAME=VALUE with NAME an identifier (anything else is one parameter whose value may hold ';' and '=')."""
+    NAME=VALUE with NAME one the plug-in declares (`names`); anything else is one parameter whose value may hold
+    ';' and '=' ("note=a;b=c" for a plug-in without a parameter b)."""
     parts = [part for part in text.split(";") if part.strip()]
-    return len(parts) > 1 and all(part.partition("=")[1] and part.partition("=")[0].strip().isidentifier()
-                                  for part in parts)
+    return len(parts) > 1 and all(part.partition("=")[1] and part.partition("=")[0].strip() in names for part in parts)
 
 
-def command_line_params(items: Sequence[tuple[str, str]]) -> dict[str, str]:
+def command_line_params(items: Sequence[tuple[str, str]], names: typing.Collection[str] = ()) -> dict[str, str]:
     """The plug-in parameters one command line gives, as (option, "NAME=VALUE") pairs, as {name: value}: one
     parameter per item, its value everything after the first '=' (it may hold ';' and '='); the plug-in
-    types it (`controllers.registry.typed_params`). An item in the old joined form "a=1;b=2" (`_old_joined`)
-    is read as several, with a DeprecationWarning. ValueError naming the option for an item that is not
-    NAME=VALUE, or for a NAME given twice (the last would silently win)."""
+    types it (`controllers.registry.typed_params`). An item in the old joined form "a=1;b=2" of the plug-in's
+    declared `names` (`_old_joined`) is read as several, with a DeprecationWarning. ValueError naming the option
+    for an item that is not NAME=VALUE, or for a NAME given twice (the last would silently win)."""
     out: dict[str, str] = {}
     for option, text in items:
         parts = [text]
-        if _old_joined(text):
+        if _old_joined(text, names):
             warnings.warn(f"{option} {text!r}: {OLD_TEXT_WARNING}", DeprecationWarning, stacklevel=2)
             parts = [part for part in text.split(";") if part.strip()]
         for part in parts:
