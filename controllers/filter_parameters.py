@@ -8,7 +8,17 @@ in a dict `name → FilterParameter`. The same table serves three uses:
   `controllers.registry.check_filter` runs before anything is built (a study's runs are
   refused before any sample runs), and the first lines of its constructor;
 - `parameter_docs(table)`: the filter's `parameter_docs` ("meaning; valid range [unit]"),
-  which `softcbf list` and docs/parameters.md show.
+  which `softcbf list` and docs/parameters.md show;
+- each declaration's kind is the annotation of the filter's signature, by which
+  `controllers.registry.typed_params` converts a value given at any edge once.
+
+The values themselves travel as `Params`, a frozen mapping name → typed value in the filter's
+declaration order (a `dict` whose mutators raise, so that JSON, `dict(...)` and equality work as
+for a dict): what a scenario's spec, config.json, summary.json, the environment and the hardware
+file hold. `read_params` reads what an edge gives before the kinds are known: a mapping (values as
+given; a str may hold ';' and '='), or the old joined text "name=value;name=value" (`parse_text`,
+with a DeprecationWarning for one release). `value_text` writes a typed value as the command line
+does (a run's label): true/false, none, a float's shortest round-trip form.
 
 A range is a `controllers.bounds.Bound` and the check is `controllers.bounds.check_number`
 (the settings' own check): a refusal is a `SettingError` (a ValueError) naming the

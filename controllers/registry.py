@@ -9,16 +9,25 @@ A spec names a factory (a class or a function):
   relative to the working directory; `spec_file` tells such a spec apart, `source_record`
   gives its file's absolute path and SHA-256, which a run's config.json records so that a
   replay runs the same file: scenarios.config_file);
-- `package.module:Factory` (imported from sys.path).
+- `package.module:Factory` (imported from sys.path);
+- a preset `NAME:PRESET` of a built-in (`PRESETS`, the one home of each): "c-erg:recommended" is
+  c-erg with `controllers.energy_governor.RECOMMENDED` and the plate stiffness interval
+  [0.9, 1.1]; parameters given with it override the preset's (`typed_params`), its run label is
+  its name plus what was overridden (`label`), and an unknown preset of a built-in is refused
+  with the closest names (`find_preset`).
 
 The factory is called as `Factory(**params)`, plus `context=FilterContext(...)` when its
 signature has a parameter named `context` (docs/safety-filter.md). A filter factory returns a safety
 filter (`controllers.safety_filter`); a nominal factory returns a callable
 `(t, q, qd) -> u_nom` (N,) hPa. Parameters not given take the signature's defaults;
-unknown names are refused with the list of valid ones. Values given as strings (the
-command line, "name=value;name=value") are converted by the parameter's annotation or,
-without one, by its default's type (bool: true/false/yes/no/1/0/on/off; "none" for a
-parameter whose annotation allows None). Built-in factories carry `parameter_docs`:
+unknown names are refused with the list of valid ones. `typed_params(spec, params)` converts
+the parameters an edge gives (the command line's text, a TOML table, a study's draw, Python
+values) once, by each parameter's declared kind: its annotation (a built-in's is its
+`controllers.filter_parameters.FilterParameter` kind) or, without one, its default's type (bool:
+true/false/yes/no/1/0/on/off; "none" for a parameter that allows None; an int given for a float
+becomes one); a parameter with neither gets the value as given. The result, a frozen
+`controllers.filter_parameters.Params` in declaration order, is what every record stores and
+what the label is made of. Built-in factories carry `parameter_docs`:
 {name: "meaning [unit]"} (`parameters` returns it with every parameter's default) and
 may carry `run_label(params) -> str`, a run's label (`label`; default
 `Factory(name=value,...)`), and `check_arguments(arguments)`, the checks its construction

@@ -339,6 +339,6 @@ def test_a_section_checks_single_per_segment_table_and_unconfigured_values():
         pass
 
     given = Scenario(params={"kappa": 2.0})
-    assert given.params == "kappa=2.0" and given.f_max is UNSET
+    assert given.params == {"kappa": 2.0} and given.f_max is UNSET  # a plug-in's parameters: a frozen mapping
     with pytest.raises(SettingError, match="calibration must be a str"):
         setting_section(type("NoNone", (), {}), settings={"calibration": "calibration"})(calibration=None)

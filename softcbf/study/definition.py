@@ -419,7 +419,7 @@ class Study:
                 if key in fixed:
                     raise ValueError(f"{key} is given twice (top level and fixed)")
                 value = data[key]
-                fixed[key] = joined(key, value)
+                fixed[key] = _named(key, joined, key, value)
         return cls(name=data["name"], scenario=data["scenario"], tunings=data["tunings"], vary=tuple(vary),
                    fixed=fixed, sampling=data.get("sampling", "monte_carlo"),
                    draws=data.get("draws"), seed=data.get("seed", 0),
