@@ -165,9 +165,12 @@ def read_params(value: object) -> Params:
 
 def value_text(value: object) -> str:
     """A typed value as the command line writes it (a run's label, `NAME=VALUE`): true/false, none, a float's
-    shortest round-trip form (0.0015), anything else as str."""
+    shortest round-trip form (0.0015, 2e-06; a whole number without its ".0", 100, which its declared kind
+    reads back as the same float), anything else as str."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if value is None:
         return "none"
-    return repr(value) if isinstance(value, float) else str(value)
+    if isinstance(value, float):
+        return str(int(value)) if value.is_integer() and abs(value) < 1e15 else repr(value)
+    return str(value)

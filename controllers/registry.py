@@ -358,8 +358,7 @@ def _converted(factory: Callable, params: Mapping[str, object]) -> dict[str, obj
     unknown = sorted(set(params) - set(accepted)) if not open_kwargs else []
     if unknown:
         name = getattr(factory, "__name__", repr(factory))
-        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {name}{did_you_mean(unknown[0], accepted)}; "
-                         f"valid: {', '.join(sorted(accepted)) or 'none'}")
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {name}; valid: {', '.join(sorted(accepted)) or 'none'}")
     hints = _hints(factory)
     order = [n for n in accepted if n in params] + [n for n in params if n not in accepted]
     return {key: _convert(key, params[key], hints.get(key, inspect.Parameter.empty),

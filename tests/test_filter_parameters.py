@@ -100,7 +100,7 @@ def test_the_same_setting_gets_the_same_typed_values_and_label_from_every_surfac
         assert type(spec.filter.params["kappa"]) is float and spec.flat()["filter_params"] == TYPED
     assert len({spec.built.runs[0].label for spec in specs}) == 1
     assert api.built.runs[0].label == label("c-erg", {"gain_noise_rad": "1.5e-3", "kappa": "1", "gain_estimate": "on"}) \
-        == "c-erg(kappa=1.0,gain_estimate=true,gain_noise_rad=0.0015)"
+        == "c-erg(kappa=1,gain_estimate=true,gain_noise_rad=0.0015)"
     env = ArmEnvConfig(filter="c-erg", filter_params={"gain_noise_rad": "1.5e-3", "gain_estimate": "true", "kappa": 1})
     assert env.filter_params == TYPED and type(env.filter_params["kappa"]) is float
 
@@ -113,7 +113,7 @@ def test_a_value_with_semicolons_and_equals_signs_passes_to_the_plug_in(tmp_path
     cli = sim.spec.from_flat(scenario_parameters(sim, ["--filter", spec, "--filter-param", "note=a;b=c",
                                                        "--filter-param", "scale=2", "--filter-param", "free=x;y"]))
     assert cli.filter.params == {"note": "a;b=c", "scale": 2.0, "free": "x;y"}  # annotation, default's type, as given
-    assert cli.built.runs[0].label == "Tagged(note=a;b=c,scale=2.0,free=x;y)"
+    assert cli.built.runs[0].label == "Tagged(note=a;b=c,scale=2,free=x;y)"
     assert sim.spec(filter=Filter(spec, note="a;b=c", scale=2, free="x;y")).filter.params == cli.filter.params
     assert typed_params(f"{REPO / 'examples' / 'clip_filter.py'}:ClipFilter", {"limit_hPa": "80"}) == {"limit_hPa": 80.0}
 

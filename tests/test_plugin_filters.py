@@ -239,7 +239,7 @@ def _clip_run(tmp_path, scenario, clip_file, *extra):
     assert main(["run", scenario, "--filter", f"{clip_file}:ClipFilter", "--filter-param", "limit_hPa=100",
                  "--out", str(out), *FAST, *extra]) == 0
     folder = read_run_folder(out)
-    assert folder.labels == ["ClipFilter(limit_hPa=100.0)"]  # typed by its annotation
+    assert folder.labels == ["ClipFilter(limit_hPa=100)"]
     row = folder.summary["runs"][0]
     assert row["filter"] == f"{clip_file}:ClipFilter" and row["filter_params"] == {"limit_hPa": 100.0}
     assert row["recovery_steps"] == 0 and row["active_steps"] is None
