@@ -307,7 +307,7 @@ def test_example_filter_runs_on_the_hardware_emulator(tmp_path):
     with EmulatedHardware(config) as emulation:
         (tmp_path / "hw").mkdir()
         row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)
-    assert row["tuning"] == "ClipFilter(limit_hPa=40.0)" and row["cycles"] + row["cycles_skipped"] == 20
+    assert row["tuning"] == "ClipFilter(limit_hPa=40)" and row["cycles"] + row["cycles_skipped"] == 20
     series, _ = load_timeseries(tmp_path / "hw" / row["timeseries"])
     assert np.all(np.abs(series["u_sent"]) <= 40.0 + 0.05) and series["u_nom"].max() > 0
     np.testing.assert_array_equal(series["u_filter"], np.clip(series["u_nom"], -40.0, 40.0))
