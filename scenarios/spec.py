@@ -107,11 +107,7 @@ def typed_plugins(spec: Any) -> None:
         value = getattr(spec, attribute)
         if builtins is None or (isolated and not is_builtin(value.name, builtins)):
             continue
-        copy = object.__new__(section_cls)
-        for f in dataclasses.fields(value):
-            object.__setattr__(copy, f.name, getattr(value, f.name))
-        object.__setattr__(copy, "params", _typed(value.name, value.params, builtins, attribute))
-        object.__setattr__(spec, attribute, copy)
+        object.__setattr__(spec, attribute, _copy(value, params=_typed(value.name, value.params, builtins, attribute)))
 
 
 def _fill_unset(value: Any, context: str) -> None:
@@ -126,10 +122,17 @@ def _resolved(value: Any, context: str) -> Any:
     """A section with its `UNSET` fields set to `context`'s defaults (a copy; the given fields stay checked)."""
     if all(getattr(value, f) is not UNSET for f in setting_fields(type(value))):
         return value
+    copy = _copy(value)
+    _fill_unset(copy, context)
+    return copy
+
+
+def _copy(value: Any, **changes: Any) -> Any:
+    """A copy of the frozen section `value` with the fields `changes` set, its checks not run again (its fields
+    were checked when it was built; `changes` are the caller's checked values)."""
     copy = object.__new__(type(value))
     for f in dataclasses.fields(value):
-        object.__setattr__(copy, f.name, getattr(value, f.name))
-    _fill_unset(copy, context)
+        object.__setattr__(copy, f.name, changes.get(f.name, getattr(value, f.name)))
     return copy
 
 
