@@ -99,7 +99,7 @@ from controllers.cbf_batch import SCALAR_BELOW, RecoveryRows, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
-from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
+from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs, value_text
 from controllers.params import RobotParams
 from controllers.pcc import step_kinematics
 from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, dot_lists, row_norm, solve_lists, tolerances
@@ -461,7 +461,7 @@ def paper_cbf_label(params: dict[str, object]) -> str:
     tuning = str(params.get("tuning", "Low"))
     if tuning.strip().lower() != CUSTOM_TUNING:
         return tuning
-    return "custom(" + ",".join(f"{k}={params.get(k)}" for k in ("a_E", "b_E", "gamma")) + ")"
+    return "custom(" + ",".join(f"{k}={value_text(params.get(k))}" for k in ("a_E", "b_E", "gamma")) + ")"
 
 
 def check_paper_cbf(arguments: dict[str, object]) -> None:

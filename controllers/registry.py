@@ -9,16 +9,25 @@ A spec names a factory (a class or a function):
   relative to the working directory; `spec_file` tells such a spec apart, `source_record`
   gives its file's absolute path and SHA-256, which a run's config.json records so that a
   replay runs the same file: scenarios.config_file);
-- `package.module:Factory` (imported from sys.path).
+- `package.module:Factory` (imported from sys.path);
+- a preset `NAME:PRESET` of a built-in (`PRESETS`, the one home of each): "c-erg:recommended" is
+  c-erg with `controllers.energy_governor.RECOMMENDED` and the plate stiffness interval
+  [0.9, 1.1]; parameters given with it override the preset's (`typed_params`), its run label is
+  its name plus what was overridden (`label`), and an unknown preset of a built-in is refused
+  with the closest names (`find_preset`).
 
 The factory is called as `Factory(**params)`, plus `context=FilterContext(...)` when its
 signature has a parameter named `context` (docs/safety-filter.md). A filter factory returns a safety
 filter (`controllers.safety_filter`); a nominal factory returns a callable
 `(t, q, qd) -> u_nom` (N,) hPa. Parameters not given take the signature's defaults;
-unknown names are refused with the list of valid ones. Values given as strings (the
-command line, "name=value;name=value") are converted by the parameter's annotation or,
-without one, by its default's type (bool: true/false/yes/no/1/0/on/off; "none" for a
-parameter whose annotation allows None). Built-in factories carry `parameter_docs`:
+unknown names are refused with the list of valid ones. `typed_params(spec, params)` converts
+the parameters an edge gives (the command line's text, a TOML table, a study's draw, Python
+values) once, by each parameter's declared kind: its annotation (a built-in's is its
+`controllers.filter_parameters.FilterParameter` kind) or, without one, its default's type (bool:
+true/false/yes/no/1/0/on/off; "none" for a parameter that allows None; an int given for a float
+becomes one); a parameter with neither gets the value as given. The result, a frozen
+`controllers.filter_parameters.Params` in declaration order, is what every record stores and
+what the label is made of. Built-in factories carry `parameter_docs`:
 {name: "meaning [unit]"} (`parameters` returns it with every parameter's default) and
 may carry `run_label(params) -> str`, a run's label (`label`; default
 `Factory(name=value,...)`), and `check_arguments(arguments)`, the checks its construction
@@ -36,6 +45,7 @@ import hashlib
 import importlib
 import importlib.util
 import inspect
+import numbers
 import sys
 import traceback
 import types
@@ -44,6 +54,9 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from controllers.filter_parameters import Params, parse_text, read_params, value_text
 from controllers.interrupts import is_interrupt
 from controllers.safety_filter import FilterContext, SafetyFilter
 
@@ -87,6 +100,34 @@ NOMINALS: Mapping[str, Callable[..., NominalController]] = Factories({
     "sinusoid": "controllers.nominal:sinusoid", "tip-tracker": "controllers.nominal:tip_tracker", "step": "controllers.nominal:step",
     "force-target": "controllers.nominal:force_target",
 })
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named setting of a built-in filter (`FILTER:NAME`): the built-in `filter`, its parameters (the mapping at
+    `home`, "module:attribute", read at first use, then `extra` over it) and a phrase saying what it is."""
+
+    filter: str
+    home: str
+    extra: Mapping[str, object]
+    doc: str
+
+    @property
+    def params(self) -> dict[str, object]:
+        """The preset's parameters: the mapping at `home` with `extra` over it."""
+        module, _, attribute = self.home.partition(":")
+        return {**getattr(importlib.import_module(module), attribute), **self.extra}
+
+
+PRESETS: Mapping[str, Preset] = {
+    "c-erg:recommended": Preset(
+        "c-erg", "controllers.energy_governor:RECOMMENDED", {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1},
+        "the recommended filter for contact tasks: c-erg's recommended setting (controllers.energy_governor."
+        "RECOMMENDED) certified over plate stiffnesses of 0.9 to 1.1 times the assumed one"),
+}
+"""The named presets (`--filter c-erg:recommended`), the one home of each: what the README, `softcbf list`,
+`softcbf run`, the bench, the environment and the hardware file mean by the name (module docstring)."""
+
 CONTEXT = "context"
 SPEC_SETTINGS = ("filter", "nominal")  # the settings that hold a filter's or a nominal's spec
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
@@ -117,6 +158,9 @@ def resolve(spec: str, builtins: Mapping[str, Callable]) -> Callable:
     spec = spec.strip()
     if spec in builtins:
         return builtins[spec]
+    preset = find_preset(spec, builtins)
+    if preset is not None:
+        return builtins[preset.filter]
     if ":" not in spec:
         raise ValueError(f"unknown name {spec!r}{did_you_mean(spec, builtins)}; built-ins: {', '.join(builtins)}; or FILE.py:Factory, package.module:Factory")
     where, _, name = spec.rpartition(":")
@@ -125,6 +169,19 @@ def resolve(spec: str, builtins: Mapping[str, Callable]) -> Callable:
     if not callable(factory):
         raise ValueError(f"{where} has no callable {name!r} (spec {spec!r})")
     return factory
+
+
+def find_preset(spec: str, builtins: Mapping[str, Callable] = FILTERS) -> Preset | None:
+    """The preset `spec` names (`PRESETS`: "c-erg:recommended"), None when `spec` names no preset (its part
+    before ':' is not a built-in); ValueError with the closest presets for a built-in's unknown preset."""
+    spec = spec.strip()
+    if spec in PRESETS and PRESETS[spec].filter in builtins:
+        return PRESETS[spec]
+    name, sep, _ = spec.partition(":")
+    if not sep or name not in builtins:
+        return None
+    own = [key for key, preset in PRESETS.items() if preset.filter in builtins]
+    raise ValueError(f"unknown preset {spec!r}{did_you_mean(spec, own)}; presets: {', '.join(own) or 'none'}")
 
 
 def spec_file(spec: object) -> tuple[Path, str] | None:
@@ -243,34 +300,37 @@ def parameters(factory: Callable) -> list[Parameter]:
     return out
 
 
-def parse_params(text: str) -> dict[str, str]:
-    """"name=value;name=value" (the command line's repeated --filter-param joined by ';', a file's or a spec's
-    text) → {name: value}. ValueError for an item that is not name=value, and for a name given twice (the last
-    would silently win): the one check of duplicate parameters, wherever the text comes from (config.json, a TOML
-    run or study file, `Filter(params=...)`); an override is a merge of two mappings, never a joined text."""
-    out: dict[str, str] = {}
-    for item in (text or "").split(";"):
-        if not item.strip():
-            continue
-        name, sep, value = item.partition("=")
-        if not sep or not name.strip():
-            raise ValueError(f"parameters must be name=value, got {item.strip()!r}")
-        name, value = name.strip(), value.strip()
-        if name in out:
-            raise ValueError(f"parameter {name} is given twice ({name}={out[name]}, then {name}={value}); give it once")
-        out[name] = value
-    return out
+parse_params = parse_text
+"""The old joined text "name=value;name=value" → {name: value} (`controllers.filter_parameters.parse_text`)."""
+
+
+def _kinds(hint: object, default: object) -> tuple[list[object], bool]:
+    """The kinds a parameter declares (its annotation's members, else its default's type, else none) and
+    whether None is one of its values."""
+    union = typing.get_origin(hint) in (typing.Union, types.UnionType)
+    kinds = [a for a in typing.get_args(hint) if a is not type(None)] if union else [hint]
+    allows_none = (union and type(None) in typing.get_args(hint)) or default is None
+    if kinds == [inspect.Parameter.empty] or kinds == [None]:
+        kinds = [type(default)] if default not in (inspect.Parameter.empty, None) else []
+    return kinds, allows_none
 
 
 def _convert(name: str, value: object, hint: object, default: object) -> object:
+    """`value` as the parameter's declared kind (module docstring): text converted, an int given for a float
+    (or a numpy number) made the Python float or int; a value of a kind that is not declared as given."""
+    kinds, allows_none = _kinds(hint, default)
     if not isinstance(value, str):
+        if isinstance(value, numbers.Integral) and not isinstance(value, bool) and int in kinds:
+            return int(value)
+        if isinstance(value, numbers.Real) and not isinstance(value, bool) and float in kinds:
+            return float(value)
+        if isinstance(value, (bool, np.bool_)) and bool in kinds:
+            return bool(value)
         return value
-    kinds = [a for a in typing.get_args(hint) if a is not type(None)] if typing.get_origin(hint) in (typing.Union, types.UnionType) else [hint]
-    allows_none = hint is not None and type(None) in typing.get_args(hint) or default is None
     if allows_none and value.strip().lower() == "none":
         return None
-    if kinds == [inspect.Parameter.empty] or kinds == [None]:
-        kinds = [type(default)] if default not in (inspect.Parameter.empty, None) else [str]
+    if not kinds or str in kinds:
+        return value
     for kind in kinds:
         try:
             if kind is bool:
@@ -278,37 +338,59 @@ def _convert(name: str, value: object, hint: object, default: object) -> object:
                 if low in _TRUE or low in _FALSE:
                     return low in _TRUE
                 continue
-            if kind in (int, float, str):
+            if kind in (int, float):
                 return kind(value)
         except ValueError:
             continue
-    if kinds and all(k in (bool, int, float, str) for k in kinds):
+    if all(k in (bool, int, float, str) for k in kinds):
         expected = " or ".join(k.__name__ for k in kinds)
         raise ValueError(f"parameter {name} must be {expected}, got {value!r}")
     return value
 
 
+def _converted(factory: Callable, params: Mapping[str, object]) -> dict[str, object]:
+    """`params` checked against the factory's signature (unknown names refused with the valid ones) and each
+    converted by its declared kind (`_convert`), in the signature's order (names that only a **kwargs takes
+    after, as given)."""
+    signature = _signature(factory)
+    accepted = [n for n, p in signature.parameters.items() if n != CONTEXT and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+    open_kwargs = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
+    unknown = sorted(set(params) - set(accepted)) if not open_kwargs else []
+    if unknown:
+        name = getattr(factory, "__name__", repr(factory))
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {name}; valid: {', '.join(sorted(accepted)) or 'none'}")
+    hints = _hints(factory)
+    order = [n for n in accepted if n in params] + [n for n in params if n not in accepted]
+    return {key: _convert(key, params[key], hints.get(key, inspect.Parameter.empty),
+                          signature.parameters[key].default if key in signature.parameters else inspect.Parameter.empty)
+            for key in order}
+
+
+def typed_params(spec: str, params: object = None, builtins: Mapping[str, Callable] = FILTERS) -> Params:
+    """The parameters of the plug-in `spec` as every record holds them: `params` as given at an edge (a mapping,
+    or the old joined text: `controllers.filter_parameters.read_params`) over the preset's when `spec` names one
+    (`PRESETS`), converted once by each parameter's declared kind (the factory's signature: a built-in's
+    annotations are its `FilterParameter` kinds; a plug-in's its annotations, else its defaults' types, else the
+    value as given), in declaration order (`Params`). Unknown names and unreadable values: ValueError. Imports
+    the factory (a file's plug-in too); builds nothing."""
+    given = read_params(params)
+    preset = find_preset(spec, builtins) if isinstance(spec, str) else None
+    merged = given if preset is None else {**preset.params, **given}
+    return Params(_converted(resolve(spec, builtins), merged))
+
+
 def arguments(factory: Callable, params: Mapping[str, object]) -> dict[str, object]:
     """`params` checked against the factory's signature (unknown names refused with the valid
-    ones) and converted (module docstring); `context` not included. Builds nothing."""
+    ones, required ones missing refused) and converted (`_converted`); `context` not included. Builds nothing."""
     signature = _signature(factory)
-    accepted = {n for n, p in signature.parameters.items() if n != CONTEXT and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
-    open_kwargs = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
-    unknown = sorted(set(params) - accepted) if not open_kwargs else []
-    name = getattr(factory, "__name__", repr(factory))
-    if unknown:
-        raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for {name}; valid: {', '.join(sorted(accepted)) or 'none'}")
     missing = [n for n, p in signature.parameters.items()
                if n != CONTEXT and p.default is p.empty and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
                and n not in params]
+    kwargs = _converted(factory, params)
     if missing:
-        raise PluginLoadError(f"missing required parameter(s) {', '.join(missing)} for {name} "
+        raise PluginLoadError(f"missing required parameter(s) {', '.join(missing)} for "
+                              f"{getattr(factory, '__name__', repr(factory))} "
                               f"(give them with --filter-param / --nominal-param NAME=VALUE)")
-    hints = _hints(factory)
-    kwargs = {}
-    for key, value in params.items():
-        p = signature.parameters.get(key)
-        kwargs[key] = _convert(key, value, hints.get(key, inspect.Parameter.empty), p.default if p else inspect.Parameter.empty)
     return kwargs
 
 
@@ -338,7 +420,7 @@ def check_filter(spec: str, params: Mapping[str, object]) -> None:
     convertible values; nothing is built, so a study can check its runs cheaply), nor unless
     the factory's own `check_arguments(arguments)`, when it carries one, accepts them."""
     factory = resolve(spec, FILTERS)
-    kwargs = arguments(factory, params)
+    kwargs = arguments(factory, typed_params(spec, params))
     check = getattr(factory, "check_arguments", None)
     if callable(check):
         check(kwargs)
@@ -351,7 +433,7 @@ def check_nominal(spec: str, params: Mapping[str, object]) -> None:
 
 def build_filter(spec: str, params: Mapping[str, object], context: FilterContext) -> SafetyFilter:
     """The safety filter of `spec` with `params`, told `context`."""
-    safety_filter = build(resolve(spec, FILTERS), params, context)
+    safety_filter = build(resolve(spec, FILTERS), typed_params(spec, params), context)
     if not callable(safety_filter):
         raise ValueError(f"filter {spec!r} must build a callable filter(estimate, u_nom), got {type(safety_filter).__name__}")
     return safety_filter
@@ -365,15 +447,24 @@ def build_nominal(spec: str, params: Mapping[str, object], context: FilterContex
     return nominal
 
 
-def label(spec: str, params: Mapping[str, object]) -> str:
-    """A run's label for the filter `spec` with `params`: the factory's `run_label(params)`, or
-    `Factory(name=value,...)` (Factory: the built-in's name or the name after ':')."""
-    factory = resolve(spec, FILTERS)
-    run_label = getattr(factory, "run_label", None)
-    if callable(run_label):
-        return run_label(dict(params))
-    name = spec.strip().rpartition(":")[2]
-    args = ",".join(f"{k}={v}" for k, v in params.items())
+def label(spec: str, params: object = None) -> str:
+    """A run's label for the filter `spec` with `params`, from the typed values (`typed_params`) in declaration
+    order, so that one setting has one label whichever surface gave it: a preset's name ("c-erg:recommended"),
+    followed by the parameters that differ from it ("c-erg:recommended(gain_noise_rad=0.003)"); else the
+    factory's `run_label(params)`, or `Factory(name=value,...)` (Factory: the built-in's name or the name after ':'; the
+    values as the command line writes them, `controllers.filter_parameters.value_text`)."""
+    typed = typed_params(spec, params)
+    preset = find_preset(spec, FILTERS)
+    if preset is not None:
+        own = typed_params(preset.filter, preset.params)
+        changed = {k: v for k, v in typed.items() if k not in own or own[k] != v}
+        name, typed = spec.strip(), Params(changed)
+    else:
+        run_label = getattr(resolve(spec, FILTERS), "run_label", None)
+        if callable(run_label):
+            return run_label(typed)
+        name = spec.strip().rpartition(":")[2]
+    args = ",".join(f"{k}={value_text(v)}" for k, v in typed.items())
     return f"{name}({args})" if args else name
 
 
@@ -386,3 +477,24 @@ def describe(name: str, factory: Callable) -> str:
         meaning = f" — {p.doc}" if p.doc else ""
         lines.append(f"    {p.name} ({p.type_name or 'any'}, {default}){meaning}")
     return "\n".join(lines)
+
+
+def describe_preset(name: str) -> str:
+    """Preset `name` (`PRESETS`) for `softcbf list`: its phrase, then its parameters as --filter-param would
+    give them (the typed values, `typed_params`)."""
+    preset = PRESETS[name]
+    values = " ".join(f"{k}={value_text(v)}" for k, v in typed_params(preset.filter, preset.params).items())
+    return f"{name}: {preset.doc}\n    = --filter {preset.filter} with {values}"
+
+
+def is_builtin(spec: object, builtins: Mapping[str, Callable] = FILTERS) -> bool:
+    """Whether `spec` names a built-in or one of its presets (nothing of the user's is imported to use it);
+    ValueError for a built-in's unknown preset (`find_preset`)."""
+    if not isinstance(spec, str):
+        return False
+    return spec.strip() in builtins or find_preset(spec, builtins) is not None
+
+
+def parameter_names(spec: str, builtins: Mapping[str, Callable] = FILTERS) -> frozenset[str]:
+    """The names of the parameters the plug-in `spec` declares (`parameters`; a preset's built-in's)."""
+    return frozenset(p.name for p in parameters(resolve(spec, builtins)))

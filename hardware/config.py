@@ -31,8 +31,8 @@ Shared settings (top level; meaning, unit and range: docs/parameters.md):
 | assumed_plate_stiffness | 11.16            | N/m    | the controller's ψ(n) = k n                                     |
 | f_max                   | 0.16             | N      | force limit per facet                                           |
 | row_scaling             | "paper"          | –      | P's row scaling ("paper" or "unit")                             |
-| filter                  | "paper-cbf"      | –      | the safety filter (controllers.registry): a built-in name, FILE.py:Factory (relative to this file) or package.module:Factory |
-| filter_params           | {}               | –      | its parameters, a table {name = value} (`softcbf list` lists them) |
+| filter                  | "paper-cbf"      | –      | the safety filter (controllers.registry): a built-in name, a preset ("c-erg:recommended"), FILE.py:Factory (relative to this file) or package.module:Factory |
+| filter_params           | {}               | –      | its parameters, a table {name = value} typed by the filter's declarations, over a preset's (`softcbf list` lists them) |
 | nominal                 | "sinusoid"       | –      | the nominal controller (controllers.registry), likewise         |
 | nominal_params          | {}               | –      | its parameters; the sinusoid's default to amplitude, frequency, control.phase_rad |
 | control_rate            | 10.0             | Hz     | control loop rate (the paper's 10 Hz)                           |
@@ -130,7 +130,8 @@ import numpy as np
 from controllers.cbf import get_tuning
 from controllers.params import RobotParams, per_segment, reference_robot
 from controllers.qp import available_backends
-from controllers.registry import spec_file
+from controllers.filter_parameters import Params, read_params
+from controllers.registry import is_builtin, spec_file, typed_params
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
 from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
 from perception.plane import PlaneCalibration
@@ -312,16 +313,23 @@ class ControlConfig:
                 raise ConfigError(f"control.tuning: {exc}") from None
         _choice("qp_backend", self.qp_backend, tuple(available_backends()))
         object.__setattr__(self, "phase_rad", _numbers("control.phase_rad", self.phase_rad))
+        try:
+            self.filter_arguments()
+        except ValueError as exc:
+            raise ConfigError(f"control.filter_params: {exc}") from None
 
     @property
     def period_s(self) -> float:
         return 1.0 / self.control_rate
 
-    def filter_arguments(self) -> dict[str, Any]:
-        """The filter's parameters: for paper-cbf, tuning and qp_backend from this section unless filter_params set them."""
+    def filter_arguments(self) -> Params:
+        """The filter's parameters: for paper-cbf, tuning and qp_backend from this section unless filter_params set
+        them; typed by the filter's declarations (`controllers.registry.typed_params`, a preset's merged under
+        them) for a built-in or a preset, a file's plug-in's when it is built (`build_filter`)."""
+        given = self.filter_params
         if self.filter == "paper-cbf":
-            return {"tuning": self.tuning, "qp_backend": self.qp_backend, **self.filter_params}
-        return dict(self.filter_params)
+            given = {"tuning": self.tuning, "qp_backend": self.qp_backend, **self.filter_params}
+        return typed_params(self.filter, given) if is_builtin(self.filter) else read_params(given)
 
     def nominal_arguments(self) -> dict[str, Any]:
         """The nominal's parameters: for the sinusoid, amplitude, frequency and phase from this section unless set."""

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Hashable, Mapping, Sequence
 
+from controllers.filter_parameters import Params, read_params
 from controllers.registry import did_you_mean
 from scenarios.spec import flat_parameters
 from vocabulary.settings import setting
@@ -99,6 +100,8 @@ class Scenario:
             return value
         if annotation in (bool, str) and isinstance(value, annotation):
             return value
+        if annotation is Params:
+            return read_params(value)  # a plug-in's parameters: a table (the old text with a DeprecationWarning)
         if setting(name).kind is tuple and isinstance(value, (list, tuple)):
             return value  # a sequence of names (the spec checks them): the flat form's comma list, as a list
         raise ValueError(f"parameter {name!r} takes {annotation.__name__} values, got {value!r}")

@@ -5,13 +5,14 @@ record, one run and the saving of a finished run (with its report and recording)
 Every scenario takes the controller under test as its spec's `Filter` and `Nominal` sections
 (scenarios.spec; flat names, docs/extending.md):
 - `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
-  FILE.py:Factory, package.module:Factory); `filter_params`: "name=value;name=value"
-  (the command line's repeated `--filter-param name=value`, joined);
+  "c-erg:recommended", a preset of `controllers.registry.PRESETS`, FILE.py:Factory,
+  package.module:Factory); `filter_params`: its typed parameters (`controllers.filter_parameters.Params`,
+  the command line's repeated `--filter-param name=value`, a TOML table);
 - `tunings`: for "paper-cbf", a tuple of its presets (("None", "High"); the comma list
   "None,High" on the command line and in files), or "custom" (a_E, b_E and gamma from
   filter_params): one run each, labelled by the preset (each named once) (a `tuning` in
   filter_params makes one run of that tuning); other filters make one run, labelled
-  `Factory(name=value,...)`;
+  `Factory(name=value,...)` or by the preset's name (`controllers.registry.label`);
 - `nominal`, `nominal_params`: likewise ("sinusoid", "tip-tracker", FILE.py:Factory);
   the sinusoid's amplitude, frequency and t0 default to the scenario's parameters.
 summary.json's rows keep "tuning" as the run's label and add "filter", "filter_params",
@@ -48,8 +49,9 @@ from closedloop.isolation import check_in_child, isolate
 from closedloop.monitor import SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, write_fault_log
 from controllers.params import RobotParams, reference_robot
-from controllers.registry import (FILTERS, NOMINALS, build_filter, build_nominal, check_filter, check_nominal, label,
-                                  parse_params)
+from controllers.filter_parameters import Params, read_params
+from controllers.registry import (FILTERS, NOMINALS, build_filter, build_nominal, check_filter, check_nominal, is_builtin,
+                                  label, typed_params)
 from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
 from controllers.safety_filter import Estimate, FilterContext
@@ -168,7 +170,7 @@ class ControllerRun:
 
     label: str
     filter: str
-    filter_params: dict[str, str]
+    filter_params: Params
     isolate: bool
 
 
@@ -176,7 +178,7 @@ def controller_runs(spec: Filter, labels: Sequence[str] | None = None) -> list[C
     """The runs of a scenario's controller under test `spec` (module docstring; its `qp_backend`
     is the paper filter's unless its parameters set it); errors name the parameter and the valid values.
     `labels`: the runs' labels as an isolated check found them (`check_controller`), else `label`'s."""
-    params = parse_params(spec.params)
+    params = read_params(spec.params)
     name = spec.name.strip()
     if name != PAPER_FILTER:
         return [ControllerRun(label(name, params) if labels is None else labels[0], name, params, spec.isolate)]
@@ -189,16 +191,16 @@ def controller_runs(spec: Filter, labels: Sequence[str] | None = None) -> list[C
                          f"{', '.join(repeated)} more than once in {','.join(names)}")
     runs = []
     for i, tuning in enumerate(names):
-        run_params = {"qp_backend": spec.qp_backend, **params, "tuning": tuning}
+        run_params = typed_params(name, {"qp_backend": spec.qp_backend, **params, "tuning": tuning})
         runs.append(ControllerRun(label(name, run_params) if labels is None else labels[i], name, run_params,
                                   spec.isolate))
     return runs
 
 
 def nominal_arguments(spec: Nominal) -> dict[str, object]:
-    """The nominal controller's parameters: its `params` ("name=value;..."), over the
+    """The nominal controller's parameters: its `params` (typed, `scenarios.spec`), over the
     sinusoid's amplitude, frequency and t0 when the nominal is the sinusoid."""
-    params = parse_params(spec.params)
+    params = read_params(spec.params)
     if spec.name.strip() != "sinusoid":
         return params
     return {"amplitude": spec.amplitude, "frequency": spec.frequency, "t0": spec.t0, **params}
@@ -245,7 +247,7 @@ def check_controller(filter: Filter, nominal: Nominal, model: Model, assumed_sti
     will be built with, the controller's robot, its force-safe set (`model` and the plate
     stiffness the controller assumes, `assumed_stiffness` N/m) and the QP backend. Returns
     what it parsed and built (`Controller`), for the scenario's setup."""
-    if filter.isolate and (filter.name.strip() not in FILTERS or nominal.name.strip() not in NOMINALS):
+    if filter.isolate and not (is_builtin(filter.name, FILTERS) and is_builtin(nominal.name, NOMINALS)):
         # the user's modules are imported in an isolated process only (closedloop.isolation)
         labels = check_in_child(plugin_labels, filter, nominal)
         runs, nominal_kwargs = tuple(controller_runs(filter, labels)), nominal_arguments(nominal)

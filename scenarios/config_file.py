@@ -4,8 +4,9 @@ Two formats, told apart by the suffix:
 
 - `.toml`: `scenario = "NAME"` and any of the scenario's parameters, by their names
   (docs/parameters.md); `filter_params` and `nominal_params` may be tables
-  (`[filter_params]` with `tuning = "Low"`), joined to "name=value;..." as on the command
-  line, and `tunings` a list (`tunings = ["Low", "High"]`) or the comma list. Example
+  (`[filter_params]` with `tuning = "Low"`), whose values the plug-in types by its declarations
+  (as the command line's --filter-param items; the old "name=value;..." text is read with a
+  DeprecationWarning), `filter = "c-erg:recommended"` a preset, and `tunings` a list (`tunings = ["Low", "High"]`) or the comma list. Example
   (docs/file-formats.md#run-configuration-toml):
 
       scenario = "paper_sim"
@@ -15,7 +16,8 @@ Two formats, told apart by the suffix:
       slack_weight = 1e4
 
 - `.json`: a run folder's config.json (softcbf_mj.runio: {"scenario", "params", ...}),
-  whose "params" hold every parameter of the run: `softcbf run --config DIR/config.json`
+  whose "params" hold every parameter of the run (a plug-in's parameters as the object of their typed
+  values): `softcbf run --config DIR/config.json`
   replays that run (same parameters, same seed, so the same time series on the same
   versions, which config.json also records).
 
@@ -50,7 +52,7 @@ from typing import Any
 
 from controllers.registry import SPEC_SETTINGS, file_sha256, spec_file
 from vocabulary.files import read_settings_file
-from vocabulary.sections import joined
+from vocabulary.sections import TABLE_PARAMETERS, joined
 from vocabulary.settings import SETTINGS, flat_form
 
 SCENARIO_KEY = "scenario"
@@ -71,7 +73,7 @@ class RunConfig:
 def _from_toml(path: Path, data: Mapping[str, Any]) -> RunConfig:
     params = {k: flat_form(k, joined(k, v)) if k in SETTINGS else v for k, v in data.items() if k != SCENARIO_KEY}
     for key, value in params.items():
-        if isinstance(value, (Mapping, list)):
+        if isinstance(value, (Mapping, list)) and key not in TABLE_PARAMETERS:
             raise ValueError(f"run configuration {path}: {key} must be a single value, got {value!r}")
     return RunConfig(data[SCENARIO_KEY], params, path=path)
 

@@ -4,7 +4,8 @@
 `scenario_parameters` turns `--name value` tokens into the scenario's flat parameters (its
 spec's settings by name, `scenarios.spec`) over the defaults or the `base` values of a run configuration file (scenarios.config_file;
 spelt with dashes; `--filter-param NAME=VALUE` and `--nominal-param NAME=VALUE`,
-repeatable, add to `filter_params` and `nominal_params`; `--tuning NAME` is
+repeatable, one parameter each (the value may hold ';' and '='), add to the mappings `filter_params`
+and `nominal_params`, which the plug-in types (`controllers.registry.typed_params`); `--tuning NAME` is
 `--filter-param tuning=NAME`; a NAME given twice on one command line is refused,
 `command_line_params`, while one of `base` is overridden). `run_scenario` checks every parameter
 and builds the scenario's spec (every value checked, `scenarios.spec`) before the run folder exists,
@@ -40,13 +41,15 @@ import shutil
 import sys
 import threading
 import typing
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from closedloop.step import describe_fault, fault_log_name
 from controllers.bounds import SettingError
 from controllers.interrupts import watch
-from controllers.registry import PluginLoadError, did_you_mean, parse_params
+from controllers.filter_parameters import OLD_TEXT_WARNING, Params, read_params
+from controllers.registry import FILTERS, NOMINALS, PluginLoadError, did_you_mean, is_builtin, parameter_names
 from scenarios import Scenario, get
 from vocabulary.settings import setting
 from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
@@ -179,7 +182,8 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
     parser = UsageParser(prog=f"scenario {scenario.name}", add_help=False, allow_abbrev=False)
     for name, p in params.items():  # a plug-in's parameter string: None when the command line does not give it
         default = None if name in PLUGIN_PARAMS else given.get(name, p.default)
-        parser.add_argument(option_name(name), dest=name, type=option_type(hints[name]), default=default)
+        kind = str if name in PLUGIN_PARAMS else hints[name]  # --filter-params TEXT: the old joined form
+        parser.add_argument(option_name(name), dest=name, type=option_type(kind), default=default)
     repeated = {name: option_name(name.removesuffix("s")) for name in params if name in PLUGIN_PARAMS}
     for name, option in repeated.items():
         parser.add_argument(option, dest=f"{name}_items", action="append", default=[], metavar="NAME=VALUE")
@@ -197,27 +201,53 @@ def scenario_parameters(scenario: Scenario, tokens: Sequence[str],
     for name, option in repeated.items():
         items, text = values.pop(f"{name}_items"), values[name]
         given_here = ([(option_name(name), text)] if text else []) + [(option, item) for item in items]
-        try:  # the command line's parameters override the file's: a merge (parse_params refuses a name twice)
-            here, recorded = command_line_params(given_here), given.get(name, params[name].default) if text is None else ""
-            values[name] = ";".join(f"{k}={v}" for k, v in {**parse_params(recorded), **here}.items()) if here else recorded
+        try:  # the command line's parameters override the file's: a merge of mappings (a name twice on one line: refused)
+            here = command_line_params(given_here, declared_names(name, values))
+            recorded = read_params(given.get(name, params[name].default)) if text is None else Params()
+            values[name] = Params({**recorded, **here})
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     return values
 
 
-def command_line_params(items: Sequence[tuple[str, str]]) -> dict[str, str]:
-    """The plug-in parameters one command line gives, as (option, "NAME=VALUE") pairs (several
-    joined by ';' in one item: "a=1;b=2"), as {name: value}. ValueError naming the option for an
-    item that is not NAME=VALUE, or for a NAME given twice (the last would silently win)."""
+def declared_names(setting_name: str, values: typing.Mapping[str, object]) -> frozenset[str]:
+    """The parameter names the plug-in of `setting_name` ("filter_params": `values["filter"]`, "nominal_params":
+    `values["nominal"]`) declares (`controllers.registry.parameter_names`); none for a plug-in of a file that runs
+    isolated (the parent never imports it) or that cannot be resolved (the spec's check says why)."""
+    builtins, spec = (FILTERS, values.get("filter")) if setting_name == "filter_params" else (NOMINALS, values.get("nominal"))
+    if not isinstance(spec, str) or (values.get("isolate") and not is_builtin(spec, builtins)):
+        return frozenset()
+    try:
+        return parameter_names(spec, builtins)
+    except ValueError:
+        return frozenset()
+
+
+def _old_joined(text: str, names: typing.Collection[str]) -> bool:
+    """Whether one --filter-param item is the old joined form "a=1;b=2": two or more ';'-separated parts, each
+    NAME=VALUE with NAME one the plug-in declares (`names`); anything else is one parameter whose value may hold
+    ';' and '=' ("note=a;b=c" for a plug-in without a parameter b)."""
+    parts = [part for part in text.split(";") if part.strip()]
+    return len(parts) > 1 and all(part.partition("=")[1] and part.partition("=")[0].strip() in names for part in parts)
+
+
+def command_line_params(items: Sequence[tuple[str, str]], names: typing.Collection[str] = ()) -> dict[str, str]:
+    """The plug-in parameters one command line gives, as (option, "NAME=VALUE") pairs, as {name: value}: one
+    parameter per item, its value everything after the first '=' (it may hold ';' and '='); the plug-in
+    types it (`controllers.registry.typed_params`). An item in the old joined form "a=1;b=2" of the plug-in's
+    declared `names` (`_old_joined`) is read as several, with a DeprecationWarning. ValueError naming the option
+    for an item that is not NAME=VALUE, or for a NAME given twice (the last would silently win)."""
     out: dict[str, str] = {}
     for option, text in items:
-        for part in filter(str.strip, text.split(";")) if text.strip() else [text]:
-            if "=" not in part:
+        parts = [text]
+        if _old_joined(text, names):
+            warnings.warn(f"{option} {text!r}: {OLD_TEXT_WARNING}", DeprecationWarning, stacklevel=2)
+            parts = [part for part in text.split(";") if part.strip()]
+        for part in parts:
+            key, sep, value = part.partition("=")
+            if not sep or not key.strip():
                 raise ValueError(f"{option} takes NAME=VALUE, got {part.strip()!r}")
-            try:
-                ((key, value),) = parse_params(part).items()
-            except ValueError as exc:
-                raise ValueError(f"{option}: {exc}") from None
+            key, value = key.strip(), value.strip()
             if key in out:
                 raise ValueError(f"{option} {key} is given twice ({key}={out[key]}, then {key}={value}); give it once")
             out[key] = value

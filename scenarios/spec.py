@@ -10,9 +10,11 @@ machinery the hardware file's sections use too): a field per setting of
 checked by `check_value` when the section is built (an int given for a float becomes
 one; a bad value raises `SettingError` naming the setting, its bound and unit, and the
 value). Fields left out hold `UNSET`, "the scenario's default". A filter's or nominal's
-parameters (`Filter.params`, `Nominal.params`) may be given as a mapping name → value, held as
-the command line's "name=value;..." text (`vocabulary.sections.joined`, as a TOML table is),
-or as keywords of their own (`Filter("e-erg", contact_aware=True)`: `plugin_section`).
+parameters (`Filter.params`, `Nominal.params`) are given as a mapping name → value (a TOML table, the
+command line's --filter-param NAME=VALUE items) or as keywords of their own (`Filter("e-erg",
+contact_aware=True)`: `plugin_section`), and held as the frozen mapping of their typed values
+(`controllers.registry.typed_params`: each converted once by the plug-in's declared kind, in its
+declaration order), which `flat()`, config.json and summary.json carry as they are.
 
 A *spec* is one scenario's whole configuration: a frozen dataclass made by
 `scenario_spec(name, doc, context, sections={attribute: Section}, own={field: setting})`,
@@ -45,7 +47,7 @@ import inspect
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from controllers.registry import did_you_mean
+from controllers.registry import FILTERS, NOMINALS, did_you_mean, is_builtin, typed_params
 from vocabulary.sections import UNSET, check_settings, setting_field, setting_fields
 from vocabulary.sections import section as vocabulary_section
 from vocabulary.settings import Bound, SettingError, default, flat_form, setting
@@ -60,10 +62,12 @@ def section(name: str, doc: str, fields: Mapping[str, str]) -> type:
     return vocabulary_section(name, doc, fields, module=__name__)
 
 
-def plugin_section(name: str, doc: str, fields: Mapping[str, str]) -> type:
-    """A `section` for a plug-in (a filter, a nominal) whose field `params` holds its parameters: a keyword
-    that is not a field is one of them, `Filter("e-erg", contact_aware=True)` = `Filter("e-erg",
-    params={"contact_aware": True})` (the plug-in checks the names and values when the spec is built)."""
+def plugin_section(name: str, doc: str, fields: Mapping[str, str], builtins: Mapping[str, Callable]) -> type:
+    """A `section` for a plug-in (a filter, a nominal; `builtins`: its registry) whose field `params` holds its
+    parameters: a keyword that is not a field is one of them, `Filter("e-erg", contact_aware=True)` =
+    `Filter("e-erg", params={"contact_aware": True})`. A built-in's (or a preset's) parameters are typed when
+    the section is built (`typed_params`: `Filter("c-erg", gain_noise_rad=1.5e-3).params` is the mapping
+    {"gain_noise_rad": 0.0015}); a plug-in's from its file when the spec is built (`typed_plugins`)."""
     cls = section(name, doc, fields)
     generated, names = cls.__init__, {f.name for f in dataclasses.fields(cls)}
 
@@ -74,10 +78,36 @@ def plugin_section(name: str, doc: str, fields: Mapping[str, str]) -> type:
                 raise TypeError(f"{name}: give the parameters as params={{...}} or as keywords, not both")
             kwargs["params"] = parameters
         generated(self, *args, **kwargs)
+        if is_builtin(self.name, builtins):  # a preset's parameters even when none are given
+            given = None if self.params is UNSET else self.params
+            object.__setattr__(self, "params", _typed(self.name, given, builtins, name.lower()))
 
     __init__.__doc__ = plugin_section.__doc__
     cls.__init__ = __init__
+    cls.BUILTINS = builtins
     return cls
+
+
+def _typed(spec: str, params: Any, builtins: Mapping[str, Callable], what: str) -> Any:
+    """`typed_params`, its refusal naming the plug-in ("filter 'c-erg': ...")."""
+    try:
+        return typed_params(spec, params, builtins)
+    except ValueError as exc:
+        raise ValueError(f"{what} {spec.strip()!r}: {exc}") from None
+
+
+def typed_plugins(spec: Any) -> None:
+    """Set each plug-in section's `params` of the spec under construction (`spec.filter`, `spec.nominal`) to its
+    typed parameters (`typed_params`), in place; a plug-in that runs isolated and is not a built-in keeps its
+    parameters as given (its file is imported in its own process only, closedloop.isolation, which types them
+    when it builds it)."""
+    isolated = bool(getattr(getattr(spec, "filter", None), "isolate", False))
+    for attribute, section_cls in type(spec).SECTIONS.items():
+        builtins = getattr(section_cls, "BUILTINS", None)
+        value = getattr(spec, attribute)
+        if builtins is None or (isolated and not is_builtin(value.name, builtins)):
+            continue
+        object.__setattr__(spec, attribute, _copy(value, params=_typed(value.name, value.params, builtins, attribute)))
 
 
 def _fill_unset(value: Any, context: str) -> None:
@@ -92,10 +122,17 @@ def _resolved(value: Any, context: str) -> Any:
     """A section with its `UNSET` fields set to `context`'s defaults (a copy; the given fields stay checked)."""
     if all(getattr(value, f) is not UNSET for f in setting_fields(type(value))):
         return value
+    copy = _copy(value)
+    _fill_unset(copy, context)
+    return copy
+
+
+def _copy(value: Any, **changes: Any) -> Any:
+    """A copy of the frozen section `value` with the fields `changes` set, its checks not run again (its fields
+    were checked when it was built; `changes` are the caller's checked values)."""
     copy = object.__new__(type(value))
     for f in dataclasses.fields(value):
-        object.__setattr__(copy, f.name, getattr(value, f.name))
-    _fill_unset(copy, context)
+        object.__setattr__(copy, f.name, changes.get(f.name, getattr(value, f.name)))
     return copy
 
 
@@ -110,6 +147,7 @@ def _build_spec(self: Any) -> None:
         object.__setattr__(self, attribute, _resolved(value, cls.CONTEXT))
     check_settings(self)
     _fill_unset(self, cls.CONTEXT)
+    typed_plugins(self)
     flat = self.flat()
     for key, bound in cls.BOUNDS.items():
         if flat[key] not in bound:
@@ -192,11 +230,11 @@ Filter = plugin_section("Filter", "The controller under test: the filter, its pa
                            "its QP backend, whether its QP holds the pressure box and whether it runs isolated "
                            "(with the nominal, in a process of its own: closedloop.isolation).",
                  {"name": "filter", "params": "filter_params", "tunings": "tunings", "qp_backend": "qp_backend",
-                  "pressure_limits": "pressure_limits", "isolate": "isolate"})
+                  "pressure_limits": "pressure_limits", "isolate": "isolate"}, FILTERS)
 Nominal = plugin_section("Nominal", "The nominal controller, its parameters and the sinusoid's amplitude (hPa), "
                              "frequency (Hz) and time offset (s).",
                   {"name": "nominal", "params": "nominal_params", "amplitude": "amplitude", "frequency": "frequency",
-                   "t0": "t0"})
+                   "t0": "t0"}, NOMINALS)
 Model = section("Model", "The controller's model: its robot (damping × damping_scale), facets, force limit (N) "
                          "and row scaling of the force-safe set.",
                 {"robot": "robot", "damping_scale": "damping_scale", "environment": "environment", "f_max": "f_max",

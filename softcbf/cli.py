@@ -144,11 +144,13 @@ def register_command(name: str, help: str | Callable[[], str], add_arguments: Ca
 
 
 def list_text() -> str:
-    """`softcbf list`: the scenarios, then the filters and nominal controllers with every parameter's meaning, unit and default."""
+    """`softcbf list`: the scenarios, then the filters, their presets and the nominal controllers with every parameter's meaning, unit and default."""
     lines = ["scenarios:", *(describe(s) for s in registry().values()), "",
              "filters (--filter NAME, or FILE.py:Factory / package.module:Factory; --filter-param NAME=VALUE; "
              "paper-cbf: --tunings P1,P2 or --tuning PRESET|custom):"]
     lines += [controllers_registry.describe(name, f) for name, f in controllers_registry.FILTERS.items()]
+    lines += ["", "filter presets (--filter NAME:PRESET; an explicit --filter-param overrides the preset's value):"]
+    lines += [controllers_registry.describe_preset(name) for name in controllers_registry.PRESETS]
     lines += ["", "nominal controllers (--nominal NAME, or FILE.py:Factory returning (t, q, qd) -> u_nom; --nominal-param NAME=VALUE):"]
     lines += [controllers_registry.describe(name, f) for name, f in controllers_registry.NOMINALS.items()]
     return "\n".join(lines)

@@ -468,8 +468,8 @@ def test_a_config_file_s_plugin_parameters_are_overridden_not_duplicates(tmp_pat
                       '[filter_params]\nslack_weight = 1e4\n', encoding="utf-8")
     out = tmp_path / "run"
     assert main(["run", "--config", str(config), "--filter-param", "slack_weight=1e5", "--out", str(out)]) == 0
-    assert read_run_folder(out).summary["params"]["filter_params"] == "slack_weight=1e5"  # a merge: replayable
-    assert read_run_folder(out).runs[0]["filter_params"]["slack_weight"] == "1e5"
+    assert read_run_folder(out).summary["params"]["filter_params"] == {"slack_weight": 1e5}  # a merge: replayable, typed
+    assert read_run_folder(out).runs[0]["filter_params"]["slack_weight"] == 1e5
 
 
 def test_hardware_refuses_a_plugin_parameter_given_twice(tmp_path, capsys):

@@ -20,6 +20,7 @@ from softcbf.cli import main
 from softcbf.study.definition import apply_settings, load_study, parse_setting
 from softcbf_mj.runio import load_timeseries
 from vocabulary.settings import SETTINGS, setting
+from vocabulary.sections import joined
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--duration", "0.3", "--tunings", "Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
@@ -174,13 +175,13 @@ def test_toml_run_configuration_with_command_line_overrides(tmp_path, capsys):
     loaded = load_run_config(config)
     assert loaded.scenario == "paper_sim"
     assert loaded.params == {"duration": 0.2, "tunings": "None,Low", "progress": False, "amplitude": 150,
-                             "filter_params": "slack_weight=10000.0"}
+                             "filter_params": {"slack_weight": 1e4}}
     out = tmp_path / "out"
     assert main(["run", "--config", str(config), "--tunings", "Low", "--filter-param", "recovery_margin=0.002",
                  "--out", str(out)]) == 0
     params = json.loads((out / "config.json").read_text(encoding="utf-8"))["params"]
     assert params["duration"] == 0.2 and params["amplitude"] == 150.0 and params["tunings"] == "Low"
-    assert params["filter_params"] == "slack_weight=10000.0;recovery_margin=0.002"
+    assert params["filter_params"] == {"recovery_margin": 0.002, "slack_weight": 1e4}
     assert [p.name for p in (out / "timeseries").iterdir()] == ["Low.npz"]
 
 
@@ -242,7 +243,8 @@ def test_a_stored_config_json_replays_to_its_stored_series(name, tmp_path, capsy
     capsys.readouterr()
     recorded = json.loads((stored / "config.json").read_text(encoding="utf-8"))
     params = json.loads((replay / "config.json").read_text(encoding="utf-8"))["params"]
-    assert {k: params[k] for k in recorded["params"]} == recorded["params"]  # the new settings take their defaults
+    old = {k: joined(k, v) for k, v in recorded["params"].items()}  # a plug-in's old "" text: no parameters
+    assert {k: params[k] for k in recorded["params"]} == old  # the new settings take their defaults
     exact = recorded["versions"] == versions()
     files = sorted((stored / "timeseries").glob("*.npz"))
     assert files
@@ -344,4 +346,4 @@ def test_the_parameter_page_is_the_one_the_tool_writes():
 def test_the_run_configuration_example_is_a_valid_run():
     config = load_run_config(ROOT / "docs" / "examples" / "run.toml")
     kwargs = registry()[config.scenario].validate(config.params)
-    assert kwargs["filter_params"] == "a_E=5.0;b_E=5.0;gamma=5.0" and kwargs["tunings"] == "custom"
+    assert kwargs["filter_params"] == {"a_E": 5.0, "b_E": 5.0, "gamma": 5.0} and kwargs["tunings"] == "custom"

@@ -32,7 +32,7 @@ def test_the_demo_writes_the_figure_and_both_runs_and_says_where(tmp_path, capsy
         row = summary["runs"][0]
         assert f"[{k}/2] {run.label}: peak force {row['force_max_N']:.3f} N" in log.getvalue()
     contact = json.loads((tmp_path / "demo" / "c-erg-recommended" / "summary.json").read_text(encoding="utf-8"))
-    assert all(f"{k}=" in contact["params"]["filter_params"] for k in RECOMMENDED)
+    assert all(contact["params"]["filter_params"][k] == v for k, v in RECOMMENDED.items())  # typed values
     paper = json.loads((tmp_path / "demo" / "paper-cbf-low" / "summary.json").read_text(encoding="utf-8"))
     assert paper["runs"][0]["tuning"] == "Low"
     run_demo(tmp_path / "demo", duration=0.3, stream=io.StringIO())  # again into the same folder: replaced

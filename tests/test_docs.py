@@ -191,25 +191,24 @@ def test_no_file_refers_to_a_path_outside_the_repository():
 
 
 def test_the_readme_names_the_recommended_filter_that_softcbf_list_marks():
-    """The README's recommended filter is one `softcbf bench --filters` spec, the setting that c-erg's docstring
-    (what `softcbf list` marks) names and `energy_governor.RECOMMENDED` holds (tools/bench_governors.py times it),
-    and it builds on the reference arm with the bench's plate interval."""
+    """The README's recommended filter is one preset (`controllers.registry.PRESETS`), the setting that c-erg's
+    docstring (what `softcbf list` marks) names and `energy_governor.RECOMMENDED` holds (tools/bench_governors.py
+    times it) with the bench's plate interval, and it builds on the reference arm."""
     from controllers.energy_governor import RECOMMENDED, ContactEnergyGovernor
-    from controllers.registry import FILTERS, arguments, build_filter
-    from softcbf.bench import parse_filters
+    from controllers.registry import FILTERS, PRESETS, build_filter, typed_params
 
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    named = re.findall(r"\*\*The recommended filter\*\* for contact tasks is\n`([^`]+)`", readme)
-    assert len(named) == 1, "the README names the recommended filter once"
-    (spec,) = parse_filters(named[0])
-    assert FILTERS[spec.name] is ContactEnergyGovernor
+    named = re.findall(r"\*\*The recommended filter\*\* for contact tasks is the preset `([^`]+)`", readme)
+    assert named == ["c-erg:recommended"], "the README names the recommended filter once, by its preset"
+    preset = PRESETS[named[0]]
+    assert FILTERS[preset.filter] is ContactEnergyGovernor
     marked = re.fullmatch(r"Recommended for contact tasks with (.*) \(README\): .*",
                           ContactEnergyGovernor.__doc__.splitlines()[0]).group(1)
-    assert dict(pair.split("=") for pair in marked.split(", ")) == spec.params
-    assert arguments(ContactEnergyGovernor, spec.params) == RECOMMENDED
+    assert typed_params("c-erg", dict(pair.split("=") for pair in marked.split(", "))) == RECOMMENDED
+    assert typed_params(named[0]) == {**RECOMMENDED, "stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1}
     robot = reference_robot()
     context = FilterContext(robot, paper_safe_set(), robot.array("u_min"), robot.array("u_max"), 0.1, 0.02, 0.05)
-    governor = build_filter(spec.name, {**spec.params, "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}, context)
+    governor = build_filter(named[0], {}, context)
     assert (*governor.gain_interval(), governor.params.gain_rest_s) == (0.9, 1.1, 0.2)
     out = governor(Estimate(0.0, np.zeros(2), np.zeros(2), 0.0), np.full(2, 150.0))
     assert np.all(np.isfinite(out.u)) and np.all(out.u <= robot.array("u_max"))

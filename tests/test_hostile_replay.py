@@ -173,8 +173,8 @@ def test_the_command_line_overrides_a_file_s_parameter_and_keeps_the_others():
     from scenarios.run import scenario_parameters
 
     params = scenario_parameters(get("paper_sim"), ["--filter-param", "slack_weight=1e5"],
-                                 {"filter_params": "slack_weight=1e4;tuning=Low"})
-    assert params["filter_params"] == "slack_weight=1e5;tuning=Low"
+                                 {"filter_params": {"slack_weight": 1e4, "tuning": "Low"}})
+    assert params["filter_params"] == {"slack_weight": "1e5", "tuning": "Low"}  # the filter types them (scenarios.spec)
 
 
 def test_the_python_api_refuses_a_filter_parameter_twice():

@@ -241,7 +241,7 @@ def _clip_run(tmp_path, scenario, clip_file, *extra):
     folder = read_run_folder(out)
     assert folder.labels == ["ClipFilter(limit_hPa=100)"]
     row = folder.summary["runs"][0]
-    assert row["filter"] == f"{clip_file}:ClipFilter" and row["filter_params"] == {"limit_hPa": "100"}
+    assert row["filter"] == f"{clip_file}:ClipFilter" and row["filter_params"] == {"limit_hPa": 100.0}
     assert row["recovery_steps"] == 0 and row["active_steps"] is None
     series, units = load_timeseries(out / row["timeseries"])
     assert units["u_filter"].startswith("hPa") and "b" not in series
@@ -289,7 +289,7 @@ def test_example_filter_runs_in_a_study(tmp_path):
     text = text.replace("duration = 5.0", "duration = 0.3")
     (tmp_path / "s.toml").write_text(text, encoding="utf-8")
     study = load_study(tmp_path / "s.toml")
-    assert study.n_samples == 3 and study.sample(2).kwargs["filter_params"] == "limit_hPa=150.0"
+    assert study.n_samples == 3 and study.sample(2).kwargs["filter_params"] == {"limit_hPa": 150.0}
     outcome = run_study(study, tmp_path / "out", workers=1, progress=False)
     assert outcome.ran == 3 and outcome.failed == 0
     rows = sorted(StudyStore.open(tmp_path / "out").load_rows(), key=lambda r: r["sample"])
@@ -307,7 +307,7 @@ def test_example_filter_runs_on_the_hardware_emulator(tmp_path):
     with EmulatedHardware(config) as emulation:
         (tmp_path / "hw").mkdir()
         row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)
-    assert row["tuning"] == "ClipFilter(limit_hPa=40.0)" and row["cycles"] + row["cycles_skipped"] == 20
+    assert row["tuning"] == "ClipFilter(limit_hPa=40)" and row["cycles"] + row["cycles_skipped"] == 20
     series, _ = load_timeseries(tmp_path / "hw" / row["timeseries"])
     assert np.all(np.abs(series["u_sent"]) <= 40.0 + 0.05) and series["u_nom"].max() > 0
     np.testing.assert_array_equal(series["u_filter"], np.clip(series["u_nom"], -40.0, 40.0))

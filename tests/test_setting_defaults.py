@@ -151,7 +151,7 @@ def test_spec_sections_hold_no_default_of_their_own():
 def test_hardware_defaults_are_the_vocabulary_s():
     values = default_values()
     for name in SHARED_KEYS:
-        if name in ("filter_params", "nominal_params"):  # tables in the hardware file (default {}), strings elsewhere
+        if name in ("filter_params", "nominal_params"):  # tables: a plug-in's parameters (default {})
             assert values[name] == {}
             continue
         assert values[name] == default(name, "hardware"), name

@@ -24,6 +24,7 @@ from softcbf.cli import main
 from softcbf.study.definition import load_study
 from vocabulary.files import read_settings_file
 from vocabulary.settings import SETTINGS, Bound, SettingError, check_number, check_value
+from controllers.filter_parameters import Params
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "hardware_emulated.toml"
@@ -186,7 +187,7 @@ def test_check_value_normalises_and_refuses_by_kind():
         ("seed", -1, "seed must be >= 0, got -1"),
         ("progress", "yes", "progress must be true or false, got 'yes'"),
         ("filter", 3, "filter must be a str (a built-in filter (softcbf list: paper-cbf, none, c-erg, ...), "
-                      "FILE.py:Factory or package.module:Factory), got 3"),
+                      "a preset (c-erg:recommended), FILE.py:Factory or package.module:Factory), got 3"),
         ("amplitude", -5000, "amplitude must be within ±3276.7 hPa (a plausibility bound; a value in Pa? "
                              "-5000 Pa = -50 hPa), got -5000.0"),
         ("drop_rate", 1.0, "drop_rate must be in [0, 1), got 1.0"),
@@ -206,8 +207,8 @@ def test_check_value_normalises_and_refuses_by_kind():
 
 def test_every_setting_is_declared_completely():
     for name, declared in SETTINGS.items():
-        assert declared.meaning and declared.kind in (float, int, bool, str, tuple), name
-        assert declared.flat_kind in (float, int, bool, str), name  # what the command line and files take
+        assert declared.meaning and declared.kind in (float, int, bool, str, tuple, Params), name  # Params: a plug-in's
+        assert declared.flat_kind in (float, int, bool, str, Params), name  # what the command line and files take
         assert check_value(name, declared.default) == declared.default or declared.default is None, name
         assert (declared.bound is not None) == (declared.kind in (float, int)), name
         assert declared.valid_values, name
@@ -218,15 +219,17 @@ def test_every_setting_is_declared_completely():
 
 
 def test_the_vocabulary_needs_only_the_standard_library():
-    """The vocabulary and the one module of the controllers it takes its ranges from
-    (controllers.bounds) import the standard library only, and importing it loads no third-party module."""
-    for path in (*(ROOT / "vocabulary").glob("*.py"), ROOT / "controllers" / "bounds.py"):
+    """The vocabulary and the two modules of the controllers it takes from (controllers.bounds, its ranges;
+    controllers.filter_parameters, a plug-in's parameters as a typed mapping) import the standard library only
+    (and the latter the former), and importing it loads no third-party module."""
+    from_controllers = ("controllers.bounds", "controllers.filter_parameters")
+    for path in (*(ROOT / "vocabulary").glob("*.py"), *(ROOT / "controllers" / f"{m.split('.')[1]}.py" for m in from_controllers)):
         for line in path.read_text(encoding="utf-8").splitlines():
             if line.startswith(("import ", "from ")):
                 module = line.split()[1]
                 top = module.split(".")[0]
                 assert top in sys.stdlib_module_names or top in ("__future__", "vocabulary") or \
-                    (path.parent.name == "vocabulary" and module == "controllers.bounds"), (path.name, line)
+                    (path.stem != "bounds" and module in from_controllers), (path.name, line)
     loaded = subprocess.run([sys.executable, "-c", "import sys; before = set(sys.modules); "
                              "import vocabulary.settings, vocabulary.files; print(sorted({m.split('.')[0] for m in "
                              "set(sys.modules) - before} - set(sys.stdlib_module_names)))"],
@@ -339,6 +342,6 @@ def test_a_section_checks_single_per_segment_table_and_unconfigured_values():
         pass
 
     given = Scenario(params={"kappa": 2.0})
-    assert given.params == "kappa=2.0" and given.f_max is UNSET
+    assert given.params == {"kappa": 2.0} and given.f_max is UNSET  # a plug-in's parameters: a frozen mapping
     with pytest.raises(SettingError, match="calibration must be a str"):
         setting_section(type("NoNone", (), {}), settings={"calibration": "calibration"})(calibration=None)

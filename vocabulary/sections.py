@@ -25,13 +25,14 @@ normalised (an int given for a float becomes one); a bad value raises `error` (d
   a sequence of names, `vocabulary.settings`), and refused elsewhere ("f_max must be a single
   value");
 - a plug-in's parameters (`filter_params`, `nominal_params`; `TABLE_PARAMETERS`) given as a
-  mapping name → value: a `tables` field holds the mapping (the plug-in checks the names and
-  values), any other becomes the command line's "name=value;..." text (`joined`).
+  mapping name → value: held as a frozen mapping (`controllers.filter_parameters.Params`; the
+  plug-in types and checks the names and values), the old "name=value;..." text read with a
+  DeprecationWarning (`joined`).
 
 `section(name, doc, settings)` makes such a class from nothing but its fields (the scenarios'
 sections, `scenarios.spec`); the hardware file's sections (`hardware.config`) use the
 decorator form with their own fields and checks. This module is the one implementation of
-both: standard library and `vocabulary.settings` only, so the hardware layer may import it
+both: standard library, `vocabulary.settings` and `controllers.filter_parameters` only, so the hardware layer may import it
 (tests/test_layers.py).
 """
 
@@ -41,10 +42,11 @@ import dataclasses
 from collections.abc import Callable, Collection, Mapping
 from typing import Any
 
+from controllers.filter_parameters import read_params
 from vocabulary.settings import SettingError, check_value, default, setting
 
 SETTING = "setting"  # the dataclass field metadata key that names a field's setting
-TABLE_PARAMETERS = ("filter_params", "nominal_params")  # a plug-in's parameters: "name=value;..." text or a table
+TABLE_PARAMETERS = ("filter_params", "nominal_params")  # a plug-in's parameters: a frozen mapping
 
 
 class _Unset:
@@ -68,11 +70,10 @@ UNSET: Any = _Unset()
 
 
 def joined(name: str, value: Any) -> Any:
-    """A `filter_params` / `nominal_params` table as the "name=value;name=value" text the scenarios take
-    (any other value unchanged)."""
-    if name in TABLE_PARAMETERS and isinstance(value, Mapping):
-        return ";".join(f"{k}={v}" for k, v in value.items())
-    return value
+    """A `filter_params` / `nominal_params` value as the frozen mapping the scenarios take
+    (`controllers.filter_parameters.read_params`: a table as given, the old "name=value;..." text with a
+    DeprecationWarning; the plug-in types the values), any other value unchanged."""
+    return read_params(value) if name in TABLE_PARAMETERS else value
 
 
 def setting_fields(cls: type) -> dict[str, str]:
@@ -95,7 +96,7 @@ def _checked(f: dataclasses.Field, value: Any) -> Any:
     if f.metadata["table"]:
         if not (isinstance(value, Mapping) and all(isinstance(k, str) for k in value)):
             raise SettingError(f"{key} must be a table of name = value, got {value!r}")
-        return dict(value)
+        return read_params(value)
     if isinstance(value, (list, tuple)) and setting(key).kind is not tuple:
         if not f.metadata["per_segment"]:
             raise SettingError(f"{key} must be a single value, got {value!r}")

@@ -53,6 +53,7 @@ from typing import Any
 from controllers.bounds import (  # noqa: F401  (re-exported: the settings' range and check)
     LIKELY_MISTAKES, Bound, SettingError, check_number, finite, non_negative, positive,
 )
+from controllers.filter_parameters import Params
 
 
 @dataclass(frozen=True)
@@ -127,13 +128,16 @@ SETTINGS: dict[str, Setting] = {
                       "None, Low, High, HW-Low, HW-High, custom (a_E, b_E, gamma from filter_params)",
                       default=("None", "Low", "High")),
     "filter": _text("the safety filter under test",
-                    "a built-in filter (softcbf list: paper-cbf, none, c-erg, ...), FILE.py:Factory or package.module:Factory", default="paper-cbf"),
-    "filter_params": _text("the filter's parameters, name=value;name=value (--filter-param NAME=VALUE; "
-                           "a table [filter_params] in a file)", "the filter's parameters (softcbf list)", default=""),
+                    "a built-in filter (softcbf list: paper-cbf, none, c-erg, ...), a preset (c-erg:recommended), "
+                    "FILE.py:Factory or package.module:Factory", default="paper-cbf"),
+    "filter_params": Setting("the filter's parameters, typed by the filter's declarations (--filter-param NAME=VALUE, "
+                             "repeatable; a table [filter_params] in a file)", "", Params,
+                             valid="the filter's parameters (softcbf list)", default=Params()),
     "nominal": _text("the nominal controller", "sinusoid, tip-tracker, step, force-target, FILE.py:Factory, package.module:Factory",
                      default="sinusoid"),
-    "nominal_params": _text("the nominal's parameters, name=value;name=value (--nominal-param NAME=VALUE; "
-                            "a table [nominal_params] in a file)", "the nominal's parameters (softcbf list)", default=""),
+    "nominal_params": Setting("the nominal's parameters, typed by the nominal's declarations (--nominal-param "
+                              "NAME=VALUE, repeatable; a table [nominal_params] in a file)", "", Params,
+                              valid="the nominal's parameters (softcbf list)", default=Params()),
     "amplitude": _number("sinusoid nominal: amplitude A of u_nom,j = A sin(2π f (t + t0))", "hPa",
                          finite("hPa"), PRESSURE_RANGE_HPA, default=80.0),
     "frequency": _number("sinusoid nominal: frequency f", "Hz", positive("Hz"), default=0.01),

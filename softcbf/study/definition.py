@@ -91,7 +91,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from controllers.registry import parse_params
+from controllers.filter_parameters import Params, read_params
 from scenarios import get as get_scenario
 from vocabulary.files import read_settings_file
 from vocabulary.sections import joined
@@ -212,12 +212,12 @@ class Sample:
 
 def fold_values(fixed: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
     """The scenario keyword arguments of `fixed` and the drawn `values`, each varied
-    filter_param.NAME folded into filter_params as NAME=value."""
+    filter_param.NAME folded into the mapping filter_params as NAME: value (the filter types it)."""
     kwargs = dict(fixed)
     kwargs.update({k: v for k, v in values.items() if not k.startswith(FILTER_PARAM_PREFIX)})
-    varied = [f"{k.removeprefix(FILTER_PARAM_PREFIX)}={v}" for k, v in values.items() if k.startswith(FILTER_PARAM_PREFIX)]
+    varied = {k.removeprefix(FILTER_PARAM_PREFIX): v for k, v in values.items() if k.startswith(FILTER_PARAM_PREFIX)}
     if varied:
-        kwargs[FILTER_PARAMS] = ";".join(part for part in (kwargs.get(FILTER_PARAMS, ""), *varied) if part)
+        kwargs[FILTER_PARAMS] = Params({**read_params(kwargs.get(FILTER_PARAMS)), **varied})
     return kwargs
 
 
@@ -296,7 +296,7 @@ class Study:
         object.__setattr__(self, "fixed", {k: _named(f"fixed.{k}", scenario.coerce, k, v) for k, v in self.fixed.items()})
         if set(self.fixed) & {d.parameter for d in self.vary if d.parameter.startswith(FILTER_PARAM_PREFIX)}:
             raise ValueError("filter_param.NAME may only be varied (fixed filter parameters go in filter_params)")
-        fixed_params = _named(FILTER_PARAMS, parse_params, self.fixed.get(FILTER_PARAMS, ""))  # a name twice: refused
+        fixed_params = _named(FILTER_PARAMS, read_params, self.fixed.get(FILTER_PARAMS))
         twice = sorted(set(fixed_params) & {d.parameter.removeprefix(FILTER_PARAM_PREFIX) for d in self.vary
                                             if d.parameter.startswith(FILTER_PARAM_PREFIX)})
         if twice:
@@ -419,7 +419,7 @@ class Study:
                 if key in fixed:
                     raise ValueError(f"{key} is given twice (top level and fixed)")
                 value = data[key]
-                fixed[key] = joined(key, value)
+                fixed[key] = _named(key, joined, key, value)
         return cls(name=data["name"], scenario=data["scenario"], tunings=data["tunings"], vary=tuple(vary),
                    fixed=fixed, sampling=data.get("sampling", "monte_carlo"),
                    draws=data.get("draws"), seed=data.get("seed", 0),

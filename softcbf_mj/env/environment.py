@@ -35,7 +35,7 @@ from typing import Any
 from dm_control.rl import control
 
 from controllers.params import RobotParams, reference_robot
-from controllers.registry import build_filter
+from controllers.registry import build_filter, typed_params
 from controllers.safe_set import ForceSafeSet, paper_safe_set
 from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from softcbf_mj.env.physics import ArmPhysics, NoisyState
@@ -77,8 +77,8 @@ class ArmEnvConfig:
     | tau_p            | 0.05                 | s    | pressure time constant                                    |
     | action_repeat    | 1                    | —    | control periods per env step                              |
     | episode_steps    | 1000                 | —    | env steps per episode                                     |
-    | filter           | "none"               | —    | registry spec (controllers.registry)                      |
-    | filter_params    | {}                   | —    | its parameters                                            |
+    | filter           | "none"               | —    | registry spec or preset ("c-erg:recommended")             |
+    | filter_params    | {}                   | —    | its parameters, typed once (registry.typed_params)        |
     | pressure_limits  | True                 | —    | the control step clips to [u_min, u_max]                  |
     | hold_s           | 0.5                  | s    | the safety monitor's hold before it vents                 |
     | q0_std           | 0.0                  | rad  | initial bending angles ~ N(0, q0_std²)                    |
@@ -129,7 +129,7 @@ class ArmEnvConfig:
             raise ValueError(f"image_size must be (W, H) integers in [{MIN_IMAGE_PX}, {CAMERA_RESOLUTION[0]}] × "
                              f"[{MIN_IMAGE_PX}, {CAMERA_RESOLUTION[1]}] px, got {self.image_size!r}")
         object.__setattr__(self, "image_size", size)
-        object.__setattr__(self, "filter_params", dict(self.filter_params))
+        object.__setattr__(self, "filter_params", typed_params(self.filter, self.filter_params))
         noise = tuple(float(v) for v in self.state_noise_std)
         if len(noise) != 2 or not all(math.isfinite(v) and v >= 0 for v in noise):
             raise ValueError(f"state_noise_std must be (q_std rad, qd_std rad/s), finite and >= 0, got {self.state_noise_std!r}")
