@@ -4,7 +4,7 @@ Two runs of scenario mujoco_contact through the Python API (`scenarios.api.run`,
 `softcbf run` calls), identical but for the filter:
 
 - the paper's CBF, tuning Low (`paper-cbf`, docs/paper-cbf.md);
-- the recommended filter for contact tasks (`c-erg` with `controllers.energy_governor.RECOMMENDED`, README).
+- the recommended filter for contact tasks (the preset `c-erg:recommended`, README).
 
 Both get the README's pushing nominal, u_nom = 150 sin(2π·0.25·(t + 1)) hPa on both segments from t = 0,
 which presses the arm into the plate at once, for DURATION_S = 5 s of simulated time: on the reference
@@ -52,10 +52,8 @@ class DemoRun:
 
 def demo_runs() -> tuple[DemoRun, ...]:
     """The paper's CBF (Low) and the recommended filter (module docstring)."""
-    from controllers.energy_governor import RECOMMENDED
-
     return (DemoRun("paper's CBF (Low)", "paper-cbf-low", "paper-cbf", {"tuning": "Low"}),
-            DemoRun("recommended (c-erg)", "c-erg-recommended", "c-erg", dict(RECOMMENDED)))
+            DemoRun("recommended (c-erg)", "c-erg-recommended", "c-erg:recommended", {}))
 
 
 def _run_one(k: int, demo: DemoRun, out: Path, duration: float, stream: TextIO) -> Any:

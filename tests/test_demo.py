@@ -8,7 +8,7 @@ import json
 
 from matplotlib.image import imread
 
-from controllers.energy_governor import RECOMMENDED
+from controllers.registry import PRESETS
 from scenarios.run import USAGE_ERROR
 from softcbf.cli import main
 from softcbf.demo import FIGURE_FILE, demo_runs, run_demo
@@ -23,7 +23,7 @@ def test_the_demo_writes_the_figure_and_both_runs_and_says_where(tmp_path, capsy
     assert imread(figure).shape[:2] == (round(height * DPI), round(width * DPI))
     captured = capsys.readouterr()
     assert captured.out == f"figure: {figure}\n"
-    assert "[mujoco_contact Low] |" in captured.err and "[mujoco_contact c-erg(" in captured.err  # progress, stderr
+    assert "[mujoco_contact Low] |" in captured.err and "[mujoco_contact c-erg:recommended" in captured.err  # progress, stderr
     lines = log.getvalue().splitlines()
     assert lines[0].startswith("softcbf demo: the paper's CBF and the recommended filter, 0.3 s each")
     for k, run in enumerate(demo_runs(), start=1):
@@ -32,7 +32,8 @@ def test_the_demo_writes_the_figure_and_both_runs_and_says_where(tmp_path, capsy
         row = summary["runs"][0]
         assert f"[{k}/2] {run.label}: peak force {row['force_max_N']:.3f} N" in log.getvalue()
     contact = json.loads((tmp_path / "demo" / "c-erg-recommended" / "summary.json").read_text(encoding="utf-8"))
-    assert all(contact["params"]["filter_params"][k] == v for k, v in RECOMMENDED.items())  # typed values
+    preset = PRESETS["c-erg:recommended"]
+    assert all(contact["params"]["filter_params"][k] == v for k, v in preset.params.items())  # typed values
     paper = json.loads((tmp_path / "demo" / "paper-cbf-low" / "summary.json").read_text(encoding="utf-8"))
     assert paper["runs"][0]["tuning"] == "Low"
     run_demo(tmp_path / "demo", duration=0.3, stream=io.StringIO())  # again into the same folder: replaced
