@@ -150,7 +150,7 @@ from controllers.gain_estimate import GainEstimator
 from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import QuasiStaticGovernor
-from controllers.safe_set import ForceSafeSet
+from controllers.safe_set import Environment, ForceSafeSet
 from controllers.safety_filter import FilterContext
 from controllers.state_predictor import StatePredictor
 
@@ -190,15 +190,52 @@ def ray_may_come_nearer(start, goal, direction, aim, best: float, sigma_min: flo
                                                    energy_kernels.PYTHON_SQUARE))
 
 
-def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
-    """β_i = τ_p λ_i² / (4 d_i): (N,) J/hPa²; refuses τ_p > 0 with an undamped segment."""
+def pressure_lag_weights(context: FilterContext, actuator_tau: float, damping_ratio: float = 1.0) -> np.ndarray:
+    """β_i = τ_p λ_i² / (4 c_d d_i): (N,) J/hPa², c_d the lowest damping's ratio (module docstring, "valve lag");
+    refuses τ_p > 0 with an undamped segment."""
     damping, gains = context.robot.array("damping"), context.robot.array("gains")
     if actuator_tau == 0.0:
         return np.zeros_like(gains)
     if np.any(damping <= 0):
         raise ValueError(f"a pressure lag (actuator_tau = {actuator_tau} s) needs damping > 0 on every segment, "
                          f"got {damping.tolist()}: the certificate's β = τ_p λ²/(4d) is undefined")
+    if damping_ratio != 1.0:
+        damping = damping_ratio * damping
     return actuator_tau * gains**2 / (4.0 * damping)
+
+
+def arm_corners(gains: tuple, stiffnesses: tuple, ratios: tuple) -> tuple:
+    """The vertices (g, c) of the arm's certified set {g ∈ [g_lo, g_hi], c ∈ [c_lo, c_hi], r_lo ≤ g/c ≤ r_hi}
+    (module docstring, "arm stiffness"): the ends of its edges on the lines c = c_lo, c = c_hi, g = g_lo and
+    g = g_hi (every vertex lies on one of them: the lines g = r c meet only at 0), sorted by (g/c, c), repeats
+    dropped. The model's stiffness (c_lo = c_hi = 1) gives (r_lo, 1), (r_hi, 1): the gain ends alone.
+    ValueError where the set is empty."""
+    (g_lo, g_hi), (c_lo, c_hi), (r_lo, r_hi) = gains, stiffnesses, ratios
+    points = set()
+    for c in (c_lo, c_hi):
+        lo, hi = max(g_lo, r_lo * c), min(g_hi, r_hi * c)
+        if lo <= hi:
+            points.update({(lo, c), (hi, c)})
+    for g in (g_lo, g_hi):
+        lo, hi = max(c_lo, g / r_hi), min(c_hi, g / r_lo)
+        if lo <= hi:
+            points.update({(g, lo), (g, hi)})
+    if not points:
+        raise ValueError(f"no actuator gain in [{g_lo!r}, {g_hi!r}] and arm stiffness in [{c_lo!r}, {c_hi!r}] has a "
+                         f"ratio in [{r_lo!r}, {r_hi!r}]")
+    return tuple(sorted(points, key=lambda end: (end[0] / end[1], end[1])))
+
+
+def nearest_environment(environment: Environment, offset_m: float) -> Environment:
+    """The environment with every facet moved `offset_m` (m) along its outward normal (< 0: nearer the arm);
+    itself at 0. ValueError (naming the offset) where a facet then no longer bounds free space."""
+    if offset_m == 0.0:
+        return environment
+    H = np.asarray(environment.H, dtype=float)
+    try:
+        return Environment(H, np.asarray(environment.h, dtype=float) + offset_m * np.hypot(H[:, 0], H[:, 1]))
+    except ValueError as exc:
+        raise ValueError(f"plate_offset_lo_m = {offset_m!r} m moves the plate's facets so that {exc}") from exc
 
 
 def tip_of(lengths: np.ndarray, q) -> tuple[float, float]:
@@ -213,7 +250,8 @@ class GovernorCall:
     capture and the command's application times (s), u_prev, the target and u_nom clipped (N,) hPa; unless
     stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
     for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
-    x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the gain ends and their energy terms (E, 3, N)."""
+    x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the ends' rest-shape ratios and stiffness scales
+    and their energy terms (E, 3, N), and p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone)."""
 
     t_capture: float
     t_apply: float
@@ -230,25 +268,31 @@ class GovernorCall:
     inflation: float = 1.0
     gains: tuple = ()
     terms: np.ndarray | None = None
+    scales: tuple = ()
+    p_far: np.ndarray | None = None
 
 
 def certificate_rows(calls: list[GovernorCall]) -> tuple:
     """The certificate's per-row arguments of `energy_kernels.certificate_terms` and `govern_rows` for the calls
-    (B rows): the gain ends (B, E) and their count (B,), the energy terms (B, E, 3, N), base (B,) J, q̂ (B, N)
-    rad, p̂ (B, N) hPa, the offsets (B, P') J and inside (B,); E the most ends of a call, the others' padded
-    (never read: a row reads its count)."""
+    (B rows): the ends' rest-shape ratios and stiffness scales (B, E) and their count (B,), the energy terms
+    (B, E, 3, N), base (B,) J, q̂ (B, N) rad, p̂ and p̄ (B, N) hPa, the offsets (B, P') J and inside (B,); E the
+    most ends of a call, the others' padded (never read: a row reads its count)."""
     ends = np.array([len(c.gains) for c in calls])
     most = int(ends.max())
     if most == len(calls[0].gains) and all(c.terms is calls[0].terms for c in calls):
         gains, terms = np.array([calls[0].gains] * len(calls)), np.array([calls[0].terms] * len(calls))
+        scales = np.array([calls[0].scales] * len(calls))
     else:
         gains = np.array([c.gains + (1.0,) * (most - len(c.gains)) for c in calls], dtype=float)
+        scales = np.array([c.scales + (1.0,) * (most - len(c.gains)) for c in calls], dtype=float)
         terms = np.zeros((len(calls), most) + calls[0].terms.shape[1:])
         for b, c in enumerate(calls):
             terms[b, :len(c.gains)] = c.terms
-    return (gains, ends, terms, np.array([c.base for c in calls]), np.array([c.q_hat for c in calls]),
-            np.array([c.p_hat for c in calls]), np.array([c.offsets for c in calls], dtype=float),
-            np.array([c.inside for c in calls]))
+    p_hat = np.array([c.p_hat for c in calls])
+    p_far = p_hat if all(c.p_far is None for c in calls) else \
+        np.array([c.p_hat if c.p_far is None else c.p_far for c in calls])
+    return (gains, scales, ends, terms, np.array([c.base for c in calls]), np.array([c.q_hat for c in calls]),
+            p_hat, p_far, np.array([c.offsets for c in calls], dtype=float), np.array([c.inside for c in calls]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,7 +308,10 @@ class GovernorModel:
     else 0; free_plate_energy: its term at n = 0 (J); box: the pressure box or None; rest: 0 hPa clipped to it;
     grid / grid_values / grid_rest_inside / grid_columns: the recovery's candidate commands (G, N), their Γ̲ rows
     (P', G), whether their rest shapes lie inside P, and the commands as (N, G); lookup: the kernels' Γ̲ look-up;
-    gain_prior: the certified gain interval before any estimate."""
+    gain_prior: the certified interval of the rest-shape ratio r = g/c before any estimate ([g_lo/c_hi, g_hi/c_lo]);
+    gain_box, stiffness_box: the actuator gain's and the arm stiffness's intervals (1); offset_width: w = the plate
+    offset interval's width (m; P and the penetrations are the nearest plate's); lag_taus: (τ_lo, τ_hi) of the
+    pressure's interval (s), None without one."""
 
     params: GovernorParams
     context: FilterContext
@@ -295,6 +342,10 @@ class GovernorModel:
     grid_columns: np.ndarray
     lookup: tuple
     gain_prior: tuple
+    gain_box: tuple
+    stiffness_box: tuple
+    offset_width: float
+    lag_taus: tuple | None
 
     @classmethod
     def build(cls, params: GovernorParams, context: FilterContext) -> "GovernorModel":
@@ -313,23 +364,30 @@ class GovernorModel:
         robot, nominal, contact = context.robot, context.safe_set, params.contact
         n = robot.n_segments
         hi = params.stiffness_hi_ratio
-        safe_set = nominal if hi == 1.0 else ForceSafeSet(nominal.environment, law, nominal.f_max / hi,
-                                                          nominal.row_scaling)
+        near = nearest_environment(nominal.environment, params.plate_offset_lo_m)
+        safe_set = nominal if hi == 1.0 and near is nominal.environment else \
+            ForceSafeSet(near, law, nominal.f_max / hi, nominal.row_scaling)
         target_governor = None if contact else QuasiStaticGovernor(replace(context, safe_set=safe_set),
                                                                    margin_m=params.margin_m)
         u_lo = robot.array("u_min") if context.u_min is None else context.u_min
         u_hi = robot.array("u_max") if context.u_max is None else context.u_max
-        beta = pressure_lag_weights(context, tau)
+        taus = (params.actuator_tau_lo_s, params.actuator_tau_hi_s)
+        lag_taus = None if taus == (None, None) else tuple(tau if t is None else float(t) for t in taus)
+        if lag_taus is not None and lag_taus[0] > lag_taus[1]:
+            raise ValueError(f"actuator_tau_lo_s must be <= actuator_tau_hi_s = {lag_taus[1]!r} (None: the model's "
+                             f"{tau!r} s), got {lag_taus[0]!r}")
+        beta = pressure_lag_weights(context, tau if lag_taus is None else max(tau, lag_taus[1]), params.damping_lo_ratio)
         gridded = not contact or n <= MAX_SEGMENTS  # the contact certificate needs no table for N > 2
         table = EscapeEnergyTable(robot, safe_set, u_lo, u_hi, grid_hPa=params.grid_hPa, boundary=contact,
                                   q_spacing_rad=params.escape_spacing_rad) if gridded else None
         boundary_bound = BoundaryDistanceBound(robot, safe_set) if contact else None
-        credit = params.stiffness_lo_ratio * float(law.energy(safe_set.n_max)) if params.contact_aware else 0.0
+        width = params.plate_offset_hi_m - params.plate_offset_lo_m
+        reach = safe_set.n_max if width == 0.0 else max(safe_set.n_max - width, 0.0)  # the farthest plate's at P's edge
+        credit = params.stiffness_lo_ratio * float(law.energy(reach)) if params.contact_aware else 0.0
         rows = [(hx, hy, h) for (hx, hy), h in zip(np.asarray(safe_set.H_prime).tolist(),
                                                    np.asarray(safe_set.h_prime).tolist())]
         plate_weight = hi if params.contact_aware else 0.0
-        facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(),
-                                                     nominal.environment.offsets.tolist())]
+        facets = [(nx, ny, d) for (nx, ny), d in zip(near.normals.tolist(), near.offsets.tolist())]
         k = robot.array("stiffness").tolist()
         a = (robot.array("gains") / robot.array("stiffness")).tolist()
         box = None if context.u_min is None else (context.u_min, context.u_max)
@@ -354,7 +412,11 @@ class GovernorModel:
                    box=box, rest=np.array(rest_list), grid=grid, grid_values=grid_values,
                    grid_rest_inside=grid_rest_inside, grid_columns=np.ascontiguousarray(grid.T),  # the scan's layout
                    lookup=lookup_arguments(table, boundary_bound, BOUND_BELOW_J),
-                   gain_prior=(params.gain_lo_ratio, params.gain_hi_ratio))
+                   gain_prior=(params.gain_lo_ratio / params.arm_stiffness_hi_ratio,
+                               params.gain_hi_ratio / params.arm_stiffness_lo_ratio),
+                   gain_box=(params.gain_lo_ratio, params.gain_hi_ratio),
+                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio),
+                   offset_width=width, lag_taus=lag_taus)
 
     # -- what each state starts from --------------------------------------------------------------------
     def new_predictor(self) -> StatePredictor:
@@ -371,19 +433,23 @@ class GovernorModel:
                              self.params.gain_noise_rad)
 
     # -- certificate ------------------------------------------------------------------
-    def energy_terms(self, gain: float) -> tuple[list, list, list]:
-        """The energy's weights at the actuator gain g: (K, g·K⁻¹Λ, g²β) as lists (g = 1: the model's floats
-        exactly, 1.0·x = x)."""
-        return self.k, [gain * a for a in self.a], [gain * gain * b for b in self.beta_list]
+    def energy_terms(self, gain: float, stiffness: float = 1.0) -> tuple[list, list, list]:
+        """The energy's weights at the actuator gain g and arm stiffness scale c: (c·K, (g/c)·K⁻¹Λ, g²β) as lists
+        (g = c = 1: the model's floats exactly, 1.0·x = x/1.0 = x)."""
+        ratio = gain / stiffness
+        return [stiffness * k for k in self.k], [ratio * a for a in self.a], [gain * gain * b for b in self.beta_list]
 
-    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0) -> float:
+    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0,
+               stiffness: float = 1.0, p_far: list[float] | None = None) -> float:
         """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J), for the true actuator
-        gain g = `gain` × the model's: ½(q − g q_u)ᵀK(q − g q_u) + ½ g² Σβ(p − u)², segment
-        by segment (the compiled `energy_kernels.energy_at`, which the certificate's kernels evaluate)."""
-        terms = np.array([[self.energy_terms(gain)]], dtype=float)
-        return float(energy_kernels.energy_at(np.asarray(u, dtype=float), np.array([q], dtype=float),
-                                              np.array([p], dtype=float), terms, 0, 0, float(kinetic_and_plate),
-                                              energy_kernels.PYTHON_SQUARE))
+        gain g = `gain` and arm stiffness c = `stiffness` × the model's: ½(q − r q_u)ᵀcK(q − r q_u) +
+        ½ g² Σβ max((p − u)², (p̄ − u)²), r = g/c, p̄ = `p_far` (None: p), segment by segment (the compiled
+        `energy_kernels.energy_at`, which the certificate's kernels evaluate)."""
+        terms = np.array([[self.energy_terms(gain, stiffness)]], dtype=float)
+        pressure = np.array([p], dtype=float)
+        return float(energy_kernels.energy_at(np.asarray(u, dtype=float), np.array([q], dtype=float), pressure,
+                                              pressure if p_far is None else np.array([p_far], dtype=float), terms,
+                                              0, 0, float(kinetic_and_plate), energy_kernels.PYTHON_SQUARE))
 
     def escape(self, u) -> float:
         """min_j (Γ̲_j(u) + c_j) (J)."""
@@ -435,15 +501,19 @@ class GovernorModel:
         Without contact_aware every o_j = 0 (the environment does not push back)."""
         x, y = self.tip(q)
         inside = all(hx * x + hy * y < h for hx, hy, h in self.rows)
-        nominal = self.context.safe_set
-        rho = nominal.margin_at(x, y)
+        rho = self.context.safe_set.margin_at(x, y)
         if not self.params.contact_aware:
             return [0.0] * len(self.rows), inside, rho
         lo, hi = self.params.stiffness_lo_ratio, self.params.stiffness_hi_ratio
-        energies = np.asarray(nominal.stiffness.energy(nominal.penetration_at(x, y)), dtype=float).tolist()
+        plate = self.safe_set  # the nearest plate's facets (the model's without an offset interval)
+        depths = plate.penetration_at(x, y)
+        energies = np.asarray(plate.stiffness.energy(depths), dtype=float).tolist()
+        own = energies if self.offset_width == 0.0 else \
+            np.asarray(plate.stiffness.energy(np.asarray(depths) - self.offset_width), dtype=float).tolist()
         total = hi * sum(energies)
-        offsets = [credit - lo * e - hi * (sum(energies) - e) if j < self.n_facets
-                   else -total for j, (credit, e) in enumerate(zip(self.credit, energies + [0.0] * len(self.rows)))]
+        offsets = [credit - lo * f - hi * (sum(energies) - e) if j < self.n_facets
+                   else -total for j, (credit, e, f) in enumerate(zip(self.credit, energies + [0.0] * len(self.rows),
+                                                                      own + [0.0] * len(self.rows)))]
         return offsets, inside, rho
 
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
