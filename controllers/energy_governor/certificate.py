@@ -112,6 +112,89 @@ few hPa (`softcbf.bench.PUSHES`: 57.0, 62.5, 68.2 and 74.0 hPa on both segments 
 start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
 (mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
 this is the price of certifying ±10 % of actuator gain on this arm.
+Plate offset (`plate_offset_lo_m` ≤ `plate_offset_hi_m`, m; contact certificate only; default 0, 0: the model's
+plate, the commands bit for bit those without it). The true facet i lies s_i farther than the model's along its
+outward normal, s_i ∈ [s_lo, s_hi] independently per facet (< 0: nearer the arm): n̂_i·r ≤ d_i + s_i is free space
+and the true penetration is n_i^s(r) = max(0, n̂_i·r − d_i − s_i). The force-safe set of a plate s,
+P_s = {n̂_i·r ≤ d_i + s_i + n_max ∀i} (and its vertex rows), grows with every s_i, so P_near = P_{s_lo} (the nearest
+plate, n_max = ψ⁻¹(F_max/hi)) lies inside every P_s: staying in P_near is force-safe for every plate of the box,
+and P, Γ̲^∂ and the table are built on P_near (`nearest_environment`). The energy argument (b) holds for each
+plate s with its own stored energy: V_s = W_u + Σ_i E_true,i(n_i^s) never grows. Write ν_i = n_i^{s_lo}(r̂) (m, the
+nearest plate's penetration at x̂), t_i = s_i − s_lo ∈ [0, w], w = s_hi − s_lo. Where the tip first leaves P_near
+through facet row j, n_j^s = n_max − t_j, so V_s ≥ Γ^∂_j(u) + lo·E(n_max − t_j); at x̂ (strictly inside P_near)
+n_j^s(r̂) = max(0, ν_j − t_j) < n_max − t_j, and V_s(x̂) < Γ^∂_j + E_true,j(n_max − t_j) follows from
+    W_u(x̂) + hi Σ_{i≠j} E(max(0, ν_i − t_i)) < Γ^∂_j(u) + lo (E(n_max − t_j) − E(max(0, ν_j − t_j))).
+The right side's bracket falls with t_j (d/dt = ψ(ν_j − t_j) − ψ(n_max − t_j) ≤ 0, ψ increasing, ν_j < n_max;
+where ν_j − t_j ≤ 0 it is E(n_max − t_j) alone, also falling) and the left side's sum with each t_i, so every
+plate of the box is certified by the worst of each, t_j = w on the facet's own row and t_i = 0 on the others:
+    o_j = lo (E(max(0, n_max − w)) − E(max(0, ν_j − w))) − hi Σ_{i≠j} E(ν_i)      (facet row j),
+    o_j = −hi Σ_i E(ν_i)                                                          (vertex-correction row),
+(b)'s offsets at w = 0 (the credit c_j = lo·E(max(0, n_max − w)): `GovernorModel.build`, `contact_offsets`;
+tests/test_certificate_box.py checks the worst t by brute force and the forks on the PCC plant). What it costs: the
+farthest plate stores only E(n_max − w) where the tip leaves P_near: with n_max = 11.9 mm (hi = 1.2) and w = 4 mm,
+(7.9/11.9)² = 44 % of the credit the exact plate gives, and P_near is 2 mm smaller. Assumptions added: the plate
+moves along its normal only (a turned plate, `facet_angle`, is not covered) and not during the run; the state
+predictor's plate is the model's (an estimate error over the prediction span, left to κ); the gain estimate's
+clearance test (`gain_clearance_m`) uses the nearest plate's planes.
+
+Sheet (`stiffness_by_position`; contact certificate, contact-aware; default off). A clamped sheet's stiffness
+depends on where it is touched (`softcbf_mj.flexure`: K(s) = 3EI/s³ at distance s from the clamp, calibrated at
+its free end ℓ: K(s) = k (ℓ/s)³), so the plate's stored energy is E_true(r) = ½K(s(r)) n(r)² (small deflection, n
+the penetration of the undeformed sheet's line, s from the tip's position along it): a conservative field (the
+beam's elastic energy) whose force is not purely normal (its tangential part, −½K'(s)n², is 1.5 n/s of the normal
+one: ≈ 1.5 % at n = 12 mm, s = 0.12 m, which F_max's n_max does not cover). With [lo, hi] bounding K(s)/k over
+the contact positions (`cantilever_stiffness_ratios`), lo E(n) ≤ E_true ≤ hi E(n) still holds pointwise, but (b)'s
+"lo on the difference only" does not: x̂ and the exit may touch the sheet at different s. Bounding each end
+alone, E_true,j(exit) ≥ lo E(n_max − w) and E_true,j(x̂) ≤ hi E(ν_j) (E falls with the offset t ∈ [0, w]), gives
+    o_j = lo E(max(0, n_max − w)) − hi Σ_i E(ν_i)      (facet row j),
+the parked certificate's credit per row: sound for any law ψ and any variation along the sheet within [lo, hi],
+and (hi − lo) E at the plate dearer than (b). Safety: F = K(s)n ≤ F_max where n ≤ n_max = ψ⁻¹(F_max/hi).
+
+Arm stiffness (`arm_stiffness_lo_ratio`, `arm_stiffness_hi_ratio`; contact certificate only; default 1, 1). The true
+arm's stiffness is c·K, one scale c ∈ [c_lo, c_hi] for every segment, with the gain g ∈ [g_lo, g_hi] (both 1).
+M does not depend on K (the augmented-body model's inertia), so with c the derivation of Ẇ ≤ 0 holds for
+    W = ½q̇ᵀMq̇ + ½(q − r q_u)ᵀcK(q − r q_u) + ½ g² Σ β_i (p_i − u_i)²,     r = g/c,
+(cK·r q_u = gΛu), and Γ^∂ for the true arm is min over the boundary of ½(q − r q_u)ᵀcK(q − r q_u) = c·Γ^∂_j(r·u)
+(the model's rest shape of r·u is r q_u). So the margin at a state is
+    m_j(g, c) = c·f_j(g/c) + o_j − (1 + κ)·½q̂̇ᵀMq̂̇ − g² B,     f_j(r) = Γ^∂_j(r·u) − ½|q̂ − r q_u|²_K,
+B = ½ Σβ(p̂ − u)² ≥ 0. f_j is concave in r (the "actuator gain" proof above), so c·f_j(g/c), its perspective, is
+jointly concave in (g, c) on c > 0, and −g² B is concave: m_j is jointly concave, and its least value over any
+convex polygon of (g, c) is at a vertex. The rest shape depends on r = g/c alone: the two intervals move every
+rest shape within r ∈ [g_lo/c_hi, g_hi/c_lo] (±10 % each: [0.818, 1.222], ±22 %), and that interval is what the gain
+estimate measures (`controllers.gain_estimate`: at rest y = q̂ + K⁻¹Dq̂̇ = r x + δ, the true K⁻¹ = K⁻¹/c scaling
+the damping and plate terms only, which the rest test and the elimination already leave to Δ or remove). So
+the certified set is the polygon {g ∈ [g_lo, g_hi], c ∈ [c_lo, c_hi], r_lo ≤ g/c ≤ r_hi}, [r_lo, r_hi] the gain
+estimate's interval (its prior [g_lo/c_hi, g_hi/c_lo]); its vertices (`arm_corners`: up to 6) are the ends the
+governor checks: Γ_e = min_j (c·Γ̲_j(r·u) + o_j), W_e with (c·K, r·K⁻¹Λ, g²β) (`energy_terms`); c = 1 gives the
+gain ends alone, bit for bit. The recovery's grid rows are c·Γ̲(r·u_c) (`grid_rows_at_gain`). What it costs: the
+gain estimate narrows r, the product that sets the force against the plate; c is left in its interval (it
+scales the escape energy and the elastic energy alike, a ±10 % change of the margin's size). Assumptions added: c is
+constant and common to the segments; a moving gain sample (`gain_difference_s` > 0) is refused with an arm
+stiffness or damping interval (its M q̈ and D q̇ scale unlike K).
+
+Damping and valve lag (`damping_lo_ratio`; `actuator_tau_lo_s` ≤ `actuator_tau_hi_s`; contact certificate only;
+defaults 1 and None: the model's β and p̂). Neither moves a rest shape: they shape the transient, which the energy
+already covers for any D > 0 and τ_p > 0 whose β it uses. With weights β̃_i ≥ τ_p g²λ_i²/(4 c_d d_i) (the true
+damping c_d·D, lag τ_p) the same algebra gives
+    Ẇ = −Σ_i (√(c_d d_i) q̇_i − gλ_i(p_i − u_i)/(2√(c_d d_i)))² − Σ_i (β̃_i/τ_p − g²λ_i²/(4 c_d d_i))(p_i − u_i)² ≤ 0,
+so β = τ_hi λ²/(4 c_lo d) (`pressure_lag_weights`, with g² per end) certifies every damping ≥ c_lo·D and every lag
+≤ τ_hi; a larger β only adds energy, never a guarantee's failure. What the energy does not know is the pressure
+at t_a itself: the model's p̂ is integrated with the model's τ_p. With the lag interval the governor bounds it
+(`controllers.energy_governor.pressure_interval`: from its own commands, every τ_p ∈ [τ_lo, τ_hi], joined with p̂)
+and takes the lag term at the interval's end farther from u_i, ½β_i max((p_i − u_i)², (p̄_i − u_i)²) (concave in
+p_i, so its maximum over the interval is at an end; the kernels' `energy_at`). Assumptions added: c_d and τ_p
+constant and common to the segments; the arm's own motion over the prediction span under another lag or damping is
+an estimate error, left to κ.
+
+Command delay (not an interval here: `command_delay_s` is one number). The predictor puts x̂ at t_a = t + δ; a
+true delay δ' ≠ δ switches at t' = t + δ' instead, from the state u_prev has carried there. Under u_prev
+(certified) V_prev = W_{u_prev} + plate energy does not grow, and W_u − W_{u_prev} is affine in (q, p):
+(q_{u'} − q_u)ᵀKq + ½(|q_u|²_K − |q_{u'}|²_K) + ½Σβ((p − u)² − (p − u')²). Over the ellipsoid
+½|q − q_{u'}|²_K ≤ V_prev its maximum gives W_u(x(t')) ≤ (√V_prev + |q_u − q_{u'}|_K/√2)² + the lag terms for
+every t' after t + δ_lo: a margin that holds for any delay but charges every step √(2V_prev)|Δq_u|_K, large at the
+plate where V_prev holds the arm's elastic energy against it; not built. Within the predictor's own span
+(δ' − δ ≈ ±0.03 s at the camera rate) the state's change is the prediction error that κ covers.
+
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
 the absolute margin a new command must keep. No guarantee above needs ε > 0 (each holds for margins ≥ 0), so ε
@@ -128,10 +211,11 @@ D, Λ, τ_p, the PCC kinematics, P and ψ within [lo, hi]); the estimate and the
 are accurate to within the κ-inflation; the commands this governor returns are applied
 unchanged from t + δ and held until the next one acts (no clipping, no other source);
 the valves start vented (p = 0) at `reset`; Γ̲ ≤ Γ (by construction); the arm starts
-certified (e.g. at rest with its rest shape in P). Where it can fail: a wrong model
-(an actuator gain outside [gain_lo_ratio, gain_hi_ratio], a plate stiffness outside its interval, arm
-stiffness, plate position) is not covered by κ, and a state far from the
-estimate is not caught until the next estimate shows it; the recovery then has no
+certified (e.g. at rest with its rest shape in P). The intervals above relax "the model is the plant" to: an
+actuator gain, arm stiffness, arm damping (from below), valve lag, plate stiffness and plate offset each within
+its interval (each at the model's value by default). Where it can fail: a wrong model outside those intervals
+(or a turned plate, per-segment errors, a command delay other than δ beyond what κ covers) is not covered, and a
+state far from the estimate is not caught until the next estimate shows it; the recovery then has no
 guarantee.
 
 """
@@ -224,6 +308,18 @@ def arm_corners(gains: tuple, stiffnesses: tuple, ratios: tuple) -> tuple:
         raise ValueError(f"no actuator gain in [{g_lo!r}, {g_hi!r}] and arm stiffness in [{c_lo!r}, {c_hi!r}] has a "
                          f"ratio in [{r_lo!r}, {r_hi!r}]")
     return tuple(sorted(points, key=lambda end: (end[0] / end[1], end[1])))
+
+
+def cantilever_stiffness_ratios(length_m: float, nearest_m: float, farthest_m: float) -> tuple[float, float]:
+    """[lo, hi] of a clamped sheet's stiffness over its contact positions as multiples of its calibrated one (1):
+    Euler–Bernoulli K(s) = 3EI/s³ calibrated at the free end s = ℓ = `length_m` (as the paper calibrated), touched
+    between `nearest_m` and `farthest_m` from the clamp (m, 0 < nearest ≤ farthest): ((ℓ/farthest)³, (ℓ/nearest)³)
+    (module docstring, "sheet"). The flexure plate's default (ℓ = 0.15 m, touched 10–33 mm from its free end, 0.117
+    to 0.140 m from the clamp) gives [1.23, 2.11]."""
+    if not 0.0 < nearest_m <= farthest_m < math.inf or not 0.0 < length_m < math.inf:
+        raise ValueError(f"need 0 < nearest_m <= farthest_m and length_m > 0 (m), got length_m = {length_m!r}, "
+                         f"nearest_m = {nearest_m!r}, farthest_m = {farthest_m!r}")
+    return (length_m / farthest_m) ** 3, (length_m / nearest_m) ** 3
 
 
 def nearest_environment(environment: Environment, offset_m: float) -> Environment:
@@ -496,8 +592,9 @@ class GovernorModel:
         strictly inside P (every row H'_j r < h'_j; module docstring, "contact certificate") and its ρ
         (`ForceSafeSet.margin_at` of the context's set).
 
-        Facet row j: o_j = lo·(E(n_max) − E(n_j)) − hi Σ_{i≠j} E(n_i); vertex-correction row:
-        o_j = −hi Σ_i E(n_i); n_i the model's facet penetrations at r(q) (m), E = ψ.energy.
+        Facet row j: o_j = lo·(E(n_max − w) − E(n_j − w)) − hi Σ_{i≠j} E(n_i); vertex-correction row:
+        o_j = −hi Σ_i E(n_i); n_i the nearest plate's facet penetrations at r(q) (m), E = ψ.energy (0 below 0),
+        w the plate offset interval's width (module docstring, "plate offset"; w = 0: the model's plate).
         Without contact_aware every o_j = 0 (the environment does not push back)."""
         x, y = self.tip(q)
         inside = all(hx * x + hy * y < h for hx, hy, h in self.rows)
@@ -508,10 +605,15 @@ class GovernorModel:
         plate = self.safe_set  # the nearest plate's facets (the model's without an offset interval)
         depths = plate.penetration_at(x, y)
         energies = np.asarray(plate.stiffness.energy(depths), dtype=float).tolist()
-        own = energies if self.offset_width == 0.0 else \
-            np.asarray(plate.stiffness.energy(np.asarray(depths) - self.offset_width), dtype=float).tolist()
+        if self.params.stiffness_by_position:  # a sheet: its own facet's energy at x̂ at the stiffest (module docstring)
+            own, weight = energies, hi
+        elif self.offset_width == 0.0:
+            own, weight = energies, lo
+        else:
+            own, weight = np.asarray(plate.stiffness.energy(np.asarray(depths) - self.offset_width),
+                                     dtype=float).tolist(), lo
         total = hi * sum(energies)
-        offsets = [credit - lo * f - hi * (sum(energies) - e) if j < self.n_facets
+        offsets = [credit - weight * f - hi * (sum(energies) - e) if j < self.n_facets
                    else -total for j, (credit, e, f) in enumerate(zip(self.credit, energies + [0.0] * len(self.rows),
                                                                       own + [0.0] * len(self.rows)))]
         return offsets, inside, rho

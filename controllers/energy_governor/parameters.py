@@ -28,6 +28,7 @@ import inspect
 from dataclasses import dataclass, field, fields
 
 from controllers.bounds import Bound
+from controllers.energy_governor.box import read_box
 from controllers.filter_parameters import FilterParameter
 from controllers.gain_estimate import GAIN_CONTACT
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
@@ -120,6 +121,11 @@ class GovernorParams:
                                         "\"plate offset\")", "m", bound=PLATE_OFFSETS)
     plate_offset_hi_m: float = declared(0.0, "farthest true plate: its facets' greatest offset along their outward "
                                         "normal from the model's (>= plate_offset_lo_m)", "m", bound=PLATE_OFFSETS)
+    stiffness_by_position: bool = declared(False, "the plate's stiffness varies with where it is touched (a clamped "
+                                           "sheet, stiffer nearer its clamp: controllers.energy_governor.certificate, "
+                                           "\"sheet\"; [stiffness_lo_ratio, stiffness_hi_ratio] then bounds it over "
+                                           "the contact positions, e.g. cantilever_stiffness_ratios); contact "
+                                           "certificate only", "", bool)
     arm_stiffness_lo_ratio: float = declared(1.0, "lowest true arm stiffness K as a multiple of the model's (every "
                                              "segment alike; with the gain it moves every rest shape, q_u ∝ g/c: "
                                              "controllers.energy_governor.certificate, \"arm stiffness\"; contact "
@@ -135,6 +141,9 @@ class GovernorParams:
                                                bound=Bound(0.0, 10.0, unit="s"), optional=True)
     actuator_tau_lo_s: float | None = declared(None, "fastest true valve lag τ_p (<= actuator_tau_hi_s; None: "
                                                "actuator_tau_s)", "s", bound=Bound(0.0, 10.0, unit="s"), optional=True)
+    box: str = declared("", "a study file (TOML) whose [vary] box sets the certified intervals, the box the "
+                        "falsifier searches (controllers.energy_governor.box; '' none; an interval given as well "
+                        "is refused)", "", str)
     gain_contact: str = declared("normal", "samples with the tip within gain_clearance_m of a facet: 'normal' (the "
                                  "plate's force along its normal eliminated: frictionless), 'any' (also the "
                                  "tangential: friction), 'off' (none; controllers.gain_estimate; gain_estimate only)",
@@ -143,6 +152,13 @@ class GovernorParams:
     def __post_init__(self) -> None:
         for f in fields(self):  # each by its declaration, normalised (an int given for a float becomes one)
             object.__setattr__(self, f.name, f.metadata["parameter"].check(f.name, getattr(self, f.name)))
+        if self.box:  # the box's intervals (controllers.energy_governor.box), each checked by its declaration
+            for name, value in read_box(self.box).items():
+                default = type(self).__dataclass_fields__[name].default
+                if getattr(self, name) != default:
+                    raise ValueError(f"{name} is set by box = {self.box!r} and given as {getattr(self, name)!r}: "
+                                     f"give one of them")
+                object.__setattr__(self, name, type(self).__dataclass_fields__[name].metadata["parameter"].check(name, value))
         if self.certificate not in CERTIFICATES:
             raise ValueError(f"certificate must be one of {', '.join(CERTIFICATES)}, got {self.certificate!r}")
         if self.stiffness_lo_ratio > self.stiffness_hi_ratio:
@@ -163,6 +179,9 @@ class GovernorParams:
             if (lo, hi) != neutral and self.certificate != "contact":
                 raise ValueError(f"{name}_lo{unit} and {name}_hi{unit} other than {neutral[0]:g} need "
                                  f"certificate='contact', got [{lo!r}, {hi!r}]")
+        if self.stiffness_by_position and not (self.certificate == "contact" and self.contact_aware):
+            raise ValueError("stiffness_by_position needs certificate='contact' with contact_aware (it changes the "
+                             "plate's energy credit)")
         if self.damping_lo_ratio != 1.0 and self.certificate != "contact":
             raise ValueError(f"damping_lo_ratio other than 1 needs certificate='contact', got {self.damping_lo_ratio!r}")
         taus = (self.actuator_tau_lo_s, self.actuator_tau_hi_s)
