@@ -28,9 +28,11 @@ Layouts: `table` (5, N) float: lo, Δ, w, G_k, stride_k (hPa, hPa, J/hPa², 1, 1
 distances d̲ (J^{1/2}), a row out of reach +inf; `bound` (P', 5) float: H'_x, H'_y, h', C_j, reachable
 (1/0); `gain` K⁻¹Λ (rad/hPa) and `inverse_root_k` 1/√k.
 
-`certificate_terms(u, b, ...)`: the governor's (Γ, W) of a command u for row b, at the gain end of least
-Γ − W (`EnergyGovernor` module docstring, "actuator gain"): Γ_g = min_j (Γ̲_j(g·u) + o_j) (−inf where x̂
-is not strictly inside P), W_g = base + Σ_i ½ (k_i e_i e_i + g²β_i (p̂_i − u_i)²), e_i = q̂_i − g a_i u_i.
+`certificate_terms(u, b, ...)`: the governor's (Γ, W) of a command u for row b, at the end (g, c) of least
+Γ − W (`controllers.energy_governor.certificate`, "actuator gain", "arm stiffness", "valve lag"): with r = g/c,
+Γ_e = min_j (c·Γ̲_j(r·u) + o_j) (−inf where x̂ is not strictly inside P),
+W_e = base + Σ_i ½ (c k_i e_i e_i + g²β_i max((p̂_i − u_i)², (p̄_i − u_i)²)), e_i = q̂_i − r a_i u_i, [p̂, p̄] the
+pressure's interval (p̄ = p̂ without a lag interval: the same floats as one pressure).
 `govern_rows(...)`: the governor's step 3 for B rows (`EnergyGovernor` module docstring): the held
 command's margin Γ − ιW, the target's (≥ ε: "free"), else, with the held one > 0, the rays from u_prev
 towards the target, 0 hPa and (parked certificate) u_nom, each bisected `bisection_steps` times,
@@ -38,8 +40,8 @@ the end point nearest the target ("governed", or "hold"), else RECOVER (the call
 
 `recovery_scan(...)`: the recovery of `EnergyGovernor` (module docstring there, step 4) over the
 candidates c = the grid commands, then the extra commands (u_prev, the target), for the gain ends e:
-    Γ_e(c) = min_j (rows_e[j, c] + o_j),
-    W_e(c) = base + ½ Σ_i (k_{e,i} (q̂_i − a_{e,i} c_i)² + β_{e,i} (p̂_i − c_i)²),
+    Γ_e(c) = min_j (rows_e[j, c] + o_j)      (rows_e carry the end's stiffness scale),
+    W_e(c) = base + ½ Σ_i (k_{e,i} (q̂_i − a_{e,i} c_i)² + β_{e,i} max((p̂_i − c_i)², (p̄_i − c_i)²)),
     m(c) = min_e (Γ_e(c) − ι W_e(c) − ε)            (ι: 1 + κ for the parked certificate, 1 for the contact one),
     D(c) = Σ_i (c_i − t_i)²  (t: the target);
 the first candidate of least D among those with m ≥ 0 (when `inside`), else the first of greatest

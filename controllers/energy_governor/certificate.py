@@ -184,7 +184,10 @@ at t_a itself: the model's p̂ is integrated with the model's τ_p. With the lag
 and takes the lag term at the interval's end farther from u_i, ½β_i max((p_i − u_i)², (p̄_i − u_i)²) (concave in
 p_i, so its maximum over the interval is at an end; the kernels' `energy_at`). Assumptions added: c_d and τ_p
 constant and common to the segments; the arm's own motion over the prediction span under another lag or damping is
-an estimate error, left to κ.
+an estimate error, left to κ. The gain estimate's settled-pressure test still uses the model's lag; at a rest
+sample the arm follows its rest shape quasi-statically (q ≈ a p, first mode ≈ 20 rad/s), so q̇ ≈ a(u − p)/τ_p and
+the rest test |q̂̇_i| ≤ `gain_rest_rad_s` bounds the unsettled part a|p − u| ≤ τ_hi·gain_rest_rad_s (3e-4 rad at
+0.1 s and 3e-3 rad/s, within Δ = 1.5e-3 rad).
 
 Command delay (not an interval here: `command_delay_s` is one number). The predictor puts x̂ at t_a = t + δ; a
 true delay δ' ≠ δ switches at t' = t + δ' instead, from the state u_prev has carried there. Under u_prev

@@ -47,8 +47,8 @@ class GainEnds:
     hi: float
     gains: tuple
     terms: np.ndarray
-    scales: tuple = ()
-    corners: tuple = ()
+    scales: tuple
+    corners: tuple
 
 
 def gain_ends(model: GovernorModel, lo: float, hi: float) -> GainEnds:
