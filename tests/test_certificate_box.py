@@ -76,7 +76,7 @@ def box_points(ranges: dict, interior: int, seed: int) -> list[dict]:
 OFFSET_BOX = {"plate_offset_lo_m": -0.002, "plate_offset_hi_m": 0.002, "stiffness_lo_ratio": 0.8, "stiffness_hi_ratio": 1.2}
 
 
-@pytest.mark.parametrize("point", box_points({"offset": (-0.002, 0.002), "plate": (0.8, 1.2)}, 2, 1),
+@pytest.mark.parametrize("point", box_points({"offset": (-0.002, 0.002), "plate": (0.8, 1.2)}, 1, 1),
                          ids=lambda p: ",".join(f"{k}={v:.4g}" for k, v in p.items()))
 def test_a_command_certified_for_the_plate_box_keeps_the_force_below_f_max(point):
     assert worst_force(OFFSET_BOX, point) <= 1.0
@@ -113,7 +113,7 @@ def test_the_offsets_build_p_on_the_nearest_plate():
 ARM_BOX = {"gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1, "arm_stiffness_lo_ratio": 0.9, "arm_stiffness_hi_ratio": 1.1}
 
 
-@pytest.mark.parametrize("point", box_points({"gain": (0.9, 1.1), "arm": (0.9, 1.1)}, 2, 2),
+@pytest.mark.parametrize("point", box_points({"gain": (0.9, 1.1), "arm": (0.9, 1.1)}, 1, 2),
                          ids=lambda p: ",".join(f"{k}={v:.4g}" for k, v in p.items()))
 def test_a_command_certified_for_the_arm_box_keeps_the_force_below_f_max(point):
     assert worst_force(ARM_BOX, point) <= 1.0
