@@ -399,11 +399,11 @@ class GovernorModel:
     """What a governor's calls read and never change (module docstring), built by `build`.
 
     params: the checked parameters; context: the filter's context; command_delay δ and actuator_tau τ_p (s, the
-    parameters' or the context's); safe_set: P with n_max = ψ⁻¹(F_max/hi); contact: the contact certificate;
+    parameters' or the context's); safe_set: P with n_max = ψ⁻¹(F_max/hi) on the nearest plate; contact: the contact certificate;
     target_governor: the parked certificate's quasi-static governor, configured (each state holds a copy:
     `controllers.energy_governor.state.new_state`), None for the contact certificate; beta (N,) J/hPa²; k, a, beta_list:
     K, K⁻¹Λ and β as lists; table / boundary_bound: Γ̲'s sources (`controllers.escape_energy`); rows: P's rows
-    (h'x, h'y, h'); facets: the plate's (nx, ny, d); credit: c_j per row (J); plate_weight: hi when contact-aware,
+    (h'x, h'y, h'); facets: the nearest plate's (nx, ny, d); credit: c_j per row (J); plate_weight: hi when contact-aware,
     else 0; free_plate_energy: its term at n = 0 (J); box: the pressure box or None; rest: 0 hPa clipped to it;
     grid / grid_values / grid_rest_inside / grid_columns: the recovery's candidate commands (G, N), their Γ̲ rows
     (P', G), whether their rest shapes lie inside P, and the commands as (N, G); lookup: the kernels' Γ̲ look-up;
