@@ -204,18 +204,16 @@ class SheetPlant(PushingPlatePlant):
         return -force @ tip_jacobian(q, self.lengths), np.array([float(np.hypot(*force))])
 
 
-def test_a_command_certified_for_the_sheet_keeps_its_force_below_f_max():
-    """The sheet's stiffness over the contact positions the arm reaches (s ∈ [0.11, 0.15] m: [1, 2.54] × k) certified
-    with `stiffness_by_position`: held commands keep |F| ≤ F_max on the sheet, and every contact was within that
-    range of s (the certificate's assumption)."""
-    lo, hi = cantilever_stiffness_ratios(SHEET_LENGTH, 0.11, 0.15)
+def sheet_loop(options: dict, forks: bool) -> tuple[float, list[float]]:
+    """The largest force / F_max on the sheet (and the contact positions s) of c-erg with `options` pushing at 150 hPa
+    (10 Hz, exact state), with the commands of CALLS also held 1 s from the true state when `forks`."""
     context = FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, TAU)
-    gov = ContactEnergyGovernor(context, stiffness_lo_ratio=lo, stiffness_hi_ratio=hi, stiffness_by_position=True)
+    gov = ContactEnergyGovernor(context, **options)
     plant, worst, touched = SheetPlant(ROBOT, SAFE, K_PLATE, TAU), 0.0, []
     state = plant.reset(np.zeros(2))
     for call in range(max(CALLS) + 1):
         out = gov(Estimate(state.t, state.q, state.qd, state.t), np.full(2, 150.0))
-        if call in CALLS:
+        if forks and call in CALLS:
             fork = SheetPlant(ROBOT, SAFE, K_PLATE, TAU)
             fork.x, fork.p, fork.t = plant.x.copy(), plant.p.copy(), plant.t
             for _ in range(1000):
@@ -224,10 +222,24 @@ def test_a_command_certified_for_the_sheet_keeps_its_force_below_f_max():
         for _ in range(int(round(PERIOD / 1e-3))):
             state = plant.step(out.u)
             worst = max(worst, float(state.contact_forces[0]))
-    touched += plant.contact_s
+    return worst / SAFE.f_max, touched + plant.contact_s
+
+
+def test_the_model_plate_certificate_breaks_on_the_sheet():
+    """Certified for the calibrated plate alone, the push exceeds F_max on the sheet (measured 1.24 F_max: it is
+    touched 10–21 mm from its free end, up to 1.6× stiffer), so the test below can fail."""
+    assert sheet_loop({}, forks=False)[0] > 1.0
+
+
+def test_a_command_certified_for_the_sheet_keeps_its_force_below_f_max():
+    """The sheet's stiffness over the contact positions the arm reaches (s ∈ [0.11, 0.15] m: [1, 2.54] × k) certified
+    with `stiffness_by_position`: held commands keep |F| ≤ F_max on the sheet, and every contact was within that
+    range of s (the certificate's assumption)."""
+    lo, hi = cantilever_stiffness_ratios(SHEET_LENGTH, 0.11, 0.15)
+    worst, touched = sheet_loop({"stiffness_lo_ratio": lo, "stiffness_hi_ratio": hi, "stiffness_by_position": True},
+                                forks=True)
     assert touched and 0.11 <= min(touched) and max(touched) <= 0.15
-    assert worst <= SAFE.f_max
-    assert worst >= 0.3 * SAFE.f_max  # it does press the sheet
+    assert 0.3 <= worst <= 1.0  # it presses the sheet, never beyond F_max
 
 
 def test_cantilever_ratios():
