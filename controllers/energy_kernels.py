@@ -28,9 +28,11 @@ Layouts: `table` (5, N) float: lo, Δ, w, G_k, stride_k (hPa, hPa, J/hPa², 1, 1
 distances d̲ (J^{1/2}), a row out of reach +inf; `bound` (P', 5) float: H'_x, H'_y, h', C_j, reachable
 (1/0); `gain` K⁻¹Λ (rad/hPa) and `inverse_root_k` 1/√k.
 
-`certificate_terms(u, b, ...)`: the governor's (Γ, W) of a command u for row b, at the gain end of least
-Γ − W (`EnergyGovernor` module docstring, "actuator gain"): Γ_g = min_j (Γ̲_j(g·u) + o_j) (−inf where x̂
-is not strictly inside P), W_g = base + Σ_i ½ (k_i e_i e_i + g²β_i (p̂_i − u_i)²), e_i = q̂_i − g a_i u_i.
+`certificate_terms(u, b, ...)`: the governor's (Γ, W) of a command u for row b, at the end (g, c) of least
+Γ − W (`controllers.energy_governor.certificate`, "actuator gain", "arm stiffness", "valve lag"): with r = g/c,
+Γ_e = min_j (c·Γ̲_j(r·u) + o_j) (−inf where x̂ is not strictly inside P),
+W_e = base + Σ_i ½ (c k_i e_i e_i + g²β_i max((p̂_i − u_i)², (p̄_i − u_i)²)), e_i = q̂_i − r a_i u_i, [p̂, p̄] the
+pressure's interval (p̄ = p̂ without a lag interval: the same floats as one pressure).
 `govern_rows(...)`: the governor's step 3 for B rows (`EnergyGovernor` module docstring): the held
 command's margin Γ − ιW, the target's (≥ ε: "free"), else, with the held one > 0, the rays from u_prev
 towards the target, 0 hPa and (parked certificate) u_nom, each bisected `bisection_steps` times,
@@ -38,8 +40,8 @@ the end point nearest the target ("governed", or "hold"), else RECOVER (the call
 
 `recovery_scan(...)`: the recovery of `EnergyGovernor` (module docstring there, step 4) over the
 candidates c = the grid commands, then the extra commands (u_prev, the target), for the gain ends e:
-    Γ_e(c) = min_j (rows_e[j, c] + o_j),
-    W_e(c) = base + ½ Σ_i (k_{e,i} (q̂_i − a_{e,i} c_i)² + β_{e,i} (p̂_i − c_i)²),
+    Γ_e(c) = min_j (rows_e[j, c] + o_j)      (rows_e carry the end's stiffness scale),
+    W_e(c) = base + ½ Σ_i (k_{e,i} (q̂_i − a_{e,i} c_i)² + β_{e,i} max((p̂_i − c_i)², (p̄_i − c_i)²)),
     m(c) = min_e (Γ_e(c) − ι W_e(c) − ε)            (ι: 1 + κ for the parked certificate, 1 for the contact one),
     D(c) = Σ_i (c_i − t_i)²  (t: the target);
 the first candidate of least D among those with m ≥ 0 (when `inside`), else the first of greatest
@@ -234,7 +236,7 @@ def escape_values(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _margins(commands, rows, offsets, terms, base, q, p, target, inflation, eps, margin, first_gamma, distance,
+def _margins(commands, rows, offsets, terms, base, q, p, p_far, target, inflation, eps, margin, first_gamma, distance,
              start):
     """m, Γ at the first gain end and D (module docstring) of the candidates commands (N, C) hPa (one column
     each) with their rows (E, P', C), into margin, first_gamma and distance [start, start + C). Loops over
@@ -255,11 +257,14 @@ def _margins(commands, rows, offsets, terms, base, q, p, target, inflation, eps,
             for c in range(count):
                 first_gamma[start + c] = gamma[c]
         for i in range(n):
-            k, a, beta, qi, pi = terms[e, 0, i], terms[e, 1, i], terms[e, 2, i], q[i], p[i]
+            k, a, beta, qi, pi, pf = terms[e, 0, i], terms[e, 1, i], terms[e, 2, i], q[i], p[i], p_far[i]
             for c in range(count):
                 u = commands[i, c]
-                diff, lag = qi - a * u, pi - u
-                term = k * (diff * diff) + beta * (lag * lag)
+                diff, lag, far = qi - a * u, pi - u, pf - u
+                square, far_square = lag * lag, far * far
+                if far_square > square:
+                    square = far_square
+                term = k * (diff * diff) + beta * square
                 energy[c] = term if i == 0 else energy[c] + term
         for c in range(count):
             at_end = gamma[c] - inflation * (base + 0.5 * energy[c]) - eps
@@ -273,16 +278,18 @@ def _margins(commands, rows, offsets, terms, base, q, p, target, inflation, eps,
 
 @njit(cache=True, error_model="numpy")
 def recovery_scan(grid, grid_rows, extra, extra_rows, offsets, terms, base, q, p, target, inflation, eps, inside,
-                  resting_grid, resting_extra, resting_by_gamma):
+                  resting_grid, resting_extra, resting_by_gamma, p_far=None):
     """(index, infeasible) of the recovery's choice (module docstring): index < G a grid command, G + e the
     extra command e, −1 none (the target). grid (N, G) hPa (one column per command), grid_rows (E, P', G)
     and extra_rows (E, P', X) J per gain end, extra (N, X) hPa, offsets (P',) J, terms (E, 3, N): k, a, β
     per end, base J, q (N,) rad, p (N,) hPa, target (N,) hPa, inflation ι, eps ε (J), inside (bool),
-    resting_grid (G,), resting_extra (X,) bool."""
+    resting_grid (G,), resting_extra (X,) bool; p_far (N,) hPa: the pressure interval's other end (None: p alone),
+    the lag term β_i max((p_i − c_i)², (p̄_i − c_i)²). grid_rows and extra_rows carry each end's stiffness scale."""
     n_grid, total = grid.shape[1], grid.shape[1] + extra.shape[1]
     margin, first_gamma, distance = np.empty(total), np.empty(total), np.empty(total)
-    _margins(grid, grid_rows, offsets, terms, base, q, p, target, inflation, eps, margin, first_gamma, distance, 0)
-    _margins(extra, extra_rows, offsets, terms, base, q, p, target, inflation, eps, margin, first_gamma, distance,
+    far = p if p_far is None else p_far
+    _margins(grid, grid_rows, offsets, terms, base, q, p, far, target, inflation, eps, margin, first_gamma, distance, 0)
+    _margins(extra, extra_rows, offsets, terms, base, q, p, far, target, inflation, eps, margin, first_gamma, distance,
              n_grid)
     if inside:  # the first certified candidate of least distance
         best, best_distance = -1, math.inf
@@ -330,41 +337,47 @@ def escape_into(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_ro
 
 
 @njit(cache=True, error_model="numpy")
-def energy_at(u, q, p, terms, b, e, base, two):
-    """W (J) of the command u (N,) hPa at row b's state q[b] (rad), p[b] (hPa) and gain end e: base plus
-    ½(k_i e_i e_i + β_i (p_i − u_i)²) segment by segment, e_i = q_i − a_i u_i, terms[b, e] = (k, a, β)
-    (`GovernorModel.energy`; Python's `**` as pow: PYTHON_SQUARE)."""
+def energy_at(u, q, p, p_far, terms, b, e, base, two):
+    """W (J) of the command u (N,) hPa at row b's state q[b] (rad), the pressure interval's ends p[b], p_far[b]
+    (hPa) and gain end e: base plus ½(k_i e_i e_i + β_i max((p_i − u_i)², (p̄_i − u_i)²)) segment by segment,
+    e_i = q_i − a_i u_i, terms[b, e] = (k, a, β) (`GovernorModel.energy`; Python's `**` as pow: PYTHON_SQUARE;
+    p_far = p: the one pressure, the same float)."""
     w = base
     for i in range(u.shape[0]):
         diff = q[b, i] - terms[b, e, 1, i] * u[i]
-        w = w + 0.5 * (terms[b, e, 0, i] * diff * diff + terms[b, e, 2, i] * math.pow(p[b, i] - u[i], two))
+        lag = math.pow(p[b, i] - u[i], two)
+        far = math.pow(p_far[b, i] - u[i], two)
+        if far > lag:
+            lag = far
+        w = w + 0.5 * (terms[b, e, 0, i] * diff * diff + terms[b, e, 2, i] * lag)
     return w
 
 
 @njit(cache=True, error_model="numpy")
-def certificate_terms(u, b, gains, ends, terms, base, q, p, offsets, inside, mode, table, flat, unrolled, bound,
-                      lengths, gain, inverse_root_k, below, two, scaled, rows, second):
+def certificate_terms(u, b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode, table, flat,
+                      unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second):
     """(Γ, W) (J) of the command u (N,) for row b (`EnergyGovernor`'s certificate, module docstring there):
-    at each of the row's `ends[b]` gain ends g = gains[b, e], Γ_g = min_j (Γ̲_j(g·u) + o_j) (−inf where the
-    state is not strictly inside P) and W_g = base + Σ_i ½(k_i e_i e_i + β_i (p_i − u_i)²), e_i = q_i − a_i u_i,
-    added segment by segment (the governor's `energy`, Python's `**` as pow: PYTHON_SQUARE); the pair of the
-    first end with the least Γ − W. scaled, rows, second: scratch (N,), (P',), (P',)."""
+    at each of the row's `ends[b]` ends, rest-shape ratio r = gains[b, e] and arm stiffness scale c = scales[b, e],
+    Γ_e = min_j (c·Γ̲_j(r·u) + o_j) (−inf where the state is not strictly inside P; c = 1 multiplies exactly) and
+    W_e = base + Σ_i ½(k_i e_i e_i + β_i max((p_i − u_i)², (p̄_i − u_i)²)), e_i = q_i − a_i u_i, added segment by
+    segment (the governor's `energy`, Python's `**` as pow: PYTHON_SQUARE); the pair of the first end with the
+    least Γ − W. scaled, rows, second: scratch (N,), (P',), (P',)."""
     n = u.shape[0]
     best_gamma, best_w, best_key = 0.0, 0.0, 0.0
     for e in range(ends[b]):
-        g = gains[b, e]
+        g, c = gains[b, e], scales[b, e]
         gamma = -math.inf
         if inside[b]:
             for i in range(n):
                 scaled[i] = u[i] if g == 1.0 else g * u[i]
             escape_into(scaled, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, rows,
                         second)
-            gamma = rows[0] + offsets[b, 0]
+            gamma = c * rows[0] + offsets[b, 0]
             for j in range(1, rows.shape[0]):
-                value = rows[j] + offsets[b, j]
+                value = c * rows[j] + offsets[b, j]
                 if value < gamma:
                     gamma = value
-        w = energy_at(u, q, p, terms, b, e, base[b], two)
+        w = energy_at(u, q, p, p_far, terms, b, e, base[b], two)
         key = gamma - w
         if e == 0 or key < best_key:
             best_gamma, best_w, best_key = gamma, w, key
@@ -372,8 +385,8 @@ def certificate_terms(u, b, gains, ends, terms, base, q, p, offsets, inside, mod
 
 
 @njit(cache=True, error_model="numpy")
-def govern_rows(held, aim, rest, nominal, goals, gains, ends, terms, base, q, p, offsets, inside, inflation, eps,
-                steps, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two):
+def govern_rows(held, aim, rest, nominal, goals, gains, scales, ends, terms, base, q, p, p_far, offsets, inside,
+                inflation, eps, steps, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two):
     """Steps 3 of `EnergyGovernor` (its module docstring) for B rows at once, row b bit for bit the Python
     floats of one governor call: held, aim, nominal (B, N) hPa (u_prev, the target, u_nom clipped), rest (N,)
     the vented command, goals the rays' count (2: target and vent; 3: and u_nom), the certificate's terms per
@@ -390,12 +403,12 @@ def govern_rows(held, aim, rest, nominal, goals, gains, ends, terms, base, q, p,
     for _ in range(steps):
         sigma_min *= 0.5  # 0.5 ** steps, exact
     for b in range(rows_count):
-        gamma, w = certificate_terms(held[b], b, gains, ends, terms, base, q, p, offsets, inside, mode, table, flat,
-                                     unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
+        gamma, w = certificate_terms(held[b], b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode,
+                                     table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
         held_margin = gamma - inflation * w
         held_out[b] = held_margin
-        gamma, w = certificate_terms(aim[b], b, gains, ends, terms, base, q, p, offsets, inside, mode, table, flat,
-                                     unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
+        gamma, w = certificate_terms(aim[b], b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode,
+                                     table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
         if gamma - inflation * w >= eps:
             for i in range(n):
                 u_out[b, i] = aim[b, i]
@@ -421,8 +434,8 @@ def govern_rows(held, aim, rest, nominal, goals, gains, ends, terms, base, q, p,
                 mid = 0.5 * (lo + hi)
                 for i in range(n):
                     point[i] = held[b, i] + mid * direction[i]
-                gamma, w = certificate_terms(point, b, gains, ends, terms, base, q, p, offsets, inside, mode, table,
-                                             flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled,
+                gamma, w = certificate_terms(point, b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside,
+                                             mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled,
                                              rows, second)
                 if gamma - inflation * w >= eps:
                     lo = mid
@@ -441,8 +454,8 @@ def govern_rows(held, aim, rest, nominal, goals, gains, ends, terms, base, q, p,
                     best_u[i] = point[i]
         for i in range(n):
             u_out[b, i] = best_u[i] if moved else held[b, i]
-        gamma, w = certificate_terms(u_out[b], b, gains, ends, terms, base, q, p, offsets, inside, mode, table, flat,
-                                     unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
+        gamma, w = certificate_terms(u_out[b], b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode,
+                                     table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
         action[b], sigma_out[b], gamma_out[b], w_out[b] = GOVERNED if moved else HOLD, sigma, gamma, w
     return u_out, action, sigma_out, gamma_out, w_out, held_out
 

@@ -11,11 +11,14 @@ The parts, one concept per module (each derives its part of the maths):
 - `parameters`: the parameters, one frozen typed declaration (`GovernorParams`; `ContactGovernorParams`, the
   c-erg's defaults), validated once; `RECOMMENDED`, c-erg's recommended setting;
 - `certificate`: the certificate (the energy W_u, the escape energy Γ, the plate, the contact certificate, the
-  actuator gain interval, κ and ε, the guarantee's assumptions) and the immutable `GovernorModel` built from the
+  intervals it certifies: actuator gain, plate offset, a sheet's varying stiffness, arm stiffness, damping and
+  valve lag; κ and ε, the guarantee's assumptions) and the immutable `GovernorModel` built from the
   parameters and the context;
 - `state`: the per-run `GovernorState` (the predictor's command records, the target governor, the gain
   estimate and the certified gain ends), one per simulation;
 - `gain_feedback`: the gain interval narrowed online from the state's estimates;
+- `pressure_interval`: the acting pressure's interval under a valve lag interval (the certificate's lag term);
+- `box`: the certified intervals read from a study file's error box (`box` parameter: the falsifier's box);
 - `steps`: `step(model, state, estimate, u_nom) -> (state, output)`, the call (times, the four steps,
   diagnostics, compute time), and `step_rows`, the same for a list of states (a batch);
 - `adapter`: `EnergyGovernor` and `ContactEnergyGovernor`, the plug-in filters (`__call__`,

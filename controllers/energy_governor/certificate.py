@@ -112,6 +112,92 @@ few hPa (`softcbf.bench.PUSHES`: 57.0, 62.5, 68.2 and 74.0 hPa on both segments 
 start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
 (mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
 this is the price of certifying ±10 % of actuator gain on this arm.
+Plate offset (`plate_offset_lo_m` ≤ `plate_offset_hi_m`, m; contact certificate only; default 0, 0: the model's
+plate, the commands bit for bit those without it). The true facet i lies s_i farther than the model's along its
+outward normal, s_i ∈ [s_lo, s_hi] independently per facet (< 0: nearer the arm): n̂_i·r ≤ d_i + s_i is free space
+and the true penetration is n_i^s(r) = max(0, n̂_i·r − d_i − s_i). The force-safe set of a plate s,
+P_s = {n̂_i·r ≤ d_i + s_i + n_max ∀i} (and its vertex rows), grows with every s_i, so P_near = P_{s_lo} (the nearest
+plate, n_max = ψ⁻¹(F_max/hi)) lies inside every P_s: staying in P_near is force-safe for every plate of the box,
+and P, Γ̲^∂ and the table are built on P_near (`nearest_environment`). The energy argument (b) holds for each
+plate s with its own stored energy: V_s = W_u + Σ_i E_true,i(n_i^s) never grows. Write ν_i = n_i^{s_lo}(r̂) (m, the
+nearest plate's penetration at x̂), t_i = s_i − s_lo ∈ [0, w], w = s_hi − s_lo. Where the tip first leaves P_near
+through facet row j, n_j^s = n_max − t_j, so V_s ≥ Γ^∂_j(u) + lo·E(n_max − t_j); at x̂ (strictly inside P_near)
+n_j^s(r̂) = max(0, ν_j − t_j) < n_max − t_j, and V_s(x̂) < Γ^∂_j + E_true,j(n_max − t_j) follows from
+    W_u(x̂) + hi Σ_{i≠j} E(max(0, ν_i − t_i)) < Γ^∂_j(u) + lo (E(n_max − t_j) − E(max(0, ν_j − t_j))).
+The right side's bracket falls with t_j (d/dt = ψ(ν_j − t_j) − ψ(n_max − t_j) ≤ 0, ψ increasing, ν_j < n_max;
+where ν_j − t_j ≤ 0 it is E(n_max − t_j) alone, also falling) and the left side's sum with each t_i, so every
+plate of the box is certified by the worst of each, t_j = w on the facet's own row and t_i = 0 on the others:
+    o_j = lo (E(max(0, n_max − w)) − E(max(0, ν_j − w))) − hi Σ_{i≠j} E(ν_i)      (facet row j),
+    o_j = −hi Σ_i E(ν_i)                                                          (vertex-correction row),
+(b)'s offsets at w = 0 (the credit c_j = lo·E(max(0, n_max − w)): `GovernorModel.build`, `contact_offsets`;
+tests/test_certificate_box.py checks the worst t by brute force and the forks on the PCC plant). What it costs: the
+farthest plate stores only E(n_max − w) where the tip leaves P_near: with n_max = 11.9 mm (hi = 1.2) and w = 4 mm,
+(7.9/11.9)² = 44 % of the credit the exact plate gives, and P_near is 2 mm smaller. Assumptions added: the plate
+moves along its normal only (a turned plate, `facet_angle`, is not covered) and not during the run; the state
+predictor's plate is the model's (an estimate error over the prediction span, left to κ); the gain estimate's
+clearance test (`gain_clearance_m`) uses the nearest plate's planes.
+
+Sheet (`stiffness_by_position`; contact certificate, contact-aware; default off). A clamped sheet's stiffness
+depends on where it is touched (`softcbf_mj.flexure`: K(s) = 3EI/s³ at distance s from the clamp, calibrated at
+its free end ℓ: K(s) = k (ℓ/s)³), so the plate's stored energy is E_true(r) = ½K(s(r)) n(r)² (small deflection, n
+the penetration of the undeformed sheet's line, s from the tip's position along it): a conservative field (the
+beam's elastic energy) whose force is not purely normal (its tangential part, −½K'(s)n², is 1.5 n/s of the normal
+one: ≈ 1.5 % at n = 12 mm, s = 0.12 m, which F_max's n_max does not cover). With [lo, hi] bounding K(s)/k over
+the contact positions (`cantilever_stiffness_ratios`), lo E(n) ≤ E_true ≤ hi E(n) still holds pointwise, but (b)'s
+"lo on the difference only" does not: x̂ and the exit may touch the sheet at different s. Bounding each end
+alone, E_true,j(exit) ≥ lo E(n_max − w) and E_true,j(x̂) ≤ hi E(ν_j) (E falls with the offset t ∈ [0, w]), gives
+    o_j = lo E(max(0, n_max − w)) − hi Σ_i E(ν_i)      (facet row j),
+the parked certificate's credit per row: sound for any law ψ and any variation along the sheet within [lo, hi],
+and (hi − lo) E at the plate dearer than (b). Safety: F = K(s)n ≤ F_max where n ≤ n_max = ψ⁻¹(F_max/hi).
+
+Arm stiffness (`arm_stiffness_lo_ratio`, `arm_stiffness_hi_ratio`; contact certificate only; default 1, 1). The true
+arm's stiffness is c·K, one scale c ∈ [c_lo, c_hi] for every segment, with the gain g ∈ [g_lo, g_hi] (both 1).
+M does not depend on K (the augmented-body model's inertia), so with c the derivation of Ẇ ≤ 0 holds for
+    W = ½q̇ᵀMq̇ + ½(q − r q_u)ᵀcK(q − r q_u) + ½ g² Σ β_i (p_i − u_i)²,     r = g/c,
+(cK·r q_u = gΛu), and Γ^∂ for the true arm is min over the boundary of ½(q − r q_u)ᵀcK(q − r q_u) = c·Γ^∂_j(r·u)
+(the model's rest shape of r·u is r q_u). So the margin at a state is
+    m_j(g, c) = c·f_j(g/c) + o_j − (1 + κ)·½q̂̇ᵀMq̂̇ − g² B,     f_j(r) = Γ^∂_j(r·u) − ½|q̂ − r q_u|²_K,
+B = ½ Σβ(p̂ − u)² ≥ 0. f_j is concave in r (the "actuator gain" proof above), so c·f_j(g/c), its perspective, is
+jointly concave in (g, c) on c > 0, and −g² B is concave: m_j is jointly concave, and its least value over any
+convex polygon of (g, c) is at a vertex. The rest shape depends on r = g/c alone: the two intervals move every
+rest shape within r ∈ [g_lo/c_hi, g_hi/c_lo] (±10 % each: [0.818, 1.222], ±22 %), and that interval is what the gain
+estimate measures (`controllers.gain_estimate`: at rest y = q̂ + K⁻¹Dq̂̇ = r x + δ, the true K⁻¹ = K⁻¹/c scaling
+the damping and plate terms only, which the rest test and the elimination already leave to Δ or remove). So
+the certified set is the polygon {g ∈ [g_lo, g_hi], c ∈ [c_lo, c_hi], r_lo ≤ g/c ≤ r_hi}, [r_lo, r_hi] the gain
+estimate's interval (its prior [g_lo/c_hi, g_hi/c_lo]); its vertices (`arm_corners`: up to 6) are the ends the
+governor checks: Γ_e = min_j (c·Γ̲_j(r·u) + o_j), W_e with (c·K, r·K⁻¹Λ, g²β) (`energy_terms`); c = 1 gives the
+gain ends alone, bit for bit. The recovery's grid rows are c·Γ̲(r·u_c) (`grid_rows_at_gain`). What it costs: the
+gain estimate narrows r, the product that sets the force against the plate; c is left in its interval (it
+scales the escape energy and the elastic energy alike, a ±10 % change of the margin's size). Assumptions added: c is
+constant and common to the segments; a moving gain sample (`gain_difference_s` > 0) is refused with an arm
+stiffness or damping interval (its M q̈ and D q̇ scale unlike K).
+
+Damping and valve lag (`damping_lo_ratio`; `actuator_tau_lo_s` ≤ `actuator_tau_hi_s`; contact certificate only;
+defaults 1 and None: the model's β and p̂). Neither moves a rest shape: they shape the transient, which the energy
+already covers for any D > 0 and τ_p > 0 whose β it uses. With weights β̃_i ≥ τ_p g²λ_i²/(4 c_d d_i) (the true
+damping c_d·D, lag τ_p) the same algebra gives
+    Ẇ = −Σ_i (√(c_d d_i) q̇_i − gλ_i(p_i − u_i)/(2√(c_d d_i)))² − Σ_i (β̃_i/τ_p − g²λ_i²/(4 c_d d_i))(p_i − u_i)² ≤ 0,
+so β = τ_hi λ²/(4 c_lo d) (`pressure_lag_weights`, with g² per end) certifies every damping ≥ c_lo·D and every lag
+≤ τ_hi; a larger β only adds energy, never a guarantee's failure. What the energy does not know is the pressure
+at t_a itself: the model's p̂ is integrated with the model's τ_p. With the lag interval the governor bounds it
+(`controllers.energy_governor.pressure_interval`: from its own commands, every τ_p ∈ [τ_lo, τ_hi], joined with p̂)
+and takes the lag term at the interval's end farther from u_i, ½β_i max((p_i − u_i)², (p̄_i − u_i)²) (concave in
+p_i, so its maximum over the interval is at an end; the kernels' `energy_at`). Assumptions added: c_d and τ_p
+constant and common to the segments; the arm's own motion over the prediction span under another lag or damping is
+an estimate error, left to κ. The gain estimate's settled-pressure test still uses the model's lag; at a rest
+sample the arm follows its rest shape quasi-statically (q ≈ a p, first mode ≈ 20 rad/s), so q̇ ≈ a(u − p)/τ_p and
+the rest test |q̂̇_i| ≤ `gain_rest_rad_s` bounds the unsettled part a|p − u| ≤ τ_hi·gain_rest_rad_s (3e-4 rad at
+0.1 s and 3e-3 rad/s, within Δ = 1.5e-3 rad).
+
+Command delay (not an interval here: `command_delay_s` is one number). The predictor puts x̂ at t_a = t + δ; a
+true delay δ' ≠ δ switches at t' = t + δ' instead, from the state u_prev has carried there. Under u_prev
+(certified) V_prev = W_{u_prev} + plate energy does not grow, and W_u − W_{u_prev} is affine in (q, p):
+(q_{u'} − q_u)ᵀKq + ½(|q_u|²_K − |q_{u'}|²_K) + ½Σβ((p − u)² − (p − u')²). Over the ellipsoid
+½|q − q_{u'}|²_K ≤ V_prev its maximum gives W_u(x(t')) ≤ (√V_prev + |q_u − q_{u'}|_K/√2)² + the lag terms for
+every t' after t + δ_lo: a margin that holds for any delay but charges every step √(2V_prev)|Δq_u|_K, large at the
+plate where V_prev holds the arm's elastic energy against it; not built. Within the predictor's own span
+(δ' − δ ≈ ±0.03 s at the camera rate) the state's change is the prediction error that κ covers.
+
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
 the absolute margin a new command must keep. No guarantee above needs ε > 0 (each holds for margins ≥ 0), so ε
@@ -128,10 +214,11 @@ D, Λ, τ_p, the PCC kinematics, P and ψ within [lo, hi]); the estimate and the
 are accurate to within the κ-inflation; the commands this governor returns are applied
 unchanged from t + δ and held until the next one acts (no clipping, no other source);
 the valves start vented (p = 0) at `reset`; Γ̲ ≤ Γ (by construction); the arm starts
-certified (e.g. at rest with its rest shape in P). Where it can fail: a wrong model
-(an actuator gain outside [gain_lo_ratio, gain_hi_ratio], a plate stiffness outside its interval, arm
-stiffness, plate position) is not covered by κ, and a state far from the
-estimate is not caught until the next estimate shows it; the recovery then has no
+certified (e.g. at rest with its rest shape in P). The intervals above relax "the model is the plant" to: an
+actuator gain, arm stiffness, arm damping (from below), valve lag, plate stiffness and plate offset each within
+its interval (each at the model's value by default). Where it can fail: a wrong model outside those intervals
+(or a turned plate, per-segment errors, a command delay other than δ beyond what κ covers) is not covered, and a
+state far from the estimate is not caught until the next estimate shows it; the recovery then has no
 guarantee.
 
 """
@@ -150,7 +237,7 @@ from controllers.gain_estimate import GainEstimator
 from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import QuasiStaticGovernor
-from controllers.safe_set import ForceSafeSet
+from controllers.safe_set import Environment, ForceSafeSet
 from controllers.safety_filter import FilterContext
 from controllers.state_predictor import StatePredictor
 
@@ -190,15 +277,64 @@ def ray_may_come_nearer(start, goal, direction, aim, best: float, sigma_min: flo
                                                    energy_kernels.PYTHON_SQUARE))
 
 
-def pressure_lag_weights(context: FilterContext, actuator_tau: float) -> np.ndarray:
-    """β_i = τ_p λ_i² / (4 d_i): (N,) J/hPa²; refuses τ_p > 0 with an undamped segment."""
+def pressure_lag_weights(context: FilterContext, actuator_tau: float, damping_ratio: float = 1.0) -> np.ndarray:
+    """β_i = τ_p λ_i² / (4 c_d d_i): (N,) J/hPa², c_d the lowest damping's ratio (module docstring, "valve lag");
+    refuses τ_p > 0 with an undamped segment."""
     damping, gains = context.robot.array("damping"), context.robot.array("gains")
     if actuator_tau == 0.0:
         return np.zeros_like(gains)
     if np.any(damping <= 0):
         raise ValueError(f"a pressure lag (actuator_tau = {actuator_tau} s) needs damping > 0 on every segment, "
                          f"got {damping.tolist()}: the certificate's β = τ_p λ²/(4d) is undefined")
+    if damping_ratio != 1.0:
+        damping = damping_ratio * damping
     return actuator_tau * gains**2 / (4.0 * damping)
+
+
+def arm_corners(gains: tuple, stiffnesses: tuple, ratios: tuple) -> tuple:
+    """The vertices (g, c) of the arm's certified set {g ∈ [g_lo, g_hi], c ∈ [c_lo, c_hi], r_lo ≤ g/c ≤ r_hi}
+    (module docstring, "arm stiffness"): the ends of its edges on the lines c = c_lo, c = c_hi, g = g_lo and
+    g = g_hi (every vertex lies on one of them: the lines g = r c meet only at 0), sorted by (g/c, c), repeats
+    dropped. The model's stiffness (c_lo = c_hi = 1) gives (r_lo, 1), (r_hi, 1): the gain ends alone.
+    ValueError where the set is empty."""
+    (g_lo, g_hi), (c_lo, c_hi), (r_lo, r_hi) = gains, stiffnesses, ratios
+    points = set()
+    for c in (c_lo, c_hi):
+        lo, hi = max(g_lo, r_lo * c), min(g_hi, r_hi * c)
+        if lo <= hi:
+            points.update({(lo, c), (hi, c)})
+    for g in (g_lo, g_hi):
+        lo, hi = max(c_lo, g / r_hi), min(c_hi, g / r_lo)
+        if lo <= hi:
+            points.update({(g, lo), (g, hi)})
+    if not points:
+        raise ValueError(f"no actuator gain in [{g_lo!r}, {g_hi!r}] and arm stiffness in [{c_lo!r}, {c_hi!r}] has a "
+                         f"ratio in [{r_lo!r}, {r_hi!r}]")
+    return tuple(sorted(points, key=lambda end: (end[0] / end[1], end[1])))
+
+
+def cantilever_stiffness_ratios(length_m: float, nearest_m: float, farthest_m: float) -> tuple[float, float]:
+    """[lo, hi] of a clamped sheet's stiffness over its contact positions as multiples of its calibrated one (1):
+    Euler–Bernoulli K(s) = 3EI/s³ calibrated at the free end s = ℓ = `length_m` (as the paper calibrated), touched
+    between `nearest_m` and `farthest_m` from the clamp (m, 0 < nearest ≤ farthest): ((ℓ/farthest)³, (ℓ/nearest)³)
+    (module docstring, "sheet"). The flexure plate's default (ℓ = 0.15 m, touched 10–33 mm from its free end, 0.117
+    to 0.140 m from the clamp) gives [1.23, 2.11]."""
+    if not 0.0 < nearest_m <= farthest_m < math.inf or not 0.0 < length_m < math.inf:
+        raise ValueError(f"need 0 < nearest_m <= farthest_m and length_m > 0 (m), got length_m = {length_m!r}, "
+                         f"nearest_m = {nearest_m!r}, farthest_m = {farthest_m!r}")
+    return (length_m / farthest_m) ** 3, (length_m / nearest_m) ** 3
+
+
+def nearest_environment(environment: Environment, offset_m: float) -> Environment:
+    """The environment with every facet moved `offset_m` (m) along its outward normal (< 0: nearer the arm);
+    itself at 0. ValueError (naming the offset) where a facet then no longer bounds free space."""
+    if offset_m == 0.0:
+        return environment
+    H = np.asarray(environment.H, dtype=float)
+    try:
+        return Environment(H, np.asarray(environment.h, dtype=float) + offset_m * np.hypot(H[:, 0], H[:, 1]))
+    except ValueError as exc:
+        raise ValueError(f"plate_offset_lo_m = {offset_m!r} m moves the plate's facets so that {exc}") from exc
 
 
 def tip_of(lengths: np.ndarray, q) -> tuple[float, float]:
@@ -213,7 +349,8 @@ class GovernorCall:
     capture and the command's application times (s), u_prev, the target and u_nom clipped (N,) hPa; unless
     stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
     for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
-    x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the gain ends and their energy terms (E, 3, N)."""
+    x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the ends' rest-shape ratios and stiffness scales
+    and their energy terms (E, 3, N), and p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone)."""
 
     t_capture: float
     t_apply: float
@@ -230,25 +367,31 @@ class GovernorCall:
     inflation: float = 1.0
     gains: tuple = ()
     terms: np.ndarray | None = None
+    scales: tuple = ()
+    p_far: np.ndarray | None = None
 
 
 def certificate_rows(calls: list[GovernorCall]) -> tuple:
     """The certificate's per-row arguments of `energy_kernels.certificate_terms` and `govern_rows` for the calls
-    (B rows): the gain ends (B, E) and their count (B,), the energy terms (B, E, 3, N), base (B,) J, q̂ (B, N)
-    rad, p̂ (B, N) hPa, the offsets (B, P') J and inside (B,); E the most ends of a call, the others' padded
-    (never read: a row reads its count)."""
+    (B rows): the ends' rest-shape ratios and stiffness scales (B, E) and their count (B,), the energy terms
+    (B, E, 3, N), base (B,) J, q̂ (B, N) rad, p̂ and p̄ (B, N) hPa, the offsets (B, P') J and inside (B,); E the
+    most ends of a call, the others' padded (never read: a row reads its count)."""
     ends = np.array([len(c.gains) for c in calls])
     most = int(ends.max())
     if most == len(calls[0].gains) and all(c.terms is calls[0].terms for c in calls):
         gains, terms = np.array([calls[0].gains] * len(calls)), np.array([calls[0].terms] * len(calls))
+        scales = np.array([calls[0].scales] * len(calls))
     else:
         gains = np.array([c.gains + (1.0,) * (most - len(c.gains)) for c in calls], dtype=float)
+        scales = np.array([c.scales + (1.0,) * (most - len(c.gains)) for c in calls], dtype=float)
         terms = np.zeros((len(calls), most) + calls[0].terms.shape[1:])
         for b, c in enumerate(calls):
             terms[b, :len(c.gains)] = c.terms
-    return (gains, ends, terms, np.array([c.base for c in calls]), np.array([c.q_hat for c in calls]),
-            np.array([c.p_hat for c in calls]), np.array([c.offsets for c in calls], dtype=float),
-            np.array([c.inside for c in calls]))
+    p_hat = np.array([c.p_hat for c in calls])
+    p_far = p_hat if all(c.p_far is None for c in calls) else \
+        np.array([c.p_hat if c.p_far is None else c.p_far for c in calls])
+    return (gains, scales, ends, terms, np.array([c.base for c in calls]), np.array([c.q_hat for c in calls]),
+            p_hat, p_far, np.array([c.offsets for c in calls], dtype=float), np.array([c.inside for c in calls]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,15 +399,18 @@ class GovernorModel:
     """What a governor's calls read and never change (module docstring), built by `build`.
 
     params: the checked parameters; context: the filter's context; command_delay δ and actuator_tau τ_p (s, the
-    parameters' or the context's); safe_set: P with n_max = ψ⁻¹(F_max/hi); contact: the contact certificate;
+    parameters' or the context's); safe_set: P with n_max = ψ⁻¹(F_max/hi) on the nearest plate; contact: the contact certificate;
     target_governor: the parked certificate's quasi-static governor, configured (each state holds a copy:
     `controllers.energy_governor.state.new_state`), None for the contact certificate; beta (N,) J/hPa²; k, a, beta_list:
     K, K⁻¹Λ and β as lists; table / boundary_bound: Γ̲'s sources (`controllers.escape_energy`); rows: P's rows
-    (h'x, h'y, h'); facets: the plate's (nx, ny, d); credit: c_j per row (J); plate_weight: hi when contact-aware,
+    (h'x, h'y, h'); facets: the nearest plate's (nx, ny, d); credit: c_j per row (J); plate_weight: hi when contact-aware,
     else 0; free_plate_energy: its term at n = 0 (J); box: the pressure box or None; rest: 0 hPa clipped to it;
     grid / grid_values / grid_rest_inside / grid_columns: the recovery's candidate commands (G, N), their Γ̲ rows
     (P', G), whether their rest shapes lie inside P, and the commands as (N, G); lookup: the kernels' Γ̲ look-up;
-    gain_prior: the certified gain interval before any estimate."""
+    gain_prior: the certified interval of the rest-shape ratio r = g/c before any estimate ([g_lo/c_hi, g_hi/c_lo]);
+    gain_box, stiffness_box: the actuator gain's and the arm stiffness's intervals (1); offset_width: w = the plate
+    offset interval's width (m; P and the penetrations are the nearest plate's); lag_taus: (τ_lo, τ_hi) of the
+    pressure's interval (s), None without one."""
 
     params: GovernorParams
     context: FilterContext
@@ -295,6 +441,10 @@ class GovernorModel:
     grid_columns: np.ndarray
     lookup: tuple
     gain_prior: tuple
+    gain_box: tuple
+    stiffness_box: tuple
+    offset_width: float
+    lag_taus: tuple | None
 
     @classmethod
     def build(cls, params: GovernorParams, context: FilterContext) -> "GovernorModel":
@@ -313,23 +463,30 @@ class GovernorModel:
         robot, nominal, contact = context.robot, context.safe_set, params.contact
         n = robot.n_segments
         hi = params.stiffness_hi_ratio
-        safe_set = nominal if hi == 1.0 else ForceSafeSet(nominal.environment, law, nominal.f_max / hi,
-                                                          nominal.row_scaling)
+        near = nearest_environment(nominal.environment, params.plate_offset_lo_m)
+        safe_set = nominal if hi == 1.0 and near is nominal.environment else \
+            ForceSafeSet(near, law, nominal.f_max / hi, nominal.row_scaling)
         target_governor = None if contact else QuasiStaticGovernor(replace(context, safe_set=safe_set),
                                                                    margin_m=params.margin_m)
         u_lo = robot.array("u_min") if context.u_min is None else context.u_min
         u_hi = robot.array("u_max") if context.u_max is None else context.u_max
-        beta = pressure_lag_weights(context, tau)
+        taus = (params.actuator_tau_lo_s, params.actuator_tau_hi_s)
+        lag_taus = None if taus == (None, None) else tuple(tau if t is None else float(t) for t in taus)
+        if lag_taus is not None and lag_taus[0] > lag_taus[1]:
+            raise ValueError(f"actuator_tau_lo_s must be <= actuator_tau_hi_s = {lag_taus[1]!r} (None: the model's "
+                             f"{tau!r} s), got {lag_taus[0]!r}")
+        beta = pressure_lag_weights(context, tau if lag_taus is None else max(tau, lag_taus[1]), params.damping_lo_ratio)
         gridded = not contact or n <= MAX_SEGMENTS  # the contact certificate needs no table for N > 2
         table = EscapeEnergyTable(robot, safe_set, u_lo, u_hi, grid_hPa=params.grid_hPa, boundary=contact,
                                   q_spacing_rad=params.escape_spacing_rad) if gridded else None
         boundary_bound = BoundaryDistanceBound(robot, safe_set) if contact else None
-        credit = params.stiffness_lo_ratio * float(law.energy(safe_set.n_max)) if params.contact_aware else 0.0
+        width = params.plate_offset_hi_m - params.plate_offset_lo_m
+        reach = safe_set.n_max if width == 0.0 else max(safe_set.n_max - width, 0.0)  # the farthest plate's at P's edge
+        credit = params.stiffness_lo_ratio * float(law.energy(reach)) if params.contact_aware else 0.0
         rows = [(hx, hy, h) for (hx, hy), h in zip(np.asarray(safe_set.H_prime).tolist(),
                                                    np.asarray(safe_set.h_prime).tolist())]
         plate_weight = hi if params.contact_aware else 0.0
-        facets = [(nx, ny, d) for (nx, ny), d in zip(nominal.environment.normals.tolist(),
-                                                     nominal.environment.offsets.tolist())]
+        facets = [(nx, ny, d) for (nx, ny), d in zip(near.normals.tolist(), near.offsets.tolist())]
         k = robot.array("stiffness").tolist()
         a = (robot.array("gains") / robot.array("stiffness")).tolist()
         box = None if context.u_min is None else (context.u_min, context.u_max)
@@ -354,7 +511,11 @@ class GovernorModel:
                    box=box, rest=np.array(rest_list), grid=grid, grid_values=grid_values,
                    grid_rest_inside=grid_rest_inside, grid_columns=np.ascontiguousarray(grid.T),  # the scan's layout
                    lookup=lookup_arguments(table, boundary_bound, BOUND_BELOW_J),
-                   gain_prior=(params.gain_lo_ratio, params.gain_hi_ratio))
+                   gain_prior=(params.gain_lo_ratio / params.arm_stiffness_hi_ratio,
+                               params.gain_hi_ratio / params.arm_stiffness_lo_ratio),
+                   gain_box=(params.gain_lo_ratio, params.gain_hi_ratio),
+                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio),
+                   offset_width=width, lag_taus=lag_taus)
 
     # -- what each state starts from --------------------------------------------------------------------
     def new_predictor(self) -> StatePredictor:
@@ -371,19 +532,23 @@ class GovernorModel:
                              self.params.gain_noise_rad)
 
     # -- certificate ------------------------------------------------------------------
-    def energy_terms(self, gain: float) -> tuple[list, list, list]:
-        """The energy's weights at the actuator gain g: (K, g·K⁻¹Λ, g²β) as lists (g = 1: the model's floats
-        exactly, 1.0·x = x)."""
-        return self.k, [gain * a for a in self.a], [gain * gain * b for b in self.beta_list]
+    def energy_terms(self, gain: float, stiffness: float = 1.0) -> tuple[list, list, list]:
+        """The energy's weights at the actuator gain g and arm stiffness scale c: (c·K, (g/c)·K⁻¹Λ, g²β) as lists
+        (g = c = 1: the model's floats exactly, 1.0·x = x/1.0 = x)."""
+        ratio = gain / stiffness
+        return [stiffness * k for k in self.k], [ratio * a for a in self.a], [gain * gain * b for b in self.beta_list]
 
-    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0) -> float:
+    def energy(self, kinetic_and_plate: float, q: list[float], p: list[float], u, gain: float = 1.0,
+               stiffness: float = 1.0, p_far: list[float] | None = None) -> float:
         """W_u + plate term at (q, p) for command u, given ½q̇ᵀMq̇ + hi·ΣE(n) (J), for the true actuator
-        gain g = `gain` × the model's: ½(q − g q_u)ᵀK(q − g q_u) + ½ g² Σβ(p − u)², segment
-        by segment (the compiled `energy_kernels.energy_at`, which the certificate's kernels evaluate)."""
-        terms = np.array([[self.energy_terms(gain)]], dtype=float)
-        return float(energy_kernels.energy_at(np.asarray(u, dtype=float), np.array([q], dtype=float),
-                                              np.array([p], dtype=float), terms, 0, 0, float(kinetic_and_plate),
-                                              energy_kernels.PYTHON_SQUARE))
+        gain g = `gain` and arm stiffness c = `stiffness` × the model's: ½(q − r q_u)ᵀcK(q − r q_u) +
+        ½ g² Σβ max((p − u)², (p̄ − u)²), r = g/c, p̄ = `p_far` (None: p), segment by segment (the compiled
+        `energy_kernels.energy_at`, which the certificate's kernels evaluate)."""
+        terms = np.array([[self.energy_terms(gain, stiffness)]], dtype=float)
+        pressure = np.array([p], dtype=float)
+        return float(energy_kernels.energy_at(np.asarray(u, dtype=float), np.array([q], dtype=float), pressure,
+                                              pressure if p_far is None else np.array([p_far], dtype=float), terms,
+                                              0, 0, float(kinetic_and_plate), energy_kernels.PYTHON_SQUARE))
 
     def escape(self, u) -> float:
         """min_j (Γ̲_j(u) + c_j) (J)."""
@@ -430,20 +595,30 @@ class GovernorModel:
         strictly inside P (every row H'_j r < h'_j; module docstring, "contact certificate") and its ρ
         (`ForceSafeSet.margin_at` of the context's set).
 
-        Facet row j: o_j = lo·(E(n_max) − E(n_j)) − hi Σ_{i≠j} E(n_i); vertex-correction row:
-        o_j = −hi Σ_i E(n_i); n_i the model's facet penetrations at r(q) (m), E = ψ.energy.
+        Facet row j: o_j = lo·(E(n_max − w) − E(n_j − w)) − hi Σ_{i≠j} E(n_i); vertex-correction row:
+        o_j = −hi Σ_i E(n_i); n_i the nearest plate's facet penetrations at r(q) (m), E = ψ.energy (0 below 0),
+        w the plate offset interval's width (module docstring, "plate offset"; w = 0: the model's plate).
         Without contact_aware every o_j = 0 (the environment does not push back)."""
         x, y = self.tip(q)
         inside = all(hx * x + hy * y < h for hx, hy, h in self.rows)
-        nominal = self.context.safe_set
-        rho = nominal.margin_at(x, y)
+        rho = self.context.safe_set.margin_at(x, y)
         if not self.params.contact_aware:
             return [0.0] * len(self.rows), inside, rho
         lo, hi = self.params.stiffness_lo_ratio, self.params.stiffness_hi_ratio
-        energies = np.asarray(nominal.stiffness.energy(nominal.penetration_at(x, y)), dtype=float).tolist()
+        plate = self.safe_set  # the nearest plate's facets (the model's without an offset interval)
+        depths = plate.penetration_at(x, y)
+        energies = np.asarray(plate.stiffness.energy(depths), dtype=float).tolist()
+        if self.params.stiffness_by_position:  # a sheet: its own facet's energy at x̂ at the stiffest (module docstring)
+            own, weight = energies, hi
+        elif self.offset_width == 0.0:
+            own, weight = energies, lo
+        else:
+            own, weight = np.asarray(plate.stiffness.energy(np.asarray(depths) - self.offset_width),
+                                     dtype=float).tolist(), lo
         total = hi * sum(energies)
-        offsets = [credit - lo * e - hi * (sum(energies) - e) if j < self.n_facets
-                   else -total for j, (credit, e) in enumerate(zip(self.credit, energies + [0.0] * len(self.rows)))]
+        offsets = [credit - weight * f - hi * (sum(energies) - e) if j < self.n_facets
+                   else -total for j, (credit, e, f) in enumerate(zip(self.credit, energies + [0.0] * len(self.rows),
+                                                                      own + [0.0] * len(self.rows)))]
         return offsets, inside, rho
 
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:

@@ -28,6 +28,7 @@ import inspect
 from dataclasses import dataclass, field, fields
 
 from controllers.bounds import Bound
+from controllers.energy_governor.box import read_box
 from controllers.filter_parameters import FilterParameter
 from controllers.gain_estimate import GAIN_CONTACT
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
@@ -43,6 +44,9 @@ STIFFNESS_RATIOS = Bound(0.0, 1e3)
 
 GAIN_RATIOS = Bound(0.1, 10.0)
 """Valid actuator gain ratios (1): the true λ as a multiple of the model's; below 0.1 or above 10 the model is no model."""
+
+PLATE_OFFSETS = Bound(-0.05, 0.05, unit="m")
+"""Valid plate offsets (m) along a facet's outward normal: within 5 cm of the model's plate (beyond, no model)."""
 
 CERTIFICATES = ("park", "contact")
 """The `certificate` values (the parked target, and the contact certificate: `controllers.energy_governor.certificate`)."""
@@ -111,6 +115,35 @@ class GovernorParams:
     gain_difference_s: float = declared(0.0, "largest spacing of two estimates whose q̇ difference gives q̈ for a "
                                         "moving sample (0: rest samples only; gain_estimate only)", "s",
                                         bound=Bound(0.0, 0.1, unit="s"))
+    plate_offset_lo_m: float = declared(0.0, "nearest true plate: its facets' least offset along their outward "
+                                        "normal from the model's (< 0: nearer the arm; P is built on the nearest "
+                                        "plate; contact certificate only: controllers.energy_governor.certificate, "
+                                        "\"plate offset\")", "m", bound=PLATE_OFFSETS)
+    plate_offset_hi_m: float = declared(0.0, "farthest true plate: its facets' greatest offset along their outward "
+                                        "normal from the model's (>= plate_offset_lo_m)", "m", bound=PLATE_OFFSETS)
+    stiffness_by_position: bool = declared(False, "the plate's stiffness varies with where it is touched (a clamped "
+                                           "sheet, stiffer nearer its clamp: controllers.energy_governor.certificate, "
+                                           "\"sheet\"; [stiffness_lo_ratio, stiffness_hi_ratio] then bounds it over "
+                                           "the contact positions, e.g. cantilever_stiffness_ratios); contact "
+                                           "certificate only", "", bool)
+    arm_stiffness_lo_ratio: float = declared(1.0, "lowest true arm stiffness K as a multiple of the model's (every "
+                                             "segment alike; with the gain it moves every rest shape, q_u ∝ g/c: "
+                                             "controllers.energy_governor.certificate, \"arm stiffness\"; contact "
+                                             "certificate only)", "1", bound=GAIN_RATIOS)
+    arm_stiffness_hi_ratio: float = declared(1.0, "highest true arm stiffness K as a multiple of the model's "
+                                             "(>= arm_stiffness_lo_ratio)", "1", bound=GAIN_RATIOS)
+    damping_lo_ratio: float = declared(1.0, "lowest true arm damping D as a multiple of the model's (the valve "
+                                       "lag's energy weight β ∝ 1/d; any damping above it is covered; contact "
+                                       "certificate only)", "1", bound=GAIN_RATIOS)
+    actuator_tau_hi_s: float | None = declared(None, "slowest true valve lag τ_p (the energy weight β ∝ τ_p and the "
+                                               "pressure's interval; None: actuator_tau_s alone; contact certificate "
+                                               "only: controllers.energy_governor.certificate, \"valve lag\")", "s",
+                                               bound=Bound(0.0, 10.0, unit="s"), optional=True)
+    actuator_tau_lo_s: float | None = declared(None, "fastest true valve lag τ_p (<= actuator_tau_hi_s; None: "
+                                               "actuator_tau_s)", "s", bound=Bound(0.0, 10.0, unit="s"), optional=True)
+    box: str = declared("", "a study file (TOML) whose [vary] box sets the certified intervals, the box the "
+                        "falsifier searches (controllers.energy_governor.box; '' none; an interval given as well "
+                        "is refused)", "", str)
     gain_contact: str = declared("normal", "samples with the tip within gain_clearance_m of a facet: 'normal' (the "
                                  "plate's force along its normal eliminated: frictionless), 'any' (also the "
                                  "tangential: friction), 'off' (none; controllers.gain_estimate; gain_estimate only)",
@@ -119,6 +152,13 @@ class GovernorParams:
     def __post_init__(self) -> None:
         for f in fields(self):  # each by its declaration, normalised (an int given for a float becomes one)
             object.__setattr__(self, f.name, f.metadata["parameter"].check(f.name, getattr(self, f.name)))
+        if self.box:  # the box's intervals (controllers.energy_governor.box), each checked by its declaration
+            for name, value in read_box(self.box).items():
+                default = type(self).__dataclass_fields__[name].default
+                if getattr(self, name) != default:
+                    raise ValueError(f"{name} is set by box = {self.box!r} and given as {getattr(self, name)!r}: "
+                                     f"give one of them")
+                object.__setattr__(self, name, type(self).__dataclass_fields__[name].metadata["parameter"].check(name, value))
         if self.certificate not in CERTIFICATES:
             raise ValueError(f"certificate must be one of {', '.join(CERTIFICATES)}, got {self.certificate!r}")
         if self.stiffness_lo_ratio > self.stiffness_hi_ratio:
@@ -130,6 +170,30 @@ class GovernorParams:
         if (lo, hi) != (1.0, 1.0) and self.certificate != "contact":
             raise ValueError(f"gain_lo_ratio and gain_hi_ratio other than 1 need certificate='contact' (the parked "
                              f"target's rest shape assumes the model's gain), got [{lo!r}, {hi!r}]")
+        for name, (lo, hi), neutral in (("plate_offset", (self.plate_offset_lo_m, self.plate_offset_hi_m), (0.0, 0.0)),
+                                        ("arm_stiffness", (self.arm_stiffness_lo_ratio, self.arm_stiffness_hi_ratio),
+                                         (1.0, 1.0))):
+            unit = "_m" if name == "plate_offset" else "_ratio"
+            if lo > hi:
+                raise ValueError(f"{name}_lo{unit} must be <= {name}_hi{unit} = {hi!r}, got {lo!r}")
+            if (lo, hi) != neutral and self.certificate != "contact":
+                raise ValueError(f"{name}_lo{unit} and {name}_hi{unit} other than {neutral[0]:g} need "
+                                 f"certificate='contact', got [{lo!r}, {hi!r}]")
+        if self.stiffness_by_position and not (self.certificate == "contact" and self.contact_aware):
+            raise ValueError("stiffness_by_position needs certificate='contact' with contact_aware (it changes the "
+                             "plate's energy credit)")
+        if self.damping_lo_ratio != 1.0 and self.certificate != "contact":
+            raise ValueError(f"damping_lo_ratio other than 1 needs certificate='contact', got {self.damping_lo_ratio!r}")
+        taus = (self.actuator_tau_lo_s, self.actuator_tau_hi_s)
+        if taus != (None, None):
+            if self.certificate != "contact":
+                raise ValueError(f"actuator_tau_lo_s and actuator_tau_hi_s need certificate='contact', got {list(taus)}")
+            if None not in taus and taus[0] > taus[1]:
+                raise ValueError(f"actuator_tau_lo_s must be <= actuator_tau_hi_s = {taus[1]!r}, got {taus[0]!r}")
+        if self.gain_difference_s > 0.0 and (self.arm_stiffness_lo_ratio, self.arm_stiffness_hi_ratio,
+                                             self.damping_lo_ratio) != (1.0, 1.0, 1.0):
+            raise ValueError(f"gain_difference_s must be 0 with an arm stiffness or damping interval (a moving "
+                             f"sample's M q̈ and D q̇ then scale unlike K), got {self.gain_difference_s!r}")
         if self.gain_contact not in GAIN_CONTACT:
             raise ValueError(f"gain_contact must be one of {', '.join(GAIN_CONTACT)}, got {self.gain_contact!r}")
         if self.gain_estimate and self.certificate != "contact":

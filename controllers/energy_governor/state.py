@@ -9,8 +9,11 @@ change its state, and nothing else:
   (None for the contact certificate);
 - the gain feedback (`controllers.energy_governor.gain_feedback`): `gain_estimator` (its samples), `gain_previous`
   (t_capture, q, q̇) of the previous estimate, `rest_since` (when the current run at rest began);
-- `ends`: the certified gain interval and its energy terms (`GainEnds`), and `scan_rows`, the recovery's grid
-  rows at those ends, built when a recovery first needs them.
+- `ends`: the certified interval of the rest-shape ratio r = g/c (the actuator gain over the arm stiffness), the
+  vertices (g, c) it leaves with the gain's and the stiffness's intervals, and their energy terms (`GainEnds`), and
+  `scan_rows`, the recovery's grid rows at those ends, built when a recovery first needs them;
+- `pressures`: the acting pressure's interval under the valve lag's interval
+  (`controllers.energy_governor.pressure_interval`; None without one).
 
 `new_state(model)` is a governor's state at `reset` (valves vented, nothing estimated); `GovernorState.copy()` a
 state that continues independently (what changes is copied: the predictor's records, the target governor, the
@@ -25,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.energy_governor.certificate import GovernorModel
+from controllers.energy_governor.certificate import GovernorModel, arm_corners
+from controllers.energy_governor.pressure_interval import PressureInterval
 from controllers.gain_estimate import GainEstimator
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.state_predictor import StatePredictor
@@ -33,20 +37,27 @@ from controllers.state_predictor import StatePredictor
 
 @dataclass(frozen=True, eq=False)
 class GainEnds:
-    """The certified actuator gain interval [lo, hi] (1), its distinct ends `gains` (sorted; (1.0,) is the model
-    alone) and their energy terms (E, 3, N): K, g·K⁻¹Λ, g²β per end (`GovernorModel.energy_terms`)."""
+    """The certified interval [lo, hi] of the rest-shape ratio r = g/c (1; the actuator gain's with the model's
+    stiffness), the vertices (g, c) of the set it leaves with the gain's and the arm stiffness's intervals
+    (`arm_corners`; (1.0, 1.0) alone is the model), their ratios `gains` = g/c (the command's scale, sorted) and
+    stiffness scales `scales` = c, and their energy terms (E, 3, N): c·K, (g/c)·K⁻¹Λ, g²β per end
+    (`GovernorModel.energy_terms`)."""
 
     lo: float
     hi: float
     gains: tuple
     terms: np.ndarray
+    scales: tuple
+    corners: tuple
 
 
 def gain_ends(model: GovernorModel, lo: float, hi: float) -> GainEnds:
-    """The ends of the gain interval [lo, hi] with their energy terms (module docstring of
-    `controllers.energy_governor.certificate`, "actuator gain")."""
-    gains = tuple(sorted({lo, hi}))
-    return GainEnds(lo, hi, gains, np.array([model.energy_terms(g) for g in gains], dtype=float))
+    """The ends for the ratio interval [lo, hi] with their energy terms (module docstring of
+    `controllers.energy_governor.certificate`, "actuator gain" and "arm stiffness")."""
+    corners = arm_corners(model.gain_box, model.stiffness_box, (lo, hi))
+    return GainEnds(lo, hi, tuple(g / c for g, c in corners),
+                    np.array([model.energy_terms(g, c) for g, c in corners], dtype=float),
+                    tuple(c for _, c in corners), corners)
 
 
 @dataclass(eq=False)
@@ -60,20 +71,22 @@ class GovernorState:
     rest_since: float | None
     ends: GainEnds
     scan_rows: np.ndarray | None = None
+    pressures: PressureInterval | None = None
 
     def copy(self) -> "GovernorState":
         """A state that continues from this one independently (module docstring)."""
         return GovernorState(self.predictor.copy(), copy.copy(self.target_governor), copy.deepcopy(self.gain_estimator),
-                             self.gain_previous, self.rest_since, self.ends, self.scan_rows)
+                             self.gain_previous, self.rest_since, self.ends, self.scan_rows,
+                             None if self.pressures is None else self.pressures.copy())
 
     def set_gain_ends(self, model: GovernorModel, lo: float, hi: float) -> None:
         """Certify the gain interval [lo, hi] from now on (the recovery's grid rows rebuilt when needed)."""
         self.ends, self.scan_rows = gain_ends(model, lo, hi), None
 
     def recovery_rows(self, model: GovernorModel) -> np.ndarray:
-        """The recovery's grid rows (E, P', G) at the certified gain ends (`GovernorModel.grid_rows_at_gain`)."""
+        """The recovery's grid rows (E, P', G) at the certified ends: c·Γ̲(r·u_c) (`GovernorModel.grid_rows_at_gain`)."""
         if self.scan_rows is None:
-            self.scan_rows = np.array([model.grid_rows_at_gain(g) for g in self.ends.gains])
+            self.scan_rows = np.array([c * model.grid_rows_at_gain(r) for r, c in zip(self.ends.gains, self.ends.scales)])
         return self.scan_rows
 
 
@@ -82,4 +95,5 @@ def new_state(model: GovernorModel) -> GovernorState:
     interval. The target governor is a copy of the model's configured one (copies share its memory of commands,
     a function of its inputs)."""
     return GovernorState(model.new_predictor(), copy.copy(model.target_governor), model.new_gain_estimator(),
-                         None, None, gain_ends(model, *model.gain_prior))
+                         None, None, gain_ends(model, *model.gain_prior),
+                         None if model.lag_taus is None else PressureInterval(model.lag_taus, model.n))

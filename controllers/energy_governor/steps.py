@@ -178,7 +178,10 @@ def prepare(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: np.nd
         base, rho = model.state_energy(q_hat, qd_hat)
         offsets, inside, inflation = model.credit, True, 1.0 + kappa
     call.q_hat, call.p_hat, call.base, call.offsets, call.inside, call.rho = q_hat, p_hat, base, offsets, inside, rho
-    call.inflation, call.gains, call.terms = inflation, state.ends.gains, state.ends.terms
+    call.inflation, call.gains, call.terms, call.scales = inflation, state.ends.gains, state.ends.terms, state.ends.scales
+    if state.pressures is not None:  # the valve lag's interval: the pressure's hull with the model's p̂
+        lowest, highest = state.pressures.at(t_apply)
+        call.p_hat, call.p_far = np.minimum(p_hat, lowest), np.maximum(p_hat, highest)
     return call
 
 
@@ -224,10 +227,11 @@ def recover_contact(model: GovernorModel, state: GovernorState, call: GovernorCa
     else, with x̂ inside P, the largest margin among the candidates whose rest shape lies inside P; else (x̂
     outside P, where no certificate holds) the one of those nearest the target; the target if there is none.
     The margin is the least over the state's gain ends (`controllers.energy_governor.certificate`, "actuator gain")."""
-    gains = state.ends.gains
-    extra_rows = np.array([[model.boundary_escape(scaled_command(g, tuple(c.tolist()))) for c in (call.u_prev, call.target)]
-                           for g in gains]).transpose(0, 2, 1)
-    terms = np.array([model.energy_terms(g) for g in gains])
+    ends = state.ends
+    extra_rows = np.array([[np.multiply(scale, model.boundary_escape(scaled_command(r, tuple(c.tolist()))))
+                            for c in (call.u_prev, call.target)]
+                           for r, scale in zip(ends.gains, ends.scales)]).transpose(0, 2, 1)
+    terms = ends.terms
     resting = np.array([model.rest_inside(call.u_prev), model.rest_inside(call.target)])
     return scan(model, state.recovery_rows(model), extra_rows, call.offsets, terms, call, 1.0, call.inside, resting)
 
@@ -243,7 +247,7 @@ def scan(model: GovernorModel, grid_rows: np.ndarray, extra_rows: np.ndarray, of
         model.grid_columns, grid_rows, np.array((u_prev, target)).T.copy(), extra_rows,
         np.array(offsets, dtype=float), terms, call.base, call.q_hat, call.p_hat, target, inflation,
         model.params.energy_margin_J, inside, model.grid_rest_inside,
-        np.zeros(2, dtype=bool) if by_gamma else resting_extra, by_gamma)
+        np.zeros(2, dtype=bool) if by_gamma else resting_extra, by_gamma, call.p_far)
     index = int(index)
     grid_size = len(model.grid)
     chosen = target if index < 0 else model.grid[index] if index < grid_size else (u_prev, target)[index - grid_size]
@@ -256,6 +260,8 @@ def finish(model: GovernorModel, state: GovernorState, u: np.ndarray, action: st
     the call gave none; the gain interval certified from this call on and ĝ with `gain_estimate`)."""
     u = np.array(u, dtype=float)
     state.predictor.record(t_apply, u)
+    if state.pressures is not None:
+        state.pressures.record(t_apply, u)
     full = {"W_J": math.nan, "Gamma_J": math.nan, "margin_J": math.nan, "step_fraction": math.nan,
             "blocked": math.nan, "violation": math.nan}
     full.update(diagnostics)
