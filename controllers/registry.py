@@ -12,7 +12,8 @@ A spec names a factory (a class or a function):
 - `package.module:Factory` (imported from sys.path);
 - a preset `NAME:PRESET` of a built-in (`PRESETS`, the one home of each): "c-erg:recommended" is
   c-erg with `controllers.energy_governor.RECOMMENDED` and the plate stiffness interval
-  [0.9, 1.1]; parameters given with it override the preset's (`typed_params`), its run label is
+  [0.9, 1.1], "c-erg:standard-box" the same setting certified over the standard error box
+  (`controllers.energy_governor.box.STANDARD_BOX`); parameters given with it override the preset's (`typed_params`), its run label is
   its name plus what was overridden (`label`), and an unknown preset of a built-in is refused
   with the closest names (`find_preset`).
 
@@ -124,6 +125,10 @@ PRESETS: Mapping[str, Preset] = {
         "c-erg", "controllers.energy_governor:RECOMMENDED", {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1},
         "the recommended filter for contact tasks: c-erg's recommended setting (controllers.energy_governor."
         "RECOMMENDED) certified over plate stiffnesses of 0.9 to 1.1 times the assumed one"),
+    "c-erg:standard-box": Preset(
+        "c-erg", "controllers.energy_governor.parameters:STANDARD_BOX_SETTING", {},
+        "c-erg's recommended setting certified over the standard error box's physical errors (plate stiffness "
+        "+-20 %, offset +-2 mm, actuator gain and arm stiffness +-10 %, damping from 0.7x, valve lag 0.02-0.1 s)"),
 }
 """The named presets (`--filter c-erg:recommended`), the one home of each: what the README, `softcbf list`,
 `softcbf run`, the bench, the environment and the hardware file mean by the name (module docstring)."""

@@ -310,11 +310,15 @@ def test_box_parameters_need_the_contact_certificate(name, value):
 # -- one box: the falsifier's study file configures the filter ---------------------------------------------------------
 
 def test_the_study_box_sets_every_certified_interval():
-    """The shipped standard boxes (both plants) give the standard box's intervals; the sensing errors pass over."""
+    """The shipped standard boxes (both plants) give the standard box's intervals (`STANDARD_BOX`, the preset
+    c-erg:standard-box's numbers); the sensing errors pass over."""
+    from controllers.energy_governor.box import STANDARD_BOX
+
     expected = {"stiffness_lo_ratio": 0.8, "stiffness_hi_ratio": 1.2, "plate_offset_lo_m": -0.002,
                 "plate_offset_hi_m": 0.002, "gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1, "arm_stiffness_lo_ratio": 0.9,
                 "arm_stiffness_hi_ratio": 1.1, "damping_lo_ratio": 0.7, "actuator_tau_lo_s": 0.02,
                 "actuator_tau_hi_s": 0.1}
+    assert STANDARD_BOX == pytest.approx(expected, rel=1e-12)
     root = Path(__file__).parent.parent / "studies"
     for name in ("mismatch_box_contact.toml", "mismatch_box_camera.toml"):
         checked = ContactEnergyGovernor.check_arguments({"box": str(root / name)})

@@ -18,6 +18,10 @@ A name the certificate leaves to its estimate margins (κ and the gain estimate'
 latency, pixel noise and dropped frames) is passed over; any other name is refused (an error the certificate does
 not cover, e.g. facet_angle, must not be read as certified). Reading the file (`read_box`) uses tomllib; nothing
 here imports MuJoCo or the scenarios.
+
+`STANDARD_BOX` is the standard box's physical errors (SPEC §17; studies/mismatch_box_contact.toml, whose reading
+tests/test_certificate_box.py checks against it) as c-erg's intervals, stated here as numbers so that the preset
+`c-erg:standard-box` (`parameters.STANDARD_BOX_SETTING`: the recommended setting over this box) needs no file at run time.
 """
 
 from __future__ import annotations
@@ -34,6 +38,13 @@ INTERVALS = {"facet_offset": ("plate_offset_lo_m", "plate_offset_hi_m"),
 
 SENSING = ("latency", "pixel_noise", "drop_rate", "saved_frames_hz", "seed")
 """The box's names the certificate leaves to its estimate margins (κ, Δ): passed over."""
+
+STANDARD_BOX = {"stiffness_lo_ratio": 0.8, "stiffness_hi_ratio": 1.2, "plate_offset_lo_m": -0.002,
+                "plate_offset_hi_m": 0.002, "gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1, "arm_stiffness_lo_ratio": 0.9,
+                "arm_stiffness_hi_ratio": 1.1, "damping_lo_ratio": 0.7, "actuator_tau_lo_s": 0.02,
+                "actuator_tau_hi_s": 0.1}
+"""The standard box's physical errors as c-erg's intervals (module docstring): plate stiffness ±20 %, offset ±2 mm,
+actuator gain and arm stiffness ±10 %, damping from 0.7 of the model's, valve lag 0.02–0.1 s."""
 
 
 def interval(name: str, table: Mapping) -> tuple[float, float]:

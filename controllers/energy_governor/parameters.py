@@ -28,7 +28,7 @@ import inspect
 from dataclasses import dataclass, field, fields
 
 from controllers.bounds import Bound
-from controllers.energy_governor.box import read_box
+from controllers.energy_governor.box import STANDARD_BOX, read_box
 from controllers.filter_parameters import FilterParameter
 from controllers.gain_estimate import GAIN_CONTACT
 from controllers.quasi_static_governor import PARAMETERS as QSG_PARAMETERS
@@ -246,3 +246,7 @@ RECOMMENDED = {"gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1, "gain_estimate": True
 """c-erg's recommended setting for contact tasks (README; `ContactEnergyGovernor`'s first docstring line names it,
 `softcbf list` marks it): the actuator gain interval [0.9, 1.1] narrowed online by samples at rest for 0.2 s,
 trusted to Δ = 1.5e-3 rad, and ε = 2e-6 J (docs/results.md#the-recommended-filter-over-the-full-battery)."""
+
+STANDARD_BOX_SETTING = {**RECOMMENDED, **STANDARD_BOX}
+"""The recommended setting certified over the standard error box's physical errors (`box.STANDARD_BOX`): the preset
+`c-erg:standard-box` (docs/beyond-the-paper.md: what it holds and what it delivers)."""
