@@ -19,7 +19,7 @@ latency, pixel noise and dropped frames) is passed over; any other name is refus
 not cover, e.g. facet_angle, must not be read as certified). Reading the file (`read_box`) uses tomllib; nothing
 here imports MuJoCo or the scenarios.
 
-`STANDARD_BOX` is the standard box's physical errors (SPEC §17; studies/mismatch_box_contact.toml, whose reading
+`STANDARD_BOX` is the standard box's physical errors (docs/studies.md; studies/mismatch_box_contact.toml, whose reading
 tests/test_certificate_box.py checks against it) as c-erg's intervals, stated here as numbers so that the preset
 `c-erg:standard-box` (`parameters.STANDARD_BOX_SETTING`: the recommended setting over this box) needs no file at run time.
 """
