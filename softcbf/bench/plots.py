@@ -101,7 +101,8 @@ def _draw_filter(ax, rows: Sequence[Mapping[str, Any]], label: str, colour: str)
 
 
 def _force_axes(ax, asked: Sequence[float], plant: str) -> None:
-    """The reference lines, the log x axis with a tick per asked level, the limits and the panel's title."""
+    """The reference lines, the log x axis with a tick per asked level of the plant's constant pushes (`PUSHES`, so
+    that both panels show every level whatever ran), the limits and the panel's title."""
     lo, hi = min(asked) / 1.3, max(asked) * 1.3
     x = np.geomspace(lo, hi, 200)
     ax.plot(x, np.minimum(x, 1.0), "k--", lw=0.8)
@@ -124,13 +125,13 @@ def write_force_plot(path: Path, bench: Mapping[str, Any], dpi: float = DPI) -> 
         fig = new_figure((TEXT_WIDTH_IN, 2.8), dpi)
         axes = fig.subplots(1, len(PUSHES), sharey=True, squeeze=False)[0]
         for ax, plant in zip(axes, PUSHES):
-            asked = []
+            f_max = [r["f_max_N"] for name in filters for r in push_rows(bench, name, plant)]
             for name, label, colour in zip(filters, shown, distinct_colors(filters)):
                 rows = push_rows(bench, name, plant)
                 if rows:
                     _draw_filter(ax, rows, label, colour)
-                    asked += [r["force_asked_N"] / r["f_max_N"] for r in rows if "_push_" in r["case"]]
-            _force_axes(ax, asked or [0.3, 1.2], plant)
+            asked = [force / f_max[0] for suffix, (_, force) in PUSHES[plant].items() if suffix.startswith("push_")]
+            _force_axes(ax, asked if f_max else [0.3, 1.2], plant)
         axes[0].set_ylabel("delivered / F_max [1]")
         for text, colour, style, marker in MARKS:
             axes[0].add_line(Line2D([], [], color=colour, ls=style or "none", marker=marker or None, lw=0.8,
