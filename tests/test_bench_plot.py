@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from matplotlib.figure import Figure
 
-from softcbf.bench import PLOTTED, write_plot
+from softcbf.bench.plots import PLOTTED, write_plot
 
 
 def bench_of(filters: list[str]) -> dict:

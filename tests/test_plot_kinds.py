@@ -20,7 +20,8 @@ from matplotlib.figure import Figure
 import softcbf.bench.plots as bench_plots
 import softcbf.study.report as study_report
 from controllers.registry import label as run_label
-from softcbf.bench import CASES, PLOTTED, RECOMMENDED_FILTER, case_filter_params, write_force_plot, write_plot
+from softcbf.bench import CASES, RECOMMENDED_FILTER, case_filter_params
+from softcbf.bench.plots import PLOTTED, write_force_plot, write_plot
 from softcbf_mj.palette import LABEL_LIMIT
 
 CASE = {c.name: c for c in CASES}

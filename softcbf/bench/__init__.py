@@ -13,12 +13,13 @@ Its rooms, each module's docstring the reference for its part:
 | certified   | which coordinates of the worst-case search's box lie beyond what a filter certifies           |
 | schema      | bench.json's fields and their check                                                            |
 | tables      | bench.md and the words of the printed lines                                                    |
-| plots       | plots/bench.png and plots/force_budget.png                                                     |
+| plots       | plots/bench.png and plots/force_budget.png (import softcbf.bench.plots)                        |
 | folder      | the bench folder: taken, locked, resumed, written                                              |
 | runner      | `run_bench`: the cases, then each filter's worst case found, with progress                     |
 | cli         | the command line                                                                               |
 
-This package re-exports the names that tools, tests and docs use (`__all__`).
+This package re-exports the names that tools, tests and docs use (`__all__`); the plots (matplotlib) load with
+the first figure written, so that the bench's first progress line comes early.
 """
 
 from softcbf.bench.cases import (CASES, CERG_PARAMS, EERG_PARAMS, EMULATOR_CONFIG, FORCE_TARGET_RATIO, PAPER_TUNINGS,
@@ -31,15 +32,14 @@ from softcbf.bench.figures import (ACCEPT_TOL_HPA, nominal_acceptance, pooled_fi
                                    steady_force_of_folder, study_figures)
 from softcbf.bench.filters import DEFAULT_FILTERS, RECOMMENDED_FILTER, FilterSpec, parse_filters
 from softcbf.bench.folder import BENCH_FILE, TABLE_FILE, is_bench_folder, prepare_bench_dir, stored_results, write_outputs
-from softcbf.bench.plots import FORCE_PLOT_FILE, PLOT_FILE, PLOTTED, write_force_plot, write_plot
 from softcbf.bench.runner import WORST_DIR, planned_cases, run_bench, worst_case_searches
 from softcbf.bench.schema import (CALL_KEYS, RESULT_KEYS, ROW_SCHEMA, VERDICT_KEYS, WORST_KEYS, WORST_SCHEMA,
                                   check_bench_json)
-from softcbf.bench.tables import WIDER_BOX, fault_text, table_markdown, worst_case_text, worst_found_markdown
+from softcbf.bench.tables import FORCE_PLOT_FILE, PLOT_FILE, WIDER_BOX, fault_text, table_markdown, worst_case_text, worst_found_markdown
 
 __all__ = [
     "ACCEPT_TOL_HPA", "BENCH_FILE", "CALL_KEYS", "CASES", "CERG_PARAMS", "DEFAULT_FILTERS", "EERG_PARAMS",
-    "EMULATOR_CONFIG", "FORCE_PLOT_FILE", "FORCE_TARGET_RATIO", "HELP", "PAPER_TUNINGS", "PLOT_FILE", "PLOTTED",
+    "EMULATOR_CONFIG", "FORCE_PLOT_FILE", "FORCE_TARGET_RATIO", "HELP", "PAPER_TUNINGS", "PLOT_FILE",
     "PUSH_DURATION_S", "PUSH_PLANTS", "PUSH_PREFIX", "PUSH_RATIOS", "PUSHES", "QUICK_DURATION_S",
     "QUICK_PUSH_DURATION_S", "RECOMMENDED_FILTER", "RESULT_KEYS", "ROW_SCHEMA", "TABLE_FILE", "THREE_SEGMENT_CASES",
     "VERDICT_KEYS", "WIDER_BOX", "WORST_DIR", "WORST_KEYS", "WORST_SCHEMA", "Case", "FilterSpec", "RunOptions",
@@ -47,5 +47,5 @@ __all__ = [
     "is_bench_folder", "mismatch_study", "nominal_acceptance", "parse_filters", "planned_cases", "plant_parameters",
     "pooled_figures", "prepare_bench_dir", "push_cases", "run_bench", "run_command", "skip_key", "steady_force",
     "steady_force_of_folder", "stored_results", "study_figures", "table_markdown", "worst_case_searches",
-    "worst_case_text", "worst_found_markdown", "write_force_plot", "write_outputs", "write_plot",
+    "worst_case_text", "worst_found_markdown", "write_outputs",
 ]

@@ -64,7 +64,6 @@ from scenarios.run import FILTER_FAULT
 from softcbf.bench.figures import f_max_of, pooled_figures, run_figures, steady_force_of_folder, study_figures
 from softcbf.bench.filters import FilterSpec
 from softcbf.study.definition import Distribution, Study
-from softcbf.study.execute import run_study
 from softcbf.study.store import faulted
 from softcbf_mj.runio import read_run_folder, safe_name
 from vocabulary.project_files import project_file
@@ -208,6 +207,7 @@ def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float) ->
 
 def mismatch_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
     """The camera_mismatch case: its study run (continued with --resume) and pooled over its samples."""
+    from softcbf.study.execute import run_study  # the study engine (pandas, its report's matplotlib): only here
     study = mismatch_study(spec, case, options.draws, QUICK_DURATION_S if options.quick else MISMATCH_DURATION_S)
     run_study(study, out, workers=options.workers, keep_runs=True, progress=not options.quick,
               resume=options.resume and out.exists())

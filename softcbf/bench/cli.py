@@ -19,9 +19,8 @@ from scenarios.run import INTERRUPTED
 from softcbf.bench.cases import CASES, MISMATCH_DRAWS, RunOptions
 from softcbf.bench.filters import BASELINES, DEFAULT_FILTERS, parse_filters
 from softcbf.bench.folder import BENCH_FILE, TABLE_FILE, is_bench_folder
-from softcbf.bench.plots import PLOT_FILE
+from softcbf.bench.tables import PLOT_FILE
 from softcbf.bench.runner import run_bench
-from softcbf.study.worst_found import BUDGET, QUICK_BUDGET
 
 HELP = "run safety filters over the fixed benchmark battery: softcbf bench --out DIR [--filters SPEC,...] [--quick]"
 
@@ -40,8 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local processes of the mismatch study and the worst-case searches (default 1)")
     parser.add_argument("--falsify-budget", type=int, default=None, metavar="N",
                         help="evaluations of each filter's worst-case search over studies/mismatch_box_contact.toml "
-                             f"(bench.json's worst_found; default {BUDGET} for the whole battery, {QUICK_BUDGET} with "
-                             "--quick, 0 with --cases; 0: none)")
+                             "(bench.json's worst_found; default 36 for the whole battery, 4 with --quick, 0 with "
+                             "--cases; 0: none: softcbf.study.worst_found's BUDGET and QUICK_BUDGET)")
     parser.add_argument("--resume", action="store_true",
                         help="continue a bench in --out: keep its finished (filter, case) rows, continue its mismatch studies")
     parser.add_argument("--overwrite", action="store_true",

@@ -26,9 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from softcbf.bench.cases import RunOptions
-from softcbf.bench.plots import FORCE_PLOT_FILE, PLOT_FILE, write_force_plot, write_plot
 from softcbf.bench.schema import RESULT_KEYS, WORST_KEYS, check_bench_json
-from softcbf.bench.tables import table_markdown
+from softcbf.bench.tables import FORCE_PLOT_FILE, PLOT_FILE, table_markdown
 from softcbf_mj.runio import RUN_MARKER, OutputDirError, prepare_out_dir, release_out_dir, remove_if_unused
 
 BENCH_FILE, TABLE_FILE = "bench.json", "bench.md"
@@ -111,6 +110,7 @@ def stored_results(out: Path, bench: Mapping[str, Any]
 
 def write_outputs(out: Path, bench: Mapping[str, Any]) -> None:
     """DIR/bench.json, DIR/bench.md and DIR/plots/bench.png (and force_budget.png with contact tasks) from `bench`."""
+    from softcbf.bench.plots import write_force_plot, write_plot  # matplotlib (~0.5 s): after the bench's first line
     out.mkdir(parents=True, exist_ok=True)
     (out / BENCH_FILE).write_text(json.dumps(bench, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     (out / TABLE_FILE).write_text(table_markdown(bench), encoding="utf-8")

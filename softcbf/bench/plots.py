@@ -35,7 +35,6 @@ from softcbf.bench.cases import PUSH_PREFIX, PUSHES
 from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels
 from softcbf_mj.plot_style import GRID_ALPHA, TEXT_WIDTH_IN, distinct_colors, legend_outside, new_figure, save_figure, styled
 
-PLOT_FILE, FORCE_PLOT_FILE = "plots/bench.png", "plots/force_budget.png"
 DPI = 200
 PLOTTED = (("rho_min_meas", "ρ_meas min [1]"), ("force_max_N", "F max [N]"), ("u_dev_rms_hPa", "|u − u_nom| RMS [hPa]"),
            ("filter_us_p99", "filter p99 [µs]"))

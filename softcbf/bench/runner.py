@@ -40,7 +40,6 @@ from softcbf.bench.filters import FilterSpec
 from softcbf.bench.folder import BENCH_FILE, discard, prepare_bench_dir, stored_results, write_outputs
 from softcbf.bench.schema import RESULT_KEYS, WORST_KEYS
 from softcbf.bench.tables import fault_text, worst_case_text
-from softcbf.study import worst_found
 from softcbf.study.store import FALSIFY_FILE
 from softcbf_mj.palette import plot_labels
 from softcbf_mj.progress import Progress, duration_text
@@ -176,6 +175,7 @@ def worst_case_searches(filters: Sequence[FilterSpec], options: RunOptions, whol
     """bench.json's "falsify" and {filter label: (its box study, the box's coordinates beyond what it certifies)} of
     the worst-case searches (module docstring), each filter with its parameters of the mujoco_contact case (checked
     here, before the bench starts); None when the budget is 0 (the default with --cases)."""
+    from softcbf.study import worst_found  # optuna and SQLAlchemy (~1 s): after the bench's first line, only to search
     budget = options.falsify_budget
     if budget is None:
         budget = 0 if not whole_battery else worst_found.QUICK_BUDGET if options.quick else worst_found.BUDGET
@@ -194,6 +194,8 @@ def worst_case_searches(filters: Sequence[FilterSpec], options: RunOptions, whol
 def run_worst_found(out: Path, bench: dict[str, Any], studies: Mapping[str, tuple[Any, list[str]]],
                     done: Mapping[str, dict[str, Any]], options: RunOptions, bar: Progress, k: int) -> None:
     """Run each filter's worst-case search (`worst_case_searches`) not kept by --resume into `bench`; a line each."""
+    from softcbf.study import worst_found  # optuna and SQLAlchemy: only where a search runs
+
     budget = bench["falsify"]["budget"]
     shown = dict(zip(studies, plot_labels(list(studies))))
     for label, (study, beyond) in studies.items():
