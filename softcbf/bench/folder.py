@@ -110,11 +110,12 @@ def stored_results(out: Path, bench: Mapping[str, Any]
 
 def write_outputs(out: Path, bench: Mapping[str, Any]) -> None:
     """DIR/bench.json, DIR/bench.md and DIR/plots/bench.png (and force_budget.png with contact tasks) from `bench`."""
-    from softcbf.bench.plots import write_force_plot, write_plot  # matplotlib (~0.5 s): after the bench's first line
     out.mkdir(parents=True, exist_ok=True)
     (out / BENCH_FILE).write_text(json.dumps(bench, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     (out / TABLE_FILE).write_text(table_markdown(bench), encoding="utf-8")
     if bench["results"]:
+        from softcbf.bench.plots import write_force_plot, write_plot  # matplotlib (~0.5 s): from the first row on
+
         write_plot(out / PLOT_FILE, bench)
     if any(r["force_delivered_N"] is not None for r in bench["results"]):
         write_force_plot(out / FORCE_PLOT_FILE, bench)
