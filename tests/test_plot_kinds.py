@@ -119,6 +119,14 @@ def test_the_force_plot_ticks_every_asked_level_and_explains_its_marks(monkeypat
     assert {"min(asked, F_max)", "goal", "force-target nominal"} <= set(texts)
 
 
+def test_a_bench_with_the_contact_tasks_of_one_plant_draws_both_panels(checked, tmp_path):
+    """`--cases mujoco_push_060`: the camera panel has no rows; it is drawn empty over the usual range."""
+    bench = full_bench()
+    bench["results"] = [r for r in bench["results"] if r["case"] == "mujoco_push_060"]
+    write_force_plot(tmp_path / "force_budget.png", bench)
+    assert len(checked) == 1
+
+
 def study_rows(tunings: list[str]) -> list[dict]:
     rng = np.random.default_rng(1)
     rows = []

@@ -124,13 +124,15 @@ def write_force_plot(path: Path, bench: Mapping[str, Any], dpi: float = DPI) -> 
         fig = new_figure((TEXT_WIDTH_IN, 2.8), dpi)
         axes = fig.subplots(1, len(PUSHES), sharey=True, squeeze=False)[0]
         for ax, plant in zip(axes, PUSHES):
-            f_max = [r["f_max_N"] for name in filters for r in push_rows(bench, name, plant)]
+            limit = None
             for name, label, colour in zip(filters, shown, distinct_colors(filters)):
                 rows = push_rows(bench, name, plant)
                 if rows:
                     _draw_filter(ax, rows, label, colour)
-            asked = [force / f_max[0] for suffix, (_, force) in PUSHES[plant].items() if suffix.startswith("push_")]
-            _force_axes(ax, asked if f_max else [0.3, 1.2], plant)
+                    limit = rows[0]["f_max_N"]
+            asked = [force / limit for suffix, (_, force) in PUSHES[plant].items() if suffix.startswith("push_")] \
+                if limit else [0.3, 1.2]  # a plant without rows: an empty panel over the usual range
+            _force_axes(ax, asked, plant)
         axes[0].set_ylabel("delivered / F_max [1]")
         for text, colour, style, marker in MARKS:
             axes[0].add_line(Line2D([], [], color=colour, ls=style or "none", marker=marker or None, lw=0.8,
