@@ -1,4 +1,4 @@
-"""softcbf.bench.write_plot: the legend sits outside the data, and every panel's quantity axis carries its unit."""
+"""softcbf.bench.plots.write_plot: the legend sits outside the data, and every panel's quantity axis carries its unit."""
 
 from __future__ import annotations
 
