@@ -182,6 +182,23 @@ def sensitivity_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], 
         save_figure(fig, path, figure_format, dpi)
 
 
+def sensitivity_markdown(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], parameters: Sequence[str],
+                         bins: int, level: float, ext: str) -> list[str]:
+    """report.md's section on where each tuning's binned violation probability reaches `level`, per parameter."""
+    lines = [f"## Sensitivity: where P(violation) reaches {100 * level:g} %", "",
+             f"Binned ({bins} equal-width bins, or one per distinct value) and marginalised over the other "
+             "varied parameters; the value interpolates between bin centres from the safer end. "
+             "'above': already at the safer end; 'below': never within the range.", "",
+             "| parameter | " + " | ".join(tunings) + " |", "|---|" + "---|" * len(tunings)]
+    for parameter in parameters:
+        cells = []
+        for tuning in tunings:
+            c = crossing(sensitivity(rows, parameter, tuning, bins), level)
+            cells.append(f"{c['value']:.4g} ({c['status']})" if c["value"] is not None else c["status"])
+        lines.append(f"| {parameter} | " + " | ".join(cells) + " |")
+    return lines + [""] + [f"![{p}](plots/violation_{p}.{ext})" for p in parameters] + [""]
+
+
 def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_format: str = "png",
                  dpi: float = DPI) -> Path:
     """Write DIR/report.md, DIR/plots/*.<figure_format> and DIR/results.parquet; return the report's path."""
@@ -244,18 +261,7 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
               "", f"![rho](plots/rho_min_meas.{ext}) ![force](plots/force_max_N.{ext})", "",
               "All rows: `pandas.read_parquet(\"results.parquet\")` (one row per sample; columns: softcbf.study.store).", ""]
     if parameters:
-        lines += [f"## Sensitivity: where P(violation) reaches {100 * level:g} %", "",
-                  f"Binned ({bins} equal-width bins, or one per distinct value) and marginalised over the other "
-                  "varied parameters; the value interpolates between bin centres from the safer end. "
-                  "'above': already at the safer end; 'below': never within the range.", "",
-                  "| parameter | " + " | ".join(tunings) + " |", "|---|" + "---|" * len(tunings)]
-        for parameter in parameters:
-            cells = []
-            for tuning in tunings:
-                c = crossing(sensitivity(rows, parameter, tuning, bins), level)
-                cells.append(f"{c['value']:.4g} ({c['status']})" if c["value"] is not None else c["status"])
-            lines.append(f"| {parameter} | " + " | ".join(cells) + " |")
-        lines += [""] + [f"![{p}](plots/violation_{p}.{ext})" for p in parameters] + [""]
+        lines += sensitivity_markdown(rows, tunings, parameters, bins, level, ext)
     errors = [r for r in rows if not clean(r)]
     if errors:
         faults = sum(1 for r in errors if faulted(r))
