@@ -18,8 +18,8 @@ folder alone (summary.json with its "scene", config.json, the time series).
 |                      |                          | left the whole run, right a ZOOM_WINDOW_S zoom, each step  |
 | report.md            |                          | the summary table, the plots, parameters, scene, versions  |
 
-Sizes are a journal's (IEEE's two-column layout): COLUMN_WIDTH_IN = 3.5 in for rho and
-force, TEXT_WIDTH_IN = 7.16 in for the others, so that they are placed at 100 % and their
+Sizes are a journal's (IEEE's two-column layout, softcbf_mj.plot_style): COLUMN_WIDTH_IN = 3.5 in for rho
+and force, TEXT_WIDTH_IN = 7.16 in for the others, so that they are placed at 100 % and their
 text (STYLE: 8 pt, ticks and legends 7 pt) reads as the paper's own.
 
 `figure_format` is one of FIGURE_FORMATS (png, svg, pdf); `dpi` sets the raster
@@ -47,11 +47,10 @@ LABEL_LIMIT characters, a longer one shortened with "…" and kept distinct: a f
 every parameter, "c-erg(gain_lo_ratio=0.9,…)", never runs over the axes); report.md lists each
 shortened label beside the full one. Colours: softcbf_mj.palette (Okabe–Ito), shared with the recording.
 
-Plots use matplotlib's Agg canvas directly (`matplotlib.figure.Figure`, no pyplot, no
-global backend change), fixed sizes (`FIGURE_SIZES_IN`, inches), the STYLE rc parameters
-(matplotlib.rc_context, nothing global) and the constrained layout, which warns where it cannot
-fit the axes: tests/test_report_figures.py renders every plot kind with the longest labels the
-project writes with warnings as errors. `plot_force` is public: `softcbf demo` draws its figure with it.
+Plots follow softcbf_mj.plot_style (the project's one figure style: matplotlib's Agg canvas, no pyplot, the
+STYLE rc parameters, the constrained layout, legends outside the axes), at fixed sizes (`FIGURE_SIZES_IN`,
+inches): tests/test_report_figures.py renders every plot kind with the longest labels the project writes
+with warnings as errors. `plot_force` is public: `softcbf demo` draws its figure with it.
 
 The drawing helpers here (`scene_box`, `boundary_segments`, `arm_polyline`,
 `predicted_force`, `plate_displacement`) are shared with softcbf_mj.recording, so the
@@ -65,19 +64,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import matplotlib
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from controllers.safe_set import StiffnessLaw
 from softcbf_mj.metrics import format_table
 from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels, run_color
+from softcbf_mj.plot_style import (COLUMN_WIDTH_IN, FIGURE_FORMATS, GRID_ALPHA, STYLE, TEXT_WIDTH_IN, legend_outside,
+                                  new_figure, save_figure, styled)
 from softcbf_mj.runio import RunFolder, RunFolderError, atomic_path, read_run_folder, stiffness_from_json
 
 DPI = 200
-FIGURE_FORMATS = ("png", "svg", "pdf")
-COLUMN_WIDTH_IN, TEXT_WIDTH_IN = 3.5, 7.16  # IEEE two-column: one column, the full text width
 FIGURE_SIZES_IN: dict[str, tuple[float, float]] = {
     "overview": (TEXT_WIDTH_IN, 7.5),
     "rho": (COLUMN_WIDTH_IN, 3.4),
@@ -85,9 +82,6 @@ FIGURE_SIZES_IN: dict[str, tuple[float, float]] = {
     "force": (COLUMN_WIDTH_IN, 4.2),
     "pressure": (TEXT_WIDTH_IN, 4.0),
 }
-STYLE = {"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
-         "legend.fontsize": 7, "lines.linewidth": 1.0, "figure.constrained_layout.h_pad": 0.03,
-         "figure.constrained_layout.w_pad": 0.03}
 PLOTS_DIR = "plots"
 REPORT_FILE = "report.md"
 BOX_MARGIN_M = 0.03  # margin (m) around everything the arm reached, for drawing the lines of N and P
@@ -248,31 +242,12 @@ def _draw(ax, t: np.ndarray, y: np.ndarray, color: str, label: str | None, **lin
 
 
 def _figure(name: str, dpi: float) -> Figure:
-    fig = Figure(figsize=FIGURE_SIZES_IN[name], dpi=dpi, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _legend_outside(fig: Figure, axes, loc: str = "outside right upper", ncols: int = 1) -> None:
-    """One legend for the figure outside the axes (`loc`: matplotlib's "outside …"), each label once."""
-    entries: dict[str, object] = {}
-    for ax in axes:
-        for handle, label in zip(*ax.get_legend_handles_labels()):
-            entries.setdefault(label, handle)
-    fig.legend(list(entries.values()), list(entries), loc=loc, ncols=ncols)
+    return new_figure(FIGURE_SIZES_IN[name], dpi)
 
 
 def _legend_below(fig: Figure, axes) -> None:
     """The legend of a one-column figure: below the axes, two columns."""
-    _legend_outside(fig, axes, loc="outside lower center", ncols=2)
-
-
-def save_figure(fig: Figure, path: Path, figure_format: str, dpi: float) -> None:
-    """Write `fig` to `path` atomically (temp file + rename) as `figure_format` (FIGURE_FORMATS)
-    at `dpi`, without a creation date in svg/pdf (a rebuild gives the same bytes)."""
-    metadata = {"svg": {"Date": None}, "pdf": {"CreationDate": None}}.get(figure_format)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format=figure_format, metadata=metadata)
+    legend_outside(fig, axes, loc="outside lower center", ncols=2)
 
 
 def _plot_overview(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: str, dpi: float) -> None:
@@ -293,10 +268,10 @@ def _plot_overview(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Pa
                   "u_nom" if same_nominal else f"{label} u_nom", lw=1.0, ls="--")
     for ax, ylabel in zip(axes, ["r_x [m]", "r_y [m]", "F [N]", *[f"u{j + 1} [hPa]" for j in range(n)]]):
         ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3)
+        ax.grid(alpha=GRID_ALPHA)
     axes[-1].set_xlabel("t [s]")
     axes[0].set_title("tip, measured force, command; shaded: the samples' min–max band")
-    _legend_outside(fig, axes)
+    legend_outside(fig, axes)
     save_figure(fig, path, figure_format, dpi)
 
 
@@ -308,7 +283,7 @@ def _plot_rho(runs: Sequence[tuple[str, str, dict]], path: Path, figure_format: 
         _draw(ax, s["t"], s["rho_pred"], color, f"{label} predicted", lw=1.0, ls="--")
     ax.axhline(0.0, color=LIMIT_COLOR, lw=1.0, ls="--", label="ρ = 0 (F = F_max)")
     ax.set(xlabel="t [s]", ylabel="safety margin ρ [-]", title="ρ: measured (solid), predicted (dashed)")
-    ax.grid(alpha=0.3)
+    ax.grid(alpha=GRID_ALPHA)
     _legend_below(fig, [ax])
     save_figure(fig, path, figure_format, dpi)
 
@@ -334,8 +309,8 @@ def _plot_tip_path(scene: Scene, runs: Sequence[tuple[str, str, dict]], path: Pa
         ax.plot(*arm_polyline(s["q"][k], scene.lengths, s["segment_ends"][k, 0]).T, color=color, lw=2, alpha=0.6,
                 label=f"{label} arm at min ρ_meas (t = {s['t'][k]:.1f} s)")
     ax.set(xlim=box[:2], ylim=box[2:], xlabel="x [m]", ylabel="y [m]", title="tip path with N and P", aspect="equal")
-    ax.grid(alpha=0.3)
-    _legend_outside(fig, [ax], loc="outside lower center", ncols=2)
+    ax.grid(alpha=GRID_ALPHA)
+    legend_outside(fig, [ax], loc="outside lower center", ncols=2)
     save_figure(fig, path, figure_format, dpi)
 
 
@@ -343,7 +318,7 @@ def plot_force(scene: Scene, runs: Sequence[tuple[str, str, Mapping[str, np.ndar
                figure_format: str = "png", dpi: float = DPI) -> None:
     """plots/force: one panel per run (label, colour, time series) with its measured contact force (solid), the
     force its controller predicts (dashed) and F_max, sharing the time axis; written to `path` (`save_figure`)."""
-    with matplotlib.rc_context(STYLE):
+    with styled():
         fig = _figure("force", dpi)
         axes = fig.subplots(len(runs), 1, sharex=True, sharey=True, squeeze=False)[:, 0]
         for ax, (label, color, s) in zip(axes, runs):
@@ -351,7 +326,7 @@ def plot_force(scene: Scene, runs: Sequence[tuple[str, str, Mapping[str, np.ndar
             _draw(ax, s["t"], predicted_force(scene, s["rho_pred"]), NEUTRAL_COLOR, "predicted", lw=1.0, ls="--")
             ax.axhline(scene.f_max, color=LIMIT_COLOR, lw=1.0, ls=":", label=f"F_max = {scene.f_max:g} N")
             ax.set(ylabel="F [N]", title=label)
-            ax.grid(alpha=0.3)
+            ax.grid(alpha=GRID_ALPHA)
         axes[-1].set_xlabel("t [s]")
         fig.suptitle("contact force, most loaded facet", fontsize=STYLE["axes.titlesize"])
         _legend_below(fig, axes)
@@ -399,12 +374,12 @@ def _plot_pressure(runs: Sequence[tuple[str, str, dict]], path: Path, figure_for
         full.set(ylabel=f"u{j + 1} [hPa]")
         zoom.set(ylabel=f"u{j + 1} [hPa]")
         for ax in (full, zoom):
-            ax.grid(alpha=0.3)
+            ax.grid(alpha=GRID_ALPHA)
     axes[0, 0].set_title("u vs u_nom; shaded: the samples' min–max band; grey: zoom")
     axes[0, 1].set_title(f"zoom {t0:.3f}–{t1:.3f} s")
     axes[-1, 0].set_xlabel("t [s]")
     axes[-1, 1].set_xlabel("t [s]")
-    _legend_outside(fig, axes.ravel())
+    legend_outside(fig, axes.ravel())
     save_figure(fig, path, figure_format, dpi)
 
 
@@ -470,7 +445,7 @@ def write_report(run_dir: str | Path, figure_format: str = "png", dpi: float = D
     plots_dir = folder.path / PLOTS_DIR
     plots_dir.mkdir(exist_ok=True)
     plots = {name: plots_dir / f"{name}.{figure_format}" for name in FIGURE_SIZES_IN}
-    with matplotlib.rc_context(STYLE):
+    with styled():
         _plot_overview(scene, runs, plots["overview"], figure_format, dpi)
         _plot_rho(runs, plots["rho"], figure_format, dpi)
         _plot_tip_path(scene, runs, plots["tip_path"], figure_format, dpi)

@@ -11,9 +11,10 @@ import pytest
 from controllers.nominal import step
 from controllers.registry import NOMINALS
 from scenarios import get
-import softcbf.bench
-from softcbf.bench import (CASES, EERG_PARAMS, PLOT_FILE, RESULT_KEYS, ROW_SCHEMA, Case, FilterSpec, RunOptions,
-                           case_filter_params, check_bench_json, parse_filters, pooled_figures, run_bench)
+import softcbf.bench.runner
+from softcbf.bench import (ACCEPT_TOL_HPA, CASES, DEFAULT_FILTERS, EERG_PARAMS, PLOT_FILE, RESULT_KEYS, ROW_SCHEMA, Case,
+                           FilterSpec, RunOptions, case_filter_params, check_bench_json, nominal_acceptance, parse_filters,
+                           pooled_figures, run_bench)
 from softcbf.cli import main
 from softcbf.study.analysis import wilson_interval
 from softcbf_mj.runio import RUN_MARKER
@@ -70,6 +71,43 @@ def test_pooled_figures_of_two_runs_by_hand():
     assert fig["violation_ci95"] == list(wilson_interval(1, 2))
     single = pooled_figures([a], 0.16)
     assert single["violation_probability"] is None and single["violation_ci95"] is None and single["draws"] is None
+
+
+def test_nominal_acceptance_is_the_share_of_calls_that_returned_u_nom():
+    """Run A returns u_nom at its first call only, run B never (u − u_nom = ±1 hPa); 1 of 5 calls pooled. The tolerance
+    is ACCEPT_TOL_HPA in every segment; a run without calls gives None."""
+    a = ({"rho_min_meas": 0.2, "t_violation_s": 0.0, "force_max_N": 0.1}, _calls([10.0, 8.0], [10.0, 5.0], [10.0, 30.0]))
+    b = ({"rho_min_meas": 0.1, "t_violation_s": 0.0, "force_max_N": 0.2}, _calls([1.0, -1.0, 1.0], [0.0, 0.0, 0.0], [2.0] * 3))
+    assert pooled_figures([a, b], 0.16)["nominal_acceptance"] == pytest.approx(1 / 5)
+    assert pooled_figures([a], 0.16)["nominal_acceptance"] == 0.5
+    near = ({"rho_min_meas": 0.2, "t_violation_s": 0.0, "force_max_N": 0.1},
+            _calls([10.0 + 0.5 * ACCEPT_TOL_HPA, 5.0 + 2 * ACCEPT_TOL_HPA], [10.0, 5.0], [1.0, 1.0]))
+    assert pooled_figures([near], 0.16)["nominal_acceptance"] == 0.5
+    two = {"t": np.array([0.0, 0.1]), "u": np.array([[1.0, 2.0], [1.0, 3.0]]), "u_nom": np.array([[1.0, 2.0], [1.0, 2.0]]),
+           "filter_us": np.ones(2)}
+    assert nominal_acceptance([({}, two)]) == 0.5  # one segment changed: not accepted
+    empty = {k: v[:0] for k, v in two.items()}
+    assert nominal_acceptance([({}, empty)]) is None
+
+
+def test_bench_runs_the_recommended_filter_beside_the_baselines_and_quick_pushes_last_3_s():
+    """Was: `softcbf bench` without --filters ran e-erg and paper-cbf only, and --quick pushed for 1 s."""
+    from controllers.energy_governor import RECOMMENDED
+    from controllers.registry import FILTERS, arguments
+
+    specs = parse_filters(DEFAULT_FILTERS)
+    assert [s.name for s in specs] == ["c-erg", "e-erg", "paper-cbf"]
+    assert arguments(FILTERS["c-erg"], specs[0].params) == RECOMMENDED
+    import argparse
+
+    from softcbf.bench import add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert parser.parse_args(["--out", "x"]).filters == DEFAULT_FILTERS
+    pushes = [c for c in CASES if c.asked_N is not None]
+    assert len(pushes) == 12 and all(c.quick_duration_s() >= 3.0 for c in pushes)
+    assert all(c.quick_duration_s() == 1.0 for c in CASES if c.asked_N is None)
 
 
 def test_step_nominal_is_seeded_constant_and_in_range():
@@ -130,6 +168,7 @@ def test_quick_bench_writes_the_contract(tmp_path):
     # Without a filter u = u_nom: no deviation, nothing blocked, no switch.
     assert by["none", "step"]["u_dev_rms_hPa"] == 0.0 and by["none", "step"]["blocked_s"] == 0.0
     assert by["none", "step"]["switches_per_s"] == 0.0
+    assert by["none", "step"]["nominal_acceptance"] == 1.0 and by["paper-cbf", "step"]["nominal_acceptance"] < 1.0
     # Steps of 60…300 hPa from rest: the unfiltered arm violates in every start within 0.5 s.
     assert by["none", "step"]["violation_probability"] == 1.0 and by["none", "step"]["rho_min_meas"] < 0
     table = (out / "bench.md").read_text()
@@ -176,7 +215,8 @@ def _bench_json(**row) -> dict:
     """A bench.json as a quick `softcbf bench --filters none --cases paper_sim_150` writes it, its row updated with `row`."""
     stored = {"filter": "none", "case": "paper_sim_150", "rho_min_meas": 1.0, "t_violation_s": 0.0, "force_max_N": 0.0,
               "violation_probability": None, "violation_ci95": None, "draws": None, "u_dev_rms_hPa": 0.0,
-              "blocked_s": 0.0, "switches_per_s": 0.0, "filter_us_median": 12.0, "filter_us_p99": 30.0, "wall_s": 3.0,
+              "blocked_s": 0.0, "switches_per_s": 0.0, "filter_us_median": 12.0, "filter_us_p99": 30.0,
+              "nominal_acceptance": 1.0, "wall_s": 3.0,
               "force_asked_N": None, "force_delivered_N": None, "force_delivered_ratio": None, "force_budget_used": 0.0,
               "f_max_N": 0.16, "faulted": 0, "fault": None}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
@@ -238,6 +278,8 @@ GARBAGE = [  # N7: --resume kept rows of any value (a string ρ, NaN, a negative
     (lambda b: b.update(mismatch_draws=2.0), "mismatch_draws must be an integer >= 1, got 2.0"),
     (lambda b: b.update(filters="none"), "filters must be a list of names"),
     (lambda b: b.pop("skipped"), "it lacks skipped"),
+    (lambda b: b["results"][0].update(nominal_acceptance=1.5), "results[0].nominal_acceptance must be in [0, 1], got 1.5"),
+    (lambda b: b["results"][0].update(nominal_acceptance=None), "results[0].nominal_acceptance must be a number"),
 ]
 
 
@@ -318,7 +360,7 @@ def _refuse_to_run(case, spec, folder, options):
 @pytest.mark.parametrize("cases", ["", ",", "paper_sim_150,,step"])
 def test_an_empty_case_list_is_a_usage_error_not_the_whole_battery(tmp_path, capsys, monkeypatch, cases):
     """N7: `--cases ""` ran the whole battery."""
-    monkeypatch.setattr(softcbf.bench, "CASES", tuple(Case(c.name, c.rate, _refuse_to_run) for c in CASES))
+    monkeypatch.setattr(softcbf.bench.runner, "CASES", tuple(Case(c.name, c.rate, _refuse_to_run) for c in CASES))
     assert main(["bench", "--out", str(tmp_path / "b"), "--quick", "--filters", "none", "--cases", cases]) == 2
     assert "--cases must name at least one case" in capsys.readouterr().err
     with pytest.raises(ValueError, match="--cases must name at least one case"):
@@ -327,7 +369,7 @@ def test_an_empty_case_list_is_a_usage_error_not_the_whole_battery(tmp_path, cap
 
 
 def test_a_fresh_bench_that_fails_before_its_first_row_leaves_nothing(tmp_path, monkeypatch):
-    monkeypatch.setattr(softcbf.bench, "CASES", tuple(Case(c.name, c.rate, _refuse_to_run) for c in CASES))
+    monkeypatch.setattr(softcbf.bench.runner, "CASES", tuple(Case(c.name, c.rate, _refuse_to_run) for c in CASES))
     with pytest.raises(RuntimeError, match="case paper_sim_150 ran"):
         run_bench(tmp_path / "new", [FilterSpec("none")], RunOptions(quick=True), cases=["paper_sim_150"])
     assert not (tmp_path / "new").exists()

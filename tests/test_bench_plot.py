@@ -1,16 +1,16 @@
-"""softcbf.bench.write_plot: the legend sits outside the data, and every panel's label carries its unit (issue 27)."""
+"""softcbf.bench.plots.write_plot: the legend sits outside the data, and every panel's quantity axis carries its unit."""
 
 from __future__ import annotations
 
 from matplotlib.figure import Figure
 
-from softcbf.bench import PLOTTED, write_plot
+from softcbf.bench.plots import PLOTTED, write_plot
 
 
 def bench_of(filters: list[str]) -> dict:
     cases = ["paper_sim_limits", "step", "mujoco_contact", "camera_loop"]
     results = [{"filter": f, "case": c, "rho_min_meas": 0.9 - 0.3 * i, "force_max_N": 0.1 + 0.05 * i,
-                "u_dev_rms_hPa": 10.0 * (i + 1), "filter_us_p99": 100.0 * (j + 1)}
+                "u_dev_rms_hPa": 10.0 * (i + 1), "filter_us_p99": 100.0 * (j + 1), "f_max_N": 0.16}
                for j, f in enumerate(filters) for i, c in enumerate(cases)]
     return {"battery": cases, "filters": filters, "results": results}
 
@@ -22,9 +22,9 @@ def test_legend_outside_every_panel_and_units_on_every_axis(tmp_path, monkeypatc
     def keep(self, *args, **kwargs):  # measure as drawn for the file, before write_plot closes the figure
         result = original(self, *args, **kwargs)
         renderer = self.canvas.get_renderer()
-        legends = [ax.get_legend() for ax in self.axes if ax.get_legend() is not None]
+        legends = list(self.legends) + [ax.get_legend() for ax in self.axes if ax.get_legend() is not None]
         measured.append(([legend.get_window_extent(renderer) for legend in legends],
-                         [ax.get_window_extent(renderer) for ax in self.axes], self.bbox, [ax.get_ylabel() for ax in self.axes]))
+                         [ax.get_window_extent(renderer) for ax in self.axes], self.bbox, [ax.get_xlabel() for ax in self.axes]))
         return result
 
     monkeypatch.setattr(Figure, "savefig", keep)

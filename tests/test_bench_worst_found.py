@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from softcbf.bench import (CASES, WORST_KEYS, WORST_SCHEMA, FilterSpec, RunOptions, case_filter_params, check_bench_json,
-                           run_bench, worst_case_searches)
+from softcbf.bench import (CASES, RECOMMENDED_FILTER, WIDER_BOX, WORST_KEYS, WORST_SCHEMA, FilterSpec, RunOptions,
+                           beyond_certified, case_filter_params, check_bench_json, run_bench, table_markdown,
+                           worst_case_searches, worst_case_text)
 from softcbf.cli import main
 from softcbf.study import StudyStore, load_study
 from softcbf.study.falsify import default_population
@@ -62,7 +63,8 @@ def test_the_budget_defaults_to_the_battery_and_is_off_with_cases(quick, whole, 
                         "scenario": "mujoco_contact", "duration_s": 1.0 if quick else box.fixed["duration"],
                         "objective": "rho_min_meas", "sampler": "cmaes", "seed": box.seed,
                         "population": default_population(box), "baseline": 0}
-    assert list(studies) == ["none"] and studies["none"].fixed["duration"] == settings["duration_s"]
+    assert list(studies) == ["none"] and studies["none"][0].fixed["duration"] == settings["duration_s"]
+    assert studies["none"][1] == [d.parameter for d in box.vary]  # "none" certifies nothing
 
 
 def test_a_negative_budget_is_a_usage_error(tmp_path, capsys):
@@ -104,7 +106,9 @@ def test_quick_worst_found_is_the_minimum_of_the_evaluations_run_and_resumes(tmp
     assert state["worst"]["value"] == entry["rho_worst_found"]  # worst/ replayed the same ρ
     table = (out / "bench.md").read_text()
     assert "## Worst case found" in table and "4 evaluations" in table and "mismatch_box_contact" in table
-    assert f"| paper-cbf | {entry['rho_worst_found']:.4f} | {entry['evaluation']} |" in table
+    assert f"| paper-cbf | {entry['rho_worst_found']:.4f} {WIDER_BOX} (plate_stiffness, " in table
+    assert entry["beyond_certified"] == [d.parameter for d in load_study(BOX_FILE).vary]  # paper-cbf: the exact model
+    assert f"rho_min_meas {entry['rho_worst_found']:.4f} {WIDER_BOX} (" in capsys.readouterr().out  # the printed line
 
     # --resume keeps a finished entry without running it
     stamp = (folder / "falsify.json").stat().st_mtime_ns
@@ -133,7 +137,7 @@ def _with_entry(**entry) -> dict:
                 "seed": 2027, "population": 9, "baseline": 0}
     found = {"filter": "none", "rho_worst_found": -0.5, "params": {"plate_stiffness": 13.392, "facet_offset": 0.002},
              "evaluation": 2, "evaluations": 4, "failed": 0, "first_violation": 1, "wall_s": 9.0, "faulted": 0,
-             "fault": None}
+             "fault": None, "beyond_certified": ["plate_stiffness", "facet_offset"]}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
             "results": [], "falsify": settings, "worst_found": [{**found, **entry}]}
 
@@ -164,6 +168,8 @@ SPOILED = [
     (lambda b: b["worst_found"][0].update(wall_s=-1.0), "worst_found[0].wall_s must be >= 0"),
     (lambda b: b["worst_found"][0].update(filter="qsg"), "worst_found[0].filter 'qsg' is not one of its filters"),
     (lambda b: b["worst_found"].append(dict(b["worst_found"][0])), "worst_found[1]: none has an entry already"),
+    (lambda b: b["worst_found"][0].update(beyond_certified="plate_stiffness"), "worst_found[0].beyond_certified must be a list"),
+    (lambda b: b["worst_found"][0].pop("beyond_certified"), "worst_found[0] lacks beyond_certified"),
 ]
 
 
@@ -182,3 +188,35 @@ def test_the_schema_refuses_a_bad_worst_found_naming_the_field(spoil, message):
 def test_every_worst_found_field_has_a_schema_entry():
     assert set(WORST_SCHEMA) == set(WORST_KEYS)
     assert math.isfinite(_with_entry()["worst_found"][0]["rho_worst_found"])
+
+
+def test_the_worst_case_over_a_box_wider_than_the_filter_certifies_says_so():
+    """Was: `bench --quick` showed the recommended filter's "worst case −0.63" with no word of why; the box is wider
+    than what it certifies (plate ±20 % against its [0.9, 1.1], the offset, the arm's stiffness and damping, the valve
+    lag it does not certify at all), and bench.md and the printed line now say so, naming those coordinates."""
+    params = case_filter_params(RECOMMENDED_FILTER, CONTACT)
+    box = box_study("c-erg", params)
+    beyond = beyond_certified("c-erg", params, box)
+    assert beyond == ["plate_stiffness", "facet_offset", "true_stiffness_scale", "true_damping_scale", "tau_p"]
+    assert "true_gain_scale" not in beyond  # its gain interval [0.9, 1.1] is the box's
+    bench = _with_entry(filter="none", rho_worst_found=-0.631, beyond_certified=beyond)
+    check_bench_json(bench)
+    text = table_markdown(bench)
+    assert f"| none | -0.6310 {WIDER_BOX} (plate_stiffness, facet_offset, true_stiffness_scale" in text
+    assert worst_case_text(bench["worst_found"][0]).startswith("-0.6310 over a box wider than this filter certifies (")
+    assert worst_case_text(_with_entry(beyond_certified=[])["worst_found"][0]) == "-0.5000"  # a box it certifies
+
+
+def test_a_box_within_the_certified_intervals_is_not_labelled(tmp_path):
+    """A box of only the plate's stiffness within ±10 % and the gain within ±10 % lies inside what the recommended
+    filter certifies at the bench's setting: nothing is beyond; the exact-model filters certify neither."""
+    text = BOX_FILE.read_text(encoding="utf-8")
+    narrow = text[:text.index("[vary.plate_stiffness]")] + (
+        "[vary.plate_stiffness]\ndist = \"uniform\"\nlow = 10.044\nhigh = 12.276\n\n"
+        "[vary.true_gain_scale]\ndist = \"uniform\"\nlow = 0.95\nhigh = 1.1\n")
+    (tmp_path / "narrow.toml").write_text(narrow, encoding="utf-8")
+    params = case_filter_params(RECOMMENDED_FILTER, CONTACT)
+    study = box_study("c-erg", params, box_file=tmp_path / "narrow.toml")
+    assert beyond_certified("c-erg", params, study) == []
+    assert beyond_certified("c-erg", {**params, "stiffness_hi_ratio": "1.05"}, study) == ["plate_stiffness"]
+    assert beyond_certified("paper-cbf", {"tuning": "Low"}, study) == ["plate_stiffness", "true_gain_scale"]

@@ -1,11 +1,13 @@
 """Every plot kind of a run's report is fit for a paper with the longest run labels the project writes (the
 recommended filter's: every parameter in its label; five paper-cbf presets at once): rendered with warnings as
 errors (a constrained-layout warning fails), every legend inside the figure and off every axes, every legend
-label at most softcbf_mj.palette.LABEL_LIMIT characters plus its suffix, every axes with a unit on its y label."""
+label at most softcbf_mj.palette.LABEL_LIMIT characters plus its suffix, every axes with a unit on its y label, no
+tick label over its neighbour. The other plot kinds (bench, study, falsification): tests/test_plot_kinds.py."""
 
 from __future__ import annotations
 
 import warnings
+from itertools import combinations
 
 import pytest
 
@@ -44,6 +46,9 @@ def check_figure(fig, path):
                        .removesuffix(" tip").removesuffix(" u")) <= LABEL_LIMIT for text in legend.get_texts()), path
     for ax in fig.axes:
         assert "[" in ax.get_ylabel() and "]" in ax.get_ylabel(), (path, ax.get_ylabel())
+        for axis in (ax.xaxis, ax.yaxis):  # tick labels clear of their neighbours (tests/test_plot_kinds.py)
+            boxes = [t.get_window_extent(renderer) for t in axis.get_ticklabels() if t.get_visible() and t.get_text()]
+            assert not any(a.overlaps(b) for a, b in combinations(boxes, 2)), (path, "tick labels overlap")
 
 
 @pytest.mark.parametrize("figure_format", ["png", "pdf"])

@@ -18,11 +18,12 @@ from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS, check_value, defaul
 REPO = Path(__file__).resolve().parents[1]
 # The modules that configure a run: none may type a setting's default (they take `default(name, context)`).
 CONFIGURATION = sorted((REPO / "scenarios").glob("*.py")) + [REPO / "hardware" / "config.py"] + sorted(
-    (REPO / "softcbf_mj" / "env").glob("*.py")) + [REPO / "softcbf" / name for name in ("cli.py", "hardware_cli.py", "bench.py")]
+    (REPO / "softcbf_mj" / "env").glob("*.py")) + [REPO / "softcbf" / name for name in ("cli.py", "hardware_cli.py")] + sorted(
+    (REPO / "softcbf" / "bench").glob("*.py"))
 # A value a module fixes on purpose, which is no default (nothing else takes it when it is not given):
 # path → {(setting, value): why}. The scan finds it all the same; each entry must still be found.
 FIXED_VALUES = {
-    "softcbf/bench.py": {
+    "softcbf/bench/cases.py": {
         ("progress", False): "the bench reports its own progress; the scenario runs of its cases are quiet",
         ("nominal", "step"): "the step case is the step nominal's case (module docstring), not a default of `nominal`",
     },

@@ -261,9 +261,9 @@ def test_report_figures_carry_units_the_assumed_value_and_f_max(reference):
     out, _ = reference
     write_report(out, level=0.05, bins=3, figure_format="svg")
     for name, texts in {"force_max_N": ["F_max = 0.16 N", "peak measured force [N]"],
-                        "rho_min_meas": ["ρ = 0 (F = F_max)", "ρ_min measured [-]"],
-                        "violation_plate_stiffness": ["plate_stiffness [N/m]", "assumed by the controller: 11.16"],
-                        "violation_facet_offset": ["facet_offset [m]", "assumed by the controller: 0"]}.items():
+                        "rho_min_meas": ["ρ = 0 (F = F_max)", "ρ_meas min [1]"],
+                        "violation_plate_stiffness": ["true plate stiffness [N/m]", "assumed: 11.16"],
+                        "violation_facet_offset": ["plate offset along its normal [mm]", "assumed: 0"]}.items():
         svg = (out / "plots" / f"{name}.svg").read_text(encoding="utf-8")
         for text in texts:  # matplotlib writes text into the svg as a comment beside its glyphs
             assert f"<!-- {text} -->" in svg, (name, text)

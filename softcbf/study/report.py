@@ -7,13 +7,13 @@
                                        per varied parameter and tuning: where the binned violation
                                        probability reaches `level`; the first failed and faulted
                                        samples' errors
-    DIR/plots/rho_min_meas.<fmt>       ρ_min_meas [-] per clean sample, by tuning (dots over box plots),
+    DIR/plots/rho_min_meas.<fmt>       ρ_meas min [1] per clean sample, by tuning (dots over box plots),
                                        ρ = 0 (F = F_max) marked
     DIR/plots/force_max_N.<fmt>        peak measured force [N] per sample, by tuning, F_max marked
                                        (the study's fixed `f_max`, else the scenario's default)
-    DIR/plots/violation_<param>.<fmt>  binned violation probability vs the parameter [its unit], per
-                                       tuning, with Wilson intervals, the `level` line and the value
-                                       the controller assumes (PARAMETERS)
+    DIR/plots/violation_<param>.<fmt>  binned violation probability vs the parameter (in words, in its
+                                       unit: PARAMETERS), per tuning, with Wilson intervals, the `level`
+                                       line and the value the controller assumes
     DIR/results.parquet                every row in one file (`StudyStore.compact`); load it with
                                        `pandas.read_parquet("DIR/results.parquet")`
 
@@ -35,9 +35,13 @@ A falsification folder (DIR/falsify.json, `softcbf.study.falsify`) gets its own 
                                        first violations marked (a vertical line when it is a filter fault,
                                        which has no value), 0 marked for a ρ objective
 
-`figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. Colours: tunings take
-their run colours (softcbf_mj.palette, Okabe–Ito), as in run reports; legends sit outside
-the axes. Plots use matplotlib's Agg canvas (no display needed, no global backend change).
+`figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. The figures follow
+softcbf_mj.plot_style (one journal column, 3.5 in wide, 8 pt text, legends below the axes, the
+constrained layout): a tuning is named by softcbf_mj.palette.plot_labels (a filter's label with
+every parameter runs to ~150 characters; report.md keys each shortened label to the full one)
+and takes its run colour (Okabe–Ito), as in run reports; every axis that shows a quantity names
+it in words with its unit (`PARAMETERS`: a varied parameter's words, unit and the factor from its
+setting's unit, e.g. the plate offset in mm; `METRICS`: a summary metric's).
 """
 
 from __future__ import annotations
@@ -46,52 +50,52 @@ import json
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
 from scenarios import get as get_scenario
 from softcbf.study.analysis import (Proportion, clean, crossing, sensitivity, tuning_summary, varied_parameters,
                                     violated)
 from softcbf.study.falsify import BASELINE_DIR, SEARCH_DIR, WORST_DIR, minimised, objective_value
 from softcbf.study.store import FALSIFY_FILE, STUDY_FILE, StudyStore, fault_of, faulted
-from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, run_color
-from softcbf_mj.report import FIGURE_FORMATS, save_figure
+from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels
+from softcbf_mj.plot_style import (COLUMN_WIDTH_IN, FIGURE_FORMATS, GRID_ALPHA, distinct_colors, legend_outside, new_figure,
+                                   save_figure, styled)
+from vocabulary.settings import SETTINGS
 
 REPORT_FILE = "report.md"
 PLOTS_DIR = "plots"
 MAX_ERRORS_LISTED = 5
 DPI = 110
-# Known scenario parameters: (unit, the value the controller assumes). The assumed value is
-# a number, the name of the parameter that holds it (its fixed value in the study, else
-# the scenario's default), or None (the controller has no assumption to mark).
-PARAMETERS: dict[str, tuple[str, float | str | None]] = {
-    "plate_stiffness": ("N/m", "assumed_plate_stiffness"),
-    "assumed_plate_stiffness": ("N/m", None),
-    "true_stiffness_scale": ("-", 1.0),
-    "true_damping_scale": ("-", 1.0),
-    "true_gain_scale": ("-", 1.0),
-    "true_length_scale": ("-", 1.0),
-    "facet_offset": ("m", 0.0),
-    "facet_angle": ("rad", 0.0),
-    "tau_p": ("s", None),
-    "links_per_segment": ("-", None),
-    "f_max": ("N", None),
-    "latency": ("s", 0.0),
-    "pixel_noise": ("px", 0.0),
-    "drop_rate": ("-", 0.0),
-    "amplitude": ("hPa", None),
-    "frequency": ("Hz", None),
+# Known scenario parameters: (words, unit shown, factor from the setting's unit to it, the value the controller
+# assumes). The assumed value (in the setting's unit) is a number, the name of the parameter that holds it (its
+# fixed value in the study, else the scenario's default), or None (the controller has no assumption to mark).
+PARAMETERS: dict[str, tuple[str, str, float, float | str | None]] = {
+    "plate_stiffness": ("true plate stiffness", "N/m", 1.0, "assumed_plate_stiffness"),
+    "assumed_plate_stiffness": ("assumed plate stiffness", "N/m", 1.0, None),
+    "true_stiffness_scale": ("true arm stiffness / model's", "1", 1.0, 1.0),
+    "true_damping_scale": ("true arm damping / model's", "1", 1.0, 1.0),
+    "true_gain_scale": ("true actuator gain / model's", "1", 1.0, 1.0),
+    "true_length_scale": ("true segment length / model's", "1", 1.0, 1.0),
+    "facet_offset": ("plate offset along its normal", "mm", 1e3, 0.0),
+    "facet_angle": ("plate angle error", "mrad", 1e3, 0.0),
+    "tau_p": ("valve lag τ_p", "ms", 1e3, None),
+    "links_per_segment": ("links per segment", "1", 1.0, None),
+    "f_max": ("force limit F_max", "N", 1.0, None),
+    "latency": ("camera latency", "ms", 1e3, 0.0),
+    "pixel_noise": ("image noise", "grey levels", 1.0, 0.0),
+    "drop_rate": ("dropped frames", "share", 1.0, 0.0),
+    "amplitude": ("nominal amplitude", "hPa", 1.0, None),
+    "frequency": ("nominal frequency", "Hz", 1.0, None),
 }
+METRICS = {"rho_min_meas": ("ρ_meas min", "1"), "rho_min_pred": ("ρ_pred min", "1"),
+           "force_max_N": ("peak measured force", "N"), "force_max": ("peak measured force", "N"),
+           "t_violation_s": ("time above F_max", "s"), "t_violation": ("time above F_max", "s"),
+           "u_dev_rms_hPa": ("|u − u_nom| RMS", "hPa"), "force_budget_used": ("F max / F_max", "1")}
+"""A summary metric's words and unit (ρ: 1); an objective "-NAME" (maximised) takes NAME's."""
+SIZE_IN = (COLUMN_WIDTH_IN, 3.2)  # one journal column; the legend below the axes
 
 
 def _fmt(value: Any, spec: str = ".4g") -> str:
     return "–" if value is None else format(value, spec)
-
-
-def _figure(size: tuple[float, float], dpi: float) -> Figure:
-    fig = Figure(figsize=size, dpi=dpi, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def scenario_value(scenario: str, fixed: Mapping[str, Any], parameter: str) -> Any:
@@ -103,60 +107,96 @@ def scenario_value(scenario: str, fixed: Mapping[str, Any], parameter: str) -> A
 
 def assumed_value(scenario: str, fixed: Mapping[str, Any], parameter: str) -> float | None:
     """The value the controller assumes for a varied `parameter` (PARAMETERS), or None."""
-    assumed = PARAMETERS.get(parameter, ("", None))[1]
+    assumed = PARAMETERS.get(parameter, ("", "", 1.0, None))[3]
     if isinstance(assumed, str):
         assumed = scenario_value(scenario, fixed, assumed)
     return None if assumed is None else float(assumed)
 
 
-def _axis_label(parameter: str) -> str:
-    unit = PARAMETERS.get(parameter, ("", None))[0]
-    return f"{parameter} [{unit}]" if unit else parameter
+def axis_label(parameter: str) -> tuple[str, float]:
+    """(words with the unit, factor from the setting's unit to the one shown) of a varied parameter (`PARAMETERS`;
+    another: its name in words with its setting's unit)."""
+    if parameter in PARAMETERS:
+        words, unit, factor, _ = PARAMETERS[parameter]
+        return f"{words} [{unit}]", factor
+    unit = SETTINGS[parameter].unit if parameter in SETTINGS and SETTINGS[parameter].unit else "1"
+    return f"{parameter.replace('_', ' ')} [{unit}]", 1.0
 
 
-def _distribution_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], key: str, label: str,
-                       path: Path, figure_format: str, dpi: float, line: float | None = None,
-                       line_label: str = "") -> None:
+def metric_label(metric: str, words_after: str = "") -> str:
+    """A summary metric's words, `words_after`, and its unit in brackets (`METRICS`; another: its name in words, [1])."""
+    words, unit = METRICS.get(metric.removeprefix("-"), (metric.removeprefix("-").replace("_", " "), "1"))
+    return f"{words}{words_after} [{unit}]"
+
+
+def distribution_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], key: str, path: Path,
+                      figure_format: str, dpi: float, line: float | None = None) -> None:
+    """The metric `key` per clean sample by tuning (dots over horizontal box plots, one row per tuning, top to
+    bottom: no tuning's name runs into another's), the limit `line` marked (ρ = 0, F_max)."""
     data = [[r[key] for r in rows if r["tuning"] == t and clean(r) and r.get(key) is not None]
             for t in tunings]
-    fig = _figure((2.8 + 1.3 * len(tunings), 4), dpi)
-    ax = fig.add_subplot()
-    if any(data):
-        ax.boxplot([d if d else [float("nan")] for d in data], showfliers=False,
-                   medianprops={"color": NEUTRAL_COLOR})
-    for i, (tuning, d) in enumerate(zip(tunings, data), start=1):
-        ax.plot([i] * len(d), d, ".", alpha=0.6, color=run_color(tuning, i - 1))
-    ax.set_xticks(range(1, len(tunings) + 1), tunings)
-    if line is not None:
-        ax.axhline(line, color=LIMIT_COLOR, ls="--", lw=1.2, label=line_label)
-        fig.legend(loc="outside right upper", fontsize=8)
-    ax.set_xlabel("tuning")
-    ax.set_ylabel(label)
-    ax.grid(alpha=0.3)
-    save_figure(fig, path, figure_format, dpi)
+    with styled():
+        fig = new_figure((SIZE_IN[0], 1.4 + 0.35 * len(tunings)), dpi)
+        ax = fig.add_subplot()
+        if any(data):
+            ax.boxplot([d if d else [float("nan")] for d in data], orientation="horizontal", showfliers=False,
+                       medianprops={"color": NEUTRAL_COLOR})
+        for i, (colour, d) in enumerate(zip(distinct_colors(tunings), data), start=1):
+            ax.plot(d, [i] * len(d), ".", alpha=0.6, color=colour)
+        ax.set_yticks(range(1, len(tunings) + 1), plot_labels(list(tunings)))
+        ax.set_ylim(len(tunings) + 0.5, 0.5)
+        if line is not None:
+            limit = "ρ = 0 (F = F_max)" if key.startswith("rho") else f"F_max = {line:g} N"
+            ax.axvline(line, color=LIMIT_COLOR, ls="--", lw=1.2, label=limit)
+            legend_outside(fig, [ax], loc="outside lower center")
+        ax.set_ylabel("tuning")
+        ax.set_xlabel(metric_label(key))
+        ax.grid(alpha=GRID_ALPHA)
+        save_figure(fig, path, figure_format, dpi)
 
 
-def _sensitivity_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], parameter: str, bins: int,
-                      level: float, assumed: float | None, path: Path, figure_format: str, dpi: float) -> None:
-    fig = _figure((7.5, 4), dpi)
-    ax = fig.add_subplot()
-    for i, tuning in enumerate(tunings):
-        curve = [b for b in sensitivity(rows, parameter, tuning, bins) if b.violation.n and b.centre is not None]
-        if not curve:
-            continue
-        x = [b.centre for b in curve]
-        p = [b.violation.p for b in curve]
-        err = [[q - b.violation.low for q, b in zip(p, curve)], [b.violation.high - q for q, b in zip(p, curve)]]
-        ax.errorbar(x, p, yerr=err, marker="o", capsize=3, label=tuning, color=run_color(tuning, i))
-    ax.axhline(level, color=NEUTRAL_COLOR, ls=":", lw=1.2, label=f"level {100 * level:g} %")
-    if assumed is not None:
-        ax.axvline(assumed, color=LIMIT_COLOR, ls="--", lw=1.2, label=f"assumed by the controller: {assumed:g}")
-    ax.set_xlabel(_axis_label(parameter))
-    ax.set_ylabel("P(F > F_max) [-]")
-    ax.set_ylim(-0.02, 1.02)
-    ax.grid(alpha=0.3)
-    fig.legend(loc="outside right upper", fontsize=8)
-    save_figure(fig, path, figure_format, dpi)
+def sensitivity_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], parameter: str, bins: int,
+                     level: float, assumed: float | None, path: Path, figure_format: str, dpi: float) -> None:
+    """The binned violation probability against `parameter` per tuning, with Wilson intervals, `level` and the
+    value the controller assumes (`assumed`, in the setting's unit)."""
+    label, factor = axis_label(parameter)
+    with styled():
+        fig = new_figure((SIZE_IN[0], SIZE_IN[1] + 0.3), dpi)
+        ax = fig.add_subplot()
+        for tuning, shown, colour in zip(tunings, plot_labels(list(tunings)), distinct_colors(tunings)):
+            curve = [b for b in sensitivity(rows, parameter, tuning, bins) if b.violation.n and b.centre is not None]
+            if not curve:
+                continue
+            x = [b.centre * factor for b in curve]
+            p = [b.violation.p for b in curve]
+            err = [[q - b.violation.low for q, b in zip(p, curve)], [b.violation.high - q for q, b in zip(p, curve)]]
+            ax.errorbar(x, p, yerr=err, marker="o", ms=3, capsize=2, label=shown, color=colour)
+        ax.axhline(level, color=NEUTRAL_COLOR, ls=":", lw=1.2, label=f"level {100 * level:g} %")
+        if assumed is not None:
+            ax.axvline(assumed * factor, color=LIMIT_COLOR, ls="--", lw=1.2, label=f"assumed: {assumed * factor:g}")
+        ax.set_xlabel(label)
+        ax.set_ylabel("P(F > F_max) [1]")
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=GRID_ALPHA)
+        legend_outside(fig, [ax], loc="outside lower center", ncols=2)
+        save_figure(fig, path, figure_format, dpi)
+
+
+def sensitivity_markdown(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], parameters: Sequence[str],
+                         bins: int, level: float, ext: str) -> list[str]:
+    """report.md's section on where each tuning's binned violation probability reaches `level`, per parameter."""
+    lines = [f"## Sensitivity: where P(violation) reaches {100 * level:g} %", "",
+             f"Binned ({bins} equal-width bins, or one per distinct value) and marginalised over the other "
+             "varied parameters; the value interpolates between bin centres from the safer end. "
+             "'above': already at the safer end; 'below': never within the range.", "",
+             "| parameter | " + " | ".join(tunings) + " |", "|---|" + "---|" * len(tunings)]
+    for parameter in parameters:
+        cells = []
+        for tuning in tunings:
+            c = crossing(sensitivity(rows, parameter, tuning, bins), level)
+            cells.append(f"{c['value']:.4g} ({c['status']})" if c["value"] is not None else c["status"])
+        lines.append(f"| {parameter} | " + " | ".join(cells) + " |")
+    return lines + [""] + [f"![{p}](plots/violation_{p}.{ext})" for p in parameters] + [""]
 
 
 def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_format: str = "png",
@@ -182,13 +222,11 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
     summary = tuning_summary(rows, tunings)
     f_max = scenario_value(study.scenario, study.fixed, "f_max")
     ext = figure_format
-    _distribution_plot(rows, tunings, "rho_min_meas", "ρ_min measured [-]", plots / f"rho_min_meas.{ext}", ext, dpi,
-                       line=0.0, line_label="ρ = 0 (F = F_max)")
-    _distribution_plot(rows, tunings, "force_max_N", "peak measured force [N]", plots / f"force_max_N.{ext}", ext, dpi,
-                       line=f_max, line_label=f"F_max = {f_max:g} N" if f_max is not None else "")
+    distribution_plot(rows, tunings, "rho_min_meas", plots / f"rho_min_meas.{ext}", ext, dpi, line=0.0)
+    distribution_plot(rows, tunings, "force_max_N", plots / f"force_max_N.{ext}", ext, dpi, line=f_max)
     parameters = varied_parameters(rows)
     for parameter in parameters:
-        _sensitivity_plot(rows, tunings, parameter, bins, level, assumed_value(study.scenario, study.fixed, parameter),
+        sensitivity_plot(rows, tunings, parameter, bins, level, assumed_value(study.scenario, study.fixed, parameter),
                           plots / f"violation_{parameter}.{ext}", ext, dpi)
 
     lines = [f"# Study `{study.name}`", ""]
@@ -218,21 +256,12 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
                      f"| {_fmt(rho.get('q00'))} / {_fmt(rho.get('q50'))} / "
                      f"{_fmt(rho.get('q100'))} | {_fmt(force.get('q50'))} / {_fmt(force.get('q95'))} / "
                      f"{_fmt(force.get('q100'))} |")
-    lines += ["", f"![rho](plots/rho_min_meas.{ext}) ![force](plots/force_max_N.{ext})", "",
+    key = [f"- {short}: `{full}`" for full, short in zip(tunings, plot_labels(tunings)) if short != full]
+    lines += [*(["", "Shortened tunings in the plots:", "", *key] if key else []),
+              "", f"![rho](plots/rho_min_meas.{ext}) ![force](plots/force_max_N.{ext})", "",
               "All rows: `pandas.read_parquet(\"results.parquet\")` (one row per sample; columns: softcbf.study.store).", ""]
     if parameters:
-        lines += [f"## Sensitivity: where P(violation) reaches {100 * level:g} %", "",
-                  f"Binned ({bins} equal-width bins, or one per distinct value) and marginalised over the other "
-                  "varied parameters; the value interpolates between bin centres from the safer end. "
-                  "'above': already at the safer end; 'below': never within the range.", "",
-                  "| parameter | " + " | ".join(tunings) + " |", "|---|" + "---|" * len(tunings)]
-        for parameter in parameters:
-            cells = []
-            for tuning in tunings:
-                c = crossing(sensitivity(rows, parameter, tuning, bins), level)
-                cells.append(f"{c['value']:.4g} ({c['status']})" if c["value"] is not None else c["status"])
-            lines.append(f"| {parameter} | " + " | ".join(cells) + " |")
-        lines += [""] + [f"![{p}](plots/violation_{p}.{ext})" for p in parameters] + [""]
+        lines += sensitivity_markdown(rows, tunings, parameters, bins, level, ext)
     errors = [r for r in rows if not clean(r)]
     if errors:
         faults = sum(1 for r in errors if faulted(r))
@@ -262,28 +291,30 @@ def _best_so_far(rows: Sequence[Mapping[str, Any]], objective: str) -> tuple[lis
     return x, y
 
 
-def _best_so_far_plot(curves: Mapping[str, Sequence[Mapping[str, Any]]], objective: str, path: Path,
-                      figure_format: str, dpi: float) -> None:
-    fig = _figure((7.5, 4), dpi)
-    ax = fig.add_subplot()
-    for i, (label, rows) in enumerate(curves.items()):
-        x, y = _best_so_far(rows, objective)
-        colour = run_color(label, i)
-        ax.step(x, y, where="post", color=colour, label=label)
-        first = next((r for r in rows if violated(r)), None)
-        if first is not None and faulted(first):
-            ax.axvline(int(first["sample"]) + 1, color=colour, ls=":", lw=1.2,
-                       label=f"{label}: first violation at {int(first['sample']) + 1} (a filter fault)")
-        elif first is not None:
-            ax.plot([int(first["sample"]) + 1], [objective_value(dict(first), objective)], "o", color=colour,
-                    label=f"{label}: first violation at {int(first['sample']) + 1}")
-    if objective.removeprefix("-").startswith("rho"):
-        ax.axhline(0.0, color=LIMIT_COLOR, ls="--", lw=1.2, label="ρ = 0 (F = F_max)")
-    ax.set_xlabel("evaluations")
-    ax.set_ylabel(f"best {objective.removeprefix('-')} so far" + (" (maximised)" if objective.startswith("-") else ""))
-    ax.grid(alpha=0.3)
-    fig.legend(loc="outside right upper", fontsize=8)
-    save_figure(fig, path, figure_format, dpi)
+def best_so_far_plot(curves: Mapping[str, Sequence[Mapping[str, Any]]], objective: str, path: Path,
+                     figure_format: str, dpi: float) -> None:
+    """The best objective so far against evaluations per curve (search, baseline), first violations marked (module
+    docstring)."""
+    with styled():
+        fig = new_figure(SIZE_IN, dpi)
+        ax = fig.add_subplot()
+        for (label, rows), colour in zip(curves.items(), distinct_colors(curves)):
+            x, y = _best_so_far(rows, objective)
+            ax.step(x, y, where="post", color=colour, label=label)
+            first = next((r for r in rows if violated(r)), None)
+            if first is not None and faulted(first):
+                ax.axvline(int(first["sample"]) + 1, color=colour, ls=":", lw=1.2,
+                           label=f"{label}: first violation at {int(first['sample']) + 1} (a filter fault)")
+            elif first is not None:
+                ax.plot([int(first["sample"]) + 1], [objective_value(dict(first), objective)], "o", color=colour,
+                        label=f"{label}: first violation at {int(first['sample']) + 1}")
+        if objective.removeprefix("-").startswith("rho"):
+            ax.axhline(0.0, color=LIMIT_COLOR, ls="--", lw=1.2, label="ρ = 0 (F = F_max)")
+        ax.set_xlabel("evaluations [1]")
+        ax.set_ylabel(("highest " if objective.startswith("-") else "least ") + metric_label(objective, " so far"))
+        ax.grid(alpha=GRID_ALPHA)
+        legend_outside(fig, [ax], loc="outside lower center")
+        save_figure(fig, path, figure_format, dpi)
 
 
 def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: float = DPI) -> Path:
@@ -299,7 +330,7 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
         raise ValueError(f"{root} holds no evaluations yet; run `study falsify` first")
     plots = root / PLOTS_DIR
     plots.mkdir(exist_ok=True)
-    _best_so_far_plot(curves, objective, plots / f"best_so_far.{figure_format}", figure_format, dpi)
+    best_so_far_plot(curves, objective, plots / f"best_so_far.{figure_format}", figure_format, dpi)
     study = state["study"]
     box = ", ".join(f"`{name}` {spec}" for name, spec in study["vary"].items()) or "none"
     lines = [f"# Falsification of study `{study['name']}`", "",
