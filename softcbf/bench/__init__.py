@@ -22,7 +22,7 @@ This package re-exports the names that tools, tests and docs use (`__all__`); th
 the first figure written, so that the bench's first progress line comes early.
 """
 
-from softcbf.bench.cases import (CASES, CERG_PARAMS, EERG_PARAMS, EMULATOR_CONFIG, FORCE_TARGET_RATIO, PAPER_TUNINGS,
+from softcbf.bench.cases import (CASES, EERG_PARAMS, EMULATOR_CONFIG, FORCE_TARGET_RATIO, PAPER_TUNINGS,
                                  PUSH_DURATION_S, PUSH_PLANTS, PUSH_PREFIX, PUSH_RATIOS, PUSHES, QUICK_DURATION_S,
                                  QUICK_PUSH_DURATION_S, THREE_SEGMENT_CASES, Case, RunOptions, arm_refusal,
                                  case_filter_params, mismatch_study, plant_parameters, push_cases, skip_key)
@@ -38,7 +38,7 @@ from softcbf.bench.schema import (CALL_KEYS, RESULT_KEYS, ROW_SCHEMA, VERDICT_KE
 from softcbf.bench.tables import FORCE_PLOT_FILE, PLOT_FILE, WIDER_BOX, fault_text, table_markdown, worst_case_text, worst_found_markdown
 
 __all__ = [
-    "ACCEPT_TOL_HPA", "BENCH_FILE", "CALL_KEYS", "CASES", "CERG_PARAMS", "DEFAULT_FILTERS", "EERG_PARAMS",
+    "ACCEPT_TOL_HPA", "BENCH_FILE", "CALL_KEYS", "CASES", "DEFAULT_FILTERS", "EERG_PARAMS",
     "EMULATOR_CONFIG", "FORCE_PLOT_FILE", "FORCE_TARGET_RATIO", "HELP", "PAPER_TUNINGS", "PLOT_FILE",
     "PUSH_DURATION_S", "PUSH_PLANTS", "PUSH_PREFIX", "PUSH_RATIOS", "PUSHES", "QUICK_DURATION_S",
     "QUICK_PUSH_DURATION_S", "RECOMMENDED_FILTER", "RESULT_KEYS", "ROW_SCHEMA", "TABLE_FILE", "THREE_SEGMENT_CASES",

@@ -43,10 +43,10 @@ seconds).
 Parameters per case (`case_filter_params`; a spec's own parameters win): paper-cbf the tuning its case is
 about (`PAPER_TUNINGS`: "Low" in the 1 kHz cases, "HW-High" in the 10 Hz camera cases: the paper's tables I
 and II); e-erg contact_aware=true with the true plate stiffness in [0.9, 1.1] × the model's (`EERG_PARAMS`:
-the mismatch study's interval, which also holds the stiff-plate case); c-erg the same interval
-(`CERG_PARAMS`) and contact_aware as the plant is: false on the PCC plant (paper_sim_150, step,
-paper_sim_3seg: the tip passes through the plate, which pushes back nowhere), true on the MuJoCo plants (the
-plate on its spring); other filters their own defaults.
+the mismatch study's interval, which also holds the stiff-plate case); c-erg (its presets included:
+`c-erg:recommended`) contact_aware as the plant is, and nothing else: false on the PCC plant (paper_sim_150,
+step, paper_sim_3seg: the tip passes through the plate, which pushes back nowhere), true on the MuJoCo plants
+(the plate on its spring); other filters their own defaults.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controllers.registry import PluginLoadError, build_filter
+from controllers.registry import PluginLoadError, build_filter, find_preset
 from controllers.safety_filter import FilterContext
 from scenarios import get
 from scenarios.common import build_safe_set, load_robot
@@ -72,7 +72,6 @@ from vocabulary.settings import default
 
 PAPER_TUNINGS = {"1kHz": "Low", "camera": "HW-High"}
 EERG_PARAMS = {"contact_aware": "true", "stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
-CERG_PARAMS = {"stiffness_lo_ratio": "0.9", "stiffness_hi_ratio": "1.1"}
 STEP_STARTS, STEP_DURATION_S = 20, 5.0
 MISMATCH_DRAWS, MISMATCH_SEED = 100, 2026
 MISMATCH_T0_S, MISMATCH_DURATION_S = 15.0, 30.0  # s: from the first contact on (module docstring)
@@ -132,8 +131,10 @@ class Case:
 def case_filter_params(spec: FilterSpec, case: Case) -> dict[str, str]:
     """The filter's parameters in `case`: the per-case defaults (module docstring) updated with the spec's own."""
     pushes_back = case.scenario_params.get("scenario", "") != "paper_sim" and case.name != "step"
+    preset = find_preset(spec.name)
     defaults = {"paper-cbf": {"tuning": PAPER_TUNINGS[case.rate]}, "e-erg": dict(EERG_PARAMS),
-                "c-erg": {**CERG_PARAMS, "contact_aware": "true" if pushes_back else "false"}}.get(spec.name, {})
+                "c-erg": {"contact_aware": "true" if pushes_back else "false"}}.get(
+        spec.name if preset is None else preset.filter, {})
     return {**defaults, **spec.params}
 
 

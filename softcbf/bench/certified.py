@@ -13,12 +13,16 @@ each a multiple of the model's value —
 |--------------------|-------------------------------------------|---------------------------------------------------|
 | plate_stiffness    | stiffness_lo_ratio, stiffness_hi_ratio    | [lo, hi] × the assumed plate stiffness (N/m)      |
 | true_gain_scale    | gain_lo_ratio, gain_hi_ratio              | [lo, hi] (1: the model's actuator gain)           |
+| facet_offset       | plate_offset_lo_m, plate_offset_hi_m      | [lo, hi] (m along the facet's normal)             |
+| true_stiffness_scale | arm_stiffness_lo_ratio, arm_stiffness_hi_ratio | [lo, hi] (1: the model's arm stiffness)    |
+| true_damping_scale | damping_lo_ratio                          | [lo, ∞) (any damping above it)                    |
+| tau_p              | actuator_tau_lo_s, actuator_tau_hi_s      | [lo, hi] (s; None: the model's lag alone)         |
 
-(the energy governors' declarations: c-erg and e-erg). The parameters' values are the filter's as the search
-runs it: the spec's and the bench's per-case parameters converted by the registry (`arguments`), the
-factory's signature defaults for the rest. A filter without such parameters, and every other coordinate
-(the plate's offset, the arm's stiffness and damping, the valve lag), is certified at the model's value
-alone. Assumption: a filter's guarantee covers exactly the intervals its parameters state; one that
+(the energy governors' declarations: c-erg and e-erg; c-erg's certificates, controllers.energy_governor). The
+parameters' values are the filter's as the search runs it: the spec's (a preset's, `c-erg:standard-box`, included)
+and the bench's per-case parameters converted by the registry (`typed_params`), the factory's signature defaults
+for the rest. A filter without such parameters, and every other coordinate, is certified at the model's value
+alone (a c-erg configured by `box=FILE` is read at its parameters, so it is reported as certifying less). Assumption: a filter's guarantee covers exactly the intervals its parameters state; one that
 covers more without saying so is reported as certifying less (a conservative label, never a false pass).
 
 A coordinate is beyond the certified set when its distribution's support is not inside the certified
@@ -30,18 +34,24 @@ of its values lies outside.
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Mapping
 from typing import Any
 
-from controllers.registry import FILTERS, arguments, resolve
+from controllers.registry import FILTERS, resolve, typed_params
 from scenarios import get as get_scenario
 from softcbf.study.definition import Distribution, Study
 
-CERTIFIED_BY: dict[str, tuple[str, str, str | None]] = {
+CERTIFIED_BY: dict[str, tuple[str, str | None, str | None]] = {
     "plate_stiffness": ("stiffness_lo_ratio", "stiffness_hi_ratio", "assumed_plate_stiffness"),
     "true_gain_scale": ("gain_lo_ratio", "gain_hi_ratio", None),
+    "facet_offset": ("plate_offset_lo_m", "plate_offset_hi_m", None),
+    "true_stiffness_scale": ("arm_stiffness_lo_ratio", "arm_stiffness_hi_ratio", None),
+    "true_damping_scale": ("damping_lo_ratio", None, None),
+    "tau_p": ("actuator_tau_lo_s", "actuator_tau_hi_s", None),
 }
-"""box coordinate → (the filter's low ratio, its high ratio, the study parameter the ratios multiply; None: 1)."""
+"""box coordinate → (the filter's low end, its high end (None: unbounded above), the study parameter the ends
+multiply; None: 1)."""
 MODEL_VALUES = {"facet_offset": 0.0, "facet_angle": 0.0, "true_stiffness_scale": 1.0, "true_damping_scale": 1.0,
                 "true_gain_scale": 1.0, "true_length_scale": 1.0}
 """The model's value of the box coordinates whose model value is fixed (others: the scenario's default)."""
@@ -53,7 +63,7 @@ def filter_values(name: str, params: Mapping[str, str]) -> dict[str, Any]:
     factory = resolve(name, FILTERS)
     defaults = {n: p.default for n, p in inspect.signature(factory).parameters.items()
                 if p.default is not inspect.Parameter.empty}
-    return {**defaults, **arguments(factory, params)}
+    return {**defaults, **typed_params(name, params)}
 
 
 def study_value(study: Study, parameter: str) -> float:
@@ -69,9 +79,10 @@ def certified_interval(coordinate: str, values: Mapping[str, Any], study: Study)
     None when it certifies only the model's value and the study has none (nothing drawn can be inside then)."""
     if coordinate in CERTIFIED_BY:
         lo_name, hi_name, scale_name = CERTIFIED_BY[coordinate]
-        if lo_name in values and hi_name in values:
+        lo, hi = values.get(lo_name), math.inf if hi_name is None else values.get(hi_name)
+        if lo is not None and hi is not None:
             scale = 1.0 if scale_name is None else study_value(study, scale_name)
-            return float(values[lo_name]) * scale, float(values[hi_name]) * scale
+            return float(lo) * scale, float(hi) * scale
     model = MODEL_VALUES.get(coordinate)
     if model is None:
         reference = CERTIFIED_BY.get(coordinate, (None, None, coordinate))[2] or coordinate

@@ -5,13 +5,13 @@
 e.g. `"e-erg(contact_aware=true),paper-cbf(tuning=HW-High)"`; a filter's parameter may be given once, and a
 filter (its label) once.
 
-Default (`DEFAULT_FILTERS`): the recommended filter beside the baselines. The recommended filter is c-erg at
-`controllers.energy_governor.RECOMMENDED` (`RECOMMENDED_FILTER`: the setting the README names and `softcbf list`
-marks, written as a spec), the baselines e-erg and the paper's CBF (paper-cbf). The bench adds its per-case
-parameters to every filter (softcbf.bench.cases: `case_filter_params`), the recommended one included.
+Default (`DEFAULT_FILTERS`): the recommended filter beside the baselines. The recommended filter is the preset
+`c-erg:recommended` (`RECOMMENDED_FILTER`; `controllers.registry.PRESETS`: the setting the README names and
+`softcbf list` lists), the baselines e-erg and the paper's CBF (paper-cbf). The bench adds to a filter only what
+the plant decides (softcbf.bench.cases: `case_filter_params`), never an interval of its own to the recommended one.
 
-A spec's label (`FilterSpec.label`) names it in bench.json, bench.md and the case folders; the recommended
-filter's is about 140 characters, so the plots show `softcbf_mj.palette.plot_labels` of the labels.
+A spec's label (`FilterSpec.label`) names it in bench.json, bench.md and the case folders; a long one (a filter
+given with many parameters) is shortened in the plots (`softcbf_mj.palette.plot_labels`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-from controllers.energy_governor import RECOMMENDED
 from controllers.registry import FILTERS, resolve
 
 
@@ -36,12 +35,7 @@ class FilterSpec:
         return f"{self.name}({args})" if args else self.name
 
 
-def parameter_text(value: object) -> str:
-    """A parameter's value as a spec writes it: true/false for a bool, Python's shortest repr for a number."""
-    return str(value).lower() if isinstance(value, bool) else repr(value) if isinstance(value, float) else str(value)
-
-
-RECOMMENDED_FILTER = FilterSpec("c-erg", {name: parameter_text(value) for name, value in RECOMMENDED.items()})
+RECOMMENDED_FILTER = FilterSpec("c-erg:recommended")
 BASELINES = ("e-erg", "paper-cbf")
 DEFAULT_FILTERS = ",".join((RECOMMENDED_FILTER.label, *BASELINES))
 
