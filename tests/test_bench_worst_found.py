@@ -195,8 +195,8 @@ def test_the_worst_case_over_a_box_wider_than_the_filter_certifies_says_so():
     than what it certifies (plate ±20 % against its [0.9, 1.1], the offset, the arm's stiffness and damping, the valve
     lag it does not certify at all), and bench.md and the printed line now say so, naming those coordinates."""
     params = case_filter_params(RECOMMENDED_FILTER, CONTACT)
-    box = box_study("c-erg", params)
-    beyond = beyond_certified("c-erg", params, box)
+    box = box_study(RECOMMENDED_FILTER.name, params)
+    beyond = beyond_certified(RECOMMENDED_FILTER.name, params, box)
     assert beyond == ["plate_stiffness", "facet_offset", "true_stiffness_scale", "true_damping_scale", "tau_p"]
     assert "true_gain_scale" not in beyond  # its gain interval [0.9, 1.1] is the box's
     bench = _with_entry(filter="none", rho_worst_found=-0.631, beyond_certified=beyond)
@@ -205,6 +205,12 @@ def test_the_worst_case_over_a_box_wider_than_the_filter_certifies_says_so():
     assert f"| none | -0.6310 {WIDER_BOX} (plate_stiffness, facet_offset, true_stiffness_scale" in text
     assert worst_case_text(bench["worst_found"][0]).startswith("-0.6310 over a box wider than this filter certifies (")
     assert worst_case_text(_with_entry(beyond_certified=[])["worst_found"][0]) == "-0.5000"  # a box it certifies
+
+
+def test_the_standard_box_preset_certifies_the_whole_standard_box():
+    """c-erg:standard-box states an interval for every physical error of the standard box: nothing is beyond."""
+    params = case_filter_params(FilterSpec("c-erg:standard-box"), CONTACT)
+    assert beyond_certified("c-erg:standard-box", params, box_study("c-erg:standard-box", params)) == []
 
 
 def test_a_box_within_the_certified_intervals_is_not_labelled(tmp_path):
@@ -216,7 +222,9 @@ def test_a_box_within_the_certified_intervals_is_not_labelled(tmp_path):
         "[vary.true_gain_scale]\ndist = \"uniform\"\nlow = 0.95\nhigh = 1.1\n")
     (tmp_path / "narrow.toml").write_text(narrow, encoding="utf-8")
     params = case_filter_params(RECOMMENDED_FILTER, CONTACT)
-    study = box_study("c-erg", params, box_file=tmp_path / "narrow.toml")
-    assert beyond_certified("c-erg", params, study) == []
-    assert beyond_certified("c-erg", {**params, "stiffness_hi_ratio": "1.05"}, study) == ["plate_stiffness"]
+    study = box_study(RECOMMENDED_FILTER.name, params, box_file=tmp_path / "narrow.toml")
+    assert beyond_certified(RECOMMENDED_FILTER.name, params, study) == []
+    assert beyond_certified(RECOMMENDED_FILTER.name, {**params, "stiffness_hi_ratio": "1.05"}, study) == \
+        ["plate_stiffness"]
+    assert beyond_certified("c-erg", params, study) == ["plate_stiffness", "true_gain_scale"]  # the exact model
     assert beyond_certified("paper-cbf", {"tuning": "Low"}, study) == ["plate_stiffness", "true_gain_scale"]

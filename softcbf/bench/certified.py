@@ -95,7 +95,7 @@ def inside(distribution: Distribution, interval: tuple[float, float] | None) -> 
     if interval is None or distribution.kind == "normal":
         return False
     lo, hi = interval
-    slack = REL_TOL * max(1.0, abs(lo), abs(hi))
+    slack = REL_TOL * max(1.0, *(abs(end) for end in (lo, hi) if math.isfinite(end)))  # hi may be ∞
     support = distribution.values if distribution.kind == "choice" else (distribution.low, distribution.high)
     return all(isinstance(v, (int, float)) and lo - slack <= float(v) <= hi + slack for v in support)
 
