@@ -149,7 +149,8 @@ def contact_setup(spec: MujocoContact) -> ContactSetup:
 
 BATCH_VARYING = frozenset({
     "plate_stiffness", "facet_offset", "facet_angle", "true_stiffness_scale", "true_damping_scale", "true_gain_scale",
-    "true_length_scale", "seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "filter_params", "progress",
+    "true_length_scale", "seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "filter_params",
+    "progress",
 })
 """Parameters that may differ between the samples of one batch (per-simulation models, q0, nominal, the filter's
 parameters: `scenarios.batch_form.run_batch_tuning`)."""

@@ -53,7 +53,8 @@ Outputs of a tune folder DIR:
 
     DIR/tune.json      {"objective", "inner_objective", settings, "evaluations": [{"evaluation",
                         "params", "value", "safe", "worst_rho", "nominal_status", "inner_evaluations",
-                        "first_violation", "faulted", "failed", "fault"}], "best": {"evaluation",
+                        "first_violation" (0: the nominal run, k: inner evaluation k, null: none),
+                        "faulted", "failed", "fault"}], "best": {"evaluation",
                         "params", "value", "worst_rho", "filter", "filter_params", "command",
                         "replay", "check"} | null, "safe", "status"}
     DIR/nominal/       study folder of the nominal runs (sample = evaluation − 1), runs/ kept
@@ -125,7 +126,8 @@ class TuneFile:
         varied = {d.parameter for d in study.vary}
         tuned = {d.parameter for d in self.box}
         if varied & tuned:
-            raise ValueError(f"filter parameter(s) {sorted(p.removeprefix(FILTER_PARAM_PREFIX) for p in varied & tuned)} "
+            both = sorted(p.removeprefix(FILTER_PARAM_PREFIX) for p in varied & tuned)
+            raise ValueError(f"filter parameter(s) {both} "
                              "are both tuned ([tune]) and varied ([vary]); the error box holds the plant's errors")
         nominal_study(self)  # the tuning box's ends through the scenario's (and the filter's) checks
         inner_study(self, {})  # and the error box with the fixed filter parameters
@@ -271,17 +273,17 @@ def tune(
     state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name}
     bar = progress if isinstance(progress, Progress) else Progress(f"tune {study.name}", budget, enabled=progress,
                                                                     unit="evaluations")
-    if not resume:
-        root.mkdir(parents=True, exist_ok=True)
-        write_json(root / TUNE_FILE, state)
-    optuna.logging.set_verbosity(logging.WARNING)
-    search = open_search(root, None, name, make_sampler(sampler, seed, population), resume)
-    trials, asked = asked_trials(search, space, root)
-    own_client = connect_scheduler(scheduler) if scheduler is not None else None
+    own_client = connect_scheduler(scheduler) if scheduler is not None else None  # before the folder is made
     client = own_client if own_client is not None else client
     run = {"workers": workers, "client": client}
     records: dict[int, dict[str, Any]] = {}
     try:
+        if not resume:
+            root.mkdir(parents=True, exist_ok=True)
+            write_json(root / TUNE_FILE, state)
+        optuna.logging.set_verbosity(logging.WARNING)
+        search = open_search(root, None, name, make_sampler(sampler, seed, population), resume)
+        trials, asked = asked_trials(search, space, root)
         numbers = [t.number for t in asked]
         retire_interrupted(search, trials, numbers)
         settings_of = [dict(t.params) for t in asked]
@@ -301,9 +303,12 @@ def tune(
                     pending.append(len(settings_of) - 1)
             candidates = [Candidate({d.parameter: p[d.parameter] for d in nominal.vary}, nominal.tunings[0])
                           for p in settings_of]
+            bar.update(len(records), f"{progress_note(records)}; nominal runs of settings "
+                                     f"{pending[0] + 1}-{pending[-1] + 1}")
             run_study(CandidateStudy.of(nominal, candidates), root / NOMINAL_DIR, resume=True,
                       samples=len(candidates), keep_runs=True, progress=False, **run)
             for e in pending:
+                bar.update(len(records), f"{progress_note(records)}; inner search of setting {e + 1}")
                 records[e] = evaluate(tune_file, root, e, settings_of[e], inner_budget, run)
                 value = told_value(records[e])
                 if value is None:
@@ -401,7 +406,8 @@ def winner(tune_file: TuneFile, root: Path, best: dict[str, Any]) -> dict[str, A
     write_json(root / WINNER_FILE, {**check.to_dict(), "name": f"{tune_file.study.name}_winner"})
     return {"evaluation": best["evaluation"], "params": best["params"], "value": best["value"],
             "worst_rho": best["worst_rho"], "filter": spec, "filter_params": params,
-            "command": f"--filter {spec} --filter-params '{params}'", "replay": f"softcbf run --config {BEST_DIR}/config.json",
+            "command": f"--filter {spec} --filter-params '{params}'",
+            "replay": f"softcbf run --config {BEST_DIR}/config.json",
             "check": f"softcbf study falsify {WINNER_FILE} --budget 300 --baseline 0 --seed 1 --out check"}
 
 
