@@ -177,15 +177,17 @@ def test_a_faulty_filter_gives_the_same_summary_rows_in_a_run_and_in_a_batched_s
             assert many.get(name) == one.get(name), (one["sample"], name)
 
 
-def test_samples_that_differ_in_filter_parameters_batch_and_equal_their_single_runs(tmp_path):
+@pytest.mark.parametrize("isolate", [False, True])
+def test_samples_that_differ_in_filter_parameters_batch_and_equal_their_single_runs(tmp_path, isolate):
     """The fault injection with the filter's own parameter varied (`vary."filter_param.raise_above"`): the samples
-    share one batch (one filter instance per simulation, each built from its sample's parameters), and each row's
-    figures and fault fields equal, bit for bit, those of the sample run alone."""
+    share one batch (one filter instance per simulation, each built from its sample's parameters; isolated: all in
+    the batch's one filter process), and each row's figures and fault fields equal, bit for bit, those of the
+    sample run alone."""
     plugin = tmp_path / "faulty.py"
     plugin.write_text(FAULTY, encoding="utf-8")
     study = Study("faulty_params", "paper_sim", ("Low",), draws=4, seed=5,
                   fixed={"duration": 0.3, "frequency": 1.0, "amplitude": 120.0, "pressure_limits": True,
-                         "filter": f"{plugin}:Faulty"},
+                         "filter": f"{plugin}:Faulty", "isolate": isolate},
                   vary=(Distribution("filter_param.raise_above", "uniform", low=60.0, high=180.0),))
     assert len({batch_key(study, i) for i in range(study.n_samples)}) == 1
     run_study(study, tmp_path / "single", workers=1, batch_size=1, progress=False)
