@@ -152,7 +152,10 @@ def _tune(args: argparse.Namespace) -> int:
         print(f"tune {tune_file.study.name}: {result['safe']} of {len(result['evaluations'])} settings safe "
               f"(no violation in {args.inner_budget} inner evaluations); folder {args.out}")
         if best is None:
-            print("no safe setting found: widen the tuning box towards more cautious settings")
+            failed = [r for r in result["evaluations"] if r["error"]]
+            print("no safe setting found" + (f" ({len(failed)} settings' runs failed outside the filter, the first: "
+                                             f"{failed[0]['error']})" if failed else "")
+                  + "; widen the tuning box towards more cautious settings")
             return
         print(f"best safe setting: evaluation {best['evaluation']}, {result['objective']} = {significant(best['value'])}, "
               f"worst rho_min_meas found {significant(best['worst_rho'])}")

@@ -22,7 +22,10 @@ the metric to maximise (default "force_delivered_N"). For a setting θ ∈ Θ:
   independent check is a larger falsification of the winner (`winner.json` below).
 - ρ_worst(θ) = min over the nominal and the inner evaluations of ρ_min_meas (−∞ with a fault).
 
-The tuning problem is max {F(θ) : θ ∈ Θ, θ safe}. The outer search is optuna's TPE
+The tuning problem is max {F(θ) : θ ∈ Θ, θ safe}. A setting's continuous values run rounded to
+`DIGITS` significant digits (and kept within the box): a setting a user types, and a run label
+(which names its time series file) of bounded length; the search is told the value of the
+rounded setting, which is the one stored and replayed. The outer search is optuna's TPE
 (multivariate, constant liar; or CMA-ES) over Θ, minimising the told value
 J(θ) = −F(θ) for a safe θ and J(θ) = UNSAFE_OFFSET + min(−ρ_worst(θ), RHO_CAP) for an unsafe
 one: every unsafe setting ranks behind every safe one (assumption: |F| < UNSAFE_OFFSET), and
@@ -94,6 +97,7 @@ UNSAFE_OFFSET = 1e6  # told value of an unsafe setting, before its violation (mo
 RHO_CAP = 1e3  # the largest violation −ρ_worst told (a fault's −∞ included)
 NOMINAL_DIR, INNER_DIR, BEST_DIR = "nominal", "inner", "best"
 WINNER_FILE, FIGURE_FILE = "winner.json", "tune.png"
+DIGITS = 4  # significant digits of a setting's continuous values (module docstring)
 TUNE_KEYS = ("objective",)  # [tune] keys that are not a parameter's table
 SETTINGS = ("objective", "inner_objective", "sampler", "seed", "population", "inner_budget", "study", "tune")
 
@@ -173,6 +177,16 @@ def inner_study(tune: TuneFile, values: dict[str, Any]) -> Study:
     return dataclasses.replace(study, fixed=fixed)
 
 
+def typed_setting(params: dict[str, Any], box: Sequence[Distribution]) -> dict[str, Any]:
+    """A setting the outer search asked for, as it runs: each continuous value to `DIGITS` significant digits
+    (module docstring), within its box; a choice as it is."""
+    out = {}
+    for d in box:
+        value = params[d.parameter]
+        out[d.parameter] = value if d.kind == "choice" else min(max(float(f"{value:.{DIGITS}g}"), d.low), d.high)
+    return out
+
+
 def told_value(record: dict[str, Any]) -> float | None:
     """The value the outer search minimises for an evaluation's `record` (module docstring); None: failed."""
     if record["safe"]:
@@ -214,7 +228,8 @@ def evaluation_record(e: int, params: dict[str, Any], row: dict[str, Any], value
     return {"evaluation": e + 1, "params": {k.removeprefix(FILTER_PARAM_PREFIX): v for k, v in params.items()},
             "value": value, "safe": bool(safe), "worst_rho": worst, "nominal_status": row.get("status"),
             "inner_evaluations": len(inner_rows or []), "first_violation": first,  # 0: the nominal run, k: inner k
-            "faulted": n_faulted, "failed": failed, "fault": fault}
+            "faulted": n_faulted, "failed": failed, "fault": fault,
+            "error": next((str(r.get("error") or "").splitlines()[0] for r in rows if r.get("status") == "error"), None)}
 
 
 def filter_spec(tune: TuneFile, params: dict[str, Any]) -> tuple[str, str]:
@@ -286,7 +301,7 @@ def tune(
         trials, asked = asked_trials(search, space, root)
         numbers = [t.number for t in asked]
         retire_interrupted(search, trials, numbers)
-        settings_of = [dict(t.params) for t in asked]
+        settings_of = [typed_setting(t.params, tune_file.box) for t in asked]
         pending = [e for e, t in enumerate(asked) if t.state == TrialState.RUNNING]
         for e, trial in enumerate(asked):  # told before: read back from the folders, never run again
             if trial.state != TrialState.RUNNING:
@@ -299,7 +314,7 @@ def tune(
                 for _ in range(min(population, budget - len(settings_of))):
                     trial = search.ask(space)
                     numbers.append(trial.number)
-                    settings_of.append(dict(trial.params))
+                    settings_of.append(typed_setting(trial.params, tune_file.box))
                     pending.append(len(settings_of) - 1)
             candidates = [Candidate({d.parameter: p[d.parameter] for d in nominal.vary}, nominal.tunings[0])
                           for p in settings_of]
