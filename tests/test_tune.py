@@ -16,7 +16,8 @@ import pytest
 from softcbf.study.cli import main
 from softcbf.study.definition import load_study
 from softcbf.study.store import StudyStore
-from softcbf.study.tune import (UNSAFE_OFFSET, evaluation_record, load_tune, told_value, tune)
+from softcbf.study.definition import Distribution
+from softcbf.study.tune import UNSAFE_OFFSET, evaluation_record, load_tune, told_value, tune, typed_setting
 
 CLIP = '''
 import numpy as np
@@ -80,6 +81,16 @@ def test_a_tune_file_without_a_filter_or_with_two_tunings_is_refused(plugin, tmp
     path.write_text(tune_text(plugin).replace('tunings = ["clip"]', 'tunings = ["a", "b"]'), encoding="utf-8")
     with pytest.raises(ValueError, match="runs one tuning"):
         load_tune(path)
+
+
+def test_a_setting_runs_to_four_significant_digits_within_its_box():
+    box = (Distribution("filter_param.a", "uniform", low=0.7, high=1.4),
+           Distribution("filter_param.b", "loguniform", low=1.00001, high=3.0),
+           Distribution("filter_param.c", "choice", values=("x", "y")))
+    setting = typed_setting({"filter_param.a": 1.3999871, "filter_param.b": 1.0000123, "filter_param.c": "y"}, box)
+    assert setting == {"filter_param.a": 1.4, "filter_param.b": 1.00001, "filter_param.c": "y"}
+    assert typed_setting({"filter_param.a": 0.81234567, "filter_param.b": 2.5, "filter_param.c": "x"},
+                         box)["filter_param.a"] == 0.8123
 
 
 def test_a_setting_with_a_fault_or_a_violation_is_never_safe_and_ranks_behind_every_safe_one():
