@@ -162,3 +162,21 @@ def test_a_setting_whose_filter_faults_in_the_inner_search_is_not_safe(plugin, t
     assert record["faulted"] >= 1 and record["fault"]["type"] == "RuntimeError"
     assert not record["safe"] and result["best"] is None and result["safe"] == 0
     assert not (tmp_path / "out" / "best").exists()
+
+
+def test_the_shipped_c_erg_tuning_searches_the_standard_box_stated_once(tmp_path):
+    """studies/tune_cerg_box.toml names studies/mismatch_box_contact.toml's box (error_box), and its tuning box
+    holds the README's setting and the one configured by hand (SPEC §17)."""
+    root = Path(__file__).resolve().parents[1] / "studies"
+    tuning = load_tune(root / "tune_cerg_box.toml")
+    assert tuning.study.vary == load_study(root / "mismatch_box_contact.toml").vary
+    assert tuning.objective == "force_delivered_N" and tuning.study.fixed["filter"] == "c-erg"
+    box = {d.parameter.removeprefix("filter_param."): (d.low, d.high) for d in tuning.box}
+    for name, value in {"gain_lo_ratio": 0.8, "gain_hi_ratio": 1.25, "stiffness_lo_ratio": 0.8,
+                        "stiffness_hi_ratio": 1.4}.items():
+        assert box[name][0] <= value <= box[name][1], name
+    both = tmp_path / "both.toml"
+    both.write_text((root / "tune_cerg_box.toml").read_text(encoding="utf-8")
+                    + '\n[vary.tau_p]\ndist = "uniform"\nlow = 0.02\nhigh = 0.1\n', encoding="utf-8")
+    with pytest.raises(ValueError, match="give the error box once"):
+        load_tune(both)

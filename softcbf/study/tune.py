@@ -2,9 +2,10 @@
 
 Problem. A tune file is a study file (`softcbf.study.definition`: the scenario, the task in
 `fixed`, the filter and its fixed `filter_params`, one tuning, the error box `[vary]` and the
-inner objective) with a `[tune]` table: a tuning box Θ over the filter's own parameters
-(`[tune.NAME]`, dist "uniform", "loguniform" or "choice", as `[vary.NAME]`) and `objective`,
-the metric to maximise (default "force_delivered_N"). For a setting θ ∈ Θ:
+inner objective; or, instead of `[vary]`, `error_box = "FILE"`: the `[vary]` of that study file,
+relative to the tune file, so a lab states its box once) with a `[tune]` table: a tuning box Θ
+over the filter's own parameters (`[tune.NAME]`, dist "uniform", "loguniform" or "choice", as
+`[vary.NAME]`) and `objective`, the metric to maximise (default "force_delivered_N"). For a setting θ ∈ Θ:
 
 - the nominal evaluation runs the task once with θ at the nominal point x₀ (the fixed values,
   each varied parameter at the scenario's default: for the standard box the nominal plate,
@@ -98,6 +99,7 @@ RHO_CAP = 1e3  # the largest violation −ρ_worst told (a fault's −∞ includ
 NOMINAL_DIR, INNER_DIR, BEST_DIR = "nominal", "inner", "best"
 WINNER_FILE, FIGURE_FILE = "winner.json", "tune.png"
 DIGITS = 4  # significant digits of a setting's continuous values (module docstring)
+ERROR_BOX_KEY = "error_box"  # a tune file's key naming the study file whose [vary] is its error box
 TUNE_KEYS = ("objective",)  # [tune] keys that are not a parameter's table
 SETTINGS = ("objective", "inner_objective", "sampler", "seed", "population", "inner_budget", "study", "tune")
 
@@ -158,10 +160,26 @@ def load_tune(path: str | Path, settings: Sequence[str] = ()) -> TuneFile:
             raise ValueError("a tune file needs a [tune] table: the tuning box over the filter's parameters "
                              "([tune.NAME] with dist, low, high) and optionally objective")
         box, objective = tune_box(data.pop("tune"))
+        if ERROR_BOX_KEY in data:
+            data["vary"] = error_box(path, data.pop(ERROR_BOX_KEY), data.get("vary"))
         data.setdefault("draws", 1)  # a study's Monte Carlo size: unused by a tuning (its budgets count)
         return TuneFile(Study.from_dict(data), box, objective)
     except ValueError as exc:
         raise ValueError(f"tune file {path}: {exc}") from None
+
+
+def error_box(path: Path, name: Any, vary: Any) -> dict[str, Any]:
+    """The `[vary]` tables of the study file that a tune file's `error_box` names (a path relative to the tune
+    file): the error box stated once, for the falsifier and the tuning alike (SPEC §17)."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{ERROR_BOX_KEY} must name a study file whose [vary] is the error box, got {name!r}")
+    if vary is not None:
+        raise ValueError(f"give the error box once: {ERROR_BOX_KEY} = {name!r} or [vary] tables, not both")
+    source = path.parent / name
+    tables = read_settings_file(source, f"{ERROR_BOX_KEY} file").get("vary")
+    if not isinstance(tables, dict) or not tables:
+        raise ValueError(f"{ERROR_BOX_KEY} file {source} has no [vary] tables (the error box)")
+    return tables
 
 
 def nominal_study(tune: TuneFile) -> Study:
