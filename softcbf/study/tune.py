@@ -324,7 +324,10 @@ def tune(
         for e, trial in enumerate(asked):  # told before: read back from the folders, never run again
             if trial.state != TrialState.RUNNING:
                 records[e] = read_record(tune_file, root, e, settings_of[e], inner_budget)
-        bar.update(len(records), progress_note(records))
+        before = len(records)  # read back: the line counts this call's evaluations, so its ETA is theirs
+        if before:
+            bar = Progress(bar.label, max(1, budget - before), enabled=bar.enabled, unit="evaluations")
+        bar.update(0, f"{progress_note(records)}; {before} evaluations stored" if before else progress_note(records))
         while True:
             if not pending:
                 if len(settings_of) >= budget:
@@ -336,21 +339,21 @@ def tune(
                     pending.append(len(settings_of) - 1)
             candidates = [Candidate({d.parameter: p[d.parameter] for d in nominal.vary}, nominal.tunings[0])
                           for p in settings_of]
-            bar.update(len(records), f"{progress_note(records)}; nominal runs of settings "
+            bar.update(len(records) - before, f"{progress_note(records)}; nominal runs of settings "
                                      f"{pending[0] + 1}-{pending[-1] + 1}")
             run_study(CandidateStudy.of(nominal, candidates), root / NOMINAL_DIR, resume=True,
                       samples=len(candidates), keep_runs=True, progress=False, **run)
             for e in pending:
-                bar.update(len(records), f"{progress_note(records)}; inner search of setting {e + 1}")
+                bar.update(len(records) - before, f"{progress_note(records)}; inner search of setting {e + 1}")
                 records[e] = evaluate(tune_file, root, e, settings_of[e], inner_budget, run)
                 value = told_value(records[e])
                 if value is None:
                     search.tell(numbers[e], state=TrialState.FAIL)
                 else:
                     search.tell(numbers[e], value)
-                bar.update(len(records), progress_note(records))
+                bar.update(len(records) - before, progress_note(records))
             pending = []
-        bar.close(len(records))
+        bar.close(len(records) - before)
     finally:
         if own_client is not None:
             own_client.close()
