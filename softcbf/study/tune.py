@@ -39,10 +39,10 @@ coordinates) run by `execute.run_study` into DIR/nominal with `keep_runs` (each 
 kept: its time series gives the delivered force, its config.json replays it); then each
 setting's inner search runs into DIR/inner/EEEE (a falsification folder), whose generations are
 batched by the scenario's batch form (one `filter_batch` instance where the filter has one) on
-the local pool or Dask. The settings of one generation differ in the filter's parameters, so
-their nominal runs batch only through the batch form's one-instance-per-row path; they are kept
-runs, each run alone for its time series. On Dask, DIR must lie on a disk the workers share
-(the kept runs are written where they run).
+the local pool or Dask. The nominal runs are kept runs (the time series gives the delivered
+force, config.json the replay), so each runs alone, the generation's runs in parallel over the
+workers. On Dask, DIR must lie on a disk the workers share (the kept runs are written where they
+run).
 
 Resume (one driver per folder). The outer trials live in optuna's SQLite storage DIR/optuna.db
 (`falsify.open_search`, the optuna study's name in tune.json); the nominal rows are study parts,
