@@ -142,6 +142,8 @@ def test_tiny_tune_end_to_end_then_resume_keeps_every_finished_evaluation_once(p
                  "--no-progress", "--resume"]) == 0
     second = json.loads((out / "tune.json").read_text(encoding="utf-8"))
     assert second["evaluations"][:2] == first["evaluations"] and len(second["evaluations"]) == 3
+    settings = [r["params"]["limit_hPa"] for r in second["evaluations"]]
+    assert len(set(settings)) == 3, settings  # the resumed sampler draws a new setting, not its first again
     assert {p: (out / "inner" / p / "falsify.json").stat().st_mtime_ns for p in parts} == stamps  # not run again
     assert [r["sample"] for r in StudyStore.open(out / "nominal").load_rows()] == [0, 1, 2]
     search = optuna.load_study(study_name=second["optuna_study"], storage=f"sqlite:///{out / 'optuna.db'}")

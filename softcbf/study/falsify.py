@@ -64,7 +64,8 @@ stopped inside optuna's `ask()` has none or part of them and is no evaluation). 
 trials asked but never told (the driver died) are run again (run_study skips the ones already
 stored) and told; one interrupted inside `ask()` is told failed and its candidate asked again
 (a vertex of generation 0 is enqueued again);
-then the search goes on up to the budget, which may grow. One driver per folder. A resume must
+then the search goes on up to the budget, which may grow, its sampler seeded anew from the seed and the trials so
+far (`make_sampler`: optuna keeps no sampler's random state). One driver per folder. A resume must
 give the same study, objective, sampler, seed and population (DIR/falsify.json records them),
 and its storage must hold the search: a missing, empty or unreadable optuna.db, or a storage
 without the study, is refused with one line (`OutputDirError`) before anything is written, so a
@@ -264,8 +265,13 @@ def searched_value(row: dict[str, Any], objective: str) -> float | None:
     return None if value is None else minimised(value, objective)
 
 
-def make_sampler(name: str, seed: int, population: int) -> optuna.samplers.BaseSampler:
-    """Optuna's sampler `name` (SAMPLERS: module docstring), seeded, with `population` for CMA-ES."""
+def make_sampler(name: str, seed: int, population: int, n_trials: int = 0) -> optuna.samplers.BaseSampler:
+    """Optuna's sampler `name` (SAMPLERS: module docstring) with `population` for CMA-ES, seeded with `seed` for a
+    new search and, for one resumed after `n_trials` trials, with a seed drawn from (seed, n_trials): optuna keeps
+    no sampler's random state, so the search's own seed would draw again the random candidates it drew at its
+    start (TPE's startup trials, CMA-ES's independent draws) instead of new ones."""
+    if n_trials:
+        seed = int(np.random.SeedSequence([seed, n_trials]).generate_state(1)[0])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         if name == "cmaes":
@@ -384,6 +390,8 @@ def falsify(
     search = open_search(root, storage, name, make_sampler(sampler, study.seed, population), resume)
     search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
     trials, asked = asked_trials(search, space, root)
+    if trials:  # a resumed search draws new random candidates (`make_sampler`)
+        search.sampler = make_sampler(sampler, study.seed, population, len(trials))
     parts = StudyStore(search_dir, study).part_paths()
     if len(parts) > len(asked):
         raise OutputDirError(f"{root} holds {len(parts)} evaluations but its optuna storage {len(asked)} trials "

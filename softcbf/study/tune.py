@@ -48,7 +48,8 @@ Resume (one driver per folder). The outer trials live in optuna's SQLite storage
 (`falsify.open_search`, the optuna study's name in tune.json); the nominal rows are study parts,
 the inner searches falsification folders. Evaluation e is the e-th outer trial whose parameters
 cover Θ. On resume, an evaluation already told is read back from its folders (never run
-again); one asked but not told runs its missing parts (run_study skips the stored nominal run,
+again, and the sampler is seeded anew from the seed and the trials so far, `falsify.make_sampler`); one asked
+but not told runs its missing parts (run_study skips the stored nominal run,
 an inner search resumes from its own storage, a finished one is read) and is told; then the
 search goes on up to the budget, which may grow. A resume must repeat the study, tuning box,
 objectives, sampler, seed, population and inner budget (tune.json records them).
@@ -317,6 +318,8 @@ def tune(
         optuna.logging.set_verbosity(logging.WARNING)
         search = open_search(root, None, name, make_sampler(sampler, seed, population), resume)
         trials, asked = asked_trials(search, space, root)
+        if trials:  # a resumed search draws new random settings (`falsify.make_sampler`)
+            search.sampler = make_sampler(sampler, seed, population, len(trials))
         numbers = [t.number for t in asked]
         retire_interrupted(search, trials, numbers)
         settings_of = [typed_setting(t.params, tune_file.box) for t in asked]
