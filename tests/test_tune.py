@@ -17,7 +17,8 @@ from softcbf.study.cli import main
 from softcbf.study.definition import load_study
 from softcbf.study.store import StudyStore
 from softcbf.study.definition import Distribution
-from softcbf.study.tune import UNSAFE_OFFSET, evaluation_record, load_tune, told_value, tune, typed_setting
+from softcbf.study.tune import (UNSAFE_OFFSET, evaluation_record, load_tune, nominal_value, told_value, tune,
+                                typed_setting)
 
 CLIP = '''
 import numpy as np
@@ -81,6 +82,14 @@ def test_a_tune_file_without_a_filter_or_with_two_tunings_is_refused(plugin, tmp
     path.write_text(tune_text(plugin).replace('tunings = ["clip"]', 'tunings = ["a", "b"]'), encoding="utf-8")
     with pytest.raises(ValueError, match="runs one tuning"):
         load_tune(path)
+
+
+def test_an_objective_the_rows_do_not_have_is_refused_with_the_columns(tmp_path):
+    row = {"status": "ok", "sample": 0, "rho_min_meas": 0.3, "force_max_N": 0.1, "param.filter_param.a": 1.0}
+    assert nominal_value(row, tmp_path, "force_max_N") == 0.1
+    with pytest.raises(ValueError, match="'force_mx_N': the nominal run's row has no such column; numeric columns: "
+                                         "force_max_N, rho_min_meas"):
+        nominal_value(row, tmp_path, "force_mx_N")
 
 
 def test_a_setting_runs_to_four_significant_digits_within_its_box():

@@ -225,6 +225,11 @@ def nominal_value(row: dict[str, Any], run_dir: Path, objective: str) -> float |
         from softcbf.bench import steady_force_of_folder  # the bench's own definition of the delivered force
 
         return steady_force_of_folder(run_dir)
+    if objective not in row:  # a misspelt metric: no setting would ever have a value
+        numeric = sorted(k for k, v in row.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
+                         and not k.startswith("param.") and k not in ("sample", "draw", "scenario_seed"))
+        raise ValueError(f"tune.objective {objective!r}: the nominal run's row has no such column; numeric columns: "
+                         f"{', '.join(numeric)} (or {DEFAULT_OBJECTIVE})")
     value = row.get(objective)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return None
