@@ -1,15 +1,19 @@
 """The closed loop of a scenario's batch form (docs/studies.md#batches): B samples of one tuning at once.
 
-`run_batch_tuning` runs, for samples b = 0 … B−1 that share the controller under test
-(one `ControllerRun`, one `FilterContext` but for the nominal's parameters), the plant
+`run_batch_tuning` runs, for samples b = 0 … B−1 that share one `FilterContext` (but for the
+nominal's parameters) and run one controller under test each (`ControllerRun` b: the same filter
+spec, parameters that may differ), the plant
 `plant` (a `BatchPlant` of B simulations, simulation b built from sample b) from q0_b
 with the nominal controller built from sample b's parameters, through
 `run_batch_closed_loop` (one control step per simulation, as a single run's), and returns
 one row per sample: `BatchRun.run(b)` (the docs/run-outputs.md figures of the same names as
 the single run's, with a filter fault's fields, `tests/test_study_batch.py`), `wall_s`
-(the batch's wall time / B) and `batch_size` (B). The filter is built once when it has
-`filter_batch` (the paper's CBF: `controllers.cbf_batch`), else once per simulation (B
-independent histories: a user's filter runs inside the batch, the physics batched). Each filter and
+(the batch's wall time / B) and `batch_size` (B). Where every sample's filter parameters are equal,
+the filter is built once when it has `filter_batch` (the paper's CBF: `controllers.cbf_batch`), else
+once per simulation (B independent histories: a user's filter runs inside the batch, the physics
+batched). Where they differ (a study or a tuning search that varies a filter parameter), each
+simulation gets its own instance built from its own parameters, called per simulation, so row b's
+commands and faults are those of sample b run alone; only the physics is batched. Each filter and
 nominal is told its own copy of `context` (`FilterContext.copy`); the batched step reads its limits from
 `context` itself, which no plug-in is handed.
 """
@@ -28,16 +32,27 @@ from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.plant import BatchPlant
 
 
-def run_batch_tuning(plant: BatchPlant, run: ControllerRun, context: FilterContext, nominal: str,
+def run_batch_tuning(plant: BatchPlant, runs: Sequence[ControllerRun], context: FilterContext, nominal: str,
                      nominal_kwargs: Sequence[dict[str, object]], duration: float,
                      q0: np.ndarray, progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:
-    """One row of run figures per simulation of `plant` (module docstring); q0 (B, N) rad; `progress`: the
-    batched loop's (`run_batch_closed_loop`: the fraction of the run done, after each control step)."""
+    """One row of run figures per simulation of `plant` (module docstring); `runs`: simulation b's controller
+    under test; q0 (B, N) rad; `progress`: the batched loop's (`run_batch_closed_loop`: the fraction of the run
+    done, after each control step)."""
     n_sims = plant.n_sims
-    if len(nominal_kwargs) != n_sims or np.shape(q0) != (n_sims, plant.n_segments):
-        raise ValueError(f"nominal_kwargs and q0 must hold one entry per simulation ({n_sims}), got "
-                         f"{len(nominal_kwargs)} and q0 of shape {np.shape(q0)}")
-    if run.isolate:  # one isolated process hosts the batch's filters and nominals (closedloop.isolation)
+    if len(runs) != n_sims or len(nominal_kwargs) != n_sims or np.shape(q0) != (n_sims, plant.n_segments):
+        raise ValueError(f"runs, nominal_kwargs and q0 must hold one entry per simulation ({n_sims}), got "
+                         f"{len(runs)}, {len(nominal_kwargs)} and q0 of shape {np.shape(q0)}")
+    run = runs[0]
+    if len({(r.filter, r.isolate) for r in runs}) != 1:
+        raise ValueError("the samples of one batch must run one filter spec, isolated or not")
+    if any(r.filter_params != run.filter_params for r in runs):  # one instance per simulation (module docstring)
+        specs = [(r.filter, r.filter_params) for r in runs]
+        if run.isolate:
+            filters, nominals = isolate(context, specs, [(nominal, kw) for kw in nominal_kwargs])
+        else:
+            filters = [build_filter(spec, params, context.copy()) for spec, params in specs]
+            nominals = [build_nominal(nominal, kwargs, context.copy()) for kwargs in nominal_kwargs]
+    elif run.isolate:  # one isolated process hosts the batch's filters and nominals (closedloop.isolation)
         hosted, nominals = isolate(context, [(run.filter, run.filter_params)], [(nominal, kw) for kw in nominal_kwargs],
                                    copies=n_sims)
         filters = hosted[0] if callable(getattr(hosted[0], "filter_batch", None)) else hosted

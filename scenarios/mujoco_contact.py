@@ -149,14 +149,16 @@ def contact_setup(spec: MujocoContact) -> ContactSetup:
 
 BATCH_VARYING = frozenset({
     "plate_stiffness", "facet_offset", "facet_angle", "true_stiffness_scale", "true_damping_scale", "true_gain_scale",
-    "true_length_scale", "seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "progress",
+    "true_length_scale", "seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "filter_params",
+    "progress",
 })
-"""Parameters that may differ between the samples of one batch (per-simulation models, q0, nominal)."""
+"""Parameters that may differ between the samples of one batch (per-simulation models, q0, nominal, the filter's
+parameters: `scenarios.batch_form.run_batch_tuning`)."""
 
 
 def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:
     """What the samples of one batch share: every parameter but `BATCH_VARYING` (scenario
-    structure, duration, physics step, filter, its parameters and the controller's model).
+    structure, duration, physics step, the filter's spec and the controller's model).
     None for the flexure plate (no batch form: its calibration is per model) and with table
     friction (`MujocoBatchPlant` refuses it)."""
     if params["plate"] != "ideal" or params["table_friction"]:
@@ -181,7 +183,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
     first = setups[0]
     plant = MujocoBatchPlant.from_configs([s.truth.config for s in setups], control_dt=CONTROL_DT,
                                           nthread=nthread)
-    return run_batch_tuning(plant, first.runs[0], first.context, specs[0].nominal.name,
+    return run_batch_tuning(plant, [s.runs[0] for s in setups], first.context, specs[0].nominal.name,
                             [s.nominal_kwargs for s in setups], specs[0].run.duration,
                             np.array([s.q0 for s in setups]), progress)
 

@@ -103,8 +103,10 @@ def paper_setup(spec: PaperSim) -> PaperSetup:
                       control_dt)
 
 
-PAPER_BATCH_VARYING = frozenset({"seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "progress"})
-"""Parameters that may differ between the samples of one batch (q0 and the nominal)."""
+PAPER_BATCH_VARYING = frozenset({"seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "filter_params",
+                                 "progress"})
+"""Parameters that may differ between the samples of one batch (q0, the nominal, the filter's parameters:
+`scenarios.batch_form.run_batch_tuning`)."""
 
 
 def paper_batch_key(params: Mapping[str, Any]) -> tuple:
@@ -127,7 +129,7 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
     from softcbf_mj.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): where a run starts
     plant = PCCBatchPlant(first.robot, first.safe_set, len(setups), control_dt=first.control_dt,
                           integrator=spec.integrator)
-    return run_batch_tuning(plant, first.runs[0], first.context(spec.filter.pressure_limits), spec.nominal.name,
+    return run_batch_tuning(plant, [s.runs[0] for s in setups], first.context(spec.filter.pressure_limits), spec.nominal.name,
                             [s.nominal_kwargs for s in setups], spec.run.duration, np.array([s.q0 for s in setups]),
                             progress)
 

@@ -175,3 +175,46 @@ def test_a_faulty_filter_gives_the_same_summary_rows_in_a_run_and_in_a_batched_s
     for one, many in zip(rows_single, rows_batched):
         for name in (*BATCH_FIGURES, "fault_type", "fault_where", "fault_message"):
             assert many.get(name) == one.get(name), (one["sample"], name)
+
+
+@pytest.mark.parametrize("isolate", [False, True])
+def test_samples_that_differ_in_filter_parameters_batch_and_equal_their_single_runs(tmp_path, isolate):
+    """The fault injection with the filter's own parameter varied (`vary."filter_param.raise_above"`): the samples
+    share one batch (one filter instance per simulation, each built from its sample's parameters; isolated: all in
+    the batch's one filter process), and each row's figures and fault fields equal, bit for bit, those of the
+    sample run alone."""
+    plugin = tmp_path / "faulty.py"
+    plugin.write_text(FAULTY, encoding="utf-8")
+    study = Study("faulty_params", "paper_sim", ("Low",), draws=4, seed=5,
+                  fixed={"duration": 0.3, "frequency": 1.0, "amplitude": 120.0, "pressure_limits": True,
+                         "filter": f"{plugin}:Faulty", "isolate": isolate},
+                  vary=(Distribution("filter_param.raise_above", "uniform", low=60.0, high=180.0),))
+    assert len({batch_key(study, i) for i in range(study.n_samples)}) == 1
+    run_study(study, tmp_path / "single", workers=1, batch_size=1, progress=False)
+    run_study(study, tmp_path / "batched", workers=1, progress=False)
+    rows_single = StudyStore.open(tmp_path / "single").load_rows()
+    rows_batched = StudyStore.open(tmp_path / "batched").load_rows()
+    assert [r["batch_size"] for r in rows_batched] == [4] * 4
+    faulted = [r.get("fault_type") == "RuntimeError" for r in rows_single]
+    assert faulted == [r["param.filter_param.raise_above"] < 120.0 for r in rows_single]
+    assert any(faulted) and not all(faulted), "the draws must fault some samples and not others"
+    for one, many in zip(rows_single, rows_batched):
+        for name in (*BATCH_FIGURES, "fault_type", "fault_where", "fault_message"):
+            assert many.get(name) == one.get(name), (one["sample"], name)
+
+
+def test_a_built_in_batch_filter_with_varied_parameters_batches_and_equals_its_single_runs(tmp_path):
+    """The paper's CBF (which has `filter_batch`) with its gamma varied: one batch, one instance per simulation, the
+    same figures as each sample run alone; with gamma fixed the samples share one `filter_batch` instance."""
+    study = Study("gamma", "paper_sim", ("custom",), sampling="grid", seed=3,
+                  fixed={"duration": 0.5, "t0": 25.0, "amplitude": 150.0, "filter_params": "a_E=1.0;b_E=1.0"},
+                  vary=(Distribution("filter_param.gamma", "choice", values=(0.05, 1.0, 20.0)),))
+    run_study(study, tmp_path / "single", workers=1, batch_size=1, progress=False)
+    run_study(study, tmp_path / "batched", workers=1, progress=False)
+    rows_single = StudyStore.open(tmp_path / "single").load_rows()
+    rows_batched = StudyStore.open(tmp_path / "batched").load_rows()
+    assert [r["batch_size"] for r in rows_batched] == [3] * 3
+    assert len({r["u_peak_abs_hPa"] for r in rows_single}) == 3  # the parameter changes the runs
+    for one, many in zip(rows_single, rows_batched):
+        for name in BATCH_FIGURES:
+            assert many[name] == one[name], (one["sample"], name)

@@ -7,6 +7,9 @@
                                    [--initial vertices|random]
                                    [--seed S] [--baseline N] [--stop-on-violation] [--storage URL]
                                    [--workers N | --scheduler tcp://host:8786] [--resume] [--batch-size N] [--set ...]
+    python -m softcbf.study tune TUNE_FILE --out DIR [--budget 20] [--inner-budget 40] [--sampler tpe|cmaes]
+                                   [--population 4] [--seed S] [--workers N | --scheduler tcp://host:8786] [--resume]
+                                   [--set ...]
     python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
@@ -24,6 +27,9 @@ violation everywhere (a fault is never a pass); the lines printed say how many f
 `falsify` searches the file's [vary] box for the minimum of its objective (default
 ρ_min_meas) with optuna's CMA-ES or TPE, beside a uniform baseline of the same budget, into
 DIR (`softcbf.study.falsify`: DIR/falsify.json, DIR/worst/, …); it ends with the report.
+`tune` searches a tune file's tuning box (its [tune] table over the filter's parameters) for the setting with the
+most force at the nominal point that an inner falsification of its [vary] box cannot break
+(`softcbf.study.tune`: DIR/tune.json, DIR/tune.png, DIR/best/, DIR/winner.json).
 `report` (re)writes DIR/report.md and DIR/plots/ (of a study folder or a falsification folder).
 `softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf.cli).
 """
@@ -129,6 +135,37 @@ def _falsify(args: argparse.Namespace) -> int:
     return _resumable(body, args.out, "evaluations")
 
 
+def _tune(args: argparse.Namespace) -> int:
+    from softcbf.study.tune import load_tune
+    from softcbf_mj.progress import Progress, significant
+
+    def body() -> None:
+        tune_file = load_tune(args.tune_file, args.set)
+        bar = Progress(f"tune {tune_file.study.name}", max(1, args.budget), enabled=not args.no_progress,
+                       unit="evaluations")
+        bar.update(0, "starting the search")
+        from softcbf.study.tune import tune  # optuna: a second or more to import, after the first line
+
+        result = tune(tune_file, args.out, budget=args.budget, inner_budget=args.inner_budget, sampler=args.sampler,
+                      population=args.population, seed=args.seed, resume=args.resume, workers=args.workers,
+                      scheduler=args.scheduler, progress=bar)
+        best = result["best"]
+        print(f"tune {tune_file.study.name}: {result['safe']} of {len(result['evaluations'])} settings safe "
+              f"(no violation in {args.inner_budget} inner evaluations); folder {args.out}")
+        if best is None:
+            failed = [r for r in result["evaluations"] if r["error"]]
+            print("no safe setting found" + (f" ({len(failed)} settings' runs failed outside the filter, the first: "
+                                             f"{failed[0]['error']})" if failed else "")
+                  + "; widen the tuning box towards more cautious settings")
+            return
+        print(f"best safe setting: evaluation {best['evaluation']}, {result['objective']} = {significant(best['value'])}, "
+              f"worst rho_min_meas found {significant(best['worst_rho'])}")
+        print(f"as a filter: {best['command']}")
+        print(f"replay: {best['replay']} (in {args.out}); independent check: {best['check']}")
+
+    return _resumable(body, args.out, "evaluations")
+
+
 def _report(args: argparse.Namespace) -> int:
     print(f"study report: rebuilding {args.dir}'s tables and plots", flush=True)
     from softcbf.study.report import write_report
@@ -143,7 +180,7 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Declare the `run`, `falsify` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf.study`)."""
+    """Declare the `run`, `falsify`, `tune` and `report` sub-commands on `parser` (`softcbf study`, `python -m softcbf.study`)."""
     commands = parser.add_subparsers(dest="study_command", required=True)
     run = commands.add_parser("run", help="run a study file into a study folder")
     run.add_argument("study_file", type=Path, help="study definition (TOML) or a shipped study's name, e.g. studies/paper_tunings_plate_errors.toml, mismatch_box_contact")
@@ -189,6 +226,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     falsify.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                          help="set a dotted key of the study file, e.g. vary.plate_stiffness.high=12 (repeatable)")
     falsify.set_defaults(study_handler=_falsify)
+    tune = commands.add_parser("tune", help="search a filter's parameters for the most force that stays safe over "
+                                            "an error box")
+    tune.add_argument("tune_file", type=Path, help="tune definition (TOML: a study file with a [tune] table), e.g. "
+                                                   "studies/tune_cerg_box.toml")
+    tune.add_argument("--out", type=Path, required=True, help="tune folder (refused if not empty, unless --resume)")
+    tune.add_argument("--budget", type=int, default=20, help="settings of the filter to evaluate (default 20)")
+    tune.add_argument("--inner-budget", type=int, default=40,
+                      help="falsification evaluations of the error box per setting (default 40)")
+    tune.add_argument("--sampler", choices=("tpe", "cmaes"), default="tpe", help="outer optuna sampler (default tpe)")
+    tune.add_argument("--population", type=int, default=4, help="settings per outer generation (default 4)")
+    tune.add_argument("--seed", type=int, help="seed of the outer sampler (default the file's)")
+    backend = tune.add_mutually_exclusive_group()
+    backend.add_argument("--workers", type=int, help="local worker processes (default: every core)")
+    backend.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786 (instead of the local pool)")
+    tune.add_argument("--resume", action="store_true", help="continue the tuning stored in --out")
+    tune.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    tune.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                      help="set a dotted key of the tune file, e.g. tune.gain_lo_ratio.low=0.8 (repeatable)")
+    tune.set_defaults(study_handler=_tune)
     report = commands.add_parser("report", help="write report.md and plots/ for a study or falsification folder")
     report.add_argument("dir", type=Path, help="study folder, or a falsification folder (study falsify)")
     report.add_argument("--level", type=float, default=0.05, help="violation probability to locate (default 0.05)")

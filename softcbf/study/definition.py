@@ -401,18 +401,7 @@ class Study:
         for key in ("fixed", "vary"):
             if not isinstance(data.get(key, {}), dict):
                 raise ValueError(f"{key} must be a table ([{key}]), got {data[key]!r}")
-        vary = []
-        for parameter, spec in data.get("vary", {}).items():
-            if not isinstance(spec, dict):
-                raise ValueError(f"vary.{parameter} must be a table ([vary.{parameter}] with dist = ...), got {spec!r}")
-            spec = dict(spec)
-            if "dist" not in spec:
-                raise ValueError(f"vary.{parameter} needs dist = one of {', '.join(KINDS)}")
-            extra = set(spec) - {"dist", "low", "high", "mean", "std", "values", "points"}
-            if extra:
-                raise ValueError(f"vary.{parameter}: unknown key(s) {sorted(extra)}")
-            kind = spec.pop("dist")
-            vary.append(Distribution(parameter, kind, **spec))
+        vary = distributions_of(data.get("vary", {}))
         fixed = dict(data.get("fixed", {}))
         for key in ("filter", FILTER_PARAMS, "isolate"):  # isolate: the filter and nominal in their own process
             if key in data:
@@ -425,6 +414,27 @@ class Study:
                    draws=data.get("draws"), seed=data.get("seed", 0),
                    tuning_parameter=data.get("tuning_parameter", "tunings"), description=data.get("description", ""),
                    objective=data.get("objective", DEFAULT_OBJECTIVE))
+
+
+def distributions_of(tables: dict[str, Any], table: str = "vary", prefix: str = "") -> tuple[Distribution, ...]:
+    """The distributions of a file's `[vary]` tables (or another `table` of the same form, e.g. a tune file's
+    `[tune]`), each named `prefix` + its key; errors name `table`.KEY."""
+    out = []
+    for name, spec in tables.items():
+        if not isinstance(spec, dict):
+            raise ValueError(f"{table}.{name} must be a table ([{table}.{name}] with dist = ...), got {spec!r}")
+        spec = dict(spec)
+        if "dist" not in spec:
+            raise ValueError(f"{table}.{name} needs dist = one of {', '.join(KINDS)}")
+        extra = set(spec) - {"dist", "low", "high", "mean", "std", "values", "points"}
+        if extra:
+            raise ValueError(f"{table}.{name}: unknown key(s) {sorted(extra)}")
+        kind = spec.pop("dist")
+        try:
+            out.append(Distribution(prefix + name, kind, **spec))
+        except ValueError as exc:  # Distribution names vary.PARAMETER: the file's table and key instead
+            raise ValueError(str(exc).replace(f"vary.{prefix}{name}", f"{table}.{name}", 1)) from None
+    return tuple(out)
 
 
 def parse_setting(text: str) -> tuple[list[str], Any]:

@@ -64,7 +64,8 @@ stopped inside optuna's `ask()` has none or part of them and is no evaluation). 
 trials asked but never told (the driver died) are run again (run_study skips the ones already
 stored) and told; one interrupted inside `ask()` is told failed and its candidate asked again
 (a vertex of generation 0 is enqueued again);
-then the search goes on up to the budget, which may grow. One driver per folder. A resume must
+then the search goes on up to the budget, which may grow, its sampler seeded anew from the seed and the trials so
+far (`make_sampler`: optuna keeps no sampler's random state). One driver per folder. A resume must
 give the same study, objective, sampler, seed and population (DIR/falsify.json records them),
 and its storage must hold the search: a missing, empty or unreadable optuna.db, or a storage
 without the study, is refused with one line (`OutputDirError`) before anything is written, so a
@@ -264,7 +265,13 @@ def searched_value(row: dict[str, Any], objective: str) -> float | None:
     return None if value is None else minimised(value, objective)
 
 
-def _sampler(name: str, seed: int, population: int) -> optuna.samplers.BaseSampler:
+def make_sampler(name: str, seed: int, population: int, n_trials: int = 0) -> optuna.samplers.BaseSampler:
+    """Optuna's sampler `name` (SAMPLERS: module docstring) with `population` for CMA-ES, seeded with `seed` for a
+    new search and, for one resumed after `n_trials` trials, with a seed drawn from (seed, n_trials): optuna keeps
+    no sampler's random state, so the search's own seed would draw again the random candidates it drew at its
+    start (TPE's startup trials, CMA-ES's independent draws) instead of new ones."""
+    if n_trials:
+        seed = int(np.random.SeedSequence([seed, n_trials]).generate_state(1)[0])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         if name == "cmaes":
@@ -277,7 +284,7 @@ def _candidate(params: dict[str, Any], study: Study) -> Candidate:
     return Candidate(values, params.get(TUNING_COORDINATE, study.tunings[0]))
 
 
-def _rows(store_dir: Path, indices: range) -> dict[int, dict[str, Any]]:
+def stored_rows(store_dir: Path, indices: range) -> dict[int, dict[str, Any]]:
     """The stored rows of samples `indices` of a study folder (each part read and checked once)."""
     results = Path(store_dir) / "results"
     return {i: read_part(results / part_name(i)).to_pylist()[0] for i in indices if (results / part_name(i)).is_file()}
@@ -380,13 +387,11 @@ def falsify(
         if fresh_bar:
             bar.update(0, "opening the search")  # its storage takes seconds; a resume's first line follows its checks
     optuna.logging.set_verbosity(logging.WARNING)
-    search = open_search(root, storage, name, _sampler(sampler, study.seed, population), resume)
+    search = open_search(root, storage, name, make_sampler(sampler, study.seed, population), resume)
     search_dir, baseline_dir = root / SEARCH_DIR, root / BASELINE_DIR
-    trials = [t for t in search.get_trials(deepcopy=False) if t.state != TrialState.WAITING]  # WAITING: enqueued
-    if [t.number for t in trials] != list(range(len(trials))):
-        raise OutputDirError(f"the optuna study of {root} has gaps in its trial numbers; it was changed outside "
-                             "falsify (one driver per folder)")
-    asked = [t for t in trials if set(space) <= set(t.params)]  # evaluation e is asked[e] (module docstring)
+    trials, asked = asked_trials(search, space, root)
+    if trials:  # a resumed search draws new random candidates (`make_sampler`)
+        search.sampler = make_sampler(sampler, study.seed, population, len(trials))
     parts = StudyStore(search_dir, study).part_paths()
     if len(parts) > len(asked):
         raise OutputDirError(f"{root} holds {len(parts)} evaluations but its optuna storage {len(asked)} trials "
@@ -404,18 +409,13 @@ def falsify(
     run = {"workers": workers, "client": client, "batch_size": batch_size, "progress": False}
     try:
         numbers = [t.number for t in asked]  # evaluation e is optuna trial numbers[e]
-        for trial in trials:
-            if trial.state == TrialState.RUNNING and trial.number not in numbers:  # stopped inside ask(): asked anew
-                search.tell(trial.number, state=TrialState.FAIL)
-                vertex = trial.system_attrs.get("fixed_params")  # an enqueued vertex (optuna's key): enqueued again
-                if vertex:
-                    search.enqueue_trial(vertex)
+        retire_interrupted(search, trials, numbers)
         if initial == "vertices" and not trials:  # a fresh search
             for vertex in vertex_design(space, population, study.seed):
                 search.enqueue_trial(vertex)
         candidates = [_candidate(t.params, study) for t in asked]
         pending = [e for e, t in enumerate(asked) if t.state == TrialState.RUNNING]  # asked, never told
-        evaluated = _rows(search_dir, range(len(asked)))  # evaluation index → row, as they are told
+        evaluated = stored_rows(search_dir, range(len(asked)))  # evaluation index → row, as they are told
         violation = any(violated(r) for r in evaluated.values())
         stopped = "budget"
         note = search_note(evaluated, objective) if evaluated else "first generation"
@@ -438,7 +438,7 @@ def falsify(
             before = len(candidates) - len(pending)  # evaluations told before this generation
             run_study(CandidateStudy.of(study, candidates), search_dir, resume=True, samples=len(candidates),
                       report=lambda done_now: bar.update(before + done_now, note), **run)
-            rows = _rows(search_dir, range(pending[0], pending[-1] + 1))
+            rows = stored_rows(search_dir, range(pending[0], pending[-1] + 1))
             evaluated.update(rows)
             for e in pending:
                 row = rows.get(e, {})
@@ -515,6 +515,28 @@ def open_search(root: Path, storage: str | None, name: str, sampler: optuna.samp
         raise OutputDirError(f"cannot open {shown} as an optuna storage: {first}") from None
 
 
+def asked_trials(search: optuna.Study, space: dict[str, BaseDistribution],
+                 root: Path) -> tuple[list[optuna.trial.FrozenTrial], list[optuna.trial.FrozenTrial]]:
+    """The search's trials (enqueued ones left out) and its evaluations: the trials whose parameters cover
+    `space`, in trial order (module docstring); OutputDirError when the trial numbers have gaps."""
+    trials = [t for t in search.get_trials(deepcopy=False) if t.state != TrialState.WAITING]  # WAITING: enqueued
+    if [t.number for t in trials] != list(range(len(trials))):
+        raise OutputDirError(f"the optuna study of {root} has gaps in its trial numbers; it was changed outside "
+                             "the search (one driver per folder)")
+    return trials, [t for t in trials if set(space) <= set(t.params)]
+
+
+def retire_interrupted(search: optuna.Study, trials: list[optuna.trial.FrozenTrial], numbers: list[int]) -> None:
+    """Tell failed the trials that stopped inside `ask()` (running, not among the evaluations' `numbers`), and
+    enqueue again an enqueued vertex among them (module docstring: resume)."""
+    for trial in trials:
+        if trial.state == TrialState.RUNNING and trial.number not in numbers:  # stopped inside ask(): asked anew
+            search.tell(trial.number, state=TrialState.FAIL)
+            vertex = trial.system_attrs.get("fixed_params")  # an enqueued vertex (optuna's key): enqueued again
+            if vertex:
+                search.enqueue_trial(vertex)
+
+
 def search_note(evaluated: dict[int, dict[str, Any]], objective: str) -> str:
     """The progress line's note of a search: the best objective so far (`significant` digits), faults and the
     first violation."""
@@ -547,7 +569,7 @@ def uniform_baseline(study: Study, folder: Path, budget: int, chunk: int | None,
         start, done = done, (budget if chunk is None else min(budget, done + chunk))
         chunk_report = None if report is None else (lambda done_now, start=start: report(start + done_now))
         run_study(uniform, folder, resume=True, samples=done, report=chunk_report, **run)
-        new = _rows(folder, range(start, done))
+        new = stored_rows(folder, range(start, done))
         rows.update(new)
         if chunk is not None and any(violated(r) for r in new.values()):
             break

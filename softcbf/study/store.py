@@ -69,6 +69,7 @@ from softcbf.study.definition import Study
 
 STUDY_FILE = "study.json"
 FALSIFY_FILE = "falsify.json"  # a falsification folder's figures (softcbf.study.falsify)
+TUNE_FILE = "tune.json"  # a tune folder's figures (softcbf.study.tune)
 RESULTS_DIR = "results"
 COMPACT_FILE = "results.parquet"
 RUNS_DIR = "runs"
