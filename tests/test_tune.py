@@ -177,7 +177,7 @@ def test_a_setting_whose_filter_faults_in_the_inner_search_is_not_safe(plugin, t
 
 def test_the_shipped_c_erg_tuning_searches_the_standard_box_stated_once(tmp_path):
     """studies/tune_cerg_box.toml names studies/mismatch_box_contact.toml's box (error_box), and its tuning box
-    holds the README's setting and the one configured by hand (SPEC §17)."""
+    holds the README's setting and the one configured by hand (docs/studies.md, the standard box)."""
     root = Path(__file__).resolve().parents[1] / "studies"
     tuning = load_tune(root / "tune_cerg_box.toml")
     assert tuning.study.vary == load_study(root / "mismatch_box_contact.toml").vary

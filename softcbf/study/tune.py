@@ -1,4 +1,4 @@
-"""Robust tuning: the filter setting that delivers the most force and that a falsifier cannot break (SPEC §18).
+"""Robust tuning: the filter setting that delivers the most force and that a falsifier cannot break (docs/studies.md#robust-tuning).
 
 Problem. A tune file is a study file (`softcbf.study.definition`: the scenario, the task in
 `fixed`, the filter and its fixed `filter_params`, one tuning, the error box `[vary]` and the
@@ -171,7 +171,7 @@ def load_tune(path: str | Path, settings: Sequence[str] = ()) -> TuneFile:
 
 def error_box(path: Path, name: Any, vary: Any) -> dict[str, Any]:
     """The `[vary]` tables of the study file that a tune file's `error_box` names (a path relative to the tune
-    file): the error box stated once, for the falsifier and the tuning alike (SPEC §17)."""
+    file): the error box stated once, for the falsifier and the tuning alike (docs/studies.md, the standard box)."""
     if not isinstance(name, str) or not name:
         raise ValueError(f"{ERROR_BOX_KEY} must name a study file whose [vary] is the error box, got {name!r}")
     if vary is not None:
