@@ -139,7 +139,7 @@ def _with_entry(**entry) -> dict:
              "evaluation": 2, "evaluations": 4, "failed": 0, "first_violation": 1, "wall_s": 9.0, "faulted": 0,
              "fault": None, "beyond_certified": ["plate_stiffness", "facet_offset"]}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
-            "results": [], "falsify": settings, "worst_found": [{**found, **entry}]}
+            "results": [], "falsify": settings, "worst_found": [{**found, **entry}], "contact_under_error": []}
 
 
 SPOILED = [
