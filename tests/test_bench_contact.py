@@ -7,7 +7,7 @@ import pytest
 from softcbf.bench import (CASES, CONTACT_KEYS, FLEXURE_ASKED_N, PRINT_WIDTH, PUSH_BOX_DRAWS, PUSH_BOX_FILES,
                            PUSH_DURATION_S, PUSHES, QUICK_PUSH_BOX_DRAWS, QUICK_PUSH_DURATION_S, FilterSpec, RunOptions,
                            case_filter_params, check_bench_json, contact_text, contact_under_error, draw_figures,
-                           planned_cases, push_box_study, table_markdown)
+                           planned_cases, push_box_study, run_bench, table_markdown)
 from softcbf.study.analysis import clopper_pearson_upper
 from softcbf.study.definition import load_study
 from vocabulary.project_files import project_file
@@ -171,3 +171,23 @@ def test_the_printed_table_keeps_within_120_columns():
     assert "c-erg(p0=0.0,…)" in lines[1] and "mujoco_contact" in lines[1] and "0.700" in lines[1]
     wide = contact_text(entries, {})  # a label too long for the line is cut, the figures kept
     assert all(len(line) <= PRINT_WIDTH for line in wide) and wide[2].rstrip().endswith("–")
+
+
+def test_push_draws_whose_filter_faults_are_violations_in_a_real_quick_bench(tmp_path):
+    """A filter that raises at its first call, through the study machinery: every draw faulted, so 3 violations of 3
+    (never a pass), no least ρ_meas, no delivered force; bench.json passes its check."""
+    import json
+
+    plugin = tmp_path / "raising.py"
+    plugin.write_text("class RaiseFirst:\n    def __call__(self, estimate, u_nom):\n"
+                      "        raise RuntimeError('boom at the first call')\n", encoding="utf-8")
+    spec = FilterSpec(f"{plugin}:RaiseFirst")
+    bench = run_bench(tmp_path / "b", [spec], RunOptions(quick=True), cases=["mujoco_push_box"])
+    check_bench_json(json.loads((tmp_path / "b" / "bench.json").read_text(encoding="utf-8")))
+    (row,) = bench["results"]
+    assert row["draws"] == 3 and row["violations"] == 3 and row["faulted"] == 3 and row["violation_probability"] == 1.0
+    assert row["rho_min_meas"] is None and row["force_delivered_min_ratio"] is None
+    assert row["violation_cp95_upper"] == 1.0
+    (entry,) = bench["contact_under_error"]
+    assert entry["plant"] == "mujoco_contact" and entry["violations"] == 3 and entry["delivered_median_ratio"] is None
+    assert "| RuntimeError in the filter (3 runs) |" in (tmp_path / "b" / "bench.md").read_text(encoding="utf-8")
