@@ -36,7 +36,8 @@ built for a case's arm (e-erg: its escape-energy table is a q-space grid, N ≤ 
 defaults, 1 kHz) before the bench starts, and bench.json's "skipped" records the pair under the key
 "FILTER x CASE" (`skip_key`) with the filter's own message.
 
-Contact under error (SPEC §17; the pushes above run on exact plates). The push-draw cases run the 150 hPa
+Contact under error (docs/results.md#contact-under-error-benchjson-contact_under_error; the pushes above run on
+exact plates). The push-draw cases run the 150 hPa
 push of `PUSHES` under draws of the standard mismatch box as its file states it (`push_box_study`: the box's
 `vary` and seed, its fixed parameters but t0, which only the sinusoid reads; the filter under test and its
 parameters of the case as in `case_filter_params`; one definition of the box, read from the file): on
@@ -48,7 +49,7 @@ faulted draw counts as a violation, never a pass; the row adds the violations, t
 upper bound and the delivered force's minimum and median over the draws (/ F_max). The flexure case is the
 same push on the clamped sheet (`plate` = "flexure", scenarios.ground_truth), whose local stiffness varies
 along it: its asked force `FLEXURE_ASKED_N` is the unfiltered sheet's steady force (measured as
-tools/force_levels.py measures `PUSHES`: filter "none", 6 s, 2026-12-07), far above F_max, so the case
+tools/force_levels.py measures `PUSHES`: filter "none", 6 s), far above F_max, so the case
 asks F_max.
 
 `--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s, except the contact tasks' pushes, which last
