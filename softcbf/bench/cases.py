@@ -351,15 +351,15 @@ def contact_under_error(results: Sequence[Mapping[str, Any]]) -> list[dict[str, 
     mujoco_contact the flexure sheet's ρ_meas and delivered force / F_max (null where a row is absent or faulted)."""
     rows = {(r["filter"], r["case"]): r for r in results}
     out = []
-    for spec in dict.fromkeys(r["filter"] for r in results):
+    for label in dict.fromkeys(r["filter"] for r in results):
         for plant in PUSH_PLANTS:
             prefix = PUSH_PREFIX[plant]
-            box, nominal, flexure = (rows.get((spec, f"{prefix}_{suffix}"))
+            box, nominal, flexure = (rows.get((label, f"{prefix}_{suffix}"))
                                      for suffix in ("push_box", BOX_PUSH, "push_flexure"))
             if box is None and nominal is None and flexure is None:
                 continue
             out.append({
-                "filter": spec, "plant": plant,
+                "filter": label, "plant": plant,
                 **{k: None if box is None else box[src] for k, src in (
                     ("draws", "draws"), ("violations", "violations"), ("violation_cp95_upper", "violation_cp95_upper"),
                     ("rho_min_meas", "rho_min_meas"), ("faulted", "faulted"),
