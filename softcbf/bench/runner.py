@@ -14,9 +14,9 @@ budget of evaluations (`--falsify-budget N`; default `worst_found.BUDGET` = 36 f
 names the box and the budget (and the rest of the search's settings); its "worst_found" holds one entry per
 filter: rho_worst_found, the minimum ρ_min_meas over the evaluations, with that evaluation's parameters, and
 `beyond_certified`, the box's coordinates wider than the filter certifies (softcbf.bench.certified). Its
-folder: DIR/cases/<filter label>/worst_found/ (a falsification folder). A mismatch study or a falsification
-whose folder exists continues with `--resume` where it stopped (the study machinery refuses a folder of
-another study definition); any other case runs again from scratch.
+folder: DIR/cases/<filter label>/worst_found/ (a falsification folder). A study (the mismatch case, the push
+draws) or a falsification whose folder exists continues with `--resume` where it stopped (the study machinery
+refuses a folder of another study definition); any other case runs again from scratch.
 
 Progress: a line on stderr (softcbf_mj.progress) counts the cases to run now ("case k of n", the worst-case
 searches included, kept rows not) with an ETA, refreshed while a case runs; each finished case's line on stdout
