@@ -16,7 +16,7 @@ from softcbf.bench import (ACCEPT_TOL_HPA, CASES, DEFAULT_FILTERS, EERG_PARAMS, 
                            FilterSpec, RunOptions, case_filter_params, check_bench_json, nominal_acceptance, parse_filters,
                            pooled_figures, run_bench)
 from softcbf.cli import main
-from softcbf.study.analysis import wilson_interval
+from softcbf.study.analysis import clopper_pearson_upper, wilson_interval
 from softcbf_mj.runio import RUN_MARKER
 
 CASE = {c.name: c for c in CASES}
@@ -69,8 +69,10 @@ def test_pooled_figures_of_two_runs_by_hand():
     assert fig["filter_us_p99"] == pytest.approx(np.percentile([10, 30, 20, 40, 50], 99))
     assert fig["violation_probability"] == 0.5 and fig["draws"] == 2
     assert fig["violation_ci95"] == list(wilson_interval(1, 2))
+    assert fig["violations"] == 1 and fig["violation_cp95_upper"] == clopper_pearson_upper(1, 2)
     single = pooled_figures([a], 0.16)
     assert single["violation_probability"] is None and single["violation_ci95"] is None and single["draws"] is None
+    assert single["violations"] is None and single["violation_cp95_upper"] is None
 
 
 def test_nominal_acceptance_is_the_share_of_calls_that_returned_u_nom():
@@ -92,12 +94,11 @@ def test_nominal_acceptance_is_the_share_of_calls_that_returned_u_nom():
 
 def test_bench_runs_the_recommended_filter_beside_the_baselines_and_quick_pushes_last_3_s():
     """Was: `softcbf bench` without --filters ran e-erg and paper-cbf only, and --quick pushed for 1 s."""
-    from controllers.energy_governor import RECOMMENDED
-    from controllers.registry import FILTERS, arguments
+    from controllers.registry import find_preset
 
     specs = parse_filters(DEFAULT_FILTERS)
-    assert [s.name for s in specs] == ["c-erg", "e-erg", "paper-cbf"]
-    assert arguments(FILTERS["c-erg"], specs[0].params) == RECOMMENDED
+    assert [s.name for s in specs] == ["c-erg:recommended", "e-erg", "paper-cbf"] and specs[0].params == {}
+    assert find_preset(specs[0].name).filter == "c-erg"
     import argparse
 
     from softcbf.bench import add_arguments
@@ -106,7 +107,7 @@ def test_bench_runs_the_recommended_filter_beside_the_baselines_and_quick_pushes
     add_arguments(parser)
     assert parser.parse_args(["--out", "x"]).filters == DEFAULT_FILTERS
     pushes = [c for c in CASES if c.asked_N is not None]
-    assert len(pushes) == 12 and all(c.quick_duration_s() >= 3.0 for c in pushes)
+    assert len(pushes) == 15 and all(c.quick_duration_s() >= 3.0 for c in pushes)
     assert all(c.quick_duration_s() == 1.0 for c in CASES if c.asked_N is None)
 
 
@@ -156,11 +157,13 @@ def test_quick_bench_writes_the_contract(tmp_path):
         assert row["faulted"] == 0 and row["fault"] is None
         for key in RESULT_KEYS[2:]:
             if key in ("violation_probability", "violation_ci95", "draws", "force_asked_N", "force_delivered_N",
-                       "force_delivered_ratio", "faulted", "fault"):
+                       "force_delivered_ratio", "faulted", "fault", "violations", "violation_cp95_upper",
+                       "force_delivered_min_ratio", "force_delivered_median_ratio"):
                 continue
             assert isinstance(row[key], float) and math.isfinite(row[key]), key
         multi = row["case"] == "step"
         assert (row["draws"] == 3) if multi else (row["draws"] is None and row["violation_ci95"] is None)
+        assert (row["violations"] == round(3 * row["violation_probability"])) if multi else row["violations"] is None
         if multi:
             lo, hi = row["violation_ci95"]
             assert lo <= row["violation_probability"] <= hi
@@ -218,9 +221,10 @@ def _bench_json(**row) -> dict:
               "blocked_s": 0.0, "switches_per_s": 0.0, "filter_us_median": 12.0, "filter_us_p99": 30.0,
               "nominal_acceptance": 1.0, "wall_s": 3.0,
               "force_asked_N": None, "force_delivered_N": None, "force_delivered_ratio": None, "force_budget_used": 0.0,
-              "f_max_N": 0.16, "faulted": 0, "fault": None}
+              "f_max_N": 0.16, "faulted": 0, "fault": None, "violations": None, "violation_cp95_upper": None,
+              "force_delivered_min_ratio": None, "force_delivered_median_ratio": None}
     return {"battery": [c.name for c in CASES], "quick": True, "mismatch_draws": 2, "filters": ["none"], "skipped": {},
-            "results": [{**stored, **row}], "falsify": None, "worst_found": []}
+            "results": [{**stored, **row}], "falsify": None, "worst_found": [], "contact_under_error": []}
 
 
 QUICK_NONE = ["--quick", "--filters", "none", "--cases", "paper_sim_150"]
@@ -301,7 +305,8 @@ def test_resume_refuses_a_bench_json_of_garbage_values_naming_the_field(tmp_path
 def test_every_result_field_has_a_schema_entry():
     assert set(ROW_SCHEMA) == set(RESULT_KEYS)
     check_bench_json(_bench_json())
-    check_bench_json(_bench_json(violation_probability=0.0, violation_ci95=[0.0, 0.56], draws=3))
+    check_bench_json(_bench_json(violation_probability=0.0, violation_ci95=[0.0, 0.56], draws=3, violations=0,
+                                 violation_cp95_upper=0.63))
 
 
 @pytest.mark.parametrize("make, options", [

@@ -13,6 +13,8 @@
 | camera_push_030 … _120, camera_push_150hPa, camera_force_target | camera_loop | 10 Hz | the same contact tasks on the camera loop |
 | paper_sim_3seg   | paper_sim (PCC, exact state), robot "three-segment" | 1 kHz | `THREE_SEGMENT_PUSH_HPA` = 40 hPa on every segment from rest, `PUSH_DURATION_S` = 6 s |
 | mujoco_3seg      | mujoco_contact, robot "three-segment"    | 1 kHz  | the same push on the MuJoCo plant (the plate on its spring) |
+| mujoco_push_box, camera_push_box | a study (softcbf.study) on mujoco_contact / camera_loop | 1 kHz / 10 Hz | contact under error (`PUSH_BOX_FILES`): the 150 hPa push, `PUSH_DURATION_S` from rest, under `PUSH_BOX_DRAWS` = 100 Monte Carlo draws of the standard box (studies/mismatch_box_contact.toml, studies/mismatch_box_camera.toml) |
+| mujoco_push_flexure | mujoco_contact, `plate` = "flexure"   | 1 kHz  | the 150 hPa push on the clamped sheet in its gauge, as on the hardware, `PUSH_DURATION_S` |
 
 The step case runs on paper_sim (the PCC plant at 1 kHz with the exact state): a step is a test of the
 filter's own response to a sudden, large command, which the camera path's latency would mix with perception
@@ -34,10 +36,27 @@ built for a case's arm (e-erg: its escape-energy table is a q-space grid, N ≤ 
 defaults, 1 kHz) before the bench starts, and bench.json's "skipped" records the pair under the key
 "FILTER x CASE" (`skip_key`) with the filter's own message.
 
+Contact under error (docs/results.md#contact-under-error-benchjson-contact_under_error; the pushes above run on
+exact plates). The push-draw cases run the 150 hPa
+push of `PUSHES` under draws of the standard mismatch box as its file states it (`push_box_study`: the box's
+`vary` and seed, its fixed parameters but t0, which only the sinusoid reads; the filter under test and its
+parameters of the case as in `case_filter_params`; one definition of the box, read from the file): on
+mujoco_contact the physical errors (plate stiffness ±20 %, offset ±2 mm, actuator gain ±10 %, arm stiffness
+±10 %, damping ±30 %, valve lag 0.02–0.1 s), on camera_loop also the sensing errors of its box (delay
+0–60 ms, pixel noise 0–8 grey levels, dropped frames 0–20 %). Each runs as a study (continued with
+--resume) and is pooled over its draws like the mismatch case (softcbf.bench.figures: `draw_figures`): a
+faulted draw counts as a violation, never a pass; the row adds the violations, their exact one-sided 95 %
+upper bound and the delivered force's minimum and median over the draws (/ F_max). The flexure case is the
+same push on the clamped sheet (`plate` = "flexure", scenarios.ground_truth), whose local stiffness varies
+along it: its asked force `FLEXURE_ASKED_N` is the unfiltered sheet's steady force (measured as
+tools/force_levels.py measures `PUSHES`: filter "none", 6 s), far above F_max, so the case
+asks F_max.
+
 `--quick` (CI) cuts every duration to `QUICK_DURATION_S` = 1 s, except the contact tasks' pushes, which last
 `QUICK_PUSH_DURATION_S` = 3 s (the length tools/force_levels.py measured the asked forces over: a delivered
 force of a shorter push is still the transient), the steps to 3 starts of 0.5 s, the mismatch study to 2
-draws of 1 s, and skips the emulator (`QUICK_SKIPPED`: it runs in real time after a start-up of several
+draws of 1 s, the push draws to `QUICK_PUSH_BOX_DRAWS` = 3 draws of 3 s, and skips the emulator
+(`QUICK_SKIPPED`: it runs in real time after a start-up of several
 seconds).
 
 Parameters per case (`case_filter_params`; a spec's own parameters win): paper-cbf the tuning its case is
@@ -51,17 +70,19 @@ step, paper_sim_3seg: the tip passes through the plate, which pushes back nowher
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controllers.filter_parameters import parse_text
 from controllers.registry import PluginLoadError, build_filter, find_preset
 from controllers.safety_filter import FilterContext
 from scenarios import get
 from scenarios.common import build_safe_set, load_robot
 from scenarios.run import FILTER_FAULT
-from softcbf.bench.figures import f_max_of, pooled_figures, run_figures, steady_force_of_folder, study_figures
+from softcbf.bench.figures import (draw_figures, f_max_of, pooled_figures, run_figures, steady_force_of_folder, study_draws,
+                                   study_figures)
 from softcbf.bench.filters import FilterSpec
 from softcbf.study.definition import Distribution, Study
 from softcbf.study.store import faulted
@@ -86,6 +107,10 @@ PUSH_RATIOS = (0.3, 0.6, 0.9, 1.2)
 FORCE_TARGET_RATIO = 0.6
 PUSH_DURATION_S = 6.0
 THREE_SEGMENT_ROBOT, THREE_SEGMENT_PUSH_HPA = "three-segment", 40.0
+PUSH_BOX_DRAWS, QUICK_PUSH_BOX_DRAWS = 100, 3
+PUSH_BOX_FILES = {"mujoco_contact": "studies/mismatch_box_contact.toml", "camera_loop": "studies/mismatch_box_camera.toml"}
+BOX_PUSH = "push_150hPa"  # the push of `PUSHES` that the push draws and the flexure case run
+FLEXURE_ASKED_N = 1.48154  # N: the unfiltered 150 hPa push on the flexure sheet (module docstring)
 
 
 @dataclass(frozen=True)
@@ -101,6 +126,11 @@ class RunOptions:
     overwrite: bool = False
     falsify_budget: int | None = None
     """Evaluations of each filter's worst-case search (softcbf.bench.runner); None: the default, 0: none."""
+
+    @property
+    def push_draws(self) -> int:
+        """The push-draw cases' draws: `QUICK_PUSH_BOX_DRAWS` with quick, else `PUSH_BOX_DRAWS`."""
+        return QUICK_PUSH_BOX_DRAWS if self.quick else PUSH_BOX_DRAWS
 
     @property
     def draws(self) -> int:
@@ -249,6 +279,45 @@ def push_cases() -> tuple[Case, ...]:
         for plant, tasks in PUSHES.items() for suffix, (nominal_params, asked) in tasks.items())
 
 
+def push_box_study(spec: FilterSpec, case: Case, draws: int, duration: float) -> Study:
+    """A push-draw case's `softcbf.study.definition.Study` for `spec` (module docstring): the standard box of its
+    plant's file (`PUSH_BOX_FILES`) with the filter under test, `draws` draws of the `BOX_PUSH` push, each
+    `duration` s long from rest (`PUSH_DURATION_S`; --quick: `QUICK_PUSH_DURATION_S`)."""
+    import dataclasses
+
+    from softcbf.study.worst_found import box_study  # optuna (~1 s): only where a push-draw case is planned or run
+
+    plant = case.scenario_params["scenario"]
+    box = box_study(spec.name, case_filter_params(spec, case), duration=duration,
+                    box_file=project_file(PUSH_BOX_FILES[plant]))
+    fixed = {**{k: v for k, v in box.fixed.items() if k != "t0"}, "nominal": "step",
+             "nominal_params": parse_text(PUSHES[plant][BOX_PUSH][0]),
+             "progress": False, **plant_parameters(plant)}
+    return dataclasses.replace(
+        box, name=f"bench_{case.name}_{safe_name(spec.name)}", fixed=fixed, sampling="monte_carlo", draws=draws,
+        description=f"softcbf bench: the {BOX_PUSH} push on {plant} under the standard box ({PUSH_BOX_FILES[plant]})")
+
+
+def push_box_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
+    """A push-draw case: its study run (continued with --resume) and pooled over its draws (`draw_figures`)."""
+    from softcbf.study.execute import run_study  # the study engine (pandas, its report's matplotlib): only here
+    study = push_box_study(spec, case, options.push_draws,
+                           QUICK_PUSH_DURATION_S if options.quick else PUSH_DURATION_S)
+    run_study(study, out, workers=options.workers, keep_runs=True, progress=not options.quick,
+              resume=options.resume and out.exists())
+    return draw_figures(*study_draws(out))
+
+
+def contact_error_cases() -> tuple[Case, ...]:
+    """The contact cases under error (module docstring): a push-draw case per plant, the push on the flexure sheet."""
+    box = tuple(Case(f"{PUSH_PREFIX[plant]}_push_box", "1kHz" if plant == "mujoco_contact" else "camera", push_box_case,
+                     {"scenario": plant}, PUSHES[plant][BOX_PUSH][1], resumable=True) for plant in PUSH_PLANTS)
+    flexure = Case("mujoco_push_flexure", "1kHz", scenario_case,
+                   {"scenario": "mujoco_contact", "plate": "flexure", "duration": PUSH_DURATION_S, "nominal": "step",
+                    "nominal_params": PUSHES["mujoco_contact"][BOX_PUSH][0]}, FLEXURE_ASKED_N)
+    return (*box, flexure)
+
+
 THREE_SEGMENT_CASES: tuple[Case, ...] = tuple(
     Case(name, "1kHz", scenario_case,
          {"scenario": plant, "robot": THREE_SEGMENT_ROBOT, "duration": PUSH_DURATION_S, "nominal": "step",
@@ -265,8 +334,48 @@ CASES: tuple[Case, ...] = (
          {"scenario": "camera_loop", "plate_stiffness": 1.1 * ASSUMED_PLATE_N_PER_M, "facet_offset": -1e-3, "saved_frames_hz": 0.0}),
     Case("hardware_emulator", "camera", emulator_case),
     Case("camera_mismatch", "camera", mismatch_case, resumable=True),
-) + push_cases() + THREE_SEGMENT_CASES
+) + push_cases() + contact_error_cases() + THREE_SEGMENT_CASES
 QUICK_SKIPPED = {"hardware_emulator": "--quick: the emulator runs in real time after a start-up of several seconds"}
+
+
+CONTACT_KEYS = ("filter", "plant", "draws", "violations", "violation_cp95_upper", "rho_min_meas", "faulted",
+                "delivered_nominal_ratio", "delivered_min_ratio", "delivered_median_ratio", "flexure_rho_min_meas",
+                "flexure_ratio")
+
+
+def contact_under_error(results: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """bench.json's "contact_under_error" from its result rows: per filter and plant (`PUSH_PLANTS`, where any of
+    its rows below ran), from the push-draw row: the draws, the violations (a faulted draw is one), their
+    one-sided 95 % upper bound, the least ρ_meas (null when a draw faulted) and the faulted draws; the delivered
+    force / F_max at the nominal plate (the `BOX_PUSH` row), its minimum and median over the draws; on
+    mujoco_contact the flexure sheet's ρ_meas and delivered force / F_max (null where a row is absent or faulted)."""
+    rows = {(r["filter"], r["case"]): r for r in results}
+    out = []
+    for label in dict.fromkeys(r["filter"] for r in results):
+        for plant in PUSH_PLANTS:
+            prefix = PUSH_PREFIX[plant]
+            box, nominal, flexure = (rows.get((label, f"{prefix}_{suffix}"))
+                                     for suffix in ("push_box", BOX_PUSH, "push_flexure"))
+            if box is None and nominal is None and flexure is None:
+                continue
+            out.append({
+                "filter": label, "plant": plant,
+                **{k: None if box is None else box[src] for k, src in (
+                    ("draws", "draws"), ("violations", "violations"), ("violation_cp95_upper", "violation_cp95_upper"),
+                    ("rho_min_meas", "rho_min_meas"), ("faulted", "faulted"),
+                    ("delivered_min_ratio", "force_delivered_min_ratio"),
+                    ("delivered_median_ratio", "force_delivered_median_ratio"))},
+                "delivered_nominal_ratio": delivered_over_f_max(nominal),
+                "flexure_rho_min_meas": None if flexure is None else flexure["rho_min_meas"],
+                "flexure_ratio": delivered_over_f_max(flexure)})
+    return [{k: e[k] for k in CONTACT_KEYS} for e in out]
+
+
+def delivered_over_f_max(row: Mapping[str, Any] | None) -> float | None:
+    """A push row's delivered force / F_max (None: no row, or no steady force: a fault)."""
+    if row is None or row["force_delivered_N"] is None:
+        return None
+    return row["force_delivered_N"] / row["f_max_N"]
 
 
 def skip_key(spec: FilterSpec, case: Case) -> str:

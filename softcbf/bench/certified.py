@@ -27,7 +27,8 @@ covers more without saying so is reported as certifying less (a conservative lab
 
 A coordinate is beyond the certified set when its distribution's support is not inside the certified
 interval: a uniform or log-uniform [low, high] not within [c_lo, c_hi] (relative tolerance `REL_TOL`, so
-that the box's 8.928 N/m is 0.8 × 11.16 N/m), a normal distribution always (unbounded), a choice when one
+that the box's 8.928 N/m is 0.8 × 11.16 N/m; of the finite ends only: an interval open above, as the damping's,
+would otherwise take in everything), a normal distribution always (unbounded), a choice when one
 of its values lies outside.
 """
 
@@ -95,7 +96,7 @@ def inside(distribution: Distribution, interval: tuple[float, float] | None) -> 
     if interval is None or distribution.kind == "normal":
         return False
     lo, hi = interval
-    slack = REL_TOL * max(1.0, *(abs(end) for end in (lo, hi) if math.isfinite(end)))  # hi may be ∞
+    slack = REL_TOL * max(1.0, *(abs(end) for end in interval if math.isfinite(end)))  # an open end adds none
     support = distribution.values if distribution.kind == "choice" else (distribution.low, distribution.high)
     return all(isinstance(v, (int, float)) and lo - slack <= float(v) <= hi + slack for v in support)
 

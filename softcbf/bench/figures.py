@@ -11,10 +11,16 @@ changed a command, 0: it changed every one). The tolerance, 1e-3 hPa, lies far b
 and far above the rounding of a filter that returns u_nom through arithmetic; a command clipped to the
 pressure limits counts as changed (u_nom is the nominal's command as given to the filter).
 
-Cases of several runs (step, camera_mismatch) pool them: ρ_meas min and F max over the runs, t_violation_s and
-blocked_s summed, u_dev_rms the RMS over every run's calls, switches_per_s the mean over runs, the compute time
+Cases of several runs (step, camera_mismatch, the push draws) pool them: ρ_meas min and F max over the runs,
+t_violation_s and blocked_s summed, u_dev_rms the RMS over every run's calls, switches_per_s the mean over runs, the compute time
 quantiles and the nominal acceptance over every call; violation_probability = k/n runs with ρ_meas < 0 and its
-95 % Wilson interval (`softcbf.study.analysis`), draws = n; single runs have null there.
+95 % Wilson interval (`softcbf.study.analysis`), violations = k, violation_cp95_upper its exact one-sided 95 %
+Clopper–Pearson upper bound on P(violation) (1 − 0.05^(1/n) at k = 0: "none in 100 draws" states P < 3.0 %),
+draws = n; single runs have null there.
+
+Draws of a push (the push-draw cases, `draw_figures`): the pooled figures and the delivered force (`steady_force`
+of each draw) over F_max, its minimum and median over the draws that ran to the end (a faulted draw has no steady
+force: it counts among the violations instead; both null when every draw faulted).
 
 A fault is never a pass (docs/studies.md#faulted-samples). A run whose filter (or nominal) faulted stops at the
 vent after its fault, so its figures cover only the rows before it (a filter that raises at its first call
@@ -39,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from controllers.filter_metrics import governor_figures
-from softcbf.study.analysis import clean, wilson_interval
+from softcbf.study.analysis import clean, clopper_pearson_upper, wilson_interval
 from softcbf.study.store import StudyStore, fault_of, faulted
 from softcbf_mj.runio import load_timeseries, read_run_folder
 
@@ -133,25 +139,52 @@ def pooled_figures(runs: Sequence[RunFigures], f_max: float, force_key: str = "f
         "rho_min_meas": None if faults else min(rho),
         "t_violation_s": None if faults else float(sum(float(r[violation_key]) for r, _ in runs)),
         "force_max_N": force_max, "f_max_N": f_max, "force_budget_used": force_max / f_max,
-        "violation_probability": None, "violation_ci95": None, "draws": None,
+        "violation_probability": None, "violation_ci95": None, "draws": None, "violations": None,
+        "violation_cp95_upper": None,
         **call_figures(runs),
         "faulted": len(faults), "fault": faults[0] if faults else None,
     }
     if len(runs) > 1:
         violations = sum(faulted(r) or float(r["rho_min_meas"]) < 0 for r, _ in runs)
         out.update(violation_probability=violations / len(runs), violation_ci95=list(wilson_interval(violations, len(runs))),
-                   draws=len(runs))
+                   draws=len(runs), violations=violations, violation_cp95_upper=clopper_pearson_upper(violations, len(runs)))
     return out
 
 
-def study_figures(folder: Path) -> dict[str, Any]:
-    """A mismatch study folder (run with keep_runs) → the case's figures over its samples that ran (ok or faulted:
-    a fault is never a pass, module docstring)."""
+def study_runs(folder: Path) -> list[tuple[Mapping[str, Any], Path]]:
+    """A study folder run with keep_runs → (its row, its run folder) of every sample that ran (ok or faulted: a fault
+    is never a pass, module docstring); RuntimeError when none did."""
     store = StudyStore.open(folder)
     rows = [r for r in store.load_rows() if clean(r) or faulted(r)]
     if not rows:
         raise RuntimeError(f"study {folder} has no finished sample")
-    runs = []
-    for row in rows:
-        runs += run_figures(store.run_dir(int(row["sample"])))
-    return pooled_figures(runs, f_max_of(store.run_dir(int(rows[0]["sample"]))))
+    return [(row, store.run_dir(int(row["sample"]))) for row in rows]
+
+
+def study_figures(folder: Path) -> dict[str, Any]:
+    """A mismatch study folder (run with keep_runs) → the case's figures pooled over its samples (`study_runs`)."""
+    samples = study_runs(folder)
+    runs = [run for _, run_dir in samples for run in run_figures(run_dir)]
+    return pooled_figures(runs, f_max_of(samples[0][1]))
+
+
+def study_draws(folder: Path) -> tuple[list[RunFigures], list[float | None], float]:
+    """A push-draw study folder (run with keep_runs) → `draw_figures`' arguments: every draw's run figures, its
+    delivered force (`steady_force_of_folder`; None for a faulted draw) and F_max."""
+    samples = study_runs(folder)
+    runs, delivered = [], []
+    for row, run_dir in samples:
+        runs += run_figures(run_dir)
+        delivered.append(None if faulted(row) else steady_force_of_folder(run_dir))
+    return runs, delivered, f_max_of(samples[0][1])
+
+
+def draw_figures(runs: Sequence[RunFigures], delivered_N: Sequence[float | None], f_max: float) -> dict[str, Any]:
+    """The figures of a push under draws (module docstring): `pooled_figures` of the draws' `runs` and the delivered
+    force's minimum and median / `f_max` over the draws' `delivered_N` (N; None: a faulted draw, left out)."""
+    if len(delivered_N) != len(runs):
+        raise ValueError(f"one delivered force per draw: {len(delivered_N)} for {len(runs)} draws")
+    ratios = [d / f_max for d in delivered_N if d is not None]
+    return {**pooled_figures(runs, f_max),
+            "force_delivered_min_ratio": min(ratios) if ratios else None,
+            "force_delivered_median_ratio": float(np.median(ratios)) if ratios else None}

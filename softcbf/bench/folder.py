@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from softcbf.bench.cases import RunOptions
+from softcbf.bench.cases import RunOptions, contact_under_error
 from softcbf.bench.schema import RESULT_KEYS, WORST_KEYS, check_bench_json
 from softcbf.bench.tables import FORCE_PLOT_FILE, PLOT_FILE, table_markdown
 from softcbf_mj.runio import RUN_MARKER, OutputDirError, prepare_out_dir, release_out_dir, remove_if_unused
@@ -109,7 +109,9 @@ def stored_results(out: Path, bench: Mapping[str, Any]
 
 
 def write_outputs(out: Path, bench: Mapping[str, Any]) -> None:
-    """DIR/bench.json, DIR/bench.md and DIR/plots/bench.png (and force_budget.png with contact tasks) from `bench`."""
+    """DIR/bench.json, DIR/bench.md and DIR/plots/bench.png (and force_budget.png with contact tasks) from `bench`
+    (its "contact_under_error" derived from its rows here: softcbf.bench.cases, `contact_under_error`)."""
+    bench = {**bench, "contact_under_error": contact_under_error(bench["results"])}
     out.mkdir(parents=True, exist_ok=True)
     (out / BENCH_FILE).write_text(json.dumps(bench, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     (out / TABLE_FILE).write_text(table_markdown(bench), encoding="utf-8")

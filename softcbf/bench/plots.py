@@ -80,10 +80,12 @@ def _mark_panel(ax, key: str, results: Sequence[Mapping[str, Any]]) -> None:
 
 
 def push_rows(bench: Mapping[str, Any], name: str, plant: str) -> list[Mapping[str, Any]]:
-    """The filter `name`'s contact-task rows of `plant` that delivered a force, by asked force."""
+    """The filter `name`'s contact-task rows of `plant` (`PUSHES`: on the exact plate; the flexure sheet and the
+    push draws are contact under error, in bench.md) that delivered a force, by asked force."""
     prefix = PUSH_PREFIX[plant] + "_"
     return sorted((r for r in bench["results"] if r["filter"] == name and r["case"].startswith(prefix)
-                   and r["force_delivered_N"] is not None), key=lambda r: r["force_asked_N"])
+                   and r["case"][len(prefix):] in PUSHES[plant] and r["force_delivered_N"] is not None),
+                  key=lambda r: r["force_asked_N"])
 
 
 def _draw_filter(ax, rows: Sequence[Mapping[str, Any]], label: str, colour: str) -> None:

@@ -14,9 +14,9 @@ budget of evaluations (`--falsify-budget N`; default `worst_found.BUDGET` = 36 f
 names the box and the budget (and the rest of the search's settings); its "worst_found" holds one entry per
 filter: rho_worst_found, the minimum ρ_min_meas over the evaluations, with that evaluation's parameters, and
 `beyond_certified`, the box's coordinates wider than the filter certifies (softcbf.bench.certified). Its
-folder: DIR/cases/<filter label>/worst_found/ (a falsification folder). A mismatch study or a falsification
-whose folder exists continues with `--resume` where it stopped (the study machinery refuses a folder of
-another study definition); any other case runs again from scratch.
+folder: DIR/cases/<filter label>/worst_found/ (a falsification folder). A study (the mismatch case, the push
+draws) or a falsification whose folder exists continues with `--resume` where it stopped (the study machinery
+refuses a folder of another study definition); any other case runs again from scratch.
 
 Progress: a line on stderr (softcbf_mj.progress) counts the cases to run now ("case k of n", the worst-case
 searches included, kept rows not) with an ETA, refreshed while a case runs; each finished case's line on stdout
@@ -34,7 +34,8 @@ from pathlib import Path
 from typing import Any
 
 from controllers.registry import check_filter
-from softcbf.bench.cases import CASES, QUICK_DURATION_S, QUICK_SKIPPED, Case, RunOptions, arm_refusal, case_filter_params, skip_key
+from softcbf.bench.cases import (CASES, QUICK_DURATION_S, QUICK_SKIPPED, Case, RunOptions, arm_refusal, case_filter_params,
+                                 contact_under_error, skip_key)
 from softcbf.bench.certified import beyond_certified
 from softcbf.bench.filters import FilterSpec
 from softcbf.bench.folder import BENCH_FILE, discard, prepare_bench_dir, stored_results, write_outputs
@@ -91,7 +92,7 @@ def run_bench(out: str | Path, filters: Sequence[FilterSpec], options: RunOption
         raise
     finally:
         release_out_dir(out)
-    return bench
+    return {**bench, "contact_under_error": contact_under_error(bench["results"])}
 
 
 def checked_selection(filters: Sequence[FilterSpec], options: RunOptions, cases: Sequence[str] | None) -> list[str]:
@@ -157,7 +158,8 @@ def run_cases(out: Path, bench: dict[str, Any], filters: Sequence[FilterSpec], s
             shutil.rmtree(folder)
         start = time.perf_counter()
         row = {"filter": spec.label, "case": case.name, "force_asked_N": case.asked_N, "force_delivered_N": None,
-               "force_delivered_ratio": None, **case.run(case, spec, folder, options),
+               "force_delivered_ratio": None, "force_delivered_min_ratio": None, "force_delivered_median_ratio": None,
+               **case.run(case, spec, folder, options),
                "wall_s": time.perf_counter() - start}
         bench["results"].append({k: row[k] for k in RESULT_KEYS})
         write_outputs(out, bench)

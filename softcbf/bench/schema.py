@@ -2,19 +2,23 @@
 
     {"battery": [case, ...], "quick": bool, "mismatch_draws": int, "filters": [label, ...],
      "skipped": {case or "FILTER x CASE": reason}, "results": [row, ...], "falsify": {...} | null,
-     "worst_found": [entry, ...]}
+     "worst_found": [entry, ...], "contact_under_error": [entry, ...]}
 
 Every result row holds `RESULT_KEYS` (the figures: softcbf.bench.figures; `force_asked_N` and
 `force_delivered_N`, `force_delivered_ratio` = delivered / min(asked, F_max) in a contact task, null in the
 other cases; `force_budget_used` = F max / F_max and `f_max_N`, the scenario's F_max, in every row;
 `nominal_acceptance`, the fraction of calls that returned u_nom; wall_s: the case's wall time), every
-worst_found entry `WORST_KEYS` (softcbf.study.worst_found, and `beyond_certified`: softcbf.bench.certified).
+worst_found entry `WORST_KEYS` (softcbf.study.worst_found, and `beyond_certified`: softcbf.bench.certified),
+every contact_under_error entry `CONTACT_KEYS` (softcbf.bench.cases: `contact_under_error`, derived from the rows).
+A pooled row's `violations` and `violation_cp95_upper` (softcbf.bench.figures) join its other violation fields
+(`VIOLATION_KEYS`, null together); `force_delivered_min_ratio` and `force_delivered_median_ratio` are a push-draw
+case's (null elsewhere).
 
 The check (`check_bench_json`): the fields and types of docs/beyond-the-paper.md#filter-benchmark, numbers
 finite, times, RMS and compute times >= 0, probabilities and fractions in [0, 1], known cases, filters of its
 own list, each (filter, case) once; the same for "worst_found". A row's fault fields agree: fault set exactly
 when faulted > 0, the verdict (`VERDICT_KEYS`) null exactly then, the call figures (`CALL_KEYS`) numbers when
-no run faulted. A file that fails is refused with one line naming the field.
+no run faulted; "contact_under_error" is what its rows give. A file that fails is refused with one line naming the field.
 """
 
 from __future__ import annotations
@@ -23,13 +27,16 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from softcbf.bench.cases import CASES
+from softcbf.bench.cases import CASES, CONTACT_KEYS, contact_under_error
 from vocabulary.settings import Bound, check_number, non_negative
 
 RESULT_KEYS = ("filter", "case", "rho_min_meas", "t_violation_s", "force_max_N", "violation_probability", "violation_ci95",
                "draws", "u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99",
                "nominal_acceptance", "wall_s", "force_asked_N", "force_delivered_N", "force_delivered_ratio",
-               "force_budget_used", "f_max_N", "faulted", "fault")
+               "force_budget_used", "f_max_N", "faulted", "fault", "violations", "violation_cp95_upper",
+               "force_delivered_min_ratio", "force_delivered_median_ratio")
+VIOLATION_KEYS = ("violation_probability", "violation_ci95", "draws", "violations", "violation_cp95_upper")
+"""A pooled row's violation fields: null together (a single run)."""
 VERDICT_KEYS = ("rho_min_meas", "t_violation_s")  # null exactly when a run of the row faulted (module docstring)
 CALL_KEYS = ("u_dev_rms_hPa", "blocked_s", "switches_per_s", "filter_us_median", "filter_us_p99",
              "nominal_acceptance")  # null only then
@@ -46,11 +53,13 @@ ROW_SCHEMA: dict[str, Callable[[str, Any], None]] = {  # bench.json's row fields
     **{name: (lambda key, v: v is None or check_number(key, v, non_negative()))  # null: `_check_row_fault`
        for name in ("t_violation_s", *CALL_KEYS) if name != "nominal_acceptance"},
     **{name: (lambda key, v: v is None or check_number(key, v, _FRACTION))
-       for name in ("violation_probability", "nominal_acceptance")},
+       for name in ("violation_probability", "nominal_acceptance", "violation_cp95_upper")},
     "violation_ci95": lambda key, v: v is None or _check_interval(key, v),
     "draws": lambda key, v: v is None or check_number(key, v, Bound(1), integer=True),
+    "violations": lambda key, v: v is None or check_number(key, v, non_negative(), integer=True),
     **{name: (lambda key, v: v is None or check_number(key, v, non_negative()))
-       for name in ("force_asked_N", "force_delivered_N", "force_delivered_ratio")},
+       for name in ("force_asked_N", "force_delivered_N", "force_delivered_ratio", "force_delivered_min_ratio",
+                    "force_delivered_median_ratio")},
     "force_budget_used": lambda key, v: check_number(key, v, non_negative()),
     "f_max_N": lambda key, v: check_number(key, v, Bound(0.0, low_open=True, unit="N")),
     "faulted": lambda key, v: check_number(key, v, non_negative(), integer=True),
@@ -173,8 +182,8 @@ def check_bench_json(data: Any) -> None:
     is null), failed <= evaluations <= budget."""
     if not isinstance(data, dict):
         raise ValueError(f"it must be a JSON object, got {type(data).__name__}")
-    missing = [k for k in ("battery", "quick", "mismatch_draws", "filters", "skipped", "results", "falsify", "worst_found")
-               if k not in data]
+    missing = [k for k in ("battery", "quick", "mismatch_draws", "filters", "skipped", "results", "falsify", "worst_found",
+                           "contact_under_error") if k not in data]
     if missing:
         raise ValueError(f"it lacks {', '.join(missing)}")
     for key in ("battery", "filters"):
@@ -188,9 +197,29 @@ def check_bench_json(data: Any) -> None:
     if not (isinstance(data["skipped"], dict) and all(isinstance(v, str) for v in data["skipped"].values())):
         raise ValueError(f"skipped must be an object {{case or 'FILTER x CASE': reason}}, got {data['skipped']!r}")
     for where, row in _checked_items(data, "results", ROW_SCHEMA, ("a row", "rows"), lambda r: f"({r['filter']}, {r['case']})"):
-        _null_together(where, row, ("violation_probability", "violation_ci95", "draws"))
+        _null_together(where, row, VIOLATION_KEYS)
+        if row["draws"] is not None and row["violations"] > row["draws"]:
+            raise ValueError(f"{where}.violations must be <= draws ({row['draws']}), got {row['violations']}")
         _check_row_fault(where, row)
     _check_falsify(data)
+    _check_contact(data)
+
+
+def _check_contact(data: Mapping[str, Any]) -> None:
+    """bench.json's "contact_under_error": a list of objects with `CONTACT_KEYS`, exactly what its result rows give
+    (softcbf.bench.cases: `contact_under_error`; a figure edited by hand is refused)."""
+    entries = data["contact_under_error"]
+    if not (isinstance(entries, list) and all(isinstance(e, dict) and set(e) == set(CONTACT_KEYS) for e in entries)):
+        raise ValueError(f"contact_under_error must be a list of objects with {', '.join(CONTACT_KEYS)}, got {entries!r}")
+    expected = contact_under_error(data["results"])
+    for i, (entry, want) in enumerate(zip(entries, expected)):
+        wrong = [k for k in CONTACT_KEYS if entry[k] != want[k]]
+        if wrong:
+            raise ValueError(f"contact_under_error[{i}].{wrong[0]} must be {want[wrong[0]]!r} (what its result rows "
+                             f"give), got {entry[wrong[0]]!r}")
+    if len(entries) != len(expected):
+        raise ValueError(f"contact_under_error must hold {len(expected)} entries (one per filter and plant with "
+                         f"contact rows), got {len(entries)}")
 
 
 def _checked_items(data: Mapping[str, Any], name: str, schema: Mapping[str, Callable[[str, Any], None]],

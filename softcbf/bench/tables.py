@@ -1,8 +1,11 @@
 """bench.md, the bench's tables in Markdown, and the words of its printed lines.
 
 bench.md: one table of every result row (`TABLE`: each column's heading with its unit, the row field and its
-format), the quick flag, the skipped cases, the force plot's link (with contact tasks) and the worst cases
-found (`worst_found_markdown`).
+format), the quick flag, the skipped cases, the force plot's link (with contact tasks), contact under error
+(`contact_markdown`: bench.json's "contact_under_error", every column) and the worst cases found
+(`worst_found_markdown`). The bench's printed table of contact under error (`contact_text`) keeps within
+`PRINT_WIDTH` = 120 columns: the figures that decide (draws, violations and their bound, least ρ_meas, the
+delivered force / F_max), the filter by its short label; the rest is in bench.md.
 
 Nominal acceptance (column "u = u_nom [share of calls]"): the fraction of the filter's calls that returned the
 nominal command in every segment within softcbf.bench.figures.ACCEPT_TOL_HPA (stated under the table).
@@ -23,6 +26,20 @@ from softcbf.bench.figures import ACCEPT_TOL_HPA
 
 PLOT_FILE, FORCE_PLOT_FILE = "plots/bench.png", "plots/force_budget.png"  # in the bench folder; bench.md links them
 WIDER_BOX = "over a box wider than this filter certifies"
+PRINT_WIDTH = 120  # columns of the printed table (module docstring)
+CONTACT_TABLE = (("filter", "filter", ""), ("plant", "plant", ""), ("draws", "draws", "d"),
+                 ("violations", "violations", "d"), ("P(viol) < [CP 95 %]", "violation_cp95_upper", ".3f"),
+                 ("ρ_meas min", "rho_min_meas", ".4f"), ("faulted", "faulted", "d"),
+                 ("F nominal / F_max", "delivered_nominal_ratio", ".3f"), ("F min / F_max", "delivered_min_ratio", ".3f"),
+                 ("F median / F_max", "delivered_median_ratio", ".3f"), ("flexure ρ_meas", "flexure_rho_min_meas", ".4f"),
+                 ("F flexure / F_max", "flexure_ratio", ".3f"))
+"""bench.md's contact-under-error columns: heading, entry field, format."""
+CONTACT_PRINTED = ("filter", "plant", "draws", "violations", "violation_cp95_upper", "rho_min_meas",
+                   "delivered_nominal_ratio", "delivered_min_ratio", "delivered_median_ratio", "flexure_ratio")
+"""The fields of the printed table (module docstring), under their short headings `PRINTED_HEADINGS`."""
+PRINTED_HEADINGS = {"filter": "filter", "plant": "plant", "draws": "draws", "violations": "viol",
+                    "violation_cp95_upper": "P<(CP95)", "rho_min_meas": "rho_min", "delivered_nominal_ratio": "F_nom",
+                    "delivered_min_ratio": "F_min", "delivered_median_ratio": "F_med", "flexure_ratio": "F_flex"}
 TABLE = (("filter", "filter", ""), ("case", "case", ""), ("filter fault", "fault", ""), ("ρ_meas min", "rho_min_meas", ".4f"),
          ("t_viol [s]", "t_violation_s", ".3f"), ("F max [N]", "force_max_N", ".4f"),
          ("P(viol) [95 % CI] (n)", None, ""), ("u_dev RMS [hPa]", "u_dev_rms_hPa", ".1f"), ("blocked [s]", "blocked_s", ".2f"),
@@ -71,7 +88,42 @@ def table_markdown(bench: Mapping[str, Any]) -> str:
     if any(r["force_delivered_N"] is not None for r in bench["results"]):
         lines += ["", "Contact tasks: force delivered against force asked, every filter:", "",
                   f"![delivered against asked]({FORCE_PLOT_FILE})"]
-    return "\n".join(lines + worst_found_markdown(bench)) + "\n"
+    return "\n".join(lines + contact_markdown(bench) + worst_found_markdown(bench)) + "\n"
+
+
+def contact_cell(entry: Mapping[str, Any], key: str, spec: str) -> str:
+    """One cell of a contact-under-error table: the value in `spec`, "–" for null."""
+    value = entry[key]
+    return "–" if value is None else format(value, spec) if spec else str(value)
+
+
+def contact_markdown(bench: Mapping[str, Any]) -> list[str]:
+    """bench.md's lines on contact under error (`CONTACT_TABLE`; none without contact rows)."""
+    entries = bench.get("contact_under_error") or []
+    if not entries:
+        return []
+    lines = ["", "## Contact under error", "",
+             "Per filter and plant: the 150 hPa push under draws of the standard box (violations: draws with ρ_meas < 0 "
+             "or a filter fault; P(viol) <: the exact one-sided 95 % Clopper–Pearson bound; ρ_meas min: the least over "
+             "the draws, – when one faulted), the delivered force / F_max on the nominal plate, its minimum and median "
+             "over the draws that ran to the end, and the push on the flexure sheet (mujoco_contact).", "",
+             "| " + " | ".join(h for h, _, _ in CONTACT_TABLE) + " |", "|" + "---|" * len(CONTACT_TABLE)]
+    return lines + ["| " + " | ".join(contact_cell(e, k, s) for _, k, s in CONTACT_TABLE) + " |" for e in entries]
+
+
+def contact_text(entries: list[Mapping[str, Any]], labels: Mapping[str, str]) -> list[str]:
+    """The printed table of contact under error (module docstring): `CONTACT_PRINTED` under `PRINTED_HEADINGS`, a
+    filter by its short label (`labels`: {label: shown}), at most `PRINT_WIDTH` columns (a longer label is cut)."""
+    formats = {k: s for _, k, s in CONTACT_TABLE}
+    rows = [[contact_cell({**e, "filter": labels.get(e["filter"], e["filter"])}, k, formats[k]) for k in CONTACT_PRINTED]
+            for e in entries]
+    widths = [max([len(PRINTED_HEADINGS[k])] + [len(r[i]) for r in rows]) for i, k in enumerate(CONTACT_PRINTED)]
+    spare = PRINT_WIDTH - (sum(widths) + 2 * (len(widths) - 1))
+    if spare < 0:
+        widths[0] = max(len(PRINTED_HEADINGS["filter"]), widths[0] + spare)
+    lines = ["  ".join(PRINTED_HEADINGS[k].rjust(w) for k, w in zip(CONTACT_PRINTED, widths))]
+    lines += ["  ".join(c[:w].rjust(w) for c, w in zip(r, widths)) for r in rows]
+    return lines
 
 
 def worst_case_text(entry: Mapping[str, Any], spec: str = ".4f") -> str:
