@@ -18,7 +18,7 @@ from pathlib import Path
 
 from scenarios.run import INTERRUPTED
 from softcbf.bench.cases import CASES, MISMATCH_DRAWS, RunOptions
-from softcbf.bench.filters import BASELINES, DEFAULT_FILTERS, parse_filters
+from softcbf.bench.filters import BASELINES, DEFAULT_FILTERS, RECOMMENDED_FILTER, parse_filters
 from softcbf.bench.folder import BENCH_FILE, TABLE_FILE, is_bench_folder
 from softcbf.bench.tables import PLOT_FILE, contact_text
 from softcbf.bench.runner import run_bench, shown_labels
@@ -29,8 +29,8 @@ HELP = "run safety filters over the fixed benchmark battery: softcbf bench --out
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output folder (bench.json, bench.md, plots/, cases/)")
     parser.add_argument("--filters", default=DEFAULT_FILTERS,
-                        help="NAME or NAME(param=value,...), comma separated (default: the recommended filter, c-erg at "
-                             f"controllers.energy_governor.RECOMMENDED, and the baselines {', '.join(BASELINES)})")
+                        help="NAME or NAME(param=value,...), comma separated (default: the recommended filter "
+                             f"{RECOMMENDED_FILTER.name} and the baselines {', '.join(BASELINES)})")
     parser.add_argument("--quick", action="store_true",
                         help="short durations (1 s, the contact tasks' pushes 3 s), 2 mismatch draws and 3 push draws, "
                              "emulator skipped (CI)")
