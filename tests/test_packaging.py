@@ -1,6 +1,9 @@
 """Packaging (issue 27): the docs site builds with --strict (a broken link fails), and `python -m build` makes an
 sdist and a wheel whose wheel, installed alone into a fresh environment, runs `softcbf list` and a short run.
 
+The fresh environment's commands run without PYTHONPATH: a PYTHONPATH naming the checkout (as a worktree's test run
+sets it) comes before site-packages on sys.path, so they would import the checkout instead of the installed wheel.
+
 Marked `packaging` (deselect with `-m "not packaging"`); about 15 s on the project's 2-core machine."""
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import os
 import tarfile
 import zipfile
 from pathlib import Path
@@ -63,22 +67,24 @@ def test_sdist_and_wheel_build_and_the_wheel_runs_alone(tmp_path):
     assert install.returncode == 0, install.stderr[-3000:]
     work = tmp_path / "elsewhere"  # not the checkout: nothing of it on sys.path
     work.mkdir()
+    alone = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     where = subprocess.run([str(python), "-c", "import softcbf_mj, softcbf, scenarios; print(softcbf_mj.__file__)"],
-                           cwd=work, capture_output=True, text=True, timeout=120)
+                           cwd=work, capture_output=True, text=True, timeout=120, env=alone)
     assert where.returncode == 0 and where.stdout.strip().startswith(purelib), (where.stdout, where.stderr)
-    listing = subprocess.run([str(venv / "bin" / "softcbf"), "list"], cwd=work, capture_output=True, text=True, timeout=120)
+    listing = subprocess.run([str(venv / "bin" / "softcbf"), "list"], cwd=work, capture_output=True, text=True, timeout=120,
+                             env=alone)
     assert listing.returncode == 0, listing.stderr[-3000:]
     assert "paper_sim" in listing.stdout and "e-erg" in listing.stdout
     run = subprocess.run([str(venv / "bin" / "softcbf"), "run", "paper_sim", "--duration", "0.2", "--progress", "false",
                           "--robot", "hardware-like", "--out", str(work / "run")],
-                         cwd=work, capture_output=True, text=True, timeout=300)
+                         cwd=work, capture_output=True, text=True, timeout=300, env=alone)
     assert run.returncode == 0, run.stderr[-3000:]
     assert (work / "run" / "summary.json").is_file()
     # The data files code reads at run time (robot presets above, the bench's box and emulator config) come with it.
     files = subprocess.run([str(python), "-c", "from softcbf.bench import EMULATOR_CONFIG; "
                             "from softcbf.study.worst_found import BOX_FILE, settings; "
                             "print(EMULATOR_CONFIG); print(BOX_FILE); print(settings(1)['box_file'])"],
-                           cwd=work, capture_output=True, text=True, timeout=120)
+                           cwd=work, capture_output=True, text=True, timeout=120, env=alone)
     assert files.returncode == 0, files.stderr[-3000:]
     emulator, box, shown = files.stdout.split()
     assert emulator.startswith(purelib) and box.startswith(purelib), files.stdout

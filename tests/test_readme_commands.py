@@ -6,8 +6,11 @@ to its top-level entries and to .venv, and no runs/), so a command that reads wh
 report runs/mc`) finds it. Each gets only shorter settings appended (a later --duration overrides an earlier one):
 `OVERRIDES` maps the command's start to them, and a README command without an entry fails the test, so a new command
 cannot be left untested. Not run: the `bash scripts/setup.sh &&` prefix (the suite runs after it; rerunning it in the
-folder would point the editable install there); the pytest command runs one small test file, not the suite. No
-README command needs hardware or a viewer (`softcbf hardware` runs the emulated board and virtual camera).
+folder would point the editable install there); the pytest command runs one small test file in its own process
+(`-n 0`), not the suite. No README command needs hardware or a viewer (`softcbf hardware` runs the emulated board and
+virtual camera). The folder's .venv is the checkout's, or, where the checkout has none (a worktree run with another
+environment's interpreter), the environment running this test. Under pytest-xdist the commands stay on one worker, in
+order (`xdist_group`): a later one reads what an earlier one wrote in the same folder.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import os
 import re
 import shlex
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -25,7 +29,7 @@ SETUP = "bash scripts/setup.sh && "
 SHORT_RUN = ["--duration", "0.3", "--progress", "false"]
 OVERRIDES = (  # (command start, appended arguments), first match wins
     (".venv/bin/python -m scenarios ", SHORT_RUN),
-    (".venv/bin/python -m pytest", ["tests/test_layers.py", "-q", "-x"]),
+    (".venv/bin/python -m pytest", ["tests/test_layers.py", "-q", "-x", "-n", "0"]),
     (".venv/bin/softcbf run ", SHORT_RUN),
     (".venv/bin/softcbf demo", ["--duration", "0.3"]),
     (".venv/bin/softcbf report ", []),
@@ -48,6 +52,7 @@ def readme_commands() -> list[tuple[int, str]]:
 
 
 COMMANDS = readme_commands()
+pytestmark = pytest.mark.xdist_group("readme_commands")
 
 
 def test_the_readme_has_the_commands_it_should():
@@ -61,9 +66,10 @@ def test_the_readme_has_the_commands_it_should():
 def fresh_tree(tmp_path_factory):
     tree = tmp_path_factory.mktemp("clone")
     names = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
-    for name in sorted({n.split("/")[0] for n in names} | {".venv"}):
+    for name in sorted({n.split("/")[0] for n in names}):
         if (ROOT / name).exists():
             (tree / name).symlink_to(ROOT / name)
+    (tree / ".venv").symlink_to(ROOT / ".venv" if (ROOT / ".venv").is_dir() else Path(sys.prefix))
     return tree
 
 
