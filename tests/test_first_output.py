@@ -20,6 +20,9 @@ import pytest
 from softcbf_mj.kernels import COMPILE_NOTE, compile_notes
 from softcbf_mj.progress import Progress, heartbeat
 
+# Wall-clock deadlines: one at a time with the other real-time tests, on one pytest-xdist worker (the suite's addopts).
+pytestmark = pytest.mark.xdist_group("realtime")
+
 ROOT = Path(__file__).resolve().parents[1]
 FIRST_LINE_S = 2.0
 HEAVY = ("rerun", "matplotlib")  # seconds to import; numba and MuJoCo load in the parameter check (the true arm, the model)

@@ -19,6 +19,9 @@ import pytest
 import softcbf_mj.progress as progress_module
 from softcbf_mj.progress import Progress, duration_text, significant
 
+# Wall-clock deadlines: one at a time with the other real-time tests, on one pytest-xdist worker (the suite's addopts).
+pytestmark = pytest.mark.xdist_group("realtime")
+
 ROOT = Path(__file__).resolve().parents[1]
 FIRST_LINE_S = 2.0  # the bound: a command's first progress line within 2 s of its start
 PROGRESS_LINE = re.compile(r"^\[[^\]]+\] \|[# ]{20}\|")
