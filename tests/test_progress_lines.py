@@ -18,6 +18,7 @@ import pytest
 
 import softcbf_mj.progress as progress_module
 from softcbf_mj.progress import Progress, duration_text, significant
+from wall_clock import runqueue_wait_s
 
 # Wall-clock deadlines: one at a time with the other real-time tests, on one pytest-xdist worker (the suite's addopts).
 pytestmark = pytest.mark.xdist_group("realtime")
@@ -39,11 +40,12 @@ def started(args: list[str], cwd: Path) -> tuple[subprocess.Popen, float]:
 def read_until(proc: subprocess.Popen, start: float, pattern: re.Pattern[str],
                lines: list[tuple[float, str]]) -> float | None:
     """Read `proc`'s lines (appended to `lines` with their time since `start`) up to the first that matches
-    `pattern`; that line's time, or None when the output ends first."""
+    `pattern`; that line's time less the time the command waited for a core (tests/wall_clock.py: its time on an
+    idle machine), or None when the output ends first."""
     for line in proc.stdout:
         lines.append((time.monotonic() - start, line.rstrip("\n")))
         if pattern.search(line):
-            return lines[-1][0]
+            return lines[-1][0] - runqueue_wait_s(proc.pid)
     return None
 
 
