@@ -3,6 +3,7 @@ replays it shares with tools/bench_mujoco_contact.py: block timing, the figures 
 
 import importlib.util
 import itertools
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -107,3 +108,24 @@ def test_per_call_and_per_call_clock_figures():
     assert len(timing.calls_us(max, [(1, 2), (3, 4), (5, 6)], clock="cpu")) == 3
     value, us = timing.call_us(lambda: 7)
     assert value == 7 and us >= 0.0
+
+
+def test_the_speed_record_plots_its_history_and_refuses_a_bad_line_or_benchmark(tmp_path):
+    """tools/speed_record.py --plot on a history of two entries (the figures as the suite writes them)."""
+    entry = {"commit": "0123456789ab", "dirty": False, "date": "2026-01-01T00:00:00Z", "python": "3.11", "mujoco": "4",
+             "machine": {"machine": "x86_64", "processor": "cpu", "cpus": 2, "load_1min": 1.0, "load_1min_end": 1.2},
+             "seconds": 300.0, "figures": {"mj_step_L10": 46000.0, "serial_fraction_None": 0.66}}
+    later = {**entry, "commit": "89abcdef0123", "figures": {"mj_step_L10": 23000.0, "camera_rtf": 4.1}}
+    history = tmp_path / "history.jsonl"
+    history.write_text(json.dumps(entry) + "\n" + json.dumps(later) + "\n", encoding="utf-8")
+    tool = [sys.executable, str(TOOLS / "speed_record.py")]
+    done = subprocess.run([*tool, "--plot", "--history", str(history), "--figure", str(tmp_path / "f.png")],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1]) == {"figure": str(tmp_path / "f.png"), "entries": 2}
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    history.write_text(json.dumps(entry) + "\nnot json\n", encoding="utf-8")
+    done = subprocess.run([*tool, "--plot", "--history", str(history)], capture_output=True, text=True)
+    assert done.returncode == 2 and f"{history}:2: not a JSON line" in done.stderr
+    done = subprocess.run([*tool, "--only", "mj_step,warp"], capture_output=True, text=True)
+    assert done.returncode == 2 and "--only: 'warp' is not one of mj_step, serial_loop" in done.stderr

@@ -109,6 +109,7 @@ def steady(rec) -> float:
     return float(np.mean(force[-len(force) // 3:]))
 
 
+@pytest.mark.slow
 def test_contact_certificate_uses_the_budget_where_the_parked_one_delivers_half():
     """The full 150 hPa push on the plate that pushes back (exact model, 10 Hz camera timing): c-erg holds
     F ≤ F_max and settles at ≥ 0.9 F_max; the parked e-erg (contact_aware) stays near half of it (issue 24)."""
@@ -120,6 +121,7 @@ def test_contact_certificate_uses_the_budget_where_the_parked_one_delivers_half(
     assert steady(parked) < 0.65 * SAFE.f_max
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k_ratio, delivered", [(0.9, 0.74), (1.0, 0.8), (1.1, 0.8)])
 def test_contact_certificate_holds_any_plate_in_its_stiffness_interval(k_ratio, delivered):
     """Told [0.9, 1.1] (n_max = ψ⁻¹(F_max/1.1)): the true plate 10 % softer, exact or stiffer; F ≤ F_max at
@@ -131,6 +133,7 @@ def test_contact_certificate_holds_any_plate_in_its_stiffness_interval(k_ratio, 
     assert steady(rec) >= delivered * SAFE.f_max
 
 
+@pytest.mark.slow
 def test_contact_certificate_passes_a_request_within_the_budget():
     """A push asking ≈ 0.6 F_max of the unfiltered plant (62 hPa on both segments) is delivered to ≥ 0.95."""
     ctx = context(ROBOT, SAFE, PERIOD, DELAY, 0.05)

@@ -126,6 +126,7 @@ def test_a_batched_loop_reports_the_fraction_of_its_run_after_every_step():
     assert len(fractions) == steps and fractions[-1] == 1.0 and fractions == sorted(fractions)
 
 
+@pytest.mark.slow
 def test_a_study_counts_a_running_batch_by_the_fraction_of_its_simulated_time(tmp_path):
     """One batch of 3 samples: the driver reports fractions of it while it runs, not 0 until it ends, then 3."""
     from softcbf.study.definition import Study

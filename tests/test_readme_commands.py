@@ -52,7 +52,7 @@ def readme_commands() -> list[tuple[int, str]]:
 
 
 COMMANDS = readme_commands()
-pytestmark = pytest.mark.xdist_group("readme_commands")
+pytestmark = [pytest.mark.xdist_group("readme_commands"), pytest.mark.slow]  # each command a process
 
 
 def test_the_readme_has_the_commands_it_should():

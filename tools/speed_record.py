@@ -33,6 +33,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -146,7 +147,8 @@ def plot(entries: list[dict], out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = sorted({name for entry in entries for name in entry["figures"]})
+    names = sorted({name for entry in entries for name in entry["figures"]},
+                   key=lambda name: re.sub(r"\d+", lambda number: number.group().zfill(6), name))  # L5 before L10
     if not names:
         raise ValueError("the history has no figures to plot")
     columns = 3
