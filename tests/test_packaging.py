@@ -1,8 +1,9 @@
 """Packaging (issue 27): the docs site builds with --strict (a broken link fails), and `python -m build` makes an
 sdist and a wheel whose wheel, installed alone into a fresh environment, runs `softcbf list` and a short run.
 
-The fresh environment's commands run without PYTHONPATH: a PYTHONPATH naming the checkout (as a worktree's test run
-sets it) comes before site-packages on sys.path, so they would import the checkout instead of the installed wheel.
+The fresh environment's commands, its pip install included, run without PYTHONPATH: a PYTHONPATH naming the checkout
+(as a worktree's test run sets it) comes before site-packages on sys.path, so pip found the checkout's softcbf-mj
+already there and installed nothing, and the commands imported the checkout instead of the wheel.
 
 Marked `packaging` (deselect with `-m "not packaging"`); about 15 s on the project's 2-core machine."""
 
@@ -56,18 +57,18 @@ def test_sdist_and_wheel_build_and_the_wheel_runs_alone(tmp_path):
         assert "softcbf/cli.py" in archive.namelist() and "softcbf_mj/env/presets.py" in archive.namelist()
     # A fresh environment with only the wheel (no editable checkout); its dependencies come from this environment's
     # site-packages through a .pth file (appended after the wheel's own, so the wheel's modules win).
+    alone = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120, env=alone)
     python = venv / "bin" / "python"
     purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                             capture_output=True, text=True, check=True).stdout.strip()
+                             capture_output=True, text=True, check=True, env=alone).stdout.strip()
     Path(purelib, "dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n", encoding="utf-8")
     install = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps", str(wheel)],
-                             capture_output=True, text=True, timeout=300)
+                             capture_output=True, text=True, timeout=300, env=alone)
     assert install.returncode == 0, install.stderr[-3000:]
     work = tmp_path / "elsewhere"  # not the checkout: nothing of it on sys.path
     work.mkdir()
-    alone = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     where = subprocess.run([str(python), "-c", "import softcbf_mj, softcbf, scenarios; print(softcbf_mj.__file__)"],
                            cwd=work, capture_output=True, text=True, timeout=120, env=alone)
     assert where.returncode == 0 and where.stdout.strip().startswith(purelib), (where.stdout, where.stderr)
