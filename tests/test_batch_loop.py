@@ -58,7 +58,6 @@ def _compare(batch, serial_logs, control_dt, filtered):
 
 @pytest.mark.parametrize("tuning, pressure_limits, per_sim_filters",
                          [("Low", False, False), ("HW-High", True, False), ("HW-High", True, True)])
-@pytest.mark.slow
 def test_pcc_batch_loop_equals_serial_loops(tuning, pressure_limits, per_sim_filters):
     params, safe_set, robots = reference_robot(), paper_safe_set(), _true_robots(6)
     q0 = np.random.default_rng(5).normal(0.3, 0.1, (6, 2))

@@ -23,9 +23,6 @@ _spec = importlib.util.spec_from_file_location("loop_references", REPO / "tools"
 references = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(references)
 CASES, COLUMNS, DECIMATE = references.CASES, references.COLUMNS, references.DECIMATE
-
-# Closed loops of seconds of simulated time: the fast tier (-m "not slow") leaves them out.
-pytestmark = pytest.mark.slow
 REFERENCE = np.load(REPO / "tests" / "data" / "loop_references_7ba3f9c.npz")
 
 
