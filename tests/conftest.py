@@ -4,9 +4,14 @@ MuJoCo reads MUJOCO_GL once, at its first import, and several test modules impor
 `mujoco` before `softcbf_mj`. Importing the package here first applies
 `softcbf_mj.gl_backend.configure_mujoco_gl`: a set MUJOCO_GL is kept; unset, it becomes
 osmesa on a CPU-only machine such as CI (egl with an NVIDIA GPU).
+
+Also: the `run_dir` fixture (a short paper_sim run folder per test module) and the `--cpu-durations=N` option (the
+tests that took the most CPU time; below).
 """
 
 import softcbf_mj  # noqa: F401  (sets MUJOCO_GL)
+
+import resource  # noqa: E402
 
 import pytest  # noqa: E402
 
@@ -21,3 +26,63 @@ def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
     get("paper_sim").run(out, **SHORT_PAPER_RUN)
     return out
+
+
+
+# --cpu-durations=N: the N tests that took the most CPU time (this process and the children it waited for: setup, call
+# and teardown together). On a machine that other jobs load, --durations (wall time) grows with the load; CPU time
+# barely does, so this is the list to compare between runs. Works under pytest-xdist: each worker attaches its figure
+# to the test's report (user_properties), which reaches the controlling process, whose plugin lists them.
+CPU_PROPERTY = "cpu_s"
+CPU_START = pytest.StashKey[float]()
+
+
+def pytest_addoption(parser):
+    parser.addoption("--cpu-durations", type=int, default=None, metavar="N",
+                     help="show the N tests that took the most CPU time, this process and its children (0: all)")
+
+
+def pytest_configure(config):
+    count = config.getoption("cpu_durations")
+    if count is not None:
+        if count < 0:
+            raise pytest.UsageError(f"--cpu-durations must be >= 0, got {count}")
+        config.pluginmanager.register(CpuDurations(count), "cpu_durations")
+
+
+def cpu_seconds() -> float:
+    """User + system CPU s of this process and of its children that have been waited for."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+class CpuDurations:
+    """Measures each test's CPU time where it runs and lists the largest at the end of the session."""
+
+    def __init__(self, count: int) -> None:
+        self.count = count
+        self.seconds: dict[str, float] = {}
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(self, item, nextitem):
+        item.stash[CPU_START] = cpu_seconds()
+        yield
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_makereport(self, item, call):
+        outcome = yield
+        if call.when == "teardown" and CPU_START in item.stash:
+            outcome.get_result().user_properties.append((CPU_PROPERTY, cpu_seconds() - item.stash[CPU_START]))
+
+    def pytest_runtest_logreport(self, report):
+        for name, value in report.user_properties:
+            if name == CPU_PROPERTY:
+                self.seconds[report.nodeid] = value
+
+    def pytest_terminal_summary(self, terminalreporter):
+        ranked = sorted(self.seconds.items(), key=lambda entry: entry[1], reverse=True)
+        shown = ranked if self.count == 0 else ranked[:self.count]
+        terminalreporter.write_sep("=", f"slowest {len(shown)} tests by CPU time (of {len(ranked)}; "
+                                        f"{sum(self.seconds.values()):.1f} CPU s in all)")
+        for nodeid, seconds in shown:
+            terminalreporter.write_line(f"{seconds:8.2f}s cpu  {nodeid}")

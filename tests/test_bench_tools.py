@@ -1,8 +1,9 @@
-"""The serial-loop benchmark (tools/bench_serial_loop.py) and the replays it shares with
-tools/bench_mujoco_contact.py: block timing, the figures by hand, argument checks."""
+"""The benchmarks' shared timing (tools/timing.py), the serial-loop benchmark (tools/bench_serial_loop.py) and the
+replays it shares with tools/bench_mujoco_contact.py: block timing, the figures by hand, argument checks."""
 
 import importlib.util
 import itertools
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -16,13 +17,16 @@ TOOLS = Path(__file__).resolve().parents[1] / "tools"
 
 
 def _tool(name: str):
+    """The tool's module, loaded as `python tools/NAME.py` runs it: tools/ on sys.path (its sibling imports)."""
+    if str(TOOLS) not in sys.path:
+        sys.path.append(str(TOOLS))
     spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
-contact_bench, serial_bench = _tool("bench_mujoco_contact"), _tool("bench_serial_loop")
+contact_bench, serial_bench, timing = _tool("bench_mujoco_contact"), _tool("bench_serial_loop"), _tool("timing")
 
 
 def ticks():
@@ -57,3 +61,71 @@ def test_figures_by_hand():
 def test_bad_arguments_are_refused_by_name(args, message):
     done = subprocess.run([sys.executable, str(TOOLS / "bench_serial_loop.py"), *args], capture_output=True, text=True)
     assert done.returncode == 2 and message in done.stderr
+
+
+def test_timing_summaries_match_numpy_and_refuse_what_they_do_not_know():
+    times = list(np.random.default_rng(0).exponential(20.0, 501))
+    got = timing.summary_us(times, ("median", "p99", "mean", "min", "max"), digits=9)
+    assert got == pytest.approx({"median_us": np.median(times), "p99_us": np.percentile(times, 99), "mean_us": np.mean(times),
+                                 "min_us": min(times), "max_us": max(times)}, abs=1e-9)
+    assert timing.summary_us([1.0, 2.0]) == {"median_us": 1.5, "p99_us": 1.99}
+    with pytest.raises(ValueError, match="unknown summary 'p95'; known: median, p99, mean, min, max"):
+        timing.summary_us(times, ("p95",))
+    with pytest.raises(ValueError, match="no times to summarise"):
+        timing.summary_us([])
+    with pytest.raises(ValueError, match="clock must be one of cpu, wall, got 'gpu'"):
+        timing.call_us(lambda: None, "gpu")
+    with pytest.raises(ValueError, match="repeats must be >= 1, got 0"):
+        timing.best_of(0, lambda: None)
+
+
+def test_best_of_keeps_each_clock_s_minimum_and_the_last_result():
+    """Three runs, the second the longest: the minimum is the first or third run's, far below the second's."""
+    calls = []
+
+    def run():
+        calls.append(len(calls))
+        end = timing.time.process_time() + (0.05 if len(calls) == 2 else 0.005)
+        while timing.time.process_time() < end:
+            pass
+        return len(calls)
+
+    result, best = timing.best_of(3, run)
+    assert result == 3 and calls == [0, 1, 2]
+    assert 0.005 <= best.cpu < 0.05 and 0.005 <= best.wall < 0.05
+
+
+def test_a_child_s_cpu_time_is_counted_and_a_failing_child_raises():
+    burn = [sys.executable, "-c", "import time\nend = time.process_time() + 0.2\nwhile time.process_time() < end: pass"]
+    took = timing.child_timing(burn)
+    assert took.cpu >= 0.2 and took.wall >= 0.2
+    with pytest.raises(subprocess.CalledProcessError):
+        timing.child_timing([sys.executable, "-c", "raise SystemExit(3)"])
+
+
+def test_per_call_and_per_call_clock_figures():
+    assert timing.per_call_us(lambda i: None, 1000, repeats=2) < 100.0
+    assert len(timing.calls_us(max, [(1, 2), (3, 4), (5, 6)], clock="cpu")) == 3
+    value, us = timing.call_us(lambda: 7)
+    assert value == 7 and us >= 0.0
+
+
+def test_the_speed_record_plots_its_history_and_refuses_a_bad_line_or_benchmark(tmp_path):
+    """tools/speed_record.py --plot on a history of two entries (the figures as the suite writes them)."""
+    entry = {"commit": "0123456789ab", "dirty": False, "date": "2026-01-01T00:00:00Z", "python": "3.11", "mujoco": "4",
+             "machine": {"machine": "x86_64", "processor": "cpu", "cpus": 2, "load_1min": 1.0, "load_1min_end": 1.2},
+             "seconds": 300.0, "figures": {"mj_step_L10": 46000.0, "serial_fraction_None": 0.66}}
+    later = {**entry, "commit": "89abcdef0123", "figures": {"mj_step_L10": 23000.0, "camera_rtf": 4.1}}
+    history = tmp_path / "history.jsonl"
+    history.write_text(json.dumps(entry) + "\n" + json.dumps(later) + "\n", encoding="utf-8")
+    tool = [sys.executable, str(TOOLS / "speed_record.py")]
+    done = subprocess.run([*tool, "--plot", "--history", str(history), "--figure", str(tmp_path / "f.png")],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1]) == {"figure": str(tmp_path / "f.png"), "entries": 2}
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    history.write_text(json.dumps(entry) + "\nnot json\n", encoding="utf-8")
+    done = subprocess.run([*tool, "--plot", "--history", str(history)], capture_output=True, text=True)
+    assert done.returncode == 2 and f"{history}:2: not a JSON line" in done.stderr
+    done = subprocess.run([*tool, "--only", "mj_step,warp"], capture_output=True, text=True)
+    assert done.returncode == 2 and "--only: 'warp' is not one of mj_step, serial_loop" in done.stderr

@@ -61,6 +61,7 @@ def test_curvature_bound_holds_against_finite_differences(robot):
     assert worst > 0.3  # the bound is not vacuous
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("robot", [ROBOT, uniform_robot(3), uniform_robot(4)], ids=["reference", "N3", "N4"])
 def test_boundary_bound_is_never_above_the_least_energy_on_the_boundary(robot):
     """½δ² ≤ min over points of g = 0 of ½(q − q_u)ᵀK(q − q_u), for commands inside and beyond P."""
@@ -80,6 +81,7 @@ def test_boundary_bound_is_never_above_the_least_energy_on_the_boundary(robot):
     assert tight >= len(commands) // 3  # close to the minimum near the boundary
 
 
+@pytest.mark.slow
 def test_boundary_table_counts_rest_shapes_beyond_P_and_agrees_inside():
     """The unsafe-set table has Γ = 0 for a rest shape beyond P; the boundary table a positive lower bound of
     the least energy to the boundary; for rest shapes inside P both tables are the same."""
@@ -109,6 +111,7 @@ def steady(rec) -> float:
     return float(np.mean(force[-len(force) // 3:]))
 
 
+@pytest.mark.slow
 def test_contact_certificate_uses_the_budget_where_the_parked_one_delivers_half():
     """The full 150 hPa push on the plate that pushes back (exact model, 10 Hz camera timing): c-erg holds
     F ≤ F_max and settles at ≥ 0.9 F_max; the parked e-erg (contact_aware) stays near half of it (issue 24)."""
@@ -120,6 +123,7 @@ def test_contact_certificate_uses_the_budget_where_the_parked_one_delivers_half(
     assert steady(parked) < 0.65 * SAFE.f_max
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k_ratio, delivered", [(0.9, 0.74), (1.0, 0.8), (1.1, 0.8)])
 def test_contact_certificate_holds_any_plate_in_its_stiffness_interval(k_ratio, delivered):
     """Told [0.9, 1.1] (n_max = ψ⁻¹(F_max/1.1)): the true plate 10 % softer, exact or stiffer; F ≤ F_max at
@@ -131,6 +135,7 @@ def test_contact_certificate_holds_any_plate_in_its_stiffness_interval(k_ratio, 
     assert steady(rec) >= delivered * SAFE.f_max
 
 
+@pytest.mark.slow
 def test_contact_certificate_passes_a_request_within_the_budget():
     """A push asking ≈ 0.6 F_max of the unfiltered plant (62 hPa on both segments) is delivered to ≥ 0.95."""
     ctx = context(ROBOT, SAFE, PERIOD, DELAY, 0.05)
@@ -194,6 +199,7 @@ def scaled_gain_robot(g):
     return ROBOT.replace(gains=tuple(ROBOT.array("gains") * g))
 
 
+@pytest.mark.slow
 def test_gain_margin_is_concave_in_the_gain_so_its_ends_bound_it():
     """m(g) = min over boundary points s of ½|s − g q_u|²_K − ½|q − g q_u|²_K − ½ g² Σβ(p − u)² (the certificate's
     margin, less the terms that do not depend on g) is concave in g: its second differences are ≤ 0 and every
@@ -224,6 +230,7 @@ def test_gain_margin_is_concave_in_the_gain_so_its_ends_bound_it():
         assert np.all(m >= min(m[0], m[-1]) - 1e-12 * scale)
 
 
+@pytest.mark.slow
 def test_grid_rows_at_a_gain_are_lower_bounds_of_the_escape_energy_there():
     """The recovery's grid bound under a gain g (the table's distances shifted by |g − 1| ‖u‖_w) never exceeds the
     least energy to the boundary from g·q_u (brute force over boundary points), is tight somewhere, and g = 1 is
@@ -281,6 +288,7 @@ def certified_forks(gain_lo, gain_hi, loop_gain, gains_held, hold_s=1.0, calls=F
     return worst, gov
 
 
+@pytest.mark.slow
 def test_a_command_certified_for_a_gain_interval_keeps_every_gain_in_it_inside_P():
     """Certified for gains [0.9, 1.1] (exact plate), each command held from the true state keeps the plate plant
     with true gain 0.9, 1.0 and 1.1 inside P (ρ ≥ 0); the state comes from a loop whose arm has gain 1.1 (the
@@ -288,6 +296,7 @@ def test_a_command_certified_for_a_gain_interval_keeps_every_gain_in_it_inside_P
     assert certified_forks(0.9, 1.1, 1.1, (0.9, 1.0, 1.1))[0] >= 0.0
 
 
+@pytest.mark.slow
 def test_the_model_gain_certificate_does_not_hold_a_stronger_actuator():
     """The same forks certified for the model's gain alone: a true gain 1.1 leaves P (the test above can fail)."""
     assert certified_forks(1.0, 1.0, 1.0, (1.1,))[0] < 0.0
@@ -310,6 +319,7 @@ def approach_then_push(t):
     return 40.0 if t < 2.0 else 150.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("true_gain", [0.9, 1.1])
 def test_gain_estimate_converges_at_rest_out_of_contact_and_the_narrowed_commands_hold(true_gain):
     """At rest out of contact (exact state at 10 Hz) ĝ converges to the true gain 0.9 or 1.1, the certified
@@ -339,6 +349,7 @@ def test_gain_estimate_from_differences_converges_during_the_approach_at_one_kil
     assert abs(gov.state.gain_estimator.estimate - 1.1) < 1e-2
 
 
+@pytest.mark.slow
 def test_gain_estimate_in_contact_narrows_the_interval_while_pressing_and_the_commands_hold():
     """Pushing from rest at 10 Hz (exact state) on the plate plant of true gain 1.1, the arm comes to rest only
     against the plate: the samples there (the plate's normal force eliminated, `gain_contact="normal"`) narrow
@@ -377,6 +388,7 @@ def first_rest_sample(rest_s, moving_until=0, blip_every=0):
     return None
 
 
+@pytest.mark.slow
 def test_a_rest_sample_needs_the_arm_at_rest_for_gain_rest_s():
     """`gain_rest_s`: a rest sample is taken only once every estimate over the last gain_rest_s was at rest. With
     0 the first estimate at rest with the pressure settled (0.2 s after the 40 hPa step, τ_p = 0.05 s) gives it;

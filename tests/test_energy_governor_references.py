@@ -21,6 +21,9 @@ _spec = importlib.util.spec_from_file_location("eerg_references", REPO / "tools"
 references = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(references)
 REFERENCE = references.load_references()
+
+# Closed loops of seconds of simulated time: the fast tier (-m "not slow") leaves them out.
+pytestmark = pytest.mark.slow
 SCALE = 0.5
 
 

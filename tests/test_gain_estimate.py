@@ -245,6 +245,7 @@ def test_the_contact_samples_tool_reads_the_deviation_of_a_recorded_rest_against
     assert rows == [int(np.sum(at_rest)), int(np.sum(at_rest & ((t < 0.7) | (t >= 0.72 + 0.1 - 1e-9))))]
 
 
+@pytest.mark.slow
 def test_a_mujoco_push_with_the_true_gain_at_the_prior_end_holds_while_its_samples_against_the_plate_narrow(tmp_path):
     """c-erg certifying [0.9, 1.1] with the gain estimate on mujoco_contact (1 kHz, exact state), the full 150 hPa push
     from rest for 2 s on an arm of true gain 1.1 and a plate 10 % stiffer and 1 mm closer (the bench's worst corner):

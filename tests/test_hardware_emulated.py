@@ -6,6 +6,11 @@ examples/hardware_slow_arm_robot.json (the reference arm with 20× its damping) 
 nominal command the paper's sinusoid at 80 hPa and 0.05 Hz, so the arm meets the plate
 within 3 s (examples/hardware_emulated.toml; why: docs/hardware.md). Safety is
 asserted on the emulated board's record of applied pressures (`ValveBoard.applied()`).
+
+A cycle's deadline is its slot t_0 + k·T plus the lateness the loop recorded for it (`late_s`, max(0, start − slot)):
+on a loaded machine a cycle starts late, and what is checked is that the hold and the vent come at the first slot
+after their condition, not how busy the machine was. The tests run one at a time on one pytest-xdist worker
+(`xdist_group("realtime")`, with the suite's other wall-clock tests) and are `slow` (seconds of real time each).
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from softcbf_mj.runio import load_timeseries, read_run_folder
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml"
 FAULT_AT_S = 1.0  # s after the start: blackout / cut
-SCHEDULE_TOL_S = 0.03  # a cycle may start this late on the loaded 2-core machine (measured ≤ 10 ms)
+SCHEDULE_TOL_S = 0.03  # the signal's handling: the cut-short wait ends this soon after SIGINT (measured ≤ 10 ms)
 FIXED_POINT_HPA = 0.05  # half a count of the protocol's 0.1 hPa fixed point
 RUN, HOLD, VENT = (ACTION_CODES[a] for a in (SafeAction.RUN, SafeAction.HOLD, SafeAction.VENT))
+pytestmark = [pytest.mark.xdist_group("realtime"), pytest.mark.slow]
 
 
 def _config(**changes) -> HardwareConfig:
@@ -106,11 +112,12 @@ def test_perception_blackout_holds_within_one_cycle_then_vents(tmp_path):
     assert np.all(s["action"][:first] == RUN) and s["action"][first] == HOLD
     # stale at the first cycle after the last frame's estimate aged past max_hold_s
     t_last_frame = t[first] - s["est_age_s"][first]
-    assert t_last_frame + 0.2 < t[first] <= t_last_frame + 0.2 + period + SCHEDULE_TOL_S
+    late = s["late_s"]
+    assert t_last_frame + 0.2 < t[first] <= t_last_frame + 0.2 + period + late[first]
     # HOLD: the board keeps the last RUN command until the vent, which comes once the hold lasted hold_s
     vent_cycle = first + np.argmax(s["action"][first:] == VENT)
     assert np.all(s["action"][first:vent_cycle] == HOLD) and np.all(s["action"][vent_cycle:] == VENT)
-    assert t[first] + 0.3 <= t[vent_cycle] <= t[first] + 0.3 + period + SCHEDULE_TOL_S
+    assert t[first] + 0.3 <= t[vent_cycle] <= t[first] + 0.3 + period + late[vent_cycle]
     log = emulation.board.applied()
     held = [a for a in log if t[first] <= a.t < t[vent_cycle]]
     assert held and all(a.reason == "setpoint" for a in held)

@@ -438,6 +438,8 @@ def test_a_factory_raising_system_exit_is_exit_2_with_one_line(tmp_path, plugins
     assert not out.exists()
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a real-time hardware loop: one at a time (the suite's addopts)
 def test_a_hardware_run_whose_filter_raises_system_exit_keeps_its_cycles_and_vents(tmp_path, plugins):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware

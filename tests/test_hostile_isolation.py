@@ -219,6 +219,7 @@ def test_isolated_the_sent_command_stays_within_the_limits(factory, hostile, und
     assert closedloop.kernels.admit_and_run is kernel and BatchControlStep.decide is decide  # nothing patched here
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("factory", ["PatchKernel", "PatchDecide", "GcLimits"])
 def test_in_process_a_patch_or_the_gc_sends_1e6_hPa(factory, hostile, undo):
     log, step = closed_loop(f"{hostile}:{factory}", isolated=False, duration=0.02)
@@ -234,6 +235,7 @@ def unfiltered_rho() -> float:
     return min(log["rho_meas"].tolist())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("factory", ["PatchMargin", "PatchMin"])
 def test_isolated_the_measured_rho_is_the_plants(factory, hostile, undo, unfiltered_rho):
     log, step = closed_loop(f"{hostile}:{factory}", isolated=True, duration=1.5, limits=False)
@@ -241,6 +243,7 @@ def test_isolated_the_measured_rho_is_the_plants(factory, hostile, undo, unfilte
     assert step.fault is None and min(log["rho_meas"].tolist()) == unfiltered_rho
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("factory", ["PatchMargin", "PatchMin"])
 def test_in_process_a_patched_verdict_reports_a_violation_as_safe(factory, hostile, undo, unfiltered_rho):
     log, step = closed_loop(f"{hostile}:{factory}", isolated=False, duration=1.5, limits=False)

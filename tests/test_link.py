@@ -11,6 +11,9 @@ from hardware.link import ValveBoardLink
 from hardware.protocol import BoardStatus
 from hardware.transport import LineFaults, PtyBoardLine
 
+# Wall-clock deadlines: one at a time with the other real-time tests, on one pytest-xdist worker (the suite's addopts).
+pytestmark = pytest.mark.xdist_group("realtime")
+
 # Generous where an exchange must succeed (it returns as soon as the ACK arrives, so a
 # loaded CI machine costs nothing); short where a timeout is the point of the test.
 ROOMY_TIMEOUT_S = 0.5

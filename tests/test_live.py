@@ -5,6 +5,7 @@ the finished recording; the finished run is not streamed twice."""
 import collections
 
 import numpy as np
+import pytest
 import rerun as rr
 
 from closedloop.step import ControlStep
@@ -119,6 +120,8 @@ def test_the_camera_loop_streams_its_frames_once_and_the_same_entities_as_its_re
         assert np.array_equal(final[entity], t), entity
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a real-time hardware loop: one at a time (the suite's addopts)
 def test_a_hardware_run_streams_its_cycles_and_frames_while_it_runs(monkeypatch, tmp_path):
     from pathlib import Path
 
@@ -155,6 +158,8 @@ def test_a_hardware_run_streams_its_cycles_and_frames_while_it_runs(monkeypatch,
                                    atol=1e-9, err_msg=entity)
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a real-time hardware loop: one at a time (the suite's addopts)
 def test_softcbf_hardware_spawn_without_a_display_says_so_runs_and_names_the_viewer(monkeypatch, tmp_path, capsys):
     from pathlib import Path
 

@@ -38,6 +38,7 @@ def run(tmp_path_factory):
     return out, summary, logs
 
 
+@pytest.mark.slow
 def test_summary_has_the_spec_fields_every_parameter_and_finite_contact_figures(run):
     _, summary, _ = run
     assert summary["scenario"] == "mujoco_contact"

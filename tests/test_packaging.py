@@ -3,6 +3,10 @@ sdist and a wheel whose wheel, installed alone into a fresh environment, runs `s
 the shipped studies and hardware configuration by name and copies the shipped files out (`softcbf examples`).
 scripts/wheel_smoke.sh (CI) does the same with the newest allowed dependencies from the package index.
 
+The fresh environment's commands, its pip install included, run without PYTHONPATH: a PYTHONPATH naming the checkout
+(as a worktree's test run sets it) comes before site-packages on sys.path, so pip found the checkout's softcbf-mj
+already there and installed nothing, and the commands imported the checkout instead of the wheel.
+
 Marked `packaging` (deselect with `-m "not packaging"`); about 15 s on the project's 2-core machine."""
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import os
 import tarfile
 import zipfile
 from pathlib import Path
@@ -59,33 +64,35 @@ def test_sdist_and_wheel_build_and_the_wheel_runs_alone(tmp_path):
         assert "softcbf/cli.py" in archive.namelist() and "softcbf_mj/env/presets.py" in archive.namelist()
     # A fresh environment with only the wheel (no editable checkout); its dependencies come from this environment's
     # site-packages through a .pth file (appended after the wheel's own, so the wheel's modules win).
+    alone = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120, env=alone)
     python = venv / "bin" / "python"
     purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                             capture_output=True, text=True, check=True).stdout.strip()
+                             capture_output=True, text=True, check=True, env=alone).stdout.strip()
     Path(purelib, "dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n", encoding="utf-8")
     install = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps", str(wheel)],
-                             capture_output=True, text=True, timeout=300)
+                             capture_output=True, text=True, timeout=300, env=alone)
     assert install.returncode == 0, install.stderr[-3000:]
     work = tmp_path / "elsewhere"  # not the checkout: nothing of it on sys.path
     work.mkdir()
     where = subprocess.run([str(python), "-c", "import softcbf_mj, softcbf, scenarios; print(softcbf_mj.__file__)"],
-                           cwd=work, capture_output=True, text=True, timeout=120)
+                           cwd=work, capture_output=True, text=True, timeout=120, env=alone)
     assert where.returncode == 0 and where.stdout.strip().startswith(purelib), (where.stdout, where.stderr)
-    listing = subprocess.run([str(venv / "bin" / "softcbf"), "list"], cwd=work, capture_output=True, text=True, timeout=120)
+    listing = subprocess.run([str(venv / "bin" / "softcbf"), "list"], cwd=work, capture_output=True, text=True, timeout=120,
+                             env=alone)
     assert listing.returncode == 0, listing.stderr[-3000:]
     assert "paper_sim" in listing.stdout and "e-erg" in listing.stdout
     run = subprocess.run([str(venv / "bin" / "softcbf"), "run", "paper_sim", "--duration", "0.2", "--progress", "false",
                           "--robot", "hardware-like", "--out", str(work / "run")],
-                         cwd=work, capture_output=True, text=True, timeout=300)
+                         cwd=work, capture_output=True, text=True, timeout=300, env=alone)
     assert run.returncode == 0, run.stderr[-3000:]
     assert (work / "run" / "summary.json").is_file()
     # The data files code reads at run time (robot presets above, the bench's box and emulator config) come with it.
     files = subprocess.run([str(python), "-c", "from softcbf.bench import EMULATOR_CONFIG; "
                             "from softcbf.study.worst_found import BOX_FILE, settings; "
                             "print(EMULATOR_CONFIG); print(BOX_FILE); print(settings(1)['box_file'])"],
-                           cwd=work, capture_output=True, text=True, timeout=120)
+                           cwd=work, capture_output=True, text=True, timeout=120, env=alone)
     assert files.returncode == 0, files.stderr[-3000:]
     emulator, box, shown = files.stdout.split()
     assert emulator.startswith(purelib) and box.startswith(purelib), files.stdout

@@ -297,6 +297,8 @@ def test_example_filter_runs_in_a_study(tmp_path):
     assert [r["u_peak_abs_hPa"] for r in rows] == [50.0, 100.0, pytest.approx(150.0, abs=1.0)]
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a real-time hardware loop: one at a time (the suite's addopts)
 def test_example_filter_runs_on_the_hardware_emulator(tmp_path):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware

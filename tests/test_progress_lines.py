@@ -25,6 +25,9 @@ import pytest
 import softcbf_mj.progress as progress_module
 from softcbf_mj.progress import Progress, duration_text, significant
 
+# Wall-clock deadlines: one at a time with the other real-time tests, on one pytest-xdist worker (the suite's addopts).
+pytestmark = pytest.mark.xdist_group("realtime")
+
 ROOT = Path(__file__).resolve().parents[1]
 FIRST_LINE_S = 2.0  # the issue's bound: a command's first progress line within 2 s of its start
 PROGRESS_LINE = re.compile(r"^\[[^\]]+\] \|[# ]{20}\|")
@@ -140,6 +143,7 @@ def test_a_batched_loop_reports_the_fraction_of_its_run_after_every_step():
     assert len(fractions) == steps and fractions[-1] == 1.0 and fractions == sorted(fractions)
 
 
+@pytest.mark.slow
 def test_a_study_counts_a_running_batch_by_the_fraction_of_its_simulated_time(tmp_path):
     """One batch of 3 samples: the driver reports fractions of it while it runs, not 0 until it ends, then 3."""
     from softcbf.study.definition import Study

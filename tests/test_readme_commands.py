@@ -12,7 +12,9 @@ untested. Its output is read as it comes (bytes, not lines: pytest's dots end no
 the first output is a progress bar, the set-up's heartbeat or a line saying what runs. Not run: the `bash
 scripts/setup.sh &&` prefix (the suite runs after it; rerunning it in the folder would point the editable install
 there); the pytest command runs one small test file, not the suite. No README command needs hardware or a viewer
-(`softcbf hardware` runs the emulated board and virtual camera).
+(`softcbf hardware` runs the emulated board and virtual camera). The folder's .venv is the checkout's, or, where the
+checkout has none (a worktree), the environment running this test. Under pytest-xdist the commands stay on one worker,
+in order (`xdist_group`): a later one reads what an earlier one wrote in the same folder.
 
 `SILENT` (strict xfail on the first-output check alone: the command must still succeed) names a command whose first
 output is known to come late; none today (the report commands say what they rebuild before they import matplotlib).
@@ -24,18 +26,21 @@ import os
 import re
 import shlex
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
 from test_progress_lines import FIRST_LINE_S, cpu_seconds, in_time
 
+pytestmark = [pytest.mark.xdist_group("readme_commands"), pytest.mark.slow]  # in order on one worker; a process each
+
 ROOT = Path(__file__).resolve().parents[1]
 SETUP = "bash scripts/setup.sh && "
 SHORT_RUN = ["--duration", "0.3"]
 FAMILY = (".venv/bin/softcbf ", ".venv/bin/python examples/", ".venv/bin/python -m pytest")
 OVERRIDES = (  # (command start, appended arguments), first match wins
-    (".venv/bin/python -m pytest", ["tests/test_layers.py", "-q", "-x"]),
+    (".venv/bin/python -m pytest", ["tests/test_layers.py", "-q", "-x", "-n", "0"]),
     (".venv/bin/softcbf run ", SHORT_RUN),
     (".venv/bin/softcbf demo", ["--duration", "0.3"]),
     (".venv/bin/softcbf report ", []),
@@ -84,9 +89,10 @@ def test_the_readme_s_commands_are_one_family():
 def fresh_tree(tmp_path_factory):
     tree = tmp_path_factory.mktemp("clone")
     names = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
-    for name in sorted({n.split("/")[0] for n in names} | {".venv"}):
+    for name in sorted({n.split("/")[0] for n in names}):
         if (ROOT / name).exists():
             (tree / name).symlink_to(ROOT / name)
+    (tree / ".venv").symlink_to(ROOT / ".venv" if (ROOT / ".venv").is_dir() else Path(sys.prefix))  # a worktree's: ours
     return tree
 
 

@@ -198,16 +198,11 @@ def test_the_tunings_are_a_tuple_of_names_in_python_and_a_comma_list_on_the_comm
 
 
 def test_one_softcbf_run_reads_the_robot_builds_the_safe_set_and_parses_the_plug_in_parameters_once():
-    """Parse once (issue 25; tools/parse_counts.py): the spec's check builds the controller (`spec.built`) and
+    """Parse once (tests/call_counts.py, printed by tools/parse_counts.py): the spec's check builds the controller (`spec.built`) and
     the run takes it; each setting is checked once."""
-    import importlib.util
-    from pathlib import Path
+    from call_counts import counts
 
-    path = Path(__file__).resolve().parents[1] / "tools" / "parse_counts.py"
-    module_spec = importlib.util.spec_from_file_location("parse_counts", path)
-    tool = importlib.util.module_from_spec(module_spec)
-    module_spec.loader.exec_module(tool)
-    found = tool.counts("paper_sim", 0.02)
+    found = counts("paper_sim", 0.02)
     assert found["common:load_robot"] == found["common:build_safe_set"] == 1
     assert found["settings:check_value"] == len(registry()["paper_sim"].spec.PATHS)
     assert found["registry:build_filter"] == found["registry:check_filter"] == 3  # one per tuning

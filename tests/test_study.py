@@ -184,6 +184,7 @@ def test_same_study_and_seed_give_identical_rows_on_one_worker(reference, tiny, 
     assert comparable(StudyStore.open(tmp_path / "one").load_rows()) == comparable(reference[1])
 
 
+@pytest.mark.slow
 def test_interrupted_study_resumes_without_loss_or_duplicates(reference, tmp_path):
     """SIGINT to the CLI mid-study (1 worker, samples of 1 s sim run one by one), then --resume."""
     study_file = tmp_path / "slow.toml"

@@ -471,6 +471,7 @@ def test_filter_batch_faults_and_refusals_are_the_serial_runs_row_by_row(raise_a
 # --- the other loops: the camera loop, the environment, the emulated hardware -------------------
 
 
+@pytest.mark.slow
 def test_camera_loop_keeps_the_record_of_a_raising_filter(tmp_path, hostile):
     code, out = _run(tmp_path, f"{hostile}:RaiseAt", "--filter-param", "at=5", "--width", "640", "--height", "360",
                      "--saved-frames-hz", "0",
@@ -495,6 +496,8 @@ def test_environment_ends_the_episode_on_a_filter_fault(hostile):
     assert terminated and info["fault"]["type"] == "RuntimeError" and info["monitor_action"] == "vent"
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a real-time hardware loop: one at a time (the suite's addopts)
 def test_hardware_run_whose_filter_raises_at_cycle_20_keeps_19_cycles_and_the_vent(tmp_path, hostile):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware
@@ -515,6 +518,8 @@ def test_hardware_run_whose_filter_raises_at_cycle_20_keeps_19_cycles_and_the_ve
     assert np.all(applied_u[-1] == 0.0)  # the board vented
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a real-time hardware loop: one at a time (the suite's addopts)
 def test_hardware_loop_skips_the_cycles_a_stall_missed(tmp_path, tmp_path_factory):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware
@@ -560,6 +565,8 @@ def test_property_environment_keeps_its_promises(how, at):
     assert (info["fault"] is not None) == fatal and (terminated if fatal else True), (how, info)
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a real-time hardware loop: one at a time (the suite's addopts)
 def test_hardware_loop_error_keeps_the_cycles_before_it_and_vents(tmp_path, monkeypatch):
     from hardware.config import HardwareConfig
     from hardware.link import ValveBoardLink

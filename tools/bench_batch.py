@@ -38,13 +38,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import os
 import platform
 import time
-from dataclasses import dataclass
-from typing import Callable, TypeVar
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -64,6 +62,7 @@ from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.pcc_batch_plant import PCCBatchPlant
 from softcbf_mj.pcc_plant import PCCPlant
+from timing import Timing, best_of, emit
 
 PEAK = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))
 
@@ -75,7 +74,6 @@ def serial_log(plant, safety_filter, safe_set, pressure_limits: bool, duration: 
     log, _ = run_closed_loop(plant, ControlStep(safety_filter, PEAK, context), safe_set, duration, q0)
     return log
 HOUR = 3600.0
-T = TypeVar("T")
 
 
 def mujoco_samples(n: int, links: int, physics_dt: float, seed: int = 0) -> tuple[list[ArmModelConfig], np.ndarray]:
@@ -88,25 +86,6 @@ def mujoco_samples(n: int, links: int, physics_dt: float, seed: int = 0) -> tupl
                                     gains=tuple(v * g_scale for v in ref.gains))
         configs.append(ArmModelConfig(robot=robot, plate_stiffness=11.16 * plate, links_per_segment=links, physics_dt=physics_dt))
     return configs, rng.normal(0.2, 0.05, (n, 2))
-
-
-@dataclass(frozen=True)
-class Timing:
-    """Best wall and best CPU time (s, this process, all its threads) over repeated runs."""
-
-    wall: float
-    cpu: float
-
-
-def best_of(repeats: int, run: Callable[[], T]) -> tuple[T, Timing]:
-    """run() `repeats` times; its last result and the shortest wall and CPU times."""
-    walls, cpus = [], []
-    for _ in range(repeats):
-        wall, cpu = time.perf_counter(), time.process_time()
-        result = run()
-        walls.append(time.perf_counter() - wall)
-        cpus.append(time.process_time() - cpu)
-    return result, Timing(min(walls), min(cpus))
 
 
 def _row(b: int, nthread: int, loop: Timing, ceiling: Timing, serial: Timing, n_serial: int, periods: int) -> dict:
@@ -310,7 +289,7 @@ def main() -> None:
     report["ratio_vs_serial_cpu"] = ratio_cpu
     report["fraction_of_physics_ceiling_cpu"] = fraction_cpu
     report["fraction_of_physics_ceiling"] = fraction
-    print(json.dumps(report))
+    emit(report)
 
 
 if __name__ == "__main__":

@@ -36,22 +36,13 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
+from timing import best_of, emit
+
 HERE = Path(__file__).resolve().parents[1]
-
-
-def _best(fn, repeats: int) -> float:
-    """CPU seconds of fn(), the best of `repeats` calls."""
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.process_time()
-        fn()
-        best = min(best, time.process_time() - start)
-    return best
 
 
 def _robot(n: int):
@@ -107,8 +98,8 @@ def cbf_worker(states: dict[str, np.ndarray], segments: list[int], repeats: int)
             batch = filt.filter_batch(est, u)  # warm: the kernels, the subset tables
             calls = [filt(est[i], u[i]) for i in range(b)]
             assert batch.action.tolist() == [c.action for c in calls]
-            out[f"cbf_N{n}_{name}_batch_us"] = _best(lambda: filt.filter_batch(est, u), repeats) / b * 1e6
-            out[f"cbf_N{n}_{name}_scalar_us"] = _best(lambda: [filt(est[i], u[i]) for i in range(b)], repeats) / b * 1e6
+            out[f"cbf_N{n}_{name}_batch_us"] = best_of(repeats, lambda: filt.filter_batch(est, u))[1].cpu / b * 1e6
+            out[f"cbf_N{n}_{name}_scalar_us"] = best_of(repeats, lambda: [filt(est[i], u[i]) for i in range(b)])[1].cpu / b * 1e6
             out[f"cbf_N{n}_{name}_qp_share"] = float(np.mean(np.isin(batch.action, ("qp", "recovery"))))
     return out
 
@@ -136,7 +127,7 @@ def forced_enumeration(states: dict[str, np.ndarray], segments: list[int], repea
         p = len(safe_set.h_prime)
         out[f"cbf_N{n}_candidates"] = len(candidate_table(p + 2 * n, n, p))
         out[f"cbf_N{n}_forced_resolved"] = float(np.mean(run().resolved))
-        out[f"cbf_N{n}_forced_us"] = _best(run, repeats) / len(q) * 1e6
+        out[f"cbf_N{n}_forced_us"] = best_of(repeats, run)[1].cpu / len(q) * 1e6
     return out
 
 
@@ -172,7 +163,7 @@ def qsg_figures(batch: int, periods: int, repeats: int) -> dict:
                 g(rows[b], u_nom[k, b])
 
     per = batch * periods
-    out = {"qsg_batch_us": _best(run_batch, repeats) / per * 1e6, "qsg_scalar_us": _best(run_scalar, repeats) / per * 1e6}
+    out = {"qsg_batch_us": best_of(repeats, run_batch)[1].cpu / per * 1e6, "qsg_scalar_us": best_of(repeats, run_scalar)[1].cpu / per * 1e6}
     out["qsg_nominal_share"] = float(np.mean(nominal))
     return out
 
@@ -196,7 +187,7 @@ def main() -> None:
     segments = [int(n) for n in args.segments.split(",")]
     if args.worker:
         with np.load(args.worker) as data:
-            print(json.dumps(cbf_worker(dict(data), segments, args.repeats)))
+            emit(cbf_worker(dict(data), segments, args.repeats))
         return
     tmp = tempfile.TemporaryDirectory()
     states_file = str(Path(tmp.name) / "states.npz")
@@ -239,7 +230,7 @@ def main() -> None:
           f"({report['qsg_scalar_over_batch']:.2f}×); rows nominal: {qsg['qsg_nominal_share']:.2f}")
     tmp.cleanup()
     print(f"load (1 min): {report['load_1min']:.2f}")
-    print(json.dumps(report))
+    emit(report)
 
 
 if __name__ == "__main__":

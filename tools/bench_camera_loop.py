@@ -15,7 +15,6 @@ target: ≥ 2 on CPU at 12.8 fps). MUJOCO_GL picks the renderer (osmesa on CPU, 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
@@ -27,6 +26,7 @@ import mujoco
 from scenarios import get
 from scenarios.common import data_only
 from softcbf_mj.runio import load_timeseries
+from timing import emit
 
 
 def main() -> None:
@@ -65,9 +65,9 @@ def main() -> None:
               f"{r['camera_ms_per_frame_mean']:10.2f} {r['camera_share_of_wall']:13.2f} {r['rtf']:6.2f}")
     worst = min(r["rtf"] for r in rows)
     print(f"slowest tuning: RTF {worst:.2f} (target >= 2: {'met' if worst >= 2 else 'NOT met'})")
-    print(json.dumps({"mujoco_gl": os.environ.get("MUJOCO_GL"), "machine": platform.machine(), "cpus": os.cpu_count(),
-                      "width": args.width, "height": args.height, "duration_s": args.duration, "t0_s": args.t0,
-                      "tracking": args.tracking == "true", "runs": rows, "rtf_min": worst, "target_rtf": 2.0}))
+    emit({"mujoco_gl": os.environ.get("MUJOCO_GL"), "machine": platform.machine(), "cpus": os.cpu_count(),
+          "width": args.width, "height": args.height, "duration_s": args.duration, "t0_s": args.t0,
+          "tracking": args.tracking == "true", "runs": rows, "rtf_min": worst, "target_rtf": 2.0})
 
 
 if __name__ == "__main__":

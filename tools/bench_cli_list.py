@@ -14,24 +14,12 @@ lazy import can go below. Usage:
 from __future__ import annotations
 
 import argparse
-import json
-import resource
 import statistics
-import subprocess
 import sys
-import time
+
+from timing import child_timing, emit
 
 BUDGET_S = 0.5  # s of CPU (user + system), the budget of `softcbf list`
-
-
-def cpu_of(command: list[str]) -> tuple[float, float]:
-    """(CPU s = user + system, wall s) of one run of `command`, its output discarded; it must exit 0."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall
 
 
 def main() -> None:
@@ -45,20 +33,20 @@ def main() -> None:
                 "python -c pass": [sys.executable, "-c", "pass"]}
     figures: dict[str, dict[str, float]] = {}
     for name, command in commands.items():
-        runs = [cpu_of(command) for _ in range(args.repeats)]
-        cpu, wall = [r[0] for r in runs], [r[1] for r in runs]
+        runs = [child_timing(command) for _ in range(args.repeats)]
+        cpu, wall = [r.cpu for r in runs], [r.wall for r in runs]
         figures[name] = {"cpu_s_median": statistics.median(cpu), "cpu_s_max": max(cpu), "wall_s_median": statistics.median(wall)}
     print(f"{'command':<16} {'CPU median [s]':>14} {'CPU max [s]':>11} {'wall median [s]':>15}   ({args.repeats} runs)")
     for name, f in figures.items():
         print(f"{name:<16} {f['cpu_s_median']:>14.3f} {f['cpu_s_max']:>11.3f} {f['wall_s_median']:>15.3f}")
     within = figures["softcbf list"]["cpu_s_median"] <= BUDGET_S
     print(f"budget {BUDGET_S} s of CPU: {'met' if within else 'NOT met'}")
-    print(json.dumps({"repeats": args.repeats, "budget_cpu_s": BUDGET_S, "within_budget": within,
-                      "list_cpu_s_median": figures["softcbf list"]["cpu_s_median"],
-                      "list_cpu_s_max": figures["softcbf list"]["cpu_s_max"],
-                      "list_wall_s_median": figures["softcbf list"]["wall_s_median"],
-                      "run_help_cpu_s_median": figures["run NAME --help"]["cpu_s_median"],
-                      "python_start_cpu_s_median": figures["python -c pass"]["cpu_s_median"]}))
+    emit({"repeats": args.repeats, "budget_cpu_s": BUDGET_S, "within_budget": within,
+          "list_cpu_s_median": figures["softcbf list"]["cpu_s_median"],
+          "list_cpu_s_max": figures["softcbf list"]["cpu_s_max"],
+          "list_wall_s_median": figures["softcbf list"]["wall_s_median"],
+          "run_help_cpu_s_median": figures["run NAME --help"]["cpu_s_median"],
+          "python_start_cpu_s_median": figures["python -c pass"]["cpu_s_median"]})
 
 
 if __name__ == "__main__":

@@ -8,24 +8,13 @@ arm (or a uniform arm of N segments), then one line of JSON with the same figure
 from __future__ import annotations
 
 import argparse
-import json
-import time
 
 import numpy as np
 
 from controllers.cbf import barrier_terms, get_tuning
 from controllers.dynamics import PCCDynamics
 from controllers.params import uniform_robot
-
-
-def _time_calls(func, args_list) -> np.ndarray:
-    out = np.empty(len(args_list))
-    clock = time.perf_counter_ns
-    for k, args in enumerate(args_list):
-        start = clock()
-        func(*args)
-        out[k] = clock() - start
-    return out / 1e3
+from timing import calls_us, emit
 
 
 def main() -> None:
@@ -53,12 +42,12 @@ def main() -> None:
     }
     figures = {"segments": n, "calls": args.calls}
     for name, (func, arg_list) in cases.items():
-        _time_calls(func, arg_list[:500])  # warm-up
-        t = _time_calls(func, arg_list)
+        calls_us(func, arg_list[:500])  # warm-up
+        t = np.asarray(calls_us(func, arg_list))
         figures[f"{name}_us_median"] = round(float(np.median(t)), 2)
         figures[f"{name}_us_p99"] = round(float(np.percentile(t, 99)), 2)
         print(f"{name:24s} median {np.median(t):7.2f} µs   p99 {np.percentile(t, 99):7.2f} µs")
-    print(json.dumps(figures))
+    emit(figures)
 
 
 if __name__ == "__main__":

@@ -23,11 +23,9 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import math
 import os
 import platform
-import time
 from collections import Counter
 
 import numpy as np
@@ -42,15 +40,14 @@ from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.pcc_plant import PCCPlant
+from timing import CLOCKS_NS, clock_ns, emit, summary_us
 
 PAPER_QP_US = 310.0  # paper §VI: average QP solve time, MATLAB quadprog
-CLOCKS = {"cpu": time.thread_time_ns, "wall": time.perf_counter_ns}
+FIGURES = ("median", "p99", "mean")
 
 
 def summary(times_us: list[float]) -> dict[str, float]:
-    t = np.asarray(times_us)
-    return {"median_us": round(float(np.median(t)), 2), "p99_us": round(float(np.percentile(t, 99)), 2),
-            "mean_us": round(float(np.mean(t)), 2)}
+    return summary_us(times_us, FIGURES)
 
 
 def main() -> None:
@@ -58,11 +55,11 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=4000, help="states per configuration")
     parser.add_argument("--duration", type=float, default=100.0, help="trajectory length (s); the paper's run is 100 s")
     parser.add_argument("--tunings", default="Low,High")
-    parser.add_argument("--clock", choices=list(CLOCKS), default="cpu")
+    parser.add_argument("--clock", choices=list(CLOCKS_NS), default="cpu")
     parser.add_argument("--backends", default=DEFAULT_BACKEND,
                         help="comma-separated QP backends (controllers.qp), timed round-robin with each other")
     args = parser.parse_args()
-    clock = CLOCKS[args.clock]
+    clock = clock_ns(args.clock)
     robot, safe_set = reference_robot(), paper_safe_set()
     nominal = SinusoidNominal.paper(robot.n_segments)
 
@@ -136,8 +133,8 @@ def main() -> None:
     print("(µs; /0.31ms: median over the paper's average QP solve; /plant: median over the plant step's median;"
           " QP med: median over the steps that solved a QP (action not 'nominal');"
           " max|Δu|: hPa, largest command difference from the first backend on the same states)")
-    print(json.dumps({"unit": "us", "clock": args.clock, "backends": args.backends.split(","), "samples": args.samples, "duration_s": args.duration,
-                      "paper_qp_us": PAPER_QP_US, "plant_step": plant_fig, "filter": results}))
+    emit({"unit": "us", "clock": args.clock, "backends": args.backends.split(","), "samples": args.samples, "duration_s": args.duration,
+          "paper_qp_us": PAPER_QP_US, "plant_step": plant_fig, "filter": results})
 
 
 if __name__ == "__main__":

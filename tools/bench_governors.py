@@ -48,6 +48,7 @@ from controllers.filter_metrics import governor_figures  # noqa: E402
 from controllers.params import reference_robot  # noqa: E402
 from controllers.safe_set import paper_safe_set  # noqa: E402
 from controllers.safety_filter import Estimate, EstimateBatch  # noqa: E402
+from timing import emit  # noqa: E402
 
 FILTER_NAMES = ("qsg", "e-erg", "c-erg", "c-erg-recommended")
 PLATE_N_PER_M = 11.16
@@ -242,7 +243,7 @@ def main() -> int:
     table = cases(FILTER_NAMES if args.one else names, args.quick)
     if args.one:
         try:
-            print(json.dumps(run_case(args.one, table[args.one], args.repeat)))
+            emit(run_case(args.one, table[args.one], args.repeat))
         except LookupError:
             return 3
         return 0
@@ -257,8 +258,8 @@ def main() -> int:
                   f"batched {result['batch_us_per_period_median']:7.0f} µs (medians); total batched/serial "
                   f"{result['batch_over_serial']:.2f}", flush=True)
             results.append(result)
-        print(json.dumps({"quick": args.quick, "batch": args.batch, "repeat": args.repeat,
-                          "load_1min": os.getloadavg()[0], "results": results}))
+        emit({"quick": args.quick, "batch": args.batch, "repeat": args.repeat,
+              "load_1min": os.getloadavg()[0], "results": results})
         return 0
     for name, spec in table.items():
         if words and not any(w in name for w in words):
@@ -279,7 +280,7 @@ def main() -> int:
                 print(f"  this/against: wall median {result['ratio_median']:.2f}  p99 {result['ratio_p99']:.2f}  "
                       f"CPU median {result['ratio_cpu_median']:.2f}  p99 {result['ratio_cpu_p99']:.2f}", flush=True)
         results.append(result)
-    print(json.dumps({"quick": args.quick, "against": args.against, "repeat": args.repeat, "load_1min": os.getloadavg()[0], "results": results}))
+    emit({"quick": args.quick, "against": args.against, "repeat": args.repeat, "load_1min": os.getloadavg()[0], "results": results})
     return 0
 
 

@@ -19,11 +19,11 @@ JSON line. The figures depend on the machine's load (two processes must be sched
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 
 import numpy as np
+from timing import emit
 
 
 def timed_calls(isolated: bool, filter_spec: str, filter_params: dict, control_dt: float, calls: int,
@@ -94,7 +94,7 @@ def main() -> None:
         print(f"{name}: in-process median {result['in_process_median_us']:.1f} µs, p99 {result['in_process_p99_us']:.1f}; "
               f"isolated median {result['isolated_median_us']:.1f} µs, p99 {result['isolated_p99_us']:.1f}; "
               f"added median {result['added_median_us']:.1f} µs, p99 {result['added_p99_us']:.1f} ({calls} calls)")
-    print(json.dumps(report))
+    emit(report)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ figures (latency = first write → matching ACK), then one line of JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 
 import numpy as np
@@ -18,6 +17,7 @@ import numpy as np
 from hardware.board import ValveBoard
 from hardware.link import ValveBoardLink
 from hardware.transport import PtyBoardLine
+from timing import emit
 
 
 def _run(n: int, seconds: float, rate_hz: float | None) -> dict[str, float]:
@@ -57,7 +57,7 @@ def main() -> None:
             f"latency median {r['latency_ms_median']:.3f} ms  p99 {r['latency_ms_p99']:.3f} ms  retries {r['retries']}"
         )
         figures.update({f"{name}_{k}": round(float(v), 4) for k, v in r.items()})
-    print(json.dumps(figures))
+    emit(figures)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ Usage: python tools/bench_live.py [--duration 10] [--repeats 3]
 from __future__ import annotations
 
 import argparse
-import json
 import time
 
 import numpy as np
@@ -35,6 +34,7 @@ from scenarios.common import scene_record
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.pcc_plant import PCCPlant
 from softcbf_mj.recording import APP_ID, LIVE_PERIOD_S, live_run, live_stream
+from timing import emit
 
 PLATE_STIFFNESS = 11.16  # N/m, paper_sim's default
 CLOCKS = ("thread_cpu", "process_cpu", "wall")  # the order of one_run's times
@@ -85,7 +85,7 @@ def main() -> None:
               f"({figures[f'{clock}_slowdown_pct']:+.2f} %)")
     print(f"  streamed {figures['live_bytes_per_sim_s'] / 1e3:.1f} kB per simulated s in {figures['sends_per_run']:g} sends "
           f"of {figures['cpu_ms_per_send']:.2f} ms CPU each: {figures['send_share_pct']:.2f} % of the loop thread's CPU")
-    print(json.dumps({"duration_s": args.duration, "repeats": args.repeats, "live_period_s": LIVE_PERIOD_S, **figures}))
+    emit({"duration_s": args.duration, "repeats": args.repeats, "live_period_s": LIVE_PERIOD_S, **figures})
 
 
 if __name__ == "__main__":

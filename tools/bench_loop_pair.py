@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import math
 import tempfile
 import time
@@ -30,6 +29,7 @@ from pathlib import Path
 import scenarios.common
 from scenarios import get
 from scenarios.common import data_only
+from timing import emit
 
 
 class LoopTimer:
@@ -83,7 +83,7 @@ def main() -> None:
     for key, best in out.items():
         print(f"{key:20s} RTF {best['realtime_factor']:.2f}  CPU {best['cpu_us_per_step']:.1f} us/step  "
               f"loop CPU {best['loop_cpu_us_per_step']:.1f} us/step")
-    print(json.dumps(out))
+    emit(out)
 
 
 if __name__ == "__main__":

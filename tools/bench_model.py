@@ -27,21 +27,11 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
+from timing import emit, per_call_us
+
 HERE = Path(__file__).resolve().parents[1]
-
-
-def _best(fn, repeats: int, count: int) -> float:
-    """CPU µs per call of fn(i), the best of `repeats` passes of `count` calls."""
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.process_time()
-        for i in range(count):
-            fn(i)
-        best = min(best, (time.process_time() - start) / count * 1e6)
-    return best
 
 
 def worker(repeats: int) -> dict:
@@ -62,19 +52,19 @@ def worker(repeats: int) -> dict:
     dyn = PCCDynamics(robot)
     states = [(rng.uniform(-1, 1, 2).tolist(), rng.normal(0, 2, 2).tolist()) for _ in range(64)]
     dyn.model_terms(*states[0])
-    out["model_terms_B1_us"] = _best(lambda i: dyn.model_terms(*states[i % 64]), repeats, 20000)
+    out["model_terms_B1_us"] = per_call_us(lambda i: dyn.model_terms(*states[i % 64]), 20000, repeats)
     for b in (1, 256, 1024):
         batch = BatchDynamics(robot)
         qs = [rng.uniform(-1, 1, (b, 2)) for _ in range(2)]
         qd = rng.normal(0, 2, (b, 2))
         batch.terms(qs[1], qd)
         count = max(20, 20000 // b)
-        out[f"batch_terms_B{b}_us_per_state"] = _best(lambda i: batch.terms(qs[i % 2], qd), repeats, count) / b
+        out[f"batch_terms_B{b}_us_per_state"] = per_call_us(lambda i: batch.terms(qs[i % 2], qd), count, repeats) / b
     plant = PCCPlant(robot, safe)
     plant.reset(np.array([0.2, 0.1]))
     u = np.array([150.0, 120.0])
     plant.step(u)
-    out["serial_plant_step_us"] = _best(lambda i: plant.step(u), repeats, 5000)
+    out["serial_plant_step_us"] = per_call_us(lambda i: plant.step(u), 5000, repeats)
     for n in (2, 3):
         params = robot if n == 2 else uniform_robot(3)
         try:
@@ -84,7 +74,7 @@ def worker(repeats: int) -> dict:
         bp.reset(rng.normal(0.2, 0.05, (1024, n)))
         ub = np.full((1024, n), 100.0)
         bp.step(ub)
-        per_sim = _best(lambda i: bp.step(ub), repeats, 20) / 1024
+        per_sim = per_call_us(lambda i: bp.step(ub), 20, repeats) / 1024
         out[f"batch_plant_N{n}_B1024_us_per_sim"] = per_sim
         out[f"batch_plant_N{n}_B1024_us_per_dof"] = per_sim / n
     predictor = StatePredictor(PCCDynamics(robot), 0.05)
@@ -92,7 +82,7 @@ def worker(repeats: int) -> dict:
         predictor.record(0.01 * k, np.array([100.0 + 10 * k, 50.0]))
     q0, qd0 = np.array([0.3, 0.2]), np.array([0.5, -0.5])
     predictor.predict(0.02, q0, qd0, 0.04)
-    out["predict_20ms_us"] = _best(lambda i: predictor.predict(0.02, q0, qd0, 0.04), repeats, 300)
+    out["predict_20ms_us"] = per_call_us(lambda i: predictor.predict(0.02, q0, qd0, 0.04), 300, repeats)
     return out
 
 
@@ -125,7 +115,7 @@ def main() -> None:
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        print(json.dumps(worker(args.repeats)))
+        emit(worker(args.repeats))
         return
     this = run_tree(HERE, args.repeats)
     base = run_tree(args.against, args.repeats) if args.against else {}
@@ -148,7 +138,7 @@ def main() -> None:
     print(f"N = 3 batch rate per degree of freedom / N = 2: {report['N3_rate_per_dof_over_N2']:.2f}")
     print(f"first call of the kernels: cold (compiling) {report['cold_first_call_s']:.2f} s, "
           f"warm cache {report['warm_cache_first_call_s']:.2f} s")
-    print(json.dumps(report))
+    emit(report)
 
 
 if __name__ == "__main__":

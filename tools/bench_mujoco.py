@@ -45,6 +45,7 @@ import numpy as np
 
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig, build_spec
 from softcbf_mj.mujoco_plant import MujocoPlant
+from timing import emit, timed
 
 LOADS = {"free": (-100.0, 100.0), "contact": (120.0, 120.0)}  # hPa
 LINKS = (5, 10, 20, 40)
@@ -71,13 +72,6 @@ def summary(samples: list[tuple[float, float]]) -> dict[str, float]:
     return {"median": statistics.median(cpu), "best": max(cpu), "wall_median": statistics.median(w for _, w in samples)}
 
 
-def timed(call) -> tuple[float, float]:
-    """(CPU s, wall s) of call()."""
-    cpu, wall = time.process_time(), time.perf_counter()
-    call()
-    return time.process_time() - cpu, time.perf_counter() - wall
-
-
 def steps_per_second(model: mujoco.MjModel, u: tuple[float, float], seconds: float, repeats: int) -> list[tuple[float, float]]:
     """Raw `mj_step` throughput of `model` per repeat (steps per CPU s, per wall s), after settling
     under the command u."""
@@ -87,8 +81,8 @@ def steps_per_second(model: mujoco.MjModel, u: tuple[float, float], seconds: flo
     steps = int(seconds / model.opt.timestep)
     rates = []
     for _ in range(repeats):
-        cpu, wall = timed(lambda: mujoco.mj_step(model, data, nstep=steps))
-        rates.append((steps / cpu, steps / wall))
+        _, took = timed(lambda: mujoco.mj_step(model, data, nstep=steps))
+        rates.append((steps / took.cpu, steps / took.wall))
     return rates
 
 
@@ -105,8 +99,8 @@ def plant_real_time_factors(model: mujoco.MjModel, u: tuple[float, float], secon
 
     factors = []
     for _ in range(repeats):
-        cpu, wall = timed(run)
-        factors.append((steps * plant.control_dt / cpu, steps * plant.control_dt / wall))
+        _, took = timed(run)
+        factors.append((steps * plant.control_dt / took.cpu, steps * plant.control_dt / took.wall))
     return factors
 
 
@@ -194,7 +188,7 @@ def main() -> None:
         missing = [str(path) for path in args.compare if not path.is_file()]
         if missing:
             parser.error(f"--compare: no such file {', '.join(missing)}")
-        print(json.dumps(compare(args.compare)))
+        emit(compare(args.compare))
         return
     try:
         links = [int(part) for part in args.links.split(",")]
@@ -207,7 +201,7 @@ def main() -> None:
     if args.append is not None:
         with args.append.open("a") as out:
             out.write(line + "\n")
-    print(line)
+    emit(report)
 
 
 if __name__ == "__main__":

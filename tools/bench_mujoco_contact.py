@@ -29,7 +29,6 @@ prints tables and ends with one line of JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
@@ -44,6 +43,7 @@ from scenarios.mujoco_contact import CONTROL_DT, mujoco_contact
 from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.runio import load_timeseries
+from timing import emit
 
 TARGET_RTF = 10.0
 BLOCK = 500  # control steps per timed block of a replay
@@ -185,7 +185,7 @@ def main() -> None:
     report["rtf_loop_ceiling"] = 1.0 / controller_s  # with physics for free
     report["sweep"] = sweep
     print(f"\nceiling with free physics: RTF {report['rtf_loop_ceiling']:.2f} (controller and loop alone)")
-    print(json.dumps(report))
+    emit(report)
 
 
 if __name__ == "__main__":

@@ -13,14 +13,13 @@ Usage: python tools/bench_paper_sim.py [--duration 100] [--tunings None,Low,High
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
-import time
 from pathlib import Path
 
 from scenarios import get
+from timing import emit, timed
 
 
 def main() -> None:
@@ -35,10 +34,9 @@ def main() -> None:
         for name in args.tunings.split(","):
             out_dir = Path(tmp) / name
             out_dir.mkdir()
-            cpu = time.process_time()
-            summary = scenario.run(out_dir, duration=args.duration, tunings=name,
-                                   pressure_limits=args.pressure_limits, progress=False)
-            cpu = time.process_time() - cpu
+            summary, took = timed(lambda: scenario.run(out_dir, duration=args.duration, tunings=name,
+                                                       pressure_limits=args.pressure_limits, progress=False))
+            cpu = took.cpu
             run = summary["runs"][0]
             results[name] = {"realtime_factor": round(run["realtime_factor"], 2), "wall_s": round(run["wall_s"], 2),
                              "cpu_realtime_factor": round(run["sim_s"] / cpu, 2), "cpu_s": round(cpu, 2),
@@ -49,7 +47,7 @@ def main() -> None:
     print(f"{'tuning':8s}{'RTF (wall)':>12s}{'wall [s]':>10s}{'RTF (cpu)':>11s}{'cpu [s]':>9s}")
     for name, r in results.items():
         print(f"{name:8s}{r['realtime_factor']:12.1f}{r['wall_s']:10.1f}{r['cpu_realtime_factor']:11.1f}{r['cpu_s']:9.1f}")
-    print(json.dumps({"duration_s": args.duration, "pressure_limits": args.pressure_limits, "tunings": results}))
+    emit({"duration_s": args.duration, "pressure_limits": args.pressure_limits, "tunings": results})
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import math
 import platform
 import time
@@ -29,6 +28,7 @@ from perception.detect import BACKENDS, TagDetector
 from perception.estimator import ArmAngleEstimator, wrap_angle
 from perception.plane import PlaneCalibration, tag_corners_on_plane
 from perception.synthetic import arm_tag_poses, overhead_calibration, render_tags
+from timing import emit
 
 TAG_SIZE = 0.03  # m
 CONDITIONS = {"sharp": (0.0, 0.0), "blur1_noise3": (1.0, 3.0), "blur2_noise8": (2.0, 8.0)}
@@ -117,7 +117,7 @@ def main() -> None:
                 f"dense: detected {100 * figures['dense_detection_rate']:5.1f} % corner rms {figures['dense_corner_rms_px']:.3f} px",
                 flush=True,
             )
-    print(json.dumps({"frames": args.frames, "opencv": cv2.__version__, "machine": platform.machine(), "results": results}))
+    emit({"frames": args.frames, "opencv": cv2.__version__, "machine": platform.machine(), "results": results})
 
 
 if __name__ == "__main__":

@@ -23,15 +23,14 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import os
 import platform
-import time
 from typing import Callable
 
 import numpy as np
 
 from controllers.qp import DEFAULT_BACKEND, available_backends, solve_qp
+from timing import CLOCKS_NS, call_us, emit, summary_us
 
 U_MAX = 150.0
 
@@ -56,21 +55,6 @@ def cases(rng: np.random.Generator, samples: int) -> dict[str, list[tuple[np.nda
             if (bool(sol.active[0]), bound_active) == expected and len(out[case]) < samples:
                 out[case].append((u, A, b))
     return out
-
-
-CLOCKS = {"cpu": time.thread_time_ns, "wall": time.perf_counter_ns}
-clock = CLOCKS["cpu"]
-
-
-def timed(solve: Callable[[], object]) -> float:
-    start = clock()
-    solve()
-    return (clock() - start) / 1e3
-
-
-def summary(times: list[float]) -> dict[str, float]:
-    t = np.asarray(times)
-    return {"median_us": round(float(np.median(t)), 2), "p99_us": round(float(np.percentile(t, 99)), 2)}
 
 
 def raw_solvers() -> dict[str, Callable[[np.ndarray, np.ndarray, np.ndarray], object]]:
@@ -131,12 +115,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=3000)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--clock", choices=list(CLOCKS), default="cpu",
+    parser.add_argument("--clock", choices=list(CLOCKS_NS), default="cpu",
                         help="cpu: this thread's CPU time (immune to other processes on a shared machine; "
                              "~1 µs clock overhead); wall: elapsed time")
     args = parser.parse_args()
-    global clock
-    clock = CLOCKS[args.clock]
     problems = cases(np.random.default_rng(args.seed), args.samples)
     box = dict(lb=-U_MAX * np.ones(2), ub=U_MAX * np.ones(2))
     backends = available_backends()
@@ -152,12 +134,12 @@ def main() -> None:
         for k, (u, A, b) in enumerate(items):
             for backend in backends:
                 if backend != "qpsolvers:osqp" or k % 10 == 0:
-                    times[backend].setdefault(case, []).append(timed(lambda: solve_qp(u, A, b, backend=backend, **box)))
+                    times[backend].setdefault(case, []).append(call_us(lambda: solve_qp(u, A, b, backend=backend, **box), args.clock)[1])
             if case == "row" and k % 10 == 0:
                 a_hat, b_hat = A / np.linalg.norm(A), b / np.linalg.norm(A)
                 for name, solve in raw.items():
-                    times[name].setdefault(case, []).append(timed(lambda: solve(u, a_hat, b_hat)))
-    results = {name: {case: summary(t) for case, t in row.items()} for name, row in times.items()}
+                    times[name].setdefault(case, []).append(call_us(lambda: solve(u, a_hat, b_hat), args.clock)[1])
+    results = {name: {case: summary_us(t) for case, t in row.items()} for name, row in times.items()}
     case_names = list(problems)
     print(f"QP per-solve {args.clock} time, N=2, 1 CBF row + ±{U_MAX:g} hPa box, {args.samples} samples/case "
           f"({platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, numpy {np.__version__})")
@@ -169,8 +151,7 @@ def main() -> None:
                         for c in case_names)
         print(f"{name:40s}{cells}")
     print(f"(µs; default backend: {DEFAULT_BACKEND}; qpsolvers:osqp and the raw rows use 1/10 of the samples)")
-    print(json.dumps({"unit": "us", "clock": args.clock, "samples": args.samples, "default": DEFAULT_BACKEND,
-                      "results": results}))
+    emit({"unit": "us", "clock": args.clock, "samples": args.samples, "default": DEFAULT_BACKEND, "results": results})
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ prints a table and ends with one line of JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -28,6 +27,7 @@ import numpy as np
 from perception.detect import TagDetector
 from softcbf_mj import model_builder as mb
 from softcbf_mj.render import OffscreenRenderer, requested_gl_backend
+from timing import emit
 
 
 def parse_sizes(text: str) -> list[tuple[int, int]]:
@@ -92,7 +92,7 @@ def main() -> None:
         print(f"  {width:4d} x {height:<4d} {row['render_ms_median']:12.1f} / {row['render_ms_p90']:6.1f} "
               f"{row['detect_ms_median']:18.1f} {row['arm_tags_detected_min']:18d}")
     report["sizes"] = rows
-    print(json.dumps(report))
+    emit(report)
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from timing import emit
 
 HERE = Path(__file__).resolve().parents[1]  # this tree
 TARGET_FRACTION = 0.5  # the target: the serial loop at >= 0.5 of bare mj_step
@@ -173,7 +174,7 @@ def main() -> None:
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
     if args.child:
-        print(json.dumps(measure(tunings, args.duration, args.t0)))
+        emit(measure(tunings, args.duration, args.t0))
         return
     trees = {"this": HERE}
     if args.against is not None:
@@ -223,7 +224,7 @@ def main() -> None:
     worst = min(report["runs"][t]["this"]["fraction"] for t in tunings)
     report["fraction_min"] = worst
     print(f"  worst fraction {worst:.3f} (target >= {TARGET_FRACTION:g}: {'met' if worst >= TARGET_FRACTION else 'NOT met'})")
-    print(json.dumps(report))
+    emit(report)
 
 
 if __name__ == "__main__":

@@ -18,24 +18,21 @@ Figures are noisy on a shared machine. Prints the figures and ends with one JSON
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import tempfile
-import time
 from dataclasses import replace
 from pathlib import Path
 
 from softcbf.study import Study, StudyStore, load_study, run_study
+from timing import emit, timed
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _timed(study: Study, samples: int, **backend) -> tuple[float, list[dict]]:
     with tempfile.TemporaryDirectory(prefix="bench-study-") as tmp:
-        start = time.perf_counter()
-        run_study(study, Path(tmp) / "s", samples=samples, progress=False, **backend)
-        wall = time.perf_counter() - start
-        return wall, StudyStore.open(Path(tmp) / "s").load_rows()
+        _, took = timed(lambda: run_study(study, Path(tmp) / "s", samples=samples, progress=False, **backend))
+        return took.wall, StudyStore.open(Path(tmp) / "s").load_rows()
 
 
 def main() -> None:
@@ -80,7 +77,7 @@ def main() -> None:
     print(f"overhead per sample ({m} samples of 0.02 s, 2 workers): local pool "
           f"{out['local_overhead_s_per_sample'] * 1e3:.0f} ms (incl. pool start), Dask LocalCluster "
           f"{out['dask_overhead_s_per_sample'] * 1e3:.0f} ms")
-    print(json.dumps(out))
+    emit(out)
 
 
 if __name__ == "__main__":

@@ -24,10 +24,8 @@ window area, and the largest corner difference between tracking and the tuned fu
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
-import time
 
 import cv2
 import numpy as np
@@ -36,6 +34,7 @@ from perception.detect import ARUCO_THRESHOLD_WINDOWS_PX, TagDetector
 from perception.synthetic import arm_tag_poses, overhead_calibration, render_tags
 from perception.tags import arm_tag_ids
 from perception.tracking import DEFAULT_WINDOW_MARGIN_PX, TrackingTagDetector
+from timing import call_us, emit
 
 TAG_SIZE = 0.03  # m
 FRAME_RATE = 12.8  # Hz
@@ -59,12 +58,6 @@ def arm_sequence(rng: np.random.Generator, frames: int) -> tuple[float, list[np.
         direction[np.abs(step) > Q_LIMIT] *= -1.0
         q = q + direction * SEGMENT_RATE / FRAME_RATE
     return rng.uniform(-0.17, 0.17), sequence
-
-
-def timed(detect, image: np.ndarray) -> tuple[list, float]:
-    start = time.perf_counter()
-    detections = detect(image)
-    return detections, 1e3 * (time.perf_counter() - start)
 
 
 def main() -> None:
@@ -97,7 +90,8 @@ def main() -> None:
         for image in images:
             per_frame = {}
             for name, detect in detectors.items():
-                per_frame[name], ms = timed(detect, image)
+                per_frame[name], us = call_us(lambda: detect(image))
+                ms = us / 1e3
                 times[name].append(ms)
                 found[name] += len({d.tag_id for d in per_frame[name]})
             window_px.append(sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in tracking.last_windows))
@@ -130,11 +124,11 @@ def main() -> None:
             f"{corner_diff:.3g} px max, {figures['speedup_tracking_vs_full_aruco_default']:.1f}x faster than before",
             flush=True,
         )
-    print(json.dumps({
+    emit({
         "frames": args.frames, "seed": args.seed, "frame_rate_hz": FRAME_RATE, "segment_rate_rad_s": SEGMENT_RATE,
         "window_margin_px": DEFAULT_WINDOW_MARGIN_PX, "threshold_windows_px": list(ARUCO_THRESHOLD_WINDOWS_PX),
         "opencv": cv2.__version__, "machine": platform.machine(), "results": results,
-    }))
+    })
 
 
 if __name__ == "__main__":

@@ -54,6 +54,7 @@ import gymnasium
 import numpy as np
 
 import softcbf_mj.env  # noqa: F401 - registers the ids
+from timing import emit
 
 
 def run(env: Any, actions: np.ndarray) -> tuple[float, float, dict[str, list[np.ndarray]]]:
@@ -152,7 +153,7 @@ def once(env_id: str, args: argparse.Namespace, steps: int) -> None:
         run(env, actions[:2])  # warm-up: the first calls load the compiled kernels
         out[name] = run(env, actions)[:2]
         env.close()
-    print(json.dumps(out))
+    emit(out)
 
 
 def against(tree: str, env_id: str, args: argparse.Namespace, steps: int) -> dict[str, tuple[float, float]]:
@@ -252,10 +253,10 @@ def main() -> None:
     results = [bench(env_id, args, n) for env_id, n in zip(ids, steps)]
     load_after = os.getloadavg()
     print(f"load average after: {load_after[0]:.2f} (1 min), {load_after[1]:.2f} (5 min)")
-    print(json.dumps({"bench": "vector_env", "num_envs": args.num_envs, "filter": args.filter,
-                      "filter_params": args.filter_params, "cpus": os.cpu_count(), "python": platform.python_version(),
-                      "against": args.against or None, "load_before": load_before[:2], "load_after": load_after[:2],
-                      "results": results}))
+    emit({"bench": "vector_env", "num_envs": args.num_envs, "filter": args.filter,
+          "filter_params": args.filter_params, "cpus": os.cpu_count(), "python": platform.python_version(),
+          "against": args.against or None, "load_before": load_before[:2], "load_after": load_after[:2],
+          "results": results})
 
 
 if __name__ == "__main__":
