@@ -138,10 +138,10 @@ def test_tiny_tune_end_to_end_then_resume_keeps_every_finished_evaluation_once(p
     best = first["best"]
     if best is not None:  # the winner: the most force among the safe settings, typed and replayable
         assert best["value"] == max(r["value"] for r in first["evaluations"] if r["safe"])
-        assert best["filter_params"] == f"limit_hPa={best['params']['limit_hPa']}"
-        assert f"--filter-params '{best['filter_params']}'" in printed
+        assert best["filter_params"] == {"limit_hPa": best["params"]["limit_hPa"]}  # typed
+        assert f"--filter-param limit_hPa={best['params']['limit_hPa']}" in printed
         config = json.loads((out / "best" / "config.json").read_text(encoding="utf-8"))
-        assert f"limit_hPa={best['params']['limit_hPa']}" in json.dumps(config)
+        assert f'"limit_hPa": {best["params"]["limit_hPa"]}' in json.dumps(config)
         assert load_study(out / "winner.json").fixed["filter_params"] == best["filter_params"]
     assert (out / "tune.png").stat().st_size > 0
     parts = sorted(p.name for p in (out / "inner").iterdir())

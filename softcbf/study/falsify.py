@@ -95,7 +95,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 import contextlib
 import logging
 import math
@@ -118,7 +117,7 @@ from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import Sample, Study, draw_generator
 from softcbf.study.execute import run_study
 from softcbf.study.runner import run_sample
-from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part
+from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part, stored_search
 from softcbf_mj.progress import Progress, significant
 from softcbf_mj.runio import OutputDirError, write_json
 
@@ -307,24 +306,6 @@ def _summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
     return out
 
 
-def _check_folder(root: Path, settings: dict[str, Any], resume: bool) -> dict[str, Any]:
-    """The stored falsify.json of a folder to resume (checked against `settings`), {} for a new folder."""
-    state = root / FALSIFY_FILE
-    if resume:
-        if not state.is_file():
-            raise OutputDirError(f"{root} is not a falsification folder (no {FALSIFY_FILE}); drop --resume to start one")
-        stored = json.loads(state.read_text(encoding="utf-8"))
-        differ = [k for k in SETTINGS if stored.get(k) != settings[k]]
-        if differ:
-            raise OutputDirError(f"{root} holds a falsification with other {', '.join(differ)} (e.g. {differ[0]} = "
-                                 f"{stored.get(differ[0])!r}, now {settings[differ[0]]!r}); --resume needs the same")
-        return stored
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
-        hint = "pass --resume to continue it" if state.is_file() else "choose another --out"
-        raise OutputDirError(f"{root} exists and is not empty; {hint}")
-    return {}
-
-
 def falsify(
     study: Study,
     out_dir: str | Path,
@@ -375,7 +356,7 @@ def falsify(
     root = Path(out_dir)
     settings = {"objective": objective, "sampler": sampler, "seed": study.seed, "population": population,
                 "initial": initial, "study": study.to_dict()}
-    stored = _check_folder(root, settings, resume)
+    stored = stored_search(root, FALSIFY_FILE, "falsification", settings, SETTINGS, resume)
     name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
     state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
                              "storage": "server database (--storage)" if storage else STORAGE_FILE}

@@ -226,3 +226,24 @@ class StudyStore:
     def run_dir(self, index: int) -> Path:
         """Where a kept run's scenario outputs go (keep_runs)."""
         return self.root / RUNS_DIR / Path(part_name(index)).stem
+
+
+def stored_search(root: Path, state_file: str, kind: str, settings: Mapping[str, Any], keys: tuple[str, ...],
+                  resume: bool) -> dict[str, Any]:
+    """The stored state (`state_file`, JSON) of a search folder to resume, checked against `settings` on `keys`;
+    {} for a new or empty folder. `kind` names the search in the messages ("falsification", "tuning"). A folder
+    that is not one, holds another search, or is not empty without --resume: OutputDirError, one line."""
+    state = root / state_file
+    if resume:
+        if not state.is_file():
+            raise OutputDirError(f"{root} is not a {kind} folder (no {state_file}); drop --resume to start one")
+        stored = json.loads(state.read_text(encoding="utf-8"))
+        differ = [k for k in keys if stored.get(k) != settings[k]]
+        if differ:
+            raise OutputDirError(f"{root} holds a {kind} with other {', '.join(differ)} (e.g. {differ[0]} = "
+                                 f"{stored.get(differ[0])!r}, now {settings[differ[0]]!r}); --resume needs the same")
+        return stored
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        hint = "pass --resume to continue it" if state.is_file() else "choose another --out"
+        raise OutputDirError(f"{root} exists and is not empty; {hint}")
+    return {}

@@ -83,12 +83,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+from controllers.filter_parameters import read_params
 from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import (FILTER_PARAM_PREFIX, FILTER_PARAMS, Distribution, Study, apply_settings,
                                       distributions_of, fold_values)
-from softcbf.study.store import FALSIFY_FILE, TUNE_FILE, StudyStore, fault_of, faulted
+from softcbf.study.store import FALSIFY_FILE, TUNE_FILE, StudyStore, fault_of, faulted, stored_search
 from softcbf_mj.progress import Progress, significant
-from softcbf_mj.runio import OutputDirError, write_json
+from softcbf_mj.runio import write_json
 from vocabulary.files import read_settings_file
 
 DEFAULT_OBJECTIVE = "force_delivered_N"  # the steady measured force of the nominal run (module docstring)
@@ -256,10 +257,16 @@ def evaluation_record(e: int, params: dict[str, Any], row: dict[str, Any], value
             "error": next((str(r.get("error") or "").splitlines()[0] for r in rows if r.get("status") == "error"), None)}
 
 
-def filter_spec(tune: TuneFile, params: dict[str, Any]) -> tuple[str, str]:
-    """The filter spec and its parameters ("name=value;…") of a setting, as a user types them."""
+def filter_spec(tune: TuneFile, params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The filter spec and its parameters ({name: value}, the fixed ones and the setting's) of a setting."""
     fixed = inner_study(tune, {FILTER_PARAM_PREFIX + k: v for k, v in params.items()}).fixed
-    return str(fixed["filter"]), str(fixed.get(FILTER_PARAMS, ""))
+    return str(fixed["filter"]), dict(read_params(fixed.get(FILTER_PARAMS)))
+
+
+def command_text(spec: str, params: dict[str, Any]) -> str:
+    """The setting as a user types it: `--filter SPEC --filter-param NAME=VALUE …` (bools as true/false)."""
+    text = " ".join(f"--filter-param {k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in params.items())
+    return f"--filter {spec}" + (f" {text}" if text else "")
 
 
 def tune(
@@ -307,7 +314,7 @@ def tune(
     settings = {"objective": tune_file.objective, "inner_objective": study.objective, "sampler": sampler,
                 "seed": seed, "population": population, "inner_budget": inner_budget, "study": study.to_dict(),
                 "tune": {d.parameter.removeprefix(FILTER_PARAM_PREFIX): d.to_dict() for d in tune_file.box}}
-    stored = check_folder(root, settings, resume)
+    stored = stored_search(root, TUNE_FILE, "tuning", settings, SETTINGS, resume)
     name = stored.get("optuna_study") or f"softcbf-tune-{study.name}-{uuid.uuid4().hex[:12]}"
     state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name}
     bar = progress if isinstance(progress, Progress) else Progress(f"tune {study.name}", budget, enabled=progress,
@@ -374,24 +381,6 @@ def tune(
     return state
 
 
-def check_folder(root: Path, settings: dict[str, Any], resume: bool) -> dict[str, Any]:
-    """The stored tune.json of a folder to resume (checked against `settings`), {} for a new folder."""
-    state = root / TUNE_FILE
-    if resume:
-        if not state.is_file():
-            raise OutputDirError(f"{root} is not a tune folder (no {TUNE_FILE}); drop --resume to start one")
-        stored = json.loads(state.read_text(encoding="utf-8"))
-        differ = [k for k in SETTINGS if stored.get(k) != settings[k]]
-        if differ:
-            raise OutputDirError(f"{root} holds a tuning with other {', '.join(differ)} (e.g. {differ[0]} = "
-                                 f"{stored.get(differ[0])!r}, now {settings[differ[0]]!r}); --resume needs the same")
-        return stored
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
-        hint = "pass --resume to continue it" if state.is_file() else "choose another --out"
-        raise OutputDirError(f"{root} exists and is not empty; {hint}")
-    return {}
-
-
 def inner_dir(root: Path, e: int) -> Path:
     return root / INNER_DIR / f"{e + 1:04d}"
 
@@ -450,7 +439,7 @@ def winner(tune_file: TuneFile, root: Path, best: dict[str, Any]) -> dict[str, A
     write_json(root / WINNER_FILE, {**check.to_dict(), "name": f"{tune_file.study.name}_winner"})
     return {"evaluation": best["evaluation"], "params": best["params"], "value": best["value"],
             "worst_rho": best["worst_rho"], "filter": spec, "filter_params": params,
-            "command": f"--filter {spec} --filter-params '{params}'",
+            "command": command_text(spec, params),
             "replay": f"softcbf run --config {BEST_DIR}/config.json",
             "check": f"softcbf study falsify {WINNER_FILE} --budget 300 --baseline 0 --seed 1 --out check"}
 
