@@ -137,16 +137,22 @@ def parse_text(text: str) -> dict[str, str]:
     and for a name given twice (the last would silently win)."""
     out: dict[str, str] = {}
     for item in (text or "").split(";"):
-        if not item.strip():
-            continue
-        name, sep, value = item.partition("=")
-        if not sep or not name.strip():
-            raise ValueError(f"parameters must be name=value, got {item.strip()!r}")
-        name, value = name.strip(), value.strip()
-        if name in out:
-            raise ValueError(f"parameter {name} is given twice ({name}={out[name]}, then {name}={value}); give it once")
-        out[name] = value
+        if item.strip():
+            add_pair(out, item, "parameter")
     return out
+
+
+def add_pair(out: dict[str, str], item: str, what: str) -> None:
+    """Add one "NAME=VALUE" `item` to `out` (its value everything after the first '=', both stripped); ValueError
+    naming `what` (the option or "parameter") for an item that is not NAME=VALUE, or a NAME given twice (the last
+    would silently win)."""
+    name, sep, value = item.partition("=")
+    if not sep or not name.strip():
+        raise ValueError(f"{what} takes NAME=VALUE, got {item.strip()!r}")
+    name, value = name.strip(), value.strip()
+    if name in out:
+        raise ValueError(f"{what} {name} is given twice ({name}={out[name]}, then {name}={value}); give it once")
+    out[name] = value
 
 
 def read_params(value: object) -> Params:

@@ -48,7 +48,7 @@ from pathlib import Path
 from closedloop.step import describe_fault, fault_log_name
 from controllers.bounds import SettingError
 from controllers.interrupts import watch
-from controllers.filter_parameters import OLD_TEXT_WARNING, Params, read_params
+from controllers.filter_parameters import OLD_TEXT_WARNING, Params, add_pair, read_params
 from controllers.registry import FILTERS, NOMINALS, PluginLoadError, did_you_mean, is_builtin, parameter_names
 from scenarios import Scenario, get
 from vocabulary.settings import setting
@@ -244,13 +244,7 @@ def command_line_params(items: Sequence[tuple[str, str]], names: typing.Collecti
             warnings.warn(f"{option} {text!r}: {OLD_TEXT_WARNING}", DeprecationWarning, stacklevel=2)
             parts = [part for part in text.split(";") if part.strip()]
         for part in parts:
-            key, sep, value = part.partition("=")
-            if not sep or not key.strip():
-                raise ValueError(f"{option} takes NAME=VALUE, got {part.strip()!r}")
-            key, value = key.strip(), value.strip()
-            if key in out:
-                raise ValueError(f"{option} {key} is given twice ({key}={out[key]}, then {key}={value}); give it once")
-            out[key] = value
+            add_pair(out, part, option)
     return out
 
 
