@@ -47,6 +47,9 @@ def update_gain(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: n
     Its interval is applied once it has narrowed by 1 % of the prior's width (a wider interval than the
     estimator's is also sound, and each change rebuilds the ends' terms), or at once when it fell back to the prior."""
     params, estimator, previous = model.params, state.gain_estimator, state.gain_previous
+    if state.gain_window is not None:
+        window_sample(model, state, q, t_capture)
+        return
     state.gain_previous = (t_capture, q, qd)
     moving = previous is not None and 0.0 < t_capture - previous[0] <= params.gain_difference_s
     if max(abs(v) for v in qd.tolist()) > params.gain_rest_rad_s:
@@ -74,13 +77,53 @@ def update_gain(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: n
         if np.any(np.abs(estimator.a * (p - predictor.command_at(t_capture))) > estimator.noise_rad):
             return
         residual = estimator.rest_residual(q, qd)
+    offer(model, state, q_sample, near, p, residual)
+
+
+def window_sample(model: GovernorModel, state: GovernorState, q: np.ndarray, t_capture: float) -> None:
+    """With gain_window_s: add the estimate q captured at t_capture (once per capture) to the state's rest window
+    (`controllers.gain_estimate.RestWindow`); a frame whose model pressure has not settled (|λ_i/k_i (p_i − u_i)| >
+    gain_noise_rad) empties the window. Once the window spans gain_window_s with ≥ 3 frames it is fitted: with every
+    |β_i| ≤ gain_rest_rad_s (at rest: the fitted slope, not the noisy q̂̇) its residuals join the pooled scatter and
+    its mean q̄ is offered as a rest sample (p the frames' mean model pressure, y = q̄, trusted to Δ + ε_i,
+    ε = `RestWindow.scatter_bound` at gain_scatter_risk; in contact as `update_gain`), then the window starts
+    afresh; otherwise its oldest frame is dropped (the window slides on)."""
+    params, estimator, window, predictor = model.params, state.gain_estimator, state.gain_window, state.predictor
+    p = predictor.pressure_at(t_capture)
+    if np.any(np.abs(estimator.a * (p - predictor.command_at(t_capture))) > estimator.noise_rad):
+        window.clear()
+        return
+    if not window.add(t_capture, q, p):
+        return
+    if window.span < params.gain_window_s or len(window.times) < 3:
+        return
+    mean, slope, rss, n = window.fit()
+    if np.any(np.abs(slope) > params.gain_rest_rad_s):
+        window.drop_oldest()
+        return
+    window.pool(rss, n)
+    pressure = np.mean(window.inputs, axis=0)
+    window.clear()
+    x, y = model.tip(mean)
+    near = [(nx, ny) for nx, ny, d in model.facets if nx * x + ny * y - d > -params.gain_clearance_m]
+    if near and params.gain_contact == "off":
+        return
+    offer(model, state, mean, near, pressure, mean, window.scatter_bound(n, params.gain_scatter_risk))
+
+
+def offer(model: GovernorModel, state: GovernorState, q_sample: np.ndarray, near: list, p: np.ndarray,
+          residual: np.ndarray, scatter: np.ndarray | None = None) -> None:
+    """Give the estimator the sample (p, residual) at q_sample, in contact with the facets `near` (their normal, and
+    their tangent with gain_contact "any", J_r(q)ᵀv at q_sample eliminated) or out of contact; apply its interval
+    once it has narrowed by 1 % of the prior's width, or at once when it fell back to the prior."""
+    params, estimator = model.params, state.gain_estimator
     if near:
         jac = kinematics_unchecked(np.asarray(q_sample, dtype=float), model.dynamics.lengths, 1).jac[-1]  # ∂r/∂q: x + iy
         directions = near if params.gain_contact == "normal" else near + [(-ny, nx) for nx, ny in near]
         torques = np.array([jac.real * vx + jac.imag * vy for vx, vy in directions]).T  # (N, m): J_r(q)ᵀv
-        accepted = estimator.sample_in_contact(p, residual, torques)
+        accepted = estimator.sample_in_contact(p, residual, torques, scatter)
     else:
-        accepted = estimator.sample(p, residual)
+        accepted = estimator.sample(p, residual, scatter)
     if accepted:
         lo, hi = estimator.interval
         width = state.ends.hi - state.ends.lo
