@@ -87,12 +87,21 @@ noise is stationary and the arm moves little at rest). The balance at each frame
 (the balance is linear in p, so the frames' mean of g K⁻¹Λ p_f is g x), η̄ = mean_f η_f ~ N(0, σ_i²/n). δ̄ is bounded by Δ as before (the systematic error, and the residual motion of a
 window whose slope is at most `rest_rad_s`: |K⁻¹D q̇| ≤ (d_i/k_i)·rest_rad_s ≈ 1e-4 rad on the reference arm);
 η̄ is bounded from the samples' own scatter: the residuals about each window's line, pooled over the windows taken
-so far, s_i² = Σ RSS_i / ν, ν = Σ (n_w − 2), so that η̄_i/(s_i/√n) is Student's t with ν degrees of freedom (α
-is independent of the residuals and of β, which the rest test selects on, so that selecting a window on β, on
-s or on x does not bias α; the pooled windows' noise is independent of it), and
+so far (disjoint windows at rest), s_i² = Σ RSS_i / ν, ν = Σ (n_w − 2), so that η̄_i/(s_i/√n) is Student's t
+with ν degrees of freedom (α is independent of the residuals and of β, which the rest test selects on, so that
+selecting a window on β, on s or on x does not bias α; the other windows' noise is independent of it). A window
+whose arm moves other than along a line adds its deterministic curvature to its residuals: their sum of squares is
+then a non-central χ², stochastically larger than the central one, so s only grows and the bound errs to the
+safe side (the commands within a window depend on its earlier frames through the governor's steps, held near
+constant by the settled pressure: neglected). Then
 
     P(|η̄_i| > ε_i) = risk,   ε_i = t_ν(risk) s_i/√n   (`student_t_quantile`, c-erg's `gain_scatter_risk`).
 
+A calibrated camera (c-erg's `gain_frame_sigma_rad`, e.g. from `softcbf calibrate-camera`): with σ known, η̄_i/(σ/√n)
+is standard normal and ε_i = z(risk) σ/√n from the first window on (no pooled degrees of freedom to wait for:
+ν = 8 gives t = 13.3 at risk 1e-6 against z = 4.89); sound as far as σ bounds the camera's noise in this run
+(its own estimate's error, ≈ σ/√(2ν) at the calibration's ν, is not in the bound: calibrate on a long run and
+round σ up, as the command's upper value does).
 The sample then enters the sums above with the bound Δ + ε_i per segment: |x̃ᵀK(δ̄ + η̄)| ≤ Σ_i k_i|x̃_i|(Δ + ε_i),
 so e = (Δ Σ_s w̃_s + Σ_s Σ_i k_i|x̃_s,i| ε_s,i) / Σ_s |x̃_s|²_K, and the rules above (e falls; alone within a
 quarter of the prior) use each sample's own bound. This part of the bound is statistical, not worst case: g ∈ I
@@ -383,9 +392,12 @@ class RestWindow:
         self.pooled_rss = self.pooled_rss + np.asarray(rss, dtype=float)
         self.pooled_dof += n - 2
 
-    def scatter_bound(self, n: int, risk: float) -> np.ndarray:
+    def scatter_bound(self, n: int, risk: float, sigma: float | None = None) -> np.ndarray:
         """ε (N,) rad: P(|ᾱ_i − E ᾱ_i| > ε_i) = risk for the mean of n frames with i.i.d. Gaussian noise of the pooled
-        scatter's variance (Student's t with the pooled degrees of freedom: module docstring, "averaged frames")."""
+        scatter's variance (Student's t with the pooled degrees of freedom: module docstring, "averaged frames"),
+        or of the known (calibrated) standard deviation `sigma` rad (the normal quantile: ε = z σ/√n)."""
+        if sigma is not None:
+            return np.full(self.segments, statistics.NormalDist().inv_cdf(1.0 - risk / 2.0) * sigma / math.sqrt(n))
         if self.pooled_dof < 1:
             raise ValueError("no pooled scatter yet: pool a window of at least 3 frames first")
         sigma = np.sqrt(self.pooled_rss / self.pooled_dof)

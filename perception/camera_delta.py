@@ -6,11 +6,13 @@ mean ᾱ of the n camera frames of a window at rest (the fitted slope |β_i| ≤
 averaging shrinks), Δ the worst-case part that averaging does not remove (the camera's systematic error and the
 residual motion). This module measures both from a run folder's camera frames (`timeseries/<tuning>_frames.npz`,
 written by camera_loop and the hardware mode: per frame t (s, exposure), dropped, complete, q_camera (rad) and, in
-simulation, q_true (rad, MuJoCo's at exposure)), with the governor's own windows (`RestWindow`: the same fit, rest
-test and pooling, frames at most one window apart):
+simulation, q_true (rad, MuJoCo's at exposure)), with the governor's own windows (`RestWindow`: the same fit and
+rest test, frames at most one window apart; only the windows at rest are pooled here, so that σ is the noise at
+rest, where the governor pools every window whose pressure settled):
 
-- scatter: σ_i = s_i per frame and segment (rad, pooled over ν degrees of freedom), and the bound ε_i of a mean of
-  the median window's n frames at `risk`; measurable on hardware too (no truth needed);
+- scatter: σ_i = s_i per frame and segment (rad, pooled over ν degrees of freedom), its upper value for c-erg's
+  `gain_frame_sigma_rad` (`CameraDelta.sigma_upper`), and the bound ε_i of a mean of the median window's n frames
+  at `risk`; measurable on hardware too (no truth needed);
 - Δ (simulation only, the frames' q_true): the largest |ᾱ_i − mean_f q_true,f,i| over the windows at rest and the
   segments, the error of a window's mean against the truth. It contains the averaged noise η̄ as well as the
   systematic error, so it over-states the systematic part (by about t·σ/√n at the windows' count), which is the
@@ -49,6 +51,12 @@ class CameraDelta:
     delta: np.ndarray | None
     risk: float
     window_s: float
+
+    @property
+    def sigma_upper(self) -> np.ndarray:
+        """σ rounded up for its own estimate's error (N,) rad: s (1 + z_0.999/√(2ν)), s's standard error ≈ σ/√(2ν)
+        (the normal approximation of a χ² with ν degrees of freedom; one-sided 0.999)."""
+        return self.sigma * (1.0 + 3.09 / np.sqrt(2.0 * self.dof))
 
 
 def measure(times, q_camera, q_true, usable, window_s: float, rest_rad_s: float, risk: float,
@@ -114,7 +122,9 @@ def report_lines(result: CameraDelta) -> list[str]:
     lines = [f"{result.tuning}: {result.windows} windows of {result.window_s:g} s at rest, median {result.frames} "
              f"frames each",
              f"  frame scatter σ per segment: {rad(result.sigma)} (residuals about each window's line, pooled over "
-             f"{result.dof} degrees of freedom)",
+             f"{result.dof} degrees of freedom); upper value {rad(result.sigma_upper)} (σ (1 + 3.09/√(2ν)): "
+             f"one-sided 0.999, normal approximation of s) for gain_frame_sigma_rad = "
+             f"{float(np.max(result.sigma_upper)):.2g}",
              f"  noise bound of a {result.frames}-frame mean ε: {rad(result.scatter)} (Student's t, risk "
              f"{result.risk:g} per segment and sample: statistical, not worst case)"]
     if result.delta is None:

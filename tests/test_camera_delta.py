@@ -55,6 +55,7 @@ def test_the_window_fit_is_numpys_line_and_pools_its_residuals():
     assert window.pooled_dof == 14
     np.testing.assert_allclose(window.scatter_bound(4, 1e-3),
                                student_t_quantile(1e-3, 14) * np.sqrt(rss / 7.0) / 2.0, rtol=1e-12)
+    np.testing.assert_allclose(window.scatter_bound(4, 1e-3, sigma=1e-3), 3.2905267 * 1e-3 / 2.0, rtol=1e-7)
 
 
 def test_the_scatter_bound_covers_the_mean_noise_at_its_risk():
@@ -129,13 +130,19 @@ def noisy_camera_run(params: dict, true_gain: float, seed: int, duration_s: floa
 def test_a_noisy_camera_narrows_the_gain_interval_with_averaged_windows():
     """Camera noise 1e-3 rad and 20 % drops: with the recommended rest test (|q̂̇| ≤ 3e-3 rad/s for 0.2 s) no sample
     is taken and the interval stays [0.9, 1.1]; averaging 1 s windows it narrows below half the prior and holds the
-    true gain (1.07, 0.93) at every call."""
+    true gain (1.07, 0.93) at every call, with the pooled scatter and with a calibrated σ (its first sample narrows
+    more: z = 4.9 against t_8 = 13.3 at risk 1e-6)."""
     assert set(noisy_camera_run(RECOMMENDED_REST, 1.07, seed=1)) == {(0.9, 1.1)}
-    for true_gain, seed in ((1.07, 1), (0.93, 2)):
-        intervals = noisy_camera_run({**RECOMMENDED_REST, "gain_window_s": 1.0}, true_gain, seed)
+    first = {}
+    for true_gain, seed, sigma in ((1.07, 1, None), (0.93, 2, None), (1.07, 1, 1.2e-3)):
+        intervals = noisy_camera_run({**RECOMMENDED_REST, "gain_window_s": 1.0, "gain_frame_sigma_rad": sigma},
+                                     true_gain, seed)
         assert all(lo <= true_gain <= hi for lo, hi in intervals)
         lo, hi = intervals[-1]
         assert hi - lo < 0.1
+        first[(seed, sigma)] = next((lo, hi) for lo, hi in intervals if hi - lo < 0.2)
+    calibrated, pooled = first[(1, 1.2e-3)], first[(1, None)]
+    assert calibrated[1] - calibrated[0] < pooled[1] - pooled[0]
 
 
 def frames_of_a_resting_camera(seed: int, bias: np.ndarray, sigma: np.ndarray, seconds: float = 20.0):
@@ -173,6 +180,7 @@ def test_calibrate_camera_prints_delta_from_a_run_folder(tmp_path, capsys):
     assert main(["calibrate-camera", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert out.splitlines()[0].startswith("c-erg: ") and "frame scatter σ" in out and "Δ (gain_noise_rad) ≥" in out
+    assert "for gain_frame_sigma_rad = " in out
     assert "\n".join(report_lines(measure_folder(tmp_path / "run", 1.0, 3e-3, 1e-6)[0])) in out
     (tmp_path / "empty").mkdir()
     assert main(["calibrate-camera", str(tmp_path / "empty")]) == 2

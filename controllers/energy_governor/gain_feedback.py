@@ -22,6 +22,12 @@ rest reaches the plate before any sample out of contact, and the samples at rest
 [0.9, 1.1] while it presses (camera_push_120: 0.71 F_max with Δ = 5e-3 rad, 0.80 with Δ = 1.5e-3 rad and
 `gain_rest_rad_s` 3e-3, 0.81 with `gain_rest_s` 0.2 and ε = 2e-6 J as well; the prior alone 0.23).
 
+A noisy camera (`gain_window_s` > 0; `window_sample`): the rest test above never passes with q̂̇ from noisy frames
+(pixel noise 8: |q̂̇| ≈ 0.1 rad/s at rest), so a sample is instead the mean of the distinct estimates of a window
+of gain_window_s, at rest when each segment's fitted slope is at most gain_rest_rad_s, trusted to Δ plus the bound
+of its mean's noise from the scatter pooled over the windows taken (`controllers.gain_estimate`, "averaged
+frames": a statistical bound at gain_scatter_risk per segment and sample, not a worst case). Measured on the
+150 hPa push with pixel noise 8 and 20 % drops: docs/beyond-the-paper.md#a-noisy-camera.
 """
 
 from __future__ import annotations
@@ -45,7 +51,8 @@ def update_gain(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: n
     eliminated: along the normal n̂_j of each facet within the clearance ("normal", a frictionless plate), and
     along its tangent too ("any"), the directions J_r(q)ᵀv at the sample's q (`GainEstimator.sample_in_contact`).
     Its interval is applied once it has narrowed by 1 % of the prior's width (a wider interval than the
-    estimator's is also sound, and each change rebuilds the ends' terms), or at once when it fell back to the prior."""
+    estimator's is also sound, and each change rebuilds the ends' terms), or at once when it fell back to the prior.
+    With gain_window_s > 0 the estimate goes to the rest window instead (`window_sample`), q̂̇ unused."""
     params, estimator, previous = model.params, state.gain_estimator, state.gain_previous
     if state.gain_window is not None:
         window_sample(model, state, q, t_capture)
@@ -86,8 +93,11 @@ def window_sample(model: GovernorModel, state: GovernorState, q: np.ndarray, t_c
     gain_noise_rad) empties the window. Once the window spans gain_window_s with ≥ 3 frames it is fitted: with every
     |β_i| ≤ gain_rest_rad_s (at rest: the fitted slope, not the noisy q̂̇) its residuals join the pooled scatter and
     its mean q̄ is offered as a rest sample (p the frames' mean model pressure, y = q̄, trusted to Δ + ε_i,
-    ε = `RestWindow.scatter_bound` at gain_scatter_risk; in contact as `update_gain`), then the window starts
-    afresh; otherwise its oldest frame is dropped (the window slides on)."""
+    ε = `RestWindow.scatter_bound` at gain_scatter_risk, from gain_frame_sigma_rad where given; in contact as
+    `update_gain`), then the window starts
+    afresh (the pooled windows are disjoint); otherwise its oldest frame is dropped (the window slides on; a
+    window not at rest is not pooled: measured, pooling the moving windows' curvature too left the interval at the
+    prior on the 150 hPa push with pixel noise 8)."""
     params, estimator, window, predictor = model.params, state.gain_estimator, state.gain_window, state.predictor
     p = predictor.pressure_at(t_capture)
     if np.any(np.abs(estimator.a * (p - predictor.command_at(t_capture))) > estimator.noise_rad):
@@ -108,7 +118,8 @@ def window_sample(model: GovernorModel, state: GovernorState, q: np.ndarray, t_c
     near = [(nx, ny) for nx, ny, d in model.facets if nx * x + ny * y - d > -params.gain_clearance_m]
     if near and params.gain_contact == "off":
         return
-    offer(model, state, mean, near, pressure, mean, window.scatter_bound(n, params.gain_scatter_risk))
+    offer(model, state, mean, near, pressure, mean,
+          window.scatter_bound(n, params.gain_scatter_risk, params.gain_frame_sigma_rad))
 
 
 def offer(model: GovernorModel, state: GovernorState, q_sample: np.ndarray, near: list, p: np.ndarray,

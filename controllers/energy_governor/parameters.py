@@ -126,6 +126,11 @@ class GovernorParams:
                                         "noise exceeds its scatter bound (Student's t of the pooled scatter; a "
                                         "statistical bound, not a worst case; gain_window_s > 0 only)", "1",
                                         bound=Bound(1e-9, 0.5))
+    gain_frame_sigma_rad: float | None = declared(None, "the camera's calibrated frame noise σ per segment (softcbf "
+                                                  "calibrate-camera): a window sample's mean is trusted to "
+                                                  "gain_noise_rad + z σ/√n (None: the pooled scatter's Student t; "
+                                                  "gain_window_s > 0 only)", "rad",
+                                                  bound=Bound(0.0, 1.0, low_open=True, unit="rad"), optional=True)
     plate_offset_lo_m: float = declared(0.0, "nearest true plate: its facets' least offset along their outward "
                                         "normal from the model's (< 0: nearer the arm; P is built on the nearest "
                                         "plate; contact certificate only: controllers.energy_governor.certificate, "
