@@ -77,7 +77,9 @@ dropped: the frames' q_camera − q_true), its finite-difference q̂̇ by ≈ 0.
 (t_f, q̂_f) of a window of `gain_window_s` in which the model's pressure is settled at every frame (`RestWindow`):
 per segment the least-squares line q̂_i(t) ≈ α_i + β_i (t − t̄) gives the mean α_i = Σ_f q̂_f,i / n and the slope
 β_i; the window is at rest when every |β_i| ≤ `rest_rad_s` (the slope of n frames, not a noisy q̂̇), and the sample
-is y = α, x = K⁻¹Λ p̄ (p̄ the frames' mean model pressure). Write the frame's error q̂_f − q_f = b_f + η_f: b a
+is y = α, x = K⁻¹Λ p̄ (p̄ the frames' mean model pressure). Consecutive windows at rest (blocks) make a run, and
+the sample is the run's mean over all its n frames (the run's own slope at rest too; c-erg offers it after each
+block: a longer rest, a smaller ε ∝ 1/√n); the scatter is pooled per block. Write the frame's error q̂_f − q_f = b_f + η_f: b a
 systematic part (the camera's calibration and tag-geometry error, which no averaging removes), η_f the frame's
 noise, independent across frames, Gaussian N(0, σ_i²) with σ_i the same in every window of the run (the pixel
 noise is stationary and the arm moves little at rest). The balance at each frame, averaged over the window, gives
@@ -337,8 +339,9 @@ class RestWindow:
     last frame's, is ignored); `fit()` fits the line q_i(t) ≈ α_i + β_i (t − t̄) per segment by least squares
     (α = the frames' mean, β the slope, rad/s) with its residual sum of squares; `pool(fit)` adds a window's
     residuals to the pooled scatter s_i² = Σ RSS_i / Σ (n − 2); `scatter_bound(n, risk)` is
-    ε_i = t_ν(risk) s_i / √n, ν the pooled degrees of freedom (at most `MAX_DOF`). `clear()` starts the next window, `reset()` forgets
-    the pool too."""
+    ε_i = t_ν(risk) s_i / √n, ν the pooled degrees of freedom (at most `MAX_DOF`). `fit(start)` and `span(start)`
+    read the frames from index `start` on (a block of a run); `clear()` starts the next window, `drop_oldest()` and
+    `drop_before(start)` drop its first frames, `reset()` forgets the pool too."""
 
     def __init__(self, segments: int) -> None:
         self.segments = int(segments)
@@ -369,19 +372,22 @@ class RestWindow:
         """Drop the window's first frame (the window slides on)."""
         del self.times[0], self.frames[0], self.inputs[0]
 
-    @property
-    def span(self) -> float:
-        """Last frame's time less the first's (s); 0 with fewer than two frames."""
-        return self.times[-1] - self.times[0] if len(self.times) > 1 else 0.0
+    def span(self, start: int = 0) -> float:
+        """Last frame's time less that of frame `start` (s); 0 with fewer than two frames from it."""
+        return self.times[-1] - self.times[start] if len(self.times) > start + 1 else 0.0
 
-    def fit(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    def drop_before(self, start: int) -> None:
+        """Drop the frames before index `start`."""
+        del self.times[:start], self.frames[:start], self.inputs[:start]
+
+    def fit(self, start: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """(α, β, RSS, n): the frames' mean (N,) rad, the least-squares slope (N,) rad/s and the residuals' sum of
-        squares (N,) rad² about the line, over the window's n ≥ 3 frames."""
-        n = len(self.times)
+        squares (N,) rad² about the line, over the window's n ≥ 3 frames from index `start` on."""
+        n = len(self.times) - start
         if n < 3:
             raise ValueError(f"a rest window's fit needs at least 3 frames, got {n}")
-        dt = np.array(self.times) - np.mean(self.times)
-        q = np.array(self.frames)
+        dt = np.array(self.times[start:]) - np.mean(self.times[start:])
+        q = np.array(self.frames[start:])
         mean = q.mean(axis=0)
         slope = dt @ (q - mean) / float(dt @ dt)
         residual = q - mean - np.outer(dt, slope)

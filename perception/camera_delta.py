@@ -77,7 +77,7 @@ def measure(times, q_camera, q_true, usable, window_s: float, rest_rad_s: float,
         if window.times and times[f] - window.times[-1] > window_s:  # a gap of a window: the arm may have moved
             window.clear()
         window.add(times[f], q_camera[f], None if truth is None else truth[f])
-        if window.span < window_s or len(window.times) < 3:
+        if window.span() < window_s or len(window.times) < 3:
             continue
         mean, slope, rss, n = window.fit()
         if np.any(np.abs(slope) > rest_rad_s):

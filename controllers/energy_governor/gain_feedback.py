@@ -90,30 +90,38 @@ def update_gain(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: n
 def window_sample(model: GovernorModel, state: GovernorState, q: np.ndarray, t_capture: float) -> None:
     """With gain_window_s: add the estimate q captured at t_capture (once per capture) to the state's rest window
     (`controllers.gain_estimate.RestWindow`); a frame whose model pressure has not settled (|λ_i/k_i (p_i − u_i)| >
-    gain_noise_rad) empties the window. Once the window spans gain_window_s with ≥ 3 frames it is fitted: with every
-    |β_i| ≤ gain_rest_rad_s (at rest: the fitted slope, not the noisy q̂̇) its residuals join the pooled scatter and
-    its mean q̄ is offered as a rest sample (p the frames' mean model pressure, y = q̄, trusted to Δ + ε_i,
-    ε = `RestWindow.scatter_bound` at gain_scatter_risk, from gain_frame_sigma_rad where given; in contact as
-    `update_gain`), then the window starts
-    afresh (the pooled windows are disjoint); otherwise its oldest frame is dropped (the window slides on; a
-    window not at rest is not pooled: measured, pooling the moving windows' curvature too left the interval at the
-    prior on the 150 hPa push with pixel noise 8)."""
+    gain_noise_rad) empties the window. The window holds a run of blocks at rest and the block being filled (from
+    `state.gain_block`). Once the block spans gain_window_s with ≥ 3 frames it is fitted: with every |β_i| ≤
+    gain_rest_rad_s (at rest: the fitted slope, not the noisy q̂̇) its residuals join the pooled scatter (the
+    pooled blocks are disjoint) and it joins the run; the run's mean q̄ (all its n frames, the run's own slope at
+    most gain_rest_rad_s too, else the block alone) is offered as a rest sample (p the frames' mean model pressure,
+    y = q̄, trusted to Δ + ε_i, ε = `RestWindow.scatter_bound` of n frames at gain_scatter_risk, from
+    gain_frame_sigma_rad where given; in contact as `update_gain`), and the next block starts. A block not at rest
+    ends the run and slides on (its oldest frame dropped) and is not pooled (measured: pooling the moving windows'
+    curvature too left the interval at the prior on the 150 hPa push with pixel noise 8)."""
     params, estimator, window, predictor = model.params, state.gain_estimator, state.gain_window, state.predictor
     p = predictor.pressure_at(t_capture)
     if np.any(np.abs(estimator.a * (p - predictor.command_at(t_capture))) > estimator.noise_rad):
         window.clear()
+        state.gain_block = 0
         return
     if not window.add(t_capture, q, p):
         return
-    if window.span < params.gain_window_s or len(window.times) < 3:
+    block = state.gain_block
+    if window.span(block) < params.gain_window_s or len(window.times) - block < 3:
         return
-    mean, slope, rss, n = window.fit()
+    _, slope, rss, n = window.fit(block)
     if np.any(np.abs(slope) > params.gain_rest_rad_s):
-        window.drop_oldest()
+        window.drop_before(block + 1)  # the run ends; the block slides on
+        state.gain_block = 0
         return
     window.pool(rss, n)
+    mean, slope, _, n = window.fit()
+    if np.any(np.abs(slope) > params.gain_rest_rad_s):  # the run drifts: the block alone
+        window.drop_before(block)
+        mean, _, _, n = window.fit()
+    state.gain_block = len(window.times)
     pressure = np.mean(window.inputs, axis=0)
-    window.clear()
     x, y = model.tip(mean)
     near = [(nx, ny) for nx, ny, d in model.facets if nx * x + ny * y - d > -params.gain_clearance_m]
     if near and params.gain_contact == "off":

@@ -9,7 +9,8 @@ change its state, and nothing else:
   (None for the contact certificate);
 - the gain feedback (`controllers.energy_governor.gain_feedback`): `gain_estimator` (its samples), `gain_previous`
   (t_capture, q, q̇) of the previous estimate, `rest_since` (when the current run at rest began), `gain_window`
-  (with `gain_window_s`: the current rest window's frames and the scatter pooled over the windows taken);
+  (with `gain_window_s`: the current run of rest blocks' frames and the scatter pooled over the blocks taken) and
+  `gain_block` (the index of the block being filled in it);
 - `ends`: the certified interval of the rest-shape ratio r = g/c (the actuator gain over the arm stiffness), the
   vertices (g, c) it leaves with the gain's and the stiffness's intervals, and their energy terms (`GainEnds`), and
   `scan_rows`, the recovery's grid rows at those ends, built when a recovery first needs them;
@@ -74,13 +75,14 @@ class GovernorState:
     scan_rows: np.ndarray | None = None
     pressures: PressureInterval | None = None
     gain_window: RestWindow | None = None
+    gain_block: int = 0
 
     def copy(self) -> "GovernorState":
         """A state that continues from this one independently (module docstring)."""
         return GovernorState(self.predictor.copy(), copy.copy(self.target_governor), copy.deepcopy(self.gain_estimator),
                              self.gain_previous, self.rest_since, self.ends, self.scan_rows,
                              None if self.pressures is None else self.pressures.copy(),
-                             copy.deepcopy(self.gain_window))
+                             copy.deepcopy(self.gain_window), self.gain_block)
 
     def set_gain_ends(self, model: GovernorModel, lo: float, hi: float) -> None:
         """Certify the gain interval [lo, hi] from now on (the recovery's grid rows rebuilt when needed)."""
