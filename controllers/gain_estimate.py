@@ -71,8 +71,8 @@ proves an assumption false (|δ| > Δ somewhere, g not constant, contact in a sa
 estimator then returns the prior for good (`inconsistent`; `reset` starts afresh).
 
 Averaged frames (a noisy camera; c-erg's `gain_window_s`). With image noise the camera's q̂ scatters by
-σ ≈ 0.7–0.9e-3 rad per frame and segment (camera_loop, pixel noise 8 grey levels, frames at 12.8 Hz, 20 %
-dropped: the frames' q_camera − q_true), its finite-difference q̂̇ by ≈ 0.1 rad/s: no estimate passes a rest test
+σ ≈ 0.7–1.6e-3 rad per frame and segment (camera_loop, pixel noise 8 grey levels, frames at 12.8 Hz, 20 %
+dropped: the frames' q_camera − q_true; the distal segment's the larger), its finite-difference q̂̇ by ≈ 0.1 rad/s: no estimate passes a rest test
 |q̂̇_i| ≤ 3e-3 rad/s, and Δ must then cover a frame's noise as well. Instead a sample averages the n frames
 (t_f, q̂_f) of a window of `gain_window_s` in which the model's pressure is settled at every frame (`RestWindow`):
 per segment the least-squares line q̂_i(t) ≈ α_i + β_i (t − t̄) gives the mean α_i = Σ_f q̂_f,i / n and the slope
@@ -87,7 +87,9 @@ noise is stationary and the arm moves little at rest). The balance at each frame
     α = g x + δ̄ + η̄,   δ̄ = mean_f(b_f) − K⁻¹D mean_f(q̇_f) − K⁻¹ mean_f(M q̈ + C q̇)
 
 (the balance is linear in p, so the frames' mean of g K⁻¹Λ p_f is g x), η̄ = mean_f η_f ~ N(0, σ_i²/n). δ̄ is bounded by Δ as before (the systematic error, and the residual motion of a
-window whose slope is at most `rest_rad_s`: |K⁻¹D q̇| ≤ (d_i/k_i)·rest_rad_s ≈ 1e-4 rad on the reference arm);
+window whose slope is at most `rest_rad_s`: |K⁻¹D mean q̇| ≤ (d_i/k_i)(rest_rad_s + the slope's own noise) ≈
+0.07 s × (3e-3 + 3 × 2.5e-3) rad/s ≈ 7e-4 rad on the reference arm, for 8 frames over 0.5 s at σ = 1e-3 rad;
+with the camera's systematic error at rest, ≤ 2e-4 rad on the 150 hPa push, within Δ = 1.5e-3 rad);
 η̄ is bounded from the samples' own scatter: the residuals about each window's line, pooled over the windows taken
 so far (disjoint windows at rest), s_i² = Σ RSS_i / ν, ν = Σ (n_w − 2), so that η̄_i/(s_i/√n) is Student's t
 with ν degrees of freedom (α is independent of the residuals and of β, which the rest test selects on, so that
@@ -108,9 +110,9 @@ The sample then enters the sums above with the bound Δ + ε_i per segment: |x̃
 so e = (Δ Σ_s w̃_s + Σ_s Σ_i k_i|x̃_s,i| ε_s,i) / Σ_s |x̃_s|²_K, and the rules above (e falls; alone within a
 quarter of the prior) use each sample's own bound. This part of the bound is statistical, not worst case: g ∈ I
 holds with probability at least 1 − N·S·risk for S accepted window samples (a union bound over segments and
-samples; 1 − 2·20·1e-6 for a 12 s push with 1 s windows), and only under the Gaussian, stationary, independent
+samples; at least 1 − 2·24·1e-6 for a 12 s push with 0.5 s windows), and only under the Gaussian, stationary, independent
 noise assumed (a camera whose noise is correlated across frames, e.g. a tracked tag's window, has a smaller
-residual scatter than its mean's error: calibrate it, `controllers.camera_delta`). Δ keeps the worst-case part:
+residual scatter than its mean's error: calibrate it, `perception.camera_delta`). Δ keeps the worst-case part:
 set from the noise-free camera (1.5e-3 rad) or from a recorded run (`softcbf calibrate-camera RUN_DIR`: the
 largest error of a window's mean against the simulation's truth). Measured on the 150 hPa push with noise 8 and
 20 % drops: docs/beyond-the-paper.md#a-noisy-camera.
