@@ -5,8 +5,9 @@ mean ᾱ of the n camera frames of a window at rest (the fitted slope |β_i| ≤
 Δ + ε_i: ε_i = t_ν(risk) s_i/√n from the residual scatter s_i pooled over the windows (the frame noise, which
 averaging shrinks), Δ the worst-case part that averaging does not remove (the camera's systematic error and the
 residual motion). This module measures both from a run folder's camera frames (`timeseries/<tuning>_frames.npz`,
-written by camera_loop and the hardware mode: per frame t (s, exposure), dropped, complete, q_camera (rad) and, in
-simulation, q_true (rad, MuJoCo's at exposure)), with the governor's own windows (`RestWindow`: the same fit and
+written by camera_loop: per frame t (s, exposure), dropped, complete, q_camera (rad) and, in simulation, q_true
+(rad, MuJoCo's at exposure); a file without q_true, as a hardware recording of the same series would be, gives
+the scatter alone: the hardware mode does not write this file yet), with the governor's own windows (`RestWindow`: the same fit and
 rest test, frames at most one window apart; only the windows at rest are pooled here, so that σ is the noise at
 rest, where the governor pools every window whose pressure settled):
 
@@ -103,8 +104,8 @@ def measure_folder(run_dir: Path, window_s: float, rest_rad_s: float, risk: floa
     """`measure` for each tuning's camera frames in a run folder (module docstring); ValueError when it has none."""
     paths = sorted(Path(run_dir, "timeseries").glob(f"*{FRAMES_SUFFIX}"))
     if not paths:
-        raise ValueError(f"{run_dir} has no camera frames (timeseries/*{FRAMES_SUFFIX}): a camera_loop or "
-                         f"hardware run folder is needed")
+        raise ValueError(f"{run_dir} has no camera frames (timeseries/*{FRAMES_SUFFIX}): a camera_loop "
+                         f"run folder is needed (the hardware mode writes no frames file yet)")
     out = []
     for path in paths:
         with np.load(path) as data:
@@ -139,7 +140,7 @@ def report_lines(result: CameraDelta) -> list[str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`softcbf calibrate-camera RUN_DIR [--window-s S] [--rest-rad-s R] [--risk P]`."""
-    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a camera_loop or hardware run folder")
+    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a camera_loop run folder")
     parser.add_argument("--window-s", type=float, default=1.0, help="rest window (c-erg's gain_window_s; default 1)")
     parser.add_argument("--rest-rad-s", type=float, default=3e-3,
                         help="largest fitted slope of a window at rest (c-erg's gain_rest_rad_s; default 3e-3)")
