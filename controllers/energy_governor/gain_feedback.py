@@ -22,6 +22,12 @@ rest reaches the plate before any sample out of contact, and the samples at rest
 [0.9, 1.1] while it presses (camera_push_120: 0.71 F_max with Δ = 5e-3 rad, 0.80 with Δ = 1.5e-3 rad and
 `gain_rest_rad_s` 3e-3, 0.81 with `gain_rest_s` 0.2 and ε = 2e-6 J as well; the prior alone 0.23).
 
+A noisy camera (`gain_window_s` > 0; `window_sample`): the rest test above never passes with q̂̇ from noisy frames
+(pixel noise 8: |q̂̇| ≈ 0.1 rad/s at rest), so a sample is instead the mean of the distinct estimates of a window
+of gain_window_s, at rest when each segment's fitted slope is at most gain_rest_rad_s, trusted to Δ plus the bound
+of its mean's noise from the scatter pooled over the windows taken (`controllers.gain_estimate`, "averaged
+frames": a statistical bound at gain_scatter_risk per segment and sample, not a worst case). Measured on the
+150 hPa push with pixel noise 8 and 20 % drops: docs/beyond-the-paper.md#a-noisy-camera.
 """
 
 from __future__ import annotations
@@ -45,8 +51,12 @@ def update_gain(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: n
     eliminated: along the normal n̂_j of each facet within the clearance ("normal", a frictionless plate), and
     along its tangent too ("any"), the directions J_r(q)ᵀv at the sample's q (`GainEstimator.sample_in_contact`).
     Its interval is applied once it has narrowed by 1 % of the prior's width (a wider interval than the
-    estimator's is also sound, and each change rebuilds the ends' terms), or at once when it fell back to the prior."""
+    estimator's is also sound, and each change rebuilds the ends' terms), or at once when it fell back to the prior.
+    With gain_window_s > 0 the estimate goes to the rest window instead (`window_sample`), q̂̇ unused."""
     params, estimator, previous = model.params, state.gain_estimator, state.gain_previous
+    if state.gain_window is not None:
+        window_sample(model, state, q, t_capture)
+        return
     state.gain_previous = (t_capture, q, qd)
     moving = previous is not None and 0.0 < t_capture - previous[0] <= params.gain_difference_s
     if max(abs(v) for v in qd.tolist()) > params.gain_rest_rad_s:
@@ -74,13 +84,65 @@ def update_gain(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: n
         if np.any(np.abs(estimator.a * (p - predictor.command_at(t_capture))) > estimator.noise_rad):
             return
         residual = estimator.rest_residual(q, qd)
+    offer(model, state, q_sample, near, p, residual)
+
+
+def window_sample(model: GovernorModel, state: GovernorState, q: np.ndarray, t_capture: float) -> None:
+    """With gain_window_s: add the estimate q captured at t_capture (once per capture) to the state's rest window
+    (`controllers.gain_estimate.RestWindow`); a frame whose model pressure has not settled (|λ_i/k_i (p_i − u_i)| >
+    gain_noise_rad) empties the window. The window holds a run of blocks at rest and the block being filled (from
+    `state.gain_block`). Once the block spans gain_window_s with ≥ 3 frames it is fitted: with every |β_i| ≤
+    gain_rest_rad_s (at rest: the fitted slope, not the noisy q̂̇) its residuals join the pooled scatter (the
+    pooled blocks are disjoint) and it joins the run; the run's mean q̄ (all its n frames, the run's own slope at
+    most gain_rest_rad_s too, else the block alone) is offered as a rest sample (p the frames' mean model pressure,
+    y = q̄, trusted to Δ + ε_i, ε = `RestWindow.scatter_bound` of n frames at gain_scatter_risk, from
+    gain_frame_sigma_rad where given; in contact as `update_gain`), and the next block starts. A block not at rest
+    ends the run and slides on (its oldest frame dropped) and is not pooled (measured: pooling the moving windows'
+    curvature too left the interval at the prior on the 150 hPa push with pixel noise 8)."""
+    params, estimator, window, predictor = model.params, state.gain_estimator, state.gain_window, state.predictor
+    p = predictor.pressure_at(t_capture)
+    if np.any(np.abs(estimator.a * (p - predictor.command_at(t_capture))) > estimator.noise_rad):
+        window.clear()
+        state.gain_block = 0
+        return
+    if not window.add(t_capture, q, p):
+        return
+    block = state.gain_block
+    if window.span(block) < params.gain_window_s or len(window.times) - block < 3:
+        return
+    _, slope, rss, n = window.fit(block)
+    if np.any(np.abs(slope) > params.gain_rest_rad_s):
+        window.drop_before(block + 1)  # the run ends; the block slides on
+        state.gain_block = 0
+        return
+    window.pool(rss, n)
+    mean, slope, _, n = window.fit()
+    if np.any(np.abs(slope) > params.gain_rest_rad_s):  # the run drifts: the block alone
+        window.drop_before(block)
+        mean, _, _, n = window.fit()
+    state.gain_block = len(window.times)
+    pressure = np.mean(window.inputs, axis=0)
+    x, y = model.tip(mean)
+    near = [(nx, ny) for nx, ny, d in model.facets if nx * x + ny * y - d > -params.gain_clearance_m]
+    if near and params.gain_contact == "off":
+        return
+    offer(model, state, mean, near, pressure, mean,
+          window.scatter_bound(n, params.gain_scatter_risk, params.gain_frame_sigma_rad))
+
+
+def offer(model: GovernorModel, state: GovernorState, q_sample: np.ndarray, near: list, p: np.ndarray,
+          residual: np.ndarray, scatter: np.ndarray | None = None) -> None:
+    """Give the estimator the sample (p, residual) at q_sample, in contact with the facets `near` (their normal, and
+    their tangent with gain_contact "any", J_r(q)ᵀv at q_sample eliminated) or out of contact; apply its interval
+    once it has narrowed by 1 % of the prior's width, or at once when it fell back to the prior."""
+    params, estimator = model.params, state.gain_estimator
     if near:
         jac = kinematics_unchecked(np.asarray(q_sample, dtype=float), model.dynamics.lengths, 1).jac[-1]  # ∂r/∂q: x + iy
         directions = near if params.gain_contact == "normal" else near + [(-ny, nx) for nx, ny in near]
         torques = np.array([jac.real * vx + jac.imag * vy for vx, vy in directions]).T  # (N, m): J_r(q)ᵀv
-        accepted = estimator.sample_in_contact(p, residual, torques)
+        accepted = estimator.sample_in_contact(p, residual, torques, scatter)
     else:
-        accepted = estimator.sample(p, residual)
+        accepted = estimator.sample(p, residual, scatter)
     if accepted:
         lo, hi = estimator.interval
         width = state.ends.hi - state.ends.lo

@@ -19,7 +19,8 @@ PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's t
 reference arm: a larger ε certifies no step at all), the stiffness ratios
 0 ≤ lo ≤ hi, 1e-3 ≤ hi ≤ 1e3, the gain ratios 0.1 ≤ lo ≤ hi ≤ 10 (other than 1 only with the contact
 certificate), τ_p ≤ 10 s; the gain estimate's Δ in (0, 1] rad (0 would trust a perfect model), |q̇| ≤ 10 rad/s
-for a rest sample, a clearance ≤ 1 m, and estimates ≤ 0.1 s apart for a difference (beyond, no acceleration).
+for a rest sample, a clearance ≤ 1 m, and estimates ≤ 0.1 s apart for a difference (beyond, no acceleration);
+a rest window ≤ 10 s and its risk in [1e-9, 0.5] (below 1e-9 the t tail's round-off, `student_t_quantile`).
 """
 
 from __future__ import annotations
@@ -115,6 +116,21 @@ class GovernorParams:
     gain_difference_s: float = declared(0.0, "largest spacing of two estimates whose q̇ difference gives q̈ for a "
                                         "moving sample (0: rest samples only; gain_estimate only)", "s",
                                         bound=Bound(0.0, 0.1, unit="s"))
+    gain_window_s: float = declared(0.0, "a rest sample is the mean of the estimates over a window this long, the "
+                                    "window at rest when its fitted slope |β_i| <= gain_rest_rad_s, trusted to "
+                                    "gain_noise_rad + the mean's noise bound from the windows' pooled scatter "
+                                    "(controllers.gain_estimate, \"averaged frames\": a noisy camera; 0: one "
+                                    "estimate per sample, its q̂̇ tested; gain_estimate only)", "s",
+                                    bound=Bound(0.0, 10.0, unit="s"))
+    gain_scatter_risk: float = declared(1e-6, "probability per segment and window sample that the mean's camera "
+                                        "noise exceeds its scatter bound (Student's t of the pooled scatter; a "
+                                        "statistical bound, not a worst case; gain_window_s > 0 only)", "1",
+                                        bound=Bound(1e-9, 0.5))
+    gain_frame_sigma_rad: float | None = declared(None, "the camera's calibrated frame noise σ per segment (softcbf "
+                                                  "calibrate-camera): a window sample's mean is trusted to "
+                                                  "gain_noise_rad + z σ/√n (None: the pooled scatter's Student t; "
+                                                  "gain_window_s > 0 only)", "rad",
+                                                  bound=Bound(0.0, 1.0, low_open=True, unit="rad"), optional=True)
     plate_offset_lo_m: float = declared(0.0, "nearest true plate: its facets' least offset along their outward "
                                         "normal from the model's (< 0: nearer the arm; P is built on the nearest "
                                         "plate; contact certificate only: controllers.energy_governor.certificate, "
@@ -194,6 +210,10 @@ class GovernorParams:
                                              self.damping_lo_ratio) != (1.0, 1.0, 1.0):
             raise ValueError(f"gain_difference_s must be 0 with an arm stiffness or damping interval (a moving "
                              f"sample's M q̈ and D q̇ then scale unlike K), got {self.gain_difference_s!r}")
+        if self.gain_window_s > 0.0 and self.gain_difference_s > 0.0:
+            raise ValueError(f"gain_window_s and gain_difference_s exclude each other (a window sample averages "
+                             f"frames at rest, a difference sample differentiates two), got {self.gain_window_s!r} "
+                             f"and {self.gain_difference_s!r}")
         if self.gain_contact not in GAIN_CONTACT:
             raise ValueError(f"gain_contact must be one of {', '.join(GAIN_CONTACT)}, got {self.gain_contact!r}")
         if self.gain_estimate and self.certificate != "contact":

@@ -8,7 +8,9 @@ change its state, and nothing else:
 - `target_governor`: the parked certificate's quasi-static governor, whose warm start is its previous command
   (None for the contact certificate);
 - the gain feedback (`controllers.energy_governor.gain_feedback`): `gain_estimator` (its samples), `gain_previous`
-  (t_capture, q, q̇) of the previous estimate, `rest_since` (when the current run at rest began);
+  (t_capture, q, q̇) of the previous estimate, `rest_since` (when the current run at rest began), `gain_window`
+  (with `gain_window_s`: the current run of rest blocks' frames and the scatter pooled over the blocks taken) and
+  `gain_block` (the index of the block being filled in it);
 - `ends`: the certified interval of the rest-shape ratio r = g/c (the actuator gain over the arm stiffness), the
   vertices (g, c) it leaves with the gain's and the stiffness's intervals, and their energy terms (`GainEnds`), and
   `scan_rows`, the recovery's grid rows at those ends, built when a recovery first needs them;
@@ -30,7 +32,7 @@ import numpy as np
 
 from controllers.energy_governor.certificate import GovernorModel, arm_corners
 from controllers.energy_governor.pressure_interval import PressureInterval
-from controllers.gain_estimate import GainEstimator
+from controllers.gain_estimate import GainEstimator, RestWindow
 from controllers.quasi_static_governor import QuasiStaticGovernor
 from controllers.state_predictor import StatePredictor
 
@@ -72,12 +74,15 @@ class GovernorState:
     ends: GainEnds
     scan_rows: np.ndarray | None = None
     pressures: PressureInterval | None = None
+    gain_window: RestWindow | None = None
+    gain_block: int = 0
 
     def copy(self) -> "GovernorState":
         """A state that continues from this one independently (module docstring)."""
         return GovernorState(self.predictor.copy(), copy.copy(self.target_governor), copy.deepcopy(self.gain_estimator),
                              self.gain_previous, self.rest_since, self.ends, self.scan_rows,
-                             None if self.pressures is None else self.pressures.copy())
+                             None if self.pressures is None else self.pressures.copy(),
+                             copy.deepcopy(self.gain_window), self.gain_block)
 
     def set_gain_ends(self, model: GovernorModel, lo: float, hi: float) -> None:
         """Certify the gain interval [lo, hi] from now on (the recovery's grid rows rebuilt when needed)."""
@@ -93,7 +98,10 @@ class GovernorState:
 def new_state(model: GovernorModel) -> GovernorState:
     """A governor's state at `reset` (module docstring): vented valves since t = −inf, no estimate, the prior gain
     interval. The target governor is a copy of the model's configured one (copies share its memory of commands,
-    a function of its inputs)."""
-    return GovernorState(model.new_predictor(), copy.copy(model.target_governor), model.new_gain_estimator(),
-                         None, None, gain_ends(model, *model.gain_prior),
-                         None if model.lag_taus is None else PressureInterval(model.lag_taus, model.n))
+    a function of its inputs); with `gain_window_s` an empty rest window."""
+    estimator = model.new_gain_estimator()
+    window = RestWindow(model.n) if estimator is not None and model.params.gain_window_s > 0.0 else None
+    return GovernorState(model.new_predictor(), copy.copy(model.target_governor), estimator, None, None,
+                         gain_ends(model, *model.gain_prior),
+                         pressures=None if model.lag_taus is None else PressureInterval(model.lag_taus, model.n),
+                         gain_window=window)
