@@ -112,7 +112,7 @@ quarter of the prior) use each sample's own bound. This part of the bound is sta
 holds with probability at least 1 − N·S·risk for S accepted window samples (a union bound over segments and
 samples; at least 1 − 2·24·1e-6 for a 12 s push with 0.5 s windows), and only under the Gaussian, stationary, independent
 noise assumed (a camera whose noise is correlated across frames, e.g. a tracked tag's window, has a smaller
-residual scatter than its mean's error: calibrate it, `perception.camera_delta`). Δ keeps the worst-case part:
+residual scatter than its mean's error: calibrate it, `controllers.camera_delta`). Δ keeps the worst-case part:
 set from the noise-free camera (1.5e-3 rad) or from a recorded run (`softcbf calibrate-camera RUN_DIR`: the
 largest error of a window's mean against the simulation's truth). Measured on the 150 hPa push with noise 8 and
 20 % drops: docs/beyond-the-paper.md#a-noisy-camera.

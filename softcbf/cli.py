@@ -14,7 +14,7 @@
     softcbf hardware --config FILE ...             the hardware mode (softcbf.hardware_cli)
     softcbf bench --out DIR [--filters SPEC,...] [--quick]   the filter benchmark battery (softcbf.bench)
     softcbf calibrate-camera RUN_DIR [--window-s S]   a camera's Δ and frame scatter at rest from a recorded run
-                                                   (perception.camera_delta)
+                                                   (controllers.camera_delta)
     softcbf examples DIR [--overwrite]             copy the shipped examples, studies and hardware configurations
                                                    into DIR (softcbf.shipped; STUDY_FILE and CONFIG above may be
                                                    their names, e.g. mismatch_box_contact, hardware_emulated)
@@ -281,7 +281,7 @@ register_command("bench", lambda: importlib.import_module("softcbf.bench").HELP,
                  lazy("softcbf.bench", "add_arguments"), lazy("softcbf.bench", "run_command"))
 register_command("calibrate-camera", "measure a camera's error at rest (Δ and the frame scatter that c-erg's gain "
                  "estimate trusts) from a run folder: softcbf calibrate-camera RUN_DIR",
-                 lazy("perception.camera_delta", "add_arguments"), lazy("perception.camera_delta", "run_command"))
+                 lazy("softcbf.calibrate_camera", "add_arguments"), lazy("softcbf.calibrate_camera", "run_command"))
 
 
 def version_line() -> str:

@@ -1,5 +1,5 @@
 """The gain estimate with a noisy camera (`controllers.gain_estimate`, "averaged frames"; c-erg's `gain_window_s`)
-and the camera's Δ measured from a recorded run (`perception.camera_delta`, `softcbf calibrate-camera`)."""
+and the camera's Δ measured from a recorded run (`controllers.camera_delta`, `softcbf calibrate-camera`)."""
 
 import math
 
@@ -11,7 +11,7 @@ from controllers.gain_estimate import ROUNDING, GainEstimator, RestWindow, stude
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
 from controllers.safety_filter import Estimate, FilterContext
-from perception.camera_delta import measure, measure_folder, report_lines
+from controllers.camera_delta import measure, measure_folder, report_lines
 from softcbf.cli import main
 
 ROBOT = reference_robot()
