@@ -69,12 +69,17 @@ def new_figure(size_in: tuple[float, float], dpi: float) -> Figure:
 
 def legend_outside(fig: Figure, axes: Iterable, loc: str = "outside right upper", ncols: int = 1,
                    title: str | None = None) -> None:
-    """One legend for the figure outside the axes (`loc`: matplotlib's "outside …"), each label once."""
+    """One legend for the figure outside the axes (`loc`: matplotlib's "outside …"), each label once, in at most
+    `ncols` columns: fewer where that many would be wider than the figure (long labels), one at the least."""
     entries: dict[str, object] = {}
     for ax in axes:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             entries.setdefault(label, handle)
-    fig.legend(list(entries.values()), list(entries), loc=loc, ncols=ncols, title=title)
+    for columns in range(ncols, 0, -1):
+        legend = fig.legend(list(entries.values()), list(entries), loc=loc, ncols=columns, title=title)
+        if columns == 1 or legend.get_window_extent(fig.canvas.get_renderer()).width <= fig.bbox.width:
+            return
+        legend.remove()
 
 
 def save_figure(fig: Figure, path: Path, figure_format: str, dpi: float) -> None:

@@ -5,17 +5,56 @@ MuJoCo reads MUJOCO_GL once, at its first import, and several test modules impor
 `softcbf_mj.gl_backend.configure_mujoco_gl`: a set MUJOCO_GL is kept; unset, it becomes
 osmesa on a CPU-only machine such as CI (egl with an NVIDIA GPU).
 
-Also: the `run_dir` fixture (a short paper_sim run folder per test module) and the `--cpu-durations=N` option (the
-tests that took the most CPU time; below).
+Also: the `run_dir` fixture (a short paper_sim run folder per test module), the `--cpu-durations=N` option (the
+tests that took the most CPU time; below) and `realtime_alone`: under pytest-xdist a test of the xdist group
+"realtime" (wall-clock deadlines: the emulated hardware, the link, first-output times) runs with every other worker
+idle. Each test holds a shared lock on a file of the session's base folder, a realtime test the exclusive one; a
+realtime test first takes an exclusive "gate" that other tests pass through before their shared lock, so that a
+worker starting test after test cannot keep it waiting. Without xdist nothing is locked.
 """
 
 import softcbf_mj  # noqa: F401  (sets MUJOCO_GL)
 
+import contextlib  # noqa: E402
+import fcntl  # noqa: E402
+import os  # noqa: E402
 import resource  # noqa: E402
 
 import pytest  # noqa: E402
 
 from scenarios import get  # noqa: E402
+
+REALTIME_GROUP = "realtime"
+
+
+@contextlib.contextmanager
+def locked(path, mode):
+    """`path` (created if missing) held under fcntl.flock `mode` for the block."""
+    with open(path, "a+") as handle:
+        fcntl.flock(handle, mode)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+@pytest.fixture(autouse=True)
+def realtime_alone(request, tmp_path_factory):
+    """Under pytest-xdist, a "realtime" test runs alone (module docstring)."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        yield
+        return
+    shared = tmp_path_factory.getbasetemp().parent  # every worker's base folder lies in the session's
+    group = request.node.get_closest_marker("xdist_group")
+    if group is not None and group.args and group.args[0] == REALTIME_GROUP:
+        with locked(shared / "realtime.gate", fcntl.LOCK_EX), locked(shared / "realtime.lock", fcntl.LOCK_EX):
+            yield
+        return
+    with locked(shared / "realtime.gate", fcntl.LOCK_SH):
+        pass
+    with locked(shared / "realtime.lock", fcntl.LOCK_SH):
+        yield
+
 
 SHORT_PAPER_RUN = dict(duration=0.5, tunings="None,Low", amplitude=150.0, frequency=0.5, progress=False)
 

@@ -92,7 +92,6 @@ METRICS = {"rho_min_meas": ("ρ_meas min", "1"), "rho_min_pred": ("ρ_pred min",
            "u_dev_rms_hPa": ("|u − u_nom| RMS", "hPa"), "force_budget_used": ("F max / F_max", "1")}
 """A summary metric's words and unit (ρ: 1); an objective "-NAME" (maximised) takes NAME's."""
 SIZE_IN = (COLUMN_WIDTH_IN, 3.2)  # one journal column; the legend below the axes
-HALF_COLUMN_LABEL = 16  # characters: the longest legend entry two of which fit side by side in one column
 
 
 def _fmt(value: Any, spec: str = ".4g") -> str:
@@ -179,8 +178,7 @@ def sensitivity_plot(rows: Sequence[Mapping[str, Any]], tunings: Sequence[str], 
         ax.set_ylabel("P(F > F_max) [1]")
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=GRID_ALPHA)
-        two_columns = max(len(text) for text in ax.get_legend_handles_labels()[1]) <= HALF_COLUMN_LABEL
-        legend_outside(fig, [ax], loc="outside lower center", ncols=2 if two_columns else 1)
+        legend_outside(fig, [ax], loc="outside lower center", ncols=2)
         save_figure(fig, path, figure_format, dpi)
 
 
