@@ -414,7 +414,7 @@ def test_gain_rest_s_also_spaces_the_rest_samples(rest_s, offered):
                                 gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_rest_s=rest_s)
     offers = []
     sample = gov.state.gain_estimator.sample
-    gov.state.gain_estimator.sample = lambda p, y: offers.append(p) or sample(p, y)
+    gov.state.gain_estimator.sample = lambda p, y, *noise: offers.append(p) or sample(p, y, *noise)
     u = np.full(2, 40.0)
     q = ROBOT.array("gains") / ROBOT.array("stiffness") * u
     for i in range(40):

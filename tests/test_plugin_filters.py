@@ -78,7 +78,7 @@ def test_user_factory_gets_converted_parameters_and_the_context_when_it_asks(tmp
     with pytest.raises(ValueError, match="has no callable 'G'"):
         build_filter(f"{tmp_path}/f.py:G", {}, CONTEXT)
     assert parse_params("a=1; b = x ;") == {"a": "1", "b": "x"}
-    with pytest.raises(ValueError, match="name=value"):
+    with pytest.raises(ValueError, match="NAME=VALUE"):
         parse_params("a")
 
 
