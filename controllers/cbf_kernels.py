@@ -53,6 +53,10 @@ def _dot(a, ra, b, rb, n):
 @njit(cache=True, error_model="numpy")
 def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_gain, limits, table, disabled, bounded,
               recover, enumerate_qp, b_min, feasibility_rtol, zero_row_tol, singular_tol, u, code, b_out) -> None:
+    """The batched paper CBF (module docstring), per state: the saturated u_nom and the barrier rows; then the
+    state's code: DISABLED, FALLBACK (unevaluable rows, recovery without its rows, beyond the enumeration's reach,
+    contradicting rows, or no feasible candidate), NOMINAL (u_nom satisfies every row), else QP or RECOVERY with
+    the enumeration's nearest feasible candidate (rows scaled to unit norm first, as controllers.qp.solve_lists)."""
     n_states, n = u_nom.shape
     p = facets.shape[0]
     m = p + 2 * n if bounded else p
@@ -66,56 +70,11 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
     volume = np.empty(n_cand)  # ‖v_1‖⋯‖v_k‖
     valid = np.empty(n_cand, dtype=np.bool_)
     u0 = np.empty((1, n))
-    box_scale = 0.0
-    if bounded:
-        for j in range(n):
-            rhs_hi, rhs_lo = limits[1, j], limits[0, j]
-            box_scale = max(box_scale, max(abs(rhs_lo), abs(rhs_hi)))
-            for k in range(n):
-                rows[p + j, k] = 1.0 if k == j else 0.0
-                rows[p + n + j, k] = -1.0 if k == j else 0.0
-            rhs[p + j] = rhs_hi
-            rhs[p + n + j] = -rhs_lo
+    box_scale = _box_rows(limits, p, rows, rhs) if bounded else 0.0
     for s in range(n_states):
-        for j in range(n):  # u_nom saturated to the box (Python's min and max, as CBFFilter._clip)
-            v = u_nom[s, j]
-            if bounded:
-                v = min(max(v, limits[0, j]), limits[1, j])
-            u0[0, j] = v
-            u[s, j] = v
-        # Barrier rows (controllers.cbf.barrier_rows, in its operation order), or the quasi-static row of a row with
-        # b ≤ B_MIN (CBFFilter._static_row).
-        r = kin[s, tip_col]
-        r_dot = kin[s, tip_col + 1]
-        r_acc0 = kin[s, tip_col + 2]
-        recovery, unevaluable = False, False
-        for i in range(p):
-            hx, hy, h_i = facets[i, 0], facets[i, 1], facets[i, 2]
-            b = h_i - (hx * r.real + hy * r.imag)
-            b_out[s, i] = b
-            if b > b_min:
-                bdot = -(hx * r_dot.real + hy * r_dot.imag)
-                den = 1.0 + b_e * bdot * bdot
-                big_b = math.log1p(1.0 / b) + ab * bdot * bdot / den
-                db, dbdot = -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
-                lfb = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
-                total = 0.0
-                for j in range(n):
-                    a = kin[s, tip_col + 3 + j]
-                    rows[i, j] = -dbdot * (hx * a.real + hy * a.imag)
-                    total += rows[i, j]
-                rhs[i] = gamma / big_b - lfb
-                if not math.isfinite(rhs[i] + total):
-                    unevaluable = True
-            else:
-                recovery = True
-                offset = 0.0
-                for j in range(n):
-                    jac = kin[s, jac_col + j]
-                    hj = hx * jac.real + hy * jac.imag
-                    rows[i, j] = hj * static_gain[j]
-                    offset += hj * q[s, j]
-                rhs[i] = b - facets[i, 3] + offset
+        _saturated_nominal(u_nom, limits, bounded, s, u0, u)
+        recovery, unevaluable = _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s,
+                                              rows, rhs, b_out)
         if disabled:
             code[s] = DISABLED
             continue
@@ -132,89 +91,12 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
         if not enumerate_qp:
             code[s] = FALLBACK
             continue
-        # The QP by enumeration: rows scaled to unit norm (controllers.qp.solve_lists), zero rows dropped.
-        contradiction = False
-        for i in range(p):
-            norm = math.sqrt(_dot(rows, i, rows, i, n))
-            if not math.isfinite(norm + rhs[i]):
-                contradiction = True  # an overflowed row: the scalar filter's "slack"
-            zero[i] = not norm > zero_row_tol
-            if zero[i]:
-                if rhs[i] < 0.0:
-                    contradiction = True
-                for j in range(n):
-                    rows[i, j] = 0.0
-                rhs[i] = 0.0
-            else:
-                for j in range(n):
-                    rows[i, j] = rows[i, j] / norm
-                rhs[i] = rhs[i] / norm
-        if contradiction:
+        if _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
             code[s] = FALLBACK
             continue
-        scale = 0.0
-        for j in range(n):
-            scale = max(scale, abs(u0[0, j]))
-        scale = 1.0 + scale
-        if bounded:
-            scale = max(scale, 1.0 + box_scale)
-        tol = feasibility_rtol * scale
-        best, best_distance = -1, math.inf
-        for g in range(n_cand):
-            size = table[g, 0]
-            if g == 0:  # u_nom itself
-                for j in range(n):
-                    cand[0, j] = u0[0, j]
-                valid[0] = True
-            else:
-                row = table[g, 1]
-                parent = table[g, size] if size > 1 else 0
-                valid[g] = valid[parent] and not zero[row]
-                if not valid[g]:
-                    continue
-                if size == 2 and n == 2:  # the square level of N = 2: Cramer's rule (cbf_batch: the floats of before)
-                    first = table[parent, 1]
-                    a0, a1, c_a = rows[first, 0], rows[first, 1], rhs[first]
-                    b0, b1, c_b = rows[row, 0], rows[row, 1], rhs[row]
-                    det = a0 * b1 - a1 * b0
-                    if not abs(det) >= singular_tol:
-                        valid[g] = False
-                        continue
-                    cand[g, 0] = (c_a * b1 - c_b * a1) / det
-                    cand[g, 1] = (a0 * c_b - b0 * c_a) / det
-                else:
-                    for j in range(n):
-                        basis[g, j] = rows[row, j]
-                    for i in range(size - 1):  # modified Gram–Schmidt against the prefix's rows
-                        w = table[g, 2 + i]
-                        coef = _dot(basis, g, basis, w, n) / basis_sq[w]
-                        for j in range(n):
-                            basis[g, j] = basis[g, j] - coef * basis[w, j]
-                    step = (_dot(rows, row, cand, parent, n) - rhs[row]) / _dot(rows, row, basis, g, n)
-                    for j in range(n):
-                        cand[g, j] = cand[parent, j] - step * basis[g, j]
-                    if not (size == 1 and n == 2):  # (N = 2: the next level is Cramer's, no basis needed)
-                        vv = _dot(basis, g, basis, g, n)
-                        basis_sq[g] = vv
-                        volume[g] = math.sqrt(vv) if size == 1 else volume[parent] * math.sqrt(vv)
-                        if not volume[g] >= singular_tol:
-                            valid[g] = False
-                            continue
-            feasible = True
-            for i in range(m):
-                if not _dot(cand, g, rows, i, n) - rhs[i] <= tol:
-                    feasible = False
-                    break
-            if not feasible:
-                continue
-            distance = 0.0
-            for j in range(n):
-                d = cand[g, j] - u0[0, j]
-                distance += d * d
-            if distance < best_distance:
-                best, best_distance = g, distance
-                if g == 0:  # nothing is nearer u_nom than u_nom
-                    break
+        tol = feasibility_rtol * _feasibility_scale(u0, bounded, box_scale, n)
+        best = _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq, volume,
+                                  valid)
         if best < 0:
             code[s] = FALLBACK
             continue
@@ -224,6 +106,191 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
                 v = min(max(v, limits[0, j]), limits[1, j])
             u[s, j] = v
         code[s] = RECOVERY if recovery else QP
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _box_rows(limits, p, rows, rhs):
+    """Write the box rows ±e_j ≤ ±(u_max, −u_min) after the P barrier rows; return max_j max(|u_min|, |u_max|)."""
+    n = limits.shape[1]
+    box_scale = 0.0
+    for j in range(n):
+        rhs_hi, rhs_lo = limits[1, j], limits[0, j]
+        box_scale = max(box_scale, max(abs(rhs_lo), abs(rhs_hi)))
+        for k in range(n):
+            rows[p + j, k] = 1.0 if k == j else 0.0
+            rows[p + n + j, k] = -1.0 if k == j else 0.0
+        rhs[p + j] = rhs_hi
+        rhs[p + n + j] = -rhs_lo
+    return box_scale
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _saturated_nominal(u_nom, limits, bounded, s, u0, u) -> None:
+    """u_nom of state s saturated to the box (Python's min and max, as CBFFilter._clip) into u0[0] and u[s]."""
+    for j in range(u_nom.shape[1]):
+        v = u_nom[s, j]
+        if bounded:
+            v = min(max(v, limits[0, j]), limits[1, j])
+        u0[0, j] = v
+        u[s, j] = v
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s, rows, rhs, b_out):
+    """The P barrier rows of state s into rows, rhs and b_out[s] (controllers.cbf.barrier_rows, in its operation
+    order), or the quasi-static row of a row with b ≤ B_MIN (CBFFilter._static_row); return (recovery: a
+    quasi-static row was written, unevaluable: a row is not finite)."""
+    n = q.shape[1]
+    r = kin[s, tip_col]
+    r_dot = kin[s, tip_col + 1]
+    r_acc0 = kin[s, tip_col + 2]
+    recovery, unevaluable = False, False
+    for i in range(facets.shape[0]):
+        hx, hy, h_i = facets[i, 0], facets[i, 1], facets[i, 2]
+        b = h_i - (hx * r.real + hy * r.imag)
+        b_out[s, i] = b
+        if b > b_min:
+            bdot = -(hx * r_dot.real + hy * r_dot.imag)
+            den = 1.0 + b_e * bdot * bdot
+            big_b = math.log1p(1.0 / b) + ab * bdot * bdot / den
+            db, dbdot = -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
+            lfb = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
+            total = 0.0
+            for j in range(n):
+                a = kin[s, tip_col + 3 + j]
+                rows[i, j] = -dbdot * (hx * a.real + hy * a.imag)
+                total += rows[i, j]
+            rhs[i] = gamma / big_b - lfb
+            if not math.isfinite(rhs[i] + total):
+                unevaluable = True
+        else:
+            recovery = True
+            offset = 0.0
+            for j in range(n):
+                jac = kin[s, jac_col + j]
+                hj = hx * jac.real + hy * jac.imag
+                rows[i, j] = hj * static_gain[j]
+                offset += hj * q[s, j]
+            rhs[i] = b - facets[i, 3] + offset
+    return recovery, unevaluable
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
+    """Scale the P barrier rows to unit norm, zeroing (and marking in `zero`) the zero rows; return whether the
+    rows contradict themselves (a zero row with rhs < 0, or an overflowed row: the scalar filter's "slack")."""
+    contradiction = False
+    for i in range(p):
+        norm = math.sqrt(_dot(rows, i, rows, i, n))
+        if not math.isfinite(norm + rhs[i]):
+            contradiction = True  # an overflowed row: the scalar filter's "slack"
+        zero[i] = not norm > zero_row_tol
+        if zero[i]:
+            if rhs[i] < 0.0:
+                contradiction = True
+            for j in range(n):
+                rows[i, j] = 0.0
+            rhs[i] = 0.0
+        else:
+            for j in range(n):
+                rows[i, j] = rows[i, j] / norm
+            rhs[i] = rhs[i] / norm
+    return contradiction
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _feasibility_scale(u0, bounded, box_scale, n):
+    """1 + max_j |u0_j| (with the box: at least 1 + its largest bound), the scale of the feasibility tolerance."""
+    scale = 0.0
+    for j in range(n):
+        scale = max(scale, abs(u0[0, j]))
+    scale = 1.0 + scale
+    if bounded:
+        scale = max(scale, 1.0 + box_scale)
+    return scale
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq, volume, valid):
+    """The QP by enumeration: the index of the feasible candidate nearest u0 (the first of equals), or −1.
+
+    Candidate g (row 0: u0 itself) comes from its prefix's candidate (`_cramer` on the square level of N = 2,
+    `_projected` elsewhere); it is skipped when its prefix is, when its last row is a zero row, or when its rows
+    are (near) singular. The candidate's validity stays in this loop: as one compiled helper a candidate it
+    cost 2.5× the kernel's CPU time a state (N = 2, B = 256)."""
+    best, best_distance = -1, math.inf
+    for g in range(table.shape[0]):
+        size = table[g, 0]
+        if g == 0:  # u_nom itself
+            for j in range(n):
+                cand[0, j] = u0[0, j]
+            valid[0] = True
+        else:
+            row = table[g, 1]
+            parent = table[g, size] if size > 1 else 0
+            valid[g] = valid[parent] and not zero[row]
+            if not valid[g]:
+                continue
+            if size == 2 and n == 2:
+                solved = _cramer(rows, rhs, table[parent, 1], row, singular_tol, g, cand)
+            else:
+                solved = _projected(table, rows, rhs, g, size, row, parent, singular_tol, n, cand, basis, basis_sq, volume)
+            if not solved:
+                valid[g] = False
+                continue
+        feasible = True
+        for i in range(m):
+            if not _dot(cand, g, rows, i, n) - rhs[i] <= tol:
+                feasible = False
+                break
+        if not feasible:
+            continue
+        distance = 0.0
+        for j in range(n):
+            d = cand[g, j] - u0[0, j]
+            distance += d * d
+        if distance < best_distance:
+            best, best_distance = g, distance
+            if g == 0:  # nothing is nearer u_nom than u_nom
+                break
+    return best
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cramer(rows, rhs, first, row, singular_tol, g, cand):
+    """The square level of N = 2: the intersection of rows `first` and `row` by Cramer's rule into cand[g]
+    (cbf_batch: the floats of before); return False (nothing written) if the rows are (near) parallel."""
+    a0, a1, c_a = rows[first, 0], rows[first, 1], rhs[first]
+    b0, b1, c_b = rows[row, 0], rows[row, 1], rhs[row]
+    det = a0 * b1 - a1 * b0
+    if not abs(det) >= singular_tol:
+        return False
+    cand[g, 0] = (c_a * b1 - c_b * a1) / det
+    cand[g, 1] = (a0 * c_b - b0 * c_a) / det
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _projected(table, rows, rhs, g, size, row, parent, singular_tol, n, cand, basis, basis_sq, volume):
+    """Candidate g: its prefix's candidate moved along `row` orthogonalised (modified Gram–Schmidt) against
+    the prefix's rows onto `row`'s boundary, into cand[g] (basis, basis_sq and volume of g with it); return
+    False if the rows' volume ‖v_1‖⋯‖v_k‖ is below singular_tol."""
+    for j in range(n):
+        basis[g, j] = rows[row, j]
+    for i in range(size - 1):  # modified Gram–Schmidt against the prefix's rows
+        w = table[g, 2 + i]
+        coef = _dot(basis, g, basis, w, n) / basis_sq[w]
+        for j in range(n):
+            basis[g, j] = basis[g, j] - coef * basis[w, j]
+    step = (_dot(rows, row, cand, parent, n) - rhs[row]) / _dot(rows, row, basis, g, n)
+    for j in range(n):
+        cand[g, j] = cand[parent, j] - step * basis[g, j]
+    if size == 1 and n == 2:  # (N = 2: the next level is Cramer's, no basis needed)
+        return True
+    vv = _dot(basis, g, basis, g, n)
+    basis_sq[g] = vv
+    volume[g] = math.sqrt(vv) if size == 1 else volume[parent] * math.sqrt(vv)
+    return volume[g] >= singular_tol
 
 
 @njit(cache=True, error_model="numpy")

@@ -247,7 +247,7 @@ def _qpsolvers_backend(solver: str) -> Callable[[_Problem], BackendResult]:
     settings = _QPSOLVERS_SETTINGS[solver]
 
     def solve(problem: _Problem) -> BackendResult:
-        import qpsolvers  # noqa: PLC0415 — imported at the first solve (QPSOLVERS_MODULES)
+        import qpsolvers  # noqa: PLC0415 — 0.57 s to import (-X importtime): at the first solve (QPSOLVERS_MODULES)
 
         n, has_rows = len(problem.u0), len(problem.b_hat) > 0
         qp = qpsolvers.Problem(

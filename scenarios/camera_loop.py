@@ -38,7 +38,7 @@ operating-envelope study, studies/hardware_envelope.toml), the `camera` section 
 Imports: MuJoCo, OpenCV and the perception pipeline are imported inside the functions that
 check or run the scenario, not at load, so that registering it and reading its parameters
 (`softcbf list`, `softcbf run NAME --help`) stay cheap (tests/test_cli_lazy.py). The
-image size's bound is the render's resolution (`softcbf_mj.model_builder.CAMERA_RESOLUTION`),
+image size's bound is the render's resolution (`softcbf_mj.mjcf.CAMERA_RESOLUTION`),
 which is the scenario's default width and height (tests/test_setting_defaults.py holds them equal).
 """
 
@@ -72,7 +72,7 @@ if TYPE_CHECKING:  # MuJoCo, OpenCV and perception are imported where they are u
     from perception.detect import TagDetector
     from perception.plane import PlaneCalibration
     from softcbf_mj.camera_loop import CameraTiming
-    from softcbf_mj.model_builder import ArmModelConfig
+    from softcbf_mj.mjcf import ArmModelConfig
     from softcbf_mj.mujoco_plant import MujocoPlant
     from softcbf_mj.recording import LiveRun
 
@@ -108,7 +108,7 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
 
     from perception.detect import TagDetector
     from perception.plane import PlaneCalibration, calibrate
-    from softcbf_mj.model_builder import build_model, calibration_board
+    from softcbf_mj.mjcf import build_model, calibration_board
     from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 
     if spec == "truth":
@@ -204,7 +204,7 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
 
     from perception.detect import TagDetector  # OpenCV, MuJoCo: after the checks
     from perception.tags import arm_tag_ids
-    from softcbf_mj.model_builder import build_model
+    from softcbf_mj.mjcf import build_model
     from softcbf_mj.mujoco_plant import MujocoPlant
 
     truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)

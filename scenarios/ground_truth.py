@@ -26,7 +26,7 @@ only the run can find out about, tests/test_config_files.py); `build_truth` buil
 per run, from the controller the spec's check built (`spec.built`, scenarios.common.Controller): a `Truth` whose `config` (`ArmModelConfig`) both the single run's
 `MujocoPlant` and the batch's `MujocoBatchPlant` take.
 
-Imports: MuJoCo (softcbf_mj.flexure, flexure_calibration, model_builder) is imported inside
+Imports: MuJoCo (softcbf_mj.flexure, flexure_calibration, mjcf) is imported inside
 the functions that check or build a ground truth, not at load, so that registering the
 scenarios and reading their parameters (`softcbf list`, `softcbf run NAME --help`) stay cheap
 (tests/test_cli_lazy.py).
@@ -47,7 +47,7 @@ from scenarios.spec import Model, Plate, TrueArm
 
 if TYPE_CHECKING:  # MuJoCo's modules are imported where they are used (module docstring: Imports)
     from softcbf_mj.flexure import FlexureParams
-    from softcbf_mj.model_builder import ArmModelConfig
+    from softcbf_mj.mjcf import ArmModelConfig
 
 
 def flexure(plate: Plate) -> FlexureParams:
@@ -64,7 +64,7 @@ def check_true_arm(arm: TrueArm, plate: Plate, model_robot: RobotParams) -> None
     """The checks of a MuJoCo scenario's ground truth: plate kind, sheet, true robot (the same
     number of segments as the controller's) and the model settings (ArmModelConfig's checks, among
     them `table_friction` against `gravity` and the physics step)."""
-    from softcbf_mj.model_builder import PLATE_KINDS, ArmModelConfig
+    from softcbf_mj.mjcf import PLATE_KINDS, ArmModelConfig
 
     check_choice("plate", plate.kind, PLATE_KINDS)
     if arm.robot:
@@ -81,7 +81,7 @@ def check_true_arm(arm: TrueArm, plate: Plate, model_robot: RobotParams) -> None
 class Truth:
     """One sample's MuJoCo ground truth (module docstring).
 
-    config: the true arm and plates' model (build it with `softcbf_mj.model_builder.build_model`);
+    config: the true arm and plates' model (build it with `softcbf_mj.mjcf.build_model`);
     robot: the true arm (`config.robot`); plates: the true plates' facets at rest (m);
     plate_stiffness: the true plate's spring in N/m (the flexure's calibrated one).
     """
@@ -99,7 +99,7 @@ def build_truth(arm: TrueArm, plate: Plate, model: Model, model_robot: RobotPara
     """The ground truth of a MuJoCo scenario's checked `arm` and `plate` (module docstring), for the
     controller's `model`, its robot `model_robot` (`scenarios.common.controller_robot`) and facets `environment`."""
     from softcbf_mj.flexure_calibration import calibrate_flexure
-    from softcbf_mj.model_builder import ArmModelConfig
+    from softcbf_mj.mjcf import ArmModelConfig
 
     g = arm
     ref = scale_damping(load_robot(g.robot), model.damping_scale) if g.robot else model_robot

@@ -192,7 +192,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
           MujocoContact, BatchForm(contact_batch_key, run_contact_batch))
 def mujoco_contact(out_dir: Path, spec: MujocoContact) -> dict:
     """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
-    from softcbf_mj.model_builder import build_model  # MuJoCo: imported when run (module docstring)
+    from softcbf_mj.mjcf import build_model  # MuJoCo: imported when run (module docstring)
     from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 
     setup = contact_setup(spec)

@@ -34,6 +34,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from softcbf_mj.kernels import compile_notes
+from softcbf_mj.palette import run_color
+
 DURATION_S = 5.0  # s of simulated time per run
 NOMINAL = {"amplitude": 150.0, "frequency": 0.25, "t0": 1.0}  # hPa, Hz, s: the README's pushing sinusoid
 FIGURE_FILE = "force.png"
@@ -58,8 +61,8 @@ def demo_runs() -> tuple[DemoRun, ...]:
 
 def _run_one(k: int, demo: DemoRun, out: Path, duration: float, stream: TextIO) -> Any:
     """Run `demo` (the k-th of two) through `scenarios.api.run`, say its result, save its run folder; its RunFolder."""
-    from scenarios.api import Filter, MujocoContact, Nominal, Run, run, save
-    from softcbf_mj.runio import read_run_folder
+    from scenarios.api import Filter, MujocoContact, Nominal, Run, run, save  # 0.78 s (-X importtime): not at --help
+    from softcbf_mj.runio import read_run_folder  # 0.35 s (-X importtime) at --help; loaded with scenarios.api
 
     print(f"[{k}/2] {demo.label}: {duration:g} s of mujoco_contact", file=stream, flush=True)
     spec = MujocoContact(run=Run(duration=duration, progress=True), filter=Filter(demo.filter, params=demo.params),
@@ -79,9 +82,7 @@ def run_demo(out: Path = DEFAULT_OUT, duration: float = DURATION_S, stream: Text
     start = time.perf_counter()
     print(f"softcbf demo: the paper's CBF and the recommended filter, {duration:g} s each on the MuJoCo plate",
           file=stream, flush=True)
-    from softcbf_mj.kernels import compile_notes  # numba, MuJoCo, matplotlib: after the first line
-    from softcbf_mj.palette import run_color
-    from softcbf_mj.report import Scene, plot_force
+    from softcbf_mj.report import Scene, plot_force  # matplotlib, MuJoCo: 1.5 s (-X importtime), after the first line
 
     out, runs, folders = Path(out), demo_runs(), []
     with compile_notes(stream):  # one note for both runs' compiles
@@ -107,8 +108,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_command(args: argparse.Namespace, extra: list[str]) -> int:
     """`softcbf demo`: bad input is a UsageError (one line, exit 2)."""
-    from scenarios.run import UsageError
-    from softcbf_mj.runio import OutputDirError
+    from scenarios.run import UsageError  # 0.46 s (-X importtime): `softcbf --help` imports this module
+    from softcbf_mj.runio import OutputDirError  # 0.35 s (-X importtime): as above
 
     if not args.duration > 0:
         raise UsageError(f"--duration must be > 0 s, got {args.duration:g}")

@@ -356,9 +356,31 @@ def fit_pcc_parameters(
     Returns the fitted parameters (`nominal` with stiffness, damping and gains replaced).
     """
     t = np.asarray(t, dtype=float).reshape(-1)
-    n = nominal.n_segments
+    arrays = checked_recording(t, nominal.n_segments, q=q, u=u, qd=qd)
+    dt = _uniform_dt(t)
+    if u_kind == "command":
+        if not (math.isfinite(tau_p) and tau_p >= 0):
+            raise ValueError(f"tau_p must be >= 0 s, got {tau_p}")
+        arrays["u"] = acting_pressure(arrays["u"], dt, tau_p, p0)
+    elif u_kind != "pressure":
+        raise ValueError(f"u_kind must be 'pressure' or 'command', got {u_kind!r}")
+    signals = filtered_signals(arrays, dt, window_s, polyorder, skip_s)
+    tau = (inertial_torque or pcc_inertial_torque(nominal))(signals.q, signals.qd, signals.qdd)
+    segments = [fit_segment(i, tau[:, i], signals.q[:, i], signals.qd[:, i], signals.u[:, i])
+                for i in range(nominal.n_segments)]
+    fitted = {f: tuple(getattr(s, a) for s in segments) for f, a in zip(FITTED, ("stiffness", "damping", "gain"))}
+    try:
+        params = nominal.replace(**fitted)
+    except ValueError as exc:
+        raise ValueError(f"the fit gave unphysical parameters ({exc}); the data do not excite the arm enough") from None
+    return CalibrationResult(params, nominal, tuple(segments), len(signals.q), signals.window, polyorder, dt)
+
+
+def checked_recording(t: np.ndarray, n: int, **recorded) -> dict[str, np.ndarray]:
+    """The recorded arrays that are not None (q, u, qd: (T, N)) as float arrays, each checked to be of shape
+    (len(t), n) and finite."""
     arrays = {}
-    for name, value in (("q", q), ("u", u), ("qd", qd)):
+    for name, value in recorded.items():
         if value is None:
             continue
         arr = np.asarray(value, dtype=float)
@@ -367,17 +389,28 @@ def fit_pcc_parameters(
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"{name} must be finite")
         arrays[name] = arr
-    dt = _uniform_dt(t)
-    if u_kind == "command":
-        if not (math.isfinite(tau_p) and tau_p >= 0):
-            raise ValueError(f"tau_p must be >= 0 s, got {tau_p}")
-        arrays["u"] = acting_pressure(arrays["u"], dt, tau_p, p0)
-    elif u_kind != "pressure":
-        raise ValueError(f"u_kind must be 'pressure' or 'command', got {u_kind!r}")
+    return arrays
+
+
+@dataclass(frozen=True)
+class FilteredSignals:
+    """q (rad), q̇ (rad/s), q̈ (rad/s²) and u (hPa) after the one smoothing filter, (S, N) each, from the first
+    sample at or after skip_s; `window`: the filter's length in samples."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    u: np.ndarray
+    window: int
+
+
+def filtered_signals(arrays: dict[str, np.ndarray], dt: float, window_s: float, polyorder: int,
+                     skip_s: float) -> FilteredSignals:
+    """Central differences on the raw samples (q̇ from q always; q̈ from qd when recorded, else from q),
+    aligned with samples 1..T−2, then one Savitzky–Golay filter for all (module docstring); refused when
+    fewer than the fit's minimum samples remain."""
     window = _odd_window(window_s / dt, polyorder)
     smooth = savgol_weights(window, polyorder)
-    # Central differences on the raw samples, aligned with samples 1..T−2 (see the module
-    # docstring for why q̇ is always differenced from q); then one smoothing filter for all.
     q_raw = arrays["q"]
     qd_raw = (q_raw[2:] - q_raw[:-2]) / (2 * dt)
     if "qd" in arrays:
@@ -387,32 +420,28 @@ def fit_pcc_parameters(
     qf, qdf, qddf, uf = (_filter(y, smooth) for y in (q_raw[1:-1], qd_raw, qdd_raw, arrays["u"][1:-1]))
     # Filtered sample j belongs to t[j + 1 + h], h = (window − 1)/2: drop those before t[0] + skip_s.
     first = max(0, int(math.ceil(skip_s / dt - 1e-9)) - 1 - (window - 1) // 2)
-    qf, qdf, qddf, uf = qf[first:], qdf[first:], qddf[first:], uf[first:]
-    if len(qf) < _MIN_SAMPLES:
-        raise ValueError(f"too few samples left to fit ({len(qf)}) after dropping {window + 1} edge samples and skip_s")
-    tau = (inertial_torque or pcc_inertial_torque(nominal))(qf, qdf, qddf)
+    if len(qf) - first < _MIN_SAMPLES:
+        raise ValueError(f"too few samples left to fit ({len(qf[first:])}) after dropping {window + 1} edge samples "
+                         "and skip_s")
+    return FilteredSignals(qf[first:], qdf[first:], qddf[first:], uf[first:], window)
 
-    segments = []
-    for i in range(n):
-        regressor = np.column_stack((-qf[:, i], -qdf[:, i], uf[:, i]))
-        scale = np.sqrt(np.mean(regressor**2, axis=0))
-        if not np.all(scale > 0):
-            raise ValueError(f"segment {i + 1}: a regressor column is identically zero; the data do not excite it")
-        scaled = regressor / scale
-        theta, *_ = np.linalg.lstsq(scaled, tau[:, i], rcond=None)
-        residual = tau[:, i] - scaled @ theta
-        sv = np.linalg.svd(scaled, compute_uv=False)
-        k, d, lam = theta / scale
-        segments.append(SegmentFit(
-            stiffness=float(k), damping=float(d), gain=float(lam),
-            r2=float(1.0 - np.sum(residual**2) / np.sum((tau[:, i] - tau[:, i].mean()) ** 2)),
-            residual_rms=float(np.sqrt(np.mean(residual**2))),
-            target_rms=float(np.sqrt(np.mean(tau[:, i] ** 2))),
-            condition=float(sv[0] / sv[-1]),
-        ))
-    fitted = {f: tuple(getattr(s, a) for s in segments) for f, a in zip(FITTED, ("stiffness", "damping", "gain"))}
-    try:
-        params = nominal.replace(**fitted)
-    except ValueError as exc:
-        raise ValueError(f"the fit gave unphysical parameters ({exc}); the data do not excite the arm enough") from None
-    return CalibrationResult(params, nominal, tuple(segments), len(qf), window, polyorder, dt)
+
+def fit_segment(i: int, tau: np.ndarray, q: np.ndarray, qd: np.ndarray, u: np.ndarray) -> SegmentFit:
+    """Segment i's least-squares fit of τ_i = [−q_i, −q̇_i, u_i] (k_i, d_i, λ_i) on column-scaled regressors;
+    each argument (S,)."""
+    regressor = np.column_stack((-q, -qd, u))
+    scale = np.sqrt(np.mean(regressor**2, axis=0))
+    if not np.all(scale > 0):
+        raise ValueError(f"segment {i + 1}: a regressor column is identically zero; the data do not excite it")
+    scaled = regressor / scale
+    theta, *_ = np.linalg.lstsq(scaled, tau, rcond=None)
+    residual = tau - scaled @ theta
+    sv = np.linalg.svd(scaled, compute_uv=False)
+    k, d, lam = theta / scale
+    return SegmentFit(
+        stiffness=float(k), damping=float(d), gain=float(lam),
+        r2=float(1.0 - np.sum(residual**2) / np.sum((tau - tau.mean()) ** 2)),
+        residual_rms=float(np.sqrt(np.mean(residual**2))),
+        target_rms=float(np.sqrt(np.mean(tau**2))),
+        condition=float(sv[0] / sv[-1]),
+    )

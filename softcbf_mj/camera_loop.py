@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -44,7 +44,7 @@ from closedloop.step import ControlStep, StepRecord
 from controllers.safe_set import ForceSafeSet
 from controllers.safety_filter import Estimate
 from perception.detect import Detection, TagDetector
-from perception.estimator import ArmAngleEstimator
+from perception.estimator import ArmAngleEstimator, ArmEstimate
 from perception.tracking import TrackingTagDetector
 from softcbf_mj.loop import Series, plant_columns, plant_series, plant_values
 from softcbf_mj.mujoco_plant import MujocoPlant
@@ -142,6 +142,83 @@ class FrameLog:
 FrameHook = Callable[[int, float, np.ndarray, list[Detection]], None]
 
 
+@dataclass
+class CameraPath:
+    """The camera path's state during a run: its timing and noise generator, the frames taken, the detections
+    in flight (ready time s, capture time s, frame row, detections) in capture order, the next frame's index."""
+
+    timing: CameraTiming
+    rng: np.random.Generator
+    frames: FrameLog
+    pending: list[tuple[float, float, int, list[Detection]]] = field(default_factory=list)
+    next_frame: int = 0
+
+
+@dataclass
+class ControlCalls:
+    """The controller calls of a run: whether the loop has started (a valid, fresh estimate arrived) and
+    (t s, age of the estimate used s, action) per call."""
+
+    started: bool = False
+    calls: list[tuple[float, float, str]] = field(default_factory=list)
+
+    def log(self) -> dict[str, np.ndarray]:
+        """The per-call log of `run_camera_loop`."""
+        call_t, call_age, call_action = zip(*self.calls) if self.calls else ((), (), ())
+        return {"t": np.array(call_t, dtype=float), "age_s": np.array(call_age, dtype=float),
+                "action": np.array(call_action, dtype="U4")}
+
+
+def expose(path: CameraPath, t: float, q: np.ndarray, tick: float, render: Callable[[], np.ndarray],
+           detector: TagDetector | TrackingTagDetector, frame_hook: FrameHook | None) -> None:
+    """Step 1 (module docstring): at tick time t (s), with the true q (rad), take the next frame if its exposure
+    time has come: dropped with probability drop_rate, else rendered, noised, detected and put in flight."""
+    timing, clock = path.timing, time.perf_counter
+    if not t >= path.next_frame / timing.frame_rate - 1e-9 * tick:
+        return
+    j = path.next_frame
+    path.next_frame += 1
+    if timing.drop_rate > 0 and path.rng.random() < timing.drop_rate:
+        path.frames.add(t, q, dropped=True)
+        return
+    c0 = clock()
+    image = render()
+    c1 = clock()
+    if timing.pixel_noise > 0:
+        noisy = image.astype(np.float32) + path.rng.normal(0.0, timing.pixel_noise, image.shape).astype(np.float32)
+        image = np.clip(noisy, 0, 255).astype(np.uint8)
+    detections = detector.detect(image)
+    c2 = clock()
+    row = path.frames.add(t, q, n_tags=len(detections), render_ms=(c1 - c0) * 1e3, detect_ms=(c2 - c1) * 1e3)
+    path.pending.append((t + timing.latency, t, row, detections))
+    if frame_hook is not None:
+        frame_hook(j, t, image, detections)
+
+
+def deliver(path: CameraPath, t: float, tick: float, estimator: ArmAngleEstimator) -> None:
+    """Step 2 (module docstring): the detections available by t (s) reach the estimator, in capture order."""
+    while path.pending and path.pending[0][0] <= t + 1e-9 * tick:
+        _, t_capture, row, detections = path.pending.pop(0)
+        c0 = time.perf_counter()
+        est = estimator.update(t_capture, detections)
+        complete = est.valid and est.t == t_capture and est.frames_missed == 0
+        path.frames.delivered(row, (time.perf_counter() - c0) * 1e3, est.q if complete else None)
+
+
+def control(calls: ControlCalls, step: ControlStep, est: ArmEstimate, t: float, n: int) -> StepRecord:
+    """Step 3 (module docstring): one controller call at t (s) on the held estimate `est`: vented without
+    latching until the first valid, fresh estimate (`ControlStep.wait`), then the control step."""
+    calls.started = calls.started or (est.valid and not est.stale)
+    if not calls.started:
+        record = step.wait(Estimate(t, np.zeros(n), np.zeros(n), t))
+        calls.calls.append((t, math.nan, "wait"))
+        return record
+    q_hat, qd_hat = (est.q, est.qd) if est.valid else (np.zeros(n), np.zeros(n))
+    record = step(Estimate(t, q_hat, qd_hat, est.t), SafetyFlags(perception_stale=est.stale))
+    calls.calls.append((t, est.age_s, record.action.value))
+    return record
+
+
 def run_camera_loop(
     plant: MujocoPlant,
     render: Callable[[], np.ndarray],
@@ -167,7 +244,8 @@ def run_camera_loop(
     `render()` returns the camera image (H, W, 3) uint8 of the plant's current state;
     `frame_hook(j, t, image, detections)` sees every frame that was taken (e.g. to save
     some). The estimator must be fresh (no frame yet). `live` is sent the rows recorded so far
-    as in `softcbf_mj.loop.run_closed_loop`.
+    as in `softcbf_mj.loop.run_closed_loop`. Each tick runs `expose`, `deliver` and, on a
+    controller tick, `control`, then the plant holds the command for the tick.
     """
     tick = plant.control_dt
     n_ticks = int(round(duration / tick))
@@ -175,59 +253,21 @@ def run_camera_loop(
         raise ValueError(f"duration must cover at least one plant tick ({tick} s), got {duration}")
     per_control = timing.ticks_per_control(tick)
     n = plant.n_segments
-    rng = np.random.default_rng(seed)
     recorder = Recorder(n_ticks, n, plant_columns(n, safe_set.n_facets))
-    frames = FrameLog(n)
-    pending: list[tuple[float, float, int, list[Detection]]] = []  # (ready, t_capture, row, detections)
+    path = CameraPath(timing, np.random.default_rng(seed), FrameLog(n))
+    calls = ControlCalls()
     record: StepRecord | None = None
-    next_frame = 0
-    started = False
-    calls: list[tuple[float, float, str]] = []
-    clock = time.perf_counter
-
     step.reset()
     state = plant.reset(q0)
     n_rows = n_ticks
     for k in range(n_ticks):
         t = state.t
-        # 1. exposure
-        if t >= next_frame / timing.frame_rate - 1e-9 * tick:
-            j = next_frame
-            next_frame += 1
-            if timing.drop_rate > 0 and rng.random() < timing.drop_rate:
-                frames.add(t, state.q, dropped=True)
-            else:
-                c0 = clock()
-                image = render()
-                c1 = clock()
-                if timing.pixel_noise > 0:
-                    noisy = image.astype(np.float32) + rng.normal(0.0, timing.pixel_noise, image.shape).astype(np.float32)
-                    image = np.clip(noisy, 0, 255).astype(np.uint8)
-                detections = detector.detect(image)
-                c2 = clock()
-                row = frames.add(t, state.q, n_tags=len(detections), render_ms=(c1 - c0) * 1e3, detect_ms=(c2 - c1) * 1e3)
-                pending.append((t + timing.latency, t, row, detections))
-                if frame_hook is not None:
-                    frame_hook(j, t, image, detections)
-        # 2. delivery
-        while pending and pending[0][0] <= t + 1e-9 * tick:
-            _, t_capture, row, detections = pending.pop(0)
-            c0 = clock()
-            est = estimator.update(t_capture, detections)
-            complete = est.valid and est.t == t_capture and est.frames_missed == 0
-            frames.delivered(row, (clock() - c0) * 1e3, est.q if complete else None)
-        # 3. control
+        expose(path, t, state.q, tick, render, detector, frame_hook)
+        deliver(path, t, tick, estimator)
         est = estimator.query(t)
         called = k % per_control == 0
         if called:
-            started = started or (est.valid and not est.stale)
-            if not started:
-                record = step.wait(Estimate(t, np.zeros(n), np.zeros(n), t))
-                calls.append((t, math.nan, "wait"))
-            else:
-                q_hat, qd_hat = (est.q, est.qd) if est.valid else (np.zeros(n), np.zeros(n))
-                record = step(Estimate(t, q_hat, qd_hat, est.t), SafetyFlags(perception_stale=est.stale))
-                calls.append((t, est.age_s, record.action.value))
+            record = control(calls, step, est, t, n)
         recorder.record(k, record, called, plant_values(state, np.asarray(est.q), np.asarray(est.qd)), extras=state.extras)
         if step.stopped:  # a filter fault has vented: the run ends on this tick (closedloop.step)
             n_rows = k + 1
@@ -241,7 +281,4 @@ def run_camera_loop(
         live.send(recorder, n_rows, force=True)
     if progress is not None:
         progress.close()
-    call_t, call_age, call_action = zip(*calls) if calls else ((), (), ())
-    call_log = {"t": np.array(call_t, dtype=float), "age_s": np.array(call_age, dtype=float),
-                "action": np.array(call_action, dtype="U4")}
-    return plant_series(recorder, safe_set, n_rows), frames.columns(), call_log
+    return plant_series(recorder, safe_set, n_rows), path.frames.columns(), calls.log()

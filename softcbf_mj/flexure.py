@@ -2,7 +2,7 @@
 
 The hardware's plate is a flexible ABS sheet clamped at one end into a force gauge; its
 spring constant was calibrated with masses at its tip. Unlike the rigid plate on a slide
-spring (the "ideal" plate, `softcbf_mj.model_builder`), its stiffness depends on where it
+spring (the "ideal" plate, `softcbf_mj.mjcf`), its stiffness depends on where it
 is touched and it rotates as it bends.
 
 Beam (Euler–Bernoulli, small deflection). Sheet of length ℓ, thickness t, width w (along
@@ -216,7 +216,7 @@ def chain_stiffness(s: float | np.ndarray, hinge_s: np.ndarray, hinge_stiffness:
 
 @dataclass(frozen=True)
 class SheetInModel:
-    """Flexure plate k of a compiled model (names as `softcbf_mj.model_builder` writes them), at rest.
+    """Flexure plate k of a compiled model (names as `softcbf_mj.mjcf` writes them), at rest.
 
     clamp_body: body id of `plate{k}` (the clamp); gauge_qpos: qpos address of
     `plate{k}_gauge`; gauge_stiffness (N/m); origin (2,) m: the clamp end of the sheet's

@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 
 from softcbf_mj.flexure import SheetInModel, thickness_for_tip_stiffness
-from softcbf_mj.model_builder import ArmModelConfig, build_model
+from softcbf_mj.mjcf import ArmModelConfig, build_model
 
 SETTLE_WINDOW_S = 0.1  # s, rest: the deflection changes by less than `tolerance` over this window
 MAX_SETTLE_S = 20.0  # s of simulated time before giving up

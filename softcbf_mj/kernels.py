@@ -35,7 +35,7 @@ COMPILE_NOTE = (f"compiling numba kernels, once: up to ~{COLD_COMPILE_S} s "
 def compile_notes(stream: TextIO | None = None) -> Iterator[None]:
     """Within this context, numba's first compile prints COMPILE_NOTE on `stream` (stderr) before it starts and a
     line with its duration when it ends (module docstring)."""
-    from numba.core import event  # numba: imported here, after the command's first line
+    from numba.core import event  # numba: 0.84 s (-X importtime), after the command's first line
 
     out = stream if stream is not None else sys.stderr
 

@@ -50,7 +50,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from softcbf_mj.model_builder import ArmModelConfig, build_model
+from softcbf_mj.mjcf import ArmModelConfig, build_model
 from softcbf_mj.mujoco_plant import WARNINGS, MujocoPlant
 from softcbf_mj.plant import BatchPlantState, steps_per_control
 from softcbf_mj.table_friction import table_friction_of

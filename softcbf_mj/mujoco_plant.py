@@ -1,4 +1,4 @@
-"""The MuJoCo ground truth as a `Plant` (docs/ground-truth.md; model in `softcbf_mj.model_builder`).
+"""The MuJoCo ground truth as a `Plant` (docs/ground-truth.md; model in `softcbf_mj.mjcf`).
 
 Each control period (control_dt, s) holds the pressure command u (hPa, shape (N,)) and
 advances the physics by control_dt / physics_dt steps of MuJoCo's `implicitfast`
@@ -72,7 +72,7 @@ import numpy as np
 import softcbf_mj
 from controllers.lazy_import import lazy_module
 from softcbf_mj.flexure import SheetInModel
-from softcbf_mj.model_builder import ArmModelConfig, build_model
+from softcbf_mj.mjcf import ArmModelConfig, build_model
 from softcbf_mj.plant import PlantState, steps_per_control
 from softcbf_mj.table_friction import TableFriction, table_friction_of
 

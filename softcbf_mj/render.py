@@ -27,7 +27,7 @@ and a world point p (m) projects to s·[u, v, 1]ᵀ = K Rᵀ (p − c) (`project
 image-to-plane map of the tags' plane z = plane_z is `PlaneCalibration.from_pinhole(K, R,
 c, plane_z)` (`ground_truth_calibration`).
 
-Tags. Geoms named `tag{id}` are the AprilTags (`softcbf_mj.model_builder`): flat boxes
+Tags. Geoms named `tag{id}` are the AprilTags (`softcbf_mj.mjcf`): flat boxes
 whose top face is the texture (edge S = textured_size(s)); `tag_plane_z` is the height
 (m) of those faces, `tag_poses` each tag's centre (x, y) m, angle θ rad of its image x
 axis in the world xy plane and black-square size s m.
@@ -140,7 +140,7 @@ def tag_plane_z(model: mujoco.MjModel, data: mujoco.MjData) -> float:
     """Height (m) of the tags' textured top faces, which all lie in one horizontal plane."""
     geoms = list(tag_geoms(model).values())
     if not geoms:
-        raise ValueError("the model has no tag geoms (named tag{id}); build it with softcbf_mj.model_builder")
+        raise ValueError("the model has no tag geoms (named tag{id}); build it with softcbf_mj.mjcf")
     normals = data.geom_xmat[geoms].reshape(-1, 3, 3)[:, :, 2]
     tops = data.geom_xpos[geoms, 2] + model.geom_size[geoms, 2] * normals[:, 2]
     if not (np.allclose(normals, [0.0, 0.0, 1.0], atol=1e-9) and np.ptp(tops) < 1e-9):

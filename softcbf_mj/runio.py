@@ -67,6 +67,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+import softcbf_mj
 from controllers.registry import recorded_sources
 from controllers.safe_set import LinearStiffness, PowerLawStiffness, StiffnessLaw
 
@@ -233,8 +234,6 @@ def _version(dist: str) -> str | None:
 
 def versions() -> dict[str, str | None]:
     """Versions of everything that changes behaviour, recorded in every summary."""
-    import softcbf_mj
-
     return {
         "softcbf_mj": softcbf_mj.__version__,
         "mujoco": _version("mujoco"),

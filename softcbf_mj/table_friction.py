@@ -2,7 +2,7 @@
 
 The paper's arm lies on a table: gravity is perpendicular to its plane of motion (x-y),
 so the table carries each link's weight m_k g and its friction opposes the link's sliding.
-The MuJoCo arm (`softcbf_mj.model_builder`) is a chain of rigid links on hinges about z.
+The MuJoCo arm (`softcbf_mj.mjcf`) is a chain of rigid links on hinges about z.
 
 Model. Per moving body k of the arm (every body below `base`; mass m_k kg, centre of mass
 x_k, its in-plane velocity v_k = (ẋ_k, ẏ_k) m/s), the table pushes with

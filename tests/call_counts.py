@@ -24,7 +24,7 @@ COUNTED = (
     ("scenarios/common.py", "load_robot"),
     ("scenarios/common.py", "build_safe_set"),
     ("controllers/params.py", "__post_init__"),
-    ("softcbf_mj/model_builder.py", "__post_init__"),
+    ("softcbf_mj/mjcf/config.py", "__post_init__"),
     ("controllers/registry.py", "parse_params"),
     ("controllers/registry.py", "resolve"),
     ("controllers/registry.py", "check_filter"),

@@ -19,7 +19,7 @@ from controllers.safety_filter import FilterContext
 from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import run_figures
-from softcbf_mj.model_builder import ArmModelConfig
+from softcbf_mj.mjcf import ArmModelConfig
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.pcc_batch_plant import PCCBatchPlant

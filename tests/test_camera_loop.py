@@ -18,7 +18,7 @@ from perception.detect import TagDetector
 from perception.estimator import ArmAngleEstimator
 from perception.tags import arm_tag_ids
 from softcbf_mj.camera_loop import CameraTiming, run_camera_loop
-from softcbf_mj.model_builder import ArmModelConfig, build_model
+from softcbf_mj.mjcf import ArmModelConfig, build_model
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
 

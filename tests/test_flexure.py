@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from controllers.params import uniform_robot
-from softcbf_mj import model_builder as mb
+from softcbf_mj import mjcf as mb
 from softcbf_mj.flexure import FlexureParams, SheetInModel, chain_stiffness, thickness_for_tip_stiffness
 from softcbf_mj.flexure_calibration import calibrate_flexure, fit_thickness, load_sheet
 from softcbf_mj.mujoco_plant import MujocoPlant

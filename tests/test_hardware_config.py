@@ -121,7 +121,7 @@ def test_cli_refuses_a_bad_configuration_with_exit_code_2(tmp_path, capsys):
 
 def test_emulator_defaults_are_the_camera_scenarios_rod():
     from hardware.config import EmulatorConfig
-    from softcbf_mj.model_builder import CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT
+    from softcbf_mj.mjcf import CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT
 
     assert (EmulatorConfig().links_per_segment, EmulatorConfig().physics_dt) == (CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
 

@@ -14,7 +14,7 @@ from scenarios.common import scale_damping
 from scenarios.common import ROBOT_PRESETS, load_robot
 from vocabulary.project_files import project_file
 from softcbf.study.definition import load_study
-from softcbf_mj.model_builder import DEFAULT_TAU_P
+from softcbf_mj.mjcf import DEFAULT_TAU_P
 
 ROOT = Path(__file__).resolve().parents[1]
 

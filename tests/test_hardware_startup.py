@@ -23,7 +23,7 @@ from hardware.config import EMULATOR_COMMAND_PERIOD_S, ConfigError, HardwareConf
 from hardware.protocol import PressureLimits
 from perception.plane import PlaneCalibration
 from softcbf.hardware_cli import main
-from softcbf_mj.model_builder import ArmModelConfig
+from softcbf_mj.mjcf import ArmModelConfig
 from softcbf_mj.plant import steps_per_control
 
 REPO = Path(__file__).resolve().parents[1]

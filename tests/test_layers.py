@@ -12,9 +12,19 @@ packages on one layer do not import each other):
     4  scenarios                 registered experiments
     5  softcbf                   the application layer: CLI, hardware CLI, studies
 
-Every module of every package is parsed (ast), including imports inside functions, with
-no exception: `python -m scenarios` (scenarios/__main__.py) runs `scenarios.run`, the
-implementation `softcbf run` imports.
+Every module of every package is parsed (ast), with no exception: every import node wherever it
+stands (`ast.walk`: at the top, inside functions, methods, conditionals and `try`), and every
+import by name in a string constant (`importlib.import_module("x")`, `import_module("x")`,
+`lazy_module("x")`, `__import__("x")`: the module is imported all the same, only later).
+`python -m scenarios` (scenarios/__main__.py) runs `scenarios.run`, the implementation
+`softcbf run` imports.
+
+Inside a package the same holds one level down. Its units are its subpackages (one unit each,
+e.g. `controllers.energy_governor`, `softcbf_mj.mjcf`, `softcbf.bench`) and its own modules
+(one unit each); importing a package's `__init__` alone is no edge. The units import each other
+without a cycle (a cycle is reported with one import per hop), and the subpackages of `TOP_UNITS`
+are imported by no other unit of their package: the governors build on the contract, the model
+and the CBF; the environment composes the testbed.
 """
 
 from __future__ import annotations
@@ -47,23 +57,32 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+IMPORT_CALLS = ("import_module", "lazy_module", "__import__")  # f("module"): an import by name
+
+
 def _imports(path: Path, name: str | None = None) -> list[tuple[str, list[str]]]:
-    """(module imported, names taken from it) for every import statement of module `name`
-    (default: the module at `path`), relative ones resolved."""
+    """(module imported, names taken from it) for every import of module `name` (default: the module at
+    `path`): every import node wherever it stands, relative ones resolved, and every `IMPORT_CALLS` call
+    whose first argument is a string constant (module docstring), in the order they stand."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     package = (name or _module_name(path)).split(".")
     if path.name != "__init__.py":
         package = package[:-1]
-    out = []
+    found = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            out += [(alias.name, []) for alias in node.names]
+            found += [(node, alias.name, []) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
                 base = ".".join(package[: len(package) - node.level + 1] + ([base] if base else []))
-            out.append((base, [alias.name for alias in node.names]))
-    return out
+            found.append((node, base, [alias.name for alias in node.names]))
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant) \
+                and isinstance(node.args[0].value, str):
+            called = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", None)
+            if called in IMPORT_CALLS:
+                found.append((node, node.args[0].value, []))
+    return [(module, names) for _, module, names in sorted(found, key=lambda f: (f[0].lineno, f[0].col_offset))]
 
 
 ALL = [(package, path) for package in LAYERS for path in _modules(package)]
@@ -119,6 +138,99 @@ def test_the_layer_test_sees_every_package_and_finds_an_upward_import(tmp_path):
     assert _violations("controllers", "controllers/bad.py", "controllers.bad", imports) == [
         "controllers/bad.py imports softcbf_mj.loop: layer softcbf_mj is not below controllers",
         "controllers/bad.py imports private name(s) ['_dual_active_set'] from controllers.qp"]
+
+
+TOP_UNITS = ("controllers.energy_governor", "softcbf_mj.env")  # imported by no other unit of their package
+
+
+def _targets(module: str, names: list[str]) -> list[str]:
+    """The modules an import of `names` from `module` loads below a package's `__init__`: `module` itself, or,
+    for `from package import name`, each name that is a module or subpackage of the package."""
+    if "." in module:
+        return [module]
+    return [f"{module}.{n}" for n in names if (REPO / module / n).is_dir() or (REPO / module / f"{n}.py").is_file()]
+
+
+def _unit(module: str) -> str | None:
+    """The unit of `module` in its package (module docstring): `package.x` for its own module x or subpackage x;
+    None for the package's `__init__` and for modules outside the project."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] in LAYERS and len(parts) > 1 else None
+
+
+def _unit_edges(modules: list[tuple[str, str, list[tuple[str, list[str]]]]]) -> dict[tuple[str, str], str]:
+    """(unit, unit of the same package it imports) → the first import that makes the edge ("file imports module"),
+    for modules given as (module name, file, its `_imports`)."""
+    edges: dict[tuple[str, str], str] = {}
+    for name, rel, imports in modules:
+        source = _unit(name)
+        for module, names in imports:
+            for target in map(_unit, _targets(module, names)):
+                if source and target and target != source and target.split(".")[0] == source.split(".")[0]:
+                    edges.setdefault((source, target), f"{rel} imports {module}")
+    return edges
+
+
+def _unit_violations(edges: dict[tuple[str, str], str]) -> list[str]:
+    """What the unit graph `edges` breaks: an import of a `TOP_UNITS` unit, and each cycle (its edges, in order)."""
+    out = [f"{example}: {target} is imported by no other unit of {target.split('.')[0]}"
+           for (_, target), example in sorted(edges.items()) if target in TOP_UNITS]
+    graph: dict[str, set[str]] = {}
+    for source, target in edges:
+        graph.setdefault(source, set()).add(target)
+
+    def reach(unit: str) -> set[str]:
+        seen, todo = set(), [unit]
+        while todo:
+            for nxt in graph.get(todo.pop(), ()):
+                if nxt not in seen:
+                    seen.add(nxt)
+                    todo.append(nxt)
+        return seen
+
+    reachable = {unit: reach(unit) for unit in graph}
+    cycles = sorted({tuple(sorted(u for u in reachable if unit in reachable[u] and u in reachable[unit]))
+                     for unit in reachable if unit in reachable[unit]})
+    for cycle in cycles:
+        hops = [example for (source, target), example in sorted(edges.items()) if source in cycle and target in cycle]
+        out.append(f"{', '.join(cycle)} import each other: " + "; ".join(hops))
+    return out
+
+
+def test_units_of_each_package_import_each_other_without_a_cycle():
+    """Inside a package (module docstring): no cycle between its subpackages and modules, and nothing of the
+    package imports a `TOP_UNITS` subpackage but itself."""
+    modules = [(_module_name(path), str(path.relative_to(REPO)), _imports(path)) for _, path in ALL]
+    assert all(_unit(unit) for unit in TOP_UNITS) and all((REPO / unit.replace(".", "/")).is_dir() for unit in TOP_UNITS)
+    assert _unit_violations(_unit_edges(modules)) == []
+
+
+def test_the_layer_test_finds_imports_inside_functions_and_by_name(tmp_path):
+    """The test can fail on what stands inside a function: an import statement into the same layer, an import
+    by name of a higher layer, an import of a top unit of the package, and a cycle between subpackages."""
+    bad = tmp_path / "bad.py"
+    bad.write_text("import importlib\n\n\ndef detect():\n    from controllers.pcc import tip_position\n\n\n"
+                   "class Camera:\n    def start(self):\n        try:\n            importlib.import_module('softcbf_mj.loop')\n"
+                   "        except ImportError:\n            pass\n", encoding="utf-8")
+    imports = _imports(bad, "perception.bad")
+    assert imports == [("importlib", []), ("controllers.pcc", ["tip_position"]), ("softcbf_mj.loop", [])]
+    assert _violations("perception", "perception/bad.py", "perception.bad", imports) == [
+        "perception/bad.py imports controllers.pcc: layer controllers is not below perception",
+        "perception/bad.py imports softcbf_mj.loop: layer softcbf_mj is not below perception"]
+    flat = tmp_path / "flat.py"
+    flat.write_text("def build():\n    box = lazy_module('controllers.energy_governor.box')\n", encoding="utf-8")
+    study = tmp_path / "tune.py"
+    study.write_text("def force(run):\n    from softcbf.bench import steady_force_of_folder\n", encoding="utf-8")
+    bench = tmp_path / "cases.py"
+    bench.write_text("from softcbf.study.definition import Study\n", encoding="utf-8")
+    edges = _unit_edges([("controllers.flat", "controllers/flat.py", _imports(flat, "controllers.flat")),
+                         ("softcbf.study.tune", "softcbf/study/tune.py", _imports(study, "softcbf.study.tune")),
+                         ("softcbf.bench.cases", "softcbf/bench/cases.py", _imports(bench, "softcbf.bench.cases"))])
+    assert _unit_violations(edges) == [
+        "controllers/flat.py imports controllers.energy_governor.box: controllers.energy_governor is imported by no "
+        "other unit of controllers",
+        "softcbf.bench, softcbf.study import each other: softcbf/bench/cases.py imports softcbf.study.definition; "
+        "softcbf/study/tune.py imports softcbf.bench"]
 
 
 def test_controllers_exports_its_public_api():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from controllers.params import reference_robot
-from softcbf_mj.model_builder import ArmModelConfig
+from softcbf_mj.mjcf import ArmModelConfig
 from softcbf_mj.mujoco_batch_plant import WARNING_NAMES, MujocoBatchPlant
 from softcbf_mj.mujoco_plant import MujocoPlant
 

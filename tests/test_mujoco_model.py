@@ -11,7 +11,7 @@ import pytest
 
 from controllers.params import reference_robot, uniform_robot
 from perception.plane import TagBoard
-from softcbf_mj import model_builder as mb
+from softcbf_mj import mjcf as mb
 from softcbf_mj.mujoco_plant import WARNINGS
 
 REPO = Path(__file__).resolve().parents[1]

@@ -11,7 +11,7 @@ import pytest
 
 from controllers.params import reference_robot
 from controllers.pcc import segment_ends
-from softcbf_mj.model_builder import (
+from softcbf_mj.mjcf import (
     DEFAULT_LINKS_PER_SEGMENT,
     DEFAULT_PHYSICS_DT,
     PAPER_H,

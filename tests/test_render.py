@@ -16,7 +16,7 @@ import pytest
 from perception.detect import TagDetector
 from perception.plane import TagBoard, calibrate, tag_pose_on_plane
 from softcbf_mj import gl_backend
-from softcbf_mj import model_builder as mb
+from softcbf_mj import mjcf as mb
 from softcbf_mj import render as rd
 
 REPO = Path(__file__).resolve().parents[1]
@@ -184,10 +184,10 @@ def _run(script: str, hide_gl_libraries: bool = True, **env: str) -> str:
 
 
 _RENDER = """
-from softcbf_mj import model_builder, render
+from softcbf_mj import mjcf, render
 import mujoco
 try:
-    with render.OffscreenRenderer(model_builder.build_model(), width=64, height=36) as renderer:
+    with render.OffscreenRenderer(mjcf.build_model(), width=64, height=36) as renderer:
         print("rendered", renderer.backend, renderer.render(mujoco.MjData(renderer.model)).shape)
 except render.RenderBackendError as error:
     print(error)

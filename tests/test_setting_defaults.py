@@ -188,20 +188,20 @@ def test_physical_constant_modules_agree_with_the_vocabulary():
     """The physical-constant modules below the scenarios keep their documented constants; they
     must be the vocabulary's defaults (one value, two layers: follow-up to derive them)."""
     from perception.estimator import DEFAULT_MAX_HOLD_S
-    from softcbf_mj import model_builder
+    from softcbf_mj import mjcf
     from softcbf_mj.camera_loop import CameraTiming
     from softcbf_mj.flexure import FlexureParams
 
     sheet = FlexureParams()
     for field in ("clamp_at", "free_end_at", "thickness", "width", "youngs_modulus", "links", "calibration_fraction"):
         assert default(f"sheet_{field}", "mujoco_contact") == getattr(sheet, field), field
-    assert default("plate_stiffness", "mujoco_contact") == model_builder.PAPER_PLATE_STIFFNESS
-    assert default("links_per_segment", "mujoco_contact") == model_builder.DEFAULT_LINKS_PER_SEGMENT
-    assert default("physics_dt", "mujoco_contact") == model_builder.DEFAULT_PHYSICS_DT
-    assert default("tau_p", "mujoco_contact") == model_builder.DEFAULT_TAU_P
-    assert default("links_per_segment", "camera_loop") == model_builder.CAMERA_LINKS_PER_SEGMENT
-    assert default("physics_dt", "camera_loop") == model_builder.CAMERA_PHYSICS_DT
-    assert (default("width", "camera_loop"), default("height", "camera_loop")) == model_builder.CAMERA_RESOLUTION
+    assert default("plate_stiffness", "mujoco_contact") == mjcf.PAPER_PLATE_STIFFNESS
+    assert default("links_per_segment", "mujoco_contact") == mjcf.DEFAULT_LINKS_PER_SEGMENT
+    assert default("physics_dt", "mujoco_contact") == mjcf.DEFAULT_PHYSICS_DT
+    assert default("tau_p", "mujoco_contact") == mjcf.DEFAULT_TAU_P
+    assert default("links_per_segment", "camera_loop") == mjcf.CAMERA_LINKS_PER_SEGMENT
+    assert default("physics_dt", "camera_loop") == mjcf.CAMERA_PHYSICS_DT
+    assert (default("width", "camera_loop"), default("height", "camera_loop")) == mjcf.CAMERA_RESOLUTION
     assert default("max_hold_s", "camera_loop") == DEFAULT_MAX_HOLD_S
     timing = CameraTiming()
     for field in dataclasses.fields(CameraTiming):

@@ -13,7 +13,7 @@ import pytest
 from scenarios import get
 from scenarios.common import data_only
 from scenarios.mujoco_contact import contact_batch_key
-from softcbf_mj import model_builder as mb
+from softcbf_mj import mjcf as mb
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 from softcbf_mj.runio import load_timeseries

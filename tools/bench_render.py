@@ -1,6 +1,6 @@
 """Speed of the offscreen camera: ms per rendered frame of the overhead camera vs resolution.
 
-The default scene (`model_builder.build_model()`, its offscreen buffer raised to the
+The default scene (`mjcf.build_model()`, its offscreen buffer raised to the
 largest size asked for) is rendered by `softcbf_mj.render.OffscreenRenderer` with the
 backend MUJOCO_GL selects (osmesa on a CPU-only machine, egl with MUJOCO_GL=egl on a
 GPU). Each frame shows the arm in a new pose (both segments sweeping ±60°), so the scene
@@ -25,7 +25,7 @@ import mujoco
 import numpy as np
 
 from perception.detect import TagDetector
-from softcbf_mj import model_builder as mb
+from softcbf_mj import mjcf as mb
 from softcbf_mj.render import OffscreenRenderer, requested_gl_backend
 from timing import emit
 

@@ -104,7 +104,7 @@ def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[st
     from scenarios import get
     from scenarios.common import data_only
     from scenarios.mujoco_contact import CONTROL_DT
-    from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
+    from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
     from softcbf_mj.mujoco_plant import MujocoPlant
     from softcbf_mj.runio import load_timeseries
 

@@ -31,7 +31,7 @@ from pathlib import Path
 
 from scenarios.common import load_robot
 from softcbf_mj import calibration as cal
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
 from softcbf_mj.runio import write_json
 
 

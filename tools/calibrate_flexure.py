@@ -21,7 +21,7 @@ import json
 
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import calibrate_flexure, fit_thickness
-from softcbf_mj.model_builder import ArmModelConfig
+from softcbf_mj.mjcf import ArmModelConfig
 
 SHEET_FIELDS = ("clamp_at", "free_end_at", "thickness", "width", "youngs_modulus", "links", "calibration_fraction")
 

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from softcbf_mj.model_builder import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
+from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
 from softcbf_mj.mujoco_plant import MujocoPlant
 
 CONTROL_DT = 1e-3  # s

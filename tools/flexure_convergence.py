@@ -28,7 +28,7 @@ import numpy as np
 
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.flexure_calibration import load_sheet
-from softcbf_mj.model_builder import ArmModelConfig, build_model
+from softcbf_mj.mjcf import ArmModelConfig, build_model
 from softcbf_mj.mujoco_plant import MujocoPlant
 
 CONTROL_DT = 1e-3  # s

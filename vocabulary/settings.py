@@ -29,7 +29,7 @@ scenario's context). Where a context needs another default (paper_sim runs witho
 pressure box at 1 kHz, camera_loop and the hardware emulator on a coarser rod, the
 environment without a filter), `DEFAULT_OVERRIDES` says so, the one table of such overrides; no other module types a
 setting's default (tests/test_setting_defaults.py). The physical-constant modules below
-(softcbf_mj.model_builder, softcbf_mj.flexure, softcbf_mj.camera_loop.CameraTiming,
+(softcbf_mj.mjcf, softcbf_mj.flexure, softcbf_mj.camera_loop.CameraTiming,
 perception.estimator) keep their documented constants, which that test holds equal to these.
 
 `check_value(name, value)` is the one check of a setting's value, wherever it comes
@@ -223,7 +223,7 @@ DEFAULT_OVERRIDES: dict[str, dict[str, Any]] = {
     "paper_sim": {"pressure_limits": False, "control_rate": 1000.0},
     "mujoco_contact": {},
     # the paper's hardware experiment in MuJoCo: the hardware tunings; a coarser rod for a 2 ms tick
-    # (softcbf_mj.model_builder.CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
+    # (softcbf_mj.mjcf.CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
     "camera_loop": {"tunings": ("None", "HW-Low", "HW-High"), "links_per_segment": 5, "physics_dt": 2e-4},
     # the hardware file: the emulator's coarser rod (5 links at 0.2 ms run ≈ 9× real time), a smaller
     # virtual camera, and no calibration (None: required unless the camera is virtual)

@@ -70,6 +70,7 @@ step, paper_sim_3seg: the tip passes through the plate, which pushes back nowher
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,6 +86,7 @@ from softcbf.bench.figures import (draw_figures, f_max_of, pooled_figures, run_f
                                    study_figures)
 from softcbf.bench.filters import FilterSpec
 from softcbf.study.definition import Distribution, Study
+from softcbf.study.execute import run_study
 from softcbf.study.store import faulted
 from softcbf_mj.runio import read_run_folder, safe_name
 from vocabulary.project_files import project_file
@@ -205,8 +207,8 @@ def step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> d
 
 def emulator_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
     """The hardware mode on the emulator (`softcbf hardware`), its figures from the 1 kHz ground truth."""
-    from hardware.config import HardwareConfig  # the hardware stack (OpenCV) loads only where the emulator runs
-    from softcbf import hardware_cli
+    from hardware.config import HardwareConfig  # OpenCV, 0.16 s to import (-X importtime): only where the emulator runs
+    from softcbf import hardware_cli  # the hardware mode, 0.18 s more (-X importtime): only here
 
     out.mkdir(parents=True)
     argv = [str(EMULATOR_CONFIG), "--robot", "reference", "--port", "emulated", "--camera", "virtual", "--filter", spec.name,
@@ -238,7 +240,6 @@ def mismatch_study(spec: FilterSpec, case: Case, draws: int, duration: float) ->
 
 def mismatch_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
     """The camera_mismatch case: its study run (continued with --resume) and pooled over its samples."""
-    from softcbf.study.execute import run_study  # the study engine (pandas, its report's matplotlib): only here
     study = mismatch_study(spec, case, options.draws, QUICK_DURATION_S if options.quick else MISMATCH_DURATION_S)
     run_study(study, out, workers=options.workers, keep_runs=True, progress=not options.quick,
               resume=options.resume and out.exists())
@@ -283,9 +284,7 @@ def push_box_study(spec: FilterSpec, case: Case, draws: int, duration: float) ->
     """A push-draw case's `softcbf.study.definition.Study` for `spec` (module docstring): the standard box of its
     plant's file (`PUSH_BOX_FILES`) with the filter under test, `draws` draws of the `BOX_PUSH` push, each
     `duration` s long from rest (`PUSH_DURATION_S`; --quick: `QUICK_PUSH_DURATION_S`)."""
-    import dataclasses
-
-    from softcbf.study.worst_found import box_study  # optuna (~1 s): only where a push-draw case is planned or run
+    from softcbf.study.worst_found import box_study  # optuna, 0.25 s to import (-X importtime): only for a push-draw case
 
     plant = case.scenario_params["scenario"]
     box = box_study(spec.name, case_filter_params(spec, case), duration=duration,
@@ -300,7 +299,6 @@ def push_box_study(spec: FilterSpec, case: Case, draws: int, duration: float) ->
 
 def push_box_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> dict[str, Any]:
     """A push-draw case: its study run (continued with --resume) and pooled over its draws (`draw_figures`)."""
-    from softcbf.study.execute import run_study  # the study engine (pandas, its report's matplotlib): only here
     study = push_box_study(spec, case, options.push_draws,
                            QUICK_PUSH_DURATION_S if options.quick else PUSH_DURATION_S)
     run_study(study, out, workers=options.workers, keep_runs=True, progress=not options.quick,

@@ -116,7 +116,7 @@ def write_outputs(out: Path, bench: Mapping[str, Any]) -> None:
     (out / BENCH_FILE).write_text(json.dumps(bench, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     (out / TABLE_FILE).write_text(table_markdown(bench), encoding="utf-8")
     if bench["results"]:
-        from softcbf.bench.plots import write_force_plot, write_plot  # matplotlib (~0.5 s): from the first row on
+        from softcbf.bench.plots import write_force_plot, write_plot  # matplotlib, 0.55 s (-X importtime): from the first row on
 
         write_plot(out / PLOT_FILE, bench)
     if any(r["force_delivered_N"] is not None for r in bench["results"]):

@@ -177,7 +177,7 @@ def worst_case_searches(filters: Sequence[FilterSpec], options: RunOptions, whol
     """bench.json's "falsify" and {filter label: (its box study, the box's coordinates beyond what it certifies)} of
     the worst-case searches (module docstring), each filter with its parameters of the mujoco_contact case (checked
     here, before the bench starts); None when the budget is 0 (the default with --cases)."""
-    from softcbf.study import worst_found  # optuna and SQLAlchemy (~1 s): after the bench's first line, only to search
+    from softcbf.study import worst_found  # optuna, SQLAlchemy: 0.64 s (-X importtime), after the bench's first line
     budget = options.falsify_budget
     if budget is None:
         budget = 0 if not whole_battery else worst_found.QUICK_BUDGET if options.quick else worst_found.BUDGET
@@ -196,7 +196,7 @@ def worst_case_searches(filters: Sequence[FilterSpec], options: RunOptions, whol
 def run_worst_found(out: Path, bench: dict[str, Any], studies: Mapping[str, tuple[Any, list[str]]],
                     done: Mapping[str, dict[str, Any]], options: RunOptions, bar: Progress, k: int) -> None:
     """Run each filter's worst-case search (`worst_case_searches`) not kept by --resume into `bench`; a line each."""
-    from softcbf.study import worst_found  # optuna and SQLAlchemy: only where a search runs
+    from softcbf.study import worst_found  # optuna, SQLAlchemy: 0.64 s (-X importtime), only where a search runs
 
     budget = bench["falsify"]["budget"]
     shown = dict(zip(studies, plot_labels(list(studies))))

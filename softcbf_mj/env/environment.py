@@ -41,7 +41,7 @@ from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from softcbf_mj.env.physics import ArmPhysics, NoisyState
 from softcbf_mj.env.task import COSTS, OBSERVATIONS, ArmTask, RewardConfig
 from softcbf_mj.loop import exact_state
-from softcbf_mj.model_builder import CAMERA_RESOLUTION
+from softcbf_mj.mjcf import CAMERA_RESOLUTION
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState, steps_per_control
 from vocabulary.settings import check_value, default
