@@ -38,7 +38,7 @@ import math
 import numpy as np
 from numba import njit
 
-from closedloop.monitor import CLOCK, HAS_RUN, HOLD_SINCE, LAST_RUN, LATCHED, NOT_STEPPED, PENDING
+from closedloop.monitor_layout import CLOCK, HAS_RUN, HOLD_SINCE, LAST_RUN, LATCHED, NOT_STEPPED, PENDING
 
 
 @njit(cache=True, inline="always")

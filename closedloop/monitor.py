@@ -41,6 +41,7 @@ from enum import Enum
 
 import numpy as np
 
+from closedloop.monitor_layout import CLOCK, HAS_RUN, HOLD_SINCE, LAST_RUN, LATCHED, NOT_STEPPED, PENDING
 from controllers.lazy_import import lazy_module
 
 kernels = lazy_module("closedloop.kernels")  # numba loads on the first step (controllers.lazy_import)
@@ -83,10 +84,6 @@ class SafetyDecision:
 
 
 ACTION_CODES = {SafeAction.RUN: 0, SafeAction.HOLD: 1, SafeAction.VENT: 2}  # the time series' `action` column
-NOT_STEPPED = -1  # `BatchDecision.action` of a row that was not stepped
-PENDING = 3  # `closedloop.kernels.run_plain`'s action of a stepped row off the RUN case (`decide` then decides it)
-CLOCK, HOLD_SINCE, LAST_RUN = 0, 1, 2  # the columns of `BatchSafetyMonitor.state` (B, 2 + N): s, s, then N hPa
-HAS_RUN, LATCHED = 0, 1  # the columns of `BatchSafetyMonitor.bits` (B, 2) bool
 ACTIONS = (SafeAction.RUN, SafeAction.HOLD, SafeAction.VENT)  # by code
 
 

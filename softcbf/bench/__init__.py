@@ -30,8 +30,8 @@ from softcbf.bench.cases import (CASES, EERG_PARAMS, EMULATOR_CONFIG, FORCE_TARG
                                  QUICK_PUSH_BOX_DRAWS, contact_error_cases, contact_under_error, push_box_study)
 from softcbf.bench.certified import beyond_certified
 from softcbf.bench.cli import HELP, add_arguments, run_command
-from softcbf.bench.figures import (ACCEPT_TOL_HPA, draw_figures, nominal_acceptance, pooled_figures, steady_force,
-                                   steady_force_of_folder, study_draws, study_figures)
+from softcbf.bench.figures import (ACCEPT_TOL_HPA, draw_figures, nominal_acceptance, pooled_figures, study_draws,
+                                   study_figures)
 from softcbf.bench.filters import DEFAULT_FILTERS, RECOMMENDED_FILTER, FilterSpec, parse_filters
 from softcbf.bench.folder import BENCH_FILE, TABLE_FILE, is_bench_folder, prepare_bench_dir, stored_results, write_outputs
 from softcbf.bench.runner import WORST_DIR, planned_cases, run_bench, worst_case_searches
@@ -39,6 +39,7 @@ from softcbf.bench.schema import (CALL_KEYS, RESULT_KEYS, ROW_SCHEMA, VERDICT_KE
                                   WORST_SCHEMA, check_bench_json)
 from softcbf.bench.tables import (FORCE_PLOT_FILE, PLOT_FILE, PRINT_WIDTH, WIDER_BOX, contact_markdown, contact_text, fault_text,
                                   table_markdown, worst_case_text, worst_found_markdown)
+from softcbf_mj.push_force import steady_force, steady_force_of_folder
 
 __all__ = [
     "BOX_PUSH", "CONTACT_KEYS", "FLEXURE_ASKED_N", "PRINT_WIDTH", "PUSH_BOX_DRAWS", "PUSH_BOX_FILES",

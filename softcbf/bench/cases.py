@@ -82,12 +82,12 @@ from controllers.safety_filter import FilterContext
 from scenarios import get
 from scenarios.common import build_safe_set, load_robot
 from scenarios.run import FILTER_FAULT
-from softcbf.bench.figures import (draw_figures, f_max_of, pooled_figures, run_figures, steady_force_of_folder, study_draws,
-                                   study_figures)
+from softcbf.bench.figures import draw_figures, f_max_of, pooled_figures, run_figures, study_draws, study_figures
 from softcbf.bench.filters import FilterSpec
 from softcbf.study.definition import Distribution, Study
 from softcbf.study.execute import run_study
 from softcbf.study.store import faulted
+from softcbf_mj.push_force import steady_force_of_folder
 from softcbf_mj.runio import read_run_folder, safe_name
 from vocabulary.project_files import project_file
 from vocabulary.sections import joined

@@ -47,6 +47,7 @@ import numpy as np
 from controllers.filter_metrics import governor_figures
 from softcbf.study.analysis import clean, clopper_pearson_upper, wilson_interval
 from softcbf.study.store import StudyStore, fault_of, faulted
+from softcbf_mj.push_force import steady_force_of_folder
 from softcbf_mj.runio import load_timeseries, read_run_folder
 
 ACCEPT_TOL_HPA = 1e-3  # hPa: |u_i − u_nom,i| at most this in every segment is an accepted nominal (module docstring)
@@ -54,25 +55,6 @@ CALL_SERIES = ("t", "u", "u_nom", "filter_us")
 
 RunFigures = tuple[Mapping[str, Any], Mapping[str, np.ndarray]]
 """(a run's summary row, its call rows {t, u, u_nom, filter_us})."""
-
-
-def steady_force(force: np.ndarray) -> float:
-    """The steady measured force of a push (N): the mean over the last third of the run's samples of the
-    largest facet force per sample (`force`: (T,) or (T, plates) N)."""
-    force = np.asarray(force, dtype=float)
-    per_sample = force.max(axis=1) if force.ndim == 2 else force
-    if per_sample.size == 0:
-        raise ValueError("a push needs at least one force sample")
-    return float(np.mean(per_sample[-max(1, per_sample.size // 3):]))
-
-
-def steady_force_of_folder(folder: Path) -> float:
-    """`steady_force` of the one run in a run folder (its time series' `contact_force`)."""
-    run_folder = read_run_folder(folder)
-    if len(run_folder.runs) != 1:
-        raise ValueError(f"{folder} holds {len(run_folder.runs)} runs; a push is one run")
-    series, _ = load_timeseries(folder / run_folder.runs[0]["timeseries"])
-    return steady_force(series["contact_force"])
 
 
 def call_rows(path: Path) -> dict[str, np.ndarray]:

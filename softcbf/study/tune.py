@@ -10,7 +10,7 @@ over the filter's own parameters (`[tune.NAME]`, dist "uniform", "loguniform" or
 - the nominal evaluation runs the task once with θ at the nominal point x₀ (the fixed values,
   each varied parameter at the scenario's default: for the standard box the nominal plate,
   gain, arm and valve); F(θ) is its objective: "force_delivered_N" is the steady measured force
-  of the run (`softcbf.bench.steady_force_of_folder`: the mean of the largest plate force over
+  of the run (`softcbf_mj.push_force.steady_force_of_folder`: the mean of the largest plate force over
   the run's last third, N, as the bench's pushes report it), any other name a numeric column of
   the run's summary row;
 - the inner search is a falsification of the error box X with θ fixed (`falsify.falsify`: the
@@ -89,6 +89,7 @@ from softcbf.study.definition import (FILTER_PARAM_PREFIX, FILTER_PARAMS, Distri
                                       distributions_of, fold_values)
 from softcbf.study.store import FALSIFY_FILE, TUNE_FILE, StudyStore, fault_of, faulted, stored_search
 from softcbf_mj.progress import Progress, significant
+from softcbf_mj.push_force import steady_force_of_folder
 from softcbf_mj.runio import write_json
 from vocabulary.files import read_settings_file
 
@@ -223,8 +224,6 @@ def nominal_value(row: dict[str, Any], run_dir: Path, objective: str) -> float |
     if not clean(row):
         return None
     if objective == DEFAULT_OBJECTIVE:
-        from softcbf.bench import steady_force_of_folder  # the bench's own definition of the delivered force
-
         return steady_force_of_folder(run_dir)
     if objective not in row:  # a misspelt metric: no setting would ever have a value
         numeric = sorted(k for k, v in row.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
