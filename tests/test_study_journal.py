@@ -1,6 +1,6 @@
 """Search storage (softcbf.study.store: `search_storage`, `optuna_storage`): optuna's journal DIR/optuna.journal beside
 SQLite DIR/optuna.db for `study falsify` and `study tune`, the default chosen by the backend, a resume on the kind the
-folder holds (an SQLite folder made before the journal resumes as it is), and a journal whose last line a driver
+folder holds (a folder with optuna.db resumes on it, as it always did), and a journal whose last line a driver
 left incomplete resumes.
 
 The searches: paper_sim, 0.2 s (falsify) or 1 s from the sinusoid's peak (tune, a user's clip filter), over the
@@ -106,7 +106,7 @@ def test_a_journal_falsification_resumes_after_a_driver_left_a_line_incomplete(t
 
 
 def test_an_sqlite_folder_resumes_through_the_command_line_as_it_is(tmp_path, capsys):
-    """A folder made before the journal (SQLite, the library's default) resumes without --storage, on SQLite."""
+    """An SQLite folder (the library's default) resumes through the command line without --storage, on SQLite."""
     out = tmp_path / "f"
     first = falsify(STUDY, out, budget=2, **SEARCH)
     assert first["storage"] == SQLITE_FILE

@@ -33,7 +33,7 @@ most force at the nominal point that an inner falsification of its [vary] box ca
 Both keep their optuna trials in DIR (`--storage`, `softcbf.study.store.search_storage`): optuna's journal
 DIR/optuna.journal, the default with --scheduler (a folder on a disk that machines share, where SQLite's locks
 are not to be trusted), or SQLite DIR/optuna.db, the default on the local pool; --resume uses the kind the
-folder holds (a folder made before the journal holds SQLite).
+folder holds (a folder without optuna.journal resumes on SQLite).
 `report` (re)writes DIR/report.md and DIR/plots/ (of a study folder or a falsification folder).
 `softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf.cli).
 """
@@ -119,7 +119,6 @@ def _falsify(args: argparse.Namespace) -> int:
         if args.budget >= 1 and not args.resume:  # a resume's first line follows its checks (`falsify`)
             bar.update(0, "starting the search")
         from softcbf.study.falsify import falsify  # optuna: a second or more to import, after the first line
-
         from softcbf.study.store import search_storage
 
         storage = search_storage(args.out, args.storage, args.resume, on_dask=args.scheduler is not None)

@@ -67,7 +67,7 @@ reads and writes a search's optuna trials (the workers only run samples), in DIR
 - a database URL (postgresql://…): a server database, never written to the folder.
 
 Default (`search_storage`): on resume the kind the folder holds (DIR/optuna.journal: journal; else
-SQLite, the only kind of folders made before the journal, so they resume as they are); for a new
+SQLite, so a folder with DIR/optuna.db resumes on it whatever the backend); for a new
 search "journal" on Dask (a scheduler: the driver's folder is on a disk shared between machines)
 and "sqlite" on the local pool.
 """
@@ -342,18 +342,15 @@ def cut_incomplete_line(path: Path) -> int:
     the bytes cut."""
     size = path.stat().st_size
     with open(path, "rb+") as f:
-        tail = b""
-        end = size
+        end, keep = size, 0
         while end > 0:  # the last newline, read backwards in blocks
             start = max(0, end - 65536)
             f.seek(start)
-            tail = f.read(end - start)
-            if b"\n" in tail:
-                keep = start + tail.rindex(b"\n") + 1
+            block = f.read(end - start)
+            if b"\n" in block:
+                keep = start + block.rindex(b"\n") + 1
                 break
             end = start
-        else:
-            keep = 0
         if keep < size:
             f.truncate(keep)
             f.flush()
