@@ -117,8 +117,8 @@ from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import Sample, Study, draw_generator
 from softcbf.study.execute import run_study
 from softcbf.study.runner import run_sample
-from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, SQLITE_FILE, StudyStore, fault_of, faulted, part_name, read_part, stored_search
-from softcbf.study.store import optuna_storage, storage_name
+from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part, stored_search
+from softcbf.study.store import SQLITE_FILE, optuna_storage, storage_name
 from softcbf_mj.progress import Progress, significant
 from softcbf_mj.runio import OutputDirError, write_json
 

@@ -49,11 +49,11 @@ the journal DIR/optuna.journal (`storage`, `store.search_storage`: the journal i
 default on Dask, where DIR lies on a shared disk; each inner search keeps its trials in the same
 kind of storage in its own folder; `falsify.open_search`, the optuna study's name in tune.json);
 the nominal rows are study parts, the inner searches falsification folders. Evaluation e is the
-e-th outer trial whose parameters cover Θ. On resume, an evaluation already told is read back from its folders (never run
-again, and the sampler is seeded anew from the seed and the trials so far, `falsify.make_sampler`); one asked
-but not told runs its missing parts (run_study skips the stored nominal run,
-an inner search resumes from its own storage, a finished one is read) and is told; then the
-search goes on up to the budget, which may grow. A resume must repeat the study, tuning box,
+e-th outer trial whose parameters cover Θ. On resume, an evaluation already told is read back from
+its folders (never run again, and the sampler is seeded anew from the seed and the trials so far,
+`falsify.make_sampler`); one asked but not told runs its missing parts (run_study skips the stored
+nominal run, an inner search resumes from its own storage, a finished one is read) and is told; then
+the search goes on up to the budget, which may grow. A resume must repeat the study, tuning box,
 objectives, sampler, seed, population and inner budget (tune.json records them).
 
 Outputs of a tune folder DIR:
@@ -292,8 +292,8 @@ def tune(
     `budget`: outer evaluations (settings); `inner_budget`: falsification evaluations per setting; `seed`: of the
     outer sampler (default the study's; the inner searches use the study's seed, the same for every setting);
     `workers`, `scheduler`, `client`: as `run_study`; `storage`: of the outer and the inner searches' trials, as
-    `falsify`'s ("journal", a URL, None: SQLite in the folders); `progress`: the line (one per evaluation, with its ETA), or
-    the `Progress` to report into."""
+    `falsify`'s ("journal", a URL, None: SQLite in the folders); `progress`: the line (one per evaluation, with its
+    ETA), or the `Progress` to report into."""
     import optuna
     from optuna.trial import TrialState
 
