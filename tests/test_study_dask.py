@@ -8,6 +8,7 @@ takes ≈ 0.3 s of CPU, so several are in flight when a worker is killed.
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import signal
@@ -170,3 +171,47 @@ def test_a_local_pool_whose_worker_cannot_exit_is_closed_in_bounded_time():
     close_local_pool(pool, timeout_s=1.0)
     assert time.monotonic() - start < 10.0
     assert not worker.is_alive()
+
+
+FALSIFY_FILE = """name = "recipe"
+scenario = "paper_sim"
+seed = 5
+tunings = ["Low"]
+draws = 1
+[fixed]
+duration = 1.0
+[vary.amplitude]
+dist = "uniform"
+low = 20.0
+high = 150.0
+"""
+
+
+def test_the_cluster_recipe_on_a_local_cluster_worker_killed_then_resumed_each_evaluation_once(client, tmp_path, capsys):
+    """docs/studies.md#beyond-one-machine with this LocalCluster standing in for dask-jobqueue's SLURMCluster:
+    `study falsify --scheduler ADDRESS` keeps its trials in the journal (the default on Dask); a worker killed
+    mid-search has its task rerun; the resumed search runs only new evaluations, and each is stored and told once."""
+    import optuna
+
+    from softcbf.study.store import JOURNAL_FILE, SQLITE_FILE, optuna_storage
+
+    study_file = tmp_path / "study.toml"
+    study_file.write_text(FALSIFY_FILE, encoding="utf-8")
+    out = tmp_path / "f"
+    args = ["study", "falsify", str(study_file), "--out", str(out), "--population", "4", "--sampler", "tpe",
+            "--baseline", "0", "--batch-size", "1", "--no-progress", "--scheduler", client.scheduler.address]
+    killer = kill_after_first_part(out / "search", lambda: list(client.run(os.getpid).values()))
+    assert main([*args, "--budget", "4"]) == 0, capsys.readouterr().err
+    killer.join(1)
+    assert "killed" in killer.state
+    assert (out / JOURNAL_FILE).is_file() and not (out / SQLITE_FILE).exists()
+    before = StudyStore.open(out / "search").load_rows()
+    assert [(r["sample"], r["status"]) for r in before] == [(i, "ok") for i in range(4)]
+    assert main([*args, "--budget", "8", "--resume"]) == 0, capsys.readouterr().err
+    rows = StudyStore.open(out / "search").load_rows()
+    assert [r["sample"] for r in rows] == list(range(8)) and rows[:4] == before  # once each; the first 4 not rerun
+    name = json.loads((out / "falsify.json").read_text(encoding="utf-8"))["optuna_study"]
+    trials = optuna.load_study(study_name=name, storage=optuna_storage(out, "journal", resume=True)).trials
+    assert [t.number for t in trials] == list(range(8))
+    assert all(t.state == optuna.trial.TrialState.COMPLETE for t in trials)
+    assert [t.params["amplitude"] for t in trials] == [r["param.amplitude"] for r in rows]

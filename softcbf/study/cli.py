@@ -5,11 +5,11 @@
                                    [--until-bound 0.01]
     python -m softcbf.study falsify STUDY_FILE --out DIR [--budget 100] [--sampler cmaes|tpe] [--population N]
                                    [--initial vertices|random]
-                                   [--seed S] [--baseline N] [--stop-on-violation] [--storage URL]
+                                   [--seed S] [--baseline N] [--stop-on-violation] [--storage journal|sqlite|URL]
                                    [--workers N | --scheduler tcp://host:8786] [--resume] [--batch-size N] [--set ...]
     python -m softcbf.study tune TUNE_FILE --out DIR [--budget 20] [--inner-budget 40] [--sampler tpe|cmaes]
                                    [--population 4] [--seed S] [--workers N | --scheduler tcp://host:8786] [--resume]
-                                   [--set ...]
+                                   [--storage journal|sqlite|URL] [--set ...]
     python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
@@ -30,6 +30,10 @@ DIR (`softcbf.study.falsify`: DIR/falsify.json, DIR/worst/, …); it ends with t
 `tune` searches a tune file's tuning box (its [tune] table over the filter's parameters) for the setting with the
 most force at the nominal point that an inner falsification of its [vary] box cannot break
 (`softcbf.study.tune`: DIR/tune.json, DIR/tune.png, DIR/best/, DIR/winner.json).
+Both keep their optuna trials in DIR (`--storage`, `softcbf.study.store.search_storage`): optuna's journal
+DIR/optuna.journal, the default with --scheduler (a folder on a disk that machines share, where SQLite's locks
+are not to be trusted), or SQLite DIR/optuna.db, the default on the local pool; --resume uses the kind the
+folder holds (a folder without optuna.journal resumes on SQLite).
 `report` (re)writes DIR/report.md and DIR/plots/ (of a study folder or a falsification folder).
 `softcbf study …` is the same (`add_arguments` and `run_command`, mounted by softcbf.cli).
 """
@@ -46,6 +50,10 @@ from softcbf_mj.runio import OutputDirError
 
 # The study machinery (pyarrow, Dask, matplotlib) is imported by the handlers, so that
 # `softcbf --version`, `list` and usage errors do not pay for it.
+
+STORAGE_HELP = ("where optuna keeps the search's trials: journal (--out/optuna.journal, the default with --scheduler: "
+                "safe on a shared disk), sqlite (--out/optuna.db, the default on the local pool) or a database URL "
+                "such as postgresql://host/db; --resume: the kind the folder holds")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -88,7 +96,7 @@ def _resumable(body, out: Path, stored: str) -> int:
     or folder, 130 after saying that the finished `stored` are in `out` for Ctrl-C."""
     try:
         body()
-    except (ValueError, OutputDirError) as exc:
+    except (ValueError, OutputDirError, ConnectionError) as exc:  # ConnectionError: e.g. a lost Dask scheduler
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -111,11 +119,13 @@ def _falsify(args: argparse.Namespace) -> int:
         if args.budget >= 1 and not args.resume:  # a resume's first line follows its checks (`falsify`)
             bar.update(0, "starting the search")
         from softcbf.study.falsify import falsify  # optuna: a second or more to import, after the first line
+        from softcbf.study.store import search_storage
 
+        storage = search_storage(args.out, args.storage, args.resume, on_dask=args.scheduler is not None)
         result = falsify(study, args.out, budget=args.budget, sampler=args.sampler, population=args.population,
                          initial=args.initial,
                          seed=args.seed, baseline=args.baseline, stop_on_violation=args.stop_on_violation,
-                         storage=args.storage, resume=args.resume, workers=args.workers, scheduler=args.scheduler,
+                         storage=storage, resume=args.resume, workers=args.workers, scheduler=args.scheduler,
                          batch_size=args.batch_size, progress=bar)
         best, base = result["best"], result["random_baseline"]
         found = (f"a filter fault ({best['fault']['type']} in the {best['fault']['where']}: {best['fault']['message']})"
@@ -144,11 +154,13 @@ def _tune(args: argparse.Namespace) -> int:
         bar = Progress(f"tune {tune_file.study.name}", max(1, args.budget), enabled=not args.no_progress,
                        unit="evaluations")
         bar.update(0, "starting the search")
+        from softcbf.study.store import search_storage
         from softcbf.study.tune import tune  # optuna: a second or more to import, after the first line
 
+        storage = search_storage(args.out, args.storage, args.resume, on_dask=args.scheduler is not None)
         result = tune(tune_file, args.out, budget=args.budget, inner_budget=args.inner_budget, sampler=args.sampler,
                       population=args.population, seed=args.seed, resume=args.resume, workers=args.workers,
-                      scheduler=args.scheduler, progress=bar)
+                      scheduler=args.scheduler, storage=storage, progress=bar)
         best = result["best"]
         print(f"tune {tune_file.study.name}: {result['safe']} of {len(result['evaluations'])} settings safe "
               f"(no violation in {args.inner_budget} inner evaluations); folder {args.out}")
@@ -215,7 +227,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     falsify.add_argument("--baseline", type=int, help="uniform draws of the box beside the search (default --budget; 0: none)")
     falsify.add_argument("--stop-on-violation", action="store_true",
                          help="stop the search and the baseline at their first violation (rho_min_meas < 0)")
-    falsify.add_argument("--storage", help="optuna storage URL, e.g. postgresql://host/db (default SQLite in --out)")
+    falsify.add_argument("--storage", metavar="journal|sqlite|URL", help=STORAGE_HELP)
     backend = falsify.add_mutually_exclusive_group()
     backend.add_argument("--workers", type=int, help="local worker processes (default: every core)")
     backend.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786 (instead of the local pool)")
@@ -241,6 +253,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     backend.add_argument("--workers", type=int, help="local worker processes (default: every core)")
     backend.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786 (instead of the local pool)")
     tune.add_argument("--resume", action="store_true", help="continue the tuning stored in --out")
+    tune.add_argument("--storage", metavar="journal|sqlite|URL", help=STORAGE_HELP)
     tune.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     tune.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                       help="set a dotted key of the tune file, e.g. tune.gain_lo_ratio.low=0.8 (repeatable)")

@@ -49,6 +49,12 @@ worker that dies breaks the whole process pool: the driver starts a new pool and
 resubmits the tasks that were in flight; a sample in flight at `MAX_ATTEMPTS` pool
 breaks is recorded as an error with the rest of its task (it is the likely culprit,
 though an innocent sample or batch sharing both breaks would be recorded too).
+A Dask task that comes back cancelled (`CancelledError`: the client lost its scheduler, which
+cancels every task in flight, or the scheduler dropped it) has no result, neither the
+sample's nor an error of its own: nothing is stored for it, and the run stops with
+`SchedulerLostError` (one line: how many samples were lost, continue with --resume) once the
+tasks that finished are stored, so a resume runs the lost samples instead of keeping them as
+failed. A client that closes under the driver (its scheduler did not come back) is the same.
 
 Resume: samples with a sound part in the folder are skipped, so an interrupted study
 (Ctrl-C, a killed driver, a lost cluster) continues with `resume=True`; nothing is lost
@@ -75,7 +81,7 @@ import queue
 import signal
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, CancelledError, Executor, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.managers import SyncManager
 from dataclasses import dataclass
@@ -97,6 +103,18 @@ SCHEDULER_CONNECT_TIMEOUT_S = 5.0  # how long a Dask scheduler address is tried 
 POOL_EXIT_S = 5.0  # how long a local pool's workers have to exit at its shutdown before they are terminated, s
 POLL_S = 0.25  # how often the driver reads the batches' progress and refreshes the line, s
 BATCH_REPORT_S = 0.5  # how often a local batch sends the fraction of its simulated time done, s
+
+
+class SchedulerLostError(ConnectionError):
+    """The Dask scheduler lost the tasks in flight (module docstring: failures); the finished samples are stored."""
+
+
+def scheduler_lost(client: Any, samples: int) -> SchedulerLostError:
+    """The one-line error of a run whose Dask client lost `samples` samples in flight (module docstring)."""
+    address = getattr(getattr(client, "scheduler", None), "address", None) or "of the client"
+    return SchedulerLostError(f"the Dask scheduler {address} lost {samples} sample(s) in flight (its connection closed "
+                              "or it cancelled them); the finished samples are stored: start the scheduler again "
+                              "and continue with --resume, which runs the lost ones")
 
 
 def connect_scheduler(address: str, timeout: float | None = None) -> Any:
@@ -362,7 +380,13 @@ def run_study(
                 keep = str(store.run_dir(task.indices[0])) if keep_runs else None
                 if task.batched:
                     sizes[task.indices[0]] = len(task.indices)
-                pending[executor.submit(run_task, study, task, keep, nthread, channel)] = task
+                try:
+                    pending[executor.submit(run_task, study, task, keep, nthread, channel)] = task
+                except Exception:
+                    if client is not None and client.status in ("closing", "closed"):  # the scheduler is gone
+                        in_flight = sum(len(t.indices) for t in (task, *pending.values()))
+                        raise scheduler_lost(client, in_flight) from None
+                    raise
             if not pending:
                 break
             finished, _ = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
@@ -370,6 +394,7 @@ def run_study(
                 show()
                 continue
             broken: list[Task] = []
+            lost: list[Task] = []
             for future in finished:
                 task = pending.pop(future)
                 try:
@@ -377,9 +402,14 @@ def run_study(
                 except BrokenProcessPool:
                     broken.append(task)
                     continue
+                except CancelledError:  # Dask lost it: no result, run again on resume (module docstring)
+                    lost.append(task)
+                    continue
                 except Exception as exc:  # noqa: BLE001 - e.g. Dask's KilledWorker: the task failed, the study goes on
                     rows = [failed_row(study, index, f"{type(exc).__name__}: {exc}") for index in task.indices]
                 record(task, rows)
+            if lost:
+                raise scheduler_lost(client, sum(len(t.indices) for t in (*lost, *pending.values())))
             if broken:
                 broken += list(pending.values())  # the whole pool is gone
                 pending.clear()
@@ -401,9 +431,10 @@ def run_study(
         else:
             executor.shutdown(wait=True)  # before its client closes (a Dask executor needs the client's loop)
     except BaseException:
-        for future in pending:
-            future.cancel()
-        executor.shutdown(wait=False)
+        if client is None or client.status not in ("closing", "closed"):  # a closed client cannot cancel
+            for future in pending:
+                future.cancel()
+            executor.shutdown(wait=False)
         raise
     finally:
         if manager is not None:

@@ -118,6 +118,7 @@ from softcbf.study.definition import Sample, Study, draw_generator
 from softcbf.study.execute import run_study
 from softcbf.study.runner import run_sample
 from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part, stored_search
+from softcbf.study.store import SQLITE_FILE, optuna_storage, storage_name
 from softcbf_mj.progress import Progress, significant
 from softcbf_mj.runio import OutputDirError, write_json
 
@@ -125,7 +126,7 @@ SAMPLERS = ("cmaes", "tpe")
 SEARCH_DIR = "search"
 BASELINE_DIR = "random"
 WORST_DIR = "worst"
-STORAGE_FILE = "optuna.db"
+STORAGE_FILE = SQLITE_FILE
 TUNING_COORDINATE = "@tuning"  # the tuning's coordinate in the search space (no scenario parameter has an @)
 INITIALS = ("vertices", "random")
 CMAES_MIN_POPULATION = 4  # CMA-ES's μ = ⌊population / 2⌋ parents must be >= 2 (its covariance update divides by them)
@@ -328,8 +329,9 @@ def falsify(
     """Search `study`'s box for the minimum of its objective (module docstring); returns falsify.json's content.
 
     `budget`: evaluations of the search; `baseline`: uniform draws (default `budget`, 0: none); `seed`: of the
-    sampler, the evaluations' scenario seeds and the baseline (default the study's); `storage`: optuna storage
-    URL (default SQLite in DIR); `workers`, `scheduler`, `client`, `batch_size`: as `run_study`. `progress`: the
+    sampler, the evaluations' scenario seeds and the baseline (default the study's); `storage`: "journal"
+    (DIR/optuna.journal), an optuna storage URL, or None: SQLite in DIR (`store.search_storage`); `workers`,
+    `scheduler`, `client`, `batch_size`: as `run_study`. `progress`: the
     progress line (per evaluation, with its ETA) or not, or the `Progress` to report into (the command line's,
     whose first line came before optuna was imported).
     """
@@ -359,7 +361,7 @@ def falsify(
     stored = stored_search(root, FALSIFY_FILE, "falsification", settings, SETTINGS, resume)
     name = stored.get("optuna_study") or f"softcbf-falsify-{study.name}-{uuid.uuid4().hex[:12]}"
     state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
-                             "storage": "server database (--storage)" if storage else STORAGE_FILE}
+                             "storage": storage_name(storage)}
     fresh_bar = not isinstance(progress, Progress)
     bar = Progress(f"falsify {study.name}", budget, enabled=progress, unit="evaluations") if fresh_bar else progress
     if not resume:  # a falsification folder from the start, so a search that stops can be resumed
@@ -465,11 +467,11 @@ def falsify(
 def open_search(root: Path, storage: str | None, name: str, sampler: optuna.samplers.BaseSampler,
                 resume: bool) -> optuna.Study:
     """The optuna study `name`: created (a new search) or, with `resume`, loaded from its storage (`storage`, a
-    URL; None: DIR/optuna.db). A storage that is missing, empty, unreadable or without the study is refused with
-    one line (`OutputDirError`); the default SQLite file is first read read-only, so a refused resume writes
-    nothing (module docstring)."""
-    url = storage or f"sqlite:///{(root / STORAGE_FILE).resolve()}"
-    shown = "the --storage database" if storage else str(root / STORAGE_FILE)
+    URL; "journal": DIR/optuna.journal; None: DIR/optuna.db). A storage that is missing, empty, unreadable or
+    without the study is refused with one line (`OutputDirError`); the default SQLite file is first read
+    read-only, so a refused resume writes nothing (module docstring)."""
+    url = optuna_storage(root, storage, resume)
+    shown = "the --storage database" if storage not in (None, "journal") else str(root / storage_name(storage))
     hint = ("the search's trials are lost: start a new falsification in another --out (its evaluations stay in "
             f"{root / SEARCH_DIR})")
     if resume and storage is None:

@@ -49,6 +49,27 @@ with status "ok" and a `fault_type` (folders written before the "fault" status).
 
 `WALL_CLOCK_COLUMNS` depend on the machine, not on the study: leave them out when
 comparing runs for determinism.
+
+Search storage (`study falsify`, `study tune`: `search_storage`, `optuna_storage`). The driver alone
+reads and writes a search's optuna trials (the workers only run samples), in DIR beside the parts:
+
+- "sqlite": DIR/optuna.db (`SQLITE_FILE`), optuna's RDB storage. SQLite serialises writers with
+  fcntl() locks, which many network file systems (NFS, some Lustre set-ups) do not honour (the
+  SQLite FAQ): there a database can be damaged, e.g. by a resumed driver on another node while the
+  first one is still alive. Safe on a machine's own disk, where it stays the default.
+- "journal": DIR/optuna.journal (`JOURNAL_FILE`), optuna's journal storage: an append-only log of
+  operations, one JSON line each, written under a lock file that a symlink makes (optuna's
+  JournalFileSymlinkLock, exclusive on NFS too; a lock left by a killed driver is taken over after
+  optuna's 30 s grace period). The default on Dask, where DIR is a shared disk. A line that a driver
+  left incomplete (killed or out of disk space while appending) was never applied, since optuna
+  skips an unterminated last line; the next append would glue onto it and make the log unreadable,
+  so `optuna_storage` cuts it off (under the lock) before the search goes on.
+- a database URL (postgresql://…): a server database, never written to the folder.
+
+Default (`search_storage`): on resume the kind the folder holds (DIR/optuna.journal: journal; else
+SQLite, so a folder with DIR/optuna.db resumes on it whatever the backend); for a new
+search "journal" on Dask (a scheduler: the driver's folder is on a disk shared between machines)
+and "sqlite" on the local pool.
 """
 
 from __future__ import annotations
@@ -70,6 +91,10 @@ from softcbf.study.definition import Study
 STUDY_FILE = "study.json"
 FALSIFY_FILE = "falsify.json"  # a falsification folder's figures (softcbf.study.falsify)
 TUNE_FILE = "tune.json"  # a tune folder's figures (softcbf.study.tune)
+SQLITE_FILE = "optuna.db"  # a search's optuna trials in SQLite (module docstring: search storage)
+JOURNAL_FILE = "optuna.journal"  # a search's optuna trials in optuna's journal (module docstring)
+STORAGES = ("journal", "sqlite")  # the storages in the search folder; else a database URL
+SERVER_STORAGE = "server database (--storage)"  # how a folder names a URL's storage (never written to it)
 RESULTS_DIR = "results"
 COMPACT_FILE = "results.parquet"
 RUNS_DIR = "runs"
@@ -247,3 +272,87 @@ def stored_search(root: Path, state_file: str, kind: str, settings: Mapping[str,
         hint = "pass --resume to continue it" if state.is_file() else "choose another --out"
         raise OutputDirError(f"{root} exists and is not empty; {hint}")
     return {}
+
+
+def search_storage(root: str | Path, storage: str | None, resume: bool, on_dask: bool) -> str | None:
+    """The storage a search in folder `root` runs on (module docstring): "journal", None for SQLite in the folder,
+    or a database URL. `storage`: "journal", "sqlite", a URL, or None for the default (the folder's own on
+    `resume`, else journal `on_dask` and SQLite on the local pool). ValueError for another value, OutputDirError
+    when a resume names the kind that the folder does not hold."""
+    if storage is not None and storage not in STORAGES and "://" not in storage:
+        raise ValueError(f"--storage must be {' or '.join(STORAGES)} (a file in the folder) or a database URL such as "
+                         f"postgresql://host/db, got {storage!r}")
+    root = Path(root)
+    held = [kind for kind, name in zip(STORAGES, (JOURNAL_FILE, SQLITE_FILE)) if (root / name).is_file()]
+    if resume:
+        if storage is None:
+            if len(held) > 1:
+                raise OutputDirError(f"{root} holds both {JOURNAL_FILE} and {SQLITE_FILE}; say which one the search "
+                                     "is stored in with --storage journal or --storage sqlite")
+            storage = held[0] if held else "sqlite"  # none: falsify names what is missing
+        elif storage in STORAGES and held and storage not in held:
+            raise OutputDirError(f"{root} holds its search in {JOURNAL_FILE if held[0] == 'journal' else SQLITE_FILE}, "
+                                 f"not in the --storage {storage} file; resume with --storage {held[0]} (or without "
+                                 "--storage)")
+    elif storage is None:
+        storage = "journal" if on_dask else "sqlite"
+    return None if storage == "sqlite" else storage
+
+
+def storage_name(storage: str | None) -> str:
+    """How a search folder names its storage (`search_storage`'s value): its file, or `SERVER_STORAGE` for a URL
+    (which is never written to the folder)."""
+    if storage is None:
+        return SQLITE_FILE
+    return JOURNAL_FILE if storage == "journal" else SERVER_STORAGE
+
+
+def optuna_storage(root: str | Path, storage: str | None, resume: bool) -> Any:
+    """What optuna opens for `search_storage`'s value `storage` in folder `root`: the URL of DIR/optuna.db (None),
+    a JournalStorage on DIR/optuna.journal ("journal"; on `resume` it must be there: OutputDirError, one line, and
+    an incomplete last line is cut off, module docstring), or the URL given."""
+    root = Path(root)
+    if storage is None:
+        return f"sqlite:///{(root / SQLITE_FILE).resolve()}"
+    if storage != "journal":
+        return storage
+    from optuna.storages.journal import JournalFileBackend, JournalFileSymlinkLock, JournalStorage
+
+    path = root / JOURNAL_FILE
+    if resume and (not path.is_file() or path.stat().st_size == 0):
+        raise OutputDirError(f"{path} is missing or empty (or the search is stored elsewhere: resume with its "
+                             "--storage); without it the search's trials are lost: start a new one in another --out")
+    lock = JournalFileSymlinkLock(str(path))
+    if resume:
+        lock.acquire()
+        try:
+            cut_incomplete_line(path)
+        finally:
+            lock.release()
+    try:
+        return JournalStorage(JournalFileBackend(str(path), lock_obj=lock))
+    except (ValueError, KeyError, TypeError) as exc:  # a line that is not an optuna operation
+        raise OutputDirError(f"{path} is not a readable optuna journal ({type(exc).__name__}: "
+                             f"{str(exc).splitlines()[0] if str(exc) else ''}); start a new search in another "
+                             "--out") from None
+
+
+def cut_incomplete_line(path: Path) -> int:
+    """Cut off the unterminated last line of the journal `path` (module docstring; the caller holds its lock);
+    the bytes cut."""
+    size = path.stat().st_size
+    with open(path, "rb+") as f:
+        end, keep = size, 0
+        while end > 0:  # the last newline, read backwards in blocks
+            start = max(0, end - 65536)
+            f.seek(start)
+            block = f.read(end - start)
+            if b"\n" in block:
+                keep = start + block.rindex(b"\n") + 1
+                break
+            end = start
+        if keep < size:
+            f.truncate(keep)
+            f.flush()
+            os.fsync(f.fileno())
+    return size - keep

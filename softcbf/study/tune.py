@@ -44,14 +44,16 @@ force, config.json the replay), so each runs alone, the generation's runs in par
 workers. On Dask, DIR must lie on a disk the workers share (the kept runs are written where they
 run).
 
-Resume (one driver per folder). The outer trials live in optuna's SQLite storage DIR/optuna.db
-(`falsify.open_search`, the optuna study's name in tune.json); the nominal rows are study parts,
-the inner searches falsification folders. Evaluation e is the e-th outer trial whose parameters
-cover Θ. On resume, an evaluation already told is read back from its folders (never run
-again, and the sampler is seeded anew from the seed and the trials so far, `falsify.make_sampler`); one asked
-but not told runs its missing parts (run_study skips the stored nominal run,
-an inner search resumes from its own storage, a finished one is read) and is told; then the
-search goes on up to the budget, which may grow. A resume must repeat the study, tuning box,
+Resume (one driver per folder). The outer trials live in optuna's storage: SQLite DIR/optuna.db or
+the journal DIR/optuna.journal (`storage`, `store.search_storage`: the journal is the command line's
+default on Dask, where DIR lies on a shared disk; each inner search keeps its trials in the same
+kind of storage in its own folder; `falsify.open_search`, the optuna study's name in tune.json);
+the nominal rows are study parts, the inner searches falsification folders. Evaluation e is the
+e-th outer trial whose parameters cover Θ. On resume, an evaluation already told is read back from
+its folders (never run again, and the sampler is seeded anew from the seed and the trials so far,
+`falsify.make_sampler`); one asked but not told runs its missing parts (run_study skips the stored
+nominal run, an inner search resumes from its own storage, a finished one is read) and is told; then
+the search goes on up to the budget, which may grow. A resume must repeat the study, tuning box,
 objectives, sampler, seed, population and inner budget (tune.json records them).
 
 Outputs of a tune folder DIR:
@@ -68,7 +70,7 @@ Outputs of a tune folder DIR:
     DIR/winner.json    a study file of the error box with the winner's filter_params fixed, for an
                        independent check: `softcbf study falsify DIR/winner.json --budget 300 …`
     DIR/tune.png       objective against ρ_worst for every evaluation (`plot_front`)
-    DIR/optuna.db      the outer search's storage
+    DIR/optuna.db      the outer search's storage (or DIR/optuna.journal, `storage` "journal")
 """
 
 from __future__ import annotations
@@ -87,7 +89,7 @@ from controllers.filter_parameters import read_params
 from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import (FILTER_PARAM_PREFIX, FILTER_PARAMS, Distribution, Study, apply_settings,
                                       distributions_of, fold_values)
-from softcbf.study.store import FALSIFY_FILE, TUNE_FILE, StudyStore, fault_of, faulted, stored_search
+from softcbf.study.store import FALSIFY_FILE, TUNE_FILE, StudyStore, fault_of, faulted, storage_name, stored_search
 from softcbf_mj.progress import Progress, significant
 from softcbf_mj.push_force import steady_force_of_folder
 from softcbf_mj.runio import write_json
@@ -281,14 +283,16 @@ def tune(
     workers: int | None = None,
     scheduler: str | None = None,
     client: Any = None,
+    storage: str | None = None,
     progress: bool | Progress = True,
 ) -> dict[str, Any]:
     """Search the tuning box for the safe setting with the most objective (module docstring); returns tune.json.
 
     `budget`: outer evaluations (settings); `inner_budget`: falsification evaluations per setting; `seed`: of the
     outer sampler (default the study's; the inner searches use the study's seed, the same for every setting);
-    `workers`, `scheduler`, `client`: as `run_study`; `progress`: the line (one per evaluation, with its ETA), or
-    the `Progress` to report into."""
+    `workers`, `scheduler`, `client`: as `run_study`; `storage`: of the outer and the inner searches' trials, as
+    `falsify`'s ("journal", a URL, None: SQLite in the folders); `progress`: the line (one per evaluation, with its
+    ETA), or the `Progress` to report into."""
     import optuna
     from optuna.trial import TrialState
 
@@ -315,7 +319,8 @@ def tune(
                 "tune": {d.parameter.removeprefix(FILTER_PARAM_PREFIX): d.to_dict() for d in tune_file.box}}
     stored = stored_search(root, TUNE_FILE, "tuning", settings, SETTINGS, resume)
     name = stored.get("optuna_study") or f"softcbf-tune-{study.name}-{uuid.uuid4().hex[:12]}"
-    state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name}
+    state: dict[str, Any] = {**settings, "budget": budget, "status": "running", "optuna_study": name,
+                             "storage": storage_name(storage)}
     bar = progress if isinstance(progress, Progress) else Progress(f"tune {study.name}", budget, enabled=progress,
                                                                     unit="evaluations")
     own_client = connect_scheduler(scheduler) if scheduler is not None else None  # before the folder is made
@@ -327,7 +332,7 @@ def tune(
             root.mkdir(parents=True, exist_ok=True)
             write_json(root / TUNE_FILE, state)
         optuna.logging.set_verbosity(logging.WARNING)
-        search = open_search(root, None, name, make_sampler(sampler, seed, population), resume)
+        search = open_search(root, storage, name, make_sampler(sampler, seed, population), resume)
         trials, asked = asked_trials(search, space, root)
         if trials:  # a resumed search draws new random settings (`falsify.make_sampler`)
             search.sampler = make_sampler(sampler, seed, population, len(trials))
@@ -359,7 +364,7 @@ def tune(
                       samples=len(candidates), keep_runs=True, progress=False, **run)
             for e in pending:
                 bar.update(len(records) - before, f"{progress_note(records)}; inner search of setting {e + 1}")
-                records[e] = evaluate(tune_file, root, e, settings_of[e], inner_budget, run)
+                records[e] = evaluate(tune_file, root, e, settings_of[e], inner_budget, run, storage)
                 value = told_value(records[e])
                 if value is None:
                     search.tell(numbers[e], state=TrialState.FAIL)
@@ -394,9 +399,9 @@ def nominal_of(tune_file: TuneFile, root: Path, e: int) -> tuple[dict[str, Any],
 
 
 def evaluate(tune_file: TuneFile, root: Path, e: int, params: dict[str, Any], inner_budget: int,
-             run: dict[str, Any]) -> dict[str, Any]:
+             run: dict[str, Any], storage: str | None = None) -> dict[str, Any]:
     """Evaluation e (its nominal run stored): its inner search unless the nominal run already failed the
-    setting (module docstring), run or resumed into DIR/inner/EEEE; its record."""
+    setting (module docstring), run or resumed into DIR/inner/EEEE on `storage` (`falsify`'s); its record."""
     from softcbf.study.falsify import falsify
 
     row, value = nominal_of(tune_file, root, e)
@@ -408,7 +413,7 @@ def evaluate(tune_file: TuneFile, root: Path, e: int, params: dict[str, Any], in
             if folder.exists() and not state.is_file():  # made, nothing stored yet: started again
                 shutil.rmtree(folder)
             falsify(inner_study(tune_file, params), folder, budget=inner_budget, baseline=0, stop_on_violation=True,
-                    resume=state.is_file(), progress=False, **run)
+                    resume=state.is_file(), storage=storage, progress=False, **run)
     return read_record(tune_file, root, e, params, inner_budget)
 
 
