@@ -165,6 +165,13 @@ class GovernorParams:
                                  "tangential: friction), 'off' (none; controllers.gain_estimate; gain_estimate only)",
                                  "", str)
 
+    plate_estimate: bool = declared(False, "learn the plate online: each rest sample in contact with one facet "
+                                    "bounds its normal force (the arm as its own force sensor) and penetration, and "
+                                    "the certified set of (stiffness, offset) narrows P's boundary and the plate terms "
+                                    "(controllers.energy_governor.plate_estimate; needs gain_estimate with "
+                                    "gain_contact 'normal', contact_aware, a linear plate law, no stiffness_by_position)",
+                                    "", bool)
+
     def __post_init__(self) -> None:
         for f in fields(self):  # each by its declaration, normalised (an int given for a float becomes one)
             object.__setattr__(self, f.name, f.metadata["parameter"].check(f.name, getattr(self, f.name)))
@@ -216,6 +223,11 @@ class GovernorParams:
                              f"and {self.gain_difference_s!r}")
         if self.gain_contact not in GAIN_CONTACT:
             raise ValueError(f"gain_contact must be one of {', '.join(GAIN_CONTACT)}, got {self.gain_contact!r}")
+        if self.plate_estimate and not (self.gain_estimate and self.gain_contact == "normal" and self.contact_aware
+                                        and not self.stiffness_by_position):
+            raise ValueError("plate_estimate needs gain_estimate with gain_contact='normal' and contact_aware, without "
+                             "stiffness_by_position (a linear, frictionless plate: controllers.energy_governor."
+                             "plate_estimate)")
         if self.gain_estimate and self.certificate != "contact":
             raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
 
