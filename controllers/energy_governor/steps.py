@@ -104,6 +104,11 @@ GAIN_DIAGNOSTIC_UNITS = {**DIAGNOSTIC_UNITS, "gain_lo": "1", "gain_hi": "1", "ga
 """The diagnostics' units with `gain_estimate`: the certified gain interval and the estimate ĝ
 (`controllers.energy_governor.gain_feedback`)."""
 
+PLATE_DIAGNOSTIC_UNITS = {**GAIN_DIAGNOSTIC_UNITS, "plate_boundary_m": "m", "plate_lo": "1", "plate_hi": "1",
+                          "plate_offset_lo_m": "m", "plate_offset_hi_m": "m"}
+"""The diagnostics' units with `plate_estimate`: the certified plates' hull (stiffness ratios, offsets) and P's
+force-safe boundary beyond the model's facet plane (`controllers.energy_governor.plate_feedback`)."""
+
 TIME_LIMIT_S = 1e9
 """Largest |t| and |t_capture| (s) a call accepts (32 years): far beyond, the delay and the estimate's age vanish in rounding."""
 
@@ -266,7 +271,8 @@ def scan(model: GovernorModel, grid_rows: np.ndarray, extra_rows: np.ndarray, of
 def finish(model: GovernorModel, state: GovernorState, u: np.ndarray, action: str, infeasible: bool, rho: float,
            diagnostics: dict, t_apply: float, t_capture: float, t0: float) -> FilterOutput:
     """The call's output: the command u recorded in the state's predictor, the diagnostics completed (NaN where
-    the call gave none; the gain interval certified from this call on and ĝ with `gain_estimate`)."""
+    the call gave none; the gain interval certified from this call on and ĝ with `gain_estimate`; the plates' hull
+    and P's boundary with `plate_estimate`)."""
     u = np.array(u, dtype=float)
     state.predictor.record(t_apply, u)
     if state.pressures is not None:
@@ -277,6 +283,11 @@ def finish(model: GovernorModel, state: GovernorState, u: np.ndarray, action: st
     full["prediction_s"] = t_apply - t_capture
     if state.gain_estimator is not None:  # the interval certified from this call on, and ĝ (NaN before a sample)
         full.update(gain_lo=state.ends.lo, gain_hi=state.ends.hi, gain_hat=state.gain_estimator.estimate)
+    units = DIAGNOSTIC_UNITS if state.gain_estimator is None else GAIN_DIAGNOSTIC_UNITS
+    if state.plate_estimate is not None:  # the plates certified from this call on
+        box = state.plate.box
+        full.update(plate_boundary_m=box.offset_lo + box.reach, plate_lo=box.lo, plate_hi=box.hi,
+                    plate_offset_lo_m=box.offset_lo, plate_offset_hi_m=box.offset_lo + box.width)
+        units = PLATE_DIAGNOSTIC_UNITS
     full["solve_us"] = (time.perf_counter() - t0) * 1e6
-    return FilterOutput(u, action, infeasible, rho, full,
-                        DIAGNOSTIC_UNITS if state.gain_estimator is None else GAIN_DIAGNOSTIC_UNITS)
+    return FilterOutput(u, action, infeasible, rho, full, units)
