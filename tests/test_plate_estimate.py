@@ -166,3 +166,28 @@ def test_the_closed_loop_learns_the_plate_and_stays_below_f_max(point):
     else:
         assert learned.offset_lo + learned.reach > prior.offset_lo + prior.reach + 1e-3  # ≥ 1 mm wider
     assert worst <= SAFE.f_max
+
+
+def test_the_least_credit_bounds_the_credit_over_the_polygon_from_below_and_closely():
+    """`least_credit` against brute force: the own facet's credit s (E(b − o) − E(max(0, δ − o))) on a dense grid of
+    plates inside learned polygons (a pressing sample's strip, cut from the prior box) is never below the bound, and
+    the grid's least value is within 5 % of it, for tips inside P."""
+    from controllers.energy_governor.plate_estimate import least_credit
+
+    corners = arm_corners(BOX["g"], BOX["c"], (0.995, 1.005))
+    rng = np.random.default_rng(11)
+    for level in (55.0, 65.0, 75.0):
+        s, o = float(rng.uniform(0.8, 1.2)), float(rng.uniform(-0.002, 0.002))
+        q = equilibrium(np.full(2, level), 1.0, 1.0, s, o)
+        estimate, _ = sample(prior_estimate(1, BOX["s"], BOX["o"]), q, np.full(2, level), corners, np.zeros(2))
+        polygon, box = estimate.polygons[0], certified_box(estimate, SAFE.f_max, K0)
+        boundary = box.offset_lo + box.reach
+        grid = np.stack(np.meshgrid(np.linspace(0.8, 1.3, 400), np.linspace(-0.0025, 0.0025, 400)), -1).reshape(-1, 2)
+        grid = grid[[inside(polygon, v, off) for v, off in grid]]
+        for depth in (float(NORMAL @ tip_position(q, L)) - PLANE, boundary - 1e-3, -0.01):
+            if depth >= boundary:  # the tip outside P (a sample pressing beyond F_max): no certificate to bound
+                continue
+            held = np.maximum(boundary - grid[:, 1], 0.0) ** 2 - np.maximum(depth - grid[:, 1], 0.0) ** 2
+            least = float(np.min(0.5 * K0 * held / grid[:, 0]))
+            bound = least_credit(polygon, boundary, depth, K0)
+            assert bound <= least + 1e-15 and bound >= 0.95 * least

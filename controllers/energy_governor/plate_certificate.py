@@ -70,7 +70,10 @@ holds with reach in place of n_max: where the tip first leaves P through facet r
 t_j = o_j − o_lo' is penetrated by reach − t_j, where its force is at most F_max (b's definition), and its energy
 is at least lo' E(reach − t_j); the bracket falls with t_j as before (ν_j < reach inside P). So
     o_j = lo' (E(max(0, reach − w')) − E(max(0, ν_j − w'))) − hi' Σ_{i≠j} E(ν_i),
-today's offsets with (lo', hi', w', reach). Γ̲^∂ of the learned P is the second-order bound alone
+today's offsets with (lo', hi', w', reach); the own facet's term is then taken tighter, as the least over the
+facet's learned polygon of the plate's own energy between x̂ and the boundary (`plate_estimate.least_credit`, its
+"credit": for each plate (s, o) of the set, V_s < Γ^∂_j + s E(b − o) at the exit, exact for the linear law,
+with no need of the hull's worst-of-each), the other facets' terms and the vertex rows the hull's. Γ̲^∂ of the learned P is the second-order bound alone
 (`BoundaryDistanceBound`, built in microseconds; the table would take seconds per P), and the recovery's
 candidates are u_prev, u_nom and 0 hPa (as for N > 2). Each learned set lies in the prior, so b only grows and P
 only widens (the prior's P lies inside every learned one); a certificate issued on any of them holds for the true
@@ -80,13 +83,13 @@ plate, which lies in each.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from controllers.escape_energy import BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments
 from controllers.energy_governor.parameters import GovernorParams
-from controllers.energy_governor.plate_estimate import PlateBox
+from controllers.energy_governor.plate_estimate import PlateBox, least_credit
 from controllers.pcc import kinematics_unchecked
 from controllers.safe_set import Environment, ForceSafeSet
 from controllers.safety_filter import FilterContext
@@ -161,6 +164,7 @@ class PlateCertificate:
     grid_values: np.ndarray
     grid_rest_inside: np.ndarray
     grid_columns: np.ndarray
+    polygons: tuple | None = None
 
     def contact_offsets(self, x: float, y: float) -> tuple[list[float], bool]:
         """The rows' offsets o_j (J) at the tip r = (x, y) (m) and whether it lies strictly inside P (every row
@@ -173,6 +177,13 @@ class PlateCertificate:
         plate, hi = self.safe_set, self.box.hi
         depths = plate.penetration_at(x, y)
         energies = np.asarray(plate.stiffness.energy(depths), dtype=float).tolist()
+        if self.polygons is not None:  # a learned plate: the own facet's least credit over its polygon
+            boundary, shift, k0 = self.box.offset_lo + self.box.reach, self.box.offset_lo, plate.stiffness.k
+            total = hi * sum(energies)
+            own = [least_credit(polygon, boundary, nx * x + ny * y - d + shift, k0)
+                   for polygon, (nx, ny, d) in zip(self.polygons, self.facets)]
+            return [own[j] - hi * (sum(energies) - energies[j]) if j < self.n_facets else -total
+                    for j in range(len(self.rows))], inside
         own = energies if self.own_shift == 0.0 else \
             np.asarray(plate.stiffness.energy(np.asarray(depths) - self.own_shift), dtype=float).tolist()
         total = hi * sum(energies)
@@ -244,13 +255,15 @@ def prior_plate(params: GovernorParams, context: FilterContext, gridded: bool, r
     return plate_certificate(params, context, box, safe_set, gridded, rest)
 
 
-def learned_plate(params: GovernorParams, context: FilterContext, box: PlateBox, rest: np.ndarray) -> PlateCertificate:
-    """The plate certificate of a learned hull (module docstring, "learned plate"): P on the plate box.offset_lo
+def learned_plate(params: GovernorParams, context: FilterContext, box: PlateBox, polygons: tuple,
+                  rest: np.ndarray) -> PlateCertificate:
+    """The plate certificate of a learned set (module docstring, "learned plate"): P on the plate box.offset_lo
     with its boundary box.reach beyond it (n_max = reach, by F_max' = ψ(reach) less a relative 1e-12 of
-    rounding), Γ̲^∂ the second-order bound alone."""
+    rounding), Γ̲^∂ the second-order bound alone, the own facet's credit the least over its (v, o) polygon."""
     nominal = context.safe_set
     near = nearest_environment(nominal.environment, box.offset_lo)
     f_reach = float(nominal.stiffness.force(box.reach)) * (1.0 - 1e-12)
     safe_set = ForceSafeSet(near, nominal.stiffness, f_reach, nominal.row_scaling)
-    return plate_certificate(params, context, PlateBox(box.lo, box.hi, box.offset_lo, box.width, safe_set.n_max),
-                             safe_set, False, rest)
+    certificate = plate_certificate(params, context, PlateBox(box.lo, box.hi, box.offset_lo, box.width,
+                                                              safe_set.n_max), safe_set, False, rest)
+    return replace(certificate, polygons=polygons)

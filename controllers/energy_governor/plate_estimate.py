@@ -53,6 +53,17 @@ certificate's plate terms hold unchanged with P's boundary `reach` = b − o_lo'
 today's P; a sample pressing with f at δ gives b ≈ δ + (F_max − f_hi)/(s_hi' k₀): the boundary moves out to
 where the proven force would reach F_max.
 
+The credit. The contact certificate's own-facet term (`controllers.energy_governor.plate_certificate`, (b) and
+"plate offset") is the energy the true plate stores between the tip at x̂ and P's boundary b: for the plate (s, o),
+exact for the linear law, s (E(b − o) − E(max(0, δ − o))) (J; the exit at b penetrates it by b − o, where its force
+is ≤ F_max by b's definition). The hull's worst case takes the softest s and the farthest o together, but a sample
+pressing with f at δ leaves only the plates along o + f v/k₀ ≈ δ, where the soft plates are the near ones: the
+least credit over the polygon itself (`least_credit`) is larger. On that line, at the sample's own δ, the credit is
+½k₀(b − δ)²/v + f (b − δ), least at the largest v: the first-order term f (b − δ) is the energy the arm's force f
+would release moving to b, which the hull's 0.8·½k₀(b − δ)(b + δ − 2 o_hi) ≈ 0.67 f (b − δ) does not match, so
+the margin at rest against the plate, ≈ −f (b − δ) + credit + ½ k_arm (b − δ)², stays negative until b − δ is
+large (measured: the hull stopped the nominal push 1.7 mm short of b, at 0.76 F_max).
+
 Assumptions added to the gain estimate's: the plate's law is linear in the penetration and its stiffness and
 offset constant (a clamped sheet, whose stiffness varies along it, breaks the first: `stiffness_by_position` is
 refused with the estimate); the contact is frictionless; the estimate's q̂ is within Δ + ε_i of the arm's q per
@@ -176,3 +187,22 @@ def certified_box(estimate: PlateEstimate, f_max: float, psi_k: float) -> PlateB
     boundary = min(float(np.min(p[:, 1] + (f_max / psi_k) * p[:, 0])) for p in estimate.polygons)
     return PlateBox(1.0 / float(vertices[:, 0].max()), 1.0 / float(vertices[:, 0].min()), offset_lo,
                     float(vertices[:, 1].max()) - offset_lo, boundary - offset_lo)
+
+
+CREDIT_PIECES = 16
+"""Pieces per polygon edge of `least_credit`'s lower bound (each piece bounded over its bounding box)."""
+
+
+def least_credit(polygon: np.ndarray, boundary: float, depth: float, psi_k: float) -> float:
+    """A lower bound (J) of the own facet's energy credit s (E(b − o) − E(max(0, δ − o))) over the plates (v = 1/s, o)
+    of the convex polygon (V, 2), E(n) = ½ k₀ n², b = `boundary` and δ = `depth` the tip's penetration of the model's
+    facet plane (m, δ < b: the tip inside P). Module docstring, "the credit": h(o) = E(b − o) − E(max(0, δ − o)) ≥ 0
+    falls with o and 1/v with v, so the least value lies on the polygon's edges, and over each piece of an edge
+    (inside its bounding box [v₁, v₂] × [o₁, o₂]) it is at least h(o₂)/v₂."""
+    ends = np.roll(polygon, -1, axis=0)
+    t = np.linspace(0.0, 1.0, CREDIT_PIECES + 1)[None, :, None]
+    points = polygon[:, None, :] + (ends - polygon)[:, None, :] * t  # (V, pieces + 1, 2)
+    v_most = np.maximum(points[:, :-1, 0], points[:, 1:, 0])
+    o_most = np.maximum(points[:, :-1, 1], points[:, 1:, 1])
+    held = np.maximum(boundary - o_most, 0.0) ** 2 - np.maximum(depth - o_most, 0.0) ** 2
+    return float(np.min(0.5 * psi_k * held / v_most))

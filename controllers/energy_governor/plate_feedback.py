@@ -57,4 +57,4 @@ def update_plate(model: GovernorModel, state: GovernorState, q_sample: np.ndarra
     if (box.offset_lo + box.reach >= now.offset_lo + now.reach + REBUILD_M
             or box.lo >= now.lo * (1.0 + REBUILD_RATIO) or box.hi <= now.hi * (1.0 - REBUILD_RATIO)
             or box.width <= now.width - REBUILD_RATIO * prior.width and prior.width > 0.0):
-        state.set_plate(learned_plate(params, model.context, box, model.rest))
+        state.set_plate(learned_plate(params, model.context, box, state.plate_estimate.polygons, model.rest))
