@@ -191,3 +191,11 @@ def test_the_least_credit_bounds_the_credit_over_the_polygon_from_below_and_clos
             least = float(np.min(0.5 * K0 * held / grid[:, 0]))
             bound = least_credit(polygon, boundary, depth, K0)
             assert bound <= least + 1e-15 and bound >= 0.95 * least
+
+
+def test_plate_estimate_is_refused_without_what_it_stands_on():
+    with pytest.raises(ValueError, match="plate_estimate needs gain_estimate with gain_contact='normal'"):
+        ContactEnergyGovernor.check_arguments({"plate_estimate": True})
+    with pytest.raises(ValueError, match="plate_estimate needs"):
+        ContactEnergyGovernor.check_arguments({**STANDARD_BOX_SETTING, "plate_estimate": True, "gain_contact": "any"})
+    assert ContactEnergyGovernor.check_arguments({**STANDARD_BOX_SETTING, "plate_estimate": True})["plate_estimate"]
