@@ -133,13 +133,13 @@ class GovernorParams:
                                                   bound=Bound(0.0, 1.0, low_open=True, unit="rad"), optional=True)
     plate_offset_lo_m: float = declared(0.0, "nearest true plate: its facets' least offset along their outward "
                                         "normal from the model's (< 0: nearer the arm; P is built on the nearest "
-                                        "plate; contact certificate only: controllers.energy_governor.certificate, "
+                                        "plate; contact certificate only: controllers.energy_governor.plate_certificate, "
                                         "\"plate offset\")", "m", bound=PLATE_OFFSETS)
     plate_offset_hi_m: float = declared(0.0, "farthest true plate: its facets' greatest offset along their outward "
                                         "normal from the model's (>= plate_offset_lo_m)", "m", bound=PLATE_OFFSETS)
     stiffness_by_position: bool = declared(False, "the plate's stiffness varies with where it is touched (a clamped "
-                                           "sheet, stiffer nearer its clamp: controllers.energy_governor.certificate, "
-                                           "\"sheet\"; [stiffness_lo_ratio, stiffness_hi_ratio] then bounds it over "
+                                           "sheet, stiffer nearer its clamp: controllers.energy_governor."
+                                           "plate_certificate, \"sheet\"; [stiffness_lo_ratio, stiffness_hi_ratio] then bounds it over "
                                            "the contact positions, e.g. cantilever_stiffness_ratios); contact "
                                            "certificate only", "", bool)
     arm_stiffness_lo_ratio: float = declared(1.0, "lowest true arm stiffness K as a multiple of the model's (every "
