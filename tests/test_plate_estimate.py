@@ -172,7 +172,7 @@ def test_the_least_credit_bounds_the_credit_over_the_polygon_from_below_and_clos
     """`least_credit` against brute force: the own facet's credit s (E(b − o) − E(max(0, δ − o))) on a dense grid of
     plates inside learned polygons (a pressing sample's strip, cut from the prior box) is never below the bound, and
     the grid's least value is within 5 % of it, for tips inside P."""
-    from controllers.energy_governor.plate_estimate import least_credit
+    from controllers.energy_governor.plate_estimate import credit_pieces, least_credit
 
     corners = arm_corners(BOX["g"], BOX["c"], (0.995, 1.005))
     rng = np.random.default_rng(11)
@@ -189,7 +189,7 @@ def test_the_least_credit_bounds_the_credit_over_the_polygon_from_below_and_clos
                 continue
             held = np.maximum(boundary - grid[:, 1], 0.0) ** 2 - np.maximum(depth - grid[:, 1], 0.0) ** 2
             least = float(np.min(0.5 * K0 * held / grid[:, 0]))
-            bound = least_credit(polygon, boundary, depth, K0)
+            bound = least_credit(credit_pieces(polygon, boundary, K0), depth)
             assert bound <= least + 1e-15 and bound >= 0.95 * least
 
 

@@ -89,7 +89,7 @@ import numpy as np
 
 from controllers.escape_energy import BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments
 from controllers.energy_governor.parameters import GovernorParams
-from controllers.energy_governor.plate_estimate import PlateBox, least_credit
+from controllers.energy_governor.plate_estimate import PlateBox, credit_pieces, least_credit
 from controllers.pcc import kinematics_unchecked
 from controllers.safe_set import Environment, ForceSafeSet
 from controllers.safety_filter import FilterContext
@@ -146,7 +146,8 @@ class PlateCertificate:
     own_shift: the offset width w subtracted from the own facet's penetration (0 for a sheet or w = 0);
     contact_aware; table / boundary_bound: Γ̲'s sources; lookup: the kernels' look-up of them; grid /
     grid_values / grid_rest_inside / grid_columns: the recovery's candidates (G, N), their Γ̲ rows (P', G), whether
-    their rest shapes lie inside P, and the commands as (N, G)."""
+    their rest shapes lie inside P, and the commands as (N, G); pieces: a learned plate's `credit_pieces` per facet (None:
+    the hull's credit)."""
 
     box: PlateBox
     safe_set: ForceSafeSet
@@ -164,7 +165,7 @@ class PlateCertificate:
     grid_values: np.ndarray
     grid_rest_inside: np.ndarray
     grid_columns: np.ndarray
-    polygons: tuple | None = None
+    pieces: tuple | None = None
 
     def contact_offsets(self, x: float, y: float) -> tuple[list[float], bool]:
         """The rows' offsets o_j (J) at the tip r = (x, y) (m) and whether it lies strictly inside P (every row
@@ -177,11 +178,10 @@ class PlateCertificate:
         plate, hi = self.safe_set, self.box.hi
         depths = plate.penetration_at(x, y)
         energies = np.asarray(plate.stiffness.energy(depths), dtype=float).tolist()
-        if self.polygons is not None:  # a learned plate: the own facet's least credit over its polygon
-            boundary, shift, k0 = self.box.offset_lo + self.box.reach, self.box.offset_lo, plate.stiffness.k
-            total = hi * sum(energies)
-            own = [least_credit(polygon, boundary, nx * x + ny * y - d + shift, k0)
-                   for polygon, (nx, ny, d) in zip(self.polygons, self.facets)]
+        if self.pieces is not None:  # a learned plate: the own facet's least credit over its polygon
+            shift, total = self.box.offset_lo, hi * sum(energies)
+            own = [least_credit(pieces, nx * x + ny * y - d + shift) for pieces, (nx, ny, d) in zip(self.pieces,
+                                                                                                   self.facets)]
             return [own[j] - hi * (sum(energies) - energies[j]) if j < self.n_facets else -total
                     for j in range(len(self.rows))], inside
         own = energies if self.own_shift == 0.0 else \
@@ -266,4 +266,6 @@ def learned_plate(params: GovernorParams, context: FilterContext, box: PlateBox,
     safe_set = ForceSafeSet(near, nominal.stiffness, f_reach, nominal.row_scaling)
     certificate = plate_certificate(params, context, PlateBox(box.lo, box.hi, box.offset_lo, box.width,
                                                               safe_set.n_max), safe_set, False, rest)
-    return replace(certificate, polygons=polygons)
+    boundary = box.offset_lo + safe_set.n_max
+    return replace(certificate, pieces=tuple(credit_pieces(polygon, boundary, float(nominal.stiffness.k))
+                                             for polygon in polygons))

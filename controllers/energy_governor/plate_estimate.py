@@ -193,16 +193,24 @@ CREDIT_PIECES = 16
 """Pieces per polygon edge of `least_credit`'s lower bound (each piece bounded over its bounding box)."""
 
 
-def least_credit(polygon: np.ndarray, boundary: float, depth: float, psi_k: float) -> float:
-    """A lower bound (J) of the own facet's energy credit s (E(b − o) − E(max(0, δ − o))) over the plates (v = 1/s, o)
-    of the convex polygon (V, 2), E(n) = ½ k₀ n², b = `boundary` and δ = `depth` the tip's penetration of the model's
-    facet plane (m, δ < b: the tip inside P). Module docstring, "the credit": h(o) = E(b − o) − E(max(0, δ − o)) ≥ 0
-    falls with o and 1/v with v, so the least value lies on the polygon's edges, and over each piece of an edge
-    (inside its bounding box [v₁, v₂] × [o₁, o₂]) it is at least h(o₂)/v₂."""
+def credit_pieces(polygon: np.ndarray, boundary: float, psi_k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pieces of the polygon's (V, 2) edges that `least_credit` bounds over, at P's boundary b = `boundary` (m):
+    per piece (its bounding box [v₁, v₂] × [o₁, o₂]) the exit energy E(max(0, b − o₂))/v₂ (J), the weight ½ k₀/v₂
+    (N/m) and o₂ (m), each (V·CREDIT_PIECES,): what a call needs, built once per certificate."""
     ends = np.roll(polygon, -1, axis=0)
     t = np.linspace(0.0, 1.0, CREDIT_PIECES + 1)[None, :, None]
     points = polygon[:, None, :] + (ends - polygon)[:, None, :] * t  # (V, pieces + 1, 2)
-    v_most = np.maximum(points[:, :-1, 0], points[:, 1:, 0])
-    o_most = np.maximum(points[:, :-1, 1], points[:, 1:, 1])
-    held = np.maximum(boundary - o_most, 0.0) ** 2 - np.maximum(depth - o_most, 0.0) ** 2
-    return float(np.min(0.5 * psi_k * held / v_most))
+    v_most = np.maximum(points[:, :-1, 0], points[:, 1:, 0]).ravel()
+    o_most = np.maximum(points[:, :-1, 1], points[:, 1:, 1]).ravel()
+    weight = 0.5 * psi_k / v_most
+    return weight * np.maximum(boundary - o_most, 0.0) ** 2, weight, o_most
+
+
+def least_credit(pieces: tuple[np.ndarray, np.ndarray, np.ndarray], depth: float) -> float:
+    """A lower bound (J) of the own facet's energy credit s (E(b − o) − E(max(0, δ − o))) over the plates (v = 1/s, o)
+    of a convex polygon, E(n) = ½ k₀ n², from its `credit_pieces` at P's boundary b, δ = `depth` the tip's
+    penetration of the model's facet plane (m, δ < b: the tip inside P). Module docstring, "the credit":
+    h(o) = E(b − o) − E(max(0, δ − o)) ≥ 0 falls with o and 1/v with v, so the least value lies on the polygon's
+    edges, and over each piece of an edge (inside its bounding box [v₁, v₂] × [o₁, o₂]) it is at least h(o₂)/v₂."""
+    exit_energy, weight, offset = pieces
+    return float(np.min(exit_energy - weight * np.maximum(depth - offset, 0.0) ** 2))
