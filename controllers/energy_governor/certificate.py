@@ -408,6 +408,21 @@ class GovernorModel:
         return self.plate.table
 
     @property
+    def grid(self) -> np.ndarray:
+        """The prior plate's recovery candidates (G, N) hPa."""
+        return self.plate.grid
+
+    @property
+    def grid_values(self) -> np.ndarray:
+        """The prior plate's Γ̲ rows at its recovery candidates (P', G) J."""
+        return self.plate.grid_values
+
+    @property
+    def credit(self) -> list:
+        """The prior plate's credits c_j per row (J)."""
+        return self.plate.credit
+
+    @property
     def offset_width(self) -> float:
         """w, the plate offset interval's width (m)."""
         return self.plate.box.width
