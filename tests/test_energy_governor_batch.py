@@ -198,3 +198,36 @@ def test_each_rows_rest_time_is_its_own():
             if first[b] is None and interval != (0.9, 1.1):  # the first sample narrows the prior
                 first[b] = t
     assert first == [pytest.approx(0.3), pytest.approx(0.8)]
+
+
+@pytest.mark.slow
+def test_rows_that_learn_different_plates_are_their_own_governors_bit_for_bit():
+    """c-erg over the standard box with `plate_estimate`, two rows pushing 150 hPa for 6 s at 10 Hz on PCC plants with
+    different plates (the model's, and one 20 % stiffer and 2 mm nearer): each row learns its own plate (their
+    certificates differ, so step 3 runs per plate), and every command equals, bit for bit, that of a governor of
+    its own fed the same estimates."""
+    import sys
+    from pathlib import Path
+
+    from controllers.energy_governor.parameters import STANDARD_BOX_SETTING
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_certificate_box import true_plant
+
+    ctx = FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), 0.1, 0.0, 0.05)
+    options = {**STANDARD_BOX_SETTING, "plate_estimate": True, "gain_noise_rad": 1e-4, **COARSE}
+    shared, alone = ContactEnergyGovernor(ctx, **options), [ContactEnergyGovernor(ctx, **options) for _ in range(2)]
+    plants = [true_plant(), true_plant(plate=1.2, offset=-0.002)]
+    states = [plant.reset(np.zeros(2)) for plant in plants]
+    u_nom = np.full((2, 2), 150.0)
+    for _ in range(60):
+        t = states[0].t
+        batch = shared.filter_batch(EstimateBatch(np.full(2, t), np.array([s.q for s in states]),
+                                                  np.array([s.qd for s in states]), np.full(2, t)), u_nom)
+        want = [gov(Estimate(t, s.q, s.qd, t), u_nom[b]) for b, (gov, s) in enumerate(zip(alone, states))]
+        assert_rows_match(batch, want)
+        for b, plant in enumerate(plants):
+            for _ in range(100):
+                states[b] = plant.step(batch.u[b])
+    boxes = [row.plate.box for row in shared.rows]
+    assert all(row.plate is not shared.model.plate for row in shared.rows) and boxes[0] != boxes[1]

@@ -10,13 +10,17 @@ The parts, one concept per module (each derives its part of the maths):
 
 - `parameters`: the parameters, one frozen typed declaration (`GovernorParams`; `ContactGovernorParams`, the
   c-erg's defaults), validated once; `RECOMMENDED`, c-erg's recommended setting;
-- `certificate`: the certificate (the energy W_u, the escape energy Γ, the plate, the contact certificate, the
-  intervals it certifies: actuator gain, plate offset, a sheet's varying stiffness, arm stiffness, damping and
-  valve lag; κ and ε, the guarantee's assumptions) and the immutable `GovernorModel` built from the
-  parameters and the context;
+- `certificate`: the certificate (the energy W_u, the escape energy Γ, the contact certificate, the intervals it
+  certifies of the arm: actuator gain, arm stiffness, damping and valve lag; κ and ε, the guarantee's
+  assumptions) and the immutable `GovernorModel` built from the parameters and the context;
+- `plate_certificate`: what the certificate reads of a box of plates (`PlateCertificate`: P on the nearest plate,
+  Γ̲^∂'s sources, the credits and offsets o_j; the plate's offset interval and a sheet derived there), the prior's
+  and a learned one's;
 - `state`: the per-run `GovernorState` (the predictor's command records, the target governor, the gain
-  estimate and the certified gain ends), one per simulation;
+  estimate and the certified gain ends, the plate certificate and the learned set of plates), one per simulation;
 - `gain_feedback`: the gain interval narrowed online from the state's estimates;
+- `plate_estimate` and `plate_feedback`: the plate's offset and stiffness learned online with a certified set
+  (`plate_estimate`: the arm's rest deflection gives the normal force), from the gain feedback's rest samples;
 - `pressure_interval`: the acting pressure's interval under a valve lag interval (the certificate's lag term);
 - `box`: the certified intervals read from a study file's error box (`box` parameter: the falsifier's box);
 - `steps`: `step(model, state, estimate, u_nom) -> (state, output)`, the call (times, the four steps,
@@ -26,7 +30,8 @@ The parts, one concept per module (each derives its part of the maths):
 
 Batched (`filter_batch`, the plug-in contract of `controllers.safety_filter`): B rows, each a state of its own
 (`GovernorState`), by row position or, given `rows`, by the caller's indices (the batched step's simulations).
-Steps 1–2 and 4 run per state, step 3 once for all the rows in the compiled `energy_kernels.govern_rows`, which
+Steps 1–2 and 4 run per state, step 3 once for all the rows (per plate certificate: rows that learned different
+plates are stepped in groups) in the compiled `energy_kernels.govern_rows`, which
 the single call runs with one row: one implementation, row b bit for bit the b-th of B governors called in turn
 (tests/test_energy_governor_batch.py, hypothesis over closed-loop-like sequences with resets, subsets of rows,
 stale estimates and refused times). A new row's state is a copy of the governor's own state as it is then;
@@ -41,9 +46,10 @@ from controllers.energy_governor.certificate import (TIP_TOLERANCE_M, GovernorMo
 from controllers.energy_governor.parameters import (MAX_COMMAND_DELAY_S, PARAMETERS, PREDICTION_HORIZON_S,
                                                     RECOMMENDED, ContactGovernorParams, GovernorParams)
 from controllers.energy_governor.state import GovernorState, new_state
-from controllers.energy_governor.steps import DIAGNOSTIC_UNITS, GAIN_DIAGNOSTIC_UNITS, step, step_rows
+from controllers.energy_governor.steps import (DIAGNOSTIC_UNITS, GAIN_DIAGNOSTIC_UNITS, PLATE_DIAGNOSTIC_UNITS, step,
+                                              step_rows)
 
 __all__ = ["ContactEnergyGovernor", "ContactGovernorParams", "DIAGNOSTIC_UNITS", "EnergyGovernor",
            "GAIN_DIAGNOSTIC_UNITS", "GovernorModel", "GovernorParams", "GovernorState", "MAX_COMMAND_DELAY_S",
-           "PARAMETERS", "PREDICTION_HORIZON_S", "RECOMMENDED", "TIP_TOLERANCE_M", "energy_kernels", "new_state",
+           "PARAMETERS", "PLATE_DIAGNOSTIC_UNITS", "PREDICTION_HORIZON_S", "RECOMMENDED", "TIP_TOLERANCE_M", "energy_kernels", "new_state",
            "ray_may_come_nearer", "step", "step_rows"]

@@ -22,22 +22,9 @@ W_u(x(t_a)) ≤ Γ(u) at the instant t_a when u starts to act, with Γ(u) the es
 (`controllers.escape_energy`: Γ(u) = min over q with r(q) ∉ P of ½ (q − q_u)ᵀK(q − q_u),
 tabulated as a lower bound).
 
-The plate. Two variants. Plain (`contact_aware` False): the environment does not push
-back (the PCC plant, the paper's simulation); the certificate is (1 + κ)W_u(x̂) + ε ≤ Γ(u).
-Contact-aware: a facet pushes back with force ψ_true(n) ∈ [lo·ψ(n), hi·ψ(n)]
-(`stiffness_lo_ratio`, `stiffness_hi_ratio`); it stores E_true(n) = ∫₀ⁿ ψ_true with
-lo·E(n) ≤ E_true(n) ≤ hi·E(n) (E = `ψ.energy`), a conservative force, so W_u + E_true
-never grows. Safety is F_true ≤ F_max, which holds if n ≤ n_max = ψ⁻¹(F_max/hi) (the
-stiffest plate): P is built with that n_max whenever hi ≠ 1, in both variants. Leaving P
-through facet j's row means n_j ≥ n_max, where the plate holds at least lo·E(n_max). So
-
-    (1 + κ) [W_u(x̂) + hi Σ_facets E(n_i(x̂))] + ε ≤ min_j (Γ_j(u) + c_j),
-
-c_j = lo·E(n_max) for facet rows, 0 for vertex-correction rows, implies
-W_u + E_true ≤ Γ_j + c_j along the motion, hence the tip stays in P. The plain variant
-is not sound where the plate pushes back while the tip is in contact (the plate's
-stored energy can return to the arm), and the contact-aware one is not sound where the
-plate does not push back (nothing stops the tip at n_max).
+The plate (the plain and contact-aware variants, its offset interval, a sheet, and a plate learned online):
+`controllers.energy_governor.plate_certificate`, whose `PlateCertificate` is what this certificate reads of it (P,
+Γ̲^∂'s sources, the credits c_j and the offsets o_j below).
 Contact certificate (`certificate="contact"`, the `c-erg` filter). The parked
 certificate above delivers about half the force budget on a plate (measured: 0.45–0.50 F_max
 on mujoco_contact): its target's rest shape parks `margin_m` inside P, and its Γ(u) is 0 for
@@ -112,44 +99,6 @@ few hPa (`softcbf.bench.PUSHES`: 57.0, 62.5, 68.2 and 74.0 hPa on both segments 
 start, so [0.9, 1.1] holds the nominal arm at ≈ 0.23 F_max
 (mujoco_contact, asked ≥ F_max) where [1, 1] delivers 0.84. Without a measurement of g (gain feedback)
 this is the price of certifying ±10 % of actuator gain on this arm.
-Plate offset (`plate_offset_lo_m` ≤ `plate_offset_hi_m`, m; contact certificate only; default 0, 0: the model's
-plate, the commands bit for bit those without it). The true facet i lies s_i farther than the model's along its
-outward normal, s_i ∈ [s_lo, s_hi] independently per facet (< 0: nearer the arm): n̂_i·r ≤ d_i + s_i is free space
-and the true penetration is n_i^s(r) = max(0, n̂_i·r − d_i − s_i). The force-safe set of a plate s,
-P_s = {n̂_i·r ≤ d_i + s_i + n_max ∀i} (and its vertex rows), grows with every s_i, so P_near = P_{s_lo} (the nearest
-plate, n_max = ψ⁻¹(F_max/hi)) lies inside every P_s: staying in P_near is force-safe for every plate of the box,
-and P, Γ̲^∂ and the table are built on P_near (`nearest_environment`). The energy argument (b) holds for each
-plate s with its own stored energy: V_s = W_u + Σ_i E_true,i(n_i^s) never grows. Write ν_i = n_i^{s_lo}(r̂) (m, the
-nearest plate's penetration at x̂), t_i = s_i − s_lo ∈ [0, w], w = s_hi − s_lo. Where the tip first leaves P_near
-through facet row j, n_j^s = n_max − t_j, so V_s ≥ Γ^∂_j(u) + lo·E(n_max − t_j); at x̂ (strictly inside P_near)
-n_j^s(r̂) = max(0, ν_j − t_j) < n_max − t_j, and V_s(x̂) < Γ^∂_j + E_true,j(n_max − t_j) follows from
-    W_u(x̂) + hi Σ_{i≠j} E(max(0, ν_i − t_i)) < Γ^∂_j(u) + lo (E(n_max − t_j) − E(max(0, ν_j − t_j))).
-The right side's bracket falls with t_j (d/dt = ψ(ν_j − t_j) − ψ(n_max − t_j) ≤ 0, ψ increasing, ν_j < n_max;
-where ν_j − t_j ≤ 0 it is E(n_max − t_j) alone, also falling) and the left side's sum with each t_i, so every
-plate of the box is certified by the worst of each, t_j = w on the facet's own row and t_i = 0 on the others:
-    o_j = lo (E(max(0, n_max − w)) − E(max(0, ν_j − w))) − hi Σ_{i≠j} E(ν_i)      (facet row j),
-    o_j = −hi Σ_i E(ν_i)                                                          (vertex-correction row),
-(b)'s offsets at w = 0 (the credit c_j = lo·E(max(0, n_max − w)): `GovernorModel.build`, `contact_offsets`;
-tests/test_certificate_box.py checks the worst t by brute force and the forks on the PCC plant). What it costs: the
-farthest plate stores only E(n_max − w) where the tip leaves P_near: with n_max = 11.9 mm (hi = 1.2) and w = 4 mm,
-(7.9/11.9)² = 44 % of the credit the exact plate gives, and P_near is 2 mm smaller. Assumptions added: the plate
-moves along its normal only (a turned plate, `facet_angle`, is not covered) and not during the run; the state
-predictor's plate is the model's (an estimate error over the prediction span, left to κ); the gain estimate's
-clearance test (`gain_clearance_m`) uses the nearest plate's planes.
-
-Sheet (`stiffness_by_position`; contact certificate, contact-aware; default off). A clamped sheet's stiffness
-depends on where it is touched (`softcbf_mj.flexure`: K(s) = 3EI/s³ at distance s from the clamp, calibrated at
-its free end ℓ: K(s) = k (ℓ/s)³), so the plate's stored energy is E_true(r) = ½K(s(r)) n(r)² (small deflection, n
-the penetration of the undeformed sheet's line, s from the tip's position along it): a conservative field (the
-beam's elastic energy) whose force is not purely normal (its tangential part, −½K'(s)n², is 1.5 n/s of the normal
-one: ≈ 1.5 % at n = 12 mm, s = 0.12 m, which F_max's n_max does not cover). With [lo, hi] bounding K(s)/k over
-the contact positions (`cantilever_stiffness_ratios`), lo E(n) ≤ E_true ≤ hi E(n) still holds pointwise, but (b)'s
-"lo on the difference only" does not: x̂ and the exit may touch the sheet at different s. Bounding each end
-alone, E_true,j(exit) ≥ lo E(n_max − w) and E_true,j(x̂) ≤ hi E(ν_j) (E falls with the offset t ∈ [0, w]), gives
-    o_j = lo E(max(0, n_max − w)) − hi Σ_i E(ν_i)      (facet row j),
-the parked certificate's credit per row: sound for any law ψ and any variation along the sheet within [lo, hi],
-and (hi − lo) E at the plate dearer than (b). Safety: F = K(s)n ≤ F_max where n ≤ n_max = ψ⁻¹(F_max/hi).
-
 Arm stiffness (`arm_stiffness_lo_ratio`, `arm_stiffness_hi_ratio`; contact certificate only; default 1, 1). The true
 arm's stiffness is c·K, one scale c ∈ [c_lo, c_hi] for every segment, with the gain g ∈ [g_lo, g_hi] (both 1).
 M does not depend on K (the augmented-body model's inertia), so with c the derivation of Ẇ ≤ 0 holds for
@@ -230,28 +179,27 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from controllers.dynamics import PCCDynamics
-from controllers.escape_energy import (MAX_SEGMENTS, BoundaryDistanceBound, EscapeEnergyTable, lookup_arguments,
-                                       lower_bounds)
+from controllers.escape_energy import MAX_SEGMENTS, EscapeEnergyTable, lower_bounds
 from controllers.energy_governor.parameters import PARAMETERS, PREDICTION_HORIZON_S, GovernorParams
+from controllers.energy_governor.plate_certificate import (BOUND_BELOW_J, PlateCertificate, cantilever_stiffness_ratios,
+                                                           nearest_environment, prior_plate, rest_shape_inside, tip_of)
 from controllers.gain_estimate import GainEstimator
 from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked
 from controllers.quasi_static_governor import QuasiStaticGovernor
-from controllers.safe_set import Environment, ForceSafeSet
+from controllers.safe_set import ForceSafeSet, LinearStiffness
 from controllers.safety_filter import FilterContext
 from controllers.state_predictor import StatePredictor
+
+__all__ = ["GovernorCall", "GovernorModel", "TIP_TOLERANCE_M", "arm_corners", "cantilever_stiffness_ratios",
+           "certificate_rows", "energy_kernels", "nearest_environment", "pressure_lag_weights", "ray_may_come_nearer",
+           "scaled_command"]
+"""The certificate's names (the plate's `cantilever_stiffness_ratios` and `nearest_environment` importable from here too)."""
 
 energy_kernels = lazy_module("controllers.energy_kernels")  # numba loads on the first call (controllers.lazy_import)
 
 TIP_TOLERANCE_M = 1e-9
 """A scalar tip this far outside every facet (m) has the array path's tip outside too (`GovernorModel.state_energy`)."""
-
-BOUND_BELOW_J = 0.02
-"""The contact certificate evaluates the second-order boundary bound only where the table's least row value is
-below this (J): near the boundary, where the table is loose; beyond ≈ 0.01 J the table is the larger (measured
-on the reference arm: 1.46e-2 against 1.15e-2 J at (32, 69) hPa, 0.10 against 0.057 J at rest), and the
-bound's kinematics cost more than the table's look-up."""
-
 
 def scaled_command(gain: float, u: tuple) -> tuple:
     """g·u per entry (hPa): the command whose model rest shape is the true one, g K⁻¹Λu, under the gain g; u itself at g = 1."""
@@ -313,36 +261,6 @@ def arm_corners(gains: tuple, stiffnesses: tuple, ratios: tuple) -> tuple:
     return tuple(sorted(points, key=lambda end: (end[0] / end[1], end[1])))
 
 
-def cantilever_stiffness_ratios(length_m: float, nearest_m: float, farthest_m: float) -> tuple[float, float]:
-    """[lo, hi] of a clamped sheet's stiffness over its contact positions as multiples of its calibrated one (1):
-    Euler–Bernoulli K(s) = 3EI/s³ calibrated at the free end s = ℓ = `length_m` (as the paper calibrated), touched
-    between `nearest_m` and `farthest_m` from the clamp (m, 0 < nearest ≤ farthest): ((ℓ/farthest)³, (ℓ/nearest)³)
-    (module docstring, "sheet"). The flexure plate's default (ℓ = 0.15 m, touched 10–33 mm from its free end, 0.117
-    to 0.140 m from the clamp) gives [1.23, 2.11]."""
-    if not 0.0 < nearest_m <= farthest_m < math.inf or not 0.0 < length_m < math.inf:
-        raise ValueError(f"need 0 < nearest_m <= farthest_m and length_m > 0 (m), got length_m = {length_m!r}, "
-                         f"nearest_m = {nearest_m!r}, farthest_m = {farthest_m!r}")
-    return (length_m / farthest_m) ** 3, (length_m / nearest_m) ** 3
-
-
-def nearest_environment(environment: Environment, offset_m: float) -> Environment:
-    """The environment with every facet moved `offset_m` (m) along its outward normal (< 0: nearer the arm);
-    itself at 0. ValueError (naming the offset) where a facet then no longer bounds free space."""
-    if offset_m == 0.0:
-        return environment
-    H = np.asarray(environment.H, dtype=float)
-    try:
-        return Environment(H, np.asarray(environment.h, dtype=float) + offset_m * np.hypot(H[:, 0], H[:, 1]))
-    except ValueError as exc:
-        raise ValueError(f"plate_offset_lo_m = {offset_m!r} m moves the plate's facets so that {exc}") from exc
-
-
-def tip_of(lengths: np.ndarray, q) -> tuple[float, float]:
-    """The model's tip r(q) (m) as Python floats."""
-    tip = kinematics_unchecked(np.asarray(q, dtype=float), lengths, 0).points[-1]
-    return tip.real, tip.imag
-
-
 @dataclass(eq=False)
 class GovernorCall:
     """One call's state between its preparation and its step 3 (`controllers.energy_governor.steps`): the estimate's
@@ -350,7 +268,8 @@ class GovernorCall:
     stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
     for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
     x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the ends' rest-shape ratios and stiffness scales
-    and their energy terms (E, 3, N), and p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone)."""
+    and their energy terms (E, 3, N), p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone), and the
+    plate certificate the call is certified on (the state's)."""
 
     t_capture: float
     t_apply: float
@@ -369,6 +288,7 @@ class GovernorCall:
     terms: np.ndarray | None = None
     scales: tuple = ()
     p_far: np.ndarray | None = None
+    plate: PlateCertificate | None = None
 
 
 def certificate_rows(calls: list[GovernorCall]) -> tuple:
@@ -399,25 +319,21 @@ class GovernorModel:
     """What a governor's calls read and never change (module docstring), built by `build`.
 
     params: the checked parameters; context: the filter's context; command_delay δ and actuator_tau τ_p (s, the
-    parameters' or the context's); safe_set: P with n_max = ψ⁻¹(F_max/hi) on the nearest plate; contact: the contact certificate;
-    target_governor: the parked certificate's quasi-static governor, configured (each state holds a copy:
-    `controllers.energy_governor.state.new_state`), None for the contact certificate; beta (N,) J/hPa²; k, a, beta_list:
-    K, K⁻¹Λ and β as lists; table / boundary_bound: Γ̲'s sources (`controllers.escape_energy`); rows: P's rows
-    (h'x, h'y, h'); facets: the nearest plate's (nx, ny, d); credit: c_j per row (J); plate_weight: hi when contact-aware,
-    else 0; free_plate_energy: its term at n = 0 (J); box: the pressure box or None; rest: 0 hPa clipped to it;
-    grid / grid_values / grid_rest_inside / grid_columns: the recovery's candidate commands (G, N), their Γ̲ rows
-    (P', G), whether their rest shapes lie inside P, and the commands as (N, G); lookup: the kernels' Γ̲ look-up;
-    gain_prior: the certified interval of the rest-shape ratio r = g/c before any estimate ([g_lo/c_hi, g_hi/c_lo]);
-    gain_box, stiffness_box: the actuator gain's and the arm stiffness's intervals (1); offset_width: w = the plate
-    offset interval's width (m; P and the penetrations are the nearest plate's); lag_taus: (τ_lo, τ_hi) of the
-    pressure's interval (s), None without one."""
+    parameters' or the context's); contact: the contact certificate; target_governor: the parked certificate's
+    quasi-static governor, configured (each state holds a copy: `controllers.energy_governor.state.new_state`), None
+    for the contact certificate; beta (N,) J/hPa²; k, a, beta_list: K, K⁻¹Λ and β as lists; plate: the prior's
+    plate certificate (`controllers.energy_governor.plate_certificate.PlateCertificate`: P with n_max = ψ⁻¹(F_max/hi)
+    on the nearest plate, Γ̲'s sources and look-up, the credits, the recovery's grid; a state may hold a learned
+    one); plate_weight: hi when contact-aware, else 0; free_plate_energy: its term at n = 0 (J); box: the pressure
+    box or None; rest: 0 hPa clipped to it; gain_prior: the certified interval of the rest-shape ratio r = g/c
+    before any estimate ([g_lo/c_hi, g_hi/c_lo]); gain_box, stiffness_box: the actuator gain's and the arm
+    stiffness's intervals (1); lag_taus: (τ_lo, τ_hi) of the pressure's interval (s), None without one."""
 
     params: GovernorParams
     context: FilterContext
     n: int
     command_delay: float
     actuator_tau: float
-    safe_set: ForceSafeSet
     contact: bool
     target_governor: QuasiStaticGovernor | None
     dynamics: PCCDynamics
@@ -425,25 +341,14 @@ class GovernorModel:
     k: list
     a: list
     beta_list: list
-    table: EscapeEnergyTable | None
-    boundary_bound: BoundaryDistanceBound | None
-    n_facets: int
-    rows: list
-    facets: list
-    credit: list
+    plate: PlateCertificate
     plate_weight: float
     free_plate_energy: float
     box: tuple | None
     rest: np.ndarray
-    grid: np.ndarray
-    grid_values: np.ndarray
-    grid_rest_inside: np.ndarray
-    grid_columns: np.ndarray
-    lookup: tuple
     gain_prior: tuple
     gain_box: tuple
     stiffness_box: tuple
-    offset_width: float
     lag_taus: tuple | None
 
     @classmethod
@@ -460,62 +365,67 @@ class GovernorModel:
         if not callable(getattr(law, "energy", None)):
             raise ValueError(f"the plate's stiffness law {type(law).__name__} has no energy(n); "
                              "use LinearStiffness or PowerLawStiffness")
-        robot, nominal, contact = context.robot, context.safe_set, params.contact
+        if params.plate_estimate and not isinstance(law, LinearStiffness):
+            raise ValueError(f"plate_estimate needs a linear plate law ψ(n) = k n (LinearStiffness), got "
+                             f"{type(law).__name__}")
+        robot, contact = context.robot, params.contact
         n = robot.n_segments
-        hi = params.stiffness_hi_ratio
-        near = nearest_environment(nominal.environment, params.plate_offset_lo_m)
-        safe_set = nominal if hi == 1.0 and near is nominal.environment else \
-            ForceSafeSet(near, law, nominal.f_max / hi, nominal.row_scaling)
-        target_governor = None if contact else QuasiStaticGovernor(replace(context, safe_set=safe_set),
-                                                                   margin_m=params.margin_m)
-        u_lo = robot.array("u_min") if context.u_min is None else context.u_min
-        u_hi = robot.array("u_max") if context.u_max is None else context.u_max
         taus = (params.actuator_tau_lo_s, params.actuator_tau_hi_s)
         lag_taus = None if taus == (None, None) else tuple(tau if t is None else float(t) for t in taus)
         if lag_taus is not None and lag_taus[0] > lag_taus[1]:
             raise ValueError(f"actuator_tau_lo_s must be <= actuator_tau_hi_s = {lag_taus[1]!r} (None: the model's "
                              f"{tau!r} s), got {lag_taus[0]!r}")
         beta = pressure_lag_weights(context, tau if lag_taus is None else max(tau, lag_taus[1]), params.damping_lo_ratio)
-        gridded = not contact or n <= MAX_SEGMENTS  # the contact certificate needs no table for N > 2
-        table = EscapeEnergyTable(robot, safe_set, u_lo, u_hi, grid_hPa=params.grid_hPa, boundary=contact,
-                                  q_spacing_rad=params.escape_spacing_rad) if gridded else None
-        boundary_bound = BoundaryDistanceBound(robot, safe_set) if contact else None
-        width = params.plate_offset_hi_m - params.plate_offset_lo_m
-        reach = safe_set.n_max if width == 0.0 else max(safe_set.n_max - width, 0.0)  # the farthest plate's at P's edge
-        credit = params.stiffness_lo_ratio * float(law.energy(reach)) if params.contact_aware else 0.0
-        rows = [(hx, hy, h) for (hx, hy), h in zip(np.asarray(safe_set.H_prime).tolist(),
-                                                   np.asarray(safe_set.h_prime).tolist())]
-        plate_weight = hi if params.contact_aware else 0.0
-        facets = [(nx, ny, d) for (nx, ny), d in zip(near.normals.tolist(), near.offsets.tolist())]
-        k = robot.array("stiffness").tolist()
-        a = (robot.array("gains") / robot.array("stiffness")).tolist()
         box = None if context.u_min is None else (context.u_min, context.u_max)
-        rest_list = tuple((np.zeros(n) if box is None else np.clip(np.zeros(n), *box)).tolist())
-        dynamics = PCCDynamics(robot)
-        if table is None:  # N > 2, contact certificate: the recovery's candidates are u_prev, u_nom and 0 hPa
-            grid = np.array([rest_list])
-            grid_values = np.array([boundary_bound.values(rest_list)]).T
-            grid_rest_inside = np.array([rest_shape_inside(dynamics.lengths, a, rows, grid[0])])
-        else:
-            grid, grid_values, grid_rest_inside = table.grid_commands(), table.grid_values(), table.rest_inside
-        if table is not None and not params.energy_margin_J < table.saturation_J:
-            raise ValueError(f"energy_margin_J must be < {table.saturation_J:.6g} J (½ k_min reach², the escape "
+        rest = np.zeros(n) if box is None else np.clip(np.zeros(n), *box)
+        plate = prior_plate(params, context, not contact or n <= MAX_SEGMENTS, rest)  # no table for N > 2 (contact)
+        if plate.table is not None and not params.energy_margin_J < plate.table.saturation_J:
+            raise ValueError(f"energy_margin_J must be < {plate.table.saturation_J:.6g} J (½ k_min reach², the escape "
                              f"energy the table resolves), got {params.energy_margin_J!r}")
-        return cls(params=params, context=context, n=n, command_delay=delay, actuator_tau=tau, safe_set=safe_set,
-                   contact=contact, target_governor=target_governor, dynamics=dynamics, beta=beta, k=k, a=a,
-                   beta_list=beta.tolist(), table=table, boundary_bound=boundary_bound, n_facets=nominal.n_facets,
-                   rows=rows, facets=facets,
-                   credit=[0.0 if corner else credit for corner in safe_set.is_vertex_correction.tolist()],
-                   plate_weight=plate_weight,
-                   free_plate_energy=plate_weight * float(np.sum(law.energy([0.0] * len(facets)))),  # n = 0 everywhere
-                   box=box, rest=np.array(rest_list), grid=grid, grid_values=grid_values,
-                   grid_rest_inside=grid_rest_inside, grid_columns=np.ascontiguousarray(grid.T),  # the scan's layout
-                   lookup=lookup_arguments(table, boundary_bound, BOUND_BELOW_J),
+        target_governor = None if contact else QuasiStaticGovernor(replace(context, safe_set=plate.safe_set),
+                                                                   margin_m=params.margin_m)
+        plate_weight = params.stiffness_hi_ratio if params.contact_aware else 0.0
+        return cls(params=params, context=context, n=n, command_delay=delay, actuator_tau=tau, contact=contact,
+                   target_governor=target_governor, dynamics=PCCDynamics(robot), beta=beta,
+                   k=robot.array("stiffness").tolist(), a=(robot.array("gains") / robot.array("stiffness")).tolist(),
+                   beta_list=beta.tolist(), plate=plate, plate_weight=plate_weight,
+                   free_plate_energy=plate_weight * float(np.sum(law.energy([0.0] * len(plate.facets)))),  # n = 0
+                   box=box, rest=np.array(rest.tolist()),
                    gain_prior=(params.gain_lo_ratio / params.arm_stiffness_hi_ratio,
                                params.gain_hi_ratio / params.arm_stiffness_lo_ratio),
                    gain_box=(params.gain_lo_ratio, params.gain_hi_ratio),
-                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio),
-                   offset_width=width, lag_taus=lag_taus)
+                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio), lag_taus=lag_taus)
+
+    # -- the prior plate's parts (`plate`) ----------------------------------------------------------------
+    @property
+    def safe_set(self) -> ForceSafeSet:
+        """P of the prior plate (`PlateCertificate.safe_set`)."""
+        return self.plate.safe_set
+
+    @property
+    def table(self) -> EscapeEnergyTable | None:
+        """The prior plate's escape-energy table (None for N > 2 with the contact certificate)."""
+        return self.plate.table
+
+    @property
+    def grid(self) -> np.ndarray:
+        """The prior plate's recovery candidates (G, N) hPa."""
+        return self.plate.grid
+
+    @property
+    def grid_values(self) -> np.ndarray:
+        """The prior plate's Γ̲ rows at its recovery candidates (P', G) J."""
+        return self.plate.grid_values
+
+    @property
+    def credit(self) -> list:
+        """The prior plate's credits c_j per row (J)."""
+        return self.plate.credit
+
+    @property
+    def offset_width(self) -> float:
+        """w, the plate offset interval's width (m)."""
+        return self.plate.box.width
 
     # -- what each state starts from --------------------------------------------------------------------
     def new_predictor(self) -> StatePredictor:
@@ -551,75 +461,42 @@ class GovernorModel:
                                               0, 0, float(kinetic_and_plate), energy_kernels.PYTHON_SQUARE))
 
     def escape(self, u) -> float:
-        """min_j (Γ̲_j(u) + c_j) (J)."""
-        return min(g + c for g, c in zip(self.table.values(u), self.credit))
+        """min_j (Γ̲_j(u) + c_j) (J) of the prior plate."""
+        return min(g + c for g, c in zip(self.plate.table.values(u), self.plate.credit))
 
-    def boundary_escape(self, u) -> list[float]:
-        """Γ̲^∂_j(u) for every row (J): the larger of the boundary table's and the second-order bound's
+    def boundary_escape(self, u, plate: PlateCertificate) -> list[float]:
+        """Γ̲^∂_j(u) for every row of `plate` (J): the larger of the boundary table's and the second-order bound's
         (`controllers.escape_energy`; both are lower bounds of the least elastic energy to P's boundary),
         the second only where some row's table value is below BOUND_BELOW_J (any of the two is a valid bound)."""
-        return lower_bounds(u, self.table, self.boundary_bound, BOUND_BELOW_J)
+        return lower_bounds(u, plate.table, plate.boundary_bound, BOUND_BELOW_J)
 
-    def certificate_terms(self, u, call: GovernorCall) -> tuple[float, float]:
-        """(Γ, W) (J) of the command u (N,) hPa at the call's state x̂: the gain end with the least Γ − W,
+    def certificate_terms(self, u, call: GovernorCall, plate: PlateCertificate) -> tuple[float, float]:
+        """(Γ, W) (J) of the command u (N,) hPa at the call's state x̂ on `plate`: the gain end with the least Γ − W,
         Γ = min_j (Γ̲_j(g·u) + o_j) (−inf outside P), W at g (module docstring; `energy_kernels.certificate_terms`)."""
         rows = len(call.offsets)
         gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), 0, *certificate_rows([call]),
-                                                    *self.lookup, np.empty(self.n), np.empty(rows), np.empty(rows))
+                                                    *plate.lookup, np.empty(self.n), np.empty(rows), np.empty(rows))
         return float(gamma), float(w)
 
     def tip(self, q) -> tuple[float, float]:
         """The model's tip r(q) (m) as Python floats."""
         return tip_of(self.dynamics.lengths, q)
 
-    def rest_inside(self, u: np.ndarray) -> bool:
-        """Whether the rest shape q_u = K⁻¹Λu of the command u (N,) hPa puts the tip strictly inside P."""
-        return rest_shape_inside(self.dynamics.lengths, self.a, self.rows, u)
+    def rest_inside(self, u: np.ndarray, plate: PlateCertificate) -> bool:
+        """Whether the rest shape q_u = K⁻¹Λu of the command u (N,) hPa puts the tip strictly inside `plate`'s P."""
+        return rest_shape_inside(self.dynamics.lengths, self.a, plate.rows, u)
 
     def grid_rows_at_gain(self, gain: float) -> np.ndarray:
-        """Lower bounds of Γ^∂_j(g·u_c) (J) for the recovery's grid commands u_c under the gain g: (P', G).
+        """The prior plate's `PlateCertificate.grid_rows_at_gain`."""
+        return self.plate.grid_rows_at_gain(gain)
 
-        g = 1: the table's values. Else, from (*) of `controllers.escape_energy` (the distance to the boundary
-        is 1-Lipschitz in z = K^{1/2}q and z moves by |g − 1| ‖u_c‖_w from u_c to g·u_c, w_i = λ_i²/k_i):
-        d_j(g u_c) ≥ d̲_j(u_c) − |g − 1| ‖u_c‖_w, Γ ≥ ½ max(0, ·)². Without a table (N > 2) the one grid
-        command is bounded at g·u_c directly (`BoundaryDistanceBound`)."""
-        if gain == 1.0:
-            return self.grid_values
-        if self.table is None:
-            return np.array([self.boundary_bound.values(gain * c) for c in self.grid]).T
-        shift = abs(gain - 1.0) * np.sqrt(np.sum(self.table.weights * self.grid**2, axis=1))  # (G,) J^{1/2}
-        return 0.5 * np.maximum(self.table.distance - shift, 0.0) ** 2
-
-    def contact_offsets(self, q: np.ndarray) -> tuple[list[float], bool, float]:
-        """The contact certificate's per-row offsets o_j (J) at q (N,) rad, whether the tip r(q) lies
-        strictly inside P (every row H'_j r < h'_j; module docstring, "contact certificate") and its ρ
-        (`ForceSafeSet.margin_at` of the context's set).
-
-        Facet row j: o_j = lo·(E(n_max − w) − E(n_j − w)) − hi Σ_{i≠j} E(n_i); vertex-correction row:
-        o_j = −hi Σ_i E(n_i); n_i the nearest plate's facet penetrations at r(q) (m), E = ψ.energy (0 below 0),
-        w the plate offset interval's width (module docstring, "plate offset"; w = 0: the model's plate).
-        Without contact_aware every o_j = 0 (the environment does not push back)."""
+    def contact_offsets(self, q: np.ndarray, plate: PlateCertificate) -> tuple[list[float], bool, float]:
+        """The contact certificate's per-row offsets o_j (J) at q (N,) rad on `plate`
+        (`PlateCertificate.contact_offsets`), whether the tip r(q) lies strictly inside its P, and its ρ
+        (`ForceSafeSet.margin_at` of the context's set)."""
         x, y = self.tip(q)
-        inside = all(hx * x + hy * y < h for hx, hy, h in self.rows)
-        rho = self.context.safe_set.margin_at(x, y)
-        if not self.params.contact_aware:
-            return [0.0] * len(self.rows), inside, rho
-        lo, hi = self.params.stiffness_lo_ratio, self.params.stiffness_hi_ratio
-        plate = self.safe_set  # the nearest plate's facets (the model's without an offset interval)
-        depths = plate.penetration_at(x, y)
-        energies = np.asarray(plate.stiffness.energy(depths), dtype=float).tolist()
-        if self.params.stiffness_by_position:  # a sheet: its own facet's energy at x̂ at the stiffest (module docstring)
-            own, weight = energies, hi
-        elif self.offset_width == 0.0:
-            own, weight = energies, lo
-        else:
-            own, weight = np.asarray(plate.stiffness.energy(np.asarray(depths) - self.offset_width),
-                                     dtype=float).tolist(), lo
-        total = hi * sum(energies)
-        offsets = [credit - weight * f - hi * (sum(energies) - e) if j < self.n_facets
-                   else -total for j, (credit, e, f) in enumerate(zip(self.credit, energies + [0.0] * len(self.rows),
-                                                                      own + [0.0] * len(self.rows)))]
-        return offsets, inside, rho
+        offsets, inside = plate.contact_offsets(x, y)
+        return offsets, inside, self.context.safe_set.margin_at(x, y)
 
     def state_energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
         """(½q̇ᵀM(q)q̇ + hi·Σ_facets E(n_i(r(q))) in J (the plate term only when contact-aware),
@@ -636,7 +513,7 @@ class GovernorModel:
         kinetic = 0.5 * float(qd @ core.mass @ qd)  # `PCCDynamics.kinetic_energy`'s floats
         tip = core.kin[core.layout.tip_terms.start].item()
         x, y = tip.real, tip.imag
-        if max(nx * x + ny * y - d for nx, ny, d in self.facets) < -TIP_TOLERANCE_M:
+        if max(nx * x + ny * y - d for nx, ny, d in self.plate.facets) < -TIP_TOLERANCE_M:
             return kinetic + self.free_plate_energy if self.plate_weight else kinetic, 1.0
         tip = kinematics_unchecked(np.asarray(q, dtype=float), self.dynamics.lengths, 0).points[-1]
         rho = self.context.safe_set.margin_at(tip.real, tip.imag)
@@ -645,10 +522,3 @@ class GovernorModel:
         nominal = self.context.safe_set
         plate = float(np.sum(nominal.stiffness.energy(nominal.penetration_at(tip.real, tip.imag))))
         return kinetic + self.plate_weight * plate, rho
-
-
-def rest_shape_inside(lengths: np.ndarray, a: list, rows: list, u) -> bool:
-    """Whether the rest shape q_u = K⁻¹Λu (a = K⁻¹Λ per segment) of the command u (N,) hPa puts the tip strictly
-    inside P (`rows`: (h'x, h'y, h') per row)."""
-    x, y = tip_of(lengths, np.array(a) * np.asarray(u, dtype=float))
-    return all(hx * x + hy * y < h for hx, hy, h in rows)

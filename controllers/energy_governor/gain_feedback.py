@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from controllers.energy_governor.certificate import GovernorModel
+from controllers.energy_governor.plate_feedback import update_plate
 from controllers.energy_governor.state import GovernorState
 from controllers.pcc import kinematics_unchecked
 
@@ -68,7 +69,7 @@ def update_gain(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: n
     if not moving and params.gain_rest_s > 0.0:
         state.rest_since = t_capture  # the next rest sample after gain_rest_s more at rest: one per gain_rest_s
     x, y = model.tip(q)
-    near = [(nx, ny) for nx, ny, d in model.facets if nx * x + ny * y - d > -params.gain_clearance_m]
+    near = near_facets(model, x, y)
     if near and params.gain_contact == "off":
         return
     predictor = state.predictor
@@ -123,24 +124,34 @@ def window_sample(model: GovernorModel, state: GovernorState, q: np.ndarray, t_c
     state.gain_block = len(window.times)
     pressure = np.mean(window.inputs, axis=0)
     x, y = model.tip(mean)
-    near = [(nx, ny) for nx, ny, d in model.facets if nx * x + ny * y - d > -params.gain_clearance_m]
+    near = near_facets(model, x, y)
     if near and params.gain_contact == "off":
         return
     offer(model, state, mean, near, pressure, mean,
           window.scatter_bound(n, params.gain_scatter_risk, params.gain_frame_sigma_rad))
 
 
+def near_facets(model: GovernorModel, x: float, y: float) -> list[int]:
+    """The facets of the nearest plate (the prior's) whose plane the tip r = (x, y) (m) is within gain_clearance_m of."""
+    clearance = model.params.gain_clearance_m
+    return [j for j, (nx, ny, d) in enumerate(model.plate.facets) if nx * x + ny * y - d > -clearance]
+
+
 def offer(model: GovernorModel, state: GovernorState, q_sample: np.ndarray, near: list, p: np.ndarray,
           residual: np.ndarray, scatter: np.ndarray | None = None) -> None:
-    """Give the estimator the sample (p, residual) at q_sample, in contact with the facets `near` (their normal, and
-    their tangent with gain_contact "any", J_r(q)ᵀv at q_sample eliminated) or out of contact; apply its interval
-    once it has narrowed by 1 % of the prior's width, or at once when it fell back to the prior."""
+    """Give the estimator the sample (p, residual) at q_sample, in contact with the facets `near` (indices; their
+    normal, and their tangent with gain_contact "any", J_r(q)ᵀv at q_sample eliminated) or out of contact; apply its
+    interval once it has narrowed by 1 % of the prior's width, or at once when it fell back to the prior. With
+    `plate_estimate` and one facet near, the same sample bounds its plate (`plate_feedback.update_plate`)."""
     params, estimator = model.params, state.gain_estimator
     if near:
         jac = kinematics_unchecked(np.asarray(q_sample, dtype=float), model.dynamics.lengths, 1).jac[-1]  # ∂r/∂q: x + iy
-        directions = near if params.gain_contact == "normal" else near + [(-ny, nx) for nx, ny in near]
+        normals = [model.plate.facets[j][:2] for j in near]
+        directions = normals if params.gain_contact == "normal" else normals + [(-ny, nx) for nx, ny in normals]
         torques = np.array([jac.real * vx + jac.imag * vy for vx, vy in directions]).T  # (N, m): J_r(q)ᵀv
         accepted = estimator.sample_in_contact(p, residual, torques, scatter)
+        if state.plate_estimate is not None and len(near) == 1:  # the arm as its own force sensor: the plate's sample
+            update_plate(model, state, q_sample, near[0], jac, p, residual, scatter)
     else:
         accepted = estimator.sample(p, residual, scatter)
     if accepted:

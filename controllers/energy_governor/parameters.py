@@ -133,13 +133,13 @@ class GovernorParams:
                                                   bound=Bound(0.0, 1.0, low_open=True, unit="rad"), optional=True)
     plate_offset_lo_m: float = declared(0.0, "nearest true plate: its facets' least offset along their outward "
                                         "normal from the model's (< 0: nearer the arm; P is built on the nearest "
-                                        "plate; contact certificate only: controllers.energy_governor.certificate, "
+                                        "plate; contact certificate only: controllers.energy_governor.plate_certificate, "
                                         "\"plate offset\")", "m", bound=PLATE_OFFSETS)
     plate_offset_hi_m: float = declared(0.0, "farthest true plate: its facets' greatest offset along their outward "
                                         "normal from the model's (>= plate_offset_lo_m)", "m", bound=PLATE_OFFSETS)
     stiffness_by_position: bool = declared(False, "the plate's stiffness varies with where it is touched (a clamped "
-                                           "sheet, stiffer nearer its clamp: controllers.energy_governor.certificate, "
-                                           "\"sheet\"; [stiffness_lo_ratio, stiffness_hi_ratio] then bounds it over "
+                                           "sheet, stiffer nearer its clamp: controllers.energy_governor."
+                                           "plate_certificate, \"sheet\"; [stiffness_lo_ratio, stiffness_hi_ratio] then bounds it over "
                                            "the contact positions, e.g. cantilever_stiffness_ratios); contact "
                                            "certificate only", "", bool)
     arm_stiffness_lo_ratio: float = declared(1.0, "lowest true arm stiffness K as a multiple of the model's (every "
@@ -164,6 +164,13 @@ class GovernorParams:
                                  "plate's force along its normal eliminated: frictionless), 'any' (also the "
                                  "tangential: friction), 'off' (none; controllers.gain_estimate; gain_estimate only)",
                                  "", str)
+
+    plate_estimate: bool = declared(False, "learn the plate online: each rest sample in contact with one facet "
+                                    "bounds its normal force (the arm as its own force sensor) and penetration, and "
+                                    "the certified set of (stiffness, offset) narrows P's boundary and the plate terms "
+                                    "(controllers.energy_governor.plate_estimate; needs gain_estimate with "
+                                    "gain_contact 'normal', contact_aware, a linear plate law, no stiffness_by_position)",
+                                    "", bool)
 
     def __post_init__(self) -> None:
         for f in fields(self):  # each by its declaration, normalised (an int given for a float becomes one)
@@ -216,6 +223,11 @@ class GovernorParams:
                              f"and {self.gain_difference_s!r}")
         if self.gain_contact not in GAIN_CONTACT:
             raise ValueError(f"gain_contact must be one of {', '.join(GAIN_CONTACT)}, got {self.gain_contact!r}")
+        if self.plate_estimate and not (self.gain_estimate and self.gain_contact == "normal" and self.contact_aware
+                                        and not self.stiffness_by_position):
+            raise ValueError("plate_estimate needs gain_estimate with gain_contact='normal' and contact_aware, without "
+                             "stiffness_by_position (a linear, frictionless plate: controllers.energy_governor."
+                             "plate_estimate)")
         if self.gain_estimate and self.certificate != "contact":
             raise ValueError("gain_estimate needs certificate='contact' (the certificate that covers a gain interval)")
 

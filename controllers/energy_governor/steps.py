@@ -104,6 +104,11 @@ GAIN_DIAGNOSTIC_UNITS = {**DIAGNOSTIC_UNITS, "gain_lo": "1", "gain_hi": "1", "ga
 """The diagnostics' units with `gain_estimate`: the certified gain interval and the estimate ĝ
 (`controllers.energy_governor.gain_feedback`)."""
 
+PLATE_DIAGNOSTIC_UNITS = {**GAIN_DIAGNOSTIC_UNITS, "plate_boundary_m": "m", "plate_lo": "1", "plate_hi": "1",
+                          "plate_offset_lo_m": "m", "plate_offset_hi_m": "m"}
+"""The diagnostics' units with `plate_estimate`: the certified plates' hull (stiffness ratios, offsets) and P's
+force-safe boundary beyond the model's facet plane (`controllers.energy_governor.plate_feedback`)."""
+
 TIME_LIMIT_S = 1e9
 """Largest |t| and |t_capture| (s) a call accepts (32 years): far beyond, the delay and the estimate's age vanish in rounding."""
 
@@ -128,17 +133,23 @@ def step_rows(model: GovernorModel, states: list[GovernorState], q, qd, u_nom, t
               t_apply: list[float], t0: float | None = None) -> list[FilterOutput]:
     """Row b: `step` of states[b] with the checked inputs q[b], qd[b] (N,), u_nom[b] (N,) hPa, captured at
     t_capture[b] and acting from t_apply[b] (`apply_time`, checked for every row before this is called): steps
-    1–2 per row, step 3 once for all the rows (`energy_kernels.govern_rows`), step 4 per row. t0: the call's start
+    1–2 per row, step 3 once for all the rows on one plate certificate (`energy_kernels.govern_rows`; with
+    `plate_estimate` the rows' learned plates may differ), step 4 per row. t0: the call's start
     for its `solve_us` (None: each row's conclusion)."""
     calls = [prepare(model, state, q[b], qd[b], u_nom[b], t_capture[b], t_apply[b]) for b, state in enumerate(states)]
-    live = [b for b, call in enumerate(calls) if not call.stale]
-    outputs = govern(model, [calls[b] for b in live]) if live else None
-    position = {b: k for k, b in enumerate(live)}
+    groups: dict[int, list[int]] = {}  # the live rows by plate certificate: step 3 once per plate (one without learning)
+    for b, call in enumerate(calls):
+        if not call.stale:
+            groups.setdefault(id(call.plate), []).append(b)
+    found = {}
+    for rows in groups.values():
+        outputs = govern(model, [calls[b] for b in rows])
+        found.update({b: (outputs, k) for k, b in enumerate(rows)})
     out = []
     for b, (state, call) in enumerate(zip(states, calls)):
         start = time.perf_counter() if t0 is None else t0
         out.append(finish(model, state, call.u_prev, "stale", True, math.nan, {}, call.t_apply, call.t_capture, start)
-                   if call.stale else conclude(model, state, call, outputs, position[b], start))
+                   if call.stale else conclude(model, state, call, *found[b], start))
     return out
 
 
@@ -168,15 +179,16 @@ def prepare(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: np.nd
         return call
     if state.gain_estimator is not None:
         update_gain(model, state, q, qd, t_capture)
+    call.plate = state.plate
     q_hat, qd_hat, p_hat = predictor.predict(t_capture, q, qd, t_apply)
     kappa = model.params.kappa
     if model.contact:
-        offsets, inside, rho = model.contact_offsets(q_hat)
+        offsets, inside, rho = model.contact_offsets(q_hat, state.plate)
         base = (1.0 + kappa) * model.dynamics.kinetic_energy(q_hat, qd_hat)  # (1 + κ)·½q̇ᵀMq̇
         inflation = 1.0  # κ inflates the kinetic energy alone
     else:
         base, rho = model.state_energy(q_hat, qd_hat)
-        offsets, inside, inflation = model.credit, True, 1.0 + kappa
+        offsets, inside, inflation = model.plate.credit, True, 1.0 + kappa
     call.q_hat, call.p_hat, call.base, call.offsets, call.inside, call.rho = q_hat, p_hat, base, offsets, inside, rho
     call.inflation, call.gains, call.terms, call.scales = inflation, state.ends.gains, state.ends.terms, state.ends.scales
     if state.pressures is not None:  # the valve lag's interval: the pressure's hull with the model's p̂
@@ -186,11 +198,12 @@ def prepare(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: np.nd
 
 
 def govern(model: GovernorModel, calls: list[GovernorCall]) -> tuple:
-    """Step 3 for the calls (module docstring), row b the call calls[b]: `energy_kernels.govern_rows`."""
+    """Step 3 for the calls on one plate certificate (module docstring), row b the call calls[b]:
+    `energy_kernels.govern_rows`."""
     return energy_kernels.govern_rows(
         np.array([c.u_prev for c in calls]), np.array([c.target for c in calls]), model.rest,
         np.array([c.nominal for c in calls]), 2 if model.contact else 3, *certificate_rows(calls),
-        calls[0].inflation, model.params.energy_margin_J, model.params.bisection_steps, *model.lookup)
+        calls[0].inflation, model.params.energy_margin_J, model.params.bisection_steps, *calls[0].plate.lookup)
 
 
 def conclude(model: GovernorModel, state: GovernorState, call: GovernorCall, outputs: tuple, b: int,
@@ -203,7 +216,7 @@ def conclude(model: GovernorModel, state: GovernorState, call: GovernorCall, out
     action = ACTION_NAMES[code]
     if code == energy_kernels.RECOVER:
         u, infeasible = recover_contact(model, state, call) if model.contact else recover(model, call)
-        gamma, w = model.certificate_terms(u, call)
+        gamma, w = model.certificate_terms(u, call, call.plate)
     else:
         u, gamma, w, infeasible = u_rows[b], float(gammas[b]), float(ws[b]), False
     # the held command keeps its certificate down to Γ − ιW = 0 (the hysteresis), a new one needs ε
@@ -216,9 +229,9 @@ def conclude(model: GovernorModel, state: GovernorState, call: GovernorCall, out
 def recover(model: GovernorModel, call: GovernorCall) -> tuple[np.ndarray, bool]:
     """The parked certificate's recovery (module docstring, step 4): the certified candidate nearest the target,
     else the best margin among the candidates whose rest shape lies inside P (Γ ≥ ε); the compiled scan."""
-    extra_rows = np.array([[model.table.values(c) for c in (call.u_prev, call.target)]]).transpose(0, 2, 1)  # (1, P', 2)
-    terms = np.array([(model.k, model.a, model.beta_list)])
-    return scan(model, model.grid_values[None], extra_rows, call.offsets, terms, call, 1.0 + model.params.kappa,
+    extra_rows = np.array([[model.plate.table.values(c) for c in (call.u_prev, call.target)]]).transpose(0, 2, 1)
+    terms = np.array([(model.k, model.a, model.beta_list)])  # extra_rows: (1, P', 2)
+    return scan(model, model.plate.grid_values[None], extra_rows, call.offsets, terms, call, 1.0 + model.params.kappa,
                 True, None)
 
 
@@ -228,11 +241,11 @@ def recover_contact(model: GovernorModel, state: GovernorState, call: GovernorCa
     outside P, where no certificate holds) the one of those nearest the target; the target if there is none.
     The margin is the least over the state's gain ends (`controllers.energy_governor.certificate`, "actuator gain")."""
     ends = state.ends
-    extra_rows = np.array([[np.multiply(scale, model.boundary_escape(scaled_command(r, tuple(c.tolist()))))
+    extra_rows = np.array([[np.multiply(scale, model.boundary_escape(scaled_command(r, tuple(c.tolist())), call.plate))
                             for c in (call.u_prev, call.target)]
                            for r, scale in zip(ends.gains, ends.scales)]).transpose(0, 2, 1)
     terms = ends.terms
-    resting = np.array([model.rest_inside(call.u_prev), model.rest_inside(call.target)])
+    resting = np.array([model.rest_inside(call.u_prev, call.plate), model.rest_inside(call.target, call.plate)])
     return scan(model, state.recovery_rows(model), extra_rows, call.offsets, terms, call, 1.0, call.inside, resting)
 
 
@@ -243,21 +256,23 @@ def scan(model: GovernorModel, grid_rows: np.ndarray, extra_rows: np.ndarray, of
     P where Γ ≥ ε (the parked certificate), else the grid's flags and these two."""
     by_gamma = resting_extra is None
     u_prev, target = call.u_prev, call.target
+    plate = call.plate
     index, infeasible = energy_kernels.recovery_scan(
-        model.grid_columns, grid_rows, np.array((u_prev, target)).T.copy(), extra_rows,
+        plate.grid_columns, grid_rows, np.array((u_prev, target)).T.copy(), extra_rows,
         np.array(offsets, dtype=float), terms, call.base, call.q_hat, call.p_hat, target, inflation,
-        model.params.energy_margin_J, inside, model.grid_rest_inside,
+        model.params.energy_margin_J, inside, plate.grid_rest_inside,
         np.zeros(2, dtype=bool) if by_gamma else resting_extra, by_gamma, call.p_far)
     index = int(index)
-    grid_size = len(model.grid)
-    chosen = target if index < 0 else model.grid[index] if index < grid_size else (u_prev, target)[index - grid_size]
+    grid_size = len(plate.grid)
+    chosen = target if index < 0 else plate.grid[index] if index < grid_size else (u_prev, target)[index - grid_size]
     return np.array(chosen, dtype=float), bool(infeasible)
 
 
 def finish(model: GovernorModel, state: GovernorState, u: np.ndarray, action: str, infeasible: bool, rho: float,
            diagnostics: dict, t_apply: float, t_capture: float, t0: float) -> FilterOutput:
     """The call's output: the command u recorded in the state's predictor, the diagnostics completed (NaN where
-    the call gave none; the gain interval certified from this call on and ĝ with `gain_estimate`)."""
+    the call gave none; the gain interval certified from this call on and ĝ with `gain_estimate`; the plates' hull
+    and P's boundary with `plate_estimate`)."""
     u = np.array(u, dtype=float)
     state.predictor.record(t_apply, u)
     if state.pressures is not None:
@@ -268,6 +283,11 @@ def finish(model: GovernorModel, state: GovernorState, u: np.ndarray, action: st
     full["prediction_s"] = t_apply - t_capture
     if state.gain_estimator is not None:  # the interval certified from this call on, and ĝ (NaN before a sample)
         full.update(gain_lo=state.ends.lo, gain_hi=state.ends.hi, gain_hat=state.gain_estimator.estimate)
+    units = DIAGNOSTIC_UNITS if state.gain_estimator is None else GAIN_DIAGNOSTIC_UNITS
+    if state.plate_estimate is not None:  # the plates certified from this call on
+        box = state.plate.box
+        full.update(plate_boundary_m=box.offset_lo + box.reach, plate_lo=box.lo, plate_hi=box.hi,
+                    plate_offset_lo_m=box.offset_lo, plate_offset_hi_m=box.offset_lo + box.width)
+        units = PLATE_DIAGNOSTIC_UNITS
     full["solve_us"] = (time.perf_counter() - t0) * 1e6
-    return FilterOutput(u, action, infeasible, rho, full,
-                        DIAGNOSTIC_UNITS if state.gain_estimator is None else GAIN_DIAGNOSTIC_UNITS)
+    return FilterOutput(u, action, infeasible, rho, full, units)
