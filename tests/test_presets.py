@@ -83,3 +83,12 @@ def test_every_preset_names_a_builtin_and_takes_its_declared_parameters():
     for name, preset in PRESETS.items():
         assert preset.filter in FILTERS and name.startswith(f"{preset.filter}:")
         assert typed_params(name) == typed_params(preset.filter, preset.params)
+
+
+def test_the_learning_preset_is_the_standard_box_setting_learning_the_plate_on_an_exact_state():
+    """c-erg:learn-plate differs from c-erg:standard-box only in learning the plate and trusting the state to 1e-4
+    rad (docs/beyond-the-paper.md: a camera's Δ reads the force too loosely to learn)."""
+    box, learning = Filter("c-erg:standard-box").params, Filter("c-erg:learn-plate").params
+    changed = {k: learning[k] for k in learning if k not in box or learning[k] != box[k]}
+    assert changed == {"plate_estimate": True, "gain_noise_rad": 1e-4} and set(box) <= set(learning)
+    assert box["gain_noise_rad"] == 1.5e-3 and "plate_estimate" not in box  # off: its declared default

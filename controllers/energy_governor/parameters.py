@@ -282,3 +282,8 @@ trusted to Δ = 1.5e-3 rad, and ε = 2e-6 J (docs/results.md#the-recommended-fil
 STANDARD_BOX_SETTING = {**RECOMMENDED, **STANDARD_BOX}
 """The recommended setting certified over the standard error box's physical errors (`box.STANDARD_BOX`): the preset
 `c-erg:standard-box` (docs/beyond-the-paper.md: what it holds and what it delivers)."""
+
+LEARN_PLATE_SETTING = {**STANDARD_BOX_SETTING, "plate_estimate": True, "gain_noise_rad": 1e-4}
+"""The standard-box setting learning the plate online (`plate_estimate`) on a plant whose state is exact to
+Δ = 1e-4 rad (mujoco_contact at 1 kHz, or a lab's motion capture): the preset `c-erg:learn-plate`. A camera's Δ
+(1.5e-3 rad) reads the contact force too loosely to learn anything (docs/beyond-the-paper.md)."""
