@@ -33,7 +33,7 @@ The spec (`CameraLoop`, scenarios.spec) holds `mujoco_contact`'s sections (`run`
 `nominal`, `model`, `arm`, `plate`: the same ground truth, scenarios.ground_truth; `damping_scale`
 multiplies the damping of both arms, so the arm's time constants d_i/k_i scale with it: the
 operating-envelope study, studies/hardware_envelope.toml), the `camera` section and its own
-`assumed_plate_stiffness` (N/m) and `control_rate` (Hz).
+`assumed_plate_stiffness` (N/m), `assumed_tau_p` (s) and `control_rate` (Hz).
 
 Imports: MuJoCo, OpenCV and the perception pipeline are imported inside the functions that
 check or run the scenario, not at load, so that registering it and reading its parameters
@@ -166,8 +166,8 @@ CameraLoop = scenario_spec(
                   "path and the controller's call rate.",
     "camera_loop", {"run": Run, "filter": Filter, "nominal": Nominal, "model": Model, "arm": TrueArm, "plate": Plate,
                     "camera": Camera},
-    {"assumed_plate_stiffness": "assumed_plate_stiffness", "control_rate": "control_rate"}, BOUNDS, check_spec,
-    __name__)
+    {"assumed_plate_stiffness": "assumed_plate_stiffness", "assumed_tau_p": "assumed_tau_p",
+     "control_rate": "control_rate"}, BOUNDS, check_spec, __name__)
 
 
 def camera_timing(spec: CameraLoop) -> CameraTiming:
@@ -213,7 +213,7 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
     plane = _calibration(camera.calibration, plant, truth.config, camera.width, camera.height, camera.detector)
     # The filter's command takes effect at the next tick after the call; the estimate's own age is the rest.
     context = FilterContext.for_robot(model_robot, safe_set, 1.0 / spec.control_rate, spec.filter.pressure_limits,
-                                      command_delay=0.0, actuator_tau=spec.arm.tau_p)
+                                      command_delay=0.0, actuator_tau=spec.assumed_tau_p)
     return CameraSetup(plant, truth, safe_set, controller.runs, controller.nominal_kwargs, context,
                        initial_configuration(n, spec.run.seed, spec.run.q0_std), camera_timing(spec),
                        TagDetector(camera.detector, tag_ids=arm_tag_ids(n)), plane)

@@ -36,8 +36,9 @@ The spec (`MujocoContact`, scenarios.spec) holds the sections `run`, `filter`, `
 `true_*_scale`, the true plates moved by `facet_offset` and turned by `facet_angle` while the
 controller keeps the unmoved facets, `gravity`, `tip_friction`, `table_friction`, the ideal
 plate's `plate_stiffness` or the flexure's `sheet_*`, whose calibrated k is recorded as the
-scene's plate stiffness) and its own `assumed_plate_stiffness` (N/m, the controller's ψ).
-Model mismatch studies vary these (softcbf.study).
+scene's plate stiffness) and its own `assumed_plate_stiffness` (N/m, the controller's ψ) and `assumed_tau_p` (s,
+the valve lag the filter's context states; the true valves' is the arm's `tau_p`, so a study that varies `tau_p`
+tells the filter nothing of it). Model mismatch studies vary these (softcbf.study).
 
 Imports: MuJoCo (the plants, the model builder) is imported inside the functions that run the
 scenario or its batch form, not at load, so that registering the scenario and reading its
@@ -114,7 +115,7 @@ MujocoContact = scenario_spec(
                      "the nominal, the controller's model, the MuJoCo arm and plate, and the plate stiffness the "
                      "controller assumes.",
     "mujoco_contact", {"run": Run, "filter": Filter, "nominal": Nominal, "model": Model, "arm": TrueArm, "plate": Plate},
-    {"assumed_plate_stiffness": "assumed_plate_stiffness"}, BOUNDS, check_spec, __name__)
+    {"assumed_plate_stiffness": "assumed_plate_stiffness", "assumed_tau_p": "assumed_tau_p"}, BOUNDS, check_spec, __name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,7 +144,7 @@ def contact_setup(spec: MujocoContact) -> ContactSetup:
     truth = build_truth(spec.arm, spec.plate, spec.model, controller.robot, safe_set.environment)
     q0 = initial_configuration(truth.robot.n_segments, spec.run.seed, spec.run.q0_std)  # the true arm's segments
     context = FilterContext.for_robot(controller.robot, safe_set, CONTROL_DT, spec.filter.pressure_limits,
-                                      command_delay=0.0, actuator_tau=spec.arm.tau_p)
+                                      command_delay=0.0, actuator_tau=spec.assumed_tau_p)
     return ContactSetup(safe_set, truth, controller.runs, controller.nominal_kwargs, q0, context)
 
 

@@ -158,6 +158,8 @@ SETTINGS: dict[str, Setting] = {
     "row_scaling": _text("scaling of the rows of the force-safe set P", "paper, unit", default="paper"),
     "assumed_plate_stiffness": _number("the controller's plate spring ψ(n) = k n", "N/m", positive("N/m"),
                                        default=PAPER_PLATE_STIFFNESS),
+    "assumed_tau_p": _number("the controller's valve pressure time constant τ_p (its filter context's; the true "
+                             "one is tau_p)", "s", non_negative("s"), 5.0, default=0.05),
     # the plant (ground truth)
     "plate_stiffness": _number("the true plate's spring (paper_sim: also the controller's ψ)", "N/m", positive("N/m"),
                                default=PAPER_PLATE_STIFFNESS),

@@ -1,0 +1,25 @@
+"""The filter is told the valve lag the controller assumes (`assumed_tau_p`), never the true valves' (`tau_p`): a
+study that varies the true lag as an error must not hand it to the filter under test through its context."""
+
+from __future__ import annotations
+
+import pytest
+
+from scenarios import registry
+from scenarios.camera_loop import camera_setup
+from scenarios.mujoco_contact import contact_setup
+from scenarios.run import scenario_parameters
+
+SETUPS = {"mujoco_contact": contact_setup, "camera_loop": camera_setup}
+
+
+def told_lag(scenario: str, arguments: list[str]) -> float:
+    """The valve lag (s) in the FilterContext that `scenario`'s setup gives its filter for the command line."""
+    spec = registry()[scenario].spec.from_flat(scenario_parameters(registry()[scenario], arguments))
+    return SETUPS[scenario](spec).context.actuator_tau
+
+
+@pytest.mark.parametrize("scenario", sorted(SETUPS))
+def test_the_true_valve_lag_does_not_reach_the_filter(scenario):
+    assert told_lag(scenario, ["--tau-p", "0.1"]) == 0.05  # the default assumed lag, the model's
+    assert told_lag(scenario, ["--tau-p", "0.1", "--assumed-tau-p", "0.08"]) == 0.08
