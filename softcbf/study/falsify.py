@@ -89,6 +89,9 @@ Outputs of a falsification folder DIR:
                          for bit; falsify.json's worst.value is that run's J, equal to best.value
     DIR/optuna.db        optuna's storage (the default SQLite one)
     DIR/report.md, DIR/plots/best_so_far.<fmt>   written by `softcbf study report DIR`
+
+Multi-fidelity (a cheap scenario's search confirmed on this one) and campaigns over seeds build on `falsify`:
+`softcbf.study.screen`, `softcbf.study.campaign`.
 """
 
 from __future__ import annotations

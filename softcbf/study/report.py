@@ -35,6 +35,12 @@ A falsification folder (DIR/falsify.json, `softcbf.study.falsify`) gets its own 
                                        first violations marked (a vertical line when it is a filter fault,
                                        which has no value), 0 marked for a ρ objective
 
+A screened falsification (falsify.json's "screen", `softcbf.study.screen`) adds a section: the cheap search,
+every expensive evaluation with the screened one it confirmed, and the expensive evaluations spent; its plot
+shows both fidelities. A falsification campaign folder (DIR/campaign.json, `softcbf.study.campaign`) gets
+the ARCH-COMP table: per filter and box, runs, falsified, rate, evaluations to the first counterexample
+(median [min, max]) and the evaluations spent.
+
 `figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. The figures follow
 softcbf_mj.plot_style (one journal column, 3.5 in wide, 8 pt text, legends below the axes, the
 constrained layout): a tuning is named by softcbf_mj.palette.plot_labels (a filter's label with
