@@ -179,7 +179,8 @@ def pcc_contact(out_dir: Path, spec: PccContact) -> dict:
         if stop_after(row):
             break
     print(f"pcc_contact: {spec.run.duration:g} s from t0 = {spec.nominal.t0:g} s on the PCC plant, plate "
-          f"{spec.plate_stiffness:.4g} N/m (assumed {spec.assumed_plate_stiffness:g}) moved {spec.facet_offset * 1e3:g} mm, "
+          f"{spec.plate_stiffness:.4g} N/m (assumed {spec.assumed_plate_stiffness:g}) moved "
+          f"{spec.facet_offset * 1e3:g} mm, "
           f"pressure limits {'on' if spec.filter.pressure_limits else 'off'}; outputs in {out_dir}")
     print(write_table(out_dir, summary.data["runs"], TABLE))
     return summary.data

@@ -88,7 +88,8 @@ def falsify_seeds(study: Study, out_dir: str | Path, *, seeds: int, budget: int,
         runs = []
         for s in settings["seeds"]:
             folder = run_folder(root, i, s)
-            stored = json.loads((folder / FALSIFY_FILE).read_text(encoding="utf-8")) if (folder / FALSIFY_FILE).is_file() else None
+            state_file = folder / FALSIFY_FILE
+            stored = json.loads(state_file.read_text(encoding="utf-8")) if state_file.is_file() else None
             if stored is not None and stored.get("status") == "done" and stored.get("budget") == budget:
                 runs.append(stored)
                 continue

@@ -335,7 +335,8 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
     study = state["study"]
     curves = {}
     searched = (f"confirmed on {study['scenario']}" if screen else "search (" + state["sampler"] + ")", SEARCH_DIR)
-    screened = (f"screen on {screen['scenario']} ({state['sampler']})", f"{screen['dir']}/{SEARCH_DIR}") if screen else None
+    screened = ((f"screen on {screen['scenario']} ({state['sampler']})", f"{screen['dir']}/{SEARCH_DIR}")
+                if screen else None)
     for label, folder in (searched, ("uniform random", BASELINE_DIR), *([screened] if screened else [])):
         if (root / folder / STUDY_FILE).is_file():
             curves[label] = StudyStore.open(root / folder).load_rows()

@@ -152,7 +152,8 @@ def falsify_screened(
            "progress": False}
     candidates = [c for _, _, c in ranked]
     rows: dict[int, dict[str, Any]] = {}
-    bar = Progress(f"confirm on {study.scenario}", max(1, len(candidates)), enabled=progress.enabled if isinstance(progress, Progress) else bool(progress),
+    shown = progress.enabled if isinstance(progress, Progress) else bool(progress)
+    bar = Progress(f"confirm on {study.scenario}", max(1, len(candidates)), enabled=shown,
                    unit="evaluations")
     try:
         done = 0
