@@ -179,7 +179,10 @@ def test_cli_refuses_a_screen_that_cannot_represent_the_box_and_confirm_without_
     assert softcbf_main(["study", "falsify", corner, "--out", str(tmp_path / "b"), "--confirm", "3",
                          "--no-progress"]) == 2
     assert "--confirm counts the evaluations that confirm a screen" in capsys.readouterr().err
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert softcbf_main(["study", "falsify", corner, "--out", str(tmp_path / "c"), "--seeds", "2", "--baseline", "4",
+                         "--no-progress"]) == 2
+    assert "--seeds runs its falsifications without --baseline" in capsys.readouterr().err
+    assert not any((tmp_path / d).exists() for d in "abc")
 
 
 # -- the campaign over seeds ----------------------------------------------------------------
