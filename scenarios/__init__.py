@@ -49,7 +49,7 @@ from controllers.registry import did_you_mean
 from scenarios.spec import flat_parameters
 from vocabulary.settings import setting
 
-_MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop")
+_MODULES = ("scenarios.paper_sim", "scenarios.mujoco_contact", "scenarios.camera_loop", "scenarios.pcc_contact")
 
 
 @dataclass(frozen=True)

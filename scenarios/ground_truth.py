@@ -95,6 +95,26 @@ class Truth:
         return self.config.robot
 
 
+def scaled_robot(ref: RobotParams, length_scale: float, stiffness_scale: float, damping_scale: float,
+                 gain_scale: float) -> RobotParams:
+    """The true arm of the module docstring: `ref` with L_i, k_i, d_i, λ_i scaled (I_i × length_scale²)."""
+    return RobotParams(
+        lengths=ref.array("lengths") * length_scale, masses=ref.masses,
+        stiffness=ref.array("stiffness") * stiffness_scale, damping=ref.array("damping") * damping_scale,
+        gains=ref.array("gains") * gain_scale, u_min=ref.u_min, u_max=ref.u_max,
+        inertias=ref.array("inertias") * length_scale**2,
+    )
+
+
+def moved_facets(environment: Environment, offset: float, angle: float) -> Environment:
+    """The true plates of the module docstring: every facet moved by `offset` (m) along its outward normal and
+    turned by `angle` (rad) about the foot of the perpendicular from the base."""
+    H, h = environment.H, environment.h
+    cos_a, sin_a = math.cos(angle), math.sin(angle)
+    return Environment(np.column_stack((H[:, 0] * cos_a - H[:, 1] * sin_a, H[:, 0] * sin_a + H[:, 1] * cos_a)),
+                       (h + offset * np.hypot(H[:, 0], H[:, 1])) * cos_a)
+
+
 def build_truth(arm: TrueArm, plate: Plate, model: Model, model_robot: RobotParams, environment: Environment) -> Truth:
     """The ground truth of a MuJoCo scenario's checked `arm` and `plate` (module docstring), for the
     controller's `model`, its robot `model_robot` (`scenarios.common.controller_robot`) and facets `environment`."""
@@ -103,16 +123,9 @@ def build_truth(arm: TrueArm, plate: Plate, model: Model, model_robot: RobotPara
 
     g = arm
     ref = scale_damping(load_robot(g.robot), model.damping_scale) if g.robot else model_robot
-    true_arm = RobotParams(
-        lengths=ref.array("lengths") * g.length_scale, masses=ref.masses,
-        stiffness=ref.array("stiffness") * g.stiffness_scale, damping=ref.array("damping") * g.damping_scale,
-        gains=ref.array("gains") * g.gain_scale, u_min=ref.u_min, u_max=ref.u_max,
-        inertias=ref.array("inertias") * g.length_scale**2,
-    )
-    H, h = environment.H, environment.h
-    cos_a, sin_a = math.cos(g.facet_angle), math.sin(g.facet_angle)
-    true_H = np.column_stack((H[:, 0] * cos_a - H[:, 1] * sin_a, H[:, 0] * sin_a + H[:, 1] * cos_a))
-    true_h = (h + g.facet_offset * np.hypot(H[:, 0], H[:, 1])) * cos_a
+    true_arm = scaled_robot(ref, g.length_scale, g.stiffness_scale, g.damping_scale, g.gain_scale)
+    moved = moved_facets(environment, g.facet_offset, g.facet_angle)
+    true_H, true_h = moved.H, moved.h
     built: dict[str, Any] = dict(robot=true_arm, H=true_H, h=true_h, plate_stiffness=plate.stiffness,
                                  links_per_segment=g.links_per_segment, tau_p=g.tau_p, physics_dt=g.physics_dt,
                                  tip_friction=g.tip_friction, plate=plate.kind, flexure=flexure(plate),
@@ -121,4 +134,4 @@ def build_truth(arm: TrueArm, plate: Plate, model: Model, model_robot: RobotPara
         built["gravity"] = (0.0, -g.gravity, 0.0)
     config = ArmModelConfig(**built)
     stiffness = calibrate_flexure(config).stiffness_N_per_m if plate.kind == "flexure" else plate.stiffness
-    return Truth(config, Environment(true_H, true_h), stiffness)
+    return Truth(config, moved, stiffness)

@@ -8,9 +8,10 @@ import pytest
 from scenarios import registry
 from scenarios.camera_loop import camera_setup
 from scenarios.mujoco_contact import contact_setup
+from scenarios.pcc_contact import pcc_contact_setup
 from scenarios.run import scenario_parameters
 
-SETUPS = {"mujoco_contact": contact_setup, "camera_loop": camera_setup}
+SETUPS = {"mujoco_contact": contact_setup, "camera_loop": camera_setup, "pcc_contact": pcc_contact_setup}
 
 
 def told_lag(scenario: str, arguments: list[str]) -> float:

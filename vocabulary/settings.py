@@ -224,6 +224,7 @@ DEFAULT_OVERRIDES: dict[str, dict[str, Any]] = {
     # the paper's simulation (§V): no pressure box, as in the paper; its 1 kHz controller
     "paper_sim": {"pressure_limits": False, "control_rate": 1000.0},
     "mujoco_contact": {},
+    "pcc_contact": {},  # mujoco_contact's errors on the PCC plant (scenarios.pcc_contact)
     # the paper's hardware experiment in MuJoCo: the hardware tunings; a coarser rod for a 2 ms tick
     # (softcbf_mj.mjcf.CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
     "camera_loop": {"tunings": ("None", "HW-Low", "HW-High"), "links_per_segment": 5, "physics_dt": 2e-4},

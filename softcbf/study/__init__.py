@@ -9,7 +9,8 @@ probabilities with confidence intervals (Wilson, exact Clopper–Pearson) and se
 (a sample whose filter faulted counts as a violation: a fault is never a pass);
 `report` writes the plots and a Markdown summary; `sequential` draws until the violation
 probability is bounded; `falsify` searches a study's box for its worst case (optuna) on the
-same engine; `tune` searches a filter's parameters for the most force that an inner falsification
+same engine, `screen` on a cheaper scenario first (multi-fidelity), `campaign` over seeds (ARCH-COMP's
+falsification rate); `tune` searches a filter's parameters for the most force that an inner falsification
 cannot break; `cli` is `python -m softcbf.study run|falsify|tune|report`.
 """
 

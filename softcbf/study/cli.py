@@ -7,6 +7,7 @@
                                    [--initial vertices|random]
                                    [--seed S] [--baseline N] [--stop-on-violation] [--storage journal|sqlite|URL]
                                    [--workers N | --scheduler tcp://host:8786] [--resume] [--batch-size N] [--set ...]
+                                   [--screen SCENARIO [--confirm K]] [--seeds N]
     python -m softcbf.study tune TUNE_FILE --out DIR [--budget 20] [--inner-budget 40] [--sampler tpe|cmaes]
                                    [--population 4] [--seed S] [--workers N | --scheduler tcp://host:8786] [--resume]
                                    [--storage journal|sqlite|URL] [--set ...]
@@ -27,6 +28,9 @@ violation everywhere (a fault is never a pass); the lines printed say how many f
 `falsify` searches the file's [vary] box for the minimum of its objective (default
 ρ_min_meas) with optuna's CMA-ES or TPE, beside a uniform baseline of the same budget, into
 DIR (`softcbf.study.falsify`: DIR/falsify.json, DIR/worst/, …); it ends with the report.
+`--screen SCENARIO` searches on a cheaper scenario and confirms its worst K (`--confirm`) on the
+file's (`softcbf.study.screen`); `--seeds N` repeats the search per filter over N seeds and
+reports the falsification rate and evaluations to the first counterexample (`softcbf.study.campaign`).
 `tune` searches a tune file's tuning box (its [tune] table over the filter's parameters) for the setting with the
 most force at the nominal point that an inner falsification of its [vary] box cannot break
 (`softcbf.study.tune`: DIR/tune.json, DIR/tune.png, DIR/best/, DIR/winner.json).
@@ -118,15 +122,28 @@ def _falsify(args: argparse.Namespace) -> int:
         bar = Progress(f"falsify {study.name}", max(1, args.budget), enabled=not args.no_progress, unit="evaluations")
         if args.budget >= 1 and not args.resume:  # a resume's first line follows its checks (`falsify`)
             bar.update(0, "starting the search")
+        if args.confirm is not None and args.screen is None:
+            raise ValueError("--confirm counts the evaluations that confirm a screen; give --screen SCENARIO with it")
+        if args.seeds is not None:
+            _falsify_seeds(study, args, bar)
+            return
         from softcbf.study.falsify import falsify  # optuna: a second or more to import, after the first line
+        from softcbf.study.screen import SCREEN_DIR
         from softcbf.study.store import search_storage
 
-        storage = search_storage(args.out, args.storage, args.resume, on_dask=args.scheduler is not None)
-        result = falsify(study, args.out, budget=args.budget, sampler=args.sampler, population=args.population,
-                         initial=args.initial,
-                         seed=args.seed, baseline=args.baseline, stop_on_violation=args.stop_on_violation,
-                         storage=storage, resume=args.resume, workers=args.workers, scheduler=args.scheduler,
-                         batch_size=args.batch_size, progress=bar)
+        searched = Path(args.out) / SCREEN_DIR if args.screen is not None else Path(args.out)  # optuna's folder
+        storage = search_storage(searched, args.storage, args.resume, on_dask=args.scheduler is not None)
+        options = {"budget": args.budget, "sampler": args.sampler, "population": args.population,
+                   "initial": args.initial, "seed": args.seed, "stop_on_violation": args.stop_on_violation,
+                   "storage": storage, "resume": args.resume, "workers": args.workers,
+                   "scheduler": args.scheduler, "batch_size": args.batch_size, "progress": bar}
+        if args.screen is not None:
+            from softcbf.study.screen import falsify_screened
+            if args.baseline:
+                raise ValueError("--baseline draws on the study's own scenario; a screened search (--screen) has none")
+            result = falsify_screened(study, args.out, screen=args.screen, confirm=args.confirm, **options)
+        else:
+            result = falsify(study, args.out, baseline=args.baseline, **options)
         best, base = result["best"], result["random_baseline"]
         found = (f"a filter fault ({best['fault']['type']} in the {best['fault']['where']}: {best['fault']['message']})"
                  if best["fault"] else f"{result['objective']} = {shown(best['value'])}")
@@ -138,11 +155,39 @@ def _falsify(args: argparse.Namespace) -> int:
               + ("a filter fault" if base["fault"] else shown(base["best"]))
               + f" in {base['evaluations']} ({base['faulted']} faulted), first violation: "
               f"{base['first_violation'] or 'none'}; folder {args.out}")
+        if args.screen is not None:
+            screen = result["screen"]
+            print(f"screened on {args.screen}: {screen['evaluations']} evaluations (first violation there: "
+                  f"{screen['first_violation'] or 'none'}); confirmed {len(result['confirmed'])} on {study.scenario}; "
+                  f"expensive evaluations spent: {result['expensive_evaluations']} (the worst's replay included)")
         from softcbf.study.report import write_report  # pandas, matplotlib: after the search (its first line early)
 
         print(f"report: {write_report(args.out)}")
 
     return _resumable(body, args.out, "evaluations")
+
+
+def _falsify_seeds(study: Any, args: argparse.Namespace, bar: Any) -> None:
+    """`falsify --seeds N`: the campaign of `softcbf.study.campaign`, its table printed and in the report."""
+    from softcbf.study.campaign import falsify_seeds
+
+    if args.baseline or args.storage:
+        raise ValueError("--seeds runs its falsifications without --baseline and in SQLite files of their own "
+                         "(no --storage)")
+    bar.close(0)
+    state = falsify_seeds(study, args.out, seeds=args.seeds, budget=args.budget, seed=args.seed, screen=args.screen,
+                          confirm=args.confirm, sampler=args.sampler, population=args.population,
+                          initial=args.initial, stop_on_violation=args.stop_on_violation, resume=args.resume,
+                          workers=args.workers, scheduler=args.scheduler, batch_size=args.batch_size,
+                          progress=not args.no_progress)
+    for row in state["table"]:
+        first = row["first_counterexample"]
+        print(f"{row['filter']} on {row['box']}: falsified {row['falsified']} of {row['runs']} seeds"
+              + (f", evaluations to the first counterexample median {first['median']:g} "
+                 f"[{first['min']}, {first['max']}]" if first else ""))
+    from softcbf.study.report import write_report
+
+    print(f"report: {write_report(args.out)}")
 
 
 def _tune(args: argparse.Namespace) -> int:
@@ -154,6 +199,7 @@ def _tune(args: argparse.Namespace) -> int:
         bar = Progress(f"tune {tune_file.study.name}", max(1, args.budget), enabled=not args.no_progress,
                        unit="evaluations")
         bar.update(0, "starting the search")
+        from softcbf.study.screen import SCREEN_DIR
         from softcbf.study.store import search_storage
         from softcbf.study.tune import tune  # optuna: a second or more to import, after the first line
 
@@ -237,6 +283,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     falsify.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
     falsify.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                          help="set a dotted key of the study file, e.g. vary.plate_stiffness.high=12 (repeatable)")
+    falsify.add_argument("--screen", metavar="SCENARIO",
+                         help="multi-fidelity: search on this cheaper scenario (e.g. pcc_contact, the PCC plant with "
+                              "mujoco_contact's errors), then confirm its worst candidates on the file's scenario")
+    falsify.add_argument("--confirm", type=int, metavar="K",
+                         help="with --screen: the most candidates confirmed on the file's scenario (default the "
+                              "population)")
+    falsify.add_argument("--seeds", type=int, metavar="N",
+                         help="repeat the search per filter over N seeds (from --seed) and report the falsification "
+                              "rate and evaluations to the first counterexample (ARCH-COMP)")
     falsify.set_defaults(study_handler=_falsify)
     tune = commands.add_parser("tune", help="search a filter's parameters for the most force that stays safe over "
                                             "an error box")

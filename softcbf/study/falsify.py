@@ -89,6 +89,9 @@ Outputs of a falsification folder DIR:
                          for bit; falsify.json's worst.value is that run's J, equal to best.value
     DIR/optuna.db        optuna's storage (the default SQLite one)
     DIR/report.md, DIR/plots/best_so_far.<fmt>   written by `softcbf study report DIR`
+
+Multi-fidelity (a cheap scenario's search confirmed on this one) and campaigns over seeds build on `falsify`:
+`softcbf.study.screen`, `softcbf.study.campaign`.
 """
 
 from __future__ import annotations
@@ -290,7 +293,7 @@ def stored_rows(store_dir: Path, indices: range) -> dict[int, dict[str, Any]]:
     return {i: read_part(results / part_name(i)).to_pylist()[0] for i in indices if (results / part_name(i)).is_file()}
 
 
-def _summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
+def summary(rows: list[dict[str, Any]], objective: str) -> dict[str, Any]:
     """Best row (by the searched sense, `searched_value`), failures (no value, no fault), faults and the
     evaluation count at the first violation (a fault included)."""
     scored = [(searched_value(r, objective), r) for r in rows]
@@ -437,7 +440,7 @@ def falsify(
             note = search_note(evaluated, objective)
             bar.update(len(candidates), note)
         bar.close(len(candidates))
-        result = _summary([evaluated[i] for i in sorted(evaluated)], objective)
+        result = summary([evaluated[i] for i in sorted(evaluated)], objective)
         base = []
         if baseline:
             base_bar = Progress(f"falsify {study.name} baseline", baseline, enabled=bar.enabled, unit="draws")
@@ -445,10 +448,10 @@ def falsify(
             base = uniform_baseline(study, baseline_dir, baseline, population if stop_on_violation else None, run,
                                     report=lambda done_now: base_bar.update(done_now, "uniform draws of the box"))
             base_bar.close(len(base))
-        base_summary = _summary(base, objective)
+        base_summary = summary(base, objective)
         worst = None
         if result["evaluation"] is not None:
-            worst = _replay_worst(CandidateStudy.of(study, candidates), result["evaluation"] - 1, root / WORST_DIR,
+            worst = replay_worst(CandidateStudy.of(study, candidates), result["evaluation"] - 1, root / WORST_DIR,
                                   objective)
     finally:
         if own_client is not None:
@@ -523,7 +526,7 @@ def retire_interrupted(search: optuna.Study, trials: list[optuna.trial.FrozenTri
 def search_note(evaluated: dict[int, dict[str, Any]], objective: str) -> str:
     """The progress line's note of a search: the best objective so far (`significant` digits), faults and the
     first violation."""
-    done = _summary([evaluated[i] for i in sorted(evaluated)], objective)
+    done = summary([evaluated[i] for i in sorted(evaluated)], objective)
     best = "a filter fault" if done["fault"] else significant(done["best"])
     return (f"best {objective} {best}" + (f", {done['faulted']} faulted" if done["faulted"] else "")
             + (f", first violation at evaluation {done['first_violation']}" if done["first_violation"] else ""))
@@ -559,7 +562,7 @@ def uniform_baseline(study: Study, folder: Path, budget: int, chunk: int | None,
     return [rows[i] for i in sorted(rows)]
 
 
-def _replay_worst(study: CandidateStudy, index: int, folder: Path, objective: str) -> dict[str, Any]:
+def replay_worst(study: CandidateStudy, index: int, folder: Path, objective: str) -> dict[str, Any]:
     """Run evaluation `index` alone into `folder` (a full run folder, replaced if there) and return its J."""
     if folder.exists():
         shutil.rmtree(folder)

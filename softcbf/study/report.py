@@ -35,6 +35,12 @@ A falsification folder (DIR/falsify.json, `softcbf.study.falsify`) gets its own 
                                        first violations marked (a vertical line when it is a filter fault,
                                        which has no value), 0 marked for a ρ objective
 
+A screened falsification (falsify.json's "screen", `softcbf.study.screen`) adds a section: the cheap search,
+every expensive evaluation with the screened one it confirmed, and the expensive evaluations spent; its plot
+shows both fidelities. A falsification campaign folder (DIR/campaign.json, `softcbf.study.campaign`) gets
+the ARCH-COMP table: per filter and box, runs, falsified, rate, evaluations to the first counterexample
+(median [min, max]) and the evaluations spent.
+
 `figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. The figures follow
 softcbf_mj.plot_style (one journal column, 3.5 in wide, 8 pt text, legends below the axes, the
 constrained layout): a tuning is named by softcbf_mj.palette.plot_labels (a filter's label with
@@ -55,6 +61,7 @@ from scenarios import get as get_scenario
 from softcbf.study.analysis import (Proportion, clean, crossing, sensitivity, tuning_summary, varied_parameters,
                                     violated)
 from softcbf.study.falsify import BASELINE_DIR, SEARCH_DIR, WORST_DIR, minimised, objective_value
+from softcbf.study.campaign import CAMPAIGN_FILE
 from softcbf.study.store import FALSIFY_FILE, STUDY_FILE, StudyStore, fault_of, faulted
 from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels
 from softcbf_mj.plot_style import (COLUMN_WIDTH_IN, FIGURE_FORMATS, GRID_ALPHA, distinct_colors, legend_outside, new_figure,
@@ -208,6 +215,8 @@ def write_report(root: str | Path, level: float = 0.05, bins: int = 6, figure_fo
         raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
     if not dpi > 0:
         raise ValueError(f"dpi must be > 0, got {dpi}")
+    if (Path(root) / CAMPAIGN_FILE).is_file():
+        return write_campaign_report(root)
     if (Path(root) / FALSIFY_FILE).is_file() and not (Path(root) / STUDY_FILE).is_file():
         return write_falsify_report(root, figure_format, dpi)
     store = StudyStore.open(root)
@@ -322,8 +331,13 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
     root = Path(root)
     state = json.loads((root / FALSIFY_FILE).read_text(encoding="utf-8"))
     objective = state["objective"]
+    screen = state.get("screen")
+    study = state["study"]
     curves = {}
-    for label, folder in (("search (" + state["sampler"] + ")", SEARCH_DIR), ("uniform random", BASELINE_DIR)):
+    searched = (f"confirmed on {study['scenario']}" if screen else "search (" + state["sampler"] + ")", SEARCH_DIR)
+    screened = ((f"screen on {screen['scenario']} ({state['sampler']})", f"{screen['dir']}/{SEARCH_DIR}")
+                if screen else None)
+    for label, folder in (searched, ("uniform random", BASELINE_DIR), *([screened] if screened else [])):
         if (root / folder / STUDY_FILE).is_file():
             curves[label] = StudyStore.open(root / folder).load_rows()
     if not any(curves.values()):
@@ -331,7 +345,6 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
     plots = root / PLOTS_DIR
     plots.mkdir(exist_ok=True)
     best_so_far_plot(curves, objective, plots / f"best_so_far.{figure_format}", figure_format, dpi)
-    study = state["study"]
     box = ", ".join(f"`{name}` {spec}" for name, spec in study["vary"].items()) or "none"
     lines = [f"# Falsification of study `{study['name']}`", "",
              f"Scenario `{study['scenario']}`, tunings {study['tunings']}; fixed: "
@@ -391,8 +404,65 @@ def write_falsify_report(root: str | Path, figure_format: str = "png", dpi: floa
             lines.append(f"| {tuning} | {faults} | {v.k}/{v.n} | {_fmt(v.p, '.3f')} | [{v.low:.3f}, {v.high:.3f}] | "
                          f"[{exact[0]:.3f}, {exact[1]:.3f}] | {v.upper:.4f} |")
         lines.append("")
+    if screen:
+        lines += screen_markdown(state)
     lines += [f"Rows: `{SEARCH_DIR}/` and `{BASELINE_DIR}/` are study folders (one Parquet part per evaluation; "
               "`softcbf study report` on either gives its own distributions); falsify.json holds the figures above.", ""]
     path = root / REPORT_FILE
     path.write_text("\n".join(lines), encoding="utf-8")
+    return path
+
+
+def screen_markdown(state: Mapping[str, Any]) -> list[str]:
+    """report.md's section of a multi-fidelity falsification (`softcbf.study.screen`): both fidelities'
+    evaluations, which screened evaluation each expensive one confirmed, and the expensive evaluations spent."""
+    screen, scenario = state["screen"], state["study"]["scenario"]
+    lines = ["## Multi-fidelity: screened, then confirmed", "",
+             f"The box was searched on `{screen['scenario']}` ({screen['evaluations']} evaluations of a budget of "
+             f"{screen['budget']}, {screen['faulted']} faulted, first violation there: "
+             f"{_fmt(screen['first_violation'], 'd')}; folder `{screen['dir']}/`), and its worst distinct candidates "
+             f"(at most {screen['confirm']}) were run on `{scenario}` in that order (`{SEARCH_DIR}/`). Expensive "
+             f"evaluations spent: **{state['expensive_evaluations']}** on `{scenario}` ({len(state['confirmed'])} "
+             "confirmations" + (" and the worst case's replay" if state.get("worst") else "") + ").", "",
+             f"| evaluation on {scenario} | screened evaluation | {state['objective']} screened | "
+             f"{state['objective']} confirmed | violated |", "|---|---|---|---|---|"]
+    for c in state["confirmed"]:
+        shown = f"filter fault ({c['fault']['type']})" if c.get("fault") else _fmt(c["value"], ".4g")
+        lines.append(f"| {c['evaluation']} | {c['screen_evaluation']} | {_fmt(c['screen_value'], '.4g')} | {shown} | "
+                     f"{'yes' if c['violated'] else 'no'} |")
+    return lines + [""]
+
+
+def campaign_markdown(state: Mapping[str, Any]) -> list[str]:
+    """The ARCH-COMP table of a falsification campaign (`softcbf.study.campaign`): per filter and box, the
+    falsification rate over the seeds and the evaluations to the first counterexample (median and range)."""
+    screened = f", screened on `{state['screen']}`" if state.get("screen") else ""
+    lines = [f"# Falsification campaign of study `{state['study']['name']}`", "",
+             f"Scenario `{state['study']['scenario']}`{screened}; {len(state['seeds'])} seeds "
+             f"({state['seeds'][0]}–{state['seeds'][-1]}), budget {state['budget']} evaluations per run"
+             + (" (of the cheap scenario; the counts below are the expensive scenario's)" if state.get("screen") else "")
+             + f", sampler {state['sampler']}, generation 0 {state['initial']}"
+             + (", each run stopped after its first violation" if state["stop_on_violation"] else "") + ".", "",
+             "Falsification rate: the fraction of runs that found a counterexample (ρ_min_meas < 0 or a filter fault) "
+             "within the budget; evaluations to the first counterexample: over the runs that found one, counted "
+             "from 1 (ARCH-COMP's falsification track). No counterexample in a run is no proof of safety.", "",
+             "| filter | box | runs | falsified | rate | evaluations to first counterexample: median [min, max] "
+             "| evaluations spent |", "|---|---|---|---|---|---|---|"]
+    for row in state.get("table") or []:
+        first = row["first_counterexample"]
+        shown = f"{first['median']:g} [{first['min']}, {first['max']}]" if first else "–"
+        lines.append(f"| {row['filter']} | {row['box']} | {row['runs']} | {row['falsified']} | "
+                     f"{_fmt(row['rate'], '.2f')} | {shown} | {row['evaluations']} |")
+    return lines + ["", f"Every run is a falsification folder: `filter_<i>/seed_<s>/` (i: the filter's index in the "
+                        f"study's tunings); `{CAMPAIGN_FILE}` holds the table and every run's figures.", ""]
+
+
+def write_campaign_report(root: str | Path) -> Path:
+    """Write a falsification campaign folder's report.md (`campaign_markdown`); return its path."""
+    root = Path(root)
+    state = json.loads((root / CAMPAIGN_FILE).read_text(encoding="utf-8"))
+    if state.get("status") != "done":
+        raise ValueError(f"{root}'s campaign has not finished; continue it with `study falsify --seeds N --resume`")
+    path = root / REPORT_FILE
+    path.write_text("\n".join(campaign_markdown(state)), encoding="utf-8")
     return path
