@@ -31,7 +31,7 @@ once (`HardwareLog.error`); either way every cycle before is kept and the valves
 The summary counts the loop's VENT cycles and the board's watchdog vents (`watchdog_vents`,
 from its ACKs).
 
-Warm-up: before the camera starts, a second step of the same filter and nominal (`warm_up`, built by
+Warm-up: before the first frame is awaited, a second step of the same filter and nominal (`warm_up`, built by
 `from_config` from the same settings and dropped after) is run on `warm_up_states(context)`: the arm's
 uniform bends toward each side from straight to past the plate (tip margins ρ from 1 down to
 WARM_UP_MARGINS' last), at rest and bending toward the plate, with estimates as old as a camera's, then a
@@ -137,16 +137,18 @@ def warm_up_states(context: FilterContext) -> list[tuple[np.ndarray, np.ndarray]
     return states
 
 
-def warm_up(step: ControlStep, context: FilterContext) -> None:
+def warm_up(step: ControlStep, context: FilterContext, stop: threading.Event | None = None) -> None:
     """Run `step` (a step built for the warm-up, not the run's) as the loop's cycles call it, one control period
     apart, each estimate WARM_UP_AGE_PERIODS old: on each of `warm_up_states(context)` with no flag raised, then
     on the last with a stale estimate (HOLD) and with the link lost (VENT) (module docstring). What it returns is
     dropped; a filter fault there is the warm-up step's own (the run's filter, its own instance, is first called
-    in the loop)."""
+    in the loop). It ends early once `stop` is set (Ctrl-C: the run then vents in its first cycle)."""
     states = warm_up_states(context)
     flags = [SafetyFlags()] * len(states) + [SafetyFlags(perception_stale=True), SafetyFlags(link_lost=True)]
     states += states[-1:] * 2
     for k, ((q, qd), raised) in enumerate(zip(states, flags)):
+        if stop is not None and stop.is_set():
+            return
         t = k * context.control_dt
         step(Estimate(t, q, qd, t - WARM_UP_AGE_PERIODS * context.control_dt), raised)
 
@@ -277,8 +279,8 @@ class HardwareLoop:
     sent the recorder every `live.period_steps` cycles and at the end, in the control
     thread after the cycle's command went out; None by default. `t0` is the clock time of
     the first cycle (s; None before), the origin of the rows' t. `warm_up`: a second step of
-    the same filter and nominal, run by `run()` on the warm-up states before the camera starts
-    and dropped (module docstring; None: no warm-up).
+    the same filter and nominal, run by `run()` on the warm-up states before it awaits the first
+    frame, and dropped (module docstring; None: no warm-up).
     """
 
     def __init__(
@@ -353,9 +355,6 @@ class HardwareLoop:
 
     def run(self) -> HardwareLog:
         record = HardwareLog.for_cycles(int(round(self.duration_s / self.period_s)), self.step.n)
-        if self.warm_up_step is not None:  # before anything is sent: Ctrl-C here ends run() at once
-            step, self.warm_up_step = self.warm_up_step, None  # once: a later run() finds the kernels loaded
-            warm_up(step, self.step.context)
         # Ctrl-C (SIGINT) asks the loop to stop wherever it lands, like stop(): the next cycle
         # (at once, the wait is cut short) vents. Only the main thread may install handlers.
         in_main = threading.current_thread() is threading.main_thread()
@@ -363,6 +362,9 @@ class HardwareLoop:
         self.step.reset()
         self.perception.start()
         try:
+            if self.warm_up_step is not None:  # once: a later run() finds the kernels loaded
+                step, self.warm_up_step = self.warm_up_step, None
+                warm_up(step, self.step.context, self._stop)
             self._wait_for_perception()
             t0 = self.t0 = self.clock()
             n_cycles = int(round(self.duration_s / self.period_s))
