@@ -62,7 +62,8 @@ def pytest_sessionstart(session):
                               env={**os.environ, "PYTHONPATH": os.pathsep.join(
                                   filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))})
     if done.returncode != 0:
-        raise pytest.UsageError(f"the kernel warm-up failed: {(done.stderr or done.stdout).strip().splitlines()[-1:]}")
+        last = (done.stderr or done.stdout or f"exit {done.returncode}").strip().splitlines()[-1]
+        raise pytest.UsageError(f"the kernel warm-up (tests/conftest.py) failed: {last}")
 
 
 @contextlib.contextmanager
