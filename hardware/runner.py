@@ -31,6 +31,16 @@ once (`HardwareLog.error`); either way every cycle before is kept and the valves
 The summary counts the loop's VENT cycles and the board's watchdog vents (`watchdog_vents`,
 from its ACKs).
 
+Warm-up: before the first frame is awaited, a second step of the same filter and nominal (`warm_up`, built by
+`from_config` from the same settings and dropped after) is run on `warm_up_states(context)`: the arm's
+uniform bends toward each side from straight to past the plate (tip margins ρ from 1 down to
+WARM_UP_MARGINS' last), at rest and bending toward the plate, with estimates as old as a camera's, then a
+stale estimate and a lost link (the monitor's HOLD and VENT). The filter's compiled kernels (numba:
+loaded from its cache, or compiled on a cold one) and its one-time imports load there, outside the timed
+loop: else the first cycle and the first contact of a process's first run stall by the load (about 0.2 s
+from the cache, 5–50 s on a cold one) and the board's watchdog vents. The run's own filter has done nothing
+yet, so no warm-up state enters its history.
+
 Start: the loop waits (up to `startup_timeout_s`) for the first complete frame, so q is
 finite from the first cycle on; without one it vents and raises `PerceptionStartupError`
 (a `StartupError`, like a camera or port that does not open: one line naming the setting).
@@ -63,6 +73,7 @@ import numpy as np
 from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
 from closedloop.record import LiveRows, Recorder
 from closedloop.step import ACTION_CODES, ControlStep, FilterFault
+from controllers.pcc import segment_ends
 from controllers.registry import build_filter, build_nominal
 from controllers.safety_filter import Estimate, FilterContext
 from hardware.config import HardwareConfig
@@ -77,6 +88,11 @@ from perception.tags import arm_tag_ids
 log = logging.getLogger(__name__)
 
 NO_FRAME_WAIT_S = 0.01  # pause after a source delivered no frame, s
+WARM_UP_MARGINS = (1.0, 0.75, 0.5, 0.25, 0.1, 0.0, -0.25, -0.5, -1.0)  # tip margins ρ of the warm-up's bends
+WARM_UP_BEND_STEP_RAD = 0.05  # the grid of uniform bends searched for them, rad per segment
+WARM_UP_BEND_TOL_RAD = 1e-3  # the bisection's tolerance on the bend reaching a margin, rad per segment
+WARM_UP_QD_RAD_S = 0.5  # the warm-up's bend rate toward the plate, rad/s per segment
+WARM_UP_AGE_PERIODS = 0.5  # the warm-up estimates' age, control periods (a camera frame's is > 0: the filter predicts)
 LOOP_COLUMNS = ("t", "t_clock", "q_est", "qd_est", "est_age_s", "u_sent", "u_measured", "link_latency_s", "late_s")
 LOOP_FLAGS = ("est_stale", "link_acked", "link_lost")
 
@@ -87,6 +103,54 @@ def controller_context(config: HardwareConfig) -> FilterContext:
     is handed a copy of it in turn (`HardwareLoop.from_config`)."""
     return FilterContext.for_robot(config.robot_params(), config.safe_set(), config.control.period_s,
                                    config.control.pressure_limits).copy()
+
+
+def warm_up_states(context: FilterContext) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(q, q̇) pairs (rad, rad/s, (N,) each) for the warm-up (module docstring): for each side, the uniform bends
+    q = θ·1 (0 ≤ θ ≤ π/2 per segment) whose tip margin (`context.safe_set.margin`) first reaches each of
+    WARM_UP_MARGINS (found on a grid of WARM_UP_BEND_STEP_RAD, then halved to WARM_UP_BEND_TOL_RAD; the last
+    bend of the grid when the margin stays above), each at rest and bending toward the plate at
+    WARM_UP_QD_RAD_S."""
+    n, lengths, safe_set = context.robot.n_segments, np.array(context.robot.lengths, dtype=float), context.safe_set
+    states = []
+    for side in (1.0, -1.0):
+        def margin(theta: float) -> float:
+            return float(safe_set.margin(segment_ends(np.full(n, side * theta), lengths)[-1]))
+
+        grid = np.arange(0.0, math.pi / 2, WARM_UP_BEND_STEP_RAD)
+        margins = np.array([margin(theta) for theta in grid])
+        bends = set()
+        for level in WARM_UP_MARGINS:
+            reached = np.flatnonzero(margins <= level)
+            if reached.size == 0:
+                bends.add(float(grid[-1]) if level < 1.0 else 0.0)
+                continue
+            hi = float(grid[reached[0]])
+            lo = float(grid[max(reached[0] - 1, 0)])
+            while hi - lo > WARM_UP_BEND_TOL_RAD:
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if margin(mid) <= level else (mid, hi)
+            bends.add(hi)
+        for bend in sorted(bends):
+            q = np.full(n, side * bend)
+            states += [(q, np.zeros(n)), (q, np.full(n, side * WARM_UP_QD_RAD_S))]
+    return states
+
+
+def warm_up(step: ControlStep, context: FilterContext, stop: threading.Event | None = None) -> None:
+    """Run `step` (a step built for the warm-up, not the run's) as the loop's cycles call it, one control period
+    apart, each estimate WARM_UP_AGE_PERIODS old: on each of `warm_up_states(context)` with no flag raised, then
+    on the last with a stale estimate (HOLD) and with the link lost (VENT) (module docstring). What it returns is
+    dropped; a filter fault there is the warm-up step's own (the run's filter, its own instance, is first called
+    in the loop). It ends early once `stop` is set (Ctrl-C: the run then vents in its first cycle)."""
+    states = warm_up_states(context)
+    flags = [SafetyFlags()] * len(states) + [SafetyFlags(perception_stale=True), SafetyFlags(link_lost=True)]
+    states += states[-1:] * 2
+    for k, ((q, qd), raised) in enumerate(zip(states, flags)):
+        if stop is not None and stop.is_set():
+            return
+        t = k * context.control_dt
+        step(Estimate(t, q, qd, t - WARM_UP_AGE_PERIODS * context.control_dt), raised)
 
 
 class StartupError(RuntimeError):
@@ -214,7 +278,9 @@ class HardwareLoop:
     `live` (closedloop.record.LiveRows, e.g. softcbf_mj.recording.LiveRun), when set, is
     sent the recorder every `live.period_steps` cycles and at the end, in the control
     thread after the cycle's command went out; None by default. `t0` is the clock time of
-    the first cycle (s; None before), the origin of the rows' t.
+    the first cycle (s; None before), the origin of the rows' t. `warm_up`: a second step of
+    the same filter and nominal, run by `run()` on the warm-up states before it awaits the first
+    frame, and dropped (module docstring; None: no warm-up).
     """
 
     def __init__(
@@ -229,17 +295,21 @@ class HardwareLoop:
         startup_timeout_s: float = 5.0,
         clock: Callable[[], float] = time.monotonic,
         on_cycle: Callable[[int, float, SafeAction], None] | None = None,
+        warm_up: ControlStep | None = None,
     ) -> None:
         for name, value in (("period_s", period_s), ("duration_s", duration_s), ("startup_timeout_s", startup_timeout_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite time > 0 s, got {value}")
         n = step.n
+        if warm_up is not None and warm_up.n != n:
+            raise ValueError(f"segments disagree: controller {n}, warm-up step {warm_up.n}")
         if not (link.n_segments == perception.estimator.n_segments == n):
             raise ValueError(f"segments disagree: controller {n}, link {link.n_segments}, "
                              f"estimator {perception.estimator.n_segments}")
         self.perception, self.link, self.step = perception, link, step
         self.period_s, self.duration_s = float(period_s), float(duration_s)
         self.dry_run, self.startup_timeout_s, self.clock, self.on_cycle = dry_run, float(startup_timeout_s), clock, on_cycle
+        self.warm_up_step = warm_up
         self.live: LiveRows | None = None
         self.t0: float | None = None
         self._stop = threading.Event()
@@ -258,11 +328,14 @@ class HardwareLoop:
         link = ValveBoardLink(transport, n, robot.u_min, robot.u_max, ack_timeout_s=lk.ack_timeout_s,
                               retries=lk.retries, clock=clock, lost_after=lk.lost_after, baudrate=lk.baudrate)
         context = controller_context(config)
-        step = ControlStep(build_filter(config.plugin_spec(ctl.filter), ctl.filter_arguments(), context.copy()),
-                           build_nominal(config.plugin_spec(ctl.nominal), ctl.nominal_arguments(), context.copy()), context,
-                           SafetyMonitor(n, config.safety.hold_s))
-        return cls(perception, link, step, ctl.period_s, config.run.duration, dry_run=config.run.dry_run,
-                   startup_timeout_s=cam.startup_timeout_s, clock=clock, on_cycle=on_cycle)
+
+        def control_step() -> ControlStep:
+            return ControlStep(build_filter(config.plugin_spec(ctl.filter), ctl.filter_arguments(), context.copy()),
+                               build_nominal(config.plugin_spec(ctl.nominal), ctl.nominal_arguments(), context.copy()),
+                               context, SafetyMonitor(n, config.safety.hold_s))
+
+        return cls(perception, link, control_step(), ctl.period_s, config.run.duration, dry_run=config.run.dry_run,
+                   startup_timeout_s=cam.startup_timeout_s, clock=clock, on_cycle=on_cycle, warm_up=control_step())
 
     def stop(self) -> None:
         """Ask the loop to end: its next cycle vents (interrupted) and it returns."""
@@ -289,6 +362,9 @@ class HardwareLoop:
         self.step.reset()
         self.perception.start()
         try:
+            if self.warm_up_step is not None:  # once: a later run() finds the kernels loaded
+                step, self.warm_up_step = self.warm_up_step, None
+                warm_up(step, self.step.context, self._stop)
             self._wait_for_perception()
             t0 = self.t0 = self.clock()
             n_cycles = int(round(self.duration_s / self.period_s))

@@ -5,6 +5,12 @@ MuJoCo reads MUJOCO_GL once, at its first import, and several test modules impor
 `softcbf_mj.gl_backend.configure_mujoco_gl`: a set MUJOCO_GL is kept; unset, it becomes
 osmesa on a CPU-only machine such as CI (egl with an NVIDIA GPU).
 
+Under pytest-xdist the controlling process first compiles the numba kernels (`pytest_sessionstart`, before the
+workers start: `KERNEL_WARM_UP`, the short runs of the first-output tests, in a child process), so that no worker
+meets a compile inside a wall-clock test or races another worker compiling the same kernel; with the kernels cached
+it costs the child's imports and runs (seconds). In one process nothing is warmed: the first test that steps a
+kernel compiles it, and the hardware loop warms its own filter before its timed loop (hardware.runner).
+
 Also: the `run_dir` fixture (a short paper_sim run folder per test module), the `--cpu-durations=N` option (the
 tests that took the most CPU time; below) and `realtime_alone`: under pytest-xdist a test of the xdist group
 "realtime" (wall-clock deadlines: the emulated hardware, the link, first-output times) runs with every other worker
@@ -19,12 +25,45 @@ import contextlib  # noqa: E402
 import fcntl  # noqa: E402
 import os  # noqa: E402
 import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 
 from scenarios import get  # noqa: E402
 
 REALTIME_GROUP = "realtime"
+ROOT = Path(__file__).resolve().parents[1]
+# The short runs of tests/test_first_output.py, one process: what they step compiles (the paper's PCC plant and CBF,
+# the MuJoCo plant, the recommended filter).
+KERNEL_WARM_UP = """
+import contextlib, io, sys
+from softcbf.cli import main
+out = sys.argv[1]
+with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+    for k, argv in enumerate((["run", "mujoco_contact", "--tunings", "Low"], ["run", "paper_sim", "--tunings", "Low"],
+                              ["demo"])):
+        code = main([*argv, "--duration", "0.2", "--out", f"{out}/{k}"])
+        if code != 0:
+            raise SystemExit(f"{argv}: exit {code}")
+"""
+
+
+def pytest_sessionstart(session):
+    """Under pytest-xdist, in the controlling process: compile the kernels before the workers start (module
+    docstring). Runs before xdist's own session start (which is trylast), so no worker exists yet."""
+    config = session.config
+    if getattr(config.option, "dist", "no") == "no" or hasattr(config, "workerinput"):
+        return
+    with tempfile.TemporaryDirectory() as out:
+        done = subprocess.run([sys.executable, "-c", KERNEL_WARM_UP, out], cwd=out, capture_output=True, text=True,
+                              env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                                  filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))})
+    if done.returncode != 0:
+        last = (done.stderr or done.stdout or f"exit {done.returncode}").strip().splitlines()[-1]
+        raise pytest.UsageError(f"the kernel warm-up (tests/conftest.py) failed: {last}")
 
 
 @contextlib.contextmanager

@@ -141,6 +141,7 @@ def test_camera_loop_takes_the_mismatch_parameters():
         camera.validate({"facet_offset": 2.0})
 
 
+@pytest.mark.slow
 def test_quick_bench_writes_the_contract(tmp_path):
     out = tmp_path / "bench"
     assert main(["bench", "--out", str(out), "--quick", "--filters", "none,paper-cbf",
@@ -184,6 +185,7 @@ def test_unknown_case_is_a_usage_error(tmp_path, capsys):
     assert "unknown case(s) nope" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_resume_keeps_finished_rows_and_continues_the_mismatch_study(tmp_path):
     out = tmp_path / "bench"
     argv = ["bench", "--out", str(out), "--quick", "--filters", "none", "--cases", "paper_sim_150,camera_mismatch"]
@@ -451,6 +453,7 @@ def test_arm_refusal_names_e_erg_on_three_segments_and_nothing_else():
     assert arm_refusal(FilterSpec("e-erg"), CASE["mujoco_contact"]) is None  # the reference arm: not probed
 
 
+@pytest.mark.slow
 def test_quick_three_segment_cases_skip_e_erg_and_the_unfiltered_arm_makes_contact(tmp_path):
     out = tmp_path / "bench"
     argv = ["bench", "--out", str(out), "--quick", "--filters", "e-erg,c-erg,none", "--cases", "paper_sim_3seg,mujoco_3seg"]

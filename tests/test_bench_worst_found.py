@@ -79,6 +79,7 @@ def _rows(folder: Path) -> list[dict]:
     return sorted(StudyStore.open(folder / "search").load_rows(), key=lambda r: r["sample"])
 
 
+@pytest.mark.slow
 def test_quick_worst_found_is_the_minimum_of_the_evaluations_run_and_resumes(tmp_path, capsys):
     out = tmp_path / "bench"
     argv = ["bench", "--out", str(out), "--quick", "--filters", "paper-cbf", "--cases", "paper_sim_150",

@@ -300,6 +300,7 @@ def test_backup_passes_u_nom_at_rest_far_inside_and_refuses_bad_parameters():
     assert FILTERS["backup-cbf"] is BackupCBF and set(BackupCBF.parameter_docs) == {"backup", "horizon_s", "levels"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backup", ["vent", "hold"])
 @pytest.mark.parametrize("robot", ["reference", "three-segment"])
 def test_backup_cbf_keeps_the_tip_in_p_on_the_paper_sinusoid(tmp_path, robot, backup):

@@ -368,6 +368,7 @@ def test_interrupt_during_the_first_report_leaves_a_complete_folder_and_says_so(
     assert "/runs/None/rho" in paths
 
 
+@pytest.mark.slow
 def test_interrupt_during_the_last_report_still_reports_every_finished_run(tmp_path, capsys, monkeypatch):
     """L7: Ctrl-C while the report of the last tuning was built left a report without that tuning."""
     _interrupt_savefig_call(monkeypatch, 6)  # the second report's tip_path

@@ -24,6 +24,7 @@ import tempfile
 from pathlib import Path
 from unittest import mock
 
+import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
@@ -144,6 +145,7 @@ EXTREME_BUT_VALID = {
 @given(st.sampled_from(["softcbf", "scenarios"]), st.dictionaries(st.sampled_from(sorted(EXTREME_BUT_VALID)), st.just(None),
                                                                   max_size=4).flatmap(
     lambda keys: st.fixed_dictionaries({k: EXTREME_BUT_VALID[k] for k in keys})))
+@pytest.mark.slow
 def test_real_runs_with_extreme_values_end_without_a_traceback(entry, params):
     """paper_sim for 20 ms through the console script or `python -m scenarios`: exit 0 or 2, no traceback."""
     tokens = ["--duration", "0.02", "--tunings", "None", "--progress", "false"]

@@ -209,6 +209,7 @@ def test_scenario_and_config_must_agree(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path, capsys):
     first, replay = tmp_path / "first", tmp_path / "replay"
     assert main(["run", "paper_sim", *SHORT, "--seed", "3", "--q0-std", "0.05", "--out", str(first)]) == 0
@@ -266,6 +267,7 @@ def _warnings(err: str) -> list[str]:
     return [line for line in err.splitlines() if line.startswith("warning: ")]
 
 
+@pytest.mark.slow
 def test_a_replay_on_other_versions_or_with_another_seed_warns_one_line_each(tmp_path, capsys):
     """N9: a config.json replay ignored a mismatched seed or version and promised a bit-identical run."""
     first = tmp_path / "first"

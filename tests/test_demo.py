@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 
+import pytest
 from matplotlib.image import imread
 
 from controllers.registry import PRESETS
@@ -15,6 +16,7 @@ from softcbf.demo import FIGURE_FILE, demo_runs, run_demo
 from softcbf_mj.report import DPI, FIGURE_SIZES_IN
 
 
+@pytest.mark.slow
 def test_the_demo_writes_the_figure_and_both_runs_and_says_where(tmp_path, capsys):
     log = io.StringIO()
     figure = run_demo(tmp_path / "demo", duration=0.3, stream=log)

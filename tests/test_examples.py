@@ -7,9 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_shield_cem_trains_with_and_without_the_filter_and_plots(tmp_path):
     figure = tmp_path / "shield.png"
     result = subprocess.run([sys.executable, "examples/shield_cem.py", "--iterations", "2", "--population", "3",

@@ -238,6 +238,7 @@ def test_any_number_of_segments_builds_and_presses(n):
     assert not any(key.startswith("warning_") for key in state.extras)
 
 
+@pytest.mark.slow
 def test_a_three_segment_robot_file_runs_mujoco_contact_from_the_command_line(tmp_path):
     robot = tmp_path / "robot3.json"
     uniform_robot(3).save(robot)

@@ -57,14 +57,6 @@ def _run(config: HardwareConfig, out: Path, fault=None, report: bool = False):
     return row, series, emulation
 
 
-@pytest.fixture(scope="module", autouse=True)
-def first_contact_warmed(tmp_path_factory):
-    """One 3 s run through the first contact before the timed runs: the first run in a process stalls about 0.15 s
-    near its first contact (one-time loading; measured in the first of four runs of one process, on c2ac25c too:
-    the board's watchdog then vents a cycle), which these tests of the loop's steady timing must not read as theirs."""
-    _run(_config(filter="c-erg", duration=3.0), tmp_path_factory.mktemp("warm") / "run")
-
-
 def test_the_contact_governor_keeps_the_true_plate_force_below_f_max_and_writes_the_run_folder(tmp_path):
     # c-erg, whose certificate covers the sampled, delayed loop. paper-cbf High reached 0.13-0.16 N here from run to
     # run (the real-time loop's timing; 0.1608 and 0.1615 N > F_max in 2 of about 20 runs, at 510d063 as now): this

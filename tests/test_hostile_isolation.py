@@ -408,6 +408,7 @@ def test_isolated_the_parent_imports_no_user_module(tmp_path, hostile, undo):
     ("mujoco_contact", ("--t0", "1"), "1.0"),
     ("camera_loop", ("--width", "640", "--height", "360", "--saved-frames-hz", "0"), "2.0"),
 ])
+@pytest.mark.slow
 def test_isolate_on_every_scenario_keeps_the_clip_and_records_the_fault(tmp_path, hostile, undo, scenario, extra,
                                                                          fault_s):
     code, out = _run(tmp_path, "--filter", f"{hostile}:PatchKernel", "--pressure-limits", "true", "--duration", "0.3",

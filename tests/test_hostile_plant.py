@@ -114,6 +114,7 @@ def test_a_filter_cannot_change_the_pcc_plant_or_the_verdict_of_paper_sim(tmp_pa
     assert {k: hostile[k] for k in JUDGED} == {k: benign[k] for k in JUDGED}
 
 
+@pytest.mark.slow
 def test_a_nominal_cannot_change_the_pcc_plant_either(tmp_path, plugins):
     code, benign = _paper_sim(tmp_path / "none", "--filter", "none", *PUSH)
     code, hostile = _paper_sim(tmp_path / "tamper", "--filter", "none", "--nominal", f"{plugins}:TamperNominal")

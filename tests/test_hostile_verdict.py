@@ -91,6 +91,7 @@ def test_the_sequential_stop_never_bounds_a_filter_that_faults(plugin, tmp_path,
     assert result.settled[tuning] and not result.bounded[tuning]
 
 
+@pytest.mark.slow
 def test_falsify_takes_a_fault_as_the_worst_value_and_reports_it(plugin, tmp_path):
     """b76c301: the faulted evaluation was its truncated ρ_min_meas 1.0, best ρ < 0 elsewhere or "no violation"."""
     study = Study("hostile", "paper_sim", (f"{plugin}:RaiseAt",), tuning_parameter="filter", draws=4, seed=1,
@@ -112,6 +113,7 @@ def test_falsify_takes_a_fault_as_the_worst_value_and_reports_it(plugin, tmp_pat
     assert "filter fault (RuntimeError in the filter)" in report and "its filter faulted again" in report
 
 
+@pytest.mark.slow
 def test_a_search_for_the_best_setting_never_picks_one_that_faulted(plugin, tmp_path):
     """b76c301: maximising ρ_min_meas picked the setting whose filter raised at its first call (its truncated run's
     ρ 1.0) over the one that ran."""
@@ -128,6 +130,7 @@ def test_a_search_for_the_best_setting_never_picks_one_that_faulted(plugin, tmp_
     assert {t.params["filter_param.at"]: t.value for t in search.trials}[1.0] == math.inf  # the worst for the search
 
 
+@pytest.mark.slow
 def test_bench_rows_carry_the_fault_and_no_clean_verdict(plugin, tmp_path):
     """b76c301: a filter that faults at its first call ended the bench with "t must have shape (T,) with T >= 2";
     one that faults later gave the row ρ 1.0000, t_viol 0, no fault in bench.json or bench.md."""
@@ -145,6 +148,7 @@ def test_bench_rows_carry_the_fault_and_no_clean_verdict(plugin, tmp_path):
     assert "1.0000" not in table
 
 
+@pytest.mark.slow
 def test_the_bench_mismatch_study_counts_its_faulted_samples(plugin, tmp_path):
     """The bench's study case (camera_mismatch: `study_figures` over a kept-runs study) pools faulted samples as
     violations; b76c301 pooled them as clean runs (and ended on "t must have shape (T,)" for a first-call fault)."""
@@ -162,6 +166,7 @@ def small_box(plugin: Path) -> Study:
                  fixed={"duration": 0.05, **PUSH}, vary=(Distribution("filter_param.at", "uniform", low=1e5, high=1e6),))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("at_ask", [2, 3], ids=["a-vertex", "a-sampled-candidate"])
 def test_a_falsification_interrupted_inside_ask_resumes(plugin, tmp_path, monkeypatch, at_ask):
     """b76c301: every --resume failed with KeyError: 'filter_param.at' (a RUNNING trial without params). Ask 2 pops

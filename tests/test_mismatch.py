@@ -74,6 +74,7 @@ def test_facet_offset_and_angle_move_the_true_plate(built, tmp_path):
     assert H[0] @ foot == pytest.approx(h[0], abs=1e-15)  # the turned facet passes through the moved foot
 
 
+@pytest.mark.slow
 def test_mismatch_changes_the_measured_force(built, tmp_path):
     """Unfiltered, 0.3 s from the sinusoid's peak: measured 0.253 N nominal; a plate 2 mm closer
     presses harder (0.272 N); an arm 1.5× stiffer bends less and barely touches (0.032 N)."""

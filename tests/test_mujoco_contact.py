@@ -83,6 +83,7 @@ def test_predicted_penetration_is_the_pcc_tip_of_the_estimate(run):
     assert row["penetration_bias_mean_pct"] == pytest.approx(100 * row["penetration_bias_mean_m"] / safe.n_max)
 
 
+@pytest.mark.slow
 def test_unfiltered_arm_exceeds_f_max_and_low_holds_it(run):
     """Measured (3 s from the sinusoid's peak): None presses 0.252 N (ρ_meas −0.58) for 2.8 s;
     Low peaks at 0.158 N (ρ_meas +0.011; +0.005 from a straight start) — docs/model.md#control-barrier-function allows

@@ -40,6 +40,7 @@ def test_list_names_every_scenario_and_its_parameters():
     assert "--pressure-limits bool" in out.stdout
 
 
+@pytest.mark.slow
 def test_paper_sim_writes_the_spec_outputs(tmp_path):
     out_dir = tmp_path / "run"
     res = run_cli("paper_sim", "--out", str(out_dir), "--duration", "2", "--tunings", "None,Low", "--amplitude", "150", "--frequency", "0.25", "--progress", "false")

@@ -197,6 +197,7 @@ def test_the_tunings_are_a_tuple_of_names_in_python_and_a_comma_list_on_the_comm
         paper.spec(filter=Filter(tunings=("None", "Medium")))
 
 
+@pytest.mark.slow
 def test_one_softcbf_run_reads_the_robot_builds_the_safe_set_and_parses_the_plug_in_parameters_once():
     """Parse once (tests/call_counts.py, printed by tools/parse_counts.py): the spec's check builds the controller (`spec.built`) and
     the run takes it; each setting is checked once."""
