@@ -150,11 +150,12 @@ def contact_setup(spec: MujocoContact) -> ContactSetup:
 
 BATCH_VARYING = frozenset({
     "plate_stiffness", "facet_offset", "facet_angle", "true_stiffness_scale", "true_damping_scale", "true_gain_scale",
-    "true_length_scale", "seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "filter_params",
+    "true_length_scale", "tau_p", "seed", "q0_std", "amplitude", "frequency", "t0", "nominal_params", "filter_params",
     "progress",
 })
-"""Parameters that may differ between the samples of one batch (per-simulation models, q0, nominal, the filter's
-parameters: `scenarios.batch_form.run_batch_tuning`)."""
+"""Parameters that may differ between the samples of one batch (per-simulation models, the valve lag `tau_p` among
+them: the filter's context holds `assumed_tau_p`, not it; q0, nominal, the filter's parameters:
+`scenarios.batch_form.run_batch_tuning`)."""
 
 
 def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:

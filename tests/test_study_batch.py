@@ -1,7 +1,7 @@
 """Studies run batches (docs/studies.md#batches): batched rows equal single-run rows; tasks group by key.
 
 The study runs `mujoco_contact` for 0.3 s from the sinusoid's peak (t0 = 25 s), so the
-arm presses on the plate, with the true arm, plate and q0 drawn per sample.
+arm presses on the plate, with the true arm, its valves' lag, the plate and q0 drawn per sample.
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ def mismatch() -> Study:
                  vary=(Distribution("plate_stiffness", "uniform", low=8.0, high=18.0),
                        Distribution("facet_offset", "uniform", low=-0.003, high=0.002),
                        Distribution("true_stiffness_scale", "uniform", low=0.9, high=1.1),
-                       Distribution("true_gain_scale", "uniform", low=0.9, high=1.1)))
+                       Distribution("true_gain_scale", "uniform", low=0.9, high=1.1),
+                       Distribution("tau_p", "uniform", low=0.02, high=0.1)))  # the valves' own lag per sample
 
 
 def test_batched_study_rows_equal_the_single_run_rows(mismatch, tmp_path):
