@@ -29,15 +29,14 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import scenarios.__main__
-import scenarios.camera_loop
-import scenarios.mujoco_contact
-import scenarios.paper_sim
 from scenarios import registry
 from scenarios.run import INTERRUPTED, USAGE_ERROR
 from softcbf.cli import main
 from softcbf_mj.runio import RUN_MARKER
 
 SCENARIOS = sorted(registry())
+SCENARIO_MODULES = sorted({sys.modules[s.function.__module__] for s in registry().values()}, key=lambda m: m.__name__)
+"""Every registered scenario's module: each writes its first file through its own `SummaryWriter`."""
 PARAMETERS = sorted({name for s in registry().values() for name in s.parameters()})
 WEIRD = ["nan", "NaN", "inf", "-inf", "1e308", "1e309", "-1e308", "1e6", "1e-300", "-1", "0", "-0", "", " ", "1_0",
          "0x10", "true", "maybe", "None", "None,Low", "High,,", "HW-Low", "paper", "reference", "board", "truth",
@@ -100,7 +99,7 @@ def test_random_command_lines_are_checked_without_a_traceback(command):
         root = Path(tmp)
         _populate(root)
         before = sorted(p.name for p in root.iterdir())
-        for module in (scenarios.paper_sim, scenarios.mujoco_contact, scenarios.camera_loop):
+        for module in SCENARIO_MODULES:
             stack.enter_context(mock.patch.object(module, "SummaryWriter", _stop_at_first_write))
         stack.enter_context(mock.patch.dict(os.environ, {"DISPLAY": "", "WAYLAND_DISPLAY": ""}))
         if out is not None:

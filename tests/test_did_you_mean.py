@@ -21,7 +21,7 @@ def test_registry_lookups_say_did_you_mean():
         resolve("c-egr", FILTERS)
     with pytest.raises(ValueError, match=r"unknown name 'sinusiod' \(did you mean 'sinusoid'\?\)"):
         resolve("sinusiod", NOMINALS)
-    with pytest.raises(KeyError, match=r"unknown scenario 'mujoco_contat' \(did you mean 'mujoco_contact'\?\)"):
+    with pytest.raises(KeyError, match=r"unknown scenario 'mujoco_contat' \(did you mean 'mujoco_contact', 'pcc_contact'\?\)"):
         get("mujoco_contat")
     with pytest.raises(ValueError, match=r"no parameter 'amplitdue' \(did you mean 'amplitude'"):
         MujocoContact.from_flat({"amplitdue": 100.0})
