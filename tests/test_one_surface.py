@@ -137,3 +137,21 @@ def test_the_environment_s_former_control_dt_is_read_with_a_deprecation_warning(
         warnings.simplefilter("ignore", DeprecationWarning)
         with pytest.raises(ValueError, match=r"control_dt must be > 0 s, got -1.0"):
             ArmEnvConfig(control_dt=-1.0)
+
+
+def test_the_former_ground_truth_module_reads_its_names_with_a_deprecation_warning():
+    import scenarios.ground_truth as former
+    from controllers.safe_set import paper_environment
+    from softcbf_mj import ground_truth
+    from vocabulary.run_sections import Model, Plate, TrueArm
+
+    with pytest.warns(DeprecationWarning, match="use softcbf_mj.ground_truth.moved_facets"):
+        assert former.moved_facets is ground_truth.moved_facets
+    spec = __import__("scenarios").get("mujoco_contact").spec(arm=TrueArm(facet_offset=0.002), plate=Plate(stiffness=9.0),
+                                                             model=Model(damping_scale=2.0))
+    with pytest.warns(DeprecationWarning, match="scenarios.ground_truth.build_truth is deprecated"):
+        truth = former.build_truth(spec.arm, spec.plate, spec.model, spec.built.robot, paper_environment())
+    expected = ground_truth.build_truth(spec.arm, spec.plate, spec.built.robot, paper_environment(), 2.0)
+    assert truth.config == expected.config and truth.plate_stiffness == expected.plate_stiffness == 9.0
+    with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
+        former.nothing  # noqa: B018

@@ -30,6 +30,7 @@ Actions, observations (`observation`: "estimate" or "privileged"), reward, cost 
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Callable, Mapping
@@ -74,6 +75,7 @@ def _with_deprecated_control_dt(cls: type) -> type:
             kwargs["control_rate"] = 1.0 / check_number("control_dt", control_dt, positive("s"))
         generated(self, *args, **kwargs)
 
+    functools.update_wrapper(__init__, generated)  # the signature users see is the dataclass's
     __init__.__doc__ = _with_deprecated_control_dt.__doc__
     cls.__init__ = __init__
     return cls
