@@ -134,7 +134,7 @@ def test_the_environment_s_former_control_dt_is_read_with_a_deprecation_warning(
     with pytest.warns(DeprecationWarning, match="control_rate=500"):
         assert dataclasses.replace(config, control_dt=2e-3).control_rate == 500.0
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("error", DeprecationWarning)  # refused before it warns
         with pytest.raises(ValueError, match=r"control_dt must be > 0 s, got -1.0"):
             ArmEnvConfig(control_dt=-1.0)
 

@@ -45,11 +45,11 @@ from controllers.safe_set import ForceSafeSet, paper_safe_set
 from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from softcbf_mj.env.physics import ArmPhysics, NoisyState
 from softcbf_mj.env.task import COSTS, OBSERVATIONS, ArmTask, RewardConfig
+from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loop import exact_state
 from softcbf_mj.mjcf import CAMERA_RESOLUTION
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState, steps_per_control
-from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from vocabulary.run_sections import ground_truth_values
 from vocabulary.sections import setting_section
 from vocabulary.settings import check_number, default, ground_truth_settings, positive
@@ -69,10 +69,10 @@ def _with_deprecated_control_dt(cls: type) -> type:
 
     def __init__(self: Any, *args: Any, control_dt: float | None = None, **kwargs: Any) -> None:
         if control_dt is not None:
-            warnings.warn("ArmEnvConfig's control_dt (s) is deprecated and will be removed in the next release: give "
-                          f"control_rate (Hz) = 1 / control_dt, here control_rate={1.0 / control_dt if control_dt else 0:g}",
-                          DeprecationWarning, stacklevel=2)
             kwargs["control_rate"] = 1.0 / check_number("control_dt", control_dt, positive("s"))
+            warnings.warn("ArmEnvConfig's control_dt (s) is deprecated and will be removed in the next release: give "
+                          f"control_rate (Hz) = 1 / control_dt, here control_rate={kwargs['control_rate']:g}",
+                          DeprecationWarning, stacklevel=2)
         generated(self, *args, **kwargs)
 
     functools.update_wrapper(__init__, generated)  # the signature users see is the dataclass's
