@@ -61,8 +61,8 @@ from scenarios.common import (
     Controller, ControllerRun, check_controller, control_step, controller_row, initial_configuration, run_tuning,
     scene_record, stop_after,
 )
-from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
+from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, plate_figures, write_table
 from softcbf_mj.plant import steps_per_control

@@ -46,8 +46,8 @@ from scenarios.common import (
     Controller, ControllerRun, check_choice, check_controller, control_step, controller_row,
     initial_configuration, run_tuning, scene_record, stop_after,
 )
-from softcbf_mj.ground_truth import moved_facets, scaled_robot
 from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
+from softcbf_mj.ground_truth import moved_facets, scaled_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import write_table
 from softcbf_mj.runio import SummaryWriter
