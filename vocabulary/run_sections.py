@@ -16,6 +16,10 @@ hardware file's emulator (`hardware.config`) resolves to `default(setting, conte
 - `Camera`: the camera path (plant tick, frame rate, latency, drops, noise, the safety monitor's
   hold, the estimator, the image, calibration, detector, saved frames).
 
+A surface that holds the settings flat, by their names (the environment's keywords, the hardware
+file's top-level keys), makes the sections from them with `sections_of(values, *classes)`;
+`ground_truth_values(values)` is the ground truth's pair (`TrueArm`, `Plate`) that `build_truth` takes.
+
 The control rate (Hz) is a setting of its own (`control_rate`) that each loop takes beside these
 sections; the controller under test (`Filter`, `Nominal`) has sections of its own in
 `scenarios.spec`, which type its parameters by the plug-in's declarations.
