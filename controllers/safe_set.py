@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from controllers.errors import as_real
+from controllers.paper_experiment import PAPER_F_MAX, PAPER_PLATE_STIFFNESS
 
 RowScaling = Literal["paper", "unit"]
 
@@ -373,5 +374,5 @@ class ForceSafeSet:
 
 
 def paper_safe_set() -> ForceSafeSet:
-    """The paper's experiment: its plate, ψ(n) = 11.16 n N/m, F_max = 0.16 N, "paper" row scaling."""
-    return ForceSafeSet(paper_environment(), LinearStiffness(11.16), 0.16, row_scaling="paper")
+    """The paper's experiment: its plate, ψ(n) = `PAPER_PLATE_STIFFNESS` n, F_max = `PAPER_F_MAX`, "paper" row scaling."""
+    return ForceSafeSet(paper_environment(), LinearStiffness(PAPER_PLATE_STIFFNESS), PAPER_F_MAX, row_scaling="paper")

@@ -1,7 +1,7 @@
 """A random policy through the arm environment (Gymnasium API), with and without a safety filter.
 
 The policy draws u_nom uniformly in the pressure box (±150 hPa) and holds it for
-`--hold-s` s (the environment's `action_repeat` = hold_s / control_dt control periods per
+`--hold-s` s (the environment's `action_repeat` = hold_s · control_rate control periods per
 env step; the filter runs every control period). Each filter sees the same action
 sequences (the policy's generator is seeded per episode). Reported per filter, over all
 episodes, from the state at the end of every control period: the periods with
@@ -29,16 +29,16 @@ from softcbf_mj.progress import Progress
 ENERGY_GOVERNOR = "e-erg"
 
 
-def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float, hold_s: float, control_dt: float,
+def run_filter(spec: str, params: dict[str, str], episodes: int, seconds: float, hold_s: float, control_rate: float,
                seed: int, bar: Progress | None = None, offset: int = 0) -> dict:
     """Run `episodes` episodes of the random policy through the environment filtered by `spec`; `bar` counts
     its env steps after the `offset` steps of the filters before."""
-    repeat = int(round(hold_s / control_dt))
-    if repeat < 1 or abs(hold_s / control_dt - repeat) > 1e-9 * repeat:
-        raise ValueError(f"hold_s must be a whole number >= 1 of control periods ({control_dt:g} s), got {hold_s:g} s")
+    repeat = int(round(hold_s * control_rate))
+    if repeat < 1 or abs(hold_s * control_rate - repeat) > 1e-9 * repeat:
+        raise ValueError(f"hold_s must be a whole number >= 1 of control periods (1/{control_rate:g} s), got {hold_s:g} s")
     if bar is not None:
         bar.update(offset, f"{spec}: building the environment")
-    env = GymArmEnv(filter=spec, filter_params=params, control_dt=control_dt, action_repeat=repeat,
+    env = GymArmEnv(filter=spec, filter_params=params, control_rate=control_rate, action_repeat=repeat,
                     episode_steps=int(round(seconds / hold_s)))
     periods = violations = 0
     force_max, rho_min = 0.0, np.inf
@@ -69,7 +69,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--seconds", type=float, default=10.0, help="episode length [s]")
     parser.add_argument("--hold-s", type=float, default=0.5, help="how long the policy holds each action [s]")
-    parser.add_argument("--control-dt", type=float, default=1e-3, help="control period [s]")
+    parser.add_argument("--control-rate", type=float, default=1000.0, help="rate of the filter's calls [Hz]")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--filter", action="append", default=[],
                         help="further filter spec (registry name, FILE.py:Factory or package.module:Factory); repeatable")
@@ -83,11 +83,11 @@ def main() -> None:
     runs += [(spec, parse_params(text)) for spec, text in zip(args.filter, params)]
     steps = args.episodes * int(round(args.seconds / args.hold_s))  # env steps per filter
     bar = Progress("random_policy_env", max(1, len(runs) * steps), unit_s=args.hold_s)
-    results = [run_filter(spec, p, args.episodes, args.seconds, args.hold_s, args.control_dt, args.seed, bar, i * steps)
+    results = [run_filter(spec, p, args.episodes, args.seconds, args.hold_s, args.control_rate, args.seed, bar, i * steps)
                for i, (spec, p) in enumerate(runs)]
     bar.close()
     print(f"random policy: u_nom ~ U(±150 hPa) held {args.hold_s:g} s, {args.episodes} episodes of {args.seconds:g} s, "
-          f"control period {args.control_dt * 1e3:g} ms")
+          f"control rate {args.control_rate:g} Hz")
     width = max(len("filter"), *(len(r["filter"]) for r in results))
     print(f"{'filter':<{width}} {'periods':>8} {'rho<0':>7} {'rho<0 [%]':>9} {'F max [N]':>9} {'rho min':>8} {'wall [s]':>8}")
     for r in results:

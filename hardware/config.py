@@ -12,6 +12,11 @@ unit, range and check (`vocabulary.settings.check_value`: "f_max must be > 0 N, 
     [filter_params]
     slack_weight = 1e4
 
+The emulator's ground truth takes every ground-truth setting of the vocabulary by its name
+(`vocabulary.settings.ground_truth_settings`: the section `[emulator]` composes them), and the
+emulator builds it with the simulations' one builder (`softcbf_mj.ground_truth.build_truth`), so a
+new ground-truth setting is a key of this file with no edit here.
+
 Settings only the hardware run has stay in their sections (`[camera] source`, `[link]`,
 `[safety] watchdog_s`, `[environment] H, h`, `[pressure]`, `[emulator] q0_rad`, ...).
 Each section is a frozen dataclass made by `vocabulary.sections.setting_section` (the
@@ -52,6 +57,7 @@ Shared settings (top level; meaning, unit and range: docs/parameters.md):
 | tau_p                   | 0.05             | s      | emulator only: the valves' first-order time constant (docs/ground-truth.md) |
 | links_per_segment       | 5                | –      | emulator only: rigid links per segment of the MuJoCo rod (simulations: 10) |
 | physics_dt              | 2e-4             | s      | emulator only: MuJoCo step (simulations: 1e-4); 5 links at 0.2 ms run ≈ 9× real time, 10 at 0.1 ms ≈ 3× |
+| every other ground-truth setting | the vocabulary's | – | emulator only: true_robot (relative to this file), the true_* scales, facet_offset, facet_angle, gravity, tip_friction, table_friction, plate and the sheet_* settings (`vocabulary.settings.ground_truth_settings`), as in the simulations |
 
 Hardware-only settings (in their sections):
 
@@ -137,7 +143,7 @@ from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
 from perception.plane import PlaneCalibration
 from vocabulary.files import read_settings_file
 from vocabulary.sections import setting_fields, setting_section
-from vocabulary.settings import Bound, SettingError, check_number, positive, setting
+from vocabulary.settings import Bound, SettingError, check_number, ground_truth_settings, positive, setting
 
 VIRTUAL_CAMERA = "virtual"
 EMULATED_PORT = "emulated"
@@ -381,8 +387,11 @@ class RunConfig:
         _require(isinstance(self.dry_run, bool), "run.dry_run", f"must be true or false, got {self.dry_run!r}")
 
 
-@_hardware_section("plate_stiffness", "tau_p", "links_per_segment", "physics_dt")
+@_hardware_section(*ground_truth_settings())
 class EmulatorConfig:
+    """The emulator's ground truth: every ground-truth setting (`vocabulary.settings.ground_truth_settings`, top-level
+    keys of the file) and its own `q0_rad`."""
+
     q0_rad: Scalars = 0.0
 
     def check(self) -> None:

@@ -30,7 +30,7 @@ calls (capture → command, mean and max, s). Time series: the tick-rate series 
 frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
 
 The spec (`CameraLoop`, scenarios.spec) holds `mujoco_contact`'s sections (`run`, `filter`,
-`nominal`, `model`, `arm`, `plate`: the same ground truth, scenarios.ground_truth; `damping_scale`
+`nominal`, `model`, `arm`, `plate`: the same ground truth, softcbf_mj.ground_truth; `damping_scale`
 multiplies the damping of both arms, so the arm's time constants d_i/k_i scale with it: the
 operating-envelope study, studies/hardware_envelope.toml), the `camera` section and its own
 `assumed_plate_stiffness` (N/m), `assumed_tau_p` (s) and `control_rate` (Hz).
@@ -59,8 +59,8 @@ from scenarios.common import (
     Controller, ControllerRun, check_choice, check_controller, control_step, controller_row, existing_file,
     filter_enabled, initial_configuration, live_run, read_parameter_file, save_run, scene_record, stop_after,
 )
-from scenarios.ground_truth import Truth, build_truth, check_true_arm
 from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
+from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, plate_figures, write_table
 from softcbf_mj.plant import steps_per_control
@@ -207,7 +207,7 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
     from softcbf_mj.mjcf import build_model
     from softcbf_mj.mujoco_plant import MujocoPlant
 
-    truth = build_truth(spec.arm, spec.plate, spec.model, model_robot, safe_set.environment)
+    truth = build_truth(spec.arm, spec.plate, model_robot, safe_set.environment, spec.model.damping_scale)
     plant = MujocoPlant(build_model(truth.config), camera.tick)
     n = plant.n_segments
     plane = _calibration(camera.calibration, plant, truth.config, camera.width, camera.height, camera.detector)

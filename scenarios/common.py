@@ -41,14 +41,14 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, TypeVar
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from closedloop.isolation import check_in_child, isolate
 from closedloop.monitor import SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, write_fault_log
-from controllers.params import RobotParams, reference_robot
+from controllers.params import RobotParams
 from controllers.filter_parameters import Params, read_params
 from controllers.registry import (FILTERS, NOMINALS, build_filter, build_nominal, check_filter, check_nominal, is_builtin,
                                   label, typed_params)
@@ -57,43 +57,22 @@ from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, pap
 from controllers.safety_filter import Estimate, FilterContext
 from softcbf_mj.loop import Series, exact_state, run_closed_loop
 from softcbf_mj.metrics import run_figures
+from softcbf_mj.ground_truth import (  # noqa: F401  (scenarios take the robot files from the ground truth's module)
+    ROBOT_PRESETS, existing_file, load_robot, read_parameter_file, scale_damping,
+)
 from softcbf_mj.plant import Plant, PlantState
 from softcbf_mj.progress import Progress
 from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
 from scenarios.spec import Filter, Model, Nominal
-from vocabulary.project_files import project_file
 
 if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.recording is imported only when recording
     from softcbf_mj.recording import LiveRun
 
-T = TypeVar("T")
 
 def check_choice(name: str, value: str, valid: Sequence[str]) -> None:
     """ValueError naming the parameter and the valid values unless `value` is one of them."""
     if value not in valid:
         raise ValueError(f"{name} must be one of {', '.join(valid)}, got {value!r}")
-
-
-def existing_file(name: str, spec: str, expected: str) -> Path:
-    """The file a parameter names; ValueError "NAME must be EXPECTED, got SPEC (no such file)"
-    when it is not one (also for names the OS refuses: too long, a NUL byte)."""
-    path = Path(spec)
-    try:
-        found = path.is_file()
-    except (OSError, ValueError):
-        found = False
-    if not found:
-        raise ValueError(f"{name} must be {expected}, got {spec!r} (no such file)")
-    return path
-
-
-def read_parameter_file(name: str, path: Path, load: Callable[[Path], T]) -> T:
-    """`load(path)` of the file a parameter named; any failure to read or parse it becomes
-    a ValueError naming the parameter and the file."""
-    try:
-        return load(path)
-    except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:  # JSON and format errors alike
-        raise ValueError(f"{name} file {path} cannot be used: {exc}") from None
 
 
 _REPORT_AND_RECORDING: ContextVar[bool] = ContextVar("scenarios_report_and_recording", default=True)
@@ -109,24 +88,6 @@ def data_only() -> Iterator[None]:
         yield
     finally:
         _REPORT_AND_RECORDING.reset(token)
-
-
-# Named robot files (`load_robot`); each file's "about" says what its constants are and why.
-ROBOT_PRESETS: dict[str, str] = {
-    "hardware-like": "models/robots/hardware_like.json",
-    "three-segment": "models/robots/three_segment.json",
-}
-
-
-def load_robot(spec: str) -> RobotParams:
-    """'' or 'reference' → the docs/model.md#rppr-dynamics reference arm; a name of
-    `ROBOT_PRESETS` → that file; otherwise a JSON file written by RobotParams.save."""
-    if spec in ("", "reference"):
-        return reference_robot()
-    if spec in ROBOT_PRESETS:
-        return read_parameter_file("robot", project_file(ROBOT_PRESETS[spec]), RobotParams.load)
-    path = existing_file("robot", spec, f"'reference', one of {', '.join(ROBOT_PRESETS)} or a robot JSON file")
-    return read_parameter_file("robot", path, RobotParams.load)
 
 
 def load_environment(spec: str) -> Environment:
@@ -145,14 +106,9 @@ def _read_environment(path: Path) -> Environment:
     return Environment(np.asarray(data["H"], dtype=float), np.asarray(data["h"], dtype=float))
 
 
-def scale_damping(robot: RobotParams, scale: float) -> RobotParams:
-    """`robot` with every segment's damping d_i multiplied by `scale` (> 0): time constants d_i/k_i × scale."""
-    return robot.replace(damping=tuple(scale * d for d in robot.damping)) if scale != 1.0 else robot
-
-
 def controller_robot(model: Model) -> RobotParams:
     """The controller's robot model: `model.robot` with its damping × `model.damping_scale`
-    (scenarios.ground_truth's module docstring)."""
+    (softcbf_mj.ground_truth's module docstring)."""
     return scale_damping(load_robot(model.robot), model.damping_scale)
 
 

@@ -32,7 +32,7 @@ such samples have no batch form. Results and the benchmark: models/softcbf_arm/R
 
 The spec (`MujocoContact`, scenarios.spec) holds the sections `run`, `filter`, `nominal`,
 `model` (the controller's robot, damping × `damping_scale`, and force-safe set), `arm` and
-`plate` (the ground truth, scenarios.ground_truth: the true arm's k, d, λ and L scaled by
+`plate` (the ground truth, softcbf_mj.ground_truth: the true arm's k, d, λ and L scaled by
 `true_*_scale`, the true plates moved by `facet_offset` and turned by `facet_angle` while the
 controller keeps the unmoved facets, `gravity`, `tip_friction`, `table_friction`, the ideal
 plate's `plate_stiffness` or the flexure's `sheet_*`, whose calibrated k is recorded as the
@@ -61,8 +61,8 @@ from scenarios.common import (
     Controller, ControllerRun, check_controller, control_step, controller_row, initial_configuration, run_tuning,
     scene_record, stop_after,
 )
-from scenarios.ground_truth import Truth, build_truth, check_true_arm
 from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
+from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, plate_figures, write_table
 from softcbf_mj.plant import steps_per_control
@@ -122,7 +122,7 @@ MujocoContact = scenario_spec(
 class ContactSetup:
     """What one `mujoco_contact` sample builds before its closed loop (`contact_setup`).
 
-    truth: the MuJoCo ground truth (`scenarios.ground_truth.build_truth`); runs: the controllers
+    truth: the MuJoCo ground truth (`softcbf_mj.ground_truth.build_truth`); runs: the controllers
     under test; q0 (N,) rad; context: what the filters and the nominal are told.
     """
 
@@ -141,7 +141,7 @@ def contact_setup(spec: MujocoContact) -> ContactSetup:
     controller = spec.built
     safe_set = controller.safe_set
     check_duration(spec.run.duration, CONTROL_DT, controller.robot.n_segments, safe_set)
-    truth = build_truth(spec.arm, spec.plate, spec.model, controller.robot, safe_set.environment)
+    truth = build_truth(spec.arm, spec.plate, controller.robot, safe_set.environment, spec.model.damping_scale)
     q0 = initial_configuration(truth.robot.n_segments, spec.run.seed, spec.run.q0_std)  # the true arm's segments
     context = FilterContext.for_robot(controller.robot, safe_set, CONTROL_DT, spec.filter.pressure_limits,
                                       command_delay=0.0, actuator_tau=spec.assumed_tau_p)

@@ -7,10 +7,10 @@ under the same names and meanings, as `mujoco_contact`.
 
 The plant (`PCCPlant`, docs/model.md#rppr-dynamics) is the true arm: the controller's robot with, per segment,
 L_i × `true_length_scale` (I_i × its square), k_i × `true_stiffness_scale`, d_i × `true_damping_scale` and
-λ_i × `true_gain_scale` (`scenarios.ground_truth.scaled_robot`, the construction `mujoco_contact` uses), its
+λ_i × `true_gain_scale` (`softcbf_mj.ground_truth.scaled_robot`, the construction `mujoco_contact` uses), its
 valve a first-order lag of `tau_p` s (as the MuJoCo plant's; the filter is told `assumed_tau_p`, as there). The true plates
 are the controller's facets moved by `facet_offset` (m) along their outward normals and turned by
-`facet_angle` (rad) (`scenarios.ground_truth.moved_facets`), each a linear spring of `plate_stiffness` N/m:
+`facet_angle` (rad) (`softcbf_mj.ground_truth.moved_facets`), each a linear spring of `plate_stiffness` N/m:
 the plant's contact force is ψ_true(n_true(r)) at the PCC tip r. The controller keeps its model: robot,
 facets and ψ(n) = `assumed_plate_stiffness` · n; ρ_meas is its margin of the plant's force.
 
@@ -46,8 +46,8 @@ from scenarios.common import (
     Controller, ControllerRun, check_choice, check_controller, control_step, controller_row,
     initial_configuration, run_tuning, scene_record, stop_after,
 )
-from scenarios.ground_truth import moved_facets, scaled_robot
 from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
+from softcbf_mj.ground_truth import moved_facets, scaled_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import write_table
 from softcbf_mj.runio import SummaryWriter

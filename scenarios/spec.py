@@ -3,7 +3,11 @@
 A *section* groups the settings one part of a run takes: `Run` (duration, seed, q0 noise,
 progress line), `Filter` (the controller under test), `Nominal` (the nominal controller),
 `Model` (the controller's robot and force-safe set), `TrueArm` and `Plate` (the MuJoCo
-ground truth, `scenarios.ground_truth`) and `Camera` (the camera path). Each is a frozen
+ground truth, `softcbf_mj.ground_truth`) and `Camera` (the camera path). The settings-only
+sections (`Run`, `Model`, `TrueArm`, `Plate`, `Camera`) are the vocabulary's
+(`vocabulary.run_sections`, which the environment and the hardware file compose too) and are
+importable from here as well; `Filter` and `Nominal` are this module's (`plugin_section`: they
+type a plug-in's parameters by its declarations). Each is a frozen
 dataclass made by `section(name, doc, {field: setting})` (`vocabulary.sections`, the one
 machinery the hardware file's sections use too): a field per setting of
 `vocabulary.settings.SETTINGS`, whose type is the setting's `kind` and whose value is
@@ -36,8 +40,10 @@ builds a spec from flat names (unknown names are refused with the list of valid 
 keyword parameters (annotation = the setting's kind, default = the scenario's) from which
 `scenarios.register` builds the flat entry point `Scenario.run(out_dir, **flat)` and
 the command line, `--help`, `softcbf list`, TOML files, replay and studies read theirs.
-Adding a setting to a section (one entry in the vocabulary, one field here) therefore
-reaches every one of them with no other edit (tests/test_spec_api.py).
+Adding a setting to a section therefore reaches every one of them with no other edit
+(tests/test_spec_api.py); a ground-truth setting is one entry of the vocabulary (its `section`
+names `TrueArm` or `Plate`) and reaches the environment and the hardware file too
+(tests/test_one_surface.py).
 """
 
 from __future__ import annotations
@@ -49,6 +55,7 @@ from typing import Any
 
 from controllers.registry import FILTERS, NOMINALS, did_you_mean, is_builtin, typed_params
 from vocabulary.sections import UNSET, check_settings, setting_field, setting_fields
+from vocabulary.run_sections import Camera, Model, Plate, Run, TrueArm
 from vocabulary.sections import section as vocabulary_section
 from vocabulary.settings import Bound, SettingError, default, flat_form, setting
 
@@ -223,9 +230,8 @@ def flat_parameters(spec_cls: type) -> dict[str, inspect.Parameter]:
                                    annotation=setting(key).flat_kind) for key in spec_cls.PATHS}
 
 
-# The sections every scenario draws on (module docstring); field → setting.
-Run = section("Run", "The run: its length (s), seed, initial pose noise (rad) and progress line.",
-              {"duration": "duration", "seed": "seed", "q0_std": "q0_std", "progress": "progress"})
+# The controller under test's sections (module docstring); the settings-only sections are the vocabulary's
+# (vocabulary.run_sections: Run, Model, TrueArm, Plate, Camera), imported above.
 Filter = plugin_section("Filter", "The controller under test: the filter, its parameters, the paper filter's tunings, "
                            "its QP backend, whether its QP holds the pressure box and whether it runs isolated "
                            "(with the nominal, in a process of its own: closedloop.isolation).",
@@ -235,27 +241,3 @@ Nominal = plugin_section("Nominal", "The nominal controller, its parameters and 
                              "frequency (Hz) and time offset (s).",
                   {"name": "nominal", "params": "nominal_params", "amplitude": "amplitude", "frequency": "frequency",
                    "t0": "t0"}, NOMINALS)
-Model = section("Model", "The controller's model: its robot (damping × damping_scale), facets, force limit (N) "
-                         "and row scaling of the force-safe set.",
-                {"robot": "robot", "damping_scale": "damping_scale", "environment": "environment", "f_max": "f_max",
-                 "row_scaling": "row_scaling"})
-TrueArm = section("TrueArm", "The MuJoCo arm (scenarios.ground_truth): its robot and scale factors, the rod, "
-                             "the true plates' pose, gravity and friction.",
-                  {"robot": "true_robot", "stiffness_scale": "true_stiffness_scale",
-                   "damping_scale": "true_damping_scale", "gain_scale": "true_gain_scale",
-                   "length_scale": "true_length_scale", "links_per_segment": "links_per_segment", "tau_p": "tau_p",
-                   "physics_dt": "physics_dt", "facet_offset": "facet_offset", "facet_angle": "facet_angle",
-                   "gravity": "gravity", "tip_friction": "tip_friction", "table_friction": "table_friction"})
-Plate = section("Plate", "The true plate: ideal (a slide spring) or flexure (the clamped sheet of the sheet_* "
-                         "settings).",
-                {"kind": "plate", "stiffness": "plate_stiffness", "sheet_clamp_at": "sheet_clamp_at",
-                 "sheet_free_end_at": "sheet_free_end_at", "sheet_thickness": "sheet_thickness",
-                 "sheet_width": "sheet_width", "sheet_youngs_modulus": "sheet_youngs_modulus",
-                 "sheet_links": "sheet_links", "sheet_calibration_fraction": "sheet_calibration_fraction"})
-Camera = section("Camera", "The camera path: plant tick, frame rate, latency, drops, noise, the safety monitor's "
-                           "hold, the estimator, the image, calibration, detector and saved frames.",
-                 {"tick": "tick", "frame_rate": "frame_rate", "latency": "latency", "drop_rate": "drop_rate",
-                  "pixel_noise": "pixel_noise", "hold_s": "hold_s", "max_hold_s": "max_hold_s",
-                  "qd_filter_tau": "qd_filter_tau", "width": "width", "height": "height",
-                  "calibration": "calibration", "detector": "detector", "tracking": "tracking",
-                  "saved_frames_hz": "saved_frames_hz"})

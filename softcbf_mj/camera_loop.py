@@ -49,6 +49,7 @@ from perception.tracking import TrackingTagDetector
 from softcbf_mj.loop import Series, plant_columns, plant_series, plant_values
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.progress import Progress
+from vocabulary.settings import default
 
 FRAME_UNITS = {
     "t": "s (exposure)",
@@ -65,7 +66,8 @@ FRAME_UNITS = {
 
 @dataclass(frozen=True)
 class CameraTiming:
-    """Rates and imperfections of the camera path (defaults: the paper's hardware, docs/ground-truth.md).
+    """Rates and imperfections of the camera path (defaults: the paper's hardware, docs/ground-truth.md; each field is
+    the setting of its name, whose default is the vocabulary's, `default(name, "camera_loop")`).
 
     frame_rate (Hz), control_rate (Hz), latency (s, exposure → detections available),
     drop_rate (fraction of frames lost, [0, 1)), pixel_noise (grey levels, std of
@@ -73,12 +75,12 @@ class CameraTiming:
     command on a stale estimate before it vents).
     """
 
-    frame_rate: float = 12.8
-    control_rate: float = 10.0
-    latency: float = 0.03
-    drop_rate: float = 0.0
-    pixel_noise: float = 0.0
-    hold_s: float = 0.5
+    frame_rate: float = default("frame_rate", "camera_loop")
+    control_rate: float = default("control_rate", "camera_loop")
+    latency: float = default("latency", "camera_loop")
+    drop_rate: float = default("drop_rate", "camera_loop")
+    pixel_noise: float = default("pixel_noise", "camera_loop")
+    hold_s: float = default("hold_s", "camera_loop")
 
     def __post_init__(self) -> None:
         for name in ("frame_rate", "control_rate"):

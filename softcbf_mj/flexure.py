@@ -61,9 +61,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-ABS_YOUNGS_MODULUS = 2.0e9  # Pa, ABS (chosen: typical 1.8–2.4 GPa)
+from vocabulary.settings import setting
+
+ABS_YOUNGS_MODULUS = setting("sheet_youngs_modulus").default  # Pa, ABS (chosen: typical 1.8–2.4 GPa)
 ABS_DENSITY = 1040.0  # kg/m³, ABS
-PAPER_TIP_STIFFNESS = 11.16  # N/m, the paper's calibrated plate
 FIRST_MODE_BETA_L = 1.8751040687  # β₁ℓ of a clamped-free beam
 
 
@@ -76,11 +77,11 @@ def thickness_for_tip_stiffness(stiffness: float, length: float, width: float, y
 
 
 DEFAULT_LENGTH = 0.15  # m
-DEFAULT_WIDTH = 0.04  # m
+DEFAULT_WIDTH = setting("sheet_width").default  # m
 # m: calibrated in MuJoCo as the paper did (0.16 N at the free end, tools/calibrate_flexure.py
 # --fit 11.16) this sheet gives k = 11.160 N/m; Euler–Bernoulli's 11.16 N/m thickness is 1.23491 mm
 # (`thickness_for_tip_stiffness`), 1 % softer at that load: the 14 mm deflection stiffens the sheet.
-DEFAULT_THICKNESS = 1.23044e-3
+DEFAULT_THICKNESS = setting("sheet_thickness").default
 
 
 @dataclass(frozen=True)
@@ -103,20 +104,22 @@ class FlexureParams:
     | calibration_fraction| 1.0      | —     | paper (masses at the tip)                |
 
     `calibration_fraction`: the calibration point's distance from the clamp as a fraction of ℓ.
+    A field that is a setting (clamp_at … calibration_fraction: `sheet_<field>` of `vocabulary.settings`)
+    takes its default from there, the one home of a default; the table shows those values.
     """
 
-    clamp_at: float = -0.055
-    free_end_at: float = -0.205
+    clamp_at: float = setting("sheet_clamp_at").default
+    free_end_at: float = setting("sheet_free_end_at").default
     thickness: float = DEFAULT_THICKNESS
     width: float = DEFAULT_WIDTH
     youngs_modulus: float = ABS_YOUNGS_MODULUS
     density: float = ABS_DENSITY
-    links: int = 10
+    links: int = setting("sheet_links").default
     damping_ratio: float = 0.2
     gauge_stiffness: float = 1.0e4
     gauge_mass: float = 0.05
     gauge_damping_ratio: float = 0.7
-    calibration_fraction: float = 1.0
+    calibration_fraction: float = setting("sheet_calibration_fraction").default
 
     def __post_init__(self) -> None:
         for name in ("thickness", "width", "youngs_modulus", "density", "gauge_stiffness", "gauge_mass"):

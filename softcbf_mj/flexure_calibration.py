@@ -27,6 +27,9 @@ import numpy as np
 
 from softcbf_mj.flexure import SheetInModel, thickness_for_tip_stiffness
 from softcbf_mj.mjcf import ArmModelConfig, build_model
+from vocabulary.settings import setting
+
+CALIBRATION_LOAD = setting("f_max").default  # N, the paper's calibration load: the force limit F_max
 
 SETTLE_WINDOW_S = 0.1  # s, rest: the deflection changes by less than `tolerance` over this window
 MAX_SETTLE_S = 20.0  # s of simulated time before giving up
@@ -47,7 +50,7 @@ class SheetLoadResult:
     settle_s: float
 
 
-def load_sheet(config: ArmModelConfig, s: float, load: float = 0.16, facet: int = 1,
+def load_sheet(config: ArmModelConfig, s: float, load: float = CALIBRATION_LOAD, facet: int = 1,
                tolerance: float = 1e-9) -> SheetLoadResult:
     """Rest the sheet of `facet` (1-based) of `config` (made a flexure) under `load` N along n̂ at s m from its clamp."""
     if not (math.isfinite(load) and load > 0):
@@ -96,7 +99,7 @@ def load_sheet(config: ArmModelConfig, s: float, load: float = 0.16, facet: int 
     )
 
 
-def calibrate_flexure(config: ArmModelConfig | None = None, load: float = 0.16, facet: int = 1) -> SheetLoadResult:
+def calibrate_flexure(config: ArmModelConfig | None = None, load: float = CALIBRATION_LOAD, facet: int = 1) -> SheetLoadResult:
     """The paper's calibration: `load` N (default F_max) at the calibration point of `facet`'s sheet;
     `.stiffness_N_per_m` is the k to give the controller."""
     config = config or ArmModelConfig(plate="flexure")
@@ -104,7 +107,7 @@ def calibrate_flexure(config: ArmModelConfig | None = None, load: float = 0.16, 
     return load_sheet(config, config.flexures()[facet - 1].calibration_s, load, facet)
 
 
-def fit_thickness(target: float, config: ArmModelConfig | None = None, load: float = 0.16, facet: int = 1,
+def fit_thickness(target: float, config: ArmModelConfig | None = None, load: float = CALIBRATION_LOAD, facet: int = 1,
                   rtol: float = 1e-4, max_iterations: int = 10) -> float:
     """The sheet thickness (m, 6 significant digits) whose `calibrate_flexure` k is `target` N/m within `rtol`.
 

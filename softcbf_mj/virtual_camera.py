@@ -35,8 +35,9 @@ from perception.capture import Frame
 from perception.plane import PlaneCalibration
 from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration, image_size
 from softcbf_mj.valve_emulator import ValveEmulator
+from vocabulary.settings import setting
 
-DEFAULT_FPS = 12.8  # docs/ground-truth.md: the hardware camera's ~12.8 frames/s
+DEFAULT_FPS = setting("frame_rate").default  # docs/ground-truth.md: the hardware camera's ~12.8 frames/s (the vocabulary's)
 
 
 class VirtualCamera:

@@ -21,7 +21,7 @@ from softcbf.cli import main
 
 COUNTED = (
     ("vocabulary/settings.py", "check_value"),
-    ("scenarios/common.py", "load_robot"),
+    ("softcbf_mj/ground_truth.py", "load_robot"),
     ("scenarios/common.py", "build_safe_set"),
     ("controllers/params.py", "__post_init__"),
     ("softcbf_mj/mjcf/config.py", "__post_init__"),

@@ -28,7 +28,7 @@ from softcbf_mj.env.gym_adapter import box
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.render import camera_matrix, camera_pose_cv, project, tag_poses, tag_plane_z
 
-FAST = {"control_dt": 0.01, "physics_dt": 2e-4, "links_per_segment": 5}  # a coarse, quick arm for the API tests
+FAST = {"control_rate": 100.0, "physics_dt": 2e-4, "links_per_segment": 5}  # a coarse, quick arm for the API tests
 F_MAX = paper_safe_set().f_max
 
 
@@ -105,9 +105,10 @@ def test_specs_name_their_units_and_match_the_box():
     assert env.reset().observation["tip_pred"] == pytest.approx([0.244, 0.0])
 
 
-@pytest.mark.parametrize("control_dt, action_repeat", [(0.01, 1), (0.01, 3), (0.002, 5)])
-def test_clocks_one_env_step_is_action_repeat_control_periods(control_dt, action_repeat):
-    env = make_environment(control_dt=control_dt, action_repeat=action_repeat, physics_dt=2e-4, links_per_segment=5)
+@pytest.mark.parametrize("control_rate, action_repeat", [(100.0, 1), (100.0, 3), (500.0, 5)])
+def test_clocks_one_env_step_is_action_repeat_control_periods(control_rate, action_repeat):
+    env = make_environment(control_rate=control_rate, action_repeat=action_repeat, physics_dt=2e-4, links_per_segment=5)
+    control_dt = 1.0 / control_rate
     assert env.control_timestep() == pytest.approx(control_dt * action_repeat, rel=1e-12)
     env.reset()
     for k in range(1, 4):
@@ -118,7 +119,8 @@ def test_clocks_one_env_step_is_action_repeat_control_periods(control_dt, action
 
 
 @pytest.mark.parametrize("changes, message", [
-    ({"control_dt": 1.5e-4}, "integer multiple of the physics step"),
+    ({"control_rate": 1e4 / 1.5}, "integer multiple of the physics step"),
+    ({"control_rate": 0.0}, "control_rate must be > 0 Hz, got 0.0"),
     ({"action_repeat": 0}, "action_repeat must be an integer >= 1, got 0"),
     ({"action_repeat": 2.0}, "action_repeat must be an integer >= 1, got 2.0"),
     ({"episode_steps": 0}, "episode_steps must be an integer >= 1, got 0"),
@@ -359,8 +361,8 @@ def test_cost_violation_is_the_fraction_of_periods_above_f_max_and_sums_to_the_t
     costs = np.array([info["cost"] for _, _, info in steps])
     assert np.all(costs == np.array([info["violation_periods"] / 4 for _, _, info in steps]))
     assert costs.sum() > 0 and np.all((costs >= 0) & (costs <= 1))
-    env_dt = 4 * FAST["control_dt"]
-    assert costs.sum() * env_dt == pytest.approx(sum(info["violation_periods"] for _, _, info in steps) * FAST["control_dt"])
+    env_dt = 4 * (1.0 / FAST["control_rate"])
+    assert costs.sum() * env_dt == pytest.approx(sum(info["violation_periods"] for _, _, info in steps) * (1.0 / FAST["control_rate"]))
     for observation, _, info in push_episode(60):
         assert info["cost"] == float(observation["contact_force"][0] > F_MAX)
         assert info["cost"] == float(observation["rho_meas"][0] < 0)
@@ -472,7 +474,7 @@ def test_render_without_a_backend_names_the_fix():
     """MUJOCO_GL=glfw without a display (MuJoCo's choice when MUJOCO_GL is unset and no OSMesa is found): one clear
     error naming MUJOCO_GL=osmesa and MUJOCO_GL=egl (in a subprocess: PyOpenGL binds one platform per process)."""
     code = ("from softcbf_mj.env import GymArmEnv\nfrom softcbf_mj.render import RenderBackendError\n"
-            "env = GymArmEnv(render_mode='rgb_array', control_dt=0.01, physics_dt=2e-4, links_per_segment=5)\n"
+            "env = GymArmEnv(render_mode='rgb_array', control_rate=100.0, physics_dt=2e-4, links_per_segment=5)\n"
             "env.reset(seed=0)\ntry:\n    env.render()\nexcept RenderBackendError as error:\n    print(error)\n")
     environ = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
@@ -484,7 +486,7 @@ def test_render_without_a_backend_names_the_fix():
 def test_an_unclosed_renderer_is_freed_before_the_interpreter_exits():
     """Without close(), MuJoCo's OSMesa context used to be freed during interpreter shutdown: an obscure ctypes error."""
     code = ("from softcbf_mj.env import GymArmEnv\n"
-            "env = GymArmEnv(render_mode='rgb_array', control_dt=0.01, physics_dt=2e-4, links_per_segment=5)\n"
+            "env = GymArmEnv(render_mode='rgb_array', control_rate=100.0, physics_dt=2e-4, links_per_segment=5)\n"
             "env.reset(seed=0)\nprint(env.render().shape)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0 and result.stdout.strip() == "(180, 320, 3)"

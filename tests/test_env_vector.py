@@ -17,7 +17,7 @@ from softcbf_mj.env.gym_adapter import scaled_observations, step_info, step_info
 from softcbf_mj.env.physics import ArmArrays, BatchStepStats
 from softcbf_mj.env.vector import ArmVectorEnv
 
-FAST = {"control_dt": 0.01, "physics_dt": 2e-4, "links_per_segment": 5}  # a coarse, quick arm (as tests/test_env.py)
+FAST = {"control_rate": 100.0, "physics_dt": 2e-4, "links_per_segment": 5}  # a coarse, quick arm (as tests/test_env.py)
 INFO_KEYS = ("cost", "periods", "violation_periods", "rho_meas_min", "force_max_N", "force_excess", "vented", "clipped",
              "t", "monitor_action", "filter_action", "fault")
 

@@ -1,4 +1,4 @@
-"""`scenarios.ground_truth.build_truth`: one MuJoCo ground truth for every MuJoCo scenario, so
+"""`softcbf_mj.ground_truth.build_truth`: one MuJoCo ground truth for every MuJoCo scenario, so
 that mujoco_contact and camera_loop take the same ground-truth settings, with one meaning."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from controllers.params import reference_robot
 from controllers.safe_set import paper_environment
 from scenarios import get
 from scenarios.common import controller_robot
-from scenarios.ground_truth import build_truth
+from softcbf_mj.ground_truth import build_truth
 from scenarios.spec import Model, Plate, TrueArm
 from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS
 
@@ -59,7 +59,7 @@ def test_build_truth_scales_the_arm_and_moves_the_plates():
     model = controller_robot(spec.model)
     ref = reference_robot()
     np.testing.assert_allclose(model.array("damping"), 3.0 * ref.array("damping"), rtol=1e-15)
-    truth = build_truth(spec.arm, spec.plate, spec.model, model, paper_environment())
+    truth = build_truth(spec.arm, spec.plate, model, paper_environment(), spec.model.damping_scale)
     arm = truth.robot
     np.testing.assert_allclose(arm.array("stiffness"), 1.5 * ref.array("stiffness"), rtol=1e-15)
     np.testing.assert_allclose(arm.array("damping"), 0.5 * 3.0 * ref.array("damping"), rtol=1e-15)

@@ -288,7 +288,7 @@ def test_vector_env_one_arms_conversion_escape_ends_only_its_episode(tmp_path):
 
     path = tmp_path / "badrho.py"
     path.write_text(VECTOR_FILTER, encoding="utf-8")
-    envs = gymnasium.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", control_dt=0.01,
+    envs = gymnasium.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", control_rate=100.0,
                               physics_dt=2e-4, links_per_segment=5, filter=f"{path}:BadRho", hold_s=0.05,
                               episode_steps=40)
     envs.reset(seed=0)

@@ -159,26 +159,22 @@ def test_hardware_defaults_are_the_vocabulary_s():
 
 
 def test_environment_defaults_are_the_vocabulary_s():
-    """The environment's keyword arguments named like a setting take `default(name, "environment")`,
-    and the table of `ArmEnvConfig`'s docstring shows those values."""
+    """The environment's keyword arguments named like a setting are the settings of `ENV_SETTINGS` (the control
+    rate, the filter, the monitor's hold, q0_std and every ground-truth setting) and take `default(name,
+    "environment")`; its own `robot` (a RobotParams) and `filter_params` (a mapping) are no such keywords."""
     import inspect
 
-    from softcbf_mj.env.environment import ArmEnvConfig
+    from softcbf_mj.env.environment import ENV_SETTINGS, ArmEnvConfig
     from softcbf_mj.env.physics import ArmPhysics
     from softcbf_mj.env.task import ArmTask
+    from vocabulary.settings import ground_truth_settings
 
-    shared = [f for f in dataclasses.fields(ArmEnvConfig) if f.name in SETTINGS and f.default is not dataclasses.MISSING]
-    assert {f.name for f in shared} == {"plate_stiffness", "physics_dt", "links_per_segment", "tau_p", "filter",
-                                        "pressure_limits", "hold_s", "q0_std"}
-    table = {}
-    for line in ArmEnvConfig.__doc__.splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if line.strip().startswith("|") and len(cells) == 4:
-            table[cells[0]] = cells[1]
+    shared = [f for f in dataclasses.fields(ArmEnvConfig) if f.name in SETTINGS and f.name not in ("robot", "filter_params")]
+    assert {f.name for f in shared} == set(ENV_SETTINGS) == {"control_rate", "filter", "pressure_limits", "hold_s",
+                                                             "q0_std", *ground_truth_settings()}
     for f in shared:
         expected = default(f.name, "environment")
         assert f.default == expected and type(f.default) is type(expected), (f.name, f.default, expected)
-        assert ast.literal_eval(table[f.name]) == expected, (f.name, table[f.name], expected)
     assert inspect.signature(ArmTask).parameters["q0_std"].default == default("q0_std", "environment")
     assert inspect.signature(ArmPhysics).parameters["hold_s"].default == default("hold_s", "environment")
     assert ArmEnvConfig().filter == "none"  # the environment is the unfiltered arm unless a filter is asked for

@@ -204,6 +204,6 @@ def test_one_softcbf_run_reads_the_robot_builds_the_safe_set_and_parses_the_plug
     from call_counts import counts
 
     found = counts("paper_sim", 0.02)
-    assert found["common:load_robot"] == found["common:build_safe_set"] == 1
+    assert found["ground_truth:load_robot"] == found["common:build_safe_set"] == 1
     assert found["settings:check_value"] == len(registry()["paper_sim"].spec.PATHS)
     assert found["registry:build_filter"] == found["registry:check_filter"] == 3  # one per tuning

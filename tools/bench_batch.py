@@ -57,7 +57,7 @@ from controllers.safety_filter import BatchOutput, Estimate, FilterContext
 from softcbf_mj.batch_loop import replay_commands, run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import RunningFigures, rho_meas, run_figures
-from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig
+from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, PAPER_PLATE_STIFFNESS, ArmModelConfig
 from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.pcc_batch_plant import PCCBatchPlant
@@ -84,7 +84,7 @@ def mujoco_samples(n: int, links: int, physics_dt: float, seed: int = 0) -> tupl
     for k_scale, g_scale, plate in zip(rng.uniform(0.9, 1.1, n), rng.uniform(0.9, 1.1, n), rng.uniform(0.9, 1.1, n)):
         robot = dataclasses.replace(ref, stiffness=tuple(v * k_scale for v in ref.stiffness),
                                     gains=tuple(v * g_scale for v in ref.gains))
-        configs.append(ArmModelConfig(robot=robot, plate_stiffness=11.16 * plate, links_per_segment=links, physics_dt=physics_dt))
+        configs.append(ArmModelConfig(robot=robot, plate_stiffness=PAPER_PLATE_STIFFNESS * plate, links_per_segment=links, physics_dt=physics_dt))
     return configs, rng.normal(0.2, 0.05, (n, 2))
 
 

@@ -28,9 +28,20 @@ hardware file's fields (context "hardware"), the environment's keyword arguments
 scenario's context). Where a context needs another default (paper_sim runs without the
 pressure box at 1 kHz, camera_loop and the hardware emulator on a coarser rod, the
 environment without a filter), `DEFAULT_OVERRIDES` says so, the one table of such overrides; no other module types a
-setting's default (tests/test_setting_defaults.py). The physical-constant modules below
-(softcbf_mj.mjcf, softcbf_mj.flexure, softcbf_mj.camera_loop.CameraTiming,
-perception.estimator) keep their documented constants, which that test holds equal to these.
+setting's default (tests/test_setting_defaults.py). The physical-constant classes above
+(softcbf_mj.mjcf's `ArmModelConfig` and its constants, softcbf_mj.flexure's `FlexureParams`,
+softcbf_mj.camera_loop's `CameraTiming`) take their defaults from here; the paper's plate stiffness and
+force limit, which the controller's `paper_safe_set` needs below this layer, are
+`controllers.paper_experiment`'s constants, imported here. No other product module types a declared default as a literal
+(tests/test_literal_defaults.py).
+
+Ground truth. A setting with a `section` ("TrueArm": the true arm, the rod, the plates' pose,
+gravity and friction; "Plate": the true plate) is a setting of the ground truth: it is the field
+`field` (default: its own name) of that section (`vocabulary.run_sections`), which
+`softcbf_mj.ground_truth.build_truth`, the one builder of the ground truth, takes. Every surface
+that builds a ground truth takes all of them by name (`ground_truth_settings()`): the MuJoCo
+scenarios' specs, the environment's keywords and the hardware file's emulator keys; so a new
+ground-truth setting is one entry here plus its use in `build_truth` (tests/test_one_surface.py).
 
 `check_value(name, value)` is the one check of a setting's value, wherever it comes
 from; it returns the value normalised (an int given for a float becomes a float) or
@@ -47,13 +58,14 @@ bounds, e.g. camera_loop's image size <= its render's); it checks that after thi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from controllers.bounds import (  # noqa: F401  (re-exported: the settings' range and check)
     LIKELY_MISTAKES, Bound, SettingError, check_number, finite, non_negative, positive,
 )
 from controllers.filter_parameters import Params
+from controllers.paper_experiment import PAPER_F_MAX, PAPER_PLATE_STIFFNESS
 
 
 @dataclass(frozen=True)
@@ -67,6 +79,8 @@ class Setting:
     plausible: float | None = None
     valid: str = ""
     default: Any = None
+    section: str = ""
+    field: str = ""
 
     @property
     def flat_kind(self) -> type:
@@ -110,7 +124,14 @@ def _names(meaning: str, valid: str, *, default: tuple[str, ...]) -> Setting:
     return Setting(meaning, "", tuple, valid=valid, default=default)
 
 
-PAPER_PLATE_STIFFNESS = 11.16  # N/m, the paper's calibrated plate: the true plate's and the controller's default
+GROUND_TRUTH_SECTIONS = ("TrueArm", "Plate")  # the sections of the ground truth (module docstring: Ground truth)
+
+
+def _part(declared: Setting, section: str, field: str = "") -> Setting:
+    """`declared` as a field of ground-truth section `section` (`field`: its name there, default the setting's)."""
+    return replace(declared, section=section, field=field)
+
+
 _SHEET = "flexure sheet (plate = 'flexure', docs/beyond-the-paper.md#flexure-plate): "
 _TRUE_ARM = "the MuJoCo arm's "
 _SCALE = Bound(1e-3, 1e3)  # a multiple of the robot's: beyond, the arm's numbers overflow
@@ -154,49 +175,57 @@ SETTINGS: dict[str, Setting] = {
                    default="reference"),
     "environment": _text("the facets H r <= h of the free space",
                          "'paper' or an environment JSON file (docs/file-formats.md#environment-json)", default="paper"),
-    "f_max": _number("force limit F_max per facet", "N", positive("N"), default=0.16),
+    "f_max": _number("force limit F_max per facet", "N", positive("N"), default=PAPER_F_MAX),
     "row_scaling": _text("scaling of the rows of the force-safe set P", "paper, unit", default="paper"),
     "assumed_plate_stiffness": _number("the controller's plate spring ψ(n) = k n", "N/m", positive("N/m"),
                                        default=PAPER_PLATE_STIFFNESS),
     "assumed_tau_p": _number("the controller's valve pressure time constant τ_p (its filter context's; the true "
                              "one is tau_p)", "s", non_negative("s"), 5.0, default=0.05),
-    # the plant (ground truth)
-    "plate_stiffness": _number("the true plate's spring (paper_sim: also the controller's ψ)", "N/m", positive("N/m"),
-                               default=PAPER_PLATE_STIFFNESS),
+    # the plant (ground truth): the true arm (`TrueArm`), then the true plate (`Plate`); module docstring
     "integrator": _text("integrator of the PCC plant", "ros2, rk4, euler", default="ros2"),
-    "links_per_segment": _integer(_TRUE_ARM + "rigid links per segment", "", Bound(1, 100), default=10),
-    "tau_p": _number("valve pressure time constant of the MuJoCo actuators (first order)", "s", non_negative("s"), 5.0,
-                     default=0.05),
-    "physics_dt": _number("MuJoCo time step (divides the control or tick period)", "s", Bound(1e-6, unit="s"), 1e-3,
-                          default=1e-4),
-    "true_robot": _text(_TRUE_ARM + "robot when it differs from the controller's",
-                        "'' (the controller's robot) or a robot JSON file, same number of segments", default=""),
-    "true_stiffness_scale": _number(_TRUE_ARM + "stiffness k as a multiple of the robot's", "", _SCALE, default=1.0),
-    "true_damping_scale": _number(_TRUE_ARM + "damping d as a multiple of the robot's", "", _SCALE, default=1.0),
     "damping_scale": _number("damping d of both the controller's robot and the true arm, as a multiple of the "
                              "robot's (the arm's time constants d/k scale with it; the controller knows it)", "", positive(),
                              default=1.0),
-    "true_gain_scale": _number(_TRUE_ARM + "actuator gain λ as a multiple of the robot's", "", _SCALE, default=1.0),
-    "true_length_scale": _number(_TRUE_ARM + "segment lengths as a multiple of the robot's (inertias by its square)", "",
-                                 _SCALE, default=1.0),
-    "facet_offset": _number("the true plates moved along their outward normals (> 0: farther from the base)", "m",
-                            Bound(-1.0, 1.0, unit="m"), default=0.0),
-    "facet_angle": _number("the true plates turned counter-clockwise about the foot of the perpendicular", "rad",
-                           Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"), default=0.0),
-    "gravity": _number("gravity along -y (0: the arm lies on a table)", "m/s²", non_negative("m/s²"), default=0.0),
-    "tip_friction": _number("Coulomb friction coefficient μ between the arm and the plates", "", non_negative(), default=0.0),
-    "table_friction": _number("Coulomb friction coefficient μ between the arm's links and the table it lies on "
-                              "(0: off; not with gravity)", "", Bound(0.0, 2.0), default=0.0),
-    "plate": _text("kind of true plate", "ideal (slide spring), flexure (clamped sheet in a force gauge)", default="ideal"),
-    "sheet_clamp_at": _number(_SHEET + "clamp position along the facet", "m", finite("m"), default=-0.055),
-    "sheet_free_end_at": _number(_SHEET + "free-end position along the facet", "m", finite("m"), valid="(!= sheet_clamp_at)",
-                                 default=-0.205),
-    "sheet_thickness": _number(_SHEET + "thickness", "m", positive("m"), default=1.23044e-3),
-    "sheet_width": _number(_SHEET + "width", "m", positive("m"), default=0.04),
-    "sheet_youngs_modulus": _number(_SHEET + "Young's modulus", "Pa", positive("Pa"), default=2.0e9),
-    "sheet_links": _integer(_SHEET + "rigid links of the sheet", "", Bound(1), default=10),
-    "sheet_calibration_fraction": _number(_SHEET + "calibration point as a fraction of its length from the clamp", "",
-                                          Bound(0.0, 1.0, low_open=True), default=1.0),
+    "true_robot": _part(_text(_TRUE_ARM + "robot when it differs from the controller's",
+                              "'' (the controller's robot) or a robot JSON file, same number of segments", default=""),
+                        "TrueArm", "robot"),
+    "true_stiffness_scale": _part(_number(_TRUE_ARM + "stiffness k as a multiple of the robot's", "", _SCALE, default=1.0),
+                                  "TrueArm", "stiffness_scale"),
+    "true_damping_scale": _part(_number(_TRUE_ARM + "damping d as a multiple of the robot's", "", _SCALE, default=1.0),
+                                "TrueArm", "damping_scale"),
+    "true_gain_scale": _part(_number(_TRUE_ARM + "actuator gain λ as a multiple of the robot's", "", _SCALE, default=1.0),
+                             "TrueArm", "gain_scale"),
+    "true_length_scale": _part(_number(_TRUE_ARM + "segment lengths as a multiple of the robot's (inertias by its square)",
+                                       "", _SCALE, default=1.0), "TrueArm", "length_scale"),
+    "links_per_segment": _part(_integer(_TRUE_ARM + "rigid links per segment", "", Bound(1, 100), default=10), "TrueArm"),
+    "tau_p": _part(_number("valve pressure time constant of the MuJoCo actuators (first order)", "s", non_negative("s"),
+                           5.0, default=0.05), "TrueArm"),
+    "physics_dt": _part(_number("MuJoCo time step (divides the control or tick period)", "s", Bound(1e-6, unit="s"), 1e-3,
+                                default=1e-4), "TrueArm"),
+    "facet_offset": _part(_number("the true plates moved along their outward normals (> 0: farther from the base)", "m",
+                                  Bound(-1.0, 1.0, unit="m"), default=0.0), "TrueArm"),
+    "facet_angle": _part(_number("the true plates turned counter-clockwise about the foot of the perpendicular", "rad",
+                                 Bound(-math.pi / 2, math.pi / 2, low_open=True, high_open=True, unit="rad"), default=0.0),
+                         "TrueArm"),
+    "gravity": _part(_number("gravity along -y (0: the arm lies on a table)", "m/s²", non_negative("m/s²"), default=0.0),
+                     "TrueArm"),
+    "tip_friction": _part(_number("Coulomb friction coefficient μ between the arm and the plates", "", non_negative(),
+                                  default=0.0), "TrueArm"),
+    "table_friction": _part(_number("Coulomb friction coefficient μ between the arm's links and the table it lies on "
+                                    "(0: off; not with gravity)", "", Bound(0.0, 2.0), default=0.0), "TrueArm"),
+    "plate": _part(_text("kind of true plate", "ideal (slide spring), flexure (clamped sheet in a force gauge)",
+                         default="ideal"), "Plate", "kind"),
+    "plate_stiffness": _part(_number("the true plate's spring (paper_sim: also the controller's ψ)", "N/m", positive("N/m"),
+                                     default=PAPER_PLATE_STIFFNESS), "Plate", "stiffness"),
+    "sheet_clamp_at": _part(_number(_SHEET + "clamp position along the facet", "m", finite("m"), default=-0.055), "Plate"),
+    "sheet_free_end_at": _part(_number(_SHEET + "free-end position along the facet", "m", finite("m"),
+                                       valid="(!= sheet_clamp_at)", default=-0.205), "Plate"),
+    "sheet_thickness": _part(_number(_SHEET + "thickness", "m", positive("m"), default=1.23044e-3), "Plate"),
+    "sheet_width": _part(_number(_SHEET + "width", "m", positive("m"), default=0.04), "Plate"),
+    "sheet_youngs_modulus": _part(_number(_SHEET + "Young's modulus", "Pa", positive("Pa"), default=2.0e9), "Plate"),
+    "sheet_links": _part(_integer(_SHEET + "rigid links of the sheet", "", Bound(1), default=10), "Plate"),
+    "sheet_calibration_fraction": _part(_number(_SHEET + "calibration point as a fraction of its length from the clamp",
+                                                "", Bound(0.0, 1.0, low_open=True), default=1.0), "Plate"),
     # the camera path (camera_loop, the hardware's camera)
     "tick": _number("plant tick: exposures, deliveries and controller calls fall on it; the time series' step", "s",
                     positive("s"), default=2e-3),
@@ -231,8 +260,9 @@ DEFAULT_OVERRIDES: dict[str, dict[str, Any]] = {
     # the hardware file: the emulator's coarser rod (5 links at 0.2 ms run ≈ 9× real time), a smaller
     # virtual camera, and no calibration (None: required unless the camera is virtual)
     "hardware": {"links_per_segment": 5, "physics_dt": 2e-4, "width": 480, "height": 270, "calibration": None},
-    # the environment (softcbf_mj.env's keyword arguments): the unfiltered arm, a policy's to learn on
-    "environment": {"filter": "none"},
+    # the environment (softcbf_mj.env's keyword arguments): the unfiltered arm, a policy's to learn on, at the
+    # paper's 1 kHz
+    "environment": {"filter": "none", "control_rate": 1000.0},
 }
 """Where one context (a scenario's name, "hardware" for the hardware file, "environment" for
 softcbf_mj.env's `ArmEnvConfig`) needs another default
@@ -247,6 +277,21 @@ def default(name: str, context: str) -> Any:
         raise KeyError(f"context {context!r} is not a key of vocabulary.settings.DEFAULT_OVERRIDES "
                        f"({', '.join(DEFAULT_OVERRIDES)})")
     return DEFAULT_OVERRIDES[context].get(name, declared.default)
+
+def section_settings(section: str) -> dict[str, str]:
+    """Field name → setting name of the declared section `section` (`Setting.section`: "TrueArm", "Plate"), in
+    declaration order; KeyError naming an undeclared section."""
+    fields = {declared.field or name: name for name, declared in SETTINGS.items() if declared.section == section}
+    if not fields:
+        raise KeyError(f"no setting of vocabulary.settings.SETTINGS declares section {section!r}")
+    return fields
+
+
+def ground_truth_settings() -> tuple[str, ...]:
+    """The names of the ground truth's settings (`GROUND_TRUTH_SECTIONS`), in declaration order: what every
+    surface that builds a ground truth takes (the scenarios, the environment, the hardware file's emulator)."""
+    return tuple(name for section in GROUND_TRUTH_SECTIONS for name in section_settings(section).values())
+
 
 def setting(name: str) -> Setting:
     """The declaration of setting `name`; KeyError naming it when none is declared."""

@@ -3,15 +3,18 @@
 Three clocks, all explicit and validated:
 
     physics step  physics_dt      (s)   MuJoCo's integrator step (`ArmModelConfig.physics_dt`)
-    control period control_dt     (s)   one filter call and one held command; an integer
-                                        multiple of physics_dt (`softcbf_mj.plant.steps_per_control`)
+    control period control_dt = 1 / control_rate (s; control_rate in Hz)   one filter call and
+                                        one held command; an integer multiple of physics_dt
+                                        (`softcbf_mj.plant.steps_per_control`)
     env step      action_repeat · control_dt (s)  one policy action, held for action_repeat
                                         control periods (`control.Environment.control_timestep()`)
 
 An episode lasts `episode_steps` env steps, i.e. episode_steps · action_repeat · control_dt
-seconds of simulated time. The scene is the one of `scenarios/mujoco_contact.py`: the
-MuJoCo arm of `robot` (`MujocoPlant.from_config`), the plates on the facets of
-`safe_set.environment` with spring stiffness `plate_stiffness` (N/m), and the control step
+seconds of simulated time. The scene is the one of `scenarios/mujoco_contact.py`, built by the
+same builder (`softcbf_mj.ground_truth.build_truth`) from the same settings: the MuJoCo arm of
+`robot` (scaled by the true_* settings), the plates on the facets of `safe_set.environment`
+(moved by facet_offset and facet_angle) with spring stiffness `plate_stiffness` (N/m) or the
+flexure sheet, gravity and friction as set; and the control step
 of the scenarios (`closedloop.step.ControlStep`: the filter `filter` with `filter_params`
 built once per environment by `controllers.registry.build_filter`, told its own copy of
 `FilterContext.for_robot(robot, safe_set, control_dt, pressure_limits, command_delay=0,
@@ -27,9 +30,11 @@ Actions, observations (`observation`: "estimate" or "privileged"), reward, cost 
 
 from __future__ import annotations
 
+import functools
 import math
+import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import field, replace
 from typing import Any
 
 from dm_control.rl import control
@@ -40,71 +45,84 @@ from controllers.safe_set import ForceSafeSet, paper_safe_set
 from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
 from softcbf_mj.env.physics import ArmPhysics, NoisyState
 from softcbf_mj.env.task import COSTS, OBSERVATIONS, ArmTask, RewardConfig
+from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loop import exact_state
 from softcbf_mj.mjcf import CAMERA_RESOLUTION
 from softcbf_mj.mujoco_plant import MujocoPlant
 from softcbf_mj.plant import PlantState, steps_per_control
-from vocabulary.settings import check_value, default
+from vocabulary.run_sections import ground_truth_values
+from vocabulary.sections import setting_section
+from vocabulary.settings import check_number, default, ground_truth_settings, positive
 
-DEFAULT_CONTROL_DT = 1e-3  # s, the paper's 1 kHz (as scenarios/mujoco_contact.py)
-VOCABULARY_FIELDS = ("plate_stiffness", "physics_dt", "links_per_segment", "tau_p", "filter", "pressure_limits", "hold_s",
-                     "q0_std")  # ArmEnvConfig's fields that are settings of vocabulary.settings (checked by it)
 MIN_IMAGE_PX = 8  # the tag detector's smallest image side
 
 
-@dataclass(frozen=True)
+ENV_SETTINGS = ("control_rate", "filter", "pressure_limits", "hold_s", "q0_std") + ground_truth_settings()
+"""ArmEnvConfig's keywords that are settings of the vocabulary (`vocabulary.settings`; every ground-truth setting)."""
+
+
+def _with_deprecated_control_dt(cls: type) -> type:
+    """`cls` whose constructor (and so `dataclasses.replace`) also reads the former keyword `control_dt` (s): as
+    `control_rate` = 1 / control_dt (Hz), which it sets (over a control_rate given beside it: `replace(config,
+    control_dt=...)` hands the old control_rate too), with a DeprecationWarning naming the new keyword, for one release."""
+    generated = cls.__init__
+
+    def __init__(self: Any, *args: Any, control_dt: float | None = None, **kwargs: Any) -> None:
+        if control_dt is not None:
+            kwargs["control_rate"] = 1.0 / check_number("control_dt", control_dt, positive("s"))
+            warnings.warn("ArmEnvConfig's control_dt (s) is deprecated and will be removed in the next release: give "
+                          f"control_rate (Hz) = 1 / control_dt, here control_rate={kwargs['control_rate']:g}",
+                          DeprecationWarning, stacklevel=2)
+        generated(self, *args, **kwargs)
+
+    functools.update_wrapper(__init__, generated)  # the signature users see is the dataclass's
+    __init__.__doc__ = _with_deprecated_control_dt.__doc__
+    cls.__init__ = __init__
+    return cls
+
+
+@_with_deprecated_control_dt
+@setting_section(settings={name: name for name in ENV_SETTINGS}, context="environment")
 class ArmEnvConfig:
     """Everything the environment depends on (units in the module docstring).
 
-    A field named like a setting of `vocabulary.settings` (plate_stiffness, physics_dt,
-    links_per_segment, tau_p, filter, pressure_limits, hold_s, q0_std) means that setting
-    and takes its default from there: `default(name, "environment")`, the declared default or
-    the context's override (filter "none": the environment is the unfiltered arm unless a
-    filter is asked for), and its check: `vocabulary.settings.check_value`, the bounds the
-    command line and the files hold it to (q0_std in [0, π] rad, tau_p <= 5 s, hold_s >= 0 s,
-    links_per_segment in [1, 100], …), so the environment refuses what `softcbf run` refuses,
-    with the same one-line error. The table shows their values (tests/test_setting_defaults.py
-    holds it to them); control_dt, the other fields and their defaults are the environment's own.
+    Settings. A keyword named like a setting of `vocabulary.settings` means that setting, takes
+    its default from there (`default(name, "environment")`: the declared default, or the
+    environment's override: filter "none", the unfiltered arm unless a filter is asked for, and
+    control_rate 1000 Hz, the paper's 1 kHz) and its check (`check_value`, the bounds the command
+    line and the files hold it to: q0_std in [0, π] rad, tau_p <= 5 s, hold_s >= 0 s, ...), so the
+    environment refuses what `softcbf run` refuses, with the same one-line error. They are
+    `control_rate` (Hz; the former `control_dt` in s is read for one release with a
+    DeprecationWarning), `filter`, `pressure_limits`, `hold_s`, `q0_std` and every setting of the
+    ground truth (`vocabulary.settings.ground_truth_settings`: plate_stiffness, links_per_segment,
+    tau_p, physics_dt, the true_* scales, true_robot, facet_offset, facet_angle, gravity,
+    tip_friction, table_friction, plate and the sheet_* settings), which `plant()` hands to the one
+    builder of the ground truth (`softcbf_mj.ground_truth.build_truth`); docs/parameters.md lists
+    them with their units and ranges.
+
+    The environment's own fields:
 
     | field            | default              | unit | meaning                                                   |
     |------------------|----------------------|------|-----------------------------------------------------------|
-    | robot            | reference_robot()    | —    | the true arm and the filter's model                       |
+    | robot            | reference_robot()    | —    | the true arm's reference (true_*) and the filter's model  |
     | safe_set         | paper_safe_set()     | —    | the filter's P and ρ_meas; its facets place the plates    |
-    | plate_stiffness  | 11.16                | N/m  | the true plates' springs                                  |
-    | control_dt       | 1e-3                 | s    | control period                                            |
-    | physics_dt       | 1e-4                 | s    | MuJoCo step                                               |
-    | links_per_segment| 10                   | —    | rigid links per segment                                   |
-    | tau_p            | 0.05                 | s    | pressure time constant                                    |
     | action_repeat    | 1                    | —    | control periods per env step                              |
     | episode_steps    | 1000                 | —    | env steps per episode                                     |
-    | filter           | "none"               | —    | registry spec or preset ("c-erg:recommended")             |
-    | filter_params    | {}                   | —    | its parameters, typed once (registry.typed_params)        |
-    | pressure_limits  | True                 | —    | the control step clips to [u_min, u_max]                  |
-    | hold_s           | 0.5                  | s    | the safety monitor's hold before it vents                 |
-    | q0_std           | 0.0                  | rad  | initial bending angles ~ N(0, q0_std²)                    |
+    | filter_params    | {}                   | —    | the filter's parameters, typed once (registry.typed_params) |
     | state_noise_std  | (0.0, 0.0)           | rad, rad/s | noise of the estimate's q and q̇ (0: exact state)   |
     | observation      | "estimate"           | —    | "estimate" (what the controller sees) or "privileged"     |
     | reward           | RewardConfig()       | —    | reward and termination (softcbf_mj.env.task)              |
     | cost             | "violation"          | —    | the cost's definition: "violation" or "force_excess"      |
     | camera           | False                | —    | observation "image"                                       |
     | tag_detections   | False                | —    | observations "tag_corners", "tag_seen"                    |
-    | image_size       | (320, 180)           | px   | (W, H) of the camera's frames, <= 1280 × 720              |
+    | image_size       | (320, 180)           | px   | (W, H) of the camera's frames, <= the render's 1280 × 720 |
     """
 
     robot: RobotParams = field(default_factory=reference_robot)
     safe_set: ForceSafeSet = field(default_factory=paper_safe_set)
-    plate_stiffness: float = default("plate_stiffness", "environment")
-    control_dt: float = DEFAULT_CONTROL_DT
-    physics_dt: float = default("physics_dt", "environment")
-    links_per_segment: int = default("links_per_segment", "environment")
-    tau_p: float = default("tau_p", "environment")
     action_repeat: int = 1
     episode_steps: int = 1000
-    filter: str = default("filter", "environment")
     filter_params: Mapping[str, object] = field(default_factory=dict)
-    pressure_limits: bool = default("pressure_limits", "environment")
-    hold_s: float = default("hold_s", "environment")
-    q0_std: float = default("q0_std", "environment")
     state_noise_std: tuple[float, float] = (0.0, 0.0)
     observation: str = "estimate"
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -113,9 +131,8 @@ class ArmEnvConfig:
     tag_detections: bool = False
     image_size: tuple[int, int] = (320, 180)
 
-    def __post_init__(self) -> None:
-        for name in VOCABULARY_FIELDS:
-            object.__setattr__(self, name, check_value(name, getattr(self, name)))
+    def check(self) -> None:
+        """The environment's own fields and the rules that tie settings together (the settings are checked)."""
         steps_per_control(self.control_dt, self.physics_dt)
         for name in ("action_repeat", "episode_steps"):
             value = getattr(self, name)
@@ -123,6 +140,7 @@ class ArmEnvConfig:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
         if self.safe_set.environment.n_facets < 1:
             raise ValueError("safe_set must have at least one facet")
+        check_true_arm(*ground_truth_values(self), self.robot)
         size = tuple(self.image_size)
         if not (len(size) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in size)
                 and MIN_IMAGE_PX <= size[0] <= CAMERA_RESOLUTION[0] and MIN_IMAGE_PX <= size[1] <= CAMERA_RESOLUTION[1]):
@@ -140,6 +158,11 @@ class ArmEnvConfig:
             raise ValueError(f"cost must be one of {', '.join(COSTS)}, got {self.cost!r}")
 
     @property
+    def control_dt(self) -> float:
+        """s, the control period: 1 / control_rate."""
+        return 1.0 / self.control_rate
+
+    @property
     def env_dt(self) -> float:
         """s, one env step: action_repeat · control_dt."""
         return self.action_repeat * self.control_dt
@@ -149,12 +172,15 @@ class ArmEnvConfig:
         return FilterContext.for_robot(self.robot, self.safe_set, self.control_dt, self.pressure_limits,
                                        command_delay=0.0, actuator_tau=self.tau_p)
 
+    def truth(self) -> Truth:
+        """The ground truth of this configuration's ground-truth settings (`softcbf_mj.ground_truth.build_truth`):
+        the true arm from `robot`, the plates on `safe_set`'s facets."""
+        return build_truth(*ground_truth_values(self), self.robot, self.safe_set.environment,
+                           default("damping_scale", "environment"))
+
     def plant(self) -> MujocoPlant:
-        """The MuJoCo ground truth of this configuration."""
-        env = self.safe_set.environment
-        return MujocoPlant.from_config(control_dt=self.control_dt, robot=self.robot, H=env.H, h=env.h,
-                                       plate_stiffness=self.plate_stiffness, links_per_segment=self.links_per_segment,
-                                       tau_p=self.tau_p, physics_dt=self.physics_dt)
+        """The MuJoCo ground truth of this configuration, stepped at its control rate."""
+        return MujocoPlant.from_config(self.truth().config, self.control_dt)
 
     def estimator(self) -> Callable[[PlantState], Estimate]:
         """The controller's estimator: the exact state, or the noisy state of state_noise_std."""

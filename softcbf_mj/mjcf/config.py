@@ -1,6 +1,7 @@
 """What the generated MuJoCo model depends on: `ArmModelConfig`, its defaults and its checks.
 
-Units: SI (m, kg, s, rad, N); pressure in hPa. The defaults' sources are the class's table: the
+Units: SI (m, kg, s, rad, N); pressure in hPa. A field that is a setting of the vocabulary takes its
+default from there (`vocabulary.settings`, the one home of a default). The defaults' sources are the class's table: the
 paper's facet and plate stiffness (docs/model.md#force-safe-set), the discretisation and physics step
 chosen by tools/convergence_study.py (models/softcbf_arm/README.md), and a coarser discretisation for
 the loops that render a camera. Every check refuses a bad value with a one-line message that names
@@ -19,20 +20,22 @@ from controllers.params import RobotParams, per_segment, reference_robot
 from perception.tags import textured_size
 from softcbf_mj.flexure import FlexureParams
 from softcbf_mj.table_friction import check_table_friction
+from vocabulary.settings import default, setting
 
 PAPER_H = ((0.36, 1.0),)  # docs/model.md#force-safe-set: the paper's single facet, H r ≤ h
 PAPER_h = (0.15,)  # m
-PAPER_PLATE_STIFFNESS = 11.16  # N/m, paper
 PLATE_KINDS = ("ideal", "flexure")  # a rigid plate on a slide spring (docs/ground-truth.md) | a clamped sheet in a force gauge (§12)
 
-DEFAULT_LINKS_PER_SEGMENT = 10  # chosen by tools/convergence_study.py (model README)
-DEFAULT_PHYSICS_DT = 1e-4  # s, chosen by tools/convergence_study.py (model README)
-DEFAULT_TAU_P = 0.05  # s, docs/ground-truth.md
+# The defaults are the vocabulary's (vocabulary.settings, their one home), named here for the model's users.
+PAPER_PLATE_STIFFNESS = setting("plate_stiffness").default  # N/m, paper
+DEFAULT_LINKS_PER_SEGMENT = setting("links_per_segment").default  # chosen by tools/convergence_study.py (model README)
+DEFAULT_PHYSICS_DT = setting("physics_dt").default  # s, chosen by tools/convergence_study.py (model README)
+DEFAULT_TAU_P = setting("tau_p").default  # s, docs/ground-truth.md
 # Coarser rod for loops that render a camera (camera_loop, the hardware emulator): about twice
 # as fast; against the defaults on mujoco_contact's Low run, 0.08 mm of tip and ≈ 1 mN of plate
 # force (tools/bench_mujoco_contact.py sweep, model README), far below the camera's own errors.
-CAMERA_LINKS_PER_SEGMENT = 5
-CAMERA_PHYSICS_DT = 2e-4  # s
+CAMERA_LINKS_PER_SEGMENT = default("links_per_segment", "camera_loop")
+CAMERA_PHYSICS_DT = default("physics_dt", "camera_loop")  # s
 DEFAULT_TAG_SIZE = 0.03  # m, black square of the 36h11 tag (chosen: the hardware's printed size)
 
 
@@ -87,11 +90,11 @@ class ArmModelConfig:
     plate_damping_ratio: float = 0.2
     contact_timeconst: float = 0.002
     tag_size: float = DEFAULT_TAG_SIZE
-    plate: str = "ideal"
+    plate: str = setting("plate").default
     flexure: FlexureParams | tuple[FlexureParams, ...] = field(default_factory=FlexureParams)
-    tip_friction: float = 0.0
-    gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    table_friction: float = 0.0
+    tip_friction: float = setting("tip_friction").default
+    gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the setting gravity (m/s², along −y) 0: no gravity
+    table_friction: float = setting("table_friction").default
 
     def __post_init__(self) -> None:
         H = np.atleast_2d(np.asarray(self.H, dtype=float)) if np.size(self.H) else np.zeros((0, 2))

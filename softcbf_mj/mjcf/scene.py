@@ -18,9 +18,10 @@ from softcbf_mj.mjcf.arm import VISUAL_RADIUS
 from softcbf_mj.mjcf.config import ArmModelConfig
 from softcbf_mj.mjcf.precision import r6
 from softcbf_mj.mjcf.tags import TAG_PLANE_Z, add_tag, tag_textures
+from vocabulary.settings import setting
 
 CAMERA_FOVY_DEG = 45.0
-CAMERA_RESOLUTION = (1280, 720)  # px, width × height
+CAMERA_RESOLUTION = (setting("width").default, setting("height").default)  # px, width × height (the vocabulary's)
 _CAMERA_FIELD_MARGIN = 1.1  # the image height covers ±1.1 Σ L around the workspace centre
 _TABLE_COLOR = (0.78, 0.76, 0.72, 1.0)
 CALIBRATION_BOARD_IDS = tuple(range(10, 22))  # tags of the calibration board (arm: 0..N)
