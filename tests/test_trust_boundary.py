@@ -486,7 +486,7 @@ def test_environment_ends_the_episode_on_a_filter_fault(hostile):
 
     import softcbf_mj.env  # noqa: F401  (registers the environment)
 
-    env = gymnasium.make("softcbf_mj/SoftArm-v0", filter=f"{hostile}:RaiseAt", filter_params={"at": 3}, hold_s=0.02)
+    env = gymnasium.make("softcbf_mj/SoftArm-v1", filter=f"{hostile}:RaiseAt", filter_params={"at": 3}, hold_s=0.02)
     env.reset(seed=0)
     terminated, steps, info = False, 0, {}
     while not terminated and steps < 200:
@@ -550,7 +550,7 @@ def test_property_environment_keeps_its_promises(how, at):
 
     import softcbf_mj.env  # noqa: F401  (registers the environment)
 
-    env = gymnasium.make("softcbf_mj/SoftArm-v0", filter="test_trust_boundary:Misbehaving",
+    env = gymnasium.make("softcbf_mj/SoftArm-v1", filter="test_trust_boundary:Misbehaving",
                          filter_params={"how": how, "at": at, "burst": 5}, hold_s=0.01)
     env.reset(seed=0)
     terminated, info = False, {}
