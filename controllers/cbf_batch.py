@@ -260,19 +260,25 @@ class PaperCBFKernel:
         self.table = candidate_table(n_rows + 2 * n if bounded else n_rows, n, n_rows if bounded else None)
         self.enumerate_qp = len(self.table) <= max_candidates  # beyond, the enumeration costs more than the scalar QP
         self.tuning, self.bounded, self.recover = tuning, bounded, recovery is not None
+        self._ab = tuning.a_E * tuning.b_E  # as the scalar filter computes it
         self.n, self.rows = n, n_rows
 
-    def run(self, kin: np.ndarray, tip_col: int, jac_col: int, q: np.ndarray, u_nom: np.ndarray) -> KernelOutput:
+    def outputs(self, count: int) -> KernelOutput:
+        """Empty result arrays for `count` states."""
+        return KernelOutput(np.empty((count, self.n)), np.empty(count, dtype=np.int8), np.empty((count, self.rows)),
+                            np.empty((count, self.rows)), np.empty((count, self.rows)),
+                            np.empty((count, self.rows), dtype=np.bool_))
+
+    def run(self, kin: np.ndarray, tip_col: int, jac_col: int, q: np.ndarray, u_nom: np.ndarray,
+            out: KernelOutput | None = None) -> KernelOutput:
         """The kernel at B states: kin (B, ·) complex `controllers.pcc_model` rows at (q, q̇), tip_col and jac_col
-        their columns of r and J_r (`pcc_model.ModelLayout`), q and u_nom (B, N) finite (unchecked)."""
-        count, tuning = len(q), self.tuning
-        out = KernelOutput(np.empty((count, self.n)), np.empty(count, dtype=np.int8), np.empty((count, self.rows)),
-                           np.empty((count, self.rows)), np.empty((count, self.rows)),
-                           np.empty((count, self.rows), dtype=np.bool_))
-        cbf_kernels.paper_cbf(kin, tip_col, jac_col, q, u_nom, self.facets, tuning.a_E * tuning.b_E, tuning.b_E,
-                              tuning.gamma, self.static_gain, self.limits, self.table, tuning.disabled, self.bounded,
-                              self.recover, self.enumerate_qp, B_MIN, FEASIBILITY_RTOL, ZERO_ROW_TOL, SINGULAR_TOL,
-                              *out)
+        their columns of r and J_r (`pcc_model.ModelLayout`), q and u_nom (B, N) finite (unchecked); out: result
+        arrays to overwrite (`outputs(B)`; a caller at one state keeps one set), else new ones."""
+        out = self.outputs(len(q)) if out is None else out
+        cbf_kernels.paper_cbf(kin, tip_col, jac_col, q, u_nom, self.facets, self._ab, self.tuning.b_E,
+                              self.tuning.gamma, self.static_gain, self.limits, self.table, self.tuning.disabled,
+                              self.bounded, self.recover, self.enumerate_qp, B_MIN, FEASIBILITY_RTOL, ZERO_ROW_TOL,
+                              SINGULAR_TOL, *out)
         return out
 
 

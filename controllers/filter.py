@@ -219,6 +219,7 @@ class CBFFilter:
         self._rest_targets: np.ndarray | None = None
         self._kernel = PaperCBFKernel(self.n, safe_set, tuning, *((np.array(params.u_min), np.array(params.u_max))
                                       if self.pressure_limits else (None, None)), self._recovery_rows)
+        self._kernel_out = self._kernel.outputs(1)  # one state's results, overwritten by each call (read as lists)
         p = len(self._rows)
         self.diagnostic_layout = DiagnosticLayout(
             {"b": (p,), "B": (p,), "constraint": (p,), "active": (p,), "recovery": (), "slack": (), "solve_us": ()},
@@ -364,7 +365,7 @@ class CBFFilter:
         layout = core.layout
         t0 = time.perf_counter()
         out = self._kernel.run(core.kin[None], layout.tip_terms.start, layout.tip_jac.start, np.array((q,)),
-                               np.array((u_list,)))
+                               np.array((u_list,)), self._kernel_out)
         solve_us = (time.perf_counter() - t0) * 1e6
         action = str(CODE_LABELS[out.code[0]])
         if action == "fallback":
