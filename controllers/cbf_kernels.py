@@ -246,9 +246,9 @@ def _feasibility_scale(u0, bounded, box_scale, n):
 def _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq, volume, valid):
     """The QP by enumeration: the index of the feasible candidate nearest u0 (the first of equals), or −1.
 
-    Candidate g (row 0: u0 itself) comes from its prefix's candidate (`_projected`); it is skipped when its prefix is, when its last row is a zero row, or when its rows
-    are (near) singular. The candidate's validity stays in this loop: as one compiled helper a candidate it
-    cost 2.5× the kernel's CPU time a state (N = 2, B = 256)."""
+    Candidate g (row 0: u0 itself) comes from its prefix's candidate (`_projected`); it is skipped when its prefix
+    is, when its last row is a zero row, or when its rows are (near) singular. The candidate's validity stays in
+    this loop: as one compiled helper a candidate it cost 2.5× the kernel's CPU time a state (N = 2, B = 256)."""
     best, best_distance = -1, math.inf
     for g in range(table.shape[0]):
         size = table[g, 0]

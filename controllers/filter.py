@@ -18,15 +18,15 @@ saturation, u_nom = (1e17, 1e17) hPa made the native solver return a command vio
 row by 124 /s labelled "qp", and daqp a "slack" command flagged infeasible on a feasible problem.
 Below, "u_nom" in the branches means ū.
 
-One implementation of the QP: every call, one state (B = 1) or a batch (`filter_batch`), runs the compiled
-kernel of the batched filter (`controllers.cbf_batch.PaperCBFKernel`, `controllers.cbf_kernels`): the barrier
-rows, the "disabled", "nominal", "qp" and "recovery" branches, the QP solved exactly by enumerating its active
-sets (derivation: `controllers.cbf_batch`). The scalar path (`controllers.qp`'s active-set QP over Python floats)
-is the documented fallback for the states the kernel hands back: no feasible candidate ("slack", the rest
-target, "vent"), a row that is not finite, and QP states beyond the enumeration's reach (more than
-`controllers.cbf_batch.ENUMERATION_MAX_CANDIDATES` candidates: N ≥ 6 with one facet and the box). Both agree where both apply: the same
-label, commands within 1e-9 hPa (tests/test_cbf_batch.py; `step(..., scalar=True)` runs the scalar path for
-every state).
+One implementation of the QP: every call, one state (B = 1) or a batch (`filter_batch`), runs the
+compiled kernel of the batched filter (`controllers.cbf_batch.PaperCBFKernel`, `controllers.cbf_kernels`):
+the barrier rows, the "disabled", "nominal", "qp" and "recovery" branches, the QP solved exactly by
+enumerating its active sets (derivation: `controllers.cbf_batch`). The scalar path (`controllers.qp`'s
+active-set QP over Python floats) is the documented fallback for the states the kernel hands back: no
+feasible candidate ("slack", the rest target, "vent"), a row that is not finite, and QP states beyond the
+enumeration's reach (more than `controllers.cbf_batch.ENUMERATION_MAX_CANDIDATES` candidates: N ≥ 6 with one
+facet and the box). Both agree where both apply: the same label, commands within 1e-9 hPa
+(tests/test_cbf_batch.py; `step(..., scalar=True)` runs the scalar path for every state).
 
 Defined behaviour in every state (the result says which branch ran, in `action`):
 - "disabled": tuning None (a_E = b_E = γ = 0): u = u_nom, clipped to the limits when

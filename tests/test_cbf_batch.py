@@ -82,7 +82,8 @@ def test_batch_matches_scalar_filter_at_a_corner():
     q, qd, u_nom = _states(5)
     q = np.random.default_rng(6).uniform(-0.3, 0.9, q.shape)  # reaches the corner
     out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, np.array(params.u_min),
-                       np.array(params.u_max), fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True))
+                       np.array(params.u_max),
+                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True))
     want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True) for i in range(N_STATES)]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)

@@ -31,7 +31,7 @@ def close(got, expected) -> bool:
 
 
 def table_reference(table: EscapeEnergyTable, u) -> list[float]:
-    """The table's look-up (`EscapeEnergyTable.values`) in Python floats: bounds 4a and 4b over the cell's 2^N corners."""
+    """The table's look-up (`EscapeEnergyTable.values`) in Python floats: bounds 4a and 4b over the 2^N corners."""
     import itertools
     lo, step, w = (table.kernel_table[k].tolist() for k in range(3))
     shape, strides = [int(v) for v in table.kernel_table[3]], [int(v) for v in table.kernel_table[4]]
