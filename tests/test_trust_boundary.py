@@ -1,7 +1,7 @@
 """The plug-in boundary is a trust boundary (docs/safety-filter.md, issue 22): whatever a filter or nominal does,
 the control step keeps the limits, the record and the run.
 
-Each defect found on 3713bd0 has a test here (N1 widening the clip, N2 rewriting the record, N3 a
+Each defect found in the trust boundary's review has a test here (N1 widening the clip, N2 rewriting the record, N3 a
 fault losing the run, N4 broken files giving tracebacks, N10 complex/bool returns, unbounded
 diagnostics, the hardware loop's burst after a stall), then property tests (hypothesis) of
 random misbehaving filters in the serial and batched loops, and one misbehaviour in each of the
