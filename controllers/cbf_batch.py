@@ -87,6 +87,7 @@ row's violation at an intermediate iterate lies below it; in tests this never ha
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Protocol
 
@@ -183,6 +184,16 @@ def subset_levels(m: int, n: int, box_start: int | None) -> tuple[tuple[np.ndarr
     return tuple(levels)
 
 
+def candidate_count(m: int, n: int, box_start: int | None) -> int:
+    """len(candidate_table(m, n, box_start)) without building it: 1 (u_nom) + the subsets of 1..n of the m rows,
+    less those holding both ±e_j. With the box (P = box_start rows of P, then n pairs ±e_j, each subset taking at
+    most one of a pair), Σ_k Σ_i C(P, i) C(n, k − i) 2^(k − i); without it Σ_k C(m, k)."""
+    if box_start is None:
+        return 1 + sum(math.comb(m, k) for k in range(1, n + 1))
+    return 1 + sum(math.comb(box_start, i) * math.comb(n, k - i) * 2 ** (k - i)
+                   for k in range(1, n + 1) for i in range(0, k + 1))
+
+
 @functools.lru_cache(maxsize=64)
 def candidate_table(m: int, n: int, box_start: int | None) -> np.ndarray:
     """The candidates of `subset_levels(m, n, box_start)` as the kernel's table (C, n + 1) int: row 0 stands
@@ -257,8 +268,11 @@ class PaperCBFKernel:
         self.limits = np.zeros((2, n))
         if bounded:
             self.limits[0], self.limits[1] = u_min, u_max
-        self.table = candidate_table(n_rows + 2 * n if bounded else n_rows, n, n_rows if bounded else None)
-        self.enumerate_qp = len(self.table) <= max_candidates  # beyond, the enumeration costs more than the scalar QP
+        shape = (n_rows + 2 * n if bounded else n_rows, n, n_rows if bounded else None)
+        # beyond max_candidates the enumeration costs more than the scalar QP, and the table is not built (it grows
+        # as C(P + 2N, ≤ N): at N = 12, millions of subsets); the kernel never reads it then
+        self.enumerate_qp = candidate_count(*shape) <= max_candidates
+        self.table = candidate_table(*shape) if self.enumerate_qp else np.zeros((1, n + 1), dtype=np.int64)
         self.tuning, self.bounded, self.recover = tuning, bounded, recovery is not None
         self._ab = tuning.a_E * tuning.b_E  # as the scalar filter computes it
         self.n, self.rows = n, n_rows

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from controllers.cbf import TUNINGS
-from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, RecoveryRows, candidate_table, cbf_qp_batch,
-                                   subset_levels)
+from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, RecoveryRows, candidate_count, candidate_table,
+                                   cbf_qp_batch, subset_levels)
 from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteStateError
 from controllers.filter import CBFFilter
@@ -258,6 +258,20 @@ def test_n_segment_recovery_rows_match_scalar_filter(n_seg, pressure_limits):
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
     np.testing.assert_array_equal(out.infeasible, [w.infeasible for w in want])
     assert np.count_nonzero(out.resolved & (out.action == "recovery")) > count // 20
+
+
+@pytest.mark.parametrize("m, n, box_start", [(3, 2, None), (5, 2, 1), (7, 3, 1), (9, 3, 3), (11, 4, 3), (13, 6, 1),
+                                             (4, 4, None)])
+def test_candidate_count_is_the_tables_length(m, n, box_start):
+    assert candidate_count(m, n, box_start) == len(candidate_table(m, n, box_start))
+
+
+def test_a_many_segment_filter_does_not_build_the_enumerations_table():
+    """N = 12 with the box: millions of candidates; the filter is built at once and its QP states take the scalar QP."""
+    filt = CBFFilter(uniform_robot(12), paper_safe_set(), TUNINGS["HW-High"])
+    assert candidate_count(1 + 24, 12, 1) > 10**6
+    out = filt(Estimate(0.0, np.full(12, 0.05), np.full(12, 0.5), 0.0), np.full(12, 150.0))
+    assert np.all(np.isfinite(out.u)) and out.action in ("nominal", "qp", "slack", "recovery")
 
 
 def test_candidate_table_follows_the_subset_levels():
