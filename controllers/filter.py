@@ -358,7 +358,7 @@ class CBFFilter:
     def _kernel_step(self, xs: list[float], u_list: list[float]) -> tuple | None:
         """`_step_floats` through the batched paper CBF's kernel at B = 1 (`controllers.cbf_batch.PaperCBFKernel`:
         the "disabled", "nominal", "qp" and "recovery" branches), or None for a state it hands back (FALLBACK: the
-        scalar QP's branches, module docstring)."""
+        scalar QP's branches, module docstring). solve_us: the kernel call's time where it solved a QP."""
         n = self.n
         q = xs[:n]
         core = self.dynamics.model_terms(q, xs[n:])
