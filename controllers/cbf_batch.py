@@ -10,7 +10,9 @@ with u_nom first saturated to [u_min, u_max] when bounded (as `CBFFilter` does).
 
 The maths below runs compiled, one state per loop iteration (`controllers.cbf_kernels.paper_cbf`,
 numba, loaded on the first call): this module checks the input, evaluates the model, packs the
-arguments and calls the scalar filter for the states the kernel hands back.
+arguments (`PaperCBFKernel`) and calls the scalar filter for the states the kernel hands back. The
+filter's own calls at one state (`CBFFilter.__call__`, `CBFFilter.step`) run the same kernel at B = 1:
+there is one implementation of this QP, and the scalar QP (`controllers.qp`) is only the fallback.
 
 Barrier terms: b, ḃ, B, L_fB, L_gB per row (`controllers.cbf.barrier_rows`) from the tip terms of
 `controllers.dynamics_batch.BatchDynamics`, in the scalar path's operation order, so
@@ -48,19 +50,9 @@ module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's roundin
   meets a's row, and u₀ − u_S stays in the row space: the projection above without forming
   (A_S A_Sᵀ)⁻¹. For one row this is t = (â·u₀ − b̂)/‖â‖², u₀ − t â, the scalar solver's first
   step float for float. Every level, the square one (k = N: the vertex A_S⁻¹ b_S) included, is
-  this step, except the square level of N = 2, which keeps Cramer's rule (the vertex of rows a, b:
-  ((c_a b_1 − c_b a_1)/det, (a_0 c_b − b_0 c_a)/det), det = a_0 b_1 − a_1 b_0): there the chain of projections changed 2763 of 120 000 random states'
-  commands, by up to 9e-10 hPa and 40× farther from the scalar filter than Cramer's (unbounded,
-  |u| ≈ 4e4 hPa at a corner); with it the N = 2 floats of batched studies do not move (measured
-  on the same 120 000 states: no command differs from the enumeration of before). For N = 3, 4
-  the chain stays within 5e-12 hPa of the scalar filter in the tests. The compiled kernel replaced
-  the numpy enumeration of before without moving these floats: on 120 000 random N = 2 states (four
-  tunings, with and without the box) no command and no label changed (`tools/cbf_batch_agreement.py
-  --against <worktree of the numpy version>`, which also compares 22 376 states outside P with the
-  scalar filter: the same labels, commands within 4.3e-14 hPa). (Its feasibility products are
-  sums in the order j = 0, 1, …, the numpy version's a matmul: rounding differences there could only
-  flip a candidate lying within 1e-14 of the tolerance.) A subset whose unit rows span a parallelotope of volume ‖v_1‖⋯‖v_k‖
-  (|det A_S| when square) below SINGULAR_TOL = 1e-12 is skipped (nearly dependent
+  this step: one solve for every N (the chain of projections stays within 1e-9 hPa of the scalar
+  filter's active-set QP in the tests, N = 2, 3 and 4). A subset whose unit rows span a parallelotope of
+  volume ‖v_1‖⋯‖v_k‖ (|det A_S| when square) below SINGULAR_TOL = 1e-12 is skipped (nearly dependent
   rows: parallel at k = 2), and so are subsets holding both ±e_j. Count: with the box,
   1 + Σ_{k≤N} C(P + 2N, k) less those pairs: 14, 46, 146 candidates for N = 2, 3, 4 and one
   facet row (27, 106, 384 with three rows); unbounded 1 + Σ_k C(P, k) (`candidate_table`: the
@@ -95,6 +87,7 @@ row's violation at an intermediate iterate lies below it; in tests this never ha
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Protocol
 
@@ -162,8 +155,8 @@ ENUMERATION_MAX_CANDIDATES = 500
 cost 171 µs against 102 µs); with more, the QP states go to the fallback."""
 
 SINGULAR_TOL = 1e-12
-"""A subset whose unit rows span a parallelotope of volume below this (‖v_1‖⋯‖v_k‖; |det| of two rows for
-N = 2) is skipped: its rows are nearly dependent (module docstring)."""
+"""A subset whose unit rows span a parallelotope of volume below this (‖v_1‖⋯‖v_k‖, |det A_S| when square) is
+skipped: its rows are nearly dependent (module docstring)."""
 
 
 @functools.lru_cache(maxsize=64)
@@ -189,6 +182,16 @@ def subset_levels(m: int, n: int, box_start: int | None) -> tuple[tuple[np.ndarr
         members = np.array(current, dtype=np.intp)
         levels.append((prefixes.reshape(len(current), size - 1), members[:, -1].copy(), members))
     return tuple(levels)
+
+
+def candidate_count(m: int, n: int, box_start: int | None) -> int:
+    """len(candidate_table(m, n, box_start)) without building it: 1 (u_nom) + the subsets of 1..n of the m rows,
+    less those holding both ±e_j. With the box (P = box_start rows of P, then n pairs ±e_j, each subset taking at
+    most one of a pair), Σ_k Σ_i C(P, i) C(n, k − i) 2^(k − i); without it Σ_k C(m, k)."""
+    if box_start is None:
+        return 1 + sum(math.comb(m, k) for k in range(1, n + 1))
+    return 1 + sum(math.comb(box_start, i) * math.comb(n, k - i) * 2 ** (k - i)
+                   for k in range(1, n + 1) for i in range(0, k + 1))
 
 
 @functools.lru_cache(maxsize=64)
@@ -228,6 +231,71 @@ CODE_LABELS = np.array(["disabled", "nominal", "qp", "recovery", "fallback"])
 """The action label of each of the kernel's codes (`controllers.cbf_kernels`: DISABLED … FALLBACK)."""
 
 
+class KernelOutput(NamedTuple):
+    """`PaperCBFKernel.run`'s per-state results: u (B, N) hPa, code (B,) int8 (`controllers.cbf_kernels`' codes),
+    b, B, constraint (B, P) (row-scaled m, 1, 1/s: the filter's diagnostics) and active (B, P) bool."""
+
+    u: np.ndarray
+    code: np.ndarray
+    b: np.ndarray
+    B: np.ndarray
+    constraint: np.ndarray
+    active: np.ndarray
+
+
+class PaperCBFKernel:
+    """The compiled paper CBF (`controllers.cbf_kernels.paper_cbf`) for one filter: the arguments that do not
+    change between calls (the force-safe set's rows, the tuning, the pressure box, the recovery rows, the
+    candidate table) packed once, so that a call passes only the states.
+
+    n: the number of segments N; u_min, u_max: (N,) hPa or None (unbounded); recovery: the filter's quasi-static
+    rows or None (states outside P are then FALLBACK); max_candidates: as `cbf_qp_batch`'s.
+    """
+
+    def __init__(self, n: int, safe_set: ForceSafeSet, tuning: Tuning, u_min: np.ndarray | None = None,
+                 u_max: np.ndarray | None = None, recovery: RecoveryRows | None = None,
+                 max_candidates: int = ENUMERATION_MAX_CANDIDATES) -> None:
+        bounded = u_min is not None
+        if bounded != (u_max is not None):
+            raise ValueError("u_min and u_max must both be given or both be None")
+        n_rows = len(safe_set.h_prime)
+        self.facets = np.zeros((n_rows, 4))
+        self.facets[:, :2], self.facets[:, 2] = safe_set.H_prime, safe_set.h_prime
+        self.static_gain = np.zeros(n)
+        if recovery is not None:
+            self.static_gain = np.asarray(recovery.static_gain, dtype=float).reshape(n)
+            self.facets[:, 3] = np.asarray(recovery.margins, dtype=float).reshape(n_rows)
+        self.limits = np.zeros((2, n))
+        if bounded:
+            self.limits[0], self.limits[1] = u_min, u_max
+        shape = (n_rows + 2 * n if bounded else n_rows, n, n_rows if bounded else None)
+        # beyond max_candidates the enumeration costs more than the scalar QP, and the table is not built (it grows
+        # as C(P + 2N, ≤ N): at N = 12, millions of subsets); the kernel never reads it then
+        self.enumerate_qp = candidate_count(*shape) <= max_candidates
+        self.table = candidate_table(*shape) if self.enumerate_qp else np.zeros((1, n + 1), dtype=np.int64)
+        self.tuning, self.bounded, self.recover = tuning, bounded, recovery is not None
+        self._ab = tuning.a_E * tuning.b_E  # as the scalar filter computes it
+        self.n, self.rows = n, n_rows
+
+    def outputs(self, count: int) -> KernelOutput:
+        """Empty result arrays for `count` states."""
+        return KernelOutput(np.empty((count, self.n)), np.empty(count, dtype=np.int8), np.empty((count, self.rows)),
+                            np.empty((count, self.rows)), np.empty((count, self.rows)),
+                            np.empty((count, self.rows), dtype=np.bool_))
+
+    def run(self, kin: np.ndarray, tip_col: int, jac_col: int, q: np.ndarray, u_nom: np.ndarray,
+            out: KernelOutput | None = None) -> KernelOutput:
+        """The kernel at B states: kin (B, ·) complex `controllers.pcc_model` rows at (q, q̇), tip_col and jac_col
+        their columns of r and J_r (`pcc_model.ModelLayout`), q and u_nom (B, N) finite (unchecked); out: result
+        arrays to overwrite (`outputs(B)`; a caller at one state keeps one set), else new ones."""
+        out = self.outputs(len(q)) if out is None else out
+        cbf_kernels.paper_cbf(kin, tip_col, jac_col, q, u_nom, self.facets, self._ab, self.tuning.b_E,
+                              self.tuning.gamma, self.static_gain, self.limits, self.table, self.tuning.disabled,
+                              self.bounded, self.recover, self.enumerate_qp, B_MIN, FEASIBILITY_RTOL, ZERO_ROW_TOL,
+                              SINGULAR_TOL, *out)
+        return out
+
+
 def cbf_qp_batch(
     dynamics: BatchDynamics,
     safe_set: ForceSafeSet,
@@ -240,6 +308,7 @@ def cbf_qp_batch(
     fallback: Callable[[int], ScalarResult] | None = None,
     max_candidates: int = ENUMERATION_MAX_CANDIDATES,
     recovery: RecoveryRows | None = None,
+    kernel: PaperCBFKernel | None = None,
 ) -> CBFBatchResult:
     """`CBFFilter` at B states (module docstring).
 
@@ -251,6 +320,8 @@ def cbf_qp_batch(
     ENUMERATION_MAX_CANDIDATES; a larger value times the enumeration beyond it, tools/bench_batch_filters.py).
     recovery: the filter's quasi-static rows (`RecoveryRows`): states with a row b ≤ B_MIN are solved here
     with them, as `CBFFilter` solves them; None: those states go to the fallback.
+    kernel: the packed arguments (`PaperCBFKernel`) of these safe_set, tuning, bounds, recovery and max_candidates,
+    kept by a caller that calls often (built here when None).
     """
     n_seg = dynamics.n
     n_states = np.shape(q)[0] if np.ndim(q) == 2 else -1
@@ -258,32 +329,13 @@ def cbf_qp_batch(
     q = checked_rows("q", q, shape, NonFiniteStateError)
     qd = checked_rows("qd", qd, shape, NonFiniteStateError)
     u_nom = checked_rows("u_nom", u_nom, shape, NonFiniteCommandError)
-    bounded = u_min is not None
-    if bounded != (u_max is not None):
-        raise ValueError("u_min and u_max must both be given or both be None")
+    if kernel is None:
+        kernel = PaperCBFKernel(n_seg, safe_set, tuning, u_min, u_max, recovery, max_candidates)
     terms = dynamics.terms(q, qd)
-    layout = terms.layout
     tip = terms.tip
     rho_pred = predicted_margin(safe_set, tip.real, tip.imag)
-    n_rows = len(safe_set.h_prime)
-    facets = np.zeros((n_rows, 4))
-    facets[:, :2], facets[:, 2] = safe_set.H_prime, safe_set.h_prime
-    static_gain = np.zeros(n_seg)
-    if recovery is not None:
-        static_gain = np.asarray(recovery.static_gain, dtype=float).reshape(n_seg)
-        facets[:, 3] = np.asarray(recovery.margins, dtype=float).reshape(n_rows)
-    limits = np.zeros((2, n_seg))
-    if bounded:
-        limits[0], limits[1] = u_min, u_max
-    table = candidate_table(n_rows + 2 * n_seg if bounded else n_rows, n_seg, n_rows if bounded else None)
-    enumerate_qp = len(table) <= max_candidates  # beyond, the enumeration costs more than the scalar filter's QP
-    u = np.empty(shape)
-    code = np.empty(len(q), dtype=np.int8)
-    b_all = np.empty((len(q), n_rows))
-    cbf_kernels.paper_cbf(terms.kin, layout.tip_terms.start, layout.tip_jac.start, q, u_nom, facets,
-                          tuning.a_E * tuning.b_E, tuning.b_E, tuning.gamma, static_gain, limits, table,
-                          tuning.disabled, bounded, recovery is not None, enumerate_qp, B_MIN, FEASIBILITY_RTOL,
-                          ZERO_ROW_TOL, SINGULAR_TOL, u, code, b_all)
+    out = kernel.run(terms.kin, terms.layout.tip_terms.start, terms.layout.tip_jac.start, q, u_nom)
+    u, code = out.u, out.code
     action = CODE_LABELS[code]
     infeasible = np.zeros(len(q), dtype=bool)
     resolved = code != cbf_kernels.FALLBACK
@@ -297,10 +349,10 @@ def cbf_qp_batch(
             result = fallback(int(i))
             u[i], action[i], infeasible[i] = np.asarray(result.u, dtype=float), result.action, bool(result.infeasible)
         action = action.astype(str)
-    return CBFBatchResult(u, action, infeasible, rho_pred, b_all, resolved)
+    return CBFBatchResult(u, action, infeasible, rho_pred, out.b, resolved)
 
 
 SCALAR_BELOW = 4
-"""Batches smaller than this are filtered state by state with the scalar filter (measured
-crossover on a 2-core machine: the vectorised filter's fixed cost ≈ 0.2–0.4 ms per call,
-the scalar filter's ≈ 30–60 µs per state)."""
+"""Batches smaller than this are filtered state by state (`CBFFilter.__call__`, the kernel at B = 1: it reuses
+the model terms a plant sharing the filter's `PCCDynamics` has evaluated, and skips the batch's input checks and
+margins; measured crossover on a 2-core machine: the batch call's fixed cost ≈ 0.2–0.4 ms)."""

@@ -27,7 +27,9 @@ Arguments (shapes: B states, N inputs, P rows of P, m = P (+ 2N with the box) QP
 - flags: disabled (tuning None), bounded, recover (recovery rows computed here), enumerate (N within
   the enumeration's reach); tolerances: b_min (B_MIN), feasibility_rtol, zero_row_tol, singular_tol.
 Outputs, written per state: u (B, N) hPa, code (B,) int8 (DISABLED, NOMINAL, QP, RECOVERY, or
-FALLBACK: the scalar filter decides), b (B, P) (the barrier per row).
+FALLBACK: the scalar filter decides), b (B, P) (the barrier per row), and the filter's diagnostics:
+B (B, P) (+inf where b ≤ B_MIN), the constraint L_fB + L_gB u − γ/B at the command (B, P) (+inf there), and
+active (B, P) bool (the barrier rows of the chosen candidate's subset).
 """
 
 from __future__ import annotations
@@ -52,17 +54,20 @@ def _dot(a, ra, b, rb, n):
 
 @njit(cache=True, error_model="numpy")
 def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_gain, limits, table, disabled, bounded,
-              recover, enumerate_qp, b_min, feasibility_rtol, zero_row_tol, singular_tol, u, code, b_out) -> None:
+              recover, enumerate_qp, b_min, feasibility_rtol, zero_row_tol, singular_tol, u, code, b_out, big_b_out,
+              constraint_out, active_out) -> None:
     """The batched paper CBF (module docstring), per state: the saturated u_nom and the barrier rows; then the
     state's code: DISABLED, FALLBACK (unevaluable rows, recovery without its rows, beyond the enumeration's reach,
     contradicting rows, or no feasible candidate), NOMINAL (u_nom satisfies every row), else QP or RECOVERY with
-    the enumeration's nearest feasible candidate (rows scaled to unit norm first, as controllers.qp.solve_lists)."""
+    the enumeration's nearest feasible candidate (rows scaled to unit norm first, as controllers.qp.solve_lists);
+    then the state's diagnostics at its command (`_diagnostics`)."""
     n_states, n = u_nom.shape
     p = facets.shape[0]
     m = p + 2 * n if bounded else p
     n_cand = table.shape[0]
     rows = np.empty((m, n))  # the QP's rows (unit after scaling; the box rows ±e_j)
     rhs = np.empty(m)
+    lgb, lfb = np.empty((p, n)), np.empty(p)  # the barrier rows' L_gB and L_fB as computed (before scaling)
     zero = np.zeros(m, dtype=np.bool_)  # a zero row (dropped: every candidate holding it is skipped)
     cand = np.empty((n_cand, n))  # per candidate: u_S
     basis = np.empty((n_cand, n))  # per candidate: v, its last row orthogonalised against its prefix's rows
@@ -74,38 +79,60 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
     for s in range(n_states):
         _saturated_nominal(u_nom, limits, bounded, s, u0, u)
         recovery, unevaluable = _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s,
-                                              rows, rhs, b_out)
+                                              rows, rhs, b_out, big_b_out, lgb, lfb)
+        best = -1
         if disabled:
             code[s] = DISABLED
-            continue
-        if unevaluable or (recovery and not recover):
+        elif unevaluable or (recovery and not recover):
             code[s] = FALLBACK
-            continue
-        nominal = True
-        for i in range(p):
-            if not _dot(rows, i, u0, 0, n) <= rhs[i]:
-                nominal = False
-        if nominal:
+        elif _meets_rows(rows, rhs, u0, p, n):
             code[s] = NOMINAL
-            continue
-        if not enumerate_qp:
+        elif not enumerate_qp or _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
             code[s] = FALLBACK
-            continue
-        if _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
-            code[s] = FALLBACK
-            continue
-        tol = feasibility_rtol * _feasibility_scale(u0, bounded, box_scale, n)
-        best = _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq, volume,
-                                  valid)
-        if best < 0:
-            code[s] = FALLBACK
-            continue
-        for j in range(n):
-            v = cand[best, j]
-            if bounded:
-                v = min(max(v, limits[0, j]), limits[1, j])
-            u[s, j] = v
-        code[s] = RECOVERY if recovery else QP
+        else:
+            tol = feasibility_rtol * _feasibility_scale(u0, bounded, box_scale, n)
+            best = _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq,
+                                      volume, valid)
+            if best < 0:
+                code[s] = FALLBACK
+            else:
+                for j in range(n):
+                    v = cand[best, j]
+                    if bounded:
+                        v = min(max(v, limits[0, j]), limits[1, j])
+                    u[s, j] = v
+                code[s] = RECOVERY if recovery else QP
+        _diagnostics(table, best, s, p, n, gamma, b_min, b_out, big_b_out, lgb, lfb, u, constraint_out, active_out)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _meets_rows(rows, rhs, u0, p, n):
+    """Whether u0 meets every barrier (or quasi-static) row a_i·u0 ≤ c_i as written (the "nominal" test)."""
+    for i in range(p):
+        if not _dot(rows, i, u0, 0, n) <= rhs[i]:
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _diagnostics(table, best, s, p, n, gamma, b_min, b_out, big_b_out, lgb, lfb, u, constraint_out, active_out):
+    """State s's constraint L_fB + L_gB u − γ/B per row at its command u[s] (+inf where b ≤ b_min), and the
+    barrier rows among the chosen candidate's subset (`best`, −1: none) as active."""
+    for i in range(p):
+        active_out[s, i] = False
+        if b_out[s, i] > b_min:
+            total = lgb[i, 0] * u[s, 0]
+            for j in range(1, n):
+                total += lgb[i, j] * u[s, j]
+            constraint_out[s, i] = lfb[i] + total - gamma / big_b_out[s, i]
+        else:
+            constraint_out[s, i] = math.inf
+    if best > 0:
+        size = table[best, 0]
+        for k in range(size):  # its prefixes' last rows, then its own
+            row = table[best, 1] if k == size - 1 else table[table[best, 2 + k], 1]
+            if row < p:
+                active_out[s, row] = True
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -136,10 +163,11 @@ def _saturated_nominal(u_nom, limits, bounded, s, u0, u) -> None:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s, rows, rhs, b_out):
-    """The P barrier rows of state s into rows, rhs and b_out[s] (controllers.cbf.barrier_rows, in its operation
-    order), or the quasi-static row of a row with b ≤ B_MIN (CBFFilter._static_row); return (recovery: a
-    quasi-static row was written, unevaluable: a row is not finite)."""
+def _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s, rows, rhs, b_out,
+                  big_b_out, lgb, lfb):
+    """The P barrier rows of state s into rows, rhs, lgb, lfb, b_out[s] and big_b_out[s] (controllers.cbf.barrier_rows,
+    in its operation order), or the quasi-static row of a row with b ≤ B_MIN (CBFFilter's "recovery", B = +inf and
+    L_gB = L_fB = 0 for it); return (recovery: a quasi-static row was written, unevaluable: a row is not finite)."""
     n = q.shape[1]
     r = kin[s, tip_col]
     r_dot = kin[s, tip_col + 1]
@@ -154,19 +182,23 @@ def _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain,
             den = 1.0 + b_e * bdot * bdot
             big_b = math.log1p(1.0 / b) + ab * bdot * bdot / den
             db, dbdot = -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
-            lfb = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
+            lfb[i] = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
+            big_b_out[s, i] = big_b
             total = 0.0
             for j in range(n):
                 a = kin[s, tip_col + 3 + j]
                 rows[i, j] = -dbdot * (hx * a.real + hy * a.imag)
+                lgb[i, j] = rows[i, j]
                 total += rows[i, j]
-            rhs[i] = gamma / big_b - lfb
+            rhs[i] = gamma / big_b - lfb[i]
             if not math.isfinite(rhs[i] + total):
                 unevaluable = True
         else:
             recovery = True
+            big_b_out[s, i], lfb[i] = math.inf, 0.0
             offset = 0.0
             for j in range(n):
+                lgb[i, j] = 0.0
                 jac = kin[s, jac_col + j]
                 hj = hx * jac.real + hy * jac.imag
                 rows[i, j] = hj * static_gain[j]
@@ -214,10 +246,9 @@ def _feasibility_scale(u0, bounded, box_scale, n):
 def _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq, volume, valid):
     """The QP by enumeration: the index of the feasible candidate nearest u0 (the first of equals), or −1.
 
-    Candidate g (row 0: u0 itself) comes from its prefix's candidate (`_cramer` on the square level of N = 2,
-    `_projected` elsewhere); it is skipped when its prefix is, when its last row is a zero row, or when its rows
-    are (near) singular. The candidate's validity stays in this loop: as one compiled helper a candidate it
-    cost 2.5× the kernel's CPU time a state (N = 2, B = 256)."""
+    Candidate g (row 0: u0 itself) comes from its prefix's candidate (`_projected`); it is skipped when its prefix
+    is, when its last row is a zero row, or when its rows are (near) singular. The candidate's validity stays in
+    this loop: as one compiled helper a candidate it cost 2.5× the kernel's CPU time a state (N = 2, B = 256)."""
     best, best_distance = -1, math.inf
     for g in range(table.shape[0]):
         size = table[g, 0]
@@ -231,11 +262,7 @@ def _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand
             valid[g] = valid[parent] and not zero[row]
             if not valid[g]:
                 continue
-            if size == 2 and n == 2:
-                solved = _cramer(rows, rhs, table[parent, 1], row, singular_tol, g, cand)
-            else:
-                solved = _projected(table, rows, rhs, g, size, row, parent, singular_tol, n, cand, basis, basis_sq, volume)
-            if not solved:
+            if not _projected(table, rows, rhs, g, size, row, parent, singular_tol, n, cand, basis, basis_sq, volume):
                 valid[g] = False
                 continue
         feasible = True
@@ -257,20 +284,6 @@ def _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _cramer(rows, rhs, first, row, singular_tol, g, cand):
-    """The square level of N = 2: the intersection of rows `first` and `row` by Cramer's rule into cand[g]
-    (cbf_batch: the floats of before); return False (nothing written) if the rows are (near) parallel."""
-    a0, a1, c_a = rows[first, 0], rows[first, 1], rhs[first]
-    b0, b1, c_b = rows[row, 0], rows[row, 1], rhs[row]
-    det = a0 * b1 - a1 * b0
-    if not abs(det) >= singular_tol:
-        return False
-    cand[g, 0] = (c_a * b1 - c_b * a1) / det
-    cand[g, 1] = (a0 * c_b - b0 * c_a) / det
-    return True
-
-
-@njit(cache=True, error_model="numpy", inline="always")
 def _projected(table, rows, rhs, g, size, row, parent, singular_tol, n, cand, basis, basis_sq, volume):
     """Candidate g: its prefix's candidate moved along `row` orthogonalised (modified Gram–Schmidt) against
     the prefix's rows onto `row`'s boundary, into cand[g] (basis, basis_sq and volume of g with it); return
@@ -285,8 +298,6 @@ def _projected(table, rows, rhs, g, size, row, parent, singular_tol, n, cand, ba
     step = (_dot(rows, row, cand, parent, n) - rhs[row]) / _dot(rows, row, basis, g, n)
     for j in range(n):
         cand[g, j] = cand[parent, j] - step * basis[g, j]
-    if size == 1 and n == 2:  # (N = 2: the next level is Cramer's, no basis needed)
-        return True
     vv = _dot(basis, g, basis, g, n)
     basis_sq[g] = vv
     volume[g] = math.sqrt(vv) if size == 1 else volume[parent] * math.sqrt(vv)

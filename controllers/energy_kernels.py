@@ -5,20 +5,20 @@ where a governor call has state: row b is one governor's call, so `EnergyGoverno
 and `EnergyGovernor.filter_batch` (B rows) run the same code.
 
 numba kernels, `@njit(cache=True)` (compiled once per machine into __pycache__), no fastmath and no
-FMA contraction, so each IEEE operation happens in the order written: the arithmetic is that of the
-Python floats they replace, operation for operation, and every result is the same float
-(tests/test_energy_kernels.py compares them with the Python definitions kept in the tests;
-tools/eerg_references.py the governors' commands). The module imports numba: its users load it
-lazily (`controllers.lazy_import`), so `softcbf list` never does.
+FMA contraction, so each IEEE operation happens in the order written and a row's floats do not depend on
+the other rows. They are checked against their definitions, not against old floats: the look-ups against
+plain Python evaluations within rounding (tests/test_energy_kernels.py), the table against a brute-force
+minimisation (tests/test_energy_governor.py), the governors' commands against stored references within a
+stated tolerance (tools/eerg_references.py). The module imports numba: its users load it lazily
+(`controllers.lazy_import`), so `softcbf list` never does.
 
-`escape_values(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two)`, Γ̲_j(u) (J)
+`escape_values(u, mode, table, flat, bound, lengths, gain, inverse_root_k, below)`, Γ̲_j(u) (J)
 for every row j of P (`escape_energy.lower_bounds` and `lookup_arguments` hand the arguments over):
 - the table (`EscapeEnergyTable.values`, bounds 4a and 4b of `controllers.escape_energy`):
   cell index i_k = clip(⌊(u_k − lo_k)/Δ_k⌋, 0, G_k − 2) (Python's float floor division, which numba's
   `//` reproduces), offsets o_k = u_k − (lo_k + i_k Δ_k), the corners' cone bound
   ½ max(0, max_c (d̲_c − ‖u − u_c‖_w))² and, inside the cell, the bilinear bound minus the
-  curvature ½ Σ_k w_k o_k (Δ_k − o_k). N = 2 with the unrolled expression order of the Python
-  look-up it replaces (`unrolled`), any N ≤ 2 with the loop over the 2^N corners;
+  curvature ½ Σ_k w_k o_k (Δ_k − o_k), a loop over the 2^N corners (N ≤ 2: at most four);
 - the second-order bound (`BoundaryDistanceBound.values`): ½ δ_j² with
   δ_j = 2|G_j| / (‖∇G_j‖ + √(‖∇G_j‖² + 2 C_j |G_j|)) from the tip and its Jacobian at the rest
   shape K⁻¹Λu (`pcc_model.kinematics_rows`, the same kernel);
@@ -63,12 +63,6 @@ from numba import njit
 
 from controllers import pcc_model
 
-PYTHON_SQUARE = 2.0
-"""The exponent of Python's `x ** 2`, handed to the kernels at run time: Python's float power is libm's
-pow(x, 2.0), which is not always x·x (glibc: 163 of 200 000 uniform floats in [0, 1) differ in the last
-bit), and LLVM rewrites pow(x, 2.0) with a constant exponent as x·x; `math.pow(x, two)` with `two` an
-argument calls pow itself, so a squared term is the float Python computed."""
-
 ROUNDING_SLACK = 1e-12
 """Relative slack (of Σ_i (|a_i| + |g_i| + |t_i|)², hPa²) for the rounding of the ray distances
 (`ray_may_come_nearer`, whose docstring bounds the rounding)."""
@@ -78,42 +72,12 @@ TABLE, BOUND, BOTH = 0, 1, 2
 
 
 @njit(cache=True, error_model="numpy")
-def table_values(u, table, flat, unrolled, two, out):
+def table_values(u, table, flat, out):
     """Γ̲_j(u) of the table (module docstring) into out (P',); u (N,) hPa, table (5, N), flat (P', G)."""
     n = u.shape[0]
-    if unrolled:  # N = 2, the expression order of the unrolled Python look-up
-        lo0, lo1, step0, step1 = table[0, 0], table[0, 1], table[1, 0], table[1, 1]
-        w0, w1, size0, size1 = table[2, 0], table[2, 1], int(table[3, 0]), int(table[3, 1])
-        i0 = _cell(u[0], lo0, step0, size0)
-        i1 = _cell(u[1], lo1, step1, size1)
-        o0, o1 = u[0] - (lo0 + i0 * step0), u[1] - (lo1 + i1 * step1)
-        inside = 0.0 <= o0 and o0 <= step0 and 0.0 <= o1 and o1 <= step1
-        r0, r1 = o0 - step0, o1 - step1
-        a0, b0 = w0 * o0 * o0, w0 * (r0 * r0)
-        a1, b1 = w1 * o1 * o1, w1 * (r1 * r1)
-        d00, d10, d01, d11 = math.sqrt(a0 + a1), math.sqrt(b0 + a1), math.sqrt(a0 + b1), math.sqrt(b0 + b1)
-        t0, t1 = o0 / step0, o1 / step1
-        curvature = 0.5 * (w0 * o0 * (step0 - o0) + w1 * o1 * (step1 - o1))
-        k00 = i0 * size1 + i1
-        k10, k01, k11 = k00 + size1, k00 + 1, k00 + size1 + 1
-        for j in range(flat.shape[0]):
-            e00 = flat[j, k00]
-            if e00 == math.inf:  # a row out of reach (every entry +inf): Γ_j = +inf
-                out[j] = math.inf
-                continue
-            e10, e01, e11 = flat[j, k10], flat[j, k01], flat[j, k11]
-            cone = _max4(e00 - d00, e10 - d10, e01 - d01, e11 - d11)
-            best = 0.5 * cone * cone if cone > 0.0 else 0.0
-            if inside:
-                bilinear = 0.5 * ((1.0 - t0) * ((1.0 - t1) * e00 * e00 + t1 * e01 * e01)
-                                  + t0 * ((1.0 - t1) * e10 * e10 + t1 * e11 * e11)) - curvature
-                if bilinear > best:
-                    best = bilinear
-            out[j] = best
-        return
-    # any N: the 2^N corners, in itertools.product order (the last axis fastest)
+    # the 2^N corners, in itertools.product order (the last axis fastest)
     flat_index, inside, curvature = 0, True, 0.0
-    offsets, lows, highs, t = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    offsets, highs, t = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
         lo, step, w, size, stride = table[0, k], table[1, k], table[2, k], int(table[3, k]), int(table[4, k])
         i = _cell(u[k], lo, step, size) if size > 1 else 0
@@ -123,7 +87,6 @@ def table_values(u, table, flat, unrolled, two, out):
         curvature += 0.5 * w * o * (step - o)
         t[k] = o / step
         offsets[k] = w * o * o
-        lows[k] = 0.0
         highs[k] = w * ((o - step) * (o - step))
     corners = 1 << n
     index, distance, weight = np.empty(corners, np.int64), np.empty(corners), np.empty(corners)
@@ -152,7 +115,8 @@ def table_values(u, table, flat, unrolled, two, out):
         if inside:
             total = 0.0
             for c in range(corners):
-                total += 0.5 * math.pow(flat[j, index[c]], two) * weight[c]
+                value = flat[j, index[c]]
+                total += 0.5 * (value * value) * weight[c]
             total -= curvature
             if total > best:
                 best = total
@@ -170,21 +134,8 @@ def _cell(v, lo, step, size):
     return int(cell)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _max4(a, b, c, d):
-    """Python's max(a, b, c, d): the first of the largest."""
-    best = a
-    if b > best:
-        best = b
-    if c > best:
-        best = c
-    if d > best:
-        best = d
-    return best
-
-
 @njit(cache=True, error_model="numpy")
-def bound_values(u, bound, lengths, gain, inverse_root_k, two, out):
+def bound_values(u, bound, lengths, gain, inverse_root_k, out):
     """½ δ_j(u)² (J) of the second-order bound (module docstring) into out (P',); u (N,) hPa, bound (P', 5),
     lengths (N,) m, gain K⁻¹Λ (N,) rad/hPa, inverse_root_k 1/√k (N,)."""
     n = u.shape[0]
@@ -204,21 +155,21 @@ def bound_values(u, bound, lengths, gain, inverse_root_k, two, out):
         for i in range(n):
             d = kin[0, n + i]
             term = (hx * d.real + hy * d.imag) * inverse_root_k[i]
-            squared += math.pow(term, two)
+            squared += term * term
         slope = math.sqrt(squared)
         delta = 2.0 * size / (slope + math.sqrt(slope * slope + 2.0 * c * size)) if size > 0.0 else 0.0
         out[j] = 0.5 * delta * delta
 
 
 @njit(cache=True, error_model="numpy")
-def escape_values(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two):
-    """Γ̲_j(u) (J) for every row j (module docstring): (P',); two: PYTHON_SQUARE."""
+def escape_values(u, mode, table, flat, bound, lengths, gain, inverse_root_k, below):
+    """Γ̲_j(u) (J) for every row j (module docstring): (P',)."""
     rows = flat.shape[0] if mode != BOUND else bound.shape[0]
     out = np.empty(rows)
     if mode == BOUND:
-        bound_values(u, bound, lengths, gain, inverse_root_k, two, out)
+        bound_values(u, bound, lengths, gain, inverse_root_k, out)
         return out
-    table_values(u, table, flat, unrolled, two, out)
+    table_values(u, table, flat, out)
     if mode == TABLE:
         return out
     least = out[0]
@@ -228,7 +179,7 @@ def escape_values(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_
     if least >= below:  # far from the boundary: the table is the tighter bound
         return out
     second = np.empty(rows)
-    bound_values(u, bound, lengths, gain, inverse_root_k, two, second)
+    bound_values(u, bound, lengths, gain, inverse_root_k, second)
     for j in range(rows):
         if second[j] > out[j]:
             out[j] = second[j]
@@ -316,12 +267,12 @@ recovers)."""
 
 
 @njit(cache=True, error_model="numpy")
-def escape_into(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, out, second):
+def escape_into(u, mode, table, flat, bound, lengths, gain, inverse_root_k, below, out, second):
     """`escape_values` into out (P',); second (P',): scratch."""
     if mode == BOUND:
-        bound_values(u, bound, lengths, gain, inverse_root_k, two, out)
+        bound_values(u, bound, lengths, gain, inverse_root_k, out)
         return
-    table_values(u, table, flat, unrolled, two, out)
+    table_values(u, table, flat, out)
     if mode == TABLE:
         return
     least = out[0]
@@ -330,23 +281,23 @@ def escape_into(u, mode, table, flat, unrolled, bound, lengths, gain, inverse_ro
             least = out[j]
     if least >= below:
         return
-    bound_values(u, bound, lengths, gain, inverse_root_k, two, second)
+    bound_values(u, bound, lengths, gain, inverse_root_k, second)
     for j in range(out.shape[0]):
         if second[j] > out[j]:
             out[j] = second[j]
 
 
 @njit(cache=True, error_model="numpy")
-def energy_at(u, q, p, p_far, terms, b, e, base, two):
+def energy_at(u, q, p, p_far, terms, b, e, base):
     """W (J) of the command u (N,) hPa at row b's state q[b] (rad), the pressure interval's ends p[b], p_far[b]
     (hPa) and gain end e: base plus ½(k_i e_i e_i + β_i max((p_i − u_i)², (p̄_i − u_i)²)) segment by segment,
-    e_i = q_i − a_i u_i, terms[b, e] = (k, a, β) (`GovernorModel.energy`; Python's `**` as pow: PYTHON_SQUARE;
-    p_far = p: the one pressure, the same float)."""
+    e_i = q_i − a_i u_i, terms[b, e] = (k, a, β) (`GovernorModel.energy`;
+    p_far = p: the one pressure)."""
     w = base
     for i in range(u.shape[0]):
         diff = q[b, i] - terms[b, e, 1, i] * u[i]
-        lag = math.pow(p[b, i] - u[i], two)
-        far = math.pow(p_far[b, i] - u[i], two)
+        lag, far = p[b, i] - u[i], p_far[b, i] - u[i]
+        lag, far = lag * lag, far * far
         if far > lag:
             lag = far
         w = w + 0.5 * (terms[b, e, 0, i] * diff * diff + terms[b, e, 2, i] * lag)
@@ -355,12 +306,12 @@ def energy_at(u, q, p, p_far, terms, b, e, base, two):
 
 @njit(cache=True, error_model="numpy")
 def certificate_terms(u, b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode, table, flat,
-                      unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second):
+                      bound, lengths, gain, inverse_root_k, below, scaled, rows, second):
     """(Γ, W) (J) of the command u (N,) for row b (`EnergyGovernor`'s certificate, module docstring there):
     at each of the row's `ends[b]` ends, rest-shape ratio r = gains[b, e] and arm stiffness scale c = scales[b, e],
     Γ_e = min_j (c·Γ̲_j(r·u) + o_j) (−inf where the state is not strictly inside P; c = 1 multiplies exactly) and
     W_e = base + Σ_i ½(k_i e_i e_i + β_i max((p_i − u_i)², (p̄_i − u_i)²)), e_i = q_i − a_i u_i, added segment by
-    segment (the governor's `energy`, Python's `**` as pow: PYTHON_SQUARE); the pair of the first end with the
+    segment (the governor's `energy`); the pair of the first end with the
     least Γ − W. scaled, rows, second: scratch (N,), (P',), (P',)."""
     n = u.shape[0]
     best_gamma, best_w, best_key = 0.0, 0.0, 0.0
@@ -370,14 +321,14 @@ def certificate_terms(u, b, gains, scales, ends, terms, base, q, p, p_far, offse
         if inside[b]:
             for i in range(n):
                 scaled[i] = u[i] if g == 1.0 else g * u[i]
-            escape_into(scaled, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, rows,
+            escape_into(scaled, mode, table, flat, bound, lengths, gain, inverse_root_k, below, rows,
                         second)
             gamma = c * rows[0] + offsets[b, 0]
             for j in range(1, rows.shape[0]):
                 value = c * rows[j] + offsets[b, j]
                 if value < gamma:
                     gamma = value
-        w = energy_at(u, q, p, p_far, terms, b, e, base[b], two)
+        w = energy_at(u, q, p, p_far, terms, b, e, base[b])
         key = gamma - w
         if e == 0 or key < best_key:
             best_gamma, best_w, best_key = gamma, w, key
@@ -386,9 +337,9 @@ def certificate_terms(u, b, gains, scales, ends, terms, base, q, p, p_far, offse
 
 @njit(cache=True, error_model="numpy")
 def govern_rows(held, aim, rest, nominal, goals, gains, scales, ends, terms, base, q, p, p_far, offsets, inside,
-                inflation, eps, steps, mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two):
-    """Steps 3 of `EnergyGovernor` (its module docstring) for B rows at once, row b bit for bit the Python
-    floats of one governor call: held, aim, nominal (B, N) hPa (u_prev, the target, u_nom clipped), rest (N,)
+                inflation, eps, steps, mode, table, flat, bound, lengths, gain, inverse_root_k, below):
+    """Steps 3 of `EnergyGovernor` (its module docstring) for B rows at once, row b the floats of one governor
+    call (B = 1 runs this kernel too): held, aim, nominal (B, N) hPa (u_prev, the target, u_nom clipped), rest (N,)
     the vented command, goals the rays' count (2: target and vent; 3: and u_nom), the certificate's terms per
     row (`certificate_terms`; inflation ι: margin = Γ − ιW), eps ε, steps: bisection_steps.
     Returns u (B, N), action (B,) FREE/GOVERNED/HOLD/RECOVER, σ (B,), Γ, W of u (B,), and the held margin (B,)."""
@@ -404,11 +355,11 @@ def govern_rows(held, aim, rest, nominal, goals, gains, scales, ends, terms, bas
         sigma_min *= 0.5  # 0.5 ** steps, exact
     for b in range(rows_count):
         gamma, w = certificate_terms(held[b], b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode,
-                                     table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
+                                     table, flat, bound, lengths, gain, inverse_root_k, below, scaled, rows, second)
         held_margin = gamma - inflation * w
         held_out[b] = held_margin
         gamma, w = certificate_terms(aim[b], b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode,
-                                     table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
+                                     table, flat, bound, lengths, gain, inverse_root_k, below, scaled, rows, second)
         if gamma - inflation * w >= eps:
             for i in range(n):
                 u_out[b, i] = aim[b, i]
@@ -427,7 +378,7 @@ def govern_rows(held, aim, rest, nominal, goals, gains, scales, ends, terms, bas
             for i in range(n):
                 goal[i] = aim[b, i] if k == 0 else rest[i] if k == 1 else nominal[b, i]
                 direction[i] = goal[i] - held[b, i]
-            if k and not ray_may_come_nearer(held[b], goal, direction, aim[b], best, sigma_min, two):
+            if k and not ray_may_come_nearer(held[b], goal, direction, aim[b], best, sigma_min):
                 continue
             lo, hi = 0.0, 1.0
             for _ in range(steps):
@@ -435,7 +386,7 @@ def govern_rows(held, aim, rest, nominal, goals, gains, scales, ends, terms, bas
                 for i in range(n):
                     point[i] = held[b, i] + mid * direction[i]
                 gamma, w = certificate_terms(point, b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside,
-                                             mode, table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled,
+                                             mode, table, flat, bound, lengths, gain, inverse_root_k, below, scaled,
                                              rows, second)
                 if gamma - inflation * w >= eps:
                     lo = mid
@@ -455,13 +406,13 @@ def govern_rows(held, aim, rest, nominal, goals, gains, scales, ends, terms, bas
         for i in range(n):
             u_out[b, i] = best_u[i] if moved else held[b, i]
         gamma, w = certificate_terms(u_out[b], b, gains, scales, ends, terms, base, q, p, p_far, offsets, inside, mode,
-                                     table, flat, unrolled, bound, lengths, gain, inverse_root_k, below, two, scaled, rows, second)
+                                     table, flat, bound, lengths, gain, inverse_root_k, below, scaled, rows, second)
         action[b], sigma_out[b], gamma_out[b], w_out[b] = GOVERNED if moved else HOLD, sigma, gamma, w
     return u_out, action, sigma_out, gamma_out, w_out, held_out
 
 
 @njit(cache=True, error_model="numpy")
-def ray_may_come_nearer(start, goal, direction, aim, best, sigma_min, two):
+def ray_may_come_nearer(start, goal, direction, aim, best, sigma_min):
     """`energy_governor.ray_may_come_nearer` (its docstring: False proves that no point of the ray for
     σ ∈ [sigma_min, 1] comes nearer `aim` than `best`); start, goal, direction, aim (N,) hPa."""
     n = start.shape[0]
@@ -479,6 +430,8 @@ def ray_may_come_nearer(start, goal, direction, aim, best, sigma_min, two):
         nearest = 1.0
     lowest = 0.0
     for i in range(n):
-        lowest += math.pow((start[i] - aim[i]) + nearest * direction[i], two)
-        scale += math.pow(abs(start[i]) + abs(goal[i]) + abs(aim[i]), two)
+        gap = (start[i] - aim[i]) + nearest * direction[i]
+        size = abs(start[i]) + abs(goal[i]) + abs(aim[i])
+        lowest += gap * gap
+        scale += size * size
     return lowest <= best + ROUNDING_SLACK * scale

@@ -169,17 +169,9 @@ class EscapeEnergyTable:
         """Γ̲_j(u) for every row j: P' floats (J). u: (N,) hPa (Python floats or an array).
 
         The larger of the two bounds 4a (inside the box) and 4b, in the compiled look-up
-        (`controllers.energy_kernels.table_values`, the floats of the Python look-up it replaced; called
-        from Python its dispatch costs ≈ 5 µs, inside the governor's kernels the look-up ≈ 0.1 µs):
-        N = 2 in the unrolled expression order, which `values_general` (the loop over the 2^N corners,
-        any N) matches to rounding (tests/test_energy_governor.py)."""
+        (`controllers.energy_kernels.table_values`, the loop over the 2^N cell corners; called from Python its
+        dispatch costs ≈ 5 µs, inside the governor's kernels the look-up ≈ 0.1 µs)."""
         return lower_bounds(u, self, None)
-
-    def values_general(self, u) -> list[float]:
-        """`values` through the loop over the 2^N corners for every N (the reference of N = 2's unrolled order)."""
-        return energy_kernels.escape_values(np.asarray(u, dtype=float), energy_kernels.TABLE, self.kernel_table,
-                                            self.distance, False, *_NO_BOUND, 0.0,
-                                            energy_kernels.PYTHON_SQUARE).tolist()
 
 
 class BoundaryDistanceBound:
@@ -227,8 +219,8 @@ class BoundaryDistanceBound:
 
     def values(self, u) -> list[float]:
         """½ δ_j(u)² for every row j (J); u: (N,) hPa. Compiled (`controllers.energy_kernels.bound_values`: the tip
-        r and its Jacobian J_r from the kinematic kernel `pcc_model.kinematics_rows`, then the rows' arithmetic,
-        the floats of the Python version it replaced); the governor evaluates it inside its kernels."""
+        r and its Jacobian J_r from the kinematic kernel `pcc_model.kinematics_rows`, then the rows' arithmetic);
+        the governor evaluates it inside its kernels."""
         return lower_bounds(u, None, self)
 
 
@@ -246,13 +238,13 @@ def lookup_arguments(table: EscapeEnergyTable | None, bound: BoundaryDistanceBou
     the table's least row value is below `below` (J; both are lower bounds of Γ^∂_j, so either is valid
     everywhere)."""
     if table is None:
-        mode, table_arrays, unrolled = energy_kernels.BOUND, _NO_TABLE, False
+        mode, table_arrays = energy_kernels.BOUND, _NO_TABLE
     else:
         mode = energy_kernels.TABLE if bound is None else energy_kernels.BOTH
-        table_arrays, unrolled = (table.kernel_table, table.distance), table.n == 2
+        table_arrays = (table.kernel_table, table.distance)
     bound_arrays = _NO_BOUND if bound is None else (bound.kernel_bound, bound.lengths, bound.static_gain,
                                                     bound.inverse_root_k)
-    return (mode, *table_arrays, unrolled, *bound_arrays, float(below), energy_kernels.PYTHON_SQUARE)
+    return (mode, *table_arrays, *bound_arrays, float(below))
 
 
 def lower_bounds(u, table: EscapeEnergyTable | None, bound: BoundaryDistanceBound | None,

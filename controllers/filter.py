@@ -18,6 +18,16 @@ saturation, u_nom = (1e17, 1e17) hPa made the native solver return a command vio
 row by 124 /s labelled "qp", and daqp a "slack" command flagged infeasible on a feasible problem.
 Below, "u_nom" in the branches means ū.
 
+One implementation of the QP: every call, one state (B = 1) or a batch (`filter_batch`), runs the
+compiled kernel of the batched filter (`controllers.cbf_batch.PaperCBFKernel`, `controllers.cbf_kernels`):
+the barrier rows, the "disabled", "nominal", "qp" and "recovery" branches, the QP solved exactly by
+enumerating its active sets (derivation: `controllers.cbf_batch`). The scalar path (`controllers.qp`'s
+active-set QP over Python floats) is the documented fallback for the states the kernel hands back: no
+feasible candidate ("slack", the rest target, "vent"), a row that is not finite, and QP states beyond the
+enumeration's reach (more than `controllers.cbf_batch.ENUMERATION_MAX_CANDIDATES` candidates: N ≥ 6 with one
+facet and the box). Both agree where both apply: the same label, commands within 1e-9 hPa
+(tests/test_cbf_batch.py; `step(..., scalar=True)` runs the scalar path for every state).
+
 Defined behaviour in every state (the result says which branch ran, in `action`):
 - "disabled": tuning None (a_E = b_E = γ = 0): u = u_nom, clipped to the limits when
   they are on (the paper's unfiltered run).
@@ -95,7 +105,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.cbf import B_MIN, TUNING_PARAMETERS, TUNINGS, Tuning, barrier_rows, get_tuning
-from controllers.cbf_batch import SCALAR_BELOW, RecoveryRows, cbf_qp_batch
+from controllers.cbf_batch import CODE_LABELS, SCALAR_BELOW, PaperCBFKernel, RecoveryRows, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import DynamicsEval, PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
@@ -207,6 +217,9 @@ class CBFFilter:
         self._ub_list = list(params.u_max) if self.pressure_limits else None
         self._static_gain = list(self._recovery_rows.static_gain)  # K⁻¹Λ, rad/hPa
         self._rest_targets: np.ndarray | None = None
+        self._kernel = PaperCBFKernel(self.n, safe_set, tuning, *((np.array(params.u_min), np.array(params.u_max))
+                                      if self.pressure_limits else (None, None)), self._recovery_rows)
+        self._kernel_out = self._kernel.outputs(1)  # one state's results, overwritten by each call (read as lists)
         p = len(self._rows)
         self.diagnostic_layout = DiagnosticLayout(
             {"b": (p,), "B": (p,), "constraint": (p,), "active": (p,), "recovery": (), "slack": (), "solve_us": ()},
@@ -320,15 +333,16 @@ class CBFFilter:
         lo, hi = (np.array(self.params.u_min), np.array(self.params.u_max)) if self.pressure_limits else (None, None)
         out = cbf_qp_batch(self._batch_dynamics, self.safe_set, self.tuning, estimates.q, estimates.qd, u_nom, lo, hi,
                            fallback=lambda i: self(estimates[i], u_nom[i]),
-                           recovery=self._recovery_rows)
+                           recovery=self._recovery_rows, kernel=self._kernel)
         return BatchOutput(out.u, out.action, out.infeasible, out.rho_pred)
 
-    def step(self, x, u_nom) -> CBFResult:
-        """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring."""
+    def step(self, x, u_nom, scalar: bool = False) -> CBFResult:
+        """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring. scalar: every branch through
+        the scalar QP of `controllers.qp` (the fallback's path; the tests compare it with the kernel's)."""
         x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
-        u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = self._step_floats(
-            x.tolist(), u_nom.tolist())
+        u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = (
+            self._scalar_step if scalar else self._step_floats)(x.tolist(), u_nom.tolist())
         return CBFResult(u_nom if u is None else np.array(u), u_nom, np.array(b), np.array(big_b), np.array(constraint),
                          np.zeros(len(b), dtype=bool) if active is None else np.array(active, dtype=bool),
                          infeasible, recovery, action, rho_pred, solve_us, slack)
@@ -337,7 +351,36 @@ class CBFFilter:
         """`step` on checked Python floats (x = xs, u_nom = u_list): (u, b, B, constraint, active,
         infeasible, recovery, action, rho_pred, solve_us, slack) with u None when it is u_nom,
         b, B, constraint lists over the rows of P and active a list of bools over them (None when no
-        QP's active set applies)."""
+        QP's active set applies). The compiled kernel (`_kernel_step`), else the scalar path (`_scalar_step`)."""
+        out = self._kernel_step(xs, u_list)
+        return self._scalar_step(xs, u_list) if out is None else out
+
+    def _kernel_step(self, xs: list[float], u_list: list[float]) -> tuple | None:
+        """`_step_floats` through the batched paper CBF's kernel at B = 1 (`controllers.cbf_batch.PaperCBFKernel`:
+        the "disabled", "nominal", "qp" and "recovery" branches), or None for a state it hands back (FALLBACK: the
+        scalar QP's branches, module docstring). solve_us: the kernel call's time where it solved a QP."""
+        n = self.n
+        q = xs[:n]
+        core = self.dynamics.model_terms(q, xs[n:])
+        layout = core.layout
+        t0 = time.perf_counter()
+        out = self._kernel.run(core.kin[None], layout.tip_terms.start, layout.tip_jac.start, np.array((q,)),
+                               np.array((u_list,)), self._kernel_out)
+        solve_us = (time.perf_counter() - t0) * 1e6
+        action = str(CODE_LABELS[out.code[0]])
+        if action == "fallback":
+            return None
+        u = out.u[0].tolist()
+        b = out.b[0].tolist()
+        tip = complex(core.kin[layout.tip_terms.start])
+        solved = action == "qp" or action == "recovery"
+        return (None if not solved and u == u_list else u, b, out.B[0].tolist(), out.constraint[0].tolist(),
+                out.active[0].tolist() if solved else None, False, self.enabled and not all(v > B_MIN for v in b),
+                action, self.safe_set.margin_at(tip.real, tip.imag), solve_us if solved else 0.0, 0.0)
+
+    def _scalar_step(self, xs: list[float], u_list: list[float]) -> tuple:
+        """`_step_floats` in Python floats with the QP of `controllers.qp`: the fallback for the states the kernel
+        hands back (module docstring); every branch."""
         # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
         given = u_list
         if self.pressure_limits and not all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list)):

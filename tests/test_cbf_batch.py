@@ -1,4 +1,6 @@
-"""cbf_qp_batch against CBFFilter on thousands of random states: labels and commands (1e-9 hPa)."""
+"""cbf_qp_batch, and CBFFilter's calls (the same kernel at B = 1), against the filter's scalar QP
+(`CBFFilter.step(..., scalar=True)`, the fallback's path) on thousands of random states: labels and commands
+(1e-9 hPa)."""
 
 from __future__ import annotations
 
@@ -8,15 +10,15 @@ import numpy as np
 import pytest
 
 from controllers.cbf import TUNINGS
-from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, RecoveryRows, candidate_table, cbf_qp_batch,
-                                   subset_levels)
+from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, RecoveryRows, candidate_count, candidate_table,
+                                   cbf_qp_batch, subset_levels)
 from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteStateError
 from controllers.filter import CBFFilter
 from controllers.params import reference_robot, uniform_robot
 from controllers.pcc import tip_positions
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
-from controllers.safety_filter import EstimateBatch
+from controllers.safety_filter import Estimate, EstimateBatch
 
 N_STATES = 3000
 
@@ -45,11 +47,11 @@ def test_batch_matches_scalar_filter(tuning, pressure_limits, recover):
 
     def fallback(i):
         calls.append(i)
-        return scalar.step(np.concatenate((q[i], qd[i])), u_nom[i])
+        return scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True)
 
     out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS[tuning], q, qd, u_nom, *limits, fallback=fallback,
                        recovery=RecoveryRows.of(params, safe_set, scalar.recovery_margin) if recover else None)
-    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(N_STATES)]
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True) for i in range(N_STATES)]
     actions = np.array([w.action for w in want])
     np.testing.assert_array_equal(out.action, actions)
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
@@ -80,8 +82,9 @@ def test_batch_matches_scalar_filter_at_a_corner():
     q, qd, u_nom = _states(5)
     q = np.random.default_rng(6).uniform(-0.3, 0.9, q.shape)  # reaches the corner
     out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, np.array(params.u_min),
-                       np.array(params.u_max), fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]))
-    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(N_STATES)]
+                       np.array(params.u_max),
+                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True))
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True) for i in range(N_STATES)]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
     assert {"nominal", "qp"} <= set(out.action[out.resolved])
@@ -110,6 +113,37 @@ def test_cbf_filter_batch_equals_its_scalar_calls(n_states):
     want = [filt(estimates[i], u_nom[i]) for i in range(n_states)]
     assert out.action.tolist() == [w.action for w in want]
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("n_seg", [2, 3])
+@pytest.mark.parametrize("tuning", ["Low", "HW-High"])
+@pytest.mark.parametrize("pressure_limits", [True, False])
+def test_the_filter_call_is_the_kernel_and_agrees_with_the_scalar_qp(n_seg, tuning, pressure_limits):
+    """B = 1 goes through the batched kernel (`CBFFilter.step` and `__call__`); where the kernel hands a state back
+    (infeasible: "slack", the rest target) the scalar QP decides. On random states inside and outside P the two
+    paths agree: the same label and b, commands within 1e-9 hPa, B within 1e-12 relative, the constraint within
+    1e-9 /s (+1e-9 relative), the same active rows (measured on N = 2: 1e-10 hPa, 7e-12 /s)."""
+    params = reference_robot() if n_seg == 2 else uniform_robot(n_seg)
+    safe_set = paper_safe_set()
+    filt = CBFFilter(params, safe_set, TUNINGS[tuning], pressure_limits=pressure_limits)
+    rng = np.random.default_rng(n_seg * 10 + pressure_limits)
+    q = rng.uniform(-0.3, 0.6, (600, n_seg))
+    qd = rng.normal(0.0, 1.5, (600, n_seg))
+    u_nom = rng.uniform(-250.0, 250.0, (600, n_seg))
+    actions = set()
+    for x, u in zip(np.hstack((q, qd)), u_nom):
+        got, want = filt.step(x, u), filt.step(x, u, scalar=True)
+        assert got.action == want.action and got.infeasible == want.infeasible, (x, u)
+        np.testing.assert_allclose(got.u, want.u, rtol=0.0, atol=1e-9)
+        np.testing.assert_array_equal(got.b, want.b)
+        np.testing.assert_allclose(got.B, want.B, rtol=1e-12)
+        np.testing.assert_allclose(got.constraint, want.constraint, rtol=1e-9, atol=1e-9)
+        np.testing.assert_array_equal(got.active, want.active)
+        assert got.recovery == want.recovery and got.rho_pred == want.rho_pred
+        out = filt(Estimate(0.0, x[:n_seg], x[n_seg:], 0.0), u)
+        assert out.action == got.action and np.array_equal(out.u, got.u)
+        actions.add(got.action)
+    assert {"nominal", "qp", "recovery"} <= actions  # the kernel's branches were compared
 
 
 def _inside_states(params, safe_set, count: int, spread: float, seed: int):
@@ -148,11 +182,11 @@ def test_n_segment_batch_matches_scalar_filter(n_seg, tuning, corner, pressure_l
 
     def fallback(i):
         calls.append(i)
-        return scalar.step(np.concatenate((q[i], qd[i])), u_nom[i])
+        return scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True)
 
     limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
     out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS[tuning], q, qd, u_nom, *limits, fallback=fallback)
-    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(count)]
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True) for i in range(count)]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
     np.testing.assert_array_equal(out.infeasible, [w.infeasible for w in want])
@@ -175,8 +209,8 @@ def test_the_enumeration_up_to_its_candidate_count(n_seg, pressure_limits):
     q, qd, u_nom = _inside_states(params, safe_set, 200, 0.3, 1)
     limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
     out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, *limits,
-                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]))
-    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(len(q))]
+                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True))
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True) for i in range(len(q))]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
     enumerated = len(candidate_table(1 + 2 * n_seg, n_seg, 1) if pressure_limits else candidate_table(1, n_seg, None)) \
@@ -217,13 +251,27 @@ def test_n_segment_recovery_rows_match_scalar_filter(n_seg, pressure_limits):
         rng.uniform(-250.0, 250.0, (count, n_seg))
     limits = (np.array(params.u_min), np.array(params.u_max)) if pressure_limits else (None, None)
     out = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS["HW-High"], q, qd, u_nom, *limits,
-                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]),
+                       fallback=lambda i: scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True),
                        recovery=RecoveryRows.of(params, safe_set, scalar.recovery_margin))
-    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i]) for i in range(count)]
+    want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True) for i in range(count)]
     np.testing.assert_array_equal(out.action, [w.action for w in want])
     np.testing.assert_allclose(out.u, [w.u for w in want], rtol=0.0, atol=1e-9)
     np.testing.assert_array_equal(out.infeasible, [w.infeasible for w in want])
     assert np.count_nonzero(out.resolved & (out.action == "recovery")) > count // 20
+
+
+@pytest.mark.parametrize("m, n, box_start", [(3, 2, None), (5, 2, 1), (7, 3, 1), (9, 3, 3), (11, 4, 3), (13, 6, 1),
+                                             (4, 4, None)])
+def test_candidate_count_is_the_tables_length(m, n, box_start):
+    assert candidate_count(m, n, box_start) == len(candidate_table(m, n, box_start))
+
+
+def test_a_many_segment_filter_does_not_build_the_enumerations_table():
+    """N = 12 with the box: millions of candidates; the filter is built at once and its QP states take the scalar QP."""
+    filt = CBFFilter(uniform_robot(12), paper_safe_set(), TUNINGS["HW-High"])
+    assert candidate_count(1 + 24, 12, 1) > 10**6
+    out = filt(Estimate(0.0, np.full(12, 0.05), np.full(12, 0.5), 0.0), np.full(12, 150.0))
+    assert np.all(np.isfinite(out.u)) and out.action in ("nominal", "qp", "slack", "recovery")
 
 
 def test_candidate_table_follows_the_subset_levels():

@@ -231,12 +231,12 @@ def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path,
     assert not np.array_equal(load_timeseries(other / "timeseries" / "Low.npz")[0]["q"], a["q"])
 
 
-STORED_RUNS = ROOT / "tests" / "data" / "replay"  # run folders written by e4ce86e: config.json and the time series
+STORED_RUNS = ROOT / "tests" / "data" / "replay"  # run folders written by an earlier release: config.json and the time series
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in STORED_RUNS.iterdir()))
 def test_a_stored_config_json_replays_to_its_stored_series(name, tmp_path, capsys):
-    """config.json files written before the scenarios took specs (e4ce86e: paper_sim then had neither t0 nor
+    """config.json files written before the scenarios took specs (then paper_sim had neither t0 nor
     damping_scale) replay through `softcbf run --config` to the stored series: bit for bit on the recorded
     versions, to 1e-9 on others (where the replay warns that it may not be bit-identical)."""
     from softcbf_mj.runio import versions

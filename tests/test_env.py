@@ -78,6 +78,13 @@ def test_gymnasium_env_checker_in_physical_units_gives_only_the_advice_on_boxes(
     assert [str(w.message) for w in caught if not any(text in str(w.message) for text in ADVISORY)] == []
 
 
+def test_the_changed_behaviour_has_a_new_id_and_the_old_one_is_gone():
+    """Gymnasium's convention: changed behaviour gets a new version; only the current one is registered."""
+    assert ENV_ID == "softcbf_mj/SoftArm-v1" and gymnasium.spec(ENV_ID).id == ENV_ID
+    with pytest.raises(gymnasium.error.Error):
+        gymnasium.spec("softcbf_mj/SoftArm-v0")
+
+
 def test_registered_specs_carry_the_episode_length():
     assert gymnasium.spec(ENV_ID).max_episode_steps == ArmEnvConfig().episode_steps == 1000
     for env_id, preset in PRESETS.items():

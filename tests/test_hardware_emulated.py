@@ -59,7 +59,7 @@ def _run(config: HardwareConfig, out: Path, fault=None, report: bool = False):
 
 def test_the_contact_governor_keeps_the_true_plate_force_below_f_max_and_writes_the_run_folder(tmp_path):
     # c-erg, whose certificate covers the sampled, delayed loop. paper-cbf High reached 0.13-0.16 N here from run to
-    # run (the real-time loop's timing; 0.1608 and 0.1615 N > F_max in 2 of about 20 runs, at 510d063 as now): this
+    # run (the real-time loop's timing; 0.1608 and 0.1615 N > F_max in 2 of about 20 runs, before and now): this
     # arm's d/k = 1.4 s lies where docs/hardware_envelope.md's map has the paper's CBF violate at 10 Hz.
     config = _config(filter="c-erg", duration=7.0)
     row, series, emulation = _run(config, tmp_path / "run", report=True)

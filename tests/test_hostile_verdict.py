@@ -66,7 +66,7 @@ def push_study(plugin: Path, factory: str = "RaiseFirst", draws: int = 3, **fixe
 
 @pytest.mark.parametrize("batch_size", [1, 3], ids=["alone", "batched"])
 def test_a_study_counts_a_filter_that_faults_at_its_first_call_as_violations(plugin, tmp_path, batch_size):
-    """b76c301: every row "ok" with ρ_min_meas 1.0, the report "violations 0/3", P < 0.632."""
+    """Before the fix: every row "ok" with ρ_min_meas 1.0, the report "violations 0/3", P < 0.632."""
     study = push_study(plugin)
     outcome = run_study(study, tmp_path / "s", workers=1, batch_size=batch_size, progress=False)
     rows = StudyStore.open(tmp_path / "s").load_rows()
@@ -82,7 +82,7 @@ def test_a_study_counts_a_filter_that_faults_at_its_first_call_as_violations(plu
 
 
 def test_the_sequential_stop_never_bounds_a_filter_that_faults(plugin, tmp_path, capsys):
-    """b76c301: `--until-bound 0.5` ran 5 fault-only draws and printed "P(violation) < 0.4507"."""
+    """Before the fix: `--until-bound 0.5` ran 5 fault-only draws and printed "P(violation) < 0.4507"."""
     study = push_study(plugin, draws=6)
     result = run_until_bound(study, tmp_path / "s", 0.5, workers=1, batch_size=1, progress=False)
     (tuning,) = study.tunings
@@ -93,7 +93,7 @@ def test_the_sequential_stop_never_bounds_a_filter_that_faults(plugin, tmp_path,
 
 @pytest.mark.slow
 def test_falsify_takes_a_fault_as_the_worst_value_and_reports_it(plugin, tmp_path):
-    """b76c301: the faulted evaluation was its truncated ρ_min_meas 1.0, best ρ < 0 elsewhere or "no violation"."""
+    """Before the fix: the faulted evaluation was its truncated ρ_min_meas 1.0, best ρ < 0 elsewhere or "no violation"."""
     study = Study("hostile", "paper_sim", (f"{plugin}:RaiseAt",), tuning_parameter="filter", draws=4, seed=1,
                   fixed={"duration": 0.1, **PUSH},
                   vary=(Distribution("filter_param.at", "uniform", low=1.0, high=1e6),))
@@ -115,7 +115,7 @@ def test_falsify_takes_a_fault_as_the_worst_value_and_reports_it(plugin, tmp_pat
 
 @pytest.mark.slow
 def test_a_search_for_the_best_setting_never_picks_one_that_faulted(plugin, tmp_path):
-    """b76c301: maximising ρ_min_meas picked the setting whose filter raised at its first call (its truncated run's
+    """Before the fix: maximising ρ_min_meas picked the setting whose filter raised at its first call (its truncated run's
     ρ 1.0) over the one that ran."""
     study = Study("hostile", "paper_sim", (f"{plugin}:RaiseAt",), tuning_parameter="filter", draws=4, seed=1,
                   fixed={"duration": 0.1, **PUSH}, objective="-rho_min_meas",
@@ -132,7 +132,7 @@ def test_a_search_for_the_best_setting_never_picks_one_that_faulted(plugin, tmp_
 
 @pytest.mark.slow
 def test_bench_rows_carry_the_fault_and_no_clean_verdict(plugin, tmp_path):
-    """b76c301: a filter that faults at its first call ended the bench with "t must have shape (T,) with T >= 2";
+    """Before the fix: a filter that faults at its first call ended the bench with "t must have shape (T,) with T >= 2";
     one that faults later gave the row ρ 1.0000, t_viol 0, no fault in bench.json or bench.md."""
     spec = FilterSpec(f"{plugin}:RaiseFirst")
     bench = run_bench(tmp_path / "b", [spec], RunOptions(quick=True), cases=["paper_sim_150", "step"])
@@ -151,7 +151,7 @@ def test_bench_rows_carry_the_fault_and_no_clean_verdict(plugin, tmp_path):
 @pytest.mark.slow
 def test_the_bench_mismatch_study_counts_its_faulted_samples(plugin, tmp_path):
     """The bench's study case (camera_mismatch: `study_figures` over a kept-runs study) pools faulted samples as
-    violations; b76c301 pooled them as clean runs (and ended on "t must have shape (T,)" for a first-call fault)."""
+    violations; before the fix it pooled them as clean runs (and ended on "t must have shape (T,)" for a first-call fault)."""
     run_study(push_study(plugin), tmp_path / "s", workers=1, batch_size=1, keep_runs=True, progress=False)
     figures = study_figures(tmp_path / "s")
     assert (figures["faulted"], figures["draws"], figures["violation_probability"]) == (3, 3, 1.0)
@@ -169,7 +169,7 @@ def small_box(plugin: Path) -> Study:
 @pytest.mark.slow
 @pytest.mark.parametrize("at_ask", [2, 3], ids=["a-vertex", "a-sampled-candidate"])
 def test_a_falsification_interrupted_inside_ask_resumes(plugin, tmp_path, monkeypatch, at_ask):
-    """b76c301: every --resume failed with KeyError: 'filter_param.at' (a RUNNING trial without params). Ask 2 pops
+    """Before the fix: every --resume failed with KeyError: 'filter_param.at' (a RUNNING trial without params). Ask 2 pops
     the second vertex of generation 0 (enqueued), ask 3 is the sampler's first candidate."""
     original = optuna.Study.ask
     calls = []
@@ -208,7 +208,7 @@ def finished(plugin, tmp_path) -> Path:
 
 @pytest.mark.parametrize("spoil", ["missing", "empty"])
 def test_a_refused_resume_leaves_a_finished_falsification_as_it_was(plugin, finished, spoil):
-    """b76c301: falsify.json rewritten to status "running", best null, and a fresh optuna.db made."""
+    """Before the fix: falsify.json rewritten to status "running", best null, and a fresh optuna.db made."""
     before = (finished / "falsify.json").read_bytes()
     db = finished / STORAGE_FILE
     db.unlink()
@@ -222,7 +222,7 @@ def test_a_refused_resume_leaves_a_finished_falsification_as_it_was(plugin, fini
 
 
 def test_a_corrupt_optuna_storage_is_one_line_and_exit_2(plugin, finished, capsys):
-    """b76c301: a 34-frame SQLAlchemy traceback ("file is not a database")."""
+    """Before the fix: a 34-frame SQLAlchemy traceback ("file is not a database")."""
     (finished / STORAGE_FILE).write_bytes(b"not a database, " * 64)
     before = (finished / "falsify.json").read_bytes()
     study_file = finished.parent / "box.toml"

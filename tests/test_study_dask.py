@@ -143,7 +143,7 @@ def test_the_default_connect_timeout_is_short():
 
 
 def test_a_scheduler_address_runs_the_study(local_rows, client, tmp_path):
-    """The address is tried, then used; at 3713bd0 this raised 'IOLoop is closed' at the end (the executor was
+    """The address is tried, then used; before the fix this raised 'IOLoop is closed' at the end (the executor was
     shut down after its client closed)."""
     outcome = run_study(STUDY, tmp_path / "s", scheduler=client.scheduler.address, samples=2, progress=False)
     assert (outcome.backend, outcome.ran, outcome.failed) == ("dask", 2, 0)

@@ -1,7 +1,7 @@
 """The plug-in boundary is a trust boundary (docs/safety-filter.md, issue 22): whatever a filter or nominal does,
 the control step keeps the limits, the record and the run.
 
-Each defect found on 3713bd0 has a test here (N1 widening the clip, N2 rewriting the record, N3 a
+Each defect found in the trust boundary's review has a test here (N1 widening the clip, N2 rewriting the record, N3 a
 fault losing the run, N4 broken files giving tracebacks, N10 complex/bool returns, unbounded
 diagnostics, the hardware loop's burst after a stall), then property tests (hypothesis) of
 random misbehaving filters in the serial and batched loops, and one misbehaviour in each of the
@@ -486,7 +486,7 @@ def test_environment_ends_the_episode_on_a_filter_fault(hostile):
 
     import softcbf_mj.env  # noqa: F401  (registers the environment)
 
-    env = gymnasium.make("softcbf_mj/SoftArm-v0", filter=f"{hostile}:RaiseAt", filter_params={"at": 3}, hold_s=0.02)
+    env = gymnasium.make("softcbf_mj/SoftArm-v1", filter=f"{hostile}:RaiseAt", filter_params={"at": 3}, hold_s=0.02)
     env.reset(seed=0)
     terminated, steps, info = False, 0, {}
     while not terminated and steps < 200:
@@ -550,7 +550,7 @@ def test_property_environment_keeps_its_promises(how, at):
 
     import softcbf_mj.env  # noqa: F401  (registers the environment)
 
-    env = gymnasium.make("softcbf_mj/SoftArm-v0", filter="test_trust_boundary:Misbehaving",
+    env = gymnasium.make("softcbf_mj/SoftArm-v1", filter="test_trust_boundary:Misbehaving",
                          filter_params={"how": how, "at": at, "burst": 5}, hold_s=0.01)
     env.reset(seed=0)
     terminated, info = False, {}

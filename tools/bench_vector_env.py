@@ -33,7 +33,7 @@ second), and so does the vector environment's (`against_vector_steps_per_s`). Th
 average is printed before and after: on a shared machine the wall figures move with it, the
 per-CPU-s ones less.
 
-Usage: `.venv/bin/python tools/bench_vector_env.py [--num-envs 32] [--ids softcbf_mj/SoftArm-v0,softcbf_mj/ForceRegulation-v0]
+Usage: `.venv/bin/python tools/bench_vector_env.py [--num-envs 32] [--ids softcbf_mj/SoftArm-v1,softcbf_mj/ForceRegulation-v0]
 [--steps 200,4] [--nthreads 1,2] [--repeats 2] [--against TREE]`; prints a table per id and ends with one line of JSON
 (`ratio` = vector / sync steps per second, `physics_ratio` = the physics ceiling / sync, per id and thread count).
 """
@@ -229,7 +229,7 @@ def bench(env_id: str, args: argparse.Namespace, steps: int) -> dict[str, Any]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--num-envs", type=int, default=32)
-    parser.add_argument("--ids", default="softcbf_mj/SoftArm-v0,softcbf_mj/ForceRegulation-v0")
+    parser.add_argument("--ids", default="softcbf_mj/SoftArm-v1,softcbf_mj/ForceRegulation-v0")
     parser.add_argument("--steps", default="200,4", help="env steps per id (comma-separated, one per id)")
     parser.add_argument("--push", type=int, default=1, help="first steps that push segment 1 at its limit")
     parser.add_argument("--filter", default="paper-cbf")

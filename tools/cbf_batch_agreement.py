@@ -6,7 +6,8 @@ tests/test_cbf_batch.py), split evenly over the tunings Low, High, HW-Low, HW-Hi
 the ±150 hPa box, both trees' `cbf_qp_batch` run without recovery rows (the states each resolves
 without the scalar filter must be the same); printed: how many commands and labels differ, and the
 largest |Δu| (hPa). Then this tree with the filter's recovery rows (`RecoveryRows`) on the states
-outside P against the scalar `CBFFilter`: labels that differ and the largest |Δu|.
+outside P against the filter's scalar QP (`CBFFilter.step(..., scalar=True)`): labels that differ and the largest
+|Δu|.
 
 Both trees run in this process: `--against DIR`'s controllers/cbf_batch.py is loaded under another
 module name on top of this tree's other modules (the baseline must share this tree's
@@ -68,7 +69,7 @@ def main() -> None:
         covered = cbf_qp_batch(BatchDynamics(params), safe_set, TUNINGS[tuning], q, qd, u_nom, *bounds,
                                fallback=fallback, recovery=RecoveryRows.of(params, safe_set, scalar.recovery_margin))
         outside = np.flatnonzero(covered.resolved & ~new.resolved)
-        want = [fallback(i) for i in outside]
+        want = [scalar.step(np.concatenate((q[i], qd[i])), u_nom[i], scalar=True) for i in outside]  # the scalar QP
         report["recovery_states"] += len(outside)
         report["recovery_label_differences"] += sum(w.action != covered.action[i] for w, i in zip(want, outside))
         report["recovery_max_abs_du_hPa"] = max([report["recovery_max_abs_du_hPa"]]

@@ -221,8 +221,7 @@ def ray_may_come_nearer(start, goal, direction, aim, best: float, sigma_min: flo
     has already counted. d = 0: False. The compiled ray search's test (`energy_kernels.ray_may_come_nearer`).
     """
     vectors = (np.asarray(v, dtype=float) for v in (start, goal, direction, aim))
-    return bool(energy_kernels.ray_may_come_nearer(*vectors, float(best), float(sigma_min),
-                                                   energy_kernels.PYTHON_SQUARE))
+    return bool(energy_kernels.ray_may_come_nearer(*vectors, float(best), float(sigma_min)))
 
 
 def pressure_lag_weights(context: FilterContext, actuator_tau: float, damping_ratio: float = 1.0) -> np.ndarray:
@@ -458,7 +457,7 @@ class GovernorModel:
         pressure = np.array([p], dtype=float)
         return float(energy_kernels.energy_at(np.asarray(u, dtype=float), np.array([q], dtype=float), pressure,
                                               pressure if p_far is None else np.array([p_far], dtype=float), terms,
-                                              0, 0, float(kinetic_and_plate), energy_kernels.PYTHON_SQUARE))
+                                              0, 0, float(kinetic_and_plate)))
 
     def escape(self, u) -> float:
         """min_j (Γ̲_j(u) + c_j) (J) of the prior plate."""

@@ -73,11 +73,9 @@ plate: ≈ 20 µs for the 2 × 12 bisection points of a "hold" call), step 4 one
 numpy). The kernels take every state with a leading row axis, which `filter_batch` uses for
 B governors at once. A ray is skipped when no end point of it can come nearer the target
 than the best so far (`ray_may_come_nearer`, with a rounding slack), and the state's energy
-and ρ skip the array kinematics when the tip is clear of the plate (`state_energy`). None of
-this changes a command: the kernels' arithmetic is the Python floats' operation for operation
-(`x ** 2` as libm's pow, as Python computes it: `energy_kernels.PYTHON_SQUARE`), and the
-commands are the stored references, bit for bit
-(tests/test_energy_governor_references.py, `python tools/eerg_references.py`: 0 hPa over every case).
+and ρ skip the array kinematics when the tip is clear of the plate (`state_energy`). The
+commands are checked against stored references within a stated tolerance
+(tests/test_energy_governor_references.py, `python tools/eerg_references.py`).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
     env = make_environment(filter="paper-cbf", filter_params={"tuning": "Low"}, action_repeat=10)  # dm_env
     gym_env = GymArmEnv(filter="none", episode_steps=200)                                      # Gymnasium
     task = gymnasium.make("softcbf_mj/ForceRegulation-v0", filter="e-erg", normalise=True)     # a preset
-    envs = gymnasium.make_vec("softcbf_mj/SoftArm-v0", num_envs=32, filter="paper-cbf")      # B arms, one batch plant
+    envs = gymnasium.make_vec("softcbf_mj/SoftArm-v1", num_envs=32, filter="paper-cbf")      # B arms, one batch plant
 
 The policy's action is the nominal command u_nom (N,) hPa; between the policy and the
 plant runs the control step of every scenario (`closedloop.step.ControlStep`: the safety
@@ -18,7 +18,7 @@ Modules: `physics` (one physics step = one control period: estimate → control 
 MuJoCo), `task` (actions, observations and their units, reward, termination, seeds),
 `environment` (`ArmEnvConfig`, `make_environment`: the clocks and the scene),
 `presets` (force regulation, tip reaching), `gym_adapter` (`GymArmEnv`, registered as
-"softcbf_mj/SoftArm-v0" and the presets' ids; `SafetyGymnasiumStep`, the 6-tuple),
+"softcbf_mj/SoftArm-v1" and the presets' ids; `SafetyGymnasiumStep`, the 6-tuple),
 `vector` (`ArmVectorEnv`: every id's vector entry point, B arms on one `MujocoBatchPlant`).
 """
 

@@ -51,13 +51,20 @@ under test sees. A policy or a filter evaluated in that mode must not read the f
 `SafetyGymnasiumStep(env)` is the other convention: its `step` returns Safety-Gymnasium's
 6-tuple (observation, reward, cost, terminated, truncated, info), cost = info["cost"].
 
-Gymnasium's registry knows `ENV_ID` ("softcbf_mj/SoftArm-v0": the bare task, reward only
+Gymnasium's registry knows `ENV_ID` ("softcbf_mj/SoftArm-v1": the bare task, reward only
 from a `RewardConfig` target, max_episode_steps = ArmEnvConfig's episode_steps, 1000) and
 the presets of `softcbf_mj.env.presets` ("softcbf_mj/ForceRegulation-v0",
 "softcbf_mj/TipReaching-v0", max_episode_steps = presets.EPISODE_STEPS); keywords as
 `GymArmEnv`'s. Each id's `vector_entry_point` is `softcbf_mj.env.vector.ArmVectorEnv`, B
 arms on one batch plant: `gymnasium.make_vec(id, num_envs=B)` builds it (its default
 vectorization mode when an id has one; vectorization_mode="sync" gives `SyncVectorEnv`).
+
+Version history (a new id for changed behaviour, as Gymnasium versions its environments; only the current id is
+registered):
+- v1: the paper CBF filter's calls run its batched kernel (`controllers.filter`), whose QP is exact to rounding
+  where the scalar QP stopped at its tolerance: the commands of a run move by rounding, which a closed loop can
+  carry further (2.2e-8 hPa at most in the reference loops of tools/loop_references.py; CHANGELOG.md).
+- v0: the first release.
 """
 
 from __future__ import annotations
@@ -78,7 +85,7 @@ from softcbf_mj.env.physics import ArmArrays, ArmControl, ArmPhysics, action_arr
 from softcbf_mj.env.presets import EPISODE_STEPS, PRESETS
 from softcbf_mj.env.task import ArmTask
 
-ENV_ID = "softcbf_mj/SoftArm-v0"
+ENV_ID = "softcbf_mj/SoftArm-v1"
 INFO_KEYS = ("cost", "periods", "violation_periods", "rho_meas_min", "force_max_N", "force_excess", "vented", "clipped",
              "t", "monitor_action", "filter_action", "fault")  # the info's keys, in order (module docstring)
 GROUND_TRUTH_INFO = ("cost", "violation_periods", "rho_meas_min", "force_max_N", "force_excess")

@@ -1,6 +1,6 @@
 """The arm environment as a Gymnasium vector environment on the batch plant: B arms, one `mujoco.batch`.
 
-    envs = gymnasium.make_vec("softcbf_mj/SoftArm-v0", num_envs=32, vectorization_mode="vector_entry_point",
+    envs = gymnasium.make_vec("softcbf_mj/SoftArm-v1", num_envs=32, vectorization_mode="vector_entry_point",
                               filter="paper-cbf", filter_params={"tuning": "Low"})
 
 `ArmVectorEnv(num_envs, config=None, normalise=False, max_episode_steps=None, nthread=1,
