@@ -9,6 +9,7 @@ setup in one line (the step, the registry, the isolated process, the command lin
 
 from __future__ import annotations
 
+import re
 import textwrap
 from pathlib import Path
 
@@ -27,6 +28,7 @@ from scenarios.run import USAGE_ERROR, exit_code, run_scenario
 
 CONTEXT = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
 B = 3
+DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
 def _nominal(t, q, qd):
@@ -242,3 +244,19 @@ def test_a_run_whose_filter_lacks_what_it_declares_exits_2_with_one_line(tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert code == USAGE_ERROR and "Traceback" not in "\n".join(err)
     assert err[-1].endswith("Lies declares batched=True but has no method filter_batch(estimates, u_nom)"), err
+
+
+def test_the_docs_batched_example_is_called_once_for_all_rows():
+    """docs/safety-filter.md#capabilities: the example declares batched and runs as one filter_batch call."""
+    block, = re.findall(r"<!-- run: capabilities -->\n```python\n(.*?)```", (DOCS / "safety-filter.md").read_text(
+        encoding="utf-8"), re.S)
+    namespace: dict = {}
+    exec(compile(block, "safety-filter.md", "exec"), namespace)  # noqa: S102 - the page's own example
+    example = namespace["BatchedClip"]()
+    calls = []
+    batch = example.filter_batch
+    example.filter_batch = lambda estimates, u_nom: calls.append(len(estimates)) or batch(estimates, u_nom)
+    step = BatchControlStep(example, lambda t, q, qd: np.array([150.0, -20.0]), CONTEXT, B)
+    step.reset()
+    record = step(*_states())
+    assert calls == [B] and record.u_filter.tolist() == [[100.0, -20.0]] * B
