@@ -26,7 +26,7 @@ command that is sent:
 Capabilities are declared, never guessed. Everything beyond `__call__` (and the optional
 `reset()`) that a loop may use is declared by the filter's `capabilities`, a `Capabilities` (a
 class attribute, or a property where it depends on the filter's parameters); a filter that
-declares none has the minimal contract, `Capabilities()`: it is called once per simulation,
+declares none has the minimal contract (the Protocol `SafetyFilter`), `Capabilities()`: it is called once per simulation,
 whatever other methods it has. `filter_capabilities(f)` is the one reader, asked by every loop
 (the control step, the batch form of a scenario, the vector environment, the isolated process)
 and by the registry when it builds a filter; it checks that the filter implements what it
@@ -251,18 +251,9 @@ MINIMAL = Capabilities()  # what a filter that declares nothing can do: be calle
 @runtime_checkable
 class SafetyFilter(Protocol):
     """The minimal contract: callable as `filter(estimate, u_nom)`, returning a FilterOutput or a bare (N,)
-    array; optionally `reset()`. A filter may declare more with a `capabilities` attribute (`BatchedFilter`)."""
+    array; optionally `reset()`. A filter declares more with a `capabilities` attribute (`Capabilities`)."""
 
     def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput | np.ndarray: ...
-
-
-class BatchedFilter(SafetyFilter, Protocol):
-    """A filter that declares `Capabilities(batched=True)`: `filter_batch` on B states at once (with
-    rows=True it also takes `rows`, the simulations' indices; with reset_rows its `reset` takes `rows`)."""
-
-    capabilities: Capabilities
-
-    def filter_batch(self, estimates: EstimateBatch, u_nom: np.ndarray) -> BatchOutput: ...
 
 
 def filter_capabilities(safety_filter: object) -> Capabilities:
