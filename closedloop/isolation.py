@@ -399,10 +399,10 @@ def isolate(context: FilterContext, filters: Sequence[tuple[str, Mapping[str, ob
     """Start one isolated process that builds `filters` and `nominals` ((registry spec, parameters) each,
     told a copy of `context`) and return their proxies, in order, each declaring what its hosted filter declares
     (`filter_capabilities`, read in the child; a batched one as an `IsolatedBatchFilter`). `copies` > 1 (one filter
-    given): a batch's filters, the one filter when it declares batched, else `copies` independent ones (one history per simulation, as `run_batch_tuning` builds
-    them in-process). The process ends when every proxy is gone (module docstring). A load-time fault (a bad
-    spec or parameters, a raising factory, a filter that lacks a capability it declares, a child that ends while
-    building) raises PluginLoadError."""
+    given): a batch's filters, the one filter when it declares batched, else `copies` independent ones (one history
+    per simulation, as `run_batch_tuning` builds them in-process). The process ends when every proxy is gone (module
+    docstring). A load-time fault (a bad spec or parameters, a raising factory, a filter that lacks a capability it
+    declares, a child that ends while building) raises PluginLoadError."""
     if copies > 1 and len(filters) != 1:
         raise ValueError(f"copies = {copies} needs one filter, got {len(filters)}")
     plan = Plan(context.copy(), tuple((spec, dict(params)) for spec, params in filters),

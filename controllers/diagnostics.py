@@ -13,8 +13,8 @@ reading each key, converting each array and flattening it. On the paper's two-se
 diagnostics, a control step (the filter's return, the step, the recorder's row) costs 36 µs CPU with a plain dict of
 arrays and 21 µs with the flat list, 19 µs without diagnostics; the paper CBF's own call is 15 µs, so the flat list
 saves 0.4 of a paper-CBF step (`tools/bench_diagnostics.py`, side by side, AMD EPYC, 2 cores at load 12). That is
-why the paper CBF, the standard CBF family and the backup CBF keep it. It is not part of the plug-in contract: a user's filter returns a plain mapping, and a
-`FlatDiagnostics` is read like one (a key's array built when read).
+why the paper CBF, the standard CBF family and the backup CBF keep it. It is not part of the plug-in contract: a
+user's filter returns a plain mapping, and a `FlatDiagnostics` is read like one (a key's array built when read).
 """
 
 from __future__ import annotations

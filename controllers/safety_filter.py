@@ -23,15 +23,15 @@ command that is sent:
   the pressure limits, the control period and, where known, the command's delay and
   the actuator's time constant; each plug-in is handed its own copy (`FilterContext.copy`).
 
-Capabilities are declared, never guessed. Everything beyond `__call__` (and the optional
-`reset()`) that a loop may use is declared by the filter's `capabilities`, a `Capabilities` (a
-class attribute, or a property where it depends on the filter's parameters); a filter that
-declares none has the minimal contract (the Protocol `SafetyFilter`), `Capabilities()`: it is called once per simulation,
-whatever other methods it has. `filter_capabilities(f)` is the one reader, asked by every loop
-(the control step, the batch form of a scenario, the vector environment, the isolated process)
-and by the registry when it builds a filter; it checks that the filter implements what it
-declares and refuses it otherwise with `CapabilityError`, one line, when the filter is built or
-the loop is set up, never in the middle of a run:
+Capabilities are declared, never guessed. Everything beyond `__call__` (and the optional `reset()`)
+that a loop may use is declared by the filter's `capabilities`, a `Capabilities` (a class attribute,
+or a property where it depends on the filter's parameters); a filter that declares none has the
+minimal contract (the Protocol `SafetyFilter`), `Capabilities()`: it is called once per simulation,
+whatever other methods it has. `filter_capabilities(f)` is the one reader, asked by every loop (the
+control step, the batch form of a scenario, the vector environment, the isolated process) and by the
+registry when it builds a filter; it checks that the filter implements what it declares and refuses
+it otherwise with `CapabilityError`, one line, when the filter is built or the loop is set up, never
+in the middle of a run:
 - batched: `filter_batch(EstimateBatch, u_nom (B, N)) → BatchOutput` filters B states at once and
   gives the same commands as B calls of `__call__` on B independent copies of the filter (one
   per simulation: a stateful filter keeps B histories); a batched loop calls it once for all

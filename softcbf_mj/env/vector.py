@@ -63,9 +63,10 @@ observation and info, reward 0, terminated = truncated = False. Its simulation i
 
 Seeds (as `SyncVectorEnv`): `reset(seed=s)` seeds sub-environment b's task with s + b, a
 list seeds b with its b-th entry (None: not reseeded), `reset()` lets each continue its
-generator. A filter shared by all arms (one that declares batched) is reset (its `reset()`)
-by `reset()`; when one arm's episode restarts, only if it declares reset_rows (a history per
-row, `closedloop.step`: then `reset(rows=[b])`, as qsg), for otherwise its state spans all arms (the `filter_batch` contract, `controllers.safety_filter`); per-arm
+generator. A filter shared by all arms (one that declares batched) is reset (its
+`reset()`) by `reset()`; when one arm's episode restarts, only if it declares reset_rows
+(a history per row, `closedloop.step`: then `reset(rows=[b])`, as qsg), for otherwise its
+state spans all arms (the `filter_batch` contract, `controllers.safety_filter`); per-arm
 filters are reset at each of their episodes, as in the single environment.
 
 Returns: observations a Dict of (B, ...) arrays (`gymnasium.vector.utils.batch_space` of
