@@ -326,9 +326,10 @@ class BatchControlStep:
 
     safety_filter: one filter for all rows, or B, one per row; nominal: likewise (None: the loop
     hands every call its nominal commands, `u_nom`, e.g. the environment's actions). A shared filter
-    with `filter_batch` (the plug-in contract, `controllers.safety_filter`) is called once per
-    control call for all the rows whose step calls it; any other filter is called row by row
-    (one shared filter without `filter_batch` must then be stateless). Each row has its views
+    that declares batched (`controllers.safety_filter.filter_capabilities`, checked here for every
+    filter) has its `filter_batch` called once per control call for all the rows whose step calls it;
+    any other filter is called row by row (one shared filter that does not declare batched must then
+    be stateless). Each row has its views
     (read-only copies), its output check, its first fault (after which its user code is not
     called again; an exception or refused return of `filter_batch` is a fault of every row it
     was called for) and its monitor row (`BatchSafetyMonitor`, `hold_s`; or `monitor`, given).
