@@ -77,12 +77,13 @@ from typing import Any
 
 import numpy as np
 
-from closedloop.step import RESERVED_COLUMNS, takes_keyword
+from closedloop.step import RESERVED_COLUMNS
+from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
 from controllers.errors import ControllerInputError
 from controllers.registry import PluginLoadError
-from controllers.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, DiagnosticLayout, Estimate, EstimateBatch,
-                                       FilterContext, FilterOutput, FlatDiagnostics, OutputCheck, checked_batch_arrays,
-                                       read_only, real_vector)
+from controllers.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, Capabilities, CapabilityError, Estimate,
+                                       EstimateBatch, FilterContext, FilterOutput, OutputCheck, checked_batch_arrays,
+                                       filter_capabilities, read_only, real_vector, reset_filter)
 
 BUILD_DEADLINE_S = 300.0  # s: the child's start, the build and the first call (imports, compiled kernels)
 CALL_DEADLINE_S = 60.0  # s: any later call; beyond it the child is ended and the call is a fault
@@ -323,11 +324,12 @@ class IsolatedNominal:
 
 class IsolatedFilter:
     """A safety filter hosted by `host` (its index `index`): `filter(estimate, u_nom)` and `reset(rows=None)`;
-    `enabled` as the child's filter said at build. `layout`: the diagnostics' layout of the last reply that
-    sent one (a reply sends it when it differs from the one before)."""
+    `capabilities`: those the hosted filter declares (checked in the child at build; `filter_batch` is
+    `IsolatedBatchFilter`'s). `layout`: the diagnostics' layout of the last reply that sent one (a reply sends it
+    when it differs from the one before)."""
 
-    def __init__(self, host: Host, index: int, enabled: bool) -> None:
-        self.host, self.index, self.enabled = host, index, enabled
+    def __init__(self, host: Host, index: int, capabilities: Capabilities) -> None:
+        self.host, self.index, self.capabilities = host, index, capabilities
         self.layout: DiagnosticLayout | None = None
 
     def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput:
@@ -347,7 +349,7 @@ class IsolatedFilter:
 
 
 class IsolatedBatchFilter(IsolatedFilter):
-    """An `IsolatedFilter` whose hosted filter has `filter_batch` (the plug-in contract's batched call)."""
+    """An `IsolatedFilter` whose hosted filter declares batched (the plug-in contract's `filter_batch`)."""
 
     def filter_batch(self, batch: EstimateBatch, u_nom: np.ndarray, rows: np.ndarray | None = None) -> BatchOutput:
         host = self.host
@@ -395,11 +397,12 @@ def isolate(context: FilterContext, filters: Sequence[tuple[str, Mapping[str, ob
             nominals: Sequence[tuple[str, Mapping[str, object]]], copies: int = 1, deadline_s: float = CALL_DEADLINE_S,
             build_deadline_s: float = BUILD_DEADLINE_S) -> tuple[list[IsolatedFilter], list[IsolatedNominal]]:
     """Start one isolated process that builds `filters` and `nominals` ((registry spec, parameters) each,
-    told a copy of `context`) and return their proxies, in order (a filter with `filter_batch` as an
-    `IsolatedBatchFilter`). `copies` > 1 (one filter given): a batch's filters, the one filter when it has
-    `filter_batch`, else `copies` independent ones (one history per simulation, as `run_batch_tuning` builds
-    them in-process). The process ends when every proxy is gone (module docstring). A load-time fault (a bad
-    spec or parameters, a raising factory, a child that ends while building) raises PluginLoadError."""
+    told a copy of `context`) and return their proxies, in order, each declaring what its hosted filter declares
+    (`filter_capabilities`, read in the child; a batched one as an `IsolatedBatchFilter`). `copies` > 1 (one filter
+    given): a batch's filters, the one filter when it declares batched, else `copies` independent ones (one history
+    per simulation, as `run_batch_tuning` builds them in-process). The process ends when every proxy is gone (module
+    docstring). A load-time fault (a bad spec or parameters, a raising factory, a filter that lacks a capability it
+    declares, a child that ends while building) raises PluginLoadError."""
     if copies > 1 and len(filters) != 1:
         raise ValueError(f"copies = {copies} needs one filter, got {len(filters)}")
     plan = Plan(context.copy(), tuple((spec, dict(params)) for spec, params in filters),
@@ -415,14 +418,28 @@ def isolate(context: FilterContext, filters: Sequence[tuple[str, Mapping[str, ob
         raise PluginLoadError(line if name in ("PluginLoadError", "ValueError") else
                               f"the isolated filter's build failed: {name}: {line}") from None
     host.next_deadline_s = build_deadline_s  # the first call may compile the filter's kernels
-    capabilities = header.get("filters")
-    if (type(capabilities) is not list or len(capabilities) not in (len(filters), copies)
-            or not all(type(c) is list and len(c) == 2 and all(type(v) is bool for v in c) for c in capabilities)):
+    try:
+        declared = _capabilities(header.get("filters"), (len(filters), copies))
+    except (ProtocolError, CapabilityError):
         host.close()
-        raise PluginLoadError("the isolated process answered its build with a reply that is not the format")
-    proxies = [(IsolatedBatchFilter if batched else IsolatedFilter)(host, i, enabled)
-               for i, (batched, enabled) in enumerate(capabilities)]
+        raise PluginLoadError("the isolated process answered its build with a reply that is not the format") from None
+    proxies = [(IsolatedBatchFilter if capabilities.batched else IsolatedFilter)(host, i, capabilities)
+               for i, capabilities in enumerate(declared)]
     return proxies, [IsolatedNominal(host, i) for i in range(len(nominals))]
+
+
+CAPABILITY_NAMES = tuple(f.name for f in dataclasses.fields(Capabilities))  # a build reply's entries, in this order
+
+
+def _capabilities(entries: object, counts: tuple[int, ...]) -> list[Capabilities]:
+    """A build reply's capabilities, one list of bools (CAPABILITY_NAMES' order) per hosted filter, `counts`
+    the numbers of filters it may hold; ProtocolError (or CapabilityError) for anything else."""
+    if type(entries) is not list or len(entries) not in counts:
+        raise ProtocolError("the filters' capabilities must be a list of one entry per filter")
+    if not all(type(e) is list and len(e) == len(CAPABILITY_NAMES) and all(type(v) is bool for v in e)
+               for e in entries):
+        raise ProtocolError(f"a filter's capabilities must be {len(CAPABILITY_NAMES)} bools")
+    return [Capabilities(*entry) for entry in entries]
 
 
 # --- the parent's checks of a spec (no user module imported in the parent) ---------------------------------------
@@ -494,6 +511,7 @@ class Served:
 
     def __init__(self, plan: Plan) -> None:
         self.filters: list[Any] = []
+        self.capabilities: list[Capabilities] = []  # what each filter declares, checked at build
         self.nominals: list[Any] = []
         self.build_error: BaseException | None = None
         self.layouts: dict[int, tuple] = {}  # filter index → (its FlatDiagnostics' layout, the layout last sent)
@@ -506,8 +524,9 @@ class Served:
         self.n = context.robot.n_segments
         try:
             self.filters = [build_filter(spec, params, context.copy()) for spec, params in plan.filters]
-            if plan.copies > 1 and not callable(getattr(self.filters[0], "filter_batch", None)):
+            if plan.copies > 1 and not filter_capabilities(self.filters[0]).batched:
                 self.filters += [build_filter(*plan.filters[0], context.copy()) for _ in range(plan.copies - 1)]
+            self.capabilities = [filter_capabilities(f) for f in self.filters]
             self.nominals = [build_nominal(spec, params, context.copy()) for spec, params in plan.nominals]
         except BaseException as exc:  # noqa: BLE001 - reported to the parent as a load-time fault
             self.build_error = exc
@@ -515,9 +534,8 @@ class Served:
     def built(self, seq: int) -> bytes:
         if self.build_error is not None:
             return _error(seq, self.build_error)
-        capabilities = [[callable(getattr(f, "filter_batch", None)), bool(getattr(f, "enabled", True))]
-                        for f in self.filters]
-        return encode({"seq": seq, "status": "ok", "filters": capabilities})
+        declared = [[getattr(c, name) for name in CAPABILITY_NAMES] for c in self.capabilities]
+        return encode({"seq": seq, "status": "ok", "filters": declared})
 
     def handle(self, seq: int, op: str, args: tuple) -> bytes:
         if op == "built":
@@ -545,14 +563,14 @@ class Served:
                 if layout == self.layouts.get(index, (None, None))[1]:
                     layout = None
                 else:
-                    self.layouts[index] = (getattr(diagnostics, "layout", None), layout)
+                    self.layouts[index] = (diagnostics.layout if type(diagnostics) is FlatDiagnostics else None, layout)
             return encode({"seq": seq, "status": "ok", "action": output.action, "infeasible": output.infeasible,
                            "layout": layout}, [output.u, np.array(output.rho_pred), flat])
         if op == "batch":
             index, t, t_capture, q, qd, u_nom, rows = args
             safety_filter = self.filters[index]
             batch = EstimateBatch(read_only(t), read_only(q), read_only(qd), read_only(t_capture))
-            if rows is not None and takes_keyword(safety_filter.filter_batch, "rows"):
+            if rows is not None and self.capabilities[index].rows:
                 result = safety_filter.filter_batch(batch, read_only(u_nom), rows=read_only(np.array(rows)))
             else:
                 result = safety_filter.filter_batch(batch, read_only(u_nom))
@@ -561,12 +579,10 @@ class Served:
         if op == "reset":
             index, rows = args
             self.checks.pop(index, None)
-            reset = getattr(self.filters[index], "reset", None)
-            if callable(reset):
-                if rows is not None and takes_keyword(reset, "rows"):
-                    reset(rows=read_only(np.array(rows)))
-                else:
-                    reset()
+            if rows is not None and self.capabilities[index].reset_rows:
+                self.filters[index].reset(rows=read_only(np.array(rows)))
+            else:
+                reset_filter(self.filters[index])
             return encode({"seq": seq, "status": "ok"})
         raise ValueError(f"unknown request {op!r}")
 

@@ -12,9 +12,9 @@ A row holds:
   unit the filter declares in `diagnostic_units` (`units()`); their shapes are fixed by
   the first output of the run (the control step's `OutputCheck` has checked that they
   keep them, stay within `DIAGNOSTIC_FLOATS_MAX` floats and take no loop column's name; an
-  output without diagnostics, e.g. a bare array, records NaN in them). The step hands the
-  recorder the check's plain copy (`FlatDiagnostics` in the check's layout), which it copies
-  as it is: nothing of the filter's own objects is read here. A diagnostic whose name is also
+  output without diagnostics, e.g. a bare array, records NaN in them). A filter returns a plain
+  mapping; the step hands the recorder the check's plain copy, flat in the check's layout
+  (`controllers.diagnostics.FlatDiagnostics`), which it copies as it is: nothing of the filter's own objects is read here. A diagnostic whose name is also
   one of the plant's extras (which a plant may add at any row, e.g. a solver warning's count)
   keeps the plant's column under that name and is stored as "filter.<name>" (`columns`, `units`).
 
@@ -36,7 +36,8 @@ import numpy as np
 
 from closedloop.columns import TIMESERIES_UNITS
 from closedloop.step import ACTION_CODES, StepRecord
-from controllers.safety_filter import DiagnosticLayout, FilterOutput, FlatDiagnostics
+from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.safety_filter import FilterOutput
 
 
 

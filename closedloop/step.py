@@ -52,10 +52,13 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
   `filter_batch`: an exception or refused return is the fault of each row it was called for; a
   `ControllerInputError` from the call asks it again for each row alone, so that only the rows it
   refuses are refused, as in their runs);
-  a shared filter that keeps a history per row says so by a `rows` keyword: its `filter_batch`
-  is then told the indices of the rows it is called for (`rows`, (k,) int, ascending), and its
-  `reset` the indices of the rows that restart when only some do (the vector environment's
-  autoreset), so that row b's history is run b's wherever other rows skip a call or restart;
+  which of these a shared filter can do it declares (`controllers.safety_filter.filter_capabilities`,
+  read once when the step is built, which refuses a filter that lacks what it declares): batched,
+  its `filter_batch` is called; rows, it keeps a history per row and `filter_batch` is told the
+  indices of the rows it is called for (`rows`, (k,) int, ascending); reset_rows, its `reset` is
+  told the indices of the rows that restart when only some do (the vector environment's
+  autoreset), so that row b's history is run b's wherever other rows skip a call or restart. A
+  filter that declares nothing is called row by row, whatever methods it has;
 - the admission and the monitor's RUN case, one compiled call over the batch axis
   (`closedloop.kernels.admit_and_run`: non-finite rows refused, the clip min(max(u, lo), hi) as
   Python's min and max, RUN for the admitted rows with nothing raised or latched), and every other
@@ -93,8 +96,8 @@ from controllers.errors import ControllerInputError
 from controllers.interrupts import is_interrupt, watch
 from controllers.lazy_import import lazy_module
 from controllers.safety_filter import (Estimate, EstimateBatch, FilterContext, FilterOutput, FilterReturnError,
-                                       OutputCheck, SafetyFilter, checked_batch_arrays, frozen, real_vector,
-                                       reset_filter)
+                                       OutputCheck, SafetyFilter, checked_batch_arrays, filter_capabilities, frozen,
+                                       real_vector, reset_filter)
 
 if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a run starts, not for softcbf list
     from controllers.nominal import NominalController
@@ -323,9 +326,10 @@ class BatchControlStep:
 
     safety_filter: one filter for all rows, or B, one per row; nominal: likewise (None: the loop
     hands every call its nominal commands, `u_nom`, e.g. the environment's actions). A shared filter
-    with `filter_batch` (the plug-in contract, `controllers.safety_filter`) is called once per
-    control call for all the rows whose step calls it; any other filter is called row by row
-    (one shared filter without `filter_batch` must then be stateless). Each row has its views
+    that declares batched (`controllers.safety_filter.filter_capabilities`, checked here for every
+    filter) has its `filter_batch` called once per control call for all the rows whose step calls it;
+    any other filter is called row by row (one shared filter that does not declare batched must then
+    be stateless). Each row has its views
     (read-only copies), its output check, its first fault (after which its user code is not
     called again; an exception or refused return of `filter_batch` is a fault of every row it
     was called for) and its monitor row (`BatchSafetyMonitor`, `hold_s`; or `monitor`, given).
@@ -351,10 +355,14 @@ class BatchControlStep:
         shared_nominal = None if isinstance(nominal, Sequence) else nominal
         self.nominal_batch = getattr(shared_nominal, "nominal_batch", None)  # None: the nominal is called per row
         self.nominal_missing = any(nom is None for nom in self.nominals)
-        self.batched = not self.per_row_filters and callable(getattr(safety_filter, "filter_batch", None))
-        # a shared filter with a history per row (module docstring): told which rows it serves
-        self.batch_rows = self.batched and takes_keyword(safety_filter.filter_batch, "rows")
-        self.reset_rows = not self.per_row_filters and takes_keyword(getattr(safety_filter, "reset", None), "rows")
+        # what each filter declares, checked now (a declared capability it lacks is refused here, not mid-run);
+        # only a shared filter's are used (module docstring): per-row filters are called row by row
+        distinct = {id(f): f for f in self.filters}.values()
+        declared = [filter_capabilities(f) for f in distinct]
+        shared = None if self.per_row_filters else declared[0]
+        self.batched = shared is not None and shared.batched
+        self.batch_rows = self.batched and shared.rows  # told which rows it serves
+        self.reset_rows = shared is not None and shared.reset_rows
         self.monitor = BatchSafetyMonitor(n_sims, self.n, hold_s) if monitor is None else monitor
         if (self.monitor.n_sims, self.monitor.n_segments) != (n_sims, self.n):
             raise ValueError(f"monitor has {self.monitor.n_sims} runs of {self.monitor.n_segments} segments, "
@@ -610,19 +618,6 @@ class BatchControlStep:
         else:
             for b, action in zip(ids, actions):
                 filter_action[b] = action
-
-
-
-def takes_keyword(function: object, name: str) -> bool:
-    """Whether `function` (a user's method, or None) can be called with the keyword argument `name`."""
-    if not callable(function):
-        return False
-    try:
-        parameters = inspect.signature(function).parameters.values()
-    except (TypeError, ValueError):  # no signature to read (a builtin): called without it
-        return False
-    return any(p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) or p.kind == p.VAR_KEYWORD
-               for p in parameters)
 
 
 def fault_log_name(label: str) -> str:

@@ -4,8 +4,8 @@ Public API (importable from `controllers` directly; each name is loaded from its
 on first use, so `import controllers.params` stays cheap):
 
 - the plug-in contract (`controllers.safety_filter`, docs/safety-filter.md): `SafetyFilter`,
-  `Estimate`, `EstimateBatch`, `FilterOutput`, `BatchOutput`, `FilterContext`,
-  `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`;
+  `Capabilities`, `filter_capabilities`, `Estimate`, `EstimateBatch`, `FilterOutput`, `BatchOutput`,
+  `FilterContext`, `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`;
 - the registry (`controllers.registry`): `FILTERS`, `NOMINALS`, `build_filter`,
   `build_nominal`, `parse_params`, `parameters`, `label`, `describe`;
 - the paper's filter (`controllers.filter`): `CBFFilter`, `CBFResult`, `paper_cbf`;
@@ -25,8 +25,9 @@ from __future__ import annotations
 import importlib
 
 _HOMES = {
-    "controllers.safety_filter": ("SafetyFilter", "Estimate", "EstimateBatch", "FilterOutput", "BatchOutput",
-                                  "FilterContext", "PassThroughFilter", "OutputCheck", "FilterReturnError", "reset_filter"),
+    "controllers.safety_filter": ("SafetyFilter", "Capabilities", "filter_capabilities", "Estimate", "EstimateBatch",
+                                  "FilterOutput", "BatchOutput", "FilterContext", "PassThroughFilter", "OutputCheck",
+                                  "FilterReturnError", "reset_filter"),
     "controllers.registry": ("FILTERS", "NOMINALS", "build_filter", "build_nominal", "parse_params", "parameters",
                              "label", "describe"),
     "controllers.filter": ("CBFFilter", "CBFResult", "paper_cbf"),

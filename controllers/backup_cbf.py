@@ -68,7 +68,8 @@ from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_ve
 from controllers.escape_energy import BoundaryDistanceBound
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.lazy_import import lazy_module
-from controllers.safety_filter import DiagnosticLayout, Estimate, FilterContext, FilterOutput, FlatDiagnostics
+from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.safety_filter import Capabilities, Estimate, FilterContext, FilterOutput
 
 pcc_model = lazy_module("controllers.pcc_model")  # numba loads at the first rollout (controllers.lazy_import)
 
@@ -96,6 +97,8 @@ BACKUP_DIAGNOSTIC_UNITS = {
 
 class BackupCBF:
     """The backup CBF of the module docstring on the PCC model `context.robot` (the filter's own model)."""
+
+    capabilities = Capabilities()  # the minimal contract: one instance per simulation
 
     def __init__(self, context: FilterContext, backup: str = "vent", horizon_s: float = 0.5, levels: int = 3) -> None:
         checked = check_backup_cbf({"backup": backup, "horizon_s": horizon_s, "levels": levels})

@@ -108,7 +108,8 @@ from controllers.dynamics import PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, dot_lists, solve_lists
-from controllers.safety_filter import DiagnosticLayout, Estimate, FilterContext, FilterOutput, FlatDiagnostics
+from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.safety_filter import Capabilities, Estimate, FilterContext, FilterOutput
 
 ECBF_PARAMETERS = {
     "alpha1": FilterParameter("pole of the barrier: psi1 = bdot + alpha1 b >= 0", "1/s",
@@ -162,6 +163,8 @@ def barrier_derivatives(tip: tuple, rows: list[list[float]],
 class ExponentialCBF:
     """The exponential CBF-QP on the PCC model `context.robot` (module docstring), with the ISSf margin
     ‖a_i‖²/ε when `epsilon` is given (None: the plain exponential CBF). The model is the filter's own."""
+
+    capabilities = Capabilities()  # the minimal contract: one instance per simulation
 
     def __init__(self, context: FilterContext, alpha1: float, alpha2: float, epsilon: float | None = None,
                  qp_backend: str = DEFAULT_BACKEND) -> None:

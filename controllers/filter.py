@@ -114,8 +114,8 @@ from controllers.params import RobotParams
 from controllers.pcc import step_kinematics
 from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import (BatchOutput, DiagnosticLayout, Estimate, EstimateBatch, FilterContext, FilterOutput,
-                                      FlatDiagnostics)
+from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.safety_filter import BatchOutput, Capabilities, Estimate, EstimateBatch, FilterContext, FilterOutput
 from controllers.bounds import Bound
 
 PARAMETERS = {
@@ -229,6 +229,11 @@ class CBFFilter:
     def enabled(self) -> bool:
         """False for the paper's None tuning (u = u_nom)."""
         return not self.tuning.disabled
+
+    @property
+    def capabilities(self) -> Capabilities:
+        """Batched (`filter_batch`); a pass-through under the paper's None tuning."""
+        return Capabilities(batched=True, passthrough=not self.enabled)
 
     def _clip(self, u: list[float]) -> list[float]:
         """u within the pressure limits when they are on (like np.clip: NaN stays NaN)."""

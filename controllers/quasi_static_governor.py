@@ -70,7 +70,8 @@ from controllers.filter_parameters import FilterParameter, check_parameters, par
 from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked, step_kinematics
 from controllers.qp import DEFAULT_BACKEND, check_backend, solve_lists
-from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput, batch_history_ids
+from controllers.safety_filter import (BatchOutput, Capabilities, Estimate, EstimateBatch, FilterContext, FilterOutput,
+                                       batch_history_ids)
 from controllers.bounds import Bound
 
 pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first kernel call (controllers.lazy_import)
@@ -109,6 +110,7 @@ PARAMETERS = {
 class QuasiStaticGovernor:
     """The QSG as a safety filter (see the module docstring for the maths and the actions)."""
 
+    capabilities = Capabilities(batched=True, rows=True, reset_rows=True)  # a history per simulation
     parameter_docs = parameter_docs(PARAMETERS)
 
     def __init__(self, context: FilterContext, margin_m: float = 1e-3, rate_limit_hPa_per_s: float | None = None,

@@ -60,7 +60,7 @@ import numpy as np
 
 from controllers.filter_parameters import Params, parse_text, read_params, value_text
 from controllers.interrupts import is_interrupt
-from controllers.safety_filter import FilterContext, SafetyFilter
+from controllers.safety_filter import CapabilityError, FilterContext, SafetyFilter, filter_capabilities
 
 if typing.TYPE_CHECKING:
     from controllers.nominal import NominalController
@@ -442,10 +442,15 @@ def check_nominal(spec: str, params: Mapping[str, object]) -> None:
 
 
 def build_filter(spec: str, params: Mapping[str, object], context: FilterContext) -> SafetyFilter:
-    """The safety filter of `spec` with `params`, told `context`."""
+    """The safety filter of `spec` with `params`, told `context`; PluginLoadError when it lacks a capability it
+    declares (`controllers.safety_filter.filter_capabilities`)."""
     safety_filter = build(resolve(spec, FILTERS), typed_params(spec, params), context)
     if not callable(safety_filter):
         raise ValueError(f"filter {spec!r} must build a callable filter(estimate, u_nom), got {type(safety_filter).__name__}")
+    try:
+        filter_capabilities(safety_filter)
+    except CapabilityError as exc:
+        raise PluginLoadError(f"filter {spec!r}: {exc}") from None
     return safety_filter
 
 

@@ -11,24 +11,37 @@ command that is sent:
 - A bare array return means "this is u"; the loop wraps it in `FilterOutput(u)` with the
   neutral defaults (action "user", not infeasible, no predicted margin, no diagnostics).
 - `FilterOutput.diagnostics` is the place for everything specific to one filter (the
-  CBF's b, B and active rows, a governor's certificate); `diagnostic_units` declares the
-  unit of each key, and the recorder stores them as time-series columns. Nothing
-  outside a filter's own module reads a filter-specific field by name. Any mapping
-  will do; a filter called every control step may return `FlatDiagnostics`, its values
-  as one flat list in a `DiagnosticLayout` made once (a key's array is built only when
-  read), which the recorder copies into its row without unpacking it.
+  CBF's b, B and active rows, a governor's certificate): a plain mapping, str key → a real
+  number, a bool or a small array of them, with the same keys and shapes every call;
+  `diagnostic_units` declares the unit of each key, and the recorder stores them as
+  time-series columns. Nothing outside a filter's own module reads a filter-specific field
+  by name. How they are laid out in a row is the recorder's business (`controllers.diagnostics`).
 - Filters may keep state (their own command history); `reset()`, when present, is
-  called before each run. `filter_batch`, when present, filters B states at once
-  (`EstimateBatch`, u_nom (B, N) → `BatchOutput`) and must give the same commands as B
-  calls of `__call__` on B independent copies of the filter (one per simulation: a stateful
-  filter keeps B histories); a batched loop calls it once for all its simulations, and
-  calls a filter without it per simulation (`softcbf_mj.batch_loop`).
+  called before each run (`reset_filter`).
 - `FilterContext` is what a filter is told at construction (the registry passes it to
   factories that ask for a `context` argument): the robot model, the force-safe set,
   the pressure limits, the control period and, where known, the command's delay and
   the actuator's time constant; each plug-in is handed its own copy (`FilterContext.copy`).
-- An optional attribute `enabled` (default True): False says the filter passes u_nom
-  through (the paper's None tuning); its call times are then not reported as filter times.
+
+Capabilities are declared, never guessed. Everything beyond `__call__` (and the optional `reset()`)
+that a loop may use is declared by the filter's `capabilities`, a `Capabilities` (a class attribute,
+or a property where it depends on the filter's parameters); a filter that declares none has the
+minimal contract (the Protocol `SafetyFilter`), `Capabilities()`: it is called once per simulation,
+whatever other methods it has. `filter_capabilities(f)` is the one reader, asked by every loop (the
+control step, the batch form of a scenario, the vector environment, the isolated process) and by the
+registry when it builds a filter; it checks that the filter implements what it declares and refuses
+it otherwise with `CapabilityError`, one line, when the filter is built or the loop is set up, never
+in the middle of a run:
+- batched: `filter_batch(EstimateBatch, u_nom (B, N)) → BatchOutput` filters B states at once and
+  gives the same commands as B calls of `__call__` on B independent copies of the filter (one
+  per simulation: a stateful filter keeps B histories); a batched loop calls it once for all
+  its simulations (`softcbf_mj.batch_loop`);
+- rows (with batched): the filter keeps one history per simulation, and `filter_batch(...,
+  rows=ids)` is told the indices of the simulations it serves (`batch_history_ids`);
+- reset_rows: `reset(rows=ids)` restarts those simulations' histories alone (the vector
+  environment's autoreset of one arm); a shared filter without it is reset when all restart;
+- passthrough: the filter passes u_nom through (the paper's None tuning); its call times are
+  not reported as filter times.
 
 Whatever a filter returns, the control step clips it to the limits and refuses
 non-finite commands (`closedloop.step`); a filter need not repeat that.
@@ -47,14 +60,16 @@ filter: a filter fault (hold, then vent, and the run stops; `closedloop.step`).
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Mapping
 from copy import deepcopy
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
 from controllers.params import RobotParams
 from controllers.safe_set import ForceSafeSet
 
@@ -122,62 +137,6 @@ class FilterOutput:
         if diagnostics and not diagnostics.keys() <= self.diagnostic_units.keys():
             missing = set(self.diagnostics) - set(self.diagnostic_units)
             raise ValueError(f"diagnostic_units must declare a unit for every diagnostic, missing {sorted(missing)}")
-
-
-class DiagnosticLayout:
-    """The keys of a filter's diagnostics, fixed over a run: their shapes, which are boolean,
-    and their units, in the order of a flat list of their values (each key's values row-major).
-    Made once per filter; `FlatDiagnostics` of the same layout are recorded without unpacking."""
-
-    __slots__ = ("shapes", "booleans", "units", "size", "_slices")
-
-    def __init__(self, shapes: Mapping[str, tuple[int, ...]], units: Mapping[str, str],
-                 booleans: frozenset[str] = frozenset()) -> None:
-        missing = sorted(set(shapes) - set(units))
-        if missing:
-            raise ValueError(f"units must declare a unit for every diagnostic, missing {missing}")
-        unknown = sorted(set(booleans) - set(shapes))
-        if unknown:
-            raise ValueError(f"booleans must be keys of shapes, got {unknown}")
-        self.shapes = {key: tuple(int(d) for d in shape) for key, shape in shapes.items()}
-        self.booleans, self.units = frozenset(booleans), units
-        self._slices: dict[str, tuple[int, int]] = {}
-        start = 0
-        for key, shape in self.shapes.items():
-            self._slices[key] = (start, start + math.prod(shape))
-            start += math.prod(shape)
-        self.size = start  # number of flat values
-
-    def value(self, key: str, values: list) -> object:
-        """The value of `key` in the flat `values`: the scalar itself for shape (), else an
-        array of its shape (bool or float)."""
-        start, stop = self._slices[key]
-        shape = self.shapes[key]
-        if not shape:
-            return values[start]
-        return np.array(values[start:stop], dtype=bool if key in self.booleans else float).reshape(shape)
-
-
-class FlatDiagnostics(Mapping):
-    """A filter's diagnostics as one flat list `values` in `layout`'s order (DiagnosticLayout):
-    a read-only mapping whose arrays are built when read. Made every control call; nothing
-    modifies it once returned."""
-
-    __slots__ = ("layout", "values")
-
-    def __init__(self, layout: DiagnosticLayout, values: list) -> None:
-        if len(values) != layout.size:
-            raise ValueError(f"values must hold the layout's {layout.size} values, got {len(values)}")
-        self.layout, self.values = layout, values
-
-    def __getitem__(self, key: str) -> object:
-        return self.layout.value(key, self.values)
-
-    def __iter__(self):
-        return iter(self.layout.shapes)
-
-    def __len__(self) -> int:
-        return len(self.layout.shapes)
 
 
 @dataclass(frozen=True, eq=False)
@@ -260,11 +219,78 @@ class FilterContext:
         return self.u_min is not None
 
 
+class CapabilityError(ValueError):
+    """A filter's declared capabilities are not a `Capabilities`, or it lacks what it declares (module
+    docstring: "Capabilities are declared"); raised when it is built or a loop is set up, one line."""
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a filter declares beyond the minimal contract (module docstring): batched (`filter_batch`),
+    rows (a history per simulation, told by `filter_batch(..., rows=ids)`; with batched), reset_rows
+    (`reset(rows=ids)`) and passthrough (u = u_nom: no filter times reported). All False: the minimal
+    contract, called once per simulation."""
+
+    batched: bool = False
+    rows: bool = False
+    reset_rows: bool = False
+    passthrough: bool = False
+
+    def __post_init__(self) -> None:
+        for name in (f.name for f in fields(self)):
+            value = getattr(self, name)
+            if type(value) is not bool:
+                raise CapabilityError(f"Capabilities.{name} must be True or False, got {value!r}")
+        if self.rows and not self.batched:
+            raise CapabilityError("Capabilities(rows=True) needs batched=True: the rows are told to filter_batch")
+
+
+MINIMAL = Capabilities()  # what a filter that declares nothing can do: be called, and reset() when it has one
+
+
 @runtime_checkable
 class SafetyFilter(Protocol):
-    """Anything callable as `filter(estimate, u_nom)` returning a FilterOutput or a bare (N,) array."""
+    """The minimal contract: callable as `filter(estimate, u_nom)`, returning a FilterOutput or a bare (N,)
+    array; optionally `reset()`. A filter declares more with a `capabilities` attribute (`Capabilities`)."""
 
     def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput | np.ndarray: ...
+
+
+def filter_capabilities(safety_filter: object) -> Capabilities:
+    """The capabilities `safety_filter` declares (its `capabilities`; `MINIMAL` when it declares none), checked
+    against what it has: CapabilityError (one line) for a filter that is not callable, a declaration that is not
+    a `Capabilities`, or a capability it does not implement (batched without a `filter_batch` method, rows without
+    a `rows` keyword of `filter_batch`, reset_rows without `reset(rows=...)`). Signatures are read here only to
+    check a declaration, never to decide what a filter can do."""
+    name = getattr(safety_filter, "__name__", None) or type(safety_filter).__name__
+    if not callable(safety_filter):
+        raise CapabilityError(f"a safety filter must be callable as filter(estimate, u_nom), got {name}")
+    try:
+        declared = getattr(safety_filter, "capabilities", MINIMAL)
+    except Exception as exc:  # noqa: BLE001 - a property of user code: refused in one line at setup
+        raise CapabilityError(f"{name}.capabilities raised {type(exc).__name__}: {exc}") from None
+    if type(declared) is not Capabilities:
+        raise CapabilityError(f"{name}.capabilities must be a controllers.safety_filter.Capabilities, got "
+                              f"{type(declared).__name__}")
+    if declared.batched and not callable(getattr(safety_filter, "filter_batch", None)):
+        raise CapabilityError(f"{name} declares batched=True but has no method filter_batch(estimates, u_nom)")
+    if declared.rows and not _takes_keyword(safety_filter.filter_batch, "rows"):
+        raise CapabilityError(f"{name} declares rows=True but its filter_batch takes no keyword rows")
+    if declared.reset_rows and not _takes_keyword(getattr(safety_filter, "reset", None), "rows"):
+        raise CapabilityError(f"{name} declares reset_rows=True but has no method reset(rows=...)")
+    return declared
+
+
+def _takes_keyword(function: object, name: str) -> bool:
+    """Whether `function` (a method, or None) can be called with the keyword argument `name`."""
+    if not callable(function):
+        return False
+    try:
+        parameters = inspect.signature(function).parameters.values()
+    except (TypeError, ValueError):  # no signature to read (a builtin): no such keyword to rely on
+        return False
+    return any(p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) or p.kind == p.VAR_KEYWORD
+               for p in parameters)
 
 
 class PassThroughFilter:
@@ -544,7 +570,7 @@ def batch_history_ids(rows, count: int | None = None, held: int = 0) -> np.ndarr
 
 
 def reset_filter(safety_filter: SafetyFilter) -> None:
-    """Call the filter's optional `reset()`."""
+    """Call the filter's optional `reset()` (the minimal contract's one optional method)."""
     reset = getattr(safety_filter, "reset", None)
     if callable(reset):
         reset()

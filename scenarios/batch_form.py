@@ -9,9 +9,9 @@ with the nominal controller built from sample b's parameters, through
 one row per sample: `BatchRun.run(b)` (the docs/run-outputs.md figures of the same names as
 the single run's, with a filter fault's fields, `tests/test_study_batch.py`), `wall_s`
 (the batch's wall time / B) and `batch_size` (B). Where every sample's filter parameters are equal,
-the filter is built once when it has `filter_batch` (the paper's CBF: `controllers.cbf_batch`), else
-once per simulation (B independent histories: a user's filter runs inside the batch, the physics
-batched). Where they differ (a study or a tuning search that varies a filter parameter), each
+the filter is built once when it declares batched (`controllers.safety_filter.filter_capabilities`: the
+paper's CBF, `controllers.cbf_batch`), else once per simulation (B independent histories: a user's filter
+runs inside the batch, the physics batched). Where they differ (a study or a tuning search that varies a filter parameter), each
 simulation gets its own instance built from its own parameters, called per simulation, so row b's
 commands and faults are those of sample b run alone; only the physics is batched. Each filter and
 nominal is told its own copy of `context` (`FilterContext.copy`); the batched step reads its limits from
@@ -26,7 +26,7 @@ import numpy as np
 
 from closedloop.isolation import isolate
 from controllers.registry import build_filter, build_nominal
-from controllers.safety_filter import FilterContext
+from controllers.safety_filter import FilterContext, filter_capabilities
 from scenarios.common import ControllerRun
 from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.plant import BatchPlant
@@ -55,10 +55,10 @@ def run_batch_tuning(plant: BatchPlant, runs: Sequence[ControllerRun], context: 
     elif run.isolate:  # one isolated process hosts the batch's filters and nominals (closedloop.isolation)
         hosted, nominals = isolate(context, [(run.filter, run.filter_params)], [(nominal, kw) for kw in nominal_kwargs],
                                    copies=n_sims)
-        filters = hosted[0] if callable(getattr(hosted[0], "filter_batch", None)) else hosted
+        filters = hosted[0] if filter_capabilities(hosted[0]).batched else hosted
     else:
         one = build_filter(run.filter, run.filter_params, context.copy())
-        filters = one if callable(getattr(one, "filter_batch", None)) else [
+        filters = one if filter_capabilities(one).batched else [
             build_filter(run.filter, run.filter_params, context.copy()) for _ in range(n_sims)]
         nominals = [build_nominal(nominal, kwargs, context.copy()) for kwargs in nominal_kwargs]
     result = run_batch_closed_loop(plant, filters, nominals, context, duration, q0, progress=progress)

@@ -91,7 +91,7 @@ from hardware.config import (
 from hardware.runner import HardwareLog, HardwareLoop, StartupError, controller_context
 from hardware.transport import open_serial
 from perception.capture import VideoCaptureSource
-from scenarios.common import scene_record
+from scenarios.common import filter_enabled, scene_record
 from scenarios.run import FILTER_FAULT, INTERRUPTED, USAGE_ERROR, command_line_params, option_name, option_type
 from closedloop.record import TIMESERIES_UNITS
 from closedloop.step import describe_fault, fault_log_name, write_fault_log
@@ -461,7 +461,7 @@ def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: Har
     row: dict[str, Any] = {"tuning": label, "filter": ctl.filter, "filter_params": ctl.filter_arguments(),
                            "nominal": ctl.nominal, "nominal_params": ctl.nominal_arguments()}
     if len(series["t"]):
-        row.update(run_figures(series, loop.period_s, bool(getattr(loop.step.filter, "enabled", True)), wall_s))
+        row.update(run_figures(series, loop.period_s, filter_enabled(loop.step), wall_s))
     link = counts["link"]
     row.update({k: v for k, v in counts.items() if k not in ("link", "perception")})
     row.update(link_acked_fraction=link["acked_fraction"], link_latency_median_ms=link["latency_median_s"] * 1e3,

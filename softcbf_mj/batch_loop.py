@@ -7,7 +7,7 @@ Each control step k (t_k = k·Δt), for all B simulations together:
     plant state (B) → estimates (the exact state: q, q̇, t_capture = t)
     → the batched step: nominal, filter, admission (clip, non-finite → hold then vent), monitor
     → commands (B, N) → plant step.
-The filter is either one filter with `filter_batch` (e.g. the paper's CBF through
+The filter is either one filter that declares batched (`filter_batch`, e.g. the paper's CBF through
 `controllers.cbf_batch`), called once for all simulations whose step calls it this period
 (an exception in it is a filter fault of each of those simulations), or one stateless filter
 without it (called per simulation), or B instances, one per simulation (B histories).

@@ -251,6 +251,7 @@ def test_batched_filter_is_called_once_for_all_arms_and_matches_single_envs():
 
 FAULTY = textwrap.dedent('''
     import numpy as np
+    from controllers.safety_filter import Capabilities
 
     class Faulty:
         """Raises once the first bending angle passes q_limit rad."""
@@ -264,6 +265,8 @@ FAULTY = textwrap.dedent('''
             return u_nom
 
     class FaultyBatch(Faulty):
+        capabilities = Capabilities(batched=True)
+
         def filter_batch(self, estimates, u_nom):
             raise RuntimeError("the batch call fails")
 ''')
@@ -302,7 +305,7 @@ def test_a_filter_fault_ends_only_that_sub_envs_episode(tmp_path):
 
 COUNTING = textwrap.dedent('''
     import numpy as np
-    from controllers.safety_filter import BatchOutput
+    from controllers.safety_filter import BatchOutput, Capabilities
 
     class Counting:
         """Passes u_nom through; counts its instances' reset() calls."""
@@ -316,6 +319,7 @@ COUNTING = textwrap.dedent('''
             return u_nom
 
     class CountingBatch(Counting):
+        capabilities = Capabilities(batched=True)
         resets = 0
 
         def filter_batch(self, estimates, u_nom):

@@ -346,7 +346,19 @@ def test_a_nominal_and_a_reset_raising_system_exit_are_faults():
     assert step.fault.type == "SystemExit" and step.fault.where == "reset"
 
 
-def test_a_real_ctrl_c_inside_the_filter_still_interrupts_the_run():
+@pytest.fixture
+def python_sigint():
+    """SIGINT at Python's own handler for the test, whatever this process inherited (a test run started in the
+    background of a script, `cmd &` or nohup, inherits SIGINT ignored, and then nothing is a Ctrl-C); the handler in
+    place before the test, put back after it (the test's `watch()` installs the step's)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_a_real_ctrl_c_inside_the_filter_still_interrupts_the_run(python_sigint):
     from controllers.interrupts import watch
 
     assert watch()  # the step installs the same handler; pytest runs in the main thread
@@ -554,15 +566,30 @@ SLOW_IMPORT = textwrap.dedent('''
 ''')
 
 
-def test_ctrl_c_at_start_up_is_one_line(tmp_path):
+def test_ctrl_c_at_start_up_is_one_line(tmp_path, python_sigint):
     (tmp_path / "sitecustomize.py").write_text(SLOW_IMPORT, encoding="utf-8")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])}
+    # started with a Python handler in place: the command starts with SIGINT's default, as from a terminal
     process = subprocess.Popen([sys.executable, "-m", "softcbf.cli", "list"], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, env=env)
     time.sleep(2.0)  # inside the held import (the interpreter's own start-up takes well under that)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert "Traceback" not in err and err.strip() == "interrupted" and process.returncode == 130, err
+
+
+def test_the_interrupt_tests_pass_in_a_test_run_started_with_sigint_ignored():
+    """A test run started in the background of a script inherits SIGINT ignored: the two Ctrl-C tests above failed
+    there (watch() installs nothing, and the command they start inherits the ignored signal). They set Python's
+    handler for themselves and put back the one they found."""
+    def ignore_sigint() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    done = subprocess.run([sys.executable, "-m", "pytest", __file__, "-q", "-p", "no:cacheprovider", "-k",
+                           "real_ctrl_c_inside or ctrl_c_at_start_up"], cwd=REPO, capture_output=True, text=True,
+                          timeout=600, preexec_fn=ignore_sigint,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])})
+    assert done.returncode == 0 and "2 passed" in done.stdout, done.stdout[-3000:]
 
 
 def test_a_diagnostic_named_as_a_plant_column_is_kept_beside_it():

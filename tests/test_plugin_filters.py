@@ -18,7 +18,8 @@ from controllers.filter import CBFFilter, paper_cbf
 from controllers.params import reference_robot
 from controllers.registry import FILTERS, NOMINALS, build_filter, build_nominal, label, parameters, parse_params
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import DiagnosticLayout, Estimate, FilterContext, FilterOutput, FlatDiagnostics
+from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 from softcbf.cli import list_text, main
 from softcbf_mj.runio import load_timeseries, read_run_folder
 

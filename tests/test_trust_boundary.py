@@ -28,7 +28,8 @@ from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import BatchOutput, DIAGNOSTIC_FLOATS_MAX, Estimate, FilterContext, FilterOutput
+from controllers.safety_filter import (BatchOutput, DIAGNOSTIC_FLOATS_MAX, Capabilities, Estimate, FilterContext,
+                                       FilterOutput)
 from scenarios.run import FILTER_FAULT, USAGE_ERROR, exit_code, run_scenario
 from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
@@ -413,6 +414,8 @@ class BatchedMisbehaving:
     `bad_shape_at` (s) and raises from `raise_at` (s) on; with `refuse`, it refuses its input
     (NonFiniteStateError, a ControllerInputError) where q_2 < 0 for t in [0.002, 0.008) s: every row of the
     call, where a serial run refuses only that row."""
+
+    capabilities = Capabilities(batched=True)
 
     def __init__(self, raise_at: float = math.inf, bad_shape_at: float = math.inf, refuse: bool = False) -> None:
         self.raise_at, self.bad_shape_at, self.refuse = raise_at, bad_shape_at, refuse

@@ -53,7 +53,7 @@ from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import BatchOutput, Estimate, FilterContext
+from controllers.safety_filter import BatchOutput, Capabilities, Estimate, FilterContext
 from softcbf_mj.batch_loop import replay_commands, run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import RunningFigures, rho_meas, run_figures
@@ -223,6 +223,8 @@ def bench_step(batch: int, calls: int, repeats: int) -> dict:
     context = FilterContext.for_robot(robot, safe_set, 1e-3)
 
     class PassThrough:
+        capabilities = Capabilities(batched=True)
+
         def __call__(self, estimate, u_nom):
             return u_nom
 

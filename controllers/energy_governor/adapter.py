@@ -26,7 +26,8 @@ from controllers.energy_governor.state import GovernorState, new_state
 from controllers.energy_governor.steps import apply_time, step, step_rows
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
 from controllers.filter_parameters import parameter_docs
-from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput, batch_history_ids
+from controllers.safety_filter import (BatchOutput, Capabilities, Estimate, EstimateBatch, FilterContext, FilterOutput,
+                                       batch_history_ids)
 
 
 class EnergyGovernor:
@@ -39,6 +40,7 @@ class EnergyGovernor:
     ControllerInputError (`controllers.energy_governor.steps`).
     """
 
+    capabilities = Capabilities(batched=True, rows=True, reset_rows=True)  # a state per simulation
     params_type = GovernorParams
     __signature__ = parameter_signature(GovernorParams)
     parameter_docs = parameter_docs(PARAMETERS)

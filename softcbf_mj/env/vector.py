@@ -34,9 +34,10 @@ One env step, for every sub-environment that is not being reset ("running"):
     u_nom (B, N) = nominal_command(actions) of the running arms  hPa, held for the env step
     repeat action_repeat control periods, t_k = k Δ:
         record = the batched control step of the running arms at their estimates, with
-                 u_nom as their nominal commands: a filter with `filter_batch`: one filter
-                 for all, one call for the arms that call it; otherwise B filters, one per
-                 arm (built by the registry), called in turn
+                 u_nom as their nominal commands: a filter that declares batched
+                 (`controllers.safety_filter.filter_capabilities`): one filter for all, one
+                 call for the arms that call it; otherwise B filters, one per arm (built by
+                 the registry), called in turn
         u (B, N) hPa = record.u: the running arms' commands, 0 hPa for the others
         state = plant.step(u)                                 one batch call for all B
         the period in every running arm's `StepStats` (one `RunningFigures` update) and the
@@ -62,9 +63,9 @@ observation and info, reward 0, terminated = truncated = False. Its simulation i
 
 Seeds (as `SyncVectorEnv`): `reset(seed=s)` seeds sub-environment b's task with s + b, a
 list seeds b with its b-th entry (None: not reseeded), `reset()` lets each continue its
-generator. A filter shared by all arms (one with `filter_batch`) is reset (its `reset()`)
-by `reset()`; when one arm's episode restarts, only if it keeps a history per row (its
-`reset` takes `rows`, `closedloop.step`: then `reset(rows=[b])`, as qsg), for otherwise its
+generator. A filter shared by all arms (one that declares batched) is reset (its
+`reset()`) by `reset()`; when one arm's episode restarts, only if it declares reset_rows
+(a history per row, `closedloop.step`: then `reset(rows=[b])`, as qsg), for otherwise its
 state spans all arms (the `filter_batch` contract, `controllers.safety_filter`); per-arm
 filters are reset at each of their episodes, as in the single environment.
 
@@ -88,6 +89,7 @@ from gymnasium.vector.utils import batch_space
 
 from closedloop.monitor import ACTIONS
 from closedloop.step import BatchControlStep, BatchStepRecord, FilterFault
+from controllers.safety_filter import filter_capabilities
 from softcbf_mj.env.environment import ArmEnvConfig
 from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, object_array, scaled_observations, step_infos
 from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, StepStats, action_array
@@ -153,7 +155,7 @@ class ArmVectorEnv(VectorEnv):
         layout = self.plant.layout
         context = config.context()
         first = config.safety_filter(context)
-        self.shared_filter = first if callable(getattr(first, "filter_batch", None)) else None
+        self.shared_filter = first if filter_capabilities(first).batched else None
         filters = [first] + [first if self.shared_filter is not None else config.safety_filter(context)
                              for _ in range(self.num_envs - 1)]
         self.control = BatchControlStep(first if self.shared_filter is not None else filters, None, context,
