@@ -180,7 +180,7 @@ import numpy as np
 
 from controllers.dynamics import PCCDynamics
 from controllers.escape_energy import MAX_SEGMENTS, EscapeEnergyTable, lower_bounds
-from controllers.energy_governor.parameters import PARAMETERS, PREDICTION_HORIZON_S, GovernorParams
+from controllers.energy_governor.parameters import PARAMETERS, PREDICTION_HORIZON_S, GovernorParams, delay_states
 from controllers.energy_governor.plate_certificate import (BOUND_BELOW_J, PlateCertificate, cantilever_stiffness_ratios,
                                                            nearest_environment, prior_plate, rest_shape_inside, tip_of)
 from controllers.gain_estimate import GainEstimator
@@ -268,8 +268,9 @@ class GovernorCall:
     stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
     for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
     x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the ends' rest-shape ratios and stiffness scales
-    and their energy terms (E, 3, N), p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone), and the
-    plate certificate the call is certified on (the state's)."""
+    and their energy terms (E, 3, N), p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone), the
+    plate certificate the call is certified on (the state's), and `covers`: the same call at the other delays of a
+    command delay interval (module docstring, "command delay"; empty without one)."""
 
     t_capture: float
     t_apply: float
@@ -289,6 +290,7 @@ class GovernorCall:
     scales: tuple = ()
     p_far: np.ndarray | None = None
     plate: PlateCertificate | None = None
+    covers: list = field(default_factory=list)
 
 
 def certificate_rows(calls: list[GovernorCall]) -> tuple:
@@ -327,7 +329,9 @@ class GovernorModel:
     one); plate_weight: hi when contact-aware, else 0; free_plate_energy: its term at n = 0 (J); box: the pressure
     box or None; rest: 0 hPa clipped to it; gain_prior: the certified interval of the rest-shape ratio r = g/c
     before any estimate ([g_lo/c_hi, g_hi/c_lo]); gain_box, stiffness_box: the actuator gain's and the arm
-    stiffness's intervals (1); lag_taus: (τ_lo, τ_hi) of the pressure's interval (s), None without one."""
+    stiffness's intervals (1); lag_taus: (τ_lo, τ_hi) of the pressure's interval (s), None without one;
+    delay_shifts: s = δ' − δ (s) for each delay δ' the certificate is evaluated at (`delay_states`; (0.0,) without a
+    command delay interval, or with one of zero width at δ)."""
 
     params: GovernorParams
     context: FilterContext
@@ -350,6 +354,7 @@ class GovernorModel:
     gain_box: tuple
     stiffness_box: tuple
     lag_taus: tuple | None
+    delay_shifts: tuple
 
     @classmethod
     def build(cls, params: GovernorParams, context: FilterContext) -> "GovernorModel":
@@ -368,6 +373,11 @@ class GovernorModel:
         if params.plate_estimate and not isinstance(law, LinearStiffness):
             raise ValueError(f"plate_estimate needs a linear plate law ψ(n) = k n (LinearStiffness), got "
                              f"{type(law).__name__}")
+        delays = tuple(delay if d is None else float(d) for d in (params.command_delay_lo_s, params.command_delay_hi_s))
+        if delays[0] > delays[1]:
+            raise ValueError(f"command_delay_lo_s must be <= command_delay_hi_s = {delays[1]!r} (None: the assumed "
+                             f"delay {delay!r} s), got {delays[0]!r}")
+        delay_shifts = tuple(d - delay for d in delay_states(*delays, params.command_delay_spacing_s))
         robot, contact = context.robot, params.contact
         n = robot.n_segments
         taus = (params.actuator_tau_lo_s, params.actuator_tau_hi_s)
@@ -394,7 +404,8 @@ class GovernorModel:
                    gain_prior=(params.gain_lo_ratio / params.arm_stiffness_hi_ratio,
                                params.gain_hi_ratio / params.arm_stiffness_lo_ratio),
                    gain_box=(params.gain_lo_ratio, params.gain_hi_ratio),
-                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio), lag_taus=lag_taus)
+                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio), lag_taus=lag_taus,
+                   delay_shifts=delay_shifts)
 
     # -- the prior plate's parts (`plate`) ----------------------------------------------------------------
     @property
@@ -473,9 +484,14 @@ class GovernorModel:
     def certificate_terms(self, u, call: GovernorCall, plate: PlateCertificate) -> tuple[float, float]:
         """(Γ, W) (J) of the command u (N,) hPa at the call's state x̂ on `plate`: the gain end with the least Γ − W,
         Γ = min_j (Γ̲_j(g·u) + o_j) (−inf outside P), W at g (module docstring; `energy_kernels.certificate_terms`)."""
-        rows = len(call.offsets)
-        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), 0, *certificate_rows([call]),
-                                                    *plate.lookup, np.empty(self.n), np.empty(rows), np.empty(rows))
+        return self.row_terms(u, certificate_rows([call]), 0, plate)
+
+    def row_terms(self, u, rows: tuple, b: int, plate: PlateCertificate) -> tuple[float, float]:
+        """(Γ, W) (J) of the command u (N,) hPa at row b of `rows` (`certificate_rows` of calls on `plate`), as
+        `certificate_terms` gives them for that row's call."""
+        count = rows[8].shape[1]  # the offsets' rows P'
+        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), b, *rows, *plate.lookup,
+                                                    np.empty(self.n), np.empty(count), np.empty(count))
         return float(gamma), float(w)
 
     def tip(self, q) -> tuple[float, float]:
