@@ -138,14 +138,39 @@ sample the arm follows its rest shape quasi-statically (q ≈ a p, first mode �
 the rest test |q̂̇_i| ≤ `gain_rest_rad_s` bounds the unsettled part a|p − u| ≤ τ_hi·gain_rest_rad_s (3e-4 rad at
 0.1 s and 3e-3 rad/s, within Δ = 1.5e-3 rad).
 
-Command delay (not an interval here: `command_delay_s` is one number). The predictor puts x̂ at t_a = t + δ; a
-true delay δ' ≠ δ switches at t' = t + δ' instead, from the state u_prev has carried there. Under u_prev
-(certified) V_prev = W_{u_prev} + plate energy does not grow, and W_u − W_{u_prev} is affine in (q, p):
-(q_{u'} − q_u)ᵀKq + ½(|q_u|²_K − |q_{u'}|²_K) + ½Σβ((p − u)² − (p − u')²). Over the ellipsoid
-½|q − q_{u'}|²_K ≤ V_prev its maximum gives W_u(x(t')) ≤ (√V_prev + |q_u − q_{u'}|_K/√2)² + the lag terms for
-every t' after t + δ_lo: a margin that holds for any delay but charges every step √(2V_prev)|Δq_u|_K, large at the
-plate where V_prev holds the arm's elastic energy against it; not built. Within the predictor's own span
-(δ' − δ ≈ ±0.03 s at the camera rate) the state's change is the prediction error that κ covers.
+Command delay (`command_delay_lo_s` ≤ `command_delay_hi_s`, s; `command_delay_spacing_s`; default None: δ alone). A
+command issued at t acts at the valves from t + δ', one true delay δ' ∈ [δ_lo, δ_hi] for every command of a run; the
+governor records its commands at t + δ (δ: `command_delay_s` or the context's). A constant delay keeps the commands
+in the order issued, so u_prev (the governor's previous command) is the one u replaces whatever δ' is.
+Time shift. Let s = δ' − δ (s) and y(τ) = x(τ + s) (x: the true state, (2N,) rad and rad/s, with p (N,) hPa). The
+model is time-invariant (M, C, D, K, Λ, τ_p do not depend on t), so y is the model's trajectory under the commands
+at their RECORDED times t_j + δ, and the estimate captured at t_c is y(t_c − s). u then acts from y(t_a),
+t_a = t + δ: the predictor's prediction from t_c − s (not t_c) to t_a through the same records
+(`StatePredictor.predict`, exact under the model, as for δ alone). So a delay δ' is an estimate whose capture
+time is off by s, and the certificate holds for δ' exactly when it holds at that prediction; the chain argument
+(each command certified at the state it acts from; W_u does not grow while u is held) then keeps the tip in P
+under every delay for which every command was certified.
+Covering set. The certificate is evaluated at the delays D = `delay_states(δ_lo, δ_hi, h)`: both ends and equally
+spaced ones at most h = `command_delay_spacing_s` apart (0.01 s: {0, 0.01, 0.02} s for 0–20 ms; at most
+`MAX_DELAY_STATES`), one prediction x̂_d (N,) per d, one row of `energy_kernels.govern_rows` per d. A command is
+certified when it is certified at every x̂_d (margin min_d (Γ_d − W_d) ≥ ε); the held one keeps its hysteresis at
+every x̂_d (`steps.combine`: the target if every row is free; else each row's end point, nearest the target
+first, checked at every row; else u_prev if every row holds it; else the recovery at the row whose held margin is
+least). Why D covers the interval: a delay δ' inside lies within h/2 of some d ∈ D, and x̂_{δ'} differs from x̂_d by
+the state's motion over an estimate time off by ≤ h/2 (the arm's speed × h/2): an estimate error, the kind κ and
+ε are there for (as the predictor's own span, ≈ ±0.03 s at the camera rate). That is an assumption, not a proof:
+the margin is neither monotone nor concave in δ' in general (the switch state runs along a trajectory that swings),
+so no finite set of delays proves the interior; the brute force checks random interior delays
+(tests/test_command_delay.py: a swinging arm, exact state, κ = 0, holds at 0, 0.1 s and interior delays where δ
+alone, at either end, leaves P: ρ −0.70). A sound bound exists but was not built: under u_prev (certified)
+V_prev = W_{u_prev} + plate energy does not grow, and W_u − W_{u_prev} is affine in (q, p), so over the sublevel set
+½|q − q_{u'}|²_K ≤ V_prev, W_u ≤ (√V_prev + |q_u − q_{u'}|_K/√2)² + the lag terms at any switch time; it charges every
+step √(2V_prev)|Δq_u|_K, large at the plate where V_prev holds the arm's elastic energy against it, and with
+δ_hi − δ_lo beyond the control period several commands are in flight, so the bound compounds over them.
+Zero width at δ (δ_lo = δ_hi = δ): D = {δ}, s = 0, the call is the single-delay call bit for bit. Assumptions added:
+δ' is constant over a run (jitter, a δ' varying from command to command, is not covered beyond κ); the gain
+feedback's and the valve-lag interval's records use δ. Cost: one prediction and one kernel row per delay of D, and
+where the rows disagree a few certificate evaluations per candidate (docs/results.md).
 
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
@@ -161,12 +186,12 @@ hysteresis that keeps integration round-off from reading as a violation.
 Assumptions of the guarantee (tip in P at all times): the model is the plant (M, C, K,
 D, Λ, τ_p, the PCC kinematics, P and ψ within [lo, hi]); the estimate and the predictor
 are accurate to within the κ-inflation; the commands this governor returns are applied
-unchanged from t + δ and held until the next one acts (no clipping, no other source);
+unchanged from t + δ (t + δ' for a delay δ' of the delay interval) and held until the next one acts (no clipping, no other source);
 the valves start vented (p = 0) at `reset`; Γ̲ ≤ Γ (by construction); the arm starts
 certified (e.g. at rest with its rest shape in P). The intervals above relax "the model is the plant" to: an
-actuator gain, arm stiffness, arm damping (from below), valve lag, plate stiffness and plate offset each within
-its interval (each at the model's value by default). Where it can fail: a wrong model outside those intervals
-(or a turned plate, per-segment errors, a command delay other than δ beyond what κ covers) is not covered, and a
+actuator gain, arm stiffness, arm damping (from below), valve lag, command delay, plate stiffness and plate offset
+each within its interval (each at the model's value by default). Where it can fail: a wrong model outside those intervals
+(or a turned plate, per-segment errors, a command delay outside its interval beyond what κ covers) is not covered, and a
 state far from the estimate is not caught until the next estimate shows it; the recovery then has no
 guarantee.
 

@@ -11,9 +11,9 @@ a float becomes one), then the rules between fields. What needs the filter's con
 time constant, the table's size, ε against the table) is checked when the model is built
 (`controllers.energy_governor.certificate.GovernorModel.build`).
 
-Computational bounds: command_delay_s ≤ MAX_COMMAND_DELAY_S keeps a prediction within the horizon
+Computational bounds: command_delay_s (and its interval's ends) ≤ MAX_COMMAND_DELAY_S keeps a prediction within the horizon
 (δ = 100 s took 2 s per call: 10⁵ integration steps); predictor_step_s ≥ 1e-4 s caps a prediction at
-PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's table ≤ MAX_TABLE_COMMANDS commands
+PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; a delay interval's covering set ≤ MAX_DELAY_STATES delays (each one prediction); grid_hPa's table ≤ MAX_TABLE_COMMANDS commands
 (1e-6 hPa asked for 639 PiB). Physical ones: κ ≥ 0 (an inflation; ≤ 1000: beyond, it is no estimate error),
 ε ≥ 0 and below the table's saturation ½ k_min reach² (`EscapeEnergyTable.saturation_J`, 0.72 J on the
 reference arm: a larger ε certifies no step at all), the stiffness ratios

@@ -24,7 +24,8 @@ Each call (estimate captured at t_c, called at t, the command acting from t_a = 
    camera timing, u_nom = 150 sin(2πt/T) hPa on both segments: longest time held beyond a
    retreating u_nom 0.4 s / 0.1 s (T = 8 s / 20 s), ρ_min 0.35; with 1 mm: 0.7 s / 0.8 s,
    ρ_min 0.16 / 0.13 (tools/bench_governors.py prints the figures).
-2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c through the commands this
+2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c (with a command delay interval: from
+   t_c − (d − δ) for each delay d of its covering set, `combine` in step 3) through the commands this
    governor issued and the pressure lag (`controllers.state_predictor`; contact-aware:
    with the model's plate pushing back); without it the
    certificate is evaluated at a state up to 0.2 s old (docs/beyond-the-paper.md#filters-beyond-the-paper: the governor then froze
