@@ -94,7 +94,7 @@ class GovernorParams:
                                                 optional=True)
     command_delay_spacing_s: float = declared(0.01, "largest spacing of the delays the certificate is evaluated at "
                                               "over [command_delay_lo_s, command_delay_hi_s] (its ends always; at most "
-                                              "MAX_DELAY_STATES delays)", "s",
+                                              f"{MAX_DELAY_STATES} delays, each one prediction per call)", "s",
                                               bound=Bound(1e-3, MAX_COMMAND_DELAY_S, unit="s"))
     actuator_tau_s: float | None = declared(None, "valve pressure time constant τ_p (None: the context's, unknown = 0)",
                                             "s", bound=Bound(0.0, 10.0, unit="s"), optional=True)
