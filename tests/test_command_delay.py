@@ -145,3 +145,24 @@ def test_the_box_states_the_delay_interval_once():
     assert gov.model.delay_shifts == (0.0, 0.01, 0.02)
     with pytest.raises(ValueError, match="command_delay_hi_s is set by box"):
         ContactEnergyGovernor.check_arguments({"box": BOX, "command_delay_hi_s": 0.05})
+
+
+def test_batched_rows_are_the_governors_called_in_turn_over_a_delay_interval():
+    """filter_batch with a delay interval: row b is, bit for bit, a governor of its own called alone (the covering
+    rows of every state go through one kernel call)."""
+    from controllers.safety_filter import EstimateBatch
+
+    options = {"command_delay_lo_s": 0.0, "command_delay_hi_s": 0.02, "gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1}
+    ctx = context(ROBOT, period=0.02, tau=0.05)
+    batched = ContactEnergyGovernor(ctx, **options)
+    serial = [ContactEnergyGovernor(ctx, **options) for _ in range(3)]
+    rng = np.random.default_rng(3)
+    for k in range(40):
+        q, qd = rng.uniform(0.0, 0.5, (3, 2)), rng.uniform(-1.0, 1.0, (3, 2))
+        u_nom = rng.uniform(0.0, 300.0, (3, 2))
+        t = np.full(3, 0.02 * k)
+        out = batched.filter_batch(EstimateBatch(t, q, qd, t), u_nom)
+        for b, gov in enumerate(serial):
+            alone = gov(Estimate(t[b], q[b], qd[b], t[b]), u_nom[b])
+            np.testing.assert_array_equal(out.u[b], alone.u)
+            assert out.action[b] == alone.action
