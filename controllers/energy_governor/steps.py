@@ -251,13 +251,21 @@ def combine(model: GovernorModel, rows: list[GovernorCall], outputs: tuple) -> t
     terms = certificate_rows(rows)
     plate = rows[0].plate
     moved = [r for r in range(len(rows)) if codes[r] in (energy_kernels.FREE, energy_kernels.GOVERNED)]
-    for r in sorted(moved, key=lambda r: float(np.sum((u_rows[r] - target) ** 2))):
-        found = [model.row_terms(u_rows[r], terms, b, plate) for b in range(len(rows))]
-        margins = [gamma - inflation * w for gamma, w in found]
-        binding = int(np.argmin(margins))
-        if margins[binding] >= eps:
+    distance = {r: float(np.sum((u_rows[r] - target) ** 2)) for r in moved}
+    order = sorted(range(len(rows)), key=lambda b: -distance.get(b, math.inf))  # the most restrictive rows first
+    for r in sorted(moved, key=distance.get):
+        binding, least = r, (gammas[r], ws[r])  # row r certified its own end point (govern_rows)
+        for b in order:
+            if b == r:
+                continue
+            gamma, w = model.row_terms(u_rows[r], terms, b, plate)
+            if gamma - inflation * w < least[0] - inflation * least[1]:
+                binding, least = b, (gamma, w)
+                if gamma - inflation * w < eps:
+                    break
+        if least[0] - inflation * least[1] >= eps:
             code = energy_kernels.FREE if np.array_equal(u_rows[r], target) else energy_kernels.GOVERNED
-            return single(u_rows[r], code, *found[binding], binding)
+            return single(u_rows[r], code, *least, binding)
     if held[worst_held] > 0.0:
         return single(rows[0].u_prev, energy_kernels.HOLD, *model.row_terms(rows[0].u_prev, terms, worst_held, plate),
                       worst_held)
