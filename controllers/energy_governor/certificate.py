@@ -153,7 +153,7 @@ under every delay for which every command was certified.
 Covering set. The certificate is evaluated at the delays D = `delay_states(δ_lo, δ_hi, h)`: both ends and equally
 spaced ones at most h = `command_delay_spacing_s` apart (0.01 s: {0, 0.01, 0.02} s for 0–20 ms; at most
 `MAX_DELAY_STATES`), one prediction x̂_d (N,) per d, one row of `energy_kernels.govern_rows` per d. A command is
-certified when it is certified at every x̂_d (margin min_d (Γ_d − W_d) ≥ ε); the held one keeps its hysteresis at
+certified when it is certified at every x̂_d (margin min_d (Γ_d − ιW_d) ≥ ε); the held one keeps its hysteresis at
 every x̂_d (`steps.combine`: the target if every row is free; else each row's end point, nearest the target
 first, checked at every row; else u_prev if every row holds it; else the recovery at the row whose held margin is
 least). Why D covers the interval: a delay δ' inside lies within h/2 of some d ∈ D, and x̂_{δ'} differs from x̂_d by
@@ -161,8 +161,8 @@ the state's motion over an estimate time off by ≤ h/2 (the arm's speed × h/2)
 ε are there for (as the predictor's own span, ≈ ±0.03 s at the camera rate). That is an assumption, not a proof:
 the margin is neither monotone nor concave in δ' in general (the switch state runs along a trajectory that swings),
 so no finite set of delays proves the interior; the brute force checks random interior delays
-(tests/test_command_delay.py: a swinging arm, exact state, κ = 0, holds at 0, 0.1 s and interior delays where δ
-alone, at either end, leaves P: ρ −0.70). A sound bound exists but was not built: under u_prev (certified)
+(tests/test_command_delay.py: a swinging arm, exact state, κ = 0: [0, 0.1] s holds at 0, 0.1 s and interior
+delays, where δ = 0.1 s alone leaves P with the commands acting at once: ρ −0.70). A sound bound exists but was not built: under u_prev (certified)
 V_prev = W_{u_prev} + plate energy does not grow, and W_u − W_{u_prev} is affine in (q, p), so over the sublevel set
 ½|q − q_{u'}|²_K ≤ V_prev, W_u ≤ (√V_prev + |q_u − q_{u'}|_K/√2)² + the lag terms at any switch time; it charges every
 step √(2V_prev)|Δq_u|_K, large at the plate where V_prev holds the arm's elastic energy against it, and with
