@@ -20,6 +20,8 @@ the table build time is separate (build_s).
 checked) and takes each call's least time over the R runs: on a loaded machine the scheduler and other
 processes add milliseconds to a few calls, which in a camera case of 40–300 calls is the p99; the least
 over repeats keeps what the call itself costs (CPU time counts a preempted virtual CPU's stolen time too).
+Filters (--filters): qsg, e-erg, c-erg, c-erg-recommended, c-erg-learn-plate (the preset c-erg:learn-plate), and
+"+delay" after a c-erg name: with the command delay interval 0–20 ms (DELAY_INTERVAL).
 Prints one line per case and ends with one JSON line. Usage:
     PYTHONPATH=$PWD python tools/bench_governors.py [--quick] [--filters c-erg] [--repeat 5] [--against /path/to/other/tree]
 --against TREE runs every case a second time, right after this tree's run, in a child process
@@ -50,15 +52,32 @@ from controllers.safe_set import paper_safe_set  # noqa: E402
 from controllers.safety_filter import Estimate, EstimateBatch  # noqa: E402
 from timing import emit  # noqa: E402
 
-FILTER_NAMES = ("qsg", "e-erg", "c-erg", "c-erg-recommended")
+FILTER_NAMES = ("qsg", "e-erg", "c-erg", "c-erg-recommended", "c-erg-recommended+delay", "c-erg-learn-plate",
+                "c-erg-learn-plate+delay")
+DELAY_INTERVAL = {"command_delay_lo_s": 0.0, "command_delay_hi_s": 0.02}
+"""The command delay interval of the "+delay" filters (s): 0–20 ms, a valve bus's (certified at 0, 10 and 20 ms)."""
 PLATE_N_PER_M = 11.16
 """The pushing plate's stiffness (N/m): the model's (paper_safe_set)."""
 
 
 def factory(name: str):
     """The filter class of `name` and its keyword arguments (c-erg: the bench's plate interval; c-erg-recommended:
-    with `energy_governor.RECOMMENDED` too)."""
+    with `energy_governor.RECOMMENDED` too; c-erg-learn-plate: the preset c-erg:learn-plate; "+delay": with the
+    command delay interval DELAY_INTERVAL). LookupError for a filter or parameter the controllers lack (--against
+    an older tree)."""
     from controllers import energy_governor, quasi_static_governor
+
+    if name.endswith("+delay"):
+        if "command_delay_lo_s" not in energy_governor.PARAMETERS:
+            raise LookupError(name)
+        cls, kwargs = factory(name[:-len("+delay")])
+        return cls, {**kwargs, **DELAY_INTERVAL}
+    if name == "c-erg-learn-plate":
+        from controllers.energy_governor import parameters
+
+        if not hasattr(parameters, "LEARN_PLATE_SETTING"):
+            raise LookupError(name)
+        return energy_governor.ContactEnergyGovernor, dict(parameters.LEARN_PLATE_SETTING)
 
     if name == "qsg":
         return quasi_static_governor.QuasiStaticGovernor, {}

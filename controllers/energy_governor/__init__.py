@@ -11,8 +11,8 @@ The parts, one concept per module (each derives its part of the maths):
 - `parameters`: the parameters, one frozen typed declaration (`GovernorParams`; `ContactGovernorParams`, the
   c-erg's defaults), validated once; `RECOMMENDED`, c-erg's recommended setting;
 - `certificate`: the certificate (the energy W_u, the escape energy Γ, the contact certificate, the intervals it
-  certifies of the arm: actuator gain, arm stiffness, damping and valve lag; κ and ε, the guarantee's
-  assumptions) and the immutable `GovernorModel` built from the parameters and the context;
+  certifies of the arm: actuator gain, arm stiffness, damping, valve lag and command delay; κ and ε, the
+  guarantee's assumptions) and the immutable `GovernorModel` built from the parameters and the context;
 - `plate_certificate`: what the certificate reads of a box of plates (`PlateCertificate`: P on the nearest plate,
   Γ̲^∂'s sources, the credits and offsets o_j; the plate's offset interval and a sheet derived there), the prior's
   and a learned one's;

@@ -13,6 +13,11 @@ certificate's intervals (`controllers.energy_governor.certificate`), so a lab st
 | true_stiffness_scale | 1 | arm_stiffness_lo_ratio, arm_stiffness_hi_ratio |
 | true_damping_scale | 1 | damping_lo_ratio (= low: any damping above it is covered) |
 | tau_p | s | actuator_tau_lo_s, actuator_tau_hi_s |
+| command_delay | s | command_delay_lo_s, command_delay_hi_s |
+
+(command_delay, the time from the filter's call to the command acting at the valves, is simulated by no scenario
+yet, so a study that varies it cannot be searched; a box file that states it, e.g. tests/data/delay_box.toml, still
+configures the certificate.)
 
 A name the certificate leaves to its estimate margins (κ and the gain estimate's Δ: `SENSING`, the camera's
 latency, pixel noise and dropped frames) is passed over; any other name is refused (an error the certificate does
@@ -33,7 +38,8 @@ from pathlib import Path
 INTERVALS = {"facet_offset": ("plate_offset_lo_m", "plate_offset_hi_m"),
              "true_gain_scale": ("gain_lo_ratio", "gain_hi_ratio"),
              "true_stiffness_scale": ("arm_stiffness_lo_ratio", "arm_stiffness_hi_ratio"),
-             "tau_p": ("actuator_tau_lo_s", "actuator_tau_hi_s")}
+             "tau_p": ("actuator_tau_lo_s", "actuator_tau_hi_s"),
+             "command_delay": ("command_delay_lo_s", "command_delay_hi_s")}
 """The box's names whose interval [low, high] is a pair of c-erg parameters as it stands (module docstring)."""
 
 SENSING = ("latency", "pixel_noise", "drop_rate", "saved_frames_hz", "seed")

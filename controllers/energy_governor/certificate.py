@@ -138,14 +138,39 @@ sample the arm follows its rest shape quasi-statically (q ≈ a p, first mode �
 the rest test |q̂̇_i| ≤ `gain_rest_rad_s` bounds the unsettled part a|p − u| ≤ τ_hi·gain_rest_rad_s (3e-4 rad at
 0.1 s and 3e-3 rad/s, within Δ = 1.5e-3 rad).
 
-Command delay (not an interval here: `command_delay_s` is one number). The predictor puts x̂ at t_a = t + δ; a
-true delay δ' ≠ δ switches at t' = t + δ' instead, from the state u_prev has carried there. Under u_prev
-(certified) V_prev = W_{u_prev} + plate energy does not grow, and W_u − W_{u_prev} is affine in (q, p):
-(q_{u'} − q_u)ᵀKq + ½(|q_u|²_K − |q_{u'}|²_K) + ½Σβ((p − u)² − (p − u')²). Over the ellipsoid
-½|q − q_{u'}|²_K ≤ V_prev its maximum gives W_u(x(t')) ≤ (√V_prev + |q_u − q_{u'}|_K/√2)² + the lag terms for
-every t' after t + δ_lo: a margin that holds for any delay but charges every step √(2V_prev)|Δq_u|_K, large at the
-plate where V_prev holds the arm's elastic energy against it; not built. Within the predictor's own span
-(δ' − δ ≈ ±0.03 s at the camera rate) the state's change is the prediction error that κ covers.
+Command delay (`command_delay_lo_s` ≤ `command_delay_hi_s`, s; `command_delay_spacing_s`; default None: δ alone). A
+command issued at t acts at the valves from t + δ', one true delay δ' ∈ [δ_lo, δ_hi] for every command of a run; the
+governor records its commands at t + δ (δ: `command_delay_s` or the context's). A constant delay keeps the commands
+in the order issued, so u_prev (the governor's previous command) is the one u replaces whatever δ' is.
+Time shift. Let s = δ' − δ (s) and y(τ) = x(τ + s) (x: the true state, (2N,) rad and rad/s, with p (N,) hPa). The
+model is time-invariant (M, C, D, K, Λ, τ_p do not depend on t), so y is the model's trajectory under the commands
+at their RECORDED times t_j + δ, and the estimate captured at t_c is y(t_c − s). u then acts from y(t_a),
+t_a = t + δ: the predictor's prediction from t_c − s (not t_c) to t_a through the same records
+(`StatePredictor.predict`, exact under the model, as for δ alone). So a delay δ' is an estimate whose capture
+time is off by s, and the certificate holds for δ' exactly when it holds at that prediction; the chain argument
+(each command certified at the state it acts from; W_u does not grow while u is held) then keeps the tip in P
+under every delay for which every command was certified.
+Covering set. The certificate is evaluated at the delays D = `delay_states(δ_lo, δ_hi, h)`: both ends and equally
+spaced ones at most h = `command_delay_spacing_s` apart (0.01 s: {0, 0.01, 0.02} s for 0–20 ms; at most
+`MAX_DELAY_STATES`), one prediction x̂_d (N,) per d, one row of `energy_kernels.govern_rows` per d. A command is
+certified when it is certified at every x̂_d (margin min_d (Γ_d − ιW_d) ≥ ε); the held one keeps its hysteresis at
+every x̂_d (`steps.combine`: the target if every row is free; else each row's end point, nearest the target
+first, checked at every row; else u_prev if every row holds it; else the recovery at the row whose held margin is
+least). Why D covers the interval: a delay δ' inside lies within h/2 of some d ∈ D, and x̂_{δ'} differs from x̂_d by
+the state's motion over an estimate time off by ≤ h/2 (the arm's speed × h/2): an estimate error, the kind κ and
+ε are there for (as the predictor's own span, ≈ ±0.03 s at the camera rate). That is an assumption, not a proof:
+the margin is neither monotone nor concave in δ' in general (the switch state runs along a trajectory that swings),
+so no finite set of delays proves the interior; the brute force checks random interior delays
+(tests/test_command_delay.py: a swinging arm, exact state, κ = 0: [0, 0.1] s holds at 0, 0.1 s and interior
+delays, where δ = 0.1 s alone leaves P with the commands acting at once: ρ −0.70). A sound bound exists but was not built: under u_prev (certified)
+V_prev = W_{u_prev} + plate energy does not grow, and W_u − W_{u_prev} is affine in (q, p), so over the sublevel set
+½|q − q_{u'}|²_K ≤ V_prev, W_u ≤ (√V_prev + |q_u − q_{u'}|_K/√2)² + the lag terms at any switch time; it charges every
+step √(2V_prev)|Δq_u|_K, large at the plate where V_prev holds the arm's elastic energy against it, and with
+δ_hi − δ_lo beyond the control period several commands are in flight, so the bound compounds over them.
+Zero width at δ (δ_lo = δ_hi = δ): D = {δ}, s = 0, the call is the single-delay call bit for bit. Assumptions added:
+δ' is constant over a run (jitter, a δ' varying from command to command, is not covered beyond κ); the gain
+feedback's and the valve-lag interval's records use δ. Cost: one prediction and one kernel row per delay of D, and
+where the rows disagree a few certificate evaluations per candidate (docs/results.md).
 
 κ (`kappa`, default 0.5) inflates the whole energy (the parked certificate) against estimate and prediction
 errors (the velocity from finite differences above all); ε (`energy_margin_J`, J) is
@@ -161,12 +186,12 @@ hysteresis that keeps integration round-off from reading as a violation.
 Assumptions of the guarantee (tip in P at all times): the model is the plant (M, C, K,
 D, Λ, τ_p, the PCC kinematics, P and ψ within [lo, hi]); the estimate and the predictor
 are accurate to within the κ-inflation; the commands this governor returns are applied
-unchanged from t + δ and held until the next one acts (no clipping, no other source);
+unchanged from t + δ (t + δ' for a delay δ' of the delay interval) and held until the next one acts (no clipping, no other source);
 the valves start vented (p = 0) at `reset`; Γ̲ ≤ Γ (by construction); the arm starts
 certified (e.g. at rest with its rest shape in P). The intervals above relax "the model is the plant" to: an
-actuator gain, arm stiffness, arm damping (from below), valve lag, plate stiffness and plate offset each within
-its interval (each at the model's value by default). Where it can fail: a wrong model outside those intervals
-(or a turned plate, per-segment errors, a command delay other than δ beyond what κ covers) is not covered, and a
+actuator gain, arm stiffness, arm damping (from below), valve lag, command delay, plate stiffness and plate offset
+each within its interval (each at the model's value by default). Where it can fail: a wrong model outside those intervals
+(or a turned plate, per-segment errors, a command delay outside its interval beyond what κ covers) is not covered, and a
 state far from the estimate is not caught until the next estimate shows it; the recovery then has no
 guarantee.
 
@@ -180,7 +205,7 @@ import numpy as np
 
 from controllers.dynamics import PCCDynamics
 from controllers.escape_energy import MAX_SEGMENTS, EscapeEnergyTable, lower_bounds
-from controllers.energy_governor.parameters import PARAMETERS, PREDICTION_HORIZON_S, GovernorParams
+from controllers.energy_governor.parameters import PARAMETERS, PREDICTION_HORIZON_S, GovernorParams, delay_states
 from controllers.energy_governor.plate_certificate import (BOUND_BELOW_J, PlateCertificate, cantilever_stiffness_ratios,
                                                            nearest_environment, prior_plate, rest_shape_inside, tip_of)
 from controllers.gain_estimate import GainEstimator
@@ -267,8 +292,9 @@ class GovernorCall:
     stale, the predicted q̂ (N,) rad and p̂ (N,) hPa, the certificate's base energy (J: (1 + κ)·½q̂̇ᵀMq̂̇
     for the contact certificate, the state's energy for the parked one), the rows' offsets o_j (J), whether
     x̂ lies strictly inside P, the tip's ρ, the inflation ι of W, the ends' rest-shape ratios and stiffness scales
-    and their energy terms (E, 3, N), p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone), and the
-    plate certificate the call is certified on (the state's)."""
+    and their energy terms (E, 3, N), p̄ (N,) hPa, the other end of the pressure's interval (None: p̂ alone), the
+    plate certificate the call is certified on (the state's), and `covers`: the same call at the other delays of a
+    command delay interval (module docstring, "command delay"; empty without one)."""
 
     t_capture: float
     t_apply: float
@@ -288,6 +314,7 @@ class GovernorCall:
     scales: tuple = ()
     p_far: np.ndarray | None = None
     plate: PlateCertificate | None = None
+    covers: list = field(default_factory=list)
 
 
 def certificate_rows(calls: list[GovernorCall]) -> tuple:
@@ -326,7 +353,9 @@ class GovernorModel:
     one); plate_weight: hi when contact-aware, else 0; free_plate_energy: its term at n = 0 (J); box: the pressure
     box or None; rest: 0 hPa clipped to it; gain_prior: the certified interval of the rest-shape ratio r = g/c
     before any estimate ([g_lo/c_hi, g_hi/c_lo]); gain_box, stiffness_box: the actuator gain's and the arm
-    stiffness's intervals (1); lag_taus: (τ_lo, τ_hi) of the pressure's interval (s), None without one."""
+    stiffness's intervals (1); lag_taus: (τ_lo, τ_hi) of the pressure's interval (s), None without one;
+    delay_shifts: s = δ' − δ (s) for each delay δ' the certificate is evaluated at (`delay_states`; (0.0,) without a
+    command delay interval, or with one of zero width at δ)."""
 
     params: GovernorParams
     context: FilterContext
@@ -349,6 +378,7 @@ class GovernorModel:
     gain_box: tuple
     stiffness_box: tuple
     lag_taus: tuple | None
+    delay_shifts: tuple
 
     @classmethod
     def build(cls, params: GovernorParams, context: FilterContext) -> "GovernorModel":
@@ -367,6 +397,11 @@ class GovernorModel:
         if params.plate_estimate and not isinstance(law, LinearStiffness):
             raise ValueError(f"plate_estimate needs a linear plate law ψ(n) = k n (LinearStiffness), got "
                              f"{type(law).__name__}")
+        delays = tuple(delay if d is None else float(d) for d in (params.command_delay_lo_s, params.command_delay_hi_s))
+        if delays[0] > delays[1]:
+            raise ValueError(f"command_delay_lo_s must be <= command_delay_hi_s = {delays[1]!r} (None: the assumed "
+                             f"delay {delay!r} s), got {delays[0]!r}")
+        delay_shifts = tuple(d - delay for d in delay_states(*delays, params.command_delay_spacing_s))
         robot, contact = context.robot, params.contact
         n = robot.n_segments
         taus = (params.actuator_tau_lo_s, params.actuator_tau_hi_s)
@@ -393,7 +428,8 @@ class GovernorModel:
                    gain_prior=(params.gain_lo_ratio / params.arm_stiffness_hi_ratio,
                                params.gain_hi_ratio / params.arm_stiffness_lo_ratio),
                    gain_box=(params.gain_lo_ratio, params.gain_hi_ratio),
-                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio), lag_taus=lag_taus)
+                   stiffness_box=(params.arm_stiffness_lo_ratio, params.arm_stiffness_hi_ratio), lag_taus=lag_taus,
+                   delay_shifts=delay_shifts)
 
     # -- the prior plate's parts (`plate`) ----------------------------------------------------------------
     @property
@@ -472,9 +508,14 @@ class GovernorModel:
     def certificate_terms(self, u, call: GovernorCall, plate: PlateCertificate) -> tuple[float, float]:
         """(Γ, W) (J) of the command u (N,) hPa at the call's state x̂ on `plate`: the gain end with the least Γ − W,
         Γ = min_j (Γ̲_j(g·u) + o_j) (−inf outside P), W at g (module docstring; `energy_kernels.certificate_terms`)."""
-        rows = len(call.offsets)
-        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), 0, *certificate_rows([call]),
-                                                    *plate.lookup, np.empty(self.n), np.empty(rows), np.empty(rows))
+        return self.row_terms(u, certificate_rows([call]), 0, plate)
+
+    def row_terms(self, u, rows: tuple, b: int, plate: PlateCertificate) -> tuple[float, float]:
+        """(Γ, W) (J) of the command u (N,) hPa at row b of `rows` (`certificate_rows` of calls on `plate`), as
+        `certificate_terms` gives them for that row's call."""
+        count = rows[8].shape[1]  # the offsets' rows P'
+        gamma, w = energy_kernels.certificate_terms(np.asarray(u, dtype=float), b, *rows, *plate.lookup,
+                                                    np.empty(self.n), np.empty(count), np.empty(count))
         return float(gamma), float(w)
 
     def tip(self, q) -> tuple[float, float]:

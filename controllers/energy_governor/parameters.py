@@ -11,9 +11,9 @@ a float becomes one), then the rules between fields. What needs the filter's con
 time constant, the table's size, ε against the table) is checked when the model is built
 (`controllers.energy_governor.certificate.GovernorModel.build`).
 
-Computational bounds: command_delay_s ≤ MAX_COMMAND_DELAY_S keeps a prediction within the horizon
+Computational bounds: command_delay_s (and its interval's ends) ≤ MAX_COMMAND_DELAY_S keeps a prediction within the horizon
 (δ = 100 s took 2 s per call: 10⁵ integration steps); predictor_step_s ≥ 1e-4 s caps a prediction at
-PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; grid_hPa's table ≤ MAX_TABLE_COMMANDS commands
+PREDICTION_HORIZON_S/1e-4 = 2·10⁴ steps; bisection_steps ≤ 52; a delay interval's covering set ≤ MAX_DELAY_STATES delays (each one prediction); grid_hPa's table ≤ MAX_TABLE_COMMANDS commands
 (1e-6 hPa asked for 639 PiB). Physical ones: κ ≥ 0 (an inflation; ≤ 1000: beyond, it is no estimate error),
 ε ≥ 0 and below the table's saturation ½ k_min reach² (`EscapeEnergyTable.saturation_J`, 0.72 J on the
 reference arm: a larger ε certifies no step at all), the stiffness ratios
@@ -26,6 +26,7 @@ a rest window ≤ 10 s and its risk in [1e-9, 0.5] (below 1e-9 the t tail's roun
 from __future__ import annotations
 
 import inspect
+import math
 from dataclasses import dataclass, field, fields
 
 from controllers.bounds import Bound
@@ -48,6 +49,10 @@ GAIN_RATIOS = Bound(0.1, 10.0)
 
 PLATE_OFFSETS = Bound(-0.05, 0.05, unit="m")
 """Valid plate offsets (m) along a facet's outward normal: within 5 cm of the model's plate (beyond, no model)."""
+
+MAX_DELAY_STATES = 11
+"""Most delays the certificate is evaluated at per call over a command delay interval (each one prediction and one
+certificate row: the call's cost grows with them)."""
 
 CERTIFICATES = ("park", "contact")
 """The `certificate` values (the parked target, and the contact certificate: `controllers.energy_governor.certificate`)."""
@@ -79,6 +84,18 @@ class GovernorParams:
     command_delay_s: float | None = declared(None, "call → command acting at the valves (None: the context's, "
                                              "unknown = 0)", "s", bound=Bound(0.0, MAX_COMMAND_DELAY_S, unit="s"),
                                              optional=True)
+    command_delay_lo_s: float | None = declared(None, "shortest true command delay (<= command_delay_hi_s; None: "
+                                                "command_delay_s): the command is certified at the state it acts from "
+                                                "for every delay in [lo, hi] (controllers.energy_governor.certificate, "
+                                                "\"command delay\")", "s", bound=Bound(0.0, MAX_COMMAND_DELAY_S, unit="s"),
+                                                optional=True)
+    command_delay_hi_s: float | None = declared(None, "longest true command delay (>= command_delay_lo_s; None: "
+                                                "command_delay_s)", "s", bound=Bound(0.0, MAX_COMMAND_DELAY_S, unit="s"),
+                                                optional=True)
+    command_delay_spacing_s: float = declared(0.01, "largest spacing of the delays the certificate is evaluated at "
+                                              "over [command_delay_lo_s, command_delay_hi_s] (its ends always; at most "
+                                              f"{MAX_DELAY_STATES} delays, each one prediction per call)", "s",
+                                              bound=Bound(1e-3, MAX_COMMAND_DELAY_S, unit="s"))
     actuator_tau_s: float | None = declared(None, "valve pressure time constant τ_p (None: the context's, unknown = 0)",
                                             "s", bound=Bound(0.0, 10.0, unit="s"), optional=True)
     grid_hPa: float = declared(2.5, "command spacing of the escape-energy table; at most "
@@ -213,6 +230,13 @@ class GovernorParams:
                 raise ValueError(f"actuator_tau_lo_s and actuator_tau_hi_s need certificate='contact', got {list(taus)}")
             if None not in taus and taus[0] > taus[1]:
                 raise ValueError(f"actuator_tau_lo_s must be <= actuator_tau_hi_s = {taus[1]!r}, got {taus[0]!r}")
+        delays = (self.command_delay_lo_s, self.command_delay_hi_s)
+        if None not in delays and delays[0] > delays[1]:
+            raise ValueError(f"command_delay_lo_s must be <= command_delay_hi_s = {delays[1]!r}, got {delays[0]!r}")
+        if None not in delays and len(delay_states(*delays, self.command_delay_spacing_s)) > MAX_DELAY_STATES:
+            raise ValueError(f"command_delay_spacing_s must be >= (command_delay_hi_s - command_delay_lo_s)/"
+                             f"{MAX_DELAY_STATES - 1} = {(delays[1] - delays[0]) / (MAX_DELAY_STATES - 1):.6g} s (at most "
+                             f"{MAX_DELAY_STATES} delays per call), got {self.command_delay_spacing_s!r}")
         if self.gain_difference_s > 0.0 and (self.arm_stiffness_lo_ratio, self.arm_stiffness_hi_ratio,
                                              self.damping_lo_ratio) != (1.0, 1.0, 1.0):
             raise ValueError(f"gain_difference_s must be 0 with an arm stiffness or damping interval (a moving "
@@ -235,6 +259,16 @@ class GovernorParams:
     def contact(self) -> bool:
         """Whether the contact certificate is in use (`certificate` "contact")."""
         return self.certificate == "contact"
+
+
+def delay_states(lo: float, hi: float, spacing: float) -> tuple[float, ...]:
+    """The delays (s) the certificate is evaluated at over [lo, hi]: both ends and the fewest equally spaced ones
+    between them at most `spacing` apart (lo alone when lo = hi; controllers.energy_governor.certificate,
+    "command delay")."""
+    if lo == hi:
+        return (lo,)
+    intervals = max(1, math.ceil((hi - lo) / spacing - 1e-9))
+    return tuple(lo + (hi - lo) * i / intervals for i in range(intervals)) + (hi,)
 
 
 def contact_default(name: str, default: object):

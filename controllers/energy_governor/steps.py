@@ -24,7 +24,8 @@ Each call (estimate captured at t_c, called at t, the command acting from t_a = 
    camera timing, u_nom = 150 sin(2πt/T) hPa on both segments: longest time held beyond a
    retreating u_nom 0.4 s / 0.1 s (T = 8 s / 20 s), ρ_min 0.35; with 1 mm: 0.7 s / 0.8 s,
    ρ_min 0.16 / 0.13 (tools/bench_governors.py prints the figures).
-2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c through the commands this
+2. prediction: x̂ = (q̂, q̂̇, p̂) at t_a from the estimate at t_c (with a command delay interval: from
+   t_c − (d − δ) for each delay d of its covering set, `combine` in step 3) through the commands this
    governor issued and the pressure lag (`controllers.state_predictor`; contact-aware:
    with the model's plate pushing back); without it the
    certificate is evaluated at a state up to 0.2 s old (docs/beyond-the-paper.md#filters-beyond-the-paper: the governor then froze
@@ -141,13 +142,15 @@ def step_rows(model: GovernorModel, states: list[GovernorState], q, qd, u_nom, t
             groups.setdefault(id(call.plate), []).append(b)
     found = {}
     for rows in groups.values():
-        outputs = govern(model, [calls[b] for b in rows])
-        found.update({b: (outputs, k) for k, b in enumerate(rows)})
+        found.update(zip(rows, govern(model, [calls[b] for b in rows])))
     out = []
     for b, (state, call) in enumerate(zip(states, calls)):
         start = time.perf_counter() if t0 is None else t0
-        out.append(finish(model, state, call.u_prev, "stale", True, math.nan, {}, call.t_apply, call.t_capture, start)
-                   if call.stale else conclude(model, state, call, *found[b], start))
+        if call.stale:
+            out.append(finish(model, state, call.u_prev, "stale", True, math.nan, {}, call.t_apply, call.t_capture, start))
+        else:
+            outputs, k, binding = found[b]
+            out.append(conclude(model, state, binding, outputs, k, start))
     return out
 
 
@@ -172,13 +175,25 @@ def prepare(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: np.nd
     target = nominal if model.contact else state.target_governor.command(u_nom)
     predictor = state.predictor
     call = GovernorCall(t_capture, t_apply, predictor.command_at(t_apply), target, nominal)
-    if not predictor.can_predict(t_capture, t_apply):
+    starts = [t_capture - shift for shift in model.delay_shifts]  # the estimate's time in each delay's frame
+    if not all(predictor.can_predict(start, t_apply) for start in starts):
         call.stale = True
         return call
     if state.gain_estimator is not None:
         update_gain(model, state, q, qd, t_capture)
     call.plate = state.plate
-    q_hat, qd_hat, p_hat = predictor.predict(t_capture, q, qd, t_apply)
+    certify_at(model, state, call, predictor.predict(starts[0], q, qd, t_apply))
+    for start in starts[1:]:  # a command delay interval: the same call at its other delays
+        cover = GovernorCall(t_capture, t_apply, call.u_prev, target, nominal, plate=state.plate)
+        certify_at(model, state, cover, predictor.predict(start, q, qd, t_apply))
+        call.covers.append(cover)
+    return call
+
+
+def certify_at(model: GovernorModel, state: GovernorState, call: GovernorCall, predicted: tuple) -> None:
+    """The certificate's state of `call` at the predicted x̂ = (q̂, q̂̇, p̂) (rad, rad/s, hPa): the base energy,
+    the rows' offsets, whether x̂ lies inside P, ρ, the gain ends and the pressure's interval (`prepare`)."""
+    q_hat, qd_hat, p_hat = predicted
     kappa = model.params.kappa
     if model.contact:
         offsets, inside, rho = model.contact_offsets(q_hat, state.plate)
@@ -190,18 +205,69 @@ def prepare(model: GovernorModel, state: GovernorState, q: np.ndarray, qd: np.nd
     call.q_hat, call.p_hat, call.base, call.offsets, call.inside, call.rho = q_hat, p_hat, base, offsets, inside, rho
     call.inflation, call.gains, call.terms, call.scales = inflation, state.ends.gains, state.ends.terms, state.ends.scales
     if state.pressures is not None:  # the valve lag's interval: the pressure's hull with the model's p̂
-        lowest, highest = state.pressures.at(t_apply)
+        lowest, highest = state.pressures.at(call.t_apply)
         call.p_hat, call.p_far = np.minimum(p_hat, lowest), np.maximum(p_hat, highest)
-    return call
 
 
-def govern(model: GovernorModel, calls: list[GovernorCall]) -> tuple:
-    """Step 3 for the calls on one plate certificate (module docstring), row b the call calls[b]:
-    `energy_kernels.govern_rows`."""
-    return energy_kernels.govern_rows(
-        np.array([c.u_prev for c in calls]), np.array([c.target for c in calls]), model.rest,
-        np.array([c.nominal for c in calls]), 2 if model.contact else 3, *certificate_rows(calls),
-        calls[0].inflation, model.params.energy_margin_J, model.params.bisection_steps, *calls[0].plate.lookup)
+def govern(model: GovernorModel, calls: list[GovernorCall]) -> list[tuple]:
+    """Step 3 for the calls on one plate certificate (module docstring): one row of `energy_kernels.govern_rows`
+    per call and delay (the call and its `covers`); per call (outputs, k, binding): `govern_rows`' outputs, the
+    call's row k in them and the call that row certifies (the call itself; with covers, `combine`'s)."""
+    rows = [row for call in calls for row in (call, *call.covers)]
+    outputs = energy_kernels.govern_rows(
+        np.array([c.u_prev for c in rows]), np.array([c.target for c in rows]), model.rest,
+        np.array([c.nominal for c in rows]), 2 if model.contact else 3, *certificate_rows(rows),
+        rows[0].inflation, model.params.energy_margin_J, model.params.bisection_steps, *rows[0].plate.lookup)
+    found, first = [], 0
+    for call in calls:
+        covered = [call, *call.covers]
+        found.append((outputs, first, call) if len(covered) == 1 else
+                     combine(model, covered, tuple(o[first:first + len(covered)] for o in outputs)))
+        first += len(covered)
+    return found
+
+
+def combine(model: GovernorModel, rows: list[GovernorCall], outputs: tuple) -> tuple:
+    """Step 3 over a command delay interval (`controllers.energy_governor.certificate`, "command delay"): from
+    `govern_rows`' outputs for one call at each of its delays (row r: rows[r]), the command certified at every
+    delay: the target where every row is free; else the rows' end points, nearest the target first, the first
+    certified at every row; else u_prev where every row holds it; else recovery. Returns (outputs, 0, binding):
+    one row of outputs as `govern_rows` gives them (σ the least over the rows) and the row whose certificate binds
+    (the least margin of the command; for recovery, of the held command), whose call `conclude` uses."""
+    u_rows, codes, sigmas, gammas, ws, held = outputs
+    worst_held = int(np.argmin(held))
+    inflation, eps, target = rows[0].inflation, model.params.energy_margin_J, rows[0].target
+    sigma = float(np.min(sigmas)) if not np.isnan(sigmas).any() else math.nan
+
+    def single(u, code, gamma, w, binding):
+        return ((np.array([u], dtype=float), np.array([code]), np.array([sigma]), np.array([gamma]), np.array([w]),
+                 np.array([held[worst_held]])), 0, rows[binding])
+
+    if np.all(codes == energy_kernels.FREE):
+        binding = int(np.argmin(gammas - inflation * ws))
+        return single(target, energy_kernels.FREE, gammas[binding], ws[binding], binding)
+    terms = certificate_rows(rows)
+    plate = rows[0].plate
+    moved = [r for r in range(len(rows)) if codes[r] in (energy_kernels.FREE, energy_kernels.GOVERNED)]
+    distance = {r: float(np.sum((u_rows[r] - target) ** 2)) for r in moved}
+    order = sorted(range(len(rows)), key=lambda b: -distance.get(b, math.inf))  # the most restrictive rows first
+    for r in sorted(moved, key=distance.get):
+        binding, least = r, (gammas[r], ws[r])  # row r certified its own end point (govern_rows)
+        for b in order:
+            if b == r:
+                continue
+            gamma, w = model.row_terms(u_rows[r], terms, b, plate)
+            if gamma - inflation * w < least[0] - inflation * least[1]:
+                binding, least = b, (gamma, w)
+                if gamma - inflation * w < eps:
+                    break
+        if least[0] - inflation * least[1] >= eps:
+            code = energy_kernels.FREE if np.array_equal(u_rows[r], target) else energy_kernels.GOVERNED
+            return single(u_rows[r], code, *least, binding)
+    if held[worst_held] > 0.0:
+        return single(rows[0].u_prev, energy_kernels.HOLD, *model.row_terms(rows[0].u_prev, terms, worst_held, plate),
+                      worst_held)
+    return single(rows[0].u_prev, energy_kernels.RECOVER, math.nan, math.nan, worst_held)
 
 
 def conclude(model: GovernorModel, state: GovernorState, call: GovernorCall, outputs: tuple, b: int,
