@@ -59,3 +59,17 @@ def test_bad_input_is_one_line(args, message):
     assert done.returncode != 0 and done.stdout == ""
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("study_convergence: ") and message in lines[0]
+
+
+def test_sigterm_reports_the_samples_that_are_complete():
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    with subprocess.Popen([sys.executable, str(TOOL), str(STUDY), *SHORT, "--samples", "1,2,3,4", "--setting",
+                           "physics_dt=5e-4"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                          cwd=ROOT) as child:
+        first = child.stdout.readline()
+        assert first.startswith("sample 1: ")
+        child.terminate()
+        out, err = child.communicate(timeout=120)
+    assert child.returncode == 0, err
+    report = json.loads(out.strip().splitlines()[-1])
+    assert report["samples"][0] == 1 and len(report["samples"]) < 4 and "runs not done" in err

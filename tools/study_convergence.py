@@ -27,7 +27,8 @@ reference ρ_meas lies within the setting's ρ error of 0 is a boundary sample: 
 between the reference and the study's own setting.
 
 Prints each sample's comparison (one line of JSON) when its runs are done, then one table per setting (worst
-figures, their sample) and one per sample, and ends with one JSON line; Ctrl-C reports the complete samples. CPU: one run per sample and setting; run it under `nice -n 10` on a shared machine.
+figures, their sample) and one per sample, and ends with one JSON line; Ctrl-C or SIGTERM (`kill PID`) reports
+the complete samples. CPU: one run per sample and setting; run it under `nice -n 10` on a shared machine.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import json
 import math
 import multiprocessing
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -167,6 +169,8 @@ def main() -> None:
     pending = {pool.submit(run_one, str(args.study), args.set, overrides, i): (label, i)
                for label, overrides, i in jobs}
     runs_per_sample = 1 + len(settings)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # kill PID reports as Ctrl-C does
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # also when started in the background (SIGINT ignored)
     try:
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -177,7 +181,7 @@ def main() -> None:
                     print(f"sample {i}: " + json.dumps({lab: compare(results[(lab, i)], results[("reference", i)])
                                                         for lab in settings}), flush=True)
             progress.update(len(results))
-    except KeyboardInterrupt:  # Ctrl-C: the samples that are complete are reported
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the samples that are complete are reported
         print(f"interrupted: {len(pending)} runs not done; the table holds the complete samples", file=sys.stderr)
     finally:
         pool.shutdown(wait=not pending, cancel_futures=True)
