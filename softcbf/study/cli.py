@@ -151,10 +151,7 @@ def _falsify(args: argparse.Namespace) -> int:
         print(f"falsify {study.name}: best {found} at evaluation "
               f"{best['evaluation']} of {result['evaluations']} ({best['tuning']}; {params}; "
               f"{result['faulted']} faulted); first violation: "
-              f"{result['first_violation'] or 'none'}; uniform baseline: best "
-              + ("a filter fault" if base["fault"] else shown(base["best"]))
-              + f" in {base['evaluations']} ({base['faulted']} faulted), first violation: "
-              f"{base['first_violation'] or 'none'}; folder {args.out}")
+              f"{result['first_violation'] or 'none'}; {baseline_text(base, shown)}; folder {args.out}")
         if args.screen is not None:
             screen = result["screen"]
             print(f"screened on {args.screen}: {screen['evaluations']} evaluations (first violation there: "
@@ -165,6 +162,17 @@ def _falsify(args: argparse.Namespace) -> int:
         print(f"report: {write_report(args.out)}")
 
     return _resumable(body, args.out, "evaluations")
+
+
+def baseline_text(base: dict[str, Any], shown: Any = str) -> str:
+    """The uniform baseline's part of falsify's printed summary (`base`: falsify.json's random_baseline;
+    `shown` formats a figure): "no uniform baseline" when it ran no draw (--baseline 0, a screened search)."""
+    if not base["evaluations"]:
+        return "no uniform baseline"
+    best = "a filter fault" if base["fault"] else ("no value (every draw failed)" if base["best"] is None
+                                                    else shown(base["best"]))
+    return (f"uniform baseline: best {best} in {base['evaluations']} ({base['faulted']} faulted), "
+            f"first violation: {base['first_violation'] or 'none'}")
 
 
 def _falsify_seeds(study: Any, args: argparse.Namespace, bar: Any) -> None:

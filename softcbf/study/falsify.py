@@ -118,7 +118,7 @@ from optuna.trial import TrialState
 
 from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import Sample, Study, draw_generator
-from softcbf.study.execute import run_study
+from softcbf.study.execute import connect_scheduler, run_study
 from softcbf.study.runner import run_sample
 from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part, stored_search
 from softcbf.study.store import SQLITE_FILE, optuna_storage, storage_name
@@ -386,9 +386,7 @@ def falsify(
 
     own_client = None
     if scheduler is not None:
-        from distributed import Client
-
-        client = own_client = Client(scheduler)
+        client = own_client = connect_scheduler(scheduler)
     if batch_size is None:
         n_workers = sum(client.nthreads().values()) if client is not None else (workers or os.cpu_count() or 1)
         batch_size = max(1, math.ceil(population / max(1, n_workers)))

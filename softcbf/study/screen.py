@@ -56,7 +56,7 @@ from typing import Any
 from scenarios import get as get_scenario
 from softcbf.study.analysis import violated
 from softcbf.study.definition import Study
-from softcbf.study.execute import run_study
+from softcbf.study.execute import connect_scheduler, run_study
 from softcbf.study.falsify import (
     SEARCH_DIR, WORST_DIR, Candidate, CandidateStudy, default_population, falsify, objective_value,
     replay_worst, searched_value, stored_rows, summary,
@@ -143,9 +143,7 @@ def falsify_screened(
     ranked = ranked_candidates([screen_rows[i] for i in sorted(screen_rows)], study.objective, study)[:confirm]
     own_client = None
     if scheduler is not None:
-        from distributed import Client
-
-        client = own_client = Client(scheduler)
+        client = own_client = connect_scheduler(scheduler)
     n_workers = sum(client.nthreads().values()) if client is not None else (workers or os.cpu_count() or 1)
     chunk = max(1, n_workers) if stop_on_violation else max(1, len(ranked))
     run = {"workers": workers, "client": client, "batch_size": batch_size or max(1, math.ceil(chunk / n_workers)),
