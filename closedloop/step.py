@@ -57,10 +57,11 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
   its `filter_batch` is called; rows, it keeps a history per row and `filter_batch` is told the
   indices of the rows it is called for (`rows`, (k,) int, ascending); reset_rows, its `reset` is
   told the indices of the rows that restart when only some do (the vector environment's
-  autoreset), so that row b's history is run b's wherever other rows skip a call or restart. A
-  filter that declares nothing is called row by row, whatever methods it has; a nominal likewise
-  declares batched (`nominal_capabilities`, read and checked when the step is built) or is
-  called row by row;
+  autoreset), so that row b's history is run b's wherever other rows skip a call or restart; a
+  shared filter without reset_rows is reset only when every row restarts (a `reset()` would
+  restart the rows that go on). A filter that declares nothing is called row by row, whatever
+  methods it has; a nominal likewise declares batched (`nominal_capabilities`, read and checked
+  when the step is built) or is called row by row;
 - the admission and the monitor's RUN case, one compiled call over the batch axis
   (`closedloop.kernels.admit_and_run`: non-finite rows refused, the clip min(max(u, lo), hi) as
   Python's min and max, RUN for the admitted rows with nothing raised or latched), and every other
@@ -392,11 +393,14 @@ class BatchControlStep:
         """(B,) bool: the row's fault has led to its monitor's vent (`ControlStep.stopped`)."""
         return self.faulted & self.monitor.latched
 
-    def reset(self, rows: np.ndarray | None = None, filters: bool = True) -> None:
+    def reset(self, rows: np.ndarray | None = None) -> None:
         """Before a run of the rows in `rows` ((B,) bool; None: all): no fault, a fresh output check,
-        the monitor's restart and, with `filters`, the filters' `reset()` (a shared filter's once,
-        whose fault is then every row's; `reset(rows=...)` with the restarting rows' indices when it
-        takes them and not every row restarts)."""
+        the monitor's restart and the filters' resets: each restarting row's own
+        filter's `reset()`; a shared filter's `reset()` once when every row restarts (its fault then
+        every row's), `reset(rows=ids)` with the restarting rows' indices when only some do and it
+        declares reset_rows, and nothing when only some do and it does not: its state spans the rows
+        that go on, which a `reset()` would restart in the middle of their runs (a row's run is its
+        own, whatever the other rows do; a filter that keeps a history per row declares reset_rows)."""
         rows = self.all_rows if rows is None else rows
         ids = np.flatnonzero(rows).tolist()
         self.monitor.restart(rows)
@@ -404,9 +408,9 @@ class BatchControlStep:
         for b in ids:
             self.faults[b] = None
             self.checks[b] = OutputCheck(self.n, RESERVED_COLUMNS)
-        if not filters:
+        some = not self.per_row_filters and len(ids) < self.n_sims
+        if some and not self.reset_rows:
             return
-        some = self.reset_rows and len(ids) < self.n_sims
         for b in ids if self.per_row_filters else ids[:1]:
             try:
                 if some:
