@@ -57,8 +57,11 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
   its `filter_batch` is called; rows, it keeps a history per row and `filter_batch` is told the
   indices of the rows it is called for (`rows`, (k,) int, ascending); reset_rows, its `reset` is
   told the indices of the rows that restart when only some do (the vector environment's
-  autoreset), so that row b's history is run b's wherever other rows skip a call or restart. A
-  filter that declares nothing is called row by row, whatever methods it has;
+  autoreset), so that row b's history is run b's wherever other rows skip a call or restart; a
+  shared filter without reset_rows is reset only when every row restarts (a `reset()` would
+  restart the rows that go on). A filter that declares nothing is called row by row, whatever
+  methods it has; a nominal likewise declares batched (`nominal_capabilities`, read and checked
+  when the step is built) or is called row by row;
 - the admission and the monitor's RUN case, one compiled call over the batch axis
   (`closedloop.kernels.admit_and_run`: non-finite rows refused, the clip min(max(u, lo), hi) as
   Python's min and max, RUN for the admitted rows with nothing raised or latched), and every other
@@ -97,7 +100,7 @@ from controllers.interrupts import is_interrupt, watch
 from controllers.lazy_import import lazy_module
 from controllers.safety_filter import (Estimate, EstimateBatch, FilterContext, FilterOutput, FilterReturnError,
                                        OutputCheck, SafetyFilter, checked_batch_arrays, filter_capabilities, frozen,
-                                       real_vector, reset_filter)
+                                       nominal_capabilities, real_vector, reset_filter)
 
 if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a run starts, not for softcbf list
     from controllers.nominal import NominalController
@@ -352,8 +355,11 @@ class BatchControlStep:
             raise ValueError(f"safety_filter and nominal must be one or n_sims = {n_sims} each, got "
                              f"{len(self.filters)} and {len(self.nominals)}")
         self.filter = None if self.per_row_filters else safety_filter
-        shared_nominal = None if isinstance(nominal, Sequence) else nominal
-        self.nominal_batch = getattr(shared_nominal, "nominal_batch", None)  # None: the nominal is called per row
+        # what each nominal declares, checked now as the filters' below; a shared one that declares batched has its
+        # nominal_batch called once for all rows, any other nominal is called per row
+        distinct_nominals = {id(nom): nom for nom in self.nominals if nom is not None}.values()
+        nominals = [nominal_capabilities(nom) for nom in distinct_nominals]
+        self.nominal_batched = not isinstance(nominal, Sequence) and nominal is not None and nominals[0].batched
         self.nominal_missing = any(nom is None for nom in self.nominals)
         # what each filter declares, checked now (a declared capability it lacks is refused here, not mid-run);
         # only a shared filter's are used (module docstring): per-row filters are called row by row
@@ -387,11 +393,14 @@ class BatchControlStep:
         """(B,) bool: the row's fault has led to its monitor's vent (`ControlStep.stopped`)."""
         return self.faulted & self.monitor.latched
 
-    def reset(self, rows: np.ndarray | None = None, filters: bool = True) -> None:
+    def reset(self, rows: np.ndarray | None = None) -> None:
         """Before a run of the rows in `rows` ((B,) bool; None: all): no fault, a fresh output check,
-        the monitor's restart and, with `filters`, the filters' `reset()` (a shared filter's once,
-        whose fault is then every row's; `reset(rows=...)` with the restarting rows' indices when it
-        takes them and not every row restarts)."""
+        the monitor's restart and the filters' resets: each restarting row's own
+        filter's `reset()`; a shared filter's `reset()` once when every row restarts (its fault then
+        every row's), `reset(rows=ids)` with the restarting rows' indices when only some do and it
+        declares reset_rows, and nothing when only some do and it does not: its state spans the rows
+        that go on, which a `reset()` would restart in the middle of their runs (a row's run is its
+        own, whatever the other rows do; a filter that keeps a history per row declares reset_rows)."""
         rows = self.all_rows if rows is None else rows
         ids = np.flatnonzero(rows).tolist()
         self.monitor.restart(rows)
@@ -399,9 +408,9 @@ class BatchControlStep:
         for b in ids:
             self.faults[b] = None
             self.checks[b] = OutputCheck(self.n, RESERVED_COLUMNS)
-        if not filters:
+        some = not self.per_row_filters and len(ids) < self.n_sims
+        if some and not self.reset_rows:
             return
-        some = self.reset_rows and len(ids) < self.n_sims
         for b in ids if self.per_row_filters else ids[:1]:
             try:
                 if some:
@@ -508,7 +517,7 @@ class BatchControlStep:
             if self.nominal_missing:
                 raise ValueError("u_nom must be given: this step was made without a nominal controller")
             nominal = self.nan_rows.copy()  # NaN on every row the nominal is not called for or refuses
-            if self.nominal_batch is not None:
+            if self.nominal_batched:
                 if live_ids:
                     nominal_ok = live.copy()
                     self._call_nominal_batch(live, ts, t, q_view, qd_view, nominal, nominal_ok)
@@ -558,11 +567,12 @@ class BatchControlStep:
 
     def _call_nominal_batch(self, live: np.ndarray, ts: list[float], t: np.ndarray, q: np.ndarray, qd: np.ndarray,
                             nominal: np.ndarray, nominal_ok: np.ndarray) -> None:
-        """The shared nominal's `nominal_batch` on the `live` rows, once (`controllers.nominal`): an
+        """The shared nominal's `nominal_batch` on the `live` rows, once (it declares batched,
+        `controllers.safety_filter.nominal_capabilities`): an
         exception or a return that is not (rows, N) real numbers is a fault of each of those rows."""
         rows = int(np.count_nonzero(live))
         try:
-            result = self.nominal_batch(frozen(t[live]), frozen(q[live]), frozen(qd[live]))
+            result = self.nominals[0].nominal_batch(frozen(t[live]), frozen(q[live]), frozen(qd[live]))
             values = np.asarray(result) if isinstance(result, (np.ndarray, list, tuple)) else None
             if values is None or values.dtype.kind not in "fiu" or values.shape != (rows, self.n):
                 raise FilterReturnError(f"nominal_batch must return ({rows}, {self.n}) real numbers, got "

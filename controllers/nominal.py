@@ -2,10 +2,16 @@
 
 A nominal controller is any callable `(t, q, qd) -> u_nom` with t in s, q and qd of
 shape (N,) in rad and rad/s, and u_nom of shape (N,) in hPa. Scenarios pass one to
-the closed loop; the filter never needs to know which one it is. A nominal controller may
-also have `nominal_batch(t, q, qd) -> u_nom` for B states at once (t (B,) s, q and qd
-(B, N), u_nom (B, N) hPa), which must return, bit for bit, the rows of B calls; a batched
-loop calls it once for all its simulations (`closedloop.step.BatchControlStep`). `sinusoid` and
+the closed loop; the filter never needs to know which one it is. What a nominal can do beyond
+the call it declares, as a filter does, with a `capabilities` attribute holding a
+`controllers.safety_filter.Capabilities` (read and checked by `nominal_capabilities`, the filter's
+reader with the nominal's kind): batched, it has `nominal_batch(t, q, qd) -> u_nom` for B states
+at once (t (B,) s, q and qd (B, N), u_nom (B, N) hPa), which must return, bit for bit, the rows of
+B calls, and a batched loop that shares it calls that once for all its simulations
+(`closedloop.step.BatchControlStep`); one that declares nothing (`Capabilities()`, the default) is
+called once per simulation, whatever other methods it has; one that declares a capability it lacks
+(or a filter's rows, reset_rows, passthrough) is refused when it is built or the loop is set up.
+Here `SinusoidNominal` declares batched, the others nothing. `sinusoid` and
 `tip_tracker`, `step` and `force_target` are the registry's factories ("sinusoid", "tip-tracker",
 "step", "force-target").
 """
@@ -21,10 +27,13 @@ import numpy as np
 from controllers.params import RobotParams, per_segment
 from controllers.pcc import tip_jacobian, tip_position
 from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import FilterContext
+from controllers.safety_filter import Capabilities, FilterContext
 
 
 class NominalController(Protocol):
+    """The minimal contract: callable as `nominal(t, q, qd) -> u_nom`; more is declared with a `capabilities`
+    attribute (module docstring)."""
+
     def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray: ...
 
 
@@ -39,6 +48,7 @@ class SinusoidNominal:
     amplitude: tuple[float, ...]
     frequency: float
     phase: tuple[float, ...]
+    capabilities = Capabilities(batched=True)  # nominal_batch: one call for B states (module docstring)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.frequency) and self.frequency > 0):
@@ -78,6 +88,7 @@ class TipTracker:
     target: Callable[[float], np.ndarray]
     damping_ratio_gain: float = 0.0
     mu: float = 1e-2
+    capabilities = Capabilities()  # the minimal contract: called once per simulation
 
     def __call__(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         lengths = self.params.array("lengths")
@@ -124,6 +135,7 @@ class StepNominal:
 
     level: tuple[float, ...]
     t_step: float = 0.0
+    capabilities = Capabilities()  # the minimal contract: called once per simulation
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(v) for v in self.level) or not math.isfinite(self.t_step):
@@ -168,6 +180,8 @@ class ForceTargetNominal:
     and k_p = 50 hPa/N adds ≈ 0.4 of proportional gain. Measured (tools/force_levels.py, unfiltered,
     target 0.096 N): the measured force settles at 0.094 N on mujoco_contact and camera_loop within 6 s. Stateful (the integral, the last call's time); a new run builds a new one.
     """
+
+    capabilities = Capabilities()  # the minimal contract: one instance per simulation, called once per call
 
     def __init__(self, safe_set: ForceSafeSet, lengths: np.ndarray, n_segments: int, target_N: float,
                  kp: float, ki: float, u_lo: float, u_hi: float) -> None:

@@ -60,7 +60,8 @@ import numpy as np
 
 from controllers.filter_parameters import Params, parse_text, read_params, value_text
 from controllers.interrupts import is_interrupt
-from controllers.safety_filter import CapabilityError, FilterContext, SafetyFilter, filter_capabilities
+from controllers.safety_filter import (CapabilityError, FilterContext, SafetyFilter, filter_capabilities,
+                                       nominal_capabilities)
 
 if typing.TYPE_CHECKING:
     from controllers.nominal import NominalController
@@ -455,10 +456,15 @@ def build_filter(spec: str, params: Mapping[str, object], context: FilterContext
 
 
 def build_nominal(spec: str, params: Mapping[str, object], context: FilterContext) -> NominalController:
-    """The nominal controller of `spec` with `params`, told `context` (its robot model and limits)."""
+    """The nominal controller of `spec` with `params`, told `context` (its robot model and limits); PluginLoadError
+    when it lacks a capability it declares (`controllers.safety_filter.nominal_capabilities`)."""
     nominal = build(resolve(spec, NOMINALS), params, context)
     if not callable(nominal):
         raise ValueError(f"nominal {spec!r} must build a callable (t, q, qd) -> u_nom, got {type(nominal).__name__}")
+    try:
+        nominal_capabilities(nominal)
+    except CapabilityError as exc:
+        raise PluginLoadError(f"nominal {spec!r}: {exc}") from None
     return nominal
 
 

@@ -42,6 +42,10 @@ in the middle of a run:
   environment's autoreset of one arm); a shared filter without it is reset when all restart;
 - passthrough: the filter passes u_nom through (the paper's None tuning); its call times are
   not reported as filter times.
+A nominal controller (`controllers.nominal`) declares its capabilities the same way, read by the same
+reader (`plugin_capabilities`; `nominal_capabilities(n)`, its `NOMINAL_CONTROLLER` kind): batched alone,
+`nominal_batch(t (B,), q, qd) → (B, N)`, the rows of B calls bit for bit; one that declares nothing is
+called once per simulation, whatever other methods it has.
 
 Whatever a filter returns, the control step clips it to the limits and refuses
 non-finite commands (`closedloop.step`); a filter need not repeat that.
@@ -220,15 +224,16 @@ class FilterContext:
 
 
 class CapabilityError(ValueError):
-    """A filter's declared capabilities are not a `Capabilities`, or it lacks what it declares (module
+    """A plug-in's declared capabilities are not a `Capabilities`, or it lacks what it declares (module
     docstring: "Capabilities are declared"); raised when it is built or a loop is set up, one line."""
 
 
 @dataclass(frozen=True)
 class Capabilities:
-    """What a filter declares beyond the minimal contract (module docstring): batched (`filter_batch`),
-    rows (a history per simulation, told by `filter_batch(..., rows=ids)`; with batched), reset_rows
-    (`reset(rows=ids)`) and passthrough (u = u_nom: no filter times reported). All False: the minimal
+    """What a filter or a nominal controller declares beyond the minimal contract (module docstring): batched
+    (`filter_batch`; a nominal's `nominal_batch`), rows (a history per simulation, told by `filter_batch(...,
+    rows=ids)`; with batched), reset_rows (`reset(rows=ids)`) and passthrough (u = u_nom: no filter times
+    reported); a nominal controller may declare batched only (`NOMINAL_CONTROLLER`). All False: the minimal
     contract, called once per simulation."""
 
     batched: bool = False
@@ -245,7 +250,26 @@ class Capabilities:
             raise CapabilityError("Capabilities(rows=True) needs batched=True: the rows are told to filter_batch")
 
 
-MINIMAL = Capabilities()  # what a filter that declares nothing can do: be called, and reset() when it has one
+MINIMAL = Capabilities()  # what a plug-in that declares nothing can do: be called, and reset() when it has one
+
+
+@dataclass(frozen=True)
+class PluginKind:
+    """A kind of plug-in whose `capabilities` `plugin_capabilities` reads: its name and call (for the messages),
+    the method that `batched` promises, that method's arguments, and the capabilities the kind may declare."""
+
+    noun: str
+    call: str
+    batch_method: str
+    batch_arguments: str
+    allowed: frozenset[str]
+
+
+SAFETY_FILTER = PluginKind("safety filter", "filter(estimate, u_nom)", "filter_batch", "estimates, u_nom",
+                           frozenset(f.name for f in fields(Capabilities)))
+# a nominal controller (controllers.nominal) is called (t, q, qd) -> u_nom; batched: nominal_batch for B states at once
+NOMINAL_CONTROLLER = PluginKind("nominal controller", "nominal(t, q, qd)", "nominal_batch", "t, q, qd",
+                                frozenset({"batched"}))
 
 
 @runtime_checkable
@@ -256,29 +280,47 @@ class SafetyFilter(Protocol):
     def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput | np.ndarray: ...
 
 
-def filter_capabilities(safety_filter: object) -> Capabilities:
-    """The capabilities `safety_filter` declares (its `capabilities`; `MINIMAL` when it declares none), checked
-    against what it has: CapabilityError (one line) for a filter that is not callable, a declaration that is not
-    a `Capabilities`, or a capability it does not implement (batched without a `filter_batch` method, rows without
-    a `rows` keyword of `filter_batch`, reset_rows without `reset(rows=...)`). Signatures are read here only to
-    check a declaration, never to decide what a filter can do."""
-    name = getattr(safety_filter, "__name__", None) or type(safety_filter).__name__
-    if not callable(safety_filter):
-        raise CapabilityError(f"a safety filter must be callable as filter(estimate, u_nom), got {name}")
+def plugin_capabilities(plugin: object, kind: PluginKind) -> Capabilities:
+    """The capabilities `plugin` of `kind` declares (its `capabilities`; `MINIMAL` when it declares none), checked
+    against what it has: CapabilityError (one line) for a plug-in that is not callable, a declaration that is not
+    a `Capabilities`, a capability its kind cannot have (a nominal's rows, reset_rows or passthrough), or one it
+    does not implement (batched without the kind's batch method, rows without a `rows` keyword of it,
+    reset_rows without `reset(rows=...)`). Signatures are read here only to check a declaration, never to
+    decide what a plug-in can do."""
+    name = getattr(plugin, "__name__", None) or type(plugin).__name__
+    if not callable(plugin):
+        raise CapabilityError(f"a {kind.noun} must be callable as {kind.call}, got {name}")
     try:
-        declared = getattr(safety_filter, "capabilities", MINIMAL)
+        declared = getattr(plugin, "capabilities", MINIMAL)
     except Exception as exc:  # noqa: BLE001 - a property of user code: refused in one line at setup
         raise CapabilityError(f"{name}.capabilities raised {type(exc).__name__}: {exc}") from None
     if type(declared) is not Capabilities:
         raise CapabilityError(f"{name}.capabilities must be a controllers.safety_filter.Capabilities, got "
                               f"{type(declared).__name__}")
-    if declared.batched and not callable(getattr(safety_filter, "filter_batch", None)):
-        raise CapabilityError(f"{name} declares batched=True but has no method filter_batch(estimates, u_nom)")
-    if declared.rows and not _takes_keyword(safety_filter.filter_batch, "rows"):
-        raise CapabilityError(f"{name} declares rows=True but its filter_batch takes no keyword rows")
-    if declared.reset_rows and not _takes_keyword(getattr(safety_filter, "reset", None), "rows"):
+    foreign = [f.name for f in fields(declared) if getattr(declared, f.name) and f.name not in kind.allowed]
+    if foreign:
+        raise CapabilityError(f"{name} declares {foreign[0]}=True, which a {kind.noun} cannot: it may declare "
+                              f"{', '.join(sorted(kind.allowed))} only")
+    batch = getattr(plugin, kind.batch_method, None)
+    if declared.batched and not callable(batch):
+        raise CapabilityError(f"{name} declares batched=True but has no method "
+                              f"{kind.batch_method}({kind.batch_arguments})")
+    if declared.rows and not _takes_keyword(batch, "rows"):
+        raise CapabilityError(f"{name} declares rows=True but its {kind.batch_method} takes no keyword rows")
+    if declared.reset_rows and not _takes_keyword(getattr(plugin, "reset", None), "rows"):
         raise CapabilityError(f"{name} declares reset_rows=True but has no method reset(rows=...)")
     return declared
+
+
+def filter_capabilities(safety_filter: object) -> Capabilities:
+    """What `safety_filter` declares, checked (`plugin_capabilities` of a `SAFETY_FILTER`)."""
+    return plugin_capabilities(safety_filter, SAFETY_FILTER)
+
+
+def nominal_capabilities(nominal: object) -> Capabilities:
+    """What the nominal controller `nominal` declares, checked (`plugin_capabilities` of a `NOMINAL_CONTROLLER`):
+    batched, or nothing (called once per simulation, whatever methods it has)."""
+    return plugin_capabilities(nominal, NOMINAL_CONTROLLER)
 
 
 def _takes_keyword(function: object, name: str) -> bool:

@@ -15,7 +15,7 @@ from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import FilterContext
+from controllers.safety_filter import Capabilities, FilterContext
 from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import run_figures
@@ -131,6 +131,8 @@ def test_a_shared_nominal_batch_gives_the_per_row_calls_bit_for_bit():
 
 class BrokenBatchNominal:
     """A nominal whose nominal_batch raises (how = "raise") or returns the wrong shape (how = "shape") from t_bad on."""
+
+    capabilities = Capabilities(batched=True)
 
     def __init__(self, how: str, t_bad: float) -> None:
         self.how, self.t_bad = how, t_bad

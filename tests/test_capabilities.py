@@ -83,8 +83,8 @@ def test_a_filter_that_declares_nothing_runs_per_row_whatever_methods_it_has():
     step = BatchControlStep(shared, _nominal, CONTEXT, B)
     step.reset()
     step(*_states())
-    step.reset(np.array([True, False, False]))
-    assert shared.calls == B and shared.batches == [] and shared.resets == [None, None]
+    step.reset(np.array([True, False, False]))  # shared, no reset_rows: not reset while rows 1 and 2 go on
+    assert shared.calls == B and shared.batches == [] and shared.resets == [None]
     assert filter_enabled(ControlStep(shared, _nominal, CONTEXT))
 
 
@@ -94,8 +94,8 @@ def test_batched_is_one_filter_batch_call_without_rows():
     step.reset()
     record = step(*_states())
     assert shared.calls == 0 and shared.batches == [None] and record.filter_action == ["batch"] * B
-    step.reset(np.array([False, True, False]))  # no reset_rows: its reset() (the vector environment then skips it)
-    assert shared.resets == [None, None]
+    step.reset(np.array([False, True, False]))  # no reset_rows: not reset while rows 0 and 2 go on
+    assert shared.resets == [None]
 
 
 def test_rows_tells_filter_batch_the_rows_it_serves():
@@ -113,6 +113,24 @@ def test_reset_rows_restarts_only_the_rows_that_restart():
     step.reset()
     step.reset(np.array([False, True, True]))
     assert shared.resets == [None, [1, 2]]
+
+
+@pytest.mark.parametrize("kind", [Logged, Batched, BatchedRows])
+def test_a_shared_filter_without_reset_rows_is_reset_only_when_every_row_restarts(kind):
+    """A reset() would restart the rows that go on in the middle of their runs (closedloop.step.BatchControlStep.reset):
+    a partial restart leaves such a filter alone, a restart of every row (given as rows, or None) resets it once."""
+    shared = kind()
+    step = BatchControlStep(shared, _nominal, CONTEXT, B)
+    step.reset(np.array([True, True, False]))
+    step.reset(np.array([False, False, True]))
+    assert shared.resets == []
+    step.reset(np.ones(B, dtype=bool))
+    step.reset()
+    assert shared.resets == [None, None]
+    per_row = [kind() for _ in range(B)]  # each row's own filter: reset with its row
+    step = BatchControlStep(per_row, [_nominal] * B, CONTEXT, B)
+    step.reset(np.array([False, True, False]))
+    assert [f.resets for f in per_row] == [[], [None], []]
 
 
 def test_passthrough_reports_no_filter_times():

@@ -65,9 +65,10 @@ Seeds (as `SyncVectorEnv`): `reset(seed=s)` seeds sub-environment b's task with 
 list seeds b with its b-th entry (None: not reseeded), `reset()` lets each continue its
 generator. A filter shared by all arms (one that declares batched) is reset (its
 `reset()`) by `reset()`; when one arm's episode restarts, only if it declares reset_rows
-(a history per row, `closedloop.step`: then `reset(rows=[b])`, as qsg), for otherwise its
-state spans all arms (the `filter_batch` contract, `controllers.safety_filter`); per-arm
-filters are reset at each of their episodes, as in the single environment.
+(a history per row: then `reset(rows=[b])`, as qsg), for otherwise its state spans all arms
+(the `filter_batch` contract, `controllers.safety_filter`): the batched step decides
+(`closedloop.step.BatchControlStep.reset`); per-arm filters are reset at each of their
+episodes, as in the single environment.
 
 Returns: observations a Dict of (B, ...) arrays (`gymnasium.vector.utils.batch_space` of
 the single space); rewards (B,) float64; terminations, truncations (B,) bool; infos the
@@ -218,7 +219,7 @@ class ArmVectorEnv(VectorEnv):
         if seed is not None:
             task.seed(seed)
         if reset_row:
-            self.control.reset(np.arange(self.num_envs) == b, filters=self.shared_filter is None or self.control.reset_rows)
+            self.control.reset(np.arange(self.num_envs) == b)
         arm.reset()
         task.initialize_episode(arm)
         arm.after_reset()
