@@ -4,7 +4,7 @@ Public API (importable from `controllers` directly; each name is loaded from its
 on first use, so `import controllers.params` stays cheap):
 
 - the plug-in contract (`controllers.safety_filter`, docs/safety-filter.md): `SafetyFilter`,
-  `Capabilities`, `filter_capabilities`, `Estimate`, `EstimateBatch`, `FilterOutput`, `BatchOutput`,
+  `Capabilities`, `filter_capabilities`, `nominal_capabilities`, `Estimate`, `EstimateBatch`, `FilterOutput`, `BatchOutput`,
   `FilterContext`, `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`;
 - the registry (`controllers.registry`): `FILTERS`, `NOMINALS`, `build_filter`,
   `build_nominal`, `parse_params`, `parameters`, `label`, `describe`;
@@ -25,7 +25,8 @@ from __future__ import annotations
 import importlib
 
 _HOMES = {
-    "controllers.safety_filter": ("SafetyFilter", "Capabilities", "filter_capabilities", "Estimate", "EstimateBatch",
+    "controllers.safety_filter": ("SafetyFilter", "Capabilities", "filter_capabilities", "nominal_capabilities",
+                                  "Estimate", "EstimateBatch",
                                   "FilterOutput", "BatchOutput", "FilterContext", "PassThroughFilter", "OutputCheck",
                                   "FilterReturnError", "reset_filter"),
     "controllers.registry": ("FILTERS", "NOMINALS", "build_filter", "build_nominal", "parse_params", "parameters",
