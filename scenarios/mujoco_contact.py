@@ -38,7 +38,10 @@ controller keeps the unmoved facets, `gravity`, `tip_friction`, `table_friction`
 plate's `plate_stiffness` or the flexure's `sheet_*`, whose calibrated k is recorded as the
 scene's plate stiffness) and its own `assumed_plate_stiffness` (N/m, the controller's ψ) and `assumed_tau_p` (s,
 the valve lag the filter's context states; the true valves' is the arm's `tau_p`, so a study that varies `tau_p`
-tells the filter nothing of it). Model mismatch studies vary these (softcbf.study).
+tells the filter nothing of it), and `assumed_command_delay` (s, the command delay its context states; the true one
+is the arm's `command_delay`, a FIFO of whole 1 ms control periods in the plant, softcbf_mj.plant: a delay between
+two periods is refused). Model mismatch studies vary these (softcbf.study); samples with different true command
+delays run in different batches (the batch key holds `command_delay`: `MujocoBatchPlant` has one per batch).
 
 Imports: MuJoCo (the plants, the model builder) is imported inside the functions that run the
 scenario or its batch form, not at load, so that registering the scenario and reading its
@@ -65,7 +68,7 @@ from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario
 from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import contact_figures, plate_figures, write_table
-from softcbf_mj.plant import steps_per_control
+from softcbf_mj.plant import delay_periods, steps_per_control
 from softcbf_mj.runio import SummaryWriter
 from vocabulary.settings import Bound
 
@@ -107,6 +110,7 @@ def check_spec(spec: MujocoContact) -> Controller:
     controller = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
     check_true_arm(spec.arm, spec.plate, controller.robot)
     steps_per_control(CONTROL_DT, spec.arm.physics_dt)
+    delay_periods(spec.arm.command_delay, CONTROL_DT)
     return controller
 
 
@@ -115,7 +119,8 @@ MujocoContact = scenario_spec(
                      "the nominal, the controller's model, the MuJoCo arm and plate, and the plate stiffness the "
                      "controller assumes.",
     "mujoco_contact", {"run": Run, "filter": Filter, "nominal": Nominal, "model": Model, "arm": TrueArm, "plate": Plate},
-    {"assumed_plate_stiffness": "assumed_plate_stiffness", "assumed_tau_p": "assumed_tau_p"}, BOUNDS, check_spec, __name__)
+    {"assumed_plate_stiffness": "assumed_plate_stiffness", "assumed_tau_p": "assumed_tau_p",
+     "assumed_command_delay": "assumed_command_delay"}, BOUNDS, check_spec, __name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,7 +149,7 @@ def contact_setup(spec: MujocoContact) -> ContactSetup:
     truth = build_truth(spec.arm, spec.plate, controller.robot, safe_set.environment, spec.model.damping_scale)
     q0 = initial_configuration(truth.robot.n_segments, spec.run.seed, spec.run.q0_std)  # the true arm's segments
     context = FilterContext.for_robot(controller.robot, safe_set, CONTROL_DT, spec.filter.pressure_limits,
-                                      command_delay=0.0, actuator_tau=spec.assumed_tau_p)
+                                      command_delay=spec.assumed_command_delay, actuator_tau=spec.assumed_tau_p)
     return ContactSetup(safe_set, truth, controller.runs, controller.nominal_kwargs, q0, context)
 
 
@@ -155,7 +160,7 @@ BATCH_VARYING = frozenset({
 })
 """Parameters that may differ between the samples of one batch (per-simulation models, the valve lag `tau_p` among
 them: the filter's context holds `assumed_tau_p`, not it; q0, nominal, the filter's parameters:
-`scenarios.batch_form.run_batch_tuning`)."""
+`scenarios.batch_form.run_batch_tuning`). Not the true `command_delay`: the batch plant has one."""
 
 
 def contact_batch_key(params: Mapping[str, Any]) -> tuple | None:

@@ -8,7 +8,9 @@ under the same names and meanings, as `mujoco_contact`.
 The plant (`PCCPlant`, docs/model.md#rppr-dynamics) is the true arm: the controller's robot with, per segment,
 L_i × `true_length_scale` (I_i × its square), k_i × `true_stiffness_scale`, d_i × `true_damping_scale` and
 λ_i × `true_gain_scale` (`softcbf_mj.ground_truth.scaled_robot`, the construction `mujoco_contact` uses), its
-valve a first-order lag of `tau_p` s (as the MuJoCo plant's; the filter is told `assumed_tau_p`, as there). The true plates
+valve a first-order lag of `tau_p` s behind a command delay of `command_delay` s (whole 1 ms control periods, a FIFO:
+softcbf_mj.plant), as the MuJoCo plant's; the filter is told `assumed_tau_p` and `assumed_command_delay`, as there.
+The true plates
 are the controller's facets moved by `facet_offset` (m) along their outward normals and turned by
 `facet_angle` (rad) (`softcbf_mj.ground_truth.moved_facets`), each a linear spring of `plate_stiffness` N/m:
 the plant's contact force is ψ_true(n_true(r)) at the PCC tip r. The controller keeps its model: robot,
@@ -20,13 +22,14 @@ ideal (no flexure sheet), no gravity and no friction. These settings are not par
 varies or fixes one cannot be screened on this plant (`softcbf.study.screen` names it).
 
 Settings: the sections `run`, `filter`, `nominal` and `model` (scenarios.spec), the true arm's scales,
-`tau_p`, `facet_offset`, `facet_angle`, `plate_stiffness`, `assumed_plate_stiffness`, `assumed_tau_p` and the PCC plant's
+`tau_p`, `command_delay`, `facet_offset`, `facet_angle`, `plate_stiffness`, `assumed_plate_stiffness`, `assumed_tau_p`,
+`assumed_command_delay` and the PCC plant's
 `integrator`; the controller runs at 1 kHz (`CONTROL_DT`, as `mujoco_contact`'s); pressure limits on by
 default (as `mujoco_contact`).
 
 Batch form (studies, docs/studies.md#batches): samples that differ only in the true arm's scales, q0, the
 nominal and the filter's parameters run together on `PCCBatchPlant` (one true robot per simulation); the
-plates and the valve are the batch's.
+plates, the valve and the command delay are the batch's.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
 from softcbf_mj.ground_truth import moved_facets, scaled_robot
 from softcbf_mj.loop import check_duration
 from softcbf_mj.metrics import write_table
+from softcbf_mj.plant import delay_periods
 from softcbf_mj.runio import SummaryWriter
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz (mujoco_contact's)
@@ -73,6 +77,7 @@ def check_spec(spec: PccContact) -> Controller:
     from softcbf_mj.pcc_plant import INTEGRATORS  # the plants load the compiled model (numba): where a run starts
     controller = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
     check_choice("integrator", spec.integrator, INTEGRATORS)
+    delay_periods(spec.command_delay, CONTROL_DT)
     true_plates(spec, controller.safe_set)
     return controller
 
@@ -84,9 +89,10 @@ PccContact = scenario_spec(
     "pcc_contact", {"run": Run, "filter": Filter, "nominal": Nominal, "model": Model},
     {"true_stiffness_scale": "true_stiffness_scale", "true_damping_scale": "true_damping_scale",
      "true_gain_scale": "true_gain_scale", "true_length_scale": "true_length_scale", "tau_p": "tau_p",
+     "command_delay": "command_delay",
      "facet_offset": "facet_offset", "facet_angle": "facet_angle", "plate_stiffness": "plate_stiffness",
      "assumed_plate_stiffness": "assumed_plate_stiffness", "assumed_tau_p": "assumed_tau_p",
-     "integrator": "integrator"},
+     "assumed_command_delay": "assumed_command_delay", "integrator": "integrator"},
     check=check_spec, module=__name__)
 
 
@@ -124,7 +130,7 @@ def pcc_contact_setup(spec: PccContact) -> PccContactSetup:
     check_duration(spec.run.duration, CONTROL_DT, controller.robot.n_segments, safe_set)
     q0 = initial_configuration(controller.robot.n_segments, spec.run.seed, spec.run.q0_std)
     context = FilterContext.for_robot(controller.robot, safe_set, CONTROL_DT, spec.filter.pressure_limits,
-                                      command_delay=0.0, actuator_tau=spec.assumed_tau_p)
+                                      command_delay=spec.assumed_command_delay, actuator_tau=spec.assumed_tau_p)
     return PccContactSetup(safe_set, true_robot(spec, controller.robot), true_plates(spec, safe_set), controller.runs,
                            controller.nominal_kwargs, q0, context)
 
@@ -134,7 +140,8 @@ BATCH_VARYING = frozenset({
     "amplitude", "frequency", "t0", "nominal_params", "filter_params", "progress",
 })
 """Parameters that may differ between the samples of one batch (the true arm per simulation, q0, the nominal, the
-filter's parameters: `scenarios.batch_form.run_batch_tuning`); the plates and the valve are shared."""
+filter's parameters: `scenarios.batch_form.run_batch_tuning`); the plates, the valve and the command delay are
+shared."""
 
 
 def pcc_contact_batch_key(params: Mapping[str, Any]) -> tuple:
@@ -155,7 +162,7 @@ def run_pcc_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1
     first, spec = setups[0], specs[0]
     from softcbf_mj.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): where a run starts
     plant = PCCBatchPlant([s.robot for s in setups], first.plates, len(setups), control_dt=CONTROL_DT,
-                          integrator=spec.integrator, tau_p=spec.tau_p)
+                          integrator=spec.integrator, tau_p=spec.tau_p, command_delay=spec.command_delay)
     return run_batch_tuning(plant, [s.runs[0] for s in setups], first.context, spec.nominal.name,
                             [s.nominal_kwargs for s in setups], spec.run.duration, np.array([s.q0 for s in setups]),
                             progress)
@@ -172,7 +179,7 @@ def pcc_contact(out_dir: Path, spec: PccContact) -> dict:
     nominal = spec.nominal.name
     for run in setup.runs:
         plant = PCCPlant(setup.robot, setup.plates, control_dt=CONTROL_DT, integrator=spec.integrator,
-                         tau_p=spec.tau_p)
+                         tau_p=spec.tau_p, command_delay=spec.command_delay)
         row = run_tuning(out_dir, summary, run.label, plant, control_step(run, nominal, setup.nominal_kwargs,
                                                                           setup.context),
                          setup.safe_set, spec.run.duration, setup.q0, spec.run.progress,

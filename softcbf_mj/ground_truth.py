@@ -14,7 +14,9 @@ and `Plate`, every setting whose declaration names one of them; docs/parameters.
   about the foot of the perpendicular from the base: H'_k = R(angle) H_k,
   h'_k = (h_k + offset ‖H_k‖) cos(angle), exact at 0 and 0;
 - the rod and the plant: `links_per_segment`, `tau_p` (s), `physics_dt` (s), `gravity` (m/s²,
-  along −y; 0: the arm on a table), `tip_friction` and `table_friction` (Coulomb μ);
+  along −y; 0: the arm on a table), `tip_friction` and `table_friction` (Coulomb μ), and
+  `command_delay` (s: the commands reach the valves that much later, a FIFO of whole control
+  periods, softcbf_mj.plant; carried by the model, so every MuJoCo plant built from it delays);
 - the plate: `plate` "ideal" (a slide spring of `plate_stiffness` N/m) or "flexure" (the clamped
   sheet of the `sheet_*` settings, softcbf_mj.flexure), whose stiffness at its calibration point
   (`calibrate_flexure`, N/m) is the scene's plate stiffness.
@@ -119,7 +121,8 @@ def _model_settings(arm: TrueArm, plate: Plate) -> dict[str, Any]:
     """The `ArmModelConfig` fields that `arm` and `plate` set directly (not the robot and the facets)."""
     built: dict[str, Any] = dict(plate_stiffness=plate.stiffness, links_per_segment=arm.links_per_segment, tau_p=arm.tau_p,
                                  physics_dt=arm.physics_dt, tip_friction=arm.tip_friction, plate=plate.kind,
-                                 flexure=flexure(plate), table_friction=arm.table_friction)
+                                 flexure=flexure(plate), table_friction=arm.table_friction,
+                                 command_delay=arm.command_delay)
     if arm.gravity:  # else ArmModelConfig's (0, 0, 0), not (0, -0.0, 0)
         built["gravity"] = (0.0, -arm.gravity, 0.0)
     return built

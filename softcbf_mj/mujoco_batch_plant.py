@@ -36,6 +36,10 @@ control period, on `nthread` threads, then numpy reads of bound arrays:
   in MuJoCo's arena, which the batch cannot bind); `warnings` (B, K) counts per
   MuJoCo warning (columns `WARNING_NAMES`, cumulative).
 
+Command delay (`softcbf_mj.plant`, the model's custom numeric `command_delay`): the batch's,
+one δ for every simulation, applied as `MujocoPlant` does (`CommandDelay`, the rows' FIFOs in one
+array); models with different delays are refused (a scenario's batch key keeps such samples apart).
+
 Arm-table friction (`softcbf_mj.table_friction`, a model with `table_friction` μ > 0) is
 refused: it needs Python between the physics steps of every simulation (`MujocoPlant`
 takes them one by one), which the batch's single `Batch.step` call per control period
@@ -51,8 +55,8 @@ import mujoco.batch
 import numpy as np
 
 from softcbf_mj.mjcf import ArmModelConfig, build_model
-from softcbf_mj.mujoco_plant import WARNINGS, MujocoPlant
-from softcbf_mj.plant import BatchPlantState, steps_per_control
+from softcbf_mj.mujoco_plant import WARNINGS, MujocoPlant, command_delay_of
+from softcbf_mj.plant import BatchPlantState, CommandDelay, steps_per_control
 from softcbf_mj.table_friction import table_friction_of
 
 EXTRAS_UNITS: dict[str, str] = {
@@ -113,7 +117,14 @@ class MujocoBatchPlant:
         if with_friction:
             raise ValueError(f"MujocoBatchPlant does not model arm-table friction (table_friction > 0 in simulations "
                              f"{with_friction}); run such models on MujocoPlant")
+        delays = sorted({command_delay_of(m) for m in per_simulation or [model]} | {layout.command_delay})
+        if len(delays) > 1:
+            raise ValueError(f"the simulations of a MujocoBatchPlant must share one command_delay, got {delays} s; "
+                             "batch each delay apart")
         self.n_sims, self.n_segments, self.n_facets = int(n_sims), layout.n_segments, layout.n_facets
+        self.command_delay = layout.command_delay
+        periods = layout.delay.periods if layout.delay is not None else 0
+        self.delay = CommandDelay(periods, (self.n_sims, self.n_segments)) if periods else None
         self.control_dt, self.physics_dt = layout.control_dt, layout.physics_dt
         self.steps_per_control = steps_per_control(self.control_dt, self.physics_dt)
         self.batch = batch = mujoco.batch.Batch(model, self.n_sims, int(nthread))
@@ -188,6 +199,8 @@ class MujocoBatchPlant:
             self._qpos[np.ix_(index, qpos_adr)] = (q0[:, i] / len(qpos_adr))[:, None]
             self._qvel[np.ix_(index, dof_adr)] = (qd0[:, i] / len(dof_adr))[:, None]
         self._ctrl[np.ix_(index, layout.actuator_ids)] = u0
+        if self.delay is not None:
+            self.delay.reset(u0, index)
         dynamic = layout.act_adr >= 0
         self._act[np.ix_(index, layout.act_adr[dynamic])] = u0[:, dynamic]
         self.batch.forward(ids=sims)
@@ -195,7 +208,8 @@ class MujocoBatchPlant:
 
     def step(self, u: np.ndarray) -> BatchPlantState:
         """Hold u (hPa, (B, N), finite; clamped by each actuator's ctrlrange) for one control period."""
-        self._ctrl[:, self.layout.actuator_ids] = self._matrix(u, "u")
+        u = self._matrix(u, "u")
+        self._ctrl[:, self.layout.actuator_ids] = u if self.delay is None else self.delay.apply(u)
         self.batch.step(nstep=self.steps_per_control, stage=_STAGE_ACC)
         return self.state()
 

@@ -36,6 +36,11 @@ from MuJoCo's arrays (views of the data bound once) in one compiled call
 fields, each of whose reads builds an array, are read only where a figure needs them (the
 frames for a tangential force or a contact point, dist and pos for a flexure's point).
 
+Command delay (`softcbf_mj.plant`: the model's custom numeric `command_delay` δ > 0, s,
+`ArmModelConfig.command_delay`): the command written to the actuators over a period is the one
+`step` was given δ / control_dt periods earlier (`CommandDelay`, filled with u0 at `reset`);
+a δ that is not a whole number of control periods is refused when the plant is built.
+
 Table friction (`softcbf_mj.table_friction`: the model's custom numeric `table_friction` μ > 0,
 `ArmModelConfig.table_friction`): each physics step is then taken from Python as `mj_step1`, the
 friction forces on the arm's links from the velocities just computed (`data.xfrc_applied`),
@@ -73,7 +78,7 @@ import softcbf_mj
 from controllers.lazy_import import lazy_module
 from softcbf_mj.flexure import SheetInModel
 from softcbf_mj.mjcf import ArmModelConfig, build_model
-from softcbf_mj.plant import PlantState, steps_per_control
+from softcbf_mj.plant import COMMAND_DELAY_NUMERIC, CommandDelay, PlantState, delay_periods, steps_per_control
 from softcbf_mj.table_friction import TableFriction, table_friction_of
 
 MUJOCO_VERSION: str = mujoco.__version__
@@ -102,6 +107,12 @@ EXTRAS_UNITS: dict[str, str] = {
 plant_kernel = lazy_module("softcbf_mj.plant_kernel")  # numba loads on the first state (controllers.lazy_import)
 _ACTUATOR = re.compile(r"seg(\d+)_pressure")
 _PLATE_JOINT = re.compile(r"plate(\d+)_(?:slide|gauge)")
+
+
+def command_delay_of(model: mujoco.MjModel) -> float:
+    """δ of a model (s): its custom numeric `command_delay`, or 0 (none) when it has none."""
+    index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, COMMAND_DELAY_NUMERIC)
+    return float(model.numeric_data[model.numeric_adr[index]]) if index >= 0 else 0.0
 
 
 def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
@@ -202,6 +213,9 @@ class MujocoPlant:
         # mj_step1 + mj_step2 is mj_step for these integrators (MuJoCo's docs; RK4 is not split)
         self._split_steps = int(model.opt.integrator) in SPLIT_INTEGRATORS
         self._forwarded: tuple[bytes, ...] = ()  # `_stage_inputs` at the last `_forward`
+        self.command_delay = command_delay_of(model)  # s; the FIFO below when > 0 (module docstring)
+        periods = delay_periods(self.command_delay, self.control_dt)
+        self.delay = CommandDelay(periods, (1, n)) if periods else None
         self.reset(np.zeros(n))
 
     # -- construction -------------------------------------------------------------
@@ -252,6 +266,8 @@ class MujocoPlant:
             self.data.qpos[self.hinge_qpos[i]] = q0[i] / len(self.hinge_qpos[i])
             self.data.qvel[self.hinge_dofs[i]] = qd0[i] / len(self.hinge_dofs[i])
         self.data.ctrl[self.actuator_ids] = u0
+        if self.delay is not None:
+            self.delay.reset(u0[None, :])
         dynamic = self.act_adr >= 0
         self.data.act[self.act_adr[dynamic]] = u0[dynamic]
         self._forward()
@@ -265,7 +281,8 @@ class MujocoPlant:
         pressure limits of `RobotParams`), and `u_applied` reports what acted.
         """
         model, data, friction = self.model, self.data, self.table_friction
-        self._ctrl[self._actuator_index] = self._vector(u, "u")
+        u = self._vector(u, "u")
+        self._ctrl[self._actuator_index] = u if self.delay is None else self.delay.apply(u[None, :])[0]
         if friction is None and not self._split_steps:
             mujoco.mj_step(model, data, nstep=self.steps_per_control)
         elif friction is None:

@@ -1,10 +1,11 @@
 """B PCC plants integrated together (docs/model.md#rppr-dynamics, docs/model.md#one-implementation, docs/beyond-the-paper.md#batched-ground-truth).
 
-Simulation b is `PCCPlant(params[b], safe_set, control_dt, integrator, physics_dt, tau_p)`, for
+Simulation b is `PCCPlant(params[b], safe_set, control_dt, integrator, physics_dt, tau_p, command_delay)`, for
 any number of segments N: the same compiled kernel (`controllers.pcc_model.advance`, through
 `softcbf_mj.pcc_plant.PeriodIntegrator`) runs the period for every simulation, row by row in one
 call, and a row's arithmetic does not depend on the others, so its states equal those of a
-`PCCPlant` bit for bit (tested); the same zero-order hold and valve lag, and the same read-out
+`PCCPlant` bit for bit (tested); the same zero-order hold, command delay (one δ for the batch, the
+rows' FIFOs in one `CommandDelay`) and valve lag, and the same read-out
 (segment ends, ψ(n) of the true tip per facet, u_applied = the acting pressure). The terms at
 the reported states are kept in `self.dynamics` (`BatchDynamics.keep`), the plants' physics (what
 they integrate): as `PCCPlant.dynamics`, the scenarios never hand it to a plug-in, and sharing it,
@@ -21,7 +22,7 @@ from controllers.dynamics_batch import BatchDynamics
 from controllers.params import RobotParams
 from controllers.safe_set import ForceSafeSet
 from softcbf_mj.pcc_plant import PeriodIntegrator, segment_ends
-from softcbf_mj.plant import BatchPlantState
+from softcbf_mj.plant import BatchPlantState, CommandDelay, delay_periods
 
 
 class PCCBatchPlant:
@@ -39,8 +40,11 @@ class PCCBatchPlant:
         integrator: str = "ros2",
         physics_dt: float | None = None,
         tau_p: float = 0.0,
+        command_delay: float = 0.0,
     ) -> None:
         self.period = PeriodIntegrator(integrator, control_dt, physics_dt, tau_p)
+        periods = delay_periods(command_delay, self.period.control_dt)
+        self.command_delay = float(command_delay)
         if int(n_sims) != n_sims or n_sims < 1:
             raise ValueError(f"n_sims must be an integer >= 1, got {n_sims}")
         if not isinstance(params, RobotParams) and len(params) != n_sims:
@@ -49,6 +53,7 @@ class PCCBatchPlant:
         self.params = params
         self.dynamics = BatchDynamics(params)  # the plants' physics and their terms at the reported states
         self.n_segments = n = self.dynamics.n
+        self.delay = CommandDelay(periods, (self.n_sims, n)) if periods else None
         self.safe_set = safe_set
         self.control_dt, self.integrator = self.period.control_dt, integrator
         self.physics_dt, self.substeps, self.tau_p = self.period.physics_dt, self.period.substeps, self.period.tau_p
@@ -88,6 +93,8 @@ class PCCBatchPlant:
         terms = self.dynamics.terms(q0, qd0)
         self._kin, self._dyn = terms.kin.copy(), terms.dyn.copy()
         self._k = 0
+        if self.delay is not None:
+            self.delay.reset(np.zeros(shape))
         return self._state(np.zeros(shape))
 
     def step(self, u: np.ndarray) -> BatchPlantState:
@@ -96,6 +103,8 @@ class PCCBatchPlant:
         shape = (self.n_sims, self.n_segments)
         if u.shape != shape or not np.isfinite(u).all():
             raise ValueError(f"u must be finite with shape {shape}, got shape {u.shape}")
+        if self.delay is not None:
+            u = self.delay.apply(u)
         x, p, kin, dyn = self._x.copy(), self._p.copy(), self._kin.copy(), self._dyn.copy()
         self.period.run(x, u, p, self.dynamics.parameter_rows, kin, dyn, self._k * self.control_dt)
         self._x, self._kin, self._dyn = x, kin, dyn

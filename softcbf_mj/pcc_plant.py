@@ -13,6 +13,11 @@ mean over the step, u + (p(0) − u)(τ_p/h)(1 − e^{−h/τ_p}), which keeps t
 order (tests/test_pcc_plant.py compares it with a fine Euler reference).
 `PlantState.u_applied` is p at the end of the period.
 
+Command delay (`command_delay`, s; default 0): the command reaches the valves δ / control_dt
+control periods later, a FIFO of whole periods filled with 0 at `reset` (`softcbf_mj.plant`,
+`CommandDelay`): the valves, and with `tau_p` = 0 the arm, see over period j the command of
+period j − k; `u_applied` is then that command (or p).
+
 Integrators (each a fixed step h = physics_dt dividing the control period):
 - "ros2" (default): the two-stage, second-order, L-stable Rosenbrock method of
   Verwer et al. (1999), γ = 1 + 1/√2:
@@ -42,7 +47,7 @@ from controllers.dynamics import PCCDynamics
 from controllers.params import RobotParams
 from controllers.pcc_model import INTEGRATOR_CODES, ROS2_GAMMA, advance
 from controllers.safe_set import ForceSafeSet
-from softcbf_mj.plant import PlantState, steps_per_control
+from softcbf_mj.plant import CommandDelay, PlantState, delay_periods, steps_per_control
 
 INTEGRATORS = tuple(INTEGRATOR_CODES)
 DEFAULT_PHYSICS_DT = {"ros2": 1e-3, "rk4": 1e-4, "euler": 1e-5}
@@ -115,8 +120,12 @@ class PCCPlant:
         integrator: str = "ros2",
         physics_dt: float | None = None,
         tau_p: float = 0.0,
+        command_delay: float = 0.0,
     ) -> None:
         self.period = PeriodIntegrator(integrator, control_dt, physics_dt, tau_p)
+        periods = delay_periods(command_delay, self.period.control_dt)
+        self.command_delay = float(command_delay)
+        self.delay = CommandDelay(periods, (1, params.n_segments)) if periods else None
         self.params = params
         self.safe_set = safe_set
         self.dynamics = PCCDynamics(params)
@@ -160,12 +169,16 @@ class PCCPlant:
         self._kin, self._dyn = core.kin[None, :].copy(), core.dyn[None, :].copy()
         self._keep()
         self._t, self._k = 0.0, 0
+        if self.delay is not None:
+            self.delay.reset(np.zeros((1, self.n_segments)))
         return self._state(np.zeros(self.n_segments))
 
     def step(self, u: np.ndarray) -> PlantState:
         u = np.array(u, dtype=float).reshape(-1)
         if u.shape != (self.n_segments,) or not np.all(np.isfinite(u)):
             raise ValueError(f"u must be finite with shape ({self.n_segments},), got {u}")
+        if self.delay is not None:
+            u = self.delay.apply(u[None, :])[0]
         x, p, kin, dyn = self._x.copy(), self._p.copy(), self._kin.copy(), self._dyn.copy()
         self.period.run(x, u[None, :], p, self.dynamics.parameter_rows, kin, dyn, self._t)
         self._x, self._kin, self._dyn = x, kin, dyn

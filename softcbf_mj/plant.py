@@ -4,10 +4,25 @@ Data flows one way: plant → estimator → controller → command → plant. A 
 a pressure command u (hPa, shape (N,)) held constant for one control period
 (zero-order hold) and reports the ground truth at the end of that period as a
 `PlantState`. The controller never sees a plant object, only the estimator's output.
+
+Command delay (the ground truth's `command_delay` δ, s): the time from the controller's command
+to the valves' input, a transport delay (bus, valve driver). A plant steps at its control period
+T and applies, over period j (from t_j = jT), the command u_{j−k} given k = δ/T periods earlier: a
+FIFO of k commands (`CommandDelay`), one implementation for every plant (the MuJoCo and PCC
+plants, single and batched). Before the first command the FIFO holds the reset pressure u0
+(0 unless given): the valves had received u0 before t = 0. k must be a whole number (δ = kT
+within 1e-9 relative, `delay_periods`): a delay between two periods is refused, not rounded,
+since the same δ at another control rate would be a different delay. δ = 0 is the plant
+without the FIFO (the command acts in its own period, as before). The MuJoCo plants read δ
+from their model's custom numeric `command_delay` (`COMMAND_DELAY_NUMERIC`, absent: 0), so
+every surface that builds a MuJoCo plant from a ground truth (`softcbf_mj.ground_truth`)
+delays its commands alike; the PCC plants take it as an argument. A filter is never told δ by
+the plant (its context states what the controller assumes).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -95,6 +110,47 @@ def steps_per_control(control_dt: float, physics_dt: float) -> int:
             f"({physics_dt:g} s; ratio {ratio:.6g}); choose a physics step such as {divisors} s"
         )
     return n
+
+
+COMMAND_DELAY_NUMERIC = "command_delay"  # the MuJoCo model's custom numeric carrying δ (s; absent: 0)
+
+
+def delay_periods(command_delay: float, control_dt: float) -> int:
+    """k = `command_delay` / `control_dt` (s, s), a whole number of control periods >= 0 (module docstring);
+    ValueError otherwise."""
+    if not (math.isfinite(command_delay) and command_delay >= 0):
+        raise ValueError(f"command_delay must be finite and >= 0 s, got {command_delay}")
+    ratio = command_delay / control_dt
+    k = round(ratio)
+    if abs(ratio - k) > 1e-9 * max(ratio, 1.0):
+        raise ValueError(f"command_delay ({command_delay:g} s) must be a whole number of control periods "
+                         f"({control_dt:g} s), e.g. {math.floor(ratio) * control_dt:g} or "
+                         f"{math.ceil(ratio) * control_dt:g} s")
+    return int(k)
+
+
+class CommandDelay:
+    """The FIFO of the module docstring for B rows of N commands: `reset(u0)` (B, N), then `apply(u)` once
+    per control period returns the commands (B, N) that act in it, those given `periods` calls earlier."""
+
+    def __init__(self, periods: int, shape: tuple[int, int]) -> None:
+        self.periods = int(periods)
+        self._queue = np.zeros((self.periods + 1, *shape))  # a ring: the newest command at `_head`
+        self._head = 0
+
+    def reset(self, u0: np.ndarray, rows: np.ndarray | None = None) -> None:
+        """Fill the FIFO with u0 (B, N), or only rows `rows` (their u0 given in that order)."""
+        if rows is None:
+            self._queue[:] = u0
+        else:
+            self._queue[:, rows] = u0
+
+    def apply(self, u: np.ndarray) -> np.ndarray:
+        """Push u (B, N); return (a copy of) the command given `periods` calls ago, u itself at 0."""
+        depth = self.periods + 1
+        self._head = (self._head + 1) % depth
+        self._queue[self._head] = u
+        return self._queue[(self._head - self.periods) % depth].copy()
 
 
 class BatchPlant(Protocol):

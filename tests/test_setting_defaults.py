@@ -27,6 +27,10 @@ FIXED_VALUES = {
         ("progress", False): "the bench reports its own progress; the scenario runs of its cases are quiet",
         ("nominal", "step"): "the step case is the step nominal's case (module docstring), not a default of `nominal`",
     },
+    # the filter's context: the delay the loop tells its filter, not the true arm's `command_delay`
+    "scenarios/camera_loop.py": {("command_delay", 0.0): "the command acts at the tick after the call"},
+    "scenarios/paper_sim.py": {("command_delay", 0.0): "the paper's loop has no command delay"},
+    "softcbf_mj/env/environment.py": {("command_delay", 0.0): "the filter is not told the true arm's delay"},
 }
 
 

@@ -181,6 +181,9 @@ SETTINGS: dict[str, Setting] = {
                                        default=PAPER_PLATE_STIFFNESS),
     "assumed_tau_p": _number("the controller's valve pressure time constant τ_p (its filter context's; the true "
                              "one is tau_p)", "s", non_negative("s"), 5.0, default=0.05),
+    "assumed_command_delay": _number("the controller's command delay, call → command at the valves (its filter "
+                                     "context's; the true one is command_delay)", "s", non_negative("s"), 5.0,
+                                     default=0.0),
     # the plant (ground truth): the true arm (`TrueArm`), then the true plate (`Plate`); module docstring
     "integrator": _text("integrator of the PCC plant", "ros2, rk4, euler", default="ros2"),
     "damping_scale": _number("damping d of both the controller's robot and the true arm, as a multiple of the "
@@ -200,6 +203,9 @@ SETTINGS: dict[str, Setting] = {
     "links_per_segment": _part(_integer(_TRUE_ARM + "rigid links per segment", "", Bound(1, 100), default=10), "TrueArm"),
     "tau_p": _part(_number("valve pressure time constant of the MuJoCo actuators (first order)", "s", non_negative("s"),
                            5.0, default=0.05), "TrueArm"),
+    "command_delay": _part(_number("time from the controller's command to the valves' input: a FIFO of commands, a "
+                                   "whole number of the plant's control periods (softcbf_mj.plant; the filter is told "
+                                   "assumed_command_delay)", "s", non_negative("s"), 5.0, default=0.0), "TrueArm"),
     "physics_dt": _part(_number("MuJoCo time step (divides the control or tick period)", "s", Bound(1e-6, unit="s"), 1e-3,
                                 default=1e-4), "TrueArm"),
     "facet_offset": _part(_number("the true plates moved along their outward normals (> 0: farther from the base)", "m",

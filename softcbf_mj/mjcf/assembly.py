@@ -34,6 +34,7 @@ from softcbf_mj.mjcf.plates import add_flexures, add_plates
 from softcbf_mj.mjcf.precision import r6, r6v
 from softcbf_mj.mjcf.scene import add_scene, calibration_board
 from softcbf_mj.mjcf.tags import tag_textures
+from softcbf_mj.plant import COMMAND_DELAY_NUMERIC
 from softcbf_mj.table_friction import TABLE_FRICTION_NUMERIC
 
 ARM_FILE = "softcbf_arm.xml"
@@ -84,6 +85,8 @@ def build_arm_spec(config: ArmModelConfig | None = None) -> mujoco.MjSpec:
     spec.option.gravity = r6v(config.gravity)
     if config.table_friction > 0:  # read back by softcbf_mj.table_friction.table_friction_of
         spec.add_numeric(name=TABLE_FRICTION_NUMERIC, data=[r6(config.table_friction)])
+    if config.command_delay > 0:  # read back by softcbf_mj.mujoco_plant.command_delay_of
+        spec.add_numeric(name=COMMAND_DELAY_NUMERIC, data=[float(config.command_delay)])
     spec.assets = tag_textures(arm_tag_ids(config.robot.n_segments))
     _add_defaults(spec, config)
     add_arm(spec, config)

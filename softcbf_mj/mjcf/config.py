@@ -62,6 +62,7 @@ class ArmModelConfig:
     | tip_friction        | 0.0                      | —     | docs/beyond-the-paper.md (0: frictionless) |
     | gravity             | (0, 0, 0)                | m/s²  | chosen (arm on a table)                 |
     | table_friction      | 0.0                      | —     | docs/ground-truth.md (0: off)           |
+    | command_delay       | 0.0                      | s     | softcbf_mj.plant (0: none)              |
 
     `tag_size` is the black square of each AprilTag; its texture (with the white quiet
     zone) spans `textured_size(tag_size)`, at most half the shortest segment so that
@@ -75,6 +76,9 @@ class ArmModelConfig:
     between the arm's links and the table it lies on (`softcbf_mj.table_friction`; 0: off,
     the model unchanged; > 0: the model carries μ as its custom numeric `table_friction`,
     which `MujocoPlant` applies; refused with gravity and beyond the explicit stability limit).
+    `command_delay` δ ≥ 0 (s) holds the commands back on their way to the valves (`softcbf_mj.plant`: a FIFO
+    of δ/T control periods, whole, checked by the plant that knows T; 0: the model unchanged; > 0: the
+    model carries δ as its custom numeric `command_delay`, which the MuJoCo plants apply).
     """
 
     robot: RobotParams = field(default_factory=reference_robot)
@@ -95,6 +99,7 @@ class ArmModelConfig:
     tip_friction: float = setting("tip_friction").default
     gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the setting gravity (m/s², along −y) 0: no gravity
     table_friction: float = setting("table_friction").default
+    command_delay: float = setting("command_delay").default
 
     def __post_init__(self) -> None:
         H = np.atleast_2d(np.asarray(self.H, dtype=float)) if np.size(self.H) else np.zeros((0, 2))
@@ -152,6 +157,8 @@ class ArmModelConfig:
             raise ValueError(f"gravity must be 3 finite numbers (m/s²), got {self.gravity!r}")
         object.__setattr__(self, "gravity", gravity)
         check_table_friction(self.table_friction, self.physics_dt, gravity)
+        if not (math.isfinite(self.command_delay) and self.command_delay >= 0):
+            raise ValueError(f"command_delay must be finite and >= 0 s (0: none), got {self.command_delay}")
         if self.contact_timeconst < 2 * self.physics_dt:
             raise ValueError(
                 f"contact_timeconst ({self.contact_timeconst:g} s) must be >= 2 physics_dt "
