@@ -15,9 +15,9 @@ certificate's intervals (`controllers.energy_governor.certificate`), so a lab st
 | tau_p | s | actuator_tau_lo_s, actuator_tau_hi_s |
 | command_delay | s | command_delay_lo_s, command_delay_hi_s |
 
-(command_delay, the time from the filter's call to the command acting at the valves, is simulated by no scenario
-yet, so a study that varies it cannot be searched; a box file that states it, e.g. tests/data/delay_box.toml, still
-configures the certificate.)
+(command_delay, the time from the filter's call to the command acting at the valves, is simulated in whole
+control periods (the ground truth's `command_delay`), so a box that a study can search states it as "choice" of
+such delays, e.g. tests/data/delay_box.toml; the certificate reads the least and greatest.)
 
 A name the certificate leaves to its estimate margins (κ and the gain estimate's Δ: `SENSING`, the camera's
 latency, pixel noise and dropped frames) is passed over; any other name is refused (an error the certificate does
