@@ -24,3 +24,11 @@ def told_lag(scenario: str, arguments: list[str]) -> float:
 def test_the_true_valve_lag_does_not_reach_the_filter(scenario):
     assert told_lag(scenario, ["--tau-p", "0.1"]) == 0.05  # the default assumed lag, the model's
     assert told_lag(scenario, ["--tau-p", "0.1", "--assumed-tau-p", "0.08"]) == 0.08
+
+
+def test_the_environment_tells_its_filter_what_it_assumes_not_the_true_arm():
+    from softcbf_mj.env import ArmEnvConfig
+    context = ArmEnvConfig(tau_p=0.1, command_delay=0.002).context()
+    assert (context.actuator_tau, context.command_delay) == (0.05, 0.0)  # the defaults assumed, the model's
+    context = ArmEnvConfig(tau_p=0.1, assumed_tau_p=0.08, assumed_command_delay=0.001).context()
+    assert (context.actuator_tau, context.command_delay) == (0.08, 0.001)

@@ -17,8 +17,9 @@ same builder (`softcbf_mj.ground_truth.build_truth`) from the same settings: the
 flexure sheet, gravity and friction as set; and the control step
 of the scenarios (`closedloop.step.ControlStep`: the filter `filter` with `filter_params`
 built once per environment by `controllers.registry.build_filter`, told its own copy of
-`FilterContext.for_robot(robot, safe_set, control_dt, pressure_limits, command_delay=0,
-actuator_tau=tau_p)` (the step's limits and the safe set of ρ_meas are the environment's), and
+`FilterContext.for_robot(robot, safe_set, control_dt, pressure_limits,
+command_delay=assumed_command_delay, actuator_tau=assumed_tau_p)`: what the filter assumes, never the true
+`command_delay` and `tau_p` (the step's limits and the safe set of ρ_meas are the environment's), and
 reset before every episode; admission; a fresh `SafetyMonitor`
 holding `hold_s` per episode). The filter sees the exact state (`exact_state`), or with
 `state_noise_std` = (σ_q rad, σ_q̇ rad/s) ≠ 0 the noisy state (`physics.NoisyState`); the
@@ -57,7 +58,8 @@ from vocabulary.settings import check_number, default, ground_truth_settings, po
 MIN_IMAGE_PX = 8  # the tag detector's smallest image side
 
 
-ENV_SETTINGS = ("control_rate", "filter", "pressure_limits", "hold_s", "q0_std") + ground_truth_settings()
+ENV_SETTINGS = ("control_rate", "filter", "pressure_limits", "hold_s", "q0_std", "assumed_tau_p",
+                "assumed_command_delay") + ground_truth_settings()
 """ArmEnvConfig's keywords that are settings of the vocabulary (`vocabulary.settings`; every ground-truth setting)."""
 
 
@@ -93,7 +95,8 @@ class ArmEnvConfig:
     line and the files hold it to: q0_std in [0, π] rad, tau_p <= 5 s, hold_s >= 0 s, ...), so the
     environment refuses what `softcbf run` refuses, with the same one-line error. They are
     `control_rate` (Hz; the former `control_dt` in s is read for one release with a
-    DeprecationWarning), `filter`, `pressure_limits`, `hold_s`, `q0_std` and every setting of the
+    DeprecationWarning), `filter`, `pressure_limits`, `hold_s`, `q0_std`, what the filter is told
+    (`assumed_tau_p`, `assumed_command_delay`) and every setting of the
     ground truth (`vocabulary.settings.ground_truth_settings`: plate_stiffness, links_per_segment,
     tau_p, physics_dt, the true_* scales, true_robot, facet_offset, facet_angle, gravity,
     tip_friction, table_friction, plate and the sheet_* settings), which `plant()` hands to the one
@@ -170,7 +173,7 @@ class ArmEnvConfig:
     def context(self) -> FilterContext:
         """What the filter is told (module docstring)."""
         return FilterContext.for_robot(self.robot, self.safe_set, self.control_dt, self.pressure_limits,
-                                       command_delay=0.0, actuator_tau=self.tau_p)
+                                       command_delay=self.assumed_command_delay, actuator_tau=self.assumed_tau_p)
 
     def truth(self) -> Truth:
         """The ground truth of this configuration's ground-truth settings (`softcbf_mj.ground_truth.build_truth`):
