@@ -10,7 +10,7 @@
                                    [--screen SCENARIO [--confirm K]] [--seeds N]
     python -m softcbf.study tune TUNE_FILE --out DIR [--budget 20] [--inner-budget 40] [--sampler tpe|cmaes]
                                    [--population 4] [--seed S] [--workers N | --scheduler tcp://host:8786] [--resume]
-                                   [--storage journal|sqlite|URL] [--set ...]
+                                   [--storage journal|sqlite|URL] [--screen SCENARIO [--confirm K]] [--set ...]
     python -m softcbf.study report DIR [--level 0.05] [--bins 6] [--figure-format png|svg|pdf] [--dpi 110]
 
 `run` runs the study file's samples (all, or the first N with --samples; sample order is
@@ -33,7 +33,8 @@ file's (`softcbf.study.screen`); `--seeds N` repeats the search per filter over 
 reports the falsification rate and evaluations to the first counterexample (`softcbf.study.campaign`).
 `tune` searches a tune file's tuning box (its [tune] table over the filter's parameters) for the setting with the
 most force at the nominal point that an inner falsification of its [vary] box cannot break
-(`softcbf.study.tune`: DIR/tune.json, DIR/tune.png, DIR/best/, DIR/winner.json).
+(`softcbf.study.tune`: DIR/tune.json, DIR/tune.png, DIR/best/, DIR/winner.json); its `--screen SCENARIO
+[--confirm K]` screens every inner falsification as falsify's does.
 Both keep their optuna trials in DIR (`--storage`, `softcbf.study.store.search_storage`): optuna's journal
 DIR/optuna.journal, the default with --scheduler (a folder on a disk that machines share, where SQLite's locks
 are not to be trusted), or SQLite DIR/optuna.db, the default on the local pool; --resume uses the kind the
@@ -207,17 +208,24 @@ def _tune(args: argparse.Namespace) -> int:
         bar = Progress(f"tune {tune_file.study.name}", max(1, args.budget), enabled=not args.no_progress,
                        unit="evaluations")
         bar.update(0, "starting the search")
-        from softcbf.study.screen import SCREEN_DIR
+        if args.confirm is not None and args.screen is None:
+            raise ValueError("--confirm counts the confirmations of a screened inner search; give --screen SCENARIO "
+                             "with it")
         from softcbf.study.store import search_storage
         from softcbf.study.tune import tune  # optuna: a second or more to import, after the first line
 
         storage = search_storage(args.out, args.storage, args.resume, on_dask=args.scheduler is not None)
         result = tune(tune_file, args.out, budget=args.budget, inner_budget=args.inner_budget, sampler=args.sampler,
                       population=args.population, seed=args.seed, resume=args.resume, workers=args.workers,
-                      scheduler=args.scheduler, storage=storage, progress=bar)
+                      scheduler=args.scheduler, storage=storage, screen=args.screen, confirm=args.confirm,
+                      progress=bar)
         best = result["best"]
+        scenario = tune_file.study.scenario
+        inner = (f"no violation in {args.inner_budget} inner evaluations" if args.screen is None else
+                 f"no violation on {scenario} among the confirmations of {args.inner_budget} inner evaluations on "
+                 f"{args.screen}")
         print(f"tune {tune_file.study.name}: {result['safe']} of {len(result['evaluations'])} settings safe "
-              f"(no violation in {args.inner_budget} inner evaluations); folder {args.out}")
+              f"({inner}); runs on {scenario}: {result['expensive_runs']}; folder {args.out}")
         if best is None:
             failed = [r for r in result["evaluations"] if r["error"]]
             print("no safe setting found" + (f" ({len(failed)} settings' runs failed outside the filter, the first: "
@@ -318,6 +326,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tune.add_argument("--resume", action="store_true", help="continue the tuning stored in --out")
     tune.add_argument("--storage", metavar="journal|sqlite|URL", help=STORAGE_HELP)
     tune.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    tune.add_argument("--screen", metavar="SCENARIO",
+                      help="multi-fidelity inner searches: each setting's error box searched on this cheaper scenario "
+                           "(e.g. pcc_contact), its worst candidates confirmed on the file's scenario")
+    tune.add_argument("--confirm", type=int, metavar="K",
+                      help="with --screen: the most candidates of a setting confirmed on the file's scenario (default "
+                           "the inner population)")
     tune.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                       help="set a dotted key of the tune file, e.g. tune.gain_lo_ratio.low=0.8 (repeatable)")
     tune.set_defaults(study_handler=_tune)

@@ -18,12 +18,14 @@ here: scenarios.pcc_contact builds the true arm and plates with mujoco_contact's
 
 Search (`falsify_screened`): (1) the screen, an ordinary falsification (`softcbf.study.falsify.falsify`, no
 baseline) of the screened study with `budget` evaluations into DIR/screen, stopped after the generation of its
-first violation with `stop_on_violation`; (2) the confirmation: the screen's evaluations with a value, in order
-of the searched value (the metric, or its negative for "-NAME"; worst first, ties by evaluation), distinct
-candidates (parameters and tuning) only, the first `confirm` of them, each run on the study's own scenario as
-evaluation e of a `CandidateStudy` into DIR/search (its scenario seed the study's draw e, as falsify's), in
-chunks of one per worker with `stop_on_violation` (stopping after the chunk that violated), else all at once;
-(3) the best confirmed evaluation replayed alone into DIR/worst (one more expensive run, as falsify's).
+first violation with `stop_on_violation` (or with `stop_screen_on_violation` where given: a tuning's inner search
+screens its whole budget and stops only its confirmations, `softcbf.study.tune`); (2) the confirmation: the
+screen's evaluations with a value, in order of the searched value (the metric, or its negative for "-NAME";
+worst first, ties by evaluation), distinct candidates (parameters and tuning) only, the first `confirm` of them,
+each run on the study's own scenario as evaluation e of a `CandidateStudy` into DIR/search (its scenario seed
+the study's draw e, as falsify's), in chunks of one per worker with `stop_on_violation` (stopping after the
+chunk that violated), else all at once; (3) the best confirmed evaluation replayed alone into DIR/worst (one
+more expensive run, as falsify's).
 
 A candidate the screen ranked safe may still violate on the expensive plant (the cheap plant leaves out what
 scenarios.pcc_contact lists), and the confirmation runs only `confirm` of them: a multi-fidelity search that
@@ -110,6 +112,7 @@ def falsify_screened(
     initial: str = "vertices",
     seed: int | None = None,
     stop_on_violation: bool = False,
+    stop_screen_on_violation: bool | None = None,
     storage: str | None = None,
     resume: bool = False,
     workers: int | None = None,
@@ -120,7 +123,8 @@ def falsify_screened(
 ) -> dict[str, Any]:
     """Search `study`'s box on scenario `screen` with `budget` evaluations and confirm the `confirm` worst
     (default one generation: the population) on the study's scenario (module docstring); returns falsify.json's
-    content. The other arguments are `falsify`'s."""
+    content. `stop_screen_on_violation`: whether the screen stops after its first violation (None: as
+    `stop_on_violation`, which stops the confirmations). The other arguments are `falsify`'s."""
     confirm = default_population(study) if confirm is None else confirm
     if isinstance(confirm, bool) or not isinstance(confirm, int) or confirm < 1:
         raise ValueError(f"confirm must be an integer >= 1 (evaluations on {study.scenario}), got {confirm!r}")
@@ -135,8 +139,9 @@ def falsify_screened(
                              "storage": storage_name(storage)}
     root.mkdir(parents=True, exist_ok=True)
     write_json(root / FALSIFY_FILE, state)
+    stop_screen = stop_on_violation if stop_screen_on_violation is None else stop_screen_on_violation
     screened = falsify(cheap, root / SCREEN_DIR, budget=budget, sampler=sampler, population=population,
-                       initial=initial, baseline=0, stop_on_violation=stop_on_violation, storage=storage,
+                       initial=initial, baseline=0, stop_on_violation=stop_screen, storage=storage,
                        resume=resume and (root / SCREEN_DIR / FALSIFY_FILE).is_file(), workers=workers,
                        scheduler=scheduler, client=client, batch_size=batch_size, progress=progress)
     screen_rows = stored_rows(root / SCREEN_DIR / SEARCH_DIR, range(screened["evaluations"]))

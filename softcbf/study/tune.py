@@ -33,6 +33,20 @@ one: every unsafe setting ranks behind every safe one (assumption: |F| < UNSAFE_
 among the unsafe the least violating first, which leads the search towards the boundary where
 the most force sits. A θ without a value (its nominal run failed) is a failed trial.
 
+Screened inner searches (`screen`, `confirm`; `softcbf.study.screen`). Every inner evaluation above is a run
+of the study's scenario (mujoco_contact: tens of seconds a run), so a tuning's cost is its budget times the inner
+budget in those runs. With `screen` = a cheaper scenario (pcc_contact: mujoco_contact's errors on the PCC plant)
+each inner search is `screen.falsify_screened` (the same implementation as `softcbf study falsify --screen`): its
+`inner_budget` evaluations run on the cheap scenario, all of them (a cheap violation does not stop the screen: it
+is a candidate, not a verdict), and its `confirm` worst distinct candidates run on the study's scenario, stopped
+at the first violation there, the worst confirmed replayed once. θ is then safe when the nominal run and every
+confirmation finished cleanly without violation, at least one confirmation ran (a screen that ranks nothing, its
+runs all failed, confirms nothing: no verdict, not safe), the screen ran its whole budget, and no run of either
+scenario faulted or failed (a filter fault on the cheap plant is the filter's). A violation found only on the
+cheap plant does not make θ unsafe (the cheap plant leaves out what scenarios.pcc_contact lists); ρ_worst(θ) is
+over the study scenario's runs. Assumption: the cheap plant's worst cases are the expensive one's (screen.py);
+where they are not, a screened verdict is weaker than a single-fidelity one of the same inner budget.
+
 Evaluation and engine (no second engine). Generation g asks `population` settings; their
 nominal runs are one study (`falsify.CandidateStudy` of the tuning box as `filter_param.NAME`
 coordinates) run by `execute.run_study` into DIR/nominal with `keep_runs` (each run's folder
@@ -54,18 +68,23 @@ its folders (never run again, and the sampler is seeded anew from the seed and t
 `falsify.make_sampler`); one asked but not told runs its missing parts (run_study skips the stored
 nominal run, an inner search resumes from its own storage, a finished one is read) and is told; then
 the search goes on up to the budget, which may grow. A resume must repeat the study, tuning box,
-objectives, sampler, seed, population and inner budget (tune.json records them).
+objectives, sampler, seed, population, inner budget, screen and confirm (tune.json records them).
 
 Outputs of a tune folder DIR:
 
-    DIR/tune.json      {"objective", "inner_objective", settings, "evaluations": [{"evaluation",
-                        "params", "value", "safe", "worst_rho", "nominal_status", "inner_evaluations",
-                        "first_violation" (0: the nominal run, k: inner evaluation k, null: none),
-                        "faulted", "failed", "fault"}], "best": {"evaluation",
-                        "params", "value", "worst_rho", "filter", "filter_params", "command",
-                        "replay", "check"} | null, "safe", "status"}
+    DIR/tune.json      {"objective", "inner_objective", settings ("screen", "confirm": null unscreened),
+                        "evaluations": [{"evaluation", "params", "value", "safe", "worst_rho",
+                        "nominal_status", "inner_evaluations" (screened: the confirmations),
+                        "first_violation" (on the study's scenario: 0 the nominal run, k inner evaluation or
+                        confirmation k, null none), "faulted", "failed", "fault" (both scenarios),
+                        "expensive_runs" (the study scenario's runs: nominal, inner or confirmations, the
+                        worst's replay), screened only "screen": {"evaluations", "violations",
+                        "first_violation", "faulted", "worst_rho"} (on the cheap scenario)}],
+                        "expensive_runs" (their sum), "best": {"evaluation", "params", "value",
+                        "worst_rho", "filter", "filter_params", "command", "replay", "check"} | null,
+                        "safe", "status"}
     DIR/nominal/       study folder of the nominal runs (sample = evaluation − 1), runs/ kept
-    DIR/inner/EEEE/    falsification folder of evaluation EEEE's inner search
+    DIR/inner/EEEE/    falsification folder of evaluation EEEE's inner search (screened: its screen/ in it)
     DIR/best/          the winner's nominal run folder: `softcbf run --config DIR/best/config.json`
     DIR/winner.json    a study file of the error box with the winner's filter_params fixed, for an
                        independent check: `softcbf study falsify DIR/winner.json --budget 300 …`
@@ -106,7 +125,8 @@ WINNER_FILE, FIGURE_FILE = "winner.json", "tune.png"
 DIGITS = 4  # significant digits of a setting's continuous values (module docstring)
 ERROR_BOX_KEY = "error_box"  # a tune file's key naming the study file whose [vary] is its error box
 TUNE_KEYS = ("objective",)  # [tune] keys that are not a parameter's table
-SETTINGS = ("objective", "inner_objective", "sampler", "seed", "population", "inner_budget", "study", "tune")
+SETTINGS = ("objective", "inner_objective", "sampler", "seed", "population", "inner_budget", "screen", "confirm",
+            "study", "tune")
 
 
 @dataclass(frozen=True)
@@ -239,23 +259,39 @@ def nominal_value(row: dict[str, Any], run_dir: Path, objective: str) -> float |
 
 
 def evaluation_record(e: int, params: dict[str, Any], row: dict[str, Any], value: float | None,
-                      inner_rows: list[dict[str, Any]] | None, inner_budget: int) -> dict[str, Any]:
-    """Evaluation e's entry of tune.json from its nominal `row` and `value` and its inner search's rows
-    (`inner_rows`; None: not run, the nominal run already failed the setting) (module docstring)."""
-    rows = [row, *(inner_rows or [])]
-    n_faulted = sum(1 for r in rows if faulted(r))
-    failed = sum(1 for r in rows if not clean(r) and not faulted(r))
+                      inner_rows: list[dict[str, Any]] | None, inner_budget: int,
+                      screen_rows: list[dict[str, Any]] | None = None, replays: int = 0) -> dict[str, Any]:
+    """Evaluation e's entry of tune.json from its nominal `row` and `value`, its inner search's rows on the study's
+    scenario (`inner_rows`: the evaluations, or a screened search's confirmations; None: not run, the nominal run
+    already failed the setting), a screened search's rows on the cheap scenario (`screen_rows`; None: not
+    screened) and its replays of the worst on the study's scenario (`replays`) (module docstring)."""
+    rows = [row, *(inner_rows or [])]  # the study scenario's verdicts
+    cheap = screen_rows or []
+    n_faulted = sum(1 for r in rows + cheap if faulted(r))
+    failed = sum(1 for r in rows + cheap if not clean(r) and not faulted(r))
     rhos = [r["rho_min_meas"] for r in rows if clean(r) and r.get("rho_min_meas") is not None]
     worst = None if n_faulted or not rhos else float(min(rhos))
     first = next((i for i, r in enumerate(rows) if violated(r)), None)
-    safe = (value is not None and inner_rows is not None and first is None and failed == 0
-            and len(inner_rows) == inner_budget)
-    fault = next((fault_of(r) for r in rows if faulted(r)), None)
-    return {"evaluation": e + 1, "params": {k.removeprefix(FILTER_PARAM_PREFIX): v for k, v in params.items()},
-            "value": value, "safe": bool(safe), "worst_rho": worst, "nominal_status": row.get("status"),
-            "inner_evaluations": len(inner_rows or []), "first_violation": first,  # 0: the nominal run, k: inner k
-            "faulted": n_faulted, "failed": failed, "fault": fault,
-            "error": next((str(r.get("error") or "").splitlines()[0] for r in rows if r.get("status") == "error"), None)}
+    if screen_rows is None:
+        complete = inner_rows is not None and len(inner_rows) == inner_budget
+    else:  # the whole screen, and at least one confirmation on the study's scenario
+        complete = inner_rows is not None and len(inner_rows) >= 1 and len(screen_rows) == inner_budget
+    safe = value is not None and complete and first is None and failed == 0 and n_faulted == 0
+    fault = next((fault_of(r) for r in rows + cheap if faulted(r)), None)
+    record = {"evaluation": e + 1, "params": {k.removeprefix(FILTER_PARAM_PREFIX): v for k, v in params.items()},
+              "value": value, "safe": bool(safe), "worst_rho": worst, "nominal_status": row.get("status"),
+              "inner_evaluations": len(inner_rows or []), "first_violation": first,  # 0: the nominal run, k: inner k
+              "faulted": n_faulted, "failed": failed, "fault": fault,
+              "error": next((str(r.get("error") or "").splitlines()[0] for r in rows + cheap
+                             if r.get("status") == "error"), None),
+              "expensive_runs": len(rows) + replays}
+    if screen_rows is not None:
+        cheap_rhos = [r["rho_min_meas"] for r in cheap if clean(r) and r.get("rho_min_meas") is not None]
+        record["screen"] = {"evaluations": len(cheap), "violations": sum(1 for r in cheap if violated(r)),
+                            "first_violation": next((i + 1 for i, r in enumerate(cheap) if violated(r)), None),
+                            "faulted": sum(1 for r in cheap if faulted(r)),
+                            "worst_rho": float(min(cheap_rhos)) if cheap_rhos else None}
+    return record
 
 
 def filter_spec(tune: TuneFile, params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
@@ -284,6 +320,8 @@ def tune(
     scheduler: str | None = None,
     client: Any = None,
     storage: str | None = None,
+    screen: str | None = None,
+    confirm: int | None = None,
     progress: bool | Progress = True,
 ) -> dict[str, Any]:
     """Search the tuning box for the safe setting with the most objective (module docstring); returns tune.json.
@@ -291,14 +329,17 @@ def tune(
     `budget`: outer evaluations (settings); `inner_budget`: falsification evaluations per setting; `seed`: of the
     outer sampler (default the study's; the inner searches use the study's seed, the same for every setting);
     `workers`, `scheduler`, `client`: as `run_study`; `storage`: of the outer and the inner searches' trials, as
-    `falsify`'s ("journal", a URL, None: SQLite in the folders); `progress`: the line (one per evaluation, with its
+    `falsify`'s ("journal", a URL, None: SQLite in the folders); `screen`, `confirm`: each inner search screened on
+    that cheaper scenario with `confirm` confirmations (default its population) on the study's (module docstring:
+    Screened inner searches); `progress`: the line (one per evaluation, with its
     ETA), or the `Progress` to report into."""
     import optuna
     from optuna.trial import TrialState
 
     from softcbf.study.execute import connect_scheduler, run_study
-    from softcbf.study.falsify import (Candidate, CandidateStudy, asked_trials, make_sampler, open_search,
-                                       retire_interrupted, search_space)
+    from softcbf.study.falsify import (Candidate, CandidateStudy, asked_trials, default_population, make_sampler,
+                                       open_search, retire_interrupted, search_space)
+    from softcbf.study.screen import screened_study
 
     for name, value, low in (("budget", budget, 1), ("inner_budget", inner_budget, 1), ("population", population, 1)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -311,11 +352,20 @@ def tune(
         raise ValueError("give local workers or a Dask scheduler, not both")
     seed = tune_file.study.seed if seed is None else seed
     study = tune_file.study
+    if screen is None:
+        if confirm is not None:
+            raise ValueError("confirm counts the confirmations of a screened inner search; give screen with it")
+    else:
+        screened_study(study, screen)  # the error box on the cheap scenario, or one line naming what does not map
+        confirm = default_population(study) if confirm is None else confirm
+        if isinstance(confirm, bool) or not isinstance(confirm, int) or confirm < 1:
+            raise ValueError(f"confirm must be an integer >= 1 (evaluations on {study.scenario}), got {confirm!r}")
     nominal = nominal_study(tune_file)
     space = search_space(nominal)
     root = Path(out_dir)
     settings = {"objective": tune_file.objective, "inner_objective": study.objective, "sampler": sampler,
-                "seed": seed, "population": population, "inner_budget": inner_budget, "study": study.to_dict(),
+                "seed": seed, "population": population, "inner_budget": inner_budget, "screen": screen,
+                "confirm": confirm, "study": study.to_dict(),
                 "tune": {d.parameter.removeprefix(FILTER_PARAM_PREFIX): d.to_dict() for d in tune_file.box}}
     stored = stored_search(root, TUNE_FILE, "tuning", settings, SETTINGS, resume)
     name = stored.get("optuna_study") or f"softcbf-tune-{study.name}-{uuid.uuid4().hex[:12]}"
@@ -364,7 +414,8 @@ def tune(
                       samples=len(candidates), keep_runs=True, progress=False, **run)
             for e in pending:
                 bar.update(len(records) - before, f"{progress_note(records)}; inner search of setting {e + 1}")
-                records[e] = evaluate(tune_file, root, e, settings_of[e], inner_budget, run, storage)
+                records[e] = evaluate(tune_file, root, e, settings_of[e], inner_budget, run, storage, screen,
+                                      confirm)
                 value = told_value(records[e])
                 if value is None:
                     search.tell(numbers[e], state=TrialState.FAIL)
@@ -379,6 +430,7 @@ def tune(
     ordered = [records[e] for e in sorted(records)]
     best = max((r for r in ordered if r["safe"]), key=lambda r: r["value"], default=None)
     state.update(status="done", evaluations=ordered, safe=sum(r["safe"] for r in ordered),
+                 expensive_runs=sum(r["expensive_runs"] for r in ordered),
                  best=None if best is None else winner(tune_file, root, best))
     plot_front(ordered, root / FIGURE_FILE, tune_file.objective, best)
     write_json(root / TUNE_FILE, state)
@@ -399,10 +451,13 @@ def nominal_of(tune_file: TuneFile, root: Path, e: int) -> tuple[dict[str, Any],
 
 
 def evaluate(tune_file: TuneFile, root: Path, e: int, params: dict[str, Any], inner_budget: int,
-             run: dict[str, Any], storage: str | None = None) -> dict[str, Any]:
+             run: dict[str, Any], storage: str | None = None, screen: str | None = None,
+             confirm: int | None = None) -> dict[str, Any]:
     """Evaluation e (its nominal run stored): its inner search unless the nominal run already failed the
-    setting (module docstring), run or resumed into DIR/inner/EEEE on `storage` (`falsify`'s); its record."""
+    setting (module docstring), run or resumed into DIR/inner/EEEE on `storage` (`falsify`'s), screened on
+    scenario `screen` with `confirm` confirmations where given (`screen.falsify_screened`); its record."""
     from softcbf.study.falsify import falsify
+    from softcbf.study.screen import falsify_screened
 
     row, value = nominal_of(tune_file, root, e)
     folder = inner_dir(root, e)
@@ -412,22 +467,36 @@ def evaluate(tune_file: TuneFile, root: Path, e: int, params: dict[str, Any], in
         if not done:
             if folder.exists() and not state.is_file():  # made, nothing stored yet: started again
                 shutil.rmtree(folder)
-            falsify(inner_study(tune_file, params), folder, budget=inner_budget, baseline=0, stop_on_violation=True,
-                    resume=state.is_file(), storage=storage, progress=False, **run)
+            options = {"budget": inner_budget, "stop_on_violation": True, "resume": state.is_file(),
+                       "storage": storage, "progress": False, **run}
+            if screen is None:
+                falsify(inner_study(tune_file, params), folder, baseline=0, **options)
+            else:  # the whole screen; the confirmations stop at the first violation on the study's scenario
+                falsify_screened(inner_study(tune_file, params), folder, screen=screen, confirm=confirm,
+                                 stop_screen_on_violation=False, **options)
     return read_record(tune_file, root, e, params, inner_budget)
 
 
 def read_record(tune_file: TuneFile, root: Path, e: int, params: dict[str, Any], inner_budget: int) -> dict[str, Any]:
     """Evaluation e's record from its stored nominal row and inner search (module docstring: resume)."""
     from softcbf.study.falsify import SEARCH_DIR, stored_rows
+    from softcbf.study.screen import SCREEN_DIR
+
+    def rows_of(folder: Path, n: int) -> list[dict[str, Any]]:
+        rows = stored_rows(folder / SEARCH_DIR, range(n))
+        return [rows[i] for i in sorted(rows)]
 
     row, value = nominal_of(tune_file, root, e)
-    state = inner_dir(root, e) / FALSIFY_FILE
-    inner_rows = None  # no inner search: the nominal run already failed the setting
-    if state.is_file() and json.loads(state.read_text(encoding="utf-8")).get("status") == "done":
-        rows = stored_rows(inner_dir(root, e) / SEARCH_DIR, range(inner_budget))
-        inner_rows = [rows[i] for i in sorted(rows)]
-    return evaluation_record(e, params, row, value, inner_rows, inner_budget)
+    folder = inner_dir(root, e)
+    state = json.loads((folder / FALSIFY_FILE).read_text(encoding="utf-8")) if (folder / FALSIFY_FILE).is_file() \
+        else {}
+    if state.get("status") != "done":  # no inner search: the nominal run already failed the setting
+        return evaluation_record(e, params, row, value, None, inner_budget)
+    replays = int(state.get("worst") is not None)
+    if "screen" not in state:
+        return evaluation_record(e, params, row, value, rows_of(folder, inner_budget), inner_budget, replays=replays)
+    return evaluation_record(e, params, row, value, rows_of(folder, state["evaluations"]), inner_budget,
+                             rows_of(folder / SCREEN_DIR, state["screen"]["evaluations"]), replays)
 
 
 def winner(tune_file: TuneFile, root: Path, best: dict[str, Any]) -> dict[str, Any]:
