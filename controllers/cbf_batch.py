@@ -58,8 +58,11 @@ u through 1/‖L_gB‖, which a chattering closed loop amplifies). Branches, as 
   1 + Σ_{k≤N} C(P + 2N, k) less those pairs: 14, 46, 146 candidates for N = 2, 3, 4 and one
   facet row (27, 106, 384 with three rows); unbounded 1 + Σ_k C(P, k) (`candidate_table`: the
   kernel's list of them, each with its prefixes). Every candidate is
-  tested for feasibility with the scalar solver's tolerance FEASIBILITY_RTOL·(1 + max(|u_nom|,
-  |lb|, |ub|)), and the feasible candidate nearest u₀ wins (ties: the first in the order above).
+  tested for feasibility with the scalar solver's tolerance (`controllers.qp.tolerances`):
+  FEASIBILITY_RTOL·(1 + max(|lb|, |ub|)) + ROUNDING_RTOL·max|u₀| (hPa on unit rows; without the box
+  the first term is FEASIBILITY_RTOL: a tolerance growing as FEASIBILITY_RTOL·|u_nom| accepted
+  commands violating a row by ~1 hPa at |u_nom| = 1e10 hPa, where the scalar QP's acceptance is
+  1e-3 hPa), and the feasible candidate nearest u₀ wins (ties: the first in the order above).
   u_nom itself within that tolerance gives u = u_nom, as the scalar solver's shortcut does (the
   enumeration stops there: no candidate is nearer). The
   result is clipped to the bounds, as `CBFFilter` clips it. The kernel's cost grows with the
@@ -99,7 +102,7 @@ from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError
 from controllers.lazy_import import lazy_module
 from controllers.params import RobotParams
-from controllers.qp import FEASIBILITY_RTOL, ZERO_ROW_TOL
+from controllers.qp import FEASIBILITY_RTOL, ROUNDING_RTOL, ZERO_ROW_TOL
 from controllers.safe_set import ForceSafeSet
 
 cbf_kernels = lazy_module("controllers.cbf_kernels")  # numba loads on the first call (controllers.lazy_import)
@@ -300,8 +303,8 @@ class PaperCBFKernel:
         out = self.outputs(len(q)) if out is None else out
         cbf_kernels.paper_cbf(kin, tip_col, jac_col, q, u_nom, self.facets, self._ab, self.tuning.b_E,
                               self.tuning.gamma, self.static_gain, self.limits, self.table, self.tuning.disabled,
-                              self.bounded, self.recover, self.enumerate_qp, B_MIN, FEASIBILITY_RTOL, ZERO_ROW_TOL,
-                              SINGULAR_TOL, *out)
+                              self.bounded, self.recover, self.enumerate_qp, B_MIN, FEASIBILITY_RTOL, ROUNDING_RTOL,
+                              ZERO_ROW_TOL, SINGULAR_TOL, *out)
         return out
 
 

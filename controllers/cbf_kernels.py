@@ -25,7 +25,8 @@ Arguments (shapes: B states, N inputs, P rows of P, m = P (+ 2N with the box) QP
 - table (C, N + 1) int: the candidates (`cbf_batch.candidate_table`): per candidate g ≥ 1 its size k,
   its last row and the global indices of its prefixes of sizes 1..k−1; row 0 stands for u_nom;
 - flags: disabled (tuning None), bounded, recover (recovery rows computed here), enumerate (N within
-  the enumeration's reach); tolerances: b_min (B_MIN), feasibility_rtol, zero_row_tol, singular_tol.
+  the enumeration's reach); tolerances: b_min (B_MIN), feasibility_rtol and rounding_rtol (`controllers.qp`'s),
+  zero_row_tol, singular_tol.
 Outputs, written per state: u (B, N) hPa, code (B,) int8 (DISABLED, NOMINAL, QP, RECOVERY, or
 FALLBACK: the scalar filter decides), b (B, P) (the barrier per row), and the filter's diagnostics:
 B (B, P) (+inf where b ≤ B_MIN), the constraint L_fB + L_gB u − γ/B at the command (B, P) (+inf there), and
@@ -59,7 +60,7 @@ def _dot(a, ra, b, rb, n):
 
 @njit(cache=True, error_model="numpy")
 def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_gain, limits, table, disabled, bounded,
-              recover, enumerate_qp, b_min, feasibility_rtol, zero_row_tol, singular_tol, u, code, b_out, big_b_out,
+              recover, enumerate_qp, b_min, feasibility_rtol, rounding_rtol, zero_row_tol, singular_tol, u, code, b_out, big_b_out,
               constraint_out, active_out, lfb_out, lgb_out, static_rows_out, static_rhs_out) -> None:
     """The batched paper CBF (module docstring), per state: the saturated u_nom and the barrier rows; then the
     state's code: DISABLED, FALLBACK (unevaluable rows, recovery without its rows, beyond the enumeration's reach,
@@ -96,7 +97,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
         elif not enumerate_qp or _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
             code[s] = FALLBACK
         else:
-            tol = feasibility_rtol * _feasibility_scale(u0, bounded, box_scale, n)
+            tol = _feasibility_tolerance(u0, box_scale, feasibility_rtol, rounding_rtol, n)
             best = _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq,
                                       volume, valid)
             if best < 0:
@@ -259,15 +260,13 @@ def _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _feasibility_scale(u0, bounded, box_scale, n):
-    """1 + max_j |u0_j| (with the box: at least 1 + its largest bound), the scale of the feasibility tolerance."""
-    scale = 0.0
+def _feasibility_tolerance(u0, box_scale, feasibility_rtol, rounding_rtol, n):
+    """The scalar solver's feasibility tolerance (`controllers.qp.tolerances`, in its operation order): feasibility_rtol
+    · (1 + the box's largest bound, 0 unbounded) + rounding_rtol · max_j |u0_j| (hPa on unit rows)."""
+    largest = 0.0
     for j in range(n):
-        scale = max(scale, abs(u0[0, j]))
-    scale = 1.0 + scale
-    if bounded:
-        scale = max(scale, 1.0 + box_scale)
-    return scale
+        largest = max(largest, abs(u0[0, j]))
+    return feasibility_rtol * (1.0 + box_scale) + rounding_rtol * largest
 
 
 @njit(cache=True, error_model="numpy", inline="always")

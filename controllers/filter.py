@@ -22,7 +22,9 @@ One implementation of the QP: every call, one state (B = 1) or a batch (`filter_
 compiled kernel of the batched filter (`controllers.cbf_batch.PaperCBFKernel`, `controllers.cbf_kernels`):
 the barrier rows, the "disabled", "nominal", "qp" and "recovery" branches, the QP solved exactly by
 enumerating its active sets (derivation: `controllers.cbf_batch`). The scalar path (`controllers.qp`'s
-active-set QP over Python floats) is the documented fallback for the states the kernel hands back: no
+active-set QP over Python floats, on the barrier and quasi-static rows the kernel computed at that state:
+one implementation of the rows, `controllers.cbf_kernels.barrier_rows`) is the documented fallback for the
+states the kernel hands back: no
 feasible candidate ("slack", the rest target, "vent"), a row that is not finite, and QP states beyond the
 enumeration's reach (more than `controllers.cbf_batch.ENUMERATION_MAX_CANDIDATES` candidates: N ≥ 6 with one
 facet and the box). Both agree where both apply: the same label, commands within 1e-9 hPa
@@ -333,7 +335,8 @@ class CBFFilter:
 
     def step(self, x, u_nom, scalar: bool = False) -> CBFResult:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring. scalar: every branch through
-        the scalar QP of `controllers.qp` (the fallback's path; the tests compare it with the kernel's)."""
+        the scalar QP of `controllers.qp` on the rows the kernel computed (the fallback's path; the tests compare it
+        with the kernel's QP)."""
         x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
         u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = self._step_floats(

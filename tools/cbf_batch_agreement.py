@@ -9,9 +9,10 @@ largest |Δu| (hPa). Then this tree with the filter's recovery rows (`RecoveryRo
 outside P against the filter's scalar QP (`CBFFilter.step(..., scalar=True)`): labels that differ and the largest
 |Δu|.
 
-Both trees run in this process: `--against DIR`'s controllers/cbf_batch.py is loaded under another
-module name on top of this tree's other modules (the baseline must share this tree's
-`BatchDynamics`; true of the numpy version before the compiled kernel). Usage:
+Both trees run in this process: `--against DIR`'s controllers/cbf_batch.py (and its compiled kernel,
+controllers/cbf_kernels.py, where it has one) is loaded under another module name on top of this tree's
+other modules (the baseline must share this tree's `BatchDynamics`; true of the numpy version before the
+compiled kernel). Usage:
 `python tools/cbf_batch_agreement.py --against ../pin [--states 120000]`; ends with one line of JSON.
 """
 
@@ -32,15 +33,24 @@ from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
 
 
+def load_module(name: str, path: Path):
+    """The module at `path`, executed under `name` (beside this tree's modules)."""
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--against", type=Path, required=True, help="the other tree (its controllers/cbf_batch.py)")
     parser.add_argument("--states", type=int, default=120_000)
     parser.add_argument("--seed", type=int, default=123)
     args = parser.parse_args()
-    spec = importlib.util.spec_from_file_location("baseline_cbf_batch", args.against / "controllers" / "cbf_batch.py")
-    baseline = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(baseline)
+    baseline = load_module("baseline_cbf_batch", args.against / "controllers" / "cbf_batch.py")
+    kernels = args.against / "controllers" / "cbf_kernels.py"
+    if kernels.exists():  # the baseline's own compiled kernel: its arguments may differ from this tree's
+        baseline.cbf_kernels = load_module("baseline_cbf_kernels", kernels)
     params, safe_set = reference_robot(), paper_safe_set()
     rng = np.random.default_rng(args.seed)
     cases = [(tuning, limits) for tuning in ("Low", "High", "HW-Low", "HW-High") for limits in (True, False)]
