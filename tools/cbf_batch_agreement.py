@@ -21,22 +21,32 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import os
+import sys
+import tempfile
 from pathlib import Path
 
-import numpy as np
+# numba's cache of this run, the other tree's kernel included, goes here and not into that tree's __pycache__
+# (where its entries, compiled under this tool's module name, would break that tree's own runs); set before
+# numba is imported
+os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "cbf_batch_agreement_numba"))
 
-from controllers.cbf import TUNINGS
-from controllers.cbf_batch import RecoveryRows, cbf_qp_batch
-from controllers.dynamics_batch import BatchDynamics
-from controllers.filter import CBFFilter
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
+import numpy as np  # noqa: E402
+
+from controllers.cbf import TUNINGS  # noqa: E402
+from controllers.cbf_batch import RecoveryRows, cbf_qp_batch  # noqa: E402
+from controllers.dynamics_batch import BatchDynamics  # noqa: E402
+from controllers.filter import CBFFilter  # noqa: E402
+from controllers.params import reference_robot  # noqa: E402
+from controllers.safe_set import paper_safe_set  # noqa: E402
 
 
 def load_module(name: str, path: Path):
-    """The module at `path`, executed under `name` (beside this tree's modules)."""
+    """The module at `path`, executed under `name` (beside this tree's modules; registered, so that numba's
+    cache can find it again)."""
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
 
