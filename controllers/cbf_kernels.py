@@ -60,8 +60,8 @@ def _dot(a, ra, b, rb, n):
 
 @njit(cache=True, error_model="numpy")
 def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_gain, limits, table, disabled, bounded,
-              recover, enumerate_qp, b_min, feasibility_rtol, rounding_rtol, zero_row_tol, singular_tol, u, code, b_out, big_b_out,
-              constraint_out, active_out, lfb_out, lgb_out, static_rows_out, static_rhs_out) -> None:
+              recover, enumerate_qp, b_min, feasibility_rtol, rounding_rtol, zero_row_tol, singular_tol, u, code, b_out,
+              big_b_out, constraint_out, active_out, lfb_out, lgb_out, static_rows_out, static_rhs_out) -> None:
     """The batched paper CBF (module docstring), per state: the saturated u_nom and the barrier rows; then the
     state's code: DISABLED, FALLBACK (unevaluable rows, recovery without its rows, beyond the enumeration's reach,
     contradicting rows, or no feasible candidate), NOMINAL (u_nom satisfies every row), else QP or RECOVERY with

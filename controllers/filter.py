@@ -107,7 +107,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.cbf import B_MIN, TUNING_PARAMETERS, TUNINGS, Tuning, get_tuning
-from controllers.cbf_batch import CODE_LABELS, SCALAR_BELOW, PaperCBFKernel, RecoveryRows, cbf_qp_batch
+from controllers.cbf_batch import CODE_LABELS, SCALAR_BELOW, KernelOutput, PaperCBFKernel, RecoveryRows, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
 from controllers.dynamics import PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
@@ -373,7 +373,7 @@ class CBFFilter:
                 out.active[0].tolist() if solved else None, False, self.enabled and not all(v > B_MIN for v in b),
                 action, rho_pred, solve_us if solved else 0.0, 0.0)
 
-    def _scalar_step(self, u_list: list[float], out, rho_pred: float) -> tuple:
+    def _scalar_step(self, u_list: list[float], out: KernelOutput, rho_pred: float) -> tuple:
         """`_step_floats` in Python floats with the QP of `controllers.qp`, on the rows the kernel computed at this
         state (`out`, its `KernelOutput` at B = 1: b, B, L_fB, L_gB and the quasi-static rows): the fallback for the
         states the kernel hands back (module docstring); every branch."""
