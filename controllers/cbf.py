@@ -19,6 +19,10 @@ and the filter's constraint is L_f B + L_g B u − γ / B ≤ 0. −ln(b/(1+b)) 
 as log1p(1/b), accurate for large b. Rows with b ≤ `B_MIN` (outside P, or so close
 to its boundary that 1/b² would overflow) are reported as not `defined` with B = +inf
 and zero L_f B, L_g B: recovery there is the filter's decision, not this module's.
+
+These formulas have one implementation, compiled: `controllers.cbf_kernels.barrier_rows`, which the
+filter's kernel runs per state (and whose rows the filter's scalar fallback reads); `barrier_terms`
+runs it at one state from Python (tests/test_cbf.py checks it against finite differences of B).
 """
 
 from __future__ import annotations
@@ -35,6 +39,9 @@ from controllers.dynamics import DynamicsEval
 from controllers.errors import ControllerInputError, NonFiniteCommandError, as_vector
 from controllers.filter_parameters import FilterParameter
 from controllers.bounds import Bound
+from controllers.lazy_import import lazy_module
+
+cbf_kernels = lazy_module("controllers.cbf_kernels")  # numba loads on the first call (controllers.lazy_import)
 
 B_MIN = math.sqrt(sys.float_info.min)  # ≈ 1.5e-154: smallest b treated as inside P
 
@@ -111,6 +118,8 @@ class BarrierTerms(NamedTuple):
     B: np.ndarray  # (P,) +inf where not defined
     LfB: np.ndarray  # (P,) 1/s; 0 where not defined
     LgB: np.ndarray  # (P, N) 1/(s·hPa); 0 where not defined
+    dB_db: np.ndarray  # (P,) ∂B/∂b, 1/(row-scaled m); 0 where not defined
+    dB_dbdot: np.ndarray  # (P,) ∂B/∂ḃ, s/(row-scaled m); 0 where not defined
     defined: np.ndarray  # (P,) bool: b > B_MIN
     gamma: float
 
@@ -120,49 +129,27 @@ class BarrierTerms(NamedTuple):
         return np.where(self.defined, self.LfB + self.LgB @ u - self.gamma / self.B, np.inf)
 
 
-def _rows(H, h) -> tuple[list[list[float]], list[float]]:
-    """H' (P, 2) and h' (P,) as Python lists, checked for shape and finiteness."""
+def facet_table(H, h) -> np.ndarray:
+    """H' (P, 2) and h' (P,) as the kernel's rows (P, 3): H'_i (x, y), h'_i; checked for shape and finiteness."""
     H = np.asarray(H, dtype=float)
     if H.ndim != 2 or H.shape[1] != 2:
         raise ControllerInputError(f"H must have shape (P, 2), got {H.shape}")
     h = as_vector("h", h, H.shape[0], ControllerInputError)
-    rows = H.tolist()
-    if not math.isfinite(sum(map(sum, rows))) and not np.isfinite(H).all():
-        raise ControllerInputError(f"H must be finite, got {rows}")
-    return rows, h.tolist()
-
-
-def _barrier(b: float, bdot: float, tuning: Tuning) -> tuple[float, float, float]:
-    """(B, ∂B/∂b, ∂B/∂ḃ) of one row with b > 0."""
-    ab = tuning.a_E * tuning.b_E
-    den = 1.0 + tuning.b_E * bdot * bdot
-    return math.log1p(1.0 / b) + ab * bdot * bdot / den, -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
-
-
-def barrier_rows(tip: tuple, rows: list[list[float]], hs: list[float], tuning: Tuning) -> list[tuple]:
-    """Per row of (H', h'), as Python floats: (b, ḃ, B, L_f B, [L_g B_1..L_g B_N]); no input checks.
-
-    `tip` is `DynamicsEval.tip`. Rows with b ≤ B_MIN get B = +inf and L_f B = L_g B = 0.
-    """
-    r, r_dot, r_acc0, *r_acc_u = tip
-    out = []
-    for (hx, hy), h_i in zip(rows, hs):
-        b = h_i - (hx * r.real + hy * r.imag)
-        bdot = -(hx * r_dot.real + hy * r_dot.imag)
-        if b > B_MIN:
-            value, db, dbdot = _barrier(b, bdot, tuning)
-            lfb = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
-            out.append((b, bdot, value, lfb, [-dbdot * (hx * a.real + hy * a.imag) for a in r_acc_u]))
-        else:
-            out.append((b, bdot, math.inf, 0.0, [0.0] * len(r_acc_u)))
-    return out
+    if not np.isfinite(H).all():
+        raise ControllerInputError(f"H must be finite, got {H.tolist()}")
+    return np.column_stack((H, h))
 
 
 def barrier_terms(ev: DynamicsEval, H, h, tuning: Tuning) -> BarrierTerms:
-    """b, ḃ, B, L_f B, L_g B of every row of (H', h') at the state `ev` was evaluated at."""
-    table = [(b, bdot, big_b, lfb, *lgb) for b, bdot, big_b, lfb, lgb in barrier_rows(ev.tip, *_rows(H, h), tuning)]
-    out = np.array(table, dtype=float) if table else np.empty((0, len(ev.tip) + 1))  # b, ḃ, B, L_f B, N × L_g B
-    return BarrierTerms(out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4:], out[:, 0] > B_MIN, tuning.gamma)
+    """b, ḃ, B, L_f B, L_g B, ∂B/∂b, ∂B/∂ḃ of every row of (H', h') at the state `ev` was evaluated at: the compiled
+    barrier rows (`controllers.cbf_kernels.barrier_rows`, which the filter's kernel runs) at one state."""
+    facets = facet_table(H, h)
+    p, n = len(facets), len(ev.tip) - 3
+    b, bdot, big_b, lfb, d_b, d_bdot = (np.empty(p) for _ in range(6))
+    lgb = np.empty((p, n))
+    cbf_kernels.barrier_rows(ev.tip_terms, facets, tuning.a_E * tuning.b_E, tuning.b_E, B_MIN, b, bdot, big_b, lfb,
+                             lgb, d_b, d_bdot)
+    return BarrierTerms(b, bdot, big_b, lfb, lgb, d_b, d_bdot, b > B_MIN, tuning.gamma)
 
 
 def barrier_gradients(ev: DynamicsEval, H, h, tuning: Tuning) -> tuple[np.ndarray, np.ndarray]:
@@ -172,9 +159,4 @@ def barrier_gradients(ev: DynamicsEval, H, h, tuning: Tuning) -> tuple[np.ndarra
     h_conj = (H[:, 0] - 1j * H[:, 1])[:, None]  # H'_i · w = Re(conj(H'_i) w) for w = x + i·y
     db_dq = -(h_conj * ev.tip_jac).real  # ∂b/∂q = ∂ḃ/∂q̇ = −H' J_r
     dbdot_dq = -(h_conj * ev.tip_jac_dot).real  # −H' J̇_r
-    dB_dq, dB_dqd = np.zeros_like(db_dq), np.zeros_like(db_dq)
-    for i in np.flatnonzero(terms.defined):
-        _, db, dbdot = _barrier(terms.b[i], terms.bdot[i], tuning)
-        dB_dq[i] = db * db_dq[i] + dbdot * dbdot_dq[i]
-        dB_dqd[i] = dbdot * db_dq[i]
-    return dB_dq, dB_dqd
+    return terms.dB_db[:, None] * db_dq + terms.dB_dbdot[:, None] * dbdot_dq, terms.dB_dbdot[:, None] * db_dq

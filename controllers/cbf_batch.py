@@ -14,11 +14,12 @@ arguments (`PaperCBFKernel`) and calls the scalar filter for the states the kern
 filter's own calls at one state (`CBFFilter.__call__`, `CBFFilter.step`) run the same kernel at B = 1:
 there is one implementation of this QP, and the scalar QP (`controllers.qp`) is only the fallback.
 
-Barrier terms: b, ḃ, B, L_fB, L_gB per row (`controllers.cbf.barrier_rows`) from the tip terms of
-`controllers.dynamics_batch.BatchDynamics`, in the scalar path's operation order, so
-b, ḃ, B, L_fB, L_gB are the scalar filter's floats (log1p is the C library's, which the math
-module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's rounding reaches u through
-1/‖L_gB‖, which a chattering closed loop amplifies). Branches, as `CBFFilter` takes them:
+Barrier terms: b, ḃ, B, L_fB, L_gB per row (`controllers.cbf_kernels.barrier_rows`, their one
+implementation, derived in `controllers.cbf`) from the tip terms of
+`controllers.dynamics_batch.BatchDynamics`; the kernel returns them (`KernelOutput`), and the scalar
+fallback solves its QP on these very rows, so both paths see the same floats (log1p is the C library's,
+which the math module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's rounding reaches
+u through 1/‖L_gB‖, which a chattering closed loop amplifies). Branches, as `CBFFilter` takes them:
 - "disabled" (tuning None): u = u_nom, clipped to the bounds when they are on;
 - "nominal": u_nom within the bounds and a_i·u_nom ≤ c_i for every row, tested
   exactly as the scalar filter tests it (u = u_nom); a_i = L_gB_i, c_i = γ/B_i − L_fB_i, or the
@@ -57,8 +58,11 @@ module calls too; numpy's differs by 1 ulp on ~1 % of arguments, and B's roundin
   1 + Σ_{k≤N} C(P + 2N, k) less those pairs: 14, 46, 146 candidates for N = 2, 3, 4 and one
   facet row (27, 106, 384 with three rows); unbounded 1 + Σ_k C(P, k) (`candidate_table`: the
   kernel's list of them, each with its prefixes). Every candidate is
-  tested for feasibility with the scalar solver's tolerance FEASIBILITY_RTOL·(1 + max(|u_nom|,
-  |lb|, |ub|)), and the feasible candidate nearest u₀ wins (ties: the first in the order above).
+  tested for feasibility with the scalar solver's tolerance (`controllers.qp.tolerances`):
+  FEASIBILITY_RTOL·(1 + max(|lb|, |ub|)) + ROUNDING_RTOL·max|u₀| (hPa on unit rows; without the box
+  the first term is FEASIBILITY_RTOL: a tolerance growing as FEASIBILITY_RTOL·|u_nom| accepted
+  commands violating a row by ~1 hPa at |u_nom| = 1e10 hPa, where the scalar QP's acceptance is
+  1e-3 hPa), and the feasible candidate nearest u₀ wins (ties: the first in the order above).
   u_nom itself within that tolerance gives u = u_nom, as the scalar solver's shortcut does (the
   enumeration stops there: no candidate is nearer). The
   result is clipped to the bounds, as `CBFFilter` clips it. The kernel's cost grows with the
@@ -98,7 +102,7 @@ from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError
 from controllers.lazy_import import lazy_module
 from controllers.params import RobotParams
-from controllers.qp import FEASIBILITY_RTOL, ZERO_ROW_TOL
+from controllers.qp import FEASIBILITY_RTOL, ROUNDING_RTOL, ZERO_ROW_TOL
 from controllers.safe_set import ForceSafeSet
 
 cbf_kernels = lazy_module("controllers.cbf_kernels")  # numba loads on the first call (controllers.lazy_import)
@@ -233,7 +237,10 @@ CODE_LABELS = np.array(["disabled", "nominal", "qp", "recovery", "fallback"])
 
 class KernelOutput(NamedTuple):
     """`PaperCBFKernel.run`'s per-state results: u (B, N) hPa, code (B,) int8 (`controllers.cbf_kernels`' codes),
-    b, B, constraint (B, P) (row-scaled m, 1, 1/s: the filter's diagnostics) and active (B, P) bool."""
+    b, B, constraint (B, P) (row-scaled m, 1, 1/s: the filter's diagnostics) and active (B, P) bool; the rows the
+    scalar fallback reads: LfB (B, P) 1/s, LgB (B, P, N) 1/(s·hPa) (0 where b ≤ B_MIN), and per row of P its
+    quasi-static row static_a (B, P, N) row-scaled m/hPa and static_c (B, P) row-scaled m (`RecoveryRows`; meaningful
+    only with them)."""
 
     u: np.ndarray
     code: np.ndarray
@@ -241,6 +248,10 @@ class KernelOutput(NamedTuple):
     B: np.ndarray
     constraint: np.ndarray
     active: np.ndarray
+    LfB: np.ndarray
+    LgB: np.ndarray
+    static_a: np.ndarray
+    static_c: np.ndarray
 
 
 class PaperCBFKernel:
@@ -279,9 +290,10 @@ class PaperCBFKernel:
 
     def outputs(self, count: int) -> KernelOutput:
         """Empty result arrays for `count` states."""
-        return KernelOutput(np.empty((count, self.n)), np.empty(count, dtype=np.int8), np.empty((count, self.rows)),
-                            np.empty((count, self.rows)), np.empty((count, self.rows)),
-                            np.empty((count, self.rows), dtype=np.bool_))
+        rows = (count, self.rows)
+        return KernelOutput(np.empty((count, self.n)), np.empty(count, dtype=np.int8), np.empty(rows), np.empty(rows),
+                            np.empty(rows), np.empty(rows, dtype=np.bool_), np.empty(rows),
+                            np.empty((*rows, self.n)), np.empty((*rows, self.n)), np.empty(rows))
 
     def run(self, kin: np.ndarray, tip_col: int, jac_col: int, q: np.ndarray, u_nom: np.ndarray,
             out: KernelOutput | None = None) -> KernelOutput:
@@ -291,8 +303,8 @@ class PaperCBFKernel:
         out = self.outputs(len(q)) if out is None else out
         cbf_kernels.paper_cbf(kin, tip_col, jac_col, q, u_nom, self.facets, self._ab, self.tuning.b_E,
                               self.tuning.gamma, self.static_gain, self.limits, self.table, self.tuning.disabled,
-                              self.bounded, self.recover, self.enumerate_qp, B_MIN, FEASIBILITY_RTOL, ZERO_ROW_TOL,
-                              SINGULAR_TOL, *out)
+                              self.bounded, self.recover, self.enumerate_qp, B_MIN, FEASIBILITY_RTOL, ROUNDING_RTOL,
+                              ZERO_ROW_TOL, SINGULAR_TOL, *out)
         return out
 
 

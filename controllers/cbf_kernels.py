@@ -25,11 +25,17 @@ Arguments (shapes: B states, N inputs, P rows of P, m = P (+ 2N with the box) QP
 - table (C, N + 1) int: the candidates (`cbf_batch.candidate_table`): per candidate g ≥ 1 its size k,
   its last row and the global indices of its prefixes of sizes 1..k−1; row 0 stands for u_nom;
 - flags: disabled (tuning None), bounded, recover (recovery rows computed here), enumerate (N within
-  the enumeration's reach); tolerances: b_min (B_MIN), feasibility_rtol, zero_row_tol, singular_tol.
+  the enumeration's reach); tolerances: b_min (B_MIN), feasibility_rtol and rounding_rtol (`controllers.qp`'s),
+  zero_row_tol, singular_tol.
 Outputs, written per state: u (B, N) hPa, code (B,) int8 (DISABLED, NOMINAL, QP, RECOVERY, or
 FALLBACK: the scalar filter decides), b (B, P) (the barrier per row), and the filter's diagnostics:
 B (B, P) (+inf where b ≤ B_MIN), the constraint L_fB + L_gB u − γ/B at the command (B, P) (+inf there), and
-active (B, P) bool (the barrier rows of the chosen candidate's subset).
+active (B, P) bool (the barrier rows of the chosen candidate's subset); then the rows the scalar fallback reads
+(`controllers.filter.CBFFilter`): L_fB (B, P) and L_gB (B, P, N) (0 where b ≤ B_MIN), and every row's quasi-static
+row (B, P, N) and its right-hand side (B, P) (meaningful only with `recover`).
+
+The barrier rows (b, ḃ, B, L_fB, L_gB) have one implementation, `barrier_rows`: the kernel calls it per state,
+`controllers.cbf.barrier_terms` at one state from Python.
 """
 
 from __future__ import annotations
@@ -54,8 +60,8 @@ def _dot(a, ra, b, rb, n):
 
 @njit(cache=True, error_model="numpy")
 def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_gain, limits, table, disabled, bounded,
-              recover, enumerate_qp, b_min, feasibility_rtol, zero_row_tol, singular_tol, u, code, b_out, big_b_out,
-              constraint_out, active_out) -> None:
+              recover, enumerate_qp, b_min, feasibility_rtol, rounding_rtol, zero_row_tol, singular_tol, u, code, b_out,
+              big_b_out, constraint_out, active_out, lfb_out, lgb_out, static_rows_out, static_rhs_out) -> None:
     """The batched paper CBF (module docstring), per state: the saturated u_nom and the barrier rows; then the
     state's code: DISABLED, FALLBACK (unevaluable rows, recovery without its rows, beyond the enumeration's reach,
     contradicting rows, or no feasible candidate), NOMINAL (u_nom satisfies every row), else QP or RECOVERY with
@@ -67,7 +73,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
     n_cand = table.shape[0]
     rows = np.empty((m, n))  # the QP's rows (unit after scaling; the box rows ±e_j)
     rhs = np.empty(m)
-    lgb, lfb = np.empty((p, n)), np.empty(p)  # the barrier rows' L_gB and L_fB as computed (before scaling)
+    bdot, d_b, d_bdot = np.empty(p), np.empty(p), np.empty(p)  # ḃ, ∂B/∂b, ∂B/∂ḃ (`barrier_rows`; not returned)
     zero = np.zeros(m, dtype=np.bool_)  # a zero row (dropped: every candidate holding it is skipped)
     cand = np.empty((n_cand, n))  # per candidate: u_S
     basis = np.empty((n_cand, n))  # per candidate: v, its last row orthogonalised against its prefix's rows
@@ -78,8 +84,9 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
     box_scale = _box_rows(limits, p, rows, rhs) if bounded else 0.0
     for s in range(n_states):
         _saturated_nominal(u_nom, limits, bounded, s, u0, u)
-        recovery, unevaluable = _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s,
-                                              rows, rhs, b_out, big_b_out, lgb, lfb)
+        recovery, unevaluable = _qp_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s, rows,
+                                         rhs, b_out[s], bdot, big_b_out[s], lfb_out[s], lgb_out[s], d_b, d_bdot,
+                                         static_rows_out[s], static_rhs_out[s])
         best = -1
         if disabled:
             code[s] = DISABLED
@@ -90,7 +97,7 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
         elif not enumerate_qp or _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
             code[s] = FALLBACK
         else:
-            tol = feasibility_rtol * _feasibility_scale(u0, bounded, box_scale, n)
+            tol = _feasibility_tolerance(u0, box_scale, feasibility_rtol, rounding_rtol, n)
             best = _nearest_candidate(table, rows, rhs, zero, u0, tol, singular_tol, m, n, cand, basis, basis_sq,
                                       volume, valid)
             if best < 0:
@@ -102,7 +109,8 @@ def paper_cbf(kin, tip_col, jac_col, q, u_nom, facets, ab, b_e, gamma, static_ga
                         v = min(max(v, limits[0, j]), limits[1, j])
                     u[s, j] = v
                 code[s] = RECOVERY if recovery else QP
-        _diagnostics(table, best, s, p, n, gamma, b_min, b_out, big_b_out, lgb, lfb, u, constraint_out, active_out)
+        _diagnostics(table, best, s, p, n, gamma, b_min, b_out, big_b_out, lgb_out[s], lfb_out[s], u, constraint_out,
+                     active_out)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -163,47 +171,68 @@ def _saturated_nominal(u_nom, limits, bounded, s, u0, u) -> None:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _barrier_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s, rows, rhs, b_out,
-                  big_b_out, lgb, lfb):
-    """The P barrier rows of state s into rows, rhs, lgb, lfb, b_out[s] and big_b_out[s] (controllers.cbf.barrier_rows,
-    in its operation order), or the quasi-static row of a row with b ≤ B_MIN (CBFFilter's "recovery", B = +inf and
-    L_gB = L_fB = 0 for it); return (recovery: a quasi-static row was written, unevaluable: a row is not finite)."""
-    n = q.shape[1]
-    r = kin[s, tip_col]
-    r_dot = kin[s, tip_col + 1]
-    r_acc0 = kin[s, tip_col + 2]
-    recovery, unevaluable = False, False
+def barrier_rows(tip, facets, ab, b_e, b_min, b, bdot, big_b, lfb, lgb, d_b, d_bdot) -> None:
+    """The barrier rows of every row i of P at one state: the one implementation of `controllers.cbf`'s terms
+    (its module docstring), which the kernel calls per state and `controllers.cbf.barrier_terms` at one state.
+
+    tip (N + 3,) complex: r, ṙ, r̈ at u = 0, ∂r̈/∂u_1..N (`controllers.pcc_model`'s tip terms); facets (P, ≥ 3):
+    H'_i (x, y), h'_i; ab = a_E·b_E, b_e = b_E. Written per row: b, ḃ (P,) (row-scaled m, m/s), and where
+    b_i > b_min the barrier B_i, L_fB_i (1/s), L_gB_i (row i of lgb (P, N), 1/(s·hPa)), ∂B/∂b and ∂B/∂ḃ; rows
+    with b_i ≤ b_min get B = +inf and L_fB = L_gB = ∂B/∂b = ∂B/∂ḃ = 0."""
+    n = lgb.shape[1]
+    r, r_dot, r_acc0 = tip[0], tip[1], tip[2]
     for i in range(facets.shape[0]):
         hx, hy, h_i = facets[i, 0], facets[i, 1], facets[i, 2]
-        b = h_i - (hx * r.real + hy * r.imag)
-        b_out[s, i] = b
-        if b > b_min:
-            bdot = -(hx * r_dot.real + hy * r_dot.imag)
-            den = 1.0 + b_e * bdot * bdot
-            big_b = math.log1p(1.0 / b) + ab * bdot * bdot / den
-            db, dbdot = -1.0 / (b * (1.0 + b)), 2.0 * ab * bdot / (den * den)
-            lfb[i] = db * bdot - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
-            big_b_out[s, i] = big_b
+        b_i = h_i - (hx * r.real + hy * r.imag)
+        bdot_i = -(hx * r_dot.real + hy * r_dot.imag)
+        b[i], bdot[i] = b_i, bdot_i
+        if b_i > b_min:
+            den = 1.0 + b_e * bdot_i * bdot_i
+            big_b[i] = math.log1p(1.0 / b_i) + ab * bdot_i * bdot_i / den
+            db, dbdot = -1.0 / (b_i * (1.0 + b_i)), 2.0 * ab * bdot_i / (den * den)
+            d_b[i], d_bdot[i] = db, dbdot
+            lfb[i] = db * bdot_i - dbdot * (hx * r_acc0.real + hy * r_acc0.imag)
+            for j in range(n):
+                a = tip[3 + j]
+                lgb[i, j] = -dbdot * (hx * a.real + hy * a.imag)
+        else:
+            big_b[i], lfb[i], d_b[i], d_bdot[i] = math.inf, 0.0, 0.0, 0.0
+            for j in range(n):
+                lgb[i, j] = 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _qp_rows(kin, tip_col, jac_col, q, facets, ab, b_e, gamma, static_gain, b_min, s, rows, rhs, b, bdot, big_b, lfb,
+             lgb, d_b, d_bdot, static_rows, static_rhs):
+    """State s's barrier rows (`barrier_rows`, into b, ḃ, B, L_fB, L_gB), the quasi-static row of every row of P
+    (CBFFilter's "recovery": (H'_i J_r K⁻¹Λ) u ≤ b_i − ε_i + H'_i J_r q, into static_rows (P, N) and static_rhs (P,)),
+    and the QP's rows a_i·u ≤ c_i: a_i = L_gB_i, c_i = γ/B_i − L_fB_i, or the quasi-static row where b_i ≤ B_MIN;
+    return (recovery: a quasi-static row was taken, unevaluable: a CBF row is not finite)."""
+    n = q.shape[1]
+    barrier_rows(kin[s, tip_col:tip_col + 3 + n], facets, ab, b_e, b_min, b, bdot, big_b, lfb, lgb, d_b, d_bdot)
+    recovery, unevaluable = False, False
+    for i in range(facets.shape[0]):
+        hx, hy = facets[i, 0], facets[i, 1]
+        offset = 0.0
+        for j in range(n):
+            jac = kin[s, jac_col + j]
+            hj = hx * jac.real + hy * jac.imag
+            static_rows[i, j] = hj * static_gain[j]
+            offset += hj * q[s, j]
+        static_rhs[i] = b[i] - facets[i, 3] + offset
+        if b[i] > b_min:
             total = 0.0
             for j in range(n):
-                a = kin[s, tip_col + 3 + j]
-                rows[i, j] = -dbdot * (hx * a.real + hy * a.imag)
-                lgb[i, j] = rows[i, j]
+                rows[i, j] = lgb[i, j]
                 total += rows[i, j]
-            rhs[i] = gamma / big_b - lfb[i]
+            rhs[i] = gamma / big_b[i] - lfb[i]
             if not math.isfinite(rhs[i] + total):
                 unevaluable = True
         else:
             recovery = True
-            big_b_out[s, i], lfb[i] = math.inf, 0.0
-            offset = 0.0
             for j in range(n):
-                lgb[i, j] = 0.0
-                jac = kin[s, jac_col + j]
-                hj = hx * jac.real + hy * jac.imag
-                rows[i, j] = hj * static_gain[j]
-                offset += hj * q[s, j]
-            rhs[i] = b - facets[i, 3] + offset
+                rows[i, j] = static_rows[i, j]
+            rhs[i] = static_rhs[i]
     return recovery, unevaluable
 
 
@@ -231,15 +260,13 @@ def _unit_rows(rows, rhs, zero, p, n, zero_row_tol):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _feasibility_scale(u0, bounded, box_scale, n):
-    """1 + max_j |u0_j| (with the box: at least 1 + its largest bound), the scale of the feasibility tolerance."""
-    scale = 0.0
+def _feasibility_tolerance(u0, box_scale, feasibility_rtol, rounding_rtol, n):
+    """The scalar solver's feasibility tolerance (`controllers.qp.tolerances`, in its operation order): feasibility_rtol
+    · (1 + the box's largest bound, 0 unbounded) + rounding_rtol · max_j |u0_j| (hPa on unit rows)."""
+    largest = 0.0
     for j in range(n):
-        scale = max(scale, abs(u0[0, j]))
-    scale = 1.0 + scale
-    if bounded:
-        scale = max(scale, 1.0 + box_scale)
-    return scale
+        largest = max(largest, abs(u0[0, j]))
+    return feasibility_rtol * (1.0 + box_scale) + rounding_rtol * largest
 
 
 @njit(cache=True, error_model="numpy", inline="always")

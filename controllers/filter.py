@@ -22,7 +22,9 @@ One implementation of the QP: every call, one state (B = 1) or a batch (`filter_
 compiled kernel of the batched filter (`controllers.cbf_batch.PaperCBFKernel`, `controllers.cbf_kernels`):
 the barrier rows, the "disabled", "nominal", "qp" and "recovery" branches, the QP solved exactly by
 enumerating its active sets (derivation: `controllers.cbf_batch`). The scalar path (`controllers.qp`'s
-active-set QP over Python floats) is the documented fallback for the states the kernel hands back: no
+active-set QP over Python floats, on the barrier and quasi-static rows the kernel computed at that state:
+one implementation of the rows, `controllers.cbf_kernels.barrier_rows`) is the documented fallback for the
+states the kernel hands back: no
 feasible candidate ("slack", the rest target, "vent"), a row that is not finite, and QP states beyond the
 enumeration's reach (more than `controllers.cbf_batch.ENUMERATION_MAX_CANDIDATES` candidates: N ≥ 6 with one
 facet and the box). Both agree where both apply: the same label, commands within 1e-9 hPa
@@ -104,10 +106,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.cbf import B_MIN, TUNING_PARAMETERS, TUNINGS, Tuning, barrier_rows, get_tuning
-from controllers.cbf_batch import CODE_LABELS, SCALAR_BELOW, PaperCBFKernel, RecoveryRows, cbf_qp_batch
+from controllers.cbf import B_MIN, TUNING_PARAMETERS, TUNINGS, Tuning, get_tuning
+from controllers.cbf_batch import CODE_LABELS, SCALAR_BELOW, KernelOutput, PaperCBFKernel, RecoveryRows, cbf_qp_batch
 from controllers.dynamics_batch import BatchDynamics
-from controllers.dynamics import DynamicsEval, PCCDynamics
+from controllers.dynamics import PCCDynamics
 from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_vector
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs, value_text
 from controllers.params import RobotParams
@@ -241,16 +243,6 @@ class CBFFilter:
             return u
         return [min(max(v, lo), hi) for v, lo, hi in zip(u, self._lb_list, self._ub_list)]
 
-    def _static_row(self, ev: DynamicsEval, q: list[float], b_i: float, i: int) -> tuple[list[float], float]:
-        """Row (a, c), a·u ≤ c: the rest configuration q_ss = K⁻¹Λu lies inside P by ε_i.
-
-        Linearised about the current q: b(q_ss) ≈ b − H'_i J_r (K⁻¹Λu − q) ≥ ε_i.
-        """
-        hx, hy = self._rows[i]
-        hj = [hx * j.real + hy * j.imag for j in ev.tip_jac.tolist()]
-        a = [v * g for v, g in zip(hj, self._static_gain)]
-        return a, b_i - self._eps[i] + sum(v * q_j for v, q_j in zip(hj, q))
-
     def _slack_qp(self, u_nom: list[float], rows: list[list[float]], rhs: list[float],
                   hard: list[tuple[list[float], float]]) -> tuple[list[float] | None, float]:
         """Least-violation QP over z = (u, √w s) with hard rows `hard`; returns (u, max s) or (None, nan).
@@ -343,27 +335,24 @@ class CBFFilter:
 
     def step(self, x, u_nom, scalar: bool = False) -> CBFResult:
         """Filter u_nom (N,) hPa at state x = [q; q̇] (2N,); see the module docstring. scalar: every branch through
-        the scalar QP of `controllers.qp` (the fallback's path; the tests compare it with the kernel's)."""
+        the scalar QP of `controllers.qp` on the rows the kernel computed (the fallback's path; the tests compare it
+        with the kernel's QP)."""
         x = as_vector("x", x, 2 * self.n, NonFiniteStateError)
         u_nom = as_vector("u_nom", u_nom, self.n, NonFiniteCommandError)
-        u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = (
-            self._scalar_step if scalar else self._step_floats)(x.tolist(), u_nom.tolist())
+        u, b, big_b, constraint, active, infeasible, recovery, action, rho_pred, solve_us, slack = self._step_floats(
+            x.tolist(), u_nom.tolist(), scalar)
         return CBFResult(u_nom if u is None else np.array(u), u_nom, np.array(b), np.array(big_b), np.array(constraint),
                          np.zeros(len(b), dtype=bool) if active is None else np.array(active, dtype=bool),
                          infeasible, recovery, action, rho_pred, solve_us, slack)
 
-    def _step_floats(self, xs: list[float], u_list: list[float]) -> tuple:
+    def _step_floats(self, xs: list[float], u_list: list[float], scalar: bool = False) -> tuple:
         """`step` on checked Python floats (x = xs, u_nom = u_list): (u, b, B, constraint, active,
         infeasible, recovery, action, rho_pred, solve_us, slack) with u None when it is u_nom,
         b, B, constraint lists over the rows of P and active a list of bools over them (None when no
-        QP's active set applies). The compiled kernel (`_kernel_step`), else the scalar path (`_scalar_step`)."""
-        out = self._kernel_step(xs, u_list)
-        return self._scalar_step(xs, u_list) if out is None else out
-
-    def _kernel_step(self, xs: list[float], u_list: list[float]) -> tuple | None:
-        """`_step_floats` through the batched paper CBF's kernel at B = 1 (`controllers.cbf_batch.PaperCBFKernel`:
-        the "disabled", "nominal", "qp" and "recovery" branches), or None for a state it hands back (FALLBACK: the
-        scalar QP's branches, module docstring). solve_us: the kernel call's time where it solved a QP."""
+        QP's active set applies). The kernel of the batched paper CBF at B = 1 (`controllers.cbf_batch.PaperCBFKernel`:
+        the barrier rows, the "disabled", "nominal", "qp" and "recovery" branches); for a state it hands back
+        (FALLBACK), or every state with `scalar`, the scalar QP on the rows the kernel computed (`_scalar_step`).
+        solve_us: the kernel call's time where it solved a QP."""
         n = self.n
         q = xs[:n]
         core = self.dynamics.model_terms(q, xs[n:])
@@ -372,29 +361,28 @@ class CBFFilter:
         out = self._kernel.run(core.kin[None], layout.tip_terms.start, layout.tip_jac.start, np.array((q,)),
                                np.array((u_list,)), self._kernel_out)
         solve_us = (time.perf_counter() - t0) * 1e6
+        tip = complex(core.kin[layout.tip_terms.start])
+        rho_pred = self.safe_set.margin_at(tip.real, tip.imag)
         action = str(CODE_LABELS[out.code[0]])
-        if action == "fallback":
-            return None
+        if scalar or action == "fallback":
+            return self._scalar_step(u_list, out, rho_pred)
         u = out.u[0].tolist()
         b = out.b[0].tolist()
-        tip = complex(core.kin[layout.tip_terms.start])
         solved = action == "qp" or action == "recovery"
         return (None if not solved and u == u_list else u, b, out.B[0].tolist(), out.constraint[0].tolist(),
                 out.active[0].tolist() if solved else None, False, self.enabled and not all(v > B_MIN for v in b),
-                action, self.safe_set.margin_at(tip.real, tip.imag), solve_us if solved else 0.0, 0.0)
+                action, rho_pred, solve_us if solved else 0.0, 0.0)
 
-    def _scalar_step(self, xs: list[float], u_list: list[float]) -> tuple:
-        """`_step_floats` in Python floats with the QP of `controllers.qp`: the fallback for the states the kernel
-        hands back (module docstring); every branch."""
+    def _scalar_step(self, u_list: list[float], out: KernelOutput, rho_pred: float) -> tuple:
+        """`_step_floats` in Python floats with the QP of `controllers.qp`, on the rows the kernel computed at this
+        state (`out`, its `KernelOutput` at B = 1: b, B, L_fB, L_gB and the quasi-static rows): the fallback for the
+        states the kernel hands back (module docstring); every branch."""
         # Python floats from here on: P and N are tiny and numpy's per-call overhead would dominate.
         given = u_list
         if self.pressure_limits and not all(lo <= v <= hi for lo, v, hi in zip(self._lb_list, u_list, self._ub_list)):
             u_list = self._clip(u_list)  # saturated u_nom (module docstring)
-        q = xs[: self.n]
-        ev = self.dynamics.evaluate_floats(q, xs[self.n :])
-        barrier = barrier_rows(ev.tip, self._rows, self._hs, self.tuning)  # per row: b, ḃ, B, L_fB, L_gB
-        tip = ev.tip[0]
-        rho_pred = self.safe_set.margin_at(tip.real, tip.imag)
+        barrier = list(zip(out.b[0].tolist(), out.B[0].tolist(), out.LfB[0].tolist(), out.LgB[0].tolist()))
+        static = list(zip(out.static_a[0].tolist(), out.static_c[0].tolist()))  # per row: its quasi-static row
         defined = [row[0] > B_MIN for row in barrier]
         recovery = self.enabled and not all(defined)
         gamma = self.tuning.gamma
@@ -404,27 +392,27 @@ class CBFFilter:
         else:
             rows, rhs, cbf_rows, unevaluable = [], [], [], False
             feasible = True  # u_list is inside the box
-            for i, (ok, (b_i, _, big_b, lfb, lgb)) in enumerate(zip(defined, barrier)):
+            for i, (ok, (_, big_b, lfb, lgb)) in enumerate(zip(defined, barrier)):
                 if ok:
                     row, c = lgb, gamma / big_b - lfb
                     if math.isfinite(c + sum(row)):  # (also false for finite terms whose sum overflows: flagged)
                         cbf_rows.append(i)
                     else:  # overflowed terms (huge q̇): unevaluable, see "slack"
                         defined[i], unevaluable = False, True
-                        row, c = self._static_row(ev, q, b_i, i)
+                        row, c = static[i]
                 else:
-                    row, c = self._static_row(ev, q, b_i, i)
+                    row, c = static[i]
                 rows.append(row)
                 rhs.append(c)
                 feasible = feasible and dot_lists(row, u_list) <= c
             if unevaluable or not feasible:
                 t0 = time.perf_counter()
                 u, action, active, infeasible, slack = self._qp_command(
-                    ev, q, u_list, rows, rhs, barrier, cbf_rows, recovery, unevaluable)
+                    u_list, rows, rhs, static, cbf_rows, recovery, unevaluable)
                 solve_us = (time.perf_counter() - t0) * 1e6
         constraint = [lfb + dot_lists(lgb, u) - gamma / big_b if ok else math.inf
-                      for ok, (_, _, big_b, lfb, lgb) in zip(defined, barrier)]
-        return (None if u is given else u, [row[0] for row in barrier], [row[2] for row in barrier], constraint, active,
+                      for ok, (_, big_b, lfb, lgb) in zip(defined, barrier)]
+        return (None if u is given else u, [row[0] for row in barrier], [row[1] for row in barrier], constraint, active,
                 infeasible, recovery, action, rho_pred, solve_us, slack)
 
     def _violates(self, u: list[float], u_nom: list[float], rows: list[list[float]], rhs: list[float],
@@ -433,10 +421,11 @@ class CBFFilter:
         tol = tolerances(u_nom, self._lb_list, self._ub_list)[1]
         return any(dot_lists(rows[i], u) - rhs[i] > tol * row_norm(rows[i]) for i in cbf_rows)
 
-    def _qp_command(self, ev: DynamicsEval, q: list[float], u_list: list[float], rows: list[list[float]],
-                    rhs: list[float], barrier: list[tuple], cbf_rows: list[int], recovery: bool,
+    def _qp_command(self, u_list: list[float], rows: list[list[float]], rhs: list[float],
+                    static: list[tuple[list[float], float]], cbf_rows: list[int], recovery: bool,
                     unevaluable: bool) -> tuple[list[float], str, list[bool] | None, bool, float]:
-        """The QP branches ("qp", "recovery", "slack", "vent"): (u, action, active, infeasible, slack)."""
+        """The QP branches ("qp", "recovery", "slack", "vent"): (u, action, active, infeasible, slack); static: every
+        row's quasi-static row (a, c), the slack QP's hard rows."""
         if not unevaluable:
             u, qp_active, _, _ = solve_lists(u_list, rows, rhs, self._lb_list, self._ub_list, self.qp_backend)
             if u is not None:
@@ -445,8 +434,7 @@ class CBFFilter:
                 clipped = self._clip(u)
                 if clipped == u or not self._violates(clipped, u_list, rows, rhs, cbf_rows):
                     return clipped, ("recovery" if recovery else "qp"), qp_active, False, 0.0
-        hard = [self._static_row(ev, q, row[0], i) for i, row in enumerate(barrier)]
-        u, slack = self._slack_qp(u_list, rows, rhs, hard)
+        u, slack = self._slack_qp(u_list, rows, rhs, static)
         action = "slack"
         if u is None and recovery:
             u = self._rest_target(u_list)

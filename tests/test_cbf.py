@@ -1,5 +1,7 @@
 """Barrier of docs/model.md#control-barrier-function: tunings, the definitions of b, ḃ, B, and ∂B/∂q, ∂B/∂q̇, L_f B, L_g B
-against finite differences of an independent B(q, q̇) built from the public kinematics.
+against finite differences of an independent B(q, q̇) built from the public kinematics. `barrier_terms` runs the
+compiled barrier rows (`controllers.cbf_kernels.barrier_rows`), the one implementation the filter's kernel and its
+scalar fallback use, so these are the filter's rows.
 
 Finite-difference tolerance: central differences with step 1e-7 are accurate to ≈ 1e-8
 relative here (b ≥ 0.02, so B's curvature is bounded); a wrong term is off by ≳ 1e-3.

@@ -1,6 +1,6 @@
 """cbf_qp_batch, and CBFFilter's calls (the same kernel at B = 1), against the filter's scalar QP
-(`CBFFilter.step(..., scalar=True)`, the fallback's path) on thousands of random states: labels and commands
-(1e-9 hPa)."""
+(`CBFFilter.step(..., scalar=True)`, the fallback's path, on the rows the kernel computed) on thousands of random
+states: labels and commands (1e-9 hPa)."""
 
 from __future__ import annotations
 
@@ -9,14 +9,16 @@ import itertools
 import numpy as np
 import pytest
 
-from controllers.cbf import TUNINGS
-from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, RecoveryRows, candidate_count, candidate_table,
-                                   cbf_qp_batch, subset_levels)
+from controllers.cbf import TUNINGS, barrier_terms
+from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, PaperCBFKernel, RecoveryRows, candidate_count,
+                                   candidate_table, cbf_qp_batch, subset_levels)
+from controllers.dynamics import PCCDynamics
 from controllers.dynamics_batch import BatchDynamics
 from controllers.errors import NonFiniteStateError
 from controllers.filter import CBFFilter
 from controllers.params import reference_robot, uniform_robot
-from controllers.pcc import tip_positions
+from controllers.qp import tolerances
+from controllers.pcc import tip_jacobian, tip_positions
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
 from controllers.safety_filter import Estimate, EstimateBatch
 
@@ -144,6 +146,40 @@ def test_the_filter_call_is_the_kernel_and_agrees_with_the_scalar_qp(n_seg, tuni
         assert out.action == got.action and np.array_equal(out.u, got.u)
         actions.add(got.action)
     assert {"nominal", "qp", "recovery"} <= actions  # the kernel's branches were compared
+
+
+@pytest.mark.parametrize("n_seg", [2, 3])
+def test_the_kernel_returns_the_rows_the_fallback_solves_on(n_seg):
+    """The kernel's rows at each state (`KernelOutput`, which the scalar fallback reads): b, B, L_fB and L_gB are
+    `barrier_terms`' (the same compiled function, checked against finite differences of B in tests/test_cbf.py),
+    and every row's quasi-static row is its definition (H'_i J_r K⁻¹Λ) u ≤ b_i − ε_i + H'_i J_r q from the public
+    kinematics; on states inside and outside P (three rows: a corner)."""
+    params = reference_robot() if n_seg == 2 else uniform_robot(n_seg, length=0.07)  # a tip that reaches inside
+    corner = Environment(np.array([[0.36, 1.0], [1.0, -1.0]]), np.array([0.15, 0.17]))
+    safe_set = ForceSafeSet(corner, LinearStiffness(11.16), 0.16, row_scaling="paper")
+    recovery = RecoveryRows.of(params, safe_set, 2e-3)
+    kernel = PaperCBFKernel(n_seg, safe_set, TUNINGS["HW-High"], np.array(params.u_min), np.array(params.u_max),
+                            recovery)
+    rng = np.random.default_rng(40 + n_seg)
+    q, qd = rng.uniform(-0.8, 0.8, (200, n_seg)), rng.normal(0.0, 1.5, (200, n_seg))
+    u_nom = rng.uniform(-250.0, 250.0, (200, n_seg))
+    terms = BatchDynamics(params).terms(q, qd)
+    out = kernel.run(terms.kin, terms.layout.tip_terms.start, terms.layout.tip_jac.start, q, u_nom)
+    dyn, H, h = PCCDynamics(params), np.asarray(safe_set.H_prime), np.asarray(safe_set.h_prime)
+    gain, eps = np.array(recovery.static_gain), np.array(recovery.margins)
+    outside = 0
+    for s in range(len(q)):
+        want = barrier_terms(dyn.evaluate(q[s], qd[s]), H, h, TUNINGS["HW-High"])
+        np.testing.assert_array_equal(out.b[s], want.b)
+        np.testing.assert_array_equal(out.B[s], want.B)
+        np.testing.assert_array_equal(out.LfB[s], want.LfB)
+        np.testing.assert_array_equal(out.LgB[s], want.LgB)
+        h_jac = H @ tip_jacobian(q[s], dyn.lengths)  # H'_i J_r (P, N)
+        np.testing.assert_allclose(out.static_a[s], h_jac * gain, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(out.static_c[s], want.b - eps + h_jac @ q[s], rtol=1e-12, atol=1e-14)
+        outside += not want.defined.all()
+        assert np.isfinite(out.LgB[s]).all() and (out.LgB[s][~want.defined] == 0.0).all()
+    assert 0 < outside < len(q)
 
 
 def _inside_states(params, safe_set, count: int, spread: float, seed: int):
@@ -284,3 +320,26 @@ def test_candidate_table_follows_the_subset_levels():
         size = len(subset)
         assert row[:2] == [size, subset[-1]]
         assert [members[g] for g in row[2 : 2 + size - 1]] == [subset[: i + 1] for i in range(size - 1)]
+
+
+@pytest.mark.parametrize("x, u_nom", [
+    ([0.28960896, 0.52232169, -0.7334536, 2.64100095], [-2.20661731e10, -3.25720985e10]),
+    ([0.31493941, 0.41934296, -0.40573409, -1.73969356], [7.77760075e07, -6.22589953e08]),
+    ([0.50533644, -0.26606365, -2.01033122, -0.99026827], [-3.27364315e09, -5.20451985e09]),
+])
+def test_a_huge_unbounded_nominal_meets_every_row_within_the_qps_acceptance(x, u_nom):
+    """Without the box, the kernel's feasibility tolerance is the scalar QP's (`controllers.qp.tolerances`), not
+    1e-9·|u_nom|: at a corner (three rows) with |u_nom| up to 3e10 hPa the kernel's "qp" command meets every row within
+    the acceptance tolerance (it used to accept a projection onto one row violating another by 0.2–1.2 hPa)."""
+    params = reference_robot()
+    corner = Environment(np.array([[0.36, 1.0], [1.0, -1.0]]), np.array([0.15, 0.17]))
+    safe_set = ForceSafeSet(corner, LinearStiffness(11.16), 0.16, row_scaling="paper")
+    filt = CBFFilter(params, safe_set, TUNINGS["HW-High"], pressure_limits=False)
+    res = filt.step(np.array(x), np.array(u_nom))
+    assert res.action == "qp" and not res.infeasible
+    terms = barrier_terms(filt.dynamics.evaluate(x[:2], x[2:]), safe_set.H_prime, safe_set.h_prime, filt.tuning)
+    excess = (terms.LgB @ res.u - (filt.tuning.gamma / terms.B - terms.LfB)) / np.linalg.norm(terms.LgB, axis=1)
+    assert excess.max() <= tolerances(list(u_nom), None, None)[1], excess
+    want = filt.step(np.array(x), np.array(u_nom), scalar=True)
+    assert want.action == "qp"
+    np.testing.assert_allclose(res.u, want.u, rtol=0.0, atol=1e-3)

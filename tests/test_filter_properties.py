@@ -5,7 +5,8 @@ Guarantee checked (controllers/filter.py, module docstring): the command is fini
 [u_min, u_max] when the limits are on, and either every defined CBF row holds at it within
 the QP's acceptance tolerance (`controllers.qp.tolerances`, hPa on unit rows) or the step is
 flagged `infeasible`. A row whose terms are not finite must never pass unflagged. The rows
-are recomputed here through `barrier_terms` (the array path) from the filter's own model.
+are recomputed here through `barrier_terms` (the compiled rows the filter's kernel runs, checked against
+finite differences in tests/test_cbf.py) from the filter's own model.
 Bad inputs raise only the documented errors: ControllerInputError subclasses from
 `step`, ValueError from the constructors of RobotParams, Tuning, ForceSafeSet and CBFFilter.
 """

@@ -9,9 +9,10 @@ largest |Δu| (hPa). Then this tree with the filter's recovery rows (`RecoveryRo
 outside P against the filter's scalar QP (`CBFFilter.step(..., scalar=True)`): labels that differ and the largest
 |Δu|.
 
-Both trees run in this process: `--against DIR`'s controllers/cbf_batch.py is loaded under another
-module name on top of this tree's other modules (the baseline must share this tree's
-`BatchDynamics`; true of the numpy version before the compiled kernel). Usage:
+Both trees run in this process: `--against DIR`'s controllers/cbf_batch.py (and its compiled kernel,
+controllers/cbf_kernels.py, where it has one) is loaded under another module name on top of this tree's
+other modules (the baseline must share this tree's `BatchDynamics`; true of the numpy version before the
+compiled kernel). Usage:
 `python tools/cbf_batch_agreement.py --against ../pin [--states 120000]`; ends with one line of JSON.
 """
 
@@ -20,16 +21,34 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import os
+import sys
+import tempfile
 from pathlib import Path
 
-import numpy as np
+# numba's cache of this run, the other tree's kernel included, goes here and not into that tree's __pycache__
+# (where its entries, compiled under this tool's module name, would break that tree's own runs); set before
+# numba is imported
+os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "cbf_batch_agreement_numba"))
 
-from controllers.cbf import TUNINGS
-from controllers.cbf_batch import RecoveryRows, cbf_qp_batch
-from controllers.dynamics_batch import BatchDynamics
-from controllers.filter import CBFFilter
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
+import numpy as np  # noqa: E402
+
+from controllers.cbf import TUNINGS  # noqa: E402
+from controllers.cbf_batch import RecoveryRows, cbf_qp_batch  # noqa: E402
+from controllers.dynamics_batch import BatchDynamics  # noqa: E402
+from controllers.filter import CBFFilter  # noqa: E402
+from controllers.params import reference_robot  # noqa: E402
+from controllers.safe_set import paper_safe_set  # noqa: E402
+
+
+def load_module(name: str, path: Path):
+    """The module at `path`, executed under `name` (beside this tree's modules; registered, so that numba's
+    cache can find it again)."""
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 def main() -> None:
@@ -38,9 +57,10 @@ def main() -> None:
     parser.add_argument("--states", type=int, default=120_000)
     parser.add_argument("--seed", type=int, default=123)
     args = parser.parse_args()
-    spec = importlib.util.spec_from_file_location("baseline_cbf_batch", args.against / "controllers" / "cbf_batch.py")
-    baseline = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(baseline)
+    baseline = load_module("baseline_cbf_batch", args.against / "controllers" / "cbf_batch.py")
+    kernels = args.against / "controllers" / "cbf_kernels.py"
+    if kernels.exists():  # the baseline's own compiled kernel: its arguments may differ from this tree's
+        baseline.cbf_kernels = load_module("baseline_cbf_kernels", kernels)
     params, safe_set = reference_robot(), paper_safe_set()
     rng = np.random.default_rng(args.seed)
     cases = [(tuning, limits) for tuning in ("Low", "High", "HW-Low", "HW-High") for limits in (True, False)]
