@@ -81,9 +81,10 @@ from closedloop.step import RESERVED_COLUMNS
 from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
 from controllers.errors import ControllerInputError
 from controllers.registry import PluginLoadError
-from controllers.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, Capabilities, CapabilityError, Estimate,
-                                       EstimateBatch, FilterContext, FilterOutput, OutputCheck, checked_batch_arrays,
-                                       filter_capabilities, read_only, real_vector, reset_filter)
+from controllers.capabilities import Capabilities, CapabilityError, filter_capabilities
+from controllers.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, Estimate, EstimateBatch, FilterContext,
+                                       FilterOutput, OutputCheck, checked_batch_arrays, read_only, real_vector,
+                                       reset_filter)
 
 BUILD_DEADLINE_S = 300.0  # s: the child's start, the build and the first call (imports, compiled kernels)
 CALL_DEADLINE_S = 60.0  # s: any later call; beyond it the child is ended and the call is a fault

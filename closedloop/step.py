@@ -52,7 +52,7 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
   `filter_batch`: an exception or refused return is the fault of each row it was called for; a
   `ControllerInputError` from the call asks it again for each row alone, so that only the rows it
   refuses are refused, as in their runs);
-  which of these a shared filter can do it declares (`controllers.safety_filter.filter_capabilities`,
+  which of these a shared filter can do it declares (`controllers.capabilities.filter_capabilities`,
   read once when the step is built, which refuses a filter that lacks what it declares): batched,
   its `filter_batch` is called; rows, it keeps a history per row and `filter_batch` is told the
   indices of the rows it is called for (`rows`, (k,) int, ascending); reset_rows, its `reset` is
@@ -98,9 +98,10 @@ from closedloop.monitor import (ACTION_CODES, ACTIONS, DEFAULT_HOLD_S, NO_FLAGS,
 from controllers.errors import ControllerInputError
 from controllers.interrupts import is_interrupt, watch
 from controllers.lazy_import import lazy_module
+from controllers.capabilities import filter_capabilities, nominal_capabilities
 from controllers.safety_filter import (Estimate, EstimateBatch, FilterContext, FilterOutput, FilterReturnError,
-                                       OutputCheck, SafetyFilter, checked_batch_arrays, filter_capabilities, frozen,
-                                       nominal_capabilities, real_vector, reset_filter)
+                                       OutputCheck, SafetyFilter, checked_batch_arrays, frozen, real_vector,
+                                       reset_filter)
 
 if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a run starts, not for softcbf list
     from controllers.nominal import NominalController
@@ -329,7 +330,7 @@ class BatchControlStep:
 
     safety_filter: one filter for all rows, or B, one per row; nominal: likewise (None: the loop
     hands every call its nominal commands, `u_nom`, e.g. the environment's actions). A shared filter
-    that declares batched (`controllers.safety_filter.filter_capabilities`, checked here for every
+    that declares batched (`controllers.capabilities.filter_capabilities`, checked here for every
     filter) has its `filter_batch` called once per control call for all the rows whose step calls it;
     any other filter is called row by row (one shared filter that does not declare batched must then
     be stateless). Each row has its views
@@ -568,7 +569,7 @@ class BatchControlStep:
     def _call_nominal_batch(self, live: np.ndarray, ts: list[float], t: np.ndarray, q: np.ndarray, qd: np.ndarray,
                             nominal: np.ndarray, nominal_ok: np.ndarray) -> None:
         """The shared nominal's `nominal_batch` on the `live` rows, once (it declares batched,
-        `controllers.safety_filter.nominal_capabilities`): an
+        `controllers.capabilities.nominal_capabilities`): an
         exception or a return that is not (rows, N) real numbers is a fault of each of those rows."""
         rows = int(np.count_nonzero(live))
         try:

@@ -3,9 +3,10 @@
 Public API (importable from `controllers` directly; each name is loaded from its module
 on first use, so `import controllers.params` stays cheap):
 
-- the plug-in contract (`controllers.safety_filter`, docs/safety-filter.md): `SafetyFilter`,
-  `Capabilities`, `filter_capabilities`, `nominal_capabilities`, `Estimate`, `EstimateBatch`, `FilterOutput`, `BatchOutput`,
-  `FilterContext`, `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`;
+- the plug-in contract (`controllers.safety_filter`, docs/safety-filter.md): `SafetyFilter`, `Estimate`,
+  `EstimateBatch`, `FilterOutput`, `BatchOutput`, `FilterContext`, `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`; what a plug-in
+  declares it can do (`controllers.capabilities`): `Capabilities`, `CapabilityError`, `filter_capabilities`,
+  `nominal_capabilities`;
 - the registry (`controllers.registry`): `FILTERS`, `NOMINALS`, `build_filter`,
   `build_nominal`, `parse_params`, `parameters`, `label`, `describe`;
 - the paper's filter (`controllers.filter`): `CBFFilter`, `CBFResult`, `paper_cbf`;
@@ -25,10 +26,10 @@ from __future__ import annotations
 import importlib
 
 _HOMES = {
-    "controllers.safety_filter": ("SafetyFilter", "Capabilities", "filter_capabilities", "nominal_capabilities",
-                                  "Estimate", "EstimateBatch",
+    "controllers.safety_filter": ("SafetyFilter", "Estimate", "EstimateBatch",
                                   "FilterOutput", "BatchOutput", "FilterContext", "PassThroughFilter", "OutputCheck",
                                   "FilterReturnError", "reset_filter"),
+    "controllers.capabilities": ("Capabilities", "CapabilityError", "filter_capabilities", "nominal_capabilities"),
     "controllers.registry": ("FILTERS", "NOMINALS", "build_filter", "build_nominal", "parse_params", "parameters",
                              "label", "describe"),
     "controllers.filter": ("CBFFilter", "CBFResult", "paper_cbf"),

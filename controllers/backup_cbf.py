@@ -69,7 +69,8 @@ from controllers.escape_energy import BoundaryDistanceBound
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.lazy_import import lazy_module
 from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
-from controllers.safety_filter import Capabilities, Estimate, FilterContext, FilterOutput
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 
 pcc_model = lazy_module("controllers.pcc_model")  # numba loads at the first rollout (controllers.lazy_import)
 

@@ -109,7 +109,8 @@ from controllers.errors import NonFiniteCommandError, NonFiniteStateError, as_ve
 from controllers.filter_parameters import FilterParameter, check_parameters, parameter_docs
 from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, dot_lists, solve_lists
 from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
-from controllers.safety_filter import Capabilities, Estimate, FilterContext, FilterOutput
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import Estimate, FilterContext, FilterOutput
 
 ECBF_PARAMETERS = {
     "alpha1": FilterParameter("pole of the barrier: psi1 = bdot + alpha1 b >= 0", "1/s",

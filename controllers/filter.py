@@ -117,7 +117,8 @@ from controllers.pcc import step_kinematics
 from controllers.qp import DEFAULT_BACKEND, available_backends, check_backend, dot_lists, row_norm, solve_lists, tolerances
 from controllers.safe_set import ForceSafeSet
 from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
-from controllers.safety_filter import BatchOutput, Capabilities, Estimate, EstimateBatch, FilterContext, FilterOutput
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput
 from controllers.bounds import Bound
 
 PARAMETERS = {

@@ -70,7 +70,8 @@ from controllers.filter_parameters import FilterParameter, check_parameters, par
 from controllers.lazy_import import lazy_module
 from controllers.pcc import kinematics_unchecked, step_kinematics
 from controllers.qp import DEFAULT_BACKEND, check_backend, solve_lists
-from controllers.safety_filter import (BatchOutput, Capabilities, Estimate, EstimateBatch, FilterContext, FilterOutput,
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import (BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput,
                                        batch_history_ids)
 from controllers.bounds import Bound
 

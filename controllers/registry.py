@@ -60,8 +60,8 @@ import numpy as np
 
 from controllers.filter_parameters import Params, parse_text, read_params, value_text
 from controllers.interrupts import is_interrupt
-from controllers.safety_filter import (CapabilityError, FilterContext, SafetyFilter, filter_capabilities,
-                                       nominal_capabilities)
+from controllers.capabilities import CapabilityError, filter_capabilities, nominal_capabilities
+from controllers.safety_filter import FilterContext, SafetyFilter
 
 if typing.TYPE_CHECKING:
     from controllers.nominal import NominalController
@@ -444,7 +444,7 @@ def check_nominal(spec: str, params: Mapping[str, object]) -> None:
 
 def build_filter(spec: str, params: Mapping[str, object], context: FilterContext) -> SafetyFilter:
     """The safety filter of `spec` with `params`, told `context`; PluginLoadError when it lacks a capability it
-    declares (`controllers.safety_filter.filter_capabilities`)."""
+    declares (`controllers.capabilities.filter_capabilities`)."""
     safety_filter = build(resolve(spec, FILTERS), typed_params(spec, params), context)
     if not callable(safety_filter):
         raise ValueError(f"filter {spec!r} must build a callable filter(estimate, u_nom), got {type(safety_filter).__name__}")
@@ -457,7 +457,7 @@ def build_filter(spec: str, params: Mapping[str, object], context: FilterContext
 
 def build_nominal(spec: str, params: Mapping[str, object], context: FilterContext) -> NominalController:
     """The nominal controller of `spec` with `params`, told `context` (its robot model and limits); PluginLoadError
-    when it lacks a capability it declares (`controllers.safety_filter.nominal_capabilities`)."""
+    when it lacks a capability it declares (`controllers.capabilities.nominal_capabilities`)."""
     nominal = build(resolve(spec, NOMINALS), params, context)
     if not callable(nominal):
         raise ValueError(f"nominal {spec!r} must build a callable (t, q, qd) -> u_nom, got {type(nominal).__name__}")

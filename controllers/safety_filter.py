@@ -24,8 +24,8 @@ command that is sent:
   the actuator's time constant; each plug-in is handed its own copy (`FilterContext.copy`).
 
 Capabilities are declared, never guessed. Everything beyond `__call__` (and the optional `reset()`)
-that a loop may use is declared by the filter's `capabilities`, a `Capabilities` (a class attribute,
-or a property where it depends on the filter's parameters); a filter that declares none has the
+that a loop may use is declared by the filter's `capabilities`, a `Capabilities`
+(`controllers.capabilities`; a class attribute, or a property where it depends on the filter's parameters); a filter that declares none has the
 minimal contract (the Protocol `SafetyFilter`), `Capabilities()`: it is called once per simulation,
 whatever other methods it has. `filter_capabilities(f)` is the one reader, asked by every loop (the
 control step, the batch form of a scenario, the vector environment, the isolated process) and by the
@@ -64,7 +64,6 @@ filter: a filter fault (hold, then vent, and the run stops; `closedloop.step`).
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Mapping
 from copy import deepcopy
@@ -223,116 +222,12 @@ class FilterContext:
         return self.u_min is not None
 
 
-class CapabilityError(ValueError):
-    """A plug-in's declared capabilities are not a `Capabilities`, or it lacks what it declares (module
-    docstring: "Capabilities are declared"); raised when it is built or a loop is set up, one line."""
-
-
-@dataclass(frozen=True)
-class Capabilities:
-    """What a filter or a nominal controller declares beyond the minimal contract (module docstring): batched
-    (`filter_batch`; a nominal's `nominal_batch`), rows (a history per simulation, told by `filter_batch(...,
-    rows=ids)`; with batched), reset_rows (`reset(rows=ids)`) and passthrough (u = u_nom: no filter times
-    reported); a nominal controller may declare batched only (`NOMINAL_CONTROLLER`). All False: the minimal
-    contract, called once per simulation."""
-
-    batched: bool = False
-    rows: bool = False
-    reset_rows: bool = False
-    passthrough: bool = False
-
-    def __post_init__(self) -> None:
-        for name in (f.name for f in fields(self)):
-            value = getattr(self, name)
-            if type(value) is not bool:
-                raise CapabilityError(f"Capabilities.{name} must be True or False, got {value!r}")
-        if self.rows and not self.batched:
-            raise CapabilityError("Capabilities(rows=True) needs batched=True: the rows are told to filter_batch")
-
-
-MINIMAL = Capabilities()  # what a plug-in that declares nothing can do: be called, and reset() when it has one
-
-
-@dataclass(frozen=True)
-class PluginKind:
-    """A kind of plug-in whose `capabilities` `plugin_capabilities` reads: its name and call (for the messages),
-    the method that `batched` promises, that method's arguments, and the capabilities the kind may declare."""
-
-    noun: str
-    call: str
-    batch_method: str
-    batch_arguments: str
-    allowed: frozenset[str]
-
-
-SAFETY_FILTER = PluginKind("safety filter", "filter(estimate, u_nom)", "filter_batch", "estimates, u_nom",
-                           frozenset(f.name for f in fields(Capabilities)))
-# a nominal controller (controllers.nominal) is called (t, q, qd) -> u_nom; batched: nominal_batch for B states at once
-NOMINAL_CONTROLLER = PluginKind("nominal controller", "nominal(t, q, qd)", "nominal_batch", "t, q, qd",
-                                frozenset({"batched"}))
-
-
 @runtime_checkable
 class SafetyFilter(Protocol):
     """The minimal contract: callable as `filter(estimate, u_nom)`, returning a FilterOutput or a bare (N,)
     array; optionally `reset()`. A filter declares more with a `capabilities` attribute (`Capabilities`)."""
 
     def __call__(self, estimate: Estimate, u_nom: np.ndarray) -> FilterOutput | np.ndarray: ...
-
-
-def plugin_capabilities(plugin: object, kind: PluginKind) -> Capabilities:
-    """The capabilities `plugin` of `kind` declares (its `capabilities`; `MINIMAL` when it declares none), checked
-    against what it has: CapabilityError (one line) for a plug-in that is not callable, a declaration that is not
-    a `Capabilities`, a capability its kind cannot have (a nominal's rows, reset_rows or passthrough), or one it
-    does not implement (batched without the kind's batch method, rows without a `rows` keyword of it,
-    reset_rows without `reset(rows=...)`). Signatures are read here only to check a declaration, never to
-    decide what a plug-in can do."""
-    name = getattr(plugin, "__name__", None) or type(plugin).__name__
-    if not callable(plugin):
-        raise CapabilityError(f"a {kind.noun} must be callable as {kind.call}, got {name}")
-    try:
-        declared = getattr(plugin, "capabilities", MINIMAL)
-    except Exception as exc:  # noqa: BLE001 - a property of user code: refused in one line at setup
-        raise CapabilityError(f"{name}.capabilities raised {type(exc).__name__}: {exc}") from None
-    if type(declared) is not Capabilities:
-        raise CapabilityError(f"{name}.capabilities must be a controllers.safety_filter.Capabilities, got "
-                              f"{type(declared).__name__}")
-    foreign = [f.name for f in fields(declared) if getattr(declared, f.name) and f.name not in kind.allowed]
-    if foreign:
-        raise CapabilityError(f"{name} declares {foreign[0]}=True, which a {kind.noun} cannot: it may declare "
-                              f"{', '.join(sorted(kind.allowed))} only")
-    batch = getattr(plugin, kind.batch_method, None)
-    if declared.batched and not callable(batch):
-        raise CapabilityError(f"{name} declares batched=True but has no method "
-                              f"{kind.batch_method}({kind.batch_arguments})")
-    if declared.rows and not _takes_keyword(batch, "rows"):
-        raise CapabilityError(f"{name} declares rows=True but its {kind.batch_method} takes no keyword rows")
-    if declared.reset_rows and not _takes_keyword(getattr(plugin, "reset", None), "rows"):
-        raise CapabilityError(f"{name} declares reset_rows=True but has no method reset(rows=...)")
-    return declared
-
-
-def filter_capabilities(safety_filter: object) -> Capabilities:
-    """What `safety_filter` declares, checked (`plugin_capabilities` of a `SAFETY_FILTER`)."""
-    return plugin_capabilities(safety_filter, SAFETY_FILTER)
-
-
-def nominal_capabilities(nominal: object) -> Capabilities:
-    """What the nominal controller `nominal` declares, checked (`plugin_capabilities` of a `NOMINAL_CONTROLLER`):
-    batched, or nothing (called once per simulation, whatever methods it has)."""
-    return plugin_capabilities(nominal, NOMINAL_CONTROLLER)
-
-
-def _takes_keyword(function: object, name: str) -> bool:
-    """Whether `function` (a method, or None) can be called with the keyword argument `name`."""
-    if not callable(function):
-        return False
-    try:
-        parameters = inspect.signature(function).parameters.values()
-    except (TypeError, ValueError):  # no signature to read (a builtin): no such keyword to rely on
-        return False
-    return any(p.name == name and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) or p.kind == p.VAR_KEYWORD
-               for p in parameters)
 
 
 class PassThroughFilter:

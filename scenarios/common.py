@@ -54,7 +54,8 @@ from controllers.registry import (FILTERS, NOMINALS, build_filter, build_nominal
                                   label, typed_params)
 from controllers.qp import available_backends
 from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
-from controllers.safety_filter import Estimate, FilterContext, filter_capabilities
+from controllers.capabilities import filter_capabilities
+from controllers.safety_filter import Estimate, FilterContext
 from softcbf_mj.loop import Series, exact_state, run_closed_loop
 from softcbf_mj.metrics import run_figures
 from softcbf_mj.ground_truth import (  # noqa: F401  (scenarios take the robot files from the ground truth's module)
@@ -314,7 +315,7 @@ def stop_after(row: Mapping[str, Any]) -> bool:
 
 
 def filter_enabled(step: ControlStep) -> bool:
-    """False for a filter that declares passthrough (`controllers.safety_filter.Capabilities`): no filter times."""
+    """False for a filter that declares passthrough (`controllers.capabilities.Capabilities`): no filter times."""
     return not filter_capabilities(step.filter).passthrough
 
 

@@ -15,7 +15,8 @@ from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Capabilities, FilterContext
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import FilterContext
 from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import run_figures

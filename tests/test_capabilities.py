@@ -21,8 +21,8 @@ from closedloop.step import BatchControlStep, ControlStep
 from controllers.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import (MINIMAL, BatchOutput, Capabilities, CapabilityError, FilterContext,
-                                       filter_capabilities)
+from controllers.capabilities import MINIMAL, Capabilities, CapabilityError, filter_capabilities
+from controllers.safety_filter import BatchOutput, FilterContext
 from scenarios.common import filter_enabled
 from scenarios.run import USAGE_ERROR, exit_code, run_scenario
 
@@ -170,7 +170,7 @@ class NotCapabilities(Logged):
     (NoBatch(), "NoBatch declares batched=True but has no method filter_batch"),
     (NoRowsKeyword(), "NoRowsKeyword declares rows=True but its filter_batch takes no keyword rows"),
     (NoResetRows(), r"NoResetRows declares reset_rows=True but has no method reset\(rows=...\)"),
-    (NotCapabilities(), "NotCapabilities.capabilities must be a controllers.safety_filter.Capabilities, got dict"),
+    (NotCapabilities(), "NotCapabilities.capabilities must be a controllers.capabilities.Capabilities, got dict"),
 ])
 def test_a_declared_capability_the_filter_lacks_is_refused_when_the_step_is_built(culprit, message):
     with pytest.raises(CapabilityError, match=message):
@@ -202,7 +202,8 @@ def test_the_built_ins_declare_theirs():
 
 LIARS = textwrap.dedent('''
     import numpy as np
-    from controllers.safety_filter import BatchOutput, Capabilities
+    from controllers.capabilities import Capabilities
+    from controllers.safety_filter import BatchOutput
 
     class Lies:
         """Declares batched without filter_batch."""

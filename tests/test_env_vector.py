@@ -251,7 +251,7 @@ def test_batched_filter_is_called_once_for_all_arms_and_matches_single_envs():
 
 FAULTY = textwrap.dedent('''
     import numpy as np
-    from controllers.safety_filter import Capabilities
+    from controllers.capabilities import Capabilities
 
     class Faulty:
         """Raises once the first bending angle passes q_limit rad."""
@@ -305,7 +305,8 @@ def test_a_filter_fault_ends_only_that_sub_envs_episode(tmp_path):
 
 COUNTING = textwrap.dedent('''
     import numpy as np
-    from controllers.safety_filter import BatchOutput, Capabilities
+    from controllers.capabilities import Capabilities
+    from controllers.safety_filter import BatchOutput
 
     class Counting:
         """Passes u_nom through; counts its instances' reset() calls."""

@@ -19,7 +19,8 @@ from closedloop.step import BatchControlStep, ControlStep
 from controllers.params import reference_robot
 from controllers.registry import PluginLoadError, build_nominal
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import MINIMAL, Capabilities, CapabilityError, FilterContext, nominal_capabilities
+from controllers.capabilities import MINIMAL, Capabilities, CapabilityError, nominal_capabilities
+from controllers.safety_filter import FilterContext
 from scenarios.run import USAGE_ERROR, exit_code, run_scenario
 
 CONTEXT = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
@@ -103,7 +104,7 @@ class NotCapabilities(Logged):
     (NoBatch(), r"^NoBatch declares batched=True but has no method nominal_batch\(t, q, qd\)$"),
     (Rows(), "^Rows declares rows=True, which a nominal controller cannot: it may declare batched only$"),
     (Passthrough(), "^Passthrough declares passthrough=True, which a nominal controller cannot"),
-    (NotCapabilities(), "^NotCapabilities.capabilities must be a controllers.safety_filter.Capabilities, got dict$"),
+    (NotCapabilities(), "^NotCapabilities.capabilities must be a controllers.capabilities.Capabilities, got dict$"),
 ])
 def test_a_nominal_that_declares_what_it_lacks_is_refused_when_the_step_is_built(culprit, message):
     with pytest.raises(CapabilityError, match=message):
@@ -124,7 +125,7 @@ def test_the_built_in_nominals_declare_theirs():
 
 LIAR = textwrap.dedent('''
     import numpy as np
-    from controllers.safety_filter import Capabilities
+    from controllers.capabilities import Capabilities
 
     class Lies:
         """Declares batched without nominal_batch."""

@@ -30,7 +30,6 @@ FIXED_VALUES = {
     # the filter's context: the delay the loop tells its filter, not the true arm's `command_delay`
     "scenarios/camera_loop.py": {("command_delay", 0.0): "the command acts at the tick after the call"},
     "scenarios/paper_sim.py": {("command_delay", 0.0): "the paper's loop has no command delay"},
-    "softcbf_mj/env/environment.py": {("command_delay", 0.0): "the filter is not told the true arm's delay"},
 }
 
 
@@ -164,7 +163,7 @@ def test_hardware_defaults_are_the_vocabulary_s():
 
 def test_environment_defaults_are_the_vocabulary_s():
     """The environment's keyword arguments named like a setting are the settings of `ENV_SETTINGS` (the control
-    rate, the filter, the monitor's hold, q0_std and every ground-truth setting) and take `default(name,
+    rate, the filter, the monitor's hold, q0_std, what the filter assumes and every ground-truth setting) and take `default(name,
     "environment")`; its own `robot` (a RobotParams) and `filter_params` (a mapping) are no such keywords."""
     import inspect
 
@@ -175,7 +174,8 @@ def test_environment_defaults_are_the_vocabulary_s():
 
     shared = [f for f in dataclasses.fields(ArmEnvConfig) if f.name in SETTINGS and f.name not in ("robot", "filter_params")]
     assert {f.name for f in shared} == set(ENV_SETTINGS) == {"control_rate", "filter", "pressure_limits", "hold_s",
-                                                             "q0_std", *ground_truth_settings()}
+                                                             "q0_std", "assumed_tau_p", "assumed_command_delay",
+                                                             *ground_truth_settings()}
     for f in shared:
         expected = default(f.name, "environment")
         assert f.default == expected and type(f.default) is type(expected), (f.name, f.default, expected)

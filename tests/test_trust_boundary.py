@@ -28,8 +28,8 @@ from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import (BatchOutput, DIAGNOSTIC_FLOATS_MAX, Capabilities, Estimate, FilterContext,
-                                       FilterOutput)
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import BatchOutput, DIAGNOSTIC_FLOATS_MAX, Estimate, FilterContext, FilterOutput
 from scenarios.run import FILTER_FAULT, USAGE_ERROR, exit_code, run_scenario
 from softcbf_mj.batch_loop import run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop

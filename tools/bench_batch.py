@@ -53,7 +53,8 @@ from controllers.filter import CBFFilter
 from controllers.nominal import SinusoidNominal
 from controllers.params import reference_robot
 from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import BatchOutput, Capabilities, Estimate, FilterContext
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import BatchOutput, Estimate, FilterContext
 from softcbf_mj.batch_loop import replay_commands, run_batch_closed_loop
 from softcbf_mj.loop import run_closed_loop
 from softcbf_mj.metrics import RunningFigures, rho_meas, run_figures

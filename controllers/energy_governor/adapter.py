@@ -26,7 +26,8 @@ from controllers.energy_governor.state import GovernorState, new_state
 from controllers.energy_governor.steps import apply_time, step, step_rows
 from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
 from controllers.filter_parameters import parameter_docs
-from controllers.safety_filter import (BatchOutput, Capabilities, Estimate, EstimateBatch, FilterContext, FilterOutput,
+from controllers.capabilities import Capabilities
+from controllers.safety_filter import (BatchOutput, Estimate, EstimateBatch, FilterContext, FilterOutput,
                                        batch_history_ids)
 
 

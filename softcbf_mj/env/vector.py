@@ -35,7 +35,7 @@ One env step, for every sub-environment that is not being reset ("running"):
     repeat action_repeat control periods, t_k = k Δ:
         record = the batched control step of the running arms at their estimates, with
                  u_nom as their nominal commands: a filter that declares batched
-                 (`controllers.safety_filter.filter_capabilities`): one filter for all, one
+                 (`controllers.capabilities.filter_capabilities`): one filter for all, one
                  call for the arms that call it; otherwise B filters, one per arm (built by
                  the registry), called in turn
         u (B, N) hPa = record.u: the running arms' commands, 0 hPa for the others
@@ -90,7 +90,7 @@ from gymnasium.vector.utils import batch_space
 
 from closedloop.monitor import ACTIONS
 from closedloop.step import BatchControlStep, BatchStepRecord, FilterFault
-from controllers.safety_filter import filter_capabilities
+from controllers.capabilities import filter_capabilities
 from softcbf_mj.env.environment import ArmEnvConfig
 from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, object_array, scaled_observations, step_infos
 from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, StepStats, action_array
