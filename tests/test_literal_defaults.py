@@ -15,7 +15,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS
+from test_setting_defaults import DISTINCTIVE as DEFAULTS  # the distinctive declared defaults (one definition)
 
 REPO = Path(__file__).resolve().parents[1]
 PRODUCT = ("controllers", "perception", "closedloop", "vocabulary", "hardware", "softcbf_mj", "scenarios", "softcbf")
@@ -26,18 +26,6 @@ OWN_MEANING = {
         720.0: "the synthetic test camera's own image (perception sits below the vocabulary)",
     },
 }
-
-
-def distinctive(value: object) -> bool:
-    """A number hard to type by chance: two or more significant digits in its mantissa."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value == 0:
-        return False
-    mantissa = f"{abs(value):.12e}".split("e")[0].rstrip("0").rstrip(".")
-    return len(mantissa.replace(".", "")) >= 2
-
-
-DEFAULTS = {float(s.default) for s in SETTINGS.values() if distinctive(s.default)} | {
-    float(v) for overrides in DEFAULT_OVERRIDES.values() for v in overrides.values() if distinctive(v)}
 
 
 def number_literals(source: str) -> list[tuple[float, int]]:

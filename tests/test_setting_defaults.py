@@ -33,7 +33,7 @@ FIXED_VALUES = {
 }
 
 
-def _distinctive(value: object) -> bool:
+def distinctive(value: object) -> bool:
     """A default that is hard to type by chance: a number whose mantissa has two or more
     significant digits (11.16, 0.16, 12.8, 1.23044e-3; not 0, 1, 0.5, 80, 1e-4)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value == 0:
@@ -42,8 +42,8 @@ def _distinctive(value: object) -> bool:
     return len(mantissa.replace(".", "")) >= 2
 
 
-DISTINCTIVE = {float(s.default) for s in SETTINGS.values() if _distinctive(s.default)} | {
-    float(v) for overrides in DEFAULT_OVERRIDES.values() for v in overrides.values() if _distinctive(v)}
+DISTINCTIVE = {float(s.default) for s in SETTINGS.values() if distinctive(s.default)} | {
+    float(v) for overrides in DEFAULT_OVERRIDES.values() for v in overrides.values() if distinctive(v)}
 
 
 def literal_defaults(source: str, path: str = "<source>") -> list[str]:

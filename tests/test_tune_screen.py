@@ -17,20 +17,7 @@ import pytest
 from softcbf.study.cli import main
 from softcbf.study.store import StudyStore
 from softcbf.study.tune import evaluation_record, load_tune, told_value, tune, UNSAFE_OFFSET
-
-CLIP = '''
-import numpy as np
-
-
-class Clip:
-    """Clips u_nom to +-limit_hPa."""
-
-    def __init__(self, limit_hPa: float = 100.0):
-        self.limit = limit_hPa
-
-    def __call__(self, estimate, u_nom):
-        return np.clip(u_nom, -self.limit, self.limit)
-'''
+from test_study_journal import CLIP  # a user's filter file: clips u_nom to ±limit_hPa
 
 
 def tune_file(tmp_path: Path, low: float, high: float) -> Path:
