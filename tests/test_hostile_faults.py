@@ -464,7 +464,11 @@ def test_a_hardware_run_whose_filter_raises_system_exit_keeps_its_cycles_and_ven
         row = run_hardware(config, tmp_path / "hw", emulation=emulation, report=False)  # SystemExit escaped before
     series, _ = load_timeseries(tmp_path / "hw" / row["timeseries"])
     assert row["fault"]["type"] == "SystemExit" and row["fault"]["where"] == "filter"
-    assert np.all(series["action"][:4] == 0) and series["action"][-1] == 2 and row["final_vent_acked"]
+    # the cycles before the fault ran; a HOLD there is only the monitor's own (a frame late on a loaded machine: a
+    # stale estimate, or a lost link), never the fault's
+    before = series["action"][:4]
+    assert np.all((before == 0) | ((before == 1) & (series["est_stale"][:4] | series["link_lost"][:4])))
+    assert series["action"][-1] == 2 and row["final_vent_acked"]
 
 
 # --- D7: the run folder is absolute; a filter that changes the working folder keeps the run -------------------------
