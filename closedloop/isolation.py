@@ -78,11 +78,11 @@ from typing import Any
 import numpy as np
 
 from closedloop.step import RESERVED_COLUMNS
-from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
-from controllers.errors import ControllerInputError
+from controllers.contract.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.core.errors import ControllerInputError
 from controllers.registry import PluginLoadError
-from controllers.capabilities import Capabilities, CapabilityError, filter_capabilities
-from controllers.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, Estimate, EstimateBatch, FilterContext,
+from controllers.contract.capabilities import Capabilities, CapabilityError, filter_capabilities
+from controllers.contract.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, Estimate, EstimateBatch, FilterContext,
                                        FilterOutput, OutputCheck, checked_batch_arrays, read_only, real_vector,
                                        reset_filter)
 

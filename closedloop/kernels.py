@@ -9,7 +9,7 @@ loops and of the environment) and a batched study (B in the hundreds). In numpy 
 (1, N) array costs about 0.5–1 µs of call overhead, so the admission and the monitor's RUN case
 written as numpy expressions cost more at B = 1 than the whole scalar step they replace; one compiled
 call does either for all B rows in about 1 µs plus a few ns a row (tools/bench_batch.py's `step_us`).
-Loaded on the first call (`controllers.lazy_import`): `softcbf list` never imports numba.
+Loaded on the first call (`controllers.core.lazy_import`): `softcbf list` never imports numba.
 
 Few arguments, packed (each array argument costs about 0.1 µs of the call's dispatch): the limits
 (2, N) hPa (lo, hi), the monitor's state (B, 2 + N) (its clock s, hold_since s, last_run hPa) and

@@ -42,9 +42,9 @@ from enum import Enum
 import numpy as np
 
 from closedloop.monitor_layout import CLOCK, HAS_RUN, HOLD_SINCE, LAST_RUN, LATCHED, NOT_STEPPED, PENDING
-from controllers.lazy_import import lazy_module
+from controllers.core.lazy_import import lazy_module
 
-kernels = lazy_module("closedloop.kernels")  # numba loads on the first step (controllers.lazy_import)
+kernels = lazy_module("closedloop.kernels")  # numba loads on the first step (controllers.core.lazy_import)
 
 DEFAULT_HOLD_S = 0.5  # five cycles of the 10 Hz loop
 

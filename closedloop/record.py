@@ -14,7 +14,7 @@ A row holds:
   keep them, stay within `DIAGNOSTIC_FLOATS_MAX` floats and take no loop column's name; an
   output without diagnostics, e.g. a bare array, records NaN in them). A filter returns a plain
   mapping; the step hands the recorder the check's plain copy, flat in the check's layout
-  (`controllers.diagnostics.FlatDiagnostics`), which it copies as it is: nothing of the filter's own objects is read here. A diagnostic whose name is also
+  (`controllers.contract.diagnostics.FlatDiagnostics`), which it copies as it is: nothing of the filter's own objects is read here. A diagnostic whose name is also
   one of the plant's extras (which a plant may add at any row, e.g. a solver warning's count)
   keeps the plant's column under that name and is stored as "filter.<name>" (`columns`, `units`).
 
@@ -36,8 +36,8 @@ import numpy as np
 
 from closedloop.columns import TIMESERIES_UNITS
 from closedloop.step import ACTION_CODES, StepRecord
-from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
-from controllers.safety_filter import FilterOutput
+from controllers.contract.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.contract.safety_filter import FilterOutput
 
 
 
@@ -201,7 +201,7 @@ class Recorder:
 
 
 class LiveRows(Protocol):
-    """A live view of a run's rows (softcbf_mj.recording.LiveRun): a loop calls `send` every
+    """A live view of a run's rows (softcbf_mj.outputs.recording.LiveRun): a loop calls `send` every
     `period_steps` rows with its recorder and the number of rows recorded so far, and once
     at its end with `force=True`; the view decides what to send when."""
 

@@ -1,7 +1,7 @@
 """The one control step shared by every loop (docs/safety-filter.md): the simulated loop, the camera loop, the batched loop, the environment and the hardware loop.
 
 Each loop owns its clock and its I/O; at each control call it hands `ControlStep` the
-controller's view of the state (`controllers.safety_filter.Estimate`: t, t_capture in s,
+controller's view of the state (`controllers.contract.safety_filter.Estimate`: t, t_capture in s,
 q (N,) rad, qd (N,) rad/s) and what it observed (`SafetyFlags`), and sends the
 `StepRecord.u` it gets back. In this order:
 
@@ -40,7 +40,7 @@ recorded so far. A non-finite command is not a fault: it is refused and the step
 Guarantees, whatever the filter does: u is finite; on RUN and HOLD it is a command the
 step admitted, so within the limits when they are on; VENT sends 0 hPa (the valves' vent).
 A real Ctrl-C is not a fault: its KeyboardInterrupt propagates to the loop
-(`controllers.interrupts.is_interrupt`; the step calls `watch()` when it is built).
+(`controllers.core.interrupts.is_interrupt`; the step calls `watch()` when it is built).
 
 The batch axis: one step for one run and for B. `BatchControlStep` is this step for B runs at
 once (a batched study's simulations, the vector environment's arms): state (B, N) arrays in,
@@ -52,7 +52,7 @@ once (a batched study's simulations, the vector environment's arms): state (B, N
   `filter_batch`: an exception or refused return is the fault of each row it was called for; a
   `ControllerInputError` from the call asks it again for each row alone, so that only the rows it
   refuses are refused, as in their runs);
-  which of these a shared filter can do it declares (`controllers.capabilities.filter_capabilities`,
+  which of these a shared filter can do it declares (`controllers.contract.capabilities.filter_capabilities`,
   read once when the step is built, which refuses a filter that lacks what it declares): batched,
   its `filter_batch` is called; rows, it keeps a history per row and `filter_batch` is told the
   indices of the rows it is called for (`rows`, (k,) int, ascending); reset_rows, its `reset` is
@@ -95,11 +95,11 @@ import numpy as np
 from closedloop.columns import TIMESERIES_UNITS
 from closedloop.monitor import (ACTION_CODES, ACTIONS, DEFAULT_HOLD_S, NO_FLAGS, BatchSafetyMonitor,
                                 SafeAction, SafetyFlags, SafetyMonitor)
-from controllers.errors import ControllerInputError
-from controllers.interrupts import is_interrupt, watch
-from controllers.lazy_import import lazy_module
-from controllers.capabilities import filter_capabilities, nominal_capabilities
-from controllers.safety_filter import (Estimate, EstimateBatch, FilterContext, FilterOutput, FilterReturnError,
+from controllers.core.errors import ControllerInputError
+from controllers.core.interrupts import is_interrupt, watch
+from controllers.core.lazy_import import lazy_module
+from controllers.contract.capabilities import filter_capabilities, nominal_capabilities
+from controllers.contract.safety_filter import (Estimate, EstimateBatch, FilterContext, FilterOutput, FilterReturnError,
                                        OutputCheck, SafetyFilter, checked_batch_arrays, frozen, real_vector,
                                        reset_filter)
 
@@ -108,7 +108,7 @@ if TYPE_CHECKING:  # annotations only: the compiled model (numba) loads where a 
 
 STEP_COLUMNS = frozenset({"u_nom", "u_filter", "u", "rho_pred", "infeasible", "filter_us", "action"})
 RESERVED_COLUMNS = frozenset(TIMESERIES_UNITS) | STEP_COLUMNS  # names a filter's diagnostics may not take
-kernels = lazy_module("closedloop.kernels")  # numba loads on the first step (controllers.lazy_import)
+kernels = lazy_module("closedloop.kernels")  # numba loads on the first step (controllers.core.lazy_import)
 _LIBRARY_DIRS = tuple({sysconfig.get_paths()[key] for key in ("stdlib", "platstdlib", "purelib", "platlib")})
 
 
@@ -330,7 +330,7 @@ class BatchControlStep:
 
     safety_filter: one filter for all rows, or B, one per row; nominal: likewise (None: the loop
     hands every call its nominal commands, `u_nom`, e.g. the environment's actions). A shared filter
-    that declares batched (`controllers.capabilities.filter_capabilities`, checked here for every
+    that declares batched (`controllers.contract.capabilities.filter_capabilities`, checked here for every
     filter) has its `filter_batch` called once per control call for all the rows whose step calls it;
     any other filter is called row by row (one shared filter that does not declare batched must then
     be stateless). Each row has its views
@@ -378,7 +378,7 @@ class BatchControlStep:
         # (2, N) hPa: lo, hi; without limits ±inf, with which the clip keeps every float (closedloop.kernels)
         self.limits = np.array([[-math.inf] * self.n, [math.inf] * self.n] if limits is None else [limits[0], limits[1]],
                                dtype=float)
-        watch()  # a filter's own KeyboardInterrupt is a fault, a real Ctrl-C an interrupt (controllers.interrupts)
+        watch()  # a filter's own KeyboardInterrupt is a fault, a real Ctrl-C an interrupt (controllers.core.interrupts)
         self.faults: list[FilterFault | None] = [None] * n_sims
         self.faulted = np.zeros(n_sims, dtype=bool)
         self.checks = [OutputCheck(self.n, RESERVED_COLUMNS) for _ in range(n_sims)]
@@ -569,7 +569,7 @@ class BatchControlStep:
     def _call_nominal_batch(self, live: np.ndarray, ts: list[float], t: np.ndarray, q: np.ndarray, qd: np.ndarray,
                             nominal: np.ndarray, nominal_ok: np.ndarray) -> None:
         """The shared nominal's `nominal_batch` on the `live` rows, once (it declares batched,
-        `controllers.capabilities.nominal_capabilities`): an
+        `controllers.contract.capabilities.nominal_capabilities`): an
         exception or a return that is not (rows, N) real numbers is a fault of each of those rows."""
         rows = int(np.count_nonzero(live))
         try:

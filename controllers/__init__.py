@@ -1,23 +1,23 @@
 """The controller under test (the bottom layer: numpy and QP solvers, never MuJoCo).
 
 Public API (importable from `controllers` directly; each name is loaded from its module
-on first use, so `import controllers.params` stays cheap):
+on first use, so `import controllers.model.params` stays cheap):
 
-- the plug-in contract (`controllers.safety_filter`, docs/safety-filter.md): `SafetyFilter`, `Estimate`,
+- the plug-in contract (`controllers.contract.safety_filter`, docs/safety-filter.md): `SafetyFilter`, `Estimate`,
   `EstimateBatch`, `FilterOutput`, `BatchOutput`, `FilterContext`, `PassThroughFilter`, `OutputCheck`, `FilterReturnError`, `reset_filter`; what a plug-in
-  declares it can do (`controllers.capabilities`): `Capabilities`, `CapabilityError`, `filter_capabilities`,
+  declares it can do (`controllers.contract.capabilities`): `Capabilities`, `CapabilityError`, `filter_capabilities`,
   `nominal_capabilities`;
 - the registry (`controllers.registry`): `FILTERS`, `NOMINALS`, `build_filter`,
   `build_nominal`, `parse_params`, `parameters`, `label`, `describe`;
-- the paper's filter (`controllers.filter`): `CBFFilter`, `CBFResult`, `paper_cbf`;
-  its tunings (`controllers.cbf`): `Tuning`, `TUNINGS`, `get_tuning`;
+- the paper's filter (`controllers.cbf.paper_filter`): `CBFFilter`, `CBFResult`, `paper_cbf`;
+  its tunings (`controllers.cbf.barrier`): `Tuning`, `TUNINGS`, `get_tuning`;
 - nominal controllers (`controllers.nominal`): `NominalController`, `SinusoidNominal`,
   `TipTracker`, `sinusoid`, `tip_tracker`;
-- the models: `RobotParams`, `reference_robot` (`controllers.params`);
+- the models: `RobotParams`, `reference_robot` (`controllers.model.params`);
   `ForceSafeSet`, `Environment`, `LinearStiffness`, `PowerLawStiffness`,
-  `paper_environment`, `paper_safe_set` (`controllers.safe_set`); `PCCDynamics`
-  (`controllers.dynamics`); the kinematics module `controllers.pcc`;
-- input errors (`controllers.errors`): `ControllerInputError`, `NonFiniteStateError`,
+  `paper_environment`, `paper_safe_set` (`controllers.model.safe_set`); `PCCDynamics`
+  (`controllers.model.dynamics`); the kinematics module `controllers.model.pcc`;
+- input errors (`controllers.core.errors`): `ControllerInputError`, `NonFiniteStateError`,
   `NonFiniteCommandError`.
 """
 
@@ -26,20 +26,20 @@ from __future__ import annotations
 import importlib
 
 _HOMES = {
-    "controllers.safety_filter": ("SafetyFilter", "Estimate", "EstimateBatch",
+    "controllers.contract.safety_filter": ("SafetyFilter", "Estimate", "EstimateBatch",
                                   "FilterOutput", "BatchOutput", "FilterContext", "PassThroughFilter", "OutputCheck",
                                   "FilterReturnError", "reset_filter"),
-    "controllers.capabilities": ("Capabilities", "CapabilityError", "filter_capabilities", "nominal_capabilities"),
+    "controllers.contract.capabilities": ("Capabilities", "CapabilityError", "filter_capabilities", "nominal_capabilities"),
     "controllers.registry": ("FILTERS", "NOMINALS", "build_filter", "build_nominal", "parse_params", "parameters",
                              "label", "describe"),
-    "controllers.filter": ("CBFFilter", "CBFResult", "paper_cbf"),
-    "controllers.cbf": ("Tuning", "TUNINGS", "get_tuning"),
+    "controllers.cbf.paper_filter": ("CBFFilter", "CBFResult", "paper_cbf"),
+    "controllers.cbf.barrier": ("Tuning", "TUNINGS", "get_tuning"),
     "controllers.nominal": ("NominalController", "SinusoidNominal", "TipTracker", "sinusoid", "tip_tracker"),
-    "controllers.params": ("RobotParams", "reference_robot"),
-    "controllers.safe_set": ("ForceSafeSet", "Environment", "LinearStiffness", "PowerLawStiffness", "paper_environment",
+    "controllers.model.params": ("RobotParams", "reference_robot"),
+    "controllers.model.safe_set": ("ForceSafeSet", "Environment", "LinearStiffness", "PowerLawStiffness", "paper_environment",
                              "paper_safe_set"),
-    "controllers.dynamics": ("PCCDynamics",),
-    "controllers.errors": ("ControllerInputError", "NonFiniteStateError", "NonFiniteCommandError"),
+    "controllers.model.dynamics": ("PCCDynamics",),
+    "controllers.core.errors": ("ControllerInputError", "NonFiniteStateError", "NonFiniteCommandError"),
 }
 _MODULE_OF = {name: module for module, names in _HOMES.items() for name in names}
 __all__ = sorted(_MODULE_OF)

@@ -4,7 +4,7 @@ A nominal controller is any callable `(t, q, qd) -> u_nom` with t in s, q and qd
 shape (N,) in rad and rad/s, and u_nom of shape (N,) in hPa. Scenarios pass one to
 the closed loop; the filter never needs to know which one it is. What a nominal can do beyond
 the call it declares, as a filter does, with a `capabilities` attribute holding a
-`controllers.capabilities.Capabilities` (read and checked by `nominal_capabilities`, the filter's
+`controllers.contract.capabilities.Capabilities` (read and checked by `nominal_capabilities`, the filter's
 reader with the nominal's kind): batched, it has `nominal_batch(t, q, qd) -> u_nom` for B states
 at once (t (B,) s, q and qd (B, N), u_nom (B, N) hPa), which must return, bit for bit, the rows of
 B calls, and a batched loop that shares it calls that once for all its simulations
@@ -24,11 +24,11 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from controllers.params import RobotParams, per_segment
-from controllers.pcc import tip_jacobian, tip_position
-from controllers.safe_set import ForceSafeSet
-from controllers.capabilities import Capabilities
-from controllers.safety_filter import FilterContext
+from controllers.model.params import RobotParams, per_segment
+from controllers.model.pcc import tip_jacobian, tip_position
+from controllers.model.safe_set import ForceSafeSet
+from controllers.contract.capabilities import Capabilities
+from controllers.contract.safety_filter import FilterContext
 
 
 class NominalController(Protocol):

@@ -11,24 +11,24 @@ A spec names a factory (a class or a function):
   replay runs the same file: scenarios.config_file);
 - `package.module:Factory` (imported from sys.path);
 - a preset `NAME:PRESET` of a built-in (`PRESETS`, the one home of each): "c-erg:recommended" is
-  c-erg with `controllers.energy_governor.RECOMMENDED` and the plate stiffness interval
+  c-erg with `controllers.governors.energy_governor.RECOMMENDED` and the plate stiffness interval
   [0.9, 1.1], "c-erg:standard-box" the same setting certified over the standard error box
-  (`controllers.energy_governor.box.STANDARD_BOX`), "c-erg:learn-plate" that setting learning the plate online
+  (`controllers.governors.energy_governor.box.STANDARD_BOX`), "c-erg:learn-plate" that setting learning the plate online
   on an exact state; parameters given with it override the preset's (`typed_params`), its run label is
   its name plus what was overridden (`label`), and an unknown preset of a built-in is refused
   with the closest names (`find_preset`).
 
 The factory is called as `Factory(**params)`, plus `context=FilterContext(...)` when its
 signature has a parameter named `context` (docs/safety-filter.md). A filter factory returns a safety
-filter (`controllers.safety_filter`); a nominal factory returns a callable
+filter (`controllers.contract.safety_filter`); a nominal factory returns a callable
 `(t, q, qd) -> u_nom` (N,) hPa. Parameters not given take the signature's defaults;
 unknown names are refused with the list of valid ones. `typed_params(spec, params)` converts
 the parameters an edge gives (the command line's text, a TOML table, a study's draw, Python
 values) once, by each parameter's declared kind: its annotation (a built-in's is its
-`controllers.filter_parameters.FilterParameter` kind) or, without one, its default's type (bool:
+`controllers.contract.filter_parameters.FilterParameter` kind) or, without one, its default's type (bool:
 true/false/yes/no/1/0/on/off; "none" for a parameter that allows None; an int given for a float
 becomes one); a parameter with neither gets the value as given. The result, a frozen
-`controllers.filter_parameters.Params` in declaration order, is what every record stores and
+`controllers.contract.filter_parameters.Params` in declaration order, is what every record stores and
 what the label is made of. Built-in factories carry `parameter_docs`:
 {name: "meaning [unit]"} (`parameters` returns it with every parameter's default) and
 may carry `run_label(params) -> str`, a run's label (`label`; default
@@ -58,10 +58,10 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.filter_parameters import Params, parse_text, read_params, value_text
-from controllers.interrupts import is_interrupt
-from controllers.capabilities import CapabilityError, filter_capabilities, nominal_capabilities
-from controllers.safety_filter import FilterContext, SafetyFilter
+from controllers.contract.filter_parameters import Params, parse_text, read_params, value_text
+from controllers.core.interrupts import is_interrupt
+from controllers.contract.capabilities import CapabilityError, filter_capabilities, nominal_capabilities
+from controllers.contract.safety_filter import FilterContext, SafetyFilter
 
 if typing.TYPE_CHECKING:
     from controllers.nominal import NominalController
@@ -93,11 +93,11 @@ class Factories(Mapping[str, Callable]):
 
 
 FILTERS: Mapping[str, Callable[..., SafetyFilter]] = Factories({
-    "paper-cbf": "controllers.filter:paper_cbf", "none": "controllers.safety_filter:PassThroughFilter",
-    "qsg": "controllers.quasi_static_governor:QuasiStaticGovernor", "e-erg": "controllers.energy_governor:EnergyGovernor",
-    "c-erg": "controllers.energy_governor:ContactEnergyGovernor",
-    "ecbf": "controllers.cbf_family:ecbf", "sdcbf": "controllers.cbf_family:sdcbf", "isscbf": "controllers.cbf_family:isscbf",
-    "backup-cbf": "controllers.backup_cbf:BackupCBF",
+    "paper-cbf": "controllers.cbf.paper_filter:paper_cbf", "none": "controllers.contract.safety_filter:PassThroughFilter",
+    "qsg": "controllers.governors.quasi_static_governor:QuasiStaticGovernor", "e-erg": "controllers.governors.energy_governor:EnergyGovernor",
+    "c-erg": "controllers.governors.energy_governor:ContactEnergyGovernor",
+    "ecbf": "controllers.cbf.family:ecbf", "sdcbf": "controllers.cbf.family:sdcbf", "isscbf": "controllers.cbf.family:isscbf",
+    "backup-cbf": "controllers.cbf.backup:BackupCBF",
 })
 NOMINALS: Mapping[str, Callable[..., NominalController]] = Factories({
     "sinusoid": "controllers.nominal:sinusoid", "tip-tracker": "controllers.nominal:tip_tracker", "step": "controllers.nominal:step",
@@ -124,15 +124,15 @@ class Preset:
 
 PRESETS: Mapping[str, Preset] = {
     "c-erg:recommended": Preset(
-        "c-erg", "controllers.energy_governor:RECOMMENDED", {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1},
-        "the recommended filter for contact tasks: c-erg's recommended setting (controllers.energy_governor."
+        "c-erg", "controllers.governors.energy_governor:RECOMMENDED", {"stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1},
+        "the recommended filter for contact tasks: c-erg's recommended setting (controllers.governors.energy_governor."
         "RECOMMENDED) certified over plate stiffnesses of 0.9 to 1.1 times the assumed one"),
     "c-erg:standard-box": Preset(
-        "c-erg", "controllers.energy_governor.parameters:STANDARD_BOX_SETTING", {},
+        "c-erg", "controllers.governors.energy_governor.parameters:STANDARD_BOX_SETTING", {},
         "c-erg's recommended setting certified over the standard error box's physical errors (plate stiffness "
         "+-20 %, offset +-2 mm, actuator gain and arm stiffness +-10 %, damping from 0.7x, valve lag 0.02-0.1 s)"),
     "c-erg:learn-plate": Preset(
-        "c-erg", "controllers.energy_governor.parameters:LEARN_PLATE_SETTING", {},
+        "c-erg", "controllers.governors.energy_governor.parameters:LEARN_PLATE_SETTING", {},
         "c-erg:standard-box learning the plate's offset and stiffness online with certified bounds, for a state "
         "exact to 1e-4 rad (simulation at 1 kHz, motion capture; a camera learns nothing)"),
 }
@@ -312,7 +312,7 @@ def parameters(factory: Callable) -> list[Parameter]:
 
 
 parse_params = parse_text
-"""The old joined text "name=value;name=value" → {name: value} (`controllers.filter_parameters.parse_text`)."""
+"""The old joined text "name=value;name=value" → {name: value} (`controllers.contract.filter_parameters.parse_text`)."""
 
 
 def _kinds(hint: object, default: object) -> tuple[list[object], bool]:
@@ -379,7 +379,7 @@ def _converted(factory: Callable, params: Mapping[str, object]) -> dict[str, obj
 
 def typed_params(spec: str, params: object = None, builtins: Mapping[str, Callable] = FILTERS) -> Params:
     """The parameters of the plug-in `spec` as every record holds them: `params` as given at an edge (a mapping,
-    or the old joined text: `controllers.filter_parameters.read_params`) over the preset's when `spec` names one
+    or the old joined text: `controllers.contract.filter_parameters.read_params`) over the preset's when `spec` names one
     (`PRESETS`), converted once by each parameter's declared kind (the factory's signature: a built-in's
     annotations are its `FilterParameter` kinds; a plug-in's its annotations, else its defaults' types, else the
     value as given), in declaration order (`Params`). Unknown names and unreadable values: ValueError. Imports
@@ -444,7 +444,7 @@ def check_nominal(spec: str, params: Mapping[str, object]) -> None:
 
 def build_filter(spec: str, params: Mapping[str, object], context: FilterContext) -> SafetyFilter:
     """The safety filter of `spec` with `params`, told `context`; PluginLoadError when it lacks a capability it
-    declares (`controllers.capabilities.filter_capabilities`)."""
+    declares (`controllers.contract.capabilities.filter_capabilities`)."""
     safety_filter = build(resolve(spec, FILTERS), typed_params(spec, params), context)
     if not callable(safety_filter):
         raise ValueError(f"filter {spec!r} must build a callable filter(estimate, u_nom), got {type(safety_filter).__name__}")
@@ -457,7 +457,7 @@ def build_filter(spec: str, params: Mapping[str, object], context: FilterContext
 
 def build_nominal(spec: str, params: Mapping[str, object], context: FilterContext) -> NominalController:
     """The nominal controller of `spec` with `params`, told `context` (its robot model and limits); PluginLoadError
-    when it lacks a capability it declares (`controllers.capabilities.nominal_capabilities`)."""
+    when it lacks a capability it declares (`controllers.contract.capabilities.nominal_capabilities`)."""
     nominal = build(resolve(spec, NOMINALS), params, context)
     if not callable(nominal):
         raise ValueError(f"nominal {spec!r} must build a callable (t, q, qd) -> u_nom, got {type(nominal).__name__}")
@@ -473,7 +473,7 @@ def label(spec: str, params: object = None) -> str:
     order, so that one setting has one label whichever surface gave it: a preset's name ("c-erg:recommended"),
     followed by the parameters that differ from it ("c-erg:recommended(gain_noise_rad=0.003)"); else the
     factory's `run_label(params)`, or `Factory(name=value,...)` (Factory: the built-in's name or the name after ':'; the
-    values as the command line writes them, `controllers.filter_parameters.value_text`)."""
+    values as the command line writes them, `controllers.contract.filter_parameters.value_text`)."""
     typed = typed_params(spec, params)
     preset = find_preset(spec, FILTERS)
     if preset is not None:

@@ -1,7 +1,7 @@
 """The simplest user safety filter (docs/safety-filter.md): clip the nominal command to ±limit_hPa.
 
 Not safe by any measure — it knows nothing of the plate — it shows the plug-in contract
-(controllers.safety_filter): a class whose constructor takes its parameters and whose
+(controllers.contract.safety_filter): a class whose constructor takes its parameters and whose
 call `(estimate, u_nom) -> (N,) array of hPa` returns the command. Run it, from the
 repository root, with a nominal that pushes into the plate (150 hPa from t = 0:
 u_nom = 150 sin(2π 0.25 (t + 1)) hPa) so that the filter has something to do:

@@ -6,7 +6,7 @@ env step; the filter runs every control period). Each filter sees the same actio
 sequences (the policy's generator is seeded per episode). Reported per filter, over all
 episodes, from the state at the end of every control period: the periods with
 ρ_meas < 0 (plate force above F_max = 0.16 N), the largest plate force and the least ρ_meas.
-A progress line on stderr (softcbf_mj.progress) counts the env steps of all filters' episodes.
+A progress line on stderr (softcbf_mj.outputs.progress) counts the env steps of all filters' episodes.
 
     .venv/bin/python examples/random_policy_env.py             # none, paper-cbf Low (and e-erg where the
                                                                # registry has it), 5 episodes of 10 s
@@ -24,7 +24,7 @@ import numpy as np
 
 from controllers.registry import FILTERS, label, parse_params
 from softcbf_mj.env import GymArmEnv
-from softcbf_mj.progress import Progress
+from softcbf_mj.outputs.progress import Progress
 
 ENERGY_GOVERNOR = "e-erg"
 

@@ -16,7 +16,7 @@ from the straight arm at rest: deterministic), keeps the `--elite` best by retur
 μ, σ to their mean and standard deviation (σ floored at `SIGMA_FLOOR`). The same draws
 (one seeded generator per filter, seeded alike) train once with each filter of
 `--filters` (default: "none" and the contact-aware energy governor "e-erg"), so the runs
-differ only by the shield. A progress line on stderr (softcbf_mj.progress) counts the episodes.
+differ only by the shield. A progress line on stderr (softcbf_mj.outputs.progress) counts the episodes.
 
 Reported per iteration and filter: the population's mean episode return (Σ reward) and
 mean episode cost (Σ cost; × 0.1 s it is the time above F_max, s), and the cumulative
@@ -38,7 +38,7 @@ import numpy as np
 
 from controllers.registry import parse_params
 from softcbf_mj.env import GymArmEnv, force_regulation
-from softcbf_mj.progress import Progress
+from softcbf_mj.outputs.progress import Progress
 
 SIGMA_FLOOR = 0.05  # the CEM's smallest standard deviation per weight (keeps exploring)
 DEFAULT_FILTERS = ("none", "e-erg:contact_aware=true")

@@ -14,7 +14,7 @@ unit, range and check (`vocabulary.settings.check_value`: "f_max must be > 0 N, 
 
 The emulator's ground truth takes every ground-truth setting of the vocabulary by its name
 (`vocabulary.settings.ground_truth_settings`: the section `[emulator]` composes them), and the
-emulator builds it with the simulations' one builder (`softcbf_mj.ground_truth.build_truth`), so a
+emulator builds it with the simulations' one builder (`softcbf_mj.physics.ground_truth.build_truth`), so a
 new ground-truth setting is a key of this file with no edit here.
 
 Settings only the hardware run has stay in their sections (`[camera] source`, `[link]`,
@@ -42,7 +42,7 @@ Shared settings (top level; meaning, unit and range: docs/parameters.md):
 | nominal_params          | {}               | –      | its parameters; the sinusoid's default to amplitude, frequency, control.phase_rad |
 | control_rate            | 10.0             | Hz     | control loop rate (the paper's 10 Hz)                           |
 | pressure_limits         | true             | –      | the filter's QP holds the pressure box                          |
-| qp_backend              | "native"         | –      | controllers.qp backend                                          |
+| qp_backend              | "native"         | –      | controllers.cbf.qp backend                                          |
 | amplitude               | 80.0             | hPa    | nominal u_nom,j = A sin(2π f t + φ) (scalar or per segment)     |
 | frequency               | 0.01             | Hz     | its frequency                                                   |
 | calibration             | none             | –      | PlaneCalibration JSON (tools/calibrate_camera.py); required unless camera.source is "virtual" |
@@ -68,7 +68,7 @@ Hardware-only settings (in their sections):
 | camera.startup_timeout_s              | 5.0              | s      | wait at most this long for the first complete frame             |
 | environment.H, environment.h          | [[0.36, 1]], [0.15] | –, m | facets of the free space H r ≤ h (the paper's plate)            |
 | pressure.u_min_hPa, pressure.u_max_hPa | the robot's     | hPa    | pressure limits (scalar or one per segment); replace the robot's, so the filter, the laptop's clamp and the board read one value |
-| control.tuning                        | "HW-High"        | –      | paper-cbf's tuning: None, Low, High, HW-Low, HW-High (controllers.cbf), or "custom" with filter_params a_E, b_E, gamma; filter_params.tuning wins |
+| control.tuning                        | "HW-High"        | –      | paper-cbf's tuning: None, Low, High, HW-Low, HW-High (controllers.cbf.barrier), or "custom" with filter_params a_E, b_E, gamma; filter_params.tuning wins |
 | control.phase_rad                     | 0.0              | rad    | the nominal sinusoid's phase (scalar or per segment)            |
 | safety.watchdog_s                     | 0.15             | s      | the board's watchdog (the emulated board's; the firmware's own on hardware) |
 | link.port                             | "/dev/ttyACM0"   | –      | serial port of the valve board, or "emulated"                   |
@@ -133,12 +133,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from controllers.cbf import get_tuning
-from controllers.params import RobotParams, per_segment, reference_robot
-from controllers.qp import available_backends
-from controllers.filter_parameters import Params, read_params
+from controllers.cbf.barrier import get_tuning
+from controllers.model.params import RobotParams, per_segment, reference_robot
+from controllers.cbf.qp import available_backends
+from controllers.contract.filter_parameters import Params, read_params
 from controllers.registry import is_builtin, spec_file, typed_params
-from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
+from controllers.model.safe_set import Environment, ForceSafeSet, LinearStiffness
 from hardware.protocol import PRESSURE_RANGE_HPA, PressureLimits
 from perception.plane import PlaneCalibration
 from vocabulary.files import read_settings_file
@@ -150,7 +150,7 @@ EMULATED_PORT = "emulated"
 DETECTORS = ("opencv", "pupil")
 ROW_SCALINGS = ("paper", "unit")
 Scalars = float | tuple[float, ...]
-EMULATOR_COMMAND_PERIOD_S = 2e-3  # s, the emulated board's command resolution (softcbf_mj.emulate)
+EMULATOR_COMMAND_PERIOD_S = 2e-3  # s, the emulated board's command resolution (softcbf_mj.emulator.emulate)
 NOUN = "hardware configuration"
 MAX_FACET_DISTANCE_M = 10.0  # a facet's distance from the base, h_k / |H_k| (module docstring: plausibility bounds)
 

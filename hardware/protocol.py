@@ -50,7 +50,7 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
-from controllers.errors import NonFiniteCommandError, as_vector
+from controllers.core.errors import NonFiniteCommandError, as_vector
 
 START = 0xA5
 HEADER_SIZE = 5  # START, LEN, TYPE, SEQ (2)

@@ -52,7 +52,7 @@ wherever it lands (elsewhere a KeyboardInterrupt inside a cycle does the same).
 `HardwareLog.columns()` gives one row per control cycle, recorded by the recorder every loop
 shares (`closedloop.record`; units: `HardwareLog.units()`); `summary()` the counts of
 actions, flags, perception and link quality. Nothing here imports MuJoCo
-or `softcbf_mj`: the emulator (softcbf_mj.emulate) only provides the frame source and
+or `softcbf_mj`: the emulator (softcbf_mj.emulator.emulate) only provides the frame source and
 the serial port.
 """
 
@@ -73,9 +73,9 @@ import numpy as np
 from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
 from closedloop.record import LiveRows, Recorder
 from closedloop.step import ACTION_CODES, ControlStep, FilterFault
-from controllers.pcc import segment_ends
+from controllers.model.pcc import segment_ends
 from controllers.registry import build_filter, build_nominal
-from controllers.safety_filter import Estimate, FilterContext
+from controllers.contract.safety_filter import Estimate, FilterContext
 from hardware.config import HardwareConfig
 from hardware.link import LinkResult, ValveBoardLink
 from hardware.transport import ByteTransport
@@ -275,7 +275,7 @@ class HardwareLog:
 class HardwareLoop:
     """The control loop of the module docstring; `run()` returns its `HardwareLog`.
 
-    `live` (closedloop.record.LiveRows, e.g. softcbf_mj.recording.LiveRun), when set, is
+    `live` (closedloop.record.LiveRows, e.g. softcbf_mj.outputs.recording.LiveRun), when set, is
     sent the recorder every `live.period_steps` cycles and at the end, in the control
     thread after the cycle's command went out; None by default. `t0` is the clock time of
     the first cycle (s; None before), the origin of the rows' t. `warm_up`: a second step of

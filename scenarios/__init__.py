@@ -30,8 +30,8 @@ lets a study run many samples of the scenario in one batched closed loop:
 `key(kwargs)` is what samples must share to run in one batch (hashable; None: this
 sample cannot be batched), `run(kwargs_list, nthread)` runs the validated flat parameters
 of samples with one key together (optional third argument `progress`: called with the fraction
-of the batch's run done, `softcbf_mj.batch_loop.run_batch_closed_loop`) and returns one row of run figures per
-sample (`softcbf_mj.batch_loop.BatchRun.run`), equal to the single run's fields of the
+of the batch's run done, `softcbf_mj.loops.batch_loop.run_batch_closed_loop`) and returns one row of run figures per
+sample (`softcbf_mj.loops.batch_loop.BatchRun.run`), equal to the single run's fields of the
 same names.
 """
 
@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Hashable, Mapping, Sequence
 
-from controllers.filter_parameters import Params, read_params
+from controllers.contract.filter_parameters import Params, read_params
 from controllers.registry import did_you_mean
 from scenarios.spec import flat_parameters
 from vocabulary.settings import setting

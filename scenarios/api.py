@@ -13,7 +13,7 @@ A spec is a frozen dataclass of typed sections (scenarios.spec: `Run`, `Filter`,
 `Model`, `TrueArm`, `Plate`, `Camera`), one per scenario (`PaperSim`, `MujocoContact`,
 `CameraLoop`); every value is checked when the spec is built, the filter's and the nominal's
 parameters (keywords of their sections, a mapping `params={name: value}`, or the command
-line's "name=value;..." text) against their declarations (controllers.filter_parameters), so a
+line's "name=value;..." text) against their declarations (controllers.contract.filter_parameters), so a
 bad value is refused before anything runs. No scenario or setting is named by a string: a field left out takes the scenario's
 default, the paper filter's tunings are a tuple of preset names (`Filter(tunings=("None", "High"))`), and
 `spec.flat()` gives the flat names and forms that the command line and the files use (the tunings as "None,High").
@@ -21,7 +21,7 @@ default, the paper filter's tunings are a tuple of preset names (`Filter(tunings
 `run(spec)` runs the spec's scenario (the same function `softcbf run` calls) into a temporary
 folder without the report and the recording (`scenarios.common.data_only`) and returns a
 `Result` holding every file it wrote (bytes, by relative path), summary.json parsed and each
-run's time series loaded (`softcbf_mj.runio.load_timeseries`: columns and units). The folder
+run's time series loaded (`softcbf_mj.outputs.runio.load_timeseries`: columns and units). The folder
 is deleted when `run` returns, so the lines the scenario prints name what holds its files
 instead: "outputs in result.files", "(every column): result.files['table.txt']" (`InMemoryNames`);
 `save(result, out_dir)` writes those files into a new run folder (the same checks and lock as
@@ -57,7 +57,7 @@ from scenarios.common import data_only
 from scenarios.mujoco_contact import MujocoContact
 from scenarios.paper_sim import PaperSim
 from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm
-from softcbf_mj.runio import RUN_MARKER, SUMMARY_FILE, load_timeseries, prepare_out_dir, release_out_dir
+from softcbf_mj.outputs.runio import RUN_MARKER, SUMMARY_FILE, load_timeseries, prepare_out_dir, release_out_dir
 
 __all__ = ["Camera", "CameraLoop", "Filter", "Model", "MujocoContact", "Nominal", "PaperSim", "Plate", "Result", "Run",
            "TrueArm", "run", "save"]
@@ -139,10 +139,10 @@ def folder_path(name: object) -> PurePosixPath:
 
 def save(result: Result, out_dir: str | Path, overwrite: bool = False) -> Path:
     """Write `result`'s run folder into `out_dir` (refused if it exists and is not empty, unless `overwrite`
-    replaces a run folder's contents: `softcbf_mj.runio.prepare_out_dir`), then its report and recording, all or
+    replaces a run folder's contents: `softcbf_mj.outputs.runio.prepare_out_dir`), then its report and recording, all or
     nothing (module docstring); returns the folder."""
-    from softcbf_mj.recording import write_recording  # rerun and matplotlib: imported when a folder is saved
-    from softcbf_mj.report import write_report
+    from softcbf_mj.outputs.recording import write_recording  # rerun and matplotlib: imported when a folder is saved
+    from softcbf_mj.outputs.report import write_report
 
     files = {folder_path(name): data for name, data in result.files.items()}
     if str(out_dir) == "":

@@ -9,8 +9,8 @@ with the nominal controller built from sample b's parameters, through
 one row per sample: `BatchRun.run(b)` (the docs/run-outputs.md figures of the same names as
 the single run's, with a filter fault's fields, `tests/test_study_batch.py`), `wall_s`
 (the batch's wall time / B) and `batch_size` (B). Where every sample's filter parameters are equal,
-the filter is built once when it declares batched (`controllers.capabilities.filter_capabilities`: the
-paper's CBF, `controllers.cbf_batch`), else once per simulation (B independent histories: a user's filter
+the filter is built once when it declares batched (`controllers.contract.capabilities.filter_capabilities`: the
+paper's CBF, `controllers.cbf.batch`), else once per simulation (B independent histories: a user's filter
 runs inside the batch, the physics batched). Where they differ (a study or a tuning search that varies a filter parameter), each
 simulation gets its own instance built from its own parameters, called per simulation, so row b's
 commands and faults are those of sample b run alone; only the physics is batched. Each filter and
@@ -26,11 +26,11 @@ import numpy as np
 
 from closedloop.isolation import isolate
 from controllers.registry import build_filter, build_nominal
-from controllers.capabilities import filter_capabilities
-from controllers.safety_filter import FilterContext
+from controllers.contract.capabilities import filter_capabilities
+from controllers.contract.safety_filter import FilterContext
 from scenarios.common import ControllerRun
-from softcbf_mj.batch_loop import run_batch_closed_loop
-from softcbf_mj.plant import BatchPlant
+from softcbf_mj.loops.batch_loop import run_batch_closed_loop
+from softcbf_mj.physics.plant import BatchPlant
 
 
 def run_batch_tuning(plant: BatchPlant, runs: Sequence[ControllerRun], context: FilterContext, nominal: str,

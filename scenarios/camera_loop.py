@@ -8,7 +8,7 @@ controller fall on it; the time series are logged at it). The controller under t
 overhead camera: MuJoCo's offscreen renders of the arm's AprilTags go through the
 hardware's pipeline (`perception`: detection, image-to-plane map, angles from tag
 orientations, q̇ by finite differences), with the hardware's timing
-(`softcbf_mj.camera_loop`: 12.8 frames/s, a `latency` from exposure to estimate, the
+(`softcbf_mj.loops.camera_loop`: 12.8 frames/s, a `latency` from exposure to estimate, the
 CBF filter at 10 Hz with zero-order hold, and the hardware's safe action — hold, then
 vent — when the estimate goes stale). Tunings default to the paper's hardware ones:
 None, HW-Low (γ = 100) and HW-High (γ = 10).
@@ -27,10 +27,10 @@ of complete frames against the true q at exposure (RMS and max, rad), detection 
 frame (median, ms), and the loop latency: the age of the estimate at the controller's
 calls (capture → command, mean and max, s). Time series: the tick-rate series of
 `mujoco_contact` plus one per-frame series `<run>_frames.npz` (`FRAME_UNITS`); a few
-frames with their detections go to frames/<run>/ (format: softcbf_mj.runio).
+frames with their detections go to frames/<run>/ (format: softcbf_mj.outputs.runio).
 
 The spec (`CameraLoop`, scenarios.spec) holds `mujoco_contact`'s sections (`run`, `filter`,
-`nominal`, `model`, `arm`, `plate`: the same ground truth, softcbf_mj.ground_truth; `damping_scale`
+`nominal`, `model`, `arm`, `plate`: the same ground truth, softcbf_mj.physics.ground_truth; `damping_scale`
 multiplies the damping of both arms, so the arm's time constants d_i/k_i scale with it: the
 operating-envelope study, studies/hardware_envelope.toml), the `camera` section and its own
 `assumed_plate_stiffness` (N/m), `assumed_tau_p` (s) and `control_rate` (Hz).
@@ -38,7 +38,7 @@ operating-envelope study, studies/hardware_envelope.toml), the `camera` section 
 Imports: MuJoCo, OpenCV and the perception pipeline are imported inside the functions that
 check or run the scenario, not at load, so that registering it and reading its parameters
 (`softcbf list`, `softcbf run NAME --help`) stay cheap (tests/test_cli_lazy.py). The
-image size's bound is the render's resolution (`softcbf_mj.mjcf.CAMERA_RESOLUTION`),
+image size's bound is the render's resolution (`softcbf_mj.physics.mjcf.CAMERA_RESOLUTION`),
 which is the scenario's default width and height (tests/test_setting_defaults.py holds them equal).
 """
 
@@ -52,29 +52,29 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import FilterContext
+from controllers.model.safe_set import ForceSafeSet
+from controllers.contract.safety_filter import FilterContext
 from scenarios import register
 from scenarios.common import (
     Controller, ControllerRun, check_choice, check_controller, control_step, controller_row, existing_file,
     filter_enabled, initial_configuration, live_run, read_parameter_file, save_run, scene_record, stop_after,
 )
 from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
-from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
-from softcbf_mj.loop import check_duration
-from softcbf_mj.metrics import contact_figures, plate_figures, write_table
-from softcbf_mj.plant import steps_per_control
-from softcbf_mj.progress import Progress
-from softcbf_mj.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
+from softcbf_mj.physics.ground_truth import Truth, build_truth, check_true_arm
+from softcbf_mj.loops.loop import check_duration
+from softcbf_mj.outputs.metrics import contact_figures, plate_figures, write_table
+from softcbf_mj.physics.plant import steps_per_control
+from softcbf_mj.outputs.progress import Progress
+from softcbf_mj.outputs.runio import SummaryWriter, frames_folder, save_frames_index, save_timeseries
 from vocabulary.settings import Bound, default
 
 if TYPE_CHECKING:  # MuJoCo, OpenCV and perception are imported where they are used (module docstring: Imports)
     from perception.detect import TagDetector
     from perception.plane import PlaneCalibration
-    from softcbf_mj.camera_loop import CameraTiming
-    from softcbf_mj.mjcf import ArmModelConfig
-    from softcbf_mj.mujoco_plant import MujocoPlant
-    from softcbf_mj.recording import LiveRun
+    from softcbf_mj.loops.camera_loop import CameraTiming
+    from softcbf_mj.physics.mjcf import ArmModelConfig
+    from softcbf_mj.physics.mujoco_plant import MujocoPlant
+    from softcbf_mj.outputs.recording import LiveRun
 
 
 BOUNDS = {"width": Bound(16, default("width", "camera_loop"), unit="px"),  # the render's resolution (module docstring)
@@ -108,8 +108,8 @@ def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: i
 
     from perception.detect import TagDetector
     from perception.plane import PlaneCalibration, calibrate
-    from softcbf_mj.mjcf import build_model, calibration_board
-    from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
+    from softcbf_mj.physics.mjcf import build_model, calibration_board
+    from softcbf_mj.camera.render import OffscreenRenderer, ground_truth_calibration
 
     if spec == "truth":
         return ground_truth_calibration(plant.model, plant.data, "overhead", width, height)
@@ -171,8 +171,8 @@ CameraLoop = scenario_spec(
 
 
 def camera_timing(spec: CameraLoop) -> CameraTiming:
-    """The camera path's timing of `spec` (softcbf_mj.camera_loop.CameraTiming, which checks it)."""
-    from softcbf_mj.camera_loop import CameraTiming
+    """The camera path's timing of `spec` (softcbf_mj.loops.camera_loop.CameraTiming, which checks it)."""
+    from softcbf_mj.loops.camera_loop import CameraTiming
 
     c = spec.camera
     return CameraTiming(c.frame_rate, spec.control_rate, c.latency, c.drop_rate, c.pixel_noise, c.hold_s)
@@ -204,8 +204,8 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
 
     from perception.detect import TagDetector  # OpenCV, MuJoCo: after the checks
     from perception.tags import arm_tag_ids
-    from softcbf_mj.mjcf import build_model
-    from softcbf_mj.mujoco_plant import MujocoPlant
+    from softcbf_mj.physics.mjcf import build_model
+    from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
     truth = build_truth(spec.arm, spec.plate, model_robot, safe_set.environment, spec.model.damping_scale)
     plant = MujocoPlant(build_model(truth.config), camera.tick)
@@ -221,7 +221,7 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
 
 class FrameSaver:
     """Saves every `every`-th camera frame of run `label` as JPEG with its detections into
-    frames/<label>/ (format: softcbf_mj.runio) and streams it to `live` when given."""
+    frames/<label>/ (format: softcbf_mj.outputs.runio) and streams it to `live` when given."""
 
     def __init__(self, out_dir: Path, label: str, every: int, live: LiveRun | None) -> None:
         self.out_dir, self.label, self.every, self.live = out_dir, label, every, live
@@ -254,8 +254,8 @@ def run_camera_tuning(out_dir: Path, summary: SummaryWriter, spec: CameraLoop, s
     from perception.estimator import ArmAngleEstimator
     from perception.tags import arm_tag_ids
     from perception.tracking import TrackingTagDetector
-    from softcbf_mj.camera_loop import FRAME_UNITS, run_camera_loop
-    from softcbf_mj.mujoco_plant import EXTRAS_UNITS
+    from softcbf_mj.loops.camera_loop import FRAME_UNITS, run_camera_loop
+    from softcbf_mj.physics.mujoco_plant import EXTRAS_UNITS
 
     camera, n, tick = spec.camera, setup.plant.n_segments, spec.camera.tick
     step = control_step(run, spec.nominal.name, setup.nominal_kwargs, setup.context, setup.timing.monitor(n))
@@ -290,7 +290,7 @@ def run_camera_tuning(out_dir: Path, summary: SummaryWriter, spec: CameraLoop, s
 def camera_loop(out_dir: Path, spec: CameraLoop) -> dict:
     """Run each controller (tuning) of `spec` for its duration through the camera path; write summary.json,
     time series and frames."""
-    from softcbf_mj.render import OffscreenRenderer  # MuJoCo: imported when run (module docstring)
+    from softcbf_mj.camera.render import OffscreenRenderer  # MuJoCo: imported when run (module docstring)
 
     setup = camera_setup(spec)
     camera = spec.camera

@@ -6,7 +6,7 @@ Every scenario takes the controller under test as its spec's `Filter` and `Nomin
 (scenarios.spec; flat names, docs/extending.md):
 - `filter`: a registry spec (`controllers.registry`: "paper-cbf", "none", "qsg", "e-erg",
   "c-erg:recommended", a preset of `controllers.registry.PRESETS`, FILE.py:Factory,
-  package.module:Factory); `filter_params`: its typed parameters (`controllers.filter_parameters.Params`,
+  package.module:Factory); `filter_params`: its typed parameters (`controllers.contract.filter_parameters.Params`,
   the command line's repeated `--filter-param name=value`, a TOML table);
 - `tunings`: for "paper-cbf", a tuple of its presets (("None", "High"); the comma list
   "None,High" on the command line and in files), or "custom" (a_E, b_E and gamma from
@@ -21,7 +21,7 @@ summary.json's rows keep "tuning" as the run's label and add "filter", "filter_p
 A scenario's spec is checked when it is built (scenarios.spec: every value against the
 vocabulary, then the scenario's check, built from `check_controller`, `check_choice` and the
 loaders here, whose errors name the parameter and the file); the scenario adds
-`softcbf_mj.loop.check_duration` before it writes anything, so that a rejected command
+`softcbf_mj.loops.loop.check_duration` before it writes anything, so that a rejected command
 leaves no output behind and a study refuses a bad file at load.
 
 Parsed once. The check builds what it checks, and the spec keeps it (`spec.built`,
@@ -48,26 +48,26 @@ import numpy as np
 from closedloop.isolation import check_in_child, isolate
 from closedloop.monitor import SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, write_fault_log
-from controllers.params import RobotParams
-from controllers.filter_parameters import Params, read_params
+from controllers.model.params import RobotParams
+from controllers.contract.filter_parameters import Params, read_params
 from controllers.registry import (FILTERS, NOMINALS, build_filter, build_nominal, check_filter, check_nominal, is_builtin,
                                   label, typed_params)
-from controllers.qp import available_backends
-from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
-from controllers.capabilities import filter_capabilities
-from controllers.safety_filter import Estimate, FilterContext
-from softcbf_mj.loop import Series, exact_state, run_closed_loop
-from softcbf_mj.metrics import run_figures
-from softcbf_mj.ground_truth import (  # noqa: F401  (scenarios take the robot files from the ground truth's module)
+from controllers.cbf.qp import available_backends
+from controllers.model.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_environment
+from controllers.contract.capabilities import filter_capabilities
+from controllers.contract.safety_filter import Estimate, FilterContext
+from softcbf_mj.loops.loop import Series, exact_state, run_closed_loop
+from softcbf_mj.outputs.metrics import run_figures
+from softcbf_mj.physics.ground_truth import (  # noqa: F401  (scenarios take the robot files from the ground truth's module)
     ROBOT_PRESETS, existing_file, load_robot, read_parameter_file, scale_damping,
 )
-from softcbf_mj.plant import Plant, PlantState
-from softcbf_mj.progress import Progress
-from softcbf_mj.runio import SummaryWriter, save_timeseries, stiffness_to_json
+from softcbf_mj.physics.plant import Plant, PlantState
+from softcbf_mj.outputs.progress import Progress
+from softcbf_mj.outputs.runio import SummaryWriter, save_timeseries, stiffness_to_json
 from scenarios.spec import Filter, Model, Nominal
 
-if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.recording is imported only when recording
-    from softcbf_mj.recording import LiveRun
+if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.outputs.recording is imported only when recording
+    from softcbf_mj.outputs.recording import LiveRun
 
 
 def check_choice(name: str, value: str, valid: Sequence[str]) -> None:
@@ -109,7 +109,7 @@ def _read_environment(path: Path) -> Environment:
 
 def controller_robot(model: Model) -> RobotParams:
     """The controller's robot model: `model.robot` with its damping × `model.damping_scale`
-    (softcbf_mj.ground_truth's module docstring)."""
+    (softcbf_mj.physics.ground_truth's module docstring)."""
     return scale_damping(load_robot(model.robot), model.damping_scale)
 
 
@@ -254,7 +254,7 @@ def initial_configuration(n_segments: int, seed: int, q0_std: float) -> np.ndarr
 
 def scene_record(arm: RobotParams, safe_set: ForceSafeSet, plate_stiffness: float,
                  plates: Environment | None = None) -> dict[str, Any]:
-    """summary.json's "scene" (format: softcbf_mj.runio): the true arm's segment lengths,
+    """summary.json's "scene" (format: softcbf_mj.outputs.runio): the true arm's segment lengths,
     the controller's facets, P, n_max, F_max and ψ (`safe_set`), the true plates' spring
     (`plate_stiffness`, N/m) and surfaces at rest (`plates`; default: the controller's facets)."""
     env = safe_set.environment
@@ -299,11 +299,11 @@ def run_tuning(
 
 
 def live_run(summary: SummaryWriter, label: str, control_dt: float, camera: bool = False) -> LiveRun | None:
-    """The live stream of run `label` (softcbf_mj.recording.live_run: a viewer spawned by
+    """The live stream of run `label` (softcbf_mj.outputs.recording.live_run: a viewer spawned by
     `--spawn`), or None: none is active, or the report and recording are off (`data_only`)."""
     if not _REPORT_AND_RECORDING.get():
         return None
-    from softcbf_mj.recording import live_run as recording_live_run  # rerun: imported only when recording
+    from softcbf_mj.outputs.recording import live_run as recording_live_run  # rerun: imported only when recording
 
     return recording_live_run(summary.data.get("scene"), label, len(summary.data["runs"]), control_dt, camera)
 
@@ -315,7 +315,7 @@ def stop_after(row: Mapping[str, Any]) -> bool:
 
 
 def filter_enabled(step: ControlStep) -> bool:
-    """False for a filter that declares passthrough (`controllers.capabilities.Capabilities`): no filter times."""
+    """False for a filter that declares passthrough (`controllers.contract.capabilities.Capabilities`): no filter times."""
     return not filter_capabilities(step.filter).passthrough
 
 
@@ -359,8 +359,8 @@ def save_run(
         return row
     # Imported here: rerun and matplotlib take seconds to import, which listing scenarios
     # and rejecting bad arguments should not pay.
-    from softcbf_mj.recording import write_recording
-    from softcbf_mj.report import write_report
+    from softcbf_mj.outputs.recording import write_recording
+    from softcbf_mj.outputs.report import write_report
 
     write_report(out_dir)
     write_recording(out_dir)

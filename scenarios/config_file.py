@@ -15,7 +15,7 @@ Two formats, told apart by the suffix:
       [filter_params]
       slack_weight = 1e4
 
-- `.json`: a run folder's config.json (softcbf_mj.runio: {"scenario", "params", ...}),
+- `.json`: a run folder's config.json (softcbf_mj.outputs.runio: {"scenario", "params", ...}),
   whose "params" hold every parameter of the run (a plug-in's parameters as the object of their typed
   values): `softcbf run --config DIR/config.json`
   replays that run (same parameters, same seed, so the same time series on the same
@@ -28,7 +28,7 @@ parameters, when the run checks them); errors are ValueErrors naming the file an
 A replay is bit-identical only with the recorded seed on the recorded versions (MuJoCo's
 results, numpy's generators and the solvers change between releases). `replay_warnings`
 says, one line each, where a replay departs from that: every version config.json records
-(softcbf_mj, mujoco, python, numpy, ..., platform; `softcbf_mj.runio.versions`) that
+(softcbf_mj, mujoco, python, numpy, ..., platform; `softcbf_mj.outputs.runio.versions`) that
 differs from the running one, a config.json that records none, and a seed that the
 command line changes.
 

@@ -1,4 +1,4 @@
-"""Deprecated: the MuJoCo ground truth moved to `softcbf_mj.ground_truth` (its one builder, which the
+"""Deprecated: the MuJoCo ground truth moved to `softcbf_mj.physics.ground_truth` (its one builder, which the
 environment and the emulator take too). The names here (`build_truth`, `check_true_arm`, `Truth`,
 `flexure`, `scaled_robot`, `moved_facets`) are read from there with a DeprecationWarning for one release;
 `build_truth(arm, plate, model, model_robot, environment)` keeps its former signature (the new one takes
@@ -9,9 +9,9 @@ from __future__ import annotations
 import warnings
 from typing import Any
 
-from controllers.params import RobotParams
-from controllers.safe_set import Environment
-from softcbf_mj import ground_truth
+from controllers.model.params import RobotParams
+from controllers.model.safe_set import Environment
+from softcbf_mj.physics import ground_truth
 from vocabulary.run_sections import Model, Plate, TrueArm
 
 MOVED = ("check_true_arm", "Truth", "flexure", "scaled_robot", "moved_facets")
@@ -19,12 +19,12 @@ MOVED = ("check_true_arm", "Truth", "flexure", "scaled_robot", "moved_facets")
 
 def _moved(name: str) -> str:
     return (f"scenarios.ground_truth.{name} is deprecated and will be removed in the next release: "
-            f"use softcbf_mj.ground_truth.{name}")
+            f"use softcbf_mj.physics.ground_truth.{name}")
 
 
 def build_truth(arm: TrueArm, plate: Plate, model: Model, model_robot: RobotParams, environment: Environment
                 ) -> ground_truth.Truth:
-    """`softcbf_mj.ground_truth.build_truth(arm, plate, model_robot, environment, model.damping_scale)`, with a
+    """`softcbf_mj.physics.ground_truth.build_truth(arm, plate, model_robot, environment, model.damping_scale)`, with a
     DeprecationWarning."""
     warnings.warn(_moved("build_truth") + "(arm, plate, model_robot, environment, damping_scale)", DeprecationWarning,
                   stacklevel=2)

@@ -16,7 +16,7 @@ MuJoCo actuators clamp to the same ctrlrange in every case, so with
 
 Per run, besides the docs/run-outputs.md fields (ρ_meas and t_violation_s from the plate's spring
 force: ρ_meas = 1 − F/F_max for linear ψ, violation while F > F_max), summary.json holds
-`softcbf_mj.metrics.contact_figures`: the force the controller predicts, ψ of its own
+`softcbf_mj.outputs.metrics.contact_figures`: the force the controller predicts, ψ of its own
 predicted penetration, against the measured plate force (RMS and max error), and the
 loaded-rod penetration bias, predicted − measured penetration while in contact (m and %
 of n_max; docs/ground-truth.md: a loaded rod is not constant-curvature), the solver's peak contact
@@ -25,21 +25,21 @@ and `switches_per_s`, how often the filter's correction turns on and off. Time s
 add the plant's extras `plate_displacement_m`, `force_solver_N` and `force_tangential_N`
 (and `warning_*` counts if any). With `plate="flexure"` (docs/beyond-the-paper.md#flexure-plate) the measured force is
 the sheet's gauge reading and the run also records where along the sheet the arm touches
-and the sheet's stiffness there (`softcbf_mj.metrics.plate_figures`; time series
+and the sheet's stiffness there (`softcbf_mj.outputs.metrics.plate_figures`; time series
 `contact_s_m`, `contact_stiffness_N_per_m`). With `table_friction` μ > 0 the arm's links slide on the
-table with Coulomb friction (`softcbf_mj.table_friction`; time series `table_friction_power_W`);
+table with Coulomb friction (`softcbf_mj.physics.table_friction`; time series `table_friction_power_W`);
 such samples have no batch form. Results and the benchmark: models/softcbf_arm/README.md.
 
 The spec (`MujocoContact`, scenarios.spec) holds the sections `run`, `filter`, `nominal`,
 `model` (the controller's robot, damping × `damping_scale`, and force-safe set), `arm` and
-`plate` (the ground truth, softcbf_mj.ground_truth: the true arm's k, d, λ and L scaled by
+`plate` (the ground truth, softcbf_mj.physics.ground_truth: the true arm's k, d, λ and L scaled by
 `true_*_scale`, the true plates moved by `facet_offset` and turned by `facet_angle` while the
 controller keeps the unmoved facets, `gravity`, `tip_friction`, `table_friction`, the ideal
 plate's `plate_stiffness` or the flexure's `sheet_*`, whose calibrated k is recorded as the
 scene's plate stiffness) and its own `assumed_plate_stiffness` (N/m, the controller's ψ) and `assumed_tau_p` (s,
 the valve lag the filter's context states; the true valves' is the arm's `tau_p`, so a study that varies `tau_p`
 tells the filter nothing of it), and `assumed_command_delay` (s, the command delay its context states; the true one
-is the arm's `command_delay`, a FIFO of whole 1 ms control periods in the plant, softcbf_mj.plant: a delay between
+is the arm's `command_delay`, a FIFO of whole 1 ms control periods in the plant, softcbf_mj.physics.plant: a delay between
 two periods is refused). Model mismatch studies vary these (softcbf.study); samples with different true command
 delays run in different batches (the batch key holds `command_delay`: `MujocoBatchPlant` has one per batch).
 
@@ -56,8 +56,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import FilterContext
+from controllers.model.safe_set import ForceSafeSet
+from controllers.contract.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
@@ -65,11 +65,11 @@ from scenarios.common import (
     scene_record, stop_after,
 )
 from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
-from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
-from softcbf_mj.loop import check_duration
-from softcbf_mj.metrics import contact_figures, plate_figures, write_table
-from softcbf_mj.plant import delay_periods, steps_per_control
-from softcbf_mj.runio import SummaryWriter
+from softcbf_mj.physics.ground_truth import Truth, build_truth, check_true_arm
+from softcbf_mj.loops.loop import check_duration
+from softcbf_mj.outputs.metrics import contact_figures, plate_figures, write_table
+from softcbf_mj.physics.plant import delay_periods, steps_per_control
+from softcbf_mj.outputs.runio import SummaryWriter
 from vocabulary.settings import Bound
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz
@@ -127,7 +127,7 @@ MujocoContact = scenario_spec(
 class ContactSetup:
     """What one `mujoco_contact` sample builds before its closed loop (`contact_setup`).
 
-    truth: the MuJoCo ground truth (`softcbf_mj.ground_truth.build_truth`); runs: the controllers
+    truth: the MuJoCo ground truth (`softcbf_mj.physics.ground_truth.build_truth`); runs: the controllers
     under test; q0 (N,) rad; context: what the filters and the nominal are told.
     """
 
@@ -178,7 +178,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
     """Run `mujoco_contact` samples (flat parameters) that share `contact_batch_key` (each one tuning) in
     one batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
     run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
-    from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant  # MuJoCo: imported when run (module docstring)
+    from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant  # MuJoCo: imported when run (module docstring)
 
     keys = {contact_batch_key(p) for p in samples}
     if len(keys) != 1 or None in keys:
@@ -199,8 +199,8 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
           MujocoContact, BatchForm(contact_batch_key, run_contact_batch))
 def mujoco_contact(out_dir: Path, spec: MujocoContact) -> dict:
     """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
-    from softcbf_mj.mjcf import build_model  # MuJoCo: imported when run (module docstring)
-    from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+    from softcbf_mj.physics.mjcf import build_model  # MuJoCo: imported when run (module docstring)
+    from softcbf_mj.physics.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 
     setup = contact_setup(spec)
     safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.truth.plate_stiffness, setup.nominal_kwargs

@@ -7,12 +7,12 @@ under the same names and meanings, as `mujoco_contact`.
 
 The plant (`PCCPlant`, docs/model.md#rppr-dynamics) is the true arm: the controller's robot with, per segment,
 L_i × `true_length_scale` (I_i × its square), k_i × `true_stiffness_scale`, d_i × `true_damping_scale` and
-λ_i × `true_gain_scale` (`softcbf_mj.ground_truth.scaled_robot`, the construction `mujoco_contact` uses), its
+λ_i × `true_gain_scale` (`softcbf_mj.physics.ground_truth.scaled_robot`, the construction `mujoco_contact` uses), its
 valve a first-order lag of `tau_p` s behind a command delay of `command_delay` s (whole 1 ms control periods, a FIFO:
-softcbf_mj.plant), as the MuJoCo plant's; the filter is told `assumed_tau_p` and `assumed_command_delay`, as there.
+softcbf_mj.physics.plant), as the MuJoCo plant's; the filter is told `assumed_tau_p` and `assumed_command_delay`, as there.
 The true plates
 are the controller's facets moved by `facet_offset` (m) along their outward normals and turned by
-`facet_angle` (rad) (`softcbf_mj.ground_truth.moved_facets`), each a linear spring of `plate_stiffness` N/m:
+`facet_angle` (rad) (`softcbf_mj.physics.ground_truth.moved_facets`), each a linear spring of `plate_stiffness` N/m:
 the plant's contact force is ψ_true(n_true(r)) at the PCC tip r. The controller keeps its model: robot,
 facets and ψ(n) = `assumed_plate_stiffness` · n; ρ_meas is its margin of the plant's force.
 
@@ -40,9 +40,9 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from controllers.params import RobotParams
-from controllers.safe_set import ForceSafeSet, LinearStiffness
-from controllers.safety_filter import FilterContext
+from controllers.model.params import RobotParams
+from controllers.model.safe_set import ForceSafeSet, LinearStiffness
+from controllers.contract.safety_filter import FilterContext
 from scenarios import BatchForm, register
 from scenarios.batch_form import run_batch_tuning
 from scenarios.common import (
@@ -50,11 +50,11 @@ from scenarios.common import (
     initial_configuration, run_tuning, scene_record, stop_after,
 )
 from scenarios.spec import Filter, Model, Nominal, Run, scenario_spec
-from softcbf_mj.ground_truth import moved_facets, scaled_robot
-from softcbf_mj.loop import check_duration
-from softcbf_mj.metrics import write_table
-from softcbf_mj.plant import delay_periods
-from softcbf_mj.runio import SummaryWriter
+from softcbf_mj.physics.ground_truth import moved_facets, scaled_robot
+from softcbf_mj.loops.loop import check_duration
+from softcbf_mj.outputs.metrics import write_table
+from softcbf_mj.physics.plant import delay_periods
+from softcbf_mj.outputs.runio import SummaryWriter
 
 CONTROL_DT = 1e-3  # s, the paper's 1 kHz (mujoco_contact's)
 
@@ -74,7 +74,7 @@ def check_spec(spec: PccContact) -> Controller:
     """The checks of a `pcc_contact` spec beyond its values' (scenarios.spec): the controller (its model and the
     assumed plate), the integrator and the true plates (the moved facets still bound a free space); returns the
     controller it built (`spec.built`)."""
-    from softcbf_mj.pcc_plant import INTEGRATORS  # the plants load the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_plant import INTEGRATORS  # the plants load the compiled model (numba): where a run starts
     controller = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
     check_choice("integrator", spec.integrator, INTEGRATORS)
     delay_periods(spec.command_delay, CONTROL_DT)
@@ -160,7 +160,7 @@ def run_pcc_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
     first, spec = setups[0], specs[0]
-    from softcbf_mj.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): where a run starts
     plant = PCCBatchPlant([s.robot for s in setups], first.plates, len(setups), control_dt=CONTROL_DT,
                           integrator=spec.integrator, tau_p=spec.tau_p, command_delay=spec.command_delay)
     return run_batch_tuning(plant, [s.runs[0] for s in setups], first.context, spec.nominal.name,
@@ -172,7 +172,7 @@ def run_pcc_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1
           PccContact, BatchForm(pcc_contact_batch_key, run_pcc_contact_batch))
 def pcc_contact(out_dir: Path, spec: PccContact) -> dict:
     """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
-    from softcbf_mj.pcc_plant import PCCPlant  # the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_plant import PCCPlant  # the compiled model (numba): where a run starts
     setup = pcc_contact_setup(spec)
     summary = SummaryWriter(out_dir, "pcc_contact", spec.flat(),
                             scene_record(setup.robot, setup.safe_set, spec.plate_stiffness, setup.plates.environment))

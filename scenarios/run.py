@@ -10,7 +10,7 @@ and `nominal_params`, which the plug-in types (`controllers.registry.typed_param
 `command_line_params`, while one of `base` is overridden). `run_scenario` checks every parameter
 and builds the scenario's spec (every value checked, `scenarios.spec`) before the run folder exists,
 then makes it absolute (a filter that changes the working folder cannot move the outputs), locks
-it (`softcbf_mj.runio`) and runs the spec into it.
+it (`softcbf_mj.outputs.runio`) and runs the spec into it.
 
 The error boundary. Only validation errors are usage errors (`UsageError`, exit code
 `USAGE_ERROR`, one line): a parameter refused while the spec is built, and, raised while the
@@ -26,7 +26,7 @@ run); interrupts return `INTERRUPTED`. A run that ended on a filter fault (close
 keeps its folder and returns `FILTER_FAULT` (1) after one line naming the fault.
 
 The process (`exit_code(..., process=True)`: the command line's own process). Ctrl-C is told from
-a filter's own KeyboardInterrupt from the start (`controllers.interrupts.watch`); and when the
+a filter's own KeyboardInterrupt from the start (`controllers.core.interrupts.watch`); and when the
 command has finished (its outputs written) while non-daemon threads are still running (a filter
 that started one and never ended it), the process says so in one line and ends with the command's
 exit code instead of waiting for them forever.
@@ -46,15 +46,15 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from closedloop.step import describe_fault, fault_log_name
-from controllers.bounds import SettingError
-from controllers.interrupts import watch
-from controllers.filter_parameters import OLD_TEXT_WARNING, Params, add_pair, read_params
+from controllers.core.bounds import SettingError
+from controllers.core.interrupts import watch
+from controllers.contract.filter_parameters import OLD_TEXT_WARNING, Params, add_pair, read_params
 from controllers.registry import FILTERS, NOMINALS, PluginLoadError, did_you_mean, is_builtin, parameter_names
 from scenarios import Scenario, get
 from vocabulary.settings import setting
-from softcbf_mj.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
+from softcbf_mj.outputs.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
 
-# softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
+# softcbf_mj.outputs.recording and softcbf_mj.outputs.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which usage errors should not pay.
 
 USAGE_ERROR = 2
@@ -250,8 +250,8 @@ def command_line_params(items: Sequence[tuple[str, str]], names: typing.Collecti
 
 def _outputs_summary(out_dir: Path) -> str:
     """What a run folder holds, in a few lines, for the end of a run."""
-    from softcbf_mj.recording import RECORDING_FILE, viewer_command
-    from softcbf_mj.report import PLOTS_DIR, REPORT_FILE
+    from softcbf_mj.outputs.recording import RECORDING_FILE, viewer_command
+    from softcbf_mj.outputs.report import PLOTS_DIR, REPORT_FILE
 
     folder = read_run_folder(out_dir)
     recording = out_dir / RECORDING_FILE
@@ -299,8 +299,8 @@ def _discard(out_dir: Path, created: Sequence[Path]) -> None:
 def _stale_outputs(out_dir: Path) -> list[str]:
     """Which of the report and the recording do not show every finished run: missing, or
     older than summary.json (rewritten after each run, before both are rebuilt)."""
-    from softcbf_mj.recording import RECORDING_FILE
-    from softcbf_mj.report import REPORT_FILE
+    from softcbf_mj.outputs.recording import RECORDING_FILE
+    from softcbf_mj.outputs.report import REPORT_FILE
 
     summary_ns = (out_dir / SUMMARY_FILE).stat().st_mtime_ns
     return [name for name in (REPORT_FILE, RECORDING_FILE)
@@ -310,8 +310,8 @@ def _stale_outputs(out_dir: Path) -> list[str]:
 def _interrupted(out_dir: Path, done: list[str]) -> int:
     """After Ctrl-C with `done` finished runs: bring the report and the recording up to
     them (a second Ctrl-C skips that), say what the folder holds, return 130."""
-    from softcbf_mj.recording import RECORDING_FILE, write_recording
-    from softcbf_mj.report import write_report
+    from softcbf_mj.outputs.recording import RECORDING_FILE, write_recording
+    from softcbf_mj.outputs.report import write_report
 
     runs = f"{len(done)} finished run(s) ({', '.join(done)})"
     stale = _stale_outputs(out_dir)
@@ -370,12 +370,12 @@ VALIDATION_ERRORS = (UsageError, SettingError, PluginLoadError)  # raised while 
 
 def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[Path], spawn: bool) -> int:
     try:
-        from softcbf_mj.kernels import compile_notes
-        from softcbf_mj.progress import heartbeat
+        from softcbf_mj.loops.kernels import compile_notes
+        from softcbf_mj.outputs.progress import heartbeat
 
         viewer = contextlib.nullcontext("")
         if spawn:  # rerun and matplotlib take seconds to import: only for the viewer, so the run talks at once
-            from softcbf_mj.recording import live_viewer
+            from softcbf_mj.outputs.recording import live_viewer
 
             viewer = live_viewer()
         start = (heartbeat(f"{scenario.name}: setting up, {spec.run.duration:g} s per run into {out_dir}")

@@ -3,7 +3,7 @@
 A *section* groups the settings one part of a run takes: `Run` (duration, seed, q0 noise,
 progress line), `Filter` (the controller under test), `Nominal` (the nominal controller),
 `Model` (the controller's robot and force-safe set), `TrueArm` and `Plate` (the MuJoCo
-ground truth, `softcbf_mj.ground_truth`) and `Camera` (the camera path). The settings-only
+ground truth, `softcbf_mj.physics.ground_truth`) and `Camera` (the camera path). The settings-only
 sections (`Run`, `Model`, `TrueArm`, `Plate`, `Camera`) are the vocabulary's
 (`vocabulary.run_sections`, which the environment and the hardware file compose too) and are
 importable from here as well; `Filter` and `Nominal` are this module's (`plugin_section`: they

@@ -1,8 +1,8 @@
 """`softcbf calibrate-camera RUN_DIR`: a camera's error at rest from a recorded run, printed.
 
-The command line of `controllers.camera_delta` (the measurement, numpy only, which the hardware mode can use as it
+The command line of `controllers.governors.camera_delta` (the measurement, numpy only, which the hardware mode can use as it
 is): this module parses the arguments, turns a bad folder into one line and exit 2, and prints each tuning's Δ and ε
-(`controllers.camera_delta.report_lines`).
+(`controllers.governors.camera_delta.report_lines`).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from controllers.camera_delta import measure_folder, report_lines
+from controllers.governors.camera_delta import measure_folder, report_lines
 from scenarios.run import UsageError
 
 

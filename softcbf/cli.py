@@ -14,7 +14,7 @@
     softcbf hardware --config FILE ...             the hardware mode (softcbf.hardware_cli)
     softcbf bench --out DIR [--filters SPEC,...] [--quick]   the filter benchmark battery (softcbf.bench)
     softcbf calibrate-camera RUN_DIR [--window-s S]   a camera's Δ and frame scatter at rest from a recorded run
-                                                   (controllers.camera_delta)
+                                                   (controllers.governors.camera_delta)
     softcbf examples DIR [--overwrite]             copy the shipped examples, studies and hardware configurations
                                                    into DIR (softcbf.shipped; STUDY_FILE and CONFIG above may be
                                                    their names, e.g. mismatch_box_contact, hardware_emulated)
@@ -28,7 +28,7 @@ settings of its spec by their flat names (`scenarios.spec`), spelt with dashes (
 --filter-param a_E=5 --filter-param b_E=5 --filter-param gamma=5`); `--out` defaults to
 runs/<scenario>-<YYYYmmdd-HHMMSS> (-2, -3, ... when runs start in the same second). The
 run folder gets config.json, summary.json, timeseries/*.npz, plots/*.png, report.md and
-recording.rrd (softcbf_mj.runio), the report and the recording rebuilt after every
+recording.rrd (softcbf_mj.outputs.runio), the report and the recording rebuilt after every
 finished tuning. `--spawn` streams each tuning to a rerun viewer while it runs when a
 display is present, and says so when it skips it. `python -m scenarios` is the same `run`
 (docs/run-outputs.md spelling: `python -m scenarios NAME --out DIR ...`, `--list`).
@@ -41,7 +41,7 @@ when its SHA-256 differs from the recorded one, unless --allow-changed-filter); 
 as well must be the file's. `softcbf run SCENARIO --help` lists the scenario's parameters with
 their meaning, unit, default and valid values (docs/parameters.md).
 
-The run folder is locked while a run writes it (softcbf_mj.runio: a second run into it is
+The run folder is locked while a run writes it (softcbf_mj.outputs.runio: a second run into it is
 refused, naming the process that holds it). `--overwrite` replaces the contents of a run
 folder (one softcbf wrote: its .softcbf-run marker or a summary.json of docs/run-outputs.md), never any
 other folder, nor the working folder, a folder above it or the home folder.
@@ -49,7 +49,7 @@ other folder, nor the working folder, a folder above it or the home folder.
 A misspelt name (command, scenario, parameter, filter, nominal) is answered with the closest
 valid ones (`controllers.registry.did_you_mean`): "unknown command 'rnu' (did you mean 'run'?)".
 A run talks within a second or two (its progress bar, or the heartbeat of a longer set-up), and
-numba's compiles are announced as they start (scenarios.run, softcbf_mj.progress, softcbf_mj.kernels).
+numba's compiles are announced as they start (scenarios.run, softcbf_mj.outputs.progress, softcbf_mj.loops.kernels).
 
 Exit codes: 0 done; 2 usage error (unknown scenario or parameter, a value of the wrong
 type, not finite or out of range, a duration whose time series would not fit in memory,
@@ -97,12 +97,12 @@ try:  # Ctrl-C while the command line starts (these imports take about a second)
     from scenarios.config_file import load_run_config, replay_sources, replay_warnings
     from scenarios.pipe import quiet_on_closed_pipe
     from scenarios.run import UsageError, UsageParser, describe, exit_code, run_scenario, scenario_parameters
-    from softcbf_mj.runio import RunFolderError, versions
+    from softcbf_mj.outputs.runio import RunFolderError, versions
 except KeyboardInterrupt:
     print("\ninterrupted", file=sys.stderr)
     raise SystemExit(130) from None  # scenarios.run.INTERRUPTED, which could not be imported
 
-# softcbf_mj.recording and softcbf_mj.report are imported where they are used: rerun and
+# softcbf_mj.outputs.recording and softcbf_mj.outputs.report are imported where they are used: rerun and
 # matplotlib take seconds to import, which `list`, `--version` and usage errors should not pay;
 # softcbf.hardware_cli (OpenCV, the hardware mode), softcbf.bench and softcbf.study.cli through `lazy`.
 
@@ -229,7 +229,7 @@ def _run_help(args: argparse.Namespace, name: str | None) -> int:
 def _report_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", type=Path, help="a run folder written by softcbf run")
     parser.add_argument("--no-recording", action="store_true", help="rebuild the plots and report.md only")
-    # figure options (softcbf_mj.report.write_report / softcbf.study.report.write_report parameters)
+    # figure options (softcbf_mj.outputs.report.write_report / softcbf.study.report.write_report parameters)
     parser.add_argument("--figure-format", choices=("png", "svg", "pdf"), default="png", help="plot file format (default png)")
     parser.add_argument("--dpi", type=float, default=None,
                         help="raster resolution of the plots, dots per inch (default: a run's 200, a study's 100)")
@@ -246,8 +246,8 @@ def _report(args: argparse.Namespace, extra: list[str]) -> int:
 
         print(f"study report: {write_study_report(args.run_dir, figure_format=args.figure_format, **resolution)}")
         return 0
-    from softcbf_mj.recording import write_recording  # MuJoCo, rerun: 2.8 s (-X importtime), only to report
-    from softcbf_mj.report import write_report  # matplotlib: 1.5 s (-X importtime), only to report
+    from softcbf_mj.outputs.recording import write_recording  # MuJoCo, rerun: 2.8 s (-X importtime), only to report
+    from softcbf_mj.outputs.report import write_report  # matplotlib: 1.5 s (-X importtime), only to report
 
     try:
         start = time.perf_counter()

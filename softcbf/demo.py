@@ -9,16 +9,16 @@ Two runs of scenario mujoco_contact through the Python API (`scenarios.api.run`,
 Both get the README's pushing nominal, u_nom = 150 sin(2π·0.25·(t + 1)) hPa on both segments from t = 0,
 which presses the arm into the plate at once, for DURATION_S = 5 s of simulated time: on the reference
 machine the paper's CBF peaks well above F_max = 0.16 N (ρ_meas < 0) and the recommended filter stays
-below it. The figure, DIR/force.png, is `softcbf_mj.report.plot_force` of the two runs (measured force,
+below it. The figure, DIR/force.png, is `softcbf_mj.outputs.report.plot_force` of the two runs (measured force,
 the force each controller predicts, F_max); each run is also saved as a run folder,
 DIR/paper-cbf-low and DIR/c-erg-recommended (`scenarios.api.save`: summary, time series, plots,
 report.md, recording), which `softcbf report` rebuilds. The demo prints a line before anything heavy
-is imported, numba's compile note when it compiles (softcbf_mj.kernels), each run's progress line and
+is imported, numba's compile note when it compiles (softcbf_mj.loops.kernels), each run's progress line and
 result, and where the figure is.
 
 Time: 5 s of simulated time per run; after set-up with numba's cache warm the demo takes well under a
 minute on the 2-core reference machine (docs/command-line.md#softcbf-demo gives the measurement);
-a cold cache adds the one-time compile (softcbf_mj.kernels.COLD_COMPILE_S). An existing DIR is reused:
+a cold cache adds the one-time compile (softcbf_mj.loops.kernels.COLD_COMPILE_S). An existing DIR is reused:
 the figure is replaced and the two run folders are replaced as run folders (`save(..., overwrite=True)`
 refuses a folder softcbf did not write).
 """
@@ -34,8 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from softcbf_mj.kernels import compile_notes
-from softcbf_mj.palette import run_color
+from softcbf_mj.loops.kernels import compile_notes
+from softcbf_mj.outputs.palette import run_color
 
 DURATION_S = 5.0  # s of simulated time per run
 NOMINAL = {"amplitude": 150.0, "frequency": 0.25, "t0": 1.0}  # hPa, Hz, s: the README's pushing sinusoid
@@ -62,7 +62,7 @@ def demo_runs() -> tuple[DemoRun, ...]:
 def _run_one(k: int, demo: DemoRun, out: Path, duration: float, stream: TextIO) -> Any:
     """Run `demo` (the k-th of two) through `scenarios.api.run`, say its result, save its run folder; its RunFolder."""
     from scenarios.api import Filter, MujocoContact, Nominal, Run, run, save  # 0.78 s (-X importtime): not at --help
-    from softcbf_mj.runio import read_run_folder  # 0.35 s (-X importtime) at --help; loaded with scenarios.api
+    from softcbf_mj.outputs.runio import read_run_folder  # 0.35 s (-X importtime) at --help; loaded with scenarios.api
 
     print(f"[{k}/2] {demo.label}: {duration:g} s of mujoco_contact", file=stream, flush=True)
     spec = MujocoContact(run=Run(duration=duration, progress=True), filter=Filter(demo.filter, params=demo.params),
@@ -82,7 +82,7 @@ def run_demo(out: Path = DEFAULT_OUT, duration: float = DURATION_S, stream: Text
     start = time.perf_counter()
     print(f"softcbf demo: the paper's CBF and the recommended filter, {duration:g} s each on the MuJoCo plate",
           file=stream, flush=True)
-    from softcbf_mj.report import Scene, plot_force  # matplotlib, MuJoCo: 1.5 s (-X importtime), after the first line
+    from softcbf_mj.outputs.report import Scene, plot_force  # matplotlib, MuJoCo: 1.5 s (-X importtime), after the first line
 
     out, runs, folders = Path(out), demo_runs(), []
     with compile_notes(stream):  # one note for both runs' compiles
@@ -109,7 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run_command(args: argparse.Namespace, extra: list[str]) -> int:
     """`softcbf demo`: bad input is a UsageError (one line, exit 2)."""
     from scenarios.run import UsageError  # 0.46 s (-X importtime): `softcbf --help` imports this module
-    from softcbf_mj.runio import OutputDirError  # 0.35 s (-X importtime): as above
+    from softcbf_mj.outputs.runio import OutputDirError  # 0.35 s (-X importtime): as above
 
     if not args.duration > 0:
         raise UsageError(f"--duration must be > 0 s, got {args.duration:g}")

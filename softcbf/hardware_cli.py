@@ -17,25 +17,25 @@ file's starts from an empty table); a file named on the command line (`--robot`,
 is relative to the working directory, one named in the file relative to the file's folder.
 The filter and the nominal controller are built once at start-up to check them (an
 unknown name or parameter is a usage error). `--port emulated --camera virtual` runs the whole hardware path against
-`softcbf_mj.emulate.EmulatedHardware` (MuJoCo arm and plate behind a pty valve board,
+`softcbf_mj.emulator.emulate.EmulatedHardware` (MuJoCo arm and plate behind a pty valve board,
 rendered by a virtual camera); the two go together (a real camera cannot see the emulated
 arm). A real run imports no MuJoCo: the emulator is imported only for emulated runs.
 
-The run folder is the simulations' (docs/run-outputs.md, `softcbf_mj.runio`): config.json,
+The run folder is the simulations' (docs/run-outputs.md, `softcbf_mj.outputs.runio`): config.json,
 summary.json (scenario "hardware", the configuration as params, one row per run with
-the run-output fields from `softcbf_mj.metrics.run_figures` at the control rate plus the
+the run-output fields from `softcbf_mj.outputs.metrics.run_figures` at the control rate plus the
 loop's counts), timeseries/<tuning>.npz (one row per control cycle, recorded by the
 recorder every loop shares, `closedloop.record`: the control step's columns, the
 filter's diagnostics and the hardware loop's own columns, all with units),
 plots, report.md, recording.rrd and frames/<tuning>/ (a camera frame every
 1/SAVED_FRAMES_HZ s of the run, JPEG, with its tag detections: `FrameKeeper`; the
 recording shows them). `--spawn` streams the run to a rerun viewer while it runs
-(softcbf_mj.recording.live_viewer; without a display it says so and streams nothing):
+(softcbf_mj.outputs.recording.live_viewer; without a display it says so and streams nothing):
 the controller's view (the estimated arm, the command, ρ_pred; no contact force) and
 the kept frames as they are taken. Ground truth: on the emulator q, q̇, the segment
 ends, the pressure acting and the plate force are the emulator's true values at each
 cycle's time, and timeseries/<tuning>_emulator.npz holds its full 1 kHz record
-(`softcbf_mj.valve_emulator.RECORD_UNITS`), from which `force_max_emulator_N` and
+(`softcbf_mj.emulator.valve_emulator.RECORD_UNITS`), from which `force_max_emulator_N` and
 `t_violation_emulator_s` are taken; on the arm q, q̇ are the camera's estimate, the
 pressure acting is the board's measured pressure (ACK) and the force is not measured
 (NaN: ρ_meas and force_max_N are null).
@@ -49,7 +49,7 @@ setting (`StartupError`), exit code 2, and no folder (nor, with --overwrite, a r
 one). A loop that then sees no complete frame within camera.startup_timeout_s vents and
 ends the same way, removing the folder it had made.
 
-Progress (`CycleProgress`, softcbf_mj.progress): an emulated run says first that its emulator
+Progress (`CycleProgress`, softcbf_mj.outputs.progress): an emulated run says first that its emulator
 is starting (it takes seconds); from the first cycle on the progress line shows cycles done of
 the run's, the run time, the real-time factor and an ETA, updated once per second of run. A
 failed start-up of a real arm prints nothing but its one error line.
@@ -83,7 +83,7 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from controllers.pcc import segment_ends
+from controllers.model.pcc import segment_ends
 from closedloop.monitor import SafeAction
 from hardware.config import (
     EMULATED_PORT, SHARED_KEYS, VIRTUAL_CAMERA, ConfigError, HardwareConfig, camera_source_is_file,
@@ -98,9 +98,9 @@ from closedloop.step import describe_fault, fault_log_name, write_fault_log
 from controllers.registry import build_filter, build_nominal
 from controllers.registry import label as run_label
 from softcbf.shipped import UnknownShipped, resolve as shipped_or_file
-from softcbf_mj.metrics import run_figures
-from softcbf_mj.progress import Progress
-from softcbf_mj.runio import (
+from softcbf_mj.outputs.metrics import run_figures
+from softcbf_mj.outputs.progress import Progress
+from softcbf_mj.outputs.runio import (
     OutputDirError, SummaryWriter, frames_folder, prepare_out_dir, remove_if_unused, save_frames_index, save_timeseries,
 )
 from vocabulary.settings import setting
@@ -212,7 +212,7 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
             out_dir = prepare_out_dir(args.out or Path("runs") / f"{SCENARIO}-{time.strftime('%Y%m%d-%H%M%S')}",
                                       args.overwrite)
             if args.spawn:
-                from softcbf_mj.recording import live_viewer  # MuJoCo, rerun: 2.6 s (-X importtime), only with a viewer
+                from softcbf_mj.outputs.recording import live_viewer  # MuJoCo, rerun: 2.6 s (-X importtime), only with a viewer
 
                 with live_viewer() as message:
                     print(message, file=sys.stderr)
@@ -231,7 +231,7 @@ def run_command(args: argparse.Namespace, extra: list[str] | None = None) -> int
     print(result_line(row, config, out_dir))
     recording = out_dir / "recording.rrd"
     if recording.is_file():
-        from softcbf_mj.recording import viewer_command  # MuJoCo, rerun: 2.6 s (-X importtime), only with a viewer
+        from softcbf_mj.outputs.recording import viewer_command  # MuJoCo, rerun: 2.6 s (-X importtime), only with a viewer
 
         print(f"view the recording with: {viewer_command(recording)}")
     if row.get("fault"):
@@ -299,7 +299,7 @@ def started_loop(config: HardwareConfig, emulation: Any = None,
     with contextlib.ExitStack() as stack:
         if config.link.is_emulated:
             if emulation is None:
-                from softcbf_mj.emulate import EmulatedHardware  # MuJoCo, 0.23 s (-X importtime): real runs load none
+                from softcbf_mj.emulator.emulate import EmulatedHardware  # MuJoCo, 0.23 s (-X importtime): real runs load none
 
                 emulation = stack.enter_context(_start("emulator", lambda: EmulatedHardware(config)))
             source, port, calibration = emulation.camera, emulation.port_name, emulation.calibration()
@@ -328,7 +328,7 @@ def run_hardware(config: HardwareConfig, out_dir: Path, *, emulation: Any = None
 
 
 class CycleProgress:
-    """The loop's `on_cycle` of the command: the progress line (`softcbf_mj.progress.Progress`: cycles done of
+    """The loop's `on_cycle` of the command: the progress line (`softcbf_mj.outputs.progress.Progress`: cycles done of
     the run's, simulated = run time, its ETA). `start()` says that an emulated run's emulator is starting (MuJoCo
     and the virtual camera: seconds before the first cycle; a real camera and port open at once, and a start-up
     that fails stays the one line of its error); the line's clock restarts at the first cycle (so the ETA and the
@@ -370,12 +370,12 @@ def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir
     `on_cycle`, if it is one) prints its final line when the loop ends, before the folder is written.
 
     With `report`, camera frames are kept (`FrameKeeper`) for the recording, and while a
-    live viewer is active (softcbf_mj.recording.live_viewer: `--spawn`) the run streams to
+    live viewer is active (softcbf_mj.outputs.recording.live_viewer: `--spawn`) the run streams to
     it as it runs: the controller's view (the estimate's arm, no contact force) — the
     finished recording.rrd has the emulator's ground truth where there is one."""
     keeper = live = None
     if report:
-        from softcbf_mj.recording import live_run  # MuJoCo, rerun: 2.6 s (-X importtime), only when recording
+        from softcbf_mj.outputs.recording import live_run  # MuJoCo, rerun: 2.6 s (-X importtime), only when recording
 
         label = run_label(config.plugin_spec(config.control.filter), config.control.filter_arguments())
         safe_set = loop.step.context.safe_set
@@ -396,7 +396,7 @@ def run_loop(config: HardwareConfig, loop: HardwareLoop, emulation: Any, out_dir
 class FrameKeeper:
     """A `hardware.runner.PerceptionWorker.frame_hook` that keeps one camera frame every
     1/SAVED_FRAMES_HZ s of the run (JPEG, quality JPEG_QUALITY) in DIR/frames/<label>/ with
-    its detections (`saved`: the entries of frames.json, `softcbf_mj.runio`; times s since
+    its detections (`saved`: the entries of frames.json, `softcbf_mj.outputs.runio`; times s since
     the loop's first cycle), and sends each to `live` (a LiveRun) when there is one."""
 
     def __init__(self, out_dir: Path, label: str, loop: HardwareLoop, live: Any = None) -> None:
@@ -475,7 +475,7 @@ def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: Har
         row["error"] = log.error
         (out_dir / ERROR_LOG).write_text(log.error_traceback, encoding="utf-8")
     if emulation is not None:
-        from softcbf_mj.valve_emulator import RECORD_UNITS  # MuJoCo, 0.44 s (-X importtime): emulated runs only
+        from softcbf_mj.emulator.valve_emulator import RECORD_UNITS  # MuJoCo, 0.44 s (-X importtime): emulated runs only
 
         record = emulation.emulator.record()
         force = record["contact_force"]
@@ -487,8 +487,8 @@ def write_run(config: HardwareConfig, out_dir: Path, log: HardwareLog, loop: Har
         row["timeseries_emulator"] = str(save_timeseries(out_dir, f"{label}_emulator", record, RECORD_UNITS).relative_to(out_dir))
     summary.add_run(row)
     if report and len(series["t"]) > 1:
-        from softcbf_mj.recording import write_recording  # MuJoCo, rerun: 2.6 s (-X importtime), after the run
-        from softcbf_mj.report import write_report  # matplotlib: 0.74 s more (-X importtime), after the run
+        from softcbf_mj.outputs.recording import write_recording  # MuJoCo, rerun: 2.6 s (-X importtime), after the run
+        from softcbf_mj.outputs.report import write_report  # matplotlib: 0.74 s more (-X importtime), after the run
 
         write_report(out_dir)
         write_recording(out_dir)

@@ -21,10 +21,10 @@ from softcbf.cli import main
 
 COUNTED = (
     ("vocabulary/settings.py", "check_value"),
-    ("softcbf_mj/ground_truth.py", "load_robot"),
+    ("softcbf_mj/physics/ground_truth.py", "load_robot"),
     ("scenarios/common.py", "build_safe_set"),
-    ("controllers/params.py", "__post_init__"),
-    ("softcbf_mj/mjcf/config.py", "__post_init__"),
+    ("controllers/model/params.py", "__post_init__"),
+    ("softcbf_mj/physics/mjcf/config.py", "__post_init__"),
     ("controllers/registry.py", "parse_params"),
     ("controllers/registry.py", "resolve"),
     ("controllers/registry.py", "check_filter"),

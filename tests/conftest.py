@@ -2,7 +2,7 @@
 
 MuJoCo reads MUJOCO_GL once, at its first import, and several test modules import
 `mujoco` before `softcbf_mj`. Importing the package here first applies
-`softcbf_mj.gl_backend.configure_mujoco_gl`: a set MUJOCO_GL is kept; unset, it becomes
+`softcbf_mj.camera.gl_backend.configure_mujoco_gl`: a set MUJOCO_GL is kept; unset, it becomes
 osmesa on a CPU-only machine such as CI (egl with an NVIDIA GPU).
 
 Under pytest-xdist the controlling process first compiles the numba kernels (`pytest_sessionstart`, before the

@@ -18,10 +18,10 @@ from typing import Callable
 
 import numpy as np
 
-from controllers.params import RobotParams
-from controllers.safe_set import ForceSafeSet
-from controllers.safety_filter import Estimate, FilterContext, OutputCheck
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.params import RobotParams
+from controllers.model.safe_set import ForceSafeSet
+from controllers.contract.safety_filter import Estimate, FilterContext, OutputCheck
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 TICK = 1e-3
 
@@ -106,7 +106,7 @@ class PushingPlatePlant:
 
     def __init__(self, robot: RobotParams, safe_set: ForceSafeSet, k_true: float, tau_p: float,
                  control_dt: float = TICK, physics_dt: float = 5e-4) -> None:
-        from controllers.dynamics import PCCDynamics
+        from controllers.model.dynamics import PCCDynamics
 
         self.dynamics, self.safe_set, self.k_true, self.tau_p = PCCDynamics(robot), safe_set, k_true, tau_p
         self.control_dt, self.n_segments = control_dt, robot.n_segments
@@ -115,7 +115,7 @@ class PushingPlatePlant:
         self.lengths = robot.array("lengths")
 
     def _force(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from controllers.pcc import tip_jacobian, tip_position
+        from controllers.model.pcc import tip_jacobian, tip_position
 
         tip = tip_position(q, self.lengths)
         forces = self.k_true * self.safe_set.penetration(tip)
@@ -128,8 +128,8 @@ class PushingPlatePlant:
         return np.concatenate((x[n:], acc + np.linalg.solve(mass, self._force(x[:n])[0])))
 
     def _state(self):
-        from softcbf_mj.plant import PlantState
-        from controllers.pcc import segment_ends
+        from softcbf_mj.physics.plant import PlantState
+        from controllers.model.pcc import segment_ends
 
         n = self.n_segments
         q = self.x[:n]

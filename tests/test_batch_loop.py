@@ -9,22 +9,22 @@ import numpy as np
 import pytest
 
 from closedloop.step import ControlStep
-from controllers.cbf import TUNINGS
-from controllers.cbf_batch import SCALAR_BELOW
-from controllers.filter import CBFFilter
+from controllers.cbf.barrier import TUNINGS
+from controllers.cbf.batch import SCALAR_BELOW
+from controllers.cbf.paper_filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.capabilities import Capabilities
-from controllers.safety_filter import FilterContext
-from softcbf_mj.batch_loop import run_batch_closed_loop
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.metrics import run_figures
-from softcbf_mj.mjcf import ArmModelConfig
-from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
-from softcbf_mj.mujoco_plant import MujocoPlant
-from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.capabilities import Capabilities
+from controllers.contract.safety_filter import FilterContext
+from softcbf_mj.loops.batch_loop import run_batch_closed_loop
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.outputs.metrics import run_figures
+from softcbf_mj.physics.mjcf import ArmModelConfig
+from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 FIGURES = ("rho_min_pred", "rho_min_meas", "force_max_N", "t_violation_s", "infeasible_steps", "u_peak_abs_hPa")
 PEAK = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))  # the paper's sinusoid at its peak
@@ -168,7 +168,7 @@ def test_a_batch_steps_records_are_its_own_arrays():
     call's record changes neither the next call's record nor what the step sends, for B = 1 and B = 3, a row
     not stepped and a refused nominal among them."""
     from closedloop.step import BatchControlStep
-    from controllers.errors import ControllerInputError
+    from controllers.core.errors import ControllerInputError
 
     context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
 

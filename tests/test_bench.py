@@ -17,7 +17,7 @@ from softcbf.bench import (ACCEPT_TOL_HPA, CASES, DEFAULT_FILTERS, EERG_PARAMS, 
                            pooled_figures, run_bench)
 from softcbf.cli import main
 from softcbf.study.analysis import clopper_pearson_upper, wilson_interval
-from softcbf_mj.runio import RUN_MARKER
+from softcbf_mj.outputs.runio import RUN_MARKER
 
 CASE = {c.name: c for c in CASES}
 
@@ -338,7 +338,7 @@ def test_a_bench_folder_needs_resume_or_overwrite_and_is_locked_while_a_bench_ru
     assert "holds a bench (bench.json); pass --resume to continue it or --overwrite" in capsys.readouterr().err
     assert main(["bench", "--out", str(out), *QUICK_NONE, "--resume", "--overwrite"]) == 2
     assert "give one of them" in capsys.readouterr().err
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.runio import prepare_out_dir\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.outputs.runio import prepare_out_dir\n"
                                "prepare_out_dir(sys.argv[1], keep=True); print('locked', flush=True); time.sleep(600)",
                                str(out)], stdout=subprocess.PIPE, text=True)
     try:
@@ -422,9 +422,9 @@ def test_quick_contact_task_rows_hold_the_force_budget(tmp_path):
 
 
 def test_three_segment_preset_is_uniform_robot_3_and_touches_the_paper_facet_from_rest():
-    from controllers.params import uniform_robot
-    from controllers.pcc import tip_position
-    from controllers.safe_set import paper_environment
+    from controllers.model.params import uniform_robot
+    from controllers.model.pcc import tip_position
+    from controllers.model.safe_set import paper_environment
     from scenarios.common import load_robot
 
     robot = load_robot("three-segment")

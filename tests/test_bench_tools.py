@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
 

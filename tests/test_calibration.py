@@ -1,4 +1,4 @@
-"""Calibration of K, D, Λ (softcbf_mj.calibration, tools/calibrate.py).
+"""Calibration of K, D, Λ (softcbf_mj.physics.calibration, tools/calibrate.py).
 
 On data of the PCC model itself the fit is exact up to the plant's integration error; on
 the MuJoCo rod it recovers the built values when given the rod's own inertia, and with the
@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.dynamics import PCCDynamics
-from controllers.params import RobotParams, reference_robot
-from controllers.safe_set import paper_safe_set
-from softcbf_mj import calibration as cal
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.dynamics import PCCDynamics
+from controllers.model.params import RobotParams, reference_robot
+from controllers.model.safe_set import paper_safe_set
+from softcbf_mj.physics import calibration as cal
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 ROBOT = reference_robot()
 DT = 1e-3

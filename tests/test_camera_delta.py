@@ -1,17 +1,17 @@
-"""The gain estimate with a noisy camera (`controllers.gain_estimate`, "averaged frames"; c-erg's `gain_window_s`)
-and the camera's Δ measured from a recorded run (`controllers.camera_delta`, `softcbf calibrate-camera`)."""
+"""The gain estimate with a noisy camera (`controllers.governors.gain_estimate`, "averaged frames"; c-erg's `gain_window_s`)
+and the camera's Δ measured from a recorded run (`controllers.governors.camera_delta`, `softcbf calibrate-camera`)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from controllers.energy_governor import ContactEnergyGovernor, new_state, step
-from controllers.gain_estimate import ROUNDING, GainEstimator, RestWindow, student_t_quantile, student_t_tail
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
-from controllers.camera_delta import measure, measure_folder, report_lines
+from controllers.governors.energy_governor import ContactEnergyGovernor, new_state, step
+from controllers.governors.gain_estimate import ROUNDING, GainEstimator, RestWindow, student_t_quantile, student_t_tail
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext
+from controllers.governors.camera_delta import measure, measure_folder, report_lines
 from softcbf.cli import main
 
 ROBOT = reference_robot()

@@ -7,20 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import FilterContext
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import FilterContext
 from closedloop.step import ControlStep
 from perception.detect import TagDetector
 from perception.estimator import ArmAngleEstimator
 from perception.tags import arm_tag_ids
-from softcbf_mj.camera_loop import CameraTiming, run_camera_loop
-from softcbf_mj.mjcf import ArmModelConfig, build_model
-from softcbf_mj.mujoco_plant import MujocoPlant
-from softcbf_mj.render import OffscreenRenderer, ground_truth_calibration
+from softcbf_mj.loops.camera_loop import CameraTiming, run_camera_loop
+from softcbf_mj.physics.mjcf import ArmModelConfig, build_model
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
+from softcbf_mj.camera.render import OffscreenRenderer, ground_truth_calibration
 
 WIDTH, HEIGHT = 640, 360  # the smallest size at which every tag is still detected (models/softcbf_arm/README.md)
 MAX_HOLD_S = 0.3

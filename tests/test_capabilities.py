@@ -1,4 +1,4 @@
-"""A filter's capabilities are declared, never guessed (controllers.safety_filter: `Capabilities`,
+"""A filter's capabilities are declared, never guessed (controllers.contract.safety_filter: `Capabilities`,
 `filter_capabilities`; docs/safety-filter.md#capabilities).
 
 Each capability declared and used by the batched control step (batched, rows, reset_rows) and the reports
@@ -18,11 +18,11 @@ import pytest
 
 from closedloop.isolation import IsolatedBatchFilter, isolate
 from closedloop.step import BatchControlStep, ControlStep
-from controllers.params import reference_robot
+from controllers.model.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
-from controllers.safe_set import paper_safe_set
-from controllers.capabilities import MINIMAL, Capabilities, CapabilityError, filter_capabilities
-from controllers.safety_filter import BatchOutput, FilterContext
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.capabilities import MINIMAL, Capabilities, CapabilityError, filter_capabilities
+from controllers.contract.safety_filter import BatchOutput, FilterContext
 from scenarios.common import filter_enabled
 from scenarios.run import USAGE_ERROR, exit_code, run_scenario
 
@@ -170,7 +170,7 @@ class NotCapabilities(Logged):
     (NoBatch(), "NoBatch declares batched=True but has no method filter_batch"),
     (NoRowsKeyword(), "NoRowsKeyword declares rows=True but its filter_batch takes no keyword rows"),
     (NoResetRows(), r"NoResetRows declares reset_rows=True but has no method reset\(rows=...\)"),
-    (NotCapabilities(), "NotCapabilities.capabilities must be a controllers.capabilities.Capabilities, got dict"),
+    (NotCapabilities(), "NotCapabilities.capabilities must be a controllers.contract.capabilities.Capabilities, got dict"),
 ])
 def test_a_declared_capability_the_filter_lacks_is_refused_when_the_step_is_built(culprit, message):
     with pytest.raises(CapabilityError, match=message):
@@ -202,8 +202,8 @@ def test_the_built_ins_declare_theirs():
 
 LIARS = textwrap.dedent('''
     import numpy as np
-    from controllers.capabilities import Capabilities
-    from controllers.safety_filter import BatchOutput
+    from controllers.contract.capabilities import Capabilities
+    from controllers.contract.safety_filter import BatchOutput
 
     class Lies:
         """Declares batched without filter_batch."""

@@ -1,6 +1,6 @@
 """Barrier of docs/model.md#control-barrier-function: tunings, the definitions of b, ḃ, B, and ∂B/∂q, ∂B/∂q̇, L_f B, L_g B
 against finite differences of an independent B(q, q̇) built from the public kinematics. `barrier_terms` runs the
-compiled barrier rows (`controllers.cbf_kernels.barrier_rows`), the one implementation the filter's kernel and its
+compiled barrier rows (`controllers.cbf.kernels.barrier_rows`), the one implementation the filter's kernel and its
 scalar fallback use, so these are the filter's rows.
 
 Finite-difference tolerance: central differences with step 1e-7 are accurate to ≈ 1e-8
@@ -15,11 +15,11 @@ import warnings
 import numpy as np
 import pytest
 
-from controllers import pcc
-from controllers.cbf import B_MIN, TUNINGS, Tuning, barrier_gradients, barrier_terms, get_tuning
-from controllers.dynamics import PCCDynamics
-from controllers.errors import ControllerInputError, NonFiniteCommandError
-from controllers.params import uniform_robot
+from controllers.model import pcc
+from controllers.cbf.barrier import B_MIN, TUNINGS, Tuning, barrier_gradients, barrier_terms, get_tuning
+from controllers.model.dynamics import PCCDynamics
+from controllers.core.errors import ControllerInputError, NonFiniteCommandError
+from controllers.model.params import uniform_robot
 from derivative_cases import SEGMENT_COUNTS, central_difference, configurations
 
 FD_RTOL = 1e-6

@@ -9,18 +9,18 @@ import itertools
 import numpy as np
 import pytest
 
-from controllers.cbf import TUNINGS, barrier_terms
-from controllers.cbf_batch import (ENUMERATION_MAX_CANDIDATES, PaperCBFKernel, RecoveryRows, candidate_count,
+from controllers.cbf.barrier import TUNINGS, barrier_terms
+from controllers.cbf.batch import (ENUMERATION_MAX_CANDIDATES, PaperCBFKernel, RecoveryRows, candidate_count,
                                    candidate_table, cbf_qp_batch, subset_levels)
-from controllers.dynamics import PCCDynamics
-from controllers.dynamics_batch import BatchDynamics
-from controllers.errors import NonFiniteStateError
-from controllers.filter import CBFFilter
-from controllers.params import reference_robot, uniform_robot
-from controllers.qp import tolerances
-from controllers.pcc import tip_jacobian, tip_positions
-from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
-from controllers.safety_filter import Estimate, EstimateBatch
+from controllers.model.dynamics import PCCDynamics
+from controllers.model.dynamics_batch import BatchDynamics
+from controllers.core.errors import NonFiniteStateError
+from controllers.cbf.paper_filter import CBFFilter
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.cbf.qp import tolerances
+from controllers.model.pcc import tip_jacobian, tip_positions
+from controllers.model.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
+from controllers.contract.safety_filter import Estimate, EstimateBatch
 
 N_STATES = 3000
 
@@ -328,7 +328,7 @@ def test_candidate_table_follows_the_subset_levels():
     ([0.50533644, -0.26606365, -2.01033122, -0.99026827], [-3.27364315e09, -5.20451985e09]),
 ])
 def test_a_huge_unbounded_nominal_meets_every_row_within_the_qps_acceptance(x, u_nom):
-    """Without the box, the kernel's feasibility tolerance is the scalar QP's (`controllers.qp.tolerances`), not
+    """Without the box, the kernel's feasibility tolerance is the scalar QP's (`controllers.cbf.qp.tolerances`), not
     1e-9·|u_nom|: at a corner (three rows) with |u_nom| up to 3e10 hPa the kernel's "qp" command meets every row within
     the acceptance tolerance (it used to accept a projection onto one row violating another by 0.2–1.2 hPa)."""
     params = reference_robot()

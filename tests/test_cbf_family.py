@@ -1,22 +1,22 @@
-"""The standard CBF family (controllers.cbf_family): derivatives, the constraint's algebra, the closed loop."""
+"""The standard CBF family (controllers.cbf.family): derivatives, the constraint's algebra, the closed loop."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from controllers.backup_cbf import BackupCBF
-from controllers.cbf_family import (ISS_PARAMETERS, SAMPLED_PARAMETERS, ExponentialCBF, SampledDataCBF,
+from controllers.cbf.backup import BackupCBF
+from controllers.cbf.family import (ISS_PARAMETERS, SAMPLED_PARAMETERS, ExponentialCBF, SampledDataCBF,
                                     barrier_derivatives, ecbf, isscbf, sdcbf)
-from controllers.dynamics import PCCDynamics
-from controllers.params import reference_robot
-from controllers.qp import solve_qp
+from controllers.model.dynamics import PCCDynamics
+from controllers.model.params import reference_robot
+from controllers.cbf.qp import solve_qp
 from controllers.registry import FILTERS, build_filter, check_filter
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext
 from scenarios.common import load_robot
 from softcbf.cli import main
-from softcbf_mj.runio import load_timeseries, read_run_folder
+from softcbf_mj.outputs.runio import load_timeseries, read_run_folder
 
 SEGMENTS = (2, 3)
 

@@ -1,4 +1,4 @@
-"""The contact certificate over the standard box's coordinates (controllers.energy_governor.certificate: "plate
+"""The contact certificate over the standard box's coordinates (controllers.governors.energy_governor.certificate: "plate
 offset", "arm stiffness", "valve lag"), against brute force on the PCC model whose plate pushes back.
 
 Each brute-force test runs the certified governor (10 Hz, exact state, no delay: the certificate is evaluated at
@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
-from controllers.energy_governor.certificate import arm_corners, cantilever_stiffness_ratios, nearest_environment
-from controllers.energy_governor.pressure_interval import PressureInterval
-from controllers.params import reference_robot
-from controllers.safe_set import ForceSafeSet, LinearStiffness, paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
+from controllers.governors.energy_governor import ContactEnergyGovernor, EnergyGovernor
+from controllers.governors.energy_governor.certificate import arm_corners, cantilever_stiffness_ratios, nearest_environment
+from controllers.governors.energy_governor.pressure_interval import PressureInterval
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import ForceSafeSet, LinearStiffness, paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext
 
 sys.path.insert(0, str(Path(__file__).parent))
 from governor_loop import PushingPlatePlant  # noqa: E402
@@ -174,7 +174,7 @@ def test_the_margin_is_jointly_concave_in_gain_and_stiffness():
 # -- (c) a sheet whose stiffness varies along it ------------------------------------------------------------------------
 
 SHEET_LENGTH, SHEET_CLAMP = 0.15, -0.055
-"""The flexure plate's default sheet (softcbf_mj.flexure): ℓ (m) and the clamp's position σ along the facet line (m)."""
+"""The flexure plate's default sheet (softcbf_mj.physics.flexure): ℓ (m) and the clamp's position σ along the facet line (m)."""
 
 
 class SheetPlant(PushingPlatePlant):
@@ -188,7 +188,7 @@ class SheetPlant(PushingPlatePlant):
         self.contact_s: list[float] = []
 
     def _force(self, q):
-        from controllers.pcc import tip_jacobian, tip_position
+        from controllers.model.pcc import tip_jacobian, tip_position
 
         tip = tip_position(q, self.lengths)
         normal = self.safe_set.environment.normals[0]
@@ -312,7 +312,7 @@ def test_box_parameters_need_the_contact_certificate(name, value):
 def test_the_study_box_sets_every_certified_interval():
     """The shipped standard boxes (both plants) give the standard box's intervals (`STANDARD_BOX`, the preset
     c-erg:standard-box's numbers); the sensing errors pass over."""
-    from controllers.energy_governor.box import STANDARD_BOX
+    from controllers.governors.energy_governor.box import STANDARD_BOX
 
     expected = {"stiffness_lo_ratio": 0.8, "stiffness_hi_ratio": 1.2, "plate_offset_lo_m": -0.002,
                 "plate_offset_hi_m": 0.002, "gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1, "arm_stiffness_lo_ratio": 0.9,
@@ -328,7 +328,7 @@ def test_the_study_box_sets_every_certified_interval():
 
 
 def test_a_box_the_certificate_does_not_cover_is_refused():
-    from controllers.energy_governor.box import box_parameters
+    from controllers.governors.energy_governor.box import box_parameters
 
     with pytest.raises(ValueError, match="the box varies facet_angle, which c-erg does not certify"):
         box_parameters({"vary": {"facet_angle": {"dist": "uniform", "low": -0.1, "high": 0.1}}})

@@ -20,8 +20,8 @@ import softcbf_mj
 from scenarios import registry
 from scenarios.run import INTERRUPTED, USAGE_ERROR
 from softcbf.cli import main
-from softcbf_mj.report import FIGURE_SIZES_IN
-from softcbf_mj.runio import RUN_MARKER, load_timeseries, read_run_folder
+from softcbf_mj.outputs.report import FIGURE_SIZES_IN
+from softcbf_mj.outputs.runio import RUN_MARKER, load_timeseries, read_run_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--duration", "0.5", "--tunings", "None,Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
@@ -178,7 +178,7 @@ def test_overwrite_never_deletes_a_folder_softcbf_did_not_write(tmp_path, capsys
 def test_a_run_folder_in_use_is_refused(tmp_path, capsys):
     """L2: a second run into the --out of a running one succeeded and mixed the two runs' files."""
     out = tmp_path / "run"
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.runio import prepare_out_dir\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.outputs.runio import prepare_out_dir\n"
                                "prepare_out_dir(sys.argv[1]); print('locked', flush=True); time.sleep(600)", str(out)],
                               stdout=subprocess.PIPE, text=True)
     try:
@@ -383,9 +383,9 @@ def test_interrupt_during_the_last_report_still_reports_every_finished_run(tmp_p
 
 
 def test_a_second_interrupt_skips_the_rebuild_and_says_what_is_missing(tmp_path, capsys, monkeypatch):
-    import softcbf_mj.report
+    import softcbf_mj.outputs.report
 
-    real, calls = softcbf_mj.report.write_report, []
+    real, calls = softcbf_mj.outputs.report.write_report, []
 
     def interrupt_after_the_first(run_dir):  # the second tuning's report, then the rebuild after Ctrl-C
         calls.append(run_dir)
@@ -393,7 +393,7 @@ def test_a_second_interrupt_skips_the_rebuild_and_says_what_is_missing(tmp_path,
             raise KeyboardInterrupt
         return real(run_dir)
 
-    monkeypatch.setattr(softcbf_mj.report, "write_report", interrupt_after_the_first)
+    monkeypatch.setattr(softcbf_mj.outputs.report, "write_report", interrupt_after_the_first)
     out = tmp_path / "run"
     assert _main_catching_interrupts(["run", "paper_sim", "--out", str(out), *SHORT]) == INTERRUPTED
     err = capsys.readouterr().err
@@ -414,9 +414,9 @@ def test_interrupt_at_start_up_exits_130_with_one_line_and_no_folder(tmp_path, c
         raise KeyboardInterrupt
 
     if when == "import":
-        module = types.ModuleType("softcbf_mj.recording")
+        module = types.ModuleType("softcbf_mj.outputs.recording")
         module.__getattr__ = lambda name: interrupt()
-        monkeypatch.setitem(sys.modules, "softcbf_mj.recording", module)
+        monkeypatch.setitem(sys.modules, "softcbf_mj.outputs.recording", module)
     else:
         monkeypatch.setattr(scenarios.paper_sim, "initial_configuration", interrupt)
     out = tmp_path / "new" / "run"

@@ -11,7 +11,7 @@ import sys
 import pytest
 
 LAZY = ("softcbf.hardware_cli", "hardware.runner", "softcbf.bench", "softcbf.study.cli")
-HEAVY = ("mujoco", "cv2", "OpenGL", "matplotlib", "rerun", "numba")  # imported only to run a scenario, render or report (numba: the compiled PCC model, controllers.lazy_import)
+HEAVY = ("mujoco", "cv2", "OpenGL", "matplotlib", "rerun", "numba")  # imported only to run a scenario, render or report (numba: the compiled PCC model, controllers.core.lazy_import)
 
 
 def modules_after(code: str) -> set[str]:
@@ -25,7 +25,7 @@ def test_list_imports_no_other_subcommand():
     loaded = modules_after("import contextlib, io\nfrom softcbf.cli import main\n"
                            "with contextlib.redirect_stdout(io.StringIO()):\n    assert main(['list']) == 0")
     assert loaded.isdisjoint(LAZY), sorted(loaded & set(LAZY))
-    assert "controllers.energy_governor" in loaded  # list describes every filter
+    assert "controllers.governors.energy_governor" in loaded  # list describes every filter
 
 
 @pytest.mark.parametrize("argv, shown", [(["list"], "mujoco_contact:"), (["run", "mujoco_contact", "--help"], "--f-max float"),
@@ -64,8 +64,8 @@ def test_the_registry_imports_a_builtin_at_its_first_lookup():
     loaded = modules_after("from controllers.registry import FILTERS, NOMINALS\n"
                            "assert 'e-erg' in FILTERS and list(FILTERS) == ['paper-cbf', 'none', 'qsg', 'e-erg', 'c-erg', 'ecbf', 'sdcbf', 'isscbf', 'backup-cbf']\n"
                            "assert len(NOMINALS) == 4 and FILTERS['qsg'].__name__ == 'QuasiStaticGovernor'")
-    assert "controllers.quasi_static_governor" in loaded
-    assert "controllers.energy_governor" not in loaded and "controllers.filter" not in loaded
+    assert "controllers.governors.quasi_static_governor" in loaded
+    assert "controllers.governors.energy_governor" not in loaded and "controllers.cbf.paper_filter" not in loaded
     from controllers.registry import FILTERS
 
     with pytest.raises(KeyError):

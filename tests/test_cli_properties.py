@@ -32,7 +32,7 @@ import scenarios.__main__
 from scenarios import registry
 from scenarios.run import INTERRUPTED, USAGE_ERROR
 from softcbf.cli import main
-from softcbf_mj.runio import RUN_MARKER
+from softcbf_mj.outputs.runio import RUN_MARKER
 
 SCENARIOS = sorted(registry())
 SCENARIO_MODULES = sorted({sys.modules[s.function.__module__] for s in registry().values()}, key=lambda m: m.__name__)

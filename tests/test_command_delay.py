@@ -1,4 +1,4 @@
-"""c-erg's certificate over a command delay interval (controllers.energy_governor.certificate, "command delay"),
+"""c-erg's certificate over a command delay interval (controllers.governors.energy_governor.certificate, "command delay"),
 against brute force on the PCC model.
 
 The brute force: a 10 Hz loop on the PCC plant (exact state at the call, the commands acting a TRUE delay after the
@@ -17,13 +17,13 @@ import math
 import numpy as np
 import pytest
 
-from controllers.energy_governor import ContactEnergyGovernor
-from controllers.energy_governor.box import read_box
-from controllers.energy_governor.parameters import MAX_DELAY_STATES, delay_states
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.governors.energy_governor import ContactEnergyGovernor
+from controllers.governors.energy_governor.box import read_box
+from controllers.governors.energy_governor.parameters import MAX_DELAY_STATES, delay_states
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 SAFE = paper_safe_set()
 ROBOT = reference_robot()
@@ -137,7 +137,7 @@ def test_one_end_given_crosses_the_assumed_delay():
 
 
 def test_the_box_states_the_delay_interval_once():
-    """A box file's `vary.command_delay` is the certified delay interval (controllers.energy_governor.box)."""
+    """A box file's `vary.command_delay` is the certified delay interval (controllers.governors.energy_governor.box)."""
     assert read_box(BOX) == pytest.approx({"stiffness_lo_ratio": 0.8, "stiffness_hi_ratio": 1.2,
                                            "actuator_tau_lo_s": 0.02, "actuator_tau_hi_s": 0.1,
                                            "command_delay_lo_s": 0.0, "command_delay_hi_s": 0.02})
@@ -150,7 +150,7 @@ def test_the_box_states_the_delay_interval_once():
 def test_batched_rows_are_the_governors_called_in_turn_over_a_delay_interval():
     """filter_batch with a delay interval: row b is, bit for bit, a governor of its own called alone (the covering
     rows of every state go through one kernel call)."""
-    from controllers.safety_filter import EstimateBatch
+    from controllers.contract.safety_filter import EstimateBatch
 
     options = {"command_delay_lo_s": 0.0, "command_delay_hi_s": 0.02, "gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1}
     ctx = context(ROBOT, period=0.02, tau=0.05)

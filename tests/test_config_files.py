@@ -18,7 +18,7 @@ from scenarios.config_file import load_run_config
 from scenarios.run import USAGE_ERROR
 from softcbf.cli import main
 from softcbf.study.definition import apply_settings, load_study, parse_setting
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 from vocabulary.settings import SETTINGS, setting
 from vocabulary.sections import joined
 
@@ -73,10 +73,10 @@ def _accepts(scenario, name: str, value) -> tuple[bool, str]:
     """Whether the checks a run makes before it runs accept parameter `name` = `value`: the scenario's own
     (`Scenario.validate`) and, where the scenario hands its sinusoid parameters to the nominal, the nominal's
     own check when it is built (the cause of issue 27: `--frequency 0` passed the first and failed the second)."""
-    from controllers.params import reference_robot
+    from controllers.model.params import reference_robot
     from controllers.registry import build_nominal
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import FilterContext
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import FilterContext
     from scenarios.common import nominal_arguments
 
     try:
@@ -239,7 +239,7 @@ def test_a_stored_config_json_replays_to_its_stored_series(name, tmp_path, capsy
     """config.json files written before the scenarios took specs (then paper_sim had neither t0 nor
     damping_scale) replay through `softcbf run --config` to the stored series: bit for bit on the recorded
     versions, to 1e-9 on others (where the replay warns that it may not be bit-identical)."""
-    from softcbf_mj.runio import versions
+    from softcbf_mj.outputs.runio import versions
 
     stored = STORED_RUNS / name
     replay = tmp_path / "replay"

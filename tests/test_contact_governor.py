@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
-from controllers.escape_energy import BoundaryDistanceBound, EscapeEnergyTable
+from controllers.governors.energy_governor import ContactEnergyGovernor, EnergyGovernor
+from controllers.energy.escape_energy import BoundaryDistanceBound, EscapeEnergyTable
 from controllers.nominal import force_target
-from controllers.params import reference_robot, uniform_robot
-from controllers.pcc import tip_jacobian, tip_position, tip_positions
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.pcc import tip_jacobian, tip_position, tip_positions
 from controllers.registry import FILTERS, NOMINALS, parameters
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import FilterContext
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import FilterContext
 
 sys.path.insert(0, str(Path(__file__).parent))
 from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
@@ -179,7 +179,7 @@ def test_contact_certificate_without_a_grid_holds_three_and_four_segments(n, off
     """N > 2 (no q-space table: the second-order boundary bound alone) on the PCC plant, 10 Hz camera timing:
     a push at 150 hPa on every segment (unfiltered: deep beyond P) stays inside P and ends pressing near its
     boundary; a retreating one is passed unchanged."""
-    from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
+    from controllers.model.safe_set import Environment, ForceSafeSet, LinearStiffness
 
     robot = uniform_robot(n)
     safe = ForceSafeSet(Environment(np.array([[0.36, 1.0]]), np.array([offset])), LinearStiffness(11.16), 0.16, "paper")
@@ -193,7 +193,7 @@ def test_contact_certificate_without_a_grid_holds_three_and_four_segments(n, off
     assert np.allclose(back.commands[-1], -150.0) and back.rho.min() > 0.0
 
 
-# -- the actuator gain interval (module docstring of controllers.energy_governor.certificate, "actuator gain") ---------------
+# -- the actuator gain interval (module docstring of controllers.governors.energy_governor.certificate, "actuator gain") ---------------
 
 def scaled_gain_robot(g):
     return ROBOT.replace(gains=tuple(ROBOT.array("gains") * g))
@@ -272,7 +272,7 @@ def certified_forks(gain_lo, gain_hi, loop_gain, gains_held, hold_s=1.0, calls=F
     is evaluated at the true state) pushing at level(t) hPa on both segments (150); at the calls `calls` the returned
     command is also held for hold_s from the true state on plants of each gain in `gains_held`. Returns the least
     ρ of the forks and the governor (`options`: its further parameters)."""
-    from controllers.safety_filter import Estimate
+    from controllers.contract.safety_filter import Estimate
 
     gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
                                 gain_lo_ratio=gain_lo, gain_hi_ratio=gain_hi, **options)
@@ -312,7 +312,7 @@ def test_gain_ratios_are_checked():
     assert ContactEnergyGovernor.check_arguments({"gain_lo_ratio": 0.9, "gain_hi_ratio": 1.1})["certificate"] == "contact"
 
 
-# -- the online gain estimate (controllers.gain_estimate; `gain_estimate`) ---------------------------------------
+# -- the online gain estimate (controllers.governors.gain_estimate; `gain_estimate`) ---------------------------------------
 
 def approach_then_push(t):
     """40 hPa on both segments (the arm at rest clear of the plate by more than gain_clearance_m) for 2 s, then 150 hPa."""
@@ -335,7 +335,7 @@ def test_gain_estimate_converges_at_rest_out_of_contact_and_the_narrowed_command
 def test_gain_estimate_from_differences_converges_during_the_approach_at_one_kilohertz():
     """With gain_difference_s the moving arm gives samples too (q̈ from the q̇ of consecutive estimates): pushing
     from rest at 1 kHz (exact state) on the plant of gain 1.1, the interval is narrowed before the first contact."""
-    from controllers.safety_filter import Estimate
+    from controllers.contract.safety_filter import Estimate
 
     gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), 1e-3, 0.0, 0.05),
                                 gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_difference_s=2e-3)
@@ -373,7 +373,7 @@ def first_rest_sample(rest_s, moving_until=0, blip_every=0):
     """Capture time of c-erg's first gain sample (None: none in 4 s) with the arm held at the model's rest shape of
     40 hPa (clear of the plate) at 10 Hz, the estimate's |q̇| above gain_rest_rad_s before frame `moving_until` and
     at every `blip_every`-th frame."""
-    from controllers.safety_filter import Estimate
+    from controllers.contract.safety_filter import Estimate
 
     gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
                                 gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_rest_s=rest_s)
@@ -408,7 +408,7 @@ def test_gain_rest_s_also_spaces_the_rest_samples(rest_s, offered):
     """With gain_rest_s > 0 the rest timer restarts at each rest sample: an arm resting for 4 s at 10 Hz is offered to the estimator at 0.3, 0.6, ..., 3.9 s (13 times) instead of at every
     estimate whose pressure has settled (39 times: all but the first step's); at 1 kHz this spares the sample's
     kinematics and projection at most calls."""
-    from controllers.safety_filter import Estimate
+    from controllers.contract.safety_filter import Estimate
 
     gov = ContactEnergyGovernor(FilterContext(ROBOT, SAFE, ROBOT.array("u_min"), ROBOT.array("u_max"), PERIOD, 0.0, 0.05),
                                 gain_lo_ratio=0.9, gain_hi_ratio=1.1, gain_estimate=True, gain_rest_s=rest_s)

@@ -13,7 +13,7 @@ from controllers.registry import PRESETS
 from scenarios.run import USAGE_ERROR
 from softcbf.cli import main
 from softcbf.demo import FIGURE_FILE, demo_runs, run_demo
-from softcbf_mj.report import DPI, FIGURE_SIZES_IN
+from softcbf_mj.outputs.report import DPI, FIGURE_SIZES_IN
 
 
 @pytest.mark.slow

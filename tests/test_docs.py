@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import yaml
 
-from controllers.params import RobotParams, reference_robot
-from controllers.safe_set import ForceSafeSet, LinearStiffness, paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.model.params import RobotParams, reference_robot
+from controllers.model.safe_set import ForceSafeSet, LinearStiffness, paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext, FilterOutput
 from hardware.config import HardwareConfig
 from scenarios.common import load_environment, load_robot
 from softcbf.study import load_study
@@ -90,7 +90,7 @@ def test_example_filters_keep_to_the_contract():
     scaler = module.RestShapeScaler(margin_m=0.001, steps=50, context=context)
     out = scaler(estimate, np.array([50.0, 50.0]))
     assert isinstance(out, FilterOutput) and out.action == "nominal" and out.diagnostics == {"scale": 1.0}
-    from controllers.pcc import tip_position
+    from controllers.model.pcc import tip_position
 
     gain = robot.array("gains") / robot.array("stiffness")
     rows = np.hypot(safe_set.H_prime[:, 0], safe_set.H_prime[:, 1])
@@ -194,7 +194,7 @@ def test_the_readme_names_the_recommended_filter_that_softcbf_list_marks():
     """The README's recommended filter is one preset (`controllers.registry.PRESETS`), the setting that c-erg's
     docstring (what `softcbf list` marks) names and `energy_governor.RECOMMENDED` holds (tools/bench_governors.py
     times it) with the bench's plate interval, and it builds on the reference arm."""
-    from controllers.energy_governor import RECOMMENDED, ContactEnergyGovernor
+    from controllers.governors.energy_governor import RECOMMENDED, ContactEnergyGovernor
     from controllers.registry import FILTERS, PRESETS, build_filter, typed_params
 
     readme = (ROOT / "README.md").read_text(encoding="utf-8")

@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from controllers import pcc
-from controllers.dynamics import PCCDynamics
-from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
-from controllers.params import RobotParams, reference_robot, uniform_robot
+from controllers.model import pcc
+from controllers.model.dynamics import PCCDynamics
+from controllers.core.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
+from controllers.model.params import RobotParams, reference_robot, uniform_robot
 from derivative_cases import SEGMENT_COUNTS, central_difference, configurations, lengths
 
 FD_RTOL = 1e-7

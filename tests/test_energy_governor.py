@@ -1,4 +1,4 @@
-"""Energy-certified reference governor (controllers.energy_governor) and its parts: the
+"""Energy-certified reference governor (controllers.governors.energy_governor) and its parts: the
 escape-energy table against brute force, Ẇ ≤ 0 along the model, the state predictor
 against a fine integration, and closed loops on the PCC plant at 10 Hz with camera timing
 (estimate 0.03–0.1 s old, command delay 20 ms) and a first-order valve."""
@@ -13,17 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.dynamics import PCCDynamics
-from controllers import pcc
-from controllers.energy_governor import TIP_TOLERANCE_M, EnergyGovernor, ray_may_come_nearer
-from controllers.escape_energy import EscapeEnergyTable
-from controllers.filter_metrics import governor_figures
-from controllers.params import reference_robot, uniform_robot
-from controllers.pcc import tip_positions
-from controllers.safe_set import Environment, ForceSafeSet, paper_environment, paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
-from controllers.state_predictor import StatePredictor
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.dynamics import PCCDynamics
+from controllers.model import pcc
+from controllers.governors.energy_governor import TIP_TOLERANCE_M, EnergyGovernor, ray_may_come_nearer
+from controllers.energy.escape_energy import EscapeEnergyTable
+from controllers.contract.filter_metrics import governor_figures
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.pcc import tip_positions
+from controllers.model.safe_set import Environment, ForceSafeSet, paper_environment, paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext
+from controllers.model.state_predictor import StatePredictor
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 sys.path.insert(0, str(Path(__file__).parent))
 from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
@@ -172,9 +172,9 @@ def test_predictor_agrees_with_a_fine_integration(tau):
 
 
 def per_step_plate_prediction(dyn, plate, x, u, p, h, steps, decay, mean):
-    """The oracle: the contact-aware predictor's per-step Python loop that `controllers.plate_prediction`
+    """The oracle: the contact-aware predictor's per-step Python loop that `controllers.model.plate_prediction`
     compiled (the model terms, q̈, the plate's force and M⁻¹τ as Python and numpy floats)."""
-    from controllers import pcc_model
+    from controllers.model import pcc_model
 
     n = dyn.n
     normals = plate.environment.normals.tolist()
@@ -204,11 +204,11 @@ def per_step_plate_prediction(dyn, plate, x, u, p, h, steps, decay, mean):
 
 @pytest.mark.parametrize("law", ["linear", "power"])
 def test_the_compiled_plate_prediction_is_the_per_step_loop_bit_for_bit(law):
-    """`controllers.plate_prediction.advance_with_plate` (the contact-aware predictor's steps) gives the floats
+    """`controllers.model.plate_prediction.advance_with_plate` (the contact-aware predictor's steps) gives the floats
     of the per-step Python loop it replaced, pressing the plate and off it: bit for bit with a linear ψ, to
     rounding with a power law (the pow functions of numba and numpy)."""
-    from controllers import plate_prediction
-    from controllers.safe_set import LinearStiffness, PowerLawStiffness
+    from controllers.model import plate_prediction
+    from controllers.model.safe_set import LinearStiffness, PowerLawStiffness
 
     stiffness = LinearStiffness(11.16) if law == "linear" else PowerLawStiffness(300.0, 1.5)
     plate = ForceSafeSet(SAFE.environment, stiffness, SAFE.f_max, "paper")
@@ -511,7 +511,7 @@ def test_nan_future_and_absurd_times_are_refused_without_changing_the_governor(g
     """NaN t or t_capture and estimates from the future were labelled certified ("free"/"governed");
     t = 1e300 was accepted and every later call raised until reset. Now all are refused with
     ControllerInputError, and the next valid call runs as if the refused one had not happened."""
-    from controllers.errors import ControllerInputError
+    from controllers.core.errors import ControllerInputError
 
     gov = governor_lag
     gov.reset()
@@ -527,7 +527,7 @@ def test_nan_future_and_absurd_times_are_refused_without_changing_the_governor(g
 
 
 def test_time_going_backwards_is_refused(governor_lag):
-    from controllers.errors import ControllerInputError
+    from controllers.core.errors import ControllerInputError
 
     gov = governor_lag
     gov.reset()
@@ -543,7 +543,7 @@ def test_an_estimate_older_than_the_horizon_is_stale_at_once(governor_lag, age):
     """An estimate 1000 s old took 8–20 s per call (10⁶ prediction steps from the vented start),
     although the docstring promised "stale". Now any estimate whose prediction span t_a − t_c exceeds
     the predictor's horizon is "stale" (held command, infeasible), in well under a millisecond of prediction."""
-    from controllers.energy_governor import PREDICTION_HORIZON_S
+    from controllers.governors.energy_governor import PREDICTION_HORIZON_S
 
     gov = governor_lag
     gov.reset()
@@ -558,7 +558,7 @@ def test_the_largest_command_delay_stays_cheap():
     """command_delay_s = 100 s took 19.7 s for 10 calls; 1e6 s more than 90 s. Both are refused now
     (test_bad_parameters_are_refused_before_and_at_construction); the largest accepted delay costs a
     prediction over at most the horizon: 10 calls at the default 1 ms predictor step well under 2 s."""
-    from controllers.energy_governor import MAX_COMMAND_DELAY_S
+    from controllers.governors.energy_governor import MAX_COMMAND_DELAY_S
 
     gov = EnergyGovernor(context(ROBOT, SAFE, PERIOD, DELAY, 0.05), command_delay_s=MAX_COMMAND_DELAY_S)
     rest = np.zeros(2)

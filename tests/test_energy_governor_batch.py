@@ -11,11 +11,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
-from controllers.errors import ControllerInputError, NonFiniteStateError
-from controllers.params import reference_robot, uniform_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, EstimateBatch, FilterContext
+from controllers.governors.energy_governor import ContactEnergyGovernor, EnergyGovernor
+from controllers.core.errors import ControllerInputError, NonFiniteStateError
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, EstimateBatch, FilterContext
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()
@@ -141,10 +141,10 @@ def test_a_batched_pcc_loop_with_one_shared_governor_equals_its_serial_loops(cer
     its own, pushing towards the plate (the certificate binds)."""
     from closedloop.step import ControlStep
     from controllers.nominal import SinusoidNominal
-    from softcbf_mj.batch_loop import run_batch_closed_loop
-    from softcbf_mj.loop import run_closed_loop
-    from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-    from softcbf_mj.pcc_plant import PCCPlant
+    from softcbf_mj.loops.batch_loop import run_batch_closed_loop
+    from softcbf_mj.loops.loop import run_closed_loop
+    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
+    from softcbf_mj.physics.pcc_plant import PCCPlant
 
     nominal = SinusoidNominal((100.0, 100.0), 1.0, (np.pi / 2, np.pi / 2))
     q0 = np.random.default_rng(5).normal(0.3, 0.1, (3, 2))
@@ -209,7 +209,7 @@ def test_rows_that_learn_different_plates_are_their_own_governors_bit_for_bit():
     import sys
     from pathlib import Path
 
-    from controllers.energy_governor.parameters import STANDARD_BOX_SETTING
+    from controllers.governors.energy_governor.parameters import STANDARD_BOX_SETTING
 
     sys.path.insert(0, str(Path(__file__).parent))
     from test_certificate_box import true_plant

@@ -1,5 +1,5 @@
-"""The compiled escape-energy look-ups and recovery scan (`controllers.energy_kernels`) against plain Python
-and numpy evaluations of their definitions (`controllers.escape_energy`'s module docstring): the look-ups
+"""The compiled escape-energy look-ups and recovery scan (`controllers.energy.energy_kernels`) against plain Python
+and numpy evaluations of their definitions (`controllers.energy.escape_energy`'s module docstring): the look-ups
 within RELATIVE_TOL (the kernels may order a sum or square differently, e.g. x·x where Python's `x ** 2` calls
 libm's pow; both round within a few ulp of the exact value), the recovery's choice exactly, on the reference
 arm's table and bound, for commands inside and outside the box, on several environments (an out-of-reach facet
@@ -10,10 +10,11 @@ import math
 import numpy as np
 import pytest
 
-from controllers import energy_kernels, pcc_model
-from controllers.escape_energy import BoundaryDistanceBound, EscapeEnergyTable, lower_bounds
-from controllers.params import reference_robot, uniform_robot
-from controllers.safe_set import ForceSafeSet, paper_safe_set
+from controllers.energy import energy_kernels
+from controllers.model import pcc_model
+from controllers.energy.escape_energy import BoundaryDistanceBound, EscapeEnergyTable, lower_bounds
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.safe_set import ForceSafeSet, paper_safe_set
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()
@@ -83,7 +84,7 @@ def bound_reference(bound: BoundaryDistanceBound, u) -> list[float]:
 
 def environments():
     """The paper's plate, a second facet out of the arm's reach, and a two-facet corner."""
-    from controllers.safe_set import Environment, LinearStiffness
+    from controllers.model.safe_set import Environment, LinearStiffness
     base = paper_safe_set()
     law = base.stiffness
     yield base

@@ -18,15 +18,15 @@ from gymnasium.utils.env_checker import check_env
 
 from closedloop.step import ControlStep
 from controllers.registry import FILTERS, build_filter
-from controllers.safe_set import paper_safe_set
+from controllers.model.safe_set import paper_safe_set
 from softcbf_mj.env import (
     ENV_ID, OBSERVATION_UNITS, OBSERVATIONS, PRESETS, ArmEnvConfig, GymArmEnv, RewardConfig, SafetyGymnasiumStep,
     force_regulation, make_environment, tip_reaching,
 )
-from controllers.pcc import tip_position
+from controllers.model.pcc import tip_position
 from softcbf_mj.env.gym_adapter import box
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.render import camera_matrix, camera_pose_cv, project, tag_poses, tag_plane_z
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.camera.render import camera_matrix, camera_pose_cv, project, tag_poses, tag_plane_z
 
 FAST = {"control_rate": 100.0, "physics_dt": 2e-4, "links_per_segment": 5}  # a coarse, quick arm for the API tests
 F_MAX = paper_safe_set().f_max
@@ -480,7 +480,7 @@ def test_normalised_action_maps_onto_the_pressure_box_and_clipping_is_reported()
 def test_render_without_a_backend_names_the_fix():
     """MUJOCO_GL=glfw without a display (MuJoCo's choice when MUJOCO_GL is unset and no OSMesa is found): one clear
     error naming MUJOCO_GL=osmesa and MUJOCO_GL=egl (in a subprocess: PyOpenGL binds one platform per process)."""
-    code = ("from softcbf_mj.env import GymArmEnv\nfrom softcbf_mj.render import RenderBackendError\n"
+    code = ("from softcbf_mj.env import GymArmEnv\nfrom softcbf_mj.camera.render import RenderBackendError\n"
             "env = GymArmEnv(render_mode='rgb_array', control_rate=100.0, physics_dt=2e-4, links_per_segment=5)\n"
             "env.reset(seed=0)\ntry:\n    env.render()\nexcept RenderBackendError as error:\n    print(error)\n")
     environ = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}

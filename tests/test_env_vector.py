@@ -234,7 +234,7 @@ def test_batched_filter_is_called_once_for_all_arms_and_matches_single_envs():
     """The paper's CBF has filter_batch: one filter shared by all arms, one call per control period;
     its commands are within 1e-9 hPa of single calls, so the vector env follows B single envs closely."""
     kwargs = {**FAST, "filter": "paper-cbf", "filter_params": {"tuning": "Low"}, "q0_std": 0.05, "episode_steps": 15}
-    vector, sync = _pair(5, **kwargs)  # 5 >= controllers.cbf_batch.SCALAR_BELOW: batched
+    vector, sync = _pair(5, **kwargs)  # 5 >= controllers.cbf.batch.SCALAR_BELOW: batched
     assert vector.shared_filter is not None
     calls = []
     batch = vector.shared_filter.filter_batch
@@ -251,7 +251,7 @@ def test_batched_filter_is_called_once_for_all_arms_and_matches_single_envs():
 
 FAULTY = textwrap.dedent('''
     import numpy as np
-    from controllers.capabilities import Capabilities
+    from controllers.contract.capabilities import Capabilities
 
     class Faulty:
         """Raises once the first bending angle passes q_limit rad."""
@@ -305,8 +305,8 @@ def test_a_filter_fault_ends_only_that_sub_envs_episode(tmp_path):
 
 COUNTING = textwrap.dedent('''
     import numpy as np
-    from controllers.capabilities import Capabilities
-    from controllers.safety_filter import BatchOutput
+    from controllers.contract.capabilities import Capabilities
+    from controllers.contract.safety_filter import BatchOutput
 
     class Counting:
         """Passes u_nom through; counts its instances' reset() calls."""

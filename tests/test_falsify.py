@@ -24,7 +24,7 @@ from softcbf.study.falsify import (TUNING_COORDINATE, Candidate, CandidateStudy,
                                    objective_value, search_space, vertex_design)
 from softcbf.study.report import write_report
 from softcbf.study.sequential import draws_needed, run_until_bound
-from softcbf_mj.runio import OutputDirError
+from softcbf_mj.outputs.runio import OutputDirError
 
 ROOT = Path(__file__).resolve().parents[1]
 

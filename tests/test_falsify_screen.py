@@ -20,7 +20,7 @@ from softcbf.study.campaign import campaign_row, falsify_seeds
 from softcbf.study.falsify import Candidate, searched_value
 from softcbf.study.report import write_report
 from softcbf.study.screen import falsify_screened, ranked_candidates, screened_study
-from softcbf_mj.runio import OutputDirError
+from softcbf_mj.outputs.runio import OutputDirError
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,19 +8,19 @@ import math
 import numpy as np
 import pytest
 
-from controllers import pcc
-from controllers.cbf import get_tuning
-from controllers.dynamics import PCCDynamics
+from controllers.model import pcc
+from controllers.cbf.barrier import get_tuning
+from controllers.model.dynamics import PCCDynamics
 from closedloop.record import TIMESERIES_UNITS
 from closedloop.step import ControlStep
-from controllers.filter import CBF_DIAGNOSTIC_UNITS, CBFFilter
+from controllers.cbf.paper_filter import CBF_DIAGNOSTIC_UNITS, CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot, uniform_robot
-from controllers.safe_set import Environment, ForceSafeSet, PowerLawStiffness, paper_safe_set
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.safe_set import Environment, ForceSafeSet, PowerLawStiffness, paper_safe_set
 from derivative_cases import configurations
-from controllers.safety_filter import FilterContext
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.contract.safety_filter import FilterContext
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()
@@ -127,7 +127,7 @@ def test_packed_recording_matches_a_plain_one():
 def test_two_segment_certificate_energy_is_the_per_segment_sum(tau):
     """`GovernorModel.energy` for N = 2 against the per-segment sum in Python floats, within 1e-14 relative (the
     kernel squares as x·x, Python's `**` calls libm's pow: each may differ in the last bit)."""
-    from controllers.energy_governor import EnergyGovernor
+    from controllers.governors.energy_governor import EnergyGovernor
 
     gov = EnergyGovernor(FilterContext.for_robot(ROBOT, SAFE, 1e-3, actuator_tau=tau))
     k, a, beta = ROBOT.array("stiffness").tolist(), (ROBOT.array("gains") / ROBOT.array("stiffness")).tolist(), gov.model.beta.tolist()

@@ -7,15 +7,15 @@ import warnings
 import numpy as np
 import pytest
 
-from controllers.cbf import Tuning, barrier_terms, get_tuning
-from controllers.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
-from controllers.filter import CBF_DIAGNOSTIC_UNITS, ACTIONS, CBFFilter
-from controllers.safety_filter import Estimate, FilterContext
-from controllers.params import reference_robot
-from controllers.pcc import tip_position
-from controllers.qp import available_backends
-from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.cbf.barrier import Tuning, barrier_terms, get_tuning
+from controllers.core.errors import ControllerInputError, NonFiniteCommandError, NonFiniteStateError
+from controllers.cbf.paper_filter import CBF_DIAGNOSTIC_UNITS, ACTIONS, CBFFilter
+from controllers.contract.safety_filter import Estimate, FilterContext
+from controllers.model.params import reference_robot
+from controllers.model.pcc import tip_position
+from controllers.cbf.qp import available_backends
+from controllers.model.safe_set import Environment, ForceSafeSet, LinearStiffness, paper_safe_set
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()
@@ -220,8 +220,8 @@ def test_a_nominal_beyond_the_box_is_saturated_before_the_qp(backend):
 
 
 def test_paper_cbf_parameters_are_refused_before_and_at_construction():
-    """The declared bounds (controllers.filter.PARAMETERS) refuse in check_filter (nothing built) and in the factory."""
-    from controllers.filter import paper_cbf
+    """The declared bounds (controllers.cbf.paper_filter.PARAMETERS) refuse in check_filter (nothing built) and in the factory."""
+    from controllers.cbf.paper_filter import paper_cbf
     from controllers.registry import check_filter
 
     context = FilterContext.for_robot(ROBOT, SAFE, 1e-3)

@@ -20,13 +20,13 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
-from controllers.escape_energy import MAX_SEGMENTS
-from controllers.filter import paper_cbf
-from controllers.params import uniform_robot
-from controllers.quasi_static_governor import QuasiStaticGovernor
-from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness
-from controllers.safety_filter import Estimate, FilterContext
+from controllers.governors.energy_governor import ContactEnergyGovernor, EnergyGovernor
+from controllers.energy.escape_energy import MAX_SEGMENTS
+from controllers.cbf.paper_filter import paper_cbf
+from controllers.model.params import uniform_robot
+from controllers.governors.quasi_static_governor import QuasiStaticGovernor
+from controllers.model.safe_set import Environment, ForceSafeSet, LinearStiffness
+from controllers.contract.safety_filter import Estimate, FilterContext
 
 LIMIT_HPA = 150.0
 

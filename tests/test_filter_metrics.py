@@ -1,11 +1,11 @@
-"""Per-run governor figures (controllers.filter_metrics): hand-computed cases."""
+"""Per-run governor figures (controllers.contract.filter_metrics): hand-computed cases."""
 
 import math
 
 import numpy as np
 import pytest
 
-from controllers.filter_metrics import governor_figures
+from controllers.contract.filter_metrics import governor_figures
 
 
 def test_deviation_switches_and_timing_by_hand():

@@ -1,5 +1,5 @@
-"""The declared filter parameters (controllers.filter_parameters): one check for check_arguments and
-the constructors, through controllers.bounds.check_number, and the docs built from the same table."""
+"""The declared filter parameters (controllers.contract.filter_parameters): one check for check_arguments and
+the constructors, through controllers.core.bounds.check_number, and the docs built from the same table."""
 
 import json
 import math
@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.energy_governor import PARAMETERS as EERG
-from controllers.filter import PARAMETERS as PAPER_CBF
-from controllers.filter_parameters import FilterParameter, Params, check_parameters, parameter_docs, read_params
-from controllers.quasi_static_governor import PARAMETERS as QSG
+from controllers.governors.energy_governor import PARAMETERS as EERG
+from controllers.cbf.paper_filter import PARAMETERS as PAPER_CBF
+from controllers.contract.filter_parameters import FilterParameter, Params, check_parameters, parameter_docs, read_params
+from controllers.governors.quasi_static_governor import PARAMETERS as QSG
 from controllers.registry import FILTERS, label, parameters, typed_params
 from scenarios import registry
 from scenarios.config_file import load_run_config

@@ -1,9 +1,9 @@
 """Property-based tests of the CBF filter (hypothesis): its guarantees over random robots,
 safe sets, tunings, states and nominal commands, every QP backend, limits on and off.
 
-Guarantee checked (controllers/filter.py, module docstring): the command is finite, inside
+Guarantee checked (controllers/cbf/paper_filter.py, module docstring): the command is finite, inside
 [u_min, u_max] when the limits are on, and either every defined CBF row holds at it within
-the QP's acceptance tolerance (`controllers.qp.tolerances`, hPa on unit rows) or the step is
+the QP's acceptance tolerance (`controllers.cbf.qp.tolerances`, hPa on unit rows) or the step is
 flagged `infeasible`. A row whose terms are not finite must never pass unflagged. The rows
 are recomputed here through `barrier_terms` (the compiled rows the filter's kernel runs, checked against
 finite differences in tests/test_cbf.py) from the filter's own model.
@@ -21,12 +21,12 @@ import pytest
 from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
-from controllers.cbf import B_MIN, TUNINGS, Tuning, barrier_terms
-from controllers.errors import ControllerInputError
-from controllers.filter import ACTIONS, CBFFilter
-from controllers.params import RobotParams
-from controllers.qp import available_backends, tolerances
-from controllers.safe_set import Environment, ForceSafeSet, LinearStiffness, PowerLawStiffness
+from controllers.cbf.barrier import B_MIN, TUNINGS, Tuning, barrier_terms
+from controllers.core.errors import ControllerInputError
+from controllers.cbf.paper_filter import ACTIONS, CBFFilter
+from controllers.model.params import RobotParams
+from controllers.cbf.qp import available_backends, tolerances
+from controllers.model.safe_set import Environment, ForceSafeSet, LinearStiffness, PowerLawStiffness
 
 SETTINGS = settings(max_examples=150, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])

@@ -1,7 +1,7 @@
 """A long command talks at once: its first line comes within FIRST_LINE_S of the command, once its parameters are
 checked and before rerun and matplotlib are imported (scenarios.run: the progress bar's 0 % line, or the heartbeat
-of a set-up that takes longer, softcbf_mj.progress; softcbf.demo), and numba's compile, when it happens, is announced
-before it starts (softcbf_mj.kernels.compile_notes), also on a cold cache (NUMBA_CACHE_DIR pointing at an empty
+of a set-up that takes longer, softcbf_mj.outputs.progress; softcbf.demo), and numba's compile, when it happens, is announced
+before it starts (softcbf_mj.loops.kernels.compile_notes), also on a cold cache (NUMBA_CACHE_DIR pointing at an empty
 folder: every kernel compiles). The time to the first line is the command's elapsed time less the time it waited for
 a core (tests/wall_clock.py): what it would take on an idle machine, also when other jobs load this one."""
 
@@ -18,8 +18,8 @@ from pathlib import Path
 import numba
 import pytest
 
-from softcbf_mj.kernels import COMPILE_NOTE, compile_notes
-from softcbf_mj.progress import Progress, heartbeat
+from softcbf_mj.loops.kernels import COMPILE_NOTE, compile_notes
+from softcbf_mj.outputs.progress import Progress, heartbeat
 from wall_clock import runqueue_wait_s
 
 # Wall-clock deadlines: one at a time with the other real-time tests, on one pytest-xdist worker (the suite's addopts).

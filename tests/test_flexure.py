@@ -13,11 +13,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from controllers.params import uniform_robot
-from softcbf_mj import mjcf as mb
-from softcbf_mj.flexure import FlexureParams, SheetInModel, chain_stiffness, thickness_for_tip_stiffness
-from softcbf_mj.flexure_calibration import calibrate_flexure, fit_thickness, load_sheet
-from softcbf_mj.mujoco_plant import MujocoPlant
+from controllers.model.params import uniform_robot
+from softcbf_mj.physics import mjcf as mb
+from softcbf_mj.physics.flexure import FlexureParams, SheetInModel, chain_stiffness, thickness_for_tip_stiffness
+from softcbf_mj.physics.flexure_calibration import calibrate_flexure, fit_thickness, load_sheet
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
 REPO = Path(__file__).resolve().parents[1]
 FLEXURE = mb.ArmModelConfig(plate="flexure")

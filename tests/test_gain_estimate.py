@@ -1,4 +1,4 @@
-"""controllers.gain_estimate: the least-squares gain ĝ and its interval [ĝ − e, ĝ + e] ∩ prior contain the true gain
+"""controllers.governors.gain_estimate: the least-squares gain ĝ and its interval [ĝ − e, ĝ + e] ∩ prior contain the true gain
 whenever every sample's deviation is within Δ (random and worst-case deviations), in contact too whatever the
 unknown forces along the eliminated directions (hypothesis: any N, K, forces), an impossible deviation falls back
 to the prior, uninformative samples (x near 0, x along the eliminated forces, a corner) are not kept, and bad input
@@ -15,9 +15,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controllers.gain_estimate import GainEstimator
-from controllers.params import reference_robot
-from controllers.pcc import tip_jacobian, tip_position
+from controllers.governors.gain_estimate import GainEstimator
+from controllers.model.params import reference_robot
+from controllers.model.pcc import tip_jacobian, tip_position
 
 ROOT = Path(__file__).resolve().parents[1]
 ROBOT = reference_robot()
@@ -212,7 +212,7 @@ def test_the_contact_samples_tool_reads_the_deviation_of_a_recorded_rest_against
     import importlib.util
     import json as json_module
 
-    from controllers.safe_set import paper_environment
+    from controllers.model.safe_set import paper_environment
 
     spec = importlib.util.spec_from_file_location("gain_contact_samples", ROOT / "tools" / "gain_contact_samples.py")
     tool = importlib.util.module_from_spec(spec)
@@ -255,7 +255,7 @@ def test_a_mujoco_push_with_the_true_gain_at_the_prior_end_holds_while_its_sampl
     import json as json_module
 
     from scenarios import get
-    from softcbf_mj.runio import load_timeseries
+    from softcbf_mj.outputs.runio import load_timeseries
 
     params = ("stiffness_lo_ratio=0.9;stiffness_hi_ratio=1.1;contact_aware=true;gain_lo_ratio=0.9;gain_hi_ratio=1.1;"
               "gain_estimate=true")

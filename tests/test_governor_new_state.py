@@ -1,12 +1,12 @@
-"""A governor's fresh state (`controllers.energy_governor.state.new_state`) holds each part in its own field."""
+"""A governor's fresh state (`controllers.governors.energy_governor.state.new_state`) holds each part in its own field."""
 
 import numpy as np
 
-from controllers.energy_governor import ContactEnergyGovernor, new_state, step
-from controllers.energy_governor.pressure_interval import PressureInterval
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
+from controllers.governors.energy_governor import ContactEnergyGovernor, new_state, step
+from controllers.governors.energy_governor.pressure_interval import PressureInterval
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext
 
 
 def test_a_valve_lag_interval_gives_the_state_its_pressure_interval_not_the_recovery_rows():

@@ -1,5 +1,5 @@
 """The energy governor's configuration, model and per-run state as separate objects
-(`controllers.energy_governor`): frozen parameters validated once, a model no call changes, and one state per
+(`controllers.governors.energy_governor`): frozen parameters validated once, a model no call changes, and one state per
 simulation row advanced by `step` / `step_rows` (a batch is a list of states)."""
 
 import dataclasses
@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from controllers.energy_governor import (ContactEnergyGovernor, ContactGovernorParams, EnergyGovernor, GovernorParams,
+from controllers.governors.energy_governor import (ContactEnergyGovernor, ContactGovernorParams, EnergyGovernor, GovernorParams,
                                          new_state, step, step_rows)
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, EstimateBatch, FilterContext
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, EstimateBatch, FilterContext
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()

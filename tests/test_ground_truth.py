@@ -1,4 +1,4 @@
-"""`softcbf_mj.ground_truth.build_truth`: one MuJoCo ground truth for every MuJoCo scenario, so
+"""`softcbf_mj.physics.ground_truth.build_truth`: one MuJoCo ground truth for every MuJoCo scenario, so
 that mujoco_contact and camera_loop take the same ground-truth settings, with one meaning."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import math
 import numpy as np
 import pytest
 
-from controllers.params import reference_robot
-from controllers.safe_set import paper_environment
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_environment
 from scenarios import get
 from scenarios.common import controller_robot
-from softcbf_mj.ground_truth import build_truth
+from softcbf_mj.physics.ground_truth import build_truth
 from scenarios.spec import Model, Plate, TrueArm
 from vocabulary.settings import DEFAULT_OVERRIDES, SETTINGS
 

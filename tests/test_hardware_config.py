@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.params import reference_robot
+from controllers.model.params import reference_robot
 from hardware.config import ConfigError, HardwareConfig
 from perception.plane import PlaneCalibration
 
@@ -94,20 +94,20 @@ def test_hardware_path_runs_the_simulations_controller_module_without_mujoco():
     """hardware.*, perception.* and the CLI of a real run import no MuJoCo; the runner builds its filter with the scenarios' registry."""
     code = (
         "import sys, hardware.config, hardware.runner, hardware.board, hardware.link, hardware.transport, closedloop.monitor, "
-        "perception.capture, perception.detect, perception.estimator, perception.plane, controllers.filter, controllers.registry\n"
+        "perception.capture, perception.detect, perception.estimator, perception.plane, controllers.cbf.paper_filter, controllers.registry\n"
         "assert hardware.runner.build_filter is controllers.registry.build_filter\n"
         "bad = sorted(m for m in sys.modules if m == 'mujoco' or m.startswith(('mujoco.', 'softcbf_mj')))\n"
         "import softcbf.hardware_cli\n"
-        "print(repr((bad, 'mujoco' in sys.modules, controllers.filter.__file__)))\n"
+        "print(repr((bad, 'mujoco' in sys.modules, controllers.cbf.paper_filter.__file__)))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True).stdout
     bad, mujoco_after_cli, filter_file = eval(out)
     assert bad == [] and mujoco_after_cli is False
-    import controllers.filter
+    import controllers.cbf.paper_filter
     import controllers.registry
     import scenarios.common
 
-    assert Path(filter_file) == Path(controllers.filter.__file__)
+    assert Path(filter_file) == Path(controllers.cbf.paper_filter.__file__)
     assert scenarios.common.build_filter is controllers.registry.build_filter
 
 
@@ -121,7 +121,7 @@ def test_cli_refuses_a_bad_configuration_with_exit_code_2(tmp_path, capsys):
 
 def test_emulator_defaults_are_the_camera_scenarios_rod():
     from hardware.config import EmulatorConfig
-    from softcbf_mj.mjcf import CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT
+    from softcbf_mj.physics.mjcf import CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT
 
     assert (EmulatorConfig().links_per_segment, EmulatorConfig().physics_dt) == (CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
 

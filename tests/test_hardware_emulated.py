@@ -25,9 +25,9 @@ from hardware.config import HardwareConfig
 from hardware.runner import ACTION_CODES
 from closedloop.monitor import SafeAction
 from hardware.transport import LineFaults
-from softcbf_mj.emulate import EmulatedHardware
+from softcbf_mj.emulator.emulate import EmulatedHardware
 from softcbf.hardware_cli import SAVED_FRAMES_HZ, run_hardware
-from softcbf_mj.runio import load_timeseries, read_run_folder
+from softcbf_mj.outputs.runio import load_timeseries, read_run_folder
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml"
 FAULT_AT_S = 1.0  # s after the start: blackout / cut

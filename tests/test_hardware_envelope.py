@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from controllers.params import REFERENCE_DAMPING, REFERENCE_STIFFNESS, reference_robot
+from controllers.model.params import REFERENCE_DAMPING, REFERENCE_STIFFNESS, reference_robot
 from scenarios import get
 from scenarios.common import scale_damping
 from scenarios.common import ROBOT_PRESETS, load_robot
 from vocabulary.project_files import project_file
 from softcbf.study.definition import load_study
-from softcbf_mj.mjcf import DEFAULT_TAU_P
+from softcbf_mj.physics.mjcf import DEFAULT_TAU_P
 
 ROOT = Path(__file__).resolve().parents[1]
 

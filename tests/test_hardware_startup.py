@@ -18,13 +18,13 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from closedloop.monitor import SafetyMonitor
-from controllers.params import per_segment
+from controllers.model.params import per_segment
 from hardware.config import EMULATOR_COMMAND_PERIOD_S, ConfigError, HardwareConfig
 from hardware.protocol import PressureLimits
 from perception.plane import PlaneCalibration
 from softcbf.hardware_cli import main
-from softcbf_mj.mjcf import ArmModelConfig
-from softcbf_mj.plant import steps_per_control
+from softcbf_mj.physics.mjcf import ArmModelConfig
+from softcbf_mj.physics.plant import steps_per_control
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "hardware_emulated.toml"
@@ -140,12 +140,12 @@ def test_no_first_frame_vents_and_exits_2_removing_the_empty_folder(real, tmp_pa
 
 
 def test_an_emulator_that_does_not_start_is_one_line_exit_2_and_no_folder(tmp_path, capfd, monkeypatch):
-    import softcbf_mj.emulate
+    import softcbf_mj.emulator.emulate
 
     def refuse(config):
         raise RuntimeError("the MuJoCo model did not compile\n(details on a second line)")
 
-    monkeypatch.setattr(softcbf_mj.emulate, "EmulatedHardware", refuse)
+    monkeypatch.setattr(softcbf_mj.emulator.emulate, "EmulatedHardware", refuse)
     code, err = _run_cli(capfd, [str(EXAMPLE), "--out", str(tmp_path / "out")])
     *progress, error = err.splitlines()  # the emulated run's start line comes first (softcbf.hardware_cli.CycleProgress)
     assert (code, error) == (2, "error: emulator: RuntimeError: the MuJoCo model did not compile")

@@ -20,7 +20,7 @@ import pytest
 
 from hardware.config import HardwareConfig
 from hardware.runner import WARM_UP_MARGINS, controller_context, warm_up_states
-from controllers.pcc import segment_ends
+from controllers.model.pcc import segment_ends
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "hardware_emulated.toml"
@@ -34,9 +34,9 @@ import json, sys
 from pathlib import Path
 import numpy as np
 from hardware.config import HardwareConfig
-from softcbf_mj.emulate import EmulatedHardware
+from softcbf_mj.emulator.emulate import EmulatedHardware
 from softcbf.hardware_cli import run_hardware
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 config = HardwareConfig.load(Path(sys.argv[1])).with_overrides(json.loads(sys.argv[3]))
 out = Path(sys.argv[2])
 with EmulatedHardware(config) as emulation:

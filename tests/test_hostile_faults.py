@@ -33,12 +33,12 @@ import scenarios.run
 from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.record import Recorder
 from closedloop.step import BatchControlStep, ControlStep
-from controllers.params import reference_robot
+from controllers.model.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext, FilterOutput
 from scenarios.run import FILTER_FAULT, USAGE_ERROR, UsageError, exit_code, run_scenario
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT, SAFE = reference_robot(), paper_safe_set()
@@ -268,7 +268,7 @@ def test_one_rows_conversion_escape_stops_only_that_row_of_the_batch():
 
 VECTOR_FILTER = textwrap.dedent('''
     import numpy as np
-    from controllers.safety_filter import FilterOutput
+    from controllers.contract.safety_filter import FilterOutput
 
     class BadFloat(float):
         def __float__(self):
@@ -359,7 +359,7 @@ def python_sigint():
 
 
 def test_a_real_ctrl_c_inside_the_filter_still_interrupts_the_run(python_sigint):
-    from controllers.interrupts import watch
+    from controllers.core.interrupts import watch
 
     assert watch()  # the step installs the same handler; pytest runs in the main thread
 
@@ -455,7 +455,7 @@ def test_a_factory_raising_system_exit_is_exit_2_with_one_line(tmp_path, plugins
 def test_a_hardware_run_whose_filter_raises_system_exit_keeps_its_cycles_and_vents(tmp_path, plugins):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware
-    from softcbf_mj.emulate import EmulatedHardware
+    from softcbf_mj.emulator.emulate import EmulatedHardware
 
     config = HardwareConfig.load(REPO / "examples" / "hardware_emulated.toml").with_overrides(
         {"filter": f"{plugins}:ExitsAtCall", "filter_params": {"at": 5}, "duration": 2.0})

@@ -32,14 +32,14 @@ import pytest
 import closedloop.kernels
 from closedloop.isolation import IsolatedProcessError, decode, encode, isolate
 from closedloop.step import BatchControlStep, ControlStep
-from controllers.params import reference_robot
+from controllers.model.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter, build_nominal
-from controllers.safe_set import ForceSafeSet, paper_safe_set
-from controllers.safety_filter import FilterContext
+from controllers.model.safe_set import ForceSafeSet, paper_safe_set
+from controllers.contract.safety_filter import FilterContext
 from scenarios.run import FILTER_FAULT, USAGE_ERROR, exit_code, run_scenario
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.pcc_plant import PCCPlant
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.physics.pcc_plant import PCCPlant
+from softcbf_mj.outputs.runio import load_timeseries
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT, SAFE = reference_robot(), paper_safe_set()
@@ -50,7 +50,7 @@ HOSTILE = textwrap.dedent('''
     import gc, importlib, os, signal, threading, time
     import numpy as np
     from closedloop.step import BatchControlStep
-    from controllers.safe_set import ForceSafeSet
+    from controllers.model.safe_set import ForceSafeSet
 
     HUGE = 1e6
 

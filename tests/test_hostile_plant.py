@@ -22,7 +22,7 @@ import pytest
 
 from scenarios.run import USAGE_ERROR, exit_code, run_scenario
 from softcbf.study import Study, StudyStore, run_study
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 
 REPO = Path(__file__).resolve().parents[1]
 LIMIT = 150.0  # hPa, the reference robot's pressure limits
@@ -271,9 +271,9 @@ def test_duplicate_tunings_are_refused_with_one_line(tmp_path, capsys):
 
 
 def test_a_context_copy_shares_no_object_with_the_loops_context():
-    from controllers.params import reference_robot
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import FilterContext
+    from controllers.model.params import reference_robot
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import FilterContext
 
     context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3, actuator_tau=0.05)
     own = context.copy()

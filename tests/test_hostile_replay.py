@@ -122,12 +122,12 @@ def test_a_failed_save_leaves_nothing_and_keeps_an_overwritten_folder(result, tm
     assert list(tmp_path.iterdir()) == []
     first = save(result, tmp_path / "run")
     before = sorted(p.relative_to(first).as_posix() for p in first.rglob("*"))
-    import softcbf_mj.report
+    import softcbf_mj.outputs.report
 
     def fail(folder, **kwargs):
         raise RuntimeError("report failed")
 
-    monkeypatch.setattr(softcbf_mj.report, "write_report", fail)
+    monkeypatch.setattr(softcbf_mj.outputs.report, "write_report", fail)
     with pytest.raises(RuntimeError, match="report failed"):
         save(with_files(result, extra=b"x"), first, overwrite=True)
     assert sorted(p.relative_to(first).as_posix() for p in first.rglob("*")) == before

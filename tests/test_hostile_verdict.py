@@ -27,7 +27,7 @@ from softcbf.study.cli import main as study_main
 from softcbf.study.falsify import STORAGE_FILE, falsify
 from softcbf.study.report import write_report
 from softcbf.study.sequential import run_until_bound
-from softcbf_mj.runio import OutputDirError
+from softcbf_mj.outputs.runio import OutputDirError
 
 PUSH = {"nominal": "step", "nominal_params": "seed=0;low_hPa=150;high_hPa=150"}
 FILTERS = textwrap.dedent('''

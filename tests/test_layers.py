@@ -3,9 +3,9 @@
 Layers, bottom to top (a package may import its own modules and lower layers only;
 packages on one layer do not import each other):
 
-    0  controllers, perception   the controller under test (numpy, QP solvers; `controllers.bounds`, a
+    0  controllers, perception   the controller under test (numpy, QP solvers; `controllers.core.bounds`, a
                                  number's range and its check) / the camera pipeline (OpenCV)
-    1  vocabulary, closedloop    the settings: names, units, ranges (`controllers.bounds`) and their check,
+    1  vocabulary, closedloop    the settings: names, units, ranges (`controllers.core.bounds`) and their check,
                                  standard library only / the one control step, safety monitor and recorder
     2  hardware                  the valve-board link and the hardware loop
     3  softcbf_mj                the MuJoCo testbed: plants, loops, recording, reports
@@ -20,11 +20,15 @@ import by name in a string constant (`importlib.import_module("x")`, `import_mod
 `softcbf run` imports.
 
 Inside a package the same holds one level down. Its units are its subpackages (one unit each,
-e.g. `controllers.energy_governor`, `softcbf_mj.mjcf`, `softcbf.bench`) and its own modules
-(one unit each); importing a package's `__init__` alone is no edge. The units import each other
-without a cycle (a cycle is reported with one import per hop), and the subpackages of `TOP_UNITS`
-are imported by no other unit of their package: the governors build on the contract, the model
-and the CBF; the environment composes the testbed.
+e.g. `controllers.governors`, `softcbf_mj.physics`, `softcbf.bench`) and its own modules (one unit
+each); importing a package's `__init__` alone is no edge. The units import each other without a
+cycle (a cycle is reported with one import per hop). The rooms of `controllers` and `softcbf_mj`
+(`ROOMS`) are ordered, bottom to top, and a room imports only rooms below it:
+
+    controllers  core < model < energy < contract < cbf < governors < nominal < registry
+    softcbf_mj   outputs < physics < camera < loops < emulator < env
+
+(the governors build on the contract, the model and the CBF; the environment composes the testbed).
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from pathlib import Path
 
 import pytest
 
-from controllers.filter import CBFFilter
+from controllers.cbf.paper_filter import CBFFilter
 
 REPO = Path(__file__).resolve().parents[1]
 LAYERS = {"controllers": 0, "perception": 0, "vocabulary": 1, "closedloop": 1, "hardware": 2, "softcbf_mj": 3, "scenarios": 4,
@@ -132,15 +136,18 @@ def test_the_layer_test_sees_every_package_and_finds_an_upward_import(tmp_path):
     """The test can fail: an upward import in a module is reported."""
     assert {p.parts[len(REPO.parts)] for _, p in ALL} == set(LAYERS)
     bad = tmp_path / "bad.py"
-    bad.write_text("from softcbf_mj.loop import run_closed_loop\nfrom .qp import _dual_active_set\n", encoding="utf-8")
+    bad.write_text("from softcbf_mj.loops.loop import run_closed_loop\nfrom .qp import _dual_active_set\n", encoding="utf-8")
     imports = _imports(bad, "controllers.bad")
-    assert imports == [("softcbf_mj.loop", ["run_closed_loop"]), ("controllers.qp", ["_dual_active_set"])]
+    assert imports == [("softcbf_mj.loops.loop", ["run_closed_loop"]), ("controllers.qp", ["_dual_active_set"])]
     assert _violations("controllers", "controllers/bad.py", "controllers.bad", imports) == [
-        "controllers/bad.py imports softcbf_mj.loop: layer softcbf_mj is not below controllers",
+        "controllers/bad.py imports softcbf_mj.loops.loop: layer softcbf_mj is not below controllers",
         "controllers/bad.py imports private name(s) ['_dual_active_set'] from controllers.qp"]
 
 
-TOP_UNITS = ("controllers.energy_governor", "softcbf_mj.env")  # imported by no other unit of their package
+ROOMS = {  # module docstring: each package's rooms, bottom to top; a room imports only rooms below it
+    "controllers": ("core", "model", "energy", "contract", "cbf", "governors", "nominal", "registry"),
+    "softcbf_mj": ("outputs", "physics", "camera", "loops", "emulator", "env"),
+}
 
 
 def _targets(module: str, names: list[str]) -> list[str]:
@@ -172,9 +179,14 @@ def _unit_edges(modules: list[tuple[str, str, list[tuple[str, list[str]]]]]) -> 
 
 
 def _unit_violations(edges: dict[tuple[str, str], str]) -> list[str]:
-    """What the unit graph `edges` breaks: an import of a `TOP_UNITS` unit, and each cycle (its edges, in order)."""
-    out = [f"{example}: {target} is imported by no other unit of {target.split('.')[0]}"
-           for (_, target), example in sorted(edges.items()) if target in TOP_UNITS]
+    """What the unit graph `edges` breaks: an import of a room not below the importing room (`ROOMS`), and each
+    cycle (its edges, in order)."""
+    def rank(unit: str) -> int:
+        package, room = unit.split(".", 1)
+        return ROOMS[package].index(room)
+
+    out = [f"{example}: {target} is not below {source}" for (source, target), example in sorted(edges.items())
+           if source.split(".")[0] in ROOMS and rank(target) >= rank(source)]
     graph: dict[str, set[str]] = {}
     for source, target in edges:
         graph.setdefault(source, set()).add(target)
@@ -198,44 +210,47 @@ def _unit_violations(edges: dict[tuple[str, str], str]) -> list[str]:
 
 
 def test_units_of_each_package_import_each_other_without_a_cycle():
-    """Inside a package (module docstring): no cycle between its subpackages and modules, and nothing of the
-    package imports a `TOP_UNITS` subpackage but itself."""
+    """Inside a package (module docstring): no cycle between its subpackages and modules, and each room of
+    `ROOMS` imports only the rooms below it; the rooms are exactly the package's subpackages and modules."""
     modules = [(_module_name(path), str(path.relative_to(REPO)), _imports(path)) for _, path in ALL]
-    assert all(_unit(unit) for unit in TOP_UNITS) and all((REPO / unit.replace(".", "/")).is_dir() for unit in TOP_UNITS)
+    for package, rooms in ROOMS.items():
+        here = {p.stem for p in (REPO / package).iterdir() if (p.suffix == ".py" and p.stem != "__init__")
+                or (p / "__init__.py").is_file()}
+        assert here == set(rooms), f"{package}: rooms {sorted(here)} against ROOMS {sorted(rooms)}"
     assert _unit_violations(_unit_edges(modules)) == []
 
 
 def test_the_layer_test_finds_imports_inside_functions_and_by_name(tmp_path):
     """The test can fail on what stands inside a function: an import statement into the same layer, an import
-    by name of a higher layer, an import of a top unit of the package, and a cycle between subpackages."""
+    by name of a higher layer, an import of a higher room of the package, and a cycle between subpackages."""
     bad = tmp_path / "bad.py"
-    bad.write_text("import importlib\n\n\ndef detect():\n    from controllers.pcc import tip_position\n\n\n"
-                   "class Camera:\n    def start(self):\n        try:\n            importlib.import_module('softcbf_mj.loop')\n"
+    bad.write_text("import importlib\n\n\ndef detect():\n    from controllers.model.pcc import tip_position\n\n\n"
+                   "class Camera:\n    def start(self):\n        try:\n            importlib.import_module('softcbf_mj.loops.loop')\n"
                    "        except ImportError:\n            pass\n", encoding="utf-8")
     imports = _imports(bad, "perception.bad")
-    assert imports == [("importlib", []), ("controllers.pcc", ["tip_position"]), ("softcbf_mj.loop", [])]
+    assert imports == [("importlib", []), ("controllers.model.pcc", ["tip_position"]), ("softcbf_mj.loops.loop", [])]
     assert _violations("perception", "perception/bad.py", "perception.bad", imports) == [
-        "perception/bad.py imports controllers.pcc: layer controllers is not below perception",
-        "perception/bad.py imports softcbf_mj.loop: layer softcbf_mj is not below perception"]
+        "perception/bad.py imports controllers.model.pcc: layer controllers is not below perception",
+        "perception/bad.py imports softcbf_mj.loops.loop: layer softcbf_mj is not below perception"]
     flat = tmp_path / "flat.py"
-    flat.write_text("def build():\n    box = lazy_module('controllers.energy_governor.box')\n", encoding="utf-8")
+    flat.write_text("def build():\n    box = lazy_module('controllers.governors.energy_governor.box')\n", encoding="utf-8")  # model < governors
     study = tmp_path / "tune.py"
     study.write_text("def force(run):\n    from softcbf.bench import steady_force_of_folder\n", encoding="utf-8")
     bench = tmp_path / "cases.py"
     bench.write_text("from softcbf.study.definition import Study\n", encoding="utf-8")
-    edges = _unit_edges([("controllers.flat", "controllers/flat.py", _imports(flat, "controllers.flat")),
+    edges = _unit_edges([("controllers.model.flat", "controllers/model/flat.py", _imports(flat, "controllers.model.flat")),
                          ("softcbf.study.tune", "softcbf/study/tune.py", _imports(study, "softcbf.study.tune")),
                          ("softcbf.bench.cases", "softcbf/bench/cases.py", _imports(bench, "softcbf.bench.cases"))])
     assert _unit_violations(edges) == [
-        "controllers/flat.py imports controllers.energy_governor.box: controllers.energy_governor is imported by no "
-        "other unit of controllers",
+        "controllers/model/flat.py imports controllers.governors.energy_governor.box: controllers.governors is not below "
+        "controllers.model",
         "softcbf.bench, softcbf.study import each other: softcbf/bench/cases.py imports softcbf.study.definition; "
         "softcbf/study/tune.py imports softcbf.bench"]
 
 
 def test_controllers_exports_its_public_api():
     import controllers
-    from controllers import pcc  # submodules still import as before
+    from controllers.model import pcc  # modules import from their rooms
 
     assert controllers.__all__ and all(getattr(controllers, name) is not None for name in controllers.__all__)
     assert controllers.CBFFilter is CBFFilter and callable(pcc.tip_position)

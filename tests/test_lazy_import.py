@@ -1,4 +1,4 @@
-"""`controllers.lazy_import.lazy_module` under threads: several threads that touch a deferred module at the same time
+"""`controllers.core.lazy_import.lazy_module` under threads: several threads that touch a deferred module at the same time
 all find the loaded module (importlib's LazyLoader on Python 3.11 hands the others an empty module: AttributeError),
 its code runs once, and a failed load leaves nothing half-filled. The first touch happens once per process, so each
 trial is a fresh interpreter."""
@@ -17,7 +17,8 @@ TRIALS = 12
 
 FIRST_TOUCH = textwrap.dedent("""
     import json, sys, threading
-    from controllers import dynamics, energy_governor, pcc  # each holds a deferred module
+    from controllers.model import dynamics, pcc
+    from controllers.governors import energy_governor  # each holds a deferred module
     reads = [(dynamics.pcc_model, "model_terms"), (pcc.pcc_model, "parameter_rows"),
              (energy_governor.energy_kernels, "table_values")]  # energy_kernels imports pcc_model in turn
     barrier = threading.Barrier({threads})
@@ -36,8 +37,8 @@ FIRST_TOUCH = textwrap.dedent("""
         t.start()
     for t in threads:
         t.join()
-    print(json.dumps({{"errors": errors, "plain": type(sys.modules["controllers.pcc_model"]).__name__,
-                      "same": dynamics.pcc_model is sys.modules["controllers.pcc_model"] is pcc.pcc_model}}))
+    print(json.dumps({{"errors": errors, "plain": type(sys.modules["controllers.model.pcc_model"]).__name__,
+                      "same": dynamics.pcc_model is sys.modules["controllers.model.pcc_model"] is pcc.pcc_model}}))
 """)
 
 
@@ -66,7 +67,7 @@ def test_its_code_runs_once_however_many_threads_wait(tmp_path):
     code = textwrap.dedent(f"""
         import json, sys, threading
         sys.path.insert(0, {str(tmp_path)!r})
-        from controllers.lazy_import import lazy_module
+        from controllers.core.lazy_import import lazy_module
         import deferred_pkg
         slow = lazy_module("deferred_pkg.slow")
         assert lazy_module("deferred_pkg.slow") is slow  # one placeholder per name
@@ -85,7 +86,7 @@ def test_a_failed_load_raises_at_every_access_not_an_empty_module(tmp_path):
     make_package(tmp_path, "VALUE = 1\nraise RuntimeError('broken at import')\n")
     sys.path.insert(0, str(tmp_path))
     try:
-        from controllers.lazy_import import lazy_module
+        from controllers.core.lazy_import import lazy_module
 
         broken = lazy_module("deferred_pkg.slow")
         for _ in range(2):
@@ -98,7 +99,7 @@ def test_a_failed_load_raises_at_every_access_not_an_empty_module(tmp_path):
 
 
 def test_an_unknown_module_is_refused_at_once():
-    from controllers.lazy_import import lazy_module
+    from controllers.core.lazy_import import lazy_module
 
     with pytest.raises(ImportError, match="no module named 'controllers.nosuch'"):
         lazy_module("controllers.nosuch")

@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from controllers.errors import NonFiniteCommandError
+from controllers.core.errors import NonFiniteCommandError
 from hardware.board import FirstOrderPressure, ValveBoard
 from hardware.link import ValveBoardLink
 from hardware.protocol import BoardStatus

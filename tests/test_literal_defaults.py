@@ -3,8 +3,8 @@
 A setting's default lives in `vocabulary.settings` (`Setting.default`, `DEFAULT_OVERRIDES`); the
 classes that need it elsewhere (`ArmModelConfig`, `FlexureParams`, `CameraTiming`, the
 environment, the hardware file) read it from there. The paper's plate stiffness and force limit
-are needed below the vocabulary (`controllers.safe_set.paper_safe_set`), so their home is
-`controllers.paper_experiment`, which the vocabulary imports. The scan: every number literal
+are needed below the vocabulary (`controllers.model.safe_set.paper_safe_set`), so their home is
+`controllers.model.paper_experiment`, which the vocabulary imports. The scan: every number literal
 of the product packages (a negative one too) equal to a *distinctive* default (a mantissa of two
 or more significant digits: 11.16, 0.16, 12.8, 1.23044e-3, -0.055, 1280; not 0, 1, 0.5, 80) must
 appear exactly once, at its home.

@@ -1,4 +1,4 @@
-"""Live streaming of runs while they run (softcbf_mj.recording.LiveRun, live_stream): a sink
+"""Live streaming of runs while they run (softcbf_mj.outputs.recording.LiveRun, live_stream): a sink
 read in the middle of a run already holds that run's rows up to then, with the entities of
 the finished recording; the finished run is not streamed twice."""
 
@@ -9,18 +9,18 @@ import pytest
 import rerun as rr
 
 from closedloop.step import ControlStep
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import FilterContext
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import FilterContext
 from scenarios import get
 from scenarios.common import scene_record
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.pcc_plant import PCCPlant
-from softcbf_mj import recording
-from softcbf_mj.recording import APP_ID, LIVE_PERIOD_S, RECORDING_FILE, live_stream
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.physics.pcc_plant import PCCPlant
+from softcbf_mj.outputs import recording
+from softcbf_mj.outputs.recording import APP_ID, LIVE_PERIOD_S, RECORDING_FILE, live_stream
 
 DT = 1e-3  # paper_sim's control period (s)
 RUN = dict(duration=0.5, tunings="None,Low", amplitude=150.0, frequency=0.5, progress=False)
@@ -127,7 +127,7 @@ def test_a_hardware_run_streams_its_cycles_and_frames_while_it_runs(monkeypatch,
 
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware
-    from softcbf_mj.emulate import EmulatedHardware
+    from softcbf_mj.emulator.emulate import EmulatedHardware
 
     config = HardwareConfig.load(Path(__file__).resolve().parents[1] / "examples" / "hardware_emulated.toml")
     config = config.with_overrides({"control": {"tuning": "High"}, "duration": 2.0})

@@ -6,16 +6,16 @@ import tracemalloc
 import numpy as np
 import pytest
 
-import softcbf_mj.loop
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter
+import softcbf_mj.loops.loop
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter
 from closedloop.step import ControlStep
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
-from controllers.safety_filter import FilterContext
+from controllers.model.params import reference_robot
+from controllers.contract.safety_filter import FilterContext
 from scenarios.common import build_safe_set
-from softcbf_mj.loop import check_duration, run_closed_loop, series_bytes_needed
-from softcbf_mj.pcc_plant import PCCPlant
+from softcbf_mj.loops.loop import check_duration, run_closed_loop, series_bytes_needed
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 SAFE_SET = build_safe_set("paper", 11.16, 0.16, "paper")
 
@@ -57,7 +57,7 @@ def test_check_duration_counts_steps_and_names_duration():
 
 def test_check_duration_refuses_what_does_not_fit_in_the_available_memory(monkeypatch):
     per_step = series_bytes_needed(1, 2, SAFE_SET)
-    monkeypatch.setattr(softcbf_mj.loop, "available_memory_bytes", lambda: 1000 * per_step)
+    monkeypatch.setattr(softcbf_mj.loops.loop, "available_memory_bytes", lambda: 1000 * per_step)
     assert check_duration(1.0, 1e-3, 2, SAFE_SET) == 1000
     with pytest.raises(ValueError, match=r"duration 1.001 s \(1001 steps of 0.001 s\) needs .* GiB for its time series, "
                                          r"more than the .* GiB of memory available"):
@@ -66,4 +66,4 @@ def test_check_duration_refuses_what_does_not_fit_in_the_available_memory(monkey
 
 def test_available_memory_is_positive_and_at_most_the_machine():
     total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    assert 0 < softcbf_mj.loop.available_memory_bytes() <= total
+    assert 0 < softcbf_mj.loops.loop.available_memory_bytes() <= total

@@ -14,7 +14,7 @@ import pytest
 
 from scenarios import get
 from scenarios.common import data_only
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 
 REPO = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("loop_references", REPO / "tools" / "loop_references.py")

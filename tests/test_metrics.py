@@ -1,9 +1,9 @@
-"""Chatter figures (softcbf_mj.metrics) on synthetic commands with known answers."""
+"""Chatter figures (softcbf_mj.outputs.metrics) on synthetic commands with known answers."""
 
 import numpy as np
 import pytest
 
-from softcbf_mj.metrics import (
+from softcbf_mj.outputs.metrics import (
     CHATTER_THRESHOLD_HPA,
     HF_CUTOFF_HZ,
     RunningFigures,

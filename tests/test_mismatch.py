@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 
-import softcbf_mj.flexure_calibration  # noqa: F401 -- imported before the spy: they keep the real build_model
-import softcbf_mj.mjcf as mb
-import softcbf_mj.mujoco_batch_plant  # noqa: F401
-import softcbf_mj.mujoco_plant  # noqa: F401
-from controllers.params import reference_robot
+import softcbf_mj.physics.flexure_calibration  # noqa: F401 -- imported before the spy: they keep the real build_model
+import softcbf_mj.physics.mjcf as mb
+import softcbf_mj.physics.mujoco_batch_plant  # noqa: F401
+import softcbf_mj.physics.mujoco_plant  # noqa: F401
+from controllers.model.params import reference_robot
 from scenarios import get
-from softcbf_mj.mjcf import ArmModelConfig, arm_xml
+from softcbf_mj.physics.mjcf import ArmModelConfig, arm_xml
 
 SHORT = dict(duration=0.3, t0=25.0, tunings="None", progress=False)
 

@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from controllers.params import reference_robot
-from softcbf_mj.mjcf import ArmModelConfig
-from softcbf_mj.mujoco_batch_plant import WARNING_NAMES, MujocoBatchPlant
-from softcbf_mj.mujoco_plant import MujocoPlant
+from controllers.model.params import reference_robot
+from softcbf_mj.physics.mjcf import ArmModelConfig
+from softcbf_mj.physics.mujoco_batch_plant import WARNING_NAMES, MujocoBatchPlant
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
 LINKS, DT = 4, 2e-4  # a coarse rod keeps the test short; the code path is the same
 

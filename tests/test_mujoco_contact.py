@@ -13,11 +13,11 @@ import math
 import numpy as np
 import pytest
 
-from controllers.params import reference_robot
-from controllers.pcc import tip_position
-from controllers.safe_set import paper_safe_set
+from controllers.model.params import reference_robot
+from controllers.model.pcc import tip_position
+from controllers.model.safe_set import paper_safe_set
 from scenarios import get
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 from test_scenarios import SPEC_RUN_FIELDS
 
 DURATION, T0 = 3.0, 25.0

@@ -9,10 +9,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from controllers.params import reference_robot, uniform_robot
+from controllers.model.params import reference_robot, uniform_robot
 from perception.plane import TagBoard
-from softcbf_mj import mjcf as mb
-from softcbf_mj.mujoco_plant import WARNINGS
+from softcbf_mj.physics import mjcf as mb
+from softcbf_mj.physics.mujoco_plant import WARNINGS
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL_DIR = REPO / "models" / "softcbf_arm"

@@ -9,9 +9,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from controllers.params import reference_robot
-from controllers.pcc import segment_ends
-from softcbf_mj.mjcf import (
+from controllers.model.params import reference_robot
+from controllers.model.pcc import segment_ends
+from softcbf_mj.physics.mjcf import (
     DEFAULT_LINKS_PER_SEGMENT,
     DEFAULT_PHYSICS_DT,
     PAPER_H,
@@ -19,8 +19,8 @@ from softcbf_mj.mjcf import (
     PAPER_PLATE_STIFFNESS,
     ArmModelConfig,
 )
-from softcbf_mj.mujoco_plant import MUJOCO_VERSION, MujocoPlant
-from softcbf_mj.plant import PlantState
+from softcbf_mj.physics.mujoco_plant import MUJOCO_VERSION, MujocoPlant
+from softcbf_mj.physics.plant import PlantState
 
 SCENE = Path(__file__).resolve().parents[1] / "models" / "softcbf_arm" / "scene.xml"
 ROBOT = reference_robot()
@@ -355,7 +355,7 @@ def _numpy_state(plant: MujocoPlant, data: mujoco.MjData) -> dict[str, np.ndarra
 
 @pytest.mark.parametrize("changes", [{}, dict(plate="flexure", tip_friction=0.5)], ids=["ideal", "flexure"])
 def test_the_compiled_state_read_is_numpys_and_each_state_keeps_its_values(changes):
-    """`MujocoPlant.state` reads MuJoCo's arrays in one compiled call (softcbf_mj.plant_kernel): through
+    """`MujocoPlant.state` reads MuJoCo's arrays in one compiled call (softcbf_mj.physics.plant_kernel): through
     contact its arrays equal numpy's reads of a reference data bit for bit, and a state returned earlier
     keeps its values when the plant steps on (each state has arrays of its own)."""
     plant = MujocoPlant.from_config(**changes)
@@ -381,7 +381,7 @@ def test_the_compiled_state_read_is_numpys_and_each_state_keeps_its_values(chang
 def test_the_compiled_force_is_numpys_maximum():
     """max(0, k·x) as np.maximum(0.0, k·x): a negative force gives 0.0, −0.0 stays −0.0 (numpy keeps its
     second operand on a tie), NaN stays NaN."""
-    from softcbf_mj.plant_kernel import read_state
+    from softcbf_mj.physics.plant_kernel import read_state
 
     x = np.array([-1.0, -0.0, 0.0, 2.0, np.nan, np.inf])
     stiffness = np.array([3.0, 3.0, 3.0, 3.0, 3.0, 0.0])  # 0 · inf = NaN

@@ -1,4 +1,4 @@
-"""A nominal controller's capabilities are declared, never guessed (controllers.safety_filter: `Capabilities`,
+"""A nominal controller's capabilities are declared, never guessed (controllers.contract.safety_filter: `Capabilities`,
 `nominal_capabilities`, the filters' reader with the nominal's kind; controllers.nominal; docs/safety-filter.md).
 
 A shared nominal that declares batched has its `nominal_batch` called once for every row; one that declares
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from closedloop.step import BatchControlStep, ControlStep
-from controllers.params import reference_robot
+from controllers.model.params import reference_robot
 from controllers.registry import PluginLoadError, build_nominal
-from controllers.safe_set import paper_safe_set
-from controllers.capabilities import MINIMAL, Capabilities, CapabilityError, nominal_capabilities
-from controllers.safety_filter import FilterContext
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.capabilities import MINIMAL, Capabilities, CapabilityError, nominal_capabilities
+from controllers.contract.safety_filter import FilterContext
 from scenarios.run import USAGE_ERROR, exit_code, run_scenario
 
 CONTEXT = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
@@ -104,7 +104,7 @@ class NotCapabilities(Logged):
     (NoBatch(), r"^NoBatch declares batched=True but has no method nominal_batch\(t, q, qd\)$"),
     (Rows(), "^Rows declares rows=True, which a nominal controller cannot: it may declare batched only$"),
     (Passthrough(), "^Passthrough declares passthrough=True, which a nominal controller cannot"),
-    (NotCapabilities(), "^NotCapabilities.capabilities must be a controllers.capabilities.Capabilities, got dict$"),
+    (NotCapabilities(), "^NotCapabilities.capabilities must be a controllers.contract.capabilities.Capabilities, got dict$"),
 ])
 def test_a_nominal_that_declares_what_it_lacks_is_refused_when_the_step_is_built(culprit, message):
     with pytest.raises(CapabilityError, match=message):
@@ -125,7 +125,7 @@ def test_the_built_in_nominals_declare_theirs():
 
 LIAR = textwrap.dedent('''
     import numpy as np
-    from controllers.capabilities import Capabilities
+    from controllers.contract.capabilities import Capabilities
 
     class Lies:
         """Declares batched without nominal_batch."""

@@ -2,7 +2,7 @@
 
 The fixture's script (run in a child process, so that the setting exists before any section,
 spec or configuration class is made from the vocabulary, as a real entry would) declares the
-setting `true_mass_scale` of section "TrueArm" and uses it in `softcbf_mj.ground_truth.build_truth`
+setting `true_mass_scale` of section "TrueArm" and uses it in `softcbf_mj.physics.ground_truth.build_truth`
 (the true arm's masses × the scale); nothing else is edited. It then gives the setting on every
 surface and records what `build_truth` received: the command line (`softcbf run mujoco_contact
 --true-mass-scale`), a TOML run file, a study's `vary`, the environment (`ArmEnvConfig`,
@@ -36,7 +36,7 @@ SCRIPT = textwrap.dedent('''
         "the MuJoCo arm's masses as a multiple of the robot's", "", float, vocabulary.Bound(1e-3, 1e3), default=1.0,
         section="TrueArm")
 
-    from softcbf_mj import ground_truth
+    from softcbf_mj.physics import ground_truth
 
     original = ground_truth.build_truth
     seen = []
@@ -54,7 +54,7 @@ SCRIPT = textwrap.dedent('''
     from softcbf.cli import main
     from softcbf.study.definition import load_study
     from softcbf.study.runner import run_sample
-    from softcbf_mj.emulate import emulated_truth
+    from softcbf_mj.emulator.emulate import emulated_truth
     from softcbf_mj.env import ArmEnvConfig, GymArmEnv, make_environment
 
     tmp = Path(sys.argv[1])
@@ -108,7 +108,7 @@ def test_a_new_ground_truth_setting_reaches_every_surface(tmp_path):
                               "gym": [0.8], "emulator": [3.0]}
     assert (out["cli"], out["toml"], out["study"]) == (0, 0, "ok")
     assert out["recorded"] == 1.25 and out["hardware_file"] == 3.0 and out["env_field"] == 0.5
-    from controllers.params import reference_robot
+    from controllers.model.params import reference_robot
 
     assert out["masses"] == pytest.approx([3.0 * m for m in reference_robot().masses])
 
@@ -141,11 +141,11 @@ def test_the_environment_s_former_control_dt_is_read_with_a_deprecation_warning(
 
 def test_the_former_ground_truth_module_reads_its_names_with_a_deprecation_warning():
     import scenarios.ground_truth as former
-    from controllers.safe_set import paper_environment
-    from softcbf_mj import ground_truth
+    from controllers.model.safe_set import paper_environment
+    from softcbf_mj.physics import ground_truth
     from vocabulary.run_sections import Model, Plate, TrueArm
 
-    with pytest.warns(DeprecationWarning, match="use softcbf_mj.ground_truth.moved_facets"):
+    with pytest.warns(DeprecationWarning, match="use softcbf_mj.physics.ground_truth.moved_facets"):
         assert former.moved_facets is ground_truth.moved_facets
     spec = __import__("scenarios").get("mujoco_contact").spec(arm=TrueArm(facet_offset=0.002), plate=Plate(stiffness=9.0),
                                                              model=Model(damping_scale=2.0))

@@ -1,10 +1,10 @@
-"""The shared palette (softcbf_mj.palette): used by the report's plots and the recording alike."""
+"""The shared palette (softcbf_mj.outputs.palette): used by the report's plots and the recording alike."""
 
 import matplotlib.colors
 import pytest
 
-from softcbf_mj import palette, recording, report
-from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, OKABE_ITO, rgb, run_color
+from softcbf_mj.outputs import palette, recording, report
+from softcbf_mj.outputs.palette import LIMIT_COLOR, NEUTRAL_COLOR, OKABE_ITO, rgb, run_color
 
 
 def test_runs_take_okabe_ito_colours_and_never_black():

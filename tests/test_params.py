@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from controllers.dynamics import PCCDynamics
-from controllers.params import RobotParams, mass_condition_bound, reference_robot, uniform_robot
+from controllers.model.dynamics import PCCDynamics
+from controllers.model.params import RobotParams, mass_condition_bound, reference_robot, uniform_robot
 
 
 def test_reference_robot_matches_spec():

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from controllers import pcc
-from controllers.errors import ControllerInputError, NonFiniteStateError
+from controllers.model import pcc
+from controllers.core.errors import ControllerInputError, NonFiniteStateError
 from derivative_cases import SEGMENT_COUNTS, central_difference, configurations, lengths
 
 FD_ATOL = 1e-8

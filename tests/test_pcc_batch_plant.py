@@ -7,12 +7,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from controllers.dynamics import PCCDynamics
-from controllers.dynamics_batch import BatchDynamics
-from controllers.params import reference_robot, uniform_robot
-from controllers.safe_set import paper_safe_set
-from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.dynamics import PCCDynamics
+from controllers.model.dynamics_batch import BatchDynamics
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.safe_set import paper_safe_set
+from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 
 @pytest.mark.parametrize("n", [2, 3])

@@ -1,4 +1,4 @@
-"""The one implementation of the PCC model's per-step terms (`controllers.pcc_model`), any N, against
+"""The one implementation of the PCC model's per-step terms (`controllers.model.pcc_model`), any N, against
 independent checks: finite differences, the energy balance, M symmetric positive definite, and a
 batch row equal to the same state alone, bit for bit."""
 
@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controllers import pcc
-from controllers.dynamics import PCCDynamics
-from controllers.params import reference_robot, uniform_robot
-from controllers.pcc_model import ModelLayout, accelerations, model_terms, parameter_rows
-from controllers.safe_set import paper_safe_set
-from controllers.state_predictor import StatePredictor
+from controllers.model import pcc
+from controllers.model.dynamics import PCCDynamics
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.pcc_model import ModelLayout, accelerations, model_terms, parameter_rows
+from controllers.model.safe_set import paper_safe_set
+from controllers.model.state_predictor import StatePredictor
 from derivative_cases import SEGMENT_COUNTS, configurations, lengths
 
 

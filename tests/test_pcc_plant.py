@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from controllers.params import reference_robot
-from controllers.pcc import segment_ends
-from controllers.safe_set import paper_safe_set
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.params import reference_robot
+from controllers.model.pcc import segment_ends
+from controllers.model.safe_set import paper_safe_set
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 ROBOT = reference_robot()
 SAFE = paper_safe_set()

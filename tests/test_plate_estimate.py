@@ -1,4 +1,4 @@
-"""The plate learned online (controllers.energy_governor.plate_estimate) against brute force on the PCC model.
+"""The plate learned online (controllers.governors.energy_governor.plate_estimate) against brute force on the PCC model.
 
 Each equilibrium is solved directly on the PCC model whose plate pushes back (c K q = g Λ p − J_rᵀn̂ F, F = s k₀
 max(0, n̂·r − d − o)) for a true arm (g, c) and plate (s, o) drawn from the standard box (its corners and uniform
@@ -15,15 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.energy_governor import ContactEnergyGovernor
-from controllers.energy_governor.certificate import arm_corners
-from controllers.energy_governor.parameters import STANDARD_BOX_SETTING
-from controllers.energy_governor.plate_estimate import (PlateEstimate, add_sample, certified_box, clip, contact_force,
+from controllers.governors.energy_governor import ContactEnergyGovernor
+from controllers.governors.energy_governor.certificate import arm_corners
+from controllers.governors.energy_governor.parameters import STANDARD_BOX_SETTING
+from controllers.governors.energy_governor.plate_estimate import (PlateEstimate, add_sample, certified_box, clip, contact_force,
                                                         depth_margin, prior_estimate)
-from controllers.params import reference_robot
-from controllers.pcc import tip_jacobian, tip_position
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext
+from controllers.model.params import reference_robot
+from controllers.model.pcc import tip_jacobian, tip_position
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_certificate_box import true_plant  # noqa: E402
@@ -172,7 +172,7 @@ def test_the_least_credit_bounds_the_credit_over_the_polygon_from_below_and_clos
     """`least_credit` against brute force: the own facet's credit s (E(b − o) − E(max(0, δ − o))) on a dense grid of
     plates inside learned polygons (a pressing sample's strip, cut from the prior box) is never below the bound, and
     the grid's least value is within 5 % of it, for tips inside P."""
-    from controllers.energy_governor.plate_estimate import credit_pieces, least_credit
+    from controllers.governors.energy_governor.plate_estimate import credit_pieces, least_credit
 
     corners = arm_corners(BOX["g"], BOX["c"], (0.995, 1.005))
     rng = np.random.default_rng(11)

@@ -1,4 +1,4 @@
-"""The plate learned online on the MuJoCo plant (controllers.energy_governor.plate_estimate): a short closed loop.
+"""The plate learned online on the MuJoCo plant (controllers.governors.energy_governor.plate_estimate): a short closed loop.
 
 c-erg over the standard box with `plate_estimate` on mujoco_contact (1 kHz, exact rod state, Δ = 1e-4 rad: the rod's
 measured deviation from the PCC balance at rest against the plate is ≈ 3e-6 rad), the 150 hPa push for 4 s at the
@@ -15,7 +15,7 @@ import pytest
 @pytest.mark.slow
 def test_a_mujoco_push_at_the_box_corner_learns_the_plate_and_holds(tmp_path):
     from scenarios import get
-    from softcbf_mj.runio import load_timeseries
+    from softcbf_mj.outputs.runio import load_timeseries
 
     get("mujoco_contact").run(tmp_path, duration=4.0, filter="c-erg:standard-box",
                               filter_params={"plate_estimate": True, "gain_noise_rad": 1e-4},

@@ -3,7 +3,7 @@ produces: the bench's two figures (every case of the battery; the recommended fi
 the baselines and a parameterised paper-cbf), a study's distributions and sensitivities (tunings named by the
 recommended filter's full label), a falsification's best-so-far curve. Each is rendered with warnings as errors (a
 constrained-layout warning fails) and checked: every legend inside the figure and off every axes, its labels at
-most softcbf_mj.palette.LABEL_LIMIT characters (plus a fixed suffix), every tick label clear of its neighbours,
+most softcbf_mj.outputs.palette.LABEL_LIMIT characters (plus a fixed suffix), every tick label clear of its neighbours,
 every axis that shows a quantity labelled with words and a unit in brackets. The run plots: test_report_figures.py,
 with the same checks (`check_figure`)."""
 
@@ -22,8 +22,8 @@ import softcbf.study.report as study_report
 from controllers.registry import label as run_label
 from softcbf.bench import CASES, RECOMMENDED_FILTER, case_filter_params
 from softcbf.bench.plots import PLOTTED, write_force_plot, write_plot
-from controllers.energy_governor.parameters import STANDARD_BOX_SETTING
-from softcbf_mj.palette import LABEL_LIMIT
+from controllers.governors.energy_governor.parameters import STANDARD_BOX_SETTING
+from softcbf_mj.outputs.palette import LABEL_LIMIT
 
 CASE = {c.name: c for c in CASES}
 UNIT = re.compile(r"\[[^\]]+\]$")  # "quantity [unit]"

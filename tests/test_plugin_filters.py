@@ -13,15 +13,15 @@ import pytest
 
 from closedloop.monitor import SafeAction, SafetyFlags, SafetyMonitor
 from closedloop.step import ControlStep
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter, paper_cbf
-from controllers.params import reference_robot
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter, paper_cbf
+from controllers.model.params import reference_robot
 from controllers.registry import FILTERS, NOMINALS, build_filter, build_nominal, label, parameters, parse_params
-from controllers.safe_set import paper_safe_set
-from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
-from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.diagnostics import DiagnosticLayout, FlatDiagnostics
+from controllers.contract.safety_filter import Estimate, FilterContext, FilterOutput
 from softcbf.cli import list_text, main
-from softcbf_mj.runio import load_timeseries, read_run_folder
+from softcbf_mj.outputs.runio import load_timeseries, read_run_folder
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE_FILTER = REPO / "examples" / "clip_filter.py"
@@ -303,7 +303,7 @@ def test_example_filter_runs_in_a_study(tmp_path):
 def test_example_filter_runs_on_the_hardware_emulator(tmp_path):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware
-    from softcbf_mj.emulate import EmulatedHardware
+    from softcbf_mj.emulator.emulate import EmulatedHardware
 
     config = HardwareConfig.load(REPO / "examples" / "hardware_emulated.toml").with_overrides(
         {"filter": f"{EXAMPLE_FILTER}:ClipFilter", "filter_params": {"limit_hPa": 40.0}, "duration": 2.0})

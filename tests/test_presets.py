@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from controllers.energy_governor import RECOMMENDED
+from controllers.governors.energy_governor import RECOMMENDED
 from controllers.registry import FILTERS, PRESETS, label, typed_params
 from hardware.config import HardwareConfig
 from scenarios import registry

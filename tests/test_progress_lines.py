@@ -1,4 +1,4 @@
-"""Every long command talks: each prints a progress line (softcbf_mj.progress) within FIRST_LINE_S of its start,
+"""Every long command talks: each prints a progress line (softcbf_mj.outputs.progress) within FIRST_LINE_S of its start,
 run as a user runs it (a subprocess, short durations); bench's Ctrl-C says to continue with --resume; falsify's
 figures are rounded; the progress helper's own rules (a log line from the first second, ETA, rounding).
 
@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import softcbf_mj.progress as progress_module
-from softcbf_mj.progress import Progress, duration_text, significant
+import softcbf_mj.outputs.progress as progress_module
+from softcbf_mj.outputs.progress import Progress, duration_text, significant
 
 # Wall-clock deadlines: one at a time with the other real-time tests, on one pytest-xdist worker (the suite's addopts).
 pytestmark = pytest.mark.xdist_group("realtime")
@@ -127,11 +127,11 @@ def test_a_batched_loop_reports_the_fraction_of_its_run_after_every_step():
     """The study driver's per-sample progress rests on it (softcbf.study.execute: a batch of B at fraction f
     counts f·B samples)."""
     from controllers.nominal import SinusoidNominal
-    from controllers.params import reference_robot
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import FilterContext
-    from softcbf_mj.batch_loop import run_batch_closed_loop
-    from softcbf_mj.pcc_batch_plant import PCCBatchPlant
+    from controllers.model.params import reference_robot
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import FilterContext
+    from softcbf_mj.loops.batch_loop import run_batch_closed_loop
+    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
 
     robot, safe_set = reference_robot(), paper_safe_set()
     plant = PCCBatchPlant(robot, safe_set, 2)

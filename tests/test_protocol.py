@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from controllers.errors import NonFiniteCommandError
+from controllers.core.errors import NonFiniteCommandError
 from hardware.protocol import (
     COUNTS_PER_HPA,
     MAX_SEGMENTS,

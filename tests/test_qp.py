@@ -9,7 +9,7 @@ g_k (general rows scaled here, box rows ±e_j) and slacks s_k = c_k − g_k·u (
 - dual feasibility:    λ ≥ 0 (by construction of nnls),
 - complementarity:     max_k λ_k s_k ≤ tol_c.
 For this strictly convex problem these conditions certify the unique minimiser. Tolerances
-are relative to s = 1 + max|u_nom, lb, ub| (hPa, as in controllers.qp), per backend class:
+are relative to s = 1 + max|u_nom, lb, ub| (hPa, as in controllers.cbf.qp), per backend class:
 exact active-set solvers (native, daqp, quadprog): tol_p = tol_a = tol_s = tol_c = 1e-9 s;
 interior-point/ADMM/proximal solvers (osqp, proxqp, piqp):            1e-6 s.
 """
@@ -22,7 +22,7 @@ from scipy.optimize import nnls
 
 import math
 
-from controllers.qp import available_backends, solve_lists, solve_qp, tolerances
+from controllers.cbf.qp import available_backends, solve_lists, solve_qp, tolerances
 
 BACKENDS = available_backends()
 EXACT = {"native", "daqp", "qpsolvers:daqp", "qpsolvers:quadprog"}
@@ -274,7 +274,7 @@ def test_backends_found_without_importing_qpsolvers_are_those_qpsolvers_finds():
     import subprocess
     import sys
 
-    code = ("import sys; from controllers.qp import available_backends; names = available_backends(); "
+    code = ("import sys; from controllers.cbf.qp import available_backends; names = available_backends(); "
             "print('qpsolvers' in sys.modules); import qpsolvers; "
             "print(sorted(names) == sorted(['native', 'daqp', *('qpsolvers:' + s for s in qpsolvers.available_solvers "
             "if s in ('daqp', 'quadprog', 'osqp', 'proxqp', 'piqp'))]))")

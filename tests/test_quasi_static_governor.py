@@ -1,4 +1,4 @@
-"""Quasi-static governor (controllers.quasi_static_governor): rest-shape rows at its solution,
+"""Quasi-static governor (controllers.governors.quasi_static_governor): rest-shape rows at its solution,
 optimality against a grid search, box and rate limit, reset, bad parameters, and its known
 transient weakness (docs/beyond-the-paper.md#filters-beyond-the-paper: the step rest → (150, 150) hPa with an ideal valve)."""
 
@@ -13,12 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controllers.errors import NonFiniteCommandError
-from controllers.params import reference_robot, uniform_robot
-from controllers.pcc import tip_positions
-from controllers.quasi_static_governor import NOMINAL_TOL_M, RESIDUAL_TOL_M, QuasiStaticGovernor
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import Estimate, EstimateBatch, FilterContext
+from controllers.core.errors import NonFiniteCommandError
+from controllers.model.params import reference_robot, uniform_robot
+from controllers.model.pcc import tip_positions
+from controllers.governors.quasi_static_governor import NOMINAL_TOL_M, RESIDUAL_TOL_M, QuasiStaticGovernor
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import Estimate, EstimateBatch, FilterContext
 
 sys.path.insert(0, str(Path(__file__).parent))
 from governor_loop import context, run_loop  # noqa: E402
@@ -298,11 +298,11 @@ def test_a_batched_pcc_loop_with_one_shared_governor_equals_its_serial_loops():
     figures of each simulation are, bit for bit, those of the serial loop with a governor of its own."""
     from closedloop.step import ControlStep
     from controllers.nominal import SinusoidNominal
-    from softcbf_mj.batch_loop import run_batch_closed_loop
-    from softcbf_mj.loop import run_closed_loop
-    from softcbf_mj.metrics import run_figures
-    from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-    from softcbf_mj.pcc_plant import PCCPlant
+    from softcbf_mj.loops.batch_loop import run_batch_closed_loop
+    from softcbf_mj.loops.loop import run_closed_loop
+    from softcbf_mj.outputs.metrics import run_figures
+    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
+    from softcbf_mj.physics.pcc_plant import PCCPlant
 
     nominal = SinusoidNominal((80.0, 80.0), 1.0, (np.pi / 2, np.pi / 2))
     q0 = np.random.default_rng(5).normal(0.3, 0.1, (4, 2))

@@ -1,4 +1,4 @@
-"""rerun recordings (softcbf_mj.recording), read back with rerun's own reader (docs/run-outputs.md):
+"""rerun recordings (softcbf_mj.outputs.recording), read back with rerun's own reader (docs/run-outputs.md):
 entities, time steps, values, the camera-frame hook, the viewer switch."""
 
 import collections
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from softcbf_mj import recording
-from softcbf_mj.recording import GEOMETRY_HZ, RECORDING_FILE, live_viewer, write_recording
-from softcbf_mj.runio import frames_folder, load_timeseries, save_frames_index
+from softcbf_mj.outputs import recording
+from softcbf_mj.outputs.recording import GEOMETRY_HZ, RECORDING_FILE, live_viewer, write_recording
+from softcbf_mj.outputs.runio import frames_folder, load_timeseries, save_frames_index
 
 STEPS = 500  # 0.5 s at 1 kHz
 SERIES = ("u", "u_nom", "rho", "force", "flags", "plate_displacement")
@@ -183,7 +183,7 @@ def test_series_are_legible_on_the_dark_theme_and_switching_is_not_averaged(run_
         assert static[f"/runs/{label}/flags"]["SeriesLines:aggregation_policy"] == [policy.MinMax.value]
         assert static[f"/runs/{label}/flags"]["SeriesLines:interpolation_mode"] == [rr.components.InterpolationMode.StepAfter.value]
         assert static[f"/runs/{label}/u"]["SeriesLines:aggregation_policy"] == [policy.MinMax.value]
-    from softcbf_mj.palette import run_color
+    from softcbf_mj.outputs.palette import run_color
     force_colors = static["/runs/None/force"]["SeriesLines:colors"]
     assert force_colors[0] >> 8 == int(run_color("None", 0)[1:], 16)  # the run's palette colour, as in the plots
     legend = static[recording.LEGEND_ENTITY]["TextDocument:text"][0]

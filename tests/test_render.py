@@ -15,9 +15,9 @@ import pytest
 
 from perception.detect import TagDetector
 from perception.plane import TagBoard, calibrate, tag_pose_on_plane
-from softcbf_mj import gl_backend
-from softcbf_mj import mjcf as mb
-from softcbf_mj import render as rd
+from softcbf_mj.camera import gl_backend
+from softcbf_mj.physics import mjcf as mb
+from softcbf_mj.camera import render as rd
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL_DIR = REPO / "models" / "softcbf_arm"
@@ -184,7 +184,8 @@ def _run(script: str, hide_gl_libraries: bool = True, **env: str) -> str:
 
 
 _RENDER = """
-from softcbf_mj import mjcf, render
+from softcbf_mj.physics import mjcf
+from softcbf_mj.camera import render
 import mujoco
 try:
     with render.OffscreenRenderer(mjcf.build_model(), width=64, height=36) as renderer:

@@ -1,4 +1,4 @@
-"""Reports (softcbf_mj.report): plots of the expected size that are not blank, the Markdown
+"""Reports (softcbf_mj.outputs.report): plots of the expected size that are not blank, the Markdown
 table, and the drawing helpers the recording shares (boundaries, arcs, predicted force)."""
 
 import json
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from controllers.pcc import segment_ends
-from controllers.safe_set import LinearStiffness
-from softcbf_mj.report import (
+from controllers.model.pcc import segment_ends
+from controllers.model.safe_set import LinearStiffness
+from softcbf_mj.outputs.report import (
     ARC_CHORDS,
     DPI,
     FIGURE_SIZES_IN,
@@ -22,7 +22,7 @@ from softcbf_mj.report import (
     write_report,
     zoom_window,
 )
-from softcbf_mj.runio import RunFolderError, read_run_folder
+from softcbf_mj.outputs.runio import RunFolderError, read_run_folder
 
 
 

@@ -1,7 +1,7 @@
 """Every plot kind of a run's report is fit for a paper with the longest run labels the project writes (the
 recommended filter's: every parameter in its label; five paper-cbf presets at once): rendered with warnings as
 errors (a constrained-layout warning fails), every legend inside the figure and off every axes, every legend
-label at most softcbf_mj.palette.LABEL_LIMIT characters plus its suffix, every axes with a unit on its y label, no
+label at most softcbf_mj.outputs.palette.LABEL_LIMIT characters plus its suffix, every axes with a unit on its y label, no
 tick label over its neighbour. The other plot kinds (bench, study, falsification): tests/test_plot_kinds.py."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from itertools import combinations
 
 import pytest
 
-import softcbf_mj.report as report
-from controllers.energy_governor import RECOMMENDED
+import softcbf_mj.outputs.report as report
+from controllers.governors.energy_governor import RECOMMENDED
 from scenarios.api import Filter, MujocoContact, PaperSim, Run, run
-from softcbf_mj.palette import LABEL_LIMIT, plot_labels, short_label
-from softcbf_mj.runio import read_run_folder
+from softcbf_mj.outputs.palette import LABEL_LIMIT, plot_labels, short_label
+from softcbf_mj.outputs.runio import read_run_folder
 
 
 def folder_of(result, path):

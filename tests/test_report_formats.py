@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from softcbf.cli import main
-from softcbf_mj.report import FIGURE_SIZES_IN, PLOTS_DIR
+from softcbf_mj.outputs.report import FIGURE_SIZES_IN, PLOTS_DIR
 
 
 def test_rebuilding_as_svg_leaves_no_stale_png_and_keeps_other_files(run_dir):

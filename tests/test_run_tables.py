@@ -1,17 +1,17 @@
 """A scenario's printed table fits TERMINAL_COLUMNS characters a line, the full table is in the run folder
-(softcbf_mj.metrics.write_table), and the peak force's column is "F peak [N]" (F_max is the limit)."""
+(softcbf_mj.outputs.metrics.write_table), and the peak force's column is "F peak [N]" (F_max is the limit)."""
 
 from __future__ import annotations
 
 import pytest
 
-from controllers.energy_governor import RECOMMENDED
+from controllers.governors.energy_governor import RECOMMENDED
 from controllers.registry import label
 from scenarios.camera_loop import TABLE as CAMERA_TABLE
 from scenarios.mujoco_contact import TABLE as CONTACT_TABLE
 from scenarios.paper_sim import TABLE as PAPER_TABLE
-from softcbf_mj.metrics import TABLE_FILE, TERMINAL_COLUMNS, write_table
-from softcbf_mj.report import SUMMARY_COLUMNS
+from softcbf_mj.outputs.metrics import TABLE_FILE, TERMINAL_COLUMNS, write_table
+from softcbf_mj.outputs.report import SUMMARY_COLUMNS
 
 LONGEST = label("c-erg", {k: str(v).lower() if isinstance(v, bool) else v for k, v in RECOMMENDED.items()})
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from softcbf_mj.runio import (
+from softcbf_mj.outputs.runio import (
     RUN_MARKER,
     OutputDirError,
     RunFolderError,
@@ -68,7 +68,7 @@ def test_a_locked_run_folder_is_refused_to_another_process_until_released(tmp_pa
     """L2: two runs into one folder used to both succeed and mix their files."""
     out = tmp_path / "run"
     prepare_out_dir(out)
-    other = [sys.executable, "-c", "import sys; from softcbf_mj.runio import prepare_out_dir, OutputDirError\n"
+    other = [sys.executable, "-c", "import sys; from softcbf_mj.outputs.runio import prepare_out_dir, OutputDirError\n"
              "try:\n    prepare_out_dir(sys.argv[1])\nexcept OutputDirError as e:\n    sys.exit(str(e))", str(out)]
     res = subprocess.run(other, capture_output=True, text=True, timeout=120)
     assert res.returncode == 1 and f"{out} is in use by another run (process {os.getpid()})" in res.stderr
@@ -81,7 +81,7 @@ def test_a_locked_run_folder_is_refused_to_another_process_until_released(tmp_pa
 def test_a_killed_run_leaves_no_stale_lock(tmp_path):
     """The lock is an flock: it dies with its process, whatever the marker file says."""
     out = tmp_path / "run"
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.runio import prepare_out_dir\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from softcbf_mj.outputs.runio import prepare_out_dir\n"
                                "prepare_out_dir(sys.argv[1]); print('locked', flush=True); time.sleep(600)", str(out)],
                               stdout=subprocess.PIPE, text=True)
     try:

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from controllers.safe_set import (
+from controllers.model.safe_set import (
     Environment,
     ForceSafeSet,
     LinearStiffness,

@@ -10,7 +10,7 @@ import pytest
 from scenarios import get, registry
 from scenarios.__main__ import main
 from scenarios.common import data_only
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 
 SPEC_RUN_FIELDS = {
     "tuning": str,

@@ -188,9 +188,9 @@ def test_physical_constant_modules_agree_with_the_vocabulary():
     """The physical-constant modules below the scenarios keep their documented constants; they
     must be the vocabulary's defaults (one value, two layers: follow-up to derive them)."""
     from perception.estimator import DEFAULT_MAX_HOLD_S
-    from softcbf_mj import mjcf
-    from softcbf_mj.camera_loop import CameraTiming
-    from softcbf_mj.flexure import FlexureParams
+    from softcbf_mj.physics import mjcf
+    from softcbf_mj.loops.camera_loop import CameraTiming
+    from softcbf_mj.physics.flexure import FlexureParams
 
     sheet = FlexureParams()
     for field in ("clamp_at", "free_end_at", "thickness", "width", "youngs_modulus", "links", "calibration_fraction"):

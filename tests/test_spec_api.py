@@ -16,7 +16,7 @@ from scenarios.config_file import load_run_config
 from scenarios.run import describe, scenario_parameters
 from scenarios.spec import UNSET, Camera, Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec, section
 from softcbf.cli import main as softcbf_main
-from softcbf_mj.runio import SummaryWriter
+from softcbf_mj.outputs.runio import SummaryWriter
 from vocabulary import settings as vocabulary
 from vocabulary.settings import Bound, Setting, SettingError, default, flat_form
 
@@ -80,7 +80,7 @@ def test_a_spec_runs_its_scenario_s_checks_when_built():
     contact = registry()["mujoco_contact"].spec
     with pytest.raises(ValueError, match="integer multiple of the physics step"):  # it must divide the 1 ms period
         contact.from_flat({"physics_dt": 3e-4})
-    with pytest.raises(ValueError, match="filter 'e-erg'"):  # the filter's own bounds (controllers.filter_parameters)
+    with pytest.raises(ValueError, match="filter 'e-erg'"):  # the filter's own bounds (controllers.contract.filter_parameters)
         contact(filter=Filter(name="e-erg", params="kappa=-1"))
     with pytest.raises(ValueError, match="table_friction"):
         contact(arm=TrueArm(gravity=9.81, table_friction=0.5))
@@ -138,7 +138,7 @@ WALL_TIME = ("filter_us", "solve_us")  # measured times (µs): they differ betwe
 
 def test_run_returns_the_outputs_in_memory_and_save_writes_softcbf_run_s_folder(tmp_path, capsys):
     from scenarios.api import PaperSim, run, save
-    from softcbf_mj.runio import load_timeseries
+    from softcbf_mj.outputs.runio import load_timeseries
 
     spec = PaperSim(run=Run(duration=0.3, progress=False), filter=Filter(tunings=("High",)),
                     nominal=Nominal(amplitude=150.0, frequency=0.25))

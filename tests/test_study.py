@@ -17,7 +17,7 @@ from pathlib import Path
 import pandas
 import pytest
 
-from softcbf_mj.runio import OutputDirError
+from softcbf_mj.outputs.runio import OutputDirError
 from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, load_study, run_study
 from softcbf.study.analysis import (Proportion, clopper_pearson_interval, clopper_pearson_upper, crossing, sensitivity,
                                     tuning_summary, wilson_interval)

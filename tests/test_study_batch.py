@@ -111,7 +111,7 @@ def test_progress_counts_samples_from_the_start_to_the_end(mismatch, tmp_path, c
 
 
 def test_a_three_segment_study_batches_and_equals_its_single_runs(tmp_path):
-    from controllers.params import uniform_robot
+    from controllers.model.params import uniform_robot
 
     robot = tmp_path / "three.json"
     uniform_robot(3).save(robot)

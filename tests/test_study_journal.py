@@ -20,7 +20,7 @@ from softcbf.study.cli import main
 from softcbf.study.falsify import falsify
 from softcbf.study.store import JOURNAL_FILE, SQLITE_FILE, cut_incomplete_line, optuna_storage, search_storage
 from softcbf.study.tune import load_tune, tune
-from softcbf_mj.runio import OutputDirError
+from softcbf_mj.outputs.runio import OutputDirError
 
 STUDY = Study("journal", "paper_sim", ("Low",), draws=1, seed=4, fixed={"duration": 0.2},
               vary=(Distribution("amplitude", "uniform", low=20.0, high=150.0),))

@@ -1,4 +1,4 @@
-"""Arm-table friction (softcbf_mj.table_friction): the force law, the COM velocities it reads, the
+"""Arm-table friction (softcbf_mj.physics.table_friction): the force law, the COM velocities it reads, the
 Coulomb deceleration of a sliding body, the dissipation, the arm held by friction, μ = 0 unchanged,
 and the refusals (gravity, explicit stability, the batched plant)."""
 
@@ -13,11 +13,11 @@ import pytest
 from scenarios import get
 from scenarios.common import data_only
 from scenarios.mujoco_contact import contact_batch_key
-from softcbf_mj import mjcf as mb
-from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
-from softcbf_mj.mujoco_plant import EXTRAS_UNITS, MujocoPlant
-from softcbf_mj.runio import load_timeseries
-from softcbf_mj.table_friction import (
+from softcbf_mj.physics import mjcf as mb
+from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant
+from softcbf_mj.physics.mujoco_plant import EXTRAS_UNITS, MujocoPlant
+from softcbf_mj.outputs.runio import load_timeseries
+from softcbf_mj.physics.table_friction import (
     SLIP_VELOCITY, TABLE_FRICTION_NUMERIC, TABLE_GRAVITY, TableFriction, check_table_friction, table_friction_of,
 )
 

@@ -1,4 +1,4 @@
-"""The ground truth's command delay (`command_delay`, softcbf_mj.plant): a FIFO of whole control periods between
+"""The ground truth's command delay (`command_delay`, softcbf_mj.physics.plant): a FIFO of whole control periods between
 the controller's command and the valves, on the MuJoCo and PCC plants, single and batched; the filter is told
 `assumed_command_delay`, never the true delay."""
 
@@ -43,8 +43,8 @@ def assert_delayed_by(delayed, plain, k: int, periods: int = 15) -> None:
 
 
 def test_the_mujoco_arm_answers_a_step_exactly_k_periods_late():
-    from softcbf_mj.mjcf import build_model
-    from softcbf_mj.mujoco_plant import MujocoPlant
+    from softcbf_mj.physics.mjcf import build_model
+    from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
     config = contact_setup(spec_of("mujoco_contact", ["--command-delay", "0.003", "--links-per-segment", "2"])).truth.config
     assert config.command_delay == 0.003
@@ -54,7 +54,7 @@ def test_the_mujoco_arm_answers_a_step_exactly_k_periods_late():
 
 
 def test_the_pcc_arm_answers_a_step_exactly_k_periods_late():
-    from softcbf_mj.pcc_plant import PCCPlant
+    from softcbf_mj.physics.pcc_plant import PCCPlant
 
     spec = spec_of("pcc_contact", ["--command-delay", "0.003"])
     setup = pcc_contact_setup(spec)
@@ -86,9 +86,9 @@ def test_samples_with_different_delays_are_kept_apart_by_the_batch_key(scenario)
 
 
 def test_a_batched_mujoco_row_is_the_same_delayed_arm_alone():
-    from softcbf_mj.mjcf import build_model
-    from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
-    from softcbf_mj.mujoco_plant import MujocoPlant
+    from softcbf_mj.physics.mjcf import build_model
+    from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant
+    from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
     config = contact_setup(spec_of("mujoco_contact", ["--command-delay", "0.002", "--links-per-segment", "2"])).truth.config
     configs = [config, dataclasses.replace(config, plate_stiffness=14.0)]

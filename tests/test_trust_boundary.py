@@ -23,20 +23,20 @@ from hypothesis import strategies as st
 
 from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, fault_log_name
-from controllers.errors import NonFiniteStateError
+from controllers.core.errors import NonFiniteStateError
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
+from controllers.model.params import reference_robot
 from controllers.registry import PluginLoadError, build_filter
-from controllers.safe_set import paper_safe_set
-from controllers.capabilities import Capabilities
-from controllers.safety_filter import BatchOutput, DIAGNOSTIC_FLOATS_MAX, Estimate, FilterContext, FilterOutput
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.capabilities import Capabilities
+from controllers.contract.safety_filter import BatchOutput, DIAGNOSTIC_FLOATS_MAX, Estimate, FilterContext, FilterOutput
 from scenarios.run import FILTER_FAULT, USAGE_ERROR, exit_code, run_scenario
-from softcbf_mj.batch_loop import run_batch_closed_loop
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.metrics import run_figures
-from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-from softcbf_mj.pcc_plant import PCCPlant
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.loops.batch_loop import run_batch_closed_loop
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.outputs.metrics import run_figures
+from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
+from softcbf_mj.physics.pcc_plant import PCCPlant
+from softcbf_mj.outputs.runio import load_timeseries
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT, SAFE = reference_robot(), paper_safe_set()
@@ -46,7 +46,7 @@ PUSH = SinusoidNominal((150.0, 150.0), 0.25, (math.pi / 2, math.pi / 2))  # the 
 
 HOSTILE = textwrap.dedent('''
     import numpy as np
-    from controllers.safety_filter import FilterOutput
+    from controllers.contract.safety_filter import FilterOutput
 
     class Widen:  # N1: widens the limits it was told, in place, and asks for 1e6 hPa
         def __init__(self, context):
@@ -504,7 +504,7 @@ def test_environment_ends_the_episode_on_a_filter_fault(hostile):
 def test_hardware_run_whose_filter_raises_at_cycle_20_keeps_19_cycles_and_the_vent(tmp_path, hostile):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware
-    from softcbf_mj.emulate import EmulatedHardware
+    from softcbf_mj.emulator.emulate import EmulatedHardware
 
     config = HardwareConfig.load(REPO / "examples" / "hardware_emulated.toml").with_overrides(
         {"filter": f"{hostile}:RaiseAt", "filter_params": {"at": 20}, "duration": 5.0})
@@ -526,7 +526,7 @@ def test_hardware_run_whose_filter_raises_at_cycle_20_keeps_19_cycles_and_the_ve
 def test_hardware_loop_skips_the_cycles_a_stall_missed(tmp_path, tmp_path_factory):
     from hardware.config import HardwareConfig
     from softcbf.hardware_cli import run_hardware
-    from softcbf_mj.emulate import EmulatedHardware
+    from softcbf_mj.emulator.emulate import EmulatedHardware
 
     stall = tmp_path_factory.mktemp("stall") / "stall.py"
     stall.write_text("import time\nclass Stall:\n    def __init__(self):\n        self.calls = 0\n"
@@ -574,7 +574,7 @@ def test_hardware_loop_error_keeps_the_cycles_before_it_and_vents(tmp_path, monk
     from hardware.config import HardwareConfig
     from hardware.link import ValveBoardLink
     from softcbf.hardware_cli import ERROR_LOG, run_hardware
-    from softcbf_mj.emulate import EmulatedHardware
+    from softcbf_mj.emulator.emulate import EmulatedHardware
 
     original, calls = ValveBoardLink.send_setpoints, []
 

@@ -24,7 +24,7 @@ from softcbf.cli import main
 from softcbf.study.definition import load_study
 from vocabulary.files import read_settings_file
 from vocabulary.settings import SETTINGS, Bound, SettingError, check_number, check_value
-from controllers.filter_parameters import Params
+from controllers.contract.filter_parameters import Params
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "hardware_emulated.toml"
@@ -219,12 +219,15 @@ def test_every_setting_is_declared_completely():
 
 
 def test_the_vocabulary_needs_only_the_standard_library():
-    """The vocabulary and the modules of the controllers it takes from (controllers.bounds, its ranges;
-    controllers.filter_parameters, a plug-in's parameters as a typed mapping; controllers.paper_experiment, the
-    paper's plate stiffness and force limit) import the standard library only (and the latter the former), and
-    importing it loads no third-party module."""
-    from_controllers = ("controllers.bounds", "controllers.filter_parameters", "controllers.paper_experiment")
-    for path in (*(ROOT / "vocabulary").glob("*.py"), *(ROOT / "controllers" / f"{m.split('.')[1]}.py" for m in from_controllers)):
+    """The vocabulary and the modules of the controllers it takes from (controllers.core.bounds, its ranges;
+    controllers.contract.filter_parameters, a plug-in's parameters as a typed mapping;
+    controllers.model.paper_experiment, the paper's plate stiffness and force limit; and their rooms' `__init__`)
+    import the standard library only (and the latter the former), and importing it loads no third-party module."""
+    from_controllers = ("controllers.core.bounds", "controllers.contract.filter_parameters",
+                        "controllers.model.paper_experiment")
+    modules = [ROOT.joinpath(*m.split(".")).with_suffix(".py") for m in from_controllers]
+    rooms = [ROOT.joinpath(*m.split(".")[:2], "__init__.py") for m in from_controllers]
+    for path in (*(ROOT / "vocabulary").glob("*.py"), *modules, *rooms):
         for line in path.read_text(encoding="utf-8").splitlines():
             if line.startswith(("import ", "from ")):
                 module = line.split()[1]

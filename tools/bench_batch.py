@@ -8,7 +8,7 @@ CBF with the paper's sinusoid started at its peak (so that short runs reach the 
   study's draw) and start q0 ~ N(0.2, 0.05) rad;
 - paper_sim-type: the PCC plant (ROS2, 1 ms), Low, no pressure limits, the controller's
   model = the plant's, start q0 ~ N(0.2, 0.05) rad.
-Serial: `softcbf_mj.loop.run_closed_loop` (one `MujocoPlant` / `PCCPlant` per sample, the
+Serial: `softcbf_mj.loops.loop.run_closed_loop` (one `MujocoPlant` / `PCCPlant` per sample, the
 `CBFFilter` called per step) over the first `--serial` samples. Batched:
 `run_batch_closed_loop` over the first B samples in one batch, for B in `--batches`
 (MuJoCo on 1 and 2 threads of `mujoco.batch`; PCC in numpy, one thread), then the same
@@ -48,21 +48,21 @@ import mujoco
 import numpy as np
 
 from closedloop.step import BatchControlStep, ControlStep
-from controllers.cbf import TUNINGS
-from controllers.filter import CBFFilter
+from controllers.cbf.barrier import TUNINGS
+from controllers.cbf.paper_filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.capabilities import Capabilities
-from controllers.safety_filter import BatchOutput, Estimate, FilterContext
-from softcbf_mj.batch_loop import replay_commands, run_batch_closed_loop
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.metrics import RunningFigures, rho_meas, run_figures
-from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, PAPER_PLATE_STIFFNESS, ArmModelConfig
-from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
-from softcbf_mj.mujoco_plant import MujocoPlant
-from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.capabilities import Capabilities
+from controllers.contract.safety_filter import BatchOutput, Estimate, FilterContext
+from softcbf_mj.loops.batch_loop import replay_commands, run_batch_closed_loop
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.outputs.metrics import RunningFigures, rho_meas, run_figures
+from softcbf_mj.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, PAPER_PLATE_STIFFNESS, ArmModelConfig
+from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
+from softcbf_mj.physics.pcc_plant import PCCPlant
 from timing import Timing, best_of, emit
 
 PEAK = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))

@@ -46,16 +46,16 @@ HERE = Path(__file__).resolve().parents[1]
 
 
 def _robot(n: int):
-    from controllers.params import reference_robot, uniform_robot
+    from controllers.model.params import reference_robot, uniform_robot
 
     return reference_robot() if n == 2 else uniform_robot(n)
 
 
 def draw_states(segments: list[int], batch: int) -> dict[str, np.ndarray]:
     """Per N: q, qd, u_nom (mixed) and the indices of the scalar filter's "qp" states (this tree)."""
-    from controllers.cbf import TUNINGS
-    from controllers.filter import CBFFilter
-    from controllers.safe_set import paper_safe_set
+    from controllers.cbf.barrier import TUNINGS
+    from controllers.cbf.paper_filter import CBFFilter
+    from controllers.model.safe_set import paper_safe_set
 
     safe_set, out, rng = paper_safe_set(), {}, np.random.default_rng(0)
     for n in segments:
@@ -83,10 +83,10 @@ def draw_states(segments: list[int], batch: int) -> dict[str, np.ndarray]:
 
 def cbf_worker(states: dict[str, np.ndarray], segments: list[int], repeats: int) -> dict:
     """paper-cbf figures of the tree on sys.path (public interfaces both trees have)."""
-    from controllers.cbf import TUNINGS
-    from controllers.filter import CBFFilter
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import EstimateBatch
+    from controllers.cbf.barrier import TUNINGS
+    from controllers.cbf.paper_filter import CBFFilter
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import EstimateBatch
 
     out = {}
     for n in segments:
@@ -107,11 +107,11 @@ def cbf_worker(states: dict[str, np.ndarray], segments: list[int], repeats: int)
 def forced_enumeration(states: dict[str, np.ndarray], segments: list[int], repeats: int) -> dict:
     """This tree: `cbf_qp_batch` on the "qp" set with the enumeration forced for every N (`max_candidates`),
     CPU µs per state, and the share of states it resolved without the scalar filter."""
-    from controllers.cbf import TUNINGS
-    from controllers.cbf_batch import candidate_table, cbf_qp_batch
-    from controllers.dynamics_batch import BatchDynamics
-    from controllers.filter import CBFFilter
-    from controllers.safe_set import paper_safe_set
+    from controllers.cbf.barrier import TUNINGS
+    from controllers.cbf.batch import candidate_table, cbf_qp_batch
+    from controllers.model.dynamics_batch import BatchDynamics
+    from controllers.cbf.paper_filter import CBFFilter
+    from controllers.model.safe_set import paper_safe_set
 
     out = {}
     for n in segments:
@@ -133,10 +133,10 @@ def forced_enumeration(states: dict[str, np.ndarray], segments: list[int], repea
 
 def qsg_figures(batch: int, periods: int, repeats: int) -> dict:
     """qsg: filter_batch against B governors of their own over one closed-loop-like sequence."""
-    from controllers.params import reference_robot
-    from controllers.quasi_static_governor import QuasiStaticGovernor
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import EstimateBatch, FilterContext
+    from controllers.model.params import reference_robot
+    from controllers.governors.quasi_static_governor import QuasiStaticGovernor
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import EstimateBatch, FilterContext
 
     ctx = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
     rng = np.random.default_rng(1)

@@ -25,7 +25,7 @@ import mujoco
 
 from scenarios import get
 from scenarios.common import data_only
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 from timing import emit
 
 

@@ -11,9 +11,9 @@ import argparse
 
 import numpy as np
 
-from controllers.cbf import barrier_terms, get_tuning
-from controllers.dynamics import PCCDynamics
-from controllers.params import uniform_robot
+from controllers.cbf.barrier import barrier_terms, get_tuning
+from controllers.model.dynamics import PCCDynamics
+from controllers.model.params import uniform_robot
 from timing import calls_us, emit
 
 

@@ -1,15 +1,15 @@
 """What a filter's diagnostics cost per control step: a plain dict against the recorder's flat layout, side by side.
 
 The plug-in contract asks a filter for its diagnostics as a plain mapping (str → float or a small array). The
-control step converts them once (`controllers.safety_filter.OutputCheck`: every value read once into plain floats,
+control step converts them once (`controllers.contract.safety_filter.OutputCheck`: every value read once into plain floats,
 kept flat in the check's own layout) and the recorder copies that flat row (`closedloop.record.Recorder`). A built-in
-filter may instead hand the check its values already flat (`controllers.diagnostics.FlatDiagnostics`, in a layout
+filter may instead hand the check its values already flat (`controllers.contract.diagnostics.FlatDiagnostics`, in a layout
 made once), which the check copies without unpacking: the internal fast path this benchmark measures.
 
 Per variant, CPU µs per control step of the paper's two-segment robot (limits on, 1 kHz), best of `--repeats` passes
 of `--steps` steps after a warm-up pass:
 - a filter that builds its diagnostics from the same Python floats every call, with the keys, shapes and units of
-  the paper CBF's (`controllers.filter.CBF_DIAGNOSTIC_UNITS`: b, B, constraint, active (P,), recovery, slack,
+  the paper CBF's (`controllers.cbf.paper_filter.CBF_DIAGNOSTIC_UNITS`: b, B, constraint, active (P,), recovery, slack,
   solve_us; P the force-safe set's rows): `dict_lists` (values as lists and floats), `dict_arrays` (numpy arrays, as
   a numpy user writes them) or `flat` (`FlatDiagnostics`);
 - then the control step (`closedloop.step.ControlStep`: the output check included) and the recorder's row
@@ -40,11 +40,11 @@ def step_us(variant: str, steps: int, repeats: int) -> float:
     """CPU µs per control step (filter call, `ControlStep`, `Recorder.record`) of `variant` (module docstring)."""
     from closedloop.record import Recorder
     from closedloop.step import ControlStep
-    from controllers.diagnostics import DiagnosticLayout, FlatDiagnostics
-    from controllers.filter import CBF_DIAGNOSTIC_UNITS
-    from controllers.params import reference_robot
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import Estimate, FilterContext, FilterOutput
+    from controllers.contract.diagnostics import DiagnosticLayout, FlatDiagnostics
+    from controllers.cbf.paper_filter import CBF_DIAGNOSTIC_UNITS
+    from controllers.model.params import reference_robot
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import Estimate, FilterContext, FilterOutput
 
     robot, safe_set = reference_robot(), paper_safe_set()
     context = FilterContext.for_robot(robot, safe_set, 1e-3)
@@ -87,10 +87,10 @@ def step_us(variant: str, steps: int, repeats: int) -> float:
 
 def cbf_call_us(calls: int, repeats: int) -> float:
     """CPU µs per call of the paper's CBF (tuning Low) alone, at a state inside the force-safe set."""
-    from controllers.params import reference_robot
+    from controllers.model.params import reference_robot
     from controllers.registry import build_filter
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import Estimate, FilterContext
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import Estimate, FilterContext
 
     context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
     cbf = build_filter("paper-cbf", {"tuning": "Low"}, context)

@@ -31,15 +31,15 @@ from collections import Counter
 import numpy as np
 
 from closedloop.step import ControlStep
-from controllers.safety_filter import FilterContext
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter
+from controllers.contract.safety_filter import FilterContext
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.qp import DEFAULT_BACKEND
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.cbf.qp import DEFAULT_BACKEND
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.physics.pcc_plant import PCCPlant
 from timing import CLOCKS_NS, clock_ns, emit, summary_us
 
 PAPER_QP_US = 310.0  # paper §VI: average QP solve time, MATLAB quadprog
@@ -57,7 +57,7 @@ def main() -> None:
     parser.add_argument("--tunings", default="Low,High")
     parser.add_argument("--clock", choices=list(CLOCKS_NS), default="cpu")
     parser.add_argument("--backends", default=DEFAULT_BACKEND,
-                        help="comma-separated QP backends (controllers.qp), timed round-robin with each other")
+                        help="comma-separated QP backends (controllers.cbf.qp), timed round-robin with each other")
     args = parser.parse_args()
     clock = clock_ns(args.clock)
     robot, safe_set = reference_robot(), paper_safe_set()

@@ -46,10 +46,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from governor_loop import PushingPlatePlant, context, run_loop  # noqa: E402
 
-from controllers.filter_metrics import governor_figures  # noqa: E402
-from controllers.params import reference_robot  # noqa: E402
-from controllers.safe_set import paper_safe_set  # noqa: E402
-from controllers.safety_filter import Estimate, EstimateBatch  # noqa: E402
+from controllers.contract.filter_metrics import governor_figures  # noqa: E402
+from controllers.model.params import reference_robot  # noqa: E402
+from controllers.model.safe_set import paper_safe_set  # noqa: E402
+from controllers.contract.safety_filter import Estimate, EstimateBatch  # noqa: E402
 from timing import emit  # noqa: E402
 
 FILTER_NAMES = ("qsg", "e-erg", "c-erg", "c-erg-recommended", "c-erg-recommended+delay", "c-erg-learn-plate",
@@ -65,7 +65,7 @@ def factory(name: str):
     with `energy_governor.RECOMMENDED` too; c-erg-learn-plate: the preset c-erg:learn-plate; "+delay": with the
     command delay interval DELAY_INTERVAL). LookupError for a filter or parameter the controllers lack (--against
     an older tree)."""
-    from controllers import energy_governor, quasi_static_governor
+    from controllers.governors import energy_governor, quasi_static_governor
 
     if name.endswith("+delay"):
         if "command_delay_lo_s" not in energy_governor.PARAMETERS:
@@ -73,7 +73,7 @@ def factory(name: str):
         cls, kwargs = factory(name[:-len("+delay")])
         return cls, {**kwargs, **DELAY_INTERVAL}
     if name == "c-erg-learn-plate":
-        from controllers.energy_governor import parameters
+        from controllers.governors.energy_governor import parameters
 
         if not hasattr(parameters, "LEARN_PLATE_SETTING"):
             raise LookupError(name)

@@ -32,10 +32,10 @@ def timed_calls(isolated: bool, filter_spec: str, filter_params: dict, control_d
     from closedloop.isolation import isolate
     from closedloop.step import ControlStep
     from controllers.registry import build_filter, build_nominal
-    from controllers.safety_filter import Estimate, FilterContext
+    from controllers.contract.safety_filter import Estimate, FilterContext
     from scenarios.common import build_safe_set
-    from controllers.params import reference_robot
-    from softcbf_mj.pcc_plant import PCCPlant
+    from controllers.model.params import reference_robot
+    from softcbf_mj.physics.pcc_plant import PCCPlant
 
     robot = reference_robot()
     safe_set = build_safe_set("paper", 11.16, 0.16, "paper")

@@ -1,4 +1,4 @@
-"""Cost of the live view (softcbf_mj.recording.LiveRun) to the simulated closed loop.
+"""Cost of the live view (softcbf_mj.outputs.recording.LiveRun) to the simulated closed loop.
 
 The paper's loop (PCC plant, sinusoid into the facet, CBF filter with the Low tuning, 1 kHz)
 runs `--duration` s, `--repeats` times each without a live stream and with one (a
@@ -24,16 +24,16 @@ import numpy as np
 import rerun as rr
 
 from closedloop.step import ControlStep
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from controllers.safety_filter import FilterContext
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from controllers.contract.safety_filter import FilterContext
 from scenarios.common import scene_record
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.pcc_plant import PCCPlant
-from softcbf_mj.recording import APP_ID, LIVE_PERIOD_S, live_run, live_stream
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.physics.pcc_plant import PCCPlant
+from softcbf_mj.outputs.recording import APP_ID, LIVE_PERIOD_S, live_run, live_stream
 from timing import emit
 
 PLATE_STIFFNESS = 11.16  # N/m, paper_sim's default

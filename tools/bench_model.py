@@ -1,4 +1,4 @@
-"""Speed of the PCC model's one implementation (`controllers.pcc_model`) against a baseline tree, side by side.
+"""Speed of the PCC model's one implementation (`controllers.model.pcc_model`) against a baseline tree, side by side.
 
 Each figure is measured in a fresh worker process per tree (`--against DIR`, e.g. a worktree of
 the earlier version, whose N = 2 paths were hand-unrolled Python and whose batch was numpy over N = 2), the
@@ -38,13 +38,13 @@ def worker(repeats: int) -> dict:
     """The figures of the tree on sys.path (only public interfaces both trees have)."""
     import numpy as np
 
-    from controllers.dynamics import PCCDynamics
-    from controllers.dynamics_batch import BatchDynamics
-    from controllers.params import reference_robot, uniform_robot
-    from controllers.safe_set import paper_safe_set
-    from controllers.state_predictor import StatePredictor
-    from softcbf_mj.pcc_batch_plant import PCCBatchPlant
-    from softcbf_mj.pcc_plant import PCCPlant
+    from controllers.model.dynamics import PCCDynamics
+    from controllers.model.dynamics_batch import BatchDynamics
+    from controllers.model.params import reference_robot, uniform_robot
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.model.state_predictor import StatePredictor
+    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant
+    from softcbf_mj.physics.pcc_plant import PCCPlant
 
     robot, safe = reference_robot(), paper_safe_set()
     rng = np.random.default_rng(0)
@@ -88,9 +88,9 @@ def worker(repeats: int) -> dict:
 
 def start_costs() -> dict:
     """First-call seconds of the kernels in a fresh process: cold (empty cache: compiling) and warm (cached)."""
-    code = ("import time, numpy as np; t = time.perf_counter(); from controllers.params import reference_robot; "
-            "from controllers.dynamics import PCCDynamics; from softcbf_mj.pcc_plant import PCCPlant; "
-            "from controllers.safe_set import paper_safe_set; p = PCCPlant(reference_robot(), paper_safe_set()); "
+    code = ("import time, numpy as np; t = time.perf_counter(); from controllers.model.params import reference_robot; "
+            "from controllers.model.dynamics import PCCDynamics; from softcbf_mj.physics.pcc_plant import PCCPlant; "
+            "from controllers.model.safe_set import paper_safe_set; p = PCCPlant(reference_robot(), paper_safe_set()); "
             "p.reset(np.zeros(2)); p.step(np.ones(2)); print(time.perf_counter() - t)")
     out = {}
     with tempfile.TemporaryDirectory() as cache:

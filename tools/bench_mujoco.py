@@ -8,7 +8,7 @@ and `contact` (u = (120, 120) hPa, the tip pressing the paper's plate). Each fig
 wall clock by other jobs on a shared machine; the wall-clock figures are recorded alongside) and
 reported as the median (and the best) of them.
 
-The constraint Jacobian is the model's own (`--jacobian model`: what `softcbf_mj.mjcf`
+The constraint Jacobian is the model's own (`--jacobian model`: what `softcbf_mj.physics.mjcf`
 writes, MuJoCo's `auto` — dense below nv = 60, sparse from there) unless `--jacobian` sets
 `dense`, `sparse` or `auto`; every row records the option and what MuJoCo used (`mj_isSparse`).
 
@@ -43,8 +43,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig, build_spec
-from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, ArmModelConfig, build_spec
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
 from timing import emit, timed
 
 LOADS = {"free": (-100.0, 100.0), "contact": (120.0, 120.0)}  # hPa

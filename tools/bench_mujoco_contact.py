@@ -40,9 +40,9 @@ import mujoco
 import numpy as np
 
 from scenarios.mujoco_contact import CONTROL_DT, mujoco_contact
-from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
-from softcbf_mj.mujoco_plant import MujocoPlant
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
+from softcbf_mj.outputs.runio import load_timeseries
 from timing import emit
 
 TARGET_RTF = 10.0

@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from controllers.qp import DEFAULT_BACKEND, available_backends, solve_qp
+from controllers.cbf.qp import DEFAULT_BACKEND, available_backends, solve_qp
 from timing import CLOCKS_NS, call_us, emit, summary_us
 
 U_MAX = 150.0

@@ -1,7 +1,7 @@
 """Speed of the offscreen camera: ms per rendered frame of the overhead camera vs resolution.
 
 The default scene (`mjcf.build_model()`, its offscreen buffer raised to the
-largest size asked for) is rendered by `softcbf_mj.render.OffscreenRenderer` with the
+largest size asked for) is rendered by `softcbf_mj.camera.render.OffscreenRenderer` with the
 backend MUJOCO_GL selects (osmesa on a CPU-only machine, egl with MUJOCO_GL=egl on a
 GPU). Each frame shows the arm in a new pose (both segments sweeping ±60°), so the scene
 is rebuilt every frame as in a simulation. After `--warmup` frames, `--frames` frames are
@@ -25,8 +25,8 @@ import mujoco
 import numpy as np
 
 from perception.detect import TagDetector
-from softcbf_mj import mjcf as mb
-from softcbf_mj.render import OffscreenRenderer, requested_gl_backend
+from softcbf_mj.physics import mjcf as mb
+from softcbf_mj.camera.render import OffscreenRenderer, requested_gl_backend
 from timing import emit
 
 

@@ -64,9 +64,9 @@ def control_step_us(calls: int = STEP_CALLS) -> dict[str, float]:
     import numpy as np
     from closedloop.step import BatchControlStep, ControlStep
     from controllers.nominal import SinusoidNominal
-    from controllers.params import reference_robot
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import Estimate, FilterContext
+    from controllers.model.params import reference_robot
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import Estimate, FilterContext
 
     context = FilterContext.for_robot(reference_robot(), paper_safe_set(), 1e-3)
     nominal = SinusoidNominal((80.0, 80.0), 0.01, (math.pi / 2, math.pi / 2))
@@ -104,9 +104,9 @@ def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[st
     from scenarios import get
     from scenarios.common import data_only
     from scenarios.mujoco_contact import CONTROL_DT
-    from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
-    from softcbf_mj.mujoco_plant import MujocoPlant
-    from softcbf_mj.runio import load_timeseries
+    from softcbf_mj.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
+    from softcbf_mj.physics.mujoco_plant import MujocoPlant
+    from softcbf_mj.outputs.runio import load_timeseries
 
     def timed(replay) -> tuple[float, float]:  # (CPU s, wall s) of one whole replay
         start = time.process_time()

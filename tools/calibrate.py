@@ -1,6 +1,6 @@
 """Calibrate the PCC model's K, D, Λ (docs/model.md#rppr-dynamics) and write a robot JSON the controller loads.
 
-Two sources of data (maths and conventions in `softcbf_mj/calibration.py`):
+Two sources of data (maths and conventions in `softcbf_mj/physics/calibration.py`):
 - MuJoCo (default): motor babbling (seeded random pressure steps plus chirps within the
   pressure limits) of the ground-truth arm built WITHOUT plates (no contact), recorded
   at the control rate: q, q̇ from the rod's tendons, u = the pressure acting (after the
@@ -30,9 +30,9 @@ import time
 from pathlib import Path
 
 from scenarios.common import load_robot
-from softcbf_mj import calibration as cal
-from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
-from softcbf_mj.runio import write_json
+from softcbf_mj.physics import calibration as cal
+from softcbf_mj.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT, DEFAULT_TAU_P
+from softcbf_mj.outputs.runio import write_json
 
 
 def main(argv: list[str] | None = None) -> dict:

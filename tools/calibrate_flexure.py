@@ -2,7 +2,7 @@
 
 The paper hung masses on its ABS sheet's tip and read how far the tip moved; here a constant
 force of `--load` N along the gauge axis rests on the MuJoCo sheet at its calibration point
-(`softcbf_mj.flexure_calibration.calibrate_flexure`; the sheet of `mujoco_contact --plate flexure`
+(`softcbf_mj.physics.flexure_calibration.calibrate_flexure`; the sheet of `mujoco_contact --plate flexure`
 with the same `--sheet-*` values) and k = F / δ is the stiffness to give the controller
 (`--assumed-plate-stiffness`). Also printed: the gauge's reading at rest (= the load), the
 sheet's rotation there, Euler–Bernoulli's 3EI/s³ and the hinge chain's small-deflection
@@ -19,9 +19,9 @@ import argparse
 import dataclasses
 import json
 
-from softcbf_mj.flexure import FlexureParams
-from softcbf_mj.flexure_calibration import calibrate_flexure, fit_thickness
-from softcbf_mj.mjcf import ArmModelConfig
+from softcbf_mj.physics.flexure import FlexureParams
+from softcbf_mj.physics.flexure_calibration import calibrate_flexure, fit_thickness
+from softcbf_mj.physics.mjcf import ArmModelConfig
 
 SHEET_FIELDS = ("clamp_at", "free_end_at", "thickness", "width", "youngs_modulus", "links", "calibration_fraction")
 

@@ -1,4 +1,4 @@
-"""How far this tree's batched paper CBF (`controllers.cbf_batch.cbf_qp_batch`) moved from another tree's, and from the scalar filter.
+"""How far this tree's batched paper CBF (`controllers.cbf.batch.cbf_qp_batch`) moved from another tree's, and from the scalar filter.
 
 On `--states` random N = 2 states of the reference arm around the paper's facet (q ~ U(−0.3, 0.6)
 rad, q̇ ~ N(0, 1.5) rad/s, a tenth of them nearly at rest, u_nom ~ U(−250, 250) hPa: the states of
@@ -9,8 +9,8 @@ largest |Δu| (hPa). Then this tree with the filter's recovery rows (`RecoveryRo
 outside P against the filter's scalar QP (`CBFFilter.step(..., scalar=True)`): labels that differ and the largest
 |Δu|.
 
-Both trees run in this process: `--against DIR`'s controllers/cbf_batch.py (and its compiled kernel,
-controllers/cbf_kernels.py, where it has one) is loaded under another module name on top of this tree's
+Both trees run in this process: `--against DIR`'s controllers/cbf/batch.py (and its compiled kernel,
+controllers/cbf/kernels.py, where it has one) is loaded under another module name on top of this tree's
 other modules (the baseline must share this tree's `BatchDynamics`; true of the numpy version before the
 compiled kernel). Usage:
 `python tools/cbf_batch_agreement.py --against ../pin [--states 120000]`; ends with one line of JSON.
@@ -33,12 +33,12 @@ os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(tempfile.gettempdir()) / "cbf_
 
 import numpy as np  # noqa: E402
 
-from controllers.cbf import TUNINGS  # noqa: E402
-from controllers.cbf_batch import RecoveryRows, cbf_qp_batch  # noqa: E402
-from controllers.dynamics_batch import BatchDynamics  # noqa: E402
-from controllers.filter import CBFFilter  # noqa: E402
-from controllers.params import reference_robot  # noqa: E402
-from controllers.safe_set import paper_safe_set  # noqa: E402
+from controllers.cbf.barrier import TUNINGS  # noqa: E402
+from controllers.cbf.batch import RecoveryRows, cbf_qp_batch  # noqa: E402
+from controllers.model.dynamics_batch import BatchDynamics  # noqa: E402
+from controllers.cbf.paper_filter import CBFFilter  # noqa: E402
+from controllers.model.params import reference_robot  # noqa: E402
+from controllers.model.safe_set import paper_safe_set  # noqa: E402
 
 
 def load_module(name: str, path: Path):
@@ -53,7 +53,7 @@ def load_module(name: str, path: Path):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--against", type=Path, required=True, help="the other tree (its controllers/cbf_batch.py)")
+    parser.add_argument("--against", type=Path, required=True, help="the other tree (its controllers/cbf/batch.py)")
     parser.add_argument("--states", type=int, default=120_000)
     parser.add_argument("--seed", type=int, default=123)
     args = parser.parse_args()

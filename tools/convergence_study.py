@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
-from softcbf_mj.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
-from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.mjcf import DEFAULT_LINKS_PER_SEGMENT, DEFAULT_PHYSICS_DT
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
 CONTROL_DT = 1e-3  # s
 FINEST = (40, 1e-5)  # (n, dt s): the reference setting

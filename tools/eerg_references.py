@@ -99,10 +99,10 @@ def run_loop_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
     sys.path.insert(0, str(REPO / "tests"))
     from governor_loop import PushingPlatePlant, context, run_loop
 
-    from controllers.energy_governor import ContactEnergyGovernor, EnergyGovernor
-    from controllers.params import reference_robot
-    from controllers.quasi_static_governor import QuasiStaticGovernor
-    from controllers.safe_set import paper_safe_set
+    from controllers.governors.energy_governor import ContactEnergyGovernor, EnergyGovernor
+    from controllers.model.params import reference_robot
+    from controllers.governors.quasi_static_governor import QuasiStaticGovernor
+    from controllers.model.safe_set import paper_safe_set
 
     factory, kwargs, period, delay, age, tau, nominal, duration, seed, k_true = LOOP_CASES[name]
     robot, safe = reference_robot(), paper_safe_set()
@@ -119,10 +119,10 @@ def run_recovery_case() -> dict[str, np.ndarray]:
     sys.path.insert(0, str(REPO / "tests"))
     from governor_loop import context
 
-    from controllers.energy_governor import EnergyGovernor
-    from controllers.params import reference_robot
-    from controllers.safe_set import paper_safe_set
-    from controllers.safety_filter import Estimate
+    from controllers.governors.energy_governor import EnergyGovernor
+    from controllers.model.params import reference_robot
+    from controllers.model.safe_set import paper_safe_set
+    from controllers.contract.safety_filter import Estimate
 
     robot = reference_robot()
     gov = EnergyGovernor(context(robot, paper_safe_set(), 0.1, 0.02, 0.0))
@@ -138,7 +138,7 @@ def run_scenario_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
     force (the contact_force column, N)."""
     from scenarios import get
     from scenarios.common import data_only
-    from softcbf_mj.runio import load_timeseries
+    from softcbf_mj.outputs.runio import load_timeseries
 
     scenario, params = SCENARIO_CASES[name]
     params = {**params, "duration": params["duration"] * scale}

@@ -1,7 +1,7 @@
 """Convergence of the flexure plate (docs/beyond-the-paper.md#flexure-plate) in its links n and the physics step dt.
 
 Statics (dt does not matter at rest): for each n, the sheet's stiffness k(s) = F / δ under
-a load F along the gauge axis at s from the clamp (`softcbf_mj.flexure_calibration.load_sheet`),
+a load F along the gauge axis at s from the clamp (`softcbf_mj.physics.flexure_calibration.load_sheet`),
 against Euler–Bernoulli's 3 EI / s³ and the finest n, at a small load (0.01 N: linear) and
 at F_max (0.16 N, the paper's limit: ≈ 14 mm at the tip, large-deflection stiffening).
 
@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
-from softcbf_mj.flexure import FlexureParams
-from softcbf_mj.flexure_calibration import load_sheet
-from softcbf_mj.mjcf import ArmModelConfig, build_model
-from softcbf_mj.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.flexure import FlexureParams
+from softcbf_mj.physics.flexure_calibration import load_sheet
+from softcbf_mj.physics.mjcf import ArmModelConfig, build_model
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
 
 CONTROL_DT = 1e-3  # s
 FINEST = (80, 1e-5)  # (sheet links, dt s)

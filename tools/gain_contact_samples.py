@@ -1,4 +1,4 @@
-"""What c-erg's gain samples against the plate can tell, read from recorded runs (controllers.gain_estimate, "in contact").
+"""What c-erg's gain samples against the plate can tell, read from recorded runs (controllers.governors.gain_estimate, "in contact").
 
 For every run folder under the given folders (a `softcbf run` folder, or a `softcbf bench` / study folder that holds
 them), the rows of its time series where c-erg would take a rest sample against the plate:
@@ -20,7 +20,7 @@ recorded rows, not the governor's calls: the pressure is reconstructed and the e
 not recorded, hence the steadiness condition; figures close to, not identical with, the governor's own samples.
 
 --replay instead runs each run's configuration again (`softcbf run --config`, into a temporary folder) and reads
-the c-erg governor's own inputs at every call (`controllers.energy_governor.steps`'s `update_gain` wrapped: the estimate, its capture
+the c-erg governor's own inputs at every call (`controllers.governors.energy_governor.steps`'s `update_gain` wrapped: the estimate, its capture
 time, the predictor's pressure and command there): the rows are then exactly the calls at which c-erg would offer
 a rest sample against the plate (the same three conditions, the pressure settled to --settle-rad as c-erg's
 `gain_noise_rad` asks), while the arm is still settling too. It needs the run's filter to be c-erg with
@@ -43,9 +43,9 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.energy_governor import steps as governor_steps
-from controllers.gain_estimate import GainEstimator
-from controllers.pcc import tip_jacobian, tip_position
+from controllers.governors.energy_governor import steps as governor_steps
+from controllers.governors.gain_estimate import GainEstimator
+from controllers.model.pcc import tip_jacobian, tip_position
 from scenarios.common import load_environment, load_robot, scale_damping
 
 HOLD_S = 0.2

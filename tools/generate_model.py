@@ -1,6 +1,6 @@
 """Write the default MuJoCo model folder models/softcbf_arm/ (XML, calibration board, tag textures).
 
-The files come from `softcbf_mj.mjcf` with `ArmModelConfig()` defaults (the
+The files come from `softcbf_mj.physics.mjcf` with `ArmModelConfig()` defaults (the
 reference robot, the paper's plate, the chosen links per segment and physics step, 30 mm
 tags): `softcbf_arm.xml`, `scene.xml`, `scene_calibration.xml`, its board
 `scene_calibration_board.json` and the tag textures `assets/tag{id}.png` (36h11, from OpenCV's dictionary via
@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from softcbf_mj.mjcf import write_model_files
+from softcbf_mj.physics.mjcf import write_model_files
 
 DEFAULT_DIR = Path(__file__).resolve().parents[1] / "models" / "softcbf_arm"
 

@@ -36,9 +36,9 @@ import numpy as np  # noqa: E402
 from matplotlib.colors import ListedColormap  # noqa: E402
 
 from softcbf.study.store import StudyStore  # noqa: E402
-from softcbf_mj.palette import BLUE, VERMILLION, rgb  # noqa: E402
+from softcbf_mj.outputs.palette import BLUE, VERMILLION, rgb  # noqa: E402
 
-REFERENCE_TIME_CONSTANT_S = 0.07  # d/k of the reference arm (controllers.params)
+REFERENCE_TIME_CONSTANT_S = 0.07  # d/k of the reference arm (controllers.model.params)
 TUNINGS = ("None", "HW-Low", "HW-High")
 ORDERING = "Table II order"
 PAPER_TABLE_II = {"None": -0.780, "HW-Low": 0.594, "HW-High": 0.767}

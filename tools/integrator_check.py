@@ -16,14 +16,14 @@ import time
 import numpy as np
 
 from closedloop.step import ControlStep
-from controllers.safety_filter import FilterContext
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter
+from controllers.contract.safety_filter import FilterContext
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter
 from controllers.nominal import SinusoidNominal
-from controllers.params import reference_robot
-from controllers.safe_set import paper_safe_set
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.model.params import reference_robot
+from controllers.model.safe_set import paper_safe_set
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 REFERENCE = ("euler", 1e-5)
 DEFAULT_CASES = "rk4:1e-4,ros2:1e-3,ros2:5e-4,ros2:2.5e-4"

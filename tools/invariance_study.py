@@ -18,14 +18,14 @@ import json
 import numpy as np
 
 from closedloop.step import ControlStep
-from controllers.safety_filter import FilterContext
-from controllers.cbf import get_tuning
-from controllers.filter import CBFFilter
-from controllers.params import reference_robot
-from controllers.pcc import tip_position
-from controllers.safe_set import paper_safe_set
-from softcbf_mj.loop import run_closed_loop
-from softcbf_mj.pcc_plant import PCCPlant
+from controllers.contract.safety_filter import FilterContext
+from controllers.cbf.barrier import get_tuning
+from controllers.cbf.paper_filter import CBFFilter
+from controllers.model.params import reference_robot
+from controllers.model.pcc import tip_position
+from controllers.model.safe_set import paper_safe_set
+from softcbf_mj.loops.loop import run_closed_loop
+from softcbf_mj.physics.pcc_plant import PCCPlant
 
 
 def main() -> None:

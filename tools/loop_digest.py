@@ -27,7 +27,7 @@ from pathlib import Path
 
 from scenarios import get
 from scenarios.common import data_only
-from softcbf_mj.runio import load_timeseries
+from softcbf_mj.outputs.runio import load_timeseries
 
 WALL_TIME_COLUMNS = ("filter_us", "solve_us")  # measured times (µs): not reproducible
 

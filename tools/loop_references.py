@@ -50,7 +50,7 @@ def run_cases() -> tuple[dict[str, np.ndarray], dict[str, dict]]:
     """Every case: the stored arrays ("<case>/<tuning>/<column>") and each run's figures."""
     from scenarios import get
     from scenarios.common import data_only
-    from softcbf_mj.runio import load_timeseries
+    from softcbf_mj.outputs.runio import load_timeseries
 
     arrays: dict[str, np.ndarray] = {}
     figures: dict[str, dict] = {}

@@ -53,8 +53,8 @@ from softcbf.study.analysis import violated
 from softcbf.study.definition import load_study, parse_setting
 from softcbf.study.execute import exit_with_parent
 from softcbf.study.runner import run_sample
-from softcbf_mj.progress import Progress
-from softcbf_mj.runio import SUMMARY_FILE, load_timeseries
+from softcbf_mj.outputs.progress import Progress
+from softcbf_mj.outputs.runio import SUMMARY_FILE, load_timeseries
 
 STUDY_LABEL = "study"  # the study file's own setting
 DEFAULT_REFERENCE = "physics_dt=5e-5"

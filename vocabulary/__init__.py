@@ -6,7 +6,7 @@ values against it (`check_value`); `vocabulary.sections` makes frozen, checked s
 model, the ground truth's true arm and plate, the camera path); `vocabulary.files` reads a TOML or
 JSON settings file.
 
-The standard library and the controllers' bottom declarations only (`controllers.bounds`,
-`controllers.filter_parameters`, the paper's numbers of `controllers.paper_experiment`), imported by
+The standard library and the controllers' bottom declarations only (`controllers.core.bounds`,
+`controllers.contract.filter_parameters`, the paper's numbers of `controllers.model.paper_experiment`), imported by
 `hardware`, `softcbf_mj` and `scenarios` alike (tests/test_layers.py).
 """

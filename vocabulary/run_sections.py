@@ -9,7 +9,7 @@ hardware file's emulator (`hardware.config`) resolves to `default(setting, conte
 - `Run`: the run's length (s), seed, initial pose noise (rad) and progress line;
 - `Model`: the controller's model: its robot (damping × damping_scale), facets, force limit (N)
   and the row scaling of its force-safe set;
-- `TrueArm` and `Plate`: the ground truth (`softcbf_mj.ground_truth.build_truth`, its one
+- `TrueArm` and `Plate`: the ground truth (`softcbf_mj.physics.ground_truth.build_truth`, its one
   builder). Their fields are not listed here: they are every setting that declares the section
   (`Setting.section`, `vocabulary.settings.section_settings`), in declaration order, so that a
   new ground-truth setting is one entry of the vocabulary;
@@ -40,7 +40,7 @@ Model = section("Model", "The controller's model: its robot (damping × damping_
                          "and row scaling of the force-safe set.",
                 {"robot": "robot", "damping_scale": "damping_scale", "environment": "environment", "f_max": "f_max",
                  "row_scaling": "row_scaling"}, __name__)
-TrueArm = section("TrueArm", "The true arm of the ground truth (softcbf_mj.ground_truth): its robot and scale factors, "
+TrueArm = section("TrueArm", "The true arm of the ground truth (softcbf_mj.physics.ground_truth): its robot and scale factors, "
                              "the rod, the true plates' pose, gravity and friction.", section_settings("TrueArm"), __name__)
 Plate = section("Plate", "The true plate: ideal (a slide spring) or flexure (the clamped sheet of the sheet_* "
                          "settings).", section_settings("Plate"), __name__)

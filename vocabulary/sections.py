@@ -25,14 +25,14 @@ normalised (an int given for a float becomes one); a bad value raises `error` (d
   a sequence of names, `vocabulary.settings`), and refused elsewhere ("f_max must be a single
   value");
 - a plug-in's parameters (`filter_params`, `nominal_params`; `TABLE_PARAMETERS`) given as a
-  mapping name → value: held as a frozen mapping (`controllers.filter_parameters.Params`; the
+  mapping name → value: held as a frozen mapping (`controllers.contract.filter_parameters.Params`; the
   plug-in types and checks the names and values), the old "name=value;..." text read with a
   DeprecationWarning (`joined`).
 
 `section(name, doc, settings)` makes such a class from nothing but its fields (the scenarios'
 sections, `scenarios.spec`); the hardware file's sections (`hardware.config`) use the
 decorator form with their own fields and checks. This module is the one implementation of
-both: standard library, `vocabulary.settings` and `controllers.filter_parameters` only, so the hardware layer may import it
+both: standard library, `vocabulary.settings` and `controllers.contract.filter_parameters` only, so the hardware layer may import it
 (tests/test_layers.py).
 """
 
@@ -42,7 +42,7 @@ import dataclasses
 from collections.abc import Callable, Collection, Mapping
 from typing import Any
 
-from controllers.filter_parameters import read_params
+from controllers.contract.filter_parameters import read_params
 from vocabulary.settings import SettingError, check_value, default, setting
 
 SETTING = "setting"  # the dataclass field metadata key that names a field's setting
@@ -71,7 +71,7 @@ UNSET: Any = _Unset()
 
 def joined(name: str, value: Any) -> Any:
     """A `filter_params` / `nominal_params` value as the frozen mapping the scenarios take
-    (`controllers.filter_parameters.read_params`: a table as given, the old "name=value;..." text with a
+    (`controllers.contract.filter_parameters.read_params`: a table as given, the old "name=value;..." text with a
     DeprecationWarning; the plug-in types the values), any other value unchanged."""
     return read_params(value) if name in TABLE_PARAMETERS else value
 

@@ -29,16 +29,16 @@ scenario's context). Where a context needs another default (paper_sim runs witho
 pressure box at 1 kHz, camera_loop and the hardware emulator on a coarser rod, the
 environment without a filter), `DEFAULT_OVERRIDES` says so, the one table of such overrides; no other module types a
 setting's default (tests/test_setting_defaults.py). The physical-constant classes above
-(softcbf_mj.mjcf's `ArmModelConfig` and its constants, softcbf_mj.flexure's `FlexureParams`,
-softcbf_mj.camera_loop's `CameraTiming`) take their defaults from here; the paper's plate stiffness and
+(softcbf_mj.physics.mjcf's `ArmModelConfig` and its constants, softcbf_mj.physics.flexure's `FlexureParams`,
+softcbf_mj.loops.camera_loop's `CameraTiming`) take their defaults from here; the paper's plate stiffness and
 force limit, which the controller's `paper_safe_set` needs below this layer, are
-`controllers.paper_experiment`'s constants, imported here. No other product module types a declared default as a literal
+`controllers.model.paper_experiment`'s constants, imported here. No other product module types a declared default as a literal
 (tests/test_literal_defaults.py).
 
 Ground truth. A setting with a `section` ("TrueArm": the true arm, the rod, the plates' pose,
 gravity and friction; "Plate": the true plate) is a setting of the ground truth: it is the field
 `field` (default: its own name) of that section (`vocabulary.run_sections`), which
-`softcbf_mj.ground_truth.build_truth`, the one builder of the ground truth, takes. Every surface
+`softcbf_mj.physics.ground_truth.build_truth`, the one builder of the ground truth, takes. Every surface
 that builds a ground truth takes all of them by name (`ground_truth_settings()`): the MuJoCo
 scenarios' specs, the environment's keywords and the hardware file's emulator keys; so a new
 ground-truth setting is one entry here plus its use in `build_truth` (tests/test_one_surface.py).
@@ -49,7 +49,7 @@ raises `SettingError` (a ValueError) whose message names the setting, the bound 
 unit and the value: "f_max must be > 0 N, got -1.0". `check_number` is the same check for
 a number that is not a shared setting (a hardware-only key such as safety.watchdog_s).
 `Bound`, `SettingError`, `check_number` and the plausibility hints live in
-`controllers.bounds` (the built-in filters' parameters use them too, and the controller
+`controllers.core.bounds` (the built-in filters' parameters use them too, and the controller
 under test imports nothing of the testbed); they are imported here under the same names.
 A scenario may hold a setting to a narrower range of its own (`scenarios.register`'s
 bounds, e.g. camera_loop's image size <= its render's); it checks that after this one.
@@ -61,11 +61,11 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from controllers.bounds import (  # noqa: F401  (re-exported: the settings' range and check)
+from controllers.core.bounds import (  # noqa: F401  (re-exported: the settings' range and check)
     LIKELY_MISTAKES, Bound, SettingError, check_number, finite, non_negative, positive,
 )
-from controllers.filter_parameters import Params
-from controllers.paper_experiment import PAPER_F_MAX, PAPER_PLATE_STIFFNESS
+from controllers.contract.filter_parameters import Params
+from controllers.model.paper_experiment import PAPER_F_MAX, PAPER_PLATE_STIFFNESS
 
 
 @dataclass(frozen=True)
@@ -204,7 +204,7 @@ SETTINGS: dict[str, Setting] = {
     "tau_p": _part(_number("valve pressure time constant of the MuJoCo actuators (first order)", "s", non_negative("s"),
                            5.0, default=0.05), "TrueArm"),
     "command_delay": _part(_number("time from the controller's command to the valves' input: a FIFO of commands, a "
-                                   "whole number of the plant's control periods (softcbf_mj.plant; the filter is told "
+                                   "whole number of the plant's control periods (softcbf_mj.physics.plant; the filter is told "
                                    "assumed_command_delay)", "s", non_negative("s"), 5.0, default=0.0), "TrueArm"),
     "physics_dt": _part(_number("MuJoCo time step (divides the control or tick period)", "s", Bound(1e-6, unit="s"), 1e-3,
                                 default=1e-4), "TrueArm"),
@@ -261,7 +261,7 @@ DEFAULT_OVERRIDES: dict[str, dict[str, Any]] = {
     "mujoco_contact": {},
     "pcc_contact": {},  # mujoco_contact's errors on the PCC plant (scenarios.pcc_contact)
     # the paper's hardware experiment in MuJoCo: the hardware tunings; a coarser rod for a 2 ms tick
-    # (softcbf_mj.mjcf.CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
+    # (softcbf_mj.physics.mjcf.CAMERA_LINKS_PER_SEGMENT, CAMERA_PHYSICS_DT)
     "camera_loop": {"tunings": ("None", "HW-Low", "HW-High"), "links_per_segment": 5, "physics_dt": 2e-4},
     # the hardware file: the emulator's coarser rod (5 links at 0.2 ms run ≈ 9× real time), a smaller
     # virtual camera, and no calibration (None: required unless the camera is virtual)

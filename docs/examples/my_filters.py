@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from controllers.pcc import tip_position
-from controllers.safety_filter import FilterContext, FilterOutput
+from controllers.model.pcc import tip_position
+from controllers.contract.safety_filter import FilterContext, FilterOutput
 
 
 class ClipFilter:

@@ -39,7 +39,7 @@ from softcbf.bench.schema import (CALL_KEYS, RESULT_KEYS, ROW_SCHEMA, VERDICT_KE
                                   WORST_SCHEMA, check_bench_json)
 from softcbf.bench.tables import (FORCE_PLOT_FILE, PLOT_FILE, PRINT_WIDTH, WIDER_BOX, contact_markdown, contact_text, fault_text,
                                   table_markdown, worst_case_text, worst_found_markdown)
-from softcbf_mj.push_force import steady_force, steady_force_of_folder
+from softcbf_mj.outputs.push_force import steady_force, steady_force_of_folder
 
 __all__ = [
     "BOX_PUSH", "CONTACT_KEYS", "FLEXURE_ASKED_N", "PRINT_WIDTH", "PUSH_BOX_DRAWS", "PUSH_BOX_FILES",

@@ -27,7 +27,7 @@ stored with the cases (`PUSHES`: the nominal's parameters and the asked force). 
 delivered / min(asked, F_max).
 
 The 3-segment cases (`THREE_SEGMENT_CASES`). The arm is models/robots/three_segment.json
-(`controllers.params.uniform_robot(3)`: three reference segments, reach 0.366 m); at rest its tip lies 17 mm
+(`controllers.model.params.uniform_robot(3)`: three reference segments, reach 0.366 m); at rest its tip lies 17 mm
 inside the paper's facet 0.36 x + y ≤ 0.15 m, and the 40 hPa push bends it through the plate: unfiltered,
 ρ_meas −6.6 (paper_sim) and −3.2 (mujoco_contact), F max 1.22 and 0.67 N against F_max = 0.16 N, in contact
 from ≈ 0.1 s (1 s runs), so the short --quick runs test the filter in contact too. A filter that cannot be
@@ -76,9 +76,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controllers.filter_parameters import parse_text
+from controllers.contract.filter_parameters import parse_text
 from controllers.registry import PluginLoadError, build_filter, find_preset
-from controllers.safety_filter import FilterContext
+from controllers.contract.safety_filter import FilterContext
 from scenarios import get
 from scenarios.common import build_safe_set, load_robot
 from scenarios.run import FILTER_FAULT
@@ -87,8 +87,8 @@ from softcbf.bench.filters import FilterSpec
 from softcbf.study.definition import Distribution, Study
 from softcbf.study.execute import run_study
 from softcbf.study.store import faulted
-from softcbf_mj.push_force import steady_force_of_folder
-from softcbf_mj.runio import read_run_folder, safe_name
+from softcbf_mj.outputs.push_force import steady_force_of_folder
+from softcbf_mj.outputs.runio import read_run_folder, safe_name
 from vocabulary.project_files import project_file
 from vocabulary.sections import joined
 from vocabulary.settings import default

@@ -18,7 +18,7 @@ each a multiple of the model's value —
 | true_damping_scale | damping_lo_ratio                          | [lo, ∞) (any damping above it)                    |
 | tau_p              | actuator_tau_lo_s, actuator_tau_hi_s      | [lo, hi] (s; None: the model's lag alone)         |
 
-(the energy governors' declarations: c-erg and e-erg; c-erg's certificates, controllers.energy_governor). The
+(the energy governors' declarations: c-erg and e-erg; c-erg's certificates, controllers.governors.energy_governor). The
 parameters' values are the filter's as the search runs it: the spec's (a preset's, `c-erg:standard-box`, included)
 and the bench's per-case parameters converted by the registry (`typed_params`), the factory's signature defaults
 for the rest. A filter without such parameters, and every other coordinate, is certified at the model's value

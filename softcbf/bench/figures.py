@@ -2,7 +2,7 @@
 
 Per (filter, case): ρ_meas min, t_violation, F max from the scenario's summary row (the emulator: F max and
 t_violation from its 1 kHz ground truth, ρ_meas at the control cycles); u_dev_rms_hPa, blocked_s,
-switches_per_s, filter_us_median and filter_us_p99 from `controllers.filter_metrics.governor_figures` over the
+switches_per_s, filter_us_median and filter_us_p99 from `controllers.contract.filter_metrics.governor_figures` over the
 filter's call rows of the run's time series (u: the command sent).
 
 Nominal acceptance: the fraction of the filter's calls whose command u equals the nominal u_nom in every
@@ -44,11 +44,11 @@ from typing import Any
 
 import numpy as np
 
-from controllers.filter_metrics import governor_figures
+from controllers.contract.filter_metrics import governor_figures
 from softcbf.study.analysis import clean, clopper_pearson_upper, wilson_interval
 from softcbf.study.store import StudyStore, fault_of, faulted
-from softcbf_mj.push_force import steady_force_of_folder
-from softcbf_mj.runio import load_timeseries, read_run_folder
+from softcbf_mj.outputs.push_force import steady_force_of_folder
+from softcbf_mj.outputs.runio import load_timeseries, read_run_folder
 
 ACCEPT_TOL_HPA = 1e-3  # hPa: |u_i − u_nom,i| at most this in every segment is an accepted nominal (module docstring)
 CALL_SERIES = ("t", "u", "u_nom", "filter_us")

@@ -11,7 +11,7 @@ Default (`DEFAULT_FILTERS`): the recommended filter beside the baselines. The re
 the plant decides (softcbf.bench.cases: `case_filter_params`), never an interval of its own to the recommended one.
 
 A spec's label (`FilterSpec.label`) names it in bench.json, bench.md and the case folders; a long one (a filter
-given with many parameters) is shortened in the plots (`softcbf_mj.palette.plot_labels`).
+given with many parameters) is shortened in the plots (`softcbf_mj.outputs.palette.plot_labels`).
 """
 
 from __future__ import annotations

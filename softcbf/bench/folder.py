@@ -1,6 +1,6 @@
 """The bench folder on disk: DIR/bench.json, DIR/bench.md, DIR/plots/ and DIR/cases/, taken, resumed and written.
 
-The bench folder (`prepare_bench_dir`, as `softcbf run`'s run folders, softcbf_mj.runio). DIR is new or empty,
+The bench folder (`prepare_bench_dir`, as `softcbf run`'s run folders, softcbf_mj.outputs.runio). DIR is new or empty,
 or it is a bench folder (it holds bench.json) and `--resume` continues it or `--overwrite` replaces its
 contents; any other non-empty folder (a user's, a run folder) is refused, also with `--overwrite`, as is
 overwriting the working folder, one above it or home. DIR is locked while the bench runs (a second bench into
@@ -28,7 +28,7 @@ from typing import Any
 from softcbf.bench.cases import RunOptions, contact_under_error
 from softcbf.bench.schema import RESULT_KEYS, WORST_KEYS, check_bench_json
 from softcbf.bench.tables import FORCE_PLOT_FILE, PLOT_FILE, table_markdown
-from softcbf_mj.runio import RUN_MARKER, OutputDirError, prepare_out_dir, release_out_dir, remove_if_unused
+from softcbf_mj.outputs.runio import RUN_MARKER, OutputDirError, prepare_out_dir, release_out_dir, remove_if_unused
 
 BENCH_FILE, TABLE_FILE = "bench.json", "bench.md"
 
@@ -39,7 +39,7 @@ def is_bench_folder(path: str | Path) -> bool:
 
 
 def prepare_bench_dir(out: Path, options: RunOptions) -> Path:
-    """Take the bench folder `out` and lock it for this process (softcbf_mj.runio, as `softcbf run`'s run folders:
+    """Take the bench folder `out` and lock it for this process (softcbf_mj.outputs.runio, as `softcbf run`'s run folders:
     a second bench into it is refused while this one runs). A new or empty folder is made a bench folder; one that
     holds anything must be a bench folder (`is_bench_folder`) and is continued with `options.resume` (nothing
     deleted) or replaced with `options.overwrite` (its contents deleted, never the working folder, one above it

@@ -1,8 +1,8 @@
 """The bench's figures: DIR/plots/bench.png (`write_plot`) and DIR/plots/force_budget.png (`write_force_plot`).
 
-Both follow softcbf_mj.plot_style (text width 7.16 in, 8 pt text, the constrained layout, legends outside the
-axes) and name each filter by `softcbf_mj.palette.plot_labels` of its label (the recommended filter's label
-has about 140 characters; bench.md keeps the full ones), coloured by softcbf_mj.plot_style.distinct_colors.
+Both follow softcbf_mj.outputs.plot_style (text width 7.16 in, 8 pt text, the constrained layout, legends outside the
+axes) and name each filter by `softcbf_mj.outputs.palette.plot_labels` of its label (the recommended filter's label
+has about 140 characters; bench.md keeps the full ones), coloured by softcbf_mj.outputs.plot_style.distinct_colors.
 
 bench.png: one panel per figure of `PLOTTED`, side by side, each x axis with its quantity and unit (ρ is
 dimensionless, [1]); the cases along the shared y axis, one row each, top to bottom in the battery's order,
@@ -32,8 +32,8 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import NullLocator
 
 from softcbf.bench.cases import PUSH_PREFIX, PUSHES
-from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels
-from softcbf_mj.plot_style import GRID_ALPHA, TEXT_WIDTH_IN, distinct_colors, legend_outside, new_figure, save_figure, styled
+from softcbf_mj.outputs.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels
+from softcbf_mj.outputs.plot_style import GRID_ALPHA, TEXT_WIDTH_IN, distinct_colors, legend_outside, new_figure, save_figure, styled
 
 DPI = 200
 PLOTTED = (("rho_min_meas", "ρ_meas min [1]"), ("force_max_N", "F max [N]"), ("u_dev_rms_hPa", "|u − u_nom| RMS [hPa]"),

@@ -18,7 +18,7 @@ folder: DIR/cases/<filter label>/worst_found/ (a falsification folder). A study 
 draws) or a falsification whose folder exists continues with `--resume` where it stopped (the study machinery
 refuses a folder of another study definition); any other case runs again from scratch.
 
-Progress: a line on stderr (softcbf_mj.progress) counts the cases to run now ("case k of n", the worst-case
+Progress: a line on stderr (softcbf_mj.outputs.progress) counts the cases to run now ("case k of n", the worst-case
 searches included, kept rows not) with an ETA, refreshed while a case runs; each finished case's line on stdout
 ends with the same "case k of n, eta …"; a worst case's line says where the box is wider than the filter
 certifies (softcbf.bench.tables: `worst_case_text`).
@@ -42,9 +42,9 @@ from softcbf.bench.folder import BENCH_FILE, discard, prepare_bench_dir, stored_
 from softcbf.bench.schema import RESULT_KEYS, WORST_KEYS
 from softcbf.bench.tables import fault_text, worst_case_text
 from softcbf.study.store import FALSIFY_FILE
-from softcbf_mj.palette import plot_labels
-from softcbf_mj.progress import Progress, duration_text
-from softcbf_mj.runio import release_out_dir, safe_name
+from softcbf_mj.outputs.palette import plot_labels
+from softcbf_mj.outputs.progress import Progress, duration_text
+from softcbf_mj.outputs.runio import release_out_dir, safe_name
 
 WORST_DIR = "worst_found"  # a filter's falsification folder: DIR/cases/<filter label>/worst_found
 
@@ -129,7 +129,7 @@ def planned_cases(filters: Sequence[FilterSpec], selected: Sequence[str], skippe
 
 
 def shown_labels(filters: Sequence[FilterSpec]) -> dict[str, str]:
-    """{label: the label as progress lines and plots show it} (softcbf_mj.palette.plot_labels: short, distinct)."""
+    """{label: the label as progress lines and plots show it} (softcbf_mj.outputs.palette.plot_labels: short, distinct)."""
     labels = [s.label for s in filters]
     return dict(zip(labels, plot_labels(labels)))
 

@@ -37,7 +37,7 @@ from softcbf.study.definition import Study
 from softcbf.study.falsify import falsify
 from softcbf.study.screen import falsify_screened
 from softcbf.study.store import FALSIFY_FILE, stored_search
-from softcbf_mj.runio import write_json
+from softcbf_mj.outputs.runio import write_json
 
 CAMPAIGN_FILE = "campaign.json"
 SETTINGS = ("study", "seeds", "budget", "sampler", "population", "initial", "stop_on_violation", "screen", "confirm")

@@ -91,7 +91,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from controllers.filter_parameters import Params, read_params
+from controllers.contract.filter_parameters import Params, read_params
 from scenarios import get as get_scenario
 from vocabulary.files import read_settings_file
 from vocabulary.sections import joined

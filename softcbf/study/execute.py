@@ -33,7 +33,7 @@ second row), and updates the progress line (samples done, failed, faulted, ETA) 
 Progress per sample, not per task. A batch of B samples finishes all at once, after B
 samples' worth of simulated time (minutes), so counting finished tasks alone would leave
 the line at 0 for that long. A local batch reports the fraction of its simulated time done
-(`softcbf_mj.batch_loop.run_batch_closed_loop`'s callback) through a queue of a
+(`softcbf_mj.loops.batch_loop.run_batch_closed_loop`'s callback) through a queue of a
 `multiprocessing` manager (`start_manager`: it ignores Ctrl-C, which the driver handles, and
 exits with its driver as the workers do; started only when the progress is shown or reported) to the driver, at most every `BATCH_REPORT_S`; the driver counts
 a batch at fraction f as f·B samples done (the samples of a batch advance together), polls
@@ -89,7 +89,7 @@ from pathlib import Path
 from typing import Any, Callable, Hashable, Iterator
 
 from scenarios import get as get_scenario
-from softcbf_mj.progress import Progress
+from softcbf_mj.outputs.progress import Progress
 from softcbf.study.definition import Study
 from softcbf.study.runner import batch_key, failed_row, run_batch, run_sample
 from softcbf.study.store import StudyStore, faulted

@@ -122,8 +122,8 @@ from softcbf.study.execute import connect_scheduler, run_study
 from softcbf.study.runner import run_sample
 from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, StudyStore, fault_of, faulted, part_name, read_part, stored_search
 from softcbf.study.store import SQLITE_FILE, optuna_storage, storage_name
-from softcbf_mj.progress import Progress, significant
-from softcbf_mj.runio import OutputDirError, write_json
+from softcbf_mj.outputs.progress import Progress, significant
+from softcbf_mj.outputs.runio import OutputDirError, write_json
 
 SAMPLERS = ("cmaes", "tpe")
 SEARCH_DIR = "search"

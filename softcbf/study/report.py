@@ -42,8 +42,8 @@ the ARCH-COMP table: per filter and box, runs, falsified, rate, evaluations to t
 (median [min, max]) and the evaluations spent.
 
 `figure_format` ∈ png, svg, pdf; `dpi` sets the raster resolution. The figures follow
-softcbf_mj.plot_style (one journal column, 3.5 in wide, 8 pt text, legends below the axes, the
-constrained layout): a tuning is named by softcbf_mj.palette.plot_labels (a filter's label with
+softcbf_mj.outputs.plot_style (one journal column, 3.5 in wide, 8 pt text, legends below the axes, the
+constrained layout): a tuning is named by softcbf_mj.outputs.palette.plot_labels (a filter's label with
 every parameter runs to ~150 characters; report.md keys each shortened label to the full one)
 and takes its run colour (Okabe–Ito), as in run reports; every axis that shows a quantity names
 it in words with its unit (`PARAMETERS`: a varied parameter's words, unit and the factor from its
@@ -63,8 +63,8 @@ from softcbf.study.analysis import (Proportion, clean, crossing, sensitivity, tu
 from softcbf.study.falsify import BASELINE_DIR, SEARCH_DIR, WORST_DIR, minimised, objective_value
 from softcbf.study.campaign import CAMPAIGN_FILE
 from softcbf.study.store import FALSIFY_FILE, STUDY_FILE, StudyStore, fault_of, faulted
-from softcbf_mj.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels
-from softcbf_mj.plot_style import (COLUMN_WIDTH_IN, FIGURE_FORMATS, GRID_ALPHA, distinct_colors, legend_outside, new_figure,
+from softcbf_mj.outputs.palette import LIMIT_COLOR, NEUTRAL_COLOR, plot_labels
+from softcbf_mj.outputs.plot_style import (COLUMN_WIDTH_IN, FIGURE_FORMATS, GRID_ALPHA, distinct_colors, legend_outside, new_figure,
                                    save_figure, styled)
 from vocabulary.settings import SETTINGS
 

@@ -64,8 +64,8 @@ from softcbf.study.falsify import (
     replay_worst, searched_value, stored_rows, summary,
 )
 from softcbf.study.store import FALSIFY_FILE, PARAM_PREFIX, fault_of, storage_name, stored_search
-from softcbf_mj.progress import Progress
-from softcbf_mj.runio import write_json
+from softcbf_mj.outputs.progress import Progress
+from softcbf_mj.outputs.runio import write_json
 
 SCREEN_DIR = "screen"
 SETTINGS = ("objective", "sampler", "seed", "population", "initial", "study", "screen_scenario")

@@ -85,7 +85,7 @@ from typing import Any, Mapping
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from softcbf_mj.runio import OutputDirError, versions, write_json
+from softcbf_mj.outputs.runio import OutputDirError, versions, write_json
 from softcbf.study.definition import Study
 
 STUDY_FILE = "study.json"

@@ -10,7 +10,7 @@ over the filter's own parameters (`[tune.NAME]`, dist "uniform", "loguniform" or
 - the nominal evaluation runs the task once with θ at the nominal point x₀ (the fixed values,
   each varied parameter at the scenario's default: for the standard box the nominal plate,
   gain, arm and valve); F(θ) is its objective: "force_delivered_N" is the steady measured force
-  of the run (`softcbf_mj.push_force.steady_force_of_folder`: the mean of the largest plate force over
+  of the run (`softcbf_mj.outputs.push_force.steady_force_of_folder`: the mean of the largest plate force over
   the run's last third, N, as the bench's pushes report it), any other name a numeric column of
   the run's summary row;
 - the inner search is a falsification of the error box X with θ fixed (`falsify.falsify`: the
@@ -104,14 +104,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from controllers.filter_parameters import read_params
+from controllers.contract.filter_parameters import read_params
 from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import (FILTER_PARAM_PREFIX, FILTER_PARAMS, Distribution, Study, apply_settings,
                                       distributions_of, fold_values)
 from softcbf.study.store import FALSIFY_FILE, TUNE_FILE, StudyStore, fault_of, faulted, storage_name, stored_search
-from softcbf_mj.progress import Progress, significant
-from softcbf_mj.push_force import steady_force_of_folder
-from softcbf_mj.runio import write_json
+from softcbf_mj.outputs.progress import Progress, significant
+from softcbf_mj.outputs.push_force import steady_force_of_folder
+from softcbf_mj.outputs.runio import write_json
 from vocabulary.files import read_settings_file
 
 DEFAULT_OBJECTIVE = "force_delivered_N"  # the steady measured force of the nominal run (module docstring)
@@ -532,7 +532,7 @@ def plot_front(records: list[dict[str, Any]], path: Path, objective: str, best: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from softcbf_mj.palette import BLUISH_GREEN, LIMIT_COLOR, NEUTRAL_COLOR, ORANGE
+    from softcbf_mj.outputs.palette import BLUISH_GREEN, LIMIT_COLOR, NEUTRAL_COLOR, ORANGE
 
     label = ("delivered force at the nominal plate [N]" if objective == DEFAULT_OBJECTIVE
              else f"{objective} at the nominal point")

@@ -5,13 +5,13 @@ Three clocks, all explicit and validated:
     physics step  physics_dt      (s)   MuJoCo's integrator step (`ArmModelConfig.physics_dt`)
     control period control_dt = 1 / control_rate (s; control_rate in Hz)   one filter call and
                                         one held command; an integer multiple of physics_dt
-                                        (`softcbf_mj.plant.steps_per_control`)
+                                        (`softcbf_mj.physics.plant.steps_per_control`)
     env step      action_repeat · control_dt (s)  one policy action, held for action_repeat
                                         control periods (`control.Environment.control_timestep()`)
 
 An episode lasts `episode_steps` env steps, i.e. episode_steps · action_repeat · control_dt
 seconds of simulated time. The scene is the one of `scenarios/mujoco_contact.py`, built by the
-same builder (`softcbf_mj.ground_truth.build_truth`) from the same settings: the MuJoCo arm of
+same builder (`softcbf_mj.physics.ground_truth.build_truth`) from the same settings: the MuJoCo arm of
 `robot` (scaled by the true_* settings), the plates on the facets of `safe_set.environment`
 (moved by facet_offset and facet_angle) with spring stiffness `plate_stiffness` (N/m) or the
 flexure sheet, gravity and friction as set; and the control step
@@ -40,17 +40,17 @@ from typing import Any
 
 from dm_control.rl import control
 
-from controllers.params import RobotParams, reference_robot
+from controllers.model.params import RobotParams, reference_robot
 from controllers.registry import build_filter, typed_params
-from controllers.safe_set import ForceSafeSet, paper_safe_set
-from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
+from controllers.model.safe_set import ForceSafeSet, paper_safe_set
+from controllers.contract.safety_filter import Estimate, FilterContext, SafetyFilter
 from softcbf_mj.env.physics import ArmPhysics, NoisyState
 from softcbf_mj.env.task import COSTS, OBSERVATIONS, ArmTask, RewardConfig
-from softcbf_mj.ground_truth import Truth, build_truth, check_true_arm
-from softcbf_mj.loop import exact_state
-from softcbf_mj.mjcf import CAMERA_RESOLUTION
-from softcbf_mj.mujoco_plant import MujocoPlant
-from softcbf_mj.plant import PlantState, steps_per_control
+from softcbf_mj.physics.ground_truth import Truth, build_truth, check_true_arm
+from softcbf_mj.loops.loop import exact_state
+from softcbf_mj.physics.mjcf import CAMERA_RESOLUTION
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.plant import PlantState, steps_per_control
 from vocabulary.run_sections import ground_truth_values
 from vocabulary.sections import setting_section
 from vocabulary.settings import check_number, default, ground_truth_settings, positive
@@ -100,7 +100,7 @@ class ArmEnvConfig:
     ground truth (`vocabulary.settings.ground_truth_settings`: plate_stiffness, links_per_segment,
     tau_p, physics_dt, the true_* scales, true_robot, facet_offset, facet_angle, gravity,
     tip_friction, table_friction, plate and the sheet_* settings), which `plant()` hands to the one
-    builder of the ground truth (`softcbf_mj.ground_truth.build_truth`); docs/parameters.md lists
+    builder of the ground truth (`softcbf_mj.physics.ground_truth.build_truth`); docs/parameters.md lists
     them with their units and ranges.
 
     The environment's own fields:
@@ -176,7 +176,7 @@ class ArmEnvConfig:
                                        command_delay=self.assumed_command_delay, actuator_tau=self.assumed_tau_p)
 
     def truth(self) -> Truth:
-        """The ground truth of this configuration's ground-truth settings (`softcbf_mj.ground_truth.build_truth`):
+        """The ground truth of this configuration's ground-truth settings (`softcbf_mj.physics.ground_truth.build_truth`):
         the true arm from `robot`, the plates on `safe_set`'s facets."""
         return build_truth(*ground_truth_values(self), self.robot, self.safe_set.environment,
                            default("damping_scale", "environment"))

@@ -61,7 +61,7 @@ vectorization mode when an id has one; vectorization_mode="sync" gives `SyncVect
 
 Version history (a new id for changed behaviour, as Gymnasium versions its environments; only the current id is
 registered):
-- v1: the paper CBF filter's calls run its batched kernel (`controllers.filter`), whose QP is exact to rounding
+- v1: the paper CBF filter's calls run its batched kernel (`controllers.cbf.paper_filter`), whose QP is exact to rounding
   where the scalar QP stopped at its tolerance: the commands of a run move by rounding, which a closed loop can
   carry further (2.2e-8 hPa at most in the reference loops of tools/loop_references.py; CHANGELOG.md).
 - v0: the first release.

@@ -3,7 +3,7 @@
 `ArmPhysics` is a `dm_control.rl.control.Physics` over `MujocoPlant` (the MuJoCo ground
 truth) and `closedloop.step.ControlStep` (the control step every loop shares). Its time
 step is the control period Δ = `plant.control_dt` (s); `step(n)` runs n periods, each
-exactly as `softcbf_mj.loop.run_closed_loop` runs one:
+exactly as `softcbf_mj.loops.loop.run_closed_loop` runs one:
 
     estimate  = estimator(state_k)                     (default: the exact state, t_capture = t)
     record    = control_step(estimate)                 nominal → filter → admission → monitor
@@ -15,7 +15,7 @@ state)` per period, `end_step`) and the episode's reset. What the task reads of 
 `ArmArrays`, arrays with a leading axis of B arms: `ArmControl.arrays()` is one arm's (B = 1);
 `softcbf_mj.env.vector` keeps the arrays of B arms stepped on one `MujocoBatchPlant` by
 one `closedloop.step.BatchControlStep` (row b arm b's control step), its statistics
-`BatchStepStats.of_figures` of a `softcbf_mj.metrics.RunningFigures` (the same definitions,
+`BatchStepStats.of_figures` of a `softcbf_mj.outputs.metrics.RunningFigures` (the same definitions,
 for all arms at once), so that the task (`softcbf_mj.env.task`) computes observations,
 rewards, costs and terminations of one arm and of B arms with the same functions. (The
 single environment keeps the per-period tally below: one `RunningFigures` update costs more
@@ -45,13 +45,13 @@ The filter is built once (`controllers.registry.build_filter`, by the environmen
 `ControlStep` around it with a fresh `SafetyMonitor` (`hold_s`) and calls the filter's
 `reset()` (the plug-in contract: called before each run).
 
-The optional camera renders the model's `overhead` camera (`softcbf_mj.render`) at
+The optional camera renders the model's `overhead` camera (`softcbf_mj.camera.render`) at
 `image_size` (W, H) px; `tag_detections` runs `perception.detect.TagDetector` on that
 image for the arm's tags 0..N. The renderer's GL context is freed by `close()`, or at the
 latest when the physics is collected or the interpreter exits (`weakref.finalize`: freed
 later, during interpreter shutdown, MuJoCo's OSMesa context raised an obscure ctypes error).
 No usable OpenGL backend (MUJOCO_GL unset without OSMesa, or set to glfw without a display)
-is a `softcbf_mj.render.RenderBackendError` naming MUJOCO_GL=osmesa and MUJOCO_GL=egl.
+is a `softcbf_mj.camera.render.RenderBackendError` naming MUJOCO_GL=osmesa and MUJOCO_GL=egl.
 """
 
 from __future__ import annotations
@@ -66,14 +66,14 @@ from dm_control.rl import control
 
 from closedloop.monitor import SafeAction, SafetyMonitor
 from closedloop.step import ControlStep, FilterFault, StepRecord
-from controllers.safety_filter import Estimate, FilterContext, SafetyFilter
+from controllers.contract.safety_filter import Estimate, FilterContext, SafetyFilter
 from perception.detect import Detection, TagDetector
 from perception.tags import arm_tag_ids
-from softcbf_mj.loop import exact_state
-from softcbf_mj.metrics import RunningFigures, rho_meas
-from softcbf_mj.mujoco_plant import MujocoPlant
-from softcbf_mj.plant import PlantState
-from softcbf_mj.render import OffscreenRenderer
+from softcbf_mj.loops.loop import exact_state
+from softcbf_mj.outputs.metrics import RunningFigures, rho_meas
+from softcbf_mj.physics.mujoco_plant import MujocoPlant
+from softcbf_mj.physics.plant import PlantState
+from softcbf_mj.camera.render import OffscreenRenderer
 from vocabulary.settings import default
 
 

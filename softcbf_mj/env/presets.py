@@ -24,7 +24,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Callable
 
-from controllers.safe_set import paper_safe_set
+from controllers.model.safe_set import paper_safe_set
 from softcbf_mj.env.environment import ArmEnvConfig
 from softcbf_mj.env.task import RewardConfig
 

@@ -61,8 +61,8 @@ array with a leading axis of B arms, numpy over it) that return (B, ...) arrays.
 methods (`get_observation`, `get_reward`, `get_termination`, `cost`) call them on the single
 arm's arrays (B = 1, `ArmControl.arrays()`) and take row 0; the vector environment
 (`softcbf_mj.env.vector`) calls them once per env step for all its arms. tip_pred is the PCC
-kinematics of `controllers.pcc_model` (`kinematics_rows`, the one kernel, a row per arm),
-rho_pred the safe set's `margin` at it, rho_meas `softcbf_mj.metrics.rho_meas`. Each row's
+kinematics of `controllers.model.pcc_model` (`kinematics_rows`, the one kernel, a row per arm),
+rho_pred the safe set's `margin` at it, rho_meas `softcbf_mj.outputs.metrics.rho_meas`. Each row's
 arithmetic is its own (elementwise, or a reduction over that row), so row b of B arms equals
 the single arm's, bit for bit (tests/test_env_vector.py). The one product, the facets' n̂_i·r
 of `margin`, is taken on a stack of B (1, 2) points ((B, 1, 2) @ (2, P)): numpy runs the same
@@ -87,13 +87,13 @@ import numpy as np
 from dm_control.rl import control
 from dm_env import specs
 
-from controllers.lazy_import import lazy_module
-from controllers.safe_set import ForceSafeSet
+from controllers.core.lazy_import import lazy_module
+from controllers.model.safe_set import ForceSafeSet
 from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, NoisyState, StepStats
-from softcbf_mj.metrics import rho_meas
+from softcbf_mj.outputs.metrics import rho_meas
 from vocabulary.settings import default
 
-pcc_model = lazy_module("controllers.pcc_model")  # numba loads on the first observation (controllers.lazy_import)
+pcc_model = lazy_module("controllers.model.pcc_model")  # numba loads on the first observation (controllers.core.lazy_import)
 
 OBSERVATION_UNITS = {
     "q": "rad (the controller's estimate)",
@@ -133,7 +133,7 @@ def step_cost(stats: StepStats, definition: str) -> float:
 
 def predicted_tips(q: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """The model's tips r(q̂) (B, 2) m of B estimates q (B, N) rad, segment lengths (N,) m: the PCC
-    kinematics of `controllers.pcc_model.kinematics_rows` (the tip needs no rates: q̇ = 0)."""
+    kinematics of `controllers.model.pcc_model.kinematics_rows` (the tip needs no rates: q̇ = 0)."""
     q = np.ascontiguousarray(q, dtype=float)
     kin = pcc_model.kinematics_rows(q, np.zeros_like(q), np.ascontiguousarray(lengths, dtype=float))
     tip = np.ascontiguousarray(kin[:, tip_column(q.shape[1])])  # x + i·y per arm

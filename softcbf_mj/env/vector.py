@@ -14,7 +14,7 @@ single environment, none is copied here:
   alone at b's episode start (`MujocoBatchPlant.reset(ids=[b])`);
 - control: row b of one `closedloop.step.BatchControlStep` (b's control step with its own
   safety monitor row, bit for bit the `ControlStep` of b's single environment); the env
-  step's statistics of all arms at once (`softcbf_mj.metrics.RunningFigures`,
+  step's statistics of all arms at once (`softcbf_mj.outputs.metrics.RunningFigures`,
   `physics.BatchStepStats.of_figures`);
 - episode starts: an `ArmControl` (`softcbf_mj.env.physics`: b's estimator and reset) and an
   `ArmTask` (`softcbf_mj.env.task`: b's own generator of initial states), per arm;
@@ -27,7 +27,7 @@ single environment, none is copied here:
 So for the same seeds and actions the vector environment returns what B single
 environments return (`tests/test_env_vector.py`: equal, bit for bit, with per-arm
 filters; with a batched filter the commands are those of `filter_batch`, which
-`controllers.filter.CBFFilter` promises within 1e-9 hPa of B calls).
+`controllers.cbf.paper_filter.CBFFilter` promises within 1e-9 hPa of B calls).
 
 One env step, for every sub-environment that is not being reset ("running"):
 
@@ -35,7 +35,7 @@ One env step, for every sub-environment that is not being reset ("running"):
     repeat action_repeat control periods, t_k = k Δ:
         record = the batched control step of the running arms at their estimates, with
                  u_nom as their nominal commands: a filter that declares batched
-                 (`controllers.capabilities.filter_capabilities`): one filter for all, one
+                 (`controllers.contract.capabilities.filter_capabilities`): one filter for all, one
                  call for the arms that call it; otherwise B filters, one per arm (built by
                  the registry), called in turn
         u (B, N) hPa = record.u: the running arms' commands, 0 hPa for the others
@@ -66,7 +66,7 @@ list seeds b with its b-th entry (None: not reseeded), `reset()` lets each conti
 generator. A filter shared by all arms (one that declares batched) is reset (its
 `reset()`) by `reset()`; when one arm's episode restarts, only if it declares reset_rows
 (a history per row: then `reset(rows=[b])`, as qsg), for otherwise its state spans all arms
-(the `filter_batch` contract, `controllers.safety_filter`): the batched step decides
+(the `filter_batch` contract, `controllers.contract.safety_filter`): the batched step decides
 (`closedloop.step.BatchControlStep.reset`); per-arm filters are reset at each of their
 episodes, as in the single environment.
 
@@ -90,15 +90,15 @@ from gymnasium.vector.utils import batch_space
 
 from closedloop.monitor import ACTIONS
 from closedloop.step import BatchControlStep, BatchStepRecord, FilterFault
-from controllers.capabilities import filter_capabilities
+from controllers.contract.capabilities import filter_capabilities
 from softcbf_mj.env.environment import ArmEnvConfig
 from softcbf_mj.env.gym_adapter import gym_spaces, nominal_command, object_array, scaled_observations, step_infos
 from softcbf_mj.env.physics import ArmArrays, ArmControl, BatchStepStats, StepStats, action_array
 from softcbf_mj.env.task import ArmTask
-from softcbf_mj.loop import exact_state
-from softcbf_mj.metrics import RunningFigures, rho_meas
-from softcbf_mj.mujoco_batch_plant import MujocoBatchPlant
-from softcbf_mj.plant import BatchPlantState, PlantState
+from softcbf_mj.loops.loop import exact_state
+from softcbf_mj.outputs.metrics import RunningFigures, rho_meas
+from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant
+from softcbf_mj.physics.plant import BatchPlantState, PlantState
 
 MONITOR_LABELS = np.array([action.value for action in ACTIONS], dtype=object)  # by the monitor's action code
 

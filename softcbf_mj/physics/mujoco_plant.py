@@ -1,0 +1,440 @@
+"""The MuJoCo ground truth as a `Plant` (docs/ground-truth.md; model in `softcbf_mj.physics.mjcf`).
+
+Each control period (control_dt, s) holds the pressure command u (hPa, shape (N,)) and
+advances the physics by control_dt / physics_dt steps of MuJoCo's `implicitfast`
+integrator, then reports, at the end of the period (after `mj_forward`, so every
+derived quantity belongs to the reported state):
+
+- q_i = Σ_j θ_ij, q̇_i = Σ_j θ̇_ij (rad, rad/s): the length and velocity of the fixed
+  tendon `seg{i}_bend` over segment i's hinges;
+- segment_ends (N+1, 2) (m): the `base` site, the `seg{i}_end` sites; the last row is
+  the tip r, the centre of the `tip` sphere (placed on `seg{N}_end`);
+- contact_forces (P,) (N): per facet, the measured force: the ideal plate's spring force
+  max(0, k_k Δ_k) with Δ_k the plate's displacement along its outward normal (the ground
+  truth), or a flexure's gauge reading max(0, k_g x_g), the clamp reaction along the gauge
+  axis (docs/beyond-the-paper.md#flexure-plate; what the hardware measures);
+- u_applied (N,) (hPa): the pressure acting, the actuator force in actuator space
+  (the gear carries λ_i, so this is τ_i / λ_i), after the ctrlrange clamp and the
+  first-order pressure dynamics;
+- extras: `plate_displacement_m` (P,) (m): the ideal plate's Δ_k, or a flexure's deflection
+  along n̂ at the contact point (0 without contact); `force_solver_N` (P,) (N), the normal
+  contact force MuJoCo's solver applies between the arm and each plate (mj_contactForce,
+  summed over contacts: the true contact force); `force_tangential_N` (P,) (N), the
+  magnitude of the summed tangential (friction) contact force, 0 when frictionless; and
+  `warning_<name>` counts for every MuJoCo warning raised. With flexure plates also
+  `contact_s_m` (P,) (m): where the arm touches the sheet, the distance from the clamp
+  along the sheet at rest of the contact carrying the largest normal force (NaN without
+  contact), and `contact_stiffness_N_per_m` (P,) (N/m): the sheet's static stiffness there
+  (`SheetInModel.stiffness`: the hinge chain in series with the gauge; NaN without contact).
+  Contact points are the sheet's surface points of MuJoCo's contacts (midpoint moved by
+  half the penetration).
+
+Reading the state costs next to nothing beside the physics only if it stays out of Python's
+per-array calls: q, q̇, the segment ends, the measured forces, u_applied and the plates' Δ come
+from MuJoCo's arrays (views of the data bound once) in one compiled call
+(`softcbf_mj.physics.plant_kernel.read_state`, numpy's values bit for bit), and the contact list's
+fields, each of whose reads builds an array, are read only where a figure needs them (the
+frames for a tangential force or a contact point, dist and pos for a flexure's point).
+
+Command delay (`softcbf_mj.physics.plant`: the model's custom numeric `command_delay` δ > 0, s,
+`ArmModelConfig.command_delay`): the command written to the actuators over a period is the one
+`step` was given δ / control_dt periods earlier (`CommandDelay`, filled with u0 at `reset`);
+a δ that is not a whole number of control periods is refused when the plant is built.
+
+Table friction (`softcbf_mj.physics.table_friction`: the model's custom numeric `table_friction` μ > 0,
+`ArmModelConfig.table_friction`): each physics step is then taken from Python as `mj_step1`, the
+friction forces on the arm's links from the velocities just computed (`data.xfrc_applied`),
+`mj_step2`; the extras add `table_friction_power_W` (W, ≤ 0), the friction power Σ_k f_k · v_k
+averaged over the control period's physics steps. Without it (μ = 0, the default) the control
+period's physics steps after the first are one `mj_step(…, nstep=steps_per_control − 1)` call.
+
+The first physics step of a period reuses the reported state's `mj_forward`. `mj_step` is
+`mj_step1` (the checks `mj_checkPos`, `mj_checkVel`, then the position and velocity stages:
+kinematics, collision, constraint rows, passive forces — most of a forward's cost) followed by
+`mj_step2` (actuation with the new ctrl, acceleration, constraint solver, integration), exactly
+so for the Euler, implicit and implicitfast integrators (MuJoCo's docs). The stages read qpos,
+qvel and the mocap poses, not ctrl, so at the start of a period they are those the reporting
+`mj_forward` computed: the first step runs the checks and `mj_step2` only, and gives what
+`mj_step` gives, bit for bit (tests/test_mujoco_plant.py). Should qpos, qvel or the mocap
+poses differ from what that forward saw (the data was edited between steps, or a check reset
+it), the stages are computed again (`mj_step1`). With RK4 (not split by MuJoCo) and no table
+friction every physics step is `mj_step`. Assumed: no `mjcb_control` callback, and the model is
+not changed between steps without an `mj_forward`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import platform
+import re
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+import softcbf_mj
+from controllers.core.lazy_import import lazy_module
+from softcbf_mj.physics.flexure import SheetInModel
+from softcbf_mj.physics.mjcf import ArmModelConfig, build_model
+from softcbf_mj.physics.plant import COMMAND_DELAY_NUMERIC, CommandDelay, PlantState, delay_periods, steps_per_control
+from softcbf_mj.physics.table_friction import TableFriction, table_friction_of
+
+MUJOCO_VERSION: str = mujoco.__version__
+# Short names of MuJoCo's warnings (inertia, contactfull, …, badctrl) by index into data.warning.
+WARNINGS: dict[int, str] = {
+    int(value): name.removeprefix("mjWARN_").lower()
+    for name, value in mujoco.mjtWarning.__members__.items()
+    if name.startswith("mjWARN_")
+}
+
+# Integrators whose physics step MuJoCo splits exactly into mj_step1 + mj_step2 (not RK4).
+SPLIT_INTEGRATORS = frozenset(int(i) for i in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_IMPLICIT,
+                                               mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
+
+# Units of the `PlantState.extras` this plant reports (for run records).
+EXTRAS_UNITS: dict[str, str] = {
+    "plate_displacement_m": "m",
+    "force_solver_N": "N",
+    "force_tangential_N": "N",
+    "contact_s_m": "m (from the sheet's clamp; NaN: no contact)",
+    "contact_stiffness_N_per_m": "N/m (NaN: no contact)",
+    "table_friction_power_W": "W (arm-table friction power, mean over the control period, <= 0)",
+    **{f"warning_{name}": "count (cumulative)" for name in WARNINGS.values()},
+}
+
+plant_kernel = lazy_module("softcbf_mj.physics.plant_kernel")  # numba loads on the first state (controllers.core.lazy_import)
+_ACTUATOR = re.compile(r"seg(\d+)_pressure")
+_PLATE_JOINT = re.compile(r"plate(\d+)_(?:slide|gauge)")
+
+
+def command_delay_of(model: mujoco.MjModel) -> float:
+    """δ of a model (s): its custom numeric `command_delay`, or 0 (none) when it has none."""
+    index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, COMMAND_DELAY_NUMERIC)
+    return float(model.numeric_data[model.numeric_adr[index]]) if index >= 0 else 0.0
+
+
+def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
+    return [mujoco.mj_id2name(model, obj, i) or "" for i in range(count)]
+
+
+def _numbered(names: list[str], pattern: re.Pattern[str], what: str) -> int:
+    """How many of `names` match pattern with numbers 1..K; raises if the numbering has gaps."""
+    numbers = sorted(int(m.group(1)) for m in map(pattern.fullmatch, names) if m)
+    if numbers != list(range(1, len(numbers) + 1)):
+        raise ValueError(f"the model's {what} must be numbered 1..K without gaps, got {numbers}")
+    return len(numbers)
+
+
+class MujocoPlant:
+    """The discretised arm and its compliant plates in MuJoCo, stepped at a fixed control rate.
+
+    Build it from parameters with `from_config` (an `ArmModelConfig` and/or its fields as
+    keywords), from an MJCF file with `from_xml`, or from a compiled model. Attributes
+    read from the model: `u_min`, `u_max` (hPa, the ctrlrange), `gains` (λ, N·m/hPa, the
+    actuator gears), `plate_stiffness` (N/m), `n_segments`, `n_facets`, and per segment
+    the qpos / dof addresses of its hinges, `hinge_qpos` and `hinge_dofs` (lists of arrays).
+    Ids and addresses the state is read from (public for the batched plant,
+    `softcbf_mj.physics.mujoco_batch_plant`): `actuator_ids` and `tendon_ids` (N,), `site_ids`
+    (N,: `base`, `seg1_end` … `seg{N-1}_end`), `tip_geom`, `plate_qpos` and `plate_dofs`
+    (P,), `act_adr` (N,: −1 where the actuator has no pressure dynamics). `table_friction`:
+    the arm-table friction (`TableFriction`) when the model carries μ > 0, else None.
+    The model is read by name: actuators `seg{i}_pressure`, tendons `seg{i}_bend`, hinges
+    `seg{i}_j{j}`, sites `base` and `seg{i}_end`, geom `tip`, per facet an ideal plate
+    (joint `plate{k}_slide`) or a flexure (joint `plate{k}_gauge`, `SheetInModel`), whose
+    geoms are those of the bodies below body `plate{k}`. `plate_stiffness` is the spring of
+    that joint: the plate's (ideal) or the gauge's (flexure); `sheets` maps the facet index
+    (0-based) of each flexure to its `SheetInModel`.
+    """
+
+    def __init__(self, model: mujoco.MjModel, control_dt: float = 1e-3) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.control_dt = float(control_dt)
+        self.physics_dt = float(model.opt.timestep)
+        self.steps_per_control = steps_per_control(self.control_dt, self.physics_dt)
+
+        n = _numbered(_names(model, mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu), _ACTUATOR, "actuators seg{i}_pressure")
+        if n == 0:
+            raise ValueError("the model has no actuators named seg{i}_pressure")
+        self.n_segments = n
+        self.actuator_ids = [model.actuator(f"seg{i}_pressure").id for i in range(1, n + 1)]
+        self.tendon_ids = [model.tendon(f"seg{i}_bend").id for i in range(1, n + 1)]
+        self.hinge_qpos: list[np.ndarray] = []  # per segment: qpos addresses of its hinges
+        self.hinge_dofs: list[np.ndarray] = []  # per segment: their dof addresses
+        for i in range(1, n + 1):
+            hinges, j = [], 1
+            while mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"seg{i}_j{j}") >= 0:
+                hinges.append(model.joint(f"seg{i}_j{j}"))
+                j += 1
+            if not hinges:
+                raise ValueError(f"the model has no hinges seg{i}_j1, seg{i}_j2, …")
+            self.hinge_qpos.append(np.array([h.qposadr[0] for h in hinges]))
+            self.hinge_dofs.append(np.array([h.dofadr[0] for h in hinges]))
+        self.site_ids = [model.site("base").id] + [model.site(f"seg{i}_end").id for i in range(1, n)]
+        self.tip_geom = model.geom("tip").id
+
+        p = _numbered(_names(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt), _PLATE_JOINT, "plate joints plate{k}_slide or plate{k}_gauge")
+        self.n_facets = p
+        flexures = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"plate{k}_gauge") >= 0 for k in range(1, p + 1)]
+        plate_joints = [model.joint(f"plate{k}_{'gauge' if flexure else 'slide'}") for k, flexure in enumerate(flexures, 1)]
+        self.plate_qpos = np.array([jnt.qposadr[0] for jnt in plate_joints], dtype=int)
+        self.plate_dofs = np.array([jnt.dofadr[0] for jnt in plate_joints], dtype=int)
+        self.plate_stiffness = np.array([model.jnt_stiffness[jnt.id] for jnt in plate_joints])
+        self.sheets = {k - 1: SheetInModel.from_model(model, k) for k, flexure in enumerate(flexures, 1) if flexure}
+        plate_roots = {model.body(f"plate{k}").id: k - 1 for k in range(1, p + 1)}
+        roots = model.body_rootid[model.geom_bodyid].tolist()  # per geom: the root body of its body
+        base = model.body("base").id
+        self._facet_of_geom = [plate_roots.get(root, -1) for root in roots]  # per geom: its plate's facet, -1: none
+        self._on_arm = [root == base for root in roots]  # per geom: part of the arm (below `base`)
+        # the ids the state reads (`softcbf_mj.physics.plant_kernel.read_state`'s `index`), and MuJoCo's arrays it reads
+        # them from: views of the data bound once (their shapes are the model's; reading an attribute of the
+        # data builds a new array each time)
+        self._state_index = np.array([*self.tendon_ids, *self.actuator_ids, *self.site_ids, self.tip_geom,
+                                      *self.plate_qpos], dtype=np.int64)
+        self._actuator_index = np.array(self.actuator_ids)
+        data = self.data
+        self._ctrl = data.ctrl
+        self._state_arrays = (data.qpos, data.ten_length, data.ten_velocity, data.site_xpos, data.geom_xpos,
+                              data.actuator_force)
+        # what the position and velocity stages read (`_stage_inputs`): qpos, qvel and, if any, the mocap poses
+        self._stage_arrays = (data.qpos, data.qvel, *((data.mocap_pos, data.mocap_quat) if model.nmocap else ()))
+        self._warning_counts = data.warning.number  # (mjNWARNING,) int, a view of the data's warning stats
+
+        self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
+        self.u_max = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
+        self.gains = model.actuator_gear[self.actuator_ids, 0].copy()
+        self.act_adr = model.actuator_actadr[self.actuator_ids].copy()  # -1: no pressure dynamics
+        self._contact_force = np.zeros(6)
+        mu = table_friction_of(model)
+        self.table_friction = TableFriction(model, mu) if mu > 0 else None
+        self._friction_power = 0.0  # W, mean over the last control period
+        # mj_step1 + mj_step2 is mj_step for these integrators (MuJoCo's docs; RK4 is not split)
+        self._split_steps = int(model.opt.integrator) in SPLIT_INTEGRATORS
+        self._forwarded: tuple[bytes, ...] = ()  # `_stage_inputs` at the last `_forward`
+        self.command_delay = command_delay_of(model)  # s; the FIFO below when > 0 (module docstring)
+        periods = delay_periods(self.command_delay, self.control_dt)
+        self.delay = CommandDelay(periods, (1, n)) if periods else None
+        self.reset(np.zeros(n))
+
+    # -- construction -------------------------------------------------------------
+
+    @classmethod
+    def from_config(
+        cls, config: ArmModelConfig | None = None, control_dt: float = 1e-3, **changes: Any
+    ) -> "MujocoPlant":
+        """Build the model of `config` with `changes` applied to its fields.
+
+        E.g. `MujocoPlant.from_config(robot=my_robot, H=H, h=h, plate_stiffness=11.16,
+        links_per_segment=10, tau_p=0.05, physics_dt=1e-4)`; omitted fields keep the
+        defaults of `ArmModelConfig` (the reference robot and the paper's plate).
+        """
+        config = dataclasses.replace(config or ArmModelConfig(), **changes)
+        steps_per_control(control_dt, config.physics_dt)  # fail before compiling
+        return cls(build_model(config), control_dt)
+
+    @classmethod
+    def from_xml(cls, path: str | Path, control_dt: float = 1e-3) -> "MujocoPlant":
+        """Load an MJCF file (e.g. models/softcbf_arm/scene.xml); its timestep is the physics step."""
+        return cls(mujoco.MjModel.from_xml_path(str(path)), control_dt)
+
+    @staticmethod
+    def versions() -> dict[str, str]:
+        """Versions that change this plant's behaviour (for run records)."""
+        return {"softcbf_mj": softcbf_mj.__version__, "mujoco": MUJOCO_VERSION, "python": platform.python_version()}
+
+    # -- Plant protocol -----------------------------------------------------------
+
+    def reset(self, q0: np.ndarray, qd0: np.ndarray | None = None, u0: np.ndarray | None = None) -> PlantState:
+        """Rest at bending angles q0 (rad, (N,)), each spread equally over its segment's hinges.
+
+        qd0 (rad/s) is spread likewise (default 0). The plates start undeflected and at
+        rest. The pressures start at u0 (hPa, default 0): the actuator states and the
+        command are both set to it. Time restarts at 0.
+        """
+        q0 = self._vector(q0, "q0")
+        qd0 = np.zeros(self.n_segments) if qd0 is None else self._vector(qd0, "qd0")
+        u0 = np.zeros(self.n_segments) if u0 is None else self._vector(u0, "u0")
+        outside = (u0 < self.u_min) | (u0 > self.u_max)
+        if np.any(outside):
+            raise ValueError(
+                f"u0 must lie within the ctrlrange [{self.u_min.tolist()}, {self.u_max.tolist()}] hPa, got {u0.tolist()}"
+            )
+        mujoco.mj_resetData(self.model, self.data)
+        for i in range(self.n_segments):
+            self.data.qpos[self.hinge_qpos[i]] = q0[i] / len(self.hinge_qpos[i])
+            self.data.qvel[self.hinge_dofs[i]] = qd0[i] / len(self.hinge_dofs[i])
+        self.data.ctrl[self.actuator_ids] = u0
+        if self.delay is not None:
+            self.delay.reset(u0[None, :])
+        dynamic = self.act_adr >= 0
+        self.data.act[self.act_adr[dynamic]] = u0[dynamic]
+        self._forward()
+        self._friction_power = 0.0
+        return self.state()
+
+    def step(self, u: np.ndarray) -> PlantState:
+        """Hold u (hPa, (N,), finite) for one control period and return the state at its end.
+
+        u is NOT clipped here: MuJoCo clamps it to each actuator's ctrlrange (the
+        pressure limits of `RobotParams`), and `u_applied` reports what acted.
+        """
+        model, data, friction = self.model, self.data, self.table_friction
+        u = self._vector(u, "u")
+        self._ctrl[self._actuator_index] = u if self.delay is None else self.delay.apply(u[None, :])[0]
+        if friction is None and not self._split_steps:
+            mujoco.mj_step(model, data, nstep=self.steps_per_control)
+        elif friction is None:
+            self._first_step1()
+            mujoco.mj_step2(model, data)
+            mujoco.mj_step(model, data, nstep=self.steps_per_control - 1)
+        else:
+            energy_rate = 0.0
+            for substep in range(self.steps_per_control):
+                if substep == 0:
+                    self._first_step1()
+                else:
+                    mujoco.mj_step1(model, data)
+                energy_rate += friction.apply(data)
+                mujoco.mj_step2(model, data)
+            self._friction_power = energy_rate / self.steps_per_control
+        self._forward()
+        return self.state()
+
+    def state(self) -> PlantState:
+        """The state of the current data (after `mj_forward`, if you edited it)."""
+        n, p = self.n_segments, self.n_facets
+        values = np.empty(5 * n + 2 + 2 * p)  # q, qd, segment ends, contact forces, u_applied, spring (plant_kernel)
+        plant_kernel.read_state(*self._state_arrays, self._state_index, self.plate_stiffness, values)
+        ends, applied = 2 * n, 4 * n + 2 + p
+        spring = values[applied + n:]  # the plate's Δ or the gauge's x_g, m
+        contacts = self._plate_contacts(bool(self.sheets))
+        displacement = spring.copy() if self.sheets else spring
+        extras: dict[str, float | np.ndarray] = {
+            "plate_displacement_m": displacement,
+            "force_solver_N": contacts.normal,
+            "force_tangential_N": contacts.tangential,
+        }
+        if self.sheets:
+            where = np.full(self.n_facets, np.nan)
+            stiffness = np.full(self.n_facets, np.nan)
+            for k, sheet in self.sheets.items():
+                point = contacts.point[k]
+                displacement[k] = 0.0
+                if np.all(np.isfinite(point)):
+                    relative = point - sheet.origin
+                    displacement[k] = float(sheet.normal @ relative)
+                    where[k] = float(sheet.along @ relative)
+                    stiffness[k] = float(sheet.stiffness(where[k]))
+            extras["contact_s_m"] = where
+            extras["contact_stiffness_N_per_m"] = stiffness
+        if self.table_friction is not None:
+            extras["table_friction_power_W"] = self._friction_power
+        counts = self._warning_counts.tolist()
+        if any(counts):
+            for index, count in enumerate(counts):
+                if count:
+                    extras[f"warning_{WARNINGS[index]}"] = float(count)
+        return PlantState(t=self.data.time, q=values[:n], qd=values[n:ends],
+                          segment_ends=values[ends:applied - p].reshape(n + 1, 2),
+                          contact_forces=values[applied - p:applied], u_applied=values[applied:applied + n], extras=extras)
+
+    # -- internals ----------------------------------------------------------------
+
+    def _forward(self) -> None:
+        """`mj_forward` of the state to report, and a note of the inputs it saw (`_first_step1`)."""
+        data = self.data
+        mujoco.mj_forward(self.model, data)
+        self._forwarded = self._stage_inputs()
+
+    def _stage_inputs(self) -> tuple[bytes, ...]:
+        """What MuJoCo's position and velocity stages read from the data: qpos, qvel, the mocap poses."""
+        return tuple([array.tobytes() for array in self._stage_arrays])
+
+    def _first_step1(self) -> None:
+        """`mj_step1` of a control period's first physics step (module docstring): its checks,
+        and its position and velocity stages only if their inputs have changed since `_forward`."""
+        model, data = self.model, self.data
+        mujoco.mj_checkPos(model, data)
+        mujoco.mj_checkVel(model, data)
+        if self._stage_inputs() != self._forwarded:  # edited, or reset by a check: compute them
+            mujoco.mj_step1(model, data)
+
+    def _vector(self, value: np.ndarray, name: str) -> np.ndarray:
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (self.n_segments,):
+            raise ValueError(f"{name} must have shape ({self.n_segments},), got {arr.shape}")
+        if not all(map(math.isfinite, arr.tolist())):  # Python floats: faster than numpy for N ~ 2
+            raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+        return arr
+
+    def _plate_contacts(self, points: bool) -> "PlateContacts":
+        """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce); with
+        `points` also the sheet-surface point of each facet's strongest contact (else NaN: the ideal
+        plate does not report it)."""
+        model, data, n_facets = self.model, self.data, self.n_facets
+        contact = data.contact  # MuJoCo's contact list, ncon long
+        geoms = contact.geom.tolist()
+        if not geoms:
+            return PlateContacts.empty(n_facets, points)
+        # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
+        # struct of one contact), the same operations in the same order as summing per contact.
+        # Each read of a field of MuJoCo's contact list builds an array (about 1 µs): the frames are
+        # read only for a contact with a tangential force or a point to place, dist and pos only for a
+        # point. A frictionless contact (f1 = f2 = 0) adds ±0.0 to each finite tangential sum, which
+        # leaves it as it is (the sums start at +0.0; a contact frame is an orthonormal, finite triad), so
+        # skipping its frame changes no bit.
+        facet_of, on_arm = self._facet_of_geom, self._on_arm
+        normal_sum = [0.0] * n_facets
+        tangential = [[0.0, 0.0, 0.0] for _ in range(n_facets)]
+        strongest = [0.0] * n_facets
+        where = [[math.nan, math.nan] for _ in range(n_facets)] if points else None
+        touched = False
+        force = self._contact_force
+        frames = dist = pos = None  # read on the first contact that needs them
+        for c, (geom1, geom2) in enumerate(geoms):
+            if facet_of[geom1] >= 0 and on_arm[geom2]:
+                k, sign = facet_of[geom1], -1.0  # sign: the frame's normal (from geom1 to geom2) toward the plate
+            elif facet_of[geom2] >= 0 and on_arm[geom1]:
+                k, sign = facet_of[geom2], 1.0
+            else:
+                continue
+            mujoco.mj_contactForce(model, data, c, force)
+            normal, f1, f2 = force[:3].tolist()
+            normal_sum[k] += normal
+            touched = True
+            stronger = points and normal > strongest[k]
+            if not (stronger or f1 != 0.0 or f2 != 0.0):
+                continue
+            if frames is None:
+                frames = contact.frame
+            frame = frames[c].tolist()  # rows: normal (from geom1 to geom2), two tangents
+            summed = tangential[k]
+            for j in range(3):
+                summed[j] += f1 * frame[3 + j] + f2 * frame[6 + j]
+            if stronger:
+                strongest[k] = normal
+                if dist is None:
+                    dist, pos = contact.dist, contact.pos
+                half_dist, at = 0.5 * float(dist[c]), pos[c].tolist()
+                where[k] = [at[j] + half_dist * (sign * frame[j]) for j in range(2)]
+        # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
+        norms = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential] if touched else [0.0] * n_facets
+        return PlateContacts(np.array(normal_sum), np.array(norms),
+                             np.array(where).reshape(n_facets, 2) if points else None)
+
+
+@dataclasses.dataclass
+class PlateContacts:
+    """Per facet (P,): summed normal force (N), magnitude of the summed tangential force (N), and the
+    sheet-surface point (world x, y, m; (P, 2)) of the contact with the largest normal force (NaN: none;
+    None: not asked for)."""
+
+    normal: np.ndarray
+    tangential: np.ndarray
+    point: np.ndarray | None
+
+    @classmethod
+    def empty(cls, n_facets: int, points: bool = True) -> "PlateContacts":
+        return cls(np.zeros(n_facets), np.zeros(n_facets), np.full((n_facets, 2), np.nan) if points else None)
