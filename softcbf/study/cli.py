@@ -51,6 +51,8 @@ from pathlib import Path
 from typing import Any
 
 from softcbf.shipped import resolve as shipped_or_file
+from softcbf.study.definition import load_study
+from softcbf_mj.progress import Progress, significant
 from softcbf_mj.runio import OutputDirError
 
 # The study machinery (pyarrow, Dask, matplotlib) is imported by the handlers, so that
@@ -62,7 +64,6 @@ STORAGE_HELP = ("where optuna keeps the search's trials: journal (--out/optuna.j
 
 
 def _run(args: argparse.Namespace) -> int:
-    from softcbf.study.definition import load_study
     from softcbf.study.execute import run_study
 
     def body() -> None:
@@ -111,8 +112,6 @@ def _resumable(body, out: Path, stored: str) -> int:
 
 
 def _falsify(args: argparse.Namespace) -> int:
-    from softcbf.study.definition import load_study
-    from softcbf_mj.progress import Progress, significant
 
     def shown(value: Any) -> str:
         """A figure or parameter to `significant` digits (a tuning, a flag: as it is)."""
@@ -201,7 +200,6 @@ def _falsify_seeds(study: Any, args: argparse.Namespace, bar: Any) -> None:
 
 def _tune(args: argparse.Namespace) -> int:
     from softcbf.study.tune import load_tune
-    from softcbf_mj.progress import Progress, significant
 
     def body() -> None:
         tune_file = load_tune(args.tune_file, args.set)

@@ -109,6 +109,7 @@ from softcbf.study.analysis import clean, violated
 from softcbf.study.definition import (FILTER_PARAM_PREFIX, FILTER_PARAMS, Distribution, Study, apply_settings,
                                       distributions_of, fold_values)
 from softcbf.study.store import FALSIFY_FILE, TUNE_FILE, StudyStore, fault_of, faulted, storage_name, stored_search
+from softcbf_mj.palette import BLUISH_GREEN, LIMIT_COLOR, NEUTRAL_COLOR, ORANGE
 from softcbf_mj.progress import Progress, significant
 from softcbf_mj.push_force import steady_force_of_folder
 from softcbf_mj.runio import write_json
@@ -531,8 +532,6 @@ def plot_front(records: list[dict[str, Any]], path: Path, objective: str, best: 
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from softcbf_mj.palette import BLUISH_GREEN, LIMIT_COLOR, NEUTRAL_COLOR, ORANGE
 
     label = ("delivered force at the nominal plate [N]" if objective == DEFAULT_OBJECTIVE
              else f"{objective} at the nominal point")
