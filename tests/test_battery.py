@@ -24,14 +24,15 @@ REPO = Path(__file__).resolve().parents[1]
 
 def push(level: str, **extra):
     """A constant push's scenario parameters (both segments at `level` hPa, 6 s)."""
-    return {"duration": 6.0, "nominal": "step", "nominal_params": f"seed=0;low_hPa={level};high_hPa={level}", **extra}
+    return {"duration": 6.0, "nominal": "step", "nominal_params": {"seed": "0", "low_hPa": level, "high_hPa": level}, **extra}
 
 
 CAMERA = {"saved_frames_hz": 0.0}
-TARGET = {"duration": 6.0, "nominal": "force-target", "nominal_params": "target_N=0.096"}
+TARGET = {"duration": 6.0, "nominal": "force-target", "nominal_params": {"target_N": "0.096"}}
 THREE_SEG = {"robot": "three-segment", **push("40")}
 # The battery as it ran before its tables moved into battery.toml: case → (scenario, its parameters besides filter,
-# filter_params and progress, c-erg's contact_aware there, the duration with --quick).
+# filter_params and progress, c-erg's contact_aware there, the duration with --quick). The nominal's parameters were
+# the deprecated text "seed=0;low_hPa=L;high_hPa=L", which the scenario read as the same mapping as these.
 SCENARIO_RUNS = {
     "paper_sim_150": ("paper_sim", {"amplitude": 150.0}, "false", 1.0),
     "mujoco_contact": ("mujoco_contact", {}, "true", 1.0),
@@ -122,7 +123,8 @@ def expected_calls(quick: bool) -> dict[str, list]:
     starts, step_s = (3, 0.5) if quick else (20, 5.0)
     out["step"] = [["scenario", "paper_sim", {
         "duration": step_s, "filter": "c-erg", "filter_params": {"contact_aware": "false"}, "nominal": "step",
-        "nominal_params": f"seed={seed};low_hPa=60;high_hPa=300", "progress": False}] for seed in range(starts)]
+        "nominal_params": {"seed": str(seed), "low_hPa": "60", "high_hPa": "300"}, "progress": False}]
+        for seed in range(starts)]
     out["hardware_emulator"] = [["hardware", [
         str(project_file("examples/hardware_emulated.toml")), "--robot", "reference", "--port", "emulated", "--camera",
         "virtual", "--filter", "c-erg", "--duration", "20.0", "--out", "OUT/run", "--filter-param", "contact_aware=true"]]]
@@ -181,7 +183,7 @@ def test_every_case_passes_a_study_files_checks():
         elif run != "emulator":
             fixed = {k: v for k, v in case.scenario_params.items() if k != "scenario"}
             if run == "step":
-                fixed.update(nominal="step", nominal_params="seed=0;" + fixed["nominal_params"])
+                fixed.update(nominal="step", nominal_params={"seed": "0", **fixed["nominal_params"]})
             Study.from_dict({"name": case.name, "scenario": case.scenario_params["scenario"], "tunings": ["none"],
                              "tuning_parameter": "filter", "draws": 1, "fixed": fixed})
 

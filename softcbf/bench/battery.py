@@ -115,11 +115,14 @@ def load_battery(path: str | Path = BATTERY_FILE) -> Battery:
 
 
 def shown_value(value: Any) -> str:
-    """A setting as the table shows it: a float without a float's noise in its last digit (12.276000000000002 → 12.276)."""
+    """A setting as the table shows it: a float without its noise in the last digit (12.276000000000002 → 12.276),
+    a table as {k=v, ...}."""
     if isinstance(value, bool):
         return str(value).lower()
     if isinstance(value, float):
         return f"{value:.12g}"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}={shown_value(v)}" for k, v in value.items()) + "}"
     return str(value)
 
 

@@ -62,7 +62,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controllers.filter_parameters import parse_text
 from controllers.registry import PluginLoadError, build_filter, find_preset
 from controllers.safety_filter import FilterContext
 from scenarios import get
@@ -181,7 +180,7 @@ def step_case(case: Case, spec: FilterSpec, out: Path, options: RunOptions) -> d
         folder.mkdir(parents=True)
         get(case.scenario_params["scenario"]).run(
             folder, duration=duration, filter=spec.name, filter_params=joined("filter_params", case_filter_params(spec, case)),
-            nominal="step", nominal_params=f"seed={seed};{case.scenario_params['nominal_params']}", progress=False)
+            nominal="step", nominal_params={"seed": str(seed), **case.scenario_params["nominal_params"]}, progress=False)
         runs += run_figures(folder)
     return pooled_figures(runs, f_max_of(folder))
 
@@ -241,7 +240,7 @@ def push_box_study(spec: FilterSpec, case: Case, draws: int, duration: float) ->
     plant, table = case.scenario_params["scenario"], case.table
     box = box_study(spec.name, case_filter_params(spec, case), duration=duration, box_file=project_file(table["box"]))
     task = TASKS[plant, table["push"]].scenario_params
-    push = {"nominal": task["nominal"], "nominal_params": parse_text(task["nominal_params"]),
+    push = {"nominal": task["nominal"], "nominal_params": dict(task["nominal_params"]),
             **{k: v for k, v in task.items() if k not in ("scenario", "duration", "nominal", "nominal_params")}}
     return dataclasses.replace(
         box, name=study_name(spec, case), fixed={**{k: v for k, v in box.fixed.items() if k != "t0"}, **push, **table["fixed"]},
@@ -291,7 +290,7 @@ def battery_cases() -> tuple[Case, ...]:
 CASES = battery_cases()
 TASKS = {(c.table["scenario"], c.table["task"]): c for c in CASES if "task" in c.table}
 """The contact tasks by (plant, task name)."""
-PUSHES: dict[str, dict[str, tuple[str, float]]] = {
+PUSHES: dict[str, dict[str, tuple[dict[str, str], float]]] = {
     plant: {task: (case.scenario_params["nominal_params"], case.asked_N) for (p, task), case in TASKS.items() if p == plant}
     for plant in PUSH_PLANTS}
 """The contact tasks (docs/beyond-the-paper.md#contact-tasks): per plant, {task: (nominal_params, asked N)}: the
