@@ -80,7 +80,7 @@ import numpy as np
 from closedloop.step import RESERVED_COLUMNS
 from controllers.contract.diagnostics import DiagnosticLayout, FlatDiagnostics
 from controllers.core.errors import ControllerInputError
-from controllers.registry import PluginLoadError
+from controllers.registry import PluginLoadError, build_filter, build_nominal
 from controllers.contract.capabilities import Capabilities, CapabilityError, filter_capabilities
 from controllers.contract.safety_filter import (DIAGNOSTIC_FLOATS_MAX, BatchOutput, Estimate, EstimateBatch, FilterContext,
                                        FilterOutput, OutputCheck, checked_batch_arrays, read_only, real_vector,
@@ -519,8 +519,6 @@ class Served:
         self.checks: dict[int, OutputCheck] = {}  # filter index → its output check (as the step's, new at reset)
         if plan.context is None:  # a check-only child
             return
-        from controllers.registry import build_filter, build_nominal
-
         context = plan.context  # each plug-in gets context.copy(): u_min, u_max read-only again (pickling drops the flag)
         self.n = context.robot.n_segments
         try:

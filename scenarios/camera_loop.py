@@ -104,6 +104,8 @@ TABLE = (
 def _calibration(spec: str, plant: MujocoPlant, config: ArmModelConfig, width: int, height: int,
                  backend: str) -> PlaneCalibration:
     """The image-to-plane map: "board" (fit from a render of the calibration board), "truth", or a JSON file."""
+    # MuJoCo +1.3 s, softcbf_mj.physics.mjcf +2.5 s, softcbf_mj.camera.render +2.3 s, perception.plane +0.4 s, perception.detect
+    # (OpenCV) +0.25 s to import: where a camera run is set up, never at `list` or `run camera_loop --help`
     import mujoco
 
     from perception.detect import TagDetector
@@ -148,7 +150,7 @@ def check_spec(spec: CameraLoop) -> Controller:
     """The checks of a `camera_loop` spec beyond its values' (scenarios.spec): the controller, the camera's
     timing on the tick, the detector, the calibration file, the ground truth and the physics step; returns the
     controller it built (`spec.built`)."""
-    from perception.detect import BACKENDS as DETECTOR_BACKENDS
+    from perception.detect import BACKENDS as DETECTOR_BACKENDS  # OpenCV: +0.25 s to import, where a spec is checked
 
     controller = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
     camera_timing(spec).ticks_per_control(spec.camera.tick)
@@ -172,7 +174,7 @@ CameraLoop = scenario_spec(
 
 def camera_timing(spec: CameraLoop) -> CameraTiming:
     """The camera path's timing of `spec` (softcbf_mj.loops.camera_loop.CameraTiming, which checks it)."""
-    from softcbf_mj.loops.camera_loop import CameraTiming
+    from softcbf_mj.loops.camera_loop import CameraTiming  # MuJoCo: +2.4 s to import, where a spec is checked
 
     c = spec.camera
     return CameraTiming(c.frame_rate, spec.control_rate, c.latency, c.drop_rate, c.pixel_noise, c.hold_s)
@@ -202,7 +204,8 @@ def camera_setup(spec: CameraLoop) -> CameraSetup:
     model_robot, safe_set = controller.robot, controller.safe_set
     check_duration(spec.run.duration, camera.tick, model_robot.n_segments, safe_set)  # first: refused at once
 
-    from perception.detect import TagDetector  # OpenCV, MuJoCo: after the checks
+    # OpenCV, MuJoCo: perception +0.2-0.4 s, softcbf_mj.physics.mjcf and mujoco_plant +2.5 s to import, after the checks
+    from perception.detect import TagDetector
     from perception.tags import arm_tag_ids
     from softcbf_mj.physics.mjcf import build_model
     from softcbf_mj.physics.mujoco_plant import MujocoPlant
@@ -229,7 +232,7 @@ class FrameSaver:
         self.saved: list[dict] = []
 
     def __call__(self, j: int, t: float, image: np.ndarray, detections: list) -> None:
-        import cv2
+        import cv2  # +0.2 s to import: only where frames are saved
 
         if not self.every or j % self.every:
             return
@@ -251,6 +254,7 @@ class FrameSaver:
 def run_camera_tuning(out_dir: Path, summary: SummaryWriter, spec: CameraLoop, setup: CameraSetup,
                       render: Callable[[], np.ndarray], run: ControllerRun) -> dict[str, Any]:
     """Run controller `run` through the camera path for the spec's duration and `save_run` it; return its row."""
+    # perception +0.2-0.35 s, softcbf_mj.loops.camera_loop and mujoco_plant (MuJoCo) +2.4 s to import: where a run starts
     from perception.estimator import ArmAngleEstimator
     from perception.tags import arm_tag_ids
     from perception.tracking import TrackingTagDetector
@@ -290,7 +294,7 @@ def run_camera_tuning(out_dir: Path, summary: SummaryWriter, spec: CameraLoop, s
 def camera_loop(out_dir: Path, spec: CameraLoop) -> dict:
     """Run each controller (tuning) of `spec` for its duration through the camera path; write summary.json,
     time series and frames."""
-    from softcbf_mj.camera.render import OffscreenRenderer  # MuJoCo: imported when run (module docstring)
+    from softcbf_mj.camera.render import OffscreenRenderer  # MuJoCo: +2.3 s to import, when run (module docstring)
 
     setup = camera_setup(spec)
     camera = spec.camera

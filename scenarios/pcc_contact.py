@@ -74,7 +74,7 @@ def check_spec(spec: PccContact) -> Controller:
     """The checks of a `pcc_contact` spec beyond its values' (scenarios.spec): the controller (its model and the
     assumed plate), the integrator and the true plates (the moved facets still bound a free space); returns the
     controller it built (`spec.built`)."""
-    from softcbf_mj.physics.pcc_plant import INTEGRATORS  # the plants load the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_plant import INTEGRATORS  # the compiled model (numba): +2.3 s to import, where a run starts
     controller = check_controller(spec.filter, spec.nominal, spec.model, spec.assumed_plate_stiffness)
     check_choice("integrator", spec.integrator, INTEGRATORS)
     delay_periods(spec.command_delay, CONTROL_DT)
@@ -160,7 +160,7 @@ def run_pcc_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1
     if any(len(s.runs) != 1 for s in setups):
         raise ValueError("each sample of a batch must run exactly one tuning")
     first, spec = setups[0], specs[0]
-    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_batch_plant import PCCBatchPlant  # the compiled model (numba): +2.3 s to import, where a run starts
     plant = PCCBatchPlant([s.robot for s in setups], first.plates, len(setups), control_dt=CONTROL_DT,
                           integrator=spec.integrator, tau_p=spec.tau_p, command_delay=spec.command_delay)
     return run_batch_tuning(plant, [s.runs[0] for s in setups], first.context, spec.nominal.name,
@@ -172,7 +172,7 @@ def run_pcc_contact_batch(samples: Sequence[Mapping[str, Any]], nthread: int = 1
           PccContact, BatchForm(pcc_contact_batch_key, run_pcc_contact_batch))
 def pcc_contact(out_dir: Path, spec: PccContact) -> dict:
     """Run each controller (tuning) of `spec` for its duration; write summary.json and one time series per run."""
-    from softcbf_mj.physics.pcc_plant import PCCPlant  # the compiled model (numba): where a run starts
+    from softcbf_mj.physics.pcc_plant import PCCPlant  # the compiled model (numba): +2.3 s to import, where a run starts
     setup = pcc_contact_setup(spec)
     summary = SummaryWriter(out_dir, "pcc_contact", spec.flat(),
                             scene_record(setup.robot, setup.safe_set, spec.plate_stiffness, setup.plates.environment))

@@ -52,6 +52,8 @@ from controllers.contract.filter_parameters import OLD_TEXT_WARNING, Params, add
 from controllers.registry import FILTERS, NOMINALS, PluginLoadError, did_you_mean, is_builtin, parameter_names
 from scenarios import Scenario, get
 from vocabulary.settings import setting
+from softcbf_mj.loops.kernels import compile_notes
+from softcbf_mj.outputs.progress import heartbeat
 from softcbf_mj.outputs.runio import SUMMARY_FILE, OutputDirError, new_run_dir, prepare_out_dir, read_run_folder, release_out_dir
 
 # softcbf_mj.outputs.recording and softcbf_mj.outputs.report are imported where they are used: rerun and
@@ -250,6 +252,8 @@ def command_line_params(items: Sequence[tuple[str, str]], names: typing.Collecti
 
 def _outputs_summary(out_dir: Path) -> str:
     """What a run folder holds, in a few lines, for the end of a run."""
+    # +6.7 s (softcbf_mj.outputs.recording: rerun, MuJoCo) and +1.1 s (softcbf_mj.outputs.report: matplotlib) to import, under load:
+    # after a run, never at `softcbf --help`, `list` or a usage error (the same below)
     from softcbf_mj.outputs.recording import RECORDING_FILE, viewer_command
     from softcbf_mj.outputs.report import PLOTS_DIR, REPORT_FILE
 
@@ -299,7 +303,7 @@ def _discard(out_dir: Path, created: Sequence[Path]) -> None:
 def _stale_outputs(out_dir: Path) -> list[str]:
     """Which of the report and the recording do not show every finished run: missing, or
     older than summary.json (rewritten after each run, before both are rebuilt)."""
-    from softcbf_mj.outputs.recording import RECORDING_FILE
+    from softcbf_mj.outputs.recording import RECORDING_FILE  # +6.7 s, +1.1 s (rerun, matplotlib): `_outputs_summary`
     from softcbf_mj.outputs.report import REPORT_FILE
 
     summary_ns = (out_dir / SUMMARY_FILE).stat().st_mtime_ns
@@ -310,7 +314,7 @@ def _stale_outputs(out_dir: Path) -> list[str]:
 def _interrupted(out_dir: Path, done: list[str]) -> int:
     """After Ctrl-C with `done` finished runs: bring the report and the recording up to
     them (a second Ctrl-C skips that), say what the folder holds, return 130."""
-    from softcbf_mj.outputs.recording import RECORDING_FILE, write_recording
+    from softcbf_mj.outputs.recording import RECORDING_FILE, write_recording  # +6.7 s, +1.1 s: `_outputs_summary`
     from softcbf_mj.outputs.report import write_report
 
     runs = f"{len(done)} finished run(s) ({', '.join(done)})"
@@ -370,11 +374,8 @@ VALIDATION_ERRORS = (UsageError, SettingError, PluginLoadError)  # raised while 
 
 def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[Path], spawn: bool) -> int:
     try:
-        from softcbf_mj.loops.kernels import compile_notes
-        from softcbf_mj.outputs.progress import heartbeat
-
         viewer = contextlib.nullcontext("")
-        if spawn:  # rerun and matplotlib take seconds to import: only for the viewer, so the run talks at once
+        if spawn:  # rerun, matplotlib: +6.7 s to import, only for the viewer, so the run talks at once
             from softcbf_mj.outputs.recording import live_viewer
 
             viewer = live_viewer()

@@ -398,7 +398,7 @@ def test_contact_tasks_are_in_the_battery_with_their_asked_force():
             case = CASE[f"{prefix}_push_{round(ratio * 100):03d}"]
             assert case.scenario_params["scenario"] == plant and case.scenario_params["nominal"] == "step"
             assert abs(case.asked_N - ratio * 0.16) <= 2e-3 * 0.16
-        assert CASE[f"{prefix}_push_150hPa"].asked_N > 0.16 and "150" in CASE[f"{prefix}_push_150hPa"].scenario_params["nominal_params"]
+        assert CASE[f"{prefix}_push_150hPa"].asked_N > 0.16 and CASE[f"{prefix}_push_150hPa"].scenario_params["nominal_params"]["low_hPa"] == "150"
         assert CASE[f"{prefix}_force_target"].scenario_params["nominal"] == "force-target"
     assert all(CASE[c.name].asked_N is None for c in CASES if "push" not in c.name and "force_target" not in c.name)
     assert set(PUSHES) == set(PUSH_PREFIX)

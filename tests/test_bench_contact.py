@@ -23,11 +23,11 @@ def test_push_draws_run_the_150_hpa_push_over_the_standard_box_full_and_quick(na
     drops 0–20 %), the push the 150 hPa push of the exact-plate case, the filter's parameters those of the case."""
     case = CASE[name]
     assert case.scenario_params["scenario"] == plant and case.resumable and case.rate == ("1kHz" if plant == "mujoco_contact" else "camera")
-    assert RunOptions().push_draws == PUSH_BOX_DRAWS >= 100 and RunOptions(quick=True).push_draws == QUICK_PUSH_BOX_DRAWS == 3
-    assert RunOptions(mismatch_draws=7).push_draws == PUSH_BOX_DRAWS
+    assert case.draws(RunOptions()) == PUSH_BOX_DRAWS >= 100 and case.draws(RunOptions(quick=True)) == QUICK_PUSH_BOX_DRAWS == 3
+    assert case.draws(RunOptions(mismatch_draws=7)) == PUSH_BOX_DRAWS
     assert case.quick_duration_s() == QUICK_PUSH_DURATION_S >= 3.0
     box = load_study(project_file(PUSH_BOX_FILES[plant]))
-    for draws, duration in ((RunOptions().push_draws, PUSH_DURATION_S), (RunOptions(quick=True).push_draws, QUICK_PUSH_DURATION_S)):
+    for draws, duration in ((case.draws(RunOptions()), PUSH_DURATION_S), (case.draws(RunOptions(quick=True)), QUICK_PUSH_DURATION_S)):
         study = push_box_study(RECOMMENDED, case, draws, duration)
         assert study.scenario == plant and study.draws == draws and study.sampling == "monte_carlo"
         assert study.vary == box.vary and study.seed == box.seed

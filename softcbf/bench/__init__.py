@@ -8,7 +8,8 @@ Its rooms, each module's docstring the reference for its part:
 | module      | what                                                                                           |
 |-------------|------------------------------------------------------------------------------------------------|
 | filters     | the filters under test: `--filters` specs, the default selection (the recommended filter and the baselines) |
-| cases       | the battery (`CASES`), how each case runs, each filter's parameters per case, --quick's cuts, contact under error per filter and plant |
+| battery     | the battery's data file battery.toml (every case and setting): read, checked, its table in docs/results.md |
+| cases       | the battery (`CASES`, from battery.toml), how each case runs, each filter's parameters per case, contact under error per filter and plant |
 | figures     | a case's figures from its run folders: pooling, faults, steady force, nominal acceptance       |
 | certified   | which coordinates of the worst-case search's box lie beyond what a filter certifies           |
 | schema      | bench.json's fields and their check                                                            |

@@ -51,6 +51,8 @@ from pathlib import Path
 from typing import Any
 
 from softcbf.shipped import resolve as shipped_or_file
+from softcbf.study.definition import load_study
+from softcbf_mj.outputs.progress import Progress, significant
 from softcbf_mj.outputs.runio import OutputDirError
 
 # The study machinery (pyarrow, Dask, matplotlib) is imported by the handlers, so that
@@ -62,15 +64,14 @@ STORAGE_HELP = ("where optuna keeps the search's trials: journal (--out/optuna.j
 
 
 def _run(args: argparse.Namespace) -> int:
-    from softcbf.study.definition import load_study
-    from softcbf.study.execute import run_study
+    from softcbf.study.execute import run_study  # +0.28 s to import: `study run` only
 
     def body() -> None:
         study = load_study(shipped_or_file("study", args.study_file), args.set)
         options = {"workers": args.workers, "scheduler": args.scheduler, "resume": args.resume,
                    "keep_runs": args.keep_runs, "progress": not args.no_progress, "batch_size": args.batch_size}
         if args.until_bound is not None:
-            from softcbf.study.sequential import run_until_bound
+            from softcbf.study.sequential import run_until_bound  # +0.41 s to import: --until-bound only
 
             if args.samples is not None:
                 raise ValueError("--until-bound chooses the number of samples itself; give it or --samples, not both")
@@ -89,7 +90,7 @@ def _run(args: argparse.Namespace) -> int:
               f"faults, counted as violations), {outcome.skipped} already "
               f"stored" + (f", {outcome.corrupted} corrupted part(s) run again" if outcome.corrupted else "")
               + f", {outcome.wall_s:.1f} s on {outcome.workers} {outcome.backend} worker(s); folder {args.out}")
-        from softcbf.study.report import write_report  # pandas, matplotlib: after the run, so its first line is early
+        from softcbf.study.report import write_report  # pandas, matplotlib: +1.6 s, after the run, so its first line is early
 
         print(f"report: {write_report(args.out)}")
 
@@ -111,8 +112,6 @@ def _resumable(body, out: Path, stored: str) -> int:
 
 
 def _falsify(args: argparse.Namespace) -> int:
-    from softcbf.study.definition import load_study
-    from softcbf_mj.outputs.progress import Progress, significant
 
     def shown(value: Any) -> str:
         """A figure or parameter to `significant` digits (a tuning, a flag: as it is)."""
@@ -128,7 +127,8 @@ def _falsify(args: argparse.Namespace) -> int:
         if args.seeds is not None:
             _falsify_seeds(study, args, bar)
             return
-        from softcbf.study.falsify import falsify  # optuna: a second or more to import, after the first line
+        # optuna: falsify +0.74 s, screen +1.0 s (with falsify), store +0.22 s to import, after the first line
+        from softcbf.study.falsify import falsify
         from softcbf.study.screen import SCREEN_DIR
         from softcbf.study.store import search_storage
 
@@ -139,7 +139,7 @@ def _falsify(args: argparse.Namespace) -> int:
                    "storage": storage, "resume": args.resume, "workers": args.workers,
                    "scheduler": args.scheduler, "batch_size": args.batch_size, "progress": bar}
         if args.screen is not None:
-            from softcbf.study.screen import falsify_screened
+            from softcbf.study.screen import falsify_screened  # loaded above (SCREEN_DIR)
             if args.baseline:
                 raise ValueError("--baseline draws on the study's own scenario; a screened search (--screen) has none")
             result = falsify_screened(study, args.out, screen=args.screen, confirm=args.confirm, **options)
@@ -158,7 +158,7 @@ def _falsify(args: argparse.Namespace) -> int:
             print(f"screened on {args.screen}: {screen['evaluations']} evaluations (first violation there: "
                   f"{screen['first_violation'] or 'none'}); confirmed {len(result['confirmed'])} on {study.scenario}; "
                   f"expensive evaluations spent: {result['expensive_evaluations']} (the worst's replay included)")
-        from softcbf.study.report import write_report  # pandas, matplotlib: after the search (its first line early)
+        from softcbf.study.report import write_report  # pandas, matplotlib: +1.6 s, after the search (its first line early)
 
         print(f"report: {write_report(args.out)}")
 
@@ -178,7 +178,7 @@ def baseline_text(base: dict[str, Any], shown: Any = str) -> str:
 
 def _falsify_seeds(study: Any, args: argparse.Namespace, bar: Any) -> None:
     """`falsify --seeds N`: the campaign of `softcbf.study.campaign`, its table printed and in the report."""
-    from softcbf.study.campaign import falsify_seeds
+    from softcbf.study.campaign import falsify_seeds  # +0.95 s to import (optuna): --seeds only
 
     if args.baseline or args.storage:
         raise ValueError("--seeds runs its falsifications without --baseline and in SQLite files of their own "
@@ -194,14 +194,13 @@ def _falsify_seeds(study: Any, args: argparse.Namespace, bar: Any) -> None:
         print(f"{row['filter']} on {row['box']}: falsified {row['falsified']} of {row['runs']} seeds"
               + (f", evaluations to the first counterexample median {first['median']:g} "
                  f"[{first['min']}, {first['max']}]" if first else ""))
-    from softcbf.study.report import write_report
+    from softcbf.study.report import write_report  # pandas, matplotlib: +1.6 s, after the searches
 
     print(f"report: {write_report(args.out)}")
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from softcbf.study.tune import load_tune
-    from softcbf_mj.outputs.progress import Progress, significant
+    from softcbf.study.tune import load_tune, tune  # +0.19 s to import: `study tune` only (its optuna when it starts)
 
     def body() -> None:
         tune_file = load_tune(args.tune_file, args.set)
@@ -211,8 +210,7 @@ def _tune(args: argparse.Namespace) -> int:
         if args.confirm is not None and args.screen is None:
             raise ValueError("--confirm counts the confirmations of a screened inner search; give --screen SCENARIO "
                              "with it")
-        from softcbf.study.store import search_storage
-        from softcbf.study.tune import tune  # optuna: a second or more to import, after the first line
+        from softcbf.study.store import search_storage  # +0.22 s to import (pyarrow): after the first line
 
         storage = search_storage(args.out, args.storage, args.resume, on_dask=args.scheduler is not None)
         result = tune(tune_file, args.out, budget=args.budget, inner_budget=args.inner_budget, sampler=args.sampler,
@@ -242,7 +240,7 @@ def _tune(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     print(f"study report: rebuilding {args.dir}'s tables and plots", flush=True)
-    from softcbf.study.report import write_report
+    from softcbf.study.report import write_report  # pandas, matplotlib: +1.6 s, after the command's first line
 
     try:
         path = write_report(args.dir, level=args.level, bins=args.bins, figure_format=args.figure_format, dpi=args.dpi)

@@ -123,6 +123,7 @@ def connect_scheduler(address: str, timeout: float | None = None) -> Any:
     `SCHEDULER_CONNECT_TIMEOUT_S`). The address is
     tried with one bare connection first: a Client that fails to start blocks for twice its timeout when it is
     collected and prints a traceback, so no Client is made for an address that does not answer."""
+    # distributed (Dask, the optional `cluster` dependency): +2.5 s to import, asyncio +0.11 s: with --scheduler only
     import asyncio
 
     from distributed import Client
