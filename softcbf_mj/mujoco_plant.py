@@ -58,8 +58,24 @@ qvel and the mocap poses, not ctrl, so at the start of a period they are those t
 `mj_step` gives, bit for bit (tests/test_mujoco_plant.py). Should qpos, qvel or the mocap
 poses differ from what that forward saw (the data was edited between steps, or a check reset
 it), the stages are computed again (`mj_step1`). With RK4 (not split by MuJoCo) and no table
-friction every physics step is `mj_step`. Assumed: no `mjcb_control` callback, and the model is
-not changed between steps without an `mj_forward`.
+friction every physics step is `mj_step`.
+
+`mj_step2` of that first step need not solve again either. It is `mj_fwdActuation` (actuator
+forces and act_dot from ctrl and act), `mj_fwdAcceleration` (the smooth acceleration from the
+passive, bias, applied and actuator forces), `mj_fwdConstraint` (the constraint solve, warm-started
+from qacc_warmstart, which only integration writes), `mj_sensorAcc`, `mj_checkAcc`, then the
+integrator (`mj_implicit` for the implicit ones, `mj_Euler`). The reporting `mj_forward` ran the same
+stages with the old ctrl. ctrl acts on the forces only through the actuators (no `mjcb_control`), so
+when `mj_fwdActuation` with the new ctrl leaves actuator_force and qfrc_actuator as they were, and
+qfrc_applied and xfrc_applied are untouched, every input of the acceleration, constraint and sensor
+stages is the one that forward saw, and their outputs (qacc, efc_force, sensordata) are those it
+left, bit for bit. This holds for actuators with pressure dynamics (the force is λ·act; ctrl moves
+only act_dot, which the integrator reads); an ideal actuator (no pressure lag: the force is λ·ctrl)
+changes the forces and takes the whole `mj_step2`, as does `mjENBL_FWDINV` (its check runs there).
+The first step is then `mj_fwdActuation`, `mj_checkAcc` and the integrator: a control period solves
+the constraints steps_per_control times, as bare `mj_step` does, not once more for the report.
+Assumed: no `mjcb_control` callback (nor user actuator callbacks or plugins that read ctrl beyond
+the forces), and the model is not changed between steps without an `mj_forward`.
 """
 
 from __future__ import annotations
@@ -200,6 +216,11 @@ class MujocoPlant:
                               data.actuator_force)
         # what the position and velocity stages read (`_stage_inputs`): qpos, qvel and, if any, the mocap poses
         self._stage_arrays = (data.qpos, data.qvel, *((data.mocap_pos, data.mocap_quat) if model.nmocap else ()))
+        # what the acceleration stages read beside them (`_force_inputs`): the applied and the actuator forces
+        self._force_arrays = (data.qfrc_applied, data.xfrc_applied, data.actuator_force, data.qfrc_actuator)
+        self._fwdinv = bool(model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_FWDINV)
+        self._implicit = int(model.opt.integrator) in (int(mujoco.mjtIntegrator.mjINT_IMPLICIT),
+                                                       int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
         self._warning_counts = data.warning.number  # (mjNWARNING,) int, a view of the data's warning stats
 
         self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
@@ -213,6 +234,7 @@ class MujocoPlant:
         # mj_step1 + mj_step2 is mj_step for these integrators (MuJoCo's docs; RK4 is not split)
         self._split_steps = int(model.opt.integrator) in SPLIT_INTEGRATORS
         self._forwarded: tuple[bytes, ...] = ()  # `_stage_inputs` at the last `_forward`
+        self._forwarded_forces: tuple[bytes, ...] = ()  # `_force_inputs` at the last `_forward`
         self.command_delay = command_delay_of(model)  # s; the FIFO below when > 0 (module docstring)
         periods = delay_periods(self.command_delay, self.control_dt)
         self.delay = CommandDelay(periods, (1, n)) if periods else None
@@ -286,8 +308,7 @@ class MujocoPlant:
         if friction is None and not self._split_steps:
             mujoco.mj_step(model, data, nstep=self.steps_per_control)
         elif friction is None:
-            self._first_step1()
-            mujoco.mj_step2(model, data)
+            self._first_step2(self._first_step1())
             mujoco.mj_step(model, data, nstep=self.steps_per_control - 1)
         else:
             energy_rate = 0.0
@@ -347,19 +368,46 @@ class MujocoPlant:
         data = self.data
         mujoco.mj_forward(self.model, data)
         self._forwarded = self._stage_inputs()
+        self._forwarded_forces = self._force_inputs()
 
     def _stage_inputs(self) -> tuple[bytes, ...]:
         """What MuJoCo's position and velocity stages read from the data: qpos, qvel, the mocap poses."""
         return tuple([array.tobytes() for array in self._stage_arrays])
 
-    def _first_step1(self) -> None:
+    def _force_inputs(self) -> tuple[bytes, ...]:
+        """The forces MuJoCo's acceleration stages read beside those stages' outputs: qfrc_applied,
+        xfrc_applied, actuator_force, qfrc_actuator."""
+        return tuple([array.tobytes() for array in self._force_arrays])
+
+    def _first_step1(self) -> bool:
         """`mj_step1` of a control period's first physics step (module docstring): its checks,
-        and its position and velocity stages only if their inputs have changed since `_forward`."""
+        and its position and velocity stages only if their inputs have changed since `_forward`.
+        True when they had not (the forward's stages stand)."""
         model, data = self.model, self.data
         mujoco.mj_checkPos(model, data)
         mujoco.mj_checkVel(model, data)
         if self._stage_inputs() != self._forwarded:  # edited, or reset by a check: compute them
             mujoco.mj_step1(model, data)
+            return False
+        return True
+
+    def _first_step2(self, forwarded: bool) -> None:
+        """`mj_step2` of a control period's first physics step (module docstring): after `mj_fwdActuation`
+        with the new ctrl, the acceleration, constraint and sensor stages only if their inputs differ from
+        those of `_forward` (`forwarded`: its position and velocity stages stand)."""
+        model, data = self.model, self.data
+        if not forwarded or self._fwdinv:
+            mujoco.mj_step2(model, data)
+            return
+        mujoco.mj_fwdActuation(model, data)
+        if self._force_inputs() != self._forwarded_forces:  # ctrl moved the forces (or they were edited)
+            mujoco.mj_step2(model, data)  # its mj_fwdActuation gives what the one above gave
+            return
+        mujoco.mj_checkAcc(model, data)
+        if self._implicit:
+            mujoco.mj_implicit(model, data)
+        else:
+            mujoco.mj_Euler(model, data)
 
     def _vector(self, value: np.ndarray, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)

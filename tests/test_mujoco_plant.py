@@ -394,3 +394,21 @@ def test_the_compiled_force_is_numpys_maximum():
     assert forces.tobytes() == np.maximum(0.0, stiffness * x).tobytes()
     assert out[:4 * n + 2].tolist() == [0.5, 0.25, 1.0, 1.0, 2.0, 2.0]
     assert out[4 * n + 2 + p] == 7.0 and out[5 * n + 2 + p:].tobytes() == x.tobytes()
+
+
+@pytest.mark.parametrize("changes, extra", [({}, 0), (dict(tau_p=0.0), 1)], ids=["pressure-lag", "no-pressure-lag"])
+def test_a_period_solves_the_constraints_once_a_physics_step(changes, extra):
+    """With pressure dynamics the reporting mj_forward's constraint solve stands for the period's first
+    step (module docstring): steps_per_control solves a period, as bare mj_step; an ideal actuator,
+    whose force a new command moves, solves once more (a held one moves nothing)."""
+    plant = MujocoPlant.from_config(**changes)
+    timer = plant.data.timer[mujoco.mjtTimer.mjTIMER_CONSTRAINT]
+    plant.step(np.array([140.0, 140.0]))
+    before = timer.number
+    for k in range(20):
+        plant.step(np.array([150.0, 120.0 + k]))
+    assert timer.number - before == 20 * (plant.steps_per_control + extra)
+    before = timer.number
+    for _ in range(5):
+        plant.step(np.array([150.0, 140.0]))
+    assert timer.number - before == 5 * plant.steps_per_control + extra
