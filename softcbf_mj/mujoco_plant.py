@@ -422,10 +422,10 @@ class MujocoPlant:
         `points` also the sheet-surface point of each facet's strongest contact (else NaN: the ideal
         plate does not report it)."""
         model, data, n_facets = self.model, self.data, self.n_facets
+        if not data.ncon:  # no contact: the list's wrapper and its field (about 1 µs) are not built
+            return PlateContacts.empty(n_facets, points)
         contact = data.contact  # MuJoCo's contact list, ncon long
         geoms = contact.geom.tolist()
-        if not geoms:
-            return PlateContacts.empty(n_facets, points)
         # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
         # struct of one contact), the same operations in the same order as summing per contact.
         # Each read of a field of MuJoCo's contact list builds an array (about 1 µs): the frames are
