@@ -292,10 +292,11 @@ def test_a_control_period_is_bit_identical_to_mujocos_own_steps(changes):
     assert (force > 0) == (plant.n_facets > 0)  # the run reaches the plate
 
 
-@pytest.mark.parametrize("edit", ["qpos", "qvel", "nan"])
+@pytest.mark.parametrize("edit", ["qpos", "qvel", "nan", "xfrc_applied", "act"])
 def test_edits_of_the_data_between_steps_are_seen(edit, tmp_path, monkeypatch):
-    """qpos or qvel changed after the last step (no mj_forward), or a NaN that makes MuJoCo's
-    check reset the data: the next period is still mj_step's from the edited data."""
+    """qpos or qvel changed after the last step (no mj_forward), a NaN that makes MuJoCo's check
+    reset the data, a force applied to a link or a pressure state changed (inputs of the acceleration
+    stages the reporting forward's solve stands for): the next period is still mj_step's from the edited data."""
     monkeypatch.chdir(tmp_path)  # MuJoCo writes the NaN's warning to MUJOCO_LOG.TXT here
     plant = MujocoPlant.from_config()
     u = np.array([140.0, 140.0])
@@ -305,6 +306,10 @@ def test_edits_of_the_data_between_steps_are_seen(edit, tmp_path, monkeypatch):
     for target in (plant.data, data):
         if edit == "nan":
             target.qvel[plant.hinge_dofs[0][0]] = np.nan
+        elif edit == "xfrc_applied":
+            target.xfrc_applied[plant.model.geom_bodyid[plant.tip_geom], 1] = 0.02  # N, on the tip's body
+        elif edit == "act":
+            target.act[plant.act_adr[0]] -= 20.0
         else:
             getattr(target, edit)[plant.hinge_dofs[1][-1]] += 0.05
     for k in range(20):
