@@ -63,6 +63,11 @@ def test_bad_arguments_are_refused_by_name(args, message):
     assert done.returncode == 2 and message in done.stderr
 
 
+def test_a_tuning_is_the_paper_cbfs_or_another_filter_with_its_defaults():
+    assert [serial_bench.run_params(t) for t in ("None", "Low", "c-erg:recommended")] == [
+        {"tunings": "None"}, {"tunings": "Low"}, {"filter": "c-erg:recommended"}]
+
+
 def test_timing_summaries_match_numpy_and_refuse_what_they_do_not_know():
     times = list(np.random.default_rng(0).exponential(20.0, 501))
     got = timing.summary_us(times, ("median", "p99", "mean", "min", "max"), digits=9)

@@ -292,10 +292,11 @@ def test_a_control_period_is_bit_identical_to_mujocos_own_steps(changes):
     assert (force > 0) == (plant.n_facets > 0)  # the run reaches the plate
 
 
-@pytest.mark.parametrize("edit", ["qpos", "qvel", "nan"])
+@pytest.mark.parametrize("edit", ["qpos", "qvel", "nan", "xfrc_applied", "act"])
 def test_edits_of_the_data_between_steps_are_seen(edit, tmp_path, monkeypatch):
-    """qpos or qvel changed after the last step (no mj_forward), or a NaN that makes MuJoCo's
-    check reset the data: the next period is still mj_step's from the edited data."""
+    """qpos or qvel changed after the last step (no mj_forward), a NaN that makes MuJoCo's check
+    reset the data, a force applied to a link or a pressure state changed (inputs of the acceleration
+    stages the reporting forward's solve stands for): the next period is still mj_step's from the edited data."""
     monkeypatch.chdir(tmp_path)  # MuJoCo writes the NaN's warning to MUJOCO_LOG.TXT here
     plant = MujocoPlant.from_config()
     u = np.array([140.0, 140.0])
@@ -305,6 +306,10 @@ def test_edits_of_the_data_between_steps_are_seen(edit, tmp_path, monkeypatch):
     for target in (plant.data, data):
         if edit == "nan":
             target.qvel[plant.hinge_dofs[0][0]] = np.nan
+        elif edit == "xfrc_applied":
+            target.xfrc_applied[plant.model.geom_bodyid[plant.tip_geom], 1] = 0.02  # N, on the tip's body
+        elif edit == "act":
+            target.act[plant.act_adr[0]] -= 20.0
         else:
             getattr(target, edit)[plant.hinge_dofs[1][-1]] += 0.05
     for k in range(20):
@@ -394,3 +399,21 @@ def test_the_compiled_force_is_numpys_maximum():
     assert forces.tobytes() == np.maximum(0.0, stiffness * x).tobytes()
     assert out[:4 * n + 2].tolist() == [0.5, 0.25, 1.0, 1.0, 2.0, 2.0]
     assert out[4 * n + 2 + p] == 7.0 and out[5 * n + 2 + p:].tobytes() == x.tobytes()
+
+
+@pytest.mark.parametrize("changes, extra", [({}, 0), (dict(tau_p=0.0), 1)], ids=["pressure-lag", "no-pressure-lag"])
+def test_a_period_solves_the_constraints_once_a_physics_step(changes, extra):
+    """With pressure dynamics the reporting mj_forward's constraint solve stands for the period's first
+    step (module docstring): steps_per_control solves a period, as bare mj_step; an ideal actuator,
+    whose force a new command moves, solves once more (a held one moves nothing)."""
+    plant = MujocoPlant.from_config(**changes)
+    timer = plant.data.timer[mujoco.mjtTimer.mjTIMER_CONSTRAINT]
+    plant.step(np.array([140.0, 140.0]))
+    before = timer.number
+    for k in range(20):
+        plant.step(np.array([150.0, 120.0 + k]))
+    assert timer.number - before == 20 * (plant.steps_per_control + extra)
+    before = timer.number
+    for _ in range(5):
+        plant.step(np.array([150.0, 140.0]))
+    assert timer.number - before == 5 * plant.steps_per_control + extra

@@ -58,8 +58,24 @@ qvel and the mocap poses, not ctrl, so at the start of a period they are those t
 `mj_step` gives, bit for bit (tests/test_mujoco_plant.py). Should qpos, qvel or the mocap
 poses differ from what that forward saw (the data was edited between steps, or a check reset
 it), the stages are computed again (`mj_step1`). With RK4 (not split by MuJoCo) and no table
-friction every physics step is `mj_step`. Assumed: no `mjcb_control` callback, and the model is
-not changed between steps without an `mj_forward`.
+friction every physics step is `mj_step`.
+
+`mj_step2` of that first step need not solve again either. It is `mj_fwdActuation` (actuator
+forces and act_dot from ctrl and act), `mj_fwdAcceleration` (the smooth acceleration from the
+passive, bias, applied and actuator forces), `mj_fwdConstraint` (the constraint solve, warm-started
+from qacc_warmstart, which only integration writes), `mj_sensorAcc`, `mj_checkAcc`, then the
+integrator (`mj_implicit` for the implicit ones, `mj_Euler`). The reporting `mj_forward` ran the same
+stages with the old ctrl. ctrl acts on the forces only through the actuators (no `mjcb_control`), so
+when `mj_fwdActuation` with the new ctrl leaves actuator_force and qfrc_actuator as they were, and
+qfrc_applied and xfrc_applied are untouched, every input of the acceleration, constraint and sensor
+stages is the one that forward saw, and their outputs (qacc, efc_force, sensordata) are those it
+left, bit for bit. This holds for actuators with pressure dynamics (the force is λ·act; ctrl moves
+only act_dot, which the integrator reads); an ideal actuator (no pressure lag: the force is λ·ctrl)
+changes the forces and takes the whole `mj_step2`, as does `mjENBL_FWDINV` (its check runs there).
+The first step is then `mj_fwdActuation`, `mj_checkAcc` and the integrator: a control period solves
+the constraints steps_per_control times, as bare `mj_step` does, not once more for the report.
+Assumed: no `mjcb_control` callback (nor user actuator callbacks or plugins that read ctrl beyond
+the forces), and the model is not changed between steps without an `mj_forward`.
 """
 
 from __future__ import annotations
@@ -200,6 +216,11 @@ class MujocoPlant:
                               data.actuator_force)
         # what the position and velocity stages read (`_stage_inputs`): qpos, qvel and, if any, the mocap poses
         self._stage_arrays = (data.qpos, data.qvel, *((data.mocap_pos, data.mocap_quat) if model.nmocap else ()))
+        # what the acceleration stages read beside them (`_force_inputs`): the applied and the actuator forces
+        self._force_arrays = (data.qfrc_applied, data.xfrc_applied, data.actuator_force, data.qfrc_actuator)
+        self._fwdinv = bool(model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_FWDINV)
+        self._implicit = int(model.opt.integrator) in (int(mujoco.mjtIntegrator.mjINT_IMPLICIT),
+                                                       int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
         self._warning_counts = data.warning.number  # (mjNWARNING,) int, a view of the data's warning stats
 
         self.u_min = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
@@ -213,6 +234,7 @@ class MujocoPlant:
         # mj_step1 + mj_step2 is mj_step for these integrators (MuJoCo's docs; RK4 is not split)
         self._split_steps = int(model.opt.integrator) in SPLIT_INTEGRATORS
         self._forwarded: tuple[bytes, ...] = ()  # `_stage_inputs` at the last `_forward`
+        self._forwarded_forces: tuple[bytes, ...] = ()  # `_force_inputs` at the last `_forward`
         self.command_delay = command_delay_of(model)  # s; the FIFO below when > 0 (module docstring)
         periods = delay_periods(self.command_delay, self.control_dt)
         self.delay = CommandDelay(periods, (1, n)) if periods else None
@@ -286,8 +308,7 @@ class MujocoPlant:
         if friction is None and not self._split_steps:
             mujoco.mj_step(model, data, nstep=self.steps_per_control)
         elif friction is None:
-            self._first_step1()
-            mujoco.mj_step2(model, data)
+            self._first_step2(self._first_step1())
             mujoco.mj_step(model, data, nstep=self.steps_per_control - 1)
         else:
             energy_rate = 0.0
@@ -305,22 +326,26 @@ class MujocoPlant:
     def state(self) -> PlantState:
         """The state of the current data (after `mj_forward`, if you edited it)."""
         n, p = self.n_segments, self.n_facets
-        values = np.empty(5 * n + 2 + 2 * p)  # q, qd, segment ends, contact forces, u_applied, spring (plant_kernel)
+        # one new array holds every fixed-size value: q, qd, segment ends, contact forces, u_applied and spring
+        # (plant_kernel), then the solver's normal and tangential forces (`_plate_contacts`); the state's arrays
+        # are views of it (about 1 µs an array fewer to build, on the loop's every period)
+        values = np.zeros(5 * n + 2 + 4 * p)
         plant_kernel.read_state(*self._state_arrays, self._state_index, self.plate_stiffness, values)
-        ends, applied = 2 * n, 4 * n + 2 + p
-        spring = values[applied + n:]  # the plate's Δ or the gauge's x_g, m
-        contacts = self._plate_contacts(bool(self.sheets))
+        ends, applied, solver = 2 * n, 4 * n + 2 + p, 5 * n + 2 + 2 * p
+        spring = values[applied + n:solver]  # the plate's Δ or the gauge's x_g, m
+        normal, tangential = values[solver:solver + p], values[solver + p:]
+        points = self._plate_contacts(normal, tangential, bool(self.sheets))
         displacement = spring.copy() if self.sheets else spring
         extras: dict[str, float | np.ndarray] = {
             "plate_displacement_m": displacement,
-            "force_solver_N": contacts.normal,
-            "force_tangential_N": contacts.tangential,
+            "force_solver_N": normal,
+            "force_tangential_N": tangential,
         }
         if self.sheets:
             where = np.full(self.n_facets, np.nan)
             stiffness = np.full(self.n_facets, np.nan)
             for k, sheet in self.sheets.items():
-                point = contacts.point[k]
+                point = points[k]
                 displacement[k] = 0.0
                 if np.all(np.isfinite(point)):
                     relative = point - sheet.origin
@@ -347,19 +372,46 @@ class MujocoPlant:
         data = self.data
         mujoco.mj_forward(self.model, data)
         self._forwarded = self._stage_inputs()
+        self._forwarded_forces = self._force_inputs()
 
     def _stage_inputs(self) -> tuple[bytes, ...]:
         """What MuJoCo's position and velocity stages read from the data: qpos, qvel, the mocap poses."""
         return tuple([array.tobytes() for array in self._stage_arrays])
 
-    def _first_step1(self) -> None:
+    def _force_inputs(self) -> tuple[bytes, ...]:
+        """The forces MuJoCo's acceleration stages read beside those stages' outputs: qfrc_applied,
+        xfrc_applied, actuator_force, qfrc_actuator."""
+        return tuple([array.tobytes() for array in self._force_arrays])
+
+    def _first_step1(self) -> bool:
         """`mj_step1` of a control period's first physics step (module docstring): its checks,
-        and its position and velocity stages only if their inputs have changed since `_forward`."""
+        and its position and velocity stages only if their inputs have changed since `_forward`.
+        True when they had not (the forward's stages stand)."""
         model, data = self.model, self.data
         mujoco.mj_checkPos(model, data)
         mujoco.mj_checkVel(model, data)
         if self._stage_inputs() != self._forwarded:  # edited, or reset by a check: compute them
             mujoco.mj_step1(model, data)
+            return False
+        return True
+
+    def _first_step2(self, forwarded: bool) -> None:
+        """`mj_step2` of a control period's first physics step (module docstring): after `mj_fwdActuation`
+        with the new ctrl, the acceleration, constraint and sensor stages only if their inputs differ from
+        those of `_forward` (`forwarded`: its position and velocity stages stand)."""
+        model, data = self.model, self.data
+        if not forwarded or self._fwdinv:
+            mujoco.mj_step2(model, data)
+            return
+        mujoco.mj_fwdActuation(model, data)
+        if self._force_inputs() != self._forwarded_forces:  # ctrl moved the forces (or they were edited)
+            mujoco.mj_step2(model, data)  # its mj_fwdActuation gives what the one above gave
+            return
+        mujoco.mj_checkAcc(model, data)
+        if self._implicit:
+            mujoco.mj_implicit(model, data)
+        else:
+            mujoco.mj_Euler(model, data)
 
     def _vector(self, value: np.ndarray, name: str) -> np.ndarray:
         arr = np.asarray(value, dtype=float)
@@ -369,15 +421,16 @@ class MujocoPlant:
             raise ValueError(f"{name} must be finite, got {arr.tolist()}")
         return arr
 
-    def _plate_contacts(self, points: bool) -> "PlateContacts":
-        """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce); with
-        `points` also the sheet-surface point of each facet's strongest contact (else NaN: the ideal
-        plate does not report it)."""
+    def _plate_contacts(self, normal: np.ndarray, tangential: np.ndarray, points: bool) -> np.ndarray | None:
+        """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce), written into
+        `normal` and `tangential` ((P,) N, zeros on entry): the summed normal force and the magnitude of the
+        summed tangential force. Returns, with `points`, the sheet-surface point (world x, y, m; (P, 2)) of each
+        facet's strongest contact (NaN: none), else None (the ideal plate does not report it)."""
         model, data, n_facets = self.model, self.data, self.n_facets
+        if not data.ncon:  # no contact: the list's wrapper and its field (about 1 µs) are not built
+            return np.full((n_facets, 2), np.nan) if points else None
         contact = data.contact  # MuJoCo's contact list, ncon long
         geoms = contact.geom.tolist()
-        if not geoms:
-            return PlateContacts.empty(n_facets, points)
         # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
         # struct of one contact), the same operations in the same order as summing per contact.
         # Each read of a field of MuJoCo's contact list builds an array (about 1 µs): the frames are
@@ -387,7 +440,7 @@ class MujocoPlant:
         # skipping its frame changes no bit.
         facet_of, on_arm = self._facet_of_geom, self._on_arm
         normal_sum = [0.0] * n_facets
-        tangential = [[0.0, 0.0, 0.0] for _ in range(n_facets)]
+        summed_tangential = [[0.0, 0.0, 0.0] for _ in range(n_facets)]
         strongest = [0.0] * n_facets
         where = [[math.nan, math.nan] for _ in range(n_facets)] if points else None
         touched = False
@@ -401,40 +454,27 @@ class MujocoPlant:
             else:
                 continue
             mujoco.mj_contactForce(model, data, c, force)
-            normal, f1, f2 = force[:3].tolist()
-            normal_sum[k] += normal
+            pressing, f1, f2 = force[:3].tolist()  # normal, two tangential (N)
+            normal_sum[k] += pressing
             touched = True
-            stronger = points and normal > strongest[k]
+            stronger = points and pressing > strongest[k]
             if not (stronger or f1 != 0.0 or f2 != 0.0):
                 continue
             if frames is None:
                 frames = contact.frame
             frame = frames[c].tolist()  # rows: normal (from geom1 to geom2), two tangents
-            summed = tangential[k]
+            summed = summed_tangential[k]
             for j in range(3):
                 summed[j] += f1 * frame[3 + j] + f2 * frame[6 + j]
             if stronger:
-                strongest[k] = normal
+                strongest[k] = pressing
                 if dist is None:
                     dist, pos = contact.dist, contact.pos
                 half_dist, at = 0.5 * float(dist[c]), pos[c].tolist()
                 where[k] = [at[j] + half_dist * (sign * frame[j]) for j in range(2)]
-        # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
-        norms = [math.sqrt(x * x + y * y + z * z) for x, y, z in tangential] if touched else [0.0] * n_facets
-        return PlateContacts(np.array(normal_sum), np.array(norms),
-                             np.array(where).reshape(n_facets, 2) if points else None)
+        if touched:
+            normal[:] = normal_sum
+            # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
+            tangential[:] = [math.sqrt(x * x + y * y + z * z) for x, y, z in summed_tangential]
+        return np.array(where).reshape(n_facets, 2) if points else None
 
-
-@dataclasses.dataclass
-class PlateContacts:
-    """Per facet (P,): summed normal force (N), magnitude of the summed tangential force (N), and the
-    sheet-surface point (world x, y, m; (P, 2)) of the contact with the largest normal force (NaN: none;
-    None: not asked for)."""
-
-    normal: np.ndarray
-    tangential: np.ndarray
-    point: np.ndarray | None
-
-    @classmethod
-    def empty(cls, n_facets: int, points: bool = True) -> "PlateContacts":
-        return cls(np.zeros(n_facets), np.zeros(n_facets), np.full((n_facets, 2), np.nan) if points else None)
