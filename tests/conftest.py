@@ -16,7 +16,8 @@ tests that took the most CPU time; below) and `realtime_alone`: under pytest-xdi
 "realtime" (wall-clock deadlines: the emulated hardware, the link, first-output times) runs with every other worker
 idle. Each test holds a shared lock on a file of the session's base folder, a realtime test the exclusive one; a
 realtime test first takes an exclusive "gate" that other tests pass through before their shared lock, so that a
-worker starting test after test cannot keep it waiting. Without xdist nothing is locked.
+worker starting test after test cannot keep it waiting. Without xdist nothing is locked. A test of that group is also
+marked `realtime` (`pytest_collection_modifyitems`), so that `-m realtime` / `-m "not realtime"` select it.
 """
 
 import softcbf_mj  # noqa: F401  (sets MUJOCO_GL)
@@ -64,6 +65,16 @@ def pytest_sessionstart(session):
     if done.returncode != 0:
         last = (done.stderr or done.stdout or f"exit {done.returncode}").strip().splitlines()[-1]
         raise pytest.UsageError(f"the kernel warm-up (tests/conftest.py) failed: {last}")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """A test of the xdist group "realtime" is also marked `realtime`, before `-m` selects: `-m realtime` and
+    `-m "not realtime"` (.ci/run's two phases) split the suite by the one declaration each test already has."""
+    for item in items:
+        group = item.get_closest_marker("xdist_group")
+        if group is not None and group.args and group.args[0] == REALTIME_GROUP:
+            item.add_marker(pytest.mark.realtime)
 
 
 @contextlib.contextmanager
