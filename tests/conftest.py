@@ -13,12 +13,12 @@ kernel compiles it, and the hardware loop warms its own filter before its timed 
 
 Also: the `run_dir` fixture (a short paper_sim run folder per test module, copied from one run per process), the
 `--cpu-durations=N` option (the tests that took the most CPU time; below) and `realtime_alone`: under pytest-xdist a
-test of the xdist group
-"realtime" (wall-clock deadlines: the emulated hardware, the link, first-output times) runs with every other worker
-idle. Each test holds a shared lock on a file of the session's base folder, a realtime test the exclusive one; a
-realtime test first takes an exclusive "gate" that other tests pass through before their shared lock, so that a
-worker starting test after test cannot keep it waiting. Without xdist nothing is locked. A test of that group is also
-marked `realtime` (`pytest_collection_modifyitems`), so that `-m realtime` / `-m "not realtime"` select it.
+test of the xdist group "realtime" (wall-clock deadlines: the emulated hardware, the link, first-output times) runs
+with every other worker idle. Each test holds a shared lock on a file of the session's base folder, a realtime test
+the exclusive one; a realtime test first takes an exclusive "gate" that other tests pass through before their shared
+lock, so that a worker starting test after test cannot keep it waiting. Without xdist nothing is locked. A test of
+that group is also marked `realtime` (`pytest_collection_modifyitems`), so that `-m realtime` / `-m "not realtime"`
+select it.
 """
 
 import softcbf_mj  # noqa: F401  (sets MUJOCO_GL)
