@@ -11,12 +11,14 @@ meets a compile inside a wall-clock test or races another worker compiling the s
 it costs the child's imports and runs (seconds). In one process nothing is warmed: the first test that steps a
 kernel compiles it, and the hardware loop warms its own filter before its timed loop (hardware.runner).
 
-Also: the `run_dir` fixture (a short paper_sim run folder per test module), the `--cpu-durations=N` option (the
-tests that took the most CPU time; below) and `realtime_alone`: under pytest-xdist a test of the xdist group
-"realtime" (wall-clock deadlines: the emulated hardware, the link, first-output times) runs with every other worker
-idle. Each test holds a shared lock on a file of the session's base folder, a realtime test the exclusive one; a
-realtime test first takes an exclusive "gate" that other tests pass through before their shared lock, so that a
-worker starting test after test cannot keep it waiting. Without xdist nothing is locked.
+Also: the `run_dir` fixture (a short paper_sim run folder per test module, copied from one run per process), the
+`--cpu-durations=N` option (the tests that took the most CPU time; below) and `realtime_alone`: under pytest-xdist a
+test of the xdist group "realtime" (wall-clock deadlines: the emulated hardware, the link, first-output times) runs
+with every other worker idle. Each test holds a shared lock on a file of the session's base folder, a realtime test
+the exclusive one; a realtime test first takes an exclusive "gate" that other tests pass through before their shared
+lock, so that a worker starting test after test cannot keep it waiting. Without xdist nothing is locked. A test of
+that group is also marked `realtime` (`pytest_collection_modifyitems`), so that `-m realtime` / `-m "not realtime"`
+select it.
 """
 
 import softcbf_mj  # noqa: F401  (sets MUJOCO_GL)
@@ -25,6 +27,7 @@ import contextlib  # noqa: E402
 import fcntl  # noqa: E402
 import os  # noqa: E402
 import resource  # noqa: E402
+import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -66,6 +69,16 @@ def pytest_sessionstart(session):
         raise pytest.UsageError(f"the kernel warm-up (tests/conftest.py) failed: {last}")
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """A test of the xdist group "realtime" is also marked `realtime`, before `-m` selects: `-m realtime` and
+    `-m "not realtime"` (.ci/run's two phases) split the suite by the one declaration each test already has."""
+    for item in items:
+        group = item.get_closest_marker("xdist_group")
+        if group is not None and group.args and group.args[0] == REALTIME_GROUP:
+            item.add_marker(pytest.mark.realtime)
+
+
 @contextlib.contextmanager
 def locked(path, mode):
     """`path` (created if missing) held under fcntl.flock `mode` for the block."""
@@ -98,12 +111,34 @@ def realtime_alone(request, tmp_path_factory):
 SHORT_PAPER_RUN = dict(duration=0.5, tunings="None,Low", amplitude=150.0, frequency=0.5, progress=False)
 
 
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    """A short paper_sim run folder (two tunings, 0.5 s), one per test module: reports and recordings are built from it."""
+def short_paper_run(tmp_path_factory) -> Path:
+    """A new short paper_sim run folder (two tunings, 0.5 s)."""
     out = tmp_path_factory.mktemp("run")
     get("paper_sim").run(out, **SHORT_PAPER_RUN)
     return out
+
+
+@pytest.fixture(scope="session")
+def paper_run(tmp_path_factory):
+    """The short paper_sim run once per process; tests read `run_dir`'s copies of it."""
+    return short_paper_run(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def run_dir(paper_run, tmp_path_factory):
+    """A short paper_sim run folder (two tunings, 0.5 s), one per test module: reports and recordings are built from it.
+    A copy of the session's `paper_run` (same folder name, files and modification times; the run is deterministic), so
+    that a module that rewrites it leaves the next one a fresh run. Only the recording's id differs from a run written
+    in the copy's folder (it derives from the folder's path): `own_run_dir` is one written in place."""
+    out = tmp_path_factory.mktemp("run_copy") / paper_run.name
+    shutil.copytree(paper_run, out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def own_run_dir(tmp_path_factory):
+    """A short paper_sim run written in its own folder, one per test module that asks."""
+    return short_paper_run(tmp_path_factory)
 
 
 

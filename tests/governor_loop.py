@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 
 from controllers.model.params import RobotParams
+from controllers.model.pcc import kinematics
 from controllers.model.safe_set import ForceSafeSet
 from controllers.contract.safety_filter import Estimate, FilterContext, OutputCheck
 from softcbf_mj.physics.pcc_plant import PCCPlant
@@ -115,11 +116,12 @@ class PushingPlatePlant:
         self.lengths = robot.array("lengths")
 
     def _force(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from controllers.model.pcc import tip_jacobian, tip_position
-
-        tip = tip_position(q, self.lengths)
+        # The tip and its Jacobian from one first-order evaluation (tip_position and tip_jacobian would each
+        # evaluate the kinematics: the plant's costliest part, eight times per tick).
+        kin = kinematics(q, self.lengths, order=1)
+        tip, jac = np.array((kin.points[-1].real, kin.points[-1].imag)), np.array((kin.jac[-1].real, kin.jac[-1].imag))
         forces = self.k_true * self.safe_set.penetration(tip)
-        generalised = -(forces @ self.safe_set.environment.normals) @ tip_jacobian(q, self.lengths)
+        generalised = -(forces @ self.safe_set.environment.normals) @ jac
         return generalised, forces
 
     def _rhs(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:

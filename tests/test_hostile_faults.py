@@ -589,7 +589,7 @@ def test_the_interrupt_tests_pass_in_a_test_run_started_with_sigint_ignored():
     def ignore_sigint() -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
-    done = subprocess.run([sys.executable, "-m", "pytest", __file__, "-q", "-p", "no:cacheprovider", "-k",
+    done = subprocess.run([sys.executable, "-m", "pytest", __file__, "-q", "-n", "0", "-p", "no:cacheprovider", "-k",
                            "real_ctrl_c_inside or ctrl_c_at_start_up"], cwd=REPO, capture_output=True, text=True,
                           timeout=600, preexec_fn=ignore_sigint,
                           env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])})

@@ -81,11 +81,12 @@ def test_time_series_values_are_the_saved_ones(run_dir):
     np.testing.assert_allclose(tip.reshape(-1, 2), series["tip"][::step], rtol=1e-6)  # stored as float32
 
 
-def test_rebuild_keeps_the_recording_id(run_dir):
-    first = rr.chunk.RrdReader(run_dir / RECORDING_FILE).recordings()[0].recording_id
-    write_recording(run_dir)
-    assert rr.chunk.RrdReader(run_dir / RECORDING_FILE).recordings()[0].recording_id == first
-    assert not list(run_dir.glob(".*tmp"))
+def test_rebuild_keeps_the_recording_id(own_run_dir):
+    # A run written in its own folder (the id derives from the folder's path; run_dir is a copy: tests/conftest.py).
+    first = rr.chunk.RrdReader(own_run_dir / RECORDING_FILE).recordings()[0].recording_id
+    write_recording(own_run_dir)
+    assert rr.chunk.RrdReader(own_run_dir / RECORDING_FILE).recordings()[0].recording_id == first
+    assert not list(own_run_dir.glob(".*tmp"))
 
 
 def test_camera_frames_are_logged_with_their_detections(run_dir, tmp_path):
