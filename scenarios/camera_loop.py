@@ -62,6 +62,7 @@ from scenarios.common import (
 from scenarios.spec import Camera, Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.physics.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loops.loop import check_duration
+from softcbf_mj.outputs.certified_truth import certified_truth_figures
 from softcbf_mj.outputs.metrics import contact_figures, plate_figures, write_table
 from softcbf_mj.physics.plant import steps_per_control
 from softcbf_mj.outputs.progress import Progress
@@ -281,6 +282,8 @@ def run_camera_tuning(out_dir: Path, summary: SummaryWriter, spec: CameraLoop, s
     def figures(series: dict[str, np.ndarray]) -> dict:
         out = contact_figures(series, setup.safe_set, tick)
         out.update(plate_figures(series))
+        out.update(certified_truth_figures(series, setup.truth.certified(spec.built.robot, spec.assumed_plate_stiffness),
+                                           tick))
         out.update(_perception_figures(frames, calls))
         out["frames_timeseries"] = str(frames_file.relative_to(out_dir))
         return out

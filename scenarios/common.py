@@ -36,6 +36,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
@@ -351,6 +352,10 @@ def save_run(
     row.update(run_figures(log, control_dt, filtered, wall_s))
     if extra_figures is not None:
         row.update(extra_figures(log))
+    if row.get("certified_truth_outside"):
+        print(f"warning: run {label}: the filter's certified interval of {row['certified_truth_outside']} excluded "
+              f"the true value for {row['certified_truth_outside_s']:.3g} s: this run is no evidence for its guarantee "
+              f"(docs/run-outputs.md)", file=sys.stderr)
     units = dict(units)
     units.update(extra_units or {})
     row["timeseries"] = str(save_timeseries(out_dir, label, log, units).relative_to(out_dir))

@@ -67,6 +67,7 @@ from scenarios.common import (
 from scenarios.spec import Filter, Model, Nominal, Plate, Run, TrueArm, scenario_spec
 from softcbf_mj.physics.ground_truth import Truth, build_truth, check_true_arm
 from softcbf_mj.loops.loop import check_duration
+from softcbf_mj.outputs.certified_truth import certified_truth_figures
 from softcbf_mj.outputs.metrics import contact_figures, plate_figures, write_table
 from softcbf_mj.physics.plant import delay_periods, steps_per_control
 from softcbf_mj.outputs.runio import SummaryWriter
@@ -206,8 +207,11 @@ def mujoco_contact(out_dir: Path, spec: MujocoContact) -> dict:
     safe_set, true_plate_stiffness, nominal_kwargs = setup.safe_set, setup.truth.plate_stiffness, setup.nominal_kwargs
     plant = MujocoPlant(build_model(setup.truth.config), CONTROL_DT)
 
+    certified = setup.truth.certified(spec.built.robot, spec.assumed_plate_stiffness)
+
     def figures(log: dict[str, np.ndarray]) -> dict:
-        return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log)}
+        return {**contact_figures(log, safe_set, plant.control_dt), **plate_figures(log),
+                **certified_truth_figures(log, certified, plant.control_dt)}
 
     summary = SummaryWriter(out_dir, "mujoco_contact", spec.flat(),
                             scene_record(setup.truth.robot, safe_set, true_plate_stiffness, setup.truth.plates))

@@ -46,7 +46,7 @@ SCRIPT = textwrap.dedent('''
         truth = original(arm, plate, model_robot, environment, damping_scale)
         robot = truth.config.robot
         heavier = robot.replace(masses=tuple(m * arm.true_mass_scale for m in robot.masses))
-        return ground_truth.Truth(dataclasses.replace(truth.config, robot=heavier), truth.plates, truth.plate_stiffness)
+        return dataclasses.replace(truth, config=dataclasses.replace(truth.config, robot=heavier))
 
     ground_truth.build_truth = build_truth
 

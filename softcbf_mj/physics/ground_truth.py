@@ -52,6 +52,7 @@ import numpy as np
 
 from controllers.model.params import RobotParams, reference_robot
 from controllers.model.safe_set import Environment
+from softcbf_mj.outputs.certified_truth import CertifiedTruth
 from vocabulary.project_files import project_file
 from vocabulary.run_sections import Plate, TrueArm
 
@@ -150,16 +151,30 @@ class Truth:
 
     config: the true arm and plates' model (build it with `softcbf_mj.physics.mjcf.build_model`);
     robot: the true arm (`config.robot`); plates: the true plates' facets at rest (m);
-    plate_stiffness: the true plate's spring in N/m (the flexure's calibrated one).
+    plate_stiffness: the true plate's spring in N/m (the flexure's calibrated one); facet_offset (m) and
+    facet_angle (rad): how the plates were moved (`moved_facets`).
     """
 
     config: ArmModelConfig
     plates: Environment
     plate_stiffness: float
+    facet_offset: float = 0.0
+    facet_angle: float = 0.0
 
     @property
     def robot(self) -> RobotParams:
         return self.config.robot
+
+    def certified(self, model_robot: RobotParams, assumed_plate_stiffness: float) -> CertifiedTruth:
+        """The true values of what a filter may certify online (`softcbf_mj.outputs.certified_truth`), against the
+        controller's robot `model_robot` and plate stiffness `assumed_plate_stiffness` (N/m): each segment's
+        (λ_i/λ̂_i)/(k_i/k̂_i); the ideal plate's stiffness ratio and, untilted, its offset (m)."""
+        ratio = (self.robot.array("gains") / model_robot.array("gains")) / (
+            self.robot.array("stiffness") / model_robot.array("stiffness"))
+        ideal = self.config.plate == "ideal"
+        return CertifiedTruth(tuple(float(r) for r in ratio),
+                              self.plate_stiffness / assumed_plate_stiffness if ideal else None,
+                              self.facet_offset if ideal and self.facet_angle == 0.0 else None)
 
 
 def scaled_robot(ref: RobotParams, length_scale: float, stiffness_scale: float, damping_scale: float,
@@ -195,4 +210,4 @@ def build_truth(arm: TrueArm, plate: Plate, model_robot: RobotParams, environmen
     moved = moved_facets(environment, arm.facet_offset, arm.facet_angle)
     config = ArmModelConfig(robot=true_arm, H=moved.H, h=moved.h, **_model_settings(arm, plate))
     stiffness = calibrate_flexure(config).stiffness_N_per_m if plate.kind == "flexure" else plate.stiffness
-    return Truth(config, moved, stiffness)
+    return Truth(config, moved, stiffness, arm.facet_offset, arm.facet_angle)
