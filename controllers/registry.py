@@ -134,7 +134,7 @@ PRESETS: Mapping[str, Preset] = {
     "c-erg:learn-plate": Preset(
         "c-erg", "controllers.governors.energy_governor.parameters:LEARN_PLATE_SETTING", {},
         "c-erg:standard-box learning the plate's offset and stiffness online with certified bounds, for a state "
-        "exact to 1e-4 rad (simulation at 1 kHz, motion capture; a camera learns nothing)"),
+        "exact to 1e-4 rad (simulation at 1 kHz, motion capture; not a camera, whose error is larger)"),
 }
 """The named presets (`--filter c-erg:recommended`), the one home of each: what the README, `softcbf list`,
 `softcbf run`, the bench, the environment and the hardware file mean by the name (module docstring)."""
