@@ -94,3 +94,4 @@ def test_a_contacts_adhesion_is_taken_off_its_normal_force():
     normal, _, _ = reference_contacts(plant)
     assert normal[0] == without[0] - 0.125 * plant.data.ncon  # MuJoCo took it off
     assert plant.state().extras["force_solver_N"].tobytes() == np.array(normal).tobytes()
+

@@ -32,9 +32,11 @@ derived quantity belongs to the reported state):
 Reading the state costs next to nothing beside the physics only if it stays out of Python's
 per-array calls: q, q̇, the segment ends, the measured forces, u_applied and the plates' Δ come
 from MuJoCo's arrays (views of the data bound once) in one compiled call
-(`softcbf_mj.physics.plant_kernel.read_state`, numpy's values bit for bit), and the contact list's
-fields, each of whose reads builds an array, are read only where a figure needs them (the
-frames for a tangential force or a contact point, dist and pos for a flexure's point).
+(`softcbf_mj.physics.plant_kernel.read_state`, numpy's values bit for bit); the contact forces come from
+the contact list's fields, each of whose reads builds an array in MuJoCo's bindings, read once a period as
+whole arrays (dist and pos only for a flexure's point; nothing without contact) with `efc_force`, in a
+second compiled call (`plant_kernel.plate_contacts`: `mj_contactForce`'s forces, bit for bit) instead of
+one `mj_contactForce` call and Python's arithmetic a contact.
 
 Command delay (`softcbf_mj.physics.plant`: the model's custom numeric `command_delay` δ > 0, s,
 `ArmModelConfig.command_delay`): the command written to the actuators over a period is the one
