@@ -61,7 +61,7 @@ def _plant(cone: str, **changes) -> MujocoPlant:
 def test_the_contact_forces_are_mj_contact_forces(cone, changes):
     plant = _plant(cone, **changes)
     plant.reset(np.zeros(2))
-    most, frictional = 0, 0.0
+    most, frictional, pressed = 0, 0.0, 0.0
     for k in range(600):
         u = np.array([150.0, 150.0]) if k < 350 else np.array([60.0, 150.0 - 0.2 * k])
         state = plant.step(u)
@@ -73,8 +73,8 @@ def test_the_contact_forces_are_mj_contact_forces(cone, changes):
                 point = np.array(where[facet])
                 expected = float(sheet.along @ (point - sheet.origin)) if np.all(np.isfinite(point)) else math.nan
                 assert np.array_equal(state.extras["contact_s_m"][facet], expected, equal_nan=True), k
-        most, frictional = max(most, plant.data.ncon), max(frictional, *tangential)
-    assert max(normal) > 0.0 or most > 0
+        most, frictional, pressed = max(most, plant.data.ncon), max(frictional, *tangential), max(pressed, *normal)
+    assert pressed > 0.1  # the run presses the plate
     if plant.sheets:
         assert most >= 2 and frictional > 0.0  # several contacts at once, with friction
 
@@ -95,3 +95,23 @@ def test_a_contacts_adhesion_is_taken_off_its_normal_force():
     assert normal[0] == without[0] - 0.125 * plant.data.ncon  # MuJoCo took it off
     assert plant.state().extras["force_solver_N"].tobytes() == np.array(normal).tobytes()
 
+
+
+@pytest.mark.parametrize("cone", ["pyramidal", "elliptic"])
+def test_any_constraint_forces_of_several_contacts_give_mj_contact_forces(cone):
+    """Both tangential directions and every pyramid edge: at a state with several frictional contacts, constraint
+    forces drawn at random (the planar arm's own use only the second tangent) still give `mj_contactForce`'s sums."""
+    plant = _plant(cone, plate="flexure", tip_friction=0.5)
+    plant.reset(np.zeros(2))
+    for _ in range(600):
+        plant.step(np.array([150.0, 150.0]))
+        if plant.data.ncon >= 2:
+            break
+    assert plant.data.ncon >= 2 and min(plant.data.contact.dim) == 3
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        plant.data.efc_force[:] = rng.normal(0.0, 1.0, plant.data.nefc)
+        normal, tangential, _ = reference_contacts(plant)
+        state = plant.state()
+        assert state.extras["force_solver_N"].tobytes() == np.array(normal).tobytes()
+        assert state.extras["force_tangential_N"].tobytes() == np.array(tangential).tobytes()
