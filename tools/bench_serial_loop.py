@@ -17,6 +17,9 @@ Per tree and tuning, in one process (after a warm-up call of the scenario):
   the commands u the loop sent, on the same model (`bench_mujoco_contact.replay_mj_step`);
 - t_plant: the same commands through `MujocoPlant.step` (physics, `mj_forward`, the state;
   `bench_mujoco_contact.replay_plant`);
+- t_plant_no_state: the same again with the plant's state read (`MujocoPlant.state`) replaced by
+  handing back one state made before (`replay_without_state`): the step, its `mj_forward` and
+  checks without the read;
 - filter_us: the loop's mean filter time (µs, its own `filter_us` column: wall clock);
 - the control step alone (`control_step_us`): CPU µs per call of `ControlStep` and of
   `BatchControlStep` at B = 1 with a pass-through filter (the step's own cost), min over the repeats.
@@ -24,8 +27,9 @@ Per tree and tuning, in one process (after a warm-up call of the scenario):
 Figures: fraction = t_mj_step / t_loop (the loop's speed as a fraction of bare mj_step's:
 1 would be a loop that costs nothing beyond the physics; in CPU time, and in wall time in
 brackets), and per control step (CPU µs) physics t_mj_step / T, plant overhead
-(t_plant − t_mj_step) / T and controller and loop (t_loop − t_plant) / T: the nominal, the
-filter, the control step, the recorder; the filter's wall-clock share alongside.
+(t_plant − t_mj_step) / T, of it the state read (t_plant − t_plant_no_state) / T, and controller
+and loop (t_loop − t_plant) / T: the nominal, the filter, the control step, the recorder; the
+filter's wall-clock share alongside.
 
 Each measurement is a fresh process with its tree first on PYTHONPATH (this tree; with
 `--against TREE`, e.g. an export of the commit before, also TREE): the trees' processes
@@ -58,7 +62,7 @@ from timing import emit
 
 HERE = Path(__file__).resolve().parents[1]  # this tree
 TARGET_FRACTION = 0.8  # the target: the serial loop at >= 0.8 of bare mj_step
-TIMES = ("t_loop", "t_mj_step", "t_plant", "wall_loop", "wall_mj_step", "wall_plant")  # CPU s, wall s
+TIMES = ("t_loop", "t_mj_step", "t_plant", "t_plant_no_state", "wall_loop", "wall_mj_step", "wall_plant")  # CPU s, wall s
 STEP_TIMES = ("step_us", "batch_step_us_B1")  # CPU µs per control call of the step alone
 STEP_CALLS = 20000
 
@@ -99,6 +103,22 @@ def control_step_us(calls: int = STEP_CALLS) -> dict[str, float]:
     step.reset()
     batch.reset()
     return {"step_us": per_call_us(scalar, calls), "batch_step_us_B1": per_call_us(batched, calls)}
+
+
+def replay_without_state(plant, u) -> float:
+    """CPU s of `plant.step` over the commands u (T, N) from rest, its state read (`state`) replaced by handing
+    back the state made at the reset: the step's physics, `mj_forward` and checks without the read."""
+    import numpy as np
+
+    made = plant.reset(np.zeros(plant.n_segments))
+    plant.state = lambda: made  # an instance attribute: the class's `state` again once deleted
+    try:
+        start = time.process_time()
+        for command in u:
+            plant.step(command)
+        return time.process_time() - start
+    finally:
+        del plant.state
 
 
 def run_params(tuning: str) -> dict[str, str]:
@@ -144,7 +164,9 @@ def measure(tunings: list[str], duration: float, t0: float) -> dict[str, dict[st
             steps = len(u)
             t_mj_step, wall_mj_step = timed(lambda: replay_mj_step(plant, u, 1, block=steps))
             t_plant, wall_plant = timed(lambda: replay_plant(plant, u, 1, block=steps)[0])
+            t_plant_no_state = replay_without_state(plant, u)
             out[tuning] = {"t_loop": loop.cpu_s, "t_mj_step": t_mj_step, "t_plant": t_plant,
+                           "t_plant_no_state": t_plant_no_state,
                            "wall_loop": summary["runs"][0]["wall_s"], "wall_mj_step": wall_mj_step,
                            "wall_plant": wall_plant, "steps": steps, "filter_us": float(np.nanmean(log["filter_us"])),
                            "u_sha256": hashlib.sha256(u.tobytes()).hexdigest()[:16]}
@@ -168,6 +190,7 @@ def figures(best: dict[str, float]) -> dict[str, float]:
     return {"fraction": best["t_mj_step"] / best["t_loop"], "fraction_wall": best["wall_mj_step"] / best["wall_loop"],
             "us_loop": best["t_loop"] / steps * 1e6, "us_physics": best["t_mj_step"] / steps * 1e6,
             "us_plant_overhead": (best["t_plant"] - best["t_mj_step"]) / steps * 1e6,
+            "us_state_read": (best["t_plant"] - best["t_plant_no_state"]) / steps * 1e6,
             "us_controller_and_loop": (best["t_loop"] - best["t_plant"]) / steps * 1e6, "us_filter_wall": best["filter_us"]}
 
 
@@ -215,13 +238,14 @@ def main() -> None:
                     "target_fraction": TARGET_FRACTION, "trees": {name: str(tree) for name, tree in trees.items()},
                     "runs": {}}
     print(f"mujoco_contact, {args.duration:g} s from t0 = {args.t0:g} s, CPU time, min of {args.repeats}; µs per control step")
-    print("  tree     tuning             fraction (wall)  loop  physics  plant ovh  controller+loop  (filter, wall)")
+    print("  tree     tuning             fraction (wall)  loop  physics  plant ovh (state)  controller+loop  (filter, wall)")
     for tuning in tunings:
         entry = {name: figures(best[name][tuning]) for name in trees}
         for name in trees:
             f = entry[name]
             print(f"  {name:8s} {tuning:17s} {f['fraction']:8.3f} ({f['fraction_wall']:.3f}) {f['us_loop']:5.0f} "
-                  f"{f['us_physics']:8.0f} {f['us_plant_overhead']:10.0f} {f['us_controller_and_loop']:16.0f} "
+                  f"{f['us_physics']:8.0f} {f['us_plant_overhead']:10.0f} {f['us_state_read']:7.0f} "
+                  f"{f['us_controller_and_loop']:16.0f} "
                   f"{f['us_filter_wall']:15.0f}")
         if "against" in trees:
             entry["speedup"] = best["against"][tuning]["t_loop"] / best["this"][tuning]["t_loop"]

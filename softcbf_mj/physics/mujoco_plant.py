@@ -32,9 +32,11 @@ derived quantity belongs to the reported state):
 Reading the state costs next to nothing beside the physics only if it stays out of Python's
 per-array calls: q, q̇, the segment ends, the measured forces, u_applied and the plates' Δ come
 from MuJoCo's arrays (views of the data bound once) in one compiled call
-(`softcbf_mj.physics.plant_kernel.read_state`, numpy's values bit for bit), and the contact list's
-fields, each of whose reads builds an array, are read only where a figure needs them (the
-frames for a tangential force or a contact point, dist and pos for a flexure's point).
+(`softcbf_mj.physics.plant_kernel.read_state`, numpy's values bit for bit); the contact forces come from
+the contact list's fields, each of whose reads builds an array in MuJoCo's bindings, read once a period as
+whole arrays (dist and pos only for a flexure's point; nothing without contact) with `efc_force`, in a
+second compiled call (`plant_kernel.plate_contacts`: `mj_contactForce`'s forces, bit for bit) instead of
+one `mj_contactForce` call and Python's arithmetic a contact.
 
 Command delay (`softcbf_mj.physics.plant`: the model's custom numeric `command_delay` δ > 0, s,
 `ArmModelConfig.command_delay`): the command written to the actuators over a period is the one
@@ -106,6 +108,9 @@ WARNINGS: dict[int, str] = {
 }
 
 # Integrators whose physics step MuJoCo splits exactly into mj_step1 + mj_step2 (not RK4).
+# Whether MuJoCo's contacts carry an adhesion that `mj_contactForce` takes off the normal force (MuJoCo >= 4.0.1).
+CONTACT_ADHESION: bool = hasattr(mujoco.MjContact, "adhesion")
+
 SPLIT_INTEGRATORS = frozenset(int(i) for i in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_IMPLICIT,
                                                mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
 
@@ -202,8 +207,11 @@ class MujocoPlant:
         plate_roots = {model.body(f"plate{k}").id: k - 1 for k in range(1, p + 1)}
         roots = model.body_rootid[model.geom_bodyid].tolist()  # per geom: the root body of its body
         base = model.body("base").id
-        self._facet_of_geom = [plate_roots.get(root, -1) for root in roots]  # per geom: its plate's facet, -1: none
-        self._on_arm = [root == base for root in roots]  # per geom: part of the arm (below `base`)
+        # per geom: its plate's facet (-1: none), and whether it is part of the arm (below `base`)
+        self._facet_of_geom = np.array([plate_roots.get(root, -1) for root in roots], dtype=np.int64)
+        self._on_arm = np.array([root == base for root in roots], dtype=bool)
+        self._pyramidal = int(model.opt.cone) == int(mujoco.mjtCone.mjCONE_PYRAMIDAL)  # how efc_force holds a contact
+        self._no_dist, self._no_points = np.zeros(0), np.zeros((0, 2))  # `_plate_contacts` without points
         # the ids the state reads (`softcbf_mj.physics.plant_kernel.read_state`'s `index`), and MuJoCo's arrays it reads
         # them from: views of the data bound once (their shapes are the model's; reading an attribute of the
         # data builds a new array each time)
@@ -227,7 +235,6 @@ class MujocoPlant:
         self.u_max = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
         self.gains = model.actuator_gear[self.actuator_ids, 0].copy()
         self.act_adr = model.actuator_actadr[self.actuator_ids].copy()  # -1: no pressure dynamics
-        self._contact_force = np.zeros(6)
         mu = table_friction_of(model)
         self.table_friction = TableFriction(model, mu) if mu > 0 else None
         self._friction_power = 0.0  # W, mean over the last control period
@@ -422,59 +429,22 @@ class MujocoPlant:
         return arr
 
     def _plate_contacts(self, normal: np.ndarray, tangential: np.ndarray, points: bool) -> np.ndarray | None:
-        """Per facet, MuJoCo's contact forces between the arm and the plate (mj_contactForce), written into
+        """Per facet, MuJoCo's contact forces between the arm and the plate (`mj_contactForce`'s), written into
         `normal` and `tangential` ((P,) N, zeros on entry): the summed normal force and the magnitude of the
         summed tangential force. Returns, with `points`, the sheet-surface point (world x, y, m; (P, 2)) of each
-        facet's strongest contact (NaN: none), else None (the ideal plate does not report it)."""
-        model, data, n_facets = self.model, self.data, self.n_facets
-        if not data.ncon:  # no contact: the list's wrapper and its field (about 1 µs) are not built
-            return np.full((n_facets, 2), np.nan) if points else None
-        contact = data.contact  # MuJoCo's contact list, ncon long
-        geoms = contact.geom.tolist()
-        # Python floats and lists (numpy's per-call overhead dominates on 3-vectors and on the
-        # struct of one contact), the same operations in the same order as summing per contact.
-        # Each read of a field of MuJoCo's contact list builds an array (about 1 µs): the frames are
-        # read only for a contact with a tangential force or a point to place, dist and pos only for a
-        # point. A frictionless contact (f1 = f2 = 0) adds ±0.0 to each finite tangential sum, which
-        # leaves it as it is (the sums start at +0.0; a contact frame is an orthonormal, finite triad), so
-        # skipping its frame changes no bit.
-        facet_of, on_arm = self._facet_of_geom, self._on_arm
-        normal_sum = [0.0] * n_facets
-        summed_tangential = [[0.0, 0.0, 0.0] for _ in range(n_facets)]
-        strongest = [0.0] * n_facets
-        where = [[math.nan, math.nan] for _ in range(n_facets)] if points else None
-        touched = False
-        force = self._contact_force
-        frames = dist = pos = None  # read on the first contact that needs them
-        for c, (geom1, geom2) in enumerate(geoms):
-            if facet_of[geom1] >= 0 and on_arm[geom2]:
-                k, sign = facet_of[geom1], -1.0  # sign: the frame's normal (from geom1 to geom2) toward the plate
-            elif facet_of[geom2] >= 0 and on_arm[geom1]:
-                k, sign = facet_of[geom2], 1.0
-            else:
-                continue
-            mujoco.mj_contactForce(model, data, c, force)
-            pressing, f1, f2 = force[:3].tolist()  # normal, two tangential (N)
-            normal_sum[k] += pressing
-            touched = True
-            stronger = points and pressing > strongest[k]
-            if not (stronger or f1 != 0.0 or f2 != 0.0):
-                continue
-            if frames is None:
-                frames = contact.frame
-            frame = frames[c].tolist()  # rows: normal (from geom1 to geom2), two tangents
-            summed = summed_tangential[k]
-            for j in range(3):
-                summed[j] += f1 * frame[3 + j] + f2 * frame[6 + j]
-            if stronger:
-                strongest[k] = pressing
-                if dist is None:
-                    dist, pos = contact.dist, contact.pos
-                half_dist, at = 0.5 * float(dist[c]), pos[c].tolist()
-                where[k] = [at[j] + half_dist * (sign * frame[j]) for j in range(2)]
-        if touched:
-            normal[:] = normal_sum
-            # ‖summed tangential‖ per facet, summed in numpy's order (np.linalg.norm)
-            tangential[:] = [math.sqrt(x * x + y * y + z * z) for x, y, z in summed_tangential]
-        return np.array(where).reshape(n_facets, 2) if points else None
+        facet's strongest contact (NaN: none), else None (the ideal plate does not report it).
 
+        One compiled call over the contact list's fields (`plant_kernel.plate_contacts`): each read of a field
+        of MuJoCo's contact list, and each `mj_contactForce` call, builds an array in MuJoCo's bindings, so the
+        fields are read once a period as whole arrays (dist and pos only for the points)."""
+        data = self.data
+        where = np.full((self.n_facets, 2), np.nan) if points else self._no_points
+        if not data.ncon:  # no contact: the list's wrapper and its fields are not built
+            return where if points else None
+        contact = data.contact  # MuJoCo's contact list, ncon long
+        dist, pos = (contact.dist, contact.pos) if points else (self._no_dist, self._no_points)
+        adhesion = contact.adhesion if CONTACT_ADHESION else np.zeros(data.ncon)
+        plant_kernel.plate_contacts(contact.geom, contact.efc_address, contact.dim, contact.friction, adhesion,
+                                    contact.frame, dist, pos, data.efc_force, self._pyramidal, self._facet_of_geom,
+                                    self._on_arm, points, normal, tangential, where)
+        return where if points else None
