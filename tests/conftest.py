@@ -40,15 +40,17 @@ from scenarios import get  # noqa: E402
 REALTIME_GROUP = "realtime"
 ROOT = Path(__file__).resolve().parents[1]
 # The short runs of tests/test_first_output.py, one process: what they step compiles (the paper's PCC plant and CBF,
-# the MuJoCo plant, the recommended filter).
+# the MuJoCo plant, the recommended filter); they draw no run reports (`data_only`): only their kernels matter.
 KERNEL_WARM_UP = """
 import contextlib, io, sys
+from scenarios.run_outputs import data_only
 from softcbf.cli import main
 out = sys.argv[1]
 with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
     for k, argv in enumerate((["run", "mujoco_contact", "--tunings", "Low"], ["run", "paper_sim", "--tunings", "Low"],
                               ["demo"])):
-        code = main([*argv, "--duration", "0.2", "--out", f"{out}/{k}"])
+        with data_only():
+            code = main([*argv, "--duration", "0.2", "--out", f"{out}/{k}"])
         if code != 0:
             raise SystemExit(f"{argv}: exit {code}")
 """
