@@ -36,6 +36,7 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 
 from scenarios import get  # noqa: E402
+from scenarios.run_outputs import data_only  # noqa: E402
 
 REALTIME_GROUP = "realtime"
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,6 +136,15 @@ def run_dir(paper_run, tmp_path_factory):
     out = tmp_path_factory.mktemp("run_copy") / paper_run.name
     shutil.copytree(paper_run, out)
     return out
+
+
+@pytest.fixture
+def no_run_reports():
+    """Scenario runs inside the test write their data alone, no run report or recording
+    (`scenarios.run_outputs.data_only`): for the tests of studies and the bench, which read rows and never a run
+    folder's plots (a falsification's worst/ replay, kept runs). tests/test_run_outputs.py tests when they are drawn."""
+    with data_only():
+        yield
 
 
 @pytest.fixture(scope="module")
