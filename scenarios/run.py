@@ -51,7 +51,7 @@ from controllers.core.interrupts import watch
 from controllers.contract.filter_parameters import OLD_TEXT_WARNING, Params, add_pair, read_params
 from controllers.registry import FILTERS, NOMINALS, PluginLoadError, did_you_mean, is_builtin, parameter_names
 from scenarios import Scenario, get
-from scenarios.run_outputs import data_only, once_at_end
+from scenarios.run_outputs import data_only, once_at_end, outputs_on
 from vocabulary.settings import setting
 from softcbf_mj.loops.kernels import compile_notes
 from softcbf_mj.outputs.progress import heartbeat
@@ -386,6 +386,7 @@ VALIDATION_ERRORS = (UsageError, SettingError, PluginLoadError)  # raised while 
 
 def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[Path], spawn: bool,
                 report: bool) -> int:
+    report = report and outputs_on()  # the command line called inside `data_only()` (a test, a study) draws nothing
     try:
         viewer = contextlib.nullcontext("")
         if spawn:  # rerun, matplotlib: +6.7 s to import, only for the viewer, so the run talks at once

@@ -102,3 +102,11 @@ def test_ctrl_c_and_data_only_draw_nothing(run_dir, tmp_path, reports):
     with data_only(), once_at_end(folder):
         pass
     assert reports == [] and not (folder / REPORT_FILE).exists()
+
+
+def test_the_command_line_inside_data_only_draws_nothing_and_says_so(tmp_path, reports, capsys):
+    """A run of the command line inside `data_only()` (a study's or a test's) looked for the recording it had not
+    drawn: FileNotFoundError after the run."""
+    with data_only():
+        assert main(["run", "paper_sim", *SHORT_ARGS, "--out", str(tmp_path / "run")]) == 0
+    assert reports == [] and "no plots, report or recording (--data-only)" in capsys.readouterr().out
