@@ -46,6 +46,7 @@ from typing import Any, Callable, Hashable, Mapping, Sequence
 
 from controllers.contract.filter_parameters import Params, read_params
 from controllers.registry import did_you_mean
+from scenarios.run_outputs import once_at_end
 from scenarios.spec import flat_parameters
 from vocabulary.settings import setting
 
@@ -123,10 +124,13 @@ class Scenario:
 
 def flat_entry(function: Callable[[Path, Any], dict], spec_cls: type) -> Callable[..., dict]:
     """`run(out_dir, **params)`: `function(out_dir, spec_cls.from_flat(params))`, whose signature and
-    annotations are the spec's flat parameters (`scenarios.spec.flat_parameters`)."""
+    annotations are the spec's flat parameters (`scenarios.spec.flat_parameters`); the run folder's report and
+    recording are drawn once, at its end (`scenarios.run_outputs.once_at_end`)."""
 
     def run(out_dir: Path, **params: Any) -> dict:
-        return function(Path(out_dir), spec_cls.from_flat(params))
+        spec = spec_cls.from_flat(params)
+        with once_at_end(Path(out_dir)):
+            return function(Path(out_dir), spec)
 
     parameters = flat_parameters(spec_cls)
     out_dir = inspect.Parameter("out_dir", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=Path)

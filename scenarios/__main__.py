@@ -30,6 +30,8 @@ def command_line(argv: list[str] | None) -> int:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the contents of an existing run folder (one written by softcbf)")
     parser.add_argument("--spawn", action="store_true", help="stream each finished tuning to a rerun viewer (needs a display)")
+    parser.add_argument("--data-only", action="store_true",
+                        help="write config.json, summary.json and the time series only (softcbf report DIR draws the rest)")
     args, rest = parser.parse_known_args(argv)
 
     if args.list:
@@ -41,7 +43,7 @@ def command_line(argv: list[str] | None) -> int:
     def run() -> int:
         if args.out is None and args.name in registry():
             raise UsageError("--out DIR is required to run a scenario")
-        return run_scenario(args.name, rest, args.out, args.overwrite, args.spawn)
+        return run_scenario(args.name, rest, args.out, args.overwrite, args.spawn, report=not args.data_only)
 
     return exit_code(run, process=argv is None)  # argv None: this process's own command line
 

@@ -33,13 +33,11 @@ parameters parsed once per spec.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
-from contextvars import ContextVar
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
@@ -65,6 +63,7 @@ from softcbf_mj.physics.ground_truth import (  # noqa: F401  (scenarios take the
 from softcbf_mj.physics.plant import Plant, PlantState
 from softcbf_mj.outputs.progress import Progress
 from softcbf_mj.outputs.runio import SummaryWriter, save_timeseries, stiffness_to_json
+from scenarios.run_outputs import after_each_run, data_only, outputs_on, write_outputs  # noqa: F401  (data_only: here for its users)
 from scenarios.spec import Filter, Model, Nominal
 
 if TYPE_CHECKING:  # rerun takes seconds to import: softcbf_mj.outputs.recording is imported only when recording
@@ -75,21 +74,6 @@ def check_choice(name: str, value: str, valid: Sequence[str]) -> None:
     """ValueError naming the parameter and the valid values unless `value` is one of them."""
     if value not in valid:
         raise ValueError(f"{name} must be one of {', '.join(valid)}, got {value!r}")
-
-
-_REPORT_AND_RECORDING: ContextVar[bool] = ContextVar("scenarios_report_and_recording", default=True)
-
-
-@contextlib.contextmanager
-def data_only() -> Iterator[None]:
-    """Within this context `run_tuning` writes summary.json and the time series only, not
-    the report and the recording (1–3 s per tuning): for studies and tests that run many
-    short scenarios. `softcbf report DIR` builds both later from the folder."""
-    token = _REPORT_AND_RECORDING.set(False)
-    try:
-        yield
-    finally:
-        _REPORT_AND_RECORDING.reset(token)
 
 
 def load_environment(spec: str) -> Environment:
@@ -302,7 +286,7 @@ def run_tuning(
 def live_run(summary: SummaryWriter, label: str, control_dt: float, camera: bool = False) -> LiveRun | None:
     """The live stream of run `label` (softcbf_mj.outputs.recording.live_run: a viewer spawned by
     `--spawn`), or None: none is active, or the report and recording are off (`data_only`)."""
-    if not _REPORT_AND_RECORDING.get():
+    if not outputs_on():
         return None
     from softcbf_mj.outputs.recording import live_run as recording_live_run  # rerun: +6.8 s to import, only when recording
 
@@ -336,8 +320,9 @@ def save_run(
     """Save a finished run `label`: its figures (`run_figures` plus `extra_figures(log)`),
     its time series (`series`: columns and units, plus `extra_units` for the plant's
     extras) and its summary.json row (with `row_fields`, e.g. `controller_row`); then
-    rebuild the report and the recording from the folder (so an interrupted scenario
-    leaves both for its finished runs; not within `data_only()`). Returns the row.
+    draw the report and the recording from the folder where `scenarios.run_outputs.after_each_run` (so an
+    interrupted scenario leaves both for its finished runs; `Scenario.run` draws them once at its end, `data_only()`
+    never). Returns the row.
 
     `fault`: the filter fault the run ended on (`ControlStep.fault`): the row gains `fault`
     (`FilterFault.to_json`) and its scalars `fault_type`, `fault_where`, `fault_message` (for
@@ -360,13 +345,6 @@ def save_run(
     units.update(extra_units or {})
     row["timeseries"] = str(save_timeseries(out_dir, label, log, units).relative_to(out_dir))
     summary.add_run(row)
-    if not _REPORT_AND_RECORDING.get():
-        return row
-    # Imported here: rerun and matplotlib, +6.8 s and +4.3 s to import, which listing scenarios
-    # and rejecting bad arguments should not pay.
-    from softcbf_mj.outputs.recording import write_recording
-    from softcbf_mj.outputs.report import write_report
-
-    write_report(out_dir)
-    write_recording(out_dir)
+    if after_each_run():
+        write_outputs(out_dir)
     return row

@@ -51,6 +51,7 @@ from controllers.core.interrupts import watch
 from controllers.contract.filter_parameters import OLD_TEXT_WARNING, Params, add_pair, read_params
 from controllers.registry import FILTERS, NOMINALS, PluginLoadError, did_you_mean, is_builtin, parameter_names
 from scenarios import Scenario, get
+from scenarios.run_outputs import data_only, once_at_end, outputs_on
 from vocabulary.settings import setting
 from softcbf_mj.loops.kernels import compile_notes
 from softcbf_mj.outputs.progress import heartbeat
@@ -250,25 +251,28 @@ def command_line_params(items: Sequence[tuple[str, str]], names: typing.Collecti
     return out
 
 
-def _outputs_summary(out_dir: Path) -> str:
-    """What a run folder holds, in a few lines, for the end of a run."""
-    # +6.7 s (softcbf_mj.outputs.recording: rerun, MuJoCo) and +1.1 s (softcbf_mj.outputs.report: matplotlib) to import, under load:
-    # after a run, never at `softcbf --help`, `list` or a usage error (the same below)
-    from softcbf_mj.outputs.recording import RECORDING_FILE, viewer_command
-    from softcbf_mj.outputs.report import PLOTS_DIR, REPORT_FILE
-
+def _outputs_summary(out_dir: Path, report: bool) -> str:
+    """What a run folder holds, in a few lines, for the end of a run (`report`: with its report and recording)."""
     folder = read_run_folder(out_dir)
-    recording = out_dir / RECORDING_FILE
-    plots = sorted(p.name for p in (out_dir / PLOTS_DIR).glob("*.png"))
     rows = [
         ("config.json, summary.json", f"every parameter, versions, seed; one row per run ({', '.join(folder.labels)})"),
         ("timeseries/*.npz", f"{len(folder.runs)} time series (NumPy archives with units)"),
-        (f"{PLOTS_DIR}/*.png, {REPORT_FILE}", f"{', '.join(plots)}; summary table"),
-        (RECORDING_FILE, f"{recording.stat().st_size / 1e6:.1f} MB; view it with: {viewer_command(recording)}"),
     ]
+    draw = "no plots, report or recording (--data-only): draw them from the saved data"
+    if report:
+        # +6.7 s (softcbf_mj.outputs.recording: rerun, MuJoCo) and +1.1 s (softcbf_mj.outputs.report: matplotlib) to
+        # import, under load: after a run that drew them, never at `softcbf --help`, `list` or a usage error (below too)
+        from softcbf_mj.outputs.recording import RECORDING_FILE, viewer_command
+        from softcbf_mj.outputs.report import PLOTS_DIR, REPORT_FILE
+
+        recording = out_dir / RECORDING_FILE
+        plots = sorted(p.name for p in (out_dir / PLOTS_DIR).glob("*.png"))
+        rows += [(f"{PLOTS_DIR}/*.png, {REPORT_FILE}", f"{', '.join(plots)}; summary table"),
+                 (RECORDING_FILE, f"{recording.stat().st_size / 1e6:.1f} MB; view it with: {viewer_command(recording)}")]
+        draw = "rebuild the plots, report and recording from the saved data"
     width = max(len(name) for name, _ in rows)
     return "\n".join([f"outputs in {out_dir}:", *[f"  {name:<{width}}  {what}" for name, what in rows],
-                      f"rebuild the plots, report and recording from the saved data: softcbf report {out_dir}"])
+                      f"{draw}: softcbf report {out_dir}"])
 
 
 def _finished_runs(out_dir: Path) -> list[str]:
@@ -311,13 +315,17 @@ def _stale_outputs(out_dir: Path) -> list[str]:
             if not (out_dir / name).is_file() or (out_dir / name).stat().st_mtime_ns < summary_ns]
 
 
-def _interrupted(out_dir: Path, done: list[str]) -> int:
+def _interrupted(out_dir: Path, done: list[str], report: bool) -> int:
     """After Ctrl-C with `done` finished runs: bring the report and the recording up to
-    them (a second Ctrl-C skips that), say what the folder holds, return 130."""
+    them (a second Ctrl-C skips that; `report` False, `--data-only`: nothing drawn), say what the folder holds,
+    return 130."""
+    runs = f"{len(done)} finished run(s) ({', '.join(done)})"
+    if not report:
+        print(f"\ninterrupted: {runs} are in {out_dir} (no report or recording: --data-only)", file=sys.stderr)
+        return INTERRUPTED
     from softcbf_mj.outputs.recording import RECORDING_FILE, write_recording  # +6.7 s, +1.1 s: `_outputs_summary`
     from softcbf_mj.outputs.report import write_report
 
-    runs = f"{len(done)} finished run(s) ({', '.join(done)})"
     stale = _stale_outputs(out_dir)
     if stale:
         print(f"\ninterrupted: rebuilding {' and '.join(stale)} for the {runs} (Ctrl-C again to skip)", file=sys.stderr)
@@ -333,11 +341,15 @@ def _interrupted(out_dir: Path, done: list[str]) -> int:
 
 
 def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overwrite: bool = False,
-                 spawn: bool = False, base: typing.Mapping[str, object] | None = None) -> int:
+                 spawn: bool = False, base: typing.Mapping[str, object] | None = None, report: bool = True) -> int:
     """Run scenario `name` with parameters from `base` (a run configuration file's) and
     `tokens` (which override them) into `out` (default runs/<name>-<time>, made unique); the
     one implementation behind `softcbf run` and `python -m scenarios`. Every parameter is
-    checked, and the spec built, before anything is written; the run folder is absolute (module docstring)."""
+    checked, and the spec built, before anything is written; the run folder is absolute (module docstring).
+    `report`: draw the report and the recording once, at the end (False: `--data-only`, the data alone,
+    `scenarios.run_outputs`; `softcbf report DIR` draws them later)."""
+    if spawn and not report:
+        raise UsageError("--spawn streams the runs to a viewer, --data-only draws nothing: give one of them")
     try:
         scenario = get(name)
     except KeyError as exc:
@@ -364,7 +376,7 @@ def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overw
     except OutputDirError as exc:
         raise UsageError(str(exc)) from None
     try:
-        return _run_locked(scenario, spec, out_dir, created, spawn)
+        return _run_locked(scenario, spec, out_dir, created, spawn, report)
     finally:
         release_out_dir(out_dir)
 
@@ -372,7 +384,9 @@ def run_scenario(name: str, tokens: Sequence[str], out: str | Path | None, overw
 VALIDATION_ERRORS = (UsageError, SettingError, PluginLoadError)  # raised while a scenario runs: exit 2 (module docstring)
 
 
-def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[Path], spawn: bool) -> int:
+def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[Path], spawn: bool,
+                report: bool) -> int:
+    report = report and outputs_on()  # the command line called inside `data_only()` (a test, a study) draws nothing
     try:
         viewer = contextlib.nullcontext("")
         if spawn:  # rerun, matplotlib: +6.7 s to import, only for the viewer, so the run talks at once
@@ -381,7 +395,8 @@ def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[P
             viewer = live_viewer()
         start = (heartbeat(f"{scenario.name}: setting up, {spec.run.duration:g} s per run into {out_dir}")
                  if spec.run.progress else contextlib.nullcontext())  # a line within a second
-        with viewer as message, compile_notes(), start:
+        outputs = once_at_end(out_dir) if report else data_only()  # the report drawn once, at the end, or never
+        with viewer as message, outputs, compile_notes(), start:
             if message:
                 print(message, file=sys.stderr)
             summary = scenario.function(out_dir, spec)
@@ -399,9 +414,9 @@ def _run_locked(scenario: Scenario, spec: object, out_dir: Path, created: list[P
             if not done:
                 print(f"\ninterrupted before the first run finished; nothing kept in {out_dir}", file=sys.stderr)
                 return INTERRUPTED
-            return _interrupted(out_dir, done)
+            return _interrupted(out_dir, done, report)
         raise UsageError(str(exc)) from None
-    print(_outputs_summary(out_dir))
+    print(_outputs_summary(out_dir, report))
     fault = summary.get("fault") if isinstance(summary, dict) else None
     if fault:
         print(f"error: run {fault['run']!r}: {describe_fault(fault)}; the record up to it is in {out_dir} "

@@ -166,7 +166,8 @@ def _list(args: argparse.Namespace, extra: list[str]) -> int:
 def _run_args(parser: argparse.ArgumentParser) -> None:
     # SCENARIO is the first of the tokens the parser leaves (`_run`): a positional would take
     # the value of a scenario option that follows --config (`--config F --tunings Low`).
-    parser.usage = "softcbf run [SCENARIO] [--config FILE] [--PARAM VALUE ...] [--out DIR] [--overwrite] [--spawn]"
+    parser.usage = ("softcbf run [SCENARIO] [--config FILE] [--PARAM VALUE ...] [--out DIR] [--overwrite] [--spawn] "
+                    "[--data-only]")
     parser.epilog = "SCENARIO: a scenario name (softcbf list); optional with --config, which names one."
     parser.add_argument("-h", "--help", action="store_true", help="show this help and the scenario's parameters, then exit")
     parser.add_argument("--config", type=Path, metavar="FILE",
@@ -179,6 +180,9 @@ def _run_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the contents of an existing run folder (one written by softcbf)")
     parser.add_argument("--spawn", action="store_true", help="stream each tuning to a rerun viewer while it runs (needs a display)")
+    parser.add_argument("--data-only", action="store_true",
+                        help="write config.json, summary.json and the time series only, no plots, report or recording "
+                             "(softcbf report DIR draws them later)")
 
 
 def _run(args: argparse.Namespace, extra: list[str]) -> int:
@@ -211,7 +215,7 @@ def _run(args: argparse.Namespace, extra: list[str]) -> int:
             raise UsageError(str(exc)) from None
         for line in [*replay_warnings(config, params, versions()), *source_lines]:
             print(line, file=sys.stderr)
-    return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base)
+    return run_scenario(name, tokens, args.out, args.overwrite, args.spawn, base=base, report=not args.data_only)
 
 
 def _run_help(args: argparse.Namespace, name: str | None) -> int:

@@ -36,19 +36,22 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 
 from scenarios import get  # noqa: E402
+from scenarios.run_outputs import data_only  # noqa: E402
 
 REALTIME_GROUP = "realtime"
 ROOT = Path(__file__).resolve().parents[1]
 # The short runs of tests/test_first_output.py, one process: what they step compiles (the paper's PCC plant and CBF,
-# the MuJoCo plant, the recommended filter).
+# the MuJoCo plant, the recommended filter); they draw no run reports (`data_only`): only their kernels matter.
 KERNEL_WARM_UP = """
 import contextlib, io, sys
+from scenarios.run_outputs import data_only
 from softcbf.cli import main
 out = sys.argv[1]
 with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
     for k, argv in enumerate((["run", "mujoco_contact", "--tunings", "Low"], ["run", "paper_sim", "--tunings", "Low"],
                               ["demo"])):
-        code = main([*argv, "--duration", "0.2", "--out", f"{out}/{k}"])
+        with data_only():
+            code = main([*argv, "--duration", "0.2", "--out", f"{out}/{k}"])
         if code != 0:
             raise SystemExit(f"{argv}: exit {code}")
 """
@@ -133,6 +136,15 @@ def run_dir(paper_run, tmp_path_factory):
     out = tmp_path_factory.mktemp("run_copy") / paper_run.name
     shutil.copytree(paper_run, out)
     return out
+
+
+@pytest.fixture
+def no_run_reports():
+    """Scenario runs inside the test write their data alone, no run report or recording
+    (`scenarios.run_outputs.data_only`): for the tests of studies and the bench, which read rows and never a run
+    folder's plots (a falsification's worst/ replay, kept runs). tests/test_run_outputs.py tests when they are drawn."""
+    with data_only():
+        yield
 
 
 @pytest.fixture(scope="module")

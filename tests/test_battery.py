@@ -19,6 +19,9 @@ from softcbf.study.definition import Study, load_study
 from vocabulary.files import read_settings_file
 from vocabulary.project_files import project_file
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 REPO = Path(__file__).resolve().parents[1]
 
 

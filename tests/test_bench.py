@@ -19,6 +19,9 @@ from softcbf.cli import main
 from softcbf.study.analysis import clopper_pearson_upper, wilson_interval
 from softcbf_mj.outputs.runio import RUN_MARKER
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 CASE = {c.name: c for c in CASES}
 
 

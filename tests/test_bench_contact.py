@@ -12,6 +12,9 @@ from softcbf.study.analysis import clopper_pearson_upper
 from softcbf.study.definition import load_study
 from vocabulary.project_files import project_file
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 CASE = {c.name: c for c in CASES}
 BOX_CASES = ("mujoco_push_box", "camera_push_box")
 RECOMMENDED = FilterSpec("c-erg:recommended")

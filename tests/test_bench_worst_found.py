@@ -20,6 +20,9 @@ from softcbf.study import StudyStore, load_study
 from softcbf.study.falsify import default_population
 from softcbf.study.worst_found import BOX_FILE, BUDGET, QUICK_BUDGET, box_study
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 ROOT = Path(__file__).resolve().parents[1]
 CONTACT = next(c for c in CASES if c.name == "mujoco_contact")
 

@@ -147,7 +147,7 @@ def test_registered_with_documented_parameters():
 def _paper_sim(tmp_path, name, robot):
     out = tmp_path / f"{name}-{robot}"
     assert main(["run", "paper_sim", "--filter", name, "--robot", robot, "--duration", "5", "--frequency", "0.1",
-                 "--out", str(out), "--progress", "false"]) == 0
+                 "--out", str(out), "--progress", "false", "--data-only"]) == 0
     (row,) = read_run_folder(out).summary["runs"]
     series, _ = load_timeseries(out / row["timeseries"])
     return series

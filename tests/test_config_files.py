@@ -23,7 +23,9 @@ from vocabulary.settings import SETTINGS, setting
 from vocabulary.sections import joined
 
 ROOT = Path(__file__).resolve().parents[1]
-SHORT = ["--duration", "0.3", "--tunings", "Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
+# --data-only: these tests read config.json and the time series, not the plots (tests/test_run_outputs.py)
+SHORT = ["--duration", "0.3", "--tunings", "Low", "--amplitude", "150", "--frequency", "0.5", "--progress", "false",
+         "--data-only"]
 TIMING_COLUMNS = ("filter_us", "solve_us")  # wall-clock measurements, not outputs of the simulation
 # Former hardware key suffix → the unit its setting must be documented in.
 SUFFIX_UNITS = (("_N_per_m", "N/m"), ("_N", "N"), ("_s", "s"), ("_hz", "Hz"), ("_hPa", "hPa"))
@@ -164,7 +166,7 @@ def test_list_and_run_help_show_meaning_unit_and_valid_values(capsys):
         line = next(line for line in out.splitlines() if line.startswith(f"    --{name.replace('_', '-')} "))
         assert f": {SETTINGS[name].meaning}; valid: " in line
     assert "mujoco_contact" not in out
-    assert main(["run", "--config", str(ROOT / "docs" / "examples" / "run.toml"), "--help"]) == 0
+    assert main(["run", "--data-only", "--config", str(ROOT / "docs" / "examples" / "run.toml"), "--help"]) == 0
     out = capsys.readouterr().out
     assert "paper_sim: " in out and "mujoco_contact" not in out
     assert main(["run", "no_such", "--help"]) == USAGE_ERROR
@@ -180,7 +182,7 @@ def test_toml_run_configuration_with_command_line_overrides(tmp_path, capsys):
     assert loaded.params == {"duration": 0.2, "tunings": "None,Low", "progress": False, "amplitude": 150,
                              "filter_params": {"slack_weight": 1e4}}
     out = tmp_path / "out"
-    assert main(["run", "--config", str(config), "--tunings", "Low", "--filter-param", "recovery_margin=0.002",
+    assert main(["run", "--data-only", "--config", str(config), "--tunings", "Low", "--filter-param", "recovery_margin=0.002",
                  "--out", str(out)]) == 0
     params = json.loads((out / "config.json").read_text(encoding="utf-8"))["params"]
     assert params["duration"] == 0.2 and params["amplitude"] == 150.0 and params["tunings"] == "Low"
@@ -216,7 +218,7 @@ def test_scenario_and_config_must_agree(tmp_path, capsys):
 def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path, capsys):
     first, replay = tmp_path / "first", tmp_path / "replay"
     assert main(["run", "paper_sim", *SHORT, "--seed", "3", "--q0-std", "0.05", "--out", str(first)]) == 0
-    assert main(["run", "--config", str(first / "config.json"), "--out", str(replay)]) == 0
+    assert main(["run", "--data-only", "--config", str(first / "config.json"), "--out", str(replay)]) == 0
     configs = [json.loads((d / "config.json").read_text(encoding="utf-8")) for d in (first, replay)]
     assert configs[0]["params"] == configs[1]["params"] and configs[1]["params"]["seed"] == 3
     a, units_a = load_timeseries(first / "timeseries" / "Low.npz")
@@ -227,7 +229,7 @@ def test_replaying_a_run_folder_reproduces_its_time_series_bit_for_bit(tmp_path,
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     # a replay with an override is a different run
     other = tmp_path / "other"
-    assert main(["run", "--config", str(first / "config.json"), "--seed", "4", "--out", str(other)]) == 0
+    assert main(["run", "--data-only", "--config", str(first / "config.json"), "--seed", "4", "--out", str(other)]) == 0
     assert not np.array_equal(load_timeseries(other / "timeseries" / "Low.npz")[0]["q"], a["q"])
 
 
@@ -243,7 +245,7 @@ def test_a_stored_config_json_replays_to_its_stored_series(name, tmp_path, capsy
 
     stored = STORED_RUNS / name
     replay = tmp_path / "replay"
-    assert main(["run", "--config", str(stored / "config.json"), "--out", str(replay)]) == 0
+    assert main(["run", "--data-only", "--config", str(stored / "config.json"), "--out", str(replay)]) == 0
     capsys.readouterr()
     recorded = json.loads((stored / "config.json").read_text(encoding="utf-8"))
     params = json.loads((replay / "config.json").read_text(encoding="utf-8"))["params"]
@@ -263,7 +265,7 @@ def test_a_stored_config_json_replays_to_its_stored_series(name, tmp_path, capsy
                 np.testing.assert_allclose(a[column], b[column], rtol=1e-9, atol=1e-12, err_msg=column)
 
 
-TINY = ["--duration", "0.01", "--tunings", "None", "--progress", "false"]
+TINY = ["--duration", "0.01", "--tunings", "None", "--progress", "false", "--data-only"]
 
 
 def _warnings(err: str) -> list[str]:
@@ -277,13 +279,13 @@ def test_a_replay_on_other_versions_or_with_another_seed_warns_one_line_each(tmp
     assert main(["run", "paper_sim", *TINY, "--seed", "3", "--out", str(first)]) == 0
     config = first / "config.json"
     capsys.readouterr()
-    assert main(["run", "--config", str(config), "--out", str(tmp_path / "same"), "--seed", "3"]) == 0
+    assert main(["run", "--data-only", "--config", str(config), "--out", str(tmp_path / "same"), "--seed", "3"]) == 0
     assert _warnings(capsys.readouterr().err) == []  # the same versions, the recorded seed: a faithful replay
     recorded = json.loads(config.read_text(encoding="utf-8"))
     running = recorded["versions"]
     recorded["versions"] = {**running, "mujoco": "3.1.0", "numpy": "1.26.4"}
     config.write_text(json.dumps(recorded), encoding="utf-8")
-    assert main(["run", "--config", str(config), "--out", str(tmp_path / "other"), "--seed", "4"]) == 0
+    assert main(["run", "--data-only", "--config", str(config), "--out", str(tmp_path / "other"), "--seed", "4"]) == 0
     assert _warnings(capsys.readouterr().err) == [
         f"warning: {config} was recorded with mujoco 3.1.0, this is mujoco {running['mujoco']}: the replay may not be "
         "bit-identical to the recorded run",
@@ -293,7 +295,7 @@ def test_a_replay_on_other_versions_or_with_another_seed_warns_one_line_each(tmp
         "recorded run"]
     del recorded["versions"]
     config.write_text(json.dumps(recorded), encoding="utf-8")
-    assert main(["run", "--config", str(config), "--out", str(tmp_path / "unknown")]) == 0
+    assert main(["run", "--data-only", "--config", str(config), "--out", str(tmp_path / "unknown")]) == 0
     assert _warnings(capsys.readouterr().err) == [
         f"warning: {config} records no versions: the replay may not be bit-identical to the recorded run"]
     recorded["versions"] = "4.0.0"
@@ -306,7 +308,7 @@ def test_a_toml_run_configuration_gives_no_replay_warning(tmp_path, capsys):
     config = tmp_path / "run.toml"
     config.write_text('scenario = "paper_sim"\nduration = 0.01\ntunings = "None"\nprogress = false\nseed = 1\n',
                       encoding="utf-8")
-    assert main(["run", "--config", str(config), "--seed", "2", "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", "--data-only", "--config", str(config), "--seed", "2", "--out", str(tmp_path / "run")]) == 0
     assert _warnings(capsys.readouterr().err) == []
 
 

@@ -3,22 +3,21 @@ loop on the tests' PCC loop, on a plate that pushes back, through a detected vio
 scenario and in paper_sim's step case: results compared within stated tolerances, not a pin on floats.
 
 tests/data/eerg_references.npz holds every call's command and action and every tick's ρ and contact force
-(tools/eerg_references.py: the cases, how the file is regenerated when a change moves it, and the tolerances
+(tests/references/eerg_references.py: the cases, how the file is regenerated when a change moves it, and the tolerances
 COMMAND_TOL_HPA, RHO_TOL, FORCE_TOL_N with their derivation; actions exactly). Here each loop case runs over the
 first half of its duration (the loops are causal: its calls are a prefix of the stored ones; every case governs
-in that half); `python tools/eerg_references.py` checks the full durations.
+in that half); `python tests/references/eerg_references.py` checks the full durations.
 """
 
-import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("eerg_references", REPO / "tools" / "eerg_references.py")
-references = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(references)
+sys.path.insert(0, str(Path(__file__).parent))
+from references import eerg_references as references  # noqa: E402
+
 REFERENCE = references.load_references()
 
 # Closed loops of seconds of simulated time: the fast tier (-m "not slow") leaves them out.

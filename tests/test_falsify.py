@@ -26,6 +26,9 @@ from softcbf.study.report import write_report
 from softcbf.study.sequential import draws_needed, run_until_bound
 from softcbf_mj.outputs.runio import OutputDirError
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

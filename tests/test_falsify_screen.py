@@ -22,6 +22,9 @@ from softcbf.study.report import write_report
 from softcbf.study.screen import falsify_screened, ranked_candidates, screened_study
 from softcbf_mj.outputs.runio import OutputDirError
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -19,6 +19,9 @@ from softcbf.study import Distribution, Study
 from softcbf.study.falsify import falsify, summary
 from softcbf.study.screen import falsify_screened
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -29,6 +29,9 @@ from softcbf.study.report import write_report
 from softcbf.study.sequential import run_until_bound
 from softcbf_mj.outputs.runio import OutputDirError
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 PUSH = {"nominal": "step", "nominal_params": "seed=0;low_hPa=150;high_hPa=150"}
 FILTERS = textwrap.dedent('''
     import numpy as np

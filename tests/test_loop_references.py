@@ -2,11 +2,11 @@
 tuning: a result, compared within a stated tolerance, not a pin on floats.
 
 tests/data/loop_references.npz holds every 10th row of the wall-time-free columns of short runs
-(tools/loop_references.py: the cases, how the file is regenerated when a change moves it, and the tolerance
+(tests/references/loop_references.py: the cases, how the file is regenerated when a change moves it, and the tolerance
 RTOL, ATOL in each column's unit with its derivation). Boolean and integer columns must match exactly.
 """
 
-import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +16,9 @@ from scenarios import get
 from scenarios.common import data_only
 from softcbf_mj.outputs.runio import load_timeseries
 
-REPO = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("loop_references", REPO / "tools" / "loop_references.py")
-references = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(references)
+sys.path.insert(0, str(Path(__file__).parent))
+from references import loop_references as references  # noqa: E402
+
 CASES, COLUMNS, DECIMATE = references.CASES, references.COLUMNS, references.DECIMATE
 REFERENCE = np.load(references.REFERENCE_FILE)
 

@@ -15,6 +15,7 @@ import softcbf_mj.physics.mujoco_batch_plant  # noqa: F401
 import softcbf_mj.physics.mujoco_plant  # noqa: F401
 from controllers.model.params import reference_robot
 from scenarios import get
+from scenarios.run_outputs import data_only
 from softcbf_mj.physics.mjcf import ArmModelConfig, arm_xml
 
 SHORT = dict(duration=0.3, t0=25.0, tunings="None", progress=False)
@@ -34,7 +35,8 @@ def built(monkeypatch):
 
     def run(tmp_path, **params):
         tmp_path.mkdir(parents=True, exist_ok=True)
-        summary = get("mujoco_contact").run(tmp_path, **{**SHORT, **params})
+        with data_only():  # the figures and the model built, not the plots
+            summary = get("mujoco_contact").run(tmp_path, **{**SHORT, **params})
         return calls[-1], summary["runs"][0]
 
     return run

@@ -17,6 +17,7 @@ from controllers.model.params import reference_robot
 from controllers.model.pcc import tip_position
 from controllers.model.safe_set import paper_safe_set
 from scenarios import get
+from scenarios.run_outputs import data_only
 from softcbf_mj.outputs.runio import load_timeseries
 from test_scenarios import SPEC_RUN_FIELDS
 
@@ -32,7 +33,8 @@ CONTACT_FIELDS = ("force_solver_max_N", "t_contact_s", "contact_switches_per_s",
 def run(tmp_path_factory):
     """None and Low for 3 s (≈ 3–6 s wall), from a seeded, slightly bent start."""
     out = tmp_path_factory.mktemp("mujoco_contact")
-    get("mujoco_contact").run(out, duration=DURATION, tunings="None,Low", **START)
+    with data_only():  # the summary and the time series, not the plots
+        get("mujoco_contact").run(out, duration=DURATION, tunings="None,Low", **START)
     summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
     logs = {r["tuning"]: load_timeseries(out / r["timeseries"]) for r in summary["runs"]}
     return out, summary, logs
@@ -102,7 +104,8 @@ def test_unfiltered_arm_exceeds_f_max_and_low_holds_it(run):
 def test_same_seed_gives_identical_arrays(run, tmp_path):
     """A 1 s rerun of Low with the same seed (q0 perturbed by it) reproduces the first second exactly."""
     _, _, logs = run
-    get("mujoco_contact").run(tmp_path, duration=1.0, tunings="Low", **START)
+    with data_only():
+        get("mujoco_contact").run(tmp_path, duration=1.0, tunings="Low", **START)
     again, units = load_timeseries(tmp_path / "timeseries" / "Low.npz")
     first, _ = logs["Low"]
     for key in again:

@@ -58,7 +58,7 @@ SCRIPT = textwrap.dedent('''
     from softcbf_mj.env import ArmEnvConfig, GymArmEnv, make_environment
 
     tmp = Path(sys.argv[1])
-    quick = ["--duration", "0.02", "--tunings", "None", "--progress", "false", "--links-per-segment", "2"]
+    quick = ["--duration", "0.02", "--tunings", "None", "--progress", "false", "--links-per-segment", "2", "--data-only"]
     reached = {}
 
     results = {}
@@ -71,7 +71,7 @@ SCRIPT = textwrap.dedent('''
     reach("cli", lambda: main(["run", "mujoco_contact", "--true-mass-scale", "1.5", *quick, "--out", str(tmp / "cli")]))
     (tmp / "run.toml").write_text('scenario = "mujoco_contact"\\ntrue_mass_scale = 1.25\\nduration = 0.02\\n'
                                   'tunings = "None"\\nprogress = false\\nlinks_per_segment = 2\\n', encoding="utf-8")
-    reach("toml", lambda: main(["run", "--config", str(tmp / "run.toml"), "--out", str(tmp / "toml")]))
+    reach("toml", lambda: main(["run", "--config", str(tmp / "run.toml"), "--out", str(tmp / "toml"), "--data-only"]))
     recorded = json.loads((tmp / "toml" / "config.json").read_text(encoding="utf-8"))["params"]["true_mass_scale"]
     (tmp / "study.toml").write_text('name = "surfaces"\\nscenario = "mujoco_contact"\\ntunings = ["None"]\\ndraws = 1\\n'
                                     '[fixed]\\nduration = 0.02\\nlinks_per_segment = 2\\n'

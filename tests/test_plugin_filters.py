@@ -269,7 +269,7 @@ def test_cli_refuses_an_unknown_filter_parameter(tmp_path, clip_file, capsys):
 
 
 def test_paper_sim_custom_tuning_matches_its_preset(tmp_path):
-    common = ["--duration", "0.3", "--amplitude", "150", "--frequency", "0.5", "--progress", "false"]
+    common = ["--duration", "0.3", "--amplitude", "150", "--frequency", "0.5", "--progress", "false", "--data-only"]
     assert main(["run", "paper_sim", "--tunings", "Low", "--out", str(tmp_path / "a"), *common]) == 0
     assert main(["run", "paper_sim", "--tuning", "custom", "--filter-param", "a_E=2", "--filter-param", "b_E=2",
                  "--filter-param", "gamma=2", "--out", str(tmp_path / "b"), *common]) == 0

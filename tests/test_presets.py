@@ -23,7 +23,7 @@ from softcbf_mj.env import ArmEnvConfig
 
 REPO = Path(__file__).resolve().parents[1]
 RECOMMENDED_FILTER = {**RECOMMENDED, "stiffness_lo_ratio": 0.9, "stiffness_hi_ratio": 1.1}  # README, the bench's interval
-TINY = ["--duration", "0.01", "--progress", "false"]
+TINY = ["--duration", "0.01", "--progress", "false", "--data-only"]
 
 
 def test_the_recommended_preset_is_the_readme_setting_with_the_bench_plate_interval_on_every_surface(tmp_path):
@@ -63,7 +63,7 @@ def test_a_preset_runs_under_its_short_label_and_replays_to_it(tmp_path, capsys)
     assert [run["tuning"] for run in summary["runs"]] == ["c-erg:recommended"]
     assert summary["runs"][0]["filter"] == "c-erg:recommended" and summary["runs"][0]["filter_params"] == RECOMMENDED_FILTER
     assert [p.name for p in (out / "timeseries").iterdir()] == ["c-erg_recommended.npz"]
-    assert main(["run", "--config", str(out / "config.json"), "--out", str(replay)]) == 0
+    assert main(["run", "--config", str(out / "config.json"), "--out", str(replay), "--data-only"]) == 0
     again = json.loads((replay / "summary.json").read_text(encoding="utf-8"))
     assert again["params"]["filter_params"] == summary["params"]["filter_params"] == RECOMMENDED_FILTER
     assert [run["tuning"] for run in again["runs"]] == ["c-erg:recommended"]

@@ -23,6 +23,9 @@ from softcbf.study.analysis import (Proportion, clopper_pearson_interval, cloppe
                                     tuning_summary, wilson_interval)
 from softcbf.study.report import assumed_value, write_report
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 ROOT = Path(__file__).resolve().parents[1]
 TINY_TOML = """
 name = "tiny"

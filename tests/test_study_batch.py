@@ -15,6 +15,9 @@ from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, r
 from softcbf.study.execute import Task, group_tasks
 from softcbf.study.runner import batch_key
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 BATCH_FIGURES = ("rho_min_pred", "rho_min_meas", "force_max_N", "t_violation_s", "infeasible_steps", "u_peak_abs_hPa",
                  "sim_s")
 

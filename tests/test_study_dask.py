@@ -23,6 +23,9 @@ import softcbf.study.execute
 from softcbf.cli import main
 from softcbf.study import WALL_CLOCK_COLUMNS, Distribution, Study, StudyStore, run_study
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 STUDY = Study("kill", "mujoco_contact", ("None", "Low"), draws=4, seed=11, fixed={"t0": 25.0, "duration": 0.6},
               vary=(Distribution("plate_stiffness", "uniform", low=8.0, high=18.0),
                     Distribution("facet_offset", "uniform", low=-0.003, high=0.002)))

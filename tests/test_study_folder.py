@@ -21,6 +21,9 @@ from softcbf.study.execute import PARENT_POLL_S, pending_indices
 from softcbf.study.report import write_report
 from softcbf.study.store import CorruptPartError, part_name, read_part
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 ROOT = Path(__file__).resolve().parents[1]
 ORPHAN_GRACE_S = 5.0  # a worker of a killed driver must be gone by then (it polls every PARENT_POLL_S)
 

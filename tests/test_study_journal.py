@@ -22,6 +22,9 @@ from softcbf.study.store import JOURNAL_FILE, SQLITE_FILE, cut_incomplete_line, 
 from softcbf.study.tune import load_tune, tune
 from softcbf_mj.outputs.runio import OutputDirError
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 STUDY = Study("journal", "paper_sim", ("Low",), draws=1, seed=4, fixed={"duration": 0.2},
               vary=(Distribution("amplitude", "uniform", low=20.0, high=150.0),))
 STUDY_FILE = """name = "journal"

@@ -30,6 +30,9 @@ from softcbf.study.cli import main
 from softcbf.study.execute import SchedulerLostError
 from softcbf.study.store import JOURNAL_FILE, SQLITE_FILE, optuna_storage
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 REPO = Path(__file__).resolve().parents[1]
 STUDY = Study("lost", "paper_sim", ("Low",), draws=8, seed=3, fixed={"duration": 1.0},
               vary=(Distribution("amplitude", "uniform", low=20.0, high=150.0),))

@@ -4,8 +4,13 @@ start drew again the candidates of the search's first trials (seen in a resumed 
 
 from __future__ import annotations
 
+import pytest
+
 from softcbf.study import Distribution, Study, StudyStore
 from softcbf.study.falsify import falsify
+
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
 
 
 def test_a_resumed_tpe_falsification_asks_new_candidates(tmp_path):

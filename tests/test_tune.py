@@ -20,6 +20,9 @@ from softcbf.study.definition import Distribution
 from softcbf.study.tune import (UNSAFE_OFFSET, evaluation_record, load_tune, nominal_value, told_value, tune,
                                 typed_setting)
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 CLIP = '''
 import numpy as np
 

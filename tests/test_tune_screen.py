@@ -19,6 +19,9 @@ from softcbf.study.store import StudyStore
 from softcbf.study.tune import evaluation_record, load_tune, told_value, tune, UNSAFE_OFFSET
 from test_study_journal import CLIP  # a user's filter file: clips u_nom to ±limit_hPa
 
+# Their scenario runs write the data alone (conftest.no_run_reports): they read rows, never a run's plots.
+pytestmark = pytest.mark.usefixtures("no_run_reports")
+
 
 def tune_file(tmp_path: Path, low: float, high: float) -> Path:
     plugin = tmp_path / "clip.py"

@@ -18,8 +18,8 @@ every DECIMATE-th step.
 The stored file (REFERENCE_FILE) is a result, not a pin on floats: a change that moves the commands regenerates
 it once, after measuring how far they moved (which goes to the CHANGELOG):
 
-    python tools/eerg_references.py --reference tests/data/eerg_references.npz   # before: the movement, per case
-    python tools/eerg_references.py --write tests/data/eerg_references.npz       # then: the new results
+    python tests/references/eerg_references.py --reference tests/data/eerg_references.npz   # before: the movement, per case
+    python tests/references/eerg_references.py --write tests/data/eerg_references.npz       # then: the new results
 
 Without --write it compares the current tree with the stored file(s) (default: REFERENCE_FILE; several are
 merged): prints each case's max |Δu| (hPa), the number of differing actions and the figures' differences; ends
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 REFERENCE_FILE = REPO / "tests" / "data" / "eerg_references.npz"
 ACTIONS = ("free", "governed", "hold", "recover", "stale", "nominal", "backtrack", "rate_dropped", "vent", "")  # e-erg, qsg
 DECIMATE = 10
@@ -137,7 +137,7 @@ def run_scenario_case(name: str, scale: float = 1.0) -> dict[str, np.ndarray]:
     """One SCENARIO_CASES case over `scale` × its duration: the recorded columns u (steps, N) hPa, rho (steps,) and
     force (the contact_force column, N)."""
     from scenarios import get
-    from scenarios.common import data_only
+    from scenarios.run_outputs import data_only
     from softcbf_mj.outputs.runio import load_timeseries
 
     scenario, params = SCENARIO_CASES[name]

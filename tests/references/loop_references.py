@@ -9,8 +9,8 @@ filter_us are left out) in one compressed .npz: key "<case>/<tuning>/<column>".
 The stored file is a result, not a pin on floats: a change that moves these series regenerates it once and says
 in the CHANGELOG how far the figures moved (commands, ρ, force), measured with --compare before and after:
 
-    python tools/loop_references.py /tmp/new.npz
-    python tools/loop_references.py --compare tests/data/loop_references.npz /tmp/new.npz
+    python tests/references/loop_references.py /tmp/new.npz
+    python tests/references/loop_references.py --compare tests/data/loop_references.npz /tmp/new.npz
     cp /tmp/new.npz tests/data/loop_references.npz
 
 The test compares a fresh run with the file within RTOL and ATOL (each column's unit: hPa, rad, N, 1, ...),
@@ -38,7 +38,7 @@ CASES = {
     "camera_loop": ("camera_loop", dict(duration=1.5, tunings="None,HW-Low,HW-High", amplitude=150.0, frequency=0.25,
                                         t0=1.0, saved_frames_hz=0.0, width=640, height=360)),
 }
-REFERENCE_FILE = Path(__file__).resolve().parents[1] / "tests" / "data" / "loop_references.npz"
+REFERENCE_FILE = Path(__file__).resolve().parents[1] / "data" / "loop_references.npz"
 RTOL, ATOL = 1e-9, 1e-6
 """The test's tolerance per column (relative, and absolute in the column's unit). The rounding of the filter's QP
 moves these closed loops by ≈ 1e-8 hPa (the batched kernel replacing the scalar QP at one state moved u_applied by at
@@ -49,7 +49,7 @@ below any figure the tests or the docs report (ρ to 1e-3, forces to 1e-3 N, com
 def run_cases() -> tuple[dict[str, np.ndarray], dict[str, dict]]:
     """Every case: the stored arrays ("<case>/<tuning>/<column>") and each run's figures."""
     from scenarios import get
-    from scenarios.common import data_only
+    from scenarios.run_outputs import data_only
     from softcbf_mj.outputs.runio import load_timeseries
 
     arrays: dict[str, np.ndarray] = {}
@@ -97,7 +97,7 @@ def main(argv: list[str]) -> int:
         print(json.dumps({"old": argv[1], "new": argv[2], "columns": result}))
         return 0
     if len(argv) != 1:
-        print("usage: python tools/loop_references.py OUT.npz | --compare OLD.npz NEW.npz", file=sys.stderr)
+        print("usage: python tests/references/loop_references.py OUT.npz | --compare OLD.npz NEW.npz", file=sys.stderr)
         return 2
     arrays, figures = run_cases()
     np.savez_compressed(argv[0], **arrays)
