@@ -9,7 +9,7 @@ FMA contraction, so each IEEE operation happens in the order written and a row's
 the other rows. They are checked against their definitions, not against old floats: the look-ups against
 plain Python evaluations within rounding (tests/test_energy_kernels.py), the table against a brute-force
 minimisation (tests/test_energy_governor.py), the governors' commands against stored references within a
-stated tolerance (tools/eerg_references.py). The module imports numba: its users load it lazily
+stated tolerance (tests/references/eerg_references.py). The module imports numba: its users load it lazily
 (`controllers.core.lazy_import`), so `softcbf list` never does.
 
 `escape_values(u, mode, table, flat, bound, lengths, gain, inverse_root_k, below)`, Γ̲_j(u) (J)

@@ -11,7 +11,7 @@ n_i(r) = max(n̂_i·r − d_i, 0) the facets' penetrations (m) at the model's ti
 LinearStiffness ψ(n) = k n (law 0) or PowerLawStiffness ψ(n) = k n^p (law 1). The arithmetic is that
 of the per-step Python loop it replaces (the same kernels for the model terms, the acceleration and the
 two ROS2 stages; the plate's force, torque and M⁻¹τ summed in the same order), so with a linear ψ the
-predicted state is the same floats (tests/test_energy_governor.py compares the two; tools/eerg_references.py
+predicted state is the same floats (tests/test_energy_governor.py compares the two; tests/references/eerg_references.py
 the governor's commands); with a power law n^p is numba's pow, which may differ from numpy's in the last
 bit (≤ 7e-16 rad after 80 steps in that test: far below the prediction's own error against the plant,
 ≈ 5e-4 rad, which κ is there for).

@@ -63,7 +63,7 @@ Version history (a new id for changed behaviour, as Gymnasium versions its envir
 registered):
 - v1: the paper CBF filter's calls run its batched kernel (`controllers.cbf.paper_filter`), whose QP is exact to rounding
   where the scalar QP stopped at its tolerance: the commands of a run move by rounding, which a closed loop can
-  carry further (2.2e-8 hPa at most in the reference loops of tools/loop_references.py; CHANGELOG.md).
+  carry further (2.2e-8 hPa at most in the reference loops of tests/references/loop_references.py; CHANGELOG.md).
 - v0: the first release.
 """
 

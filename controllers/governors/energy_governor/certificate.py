@@ -63,7 +63,7 @@ Measured (mujoco_contact, push asking 1.2 F_max, 6 s; `softcbf bench`): exact mo
 plate stiffness within ±10 % (n_max = ψ⁻¹(F_max/1.1)): 0.841 F_max, ρ_meas 0.159.
 
 Actuator gain (`gain_lo_ratio`, `gain_hi_ratio`; contact certificate only; default 1, 1: the model's λ, the
-commands bit for bit those without the interval: tools/eerg_references.py). The true arm's gains are g·λ_i,
+commands bit for bit those without the interval: tests/references/eerg_references.py). The true arm's gains are g·λ_i,
 one unknown scale g ∈ [g_lo, g_hi] for every segment (dimensionless; the bench's camera_mismatch draws g
 from U(0.9, 1.1)). Only two things change with g: the true rest shape q_u(g) = K⁻¹(gΛ)u = g·q_u (rad), and
 the lag weights, β_i(g) = τ_p (gλ_i)²/(4d_i) = g²β_i (J/hPa²), the derivation of Ẇ ≤ 0 above with gΛ in place

@@ -76,7 +76,7 @@ B governors at once. A ray is skipped when no end point of it can come nearer th
 than the best so far (`ray_may_come_nearer`, with a rounding slack), and the state's energy
 and ρ skip the array kinematics when the tip is clear of the plate (`state_energy`). The
 commands are checked against stored references within a stated tolerance
-(tests/test_energy_governor_references.py, `python tools/eerg_references.py`).
+(tests/test_energy_governor_references.py, `python tests/references/eerg_references.py`).
 """
 
 from __future__ import annotations
