@@ -115,3 +115,21 @@ def test_any_constraint_forces_of_several_contacts_give_mj_contact_forces(cone):
         state = plant.state()
         assert state.extras["force_solver_N"].tobytes() == np.array(normal).tobytes()
         assert state.extras["force_tangential_N"].tobytes() == np.array(tangential).tobytes()
+
+
+def test_the_contact_kernel_loads_at_reset_before_any_contact():
+    """A fresh process: the plant's reset away from the plate loads `plate_contacts` (numba: from its cache, or
+    compiled), so a loop's first contact does not stall a real-time loop on it (tests/test_hardware_warm_up.py)."""
+    import subprocess
+    import sys
+
+    script = ("import numpy as np\n"
+              "from softcbf_mj.physics.mjcf import ArmModelConfig, build_model\n"
+              "from softcbf_mj.physics.mujoco_plant import MujocoPlant\n"
+              "from softcbf_mj.physics import plant_kernel\n"
+              "plant = MujocoPlant(build_model(ArmModelConfig()))\n"
+              "plant.reset(np.zeros(plant.n_segments))\n"
+              "print(plant.data.ncon, len(plant_kernel.plate_contacts.signatures))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["0", "1"]

@@ -301,6 +301,7 @@ class MujocoPlant:
         self.data.act[self.act_adr[dynamic]] = u0[dynamic]
         self._forward()
         self._friction_power = 0.0
+        self._load_contact_kernel()
         return self.state()
 
     def step(self, u: np.ndarray) -> PlantState:
@@ -428,7 +429,15 @@ class MujocoPlant:
             raise ValueError(f"{name} must be finite, got {arr.tolist()}")
         return arr
 
-    def _plate_contacts(self, normal: np.ndarray, tangential: np.ndarray, points: bool) -> np.ndarray | None:
+    def _load_contact_kernel(self) -> None:
+        """Run `plant_kernel.plate_contacts` once over the current contact list, empty or not (`_plate_contacts`
+        with `always`), into scratch arrays: numba loads it (or compiles it, on a cold cache) here, before a loop
+        starts, not at the loop's first contact, where it stalled a real-time loop (the emulated board's watchdog
+        vented: tests/test_hardware_warm_up.py). The contact list's fields have the same array types at any length."""
+        self._plate_contacts(np.zeros(self.n_facets), np.zeros(self.n_facets), False, always=True)
+
+    def _plate_contacts(self, normal: np.ndarray, tangential: np.ndarray, points: bool,
+                        always: bool = False) -> np.ndarray | None:
         """Per facet, MuJoCo's contact forces between the arm and the plate (`mj_contactForce`'s), written into
         `normal` and `tangential` ((P,) N, zeros on entry): the summed normal force and the magnitude of the
         summed tangential force. Returns, with `points`, the sheet-surface point (world x, y, m; (P, 2)) of each
@@ -436,10 +445,11 @@ class MujocoPlant:
 
         One compiled call over the contact list's fields (`plant_kernel.plate_contacts`): each read of a field
         of MuJoCo's contact list, and each `mj_contactForce` call, builds an array in MuJoCo's bindings, so the
-        fields are read once a period as whole arrays (dist and pos only for the points)."""
+        fields are read once a period as whole arrays (dist and pos only for the points); `always`: the kernel runs
+        also over an empty list (`_load_contact_kernel`)."""
         data = self.data
         where = np.full((self.n_facets, 2), np.nan) if points else self._no_points
-        if not data.ncon:  # no contact: the list's wrapper and its fields are not built
+        if not data.ncon and not always:  # no contact: the list's wrapper and its fields are not built
             return where if points else None
         contact = data.contact  # MuJoCo's contact list, ncon long
         dist, pos = (contact.dist, contact.pos) if points else (self._no_dist, self._no_points)
